@@ -1,0 +1,31 @@
+# oscar — the two set-up commands are `make demo` and `make test`.
+PYTHON ?= python3
+PIP := $(PYTHON) -m pip
+STAMP := .make/installed
+OUT ?= demo_out
+
+.PHONY: install demo test test-fast bench clean
+
+install: $(STAMP)
+
+# torch is pinned here (the CPU build installs from local disk in seconds);
+# the package metadata accepts a range.
+$(STAMP): pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.txt
+	$(PIP) install -r requirements-ci.txt
+	$(PIP) install -e ".[dev]" -e examples/oscar-toyarm
+	@mkdir -p .make && touch $(STAMP)
+
+demo: install
+	$(PYTHON) -m oscar_core.cli demo --out $(OUT)
+
+test: install
+	$(PYTHON) -m pytest -q
+
+test-fast: install
+	$(PYTHON) -m pytest -q -m "not slow"
+
+bench: install
+	$(PYTHON) benchmarks/render.py
+
+clean:
+	rm -rf .make $(OUT) golden-results benchmarks/results

@@ -1,0 +1,158 @@
+"""Skeleton-video rendering speed: oscar's batched pipeline against the naive way.
+
+    python benchmarks/render.py [--repeats 7] [--json benchmarks/results/render.json]
+
+For 81-frame trajectories at 512x288 and 1280x704, on one CPU core
+(torch, OpenCV and BLAS limited to one thread), it times per frame:
+FK, projection, rasterisation and H.264 encoding, and the same job done the
+naive way (yourdfpy FK frame by frame, cv2.projectPoints and a fresh canvas
+per frame). Prints a table and writes JSON. Timings on shared machines
+swing; compare the ratios within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(var, "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
+from oscar_core.camera import project  # noqa: E402
+from oscar_core.render import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
+from oscar_core.video import write_video  # noqa: E402
+
+SIZES = ((512, 288), (1280, 704))
+
+
+def best_and_median(fn, repeats: int) -> tuple[float, float]:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), statistics.median(times)
+
+
+def naive_render(urdf_path, emb, traj, cam, size):
+    """yourdfpy FK per frame, cv2.projectPoints per frame, lines and circles on a new canvas."""
+    import yourdfpy
+
+    robot = yourdfpy.URDF.load(str(urdf_path), load_meshes=False, build_scene_graph=True,
+                               load_collision_meshes=False, build_collision_scene_graph=False)
+    q_full = emb.full_configuration(traj)
+    links = list(emb.skeleton.links)
+    offsets = emb.skeleton.point_offsets()
+    edges = emb.edge_index()
+    pc, ec = emb.colors()
+    T_cv_world = cam.world_to_cv()
+    rvec, _ = cv2.Rodrigues(T_cv_world[:3, :3])
+    tvec = T_cv_world[:3, 3]
+    K = cam.intrinsics.matrix()
+    dist = np.array(cam.intrinsics.distortion or [0, 0, 0, 0], float)
+    W, H = size
+    scale = min(W, H) / 288
+    thick, rad = max(1, round(2 * scale)), max(1, round(3 * scale))
+    frames = []
+    for t in range(len(traj)):
+        robot.update_cfg(q_full[t])
+        pts = np.array([(robot.get_transform(l, robot.base_link) @ np.append(o, 1.0))[:3] for l, o in zip(links, offsets)])
+        uv, _ = cv2.projectPoints(pts, rvec, tvec, K, dist)
+        uv = uv.reshape(-1, 2)
+        img = np.zeros((H, W, 3), np.uint8)
+        for e, (a, b) in enumerate(edges):
+            cv2.line(img, tuple(int(round(v)) for v in uv[a]), tuple(int(round(v)) for v in uv[b]),
+                     tuple(int(c) for c in ec[e]), thick, cv2.LINE_AA)
+        for k in range(len(links)):
+            cv2.circle(img, tuple(int(round(v)) for v in uv[k]), rad, tuple(int(c) for c in pc[k]), -1, cv2.LINE_AA)
+        frames.append(img)
+    return np.stack(frames)
+
+
+def bench_embodiment(name: str, repeats: int) -> list[dict]:
+    emb = get_embodiment(name)
+    traj = emb.check_trajectory(load_trajectory(emb.example_trajectory))
+    base_cam = load_camera(emb.example_camera)
+    T = len(traj)
+    rows = []
+    for size in SIZES:
+        cam = base_cam.resized(*size)
+        frames = emb.frames(traj)
+        fk_s, fk_m = best_and_median(lambda: emb.frames(traj), repeats)
+
+        def do_project():
+            p = project(frames.points, cam, mount_pose=frames.mount_pose)
+            g = project(frames.gripper_points, cam, mount_pose=frames.mount_pose)
+            return p, g
+
+        proj_s, proj_m = best_and_median(do_project, repeats)
+        p, g = do_project()
+        marks = GripperMarks(g.uv, g.in_front, frames.openness)
+        pc, ec = emb.colors()
+        edges = emb.edge_index()
+        style = SkeletonStyle()
+        raster = lambda: rasterise(p.uv, p.in_front, edges, size, edge_colors=ec, point_colors=pc, grippers=marks, style=style)  # noqa: E731
+        ras_s, ras_m = best_and_median(raster, repeats)
+        video = raster()
+        with tempfile.TemporaryDirectory() as tmp:
+            enc_s, enc_m = best_and_median(lambda: write_video(Path(tmp) / "b.mp4", video, traj.fps), max(2, repeats // 2))
+            mp4_kb = (Path(tmp) / "b.mp4").stat().st_size / 1024
+        naive_s, naive_m = best_and_median(lambda: naive_render(emb.tree.source, emb, traj, cam, size), max(2, repeats // 3))
+        pipeline = fk_s + proj_s + ras_s
+        rows.append({
+            "embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": T, "points": len(emb.skeleton.links),
+            "fk_us": fk_s / T * 1e6, "project_us": proj_s / T * 1e6, "raster_us": ras_s / T * 1e6,
+            "encode_us": enc_s / T * 1e6,
+            "pipeline_fps": T / pipeline, "pipeline_with_h264_fps": T / (pipeline + enc_s),
+            "naive_us": naive_s / T * 1e6, "naive_fps": T / naive_s, "speedup_vs_naive": naive_s / pipeline,
+            "mp4_kb": mp4_kb,
+            "median_pipeline_fps": T / (fk_m + proj_m + ras_m),
+        })
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--embodiments", nargs="*", help="default: every registered embodiment with a bundled example")
+    ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "render.json"))
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
+    from oscar_core import default_registry
+
+    reg = default_registry()
+    names = args.embodiments or [n for n in reg.names() if reg.get(n).example_trajectory is not None]
+    rows = [r for n in names for r in bench_embodiment(n, args.repeats)]
+    cols = [("embodiment", "{}"), ("size", "{}"), ("points", "{}"), ("fk_us", "{:.1f}"), ("project_us", "{:.1f}"),
+            ("raster_us", "{:.1f}"), ("encode_us", "{:.0f}"), ("pipeline_fps", "{:.0f}"),
+            ("pipeline_with_h264_fps", "{:.0f}"), ("naive_fps", "{:.0f}"), ("speedup_vs_naive", "{:.1f}x")]
+    table = [[c for c, _ in cols]] + [[f.format(r[c]) for c, f in cols] for r in rows]
+    widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
+    print("per-frame costs in microseconds, 81-frame trajectories, one CPU thread (best of repeats)")
+    for row in table:
+        print("  ".join(v.rjust(w) for v, w in zip(row, widths)))
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
+            "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,48 @@
+"""oscar: skeleton-conditioned video world models for any robot body.
+
+The public API is re-exported here; submodules load on first use so that
+``import oscar_core`` (and the pytest plugin) stays fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+_EXPORTS = {
+    # plugin contract
+    "hookimpl": "hookspecs", "hookspec": "hookspecs",
+    "Embodiment": "embodiment", "Gripper": "embodiment", "CameraSpec": "embodiment",
+    "SkeletonFrames": "embodiment", "JointLimitWarning": "embodiment",
+    "Skeleton": "skeleton",
+    "Registry": "registry", "default_registry": "registry", "get_embodiment": "registry",
+    # kinematics
+    "KinematicTree": "urdf", "build_tree_from_urdf": "urdf", "build_tree_from_xacro": "urdf",
+    "ForwardKinematics": "kinematics",
+    # trajectories and cameras
+    "Trajectory": "trajectory", "load_trajectory": "trajectory", "save_trajectory": "trajectory",
+    "Camera": "camera", "Intrinsics": "camera", "load_camera": "camera", "save_camera": "camera", "project": "camera",
+    # rendering and video
+    "SkeletonStyle": "render", "GripperMarks": "render", "rasterise": "render",
+    "render_skeleton_video": "pipeline", "overlay_skeleton": "pipeline",
+    "write_video": "video", "read_video": "video",
+    # errors
+    "OscarError": "errors", "InputFileError": "errors", "CameraFileError": "errors", "KinematicsFileError": "errors",
+    "TrajectoryError": "errors", "OutputPathError": "errors", "PluginError": "errors",
+}
+
+__all__ = sorted(_EXPORTS) + ["__version__"]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'oscar_core' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__

@@ -1,0 +1,78 @@
+"""The main job on bundled defaults: render every embodiment's example."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import atomic_output, atomic_write_bytes
+from .camera import load_camera
+from .pipeline import render_skeleton_video
+from .registry import Registry
+from .trajectory import load_trajectory
+from .video import write_video
+
+__all__ = ["run_demo", "contact_sheet"]
+
+
+def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4) -> np.ndarray:
+    """One PNG-ready image: per row, ``columns`` evenly spaced frames of a (T, H, W, 3) video.
+
+    Rows of different sizes are placed on a grid of the largest frame size.
+    """
+    H = max(r.shape[1] for r in rows)
+    W = max(r.shape[2] for r in rows)
+    sheet = np.full((len(rows) * (H + gap) + gap, columns * (W + gap) + gap, 3), 40, np.uint8)
+    for i, video in enumerate(rows):
+        picks = np.linspace(0, len(video) - 1, columns).round().astype(int)
+        for j, t in enumerate(picks):
+            f = video[t]
+            y, x = gap + i * (H + gap), gap + j * (W + gap)
+            sheet[y:y + f.shape[0], x:x + f.shape[1]] = f
+    return sheet
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    with atomic_output(path) as tmp:
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(image[..., ::-1])):
+            raise OSError(f"could not encode {path}")
+
+
+def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: Registry | None = None,
+             names: list[str] | None = None, log=print) -> dict:
+    """Render each embodiment's bundled example to ``out_dir/<name>.mp4`` plus ``contact_sheet.png``.
+
+    Returns a summary dict (also written as ``out_dir/summary.json``).
+    """
+    registry = registry or Registry()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows, summary = [], {"size": list(size), "videos": [], "skipped": []}
+    for name in names or registry.names():
+        emb = registry.get(name)
+        if emb.example_trajectory is None or emb.example_camera is None:
+            summary["skipped"].append({"embodiment": name, "reason": "no bundled example"})
+            continue
+        traj = load_trajectory(emb.example_trajectory)
+        cam = load_camera(emb.example_camera)
+        t0 = time.perf_counter()
+        video = render_skeleton_video(emb, traj, cam, size, camera_source=str(emb.example_camera))
+        t_render = time.perf_counter() - t0
+        path = write_video(out_dir / f"{name}.mp4", video, traj.fps)
+        rows.append(video)
+        summary["videos"].append({"embodiment": name, "path": str(path), "frames": len(video),
+                                  "render_seconds": round(t_render, 4)})
+        log(f"{name}: {len(video)} frames -> {path} (rendered in {t_render * 1000:.0f} ms)")
+    if not rows:
+        raise RuntimeError(f"no embodiment with a bundled example; registered: {registry.names()}")
+    sheet_path = out_dir / "contact_sheet.png"
+    _write_png(sheet_path, contact_sheet(rows))
+    summary["contact_sheet"] = str(sheet_path)
+    atomic_write_bytes(out_dir / "summary.json", json.dumps(summary, indent=2).encode())
+    log(f"contact sheet -> {sheet_path}")
+    return summary

@@ -1,0 +1,85 @@
+"""From a trajectory to a skeleton video: FK → projection → rasterisation."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera, project
+from .embodiment import Embodiment
+from .render import GripperMarks, SkeletonStyle, rasterise
+from .trajectory import Trajectory
+
+__all__ = ["render_skeleton_video", "overlay_skeleton", "parse_size", "SkeletonProjection", "project_skeleton"]
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"512x288"`` → (512, 288) (width, height in pixels)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size: expected WIDTHxHEIGHT such as 512x288, found {text!r}") from None
+    if w < 2 or h < 2:
+        raise ValueError(f"--size: expected a size of at least 2x2 pixels, found {text!r}")
+    return w, h
+
+
+@dataclass(frozen=True)
+class SkeletonProjection:
+    """Pixel-space inputs of the rasteriser for one trajectory.
+
+    uv: (T, K, 2) pixels; usable: (T, K) bool (finite and in front of the
+    camera: points off the image still anchor clipped segments);
+    grippers: indicator positions and openness.
+    """
+
+    uv: np.ndarray
+    usable: np.ndarray
+    grippers: GripperMarks
+
+
+def project_skeleton(embodiment: Embodiment, traj: Trajectory, camera: Camera, device="cpu") -> SkeletonProjection:
+    """FK and projection of a checked trajectory through ``camera`` (already sized)."""
+    frames = embodiment.frames(traj, device=device)
+    pts = project(frames.points, camera, mount_pose=frames.mount_pose)
+    g = project(frames.gripper_points, camera, mount_pose=frames.mount_pose)
+    marks = GripperMarks(uv=g.uv, visible=g.in_front, openness=frames.openness)
+    return SkeletonProjection(pts.uv, pts.in_front, marks)
+
+
+def render_skeleton_video(embodiment: Embodiment, traj: Trajectory, camera: Camera, size: tuple[int, int] | None = None, *,
+                          style: SkeletonStyle | None = None, resize_mode: str = "crop", device="cpu",
+                          camera_source: str = "<camera>") -> np.ndarray:
+    """Render ``traj`` of ``embodiment`` seen by ``camera``.
+
+    size: output (width, height) pixels; the camera's intrinsics are rescaled
+    (``resize_mode`` "crop": centre crop to the aspect ratio, then scale;
+    "stretch") from the calibration's image size. None keeps the calibration size.
+    returns: (T, H, W, 3) uint8 RGB skeleton video on black.
+    """
+    traj = embodiment.check_trajectory(traj)
+    embodiment.check_camera(camera, camera_source)
+    if size is not None and (size[0], size[1]) != (camera.intrinsics.width, camera.intrinsics.height):
+        camera = camera.resized(size[0], size[1], mode=resize_mode)
+    proj = project_skeleton(embodiment, traj, camera, device=device)
+    point_colors, edge_colors = embodiment.colors()
+    return rasterise(proj.uv, proj.usable, embodiment.edge_index(),
+                     (camera.intrinsics.width, camera.intrinsics.height),
+                     edge_colors=edge_colors, point_colors=point_colors, grippers=proj.grippers,
+                     style=style or SkeletonStyle())
+
+
+def overlay_skeleton(skeleton: np.ndarray, rgb: np.ndarray, alpha: float = 0.8) -> np.ndarray:
+    """Blend a skeleton video over real frames to check a calibration.
+
+    skeleton, rgb: (T, H, W, 3) uint8 of the same shape. Where the skeleton is
+    drawn its colour covers the frame with weight ``alpha`` × its brightness
+    (so anti-aliased edges blend smoothly); black pixels leave the frame as is.
+    """
+    if skeleton.shape != rgb.shape:
+        raise ValueError(f"overlay: expected frames of shape {skeleton.shape}, found {rgb.shape}")
+    s = skeleton.astype(np.float32)
+    w = alpha * (s.max(axis=-1, keepdims=True) / 255.0)
+    out = rgb.astype(np.float32) * (1.0 - w) + s * w
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
