@@ -133,6 +133,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
     d.add_argument("--size", default="512x288", help="output WIDTHxHEIGHT (default 512x288)")
     d.set_defaults(func=cmd_demo)
+
+    from .metrics.cli import add_eval_parser
+
+    add_eval_parser(sub)
     return p
 
 

@@ -1,0 +1,48 @@
+"""Evaluation metrics: policy-evaluation fidelity and video quality.
+
+* :mod:`oscar_core.metrics.policy` — MMRV (SIMPLER's and the paper's rank
+  form), Spearman ρ, Pearson r, SISR_Δ, and Bradley–Terry–Davidson scores.
+* :mod:`oscar_core.metrics.video` — PSNR, SSIM, LPIPS, tLPIPS, latent L2,
+  Fréchet distances (FVD / FID) with user-supplied networks.
+* :mod:`oscar_core.metrics.cli` — the ``oscar eval`` sub-commands.
+
+Names are re-exported here flat; submodules load on first use, so importing
+this package does not import torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "MetricInputError": "_common",
+    # policy evaluation
+    "mmrv_simpler": "policy", "mmrv_rank": "policy", "spearman_rho": "policy", "pearson_r": "policy",
+    "sisr_delta": "policy", "average_ranks": "policy", "success_rates": "policy",
+    "PolicyComparison": "policy", "compare_policies": "policy",
+    "Preference": "policy", "parse_preference": "policy", "BradleyTerryResult": "policy",
+    "BradleyTerryWarning": "policy", "fit_bradley_terry": "policy",
+    # video quality
+    "psnr": "video", "ssim": "video", "lpips": "video", "tlpips": "video", "latent_l2": "video",
+    "feature_statistics": "video", "frechet_distance": "video", "frechet_distance_from_features": "video",
+    "fvd": "video", "fid": "video", "video_features": "video", "frame_features": "video",
+    "load_torchscript": "video", "Clip": "video", "VideoReport": "video", "evaluate_videos": "video",
+    "DEFAULT_FRAMES": "video", "load_video": "video",
+    # CLI glue
+    "add_eval_parser": "cli",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'oscar_core.metrics' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__

@@ -1,0 +1,706 @@
+"""Video quality of world-model rollouts against ground truth.
+
+The OSCAR paper (Sec. "Experimental Settings", Tables 1–2 and the
+per-embodiment tables of the Appendix) reports reconstruction quality (PSNR,
+SSIM, LPIPS), temporal coherence (tLPIPS), distribution fidelity (FVD, FID,
+latent L2), computed on the **first 49 frames** of every clip ("following the
+Kinema4D protocol"); ``n_frames`` defaults to :data:`DEFAULT_FRAMES` = 49
+everywhere here and ``None`` uses every frame.
+
+Videos
+------
+A video is an array ``(T, H, W, 3)``: ``uint8`` in [0, 255] or floating point
+in [0, 1] (RGB; a torch tensor of that layout is accepted too). A prediction
+and its ground truth must have the same height and width (resize beforehand;
+nothing is resized silently) and at least ``n_frames`` frames each; both are
+cut to their first ``n_frames`` frames.
+
+Networks are arguments
+----------------------
+LPIPS, the VAE of latent L2 and the FVD / FID feature extractors are passed in
+by the caller — a Python callable (e.g. an ``lpips.LPIPS`` instance, a
+``torch.nn.Module``) or a path to a TorchScript file loaded with
+``torch.jit.load`` (e.g. the standard ``i3d_torchscript.pt``). Nothing is
+downloaded. Their input conventions are stated in each function.
+
+Per-frame functions (:func:`psnr`, :func:`ssim`, :func:`lpips`,
+:func:`tlpips`) return one value per frame (per step for tLPIPS); a clip's
+score is their mean. :func:`evaluate_videos` computes everything for a list
+of :class:`Clip` s, with per-clip rows, aggregates, and a per-embodiment
+breakdown when clips carry an ``embodiment`` tag.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._common import MetricInputError, nan_to_none
+
+__all__ = [
+    "DEFAULT_FRAMES",
+    "psnr",
+    "ssim",
+    "lpips",
+    "tlpips",
+    "latent_l2",
+    "feature_statistics",
+    "frechet_distance",
+    "frechet_distance_from_features",
+    "video_features",
+    "frame_features",
+    "fvd",
+    "fid",
+    "load_torchscript",
+    "Clip",
+    "VideoReport",
+    "evaluate_videos",
+    "load_video",
+]
+
+#: Frames compared per clip: the paper's "first 49 frames" (Kinema4D protocol).
+DEFAULT_FRAMES = 49
+
+#: Keyword arguments the StyleGAN-V ``i3d_torchscript.pt`` is called with: the
+#: input is already resized and scaled to [-1, 1]; return the 400 pre-softmax features.
+I3D_CALL_KWARGS = {"rescale": False, "resize": False, "return_features": True}
+#: Keyword arguments of the StyleGAN2-ADA ``inception-2015-12-05.pt``: 2048-d pool features.
+INCEPTION_CALL_KWARGS = {"return_features": True}
+
+
+# --------------------------------------------------------------------------- #
+# input checks
+# --------------------------------------------------------------------------- #
+def _as_array(video, source: str) -> np.ndarray:
+    if hasattr(video, "detach") and hasattr(video, "cpu"):  # torch tensor
+        video = video.detach().cpu().numpy()
+    if not isinstance(video, np.ndarray):
+        raise MetricInputError(source, "type", "a (T, H, W, 3) array or tensor", type(video).__name__)
+    if video.ndim != 4 or video.shape[-1] != 3:
+        raise MetricInputError(source, "shape", "(T, H, W, 3) RGB frames", f"shape {video.shape}")
+    if video.dtype == np.uint8:
+        return video
+    if not np.issubdtype(video.dtype, np.floating):
+        raise MetricInputError(source, "dtype", "uint8 in [0, 255] or float in [0, 1]", str(video.dtype))
+    if video.size:
+        lo, hi = float(np.min(video)), float(np.max(video))
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo < 0.0 or hi > 1.0:
+            raise MetricInputError(source, "values", "float frames in [0, 1]", f"range [{lo:g}, {hi:g}]")
+    return video
+
+
+def _frames(video, n_frames, source: str) -> np.ndarray:
+    video = _as_array(video, source)
+    if n_frames is not None:
+        if len(video) < n_frames:
+            raise MetricInputError(source, "frames", f"at least {n_frames} frames (n_frames)", f"{len(video)} frames")
+        video = video[:n_frames]
+    if len(video) == 0:
+        raise MetricInputError(source, "frames", "at least 1 frame", "0 frames")
+    return video
+
+
+def _pair(pred, gt, n_frames, source: str = "") -> tuple[np.ndarray, np.ndarray]:
+    p_src, g_src = (f"{source}pred", f"{source}gt")
+    pred, gt = _frames(pred, n_frames, p_src), _frames(gt, n_frames, g_src)
+    if pred.shape[1:3] != gt.shape[1:3]:
+        raise MetricInputError(p_src, "frame size", f"{gt.shape[2]}x{gt.shape[1]} (W x H, as {g_src}); resize first",
+                               f"{pred.shape[2]}x{pred.shape[1]}")
+    if n_frames is None and len(pred) != len(gt):
+        raise MetricInputError(p_src, "frames", f"{len(gt)} frames (as {g_src}) when n_frames=None",
+                               f"{len(pred)} frames")
+    return pred, gt
+
+
+def _unit(x: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """Frames in [0, 1] as ``dtype``."""
+    if x.dtype == np.uint8:
+        return x.astype(dtype) / 255.0
+    return x.astype(dtype, copy=False)
+
+
+def _torch():
+    import torch
+
+    return torch
+
+
+def _to_tensor_nchw(frames: np.ndarray, device):
+    """(B, H, W, 3) frames → float32 tensor (B, 3, H, W) in [-1, 1]."""
+    torch = _torch()
+    t = torch.from_numpy(np.ascontiguousarray(_unit(frames, np.float32))).to(device)
+    return t.permute(0, 3, 1, 2) * 2.0 - 1.0
+
+
+# --------------------------------------------------------------------------- #
+# PSNR and SSIM
+# --------------------------------------------------------------------------- #
+def psnr(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
+    """Peak signal-to-noise ratio per frame, in dB.
+
+    ``PSNR_t = 10 log10(MAX² / MSE_t)`` with ``MSE_t`` the mean squared error
+    over all pixels and channels of frame t and MAX the data range (255 for
+    uint8, 1 for float frames) — the same value as
+    ``skimage.metrics.peak_signal_noise_ratio(gt[t], pred[t], data_range=MAX)``.
+    A frame identical to its ground truth gives ``inf``.
+
+    ``pred``, ``gt``: videos (T, H, W, 3). Returns (T',) float64, T' = ``n_frames`` (or T).
+    The clip PSNR is the mean over frames.
+    """
+    pred, gt = _pair(pred, gt, n_frames)
+    out = np.empty(len(pred))
+    for t in range(len(pred)):
+        mse = float(np.mean((_unit(pred[t]) - _unit(gt[t])) ** 2))
+        out[t] = np.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+    return out
+
+
+def _gaussian_window(size: int = 11, sigma: float = 1.5) -> np.ndarray:
+    r = size // 2
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (x / sigma) ** 2)
+    return w / w.sum()
+
+
+def ssim(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
+    """Structural similarity per frame (Wang et al. 2004, "Image quality assessment: from error
+    visibility to structural similarity").
+
+    Gaussian-weighted local statistics (11×11 window, σ = 1.5), K1 = 0.01,
+    K2 = 0.03, population (not sample) covariances, the SSIM map averaged over
+    the positions where the whole window fits inside the frame, computed for
+    each RGB channel and averaged over channels. This is
+    ``skimage.metrics.structural_similarity(gt[t], pred[t], data_range=MAX,
+    channel_axis=-1, gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``
+    (scikit-image's own defaults — a 7×7 box window with sample covariance — are
+    *not* Wang et al.'s). Frames must be at least 11×11.
+
+    ``pred``, ``gt``: videos (T, H, W, 3). Returns (T',) float64 in [-1, 1].
+    """
+    import cv2
+
+    pred, gt = _pair(pred, gt, n_frames)
+    H, W = pred.shape[1:3]
+    if H < 11 or W < 11:
+        raise MetricInputError("pred", "frame size", "at least 11x11 pixels for the SSIM window", f"{W}x{H}")
+    g = _gaussian_window().reshape(-1, 1)
+    c1, c2 = 0.01 ** 2, 0.03 ** 2  # data range 1 after scaling to [0, 1]
+
+    def blur(img):  # separable Gaussian; the 5-pixel border it touches is cropped, so the border mode is moot
+        return cv2.sepFilter2D(img, cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT)[5:-5, 5:-5]
+
+    out = np.empty(len(pred))
+    for t in range(len(pred)):
+        x, y = _unit(pred[t]), _unit(gt[t])
+        ux, uy = blur(x), blur(y)
+        vx = blur(x * x) - ux * ux
+        vy = blur(y * y) - uy * uy
+        vxy = blur(x * y) - ux * uy
+        smap = ((2 * ux * uy + c1) * (2 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
+        out[t] = float(smap.mean(axis=(0, 1)).mean())  # per-channel means, then their mean
+    return out
+
+
+# --------------------------------------------------------------------------- #
+# networks passed by the caller
+# --------------------------------------------------------------------------- #
+def load_torchscript(path, *, device="cpu", **call_kwargs) -> Callable:
+    """Load a TorchScript module with ``torch.jit.load`` and return ``f(x) = module(x, **call_kwargs)``.
+
+    Used for the feature extractors (e.g. ``i3d_torchscript.pt`` with
+    ``rescale=False, resize=False, return_features=True``), an LPIPS network
+    saved as TorchScript, or a VAE encoder. The file must exist locally;
+    nothing is downloaded.
+    """
+    torch = _torch()
+    p = Path(path)
+    if not p.is_file():
+        raise MetricInputError(p, "file", "a TorchScript file (.pt) saved with torch.jit.save", "no such file")
+    try:
+        with warnings.catch_warnings():  # torch ≥ 2.10 flags torch.jit as deprecated; it is the format asked for
+            warnings.simplefilter("ignore", DeprecationWarning)
+            module = torch.jit.load(str(p), map_location=device)
+    except Exception as exc:  # torch raises RuntimeError/ValueError with varying text
+        raise MetricInputError(p, "contents", "a TorchScript archive (torch.jit.save)",
+                               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
+    module.eval()
+
+    def call(*args):
+        return module(*args, **call_kwargs)
+
+    call.module = module
+    call.source = str(p)
+    return call
+
+
+def _callable(net, what: str, default_kwargs: Mapping | None = None, device="cpu") -> Callable:
+    if isinstance(net, (str, os.PathLike)):
+        return load_torchscript(net, device=device, **dict(default_kwargs or {}))
+    if not callable(net):
+        raise MetricInputError(what, "type", "a callable or a path to a TorchScript file", type(net).__name__)
+    return net
+
+
+def _flat(result, expected: int, what: str) -> np.ndarray:
+    arr = result.detach().float().cpu().numpy() if hasattr(result, "detach") else np.asarray(result, dtype=np.float64)
+    arr = arr.reshape(-1).astype(np.float64)
+    if arr.size != expected:
+        raise MetricInputError(what, "output", f"{expected} values (one per image pair)", f"shape {np.shape(result)}")
+    return arr
+
+
+def _lpips_pairs(a: np.ndarray, b: np.ndarray, net: Callable, batch_size: int, device) -> np.ndarray:
+    torch = _torch()
+    out = np.empty(len(a))
+    with torch.no_grad():
+        for s in range(0, len(a), batch_size):
+            x, y = _to_tensor_nchw(a[s:s + batch_size], device), _to_tensor_nchw(b[s:s + batch_size], device)
+            out[s:s + batch_size] = _flat(net(x, y), len(x), "lpips_net")
+    return out
+
+
+def lpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 16,
+          device="cpu") -> np.ndarray:
+    """LPIPS distance per frame (Zhang et al. 2018), with the LPIPS network given by the caller.
+
+    ``net(x, y)`` receives two float32 tensors (B, 3, H, W) in [-1, 1] (RGB, no
+    resizing) and returns B distances in any shape with B elements — the
+    calling convention of ``lpips.LPIPS`` (e.g. ``lpips.LPIPS(net="alex")``,
+    whose torchvision backbone must already be on disk). ``net`` may also be a
+    path to a TorchScript module taking ``(x, y)``.
+
+    ``pred``, ``gt``: videos (T, H, W, 3). Returns (T',) float64, lower is better.
+    """
+    pred, gt = _pair(pred, gt, n_frames)
+    return _lpips_pairs(pred, gt, _callable(net, "lpips_net", device=device), batch_size, device)
+
+
+def tlpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 16,
+           device="cpu") -> np.ndarray:
+    """Temporal LPIPS per step, as TecoGAN defines tLP (Chu et al. 2020, "Learning temporal
+    coherence via self-supervision for GAN-based video generation").
+
+    ``tLP_t = | LPIPS(gt[t−1], gt[t]) − LPIPS(pred[t−1], pred[t]) |`` for
+    t = 1 … T'−1; the clip value is the mean over t. (TecoGAN prints it ×100;
+    we do not scale.) ``net`` as in :func:`lpips`.
+
+    ``pred``, ``gt``: videos (T, H, W, 3), T' ≥ 2 frames. Returns (T'−1,) float64, lower is better.
+    """
+    pred, gt = _pair(pred, gt, n_frames)
+    if len(pred) < 2:
+        raise MetricInputError("pred", "frames", "at least 2 frames for tLPIPS", f"{len(pred)} frames")
+    f = _callable(net, "lpips_net", device=device)
+    d_gt = _lpips_pairs(gt[:-1], gt[1:], f, batch_size, device)
+    d_pred = _lpips_pairs(pred[:-1], pred[1:], f, batch_size, device)
+    return np.abs(d_gt - d_pred)
+
+
+def latent_l2(pred, gt, encoder, *, n_frames: int | None = DEFAULT_FRAMES, device="cpu") -> float:
+    """Latent L2: mean squared difference between the VAE latents of prediction and ground truth.
+
+    ``encoder(x)`` receives a float32 tensor (1, 3, T', H, W) in [-1, 1] (the
+    layout of video tokenizers such as Cosmos' or Wan's VAE; wrap an image
+    VAE to encode frame by frame) and returns a latent tensor; both latents
+    must have the same shape. The paper names the metric "latent-ℓ2" without a
+    formula; we report ``mean((z_pred − z_gt)²)`` over all latent elements,
+    i.e. the squared ℓ2 distance divided by the number of latent elements, so
+    the value does not grow with resolution or clip length. ``encoder`` may be
+    a path to a TorchScript module.
+
+    ``pred``, ``gt``: videos (T, H, W, 3). Returns a float ≥ 0, lower is better.
+    """
+    torch = _torch()
+    pred, gt = _pair(pred, gt, n_frames)
+    f = _callable(encoder, "vae", device=device)
+    with torch.no_grad():
+        z = []
+        for v in (pred, gt):
+            x = _to_tensor_nchw(v, device).permute(1, 0, 2, 3).unsqueeze(0)  # (1, 3, T, H, W)
+            out = f(x)
+            if hasattr(out, "latent_dist"):  # diffusers AutoencoderKL output
+                out = out.latent_dist.mean
+            if not hasattr(out, "shape"):
+                raise MetricInputError("vae", "output", "a latent tensor", type(out).__name__)
+            z.append(out.detach().double().cpu())
+    if z[0].shape != z[1].shape:
+        raise MetricInputError("vae", "output shape", f"the same latent shape for both videos {tuple(z[1].shape)}",
+                               f"{tuple(z[0].shape)}")
+    return float(((z[0] - z[1]) ** 2).mean())
+
+
+# --------------------------------------------------------------------------- #
+# Fréchet distances
+# --------------------------------------------------------------------------- #
+def feature_statistics(features) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (D,) and covariance (D, D) of features (N, D), N ≥ 2.
+
+    The covariance is the unbiased sample covariance (``np.cov(features,
+    rowvar=False)``, divisor N − 1) as in the FID (pytorch-fid, StyleGAN) and
+    FVD (StyleGAN-V) reference code.
+    """
+    f = np.asarray(features, dtype=np.float64)
+    if f.ndim != 2:
+        raise MetricInputError("features", "shape", "(N, D)", f"shape {f.shape}")
+    if len(f) < 2:
+        raise MetricInputError("features", "N", "at least 2 samples to estimate a covariance", f"{len(f)}")
+    if not np.all(np.isfinite(f)):
+        raise MetricInputError("features", "values", "finite numbers", "NaN or inf")
+    return f.mean(axis=0), np.atleast_2d(np.cov(f, rowvar=False))
+
+
+def _sqrt_psd(m: np.ndarray) -> np.ndarray:
+    w, v = np.linalg.eigh(0.5 * (m + m.T))
+    return (v * np.sqrt(np.clip(w, 0.0, None))) @ v.T
+
+
+def frechet_distance(mu1, sigma1, mu2, sigma2) -> float:
+    """Fréchet distance between Gaussians N(μ1, Σ1) and N(μ2, Σ2) (Dowson & Landau 1982;
+    the distance behind FID, Heusel et al. 2017, and FVD, Unterthiner et al. 2018).
+
+    ``d² = ‖μ1 − μ2‖² + tr(Σ1) + tr(Σ2) − 2 tr((Σ1 Σ2)^½)``.
+
+    ``tr((Σ1Σ2)^½)`` is computed as the sum of the square roots of the
+    eigenvalues of the symmetric PSD matrix ``Σ1^½ Σ2 Σ1^½`` (same spectrum as
+    Σ1Σ2), which avoids the complex round-off of a general matrix square root.
+    ``mu``: (D,), ``sigma``: (D, D) symmetric PSD. Returns d² (the quantity
+    reported as FID / FVD), a float ≥ 0 up to round-off.
+    """
+    mu1, mu2 = np.atleast_1d(np.asarray(mu1, np.float64)), np.atleast_1d(np.asarray(mu2, np.float64))
+    s1, s2 = np.atleast_2d(np.asarray(sigma1, np.float64)), np.atleast_2d(np.asarray(sigma2, np.float64))
+    d = mu1.shape[0]
+    for name, m, shape in (("mu1", mu1, (d,)), ("mu2", mu2, (d,)), ("sigma1", s1, (d, d)), ("sigma2", s2, (d, d))):
+        if m.shape != shape:
+            raise MetricInputError(name, "shape", str(shape), str(m.shape))
+    r1 = _sqrt_psd(s1)
+    eig = np.linalg.eigvalsh(r1 @ s2 @ r1)
+    tr_covmean = float(np.sqrt(np.clip(eig, 0.0, None)).sum())
+    diff = mu1 - mu2
+    return float(diff @ diff + np.trace(s1) + np.trace(s2) - 2.0 * tr_covmean)
+
+
+def frechet_distance_from_features(features_a, features_b) -> float:
+    """Fréchet distance between Gaussians fitted to two feature sets (N_a, D) and (N_b, D)."""
+    mu1, s1 = feature_statistics(features_a)
+    mu2, s2 = feature_statistics(features_b)
+    return frechet_distance(mu1, s1, mu2, s2)
+
+
+def _preprocess_i3d(video: np.ndarray, resolution: int | None):
+    """(T, H, W, 3) → float32 (3, T, R, R) in [-1, 1]: shorter side to R (bilinear), centre crop."""
+    torch = _torch()
+    x = torch.from_numpy(np.ascontiguousarray(_unit(video, np.float32))).permute(0, 3, 1, 2)  # T, 3, H, W
+    if resolution is not None:
+        t, c, h, w = x.shape
+        scale = resolution / min(h, w)
+        size = (resolution, math.ceil(w * scale)) if h < w else (math.ceil(h * scale), resolution)
+        x = torch.nn.functional.interpolate(x, size=size, mode="bilinear", align_corners=False)
+        h, w = x.shape[-2:]
+        top, left = (h - resolution) // 2, (w - resolution) // 2
+        x = x[:, :, top:top + resolution, left:left + resolution]
+    return (x * 2.0 - 1.0).permute(1, 0, 2, 3).contiguous()
+
+
+def _check_features(out, n: int, what: str) -> np.ndarray:
+    arr = out.detach().double().cpu().numpy() if hasattr(out, "detach") else np.asarray(out, np.float64)
+    if arr.ndim != 2 or arr.shape[0] != n:
+        raise MetricInputError(what, "output", f"features of shape ({n}, D)", f"shape {arr.shape}")
+    return arr
+
+
+def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAULT_FRAMES,
+                   resolution: int | None = 224, batch_size: int = 4, device="cpu",
+                   extractor_kwargs: Mapping | None = None, source: str = "videos") -> np.ndarray:
+    """Per-clip features for FVD (one feature vector per video).
+
+    Preprocessing follows the StyleGAN-V FVD code (Skorokhodov et al. 2022),
+    the PyTorch port of Unterthiner et al.'s FVD that uses
+    ``i3d_torchscript.pt``: frames scaled to [0, 1]; the first ``n_frames``
+    frames kept (the whole clip goes through the network at once — FVD values
+    computed with different frame counts are not comparable; the original FVD
+    uses 16 frames, the paper 49); shorter side resized to ``resolution``
+    (bilinear, ``align_corners=False``, no antialiasing) and a centre
+    ``resolution``² crop; values mapped to [-1, 1]; layout (B, 3, T, R, R)
+    float32. ``resolution=None`` skips resize and crop.
+
+    ``extractor``: callable (B, 3, T, R, R) → (B, D) features, or a path to a
+    TorchScript file, called with ``extractor_kwargs`` (default
+    ``rescale=False, resize=False, return_features=True``: the I3D's 400
+    pre-softmax logits). Returns (N, D) float64.
+    """
+    torch = _torch()
+    kwargs = I3D_CALL_KWARGS if extractor_kwargs is None else extractor_kwargs
+    f = _callable(extractor, "fvd_extractor", kwargs, device=device)
+    feats, batch = [], []
+
+    def flush():
+        x = torch.stack(batch).to(device)
+        with torch.no_grad():
+            feats.append(_check_features(f(x), len(batch), "fvd_extractor"))
+        batch.clear()
+
+    for k, v in enumerate(videos):
+        batch.append(_preprocess_i3d(_frames(v, n_frames, f"{source}[{k}]"), resolution))
+        if len(batch) == batch_size:
+            flush()
+    if batch:
+        flush()
+    if not feats:
+        raise MetricInputError(source, "videos", "at least one video", "none")
+    return np.concatenate(feats)
+
+
+def frame_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 32,
+                   device="cpu", extractor_kwargs: Mapping | None = None, source: str = "videos") -> np.ndarray:
+    """Per-frame features for FID: every frame of every clip is one sample.
+
+    Each batch is passed as a ``torch.uint8`` tensor (B, 3, H, W) in [0, 255]
+    at the video's own resolution — the input of the StyleGAN2-ADA
+    ``inception-2015-12-05.pt`` TorchScript Inception (which resizes to 299×299
+    itself). ``extractor``: callable → (B, D), or a path to a TorchScript file
+    called with ``extractor_kwargs`` (default ``return_features=True``: 2048-d
+    pool features). Returns (N·T', D) float64.
+    """
+    torch = _torch()
+    kwargs = INCEPTION_CALL_KWARGS if extractor_kwargs is None else extractor_kwargs
+    f = _callable(extractor, "fid_extractor", kwargs, device=device)
+    feats = []
+    with torch.no_grad():
+        for k, v in enumerate(videos):
+            v = _frames(v, n_frames, f"{source}[{k}]")
+            u8 = v if v.dtype == np.uint8 else np.round(_unit(v, np.float32) * 255.0).astype(np.uint8)
+            for s in range(0, len(u8), batch_size):
+                x = torch.from_numpy(np.ascontiguousarray(u8[s:s + batch_size])).permute(0, 3, 1, 2).to(device)
+                feats.append(_check_features(f(x), len(x), "fid_extractor"))
+    if not feats:
+        raise MetricInputError(source, "videos", "at least one video", "none")
+    return np.concatenate(feats)
+
+
+def fvd(pred_videos: Iterable, gt_videos: Iterable, extractor, **kwargs) -> float:
+    """Fréchet Video Distance (Unterthiner et al. 2018): :func:`frechet_distance` between Gaussians
+    fitted to :func:`video_features` of the predicted and the ground-truth clips (≥ 2 clips each;
+    ``kwargs`` go to :func:`video_features`). Lower is better."""
+    return frechet_distance_from_features(video_features(pred_videos, extractor, source="pred_videos", **kwargs),
+                                          video_features(gt_videos, extractor, source="gt_videos", **kwargs))
+
+
+def fid(pred_videos: Iterable, gt_videos: Iterable, extractor, **kwargs) -> float:
+    """Fréchet Inception Distance over frames (Heusel et al. 2017): :func:`frechet_distance` between
+    Gaussians fitted to :func:`frame_features` of all predicted and all ground-truth frames
+    (``kwargs`` go to :func:`frame_features`). Lower is better."""
+    return frechet_distance_from_features(frame_features(pred_videos, extractor, source="pred_videos", **kwargs),
+                                          frame_features(gt_videos, extractor, source="gt_videos", **kwargs))
+
+
+# --------------------------------------------------------------------------- #
+# many clips at once
+# --------------------------------------------------------------------------- #
+def load_video(path, *, max_frames: int | None = None) -> np.ndarray:
+    """Read a video file or PNG-frame folder (via ``oscar_core.video.read_video``, else PyAV / OpenCV),
+    or a ``.npy`` array, into a (T, H, W, 3) array; ``max_frames`` stops reading early."""
+    p = Path(path)
+    if not p.exists():
+        raise MetricInputError(p, "file", "an existing video file, frame folder or .npy array", "no such file")
+    if p.suffix == ".npy":
+        arr = np.load(p, mmap_mode="r")
+        return _as_array(np.array(arr[:max_frames] if max_frames else arr), str(p))  # copy: writable, in RAM
+    try:
+        from ..video import read_video
+    except ImportError:  # oscar_core.video not available: PyAV / OpenCV directly
+        read_video = _read_video_fallback
+    try:
+        video = read_video(p, max_frames=max_frames) if max_frames else read_video(p)
+    except TypeError:  # a read_video without max_frames
+        video = read_video(p)
+    return _as_array(np.asarray(video), str(p))
+
+
+def _read_video_fallback(path, max_frames: int | None = None) -> np.ndarray:
+    p = Path(path)
+    if p.is_dir():
+        import cv2
+
+        files = sorted(f for f in p.iterdir() if f.suffix.lower() in (".png", ".jpg", ".jpeg"))[:max_frames]
+        frames = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
+        frames = [cv2.cvtColor(f, cv2.COLOR_BGR2RGB) for f in frames if f is not None]
+    else:
+        import av
+
+        frames = []
+        with av.open(str(p)) as container:
+            for frame in container.decode(video=0):
+                frames.append(frame.to_ndarray(format="rgb24"))
+                if max_frames and len(frames) >= max_frames:
+                    break
+    if not frames:
+        raise MetricInputError(p, "frames", "at least 1 decodable video frame", "0 frames")
+    return np.stack(frames)
+
+
+@dataclass
+class Clip:
+    """One predicted clip and its ground truth.
+
+    ``pred`` / ``gt``: arrays (T, H, W, 3) or paths (read with :func:`load_video` when needed).
+    ``embodiment``: optional tag (e.g. ``"franka"``) for the per-embodiment breakdown.
+    """
+
+    name: str
+    pred: object
+    gt: object
+    embodiment: str | None = None
+
+    def load(self, max_frames: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(pred, gt) arrays; paths are read (at most ``max_frames`` frames)."""
+        def get(v):
+            return load_video(v, max_frames=max_frames) if isinstance(v, (str, os.PathLike)) else v
+
+        return get(self.pred), get(self.gt)
+
+
+PER_CLIP_METRICS = ("psnr", "ssim", "lpips", "tlpips", "latent_l2")
+SET_METRICS = ("fvd", "fid")
+
+
+def _mean(values) -> float | None:
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+@dataclass
+class VideoReport:
+    """Results of :func:`evaluate_videos`.
+
+    ``clips``: one row per clip (``name``, ``embodiment``, ``frames`` and each
+    computed per-clip metric, the mean over its frames/steps). ``aggregate``:
+    mean over clips of each per-clip metric, plus FVD / FID over all clips.
+    ``per_embodiment``: ``{tag: {"clips": n, metric: mean over its clips}}``
+    (only when clips carry tags), and ``mean_over_embodiments``: the unweighted
+    mean of those per-embodiment means (how the paper's main table averages
+    "over all embodiments").
+    """
+
+    n_frames: int | None
+    clips: list[dict]
+    aggregate: dict
+    per_embodiment: dict = field(default_factory=dict)
+    mean_over_embodiments: dict = field(default_factory=dict)
+
+    @property
+    def metrics(self) -> list[str]:
+        return [m for m in PER_CLIP_METRICS if any(m in c for c in self.clips)]
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary (NaN / inf → null)."""
+        return nan_to_none({"n_frames": self.n_frames, "aggregate": self.aggregate, "clips": self.clips,
+                            "per_embodiment": self.per_embodiment,
+                            "mean_over_embodiments": self.mean_over_embodiments})
+
+    def format_table(self) -> str:
+        """Per-clip rows, then per-embodiment means and the overall means."""
+        metrics = self.metrics
+        header = ("clip", "embodiment", *metrics)
+
+        def fmt(v, m):
+            if v is None:
+                return "-"
+            if isinstance(v, float) and math.isinf(v):
+                return "inf"
+            return f"{v:.2f}" if m in ("psnr", "fvd", "fid") else f"{v:.4f}"
+
+        rows = [header] + [(c["name"], c.get("embodiment") or "-", *(fmt(c.get(m), m) for m in metrics))
+                           for c in self.clips]
+        for tag, res in self.per_embodiment.items():
+            rows.append((f"[mean] {tag} ({res['clips']})", tag, *(fmt(res.get(m), m) for m in metrics)))
+        if self.mean_over_embodiments:
+            rows.append(("[mean over embodiments]", "-", *(fmt(self.mean_over_embodiments.get(m), m)
+                                                             for m in metrics)))
+        rows.append((f"[mean over clips] ({len(self.clips)})", "-", *(fmt(self.aggregate.get(m), m)
+                                                                      for m in metrics)))
+        widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+        extra = [f"{m.upper()} {fmt(self.aggregate[m], m)}" for m in SET_METRICS if self.aggregate.get(m) is not None]
+        if extra:
+            lines.append("   ".join(extra) + f"   (over {len(self.clips)} clips)")
+        return "\n".join(lines)
+
+
+def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRAMES, lpips_net=None, vae=None,
+                    fvd_extractor=None, fid_extractor=None, device="cpu", fvd_resolution: int | None = 224,
+                    progress: bool = False) -> VideoReport:
+    """Every video metric for a list of clips.
+
+    Always computes PSNR and SSIM; LPIPS and tLPIPS when ``lpips_net`` is given
+    (see :func:`lpips`), latent L2 with ``vae`` (:func:`latent_l2`), FVD with
+    ``fvd_extractor`` (:func:`video_features`, needs ≥ 2 clips) and FID with
+    ``fid_extractor`` (:func:`frame_features`). Each may be a callable or a
+    TorchScript path. Clips are loaded one at a time; only features are kept.
+    ``progress`` shows a tqdm bar on stderr.
+    """
+    if not clips:
+        raise MetricInputError("clips", "clips", "at least one clip", "none")
+    names = [c.name for c in clips]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise MetricInputError("clips", "name", "unique clip names", f"duplicates {dup}")
+    lp = _callable(lpips_net, "lpips_net", device=device) if lpips_net is not None else None
+    enc = _callable(vae, "vae", device=device) if vae is not None else None
+    fv = _callable(fvd_extractor, "fvd_extractor", I3D_CALL_KWARGS, device) if fvd_extractor is not None else None
+    fi = _callable(fid_extractor, "fid_extractor", INCEPTION_CALL_KWARGS, device) if fid_extractor is not None else None
+    if fv is not None and len(clips) < 2:
+        raise MetricInputError("clips", "clips", "at least 2 clips for FVD (a covariance needs 2 samples)",
+                               f"{len(clips)}")
+    iterator = clips
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(clips, desc="eval video", unit="clip")
+    rows, fvd_feats, fid_feats = [], ([], []), ([], [])
+    for clip in iterator:
+        pred, gt = clip.load(max_frames=n_frames)
+        src = f"{clip.name}: "
+        pred, gt = _pair(pred, gt, n_frames, src)
+        row = {"name": clip.name, "embodiment": clip.embodiment, "frames": len(pred)}
+        row["psnr"] = float(np.mean(psnr(pred, gt, n_frames=None)))
+        row["ssim"] = float(np.mean(ssim(pred, gt, n_frames=None)))
+        if lp is not None:
+            row["lpips"] = float(np.mean(lpips(pred, gt, lp, n_frames=None, device=device)))
+            if len(pred) > 1:
+                row["tlpips"] = float(np.mean(tlpips(pred, gt, lp, n_frames=None, device=device)))
+        if enc is not None:
+            row["latent_l2"] = latent_l2(pred, gt, enc, n_frames=None, device=device)
+        if fv is not None:
+            fvd_feats[0].append(video_features([pred], fv, n_frames=None, resolution=fvd_resolution, device=device,
+                                               source=f"{clip.name}: pred"))
+            fvd_feats[1].append(video_features([gt], fv, n_frames=None, resolution=fvd_resolution, device=device,
+                                               source=f"{clip.name}: gt"))
+        if fi is not None:
+            fid_feats[0].append(frame_features([pred], fi, n_frames=None, device=device))
+            fid_feats[1].append(frame_features([gt], fi, n_frames=None, device=device))
+        rows.append(row)
+
+    metrics = [m for m in PER_CLIP_METRICS if any(m in r for r in rows)]
+    aggregate = {m: _mean(r.get(m) for r in rows) for m in metrics}
+    if fv is not None:
+        aggregate["fvd"] = frechet_distance_from_features(np.concatenate(fvd_feats[0]), np.concatenate(fvd_feats[1]))
+    if fi is not None:
+        aggregate["fid"] = frechet_distance_from_features(np.concatenate(fid_feats[0]), np.concatenate(fid_feats[1]))
+    per_emb, macro = {}, {}
+    tags = [r["embodiment"] for r in rows if r["embodiment"] is not None]
+    if tags:
+        for tag in dict.fromkeys(tags):
+            sel = [r for r in rows if r["embodiment"] == tag]
+            per_emb[tag] = {"clips": len(sel), **{m: _mean(r.get(m) for r in sel) for m in metrics}}
+        untagged = [r for r in rows if r["embodiment"] is None]
+        if untagged:
+            per_emb["(untagged)"] = {"clips": len(untagged), **{m: _mean(r.get(m) for r in untagged)
+                                                                for m in metrics}}
+        macro = {m: _mean(v.get(m) for v in per_emb.values()) for m in metrics}
+    return VideoReport(n_frames=n_frames, clips=rows, aggregate=aggregate, per_embodiment=per_emb,
+                       mean_over_embodiments=macro)
