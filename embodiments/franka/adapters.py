@@ -1,0 +1,446 @@
+"""Dataset adapters for the Franka Panda: stored state → oscar ``Trajectory`` + ``Camera``.
+
+Every adapter is a pure-numpy function. It takes the arrays a dataset stores
+(already read from disk by the caller: h5py groups, ``np.load(...).item()``
+dicts, pandas columns all work, since only ``[]`` lookups and ``np.asarray``
+are used) and returns a trajectory in this embodiment's joint order with the
+gripper signal in its documented unit (Panda finger width, metres, 0 closed ..
+0.08 open) and a static camera. Bad input raises
+:class:`oscar_core.TrajectoryError` / :class:`oscar_core.CameraFileError`
+naming the field, what was expected and what was found.
+
+Sources of each layout are cited in the docstrings and in ``README.md``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+
+from oscar_core.camera import Camera, Intrinsics
+from oscar_core.errors import CameraFileError, TrajectoryError
+from oscar_core.trajectory import Trajectory
+
+from . import JOINT_NAMES
+
+__all__ = [
+    "from_droid",
+    "from_rh20t",
+    "from_interndata",
+    "rh20t_base_to_camera",
+    "DROID_FPS",
+    "PANDA_MAX_WIDTH",
+]
+
+EMBODIMENT = "franka"
+GRIPPER_NAMES = ("gripper",)
+PANDA_MAX_WIDTH = 0.08  # m, Franka Hand stroke (both fingers)
+DROID_FPS = 15.0  # DROID's control loop (RobotEnv.control_hz)
+STATIC_TOL = 1e-4  # m / rad: how much a "static" extrinsic may vary over an episode
+ORTHO_TOL = 1e-3  # rotation blocks stored in float32 are re-orthonormalised below this error
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _lookup(record: Any, keys: tuple[str, ...], source: str, what: str, error=TrajectoryError):
+    """The first of ``keys`` present in ``record`` (flat "a/b/c" keys, nested mappings or h5py groups)."""
+    for key in keys:
+        try:
+            return record[key]
+        except (KeyError, TypeError, ValueError):
+            pass
+        node = record
+        try:
+            for part in key.split("/"):
+                node = node[part]
+            return node
+        except (KeyError, TypeError, ValueError, IndexError):
+            continue
+    raise error(source, keys[0], f"{what} (looked for {', '.join(repr(k) for k in keys)})", "missing")
+
+
+def _array(value: Any, source: str, field: str, what: str, error=TrajectoryError) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=np.float64)  # arrays, lists, h5py datasets, torch tensors, pandas columns
+    except (TypeError, ValueError):
+        try:  # a column whose cells are arrays (pandas / pyarrow list columns)
+            a = np.stack([np.asarray(v, dtype=np.float64) for v in value])
+        except (TypeError, ValueError):
+            raise error(source, field, what, f"non-numeric data of type {type(value).__name__}") from None
+    if not np.isfinite(a).all():
+        raise error(source, field, f"{what}, finite values", f"{int((~np.isfinite(a)).sum())} non-finite values")
+    return a
+
+
+def _joints(value: Any, source: str, field: str, frames_of: str = "T") -> np.ndarray:
+    q = _array(value, source, field, "joint positions, radians, shape (T, 7)")
+    if q.ndim != 2 or q.shape[1] < 7:
+        raise TrajectoryError(source, field, f"shape ({frames_of}, 7): panda_joint1..7 in radians", f"shape {q.shape}")
+    return _radians(q[:, :7], source, field)
+
+
+def _radians(q: np.ndarray, source: str, field: str) -> np.ndarray:
+    """Refuse joint angles that cannot be radians (|q| > 2 pi): most likely degrees."""
+    if np.abs(q).max() > 2 * np.pi:
+        t, j = np.unravel_index(int(np.argmax(np.abs(q))), q.shape)
+        raise TrajectoryError(source, field, "joint angles in radians (|q| <= 2 pi)",
+                              f"{q[t, j]:g} at frame {t}, joint {j + 1} (degrees?)")
+    return q
+
+
+def _column(value: Any, source: str, field: str, T: int, what: str) -> np.ndarray:
+    g = _array(value, source, field, what)
+    if g.ndim == 2 and g.shape[1] == 1:
+        g = g[:, 0]
+    if g.shape != (T,):
+        raise TrajectoryError(source, field, f"{what}, shape ({T},) or ({T}, 1) (one value per frame)", f"shape {g.shape}")
+    return g
+
+
+def _check_range(values: np.ndarray, lo: float, hi: float, source: str, field: str, what: str,
+                 tolerance: float = 0.05) -> np.ndarray:
+    """Values in [lo, hi] ± tolerance × span, clipped; else an error naming the first bad frame."""
+    slack = tolerance * (hi - lo)
+    bad = np.flatnonzero((values < lo - slack) | (values > hi + slack))
+    if bad.size:
+        t = int(bad[0])
+        raise TrajectoryError(source, field, f"{what} in [{lo:g}, {hi:g}]",
+                              f"{values[t]:g} at frame {t} ({bad.size} frames out of range)")
+    return np.clip(values, lo, hi)
+
+
+def _rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Fixed-axis X-Y-Z Euler angles: R = Rz(yaw) @ Ry(pitch) @ Rx(roll) (scipy ``"xyz"``)."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _rotation_quat_wxyz(w: float, x: float, y: float, z: float) -> np.ndarray:
+    n = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _rigid(M: np.ndarray, source: str, field: str) -> np.ndarray:
+    """A 4×4 rigid transform, its rotation re-orthonormalised if stored in low precision."""
+    if M.shape != (4, 4):
+        raise CameraFileError(source, field, "a 4x4 homogeneous transform", f"shape {M.shape}")
+    R = M[:3, :3]
+    dev = float(np.abs(R.T @ R - np.eye(3)).max())
+    if dev > ORTHO_TOL or np.linalg.det(R) <= 0 or not np.allclose(M[3], [0, 0, 0, 1], atol=1e-6):
+        raise CameraFileError(source, field, "a rigid transform (orthonormal rotation, last row 0 0 0 1)",
+                              f"max |R^T R - I| = {dev:.3g}, det {np.linalg.det(R):.3g}, last row {M[3].tolist()}")
+    U, _, Vt = np.linalg.svd(R)
+    out = np.eye(4)
+    out[:3, :3] = U @ Vt
+    out[:3, 3] = M[:3, 3]
+    return out
+
+
+def _static(per_frame: np.ndarray, source: str, field: str, hint: str) -> np.ndarray:
+    """First row of a per-frame calibration, after checking the others equal it (a static camera)."""
+    if per_frame.ndim >= 2 and per_frame.shape[0] > 1:
+        spread = float(np.abs(per_frame - per_frame[:1]).max())
+        if spread > STATIC_TOL:
+            t = int(np.argmax(np.abs(per_frame - per_frame[:1]).reshape(len(per_frame), -1).max(axis=1)))
+            raise CameraFileError(source, field, f"a static camera: the same extrinsic in every frame ({hint})",
+                                  f"a change of {spread:.3g} at frame {t}")
+    return per_frame[0] if per_frame.ndim >= 2 else per_frame
+
+
+def _intrinsics(K: Any, image_size: tuple[int, int], source: str, field: str) -> Intrinsics:
+    """Intrinsics from a 3x3 / 3x4 camera matrix or (fx, fy, cx, cy)."""
+    K = _array(K, source, field, "a 3x3 camera matrix or (fx, fy, cx, cy), pixels", error=CameraFileError)
+    if K.shape == (4,):
+        fx, fy, cx, cy = K
+    elif K.shape in ((3, 3), (3, 4)):
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    else:
+        raise CameraFileError(source, field, "a 3x3 (or 3x4) camera matrix or (fx, fy, cx, cy), pixels", f"shape {K.shape}")
+    try:
+        return Intrinsics(float(fx), float(fy), float(cx), float(cy), int(image_size[0]), int(image_size[1]))
+    except CameraFileError as e:
+        raise CameraFileError(source, f"{field}.{e.field}", e.expected, e.found) from None
+
+
+def _timestamps_ms(keys, source: str, field: str) -> np.ndarray:
+    try:
+        ts = np.array(sorted(int(k) for k in keys), dtype=np.int64)
+    except (TypeError, ValueError):
+        raise TrajectoryError(source, field, "integer timestamps in milliseconds as keys", f"keys {list(keys)[:3]}...") from None
+    if ts.size == 0:
+        raise TrajectoryError(source, field, "at least one timestamped frame", "none")
+    return ts
+
+
+def _fps_from(ts_s: np.ndarray, fps: float | None, source: str, field: str) -> float:
+    if fps is not None:
+        return float(fps)
+    if ts_s.size < 2:
+        raise TrajectoryError(source, field, "two or more frames to infer the frame rate (or pass fps=)", f"{ts_s.size} frame")
+    dt = np.diff(ts_s)
+    if (dt <= 0).any():
+        raise TrajectoryError(source, field, "strictly increasing timestamps", f"a step of {dt.min():g} s")
+    return float(1.0 / np.median(dt))
+
+
+# --------------------------------------------------------------------------- DROID
+
+
+def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: Any = None,
+               image_size: tuple[int, int] = (1280, 720), fps: float = DROID_FPS,
+               source: str = "<droid>") -> tuple[Trajectory, Camera]:
+    """A DROID episode → (Trajectory, Camera) for one external (static) camera.
+
+    Source layout (raw release, ``trajectory.h5``; written by
+    ``droid/trajectory_utils/trajectory_writer.py`` from the observation dict of
+    ``droid/robot_env.py`` / ``droid/franka/robot.py``):
+
+    ``observation/robot_state/joint_positions``  (T, 7) Panda joints, radians
+    ``observation/robot_state/gripper_position`` (T,) Robotiq 2F-85 position,
+        0 = open .. 1 = closed (``1 - width / max_width``)
+    ``observation/camera_extrinsics/<serial>_left`` (T, 6) camera pose in the
+        robot base frame, ``[x, y, z, roll, pitch, yaw]``, metres / radians,
+        Euler angles in scipy's ``"xyz"`` (fixed-axis) convention, OpenCV
+        camera axes (from ``droid/calibration/calibration_utils.py``)
+    ``observation/camera_intrinsics/<serial>_left`` (T, 3, 3) camera matrix
+
+    The RLDS release's ``observation/joint_position`` (T, 7) and
+    ``observation/gripper_position`` (T, 1) are accepted too; it carries no
+    calibration, so pass ``extrinsic=`` (e.g. the 6-vector from the
+    ``cam2base_extrinsics.json`` annotation file) and ``intrinsics=``.
+
+    camera: the camera key, e.g. ``"24259877_left"``.
+    extrinsic / intrinsics: override the record's calibration
+        (``[x, y, z, roll, pitch, yaw]`` / 3x3 or ``(fx, fy, cx, cy)``).
+    image_size: (width, height) of the images the intrinsics refer to
+        (the ZED 2's HD720 mode, 1280x720, in the raw release).
+    Returns the trajectory (gripper as Panda-equivalent width
+    ``0.08 * (1 - position)`` m, so openness = 1 - position) and a
+    camera-to-world OpenCV camera.
+    """
+    q = _joints(_lookup(record, ("observation/robot_state/joint_positions", "observation/joint_position"),
+                        source, "joint positions (T, 7)"), source, "observation/robot_state/joint_positions")
+    T = len(q)
+    pos = _column(_lookup(record, ("observation/robot_state/gripper_position", "observation/gripper_position"),
+                          source, "gripper position (T,)"), source, "observation/robot_state/gripper_position", T,
+                  "Robotiq gripper position, 0 (open) .. 1 (closed)")
+    pos = _check_range(pos, 0.0, 1.0, source, "observation/robot_state/gripper_position",
+                       "DROID gripper position (0 = open, 1 = closed)")
+    width = PANDA_MAX_WIDTH * (1.0 - pos)
+
+    ext_field = f"observation/camera_extrinsics/{camera}"
+    if extrinsic is None:
+        extrinsic = _lookup(record, (ext_field,), source, f"the extrinsic of camera {camera!r} (or pass extrinsic=)",
+                            error=CameraFileError)
+    e = _array(extrinsic, source, ext_field, "[x, y, z, roll, pitch, yaw] (metres, radians)", error=CameraFileError)
+    if e.shape[-1:] != (6,) or e.ndim > 2:
+        raise CameraFileError(source, ext_field, "[x, y, z, roll, pitch, yaw] per frame, shape (6,) or (T, 6)", f"shape {e.shape}")
+    e = _static(e, source, ext_field, "DROID's wrist camera moves with the hand; use an external camera")
+    M = np.eye(4)
+    M[:3, :3] = _rotation_xyz(*e[3:6])
+    M[:3, 3] = e[:3]
+
+    int_field = f"observation/camera_intrinsics/{camera}"
+    if intrinsics is None:
+        intrinsics = _lookup(record, (int_field,), source, f"the intrinsics of camera {camera!r} (or pass intrinsics=)",
+                             error=CameraFileError)
+    K = _array(intrinsics, source, int_field, "a camera matrix", error=CameraFileError)
+    if K.ndim == 3:
+        K = K[0]
+    cam = Camera(_intrinsics(K, image_size, source, int_field), M, convention="opencv",
+                 direction="camera_to_world", embodiment=EMBODIMENT)
+    traj = Trajectory(JOINT_NAMES, q, fps, gripper=width[:, None], gripper_names=GRIPPER_NAMES,
+                      timestamps=np.arange(T) / float(fps), source=source)
+    return traj, cam
+
+
+# --------------------------------------------------------------------------- RH20T
+
+
+def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_serial: str,
+                         tcp_camera_mat: Any, calib_tcp: Any, align_mat_base: Any = None,
+                         source: str = "<rh20t calib>") -> np.ndarray:
+    """RH20T's base-aligned extrinsic of camera ``serial``: (4, 4) robot base → camera.
+
+    Mirrors ``RH20TScene.extrinsics_base_aligned`` (``rh20t_api/scene.py``):
+    ``extrinsics[k]`` (``calib/<t>/extrinsics.npy``, shape (1, 4, 4) or (4, 4))
+    maps marker-board points into camera k; the in-hand camera, the
+    configuration's ``tc_mat`` (``tcp_camera_mat``, TCP pose in the in-hand
+    camera frame) and the TCP pose at calibration time (``calib_tcp``,
+    ``[x, y, z, qw, qx, qy, qz]`` in the base frame; ``calib/<t>/tcp.npy``
+    after the configuration's preprocessor) place the base in the marker
+    frame, so that::
+
+        T_cam_base = E[serial] @ inv(E[in_hand]) @ tc_mat @ inv(T_base_tcp) @ align_mat_base
+    """
+    def mat(key):
+        try:
+            m = _array(extrinsics[key], source, f"extrinsics[{key!r}]", "a 4x4 matrix", error=CameraFileError)
+        except KeyError:
+            raise CameraFileError(source, f"extrinsics[{key!r}]", f"a calibrated camera (have {sorted(extrinsics)})", "missing") from None
+        return _rigid(m.reshape(-1, 4, 4)[0], source, f"extrinsics[{key!r}]")
+
+    tc = _rigid(_array(tcp_camera_mat, source, "tc_mat", "a 4x4 matrix", error=CameraFileError), source, "tc_mat")
+    p = _array(calib_tcp, source, "calib_tcp", "[x, y, z, qw, qx, qy, qz]", error=CameraFileError).reshape(-1)
+    if p.shape != (7,):
+        raise CameraFileError(source, "calib_tcp", "[x, y, z, qw, qx, qy, qz] (metres)", f"shape {p.shape}")
+    T_base_tcp = np.eye(4)
+    T_base_tcp[:3, :3] = _rotation_quat_wxyz(*p[3:])
+    T_base_tcp[:3, 3] = p[:3]
+    align = np.eye(4) if align_mat_base is None else _rigid(
+        _array(align_mat_base, source, "align_mat_base", "a 4x4 matrix", error=CameraFileError), source, "align_mat_base")
+    return _rigid(mat(serial) @ np.linalg.inv(mat(in_hand_serial)) @ tc @ np.linalg.inv(T_base_tcp) @ align,
+                  source, "base-aligned extrinsic")
+
+
+def _rh20t_series(joint: Mapping, gripper: Mapping, serial: str, source: str):
+    """Joint rows, gripper widths (mm) at the joint timestamps, timestamps (s)."""
+    if serial not in joint:
+        raise TrajectoryError(source, f"joint[{serial!r}]", f"joint angles recorded for camera {serial} "
+                              f"(have {sorted(joint)})", "missing")
+    if serial not in gripper:
+        raise TrajectoryError(source, f"gripper[{serial!r}]", f"gripper states recorded for camera {serial} "
+                              f"(have {sorted(gripper)})", "missing")
+    ts = _timestamps_ms(joint[serial].keys(), source, f"joint[{serial!r}]")
+    gts = _timestamps_ms(gripper[serial].keys(), source, f"gripper[{serial!r}]")
+    jd = {int(k): v for k, v in joint[serial].items()}
+    gd = {int(k): v for k, v in gripper[serial].items()}
+    rows = [_array(jd[t], source, f"joint[{serial!r}][{t}]", "joint angles").reshape(-1) for t in ts.tolist()]
+    if len({r.size for r in rows}) != 1:
+        raise TrajectoryError(source, f"joint[{serial!r}]", "the same number of values in every frame",
+                              f"sizes {sorted({r.size for r in rows})}")
+    rows = np.stack(rows)
+    widths = []
+    for t in gts.tolist():
+        entry = gd[t]
+        try:
+            info = entry["gripper_info"]
+        except (KeyError, TypeError, IndexError):
+            raise TrajectoryError(source, f"gripper[{serial!r}][{t}]", "a dict with 'gripper_info' ([width_mm, ...])",
+                                  repr(entry)[:80]) from None
+        widths.append(float(np.asarray(info, dtype=np.float64).reshape(-1)[0]))
+    width_mm = np.interp(ts, gts, np.array(widths))  # RH20T's own loader interpolates linearly too
+    return rows, width_mm, (ts - ts[0]) / 1000.0
+
+
+def from_rh20t(joint: Mapping, gripper: Mapping, intrinsics: Mapping, extrinsics_base: Mapping, serial: str, *,
+               fps: float | None = None, image_size: tuple[int, int] = (1280, 720),
+               source: str = "<rh20t cfg5>") -> tuple[Trajectory, Camera]:
+    """An RH20T cfg5 (Franka) scene seen by camera ``serial`` → (Trajectory, Camera).
+
+    Source layout (RH20T release, read with ``np.load(..., allow_pickle=True).item()``;
+    field meanings from ``rh20t_api/scene.py``, ``configs/configs.json`` and
+    ``rh20t_api/configurations.py``):
+
+    joint:  ``<scene>/transformed/joint.npy`` — {serial: {timestamp_ms: array}};
+        for cfg5 the array is 7 joint angles (radians, ``panda_joint1..7``,
+        configs.json ``robot_joint_sequence``) followed by 7 velocities.
+    gripper: ``<scene>/transformed/gripper.npy`` — {serial: {timestamp_ms:
+        {"gripper_info": [width_mm, ...], "gripper_command": ...}}};
+        ``gripper_info[0]`` is the finger width in millimetres (0 .. 80 for
+        the Franka Hand). Widths are interpolated at the joint timestamps.
+    intrinsics: ``calib/<t>/intrinsics.npy`` — {serial: 3x4 (or 3x3) matrix}.
+    extrinsics_base: {serial: 4x4} robot base → camera (OpenCV axes), i.e.
+        ``RH20TScene.extrinsics_base_aligned``; build it from the raw
+        ``calib/<t>/extrinsics.npy`` with :func:`rh20t_base_to_camera`.
+    image_size: (width, height) of the calibrated images; RH20T calibrated at
+        1280x720 (the released colour videos are 640x360: pass
+        ``camera.resized(640, 360)`` or render at that size).
+    fps: frames per second; default from the median timestamp step.
+    """
+    rows, width_mm, ts = _rh20t_series(joint, gripper, serial, source)
+    if rows.shape[1] < 7:
+        raise TrajectoryError(source, f"joint[{serial!r}]", "at least 7 values per frame (panda_joint1..7, radians)",
+                              f"{rows.shape[1]} values")
+    _radians(rows[:, :7], source, f"joint[{serial!r}]")
+    width_mm = _check_range(width_mm, 0.0, 1000 * PANDA_MAX_WIDTH, source, f"gripper[{serial!r}].gripper_info[0]",
+                            "Franka Hand width in millimetres")
+    try:
+        K = intrinsics[serial]
+    except KeyError:
+        raise CameraFileError(source, f"intrinsics[{serial!r}]", f"a calibrated camera (have {sorted(intrinsics)})", "missing") from None
+    try:
+        E = extrinsics_base[serial]
+    except KeyError:
+        raise CameraFileError(source, f"extrinsics_base[{serial!r}]", f"a calibrated camera (have {sorted(extrinsics_base)})",
+                              "missing") from None
+    E = _rigid(_array(E, source, f"extrinsics_base[{serial!r}]", "a 4x4 matrix", error=CameraFileError).reshape(-1, 4, 4)[0],
+               source, f"extrinsics_base[{serial!r}]")
+    cam = Camera(_intrinsics(K, image_size, source, f"intrinsics[{serial!r}]"), E, convention="opencv",
+                 direction="world_to_camera", embodiment=EMBODIMENT)
+    fps = _fps_from(ts, fps, source, f"joint[{serial!r}]")
+    traj = Trajectory(JOINT_NAMES, rows[:, :7], fps, gripper=(width_mm / 1000.0)[:, None], gripper_names=GRIPPER_NAMES,
+                      timestamps=ts, source=source)
+    return traj, cam
+
+
+# --------------------------------------------------------------------------- InternData-A1
+
+
+def from_interndata(frames: Mapping[str, Any], *, camera: str = "head", fps: float | None = None,
+                    image_size: tuple[int, int] = (640, 480), source: str = "<interndata-a1>") -> tuple[Trajectory, Camera]:
+    """An InternData-A1 Franka episode (LeRobot v2.1 parquet columns) → (Trajectory, Camera).
+
+    Source layout (columns written by InternData-A1's
+    ``policy/lmdb2lerobotv21/lmdb2lerobot_franka_a1.py``; the robot side by
+    InternDataEngine's ``workflows/simbox/core/robots/fr3.py``):
+
+    ``states.joint.position``  (T, 7) arm joints, radians
+    ``states.gripper.position`` (T, 1) finger width, metres (2 × the finger
+        joint: 0 = closed .. 0.08 = open)
+    ``<camera>_camera_intrinsics`` (T, 4) ``[fx, fy, cx, cy]`` in pixels of
+        the stored 640x480 video (``camera`` = ``"head"``)
+    ``<camera>_camera_to_robot_extrinsics`` (T, 7) ``[x, y, z, qw, qx, qy,
+        qz]``: the camera pose in the robot base frame, already in OpenCV axes
+        (the converter multiplies Isaac Sim's USD camera pose by diag(1, -1, -1))
+    ``timestamp`` (T,) seconds (optional; used for fps when ``fps`` is None)
+
+    Only the static head camera is supported: the hand camera moves with the
+    wrist (and the converter writes its pose into the head column).
+    """
+    q = _joints(_lookup(frames, ("states.joint.position",), source, "joint positions (T, 7)"), source,
+                "states.joint.position")
+    T = len(q)
+    width = _column(_lookup(frames, ("states.gripper.position",), source, "gripper width (T, 1)"), source,
+                    "states.gripper.position", T, "Panda finger width in metres")
+    width = _check_range(width, 0.0, PANDA_MAX_WIDTH, source, "states.gripper.position", "Panda finger width (metres)")
+    if camera != "head":
+        raise CameraFileError(source, "camera", "'head' (the static scene camera; the hand camera moves with the wrist)",
+                              repr(camera))
+    ext_field, int_field = f"{camera}_camera_to_robot_extrinsics", f"{camera}_camera_intrinsics"
+    e = _array(_lookup(frames, (ext_field,), source, "the camera pose (T, 7)", CameraFileError), source, ext_field,
+               "[x, y, z, qw, qx, qy, qz]", error=CameraFileError)
+    if e.shape[-1:] != (7,) or e.ndim > 2:
+        raise CameraFileError(source, ext_field, "[x, y, z, qw, qx, qy, qz] per frame, shape (T, 7)", f"shape {e.shape}")
+    e = _static(e, source, ext_field, "the scene camera of an InternData-A1 episode does not move")
+    n = float(np.linalg.norm(e[3:]))
+    if abs(n - 1.0) > 1e-3:
+        raise CameraFileError(source, ext_field, "a unit quaternion (norm within 1e-3 of 1) in [qw, qx, qy, qz]", f"norm {n:.6g}")
+    M = np.eye(4)
+    M[:3, :3] = _rotation_quat_wxyz(*e[3:])
+    M[:3, 3] = e[:3]
+    K = _array(_lookup(frames, (int_field,), source, "the intrinsics (T, 4)", CameraFileError), source, int_field,
+               "[fx, fy, cx, cy]",
+               error=CameraFileError)
+    cam = Camera(_intrinsics(K[0] if K.ndim == 2 else K, image_size, source, int_field), M, convention="opencv",
+                 direction="camera_to_world", embodiment=EMBODIMENT)
+    timestamps = None
+    try:
+        timestamps = _column(_lookup(frames, ("timestamp",), source, "timestamps"), source, "timestamp", T, "seconds")
+    except TrajectoryError as exc:
+        if exc.found != "missing":
+            raise
+    if fps is None:
+        if timestamps is None:
+            raise TrajectoryError(source, "timestamp", "a timestamp column, or fps= (meta/info.json 'fps')", "missing")
+        fps = _fps_from(timestamps, None, source, "timestamp")
+    traj = Trajectory(JOINT_NAMES, q, fps, gripper=width[:, None], gripper_names=GRIPPER_NAMES, timestamps=timestamps,
+                      source=source)
+    return traj, cam
