@@ -64,7 +64,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
@@ -72,7 +71,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from oscar_core.errors import CameraFileError, OutputPathError
+from oscar_core._atomic import atomic_write_bytes
+from oscar_core.errors import CameraFileError
 
 __all__ = [
     "CONVENTIONS",
@@ -117,7 +117,7 @@ _CONV_TO_CV_ROT = {
 
 _VALID_CONVENTION_NAMES = tuple(CONVENTIONS) + tuple(CONVENTION_ALIASES)
 _DISTORTION_LENGTHS = (0, 4, 5, 8, 12)
-_ORTHONORMAL_TOL = 1e-6
+_ORTHONORMAL_TOL = 1e-4  # float32-stored calibrations (RH20T, InternData) deviate by ~1e-5
 
 
 def canonical_convention(name: str) -> str:
@@ -199,6 +199,14 @@ def _rigid_problem(M: np.ndarray) -> tuple[str, str] | None:
     if det < 0:
         return "a proper rotation (det(R) = +1)", f"a reflection, det(R) = {det:.6g}"
     return None
+
+
+def _nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation closest to ``R`` (Frobenius norm, via SVD); ``R`` itself when already orthonormal."""
+    if np.abs(R.T @ R - np.eye(3)).max() < 1e-12:
+        return R
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
 
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -376,6 +384,7 @@ class Camera:
         problem = _rigid_problem(M)
         if problem is not None:
             raise CameraFileError(src, "extrinsic", *problem)
+        M[:3, :3] = _nearest_rotation(M[:3, :3])
         M.setflags(write=False)
         object.__setattr__(self, "extrinsic", M)
         if not isinstance(self.convention, str) or self.convention not in _VALID_CONVENTION_NAMES:
@@ -457,13 +466,15 @@ class Camera:
         }
 
     @classmethod
-    def from_dict(cls, d: Mapping, source: str = "<dict>") -> "Camera":
+    def from_dict(cls, d: Mapping, source: str = "<dict>", defaults: Any = None) -> "Camera":
         """Build a Camera from a dict in the camera file format.
 
-        ``source`` names the file (or object) in error messages. Raises
-        CameraFileError naming the source, the field, what was expected and found.
+        ``source`` names the file (or object) in error messages. ``defaults``
+        (e.g. an embodiment's ``CameraSpec``) supplies ``convention`` and
+        ``direction`` when the dict omits them. Raises CameraFileError naming
+        the source, the field, what was expected and found.
         """
-        return _parse_camera(d, str(source))
+        return _parse_camera(d, str(source), defaults)
 
 
 # --------------------------------------------------------------------------- file parsing
@@ -571,7 +582,7 @@ def _parse_extrinsic(v: Any, src: str) -> np.ndarray:
     return M
 
 
-def _parse_camera(d: Any, src: str) -> Camera:
+def _parse_camera(d: Any, src: str, defaults: Any = None) -> Camera:
     if not isinstance(d, Mapping):
         raise CameraFileError(src, "<document>", "a JSON object", type(d).__name__)
     unknown = sorted(set(d) - set(_TOP_KEYS))
@@ -588,10 +599,10 @@ def _parse_camera(d: Any, src: str) -> Camera:
     intrinsics = _parse_intrinsics(d, src)
     extrinsic = _parse_extrinsic(d["extrinsic"], src)
 
-    convention = d.get("convention", "opencv")
+    convention = d.get("convention", getattr(defaults, "convention", "opencv"))
     if convention not in _VALID_CONVENTION_NAMES:
         raise CameraFileError(src, "convention", f"one of {list(_VALID_CONVENTION_NAMES)}", _short(convention))
-    direction = d.get("direction", "camera_to_world")
+    direction = d.get("direction", getattr(defaults, "direction", "camera_to_world"))
     if direction not in DIRECTIONS:
         raise CameraFileError(src, "direction", f"one of {list(DIRECTIONS)}", _short(direction))
 
@@ -609,8 +620,12 @@ def _parse_camera(d: Any, src: str) -> Camera:
     return Camera(intrinsics, extrinsic, convention, direction, mount_link, embodiment)
 
 
-def load_camera(path: str | os.PathLike) -> Camera:
+def load_camera(path: str | os.PathLike, defaults: Any = None) -> Camera:
     """Read a camera JSON file (format in the module docstring).
+
+    defaults: an object with ``convention`` and ``direction`` attributes (an
+    embodiment's ``CameraSpec``) used when the file omits those keys; without
+    it they default to ``"opencv"`` and ``"camera_to_world"``.
 
     Raises CameraFileError for bad content (invalid JSON reports line and column);
     OSError (e.g. FileNotFoundError) if the file cannot be read.
@@ -621,38 +636,17 @@ def load_camera(path: str | os.PathLike) -> Camera:
         d = json.loads(text)
     except json.JSONDecodeError as e:
         raise CameraFileError(path, "<document>", "valid JSON", f"{e.msg} at line {e.lineno}, column {e.colno}") from None
-    return _parse_camera(d, str(path))
+    return _parse_camera(d, str(path), defaults)
 
 
 def save_camera(camera: Camera, path: str | os.PathLike) -> None:
-    """Write ``camera`` as JSON to ``path`` atomically (temp file in the same directory, then os.replace).
+    """Write ``camera`` as JSON to ``path`` atomically (temp file in the same directory, then rename).
 
     Raises OutputPathError if the directory does not exist or cannot be written;
     no temporary file is left behind.
     """
-    path = Path(path)
     text = json.dumps(camera.to_dict(), indent=2, allow_nan=False) + "\n"
-    parent = path.parent
-    if not parent.is_dir():
-        raise OutputPathError(path, f"directory {str(parent)!r} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
-    except OSError as e:
-        raise OutputPathError(path, f"cannot create a file in {str(parent)!r}: {e.strerror or e}") from e
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(e, OSError):
-            raise OutputPathError(path, e.strerror or str(e)) from e
-        raise
+    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 # --------------------------------------------------------------------------- projection

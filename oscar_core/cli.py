@@ -61,7 +61,6 @@ def cmd_embodiments(args) -> int:
 def cmd_render(args) -> int:
     import numpy as np
 
-    from .camera import load_camera
     from .pipeline import overlay_skeleton, parse_size, render_skeleton_video
     from .trajectory import load_trajectory
     from .video import read_video, video_info, write_video
@@ -69,7 +68,7 @@ def cmd_render(args) -> int:
     size = parse_size(args.size) if args.size else None
     emb = _registry(args).get(args.embodiment)
     traj = load_trajectory(args.trajectory)
-    cam = load_camera(args.camera)
+    cam = emb.load_camera(args.camera)
     rgb = None
     if args.overlay:
         info = video_info(args.overlay)

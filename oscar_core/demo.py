@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from ._atomic import atomic_output, atomic_write_bytes
-from .camera import load_camera
 from .pipeline import render_skeleton_video
 from .registry import Registry
 from .trajectory import load_trajectory
@@ -59,7 +58,7 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
             summary["skipped"].append({"embodiment": name, "reason": "no bundled example"})
             continue
         traj = load_trajectory(emb.example_trajectory)
-        cam = load_camera(emb.example_camera)
+        cam = emb.load_camera(emb.example_camera)
         t0 = time.perf_counter()
         video = render_skeleton_video(emb, traj, cam, size, camera_source=str(emb.example_camera))
         t_render = time.perf_counter() - t0

@@ -88,8 +88,11 @@ class CameraSpec:
     """How this embodiment's datasets give camera calibrations.
 
     convention: axes of the extrinsic's camera frame ("opencv", "opengl",
-        "ros_body"; see :mod:`oscar_core.camera`).
-    direction: "camera_to_world" (the camera's pose) or "world_to_camera".
+        "ros_body"; see :mod:`oscar_core.camera`) in this embodiment's usual
+        calibrations; the default for camera files that omit ``convention``.
+    direction: "camera_to_world" (the camera's pose) or "world_to_camera";
+        the default for camera files that omit ``direction``. Dataset adapters
+        that read other layouts set both explicitly on the cameras they build.
     mount_link: None for a static camera in the robot base frame, or the
         link the camera is attached to (a head), whose pose moves it.
     """
@@ -348,6 +351,13 @@ class Embodiment:
         gpts = points_of(g_links, np.array([g.point for g in self.grippers], dtype=float).reshape(-1, 3))
         mount_pose = poses[:, at[mount[0]]] if mount else None
         return SkeletonFrames(pts, gpts, self.gripper_openness(traj.gripper, traj.source), mount_pose)
+
+    def load_camera(self, path):
+        """Read a camera JSON file; ``convention``/``direction`` default to this
+        embodiment's :class:`CameraSpec` when the file omits them."""
+        from .camera import load_camera
+
+        return load_camera(path, defaults=self.camera)
 
     def check_camera(self, camera, source: str = "<camera>"):
         """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment."""

@@ -375,3 +375,33 @@ def test_atomic_save_into_missing_directory(tmp_path):
     save_camera(cam.resized(320, 240), tmp_path / "cam.json")
     assert os.listdir(tmp_path) == ["cam.json"]
     assert load_camera(tmp_path / "cam.json").intrinsics.width == 320
+
+
+def test_defaults_from_the_embodiment_spec_fill_omitted_keys(tmp_path):
+    from oscar_core.embodiment import CameraSpec
+
+    d = {"image_size": [640, 480], "intrinsics": {"fx": 500, "fy": 500, "cx": 320, "cy": 240},
+         "extrinsic": {"matrix": np.eye(4).tolist()}}
+    p = tmp_path / "cam.json"
+    p.write_text(json.dumps(d))
+    spec = CameraSpec(convention="opengl", direction="world_to_camera")
+    cam = load_camera(p, defaults=spec)
+    assert (cam.convention, cam.direction) == ("opengl", "world_to_camera")
+    d["convention"] = "opencv"
+    p.write_text(json.dumps(d))
+    assert load_camera(p, defaults=spec).convention == "opencv"  # the file wins
+    assert load_camera(p).direction == "camera_to_world"
+
+
+def test_float32_calibration_is_accepted_and_made_orthonormal():
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_euler("xyz", [0.3, -1.1, 2.0]).as_matrix()
+    M = np.eye(4)
+    M[:3, :3] = R + 2e-5 * np.random.default_rng(0).normal(size=(3, 3))  # a calibration stored with few digits
+    cam = Camera(Intrinsics(500, 500, 320, 240, 640, 480), M)
+    Rc = cam.extrinsic[:3, :3]
+    assert np.abs(Rc.T @ Rc - np.eye(3)).max() < 1e-12 and np.abs(Rc - R).max() < 1e-4
+    M[:3, :3] = R * 1.01
+    with pytest.raises(CameraFileError, match="orthonormal"):
+        Camera(Intrinsics(500, 500, 320, 240, 640, 480), M)
