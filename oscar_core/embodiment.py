@@ -287,10 +287,20 @@ class Embodiment:
         """Validate ``traj`` against this embodiment; returns it in this joint order.
 
         Raises :class:`TrajectoryError` for unknown or missing joints, wrong
-        gripper count or names, gripper values out of range; warns with
+        gripper count or names, gripper values out of range, ``keypoints``
+        given to a kinematic-tree embodiment or with a point count other than
+        ``len(skeleton.links)``; warns with
         :class:`JointLimitWarning` (and renders anyway) for joints beyond limits.
         """
         src = traj.source
+        if traj.keypoints is not None:
+            K = len(self.skeleton.links)
+            if self.uses_kinematic_tree():
+                raise TrajectoryError(src, "keypoints", f"no keypoints ({self.name!r} computes its points from joint positions)",
+                                      f"shape {traj.keypoints.shape}")
+            if traj.keypoints.shape[1] != K:
+                raise TrajectoryError(src, "keypoints", f"shape (T, {K}, 3): one point per skeleton point of {self.name!r}",
+                                      f"shape {traj.keypoints.shape}")
         expected = self.joint_names
         if set(traj.joint_names) != set(expected) or len(traj.joint_names) != len(expected):
             unknown = [n for n in traj.joint_names if n not in expected]
@@ -328,17 +338,19 @@ class Embodiment:
         cols = [g.openness(gripper[:, i], source) for i, g in enumerate(self.grippers)]
         return np.stack(cols, axis=1) if cols else np.zeros((gripper.shape[0], 0))
 
-    def frames(self, traj: Trajectory, device="cpu") -> SkeletonFrames:
-        """World-frame skeleton points, gripper indicator points and mount pose.
+    def frames(self, traj: Trajectory, device="cpu", mount_link: str | None = None) -> SkeletonFrames:
+        """World-frame skeleton points, gripper indicator points and the camera mount's pose.
 
-        ``traj`` must already be checked (:meth:`check_trajectory`). One FK call
-        covers the skeleton links, the gripper links and the camera mount.
+        ``traj`` must already be checked (:meth:`check_trajectory`).
+        mount_link: the link a camera rides on (``Camera.mount_link``), whose
+        world pose is returned as ``mount_pose``; None for a static camera.
+        One FK call covers the skeleton links, the gripper links and the mount.
         """
         import torch
 
         sk_links = list(self.skeleton.links)
         g_links = [g.link for g in self.grippers]
-        mount = [self.camera.mount_link] if self.camera.mount_link else []
+        mount = [mount_link] if mount_link else []
         links = list(dict.fromkeys(sk_links + g_links + mount))
         poses = self.fk(self.full_configuration(traj), traj.base_pose, links=links, device=device).to("cpu", torch.float64).numpy()
         at = {l: i for i, l in enumerate(links)}
@@ -360,13 +372,20 @@ class Embodiment:
         return load_camera(path, defaults=self.camera)
 
     def check_camera(self, camera, source: str = "<camera>"):
-        """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment."""
+        """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment.
+
+        A static camera (in the world / robot base frame) fits every
+        embodiment; a camera riding on a link must ride on this embodiment's
+        ``camera.mount_link`` (its head camera, say).
+        """
         if camera.embodiment is not None and camera.embodiment != self.name:
             raise CameraFileError(source, "embodiment", f"{self.name!r}", repr(camera.embodiment))
-        if camera.mount_link != self.camera.mount_link:
-            want = "static (mount: null)" if self.camera.mount_link is None else f"mount link {self.camera.mount_link!r}"
-            found = "static" if camera.mount_link is None else f"mount link {camera.mount_link!r}"
-            raise CameraFileError(source, "mount", f"{want} for embodiment {self.name!r}", found)
+        if camera.mount_link is not None and camera.mount_link != self.camera.mount_link:
+            want = "static (mount: null)"
+            if self.camera.mount_link is not None:
+                want += f" or mount link {self.camera.mount_link!r}"
+            raise CameraFileError(source, "mount", f"{want} for embodiment {self.name!r}",
+                                  f"mount link {camera.mount_link!r}")
 
     def info(self) -> dict:
         """A summary for listings (loads the kinematic description)."""

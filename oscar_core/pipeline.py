@@ -41,7 +41,7 @@ class SkeletonProjection:
 
 def project_skeleton(embodiment: Embodiment, traj: Trajectory, camera: Camera, device="cpu") -> SkeletonProjection:
     """FK and projection of a checked trajectory through ``camera`` (already sized)."""
-    frames = embodiment.frames(traj, device=device)
+    frames = embodiment.frames(traj, device=device, mount_link=camera.mount_link)
     pts = project(frames.points, camera, mount_pose=frames.mount_pose)
     g = project(frames.gripper_points, camera, mount_pose=frames.mount_pose)
     marks = GripperMarks(uv=g.uv, visible=g.in_front, openness=frames.openness)
