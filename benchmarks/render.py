@@ -35,6 +35,7 @@ from oscar_core.render import GripperMarks, SkeletonStyle, rasterise  # noqa: E4
 from oscar_core.video import write_video  # noqa: E402
 
 SIZES = ((512, 288), (1280, 704))
+FRAMES = 81
 
 
 def best_and_median(fn, repeats: int) -> tuple[float, float]:
@@ -46,20 +47,22 @@ def best_and_median(fn, repeats: int) -> tuple[float, float]:
     return min(times), statistics.median(times)
 
 
-def naive_render(urdf_path, emb, traj, cam, size):
+def naive_render(emb, traj, cam, size):
     """yourdfpy FK per frame, cv2.projectPoints per frame, lines and circles on a new canvas."""
+    import io
+
     import yourdfpy
 
-    robot = yourdfpy.URDF.load(str(urdf_path), load_meshes=False, build_scene_graph=True,
+    from oscar_core.urdf import expand_xacro
+
+    source = str(emb.urdf) if emb.urdf is not None else io.StringIO(expand_xacro(emb.xacro, emb.xacro_args, emb.packages))
+    robot = yourdfpy.URDF.load(source, load_meshes=False, build_scene_graph=True,
                                load_collision_meshes=False, build_collision_scene_graph=False)
     q_full = emb.full_configuration(traj)
     links = list(emb.skeleton.links)
     offsets = emb.skeleton.point_offsets()
     edges = emb.edge_index()
     pc, ec = emb.colors()
-    T_cv_world = cam.world_to_cv()
-    rvec, _ = cv2.Rodrigues(T_cv_world[:3, :3])
-    tvec = T_cv_world[:3, 3]
     K = cam.intrinsics.matrix()
     dist = np.array(cam.intrinsics.distortion or [0, 0, 0, 0], float)
     W, H = size
@@ -69,7 +72,10 @@ def naive_render(urdf_path, emb, traj, cam, size):
     for t in range(len(traj)):
         robot.update_cfg(q_full[t])
         pts = np.array([(robot.get_transform(l, robot.base_link) @ np.append(o, 1.0))[:3] for l, o in zip(links, offsets)])
-        uv, _ = cv2.projectPoints(pts, rvec, tvec, K, dist)
+        mount = None if cam.mount_link is None else robot.get_transform(cam.mount_link, robot.base_link)
+        T_cv_world = cam.world_to_cv(mount)
+        rvec, _ = cv2.Rodrigues(T_cv_world[:3, :3])
+        uv, _ = cv2.projectPoints(pts, rvec, T_cv_world[:3, 3], K, dist)
         uv = uv.reshape(-1, 2)
         img = np.zeros((H, W, 3), np.uint8)
         for e, (a, b) in enumerate(edges):
@@ -84,13 +90,15 @@ def naive_render(urdf_path, emb, traj, cam, size):
 def bench_embodiment(name: str, repeats: int) -> list[dict]:
     emb = get_embodiment(name)
     traj = emb.check_trajectory(load_trajectory(emb.example_trajectory))
+    traj = traj.replace(q=traj.q[:FRAMES], gripper=traj.gripper[:FRAMES], timestamps=None,
+                        base_pose=None if traj.base_pose is None else traj.base_pose[:FRAMES])
     base_cam = load_camera(emb.example_camera)
     T = len(traj)
     rows = []
     for size in SIZES:
         cam = base_cam.resized(*size)
-        frames = emb.frames(traj)
-        fk_s, fk_m = best_and_median(lambda: emb.frames(traj), repeats)
+        frames = emb.frames(traj, mount_link=cam.mount_link)
+        fk_s, fk_m = best_and_median(lambda: emb.frames(traj, mount_link=cam.mount_link), repeats)
 
         def do_project():
             p = project(frames.points, cam, mount_pose=frames.mount_pose)
@@ -109,7 +117,7 @@ def bench_embodiment(name: str, repeats: int) -> list[dict]:
         with tempfile.TemporaryDirectory() as tmp:
             enc_s, enc_m = best_and_median(lambda: write_video(Path(tmp) / "b.mp4", video, traj.fps), max(2, repeats // 2))
             mp4_kb = (Path(tmp) / "b.mp4").stat().st_size / 1024
-        naive_s, naive_m = best_and_median(lambda: naive_render(emb.tree.source, emb, traj, cam, size), max(2, repeats // 3))
+        naive_s, naive_m = best_and_median(lambda: naive_render(emb, traj, cam, size), max(2, repeats // 3))
         pipeline = fk_s + proj_s + ras_s
         rows.append({
             "embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": T, "points": len(emb.skeleton.links),
@@ -134,14 +142,15 @@ def main(argv=None) -> int:
     from oscar_core import default_registry
 
     reg = default_registry()
-    names = args.embodiments or [n for n in reg.names() if reg.get(n).example_trajectory is not None]
+    names = args.embodiments or [n for n in reg.names()
+                                 if reg.get(n).example_trajectory is not None and reg.get(n).uses_kinematic_tree()]
     rows = [r for n in names for r in bench_embodiment(n, args.repeats)]
     cols = [("embodiment", "{}"), ("size", "{}"), ("points", "{}"), ("fk_us", "{:.1f}"), ("project_us", "{:.1f}"),
             ("raster_us", "{:.1f}"), ("encode_us", "{:.0f}"), ("pipeline_fps", "{:.0f}"),
             ("pipeline_with_h264_fps", "{:.0f}"), ("naive_fps", "{:.0f}"), ("speedup_vs_naive", "{:.1f}x")]
     table = [[c for c, _ in cols]] + [[f.format(r[c]) for c, f in cols] for r in rows]
     widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
-    print("per-frame costs in microseconds, 81-frame trajectories, one CPU thread (best of repeats)")
+    print(f"per-frame costs in microseconds, {FRAMES}-frame trajectories, one CPU thread (best of repeats)")
     for row in table:
         print("  ".join(v.rjust(w) for v, w in zip(row, widths)))
     out = Path(args.json)

@@ -30,6 +30,7 @@ __all__ = [
     "build_tree_from_urdf",
     "build_tree_from_urdf_string",
     "build_tree_from_xacro",
+    "expand_xacro",
     "rpy_to_matrix",
 ]
 
@@ -290,10 +291,11 @@ def _package_resolver(packages: Mapping[str, str | Path], source: str):
                     sys.modules[n] = mod
 
 
-def build_tree_from_xacro(path, args: Mapping[str, str] | None = None, packages: Mapping[str, str | Path] | None = None) -> KinematicTree:
-    """Expand a xacro file (``args`` as ``name:=value`` mappings) and parse the result.
+def expand_xacro(path, args: Mapping[str, str] | None = None, packages: Mapping[str, str | Path] | None = None) -> str:
+    """Expand a xacro file to URDF XML text.
 
-    packages: ``{package name: share directory}`` used for ``$(find pkg)``.
+    args: ``name:=value`` mappings; packages: ``{package name: share
+    directory}`` used for ``$(find pkg)`` (no ROS needed).
     """
     import xacro
 
@@ -307,4 +309,9 @@ def build_tree_from_xacro(path, args: Mapping[str, str] | None = None, packages:
         raise
     except Exception as exc:  # xacro raises its own XacroException and XML errors
         raise KinematicsFileError(str(path), "<xacro>", "a xacro file that expands", f"{type(exc).__name__}: {exc}") from None
-    return build_tree_from_urdf_string(doc.toxml(), str(path))
+    return doc.toxml()
+
+
+def build_tree_from_xacro(path, args: Mapping[str, str] | None = None, packages: Mapping[str, str | Path] | None = None) -> KinematicTree:
+    """Expand a xacro file (see :func:`expand_xacro`) and parse the result."""
+    return build_tree_from_urdf_string(expand_xacro(path, args, packages), str(path))
