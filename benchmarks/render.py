@@ -90,8 +90,7 @@ def naive_render(emb, traj, cam, size):
 def bench_embodiment(name: str, repeats: int) -> list[dict]:
     emb = get_embodiment(name)
     traj = emb.check_trajectory(load_trajectory(emb.example_trajectory))
-    traj = traj.replace(q=traj.q[:FRAMES], gripper=traj.gripper[:FRAMES], timestamps=None,
-                        base_pose=None if traj.base_pose is None else traj.base_pose[:FRAMES])
+    traj = traj.time_slice(0, FRAMES)
     base_cam = load_camera(emb.example_camera)
     T = len(traj)
     rows = []

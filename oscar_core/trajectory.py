@@ -15,7 +15,14 @@ field              shape       meaning
 ``base_pose``      (T, 4, 4)   optional: world pose of the robot's root link
                                (mobile bases, floating bases), metres
 ``timestamps``     (T,)        optional: seconds, informational
+``keypoints``      (T, P, 3)   optional: 3D points, metres, for embodiments
+                               that take their skeleton points directly
+                               instead of computing them from joints (human
+                               hands); NaN marks a missing point
 =================  ==========  ===============================================
+
+A trajectory with ``keypoints`` may leave out ``joint_names`` and ``q`` in the
+file: they default to no joints, ``q`` of shape (T, 0).
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from .errors import TrajectoryError
 
 __all__ = ["Trajectory", "load_trajectory", "save_trajectory", "TRAJECTORY_FIELDS"]
 
-TRAJECTORY_FIELDS = ("joint_names", "q", "fps", "gripper", "gripper_names", "base_pose", "timestamps")
+TRAJECTORY_FIELDS = ("joint_names", "q", "fps", "gripper", "gripper_names", "base_pose", "timestamps", "keypoints")
 
 
 def _first_bad(a: np.ndarray) -> tuple:
@@ -47,7 +54,10 @@ class Trajectory:
     joint_names: (J,) names; q: (T, J) radians / metres; fps: frames per
     second; gripper: (T, G) raw signals (G may be 0); gripper_names: (G,) or
     None; base_pose: (T, 4, 4) root-link pose in the world, or None;
-    source: file name used in error messages.
+    source: file name used in error messages; keypoints: (T, P, 3) points in
+    metres for embodiments that read their skeleton points directly (NaN =
+    missing point; inf is an error), or None. Such trajectories have no
+    joints: ``joint_names=()`` and ``q`` of shape (T, 0).
     """
 
     joint_names: tuple[str, ...]
@@ -58,6 +68,7 @@ class Trajectory:
     base_pose: np.ndarray | None = None
     timestamps: np.ndarray | None = None
     source: str = "<trajectory>"
+    keypoints: np.ndarray | None = None
 
     def __post_init__(self):
         src = self.source
@@ -119,6 +130,19 @@ class Trajectory:
             if ts.shape != (T,):
                 raise TrajectoryError(src, "timestamps", f"shape ({T},)", f"shape {ts.shape}")
             object.__setattr__(self, "timestamps", ts)
+        if self.keypoints is not None:
+            try:
+                kp = np.asarray(self.keypoints, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise TrajectoryError(src, "keypoints", "numbers (metres)", f"dtype {np.asarray(self.keypoints).dtype}") from None
+            if kp.ndim != 3 or kp.shape[0] != T or kp.shape[2] != 3 or kp.shape[1] < 1:
+                raise TrajectoryError(src, "keypoints", f"shape ({T}, P, 3) with P >= 1", f"shape {kp.shape}")
+            inf = np.isinf(kp)
+            if inf.any():
+                (t, k, _), n = tuple(int(i) for i in np.argwhere(inf)[0]), int(inf.sum())
+                raise TrajectoryError(src, "keypoints", "finite values or NaN (NaN marks a missing point)",
+                                      f"{kp[t, k].tolist()} at frame {t}, point {k} ({n} values)")
+            object.__setattr__(self, "keypoints", kp)
 
     @property
     def num_frames(self) -> int:
@@ -126,6 +150,12 @@ class Trajectory:
 
     def replace(self, **changes) -> "Trajectory":
         return dataclasses.replace(self, **changes)
+
+    def time_slice(self, start: int | None = None, stop: int | None = None) -> "Trajectory":
+        """Frames ``start:stop`` of every per-frame field (q, gripper, base pose, timestamps, keypoints)."""
+        sl = slice(start, stop)
+        per_frame = ("q", "gripper", "base_pose", "timestamps", "keypoints")
+        return self.replace(**{f: getattr(self, f)[sl] for f in per_frame if getattr(self, f) is not None})
 
     def __len__(self) -> int:
         return self.num_frames
@@ -149,6 +179,11 @@ def load_trajectory(path) -> Trajectory:
     unknown = sorted(set(data) - set(TRAJECTORY_FIELDS))
     if unknown:
         raise TrajectoryError(src, unknown[0], f"only the fields {list(TRAJECTORY_FIELDS)}", f"unknown fields {unknown}")
+    if "keypoints" in data and "joint_names" not in data and "q" not in data:
+        # a keypoint trajectory (no joints): T comes from the keypoints
+        kp = data["keypoints"]
+        data["joint_names"] = np.array([], dtype=str)
+        data["q"] = np.zeros((kp.shape[0] if kp.ndim else 1, 0))
     for required in ("joint_names", "q", "fps"):
         if required not in data:
             raise TrajectoryError(src, required, "a required field", "missing")
@@ -163,6 +198,7 @@ def load_trajectory(path) -> Trajectory:
         base_pose=data.get("base_pose"),
         timestamps=data.get("timestamps"),
         source=src,
+        keypoints=data.get("keypoints"),
     )
 
 
@@ -178,6 +214,8 @@ def save_trajectory(traj: Trajectory, path) -> Path:
         arrays["base_pose"] = traj.base_pose
     if traj.timestamps is not None:
         arrays["timestamps"] = traj.timestamps
+    if traj.keypoints is not None:
+        arrays["keypoints"] = traj.keypoints
     with atomic_output(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, **arrays)

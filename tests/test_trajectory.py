@@ -126,3 +126,14 @@ def test_bad_files(tmp_path):
 def test_save_into_missing_folder(tmp_path):
     with pytest.raises(OutputPathError, match="does not exist"):
         save_trajectory(make(), tmp_path / "missing" / "t.npz")
+
+
+def test_time_slice_cuts_every_per_frame_field():
+    T = 6
+    base = np.tile(np.eye(4), (T, 1, 1))
+    base[:, 0, 3] = np.arange(T)
+    traj = Trajectory(ARM, np.arange(T * 4.0).reshape(T, 4), fps=10, gripper=np.full((T, 1), 0.04),
+                      base_pose=base, timestamps=np.arange(T) / 10, keypoints=np.zeros((T, 2, 3)))
+    part = traj.time_slice(2, 4)
+    assert len(part) == 2 and part.q[0, 0] == 8.0 and part.base_pose[0, 0, 3] == 2.0
+    assert part.gripper.shape == (2, 1) and part.timestamps.shape == (2,) and part.keypoints.shape == (2, 2, 3)
