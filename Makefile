@@ -26,6 +26,7 @@ test-fast: install
 
 bench: install
 	$(PYTHON) benchmarks/render.py
+	$(PYTHON) benchmarks/rollout.py
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

@@ -18,6 +18,9 @@ EXAMPLES = """examples:
   oscar render ... --out skel.mkv          (lossless FFV1, for training data)
   oscar render ... --out frames/           (lossless PNG frames)
   oscar demo --out demo_out
+  oscar zoo list
+  oscar rollout --model oscar-2b --embodiment franka --first-frame img.png --trajectory traj.npz --camera cam.json --out rollout.mp4
+  oscar eval video pred.mp4 gt.mp4
   oscar --plugin ./my_robot.py embodiments (load a one-file plugin)
 """
 
@@ -134,8 +137,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     from .metrics.cli import add_eval_parser
+    from .model.cli import add_model_parsers
 
     add_eval_parser(sub)
+    add_model_parsers(sub)
     return p
 
 

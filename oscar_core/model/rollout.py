@@ -1,0 +1,125 @@
+"""Autoregressive rollouts of any length, chunk by chunk.
+
+A trajectory of T frames is covered by chunks of L = 4k+1 frames that overlap
+by one frame: chunk c spans frames [c(L−1), c(L−1) + L). Chunk 0 is seeded
+with the user's first frame; chunk c > 0 with the last decoded frame of
+chunk c − 1, re-encoded by the VAE (a latent frame of a chunk's end covers
+four pixel frames, so it cannot be reused as a first-frame latent). The
+output keeps chunk 0 whole and drops frame 0 of every later chunk (it is the
+seed again), so no frame is duplicated, then cuts the video to T frames. The
+skeleton video of the last chunk is padded with its last frame when the
+chunks overrun T.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .errors import ModelInputError
+from .sampler import SamplerConfig, sample_chunk
+from .vae import VideoVAE, check_frame_count
+
+__all__ = ["RolloutResult", "chunk_plan", "rollout"]
+
+
+@dataclass
+class RolloutResult:
+    """A rollout.
+
+    frames: (T, H, W, 3) uint8 RGB, T = the skeleton video's length.
+    chunks: per chunk, its decoded video (1, 3, L, H, W) float32 in [-1, 1].
+    seeds: per chunk, the seed frame it was conditioned on (1, 3, 1, H, W).
+    starts: per chunk, the index of its first frame in the trajectory.
+    """
+
+    frames: np.ndarray
+    chunks: list[torch.Tensor] = field(default_factory=list)
+    seeds: list[torch.Tensor] = field(default_factory=list)
+    starts: list[int] = field(default_factory=list)
+
+
+def chunk_plan(num_frames: int, chunk_frames: int, temporal: int = 4) -> list[int]:
+    """Start frame of each chunk of ``chunk_frames`` covering ``num_frames`` (overlap of one frame)."""
+    check_frame_count(chunk_frames, temporal, what="chunk_frames")
+    if chunk_frames < 1 + temporal:
+        raise ModelInputError(f"chunk_frames: expected at least {1 + temporal} (one frame to predict beyond the "
+                              f"seed), found {chunk_frames}")
+    if num_frames < chunk_frames:
+        shorter = (max(num_frames - 1, 0) // temporal) * temporal + 1
+        hint = (f"; use chunk_frames={shorter} (--chunk-frames {shorter}) or a longer trajectory"
+                if shorter >= 1 + temporal else "; use a longer trajectory")
+        raise ModelInputError(f"trajectory: expected at least one chunk of {chunk_frames} frames, "
+                              f"found {num_frames} frames{hint}")
+    count = math.ceil((num_frames - 1) / (chunk_frames - 1))
+    return [c * (chunk_frames - 1) for c in range(count)]
+
+
+def _check_inputs(first_frame, skeleton, spatial: int):
+    first = np.asarray(first_frame)
+    skel = np.asarray(skeleton)
+    if skel.dtype != np.uint8 or skel.ndim != 4 or skel.shape[-1] != 3:
+        raise ModelInputError(f"skeleton video: expected (T, H, W, 3) uint8 RGB, found {skel.dtype} {skel.shape}")
+    if first.dtype != np.uint8 or first.ndim != 3 or first.shape[-1] != 3:
+        raise ModelInputError(f"first frame: expected (H, W, 3) uint8 RGB, found {first.dtype} {first.shape}")
+    if first.shape != skel.shape[1:]:
+        raise ModelInputError(f"first frame: expected the skeleton video's size {skel.shape[2]}x{skel.shape[1]} "
+                              f"(width x height), found {first.shape[1]}x{first.shape[0]}")
+    h, w = first.shape[:2]
+    if h % spatial or w % spatial:
+        raise ModelInputError(f"frame size: expected width and height divisible by {spatial} (VAE x DiT patch), "
+                              f"found {w}x{h}")
+    return first, skel
+
+
+@torch.no_grad()
+def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *, chunk_frames: int = 81,
+            sampler: SamplerConfig = SamplerConfig(), seed: int = 0, progress: bool = True,
+            keep_chunks: bool = True) -> RolloutResult:
+    """Roll the world model out along a skeleton video.
+
+    transformer: OscarTransformer3DModel; vae: VideoVAE.
+    first_frame: (H, W, 3) uint8 RGB image I_0; skeleton: (T, H, W, 3) uint8
+        skeleton video S_1..T of the same size (frame 0 matches I_0).
+    prompt_embeds: (1, L, D) text embedding.
+    chunk_frames: L = 4k+1 frames per chunk; sampler: SamplerConfig.
+    seed: seeds the noise of every chunk (one CPU generator, drawn in order):
+        the same seed gives the same video.
+    returns: RolloutResult with T frames.
+    """
+    patch = int(transformer.config.patch_size[1])
+    first, skel = _check_inputs(first_frame, skeleton, vae.spatial * patch)
+    total = len(skel)
+    starts = chunk_plan(total, chunk_frames, vae.temporal)
+    padded_len = starts[-1] + chunk_frames
+    if padded_len > total:
+        skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
+    generator = torch.Generator(device="cpu").manual_seed(int(seed))
+    result = RolloutResult(frames=np.empty(0, np.uint8), starts=list(starts))
+    pieces: list[torch.Tensor] = []
+    seed_pixels = VideoVAE.to_pixels(first[None])  # (1, 3, 1, H, W)
+    outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
+    try:
+        for index, start in enumerate(starts):
+            skeleton_latent = vae.encode(VideoVAE.to_pixels(skel[start:start + chunk_frames]))
+            first_latent = vae.encode(seed_pixels)
+            with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
+                      disable=not progress) as bar:
+                latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
+                                      generator=generator, progress=bar)
+            video = vae.decode(latent).cpu()  # (1, 3, L, H, W)
+            if keep_chunks:
+                result.chunks.append(video)
+                result.seeds.append(seed_pixels)
+            pieces.append(video if index == 0 else video[:, :, 1:])
+            seed_pixels = video[:, :, -1:].clone()
+            outer.update(1)
+    finally:
+        outer.close()
+    full = torch.cat(pieces, dim=2)[:, :, :total]
+    result.frames = VideoVAE.to_uint8(full)[0]
+    return result

@@ -1,0 +1,137 @@
+"""The WAN 2.1 VAE as the world model uses it: pixels ⇄ normalised latents.
+
+Pixels are (B, 3, T, H, W) floats in [-1, 1] (or (T, H, W, 3) / (B, T, H, W, 3)
+uint8 RGB through :meth:`VideoVAE.to_pixels`). Latents are (B, 16, T', H/8,
+W/8) with T' = (T - 1) / 4 + 1, normalised per channel with the VAE's
+``latents_mean``/``latents_std``: z_n = (z - mean) / std, exactly as the
+Cosmos 2.5 pipeline does before the DiT, and undone before decoding.
+Encoding takes the posterior's mode (the pipeline's "argmax"), so it is
+deterministic. The VAE is causal in time: latent frame 0 depends only on
+pixel frame 0, hence frame counts of the form 4k + 1.
+
+Memory options (for GPUs): tiling and slicing (diffusers' own), and CPU
+offload — the VAE waits on the CPU and visits ``device`` only to encode or
+decode.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ._weights import cast_model
+from .errors import ModelInputError
+
+__all__ = ["VideoVAE", "check_frame_count"]
+
+
+def check_frame_count(frames: int, temporal: int = 4, what: str = "video") -> int:
+    """Raise unless ``frames`` = temporal·k + 1 (k ≥ 0); returns the latent frame count k + 1."""
+    if frames < 1 or (frames - 1) % temporal:
+        lower = (max(frames - 1, 0) // temporal) * temporal + 1
+        raise ModelInputError(f"{what}: expected a frame count of the form {temporal}k+1 (1, 5, 9, ..., 81, ...), "
+                              f"found {frames} (nearest valid: {lower} or {lower + temporal})")
+    return (frames - 1) // temporal + 1
+
+
+class VideoVAE:
+    """Wraps an ``AutoencoderKLWan``: normalised latents in, [-1, 1] pixels out.
+
+    vae: the diffusers model (its config gives z_dim, latents_mean/std and the
+        compression factors: 2^sum(temperal_downsample) in time, 2^len(...) in space).
+    device: where encode/decode run; dtype: the VAE's compute dtype.
+    offload: keep the VAE on the CPU between calls (GPU memory saver).
+    """
+
+    def __init__(self, vae, device="cpu", dtype: torch.dtype = torch.float32, offload: bool = False):
+        self.vae = vae
+        self.device = torch.device(device)
+        self.dtype = dtype
+        self.offload = offload
+        cfg = vae.config
+        self.temporal = 2 ** sum(bool(v) for v in cfg.temperal_downsample)
+        self.spatial = 2 ** len(cfg.temperal_downsample)
+        self.z_dim = int(cfg.z_dim)
+        self.mean = torch.tensor(cfg.latents_mean, dtype=torch.float32).view(1, -1, 1, 1, 1)
+        self.std = torch.tensor(cfg.latents_std, dtype=torch.float32).view(1, -1, 1, 1, 1)
+        if self.mean.shape[1] != self.z_dim or self.std.shape[1] != self.z_dim:
+            raise ModelInputError(f"VAE config: expected latents_mean/latents_std of length z_dim = {self.z_dim}, "
+                                  f"found {self.mean.shape[1]} / {self.std.shape[1]}")
+        cast_model(vae, "cpu" if offload else self.device, dtype)
+        vae.eval()
+
+    # ------------------------------------------------------------------ options
+    def enable_tiling(self, **kwargs) -> None:
+        """Spatial tiling of encode/decode (diffusers' ``enable_tiling``; less memory, slight seams)."""
+        self.vae.enable_tiling(**kwargs)
+
+    def enable_slicing(self) -> None:
+        """Encode/decode one batch element at a time."""
+        self.vae.enable_slicing()
+
+    # ------------------------------------------------------------------ shapes
+    def latent_shape(self, frames: int, height: int, width: int) -> tuple[int, int, int, int]:
+        """(C, T', H', W') of the latent of a (frames, height, width) video; checks 4k+1 and the size."""
+        t = check_frame_count(frames, self.temporal)
+        if height % self.spatial or width % self.spatial:
+            raise ModelInputError(f"video size: expected width and height divisible by {self.spatial}, "
+                                  f"found {width}x{height}")
+        return self.z_dim, t, height // self.spatial, width // self.spatial
+
+    @staticmethod
+    def to_pixels(frames) -> torch.Tensor:
+        """(T, H, W, 3) or (B, T, H, W, 3) uint8 RGB → (B, 3, T, H, W) float32 in [-1, 1]."""
+        a = np.asarray(frames)
+        if a.dtype != np.uint8 or a.ndim not in (4, 5) or a.shape[-1] != 3:
+            raise ModelInputError(f"frames: expected (T, H, W, 3) or (B, T, H, W, 3) uint8 RGB, "
+                                  f"found {a.dtype} {a.shape}")
+        t = torch.from_numpy(np.ascontiguousarray(a))
+        if t.ndim == 4:
+            t = t.unsqueeze(0)
+        return t.permute(0, 4, 1, 2, 3).float().div(127.5).sub(1.0)
+
+    @staticmethod
+    def to_uint8(pixels: torch.Tensor) -> np.ndarray:
+        """(B, 3, T, H, W) float in [-1, 1] → (B, T, H, W, 3) uint8 (rounded, clipped)."""
+        x = ((pixels.detach().float().clamp(-1, 1) + 1.0) * 127.5).round().to(torch.uint8)
+        return x.permute(0, 2, 3, 4, 1).cpu().numpy()
+
+    # ------------------------------------------------------------------ encode / decode
+    def _on_device(self):
+        if self.offload:
+            cast_model(self.vae, self.device)
+
+    def _off_device(self):
+        if self.offload:
+            cast_model(self.vae, "cpu")
+
+    @torch.no_grad()
+    def encode(self, pixels: torch.Tensor) -> torch.Tensor:
+        """(B, 3, T, H, W) in [-1, 1], T = 4k+1 → normalised latents (B, z, k+1, H/8, W/8) float32."""
+        if pixels.ndim != 5 or pixels.shape[1] != 3:
+            raise ModelInputError(f"pixels: expected (B, 3, T, H, W), found shape {tuple(pixels.shape)}")
+        self.latent_shape(*pixels.shape[2:])
+        self._on_device()
+        try:
+            dist = self.vae.encode(pixels.to(self.device, self.dtype)).latent_dist
+            z = dist.mode().float()
+        finally:
+            self._off_device()
+        return (z - self.mean.to(z.device)) / self.std.to(z.device)
+
+    @torch.no_grad()
+    def decode(self, latents: torch.Tensor) -> torch.Tensor:
+        """Normalised latents (B, z, T', H', W') → pixels (B, 3, 4(T'-1)+1, 8H', 8W') float32 in [-1, 1]."""
+        if latents.ndim != 5 or latents.shape[1] != self.z_dim:
+            raise ModelInputError(f"latents: expected (B, {self.z_dim}, T, H, W), found shape {tuple(latents.shape)}")
+        z = latents.float() * self.std.to(latents.device) + self.mean.to(latents.device)
+        self._on_device()
+        try:
+            out = self.vae.decode(z.to(self.device, self.dtype)).sample
+        finally:
+            self._off_device()
+        return out.float()
+
+    def reconstruct(self, pixels: torch.Tensor) -> torch.Tensor:
+        """decode(encode(pixels)): what the VAE makes of a clip (tests and diagnostics)."""
+        return self.decode(self.encode(pixels))

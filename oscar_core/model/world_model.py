@@ -1,0 +1,232 @@
+"""The OSCAR world model as one object: DiT + VAE + text fallback + model card.
+
+A saved model is a folder (the layout the zoo expects on the Hub)::
+
+    oscar_model.json                         format tag + ModelCard
+    transformer/config.json                  OscarTransformer3DModel
+    transformer/diffusion_pytorch_model.safetensors   (or an index + shards)
+    vae/config.json                          AutoencoderKLWan
+    vae/diffusion_pytorch_model.safetensors
+    text/empty_prompt_embeds.safetensors     optional: the encoder's embedding of ""
+    oscar_manifest.json                      size + sha256 of every other file
+
+Loading reads safetensors only, builds on the meta device and assigns the
+weights strictly (no key may be missing or left over), and checks the
+manifest's hashes unless told not to.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from ._weights import build_strict, cast_model, check_safetensors, load_state_dict, read_config
+from .errors import CheckpointLayoutError, ModelInputError
+from .sampler import SamplerConfig
+from .text import check_prompt_embeds, empty_prompt_embeds
+from .transformer import OscarTransformer3DModel
+from .vae import VideoVAE, check_frame_count
+
+__all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
+
+MODEL_FILE = "oscar_model.json"
+FORMAT = "oscar-world-model"
+EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
+
+
+@dataclass(frozen=True)
+class ModelCard:
+    """What a checkpoint expects and where it came from.
+
+    chunk_frames: frames per generated chunk (4k+1; the paper trains on 81);
+    width, height: resolution in pixels it was trained at (None: unknown);
+    fps: frame rate of its training videos (None: unknown);
+    embodiments: embodiment names (oscar plugins) it was trained on;
+    text_encoder_id: names the encoder whose embeddings it takes (cache key);
+    base: the checkpoint it was fine-tuned from; license: SPDX id or name.
+    """
+
+    name: str | None = None
+    chunk_frames: int = 81
+    width: int | None = None
+    height: int | None = None
+    fps: float | None = None
+    embodiments: tuple[str, ...] = ()
+    text_encoder_id: str | None = None
+    base: str | None = None
+    license: str | None = None
+
+    def __post_init__(self):
+        check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
+        object.__setattr__(self, "embodiments", tuple(self.embodiments))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["embodiments"] = list(self.embodiments)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict, source="<card>") -> "ModelCard":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise CheckpointLayoutError(source, "card", f"keys among {sorted(known)}", f"unknown keys {unknown}")
+        return cls(**data)
+
+
+@dataclass(eq=False)
+class OscarWorldModel:
+    """DiT + VAE (+ stored empty-prompt embedding) + card.
+
+    transformer: OscarTransformer3DModel (already on its device/dtype);
+    vae: VideoVAE; card: ModelCard; empty_prompt: (1, L, D) or None.
+    """
+
+    transformer: OscarTransformer3DModel
+    vae: VideoVAE
+    card: ModelCard = field(default_factory=ModelCard)
+    empty_prompt: torch.Tensor | None = None
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_modules(cls, transformer, vae, card: ModelCard | None = None, empty_prompt=None, *, device="cpu",
+                     dtype: torch.dtype | None = None, vae_dtype: torch.dtype | None = None,
+                     offload_vae: bool = False, offload_text: bool = False) -> "OscarWorldModel":
+        """Assemble from an OscarTransformer3DModel and an AutoencoderKLWan (moved to device/dtype).
+
+        Memory options (GPU): ``dtype=torch.bfloat16``; ``offload_vae`` keeps the
+        VAE on the CPU between encode/decode calls; ``offload_text`` keeps the
+        DiT's text projection (100352 → 1024, ~103 M parameters in the 2B) on
+        the CPU — samplers project the prompt once per chunk there, so calls
+        to the transformer must then pass ``text_projected=True``.
+        """
+        cast_model(transformer, device, dtype)
+        if offload_text and transformer.config.use_crossattn_projection:
+            transformer.crossattn_proj.to("cpu")
+        transformer.eval()
+        vae_dtype = vae_dtype or dtype or torch.float32
+        model = cls(transformer, VideoVAE(vae, device=device, dtype=vae_dtype, offload=offload_vae),
+                    card or ModelCard(), None)
+        if empty_prompt is not None:
+            model.empty_prompt = check_prompt_embeds(empty_prompt, transformer.text_dim, "empty prompt embedding")
+        return model
+
+    @classmethod
+    def from_pretrained(cls, folder, *, device="cpu", dtype: torch.dtype | None = None,
+                        vae_dtype: torch.dtype | None = None, offload_vae: bool = False,
+                        offload_text: bool = False, verify: bool = True) -> "OscarWorldModel":
+        """Load a folder written by :meth:`save_pretrained` (safetensors only, keys matched strictly).
+
+        verify: check every file against ``oscar_manifest.json`` (sha256) and
+        the structure of every safetensors file before loading.
+        """
+        from diffusers import AutoencoderKLWan
+
+        folder = Path(folder)
+        card = _read_card(folder)
+        if verify:
+            manifest = read_manifest(folder)
+            if manifest is not None:
+                verify_files(folder, {p: m.get("sha256") for p, m in manifest.items()}, source=folder)
+        transformer = OscarTransformer3DModel.load_strict(folder / "transformer")
+        vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
+                           load_state_dict(folder / "vae"), folder / "vae")
+        empty = None
+        if (folder / EMPTY_PROMPT_FILE).is_file():
+            check_safetensors(folder / EMPTY_PROMPT_FILE)
+            tensors = load_file(str(folder / EMPTY_PROMPT_FILE))
+            if "prompt_embeds" not in tensors:
+                raise CheckpointLayoutError(folder / EMPTY_PROMPT_FILE, "tensors", "'prompt_embeds'", sorted(tensors))
+            empty = tensors["prompt_embeds"]
+        return cls.from_modules(transformer, vae, card, empty, device=device, dtype=dtype, vae_dtype=vae_dtype,
+                                offload_vae=offload_vae, offload_text=offload_text)
+
+    @classmethod
+    def from_cosmos_base(cls, folder, card: ModelCard | None = None, *, skeleton_channels: int | None = None,
+                         device="cpu", dtype: torch.dtype | None = None, vae_dtype: torch.dtype | None = None,
+                         offload_vae: bool = False, offload_text: bool = False) -> "OscarWorldModel":
+        """Start from a Cosmos-Predict2.5 diffusers folder (``transformer/`` + ``vae/``): base + zero PE_s."""
+        from diffusers import AutoencoderKLWan
+
+        folder = Path(folder)
+        transformer = OscarTransformer3DModel.from_cosmos_base(folder / "transformer", skeleton_channels)
+        vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
+                           load_state_dict(folder / "vae"), folder / "vae")
+        return cls.from_modules(transformer, vae, card, None, device=device, dtype=dtype, vae_dtype=vae_dtype,
+                                offload_vae=offload_vae, offload_text=offload_text)
+
+    # ------------------------------------------------------------------ export
+    def save_pretrained(self, folder, card: ModelCard | None = None, max_shard_size: str | int = "10GB") -> Path:
+        """Write the folder layout of the module docstring (safetensors) and its sha256 manifest."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        card = card or self.card
+        self.transformer.save_pretrained(folder / "transformer", safe_serialization=True, max_shard_size=max_shard_size)
+        self.vae.vae.save_pretrained(folder / "vae", safe_serialization=True, max_shard_size=max_shard_size)
+        if self.empty_prompt is not None:
+            (folder / "text").mkdir(exist_ok=True)
+            save_file({"prompt_embeds": self.empty_prompt.detach().cpu().contiguous()}, str(folder / EMPTY_PROMPT_FILE))
+        (folder / MODEL_FILE).write_text(json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()},
+                                                    indent=2) + "\n")
+        write_manifest(folder)
+        return folder
+
+    # ------------------------------------------------------------------ use
+    @property
+    def device(self) -> torch.device:
+        return next(self.transformer.parameters()).device
+
+    def prompt_embeds(self, prompt_embeds: torch.Tensor | None = None) -> torch.Tensor:
+        """(1, L, D) embedding to condition on: the given one, else the stored empty prompt, else zeros."""
+        dim = self.transformer.text_dim
+        if prompt_embeds is not None:
+            return check_prompt_embeds(prompt_embeds, dim)
+        if self.empty_prompt is not None:
+            return self.empty_prompt
+        return empty_prompt_embeds(dim)
+
+    def enable_vae_tiling(self, **kwargs) -> None:
+        self.vae.enable_tiling(**kwargs)
+
+    def enable_vae_slicing(self) -> None:
+        self.vae.enable_slicing()
+
+    def rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
+                chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
+                progress: bool = True, keep_chunks: bool = True):
+        """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default."""
+        from .rollout import rollout
+
+        chunk = int(chunk_frames or self.card.chunk_frames)
+        if self.card.width and self.card.height:
+            h, w = first_frame.shape[:2]
+            if (w, h) != (self.card.width, self.card.height):
+                import warnings
+
+                warnings.warn(f"model {self.card.name or ''} was trained at {self.card.width}x{self.card.height}; "
+                              f"rolling out at {w}x{h}", stacklevel=2)
+        return rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
+                       chunk_frames=chunk, sampler=sampler, seed=seed, progress=progress, keep_chunks=keep_chunks)
+
+
+def _read_card(folder: Path) -> ModelCard:
+    path = folder / MODEL_FILE
+    if not path.is_file():
+        found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"
+        raise CheckpointLayoutError(folder, MODEL_FILE, f"an OSCAR model folder ({MODEL_FILE}, transformer/, vae/, "
+                                    f"{MANIFEST_NAME})", found or "an empty folder")
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as exc:
+        raise CheckpointLayoutError(path, "JSON", "a JSON object", f"unreadable JSON ({exc})") from None
+    if data.get("format") != FORMAT:
+        raise CheckpointLayoutError(path, "format", repr(FORMAT), repr(data.get("format")))
+    try:
+        return ModelCard.from_dict(data.get("card") or {}, path)
+    except (TypeError, ModelInputError) as exc:
+        raise CheckpointLayoutError(path, "card", "a valid model card", str(exc)) from None

@@ -1,0 +1,115 @@
+"""`oscar rollout` and `oscar zoo list|pull` with the toy-arm plugin and a tiny exported model."""
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+import oscar_zoo
+from oscar_core.errors import OscarError
+from oscar_core.model import ModelCard, OscarWorldModel
+from oscar_core.model.cli import add_model_parsers, side_by_side_path
+from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+from oscar_core.video import read_video
+from oscar_zoo.testing import MockHub
+
+REPO = Path(__file__).resolve().parents[1]
+ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
+TRAJ, CAM = ASSETS / "example_trajectory.npz", ASSETS / "example_camera.json"  # 81 frames at 15 fps, 640x360
+
+
+def run(capsys, *argv):
+    """What `oscar` does once the lead wires add_model_parsers into oscar_core.cli."""
+    parser = argparse.ArgumentParser(prog="oscar")
+    add_model_parsers(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args([str(a) for a in argv])
+    try:
+        code = args.func(args)
+    except (OscarError, ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=__import__("sys").stderr)
+        code = 2
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(autouse=True)
+def isolated(tmp_path, monkeypatch):
+    monkeypatch.setenv("HF_ENDPOINT", "http://127.0.0.1:9")
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hf-cache"))
+    monkeypatch.setenv("OSCAR_ZOO_REGISTRY", str(tmp_path / "zoo.json"))
+    monkeypatch.delenv("HF_HUB_OFFLINE", raising=False)
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny", chunk_frames=41, fps=15.0))
+    return oscar_zoo.export(model, tmp_path_factory.mktemp("m") / "tiny")
+
+
+@pytest.fixture(scope="module")
+def first_frame(tmp_path_factory):
+    path = tmp_path_factory.mktemp("img") / "first.png"
+    img = np.random.default_rng(0).integers(0, 256, (360, 640, 3), dtype=np.uint8)
+    cv2.imwrite(str(path), img)
+    return path
+
+
+def _args(model_dir, first_frame, out, *extra):
+    return ("rollout", "--model", model_dir, "--embodiment", "toyarm", "--first-frame", first_frame,
+            "--trajectory", TRAJ, "--camera", CAM, "--out", out, "--size", "64x32", "--steps", "1",
+            "--no-progress", *extra)
+
+
+def test_rollout_writes_video_and_side_by_side(capsys, tmp_path, model_dir, first_frame):
+    out = tmp_path / "video.mkv"
+    code, stdout, err = run(capsys, *_args(model_dir, first_frame, out, "--json"))
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["frames"] == 81 and summary["chunks"] == 2 and summary["size"] == [64, 32]
+    video = read_video(out)
+    side = read_video(side_by_side_path(out))
+    assert video.shape == (81, 32, 64, 3) and side.shape == (81, 32, 128, 3)
+    np.testing.assert_array_equal(side[:, :, :64], video)  # left half: the rollout itself (lossless .mkv)
+
+
+def test_first_frame_size_must_match_the_camera(capsys, tmp_path, model_dir):
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 200, 3), np.uint8))
+    code, _, err = run(capsys, *_args(model_dir, small, tmp_path / "v.mp4"))
+    assert code == 2 and "field 'image size': expected 640x360 (the image size of camera" in err and "found 200x100" in err
+
+
+def test_trajectory_shorter_than_one_chunk(capsys, tmp_path, model_dir, first_frame):
+    code, _, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "v.mp4", "--chunk-frames", "85"))
+    assert code == 2 and "expected at least one chunk of 85 frames, found 81 frames; use chunk_frames=81" in err
+
+
+def test_unknown_model_and_missing_prompt_embedding(capsys, tmp_path, model_dir, first_frame):
+    code, _, err = run(capsys, *_args("nope", first_frame, tmp_path / "v.mp4"))
+    assert code == 2 and "cosmos-predict2.5-2b, oscar-2b" in err
+    code, _, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "v.mp4", "--prompt", "wave",
+                                      "--prompt-cache", tmp_path / "cache"))
+    assert code == 2 and "expected a cached embedding" in err and "--prompt-embeds" in err
+
+
+def test_zoo_list_and_pull(capsys, tmp_path, model_dir, monkeypatch):
+    code, out, _ = run(capsys, "zoo", "list")
+    assert code == 0 and out.splitlines()[0].split()[:2] == ["name", "repo@revision"]
+    assert "zywu2115/OSCAR-2B@main (unpinned)" in out
+    code, out, _ = run(capsys, "zoo", "list", "--json")
+    names = [m["name"] for m in json.loads(out)["models"]]
+    assert names == ["cosmos-predict2.5-2b", "oscar-2b"]
+    with MockHub() as hub:
+        hub.add_folder("me/tiny", model_dir)
+        monkeypatch.setenv("HF_ENDPOINT", hub.url)  # read when the command runs, not at import
+        code, out, err = run(capsys, "zoo", "pull", "me/tiny", "--json")
+    monkeypatch.setenv("HF_ENDPOINT", "http://127.0.0.1:9")
+    assert code == 0, err
+    folder = Path(json.loads(out)["folder"])
+    assert (folder / "oscar_model.json").is_file() and "models--me--tiny" in str(folder)
+    code, out, _ = run(capsys, "zoo", "pull", "me/tiny", "--offline")
+    assert code == 0 and "verified" in out

@@ -1,0 +1,121 @@
+"""The table of named checkpoints (timm's ``pretrained_cfg`` idea, as frozen dataclasses).
+
+Every entry pins a Hub ``repo_id`` and ``revision`` and states the license,
+the paper, the embodiments it was trained on and the frames / resolution /
+fps it expects. What could not be verified is left as None, never guessed:
+
+* ``oscar-2b`` (``zywu2115/OSCAR-2B``): the paper's release. Its file layout,
+  license, commit and file hashes were not available to verify: revision is
+  None (the loader uses "main" and says it is unpinned), every sha256 is
+  None, and the loader expects oscar's folder layout
+  (``oscar_core.model.world_model``), reporting what it expected and what
+  the repository holds when they differ. Frames (81-frame training windows)
+  and resolution (512x288, "native" in the paper's appendix) are from the
+  paper; its fps is not stated there.
+* ``cosmos-predict2.5-2b`` (``nvidia/Cosmos-Predict2.5-2B``, revision
+  ``diffusers/base/post-trained``, a branch name as given by diffusers'
+  Cosmos 2.5 pipeline docs): the base for fine-tuning; loading it gives an
+  OSCAR model equal to the base (zero PE_s). The branch is not a commit
+  hash (no commit could be verified here), and no sha256 is known for its
+  files. Defaults (93 frames, 1280x704, 16 fps) are those of diffusers'
+  ``Cosmos2_5_PredictBasePipeline`` (its ``__call__`` defaults and example).
+
+File hashes that are None are still checked for integrity after download:
+the safetensors structure of every weight file (partial/corrupted files),
+and the sha256 manifest when a checkpoint ships one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["FileSpec", "CheckpointSpec", "CHECKPOINTS", "KINDS", "COSMOS_TEXT_ENCODER_ID"]
+
+KINDS = ("oscar", "cosmos-base")
+
+#: Cache key of prompt embeddings made by the Cosmos-Predict2.5 text encoder (Cosmos-Reason1 / Qwen2.5-VL-7B).
+COSMOS_TEXT_ENCODER_ID = "nvidia/Cosmos-Predict2.5-2B@diffusers/base/post-trained:text_encoder"
+
+
+@dataclass(frozen=True)
+class FileSpec:
+    """A file expected in a checkpoint: path inside the repository, sha256 (hex) when known."""
+
+    path: str
+    sha256: str | None = None
+
+
+@dataclass(frozen=True)
+class CheckpointSpec:
+    """A named checkpoint.
+
+    kind: "oscar" (oscar's folder layout: oscar_model.json, transformer/, vae/)
+        or "cosmos-base" (a diffusers Cosmos-Predict2.5 repo: transformer/, vae/).
+    revision: branch, tag or commit on the Hub; None = "main", unpinned.
+    files: files checked after download; the loader fetches what the layout
+        needs (configs, single or sharded safetensors) in any case.
+    chunk_frames, width, height, fps: what the model expects (None: unknown).
+    """
+
+    name: str
+    repo_id: str
+    revision: str | None
+    kind: str
+    license: str | None
+    paper: str | None
+    embodiments: tuple[str, ...] = ()
+    chunk_frames: int | None = None
+    width: int | None = None
+    height: int | None = None
+    fps: float | None = None
+    files: tuple[FileSpec, ...] = ()
+    text_encoder_id: str | None = None
+    notes: str = ""
+    source: str = field(default="table", compare=False)
+
+    @property
+    def pinned(self) -> bool:
+        """True when ``revision`` is a full commit hash."""
+        r = self.revision or ""
+        return len(r) == 40 and all(c in "0123456789abcdef" for c in r)
+
+    def row(self) -> dict:
+        """A JSON-ready summary (``oscar zoo list --json``)."""
+        return {"name": self.name, "repo_id": self.repo_id, "revision": self.revision or "main (unpinned)",
+                "kind": self.kind, "license": self.license, "paper": self.paper,
+                "embodiments": list(self.embodiments), "chunk_frames": self.chunk_frames,
+                "resolution": f"{self.width}x{self.height}" if self.width and self.height else None, "fps": self.fps,
+                "files": {f.path: f.sha256 for f in self.files}, "source": self.source, "notes": self.notes}
+
+
+_OSCAR_LAYOUT = (FileSpec("oscar_model.json"), FileSpec("transformer/config.json"), FileSpec("vae/config.json"))
+
+CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
+    CheckpointSpec(
+        name="cosmos-predict2.5-2b",
+        repo_id="nvidia/Cosmos-Predict2.5-2B",
+        revision="diffusers/base/post-trained",
+        kind="cosmos-base",
+        license="NVIDIA Open Model License",
+        paper="arXiv:2511.00062 (World simulation with video foundation models for physical AI)",
+        embodiments=(),
+        chunk_frames=93, width=1280, height=704, fps=16.0,
+        files=(FileSpec("transformer/config.json"), FileSpec("vae/config.json")),
+        text_encoder_id=COSMOS_TEXT_ENCODER_ID,
+        notes="base for fine-tuning: loads as an OSCAR model with a zero skeleton embedder (PE_s)",
+    ),
+    CheckpointSpec(
+        name="oscar-2b",
+        repo_id="zywu2115/OSCAR-2B",
+        revision=None,
+        kind="oscar",
+        license=None,
+        paper="OSCAR: Omni-Embodiment Action-Conditioned World Model for Robotics "
+              "(https://wuzy2115.github.io/oscar-project-page/)",
+        embodiments=("franka", "kuka", "agibot_g1", "hsr", "mano"),
+        chunk_frames=81, width=512, height=288, fps=None,
+        files=_OSCAR_LAYOUT,
+        text_encoder_id=COSMOS_TEXT_ENCODER_ID,
+        notes="the paper's release; file layout, license, commit and hashes unverified",
+    ),
+), key=lambda spec: spec.name))
