@@ -4,6 +4,10 @@
   form), Spearman ρ, Pearson r, SISR_Δ, and Bradley–Terry–Davidson scores.
 * :mod:`oscar_core.metrics.video` — PSNR, SSIM, LPIPS, tLPIPS, latent L2,
   Fréchet distances (FVD / FID) with user-supplied networks.
+* :mod:`oscar_core.metrics.judge` — VLM judges of rollouts through any
+  OpenAI-compatible endpoint: per-clip success and pairwise preferences.
+* :mod:`oscar_core.metrics.plots` — success-rate scatter and rank slope chart
+  (matplotlib, optional).
 * :mod:`oscar_core.metrics.cli` — the ``oscar eval`` sub-commands.
 
 Names are re-exported here flat; submodules load on first use, so importing
@@ -28,6 +32,16 @@ _EXPORTS = {
     "fvd": "video", "fid": "video", "video_features": "video", "frame_features": "video",
     "load_torchscript": "video", "Clip": "video", "VideoReport": "video", "evaluate_videos": "video",
     "DEFAULT_FRAMES": "video", "load_video": "video",
+    # VLM judges
+    "JudgeClip": "judge", "JudgePair": "judge", "SuccessJudge": "judge", "PairwiseJudge": "judge",
+    "SuccessVerdict": "judge", "PairwiseVerdict": "judge", "ChatClient": "judge", "MalformedAnswer": "judge",
+    "JudgeRequestError": "judge", "parse_success_answer": "judge", "parse_pairwise_answer": "judge",
+    "sample_frame_indices": "judge", "pairs_by_session": "judge", "success_by_policy": "judge",
+    "preferences_from_verdicts": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
+    "PAIRWISE_SYSTEM_PROMPT": "judge", "PAIRWISE_USER_PROMPT": "judge",
+    # plots
+    "success_scatter_figure": "plots", "rank_slope_figure": "plots", "save_figure": "plots",
+    "plot_success_scatter": "plots", "plot_rank_slope": "plots", "plot_comparison": "plots",
     # CLI glue
     "add_eval_parser": "cli",
 }
