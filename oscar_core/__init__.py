@@ -22,6 +22,7 @@ _EXPORTS = {
     "ForwardKinematics": "kinematics",
     # trajectories and cameras
     "Trajectory": "trajectory", "load_trajectory": "trajectory", "save_trajectory": "trajectory",
+    "interpolate_keyframes": "trajectory", "look_at": "camera",
     "Camera": "camera", "Intrinsics": "camera", "load_camera": "camera", "save_camera": "camera", "project": "camera",
     # rendering and video
     "SkeletonStyle": "render", "GripperMarks": "render", "rasterise": "render",

@@ -82,6 +82,7 @@ __all__ = [
     "Camera",
     "Projection",
     "canonical_convention",
+    "look_at",
     "convention_to_opencv",
     "project",
     "project_points_cv",
@@ -207,6 +208,27 @@ def _nearest_rotation(R: np.ndarray) -> np.ndarray:
         return R
     U, _, Vt = np.linalg.svd(R)
     return U @ Vt
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Camera-to-world (4, 4) of a camera at ``eye`` looking at ``target`` (metres), OpenCV axes.
+
+    x right, y down, z forward; ``up`` is the world's up direction (the image's
+    "up" lies in the plane of ``up`` and the viewing direction). Use it with
+    ``Camera(..., direction="camera_to_world")`` (the default).
+    """
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    norm = np.linalg.norm(x)
+    if norm < 1e-9:
+        raise ValueError(f"look_at: the viewing direction {z.tolist()} is parallel to up {up.tolist()}")
+    x /= norm
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    T[:3, 3] = eye
+    return T
 
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:

@@ -37,7 +37,7 @@ import numpy as np
 from ._atomic import atomic_output
 from .errors import TrajectoryError
 
-__all__ = ["Trajectory", "load_trajectory", "save_trajectory", "TRAJECTORY_FIELDS"]
+__all__ = ["Trajectory", "load_trajectory", "save_trajectory", "interpolate_keyframes", "TRAJECTORY_FIELDS"]
 
 TRAJECTORY_FIELDS = ("joint_names", "q", "fps", "gripper", "gripper_names", "base_pose", "timestamps", "keypoints")
 
@@ -159,6 +159,23 @@ class Trajectory:
 
     def __len__(self) -> int:
         return self.num_frames
+
+
+def interpolate_keyframes(keys, frames_per_segment: int) -> np.ndarray:
+    """Smooth motion through keyframes, for examples and tests.
+
+    keys: (N, D) values (joints, gripper, ...); returns
+    ((N - 1) * frames_per_segment + 1, D): each segment eases in and out with
+    smoothstep 3s² − 2s³, so velocity is zero at every keyframe.
+    """
+    keys = np.asarray(keys, dtype=np.float64)
+    if keys.ndim != 2 or len(keys) < 2 or frames_per_segment < 1:
+        raise ValueError(f"interpolate_keyframes: expected (N >= 2, D) keys and frames_per_segment >= 1, "
+                         f"found {keys.shape} and {frames_per_segment}")
+    s = np.linspace(0, 1, frames_per_segment, endpoint=False)
+    ease = s * s * (3 - 2 * s)
+    parts = [a + ease[:, None] * (b - a) for a, b in zip(keys[:-1], keys[1:])]
+    return np.concatenate(parts + [keys[-1:]])
 
 
 def load_trajectory(path) -> Trajectory:

@@ -12,7 +12,7 @@ Tolerance: RMS 1.5 on 0-255, as for the other embodiments.
 import numpy as np
 import pytest
 
-from oscar_core import Camera, Intrinsics, Trajectory, load_camera, render_skeleton_video
+from oscar_core import Camera, Intrinsics, Trajectory, load_camera, look_at, render_skeleton_video
 from oscar_core.testing import compare_images
 from oscar_embodiments.agibot_g1 import JOINTS, AgiBotG1
 
@@ -31,16 +31,6 @@ CONFIGS = {
 }
 
 
-def look_at(eye, target):
-    """camera-to-world (4, 4), OpenCV axes."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 EXTERNAL = Camera(Intrinsics(290.0, 290.0, 191.5, 143.5, 384, 288), look_at((2.1, 0.7, 1.5), (0.3, 0.0, 0.95)))

@@ -10,7 +10,7 @@ or a changed gripper state gives (test_golden_tolerance_detects_a_small_change).
 import numpy as np
 import pytest
 
-from oscar_core import Camera, Intrinsics, Trajectory, load_camera, render_skeleton_video
+from oscar_core import Camera, Intrinsics, Trajectory, load_camera, look_at, render_skeleton_video
 from oscar_embodiments.kuka import JOINT_NAMES, KukaIiwa14
 
 TOL = 1.5
@@ -24,16 +24,6 @@ CONFIGS = {
 }
 
 
-def look_at(eye, target):
-    """camera-to-world (4, 4), OpenCV axes."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oscar_core import Camera, Intrinsics, Trajectory, render_skeleton_video
+from oscar_core import Camera, Intrinsics, Trajectory, look_at, render_skeleton_video
 from oscar_core.testing import compare_images
 
 REPO = Path(__file__).resolve().parents[1]
@@ -29,15 +29,6 @@ CONFIGS = {
 }
 
 
-def look_at(eye, target):
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 CAMERAS = {

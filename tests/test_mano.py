@@ -3,6 +3,8 @@
 import sys
 
 import numpy as np
+
+from oscar_core.camera import look_at
 import pytest
 
 from oscar_core import (Camera, Intrinsics, Trajectory, get_embodiment, load_camera, load_trajectory,
@@ -139,16 +141,6 @@ def test_single_hand_input_and_errors():
 # ---- cameras ----------------------------------------------------------------------------
 
 
-def look_at(eye, target):
-    """camera-to-world, OpenCV axes, world z up."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def test_world_keypoints_with_moving_camera_match_a_static_world_camera(mano):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from oscar_core import Camera, Intrinsics, Trajectory, save_camera, save_trajectory
+from oscar_core import Camera, Intrinsics, Trajectory, interpolate_keyframes, save_camera, save_trajectory
 from oscar_embodiments.agibot_g1 import HEAD_CAMERA_LINK, JOINTS
 
 HERE = Path(__file__).resolve().parent
@@ -53,12 +53,6 @@ PLACE_L = [1.776, -1.617, -2.294, -1.45, 2.356, 1.618, 0.6]
 READY_R = [-v for v in READY_L]
 
 
-def keyframe_trajectory(keys: np.ndarray, frames_per_segment: int) -> np.ndarray:
-    """(N, D) keyframes → ((N-1)*frames_per_segment + 1, D), smoothstep between keys."""
-    s = np.linspace(0, 1, frames_per_segment, endpoint=False)
-    ease = s * s * (3 - 2 * s)
-    parts = [a + ease[:, None] * (b - a) for a, b in zip(keys[:-1], keys[1:])]
-    return np.concatenate(parts + [keys[-1:]])
 
 
 def keyframe(lift, pitch, head_yaw, head_pitch, left, right, grip_left, grip_right):
@@ -76,7 +70,7 @@ def make_trajectory() -> Trajectory:
         keyframe(0.17, 0.20, 0.00, 0.45, PLACE_L, READY_R, 1.0, 0.0),  # carry over the target
         keyframe(0.17, 0.20, 0.00, 0.45, PLACE_L, READY_R, 0.0, 0.0),  # release
     ])
-    q = keyframe_trajectory(keys, 16)  # 6 segments * 16 + 1 = 97 frames
+    q = interpolate_keyframes(keys, 16)  # 6 segments * 16 + 1 = 97 frames
     return Trajectory(joint_names=JOINTS, q=q[:, :len(JOINTS)], fps=30.0,
                       gripper=q[:, len(JOINTS):], gripper_names=("left_gripper", "right_gripper"))
 

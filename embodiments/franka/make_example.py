@@ -15,33 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from oscar_core import Camera, Intrinsics, Trajectory, save_camera, save_trajectory
+from oscar_core import Camera, Intrinsics, Trajectory, interpolate_keyframes, look_at, save_camera, save_trajectory
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FPS = 15.0
 
 
-def keyframe_trajectory(keys: np.ndarray, frames_per_segment: int) -> np.ndarray:
-    """(N, D) keyframes → ((N-1)*frames_per_segment + 1, D), smoothstep between keys."""
-    s = np.linspace(0, 1, frames_per_segment, endpoint=False)
-    ease = s * s * (3 - 2 * s)
-    parts = [a + ease[:, None] * (b - a) for a, b in zip(keys[:-1], keys[1:])]
-    return np.concatenate(parts + [keys[-1:]])
 
 
-def look_at(eye, target, up=(0, 0, 1)) -> np.ndarray:
-    """camera-to-world (4, 4) in OpenCV axes (x right, y down, z forward)."""
-    eye, target, up = (np.asarray(v, float) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def main():
@@ -56,7 +38,7 @@ def main():
         [0.510, 0.309, 0.330, -2.286, -0.182, 2.569, 0.785, 0.080],   # release
         [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785, 0.080],        # back to ready
     ])
-    q = keyframe_trajectory(keys, 16)  # 7 segments * 16 + 1 = 113 frames
+    q = interpolate_keyframes(keys, 16)  # 7 segments * 16 + 1 = 113 frames
     traj = Trajectory(JOINTS, q[:, :7], fps=FPS, gripper=q[:, 7:8], gripper_names=("gripper",),
                       timestamps=np.arange(len(q)) / FPS)
     save_trajectory(traj, ASSETS / "example_trajectory.npz")

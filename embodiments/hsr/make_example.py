@@ -13,19 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from oscar_core import Camera, Trajectory, save_camera, save_trajectory
+from oscar_core import Camera, Trajectory, interpolate_keyframes, save_camera, save_trajectory
 from oscar_embodiments.hsr import JOINTS, base_pose_from_xy_yaw
 from oscar_embodiments.hsr.adapters import head_camera
 
 HERE = Path(__file__).resolve().parent
 ASSETS = HERE / "assets"
 
-def keyframe_trajectory(keys: np.ndarray, frames_per_segment: int) -> np.ndarray:
-    """(N, D) keyframes → ((N-1)*frames_per_segment + 1, D), smoothstep between keys."""
-    s = np.linspace(0, 1, frames_per_segment, endpoint=False)
-    ease = s * s * (3 - 2 * s)
-    parts = [a + ease[:, None] * (b - a) for a, b in zip(keys[:-1], keys[1:])]
-    return np.concatenate(parts + [keys[-1:]])
 
 
 def make_trajectory() -> Trajectory:
@@ -40,7 +34,7 @@ def make_trajectory() -> Trajectory:
         [0.30, -1.35, 0.00, -0.20, 0.00, 0.05, -0.55, 1.00, 0.15, 0.02, 0.08],  # release
         [0.20, -1.00, 0.00, -0.60, 0.00, 0.00, -0.55, 1.00, 0.12, 0.02, 0.08],  # withdraw
     ])
-    q = keyframe_trajectory(keys, 16)  # 6 segments * 16 + 1 = 97 frames
+    q = interpolate_keyframes(keys, 16)  # 6 segments * 16 + 1 = 97 frames
     return Trajectory(joint_names=JOINTS, q=q[:, :7], fps=10.0, gripper=q[:, 7:8], gripper_names=("hand",),
                       base_pose=base_pose_from_xy_yaw(q[:, 8], q[:, 9], q[:, 10]))
 

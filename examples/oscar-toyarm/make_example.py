@@ -11,32 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from oscar_core import Camera, Intrinsics, Trajectory, save_camera, save_trajectory
+from oscar_core import Camera, Intrinsics, Trajectory, interpolate_keyframes, look_at, save_camera, save_trajectory
 
 ASSETS = Path(__file__).parent / "oscar_toyarm" / "assets"
 JOINTS = ("base_yaw", "shoulder", "elbow", "wrist_pitch", "finger_left")
 
 
-def keyframe_trajectory(keys: np.ndarray, frames_per_segment: int) -> np.ndarray:
-    """(N, D) keyframes → ((N-1)*frames_per_segment + 1, D), smoothstep between keys."""
-    s = np.linspace(0, 1, frames_per_segment, endpoint=False)
-    ease = s * s * (3 - 2 * s)
-    parts = [a + ease[:, None] * (b - a) for a, b in zip(keys[:-1], keys[1:])]
-    return np.concatenate(parts + [keys[-1:]])
 
 
-def look_at(eye, target, up=(0, 0, 1)) -> np.ndarray:
-    """camera-to-world (4, 4) in OpenCV axes (x right, y down, z forward)."""
-    eye, target, up = (np.asarray(v, float) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def main():
@@ -49,7 +31,7 @@ def main():
         [0.2, 0.4, 1.0, 0.9, 0.010],    # lift and carry
         [0.2, 0.5, 1.1, 0.8, 0.035],    # release
     ])
-    q = keyframe_trajectory(keys, 16)  # 5 segments * 16 + 1 = 81 frames
+    q = interpolate_keyframes(keys, 16)  # 5 segments * 16 + 1 = 81 frames
     traj = Trajectory(joint_names=JOINTS[:4], q=q[:, :4], fps=15.0,
                       gripper=2 * q[:, 4:5], gripper_names=("gripper",))
     save_trajectory(traj, ASSETS / "example_trajectory.npz")
