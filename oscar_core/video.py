@@ -116,6 +116,11 @@ def _encode(tmp: Path, frames, rate: Fraction, codec: str, crf: int, progress: b
                     stream = out.add_stream("libx264", rate=rate)
                     stream.pix_fmt = "yuv420p"
                     stream.options = {"crf": str(int(crf)), "preset": "medium"}
+                    # swscale converts RGB with BT.601, limited range; say so in the
+                    # stream, or players assume BT.709 for HD sizes and shift colours.
+                    cc = stream.codec_context
+                    cc.colorspace = cc.color_primaries = cc.color_trc = 6  # SMPTE 170M (BT.601)
+                    cc.color_range = 1  # limited ("tv")
                 else:
                     stream = out.add_stream("ffv1", rate=rate)
                     stream.pix_fmt = "bgr0"
@@ -173,7 +178,16 @@ def read_video(path, *, max_frames: int | None = None) -> np.ndarray:
         files = sorted(path.glob("*.png"))[:max_frames]
         if not files:
             raise FileNotFoundError(f"{path}: folder holds no .png frames")
-        return np.stack([cv2.imread(str(f), cv2.IMREAD_COLOR)[..., ::-1] for f in files])
+        frames = []
+        for f in files:
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if img is None:
+                raise ValueError(f"{f}: not a readable PNG frame")
+            if frames and img.shape != frames[0].shape:
+                raise ValueError(f"{f}: frame size {img.shape[1]}x{img.shape[0]} differs from "
+                                 f"{frames[0].shape[1]}x{frames[0].shape[0]} of {files[0].name}")
+            frames.append(img[..., ::-1])
+        return np.stack(frames)
     import av
 
     frames = []

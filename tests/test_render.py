@@ -113,3 +113,130 @@ def test_bad_arguments_are_named():
         rasterise(np.zeros((3, 2)), np.ones((3, 2), bool), [(0, 1)], (64, 64), edge_colors=[RED], point_colors=[RED] * 2)
     with pytest.raises(ValueError, match="edges index out of range"):
         draw([[1.0, 1.0], [2.0, 2.0]], edges=[(0, 5)])
+
+
+# ---------------------------------------------------------------- further details
+
+
+def segment(p0, p1, *, size=(512, 288), line_width=2.0):
+    """(H, W) intensity image of one white segment without dots."""
+    out = rasterise(np.array([[p0, p1]], float), np.ones((1, 2), bool), [(0, 1)], size,
+                    edge_colors=[(255, 255, 255)], point_colors=[(0, 0, 0)] * 2,
+                    style=SkeletonStyle(line_width=line_width, point_radius=0))
+    return out[0, ..., 0]
+
+
+def test_sub_pixel_position_moves_the_line_centroid():
+    centroids = []
+    for y in np.arange(50.0, 51.01, 0.125):
+        profile = segment((100.0, y), (400.0, y))[:, 250].astype(float)
+        centroids.append((profile * np.arange(288)).sum() / profile.sum())
+        assert centroids[-1] == pytest.approx(y, abs=0.12)  # OpenCV's AA fill is good to ~0.1 px
+    assert all(b > a for a, b in zip(centroids, centroids[1:]))
+
+
+@pytest.mark.parametrize("far", [1e9, 1e15])
+def test_far_endpoint_matches_a_near_off_image_point_on_the_same_line(far):
+    p0 = np.array([120.25, 90.75])
+    direction = np.array([3.0, 1.0]) / np.sqrt(10.0)
+    far_img = segment(p0, p0 + far * direction).astype(int)
+    near_img = segment(p0, p0 + 800.0 * direction).astype(int)
+    assert far_img.max() > 200 and np.abs(far_img - near_img).max() <= 2
+    across = segment((-far, 144.0), (far, 144.0))  # both ends far away, on opposite sides
+    assert across[144].min() > 0 and across[:140].max() == 0 and across[149:].max() == 0
+
+
+def test_degenerate_segments_do_not_fail():
+    blob = segment((200.0, 100.0), (200.0, 100.0))  # zero length: a small blob
+    assert blob[100, 200] > 0 and blob[110:].max() == 0
+    assert segment((-50.0, -10.0), (-30.0, 400.0)).max() == 0  # wholly outside
+
+
+def test_off_image_point_gets_no_dot_but_its_segment_is_drawn():
+    uv = [[100.0, 100.0], [700.0, 100.0]]
+    assert draw(uv)[0][100, 300:512].any(-1).all()
+    assert not draw(uv, edges=np.zeros((0, 2), int))[0][:, 400:].any()
+
+
+def test_invisible_point_in_one_frame_leaves_other_frames_alone():
+    uv = np.array([[[50.0, 50.0], [250.0, 60.0], [300.0, 200.0]]] * 2)
+    visible = np.array([[True, True, False], [True, True, True]])
+    out = draw(uv, visible=visible, edges=[(0, 1), (1, 2)])
+    np.testing.assert_array_equal(out[1], draw(uv[1], edges=[(0, 1), (1, 2)])[0])
+    np.testing.assert_array_equal(out[0], draw(uv[0, :2], edges=[(0, 1)])[0])
+
+
+@pytest.mark.parametrize("line_width", [2.0, 3.0, 4.5, 8.0])
+def test_effective_line_width_matches_the_style(line_width):
+    """Ink per unit length equals the requested width (OpenCV's AA fattening is compensated)."""
+    rng = np.random.default_rng(int(line_width * 10))
+    ys, xs = np.mgrid[0:288, 0:288]
+    widths = []
+    for _ in range(12):
+        c = rng.uniform(130, 150, 2)
+        ang = rng.uniform(0, np.pi)
+        d = np.array([np.cos(ang), np.sin(ang)])
+        img = segment(c - 60 * d, c + 60 * d, size=(288, 288), line_width=line_width)
+        band = np.abs((xs - c[0]) * d[0] + (ys - c[1]) * d[1]) < 30
+        widths.append(img[band].astype(float).sum() / 255.0 / 60.0)
+    assert np.mean(widths) == pytest.approx(line_width, abs=0.2)
+
+
+def test_line_is_still_visible_at_a_tiny_resolution():
+    assert segment((5.0, 10.0), (60.0, 10.0), size=(64, 36))[:, 30].max() >= 200
+
+
+def test_dots_have_the_point_colour():
+    out = draw([[100.0, 100.0], [300.0, 200.0]], edges=np.zeros((0, 2), int), pcol=[(10, 20, 30), (200, 100, 0)])[0]
+    assert tuple(out[100, 100]) == (10, 20, 30) and tuple(out[200, 300]) == (200, 100, 0)
+    assert not out[100, 110].any()  # radius 3 px at the reference height
+
+
+def test_out_array_is_zeroed_and_drawn_into():
+    uv = np.array([[[100.0, 100.0], [300.0, 120.0]]] * 2)
+    buf = np.full((2, 288, 512, 3), 7, np.uint8)
+    assert draw(uv, out=buf) is buf
+    np.testing.assert_array_equal(buf, draw(uv))
+    with pytest.raises(ValueError, match="out must be"):
+        draw(uv, out=np.zeros((2, 288, 512, 3), np.float32))
+
+
+def test_empty_inputs():
+    assert draw(np.zeros((0, 2, 2))).shape == (0, 288, 512, 3)
+    assert not draw(np.zeros((2, 0, 2)), edges=np.zeros((0, 2), int)).any()
+
+
+def test_without_antialiasing_only_pure_colours_appear():
+    out = draw([[100.0, 100.0], [300.0, 150.0]], style=SkeletonStyle(antialias=False))[0]
+    colours = {tuple(c) for c in out.reshape(-1, 3).tolist()}
+    assert colours == {(0, 0, 0), RED, BLUE}
+
+
+def test_gripper_ring_marks_the_open_size_and_openness_is_clipped():
+    style = SkeletonStyle()
+    base = np.array([[10.0, 10.0], [20.0, 10.0]])
+    closed = draw(base, grippers=marks(0.0))[0]
+    ring = closed[144, 256 + 7:256 + 12]  # 9 px out: the open-size ring, in the open colour
+    assert ring[:, 1].max() > 100 and not ring[:, 0].any()
+    assert not closed[144, 256 + 6].any()  # black between the closed disc and the ring
+    np.testing.assert_array_equal(draw(base, grippers=marks(1.7))[0], draw(base, grippers=marks(1.0))[0])
+    np.testing.assert_array_equal(draw(base, grippers=marks(-0.5))[0], closed)
+    ink = [draw(base, grippers=marks(o))[0].astype(np.int64).sum() for o in np.linspace(0, 1, 11)]
+    assert all(b > a for a, b in zip(ink, ink[1:]))
+    assert tuple(style.gripper_color_closed) == tuple(closed[144, 256])
+
+
+def test_gripper_is_drawn_over_the_skeleton_and_hidden_when_not_visible():
+    uv = np.array([[256.0 - 100, 144.0], [256.0, 144.0]])
+    base = draw(uv, ecol=[BLUE])[0]
+    hidden = GripperMarks(uv=np.array([[[256.0, 144.0]]]), visible=np.array([[False]]), openness=np.array([[1.0]]))
+    np.testing.assert_array_equal(draw(uv, ecol=[BLUE], grippers=hidden)[0], base)
+    shown = draw(uv, ecol=[BLUE], grippers=marks(0.0))[0]
+    assert tuple(shown[144, 256]) == SkeletonStyle().gripper_color_closed
+
+
+def test_style_scale_for():
+    style = SkeletonStyle()
+    assert style.scale_for(512, 288) == 1.0
+    assert style.scale_for(1280, 704) == pytest.approx(704 / 288)
+    assert style.scale_for(288, 1024) == 1.0  # portrait: the shorter side counts

@@ -5,16 +5,36 @@ Options: ``--oscar-regen-golden`` rewrites golden images instead of comparing
 actual/expected/diff images go on failure (default ``golden-results/`` under
 the rootdir). Goldens live in a ``golden/`` folder beside the test file.
 Imports nothing heavy at pytest start-up.
+
+The module may be loaded twice over: by its entry point (name ``oscar_golden``)
+and by ``-p oscar_core.testing.pytest_plugin`` or a ``pytest_plugins`` list
+(name = module path).  pluggy refuses one module under two names, so whichever
+name loads it first blocks the other one, and the second load is skipped.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
 
+ENTRY_POINT_NAME = "oscar_golden"
 
-def pytest_addoption(parser):
+
+def _block_other_name(pluginmanager) -> None:
+    """Block the alias this module was not registered under, so it is not loaded twice."""
+    this = sys.modules[__name__]
+    registered_as = pluginmanager.get_name(this)
+    for alias in (ENTRY_POINT_NAME, __name__):
+        if alias != registered_as and not pluginmanager.is_blocked(alias) and pluginmanager.get_plugin(alias) is None:
+            pluginmanager.set_blocked(alias)
+
+
+def pytest_addoption(parser, pluginmanager):
+    # Called (historic hook) as soon as this module is registered, before the
+    # entry points are loaded, so blocking the alias here is in time.
+    _block_other_name(pluginmanager)
     group = parser.getgroup("oscar", "oscar golden images")
     group.addoption("--oscar-regen-golden", action="store_true", default=False,
                     help="write golden images instead of comparing against them")
