@@ -4,7 +4,7 @@ PIP := $(PYTHON) -m pip
 STAMP := .make/installed
 OUT ?= demo_out
 
-.PHONY: install demo test test-fast bench clean
+.PHONY: install demo test test-fast test-install bench clean
 
 install: $(STAMP)
 
@@ -22,7 +22,11 @@ test: install
 	$(PYTHON) -m pytest -q
 
 test-fast: install
-	$(PYTHON) -m pytest -q -m "not slow"
+	$(PYTHON) -m pytest -q -m "not slow and not install"
+
+# a real install into a fresh virtual environment (downloads dependencies)
+test-install: install
+	$(PYTHON) -m pytest -q -m install
 
 bench: install
 	$(PYTHON) benchmarks/render.py
