@@ -114,7 +114,7 @@ def bench_embodiment(name: str, repeats: int) -> list[dict]:
         ras_s, ras_m = best_and_median(raster, repeats)
         video = raster()
         with tempfile.TemporaryDirectory() as tmp:
-            enc_s, enc_m = best_and_median(lambda: write_video(Path(tmp) / "b.mp4", video, traj.fps), max(2, repeats // 2))
+            enc_s, enc_m = best_and_median(lambda: write_video(Path(tmp) / "b.mp4", video, traj.fps, threads=1), max(2, repeats // 2))
             mp4_kb = (Path(tmp) / "b.mp4").stat().st_size / 1024
         naive_s, naive_m = best_and_median(lambda: naive_render(emb, traj, cam, size), max(2, repeats // 3))
         pipeline = fk_s + proj_s + ras_s

@@ -55,7 +55,8 @@ def _rate(fps: float) -> Fraction:
     return Fraction(fps).limit_denominator(1001 * 1000)
 
 
-def write_video(path, frames, fps: float, *, codec: str | None = None, crf: int = 18, progress: bool = False) -> Path:
+def write_video(path, frames, fps: float, *, codec: str | None = None, crf: int = 18, progress: bool = False,
+                threads: int = 0) -> Path:
     """Write frames to ``path``.
 
     path: ``.mp4`` → H.264 (width and height must be even: yuv420p), ``.mkv``
@@ -64,6 +65,7 @@ def write_video(path, frames, fps: float, *, codec: str | None = None, crf: int 
     fps: frames per second (fractional rates such as 29.97 are kept exactly
         enough: the time base is a fraction with denominator ≤ 1001000).
     codec: override the codec chosen from the suffix ("h264", "ffv1", "png").
+    threads: encoder threads (0: the encoder's automatic choice).
     Returns the final path.
     """
     raw = str(path)
@@ -85,7 +87,7 @@ def write_video(path, frames, fps: float, *, codec: str | None = None, crf: int 
     if codec not in ("h264", "ffv1"):
         raise ValueError(f"codec: expected 'h264', 'ffv1' or 'png', found {codec!r}")
     with atomic_output(path) as tmp:
-        _encode(tmp, frames, rate, codec, crf, progress)
+        _encode(tmp, frames, rate, codec, crf, progress, threads)
     return path
 
 
@@ -97,7 +99,7 @@ def _progress(frames, enabled: bool, desc: str):
     return tqdm(frames, desc=desc, unit="frame", total=len(frames) if hasattr(frames, "__len__") else None)
 
 
-def _encode(tmp: Path, frames, rate: Fraction, codec: str, crf: int, progress: bool) -> None:
+def _encode(tmp: Path, frames, rate: Fraction, codec: str, crf: int, progress: bool, threads: int = 0) -> None:
     import av
 
     fmt = "mp4" if codec == "h264" else "matroska"
@@ -125,6 +127,7 @@ def _encode(tmp: Path, frames, rate: Fraction, codec: str, crf: int, progress: b
                     stream = out.add_stream("ffv1", rate=rate)
                     stream.pix_fmt = "bgr0"
                 stream.width, stream.height = W, H
+                stream.codec_context.thread_count = int(threads)
             vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
             for packet in stream.encode(vf):
                 out.mux(packet)

@@ -161,3 +161,9 @@ def test_permission_error_on_the_temporary_becomes_output_path_error(tmp_path, m
         with pytest.raises(OutputPathError, match="Permission denied"):
             write_video(str(tmp_path / name), random_frames(T=1, H=8, W=8), fps=5)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_single_threaded_encoding_gives_a_valid_video(tmp_path):
+    frames = smooth_frames(T=8)
+    path = write_video(tmp_path / "one.mp4", frames, fps=10, threads=1)
+    assert read_video(path).shape == frames.shape
