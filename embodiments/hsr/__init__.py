@@ -97,7 +97,7 @@ class HSR(Embodiment):
     )
     # the indicator sits between the fingertips (9 cm out of the palm)
     grippers = (Gripper("hand", link="hand_palm_link", point=(0.0, 0.0, 0.09), signal_range=HAND_RANGE,
-                        closed_at="low", joint="hand_motor_joint", joint_range=HAND_RANGE),)
+                        closed_at="low", joint="hand_motor_joint", joint_range=(HAND_CONTACT, HAND_RANGE[1])),)
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=HEAD_CAMERA_LINK)
     example_trajectory = ASSETS / "example_trajectory.npz"
     example_camera = ASSETS / "example_camera.json"
@@ -105,23 +105,13 @@ class HSR(Embodiment):
     # The hand is not linear over the motor's range: the fingertips meet at
     # hand_motor_joint = HAND_CONTACT, and below it the motor keeps turning
     # against the finger springs (passive joints, drawn at rest here), which
-    # squeezes without closing further. So the fingers are drawn at
-    # max(signal, HAND_CONTACT) and openness is 0 at contact, 1 fully open.
+    # squeezes without closing further. So openness is 0 at contact and 1
+    # fully open, and the finger joint (joint_range above) is drawn at
+    # max(signal, HAND_CONTACT).
     def gripper_openness(self, gripper: np.ndarray, source: str = "<trajectory>") -> np.ndarray:
         super().gripper_openness(gripper, source)  # range check against HAND_RANGE (±5 %)
         span = HAND_RANGE[1] - HAND_CONTACT
         return np.clip((np.asarray(gripper, dtype=np.float64) - HAND_CONTACT) / span, 0.0, 1.0).reshape(-1, 1)
-
-    def full_configuration(self, traj) -> np.ndarray:
-        hand = np.clip(traj.gripper[:, 0], HAND_CONTACT, HAND_RANGE[1])
-        cols, k = [], 0
-        for name in self.tree.joint_names:
-            if name == "hand_motor_joint":
-                cols.append(hand)
-            else:
-                cols.append(traj.q[:, k])
-                k += 1
-        return np.stack(cols, axis=1)
 
 
 @hookimpl
