@@ -82,6 +82,7 @@ __all__ = [
     "Camera",
     "Projection",
     "canonical_convention",
+    "as_rigid_transform",
     "look_at",
     "convention_to_opencv",
     "project",
@@ -181,25 +182,42 @@ def _rigid_inverse(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rigid_problem(M: np.ndarray) -> tuple[str, str] | None:
+def _rigid_problem(M: np.ndarray, tol: float = _ORTHONORMAL_TOL) -> tuple[str, str] | None:
     """Why ``M`` is not a valid rigid 4x4 transform, as (expected, found), or None."""
     if M.shape != (4, 4):
-        return "a 4x4 matrix", f"shape {M.shape}"
+        return "a 4x4 rigid transform", f"shape {M.shape}"
     if not np.all(np.isfinite(M)):
-        return "finite values", f"non-finite entries {M.tolist()}"
+        return "a rigid transform of finite values", f"non-finite entries {M.tolist()}"
     if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-12):
-        return "last row [0, 0, 0, 1]", f"last row {M[3].tolist()}"
+        return "a rigid transform with last row [0, 0, 0, 1]", f"last row {M[3].tolist()}"
     R = M[:3, :3]
     dev = float(np.abs(R.T @ R - np.eye(3)).max())
-    if dev > _ORTHONORMAL_TOL:
+    if dev > tol:
         return (
-            f"an orthonormal rotation block (max |R^T R - I| <= {_ORTHONORMAL_TOL:g})",
+            f"a rigid transform with an orthonormal rotation block (max |R^T R - I| <= {tol:g})",
             f"max |R^T R - I| = {dev:.3g}",
         )
     det = float(np.linalg.det(R))
     if det < 0:
-        return "a proper rotation (det(R) = +1)", f"a reflection, det(R) = {det:.6g}"
+        return "a rigid transform with a proper rotation (det(R) = +1)", f"a reflection, det(R) = {det:.6g}"
     return None
+
+
+def as_rigid_transform(M: Any, source: str = "<matrix>", field: str = "extrinsic",
+                       tol: float = _ORTHONORMAL_TOL) -> np.ndarray:
+    """A checked (4, 4) rigid transform: finite, last row [0, 0, 0, 1], rotation
+    within ``tol`` of orthonormal (then replaced by the nearest rotation) and
+    proper. Raises :class:`CameraFileError` naming ``source`` and ``field``.
+    For dataset adapters whose calibrations are stored in low precision."""
+    try:
+        M = _as_float_array(M).copy()
+    except (TypeError, ValueError) as e:
+        raise CameraFileError(source, field, "a 4x4 numeric matrix", str(e)) from None
+    problem = _rigid_problem(M, tol)
+    if problem is not None:
+        raise CameraFileError(source, field, *problem)
+    M[:3, :3] = _nearest_rotation(M[:3, :3])
+    return M
 
 
 def _nearest_rotation(R: np.ndarray) -> np.ndarray:
@@ -399,14 +417,7 @@ class Camera:
         src = "<Camera>"
         if not isinstance(self.intrinsics, Intrinsics):
             raise CameraFileError(src, "intrinsics", "an Intrinsics instance", type(self.intrinsics).__name__)
-        try:
-            M = _as_float_array(self.extrinsic).copy()
-        except (TypeError, ValueError) as e:
-            raise CameraFileError(src, "extrinsic", "a 4x4 numeric matrix", str(e)) from None
-        problem = _rigid_problem(M)
-        if problem is not None:
-            raise CameraFileError(src, "extrinsic", *problem)
-        M[:3, :3] = _nearest_rotation(M[:3, :3])
+        M = as_rigid_transform(self.extrinsic, src, "extrinsic")
         M.setflags(write=False)
         object.__setattr__(self, "extrinsic", M)
         if not isinstance(self.convention, str) or self.convention not in _VALID_CONVENTION_NAMES:

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from oscar_core.camera import Camera, Intrinsics
+from oscar_core.camera import Camera, Intrinsics, as_rigid_transform
 from oscar_core.errors import CameraFileError, TrajectoryError
 from oscar_core.trajectory import Trajectory
 
@@ -129,18 +129,7 @@ def _rotation_quat_wxyz(w: float, x: float, y: float, z: float) -> np.ndarray:
 
 def _rigid(M: np.ndarray, source: str, field: str) -> np.ndarray:
     """A 4×4 rigid transform, its rotation re-orthonormalised if stored in low precision."""
-    if M.shape != (4, 4):
-        raise CameraFileError(source, field, "a 4x4 homogeneous transform", f"shape {M.shape}")
-    R = M[:3, :3]
-    dev = float(np.abs(R.T @ R - np.eye(3)).max())
-    if dev > ORTHO_TOL or np.linalg.det(R) <= 0 or not np.allclose(M[3], [0, 0, 0, 1], atol=1e-6):
-        raise CameraFileError(source, field, "a rigid transform (orthonormal rotation, last row 0 0 0 1)",
-                              f"max |R^T R - I| = {dev:.3g}, det {np.linalg.det(R):.3g}, last row {M[3].tolist()}")
-    U, _, Vt = np.linalg.svd(R)
-    out = np.eye(4)
-    out[:3, :3] = U @ Vt
-    out[:3, 3] = M[:3, 3]
-    return out
+    return as_rigid_transform(M, source, field, tol=ORTHO_TOL)
 
 
 def _static(per_frame: np.ndarray, source: str, field: str, hint: str) -> np.ndarray:
