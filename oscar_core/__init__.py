@@ -6,7 +6,7 @@ The public API is re-exported here; submodules load on first use so that
 
 from __future__ import annotations
 
-import importlib
+from ._lazy import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -33,17 +33,5 @@ _EXPORTS = {
     "TrajectoryError": "errors", "OutputPathError": "errors", "PluginError": "errors",
 }
 
-__all__ = sorted(_EXPORTS) + ["__version__"]
-
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'oscar_core' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return __all__
+_names, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__ = _names + ["__version__"]

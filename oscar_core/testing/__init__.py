@@ -6,18 +6,7 @@ imports neither numpy nor OpenCV when pytest starts.
 
 from __future__ import annotations
 
-import importlib
+from .._lazy import lazy_exports
 
-__all__ = ["assert_matches_golden", "compare_images", "read_png", "write_png"]
-
-
-def __getattr__(name: str):
-    if name not in __all__:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(".golden", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return __all__
+__all__, __getattr__, __dir__ = lazy_exports(
+    __name__, {name: "golden" for name in ("assert_matches_golden", "compare_images", "read_png", "write_png")})
