@@ -64,7 +64,7 @@ def cmd_embodiments(args) -> int:
 def cmd_render(args) -> int:
     import numpy as np
 
-    from .pipeline import overlay_skeleton, parse_size, render_skeleton_video
+    from .pipeline import fit_image, overlay_skeleton, parse_size, render_skeleton_video
     from .trajectory import load_trajectory
     from .video import read_video, video_info, write_video
 
@@ -83,10 +83,8 @@ def cmd_render(args) -> int:
     video = render_skeleton_video(emb, traj, cam, size, resize_mode=args.resize, device=args.device, camera_source=args.camera)
     if rgb is not None:
         H, W = video.shape[1:3]
-        if rgb.shape[1:3] != (H, W):
-            import cv2
-
-            rgb = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in rgb])
+        # the real frames are fitted to the output size exactly as the calibration was (--resize)
+        rgb = np.stack([fit_image(f, W, H, args.resize) for f in rgb])
         video = overlay_skeleton(video, rgb, alpha=args.alpha)
     fps = args.fps or traj.fps
     out = write_video(args.out, video, fps)

@@ -11,7 +11,7 @@ from .embodiment import Embodiment
 from .render import GripperMarks, SkeletonStyle, rasterise
 from .trajectory import Trajectory
 
-__all__ = ["render_skeleton_video", "overlay_skeleton", "parse_size", "SkeletonProjection", "project_skeleton"]
+__all__ = ["render_skeleton_video", "overlay_skeleton", "fit_image", "parse_size", "SkeletonProjection", "project_skeleton"]
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -83,3 +83,29 @@ def overlay_skeleton(skeleton: np.ndarray, rgb: np.ndarray, alpha: float = 0.8) 
     w = alpha * (s.max(axis=-1, keepdims=True) / 255.0)
     out = rgb.astype(np.float32) * (1.0 - w) + s * w
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def fit_image(image: np.ndarray, width: int, height: int, mode: str = "crop") -> np.ndarray:
+    """Resize ``image`` (H, W, 3) to ``width`` x ``height`` as ``Intrinsics.resized`` maps the camera.
+
+    mode "crop": centre-crop to the target aspect ratio, then scale (the crop
+    box is rounded to whole pixels: at most half a source pixel away from
+    the intrinsics' fractional crop); "stretch": scale each axis.
+    """
+    import cv2
+
+    h, w = image.shape[:2]
+    if (w, h) == (width, height):
+        return image
+    if mode == "crop":
+        aspect = width / height
+        if w / h > aspect:
+            cw, ch = int(round(h * aspect)), h
+        else:
+            cw, ch = w, int(round(w / aspect))
+        x0, y0 = (w - cw) // 2, (h - ch) // 2
+        image = image[y0:y0 + ch, x0:x0 + cw]
+    elif mode != "stretch":
+        raise ValueError(f"fit_image: mode must be 'crop' or 'stretch', found {mode!r}")
+    shrinking = width < image.shape[1]
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)

@@ -115,3 +115,22 @@ def test_demo_writes_videos_and_contact_sheet(tmp_path, capsys):
 
     sheet = cv2.imread(str(tmp_path / "demo" / "contact_sheet.png"))
     assert sheet is not None and sheet.shape[0] >= 288 * len(names)
+
+
+def test_overlay_frames_are_fitted_like_the_calibration(tmp_path, capsys):
+    """--size of another aspect ratio: the real frames are centre-cropped as the intrinsics are, not stretched."""
+    from oscar_core import get_embodiment, load_camera, load_trajectory, overlay_skeleton, render_skeleton_video
+    from oscar_core.pipeline import fit_image
+
+    # a frame whose left and right thirds differ, so a stretch and a crop give different pixels
+    rgb = np.zeros((81, 360, 640, 3), np.uint8)
+    rgb[:, :, :213] = (200, 40, 40)
+    rgb[:, :, 427:] = (40, 40, 200)
+    write_video(tmp_path / "rgb.mkv", rgb, 15)
+    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
+                       "--out", tmp_path / "check.mkv", "--overlay", tmp_path / "rgb.mkv", "--size", "320x240")
+    assert code == 0, err
+    skeleton = render_skeleton_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (320, 240))
+    fitted = np.stack([fit_image(f, 320, 240, "crop") for f in rgb])
+    np.testing.assert_array_equal(read_video(tmp_path / "check.mkv"), overlay_skeleton(skeleton, fitted))
+    assert not np.array_equal(fitted[0], fit_image(rgb[0], 320, 240, "stretch"))

@@ -200,11 +200,11 @@ def cmd_rollout(args) -> int:
     import oscar_zoo
 
     from ..errors import InputFileError
-    from ..pipeline import overlay_skeleton, render_skeleton_video
+    from ..pipeline import fit_image, overlay_skeleton, render_skeleton_video
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
     from ..video import write_video
-    from ._image import fit_image, read_image
+    from ._image import read_image
     from .sampler import SamplerConfig
 
     emb = get_embodiment(args.embodiment, getattr(args, "plugin", None) or ())
