@@ -37,6 +37,7 @@ __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 MODEL_FILE = "oscar_model.json"
 FORMAT = "oscar-world-model"
 EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
+UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,12 @@ class ModelCard:
     fps: frame rate of its training videos (None: unknown);
     embodiments: embodiment names (oscar plugins) it was trained on;
     text_encoder_id: names the encoder whose embeddings it takes (cache key);
-    base: the checkpoint it was fine-tuned from; license: SPDX id or name.
+    base: the checkpoint it was fine-tuned from; license: SPDX id or name;
+    unconditional_skeleton: what the skeleton stream was replaced with when
+    training dropped it (the paper's "replaced with zeros"), so that the
+    sampler's unconditional branch sees the same thing: ``"zero_latent"`` (a
+    zero skeleton latent) or ``"black_video"`` (the VAE latent of an all-black
+    skeleton video).
     """
 
     name: str | None = None
@@ -60,9 +66,13 @@ class ModelCard:
     text_encoder_id: str | None = None
     base: str | None = None
     license: str | None = None
+    unconditional_skeleton: str = "zero_latent"
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
+        if self.unconditional_skeleton not in UNCONDITIONAL_SKELETONS:
+            raise ModelInputError(f"model card unconditional_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, "
+                                  f"found {self.unconditional_skeleton!r}")
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
 
     def to_dict(self) -> dict:

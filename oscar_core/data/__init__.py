@@ -1,0 +1,1 @@
+"""The data pipeline: dataset readers, filters, deduplication, captions, clip export, engines."""
