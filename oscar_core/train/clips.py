@@ -1,0 +1,479 @@
+"""Training clips: the on-disk format that the toy world and the data pipeline write and the trainer reads.
+
+A **clip set** is a folder of shards::
+
+    CLIPSET/
+      oscar_clips.json                  {"format": "oscar-clips", "format_version": 1}
+      shard-000000/
+        clips.jsonl                     one ClipRecord per line; written last and atomically:
+                                        a shard without it is unfinished and is ignored
+        <clip id>/rgb.mkv               RGB video (T, H, W, 3): .mkv (FFV1, lossless) or .mp4 (H.264)
+        <clip id>/trajectory.npz        the trajectory (docs/formats.md), T frames
+        <clip id>/camera.json           the camera (docs/formats.md)
+        <clip id>/skeleton.mkv          optional: the skeleton video rendered at the RGB size
+        <clip id>/prompt.safetensors    optional: {"prompt_embeds": (L, D)} text embedding
+        <clip id>/latents.safetensors   optional: cached VAE latents of fixed windows (below)
+
+A record names everything the trainer needs without opening the videos:
+the source dataset (source mixing), the frame count (mixing weights, window
+bounds) and the open/close signal (the window prior), so sampling plans are
+made from the ``clips.jsonl`` files alone.
+
+The skeleton is rendered on the fly from trajectory + camera + embodiment
+unless a stored ``skeleton`` video is given. Cached latents hold, for N
+windows of ``window`` frames starting at ``starts``, the normalised VAE
+latents of both streams: tensors ``video`` and ``skeleton`` of shape
+(N, C, 1 + (window − 1) / 4, H / 8, W / 8) and ``starts`` (N,) int64, with
+metadata ``window``, ``vae`` (the VAE's name or hash), ``width``, ``height``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from .._atomic import atomic_write_bytes
+from ..errors import OscarError
+
+__all__ = [
+    "CLIPSET_FILE", "CLIPSET_FORMAT", "SHARD_INDEX", "ClipFormatError", "ClipRecord", "Clip",
+    "ClipSet", "ClipSetWriter", "ShardWriter", "clip_openness",
+]
+
+CLIPSET_FILE = "oscar_clips.json"
+CLIPSET_FORMAT = "oscar-clips"
+FORMAT_VERSION = 1
+SHARD_INDEX = "clips.jsonl"
+REQUIRED_FILES = ("rgb", "trajectory", "camera")
+OPTIONAL_FILES = ("skeleton", "prompt_embeds", "latents")
+_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}$")
+_VIDEO_SUFFIXES = (".mkv", ".mp4")
+
+
+class ClipFormatError(OscarError, ValueError):
+    """A clip set, shard or clip breaks the format; names the shard, the clip and the field."""
+
+    def __init__(self, where, clip, field, expected, found):
+        self.where, self.clip, self.field, self.expected, self.found = str(where), clip, field, expected, found
+        at = f"{where}: clip {clip!r}" if clip is not None else f"{where}"
+        super().__init__(f"{at}: field '{field}': expected {expected}, found {found}")
+
+    def __reduce__(self):
+        return (type(self), (self.where, self.clip, self.field, self.expected, self.found))
+
+
+@dataclass(frozen=True)
+class ClipRecord:
+    """One clip as listed in a shard's ``clips.jsonl``.
+
+    id: unique in the clip set (letters, digits, ``._-``); source: the dataset
+    it came from ("droid", "egodex", "toyworld", …); embodiment: plugin name;
+    n_frames: T; fps: frames per second; width, height: RGB frame size, pixels;
+    openness: (T, G) open/close signal in [0, 1] per gripper (gripper openness
+    for robots, normalised fingertip flexion for hands; G may be 0);
+    files: role → path relative to the shard folder (``rgb``, ``trajectory``,
+    ``camera`` required; ``skeleton``, ``prompt_embeds``, ``latents`` optional);
+    caption: the training caption, or None; task: the dataset's task text, or
+    None; meta: free-form provenance (source episode id, frame range, …).
+    """
+
+    id: str
+    source: str
+    embodiment: str
+    n_frames: int
+    fps: float
+    width: int
+    height: int
+    openness: tuple[tuple[float, ...], ...]
+    files: dict[str, str]
+    caption: str | None = None
+    task: str | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["openness"] = [list(row) for row in self.openness]
+        return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+    @property
+    def openness_array(self) -> np.ndarray:
+        """(T, G) float64 open/close signal."""
+        a = np.asarray(self.openness, dtype=np.float64)
+        return a.reshape(self.n_frames, -1)
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> "ClipRecord":
+        """Validate one parsed ``clips.jsonl`` line (``where``: shard and line, for errors)."""
+        if not isinstance(d, dict):
+            raise ClipFormatError(where, None, "<record>", "a JSON object", type(d).__name__)
+        clip = d.get("id")
+        if not isinstance(clip, str) or not _ID.match(clip):
+            raise ClipFormatError(where, None, "id", "a string of letters, digits and ._- (1-200 chars)", repr(clip))
+        known = {f.name for f in fields(cls)}
+        required = [f.name for f in fields(cls) if f.name not in ("caption", "task", "meta")]
+        missing = [k for k in required if k not in d]
+        if missing:
+            raise ClipFormatError(where, clip, missing[0], "present", "missing")
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ClipFormatError(where, clip, unknown[0], f"one of {sorted(known)}", "an unknown field")
+        for k in ("source", "embodiment"):
+            if not isinstance(d[k], str) or not d[k]:
+                raise ClipFormatError(where, clip, k, "a non-empty string", repr(d[k]))
+        for k in ("n_frames", "width", "height"):
+            if not isinstance(d[k], int) or isinstance(d[k], bool) or d[k] < 1:
+                raise ClipFormatError(where, clip, k, "a positive integer", repr(d[k]))
+        if not isinstance(d["fps"], (int, float)) or isinstance(d["fps"], bool) or not d["fps"] > 0:
+            raise ClipFormatError(where, clip, "fps", "a positive number", repr(d["fps"]))
+        op = d["openness"]
+        try:
+            arr = np.asarray(op, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ClipFormatError(where, clip, "openness", "a (T, G) list of numbers", "ragged or non-numeric rows") from None
+        if arr.ndim != 2 or arr.shape[0] != d["n_frames"]:
+            raise ClipFormatError(where, clip, "openness", f"shape ({d['n_frames']}, G)", f"shape {arr.shape}")
+        if arr.size and (not np.isfinite(arr).all() or arr.min() < 0 or arr.max() > 1):
+            raise ClipFormatError(where, clip, "openness", "finite values in [0, 1]",
+                                  f"range [{np.nanmin(arr):g}, {np.nanmax(arr):g}]" if np.isfinite(arr).any() else "NaN")
+        files = d["files"]
+        if not isinstance(files, dict):
+            raise ClipFormatError(where, clip, "files", "an object of role -> relative path", type(files).__name__)
+        for role in REQUIRED_FILES:
+            if role not in files:
+                raise ClipFormatError(where, clip, f"files.{role}", "present", "missing")
+        for role, rel in files.items():
+            if role not in REQUIRED_FILES + OPTIONAL_FILES:
+                raise ClipFormatError(where, clip, f"files.{role}", f"a role among {REQUIRED_FILES + OPTIONAL_FILES}",
+                                      "an unknown role")
+            if not isinstance(rel, str) or not rel or rel.startswith("/") or ".." in Path(rel).parts:
+                raise ClipFormatError(where, clip, f"files.{role}", "a relative path inside the shard", repr(rel))
+        for role in ("rgb", "skeleton"):
+            if role in files and Path(files[role]).suffix not in _VIDEO_SUFFIXES:
+                raise ClipFormatError(where, clip, f"files.{role}", f"a video ending in {_VIDEO_SUFFIXES}", repr(files[role]))
+        for k in ("caption", "task"):
+            if d.get(k) is not None and not isinstance(d[k], str):
+                raise ClipFormatError(where, clip, k, "a string or null", type(d[k]).__name__)
+        if not isinstance(d.get("meta", {}), dict):
+            raise ClipFormatError(where, clip, "meta", "an object", type(d["meta"]).__name__)
+        rows = tuple(tuple(float(v) for v in row) for row in arr)
+        return cls(id=clip, source=d["source"], embodiment=d["embodiment"], n_frames=d["n_frames"], fps=float(d["fps"]),
+                   width=d["width"], height=d["height"], openness=rows, files=dict(files), caption=d.get("caption"),
+                   task=d.get("task"), meta=dict(d.get("meta", {})))
+
+
+@dataclass(eq=False)
+class Clip:
+    """A clip's contents in memory.
+
+    rgb: (T, H, W, 3) uint8; trajectory: :class:`~oscar_core.trajectory.Trajectory`
+    of T frames; camera: :class:`~oscar_core.camera.Camera`; skeleton: (T, H, W, 3)
+    uint8 or None; prompt_embeds: (L, D) tensor or None; latents: dict with
+    ``video``, ``skeleton`` (N, C, t, h, w), ``starts`` (N,) tensors and
+    ``window``/``vae``/``width``/``height`` metadata, or None.
+    """
+
+    record: ClipRecord
+    rgb: np.ndarray | None = None
+    trajectory: Any = None
+    camera: Any = None
+    skeleton: np.ndarray | None = None
+    prompt_embeds: Any = None
+    latents: dict | None = None
+
+
+def clip_openness(embodiment, trajectory) -> np.ndarray:
+    """(T, G) open/close signal of a trajectory through its embodiment, in [0, 1].
+
+    Robots: gripper openness from the raw gripper signal; embodiments that read
+    keypoints (hands) compute it in their ``frames`` (normalised fingertip flexion).
+    """
+    traj = embodiment.check_trajectory(trajectory)
+    if embodiment.uses_kinematic_tree():
+        return np.asarray(embodiment.gripper_openness(traj.gripper, traj.source), dtype=np.float64)
+    return np.asarray(embodiment.frames(traj).openness, dtype=np.float64)
+
+
+class ShardWriter:
+    """Writes one shard: clips go into a hidden temporary folder, which becomes the shard on :meth:`close`.
+
+    Use as a context manager; on an exception nothing is left at the shard's
+    name. Clip ids must be unique within the shard (the clip set's writer
+    checks the whole set).
+    """
+
+    def __init__(self, final: Path, video_codec: str = "ffv1"):
+        self.final = final
+        self.tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+        self.records: list[ClipRecord] = []
+        self.video_codec = video_codec
+
+    def add(self, clip: Clip) -> ClipRecord:
+        """Write a clip's files and return its record (``files`` filled in)."""
+        from ..camera import save_camera
+        from ..trajectory import save_trajectory
+        from ..video import write_video
+
+        rec = clip.record
+        if any(r.id == rec.id for r in self.records):
+            raise ClipFormatError(self.final, rec.id, "id", "unique within the shard", "a duplicate")
+        if clip.rgb is None or clip.trajectory is None or clip.camera is None:
+            missing = [k for k in ("rgb", "trajectory", "camera") if getattr(clip, k) is None]
+            raise ClipFormatError(self.final, rec.id, missing[0], "given", "None")
+        rgb = np.asarray(clip.rgb)
+        T = rec.n_frames
+        if rgb.ndim != 4 or rgb.shape[0] != T or rgb.shape[1:] != (rec.height, rec.width, 3) or rgb.dtype != np.uint8:
+            raise ClipFormatError(self.final, rec.id, "rgb", f"uint8 ({T}, {rec.height}, {rec.width}, 3)",
+                                  f"{rgb.dtype} {tuple(rgb.shape)}")
+        if len(clip.trajectory) != T:
+            raise ClipFormatError(self.final, rec.id, "trajectory", f"{T} frames", f"{len(clip.trajectory)}")
+        folder = self.tmp / rec.id
+        folder.mkdir()
+        ext = ".mkv" if self.video_codec == "ffv1" else ".mp4"
+        files = {"rgb": f"{rec.id}/rgb{ext}", "trajectory": f"{rec.id}/trajectory.npz", "camera": f"{rec.id}/camera.json"}
+        write_video(self.tmp / files["rgb"], rgb, rec.fps, codec=self.video_codec)
+        save_trajectory(clip.trajectory, self.tmp / files["trajectory"])
+        save_camera(clip.camera, self.tmp / files["camera"])
+        if clip.skeleton is not None:
+            sk = np.asarray(clip.skeleton)
+            if sk.shape != rgb.shape or sk.dtype != np.uint8:
+                raise ClipFormatError(self.final, rec.id, "skeleton", f"uint8 {tuple(rgb.shape)}", f"{sk.dtype} {tuple(sk.shape)}")
+            files["skeleton"] = f"{rec.id}/skeleton{ext}"
+            write_video(self.tmp / files["skeleton"], sk, rec.fps, codec=self.video_codec)
+        if clip.prompt_embeds is not None or clip.latents is not None:
+            from safetensors.torch import save_file
+            import torch
+
+            if clip.prompt_embeds is not None:
+                pe = torch.as_tensor(clip.prompt_embeds)
+                if pe.ndim != 2:
+                    raise ClipFormatError(self.final, rec.id, "prompt_embeds", "shape (L, D)", f"shape {tuple(pe.shape)}")
+                files["prompt_embeds"] = f"{rec.id}/prompt.safetensors"
+                save_file({"prompt_embeds": pe.contiguous()}, str(self.tmp / files["prompt_embeds"]))
+            if clip.latents is not None:
+                files["latents"] = f"{rec.id}/latents.safetensors"
+                tensors, meta = _latents_to_file(clip.latents, self.final, rec)
+                save_file(tensors, str(self.tmp / files["latents"]), metadata=meta)
+        d = json.loads(rec.to_json())
+        d["files"] = files
+        full = ClipRecord.from_dict(d, f"{self.final}/{SHARD_INDEX}")
+        self.records.append(full)
+        return full
+
+    def close(self) -> Path:
+        """Write the index and move the shard into place (replacing an unfinished one)."""
+        data = "".join(r.to_json() + "\n" for r in self.records).encode()
+        atomic_write_bytes(self.tmp / SHARD_INDEX, data)
+        os.chmod(self.tmp, 0o755)
+        if self.final.exists():
+            shutil.rmtree(self.final)
+        os.replace(self.tmp, self.final)
+        return self.final
+
+    def abort(self) -> None:
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def __enter__(self) -> "ShardWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _latents_to_file(latents: dict, where, rec: ClipRecord):
+    import torch
+
+    for k in ("video", "skeleton", "starts", "window", "vae"):
+        if k not in latents:
+            raise ClipFormatError(where, rec.id, f"latents.{k}", "present", "missing")
+    video, skel = torch.as_tensor(latents["video"]), torch.as_tensor(latents["skeleton"])
+    starts = torch.as_tensor(latents["starts"], dtype=torch.int64)
+    window = int(latents["window"])
+    if video.ndim != 5 or skel.shape[0] != video.shape[0] or skel.shape[2:] != video.shape[2:]:
+        raise ClipFormatError(where, rec.id, "latents", "video and skeleton of shape (N, C, t, h, w) with equal N, t, h, w",
+                              f"{tuple(video.shape)} and {tuple(skel.shape)}")
+    if starts.shape != (video.shape[0],) or (starts < 0).any() or (starts + window > rec.n_frames).any():
+        raise ClipFormatError(where, rec.id, "latents.starts", f"{video.shape[0]} starts with start + {window} <= {rec.n_frames}",
+                              starts.tolist())
+    meta = {"window": str(window), "vae": str(latents["vae"]), "width": str(rec.width), "height": str(rec.height)}
+    return {"video": video.contiguous(), "skeleton": skel.contiguous(), "starts": starts}, meta
+
+
+class ClipSetWriter:
+    """Creates (or reopens) a clip set and hands out shard writers; finished shards are skipped on re-runs."""
+
+    def __init__(self, root, video_codec: str = "ffv1"):
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        marker = self.root / CLIPSET_FILE
+        if marker.exists():
+            _read_marker(marker)
+        else:
+            atomic_write_bytes(marker, json.dumps({"format": CLIPSET_FORMAT, "format_version": FORMAT_VERSION}).encode())
+        if video_codec not in ("ffv1", "h264"):
+            raise ValueError(f"video_codec: expected 'ffv1' or 'h264', found {video_codec!r}")
+        self.video_codec = video_codec
+
+    def shard_done(self, name: str) -> bool:
+        """True when shard ``name`` is complete (its index exists)."""
+        return (self.root / name / SHARD_INDEX).is_file()
+
+    def shard(self, name: str) -> ShardWriter:
+        if not re.match(r"^shard-[A-Za-z0-9._-]+$", name):
+            raise ValueError(f"shard name: expected 'shard-<letters, digits, ._->', found {name!r}")
+        return ShardWriter(self.root / name, self.video_codec)
+
+    def remove_stale(self) -> list[Path]:
+        """Delete temporary folders left by killed writers; returns what was removed."""
+        stale = [p for p in self.root.glob(".shard-*.tmp") if p.is_dir()]
+        for p in stale:
+            shutil.rmtree(p, ignore_errors=True)
+        return stale
+
+
+def _read_marker(path: Path) -> dict:
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ClipFormatError(path, None, "<file>", "a JSON object", f"unreadable ({exc})") from None
+    if not isinstance(d, dict) or d.get("format") != CLIPSET_FORMAT:
+        raise ClipFormatError(path, None, "format", repr(CLIPSET_FORMAT), repr(d.get("format") if isinstance(d, dict) else d))
+    if d.get("format_version") != FORMAT_VERSION:
+        raise ClipFormatError(path, None, "format_version", str(FORMAT_VERSION), repr(d.get("format_version")))
+    return d
+
+
+class ClipSet:
+    """Reads a clip set: every finished shard's records, and clips on demand.
+
+    root: the clip-set folder. Unfinished shards (no index) are ignored.
+    Duplicate clip ids across shards are an error naming both shards.
+    """
+
+    def __init__(self, root):
+        self.root = Path(root)
+        marker = self.root / CLIPSET_FILE
+        if not marker.is_file():
+            raise ClipFormatError(self.root, None, CLIPSET_FILE, "a clip-set marker file", "missing (not a clip set)")
+        _read_marker(marker)
+        self.records: list[ClipRecord] = []
+        self.shard_of: dict[str, Path] = {}
+        for shard in sorted(p for p in self.root.glob("shard-*") if p.is_dir()):
+            index = shard / SHARD_INDEX
+            if not index.is_file():
+                continue
+            for lineno, line in enumerate(index.read_text().splitlines(), 1):
+                if not line.strip():
+                    continue
+                where = f"{index}:{lineno}"
+                try:
+                    d = json.loads(line)
+                except json.JSONDecodeError as exc:
+                    raise ClipFormatError(where, None, "<line>", "one JSON object", f"invalid JSON ({exc.msg})") from None
+                rec = ClipRecord.from_dict(d, where)
+                if rec.id in self.shard_of:
+                    raise ClipFormatError(where, rec.id, "id", "unique in the clip set",
+                                          f"also in {self.shard_of[rec.id].name}")
+                self.shard_of[rec.id] = shard
+                self.records.append(rec)
+        self._by_id = {r.id: r for r in self.records}
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __iter__(self) -> Iterator[ClipRecord]:
+        return iter(self.records)
+
+    def record(self, clip_id: str) -> ClipRecord:
+        try:
+            return self._by_id[clip_id]
+        except KeyError:
+            raise KeyError(f"{self.root}: no clip {clip_id!r}") from None
+
+    def path(self, rec: ClipRecord, role: str) -> Path:
+        """Absolute path of one of a clip's files."""
+        if role not in rec.files:
+            raise ClipFormatError(self.shard_of[rec.id], rec.id, f"files.{role}", "present", "missing")
+        return self.shard_of[rec.id] / rec.files[role]
+
+    def load(self, rec: ClipRecord | str, *, start: int = 0, frames: int | None = None, video: bool = True,
+             skeleton: bool = True, registry=None) -> Clip:
+        """Read a clip, or the window ``[start, start + frames)`` of it, and check it against its record.
+
+        Checks: every file present; the video's frame size is the record's; the
+        trajectory (and the stored skeleton) have ``n_frames`` frames; the
+        window lies inside the clip. ``registry``: an embodiment registry used to
+        read the camera with the embodiment's defaults (None: plain camera file).
+        Returns a :class:`Clip` whose arrays cover the window only.
+        """
+        from ..camera import load_camera
+        from ..errors import InputFileError
+        from ..trajectory import load_trajectory
+        from ..video import read_video
+
+        if isinstance(rec, str):
+            rec = self.record(rec)
+        shard = self.shard_of[rec.id]
+        n = rec.n_frames - start if frames is None else int(frames)
+        if start < 0 or n < 1 or start + n > rec.n_frames:
+            raise ClipFormatError(shard, rec.id, "n_frames", f"at least {start + max(n, 1)} frames for the window "
+                                  f"[{start}, {start + n})", rec.n_frames)
+        for role, rel in rec.files.items():
+            if not (shard / rel).exists():
+                raise ClipFormatError(shard, rec.id, f"files.{role}", f"a file at {rel}", "no such file")
+        try:
+            traj = load_trajectory(shard / rec.files["trajectory"])
+            if registry is not None:
+                camera = registry.get(rec.embodiment).load_camera(shard / rec.files["camera"])
+            else:
+                camera = load_camera(shard / rec.files["camera"])
+        except InputFileError as exc:
+            raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
+        if len(traj) != rec.n_frames:
+            raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
+        clip = Clip(rec, trajectory=traj.time_slice(start, start + n) if (start, n) != (0, rec.n_frames) else traj,
+                    camera=camera)
+
+        def read_window(role: str) -> np.ndarray:
+            try:
+                v = read_video(shard / rec.files[role], max_frames=start + n)
+            except (ValueError, FileNotFoundError) as exc:
+                raise ClipFormatError(shard, rec.id, f"files.{role}", "a readable video", str(exc)) from None
+            if v.shape[1:3] != (rec.height, rec.width):
+                raise ClipFormatError(shard, rec.id, role, f"frames of {rec.width}x{rec.height}",
+                                      f"{v.shape[2]}x{v.shape[1]}")
+            if len(v) < start + n:
+                raise ClipFormatError(shard, rec.id, role, f"{rec.n_frames} frames (n_frames)", f"{len(v)} frames")
+            return v[start:start + n]
+
+        if video:
+            clip.rgb = read_window("rgb")
+        if skeleton and "skeleton" in rec.files:
+            clip.skeleton = read_window("skeleton")
+        if "prompt_embeds" in rec.files or "latents" in rec.files:
+            from safetensors import safe_open
+
+            if "prompt_embeds" in rec.files:
+                with safe_open(str(shard / rec.files["prompt_embeds"]), "pt") as f:
+                    if "prompt_embeds" not in f.keys():
+                        raise ClipFormatError(shard, rec.id, "prompt_embeds", "a tensor 'prompt_embeds'", sorted(f.keys()))
+                    clip.prompt_embeds = f.get_tensor("prompt_embeds")
+            if "latents" in rec.files:
+                with safe_open(str(shard / rec.files["latents"]), "pt") as f:
+                    keys = set(f.keys())
+                    if not {"video", "skeleton", "starts"} <= keys:
+                        raise ClipFormatError(shard, rec.id, "latents", "tensors video, skeleton, starts", sorted(keys))
+                    meta = f.metadata() or {}
+                    clip.latents = {k: f.get_tensor(k) for k in ("video", "skeleton", "starts")}
+                    clip.latents.update({k: meta.get(k) for k in ("window", "vae", "width", "height")})
+        return clip
