@@ -26,3 +26,15 @@ def oscar_register_embodiments():
     ``name``. Not ``firstresult``: every plugin's classes are collected, and a
     plugin that raises here is reported without stopping the others.
     """
+
+
+@hookspec
+def oscar_register_readers():
+    """Return the dataset-reader classes this plugin provides.
+
+    Called once per plugin when the registry loads. Return a list (or tuple)
+    of :class:`oscar_core.data.reader.Reader` subclasses; each declares a
+    unique ``name`` (``oscar data ingest SOURCE --reader NAME``). Not
+    ``firstresult``: every plugin's readers are collected, and a plugin that
+    raises here is reported without stopping the others.
+    """

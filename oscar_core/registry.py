@@ -58,7 +58,7 @@ class PluginLoadWarning(UserWarning):
 
 @dataclass(frozen=True)
 class EmbodimentEntry:
-    """Where a registered embodiment class came from."""
+    """Where a registered class (an embodiment, or a dataset reader) came from."""
 
     name: str
     cls: type
@@ -108,6 +108,7 @@ class Registry:
         self.pm = pluggy.PluginManager(hookspecs.PROJECT_NAME)
         self.pm.add_hookspecs(hookspecs)
         self.entries: dict[str, EmbodimentEntry] = {}
+        self.reader_entries: dict[str, EmbodimentEntry] = {}  # dataset readers (oscar_register_readers)
         self.failures: list[PluginFailure] = []
         self._instances: dict[str, Embodiment] = {}
         self._loaded_paths: set[Path] = set()
@@ -181,6 +182,7 @@ class Registry:
         except (ValueError, pluggy.PluginValidationError) as exc:  # already registered, or bad hookimpl signature
             self._fail(plugin, who, str(exc).replace("\n", " "))
             return
+        self._register_readers(module, plugin, dist, version)
         impls = [i for i in self.pm.hook.oscar_register_embodiments.get_hookimpls() if i.plugin is module]
         unknown = [n for n in dir(module) if n.startswith("oscar_") and callable(getattr(module, n))
                    and not hasattr(self.pm.hook, n)]
@@ -217,7 +219,54 @@ class Registry:
             return
         self.entries[cls.name] = EmbodimentEntry(cls.name, cls, plugin, dist, version)
 
+    def _register_readers(self, module, plugin: str, dist: str, version: str) -> None:
+        """Collect the dataset readers a plugin module registers (``oscar_register_readers``)."""
+        from .data.reader import Reader
+
+        who = f"{dist} {version}".strip()
+        for impl in [i for i in self.pm.hook.oscar_register_readers.get_hookimpls() if i.plugin is module]:
+            try:
+                classes = impl.function()
+            except Exception as exc:
+                self._fail(plugin, who, f"oscar_register_readers raised {type(exc).__name__}: {exc}")
+                continue
+            if classes is None:
+                continue
+            if isinstance(classes, type) or not isinstance(classes, (list, tuple)):
+                self._fail(plugin, who, f"oscar_register_readers must return a list of Reader classes, "
+                                        f"returned {type(classes).__name__}")
+                continue
+            for cls in classes:
+                if not (isinstance(cls, type) and issubclass(cls, Reader)):
+                    self._fail(plugin, who, f"expected a Reader subclass, found {cls!r}")
+                    continue
+                problems = cls.class_problems()
+                if problems:
+                    self._fail(plugin, who, f"{cls.__qualname__} breaks the reader contract: " + "; ".join(problems))
+                    continue
+                prior = self.reader_entries.get(cls.name)
+                if prior is not None:
+                    self._fail(plugin, who, f"reader name {cls.name!r} is already registered by "
+                                            f"{prior.distribution} {prior.version}".rstrip()
+                                            + f" (plugin {prior.plugin!r}); {who} registers it again")
+                    continue
+                self.reader_entries[cls.name] = EmbodimentEntry(cls.name, cls, plugin, dist, version)
+
     # ---- use -------------------------------------------------------------
+    def reader_names(self) -> list[str]:
+        return sorted(self.reader_entries)
+
+    def get_reader(self, name: str):
+        """A new instance of the dataset reader ``name``."""
+        if name not in self.reader_entries:
+            raise PluginError(f"unknown dataset reader {name!r}; registered: {', '.join(self.reader_names()) or 'none'}")
+        entry = self.reader_entries[name]
+        try:
+            return entry.cls()
+        except Exception as exc:
+            raise PluginError(f"reader {name!r} from {entry.distribution} {entry.version}".rstrip()
+                              + f" could not be created: {exc}") from exc
+
     def names(self) -> list[str]:
         return sorted(self.entries)
 
