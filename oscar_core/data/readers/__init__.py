@@ -1,0 +1,26 @@
+"""Built-in dataset readers, registered through the same hook an outside plugin uses.
+
+Each entry of :data:`BUILTIN_READERS` is ``"module:Class"``; a reader module
+imports its heavy dependencies (h5py, pyarrow, av) inside its methods, so
+listing the readers costs nothing and a missing optional dependency fails
+only the reader that needs it, with the install command in the message.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+from ...hookspecs import hookimpl
+
+# one line per built-in reader: "module:Class"
+BUILTIN_READERS: list[str] = [
+]
+
+
+@hookimpl
+def oscar_register_readers():
+    classes = []
+    for spec in BUILTIN_READERS:
+        module, _, name = spec.partition(":")
+        classes.append(getattr(import_module(module), name))
+    return classes
