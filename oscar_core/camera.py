@@ -43,6 +43,12 @@ Keys (any other top-level key is an error):
     ``scipy.spatial.transform.Rotation.from_euler("xyz", [roll, pitch, yaw])``);
     ``{"xyz_quat_xyzw": [x, y, z, qx, qy, qz, qw]}`` (the quaternion norm must be
     within 1e-3 of 1; it is then normalised).
+    Per frame (a camera that moves: a head camera given per frame, egocentric
+    video): the same keys holding one value per video frame, ``{"matrix":
+    [4x4, 4x4, ...]}`` (T, 4, 4), ``{"xyz_rpy": [[...6], ...]}`` (T, 6) or
+    ``{"xyz_quat_xyzw": [[...7], ...]}`` (T, 7). T must equal the trajectory's
+    frame count. With ``mount: null`` each is the camera in the world / base
+    frame at that frame; with a mount link, its offset from the link at that frame.
 ``convention`` (optional, default ``"opencv"``)
     Axes of the camera frame the extrinsic refers to; see above.
 ``direction`` (optional, default ``"camera_to_world"``)
@@ -56,7 +62,8 @@ Keys (any other top-level key is an error):
 ``embodiment`` (optional)
     Name of the embodiment this calibration was made for (a string).
 
-``save_camera`` always writes the ``matrix`` extrinsic form.
+``save_camera`` always writes the ``matrix`` extrinsic form (per frame when
+the camera has one extrinsic per frame).
 """
 
 from __future__ import annotations
@@ -83,6 +90,7 @@ __all__ = [
     "Projection",
     "canonical_convention",
     "as_rigid_transform",
+    "as_rigid_transforms",
     "look_at",
     "convention_to_opencv",
     "project",
@@ -201,6 +209,22 @@ def _rigid_problem(M: np.ndarray, tol: float = _ORTHONORMAL_TOL) -> tuple[str, s
     if det < 0:
         return "a rigid transform with a proper rotation (det(R) = +1)", f"a reflection, det(R) = {det:.6g}"
     return None
+
+
+def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsic",
+                        tol: float = _ORTHONORMAL_TOL) -> np.ndarray:
+    """Like :func:`as_rigid_transform` for one (4, 4) or a stack (T, 4, 4), T >= 1,
+    checking each; an error names the first bad frame as ``field[t]``."""
+    try:
+        A = _as_float_array(M)
+    except (TypeError, ValueError) as e:
+        raise CameraFileError(source, field, "a 4x4 or Tx4x4 numeric array", str(e)) from None
+    if A.ndim == 3 and A.shape[1:] == (4, 4) and A.shape[0] >= 1:
+        return np.stack([as_rigid_transform(A[t], source, f"{field}[{t}]", tol) for t in range(A.shape[0])])
+    if A.ndim == 3:
+        raise CameraFileError(source, field, "one 4x4 rigid transform or one per frame, shape (T >= 1, 4, 4)",
+                              f"shape {A.shape}")
+    return as_rigid_transform(A, source, field, tol)
 
 
 def as_rigid_transform(M: Any, source: str = "<matrix>", field: str = "extrinsic",
@@ -394,8 +418,9 @@ class Camera:
 
     intrinsics: Intrinsics.
     extrinsic: (4, 4) rigid transform exactly as the user gave it (stored as a
-        read-only float64 copy); its camera frame uses ``convention`` axes and its
-        meaning is set by ``direction``.
+        read-only float64 copy), or (T, 4, 4), one per video frame, for a camera
+        that moves (``num_frames`` is then T); its camera frame uses
+        ``convention`` axes and its meaning is set by ``direction``.
     convention: camera-frame axes, a name or alias from CONVENTIONS (stored canonical).
     direction: "camera_to_world" (extrinsic = T_ref_cam, the camera pose) or
         "world_to_camera" (extrinsic = T_cam_ref).
@@ -417,7 +442,7 @@ class Camera:
         src = "<Camera>"
         if not isinstance(self.intrinsics, Intrinsics):
             raise CameraFileError(src, "intrinsics", "an Intrinsics instance", type(self.intrinsics).__name__)
-        M = as_rigid_transform(self.extrinsic, src, "extrinsic")
+        M = as_rigid_transforms(self.extrinsic, src, "extrinsic")
         M.setflags(write=False)
         object.__setattr__(self, "extrinsic", M)
         if not isinstance(self.convention, str) or self.convention not in _VALID_CONVENTION_NAMES:
@@ -452,15 +477,35 @@ class Camera:
 
     @property
     def is_static(self) -> bool:
-        """True when the camera is fixed in the world frame (no mount link)."""
-        return self.mount_link is None
+        """True when the camera is fixed in the world frame (no mount link, one extrinsic)."""
+        return self.mount_link is None and self.extrinsic.ndim == 2
+
+    @property
+    def num_frames(self) -> int | None:
+        """T for a camera with one extrinsic per frame, None for one extrinsic for all frames."""
+        return int(self.extrinsic.shape[0]) if self.extrinsic.ndim == 3 else None
+
+    def check_frames(self, num_frames: int, source: str = "<camera>") -> None:
+        """Raise :class:`CameraFileError` unless a per-frame camera has exactly ``num_frames`` extrinsics."""
+        n = self.num_frames
+        if n is not None and n != int(num_frames):
+            raise CameraFileError(source, "extrinsic", f"{int(num_frames)} per-frame extrinsics, one per trajectory frame",
+                                  f"{n} extrinsics")
+
+    def time_slice(self, start: int | None = None, stop: int | None = None) -> "Camera":
+        """The camera for frames ``start:stop`` (as ``Trajectory.time_slice``); itself when it has one extrinsic."""
+        if self.num_frames is None:
+            return self
+        return replace(self, extrinsic=self.extrinsic[start:stop])
 
     def world_to_cv(self, mount_pose: Any = None) -> np.ndarray:
         """T_cv_world: maps world points (metres) into the OpenCV camera frame.
 
-        Static camera: call without ``mount_pose``; returns (4, 4).
+        Static camera: call without ``mount_pose``; returns (4, 4), or (T, 4, 4)
+        for a camera with one extrinsic per frame.
         Mounted camera: ``mount_pose`` is the world pose T_world_link of
-        ``mount_link``, (4, 4) or (T, 4, 4); returns the same shape.
+        ``mount_link``, (4, 4) or (T, 4, 4); returns the same shape ((T, 4, 4)
+        for a per-frame camera, whose T must match).
         Passing a mount pose to a static camera, or none to a mounted one, raises.
         """
         if self.mount_link is None:
@@ -478,6 +523,10 @@ class Camera:
         P = _as_float_array(mount_pose)
         if P.ndim not in (2, 3) or P.shape[-2:] != (4, 4):
             raise ValueError(f"world_to_cv: mount_pose must have shape (4, 4) or (T, 4, 4), found {P.shape}")
+        n = self.num_frames
+        if n is not None and P.ndim == 3 and P.shape[0] != n:
+            raise ValueError(f"world_to_cv: this camera has {n} per-frame extrinsics but mount_pose has "
+                             f"{P.shape[0]} frames, shape {P.shape}")
         return self._cv_from_ref @ _rigid_inverse(P)
 
     def resized(self, width: int, height: int, mode: str = "crop") -> "Camera":
@@ -589,12 +638,29 @@ def _parse_intrinsics(d: Mapping, src: str) -> Intrinsics:
         raise CameraFileError(src, names.get(e.field, e.field), e.expected, e.found) from None
 
 
+def _per_frame(form: str, value: Any) -> bool:
+    """True when ``value`` nests one level deeper than one extrinsic of ``form``."""
+    depth = 3 if form == "matrix" else 2
+    node = value
+    for _ in range(depth):
+        if not isinstance(node, (list, tuple)) or not node:
+            return False
+        node = node[0]
+    return True
+
+
 def _parse_extrinsic(v: Any, src: str) -> np.ndarray:
+    """(4, 4), or (T, 4, 4) when the form holds one value per frame."""
     if not isinstance(v, Mapping) or len(v) != 1 or next(iter(v)) not in _EXTRINSIC_FORMS:
         found = f"keys {sorted(v)}" if isinstance(v, Mapping) else _short(v)
         raise CameraFileError(src, "extrinsic", f"an object with exactly one of the keys {list(_EXTRINSIC_FORMS)}", found)
     form, value = next(iter(v.items()))
-    fname = f"extrinsic.{form}"
+    if _per_frame(form, value):
+        return np.stack([_parse_one_extrinsic(form, item, f"extrinsic.{form}[{t}]", src) for t, item in enumerate(value)])
+    return _parse_one_extrinsic(form, value, f"extrinsic.{form}", src)
+
+
+def _parse_one_extrinsic(form: str, value: Any, fname: str, src: str) -> np.ndarray:
     if form == "matrix":
         M = _matrix(src, fname, value, 4, 4)
         problem = _rigid_problem(M)
