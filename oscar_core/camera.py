@@ -820,7 +820,10 @@ def project(points: Any, camera: Camera, mount_pose: Any = None, near: float = 1
     Static camera: ``points`` (..., 3) in the world / robot base frame.
     Mounted camera: ``mount_pose`` is T_world_link of the mount link, (T, 4, 4)
     with ``points`` (T, ..., 3) (one pose per leading index), or (4, 4) with
-    ``points`` (..., 3). Returns a Projection (uv (..., 2) pixels, depth (...,) metres).
+    ``points`` (..., 3).
+    Camera with one extrinsic per frame (``camera.num_frames`` = T): ``points``
+    (T, ..., 3), frame t projected through extrinsic t (and mount pose t).
+    Returns a Projection (uv (..., 2) pixels, depth (...,) metres).
     """
     P = _as_float_array(points)
     if P.shape[-1:] != (3,):
@@ -828,10 +831,9 @@ def project(points: Any, camera: Camera, mount_pose: Any = None, near: float = 1
     M = camera.world_to_cv(mount_pose)
     R, t = M[..., :3, :3], M[..., :3, 3]
     if M.ndim == 3 and (P.ndim < 2 or P.shape[0] != M.shape[0]):
-        raise ValueError(
-            f"project: with mount_pose of shape {M.shape}, points must have shape ({M.shape[0]}, ..., 3), "
-            f"found {P.shape}"
-        )
+        why = (f"{camera.num_frames} per-frame extrinsics" if camera.num_frames is not None
+               else f"mount_pose of shape {M.shape}")
+        raise ValueError(f"project: with {why}, points must have shape ({M.shape[0]}, ..., 3), found {P.shape}")
     with np.errstate(all="ignore"):  # NaN points pass through silently
         if M.ndim == 2:
             P_cv = P @ R.T + t

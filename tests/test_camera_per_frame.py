@@ -137,6 +137,8 @@ def test_time_slice_and_frame_check():
     assert fixed.time_slice(2, 5) is fixed and fixed.num_frames is None and fixed.is_static
     fixed.check_frames(99)  # one extrinsic fits any length
     cam.check_frames(T)
+    with pytest.raises(ValueError, match=f"with {T} per-frame extrinsics, points must have shape \\({T}, ..., 3\\)"):
+        project(np.zeros((T - 1, 3)), cam)
     with pytest.raises(CameraFileError) as e:
         cam.check_frames(T + 1, "cam.json")
     assert (e.value.field, e.value.expected, e.value.found) == (
