@@ -220,7 +220,20 @@ def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsi
     except (TypeError, ValueError) as e:
         raise CameraFileError(source, field, "a 4x4 or Tx4x4 numeric array", str(e)) from None
     if A.ndim == 3 and A.shape[1:] == (4, 4) and A.shape[0] >= 1:
-        return np.stack([as_rigid_transform(A[t], source, f"{field}[{t}]", tol) for t in range(A.shape[0])])
+        A = A.copy()
+        R = A[:, :3, :3]
+        with np.errstate(all="ignore"):
+            dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
+            bad = (~np.isfinite(A).all(axis=(1, 2)) | (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-12)
+                   | ~(dev <= tol) | (np.linalg.det(np.where(np.isfinite(R), R, 0.0)) < 0))
+        if bad.any():  # the first bad frame, reported by the one-matrix check
+            t = int(np.argmax(bad))
+            as_rigid_transform(A[t], source, f"{field}[{t}]", tol)
+        fix = dev >= 1e-12  # re-orthonormalise (nearest rotation) where needed, as as_rigid_transform does
+        if fix.any():
+            U, _, Vt = np.linalg.svd(R[fix])
+            A[fix, :3, :3] = U @ Vt
+        return A
     if A.ndim == 3:
         raise CameraFileError(source, field, "one 4x4 rigid transform or one per frame, shape (T >= 1, 4, 4)",
                               f"shape {A.shape}")
@@ -656,8 +669,55 @@ def _parse_extrinsic(v: Any, src: str) -> np.ndarray:
         raise CameraFileError(src, "extrinsic", f"an object with exactly one of the keys {list(_EXTRINSIC_FORMS)}", found)
     form, value = next(iter(v.items()))
     if _per_frame(form, value):
+        fast = _per_frame_fast(form, value)
+        if fast is not None:
+            return fast
+        # slow path: one frame at a time, so that an error names the frame and the entry
         return np.stack([_parse_one_extrinsic(form, item, f"extrinsic.{form}[{t}]", src) for t, item in enumerate(value)])
     return _parse_one_extrinsic(form, value, f"extrinsic.{form}", src)
+
+
+def _per_frame_fast(form: str, value: Any) -> np.ndarray | None:
+    """(T, 4, 4) from a well-formed per-frame list in one numpy pass, or None (then the
+    frame-by-frame parser finds and names the problem)."""
+    width = {"matrix": None, "xyz_rpy": 6, "xyz_quat_xyzw": 7}[form]
+    try:
+        A = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if A.dtype != np.float64 or not np.isfinite(A).all():
+        return None
+    if any(isinstance(x, bool) for x in np.asarray(value, dtype=object).reshape(-1)):
+        return None
+    if form == "matrix":
+        if A.ndim != 3 or A.shape[1:] != (4, 4):
+            return None
+        R = A[:, :3, :3]
+        dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
+        ok = (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12) & (dev <= _ORTHONORMAL_TOL) & (np.linalg.det(R) >= 0)
+        return A if ok.all() else None
+    if A.ndim != 2 or A.shape[1] != width:
+        return None
+    M = np.tile(np.eye(4), (len(A), 1, 1))
+    M[:, :3, 3] = A[:, :3]
+    if form == "xyz_rpy":
+        r, p, y = A[:, 3], A[:, 4], A[:, 5]
+        cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+        M[:, :3, :3] = np.stack([
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+            np.stack([-sp, cp * sr, cp * cr], -1)], axis=1)
+    else:
+        q = A[:, 3:]
+        n = np.linalg.norm(q, axis=1)
+        if (np.abs(n - 1.0) > 1e-3).any():
+            return None
+        x, y, z, w = (q / n[:, None]).T
+        M[:, :3, :3] = np.stack([
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], axis=1)
+    return M
 
 
 def _parse_one_extrinsic(form: str, value: Any, fname: str, src: str) -> np.ndarray:

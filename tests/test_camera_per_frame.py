@@ -196,3 +196,27 @@ def test_link_mounted_per_frame_render_agibot():
         for t in (0, 5):
             fixed = Camera(cam.intrinsics, offsets[t], mount_link=cam.mount_link)
             assert np.array_equal(video[t], render_skeleton_video(emb, traj.time_slice(t, t + 1), fixed)[0])
+
+
+def test_batch_paths_equal_the_frame_by_frame_ones():
+    """The one-pass parser and checker of long per-frame lists give what the per-frame code gives."""
+    from oscar_core.camera import _parse_one_extrinsic, _per_frame_fast, as_rigid_transform, as_rigid_transforms
+
+    rng = np.random.default_rng(11)
+    rot = Rotation.random(50, random_state=rng)
+    xyz = rng.uniform(-1, 1, (50, 3))
+    mats = np.tile(np.eye(4), (50, 1, 1))
+    mats[:, :3, :3], mats[:, :3, 3] = rot.as_matrix(), xyz
+    for form, value in {"matrix": mats.tolist(), "xyz_rpy": np.column_stack([xyz, rot.as_euler("xyz")]).tolist(),
+                        "xyz_quat_xyzw": np.column_stack([xyz, rot.as_quat() * 1.0005]).tolist()}.items():
+        fast = _per_frame_fast(form, value)
+        slow = np.stack([_parse_one_extrinsic(form, v, form, "<t>") for v in value])
+        assert fast is not None and np.abs(fast - slow).max() < 1e-14, form
+    noisy = mats.astype(np.float32).astype(np.float64)  # float32-stored calibrations: re-orthonormalised
+    batch = as_rigid_transforms(noisy)
+    single = np.stack([as_rigid_transform(m) for m in noisy])
+    assert np.abs(batch - single).max() < 1e-14 and not np.array_equal(batch, noisy)
+    noisy[3, :3, 0] *= -1  # a reflection at frame 3
+    with pytest.raises(CameraFileError) as e:
+        as_rigid_transforms(noisy, "cam.json")
+    assert e.value.field == "extrinsic[3]" and "reflection" in str(e.value)
