@@ -239,4 +239,5 @@ def test_keypoint_embodiment_world_points_with_a_per_frame_camera():
     moved = trajectory_from_keypoints(kp, 30.0, camera_poses=poses, gripper=grip)
     a = render_skeleton_video(Mano(), world, Camera(intr, poses, embodiment="mano"))
     b = render_skeleton_video(Mano(), moved, Camera(intr, np.eye(4), embodiment="mano"))
-    assert a.any() and (a != b).any(axis=-1).mean() < 1e-3  # the same up to float rounding (two routes)
+    drawn = (a.any(axis=-1) | b.any(axis=-1)).sum()
+    assert drawn > 500 and (a != b).any(axis=-1).sum() <= 0.01 * drawn  # the same up to float rounding (two routes)
