@@ -351,7 +351,7 @@ class Embodiment:
                                   f"{len(traj.joint_names)} names; unknown {unknown}, missing {missing}{without}")
         if filled:
             warnings.warn(DefaultPoseWarning(
-                f"{src}: {len(filled)} joints not in the trajectory were set from {self.name!r}'s default pose: "
+                f"{src}: {len(filled)} joints not in the trajectory were set from the default pose of {self.name!r}: "
                 + ", ".join(f"{n}={v:g}" for n, v in filled.items()), tuple(filled), filled), stacklevel=2)
         if tuple(traj.joint_names) != expected:
             order = [traj.joint_names.index(n) for n in expected]
