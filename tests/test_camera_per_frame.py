@@ -241,3 +241,47 @@ def test_keypoint_embodiment_world_points_with_a_per_frame_camera():
     b = render_skeleton_video(Mano(), moved, Camera(intr, np.eye(4), embodiment="mano"))
     drawn = (a.any(axis=-1) | b.any(axis=-1)).sum()
     assert drawn > 500 and (a != b).any(axis=-1).sum() <= 0.01 * drawn  # the same up to float rounding (two routes)
+
+
+def test_training_clip_window_slices_a_per_frame_camera(tmp_path):
+    """A clip whose camera moves: a window of the clip gets the extrinsics of its frames."""
+    import sys
+    from pathlib import Path
+
+    from oscar_core.train.clips import Clip, ClipFormatError, ClipRecord, ClipSet, ClipSetWriter
+
+    repo = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(repo / "examples" / "oscar-toyarm"))
+    from oscar_toyarm import ASSETS
+
+    traj = load_trajectory_(ASSETS / "example_trajectory.npz").time_slice(0, 10)
+    cam = load_camera(ASSETS / "example_camera.json")
+    rng = np.random.default_rng(2)
+    moving = Camera(cam.intrinsics, np.stack([cam.extrinsic @ _shift(rng) for _ in range(10)]))
+    rgb = rng.integers(0, 255, (10, 24, 32, 3), dtype=np.uint8)
+
+    def rec(clip_id):
+        return ClipRecord(id=clip_id, source="test", embodiment="toyarm", n_frames=10, fps=float(traj.fps), width=32,
+                          height=24, openness=tuple((1.0,) for _ in range(10)), files={})
+
+    w = ClipSetWriter(tmp_path)
+    with w.shard("shard-000000") as s:
+        s.add(Clip(rec("moving"), rgb=rgb, trajectory=traj, camera=moving))
+        s.add(Clip(rec("short"), rgb=rgb, trajectory=traj, camera=moving.time_slice(0, 7)))
+    clip = ClipSet(tmp_path).load("moving", start=3, frames=4, video=False)
+    assert clip.camera.num_frames == 4 and np.allclose(clip.camera.extrinsic, moving.extrinsic[3:7], atol=1e-12)
+    assert len(clip.trajectory) == 4
+    with pytest.raises(ClipFormatError, match="10 per-frame extrinsics"):
+        ClipSet(tmp_path).load("short", video=False)
+
+
+def load_trajectory_(path):
+    from oscar_core import load_trajectory
+
+    return load_trajectory(path)
+
+
+def _shift(rng) -> np.ndarray:
+    M = np.eye(4)
+    M[:3, 3] = rng.normal(0, 0.01, 3)
+    return M
