@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from oscar_core import JointLimitWarning, Trajectory, get_embodiment, load_camera, look_at, render_skeleton_video
+from oscar_core import (JointLimitWarning, get_embodiment, load_camera, load_trajectory, look_at,
+                        render_skeleton_video)
 from oscar_core.camera import CONVENTIONS, DIRECTIONS, Camera, Intrinsics, convention_to_opencv, project, save_camera
 from oscar_core.errors import CameraFileError
 
@@ -148,8 +149,6 @@ def test_time_slice_and_frame_check():
 @pytest.fixture(scope="module")
 def franka_example():
     emb = get_embodiment("franka")
-    from oscar_core import load_trajectory
-
     traj = emb.check_trajectory(load_trajectory(emb.example_trajectory)).time_slice(0, 24)
     return emb, traj, load_camera(emb.example_camera).resized(256, 144)
 
@@ -182,8 +181,6 @@ def test_render_refuses_a_frame_count_mismatch(franka_example):
 def test_link_mounted_per_frame_render_agibot():
     """A head camera with a per-frame offset from its link: frame t renders as a fixed offset would at t."""
     emb = get_embodiment("agibot_g1")
-    from oscar_core import load_trajectory
-
     traj = load_trajectory(emb.example_trajectory).time_slice(0, 8)
     cam = load_camera(emb.example_camera).resized(160, 120)
     rng = np.random.default_rng(4)
@@ -254,7 +251,7 @@ def test_training_clip_window_slices_a_per_frame_camera(tmp_path):
     sys.path.insert(0, str(repo / "examples" / "oscar-toyarm"))
     from oscar_toyarm import ASSETS
 
-    traj = load_trajectory_(ASSETS / "example_trajectory.npz").time_slice(0, 10)
+    traj = load_trajectory(ASSETS / "example_trajectory.npz").time_slice(0, 10)
     cam = load_camera(ASSETS / "example_camera.json")
     rng = np.random.default_rng(2)
     moving = Camera(cam.intrinsics, np.stack([cam.extrinsic @ _shift(rng) for _ in range(10)]))
@@ -273,12 +270,6 @@ def test_training_clip_window_slices_a_per_frame_camera(tmp_path):
     assert len(clip.trajectory) == 4
     with pytest.raises(ClipFormatError, match="10 per-frame extrinsics"):
         ClipSet(tmp_path).load("short", video=False)
-
-
-def load_trajectory_(path):
-    from oscar_core import load_trajectory
-
-    return load_trajectory(path)
 
 
 def _shift(rng) -> np.ndarray:

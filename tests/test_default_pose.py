@@ -1,7 +1,6 @@
 """A plugin's default pose: trajectories may leave out the joints it covers."""
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,8 +9,6 @@ from oscar_core import (Camera, DefaultPoseWarning, JointLimitWarning, Trajector
                         get_embodiment, render_skeleton_video)
 from oscar_core.errors import PluginError, TrajectoryError
 
-REPO = Path(__file__).resolve().parents[1]
-TOYARM_URDF = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets" / "toyarm.urdf"
 
 
 def toyarm_class(pose, **attrs):
