@@ -10,7 +10,6 @@ from oscar_core import (Camera, DefaultPoseWarning, JointLimitWarning, Trajector
 from oscar_core.errors import PluginError, TrajectoryError
 
 
-
 def toyarm_class(pose, **attrs):
     from oscar_toyarm import ToyArm
 
