@@ -15,6 +15,7 @@ _EXPORTS = {
     "hookimpl": "hookspecs", "hookspec": "hookspecs",
     "Embodiment": "embodiment", "Gripper": "embodiment", "CameraSpec": "embodiment",
     "SkeletonFrames": "embodiment", "JointLimitWarning": "embodiment",
+    "DefaultPoseWarning": "embodiment",
     "Skeleton": "skeleton",
     "Registry": "registry", "default_registry": "registry", "get_embodiment": "registry",
     # kinematics

@@ -43,6 +43,12 @@ Keys (any other top-level key is an error):
     ``scipy.spatial.transform.Rotation.from_euler("xyz", [roll, pitch, yaw])``);
     ``{"xyz_quat_xyzw": [x, y, z, qx, qy, qz, qw]}`` (the quaternion norm must be
     within 1e-3 of 1; it is then normalised).
+    Per frame (a camera that moves: a head camera given per frame, egocentric
+    video): the same keys holding one value per video frame, ``{"matrix":
+    [4x4, 4x4, ...]}`` (T, 4, 4), ``{"xyz_rpy": [[...6], ...]}`` (T, 6) or
+    ``{"xyz_quat_xyzw": [[...7], ...]}`` (T, 7). T must equal the trajectory's
+    frame count. With ``mount: null`` each is the camera in the world / base
+    frame at that frame; with a mount link, its offset from the link at that frame.
 ``convention`` (optional, default ``"opencv"``)
     Axes of the camera frame the extrinsic refers to; see above.
 ``direction`` (optional, default ``"camera_to_world"``)
@@ -56,7 +62,8 @@ Keys (any other top-level key is an error):
 ``embodiment`` (optional)
     Name of the embodiment this calibration was made for (a string).
 
-``save_camera`` always writes the ``matrix`` extrinsic form.
+``save_camera`` always writes the ``matrix`` extrinsic form (per frame when
+the camera has one extrinsic per frame).
 """
 
 from __future__ import annotations
@@ -83,6 +90,7 @@ __all__ = [
     "Projection",
     "canonical_convention",
     "as_rigid_transform",
+    "as_rigid_transforms",
     "look_at",
     "convention_to_opencv",
     "project",
@@ -201,6 +209,35 @@ def _rigid_problem(M: np.ndarray, tol: float = _ORTHONORMAL_TOL) -> tuple[str, s
     if det < 0:
         return "a rigid transform with a proper rotation (det(R) = +1)", f"a reflection, det(R) = {det:.6g}"
     return None
+
+
+def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsic",
+                        tol: float = _ORTHONORMAL_TOL) -> np.ndarray:
+    """Like :func:`as_rigid_transform` for one (4, 4) or a stack (T, 4, 4), T >= 1,
+    checking each; an error names the first bad frame as ``field[t]``."""
+    try:
+        A = _as_float_array(M)
+    except (TypeError, ValueError) as e:
+        raise CameraFileError(source, field, "a 4x4 or Tx4x4 numeric array", str(e)) from None
+    if A.ndim == 3 and A.shape[1:] == (4, 4) and A.shape[0] >= 1:
+        A = A.copy()
+        R = A[:, :3, :3]
+        with np.errstate(all="ignore"):
+            dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
+            bad = (~np.isfinite(A).all(axis=(1, 2)) | (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-12)
+                   | ~(dev <= tol) | (np.linalg.det(np.where(np.isfinite(R), R, 0.0)) < 0))
+        if bad.any():  # the first bad frame, reported by the one-matrix check
+            t = int(np.argmax(bad))
+            as_rigid_transform(A[t], source, f"{field}[{t}]", tol)
+        fix = dev >= 1e-12  # re-orthonormalise (nearest rotation) where needed, as as_rigid_transform does
+        if fix.any():
+            U, _, Vt = np.linalg.svd(R[fix])
+            A[fix, :3, :3] = U @ Vt
+        return A
+    if A.ndim == 3:
+        raise CameraFileError(source, field, "one 4x4 rigid transform or one per frame, shape (T >= 1, 4, 4)",
+                              f"shape {A.shape}")
+    return as_rigid_transform(A, source, field, tol)
 
 
 def as_rigid_transform(M: Any, source: str = "<matrix>", field: str = "extrinsic",
@@ -394,8 +431,9 @@ class Camera:
 
     intrinsics: Intrinsics.
     extrinsic: (4, 4) rigid transform exactly as the user gave it (stored as a
-        read-only float64 copy); its camera frame uses ``convention`` axes and its
-        meaning is set by ``direction``.
+        read-only float64 copy), or (T, 4, 4), one per video frame, for a camera
+        that moves (``num_frames`` is then T); its camera frame uses
+        ``convention`` axes and its meaning is set by ``direction``.
     convention: camera-frame axes, a name or alias from CONVENTIONS (stored canonical).
     direction: "camera_to_world" (extrinsic = T_ref_cam, the camera pose) or
         "world_to_camera" (extrinsic = T_cam_ref).
@@ -417,7 +455,7 @@ class Camera:
         src = "<Camera>"
         if not isinstance(self.intrinsics, Intrinsics):
             raise CameraFileError(src, "intrinsics", "an Intrinsics instance", type(self.intrinsics).__name__)
-        M = as_rigid_transform(self.extrinsic, src, "extrinsic")
+        M = as_rigid_transforms(self.extrinsic, src, "extrinsic")
         M.setflags(write=False)
         object.__setattr__(self, "extrinsic", M)
         if not isinstance(self.convention, str) or self.convention not in _VALID_CONVENTION_NAMES:
@@ -452,15 +490,35 @@ class Camera:
 
     @property
     def is_static(self) -> bool:
-        """True when the camera is fixed in the world frame (no mount link)."""
-        return self.mount_link is None
+        """True when the camera is fixed in the world frame (no mount link, one extrinsic)."""
+        return self.mount_link is None and self.extrinsic.ndim == 2
+
+    @property
+    def num_frames(self) -> int | None:
+        """T for a camera with one extrinsic per frame, None for one extrinsic for all frames."""
+        return int(self.extrinsic.shape[0]) if self.extrinsic.ndim == 3 else None
+
+    def check_frames(self, num_frames: int, source: str = "<camera>") -> None:
+        """Raise :class:`CameraFileError` unless a per-frame camera has exactly ``num_frames`` extrinsics."""
+        n = self.num_frames
+        if n is not None and n != int(num_frames):
+            raise CameraFileError(source, "extrinsic", f"{int(num_frames)} per-frame extrinsics, one per trajectory frame",
+                                  f"{n} extrinsics")
+
+    def time_slice(self, start: int | None = None, stop: int | None = None) -> "Camera":
+        """The camera for frames ``start:stop`` (as ``Trajectory.time_slice``); itself when it has one extrinsic."""
+        if self.num_frames is None:
+            return self
+        return replace(self, extrinsic=self.extrinsic[start:stop])
 
     def world_to_cv(self, mount_pose: Any = None) -> np.ndarray:
         """T_cv_world: maps world points (metres) into the OpenCV camera frame.
 
-        Static camera: call without ``mount_pose``; returns (4, 4).
+        Static camera: call without ``mount_pose``; returns (4, 4), or (T, 4, 4)
+        for a camera with one extrinsic per frame.
         Mounted camera: ``mount_pose`` is the world pose T_world_link of
-        ``mount_link``, (4, 4) or (T, 4, 4); returns the same shape.
+        ``mount_link``, (4, 4) or (T, 4, 4); returns the same shape ((T, 4, 4)
+        for a per-frame camera, whose T must match).
         Passing a mount pose to a static camera, or none to a mounted one, raises.
         """
         if self.mount_link is None:
@@ -478,6 +536,10 @@ class Camera:
         P = _as_float_array(mount_pose)
         if P.ndim not in (2, 3) or P.shape[-2:] != (4, 4):
             raise ValueError(f"world_to_cv: mount_pose must have shape (4, 4) or (T, 4, 4), found {P.shape}")
+        n = self.num_frames
+        if n is not None and P.ndim == 3 and P.shape[0] != n:
+            raise ValueError(f"world_to_cv: this camera has {n} per-frame extrinsics but mount_pose has "
+                             f"{P.shape[0]} frames, shape {P.shape}")
         return self._cv_from_ref @ _rigid_inverse(P)
 
     def resized(self, width: int, height: int, mode: str = "crop") -> "Camera":
@@ -589,12 +651,76 @@ def _parse_intrinsics(d: Mapping, src: str) -> Intrinsics:
         raise CameraFileError(src, names.get(e.field, e.field), e.expected, e.found) from None
 
 
+def _per_frame(form: str, value: Any) -> bool:
+    """True when ``value`` nests one level deeper than one extrinsic of ``form``."""
+    depth = 3 if form == "matrix" else 2
+    node = value
+    for _ in range(depth):
+        if not isinstance(node, (list, tuple)) or not node:
+            return False
+        node = node[0]
+    return True
+
+
 def _parse_extrinsic(v: Any, src: str) -> np.ndarray:
+    """(4, 4), or (T, 4, 4) when the form holds one value per frame."""
     if not isinstance(v, Mapping) or len(v) != 1 or next(iter(v)) not in _EXTRINSIC_FORMS:
         found = f"keys {sorted(v)}" if isinstance(v, Mapping) else _short(v)
         raise CameraFileError(src, "extrinsic", f"an object with exactly one of the keys {list(_EXTRINSIC_FORMS)}", found)
     form, value = next(iter(v.items()))
-    fname = f"extrinsic.{form}"
+    if _per_frame(form, value):
+        fast = _per_frame_fast(form, value)
+        if fast is not None:
+            return fast
+        # slow path: one frame at a time, so that an error names the frame and the entry
+        return np.stack([_parse_one_extrinsic(form, item, f"extrinsic.{form}[{t}]", src) for t, item in enumerate(value)])
+    return _parse_one_extrinsic(form, value, f"extrinsic.{form}", src)
+
+
+def _per_frame_fast(form: str, value: Any) -> np.ndarray | None:
+    """(T, 4, 4) from a well-formed per-frame list in one numpy pass, or None (then the
+    frame-by-frame parser finds and names the problem)."""
+    width = {"matrix": None, "xyz_rpy": 6, "xyz_quat_xyzw": 7}[form]
+    try:
+        A = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if A.dtype != np.float64 or not np.isfinite(A).all():
+        return None
+    if any(isinstance(x, bool) for x in np.asarray(value, dtype=object).reshape(-1)):
+        return None
+    if form == "matrix":
+        if A.ndim != 3 or A.shape[1:] != (4, 4):
+            return None
+        R = A[:, :3, :3]
+        dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
+        ok = (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12) & (dev <= _ORTHONORMAL_TOL) & (np.linalg.det(R) >= 0)
+        return A if ok.all() else None
+    if A.ndim != 2 or A.shape[1] != width:
+        return None
+    M = np.tile(np.eye(4), (len(A), 1, 1))
+    M[:, :3, 3] = A[:, :3]
+    if form == "xyz_rpy":
+        r, p, y = A[:, 3], A[:, 4], A[:, 5]
+        cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+        M[:, :3, :3] = np.stack([
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+            np.stack([-sp, cp * sr, cp * cr], -1)], axis=1)
+    else:
+        q = A[:, 3:]
+        n = np.linalg.norm(q, axis=1)
+        if (np.abs(n - 1.0) > 1e-3).any():
+            return None
+        x, y, z, w = (q / n[:, None]).T
+        M[:, :3, :3] = np.stack([
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], axis=1)
+    return M
+
+
+def _parse_one_extrinsic(form: str, value: Any, fname: str, src: str) -> np.ndarray:
     if form == "matrix":
         M = _matrix(src, fname, value, 4, 4)
         problem = _rigid_problem(M)
@@ -754,7 +880,10 @@ def project(points: Any, camera: Camera, mount_pose: Any = None, near: float = 1
     Static camera: ``points`` (..., 3) in the world / robot base frame.
     Mounted camera: ``mount_pose`` is T_world_link of the mount link, (T, 4, 4)
     with ``points`` (T, ..., 3) (one pose per leading index), or (4, 4) with
-    ``points`` (..., 3). Returns a Projection (uv (..., 2) pixels, depth (...,) metres).
+    ``points`` (..., 3).
+    Camera with one extrinsic per frame (``camera.num_frames`` = T): ``points``
+    (T, ..., 3), frame t projected through extrinsic t (and mount pose t).
+    Returns a Projection (uv (..., 2) pixels, depth (...,) metres).
     """
     P = _as_float_array(points)
     if P.shape[-1:] != (3,):
@@ -762,10 +891,9 @@ def project(points: Any, camera: Camera, mount_pose: Any = None, near: float = 1
     M = camera.world_to_cv(mount_pose)
     R, t = M[..., :3, :3], M[..., :3, 3]
     if M.ndim == 3 and (P.ndim < 2 or P.shape[0] != M.shape[0]):
-        raise ValueError(
-            f"project: with mount_pose of shape {M.shape}, points must have shape ({M.shape[0]}, ..., 3), "
-            f"found {P.shape}"
-        )
+        why = (f"{camera.num_frames} per-frame extrinsics" if camera.num_frames is not None
+               else f"mount_pose of shape {M.shape}")
+        raise ValueError(f"project: with {why}, points must have shape ({M.shape[0]}, ..., 3), found {P.shape}")
     with np.errstate(all="ignore"):  # NaN points pass through silently
         if M.ndim == 2:
             P_cv = P @ R.T + t

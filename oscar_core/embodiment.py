@@ -29,13 +29,26 @@ from .errors import CameraFileError, PluginError, TrajectoryError
 from .skeleton import Skeleton, collapse_tree_edges
 from .trajectory import Trajectory
 
-__all__ = ["Embodiment", "Gripper", "CameraSpec", "SkeletonFrames", "JointLimitWarning"]
+__all__ = ["Embodiment", "Gripper", "CameraSpec", "SkeletonFrames", "JointLimitWarning", "DefaultPoseWarning"]
 
 NAME_CHARS = set("abcdefghijklmnopqrstuvwxyz0123456789_-")
 
 
 class JointLimitWarning(UserWarning):
     """A trajectory goes beyond a joint's limits; it is rendered anyway."""
+
+
+class DefaultPoseWarning(UserWarning):
+    """A trajectory left out joints; the embodiment's ``default_pose`` filled them in.
+
+    joints: the names filled in, in the embodiment's joint order;
+    values: {name: value} used for each (radians / metres).
+    """
+
+    def __init__(self, message: str, joints: tuple[str, ...] = (), values: Mapping[str, float] | None = None):
+        super().__init__(message)
+        self.joints = tuple(joints)
+        self.values = dict(values or {})
 
 
 @dataclass(frozen=True)
@@ -118,6 +131,19 @@ class SkeletonFrames:
     mount_pose: np.ndarray | None = None
 
 
+def _default_pose_problems(pose) -> list[str]:
+    """Problems of a ``default_pose`` class attribute visible without the kinematic tree."""
+    if not isinstance(pose, Mapping):
+        return [f"default_pose: expected a mapping of joint name to value, found {type(pose).__name__}"]
+    out = []
+    for n, v in pose.items():
+        if not isinstance(n, str) or not n:
+            out.append(f"default_pose: expected joint names as keys, found {n!r}")
+        elif isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+            out.append(f"default_pose[{n!r}]: expected a finite number (radians / metres), found {v!r}")
+    return out
+
+
 class Embodiment:
     """Base class of every embodiment. Subclasses set the class attributes."""
 
@@ -132,6 +158,8 @@ class Embodiment:
     skeleton: ClassVar[Skeleton | None] = None
     grippers: ClassVar[tuple[Gripper, ...]] = ()
     camera: ClassVar[CameraSpec] = CameraSpec()
+    # joint name -> value (radians / metres) for joints a trajectory may leave out
+    default_pose: ClassVar[Mapping[str, float]] = {}
     example_trajectory: ClassVar[Path | str | None] = None
     example_camera: ClassVar[Path | str | None] = None
 
@@ -166,6 +194,7 @@ class Embodiment:
             out.append(f"camera: expected a CameraSpec, found {type(cls.camera).__name__}")
         if not isinstance(cls.datasets, tuple):
             out.append(f"datasets: expected a tuple of names, found {type(cls.datasets).__name__}")
+        out += _default_pose_problems(cls.default_pose)
         return out
 
     @classmethod
@@ -190,6 +219,17 @@ class Embodiment:
                 out.append(f"grippers[{g.name}].joint: expected a movable, non-mimic joint of the tree, found {g.joint!r}")
         if self.camera.mount_link is not None and self.camera.mount_link not in known:
             out.append(f"camera.mount_link: expected a link of the kinematic tree, found {self.camera.mount_link!r}")
+        if self.default_pose:
+            names = self.joint_names
+            lo, hi = self.tree.limits()
+            limits = {n: (lo[i], hi[i]) for i, n in enumerate(self.tree.joint_names)}
+            for n, v in self.default_pose.items():
+                if n not in names:
+                    out.append(f"default_pose[{n!r}]: expected a joint of the trajectory order {list(names)} "
+                               "(not a mimic or gripper-driven joint)")
+                elif not (limits[n][0] - 1e-9 <= float(v) <= limits[n][1] + 1e-9):
+                    out.append(f"default_pose[{n!r}]: expected a value within the joint's limits "
+                               f"[{limits[n][0]:g}, {limits[n][1]:g}], found {float(v):g}")
         return out
 
     def __init__(self):
@@ -302,11 +342,17 @@ class Embodiment:
                 raise TrajectoryError(src, "keypoints", f"shape (T, {K}, 3): one point per skeleton point of {self.name!r}",
                                       f"shape {traj.keypoints.shape}")
         expected = self.joint_names
+        traj, filled = self.fill_default_pose(traj)
         if set(traj.joint_names) != set(expected) or len(traj.joint_names) != len(expected):
             unknown = [n for n in traj.joint_names if n not in expected]
             missing = [n for n in expected if n not in traj.joint_names]
+            without = " (the embodiment has no default pose for them)" if missing and self.default_pose else ""
             raise TrajectoryError(src, "joint_names", f"the {len(expected)} joints of {self.name!r}: {list(expected)}",
-                                  f"{len(traj.joint_names)} names; unknown {unknown}, missing {missing}")
+                                  f"{len(traj.joint_names)} names; unknown {unknown}, missing {missing}{without}")
+        if filled:
+            warnings.warn(DefaultPoseWarning(
+                f"{src}: {len(filled)} joints not in the trajectory were set from the default pose of {self.name!r}: "
+                + ", ".join(f"{n}={v:g}" for n, v in filled.items()), tuple(filled), filled), stacklevel=2)
         if tuple(traj.joint_names) != expected:
             order = [traj.joint_names.index(n) for n in expected]
             traj = traj.replace(joint_names=expected, q=traj.q[:, order])
@@ -332,6 +378,27 @@ class Embodiment:
                     f"frames (first: {traj.q[t, j]:g} at frame {t}); {int(over.any(0).sum())} joints affected; rendering anyway",
                     JointLimitWarning, stacklevel=2)
         return traj
+
+    def fill_default_pose(self, traj: Trajectory) -> tuple[Trajectory, dict[str, float]]:
+        """Add the joints ``traj`` leaves out that have a ``default_pose`` value.
+
+        Returns the trajectory with those joints appended as constant columns
+        (q (T, J + F), radians / metres) and ``{name: value}`` of the F joints
+        filled in, in this embodiment's joint order (empty when none were).
+        Joints missing without a default stay missing; :meth:`check_trajectory`
+        reports them. Called by :meth:`check_trajectory`, which also warns
+        with :class:`DefaultPoseWarning`.
+        """
+        if not self.default_pose or traj.keypoints is not None:
+            return traj, {}
+        given = set(traj.joint_names)
+        filled = {n: float(self.default_pose[n]) for n in self.joint_names
+                  if n not in given and n in self.default_pose}
+        if not filled:
+            return traj, {}
+        cols = np.broadcast_to(np.array(list(filled.values())), (len(traj), len(filled)))
+        return traj.replace(joint_names=tuple(traj.joint_names) + tuple(filled),
+                            q=np.concatenate([traj.q, cols], axis=1)), filled
 
     def gripper_openness(self, gripper: np.ndarray, source: str = "<trajectory>") -> np.ndarray:
         """(T, G) raw gripper signals → (T, G) openness in [0, 1]."""
@@ -371,13 +438,16 @@ class Embodiment:
 
         return load_camera(path, defaults=self.camera)
 
-    def check_camera(self, camera, source: str = "<camera>"):
-        """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment.
+    def check_camera(self, camera, source: str = "<camera>", num_frames: int | None = None):
+        """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment,
+        or (given ``num_frames``, the trajectory's T) has per-frame extrinsics for another frame count.
 
         A static camera (in the world / robot base frame) fits every
         embodiment; a camera riding on a link must ride on this embodiment's
         ``camera.mount_link`` (its head camera, say).
         """
+        if num_frames is not None:
+            camera.check_frames(num_frames, source)
         if camera.embodiment is not None and camera.embodiment != self.name:
             raise CameraFileError(source, "embodiment", f"{self.name!r}", repr(camera.embodiment))
         if camera.mount_link is not None and camera.mount_link != self.camera.mount_link:

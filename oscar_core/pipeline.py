@@ -59,7 +59,7 @@ def render_skeleton_video(embodiment: Embodiment, traj: Trajectory, camera: Came
     returns: (T, H, W, 3) uint8 RGB skeleton video on black.
     """
     traj = embodiment.check_trajectory(traj)
-    embodiment.check_camera(camera, camera_source)
+    embodiment.check_camera(camera, camera_source, num_frames=len(traj))
     if size is not None and (size[0], size[1]) != (camera.intrinsics.width, camera.intrinsics.height):
         camera = camera.resized(size[0], size[1], mode=resize_mode)
     proj = project_skeleton(embodiment, traj, camera, device=device)

@@ -19,6 +19,7 @@ import pytest
 
 from oscar_core import (Camera, CameraFileError, Intrinsics, Trajectory, TrajectoryError, get_embodiment,
                         load_camera, load_trajectory, render_skeleton_video)
+from oscar_core.pipeline import project_skeleton
 from oscar_embodiments import agibot_g1 as plugin
 from oscar_embodiments.agibot_g1 import HEAD_CAMERA_LINK, JOINTS, LEFT_ARM, RIGHT_ARM, AgiBotG1
 from oscar_embodiments.agibot_g1.adapters import (AGIBOT_WORLD_FPS, HEAD_IMAGE_SIZE, MountConsistencyWarning,
@@ -192,7 +193,7 @@ def test_agibot_world_layout(g1):
     q, grip, record = synthetic_record(g1)
     with warnings.catch_warnings():
         warnings.simplefilter("error", MountConsistencyWarning)
-        traj, cam = from_agibot_world(record, source="task_327/648642")
+        traj, cam = from_agibot_world(record, source="task_327/648642", head_camera="head_link")
     assert traj.joint_names == JOINTS and traj.gripper_names == ("left_gripper", "right_gripper")
     assert np.allclose(traj.q, q, atol=1e-6)  # float32 arms
     assert traj.q[0, 0] == q[0, 0] and traj.q[0, 1] == q[0, 1]  # lift first, then pitch
@@ -218,8 +219,40 @@ def test_agibot_world_options(g1):
     assert traj.fps == 15.0 and cam.intrinsics.width == 848
     # extrinsics recorded for fewer frames than the proprioception: the common frames are used
     record["head_extrinsic_params_aligned"] = record["head_extrinsic_params_aligned"][:3]
-    _, cam = from_agibot_world(record)
+    _, cam = from_agibot_world(record, head_camera="head_link")
     assert np.abs(cam.extrinsic - HEAD_IN_LINK).max() < 1e-5
+    # ... but not for a per-frame camera, which needs one pose per frame
+    with pytest.raises(CameraFileError) as err:
+        from_agibot_world(record, source="ep")
+    assert err.value.field == "head_extrinsic_params_aligned" and "5 poses, one per state frame" in str(err.value)
+    assert err.value.found == "3 poses"
+    with pytest.raises(ValueError, match="head_camera must be one of"):
+        from_agibot_world(record, head_camera="mean")
+
+
+def test_agibot_world_per_frame_head_camera_is_the_stored_poses(g1):
+    """The default camera keeps every stored pose; where they follow the head rigidly it
+    projects as the head-link camera does, and where they do not it follows the record."""
+    _, _, record = synthetic_record(g1, T=12)
+    poses = np.stack([np.block([[np.array(e["extrinsic"]["rotation_matrix"]), np.array(e["extrinsic"]["translation_vector"])[:, None]],
+                                [np.zeros((1, 3)), np.ones((1, 1))]]) for e in record["head_extrinsic_params_aligned"]])
+    traj, cam = from_agibot_world(record)
+    assert cam.mount_link is None and cam.num_frames == 12 and cam.embodiment == "agibot_g1"
+    assert np.abs(cam.extrinsic - poses).max() < 1e-6  # re-orthonormalised 7-digit rotations
+    _, linked = from_agibot_world(record, head_camera="head_link")
+    a = project_skeleton(g1, g1.check_trajectory(traj), cam.resized(320, 240))
+    b = project_skeleton(g1, g1.check_trajectory(traj), linked.resized(320, 240))
+    seen = a.usable & b.usable & (np.abs(a.uv - [160, 120]) < [160, 120]).all(-1)  # in front and in the image
+    assert seen.sum() > 12 * 5 and np.abs(a.uv - b.uv)[seen].max() < 0.05  # pixels
+    # a camera that ignores the head joints: the per-frame camera keeps it where it was recorded, without a warning
+    record["head_extrinsic_params_aligned"] = [record["head_extrinsic_params_aligned"][0]] * 12
+    record["state"]["head"]["position"] = np.stack([np.linspace(-0.5, 0.5, 12), np.full(12, 0.3)], axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MountConsistencyWarning)
+        traj, cam = from_agibot_world(record)
+    assert np.allclose(cam.extrinsic, cam.extrinsic[0])
+    video = render_skeleton_video(g1, traj, cam, (160, 120))
+    assert video.shape == (12, 120, 160, 3) and video.max() > 0
 
 
 def test_agibot_world_extrinsics_that_ignore_the_head_joints_warn(g1):
@@ -228,7 +261,7 @@ def test_agibot_world_extrinsics_that_ignore_the_head_joints_warn(g1):
     record["head_extrinsic_params_aligned"] = [fixed] * 10  # a camera fixed in the base while the head moves
     record["state"]["head"]["position"] = np.stack([np.linspace(-0.5, 0.5, 10), np.full(10, 0.3)], axis=1)
     with pytest.warns(MountConsistencyWarning, match="do not follow the head link"):
-        from_agibot_world(record)
+        from_agibot_world(record, head_camera="head_link")
 
 
 @pytest.mark.parametrize("change, field, words", [
@@ -292,7 +325,7 @@ def test_load_agibot_world_episode_reads_the_dataset_folders(g1, tmp_path, monke
     for name in ("head_intrinsic_params", "head_extrinsic_params_aligned"):
         (camera_dir / f"{name}.json").write_text(json.dumps(record[name]))
     loaded = load_agibot_world_episode(tmp_path, 327, 648642)
-    traj, cam = from_agibot_world(loaded)
+    traj, cam = from_agibot_world(loaded, head_camera="head_link")
     assert len(traj) == 4 and np.abs(cam.extrinsic - HEAD_IN_LINK).max() < 1e-5
 
 

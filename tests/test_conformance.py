@@ -103,3 +103,23 @@ def test_gripper_indicator_changes_when_only_openness_changes(emb):
         assert np.any(renders[0][near] != renders[1][near]), f"indicator of gripper {emb.grippers[k].name} did not change"
         return
     pytest.skip("no gripper indicator inside the example camera's first frame")
+
+
+def test_default_pose_fills_exactly_the_joints_it_names(emb):
+    """A declared default pose lies within the limits (``problems()``) and a trajectory
+    that leaves out its joints gets exactly those values, with a DefaultPoseWarning."""
+    from oscar_core import DefaultPoseWarning
+
+    if not emb.default_pose:
+        pytest.skip(f"{emb.name} declares no default pose")
+    assert set(emb.default_pose) <= set(emb.joint_names)
+    traj, _ = example(emb)
+    keep = [i for i, n in enumerate(traj.joint_names) if n not in emb.default_pose]
+    partial = traj.replace(joint_names=tuple(traj.joint_names[i] for i in keep), q=traj.q[:, keep])
+    with pytest.warns(DefaultPoseWarning) as rec:
+        checked = emb.check_trajectory(partial)
+    w = next(r.message for r in rec if isinstance(r.message, DefaultPoseWarning))
+    assert set(w.joints) == set(emb.default_pose)
+    for j, n in enumerate(checked.joint_names):
+        expected = emb.default_pose[n] if n in emb.default_pose else traj.q[:, j]
+        np.testing.assert_array_equal(checked.q[:, j], expected)

@@ -41,7 +41,9 @@ def ready_traj(T=3, width=0.08):
 
 
 def test_hook_returns_the_class():
-    assert franka_plugin.oscar_register_embodiments() == [Franka]
+    from oscar_embodiments.franka.robotiq import FrankaRobotiq
+
+    assert franka_plugin.oscar_register_embodiments() == [Franka, FrankaRobotiq]
 
 
 def test_registered_through_the_entry_point():
@@ -122,8 +124,15 @@ def test_droid_raw_layout():
     record, q, pos, ext, K = droid_record()
     traj, cam = from_droid(record, "24259877_left")
     assert traj.joint_names == JOINT_NAMES and np.allclose(traj.q, q) and traj.fps == 15.0
-    assert np.allclose(traj.gripper[:, 0], 0.08 * (1 - pos))  # Robotiq position 1 = closed -> width 0
-    assert cam.direction == "camera_to_world" and cam.convention == "opencv" and cam.embodiment == "franka"
+    # the Robotiq 2F-85 DROID mounts (franka_robotiq): its position as stored, 0 open .. 1 closed
+    assert np.array_equal(traj.gripper[:, 0], pos)
+    assert cam.direction == "camera_to_world" and cam.convention == "opencv" and cam.embodiment == "franka_robotiq"
+    # the Franka Hand instead (the behaviour before franka_robotiq): Robotiq position 1 = closed -> width 0
+    hand_traj, hand_cam = from_droid(record, "24259877_left", embodiment="franka")
+    assert np.allclose(hand_traj.gripper[:, 0], 0.08 * (1 - pos)) and hand_cam.embodiment == "franka"
+    assert np.array_equal(hand_cam.extrinsic, cam.extrinsic) and np.array_equal(hand_traj.q, traj.q)
+    with pytest.raises(ValueError, match="embodiment must be one of"):
+        from_droid(record, "24259877_left", embodiment="kuka")
     # DROID's euler convention is scipy's "xyz" (droid/misc/transformations.py)
     assert np.allclose(cam.extrinsic[:3, :3], Rotation.from_euler("xyz", ext[3:]).as_matrix(), atol=1e-12)
     assert np.allclose(cam.extrinsic[:3, 3], ext[:3])
@@ -145,8 +154,9 @@ def test_droid_camera_projects_like_opencv():
 def test_droid_rlds_layout_with_explicit_calibration(franka):
     record, q, pos, ext, K = droid_record()
     rlds = {"observation/joint_position": q, "observation/gripper_position": pos[:, None]}
-    traj, cam = from_droid(rlds, "24259877_left", extrinsic=ext, intrinsics=(522.0, 521.0, 640.5, 355.0))
-    ref_traj, ref_cam = from_droid(record, "24259877_left")
+    traj, cam = from_droid(rlds, "24259877_left", extrinsic=ext, intrinsics=(522.0, 521.0, 640.5, 355.0),
+                           embodiment="franka")
+    ref_traj, ref_cam = from_droid(record, "24259877_left", embodiment="franka")
     assert np.allclose(traj.q, ref_traj.q) and np.allclose(traj.gripper, ref_traj.gripper)
     assert cam == ref_cam
     video = render_skeleton_video(franka, traj, cam, (128, 72))

@@ -51,7 +51,7 @@ def oracle():
     try:
         dist = importlib.metadata.distribution("rtb-data")
     except importlib.metadata.PackageNotFoundError:
-        pytest.skip("rtb-data is not installed (pip install 'oscar[dev]')")
+        pytest.skip("rtb-data is not installed (pip install 'oscar-wm[dev]')")
     path = next((dist.locate_file(f) for f in dist.files or () if f.as_posix().endswith(ORACLE_SUFFIX)), None)
     assert path is not None, f"rtb-data {dist.version} has no {ORACLE_SUFFIX}"
     return yourdfpy.URDF.load(str(path), load_meshes=False, build_collision_scene_graph=False,

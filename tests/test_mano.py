@@ -73,7 +73,7 @@ def test_skeleton_bones_groups_and_colours(mano):
 
 
 def test_listing_says_what_the_mano_parameter_path_needs(mano, monkeypatch):
-    assert "oscar[mano]" in mano.description
+    assert "oscar-wm[mano]" in mano.description
     assert mano.info()["mano_parameters"].startswith("available")
     monkeypatch.setitem(sys.modules, "smplx", None)  # import smplx now fails
     info = mano.info()
@@ -265,6 +265,6 @@ def test_mano_parameters_without_smplx_raise_the_install_command(monkeypatch):
     with pytest.raises(ImportError) as err:
         trajectory_from_mano(params, fps=30.0, model_dir="/nonexistent")
     assert str(err.value) == SMPLX_MISSING
-    assert 'pip install "oscar[mano]"' in SMPLX_MISSING
+    assert 'pip install "oscar-wm[mano]"' in SMPLX_MISSING
     # the keypoint path does not need it
     assert len(trajectory_from_keypoints(two_hands(2), 30.0)) == 2

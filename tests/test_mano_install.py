@@ -91,7 +91,7 @@ def test_without_smplx_keypoints_work_and_mano_parameters_say_how_to_install():
     out = json.loads(run.stdout.split("RESULT", 1)[1])
     assert out["keypoint_path_pixels"] > 0
     assert out["mano_path"] == SMPLX_MISSING
-    assert 'pip install "oscar[mano]"' in out["mano_path"]
+    assert 'pip install "oscar-wm[mano]"' in out["mano_path"]
     assert len(out["listed"]) == 1 and "error" not in out["listed"][0]
     assert out["listed"][0]["mano_parameters"] == SMPLX_MISSING
     assert not out["smplx_imported"]

@@ -121,7 +121,7 @@ def test_plot_comparison_and_bad_input(tmp_path):
 
 def test_missing_matplotlib_names_the_install_command(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
-    with pytest.raises(ImportError, match=r"pip install \"oscar\[plots\]\""):
+    with pytest.raises(ImportError, match=r"pip install \"oscar-wm\[plots\]\""):
         success_scatter_figure(REAL, WM)
 
 

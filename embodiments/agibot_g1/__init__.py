@@ -85,6 +85,8 @@ class AgiBotG1(Embodiment):
                 joint="idx81_gripper_r_outer_joint1", joint_range=(0.0, 0.7853981633974483)),
     )
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=HEAD_CAMERA_LINK)
+    # arm-only trajectories may leave out the waist and head: the reference's zero (README "Default pose")
+    default_pose = {"idx01_body_joint1": 0.0, "idx02_body_joint2": 0.0, "idx11_head_joint1": 0.0, "idx12_head_joint2": 0.0}
     example_trajectory = ASSETS / "example_trajectory.npz"
     example_camera = ASSETS / "example_camera.json"
 

@@ -17,8 +17,10 @@ AgiBotWorld-Alpha; sources for every field are in ``README.md``):
 
 :func:`from_agibot_world` takes those arrays and parsed JSON objects in one
 mapping (flat ``"state/joint/position"`` keys, nested dicts and h5py groups
-all work) and turns the per-frame camera poses into one pose relative to the
-head link, so the camera follows the head joints like any mounted camera.
+all work). By default the camera keeps one pose per frame, as stored
+(``head_camera="per_frame"``); ``head_camera="head_link"`` reduces the poses
+to one pose relative to the head link, so the camera follows the head joints
+like any mounted camera.
 :func:`load_agibot_world_episode` reads an episode from a local copy of the
 dataset into such a mapping (needs ``h5py``).
 """
@@ -45,6 +47,7 @@ __all__ = [
     "load_agibot_world_episode",
     "head_camera_in_link",
     "MountConsistencyWarning",
+    "HEAD_CAMERA_MODES",
     "AGIBOT_WORLD_FPS",
     "HEAD_IMAGE_SIZE",
     "GRIPPER_NAMES",
@@ -60,6 +63,8 @@ MOUNT_TOL_M = 0.02
 MOUNT_TOL_RAD = float(np.deg2rad(2.0))
 
 EMBODIMENT = "agibot_g1"
+#: ``head_camera=`` of :func:`from_agibot_world`
+HEAD_CAMERA_MODES = ("per_frame", "head_link")
 
 
 class MountConsistencyWarning(UserWarning):
@@ -239,9 +244,9 @@ def head_camera_in_link(traj: Trajectory, camera_to_base: np.ndarray, source: st
 
 
 def from_agibot_world(record: Mapping, *, image_size: tuple[int, int] | None = None, fps: float | None = None,
-                      gripper_key: str = "action/effector/position",
+                      gripper_key: str = "action/effector/position", head_camera: str = "per_frame",
                       source: str = "<agibot_world record>") -> tuple[Trajectory, Camera]:
-    """One AgiBot World episode → (trajectory, head camera mounted on ``head_link2``).
+    """One AgiBot World episode → (trajectory, head camera).
 
     record: mapping with the proprio_stats.h5 fields ``state/joint/position``
         (N, 14) rad, ``state/waist/position`` (N, 2) [pitch rad, lift m],
@@ -253,11 +258,21 @@ def from_agibot_world(record: Mapping, *, image_size: tuple[int, int] | None = N
         then :data:`HEAD_IMAGE_SIZE`.
     fps: default from the timestamps, else :data:`AGIBOT_WORLD_FPS`.
     gripper_key: field holding the 0 (open) .. 1 (closed) gripper signals.
+    head_camera: "per_frame" (default): the camera has one extrinsic per frame,
+        the stored poses in the robot base frame (``mount`` static), so it
+        moves exactly as recorded; the file must hold one pose per state
+        frame (N), else a :class:`CameraFileError`. "head_link": one pose
+        relative to ``head_link2``, the mean over the frames both hold
+        (:func:`head_camera_in_link`, which warns with
+        :class:`MountConsistencyWarning` when a frame strays more than 2 cm / 2°).
     returns: a trajectory in :data:`JOINTS` order with grippers
-        ``("left_gripper", "right_gripper")``, and a ``Camera`` whose extrinsic
-        is the head camera's pose in ``head_link2`` (OpenCV axes), so it moves
-        with the waist and head joints.
+        ``("left_gripper", "right_gripper")``, and a ``Camera`` (OpenCV axes,
+        camera-to-world): (N, 4, 4) base-frame poses, or with
+        ``head_camera="head_link"`` one pose in ``head_link2`` that moves with
+        the waist and head joints.
     """
+    if head_camera not in HEAD_CAMERA_MODES:
+        raise ValueError(f"from_agibot_world: head_camera must be one of {list(HEAD_CAMERA_MODES)}, found {head_camera!r}")
     arms = _columns(record, "state/joint/position", 14, "left arm [:, :7] then right arm [:, 7:], radians", source)
     waist = _columns(record, "state/waist/position", 2, "waist pitch [:, 0] (rad), lift [:, 1] (m)", source)
     head = _columns(record, "state/head/position", 2, "head yaw [:, 0], pitch [:, 1], radians", source)
@@ -283,9 +298,17 @@ def from_agibot_world(record: Mapping, *, image_size: tuple[int, int] | None = N
                       timestamps=timestamps, source=source)
 
     intrinsics = _intrinsics(record, image_size, source)
-    extrinsic = head_camera_in_link(traj, _camera_poses(record, source), source)
-    camera = Camera(intrinsics, extrinsic, convention="opencv", direction="camera_to_world",
-                    mount_link=HEAD_CAMERA_LINK, embodiment=EMBODIMENT)
+    poses = _camera_poses(record, source)
+    if head_camera == "head_link":
+        extrinsic = head_camera_in_link(traj, poses, source)
+        camera = Camera(intrinsics, extrinsic, convention="opencv", direction="camera_to_world",
+                        mount_link=HEAD_CAMERA_LINK, embodiment=EMBODIMENT)
+        return traj, camera
+    if len(poses) != n:
+        raise CameraFileError(source, "head_extrinsic_params_aligned",
+                              f"{n} poses, one per state frame (or pass head_camera='head_link' to fit one head-link "
+                              "pose to the frames both hold)", f"{len(poses)} poses")
+    camera = Camera(intrinsics, poses, convention="opencv", direction="camera_to_world", embodiment=EMBODIMENT)
     return traj, camera
 
 

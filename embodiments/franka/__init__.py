@@ -110,4 +110,6 @@ class Franka(Embodiment):
 
 @hookimpl
 def oscar_register_embodiments():
-    return [Franka]
+    from .robotiq import FrankaRobotiq  # the same arm with a Robotiq 2F-85 (DROID): README "Robotiq 2F-85"
+
+    return [Franka, FrankaRobotiq]

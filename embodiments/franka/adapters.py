@@ -30,6 +30,7 @@ __all__ = [
     "from_interndata",
     "rh20t_base_to_camera",
     "DROID_FPS",
+    "DROID_EMBODIMENTS",
     "PANDA_MAX_WIDTH",
 ]
 
@@ -182,9 +183,12 @@ def _fps_from(ts_s: np.ndarray, fps: float | None, source: str, field: str) -> f
 # --------------------------------------------------------------------------- DROID
 
 
+DROID_EMBODIMENTS = ("franka_robotiq", "franka")
+
+
 def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: Any = None,
                image_size: tuple[int, int] = (1280, 720), fps: float = DROID_FPS,
-               source: str = "<droid>") -> tuple[Trajectory, Camera]:
+               embodiment: str = "franka_robotiq", source: str = "<droid>") -> tuple[Trajectory, Camera]:
     """A DROID episode → (Trajectory, Camera) for one external (static) camera.
 
     Source layout (raw release, ``trajectory.h5``; written by
@@ -210,10 +214,15 @@ def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: A
         (``[x, y, z, roll, pitch, yaw]`` / 3x3 or ``(fx, fy, cx, cy)``).
     image_size: (width, height) of the images the intrinsics refer to
         (the ZED 2's HD720 mode, 1280x720, in the raw release).
-    Returns the trajectory (gripper as Panda-equivalent width
-    ``0.08 * (1 - position)`` m, so openness = 1 - position) and a
-    camera-to-world OpenCV camera.
+    embodiment: "franka_robotiq" (default: the Robotiq 2F-85 DROID mounts;
+        the gripper signal is DROID's position as stored, 0 open .. 1 closed)
+        or "franka" (the Franka Hand drawn instead, the gripper as a
+        Panda-equivalent width ``0.08 * (1 - position)`` m; the behaviour
+        before ``franka_robotiq`` existed).
+    Returns the trajectory and a camera-to-world OpenCV camera for that embodiment.
     """
+    if embodiment not in DROID_EMBODIMENTS:
+        raise ValueError(f"from_droid: embodiment must be one of {list(DROID_EMBODIMENTS)}, found {embodiment!r}")
     q = _joints(_lookup(record, ("observation/robot_state/joint_positions", "observation/joint_position"),
                         source, "joint positions (T, 7)"), source, "observation/robot_state/joint_positions")
     T = len(q)
@@ -222,7 +231,7 @@ def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: A
                   "Robotiq gripper position, 0 (open) .. 1 (closed)")
     pos = _check_range(pos, 0.0, 1.0, source, "observation/robot_state/gripper_position",
                        "DROID gripper position (0 = open, 1 = closed)")
-    width = PANDA_MAX_WIDTH * (1.0 - pos)
+    signal = pos if embodiment == "franka_robotiq" else PANDA_MAX_WIDTH * (1.0 - pos)
 
     ext_field = f"observation/camera_extrinsics/{camera}"
     if extrinsic is None:
@@ -244,8 +253,8 @@ def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: A
     if K.ndim == 3:
         K = K[0]
     cam = Camera(_intrinsics(K, image_size, source, int_field), M, convention="opencv",
-                 direction="camera_to_world", embodiment=EMBODIMENT)
-    traj = Trajectory(JOINT_NAMES, q, fps, gripper=width[:, None], gripper_names=GRIPPER_NAMES,
+                 direction="camera_to_world", embodiment=embodiment)
+    traj = Trajectory(JOINT_NAMES, q, fps, gripper=signal[:, None], gripper_names=GRIPPER_NAMES,
                       timestamps=np.arange(T) / float(fps), source=source)
     return traj, cam
 

@@ -8,7 +8,9 @@ and a static camera in front-right of the robot that sees the whole arm.
 The keyframes were found once by inverse kinematics for the TCP positions in
 the comments (hand pointing down) and are written out here so the script has
 no solver dependency. Output: ``assets/example_trajectory.npz`` and
-``assets/example_camera.json``.
+``assets/example_camera.json``, and the same for ``franka_robotiq``
+(``assets/example_trajectory_robotiq.npz``, gripper as DROID's 0 open .. 1
+closed, and ``assets/example_camera_robotiq.json``).
 """
 
 from pathlib import Path
@@ -46,7 +48,12 @@ def main():
     cam = Camera(Intrinsics(fx=1400.0, fy=1400.0, cx=639.5, cy=359.5, width=1280, height=720),
                  extrinsic=look_at((1.05, -1.50, 0.85), (0.28, 0.05, 0.33)), embodiment="franka")
     save_camera(cam, ASSETS / "example_camera.json")
-    print(f"wrote {len(q)} frames and a camera to {ASSETS}")
+    # the same motion for franka_robotiq (a Robotiq 2F-85, DROID's signal: 0 open .. 1 closed)
+    # the Robotiq's 85 mm stroke holds the 2.5 cm object at 1 - 25/85
+    position = np.clip(1.0 - q[:, 7:8] * 1000.0 / 85.0, 0.0, 1.0)
+    save_trajectory(traj.replace(gripper=position), ASSETS / "example_trajectory_robotiq.npz")
+    save_camera(Camera(cam.intrinsics, cam.extrinsic, embodiment="franka_robotiq"), ASSETS / "example_camera_robotiq.json")
+    print(f"wrote {len(q)} frames and a camera to {ASSETS} (franka and franka_robotiq)")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ point or hand, which is then not drawn. Two ways to make one:
 * :func:`trajectory_from_keypoints` — straight from (T, 2, 21, 3) keypoints
   (tracker output); needs nothing beyond oscar;
 * :func:`trajectory_from_mano` — from MANO parameters through ``smplx.MANO``;
-  needs ``pip install "oscar[mano]"`` and the licensed MANO model files.
+  needs ``pip install "oscar-wm[mano]"`` and the licensed MANO model files.
 
 The ``gripper`` columns ("left", "right") hold each hand's openness, the
 normalised fingertip flexion of :mod:`.flexion` (1 = open flat hand,
@@ -45,7 +45,7 @@ class Mano(Embodiment):
 
     name = "mano"
     description = ("two human hands, 21 keypoints each, from (T, 2, 21, 3) keypoints or MANO parameters "
-                   '(the MANO-parameter input needs smplx: pip install "oscar[mano]", and the licensed MANO files)')
+                   '(the MANO-parameter input needs smplx: pip install "oscar-wm[mano]", and the licensed MANO files)')
     license = "Apache-2.0"  # the topology and colours are ours; MANO model files are licensed separately
     datasets = ("egodex", "epic_kitchens")
     skeleton = Skeleton(links=POINT_NAMES, edges=EDGES, groups=GROUPS, colors=COLORS)

@@ -1,6 +1,6 @@
 """MANO parameters → 21 keypoints per hand, through ``smplx.MANO``.
 
-This path needs the optional dependency smplx (``pip install "oscar[mano]"``)
+This path needs the optional dependency smplx (``pip install "oscar-wm[mano]"``)
 and the licensed MANO model files ``MANO_RIGHT.pkl`` / ``MANO_LEFT.pkl``,
 which oscar never ships: download them from https://mano.is.tue.mpg.de and
 point ``model_dir=`` or the ``OSCAR_MANO_DIR`` environment variable at their
@@ -35,7 +35,7 @@ __all__ = ["SMPLX_MISSING", "ENV_MANO_DIR", "smplx_problem", "require_smplx", "m
 
 #: The one message of the ImportError raised when smplx is needed but missing.
 SMPLX_MISSING = ('the MANO-parameter path of the mano embodiment needs the optional dependency smplx, '
-                 'which is not installed; install it with: pip install "oscar[mano]"')
+                 'which is not installed; install it with: pip install "oscar-wm[mano]"')
 ENV_MANO_DIR = "OSCAR_MANO_DIR"
 _FILES = {"right": "MANO_RIGHT.pkl", "left": "MANO_LEFT.pkl"}
 _CHUNK = 2048  # frames per smplx forward pass

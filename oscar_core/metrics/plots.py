@@ -21,7 +21,7 @@ siblings with the same stem (e.g. a PDF next to the PNG). PNGs are exactly
 (``"identity"``, ``"points"``, ``"label:<policy>"``, ``"rank:<policy>"``) so
 tests and scripts can find them.
 
-matplotlib is optional: ``pip install "oscar[plots]"``.
+matplotlib is optional: ``pip install "oscar-wm[plots]"``.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def _matplotlib():
         from matplotlib.figure import Figure
     except ImportError:
         raise ImportError("oscar's evaluation plots need matplotlib, which is not installed; "
-                          "install it with: pip install \"oscar[plots]\"") from None
+                          "install it with: pip install \"oscar-wm[plots]\"") from None
     return Figure, FigureCanvasAgg
 
 

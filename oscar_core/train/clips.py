@@ -441,8 +441,11 @@ class ClipSet:
             raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
         if len(traj) != rec.n_frames:
             raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
+        if camera.num_frames is not None and camera.num_frames != rec.n_frames:  # one extrinsic per frame
+            raise ClipFormatError(shard, rec.id, "camera", f"{rec.n_frames} per-frame extrinsics (n_frames)",
+                                  f"{camera.num_frames}")
         clip = Clip(rec, trajectory=traj.time_slice(start, start + n) if (start, n) != (0, rec.n_frames) else traj,
-                    camera=camera)
+                    camera=camera.time_slice(start, start + n))
 
         def read_window(role: str) -> np.ndarray:
             try:
