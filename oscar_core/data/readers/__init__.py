@@ -15,6 +15,7 @@ from ...hookspecs import hookimpl
 # one line per built-in reader: "module:Class"
 BUILTIN_READERS: list[str] = [
     "oscar_core.data.readers.lerobot:LeRobotReader",
+    "oscar_core.data.readers.agibot_world:AgiBotWorldReader",
 ]
 
 
