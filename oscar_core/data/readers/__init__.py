@@ -16,6 +16,7 @@ from ...hookspecs import hookimpl
 BUILTIN_READERS: list[str] = [
     "oscar_core.data.readers.lerobot:LeRobotReader",
     "oscar_core.data.readers.agibot_world:AgiBotWorldReader",
+    "oscar_core.data.readers.droid:DroidRawReader",
 ]
 
 
