@@ -17,7 +17,7 @@ import numpy as np
 from ...errors import InputFileError
 from ..reader import EpisodeError, VideoSource
 
-__all__ = ["require", "local_root", "episode_errors", "probe_video", "read_json", "finite"]
+__all__ = ["require", "local_root", "episode_errors", "probe_video", "video_header", "read_json", "finite"]
 
 INSTALL_HINT = 'pip install "oscar[data]"'
 
@@ -141,3 +141,22 @@ def _count_packets(container, stream, start: float, n_frames: int, fps: float) -
         if 0 <= i < n_frames:
             seen.add(i)
     return len(seen)
+
+
+def video_header(episode_id: str, path: Path, field: str = "video", reader: str = "") -> tuple[float | None, int, int]:
+    """(frame rate or None, width, height) of a video, from its header only; :class:`EpisodeError` if unreadable."""
+    av = require("av", reader or "video")
+    path = Path(path)
+    if not path.is_file():
+        raise EpisodeError(episode_id, path, field, "a video file", "no such file")
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise EpisodeError(episode_id, path, field, "a video stream", "none")
+            s = container.streams.video[0]
+            return (float(s.average_rate) if s.average_rate else None, int(s.codec_context.width),
+                    int(s.codec_context.height))
+    except EpisodeError:
+        raise
+    except (av.error.FFmpegError, OSError) as e:
+        raise EpisodeError(episode_id, path, field, "a readable video", f"{type(e).__name__}: {e}") from None
