@@ -18,6 +18,7 @@ BUILTIN_READERS: list[str] = [
     "oscar_core.data.readers.agibot_world:AgiBotWorldReader",
     "oscar_core.data.readers.droid:DroidRawReader",
     "oscar_core.data.readers.egodex:EgoDexReader",
+    "oscar_core.data.readers.epic_vitra:EpicVitraReader",
 ]
 
 
