@@ -19,6 +19,7 @@ BUILTIN_READERS: list[str] = [
     "oscar_core.data.readers.droid:DroidRawReader",
     "oscar_core.data.readers.egodex:EgoDexReader",
     "oscar_core.data.readers.epic_vitra:EpicVitraReader",
+    "oscar_core.data.readers.interndata_a1:InternDataA1Reader",
 ]
 
 
