@@ -91,6 +91,7 @@ def test_lists_and_loads_an_episode(tmp_path, g1):
     ("camera_file", "<file>", "head_extrinsic_params_aligned.json.*no such file"),
     ("short_video", "head_color", "expected 12 frames.*found 7 frames"),
     ("truncated_h5", "<file>", "a readable file"),
+    ("truncated_mp4", "head_color", "truncated|readable video"),
 ])
 def test_bad_episodes_are_rejected_with_their_reason(tmp_path, g1, kind, field, words):
     kw = {"action_longer": {"action_rows": 15}, "nan": {"nan": True}, "missing_field": {"drop": "state/head/position"},
@@ -98,6 +99,9 @@ def test_bad_episodes_are_rejected_with_their_reason(tmp_path, g1, kind, field, 
     _, _, h5 = write_episode(tmp_path, g1, **kw)
     if kind == "truncated_h5":
         h5.write_bytes(h5.read_bytes()[:1000])
+    if kind == "truncated_mp4":
+        mp4 = tmp_path / "observations" / "327" / "648642" / "videos" / "head_color.mp4"
+        mp4.write_bytes(mp4.read_bytes()[: mp4.stat().st_size // 2])
     reader, refs = _load(tmp_path)
     with pytest.raises(EpisodeError, match=words) as e:
         reader.load_episode(refs[0])

@@ -19,7 +19,7 @@ POSE = (0.2, -0.6, 0.5, -2.1, 0.05, 0.4)
 
 
 def write_episode(root, rel="IRIS/success/2023-03-01/Wed_Mar__1_12:00:00_2023", *, intrinsics=True, nan=False,
-                  drop=None, video=True, video_frames=T, metadata=True):
+                  drop=None, video=True, video_frames=T, metadata=True, gripper_rows=T):
     folder = root / rel
     (folder / "recordings" / "MP4").mkdir(parents=True)
     q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.7]) + 0.05 * np.sin(np.arange(T)[:, None] + np.arange(7))
@@ -28,7 +28,7 @@ def write_episode(root, rel="IRIS/success/2023-03-01/Wed_Mar__1_12:00:00_2023", 
         if nan:
             qq[3, 1] = np.nan
         f["observation/robot_state/joint_positions"] = qq
-        f["observation/robot_state/gripper_position"] = np.linspace(0, 1, T)
+        f["observation/robot_state/gripper_position"] = np.linspace(0, 1, gripper_rows)
         f["observation/robot_state/cartesian_position"] = np.zeros((T, 6))
         for s in (EXT1, EXT2, WRIST):
             f[f"observation/camera_extrinsics/{s}_left"] = np.tile(POSE, (T, 1))
@@ -80,10 +80,12 @@ def test_second_camera_and_supplied_intrinsics(tmp_path):
     ("no_video", f"{EXT1}_left", "no such file"),
     ("truncated_video", f"{EXT1}_left", "truncated|readable video"),
     ("no_metadata", "<file>", "metadata JSON"),
+    ("gripper_rows", "observation/robot_state/gripper_position", "9 rows.*found 12 rows"),
 ])
 def test_bad_episodes(tmp_path, kind, field, words):
     kw = {"nan": {"nan": True}, "missing_field": {"drop": "observation/robot_state/gripper_position"},
-          "no_video": {"video": False}, "no_metadata": {"metadata": False}}.get(kind, {})
+          "no_video": {"video": False}, "no_metadata": {"metadata": False},
+          "gripper_rows": {"gripper_rows": 12}}.get(kind, {})
     write_episode(tmp_path, **kw)
     [ref] = list(DroidRawReader().list_episodes(str(tmp_path)))
     if kind == "truncated_video":

@@ -92,11 +92,16 @@ def test_low_confidence_points_become_missing(tmp_path):
     ("missing_field", "transforms/leftThumbTip", "missing"),
     ("no_video", "egocentric", "no such file"),
     ("short_video", "egocentric", "expected 10 frames.*found 6"),
+    ("truncated_video", "egocentric", "truncated|readable video"),
+    ("no_intrinsic", "camera/intrinsic", "missing"),
 ])
 def test_bad_episodes(tmp_path, kind, field, words):
     kw = {"nan": {"nan": True}, "missing_field": {"drop": "transforms/leftThumbTip"}, "no_video": {"video": False},
-          "short_video": {"video_frames": 6}}[kind]
+          "short_video": {"video_frames": 6}, "truncated_video": {}, "no_intrinsic": {"drop": "camera/intrinsic"}}[kind]
     write_episode(tmp_path, **kw)
+    if kind == "truncated_video":
+        mp4 = next(tmp_path.rglob("*.mp4"))
+        mp4.write_bytes(mp4.read_bytes()[: mp4.stat().st_size // 2])
     [ref] = list(EgoDexReader().list_episodes(str(tmp_path)))
     with pytest.raises(EpisodeError, match=words) as e:
         EgoDexReader().load_episode(ref)

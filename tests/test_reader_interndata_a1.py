@@ -31,7 +31,7 @@ def _features(arms=1):
 
 
 def write_task(root, rel="articulation_tasks/franka/close_the_electriccooker", lengths=(9, 11), *, arms=1,
-               bad_gripper=False, video_frames=None):
+               bad_gripper=False, video_frames=None, nan=False):
     ds = root / rel
     (ds / "meta").mkdir(parents=True)
     (ds / "meta" / "info.json").write_text(json.dumps({
@@ -44,6 +44,8 @@ def write_task(root, rel="articulation_tasks/franka/close_the_electriccooker", l
         for e, T in enumerate(lengths):
             f.write(json.dumps({"episode_index": e, "tasks": ["close the electric cooker"], "length": T}) + "\n")
             q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.7]) + 0.02 * e + 0.01 * np.arange(T)[:, None]
+            if nan:
+                q[2, 4] = np.nan
             g = np.full((T, 1), 0.04)
             if bad_gripper:
                 g[3] = 0.5  # 50 cm: not a Panda finger width
@@ -81,9 +83,11 @@ def test_lists_franka_tasks_only_and_loads(tmp_path):
     ("bad_gripper", "states.gripper.position", "0.5 at frame 3"),
     ("short_video", "images.rgb.head", "found 5 frames"),
     ("missing_column", "head_camera_intrinsics", "missing"),
+    ("nan", "states.joint.position", "non-finite"),
 ])
 def test_bad_episodes(tmp_path, kind, field, words):
-    write_task(tmp_path, bad_gripper=kind == "bad_gripper", video_frames=5 if kind == "short_video" else None)
+    write_task(tmp_path, bad_gripper=kind == "bad_gripper", video_frames=5 if kind == "short_video" else None,
+               nan=kind == "nan")
     refs = list(InternDataA1Reader().list_episodes(str(tmp_path)))
     if kind == "missing_column":
         p = next(tmp_path.rglob("episode_000000.parquet"))

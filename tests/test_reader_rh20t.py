@@ -114,11 +114,14 @@ def test_calib_tcp_matches_rh20t_preprocessing():
     ("no_gripper_file", "<file>", "no such file"),
     ("short_video", "036422060215", "expected 8 frames.*found 3"),
     ("stamp_gap", "color", "consecutive video frames"),
+    ("no_intrinsics_file", "<file>", "intrinsics.npy.*no such file"),
 ])
 def test_bad_scenes(tmp_path, kind, field, words):
     kw = {"nan": {"nan": True}, "wide_gripper": {"wide_gripper": True}, "no_gripper_file": {"no_gripper_file": True},
-          "short_video": {"video_frames": 5}, "stamp_gap": {"stamp_gap": True}}[kind]
+          "short_video": {"video_frames": 5}, "stamp_gap": {"stamp_gap": True}, "no_intrinsics_file": {}}[kind]
     write_scene(tmp_path, 5, **kw)
+    if kind == "no_intrinsics_file":
+        next(tmp_path.rglob("intrinsics.npy")).unlink()
     [ref] = list(RH20TReader().list_episodes(str(tmp_path)))
     with pytest.raises(EpisodeError, match=words) as e:
         RH20TReader().load_episode(ref)

@@ -12,7 +12,7 @@ VITRA (microsoft/VITRA, ``data/data.md`` "Metadata Structure" and
     text                {"left"|"right": [(description, (start, end)), ...]}
     left, right         {"joints_camspace": (T, 21, 3) m, camera frame (x right, y down, z forward),
                          "kept_frames": (T,) 0/1 valid-reconstruction mask, "beta", "hand_pose", ...}
-    avg_speed, total_rotvec_degree, total_transl_dist   (kept in ``ref.meta`` by nobody: loaded with the episode)
+    avg_speed, total_rotvec_degree, total_transl_dist   (not read: the pipeline's filters measure motion themselves)
 
 The 21 joints are MANO's joints plus five fingertip vertices reordered by
 VITRA's ``libs/models/mano_wrapper.py`` (``mano_to_openpose``), i.e. the
