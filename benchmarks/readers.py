@@ -57,7 +57,15 @@ def main(argv=None) -> dict:
     from oscar_core.data.readers._common import probe_video
     from oscar_core.data.readers.lerobot import LeRobotReader
 
-    fixture._frames = lambda n, offset: np.random.default_rng(offset).integers(0, 255, (n, 180, 320, 3), dtype=np.uint8)
+    def frames(n, offset):  # a moving gradient: cheap to encode, every frame different
+        y, x = np.mgrid[0:180, 0:320]
+        out = np.empty((n, 180, 320, 3), np.uint8)
+        for i in range(n):
+            out[i] = ((x + 3 * (offset + i)) % 256)[..., None].astype(np.uint8)
+            out[i, ..., 1] = (y + offset + i) % 256
+        return out
+
+    fixture._frames = frames
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         root = fixture.write_droid_v3(Path(tmp) / "droid", cameras=("exterior_1_left",),
