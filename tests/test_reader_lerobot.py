@@ -159,6 +159,13 @@ def test_droid_bad_inputs(tmp_path):
     with pytest.raises(EpisodeError, match="no such file"):
         reader.load_episode(ref)
 
+    root = write_droid_v3(tmp_path / "rows")  # the episode table says 10 frames, the data file holds 8 of them
+    ref = list(reader.list_episodes(str(root)))[1]
+    p = root / "data" / "chunk-000" / "file-000.parquet"
+    pq.write_table(pq.read_table(p).slice(0, 16), p)
+    with pytest.raises(EpisodeError, match=r"field 'episode_index': expected 10 rows of episode 1.*found 8 rows"):
+        reader.load_episode(ref)
+
     root = write_droid_v3(tmp_path / "nodata")
     ref = list(reader.list_episodes(str(root)))[0]
     tab = pq.read_table(root / "data" / "chunk-000" / "file-000.parquet").drop_columns(["observation.state.gripper_position"])

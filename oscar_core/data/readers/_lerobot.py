@@ -166,10 +166,13 @@ class LeRobotLayout:
 
     # ------------------------------------------------------------------ frames
 
-    def frames(self, episode_id: str, data_path: str, index: int, columns: list[str]) -> dict[str, np.ndarray]:
+    def frames(self, episode_id: str, data_path: str, index: int, columns: list[str],
+               length: int | None = None) -> dict[str, np.ndarray]:
         """The columns of one episode's rows, in frame order: column → (T, ...) array.
 
-        Raises :class:`EpisodeError` for a missing file or column.
+        length: the episode table's ``length`` (checked when given).
+        Raises :class:`EpisodeError` for a missing file or column, or a row count
+        that disagrees with ``length``.
         """
         pq = require("pyarrow.parquet", self.reader)
         path = Path(data_path)
@@ -188,6 +191,10 @@ class LeRobotLayout:
             table = pq.read_table(path, columns=read, filters=filters)
         except Exception as e:
             raise EpisodeError(episode_id, path, "<file>", "a parquet file", f"{type(e).__name__}: {e}") from None
+        if table.num_rows == 0 or (length is not None and table.num_rows != int(length)):
+            raise EpisodeError(episode_id, path, "episode_index",
+                               f"{length if length is not None else 'at least one'} rows of episode {index} "
+                               "(the episode table's length)", f"{table.num_rows} rows")
         out = {}
         order = None
         if "frame_index" in table.column_names:

@@ -80,7 +80,7 @@ class InternDataA1Reader(Reader):
             raise EpisodeError(eid, ref.paths["data"], "camera", "'head' (the static scene camera)", repr(cam))
         layout = LeRobotLayout(Path(ref.paths["root"]), self.name)
         cols = list(COLUMNS) + (["timestamp"] if "timestamp" in layout.features else [])
-        frames = layout.frames(eid, ref.paths["data"], int(ref.meta["episode_index"]), cols)
+        frames = layout.frames(eid, ref.paths["data"], int(ref.meta["episode_index"]), cols, ref.n_frames)
         for c in COLUMNS[:2]:
             finite(frames[c], eid, ref.paths["data"], c, "joint / gripper state")
         size = layout.image_size(VIDEO) or (640, 480)

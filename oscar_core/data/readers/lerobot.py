@@ -123,7 +123,7 @@ class LeRobotReader(Reader):
 
         short = cam.split(".")[-1]
         ext_col = f"camera_extrinsics.{short}"
-        cols = layout.frames(ref.episode_id, data, index, list(DROID_STATE) + [ext_col])
+        cols = layout.frames(ref.episode_id, data, index, list(DROID_STATE) + [ext_col], ref.n_frames)
         for c in DROID_STATE:
             finite(cols[c], ref.episode_id, data, c, "joint / gripper state")
         K = ref.meta.get("intrinsics") or self.intrinsics.get(short) or self.intrinsics.get(cam)
@@ -143,7 +143,7 @@ class LeRobotReader(Reader):
         from oscar_embodiments.hsr.adapters import from_airoa_moma
 
         cols = ["observation.state"] + (["timestamp"] if "timestamp" in layout.features else [])
-        got = layout.frames(ref.episode_id, data, index, cols)
+        got = layout.frames(ref.episode_id, data, index, cols, ref.n_frames)
         finite(got["observation.state"], ref.episode_id, data, "observation.state", "joint positions")
         record = {"observation.state": got["observation.state"], "info": layout.info}
         if "timestamp" in got:
