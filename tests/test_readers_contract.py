@@ -75,6 +75,7 @@ def test_listing_decodes_no_video_and_yields_manifest_ready_refs(tmp_path, monke
         for ref in refs:
             assert isinstance(ref, EpisodeRef) and ref.reader == name and ref.episode_id.startswith(ref.source + "/")
             assert ref.cameras and ref.meta.get("camera") == ref.cameras[0], (name, ref.cameras, ref.meta)
+            assert ref.paths.get("states") and ref.paths.get("video"), (name, ref.paths)  # common roles
             json.dumps({"paths": ref.paths, "meta": ref.meta, "cameras": ref.cameras, "task": ref.task})
     monkeypatch.undo()
     # and each loads, with a video that has the episode's frames

@@ -70,6 +70,8 @@ class DroidRawReader(Reader):
             paths = {"states": str(h5), "metadata": str(metas[0]) if metas else ""}
             for c in cams:
                 paths[f"video:{c}"] = str(folder / "recordings" / "MP4" / f"{c.rsplit('_', 1)[0]}.mp4")
+            if cams:
+                paths["video"] = paths[f"video:{cams[0]}"]  # the default camera's file
             yield EpisodeRef(f"droid/{rel}", "droid", self.name, "franka", paths,
                              n_frames=int(n) if isinstance(n, (int, float)) else None, fps=15.0,
                              task=meta.get("current_task") or None, cameras=cams,

@@ -65,7 +65,7 @@ class InternDataA1Reader(Reader):
             for row in layout.episodes():
                 video = row.videos.get(VIDEO)
                 yield EpisodeRef(f"interndata_a1/{rel}/{row.index}", "interndata_a1", self.name, "franka",
-                                 {"root": str(dataset), "data": row.data, "video": video[0] if video else ""},
+                                 {"root": str(dataset), "data": row.data, "states": row.data, "video": video[0] if video else ""},
                                  n_frames=row.length, fps=layout.fps, task=row.tasks[0] if row.tasks else None,
                                  cameras=("head", "hand") if "images.rgb.hand" in layout.features else ("head",),
                                  meta={"episode_index": row.index, "camera": "head",

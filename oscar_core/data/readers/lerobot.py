@@ -90,7 +90,9 @@ class LeRobotReader(Reader):
         default = _default_camera(profile, keys)
         cams = tuple(([default] if default else []) + [k for k in keys if k != default])
         for row in layout.episodes():
-            paths = {"root": str(root), "data": row.data}
+            paths = {"root": str(root), "data": row.data, "states": row.data}
+            if default in row.videos:
+                paths["video"] = row.videos[default][0]  # the default camera's (shared) file
             paths.update({f"video:{k}": p for k, (p, _) in row.videos.items()})
             meta = {"profile": profile, "episode_index": row.index, "camera": default,
                     "video_start": {k: s for k, (_, s) in row.videos.items()}}

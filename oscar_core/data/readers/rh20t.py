@@ -108,7 +108,8 @@ class RH20TReader(Reader):
             task = scene.name.split("_user_")[0]
             yield EpisodeRef(f"{src}/{scene.name}", src, self.name, emb,
                              {"scene": str(scene), "states": str(scene / "transformed" / "joint.npy"),
-                              "calibration": str(scene.parent / "calib")},
+                              "calibration": str(scene.parent / "calib"),
+                              "video": str(scene / f"cam_{cams[0]}" / "color.mp4") if cams else ""},
                              n_frames=None, fps=None, task=None, cameras=cams,
                              meta={"cfg": cfg, "camera": cams[0] if cams else None, "task_id": task})
 
