@@ -14,6 +14,13 @@ from ...hookspecs import hookimpl
 
 # one line per built-in reader: "module:Class"
 BUILTIN_READERS: list[str] = [
+    "oscar_core.data.readers.lerobot:LeRobotReader",
+    "oscar_core.data.readers.agibot_world:AgiBotWorldReader",
+    "oscar_core.data.readers.droid:DroidRawReader",
+    "oscar_core.data.readers.egodex:EgoDexReader",
+    "oscar_core.data.readers.epic_vitra:EpicVitraReader",
+    "oscar_core.data.readers.interndata_a1:InternDataA1Reader",
+    "oscar_core.data.readers.rh20t:RH20TReader",
 ]
 
 
