@@ -110,13 +110,13 @@ def test_missing_optional_dependency_names_the_extra(tmp_path, monkeypatch):
     from oscar_core.data.readers.agibot_world import AgiBotWorldReader
     from oscar_core.data.readers.lerobot import LeRobotReader
 
-    with pytest.raises(ImportError, match=r"'agibot_world' dataset reader needs .*'h5py'.*pip install \"oscar\[data\]\""):
+    with pytest.raises(ImportError, match=r"'agibot_world' dataset reader needs .*'h5py'.*pip install \"oscar-wm\[data\]\""):
         list(AgiBotWorldReader().list_episodes(str(tmp_path)))
     (tmp_path / "meta" / "episodes").mkdir(parents=True)
     (tmp_path / "meta" / "info.json").write_text(json.dumps({
         "codebase_version": "v3.0", "fps": 15, "features": {"observation.state.joint_position": {},
                                                              "observation.state.gripper_position": {}}}))
-    with pytest.raises(ImportError, match=r"'lerobot' dataset reader needs .*'pyarrow'.*oscar\[data\]"):
+    with pytest.raises(ImportError, match=r"'lerobot' dataset reader needs .*'pyarrow'.*oscar-wm\[data\]"):
         list(LeRobotReader().list_episodes(str(tmp_path)))
 
 
