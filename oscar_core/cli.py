@@ -38,7 +38,9 @@ def cmd_embodiments(args) -> int:
         entry = reg.entries[name]
         row = {"name": name, "distribution": entry.distribution, "version": entry.version, "plugin": entry.plugin}
         try:
-            row.update(reg.get(name).info())
+            emb = reg.get(name)
+            row.update(emb.info())
+            row["joint_names"] = list(emb.joint_names)  # the order trajectory columns are put in
         except OscarError as exc:
             row["error"] = str(exc)
         rows.append(row)
@@ -104,10 +106,19 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     warnings.simplefilter("default")
     try:
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()
+        return code
     except (OscarError, ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (`oscar ... | head`): stop quietly; point stdout at
+        # devnull so the interpreter's final flush does not raise again
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":
