@@ -27,7 +27,7 @@ Exit status: 0 all written, 1 some episodes failed (listed), 2 bad arguments.
 
 def add_render_parser(sub) -> None:
     """Register ``oscar render`` on the sub-command parsers ``sub``."""
-    from .video import DEFAULT_PRESET, PRESETS
+    from .video_options import DEFAULT_PRESET, PRESETS
 
     r = sub.add_parser("render", help="render skeleton videos from trajectories (one, or many with a worker pool)",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -18,6 +18,7 @@ from typing import Iterable
 import numpy as np
 
 from .errors import OutputPathError
+from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
 __all__ = ["write_video", "read_video", "video_info", "SUPPORTED_OUTPUTS", "VideoWriter", "check_output",
            "remove_stale_temporaries", "rgb_to_yuv420p", "PRESETS", "DEFAULT_PRESET"]
@@ -26,10 +27,6 @@ SUPPORTED_OUTPUTS = {".mp4": "H.264 (libx264, yuv420p)", ".mkv": "FFV1 lossless 
 FRAME_PATTERN = "frame_{:06d}.png"
 
 
-PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
-DEFAULT_PRESET = "veryfast"
-YUV_PATHS = ("opencv", "swscale")
-DEFAULT_YUV = "opencv"
 FORMATS = {"mp4": "h264", "mkv": "ffv1", "png": "png"}
 _TMP_MARK = ".tmp"
 
