@@ -168,7 +168,7 @@ def _safe_render(index: int, spec: EpisodeSpec, options: RenderOptions, registry
     t0 = time.perf_counter()
     try:
         return render_episode(spec, options, registry=registry, index=index)
-    except (OscarError, ValueError, OSError, KeyError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - one episode's failure, whatever it is, is recorded, not fatal
         text = str(exc) if isinstance(exc, OscarError) else f"{type(exc).__name__}: {exc}"
         return EpisodeResult(index, spec, False, seconds=time.perf_counter() - t0, error=text)
 
@@ -187,8 +187,9 @@ def _init_worker() -> None:
 
 def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
     """Before any rendering: distinct outputs, folders above them made (never through a file),
-    and every output's suffix checked."""
-    from .video import check_output
+    and every output's suffix checked. (Whether each target may be replaced is
+    checked per episode: that failure is the episode's alone.)"""
+    from .video import output_codec
 
     seen: dict[str, int] = {}
     for i, s in enumerate(specs):
@@ -206,7 +207,7 @@ def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
             parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise OutputPathError(s.out, f"cannot make folder {parent}: {exc.strerror or exc}") from None
-        check_output(s.out, format=s.format)
+        output_codec(s.out, format=s.format)
 
 
 def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOptions(), *, workers: int = 1,
@@ -257,9 +258,13 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
             ctx = mp.get_context("spawn")
             with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx,
                                      initializer=_init_worker) as pool:
-                futures = [pool.submit(_safe_render, i, s, options) for i, s in enumerate(specs)]
+                futures = {pool.submit(_safe_render, i, s, options): i for i, s in enumerate(specs)}
                 for fut in as_completed(futures):
-                    done(fut.result())
+                    try:
+                        done(fut.result())
+                    except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
+                        i = futures[fut]
+                        done(EpisodeResult(i, specs[i], False, error=f"worker process failed: {type(exc).__name__}: {exc}"))
     finally:
         bar.close()
     return [r for r in results if r is not None]

@@ -21,7 +21,7 @@ from .errors import OutputPathError
 from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
 __all__ = ["write_video", "read_video", "video_info", "SUPPORTED_OUTPUTS", "VideoWriter", "check_output",
-           "remove_stale_temporaries", "rgb_to_yuv420p", "PRESETS", "DEFAULT_PRESET"]
+           "remove_stale_temporaries", "rgb_to_yuv420p", "output_codec", "PRESETS", "DEFAULT_PRESET"]
 
 SUPPORTED_OUTPUTS = {".mp4": "H.264 (libx264, yuv420p)", ".mkv": "FFV1 lossless RGB", "folder/": "PNG frames"}
 FRAME_PATTERN = "frame_{:06d}.png"
@@ -63,6 +63,26 @@ def _supported() -> str:
     return ", ".join(f"{k} ({v})" for k, v in SUPPORTED_OUTPUTS.items())
 
 
+def output_codec(path, *, format: str | None = None) -> str:
+    """The codec an output name asks for: "h264" (``.mp4``), "ffv1" (``.mkv``), "png"
+    (a name ending in ``/``, or ``format="png"``). Raises :class:`OutputPathError`
+    for a name without a suffix or an unsupported one."""
+    raw = str(path)
+    path = Path(path)
+    if format is not None:
+        if format not in FORMATS:
+            raise OutputPathError(path, f"format: expected one of {', '.join(FORMATS)}, found {format!r}")
+        return FORMATS[format]
+    if raw.endswith(("/", os.sep)):
+        return "png"
+    if path.suffix.lower() in (".mp4", ".mkv"):
+        return FORMATS[path.suffix.lower()[1:]]
+    if path.suffix == "":
+        raise OutputPathError(path, "the name has no suffix; expected " + _supported()
+                              + " (a folder of PNG frames is asked for with a trailing / or --format png)")
+    raise OutputPathError(path, f"unsupported suffix {path.suffix!r}; supported: " + _supported())
+
+
 def check_output(path, *, format: str | None = None, size: tuple[int, int] | None = None) -> tuple[Path, str]:
     """Check an output target before any rendering; returns ``(path, codec)``.
 
@@ -77,19 +97,7 @@ def check_output(path, *, format: str | None = None, size: tuple[int, int] | Non
     """
     raw = str(path)
     path = Path(path)
-    if format is not None:
-        if format not in FORMATS:
-            raise OutputPathError(path, f"format: expected one of {', '.join(FORMATS)}, found {format!r}")
-        codec = FORMATS[format]
-    elif raw.endswith(("/", os.sep)):
-        codec = "png"
-    elif path.suffix.lower() in (".mp4", ".mkv"):
-        codec = FORMATS[path.suffix.lower()[1:]]
-    elif path.suffix == "":
-        raise OutputPathError(path, "the name has no suffix; expected " + _supported()
-                              + " (a folder of PNG frames is asked for with a trailing / or --format png)")
-    else:
-        raise OutputPathError(path, f"unsupported suffix {path.suffix!r}; supported: " + _supported())
+    codec = output_codec(raw, format=format)
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():

@@ -322,3 +322,25 @@ def test_demo_lists_plugins_it_skipped_and_why(tmp_path):
                        names=["toyarm"], log=lines.append)
     assert any("skipped plugin" in line and "not installed" in line for line in lines), lines
     assert any("not installed" in s["reason"] for s in summary["skipped"])
+
+
+def test_an_existing_frame_folder_fails_its_episode_only(tmp_path):
+    a = short_traj(tmp_path, "a.npz", T=2)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("mine")
+    specs = [EpisodeSpec("toyarm", str(a), str(CAM), f"{tmp_path}/full/", (64, 36)),
+             EpisodeSpec("toyarm", str(a), str(CAM), f"{tmp_path}/fresh/", (64, 36))]
+    r = render_many(specs)
+    assert [x.ok for x in r] == [False, True] and "not an empty folder" in r[0].error
+    assert [p.name for p in (tmp_path / "full").iterdir()] == ["keep.txt"]
+    assert len(list((tmp_path / "fresh").glob("*.png"))) == 2
+
+
+def test_render_episode_reports_warnings_instead_of_printing_them(tmp_path, recwarn):
+    traj = load_trajectory(TRAJ).time_slice(0, 3)
+    q = traj.q.copy()
+    q[1, 0] = 50.0  # far beyond the first joint's limit
+    save_trajectory(traj.replace(q=q), tmp_path / "over.npz")
+    r = render_episode(EpisodeSpec("toyarm", str(tmp_path / "over.npz"), str(CAM), str(tmp_path / "o.mkv"), (64, 36)))
+    assert r.ok and r.frames == 3 and any("JointLimitWarning" in w and "beyond its limits" in w for w in r.warnings)
+    assert len(recwarn) == 0
