@@ -27,7 +27,7 @@ Exit status: 0 all written, 1 some episodes failed (listed), 2 bad arguments.
 
 def add_render_parser(sub) -> None:
     """Register ``oscar render`` on the sub-command parsers ``sub``."""
-    from .video_options import DEFAULT_PRESET, PRESETS
+    from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
     r = sub.add_parser("render", help="render skeleton videos from trajectories (one, or many with a worker pool)",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -51,6 +51,8 @@ def add_render_parser(sub) -> None:
     r.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
                    help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)")
     r.add_argument("--crf", type=int, default=18, help="x264 quality, lower is better (default 18)")
+    r.add_argument("--yuv", choices=YUV_PATHS, default=DEFAULT_YUV,
+                   help=f"RGB to yuv420p conversion for .mp4 (default {DEFAULT_YUV}; both BT.601 limited range)")
     r.add_argument("--strict", action="store_true",
                    help="a frame where the camera sees nothing of the robot is an error (default: a warning)")
     r.add_argument("--json", action="store_true", help="print a machine-readable summary")
@@ -98,7 +100,7 @@ def _specs(args):
 def _options(args):
     from .batch_render import RenderOptions
 
-    return RenderOptions(preset=args.preset, crf=args.crf, strict=args.strict, device=args.device,
+    return RenderOptions(preset=args.preset, crf=args.crf, yuv=args.yuv, strict=args.strict, device=args.device,
                          plugin_paths=tuple(args.plugin or ()))
 
 
@@ -160,7 +162,7 @@ def _render_overlay(args, spec) -> int:
         raise OscarError(f"{args.overlay}: expected at least {len(traj)} frames (the trajectory's length), found {len(rgb)}")
     fps = spec.fps or traj.fps
     with VideoWriter(spec.out, fps, format=spec.format, preset=args.preset or DEFAULT_PRESET, crf=args.crf,
-                     size=tuple(size)) as writer:
+                     yuv=args.yuv, size=tuple(size)) as writer:
         t = 0
         for chunk in iter_skeleton_chunks(emb, traj, cam, tuple(size), resize_mode=spec.resize, device=args.device,
                                           camera_source=str(spec.camera), strict=args.strict):

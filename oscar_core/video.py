@@ -79,7 +79,7 @@ def output_codec(path, *, format: str | None = None) -> str:
         return FORMATS[path.suffix.lower()[1:]]
     if path.suffix == "":
         raise OutputPathError(path, "the name has no suffix; expected " + _supported()
-                              + " (a folder of PNG frames is asked for with a trailing / or --format png)")
+                              + " (a folder of PNG frames is asked for with a trailing /, --format png, or format=\"png\" in Python)")
     raise OutputPathError(path, f"unsupported suffix {path.suffix!r}; supported: " + _supported())
 
 

@@ -160,7 +160,7 @@ def test_batch_problems_stop_before_anything_is_rendered(tmp_path):
 
 
 @pytest.mark.parametrize("out, message", [
-    ("skel", "no suffix.*trailing / or --format png"),
+    ("skel", "no suffix.*trailing /, --format png"),
     ("skel.avi", "unsupported suffix '.avi'"),
     ("afile/skel.mp4", "afile is a file, not a folder"),
     ("afile/deeper/skel.mp4", "afile is a file, not a folder"),
