@@ -203,11 +203,13 @@ def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
                 if not p.is_dir():
                     raise OutputPathError(s.out, f"{p} is a file, not a folder")
                 break
+        output_codec(s.out, format=s.format)
+    for s in specs:  # only once every output passed
+        parent = Path(s.out.rstrip("/" + os.sep)).parent
         try:
             parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise OutputPathError(s.out, f"cannot make folder {parent}: {exc.strerror or exc}") from None
-        output_codec(s.out, format=s.format)
 
 
 def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOptions(), *, workers: int = 1,

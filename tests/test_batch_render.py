@@ -149,11 +149,15 @@ def test_batch_problems_stop_before_anything_is_rendered(tmp_path):
     with pytest.raises(OutputPathError, match="episode 1 writes the same output as episode 0"):
         render_many(same)
     (tmp_path / "afile").write_text("")
-    under = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "ok.mp4")),
+    under = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "new" / "ok.mp4")),
              EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "afile" / "sub" / "x.mp4"))]
     with pytest.raises(OutputPathError, match="afile is a file, not a folder"):
         render_many(under)
-    assert not (tmp_path / "ok.mp4").exists()
+    suffixless = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "new" / "ok.mp4")),
+                  EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x"))]
+    with pytest.raises(OutputPathError, match="no suffix"):
+        render_many(suffixless)
+    assert not (tmp_path / "new").exists()  # nothing rendered, no folder made
 
 
 # ------------------------------------------------------------------ output checks
