@@ -28,6 +28,7 @@ def toyarm():
 # ------------------------------------------------------------------ NumPy FK
 
 
+@pytest.mark.slow  # imports torch and pytorch-kinematics
 @pytest.mark.parametrize("name", ["toyarm", "franka", "kuka", "hsr", "agibot_g1"])
 def test_numpy_fk_matches_pytorch_kinematics(name):
     from oscar_core.fk_numpy import NumpyForwardKinematics
@@ -207,3 +208,22 @@ def test_h264_of_a_skeleton_keeps_its_colours(tmp_path, yuv):
     back = read_video(write_video(tmp_path / "s.mp4", video, 10, yuv=yuv)).astype(float)
     psnr = 10 * np.log10(255 ** 2 / np.mean((back - video) ** 2))
     assert psnr > 33, psnr
+
+
+@pytest.mark.slow  # imports torch
+def test_a_plugin_that_overrides_fk_keeps_its_own_kinematics():
+    emb, traj, cam = toyarm()
+    calls = []
+
+    class Shifted(type(emb)):
+        def fk(self, q, base_pose=None, links=None, device="cpu", dtype=None):
+            calls.append(device)
+            poses = super().fk(q, base_pose, links, device, dtype).clone()
+            poses[..., 2, 3] += 0.05  # 5 cm up: a visibly different skeleton
+            return poses
+
+    shifted = Shifted()
+    plain = emb.frames(traj.time_slice(0, 3))
+    moved = shifted.frames(traj.time_slice(0, 3))
+    assert calls == ["cpu"]
+    np.testing.assert_allclose(moved.points - plain.points, np.broadcast_to([0, 0, 0.05], plain.points.shape), atol=1e-12)
