@@ -33,6 +33,7 @@ test-install: install
 bench: install
 	$(PYTHON) benchmarks/render.py
 	$(PYTHON) benchmarks/rollout.py
+	$(PYTHON) benchmarks/render_scale.py
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

@@ -38,7 +38,9 @@ def cmd_embodiments(args) -> int:
         entry = reg.entries[name]
         row = {"name": name, "distribution": entry.distribution, "version": entry.version, "plugin": entry.plugin}
         try:
-            row.update(reg.get(name).info())
+            emb = reg.get(name)
+            row.update(emb.info())
+            row["joint_names"] = list(emb.joint_names)  # the order trajectory columns are put in
         except OscarError as exc:
             row["error"] = str(exc)
         rows.append(row)
@@ -58,37 +60,6 @@ def cmd_embodiments(args) -> int:
             print(f"error: {r['name']}: {r['error']}", file=sys.stderr)
     for f in reg.failures:
         print(f"failed plugin: {f}", file=sys.stderr)
-    return 0
-
-
-def cmd_render(args) -> int:
-    import numpy as np
-
-    from .pipeline import fit_image, overlay_skeleton, parse_size, render_skeleton_video
-    from .trajectory import load_trajectory
-    from .video import read_video, video_info, write_video
-
-    size = parse_size(args.size) if args.size else None
-    emb = _registry(args).get(args.embodiment)
-    traj = load_trajectory(args.trajectory)
-    cam = emb.load_camera(args.camera)
-    rgb = None
-    if args.overlay:
-        info = video_info(args.overlay)
-        if size is None:
-            size = (info["width"], info["height"])
-        rgb = read_video(args.overlay, max_frames=len(traj))
-        if len(rgb) < len(traj):
-            raise OscarError(f"{args.overlay}: expected at least {len(traj)} frames (the trajectory's length), found {len(rgb)}")
-    video = render_skeleton_video(emb, traj, cam, size, resize_mode=args.resize, device=args.device, camera_source=args.camera)
-    if rgb is not None:
-        H, W = video.shape[1:3]
-        # the real frames are fitted to the output size exactly as the calibration was (--resize)
-        rgb = np.stack([fit_image(f, W, H, args.resize) for f in rgb])
-        video = overlay_skeleton(video, rgb, alpha=args.alpha)
-    fps = args.fps or traj.fps
-    out = write_video(args.out, video, fps)
-    print(f"wrote {out}: {len(video)} frames, {video.shape[2]}x{video.shape[1]}, {fps:g} fps")
     return 0
 
 
@@ -113,21 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e.set_defaults(func=cmd_embodiments)
 
-    r = sub.add_parser("render", help="render a skeleton video from a trajectory",
-                       epilog="example: oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json "
-                              "--out skel.mp4 --size 512x288", formatter_class=argparse.RawDescriptionHelpFormatter)
-    r.add_argument("--embodiment", required=True, help="embodiment name (see `oscar embodiments`)")
-    r.add_argument("--trajectory", required=True, help="trajectory .npz (docs/formats.md)")
-    r.add_argument("--camera", required=True, help="camera calibration .json (docs/formats.md)")
-    r.add_argument("--out", required=True, help="output: .mp4 (H.264), .mkv (lossless FFV1) or a folder/ (PNG frames)")
-    r.add_argument("--size", help="output WIDTHxHEIGHT, e.g. 512x288 (default: the calibration's image size)")
-    r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
-                   help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)")
-    r.add_argument("--overlay", metavar="RGB_VIDEO", help="blend the skeleton over this video to check the calibration")
-    r.add_argument("--alpha", type=float, default=0.8, help="overlay opacity of the skeleton (default 0.8)")
-    r.add_argument("--fps", type=float, help="output frame rate (default: the trajectory's)")
-    r.add_argument("--device", default="cpu", help="torch device for forward kinematics (cpu, cuda)")
-    r.set_defaults(func=cmd_render)
+    from .render_cli import add_render_parser
+
+    add_render_parser(sub)
 
     d = sub.add_parser("demo", help="render every embodiment's bundled example (MP4s + contact sheet)")
     d.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
@@ -147,10 +106,19 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     warnings.simplefilter("default")
     try:
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()
+        return code
     except (OscarError, ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (`oscar ... | head`): stop quietly; point stdout at
+        # devnull so the interpreter's final flush does not raise again
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ._atomic import atomic_output, atomic_write_bytes
+from .errors import OscarError
 from .pipeline import render_skeleton_video
 from .registry import Registry
 from .trajectory import load_trajectory
@@ -17,20 +18,35 @@ from .video import write_video
 __all__ = ["run_demo", "contact_sheet"]
 
 
-def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4) -> np.ndarray:
+def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4, labels: list[str] | None = None) -> np.ndarray:
     """One PNG-ready image: per row, ``columns`` evenly spaced frames of a (T, H, W, 3) video.
 
     Rows of different sizes are placed on a grid of the largest frame size.
+    labels: one name per row (the embodiment), written in a band left of the
+    row's frames; the frames themselves are copied untouched (no text in them).
     """
     H = max(r.shape[1] for r in rows)
     W = max(r.shape[2] for r in rows)
-    sheet = np.full((len(rows) * (H + gap) + gap, columns * (W + gap) + gap, 3), 40, np.uint8)
+    band = 0
+    if labels is not None:
+        import cv2
+
+        if len(labels) != len(rows):
+            raise ValueError(f"contact_sheet: expected {len(rows)} labels (one per row), found {len(labels)}")
+        font_scale = max(0.4, H / 288 * 0.7)
+        band = max(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, font_scale, 1)[0][0] for t in labels) + 2 * gap
+    sheet = np.full((len(rows) * (H + gap) + gap, band + columns * (W + gap) + gap, 3), 40, np.uint8)
     for i, video in enumerate(rows):
         picks = np.linspace(0, len(video) - 1, columns).round().astype(int)
+        y = gap + i * (H + gap)
         for j, t in enumerate(picks):
             f = video[t]
-            y, x = gap + i * (H + gap), gap + j * (W + gap)
+            x = band + gap + j * (W + gap)
             sheet[y:y + f.shape[0], x:x + f.shape[1]] = f
+        if labels is not None:
+            (tw, th), _ = cv2.getTextSize(labels[i], cv2.FONT_HERSHEY_SIMPLEX, font_scale, 1)
+            cv2.putText(sheet, labels[i], (gap, y + (H + th) // 2), cv2.FONT_HERSHEY_SIMPLEX, font_scale,
+                        (230, 230, 230), 1, cv2.LINE_AA)
     return sheet
 
 
@@ -51,11 +67,21 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
     registry = registry or Registry()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows, summary = [], {"size": list(size), "videos": [], "skipped": []}
+    rows, labels, summary = [], [], {"size": list(size), "videos": [], "skipped": []}
+    for failure in registry.failures:
+        summary["skipped"].append({"plugin": failure.plugin, "distribution": failure.distribution,
+                                   "reason": failure.error})
+        log(f"skipped plugin {failure.plugin} ({failure.distribution}): {failure.error}")
     for name in names or registry.names():
-        emb = registry.get(name)
+        try:
+            emb = registry.get(name)
+        except OscarError as exc:
+            summary["skipped"].append({"embodiment": name, "reason": str(exc)})
+            log(f"skipped {name}: {exc}")
+            continue
         if emb.example_trajectory is None or emb.example_camera is None:
             summary["skipped"].append({"embodiment": name, "reason": "no bundled example"})
+            log(f"skipped {name}: no bundled example")
             continue
         traj = load_trajectory(emb.example_trajectory)
         cam = emb.load_camera(emb.example_camera)
@@ -64,13 +90,14 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
         t_render = time.perf_counter() - t0
         path = write_video(out_dir / f"{name}.mp4", video, traj.fps)
         rows.append(video)
+        labels.append(name)
         summary["videos"].append({"embodiment": name, "path": str(path), "frames": len(video),
                                   "render_seconds": round(t_render, 4)})
         log(f"{name}: {len(video)} frames -> {path} (rendered in {t_render * 1000:.0f} ms)")
     if not rows:
         raise RuntimeError(f"no embodiment with a bundled example; registered: {registry.names()}")
     sheet_path = out_dir / "contact_sheet.png"
-    _write_png(sheet_path, contact_sheet(rows))
+    _write_png(sheet_path, contact_sheet(rows, labels=labels))
     summary["contact_sheet"] = str(sheet_path)
     atomic_write_bytes(out_dir / "summary.json", json.dumps(summary, indent=2).encode())
     log(f"contact sheet -> {sheet_path}")

@@ -413,13 +413,13 @@ class Embodiment:
         world pose is returned as ``mount_pose``; None for a static camera.
         One FK call covers the skeleton links, the gripper links and the mount.
         """
-        import torch
+        from .fk_numpy import link_poses
 
         sk_links = list(self.skeleton.links)
         g_links = [g.link for g in self.grippers]
         mount = [mount_link] if mount_link else []
         links = list(dict.fromkeys(sk_links + g_links + mount))
-        poses = self.fk(self.full_configuration(traj), traj.base_pose, links=links, device=device).to("cpu", torch.float64).numpy()
+        poses = link_poses(self, self.full_configuration(traj), traj.base_pose, links, device)  # numpy on the CPU
         at = {l: i for i, l in enumerate(links)}
 
         def points_of(names, offsets):

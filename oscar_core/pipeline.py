@@ -57,17 +57,16 @@ def render_skeleton_video(embodiment: Embodiment, traj: Trajectory, camera: Came
     (``resize_mode`` "crop": centre crop to the aspect ratio, then scale;
     "stretch") from the calibration's image size. None keeps the calibration size.
     returns: (T, H, W, 3) uint8 RGB skeleton video on black.
+
+    The frames are rendered in chunks into one array (edges crossing the near
+    plane are cut there; see :mod:`oscar_core.render_stream`); frames where the
+    camera sees nothing of the robot give an ``EmptyViewWarning``. For videos
+    too long to hold in memory use :func:`oscar_core.render_stream.iter_skeleton_chunks`.
     """
-    traj = embodiment.check_trajectory(traj)
-    embodiment.check_camera(camera, camera_source, num_frames=len(traj))
-    if size is not None and (size[0], size[1]) != (camera.intrinsics.width, camera.intrinsics.height):
-        camera = camera.resized(size[0], size[1], mode=resize_mode)
-    proj = project_skeleton(embodiment, traj, camera, device=device)
-    point_colors, edge_colors = embodiment.colors()
-    return rasterise(proj.uv, proj.usable, embodiment.edge_index(),
-                     (camera.intrinsics.width, camera.intrinsics.height),
-                     edge_colors=edge_colors, point_colors=point_colors, grippers=proj.grippers,
-                     style=style or SkeletonStyle())
+    from .render_stream import render_into
+
+    return render_into(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
+                       camera_source=camera_source)
 
 
 def overlay_skeleton(skeleton: np.ndarray, rgb: np.ndarray, alpha: float = 0.8) -> np.ndarray:

@@ -210,6 +210,7 @@ def rasterise(
     grippers: GripperMarks | None = None,
     style: SkeletonStyle = SkeletonStyle(),
     out: np.ndarray | None = None,
+    segments: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Draw skeleton frames on black.
 
@@ -227,6 +228,11 @@ def rasterise(
     style: SkeletonStyle; sizes scale with `style.scale_for(width, height)`.
     out: optional preallocated C-contiguous (T, H, W, 3) uint8 array; it is zeroed
         and drawn into and returned.
+    segments: optional (p0, p1, ok) giving each edge's endpoints directly:
+        p0, p1 (T, E, 2) float pixels, ok (T, E) bool.  Used instead of
+        ``uv[:, edges]`` and ``visible`` for the edges (dots still follow uv and
+        visible), e.g. for an edge cut at the camera's near plane
+        (:mod:`oscar_core.render_stream`).
 
     Returns (T, H, W, 3) uint8 RGB frames.
     """
@@ -274,9 +280,17 @@ def rasterise(
         thin = aa and width_px < 0.5 * (_THIN_LINE_WIDTH + _CAPSULE_CAL[0, 0])
         half = 0.0 if thin else _capsule_half_width(width_px, aa)
         margin = half + 4.0
-        p0 = uv[:, edges[:, 0]]
-        p1 = uv[:, edges[:, 1]]
-        seg_ok = usable[:, edges[:, 0]] & usable[:, edges[:, 1]]
+        if segments is None:
+            p0 = uv[:, edges[:, 0]]
+            p1 = uv[:, edges[:, 1]]
+            seg_ok = usable[:, edges[:, 0]] & usable[:, edges[:, 1]]
+        else:
+            p0, p1 = (np.asarray(a, dtype=np.float64) for a in segments[:2])
+            seg_ok = np.asarray(segments[2], dtype=bool)
+            if p0.shape != (T, E, 2) or p1.shape != (T, E, 2) or seg_ok.shape != (T, E):
+                raise ValueError(f"segments must be (T, E, 2), (T, E, 2), (T, E) arrays with T={T}, E={E}, "
+                                 f"got {p0.shape}, {p1.shape}, {seg_ok.shape}")
+            seg_ok = seg_ok & np.isfinite(p0).all(-1) & np.isfinite(p1).all(-1)
         p0 = np.where(seg_ok[..., None], p0, 0.0)
         p1 = np.where(seg_ok[..., None], p1, 0.0)
         clip_ok, c0, c1 = _clip_segments(p0, p1, lo - margin, hi + margin)
@@ -316,25 +330,34 @@ def rasterise(
 
 def _draw_discs(frames, centres, usable, radius_px, colors, width, height, aa, line_type):
     """Filled polygon discs.  centres (T, N, 2); radius_px (T, N) effective radii;
-    colors: per frame, a list of N RGB tuples."""
+    colors: per frame, a list of N RGB tuples.
+
+    Each disc's polygon resolution follows its own radius only, so a frame's
+    pixels never depend on the other frames drawn in the same call.
+    """
     T, N = usable.shape
-    r_max = float(np.max(radius_px, initial=0.0))
+    radius_px = np.broadcast_to(np.asarray(radius_px, dtype=np.float64), (T, N))
     geo = _disc_radius(radius_px, aa)
     near = (
         usable
-        & (centres[..., 0] > -r_max - 2) & (centres[..., 0] < width - 1 + r_max + 2)
-        & (centres[..., 1] > -r_max - 2) & (centres[..., 1] < height - 1 + r_max + 2)
+        & (centres[..., 0] > -radius_px - 2) & (centres[..., 0] < width - 1 + radius_px + 2)
+        & (centres[..., 1] > -radius_px - 2) & (centres[..., 1] < height - 1 + radius_px + 2)
     )
     if not near.any():
         return
-    unit = _unit_polygon(_polygon_vertex_count(r_max))
+    counts = np.minimum(np.maximum(np.ceil(2.0 * math.pi * radius_px), 8), 64).astype(np.int64)
+    counts = np.where(near, counts, 0)
     c = np.where(near[..., None], centres, 0.0)
-    verts = _to_fixed(c[..., None, :] + geo[..., None, None] * unit)  # (T, N, n, 2)
-    idx = [np.flatnonzero(r).tolist() for r in near]
+    polys: dict[tuple[int, int], np.ndarray] = {}
+    for n in np.unique(counts[near]).tolist():
+        sel = near & (counts == n)
+        verts = _to_fixed(c[sel][:, None, :] + geo[sel][:, None, None] * _unit_polygon(n))  # (M, n, 2)
+        for (t, k), v in zip(np.argwhere(sel).tolist(), verts):
+            polys[t, k] = v
     for t in range(T):
-        img, vt, ct = frames[t], verts[t], colors[t]
-        for k in idx[t]:
-            cv2.fillConvexPoly(img, vt[k], ct[k], line_type, _SHIFT)
+        img, ct = frames[t], colors[t]
+        for k in np.flatnonzero(near[t]).tolist():
+            cv2.fillConvexPoly(img, polys[t, k], ct[k], line_type, _SHIFT)
 
 
 def _draw_grippers(frames, g: GripperMarks, T, style, scale, width, height, line_type):
@@ -362,8 +385,8 @@ def _draw_grippers(frames, g: GripperMarks, T, style, scale, width, height, line
     colors = [[tuple(c) for c in row] for row in rgb.tolist()]
     _draw_discs(frames, guv, ok, radius, colors, width, height, style.antialias, line_type)
 
-    # Reference ring at the fully-open radius.
-    ring_r = max(r_open, float(np.max(radius)))
+    # Reference ring at the fully-open radius (culled per indicator, never per batch).
+    ring_r = np.maximum(r_open, radius)
     near = (
         ok
         & (guv[..., 0] > -ring_r - 3) & (guv[..., 0] < width + ring_r + 2)

@@ -346,7 +346,7 @@ def test_success_judge_video_files_frame_folders_and_unreadable(server, tmp_path
 
     frames = _video(1, frames=12, size=(32, 48))
     write_video(tmp_path / "a.mkv", frames, fps=10)
-    write_video(tmp_path / "b/", frames[:3], fps=10)
+    write_video(tmp_path / "b", frames[:3], fps=10, format="png")
     (tmp_path / "broken.mp4").write_bytes(b"this is not a video")
     np.save(tmp_path / "c.npy", frames.astype(np.float32) / 255.0)
     clips = [JudgeClip("a", tmp_path / "a.mkv", "valid a"), JudgeClip("b", tmp_path / "b", "valid b"),
