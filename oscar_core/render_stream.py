@@ -204,7 +204,8 @@ class _Job:
 
 def _prepare(embodiment, traj, camera: Camera, size, style, resize_mode, device, camera_source) -> _Job:
     traj = embodiment.check_trajectory(traj)
-    embodiment.check_camera(camera, camera_source, num_frames=len(traj))
+    embodiment.check_camera(camera, camera_source)
+    camera.check_frames(len(traj), camera_source)  # a per-frame camera needs one extrinsic per trajectory frame
     if size is not None and (size[0], size[1]) != (camera.intrinsics.width, camera.intrinsics.height):
         camera = camera.resized(size[0], size[1], mode=resize_mode)
     point_colors, edge_colors = embodiment.colors()

@@ -184,9 +184,12 @@ def rgb_to_yuv420p(frame: np.ndarray) -> np.ndarray:
     out[:H] = cv2.cvtColor(frame, cv2.COLOR_RGB2YUV_I420)[:H]
     small = cv2.resize(frame, (W // 2, H // 2), interpolation=cv2.INTER_AREA)
     ycc = cv2.LUT(cv2.cvtColor(small, cv2.COLOR_RGB2YCrCb), _CHROMA_LUT)
-    q = H // 4
-    out[H:H + q] = ycc[..., 2].reshape(q, W)  # Cb (U)
-    out[H + q:] = ycc[..., 1].reshape(q, W)   # Cr (V)
+    # the chroma planes follow the luma plane back to back in memory (I420); when H / 2 is odd a
+    # plane does not fill whole rows of W, so place them through the flat view
+    flat = out.reshape(-1)
+    n, m = H * W, (H // 2) * (W // 2)
+    flat[n:n + m] = ycc[..., 2].reshape(-1)  # Cb (U)
+    flat[n + m:] = ycc[..., 1].reshape(-1)   # Cr (V)
     return out
 
 

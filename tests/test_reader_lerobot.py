@@ -96,7 +96,7 @@ def test_lists_droid_episodes_from_metadata(tmp_path):
     refs = list(LeRobotReader().list_episodes(str(root)))
     assert [r.episode_id for r in refs] == ["droid/0", "droid/1"]
     r = refs[1]
-    assert (r.source, r.reader, r.embodiment, r.n_frames, r.fps, r.task) == ("droid", "lerobot", "franka", 10, FPS, "task 1")
+    assert (r.source, r.reader, r.embodiment, r.n_frames, r.fps, r.task) == ("droid", "lerobot", "franka_robotiq", 10, FPS, "task 1")
     assert r.cameras == ("observation.images.exterior_1_left", "observation.images.wrist_left")
     assert r.meta["camera"] == "observation.images.exterior_1_left"
     json.dumps(r.meta)  # manifest rows must serialise

@@ -184,19 +184,23 @@ def test_format_frames():
 # ------------------------------------------------------------------ RGB -> YUV
 
 
-def test_rgb_to_yuv420p_is_bt601_limited_range_with_averaged_chroma():
+@pytest.mark.parametrize("H, W", [(36, 64), (54, 96)])  # H / 2 even, and odd (planes do not fill whole rows)
+def test_rgb_to_yuv420p_is_bt601_limited_range_with_averaged_chroma(H, W):
     from oscar_core.video import rgb_to_yuv420p
 
     rng = np.random.default_rng(1)
-    frame = rng.integers(0, 256, (36, 64, 3), dtype=np.uint8)
+    frame = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
     got = rgb_to_yuv420p(frame).astype(float)
+    assert got.shape == (H * 3 // 2, W)
     rgb = frame.astype(float)
     M = np.array([[65.481, 128.553, 24.966], [-37.797, -74.203, 112.0], [112.0, -93.786, -18.214]]) / 255
     ycc = rgb @ M.T + [16, 128, 128]
-    mean = ycc.reshape(18, 2, 32, 2, 3).mean(axis=(1, 3))
-    assert np.abs(got[:36] - ycc[..., 0]).max() <= 1.0
-    assert np.abs(got[36:45].reshape(18, 32) - mean[..., 1]).max() <= 2.0
-    assert np.abs(got[45:].reshape(18, 32) - mean[..., 2]).max() <= 2.0
+    mean = ycc.reshape(H // 2, 2, W // 2, 2, 3).mean(axis=(1, 3))
+    flat = got.reshape(-1)
+    n, m = H * W, (H // 2) * (W // 2)
+    assert np.abs(got[:H] - ycc[..., 0]).max() <= 1.0
+    assert np.abs(flat[n:n + m].reshape(H // 2, W // 2) - mean[..., 1]).max() <= 2.0
+    assert np.abs(flat[n + m:].reshape(H // 2, W // 2) - mean[..., 2]).max() <= 2.0
 
 
 @pytest.mark.parametrize("yuv", ["opencv", "swscale"])

@@ -1,4 +1,4 @@
-"""DROID raw release reader (franka): ``trajectory.h5`` + ``metadata_*.json`` + ``recordings/MP4/<serial>.mp4``.
+"""DROID raw release reader (franka_robotiq: Panda arm + Robotiq 2F-85): ``trajectory.h5`` + ``metadata_*.json`` + ``recordings/MP4/<serial>.mp4``.
 
 Layout of one episode folder (``<lab>/success|failure/<date>/<time>/``) in
 the raw DROID release, as written by ``droid/trajectory_utils/trajectory_writer.py``
@@ -43,11 +43,11 @@ GRIPPER = "observation/robot_state/gripper_position"
 
 
 class DroidRawReader(Reader):
-    """DROID raw episodes → franka trajectories seen by an external ZED camera."""
+    """DROID raw episodes → franka_robotiq trajectories seen by an external ZED camera."""
 
     name = "droid_raw"
     description = "DROID raw release: trajectory.h5 + metadata JSON + recordings/MP4"
-    embodiments = ("franka",)
+    embodiments = ("franka_robotiq",)
 
     def __init__(self, intrinsics: dict[str, Any] | None = None, image_size: tuple[int, int] = (1280, 720)):
         self.intrinsics = dict(intrinsics or {})
@@ -72,7 +72,7 @@ class DroidRawReader(Reader):
                 paths[f"video:{c}"] = str(folder / "recordings" / "MP4" / f"{c.rsplit('_', 1)[0]}.mp4")
             if cams:
                 paths["video"] = paths[f"video:{cams[0]}"]  # the default camera's file
-            yield EpisodeRef(f"droid/{rel}", "droid", self.name, "franka", paths,
+            yield EpisodeRef(f"droid/{rel}", "droid", self.name, "franka_robotiq", paths,
                              n_frames=int(n) if isinstance(n, (int, float)) else None, fps=15.0,
                              task=meta.get("current_task") or None, cameras=cams,
                              meta={"camera": cams[0] if cams else None, "success": meta.get("success")})

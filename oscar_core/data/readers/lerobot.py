@@ -1,4 +1,4 @@
-"""LeRobot dataset v3.0 reader: DROID (franka) and AIROA-MoMa (hsr) as published on the Hub.
+"""LeRobot dataset v3.0 reader: DROID (franka_robotiq: the Panda arm with the Robotiq 2F-85 DROID mounts) and AIROA-MoMa (hsr) as published on the Hub.
 
 Layout (see :mod:`._lerobot` for every field and where its name comes from):
 ``meta/info.json``, ``meta/episodes/chunk-XXX/file-YYY.parquet`` (one row per
@@ -43,7 +43,7 @@ __all__ = ["LeRobotReader", "PROFILES"]
 
 DROID_STATE = ("observation.state.joint_position", "observation.state.gripper_position")
 #: profile → (source name, embodiment)
-PROFILES = {"droid": ("droid", "franka"), "airoa_moma": ("airoa_moma", "hsr")}
+PROFILES = {"droid": ("droid", "franka_robotiq"), "airoa_moma": ("airoa_moma", "hsr")}
 
 
 def _profile(layout: LeRobotLayout) -> str:
@@ -67,7 +67,7 @@ def _default_camera(profile: str, keys: list[str]) -> str | None:
 
 
 class LeRobotReader(Reader):
-    """LeRobot v3.0 (and v2.1) datasets: DROID → franka, AIROA-MoMa → hsr.
+    """LeRobot v3.0 (and v2.1) datasets: DROID → franka_robotiq, AIROA-MoMa → hsr.
 
     intrinsics: camera short name (``exterior_1_left``) or full video key →
     ``(fx, fy, cx, cy)`` in pixels of the stored video, for DROID (which
@@ -76,7 +76,7 @@ class LeRobotReader(Reader):
 
     name = "lerobot"
     description = "LeRobot dataset v3.0/v2.1 (parquet + shared MP4s): DROID, AIROA-MoMa"
-    embodiments = ("franka", "hsr")
+    embodiments = ("franka_robotiq", "hsr")
 
     def __init__(self, intrinsics: dict[str, Any] | None = None):
         self.intrinsics = dict(intrinsics or {})
