@@ -14,6 +14,7 @@ from ...hookspecs import hookimpl
 
 # one line per built-in reader: "module:Class"
 BUILTIN_READERS: list[str] = [
+    "oscar_core.data.readers.npz:NpzReader",
 ]
 
 
