@@ -56,8 +56,9 @@ class SiglipEmbedder:
 
     model: a Hub id (``google/siglip-base-patch16-224``) or a local folder
     (``save_pretrained``). The model loads on first use, once per process.
-    Frames are resized to the model's square input (bilinear), scaled to
-    [0, 1] and normalised with mean = std = 0.5, as SigLIP's image processor does.
+    Frames are resized to the model's square input (PIL bicubic), scaled to
+    [0, 1] and normalised with mean = std = 0.5, exactly as transformers'
+    ``SiglipImageProcessor`` prepares them (a test checks it).
     """
 
     def __init__(self, model: str, device: str = "cpu"):
@@ -73,15 +74,22 @@ class SiglipEmbedder:
             self._model = tr.SiglipVisionModel.from_pretrained(self.model_name).to(self.device).eval()
         return self._model
 
+    @staticmethod
+    def pixel_values(frames: np.ndarray, size: int):
+        """(N, H, W, 3) uint8 → (N, 3, size, size) float32 tensor, SigLIP's preprocessing."""
+        import torch
+
+        Image = require("PIL.Image", "data")
+        x = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(f)).resize((size, size), Image.BICUBIC))
+                      for f in frames])
+        return torch.from_numpy(x).permute(0, 3, 1, 2).float().mul(1 / 255.0).sub(0.5).div(0.5)
+
     def __call__(self, frames: np.ndarray) -> np.ndarray:
         """frames: (N, H, W, 3) uint8 → (N, D) float32 L2-normalised pooled embeddings."""
-        import cv2
         import torch
 
         m = self.model()
-        size = int(m.config.image_size)
-        x = np.stack([cv2.resize(f, (size, size), interpolation=cv2.INTER_LINEAR) for f in frames])
-        x = torch.from_numpy(x).permute(0, 3, 1, 2).float().div(255.0).sub(0.5).div(0.5).to(self.device)
+        x = self.pixel_values(frames, int(m.config.image_size)).to(self.device)
         with torch.no_grad():
             out = m(pixel_values=x).pooler_output.float().cpu().numpy()
         return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
