@@ -140,3 +140,42 @@ def test_measures_on_closed_forms():
     q[3, 1] = 0.2
     js, ps = measure_spikes(q, np.zeros((5, 1, 3)), fps=10)
     assert js == pytest.approx(2.0) and ps == 0.0
+
+
+def test_h5_missing_field_is_rejected_through_a_plugin_reader(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    plugin = tmp_path / "h5reader.py"
+    plugin.write_text('''
+from oscar_core.hookspecs import hookimpl
+from oscar_core.data.reader import EpisodeError
+from oscar_core.data.readers.npz import NpzReader
+
+
+class H5Reader(NpzReader):
+    """npz layout plus a states.h5 that must hold observation/q (as a DROID-like reader checks its fields)."""
+    name = "h5toy"
+
+    def load_episode(self, ref, registry=None):
+        import h5py
+        path = ref.paths["episode"].replace("episode.json", "states.h5")
+        with h5py.File(path, "r") as f:
+            if "observation/q" not in f:
+                raise EpisodeError(ref.episode_id, path, "observation/q", "a (T, J) dataset", "missing")
+        return super().load_episode(ref, registry)
+
+
+@hookimpl
+def oscar_register_readers():
+    return [H5Reader]
+''')
+    for name, field in (("ok", "observation/q"), ("broken", "observation/qq")):
+        folder = write_episode(tmp_path / "src", name, seed=0)
+        with h5py.File(folder / "states.h5", "w") as f:
+            f.create_dataset(field, data=np.zeros((3, 4)))
+    out = str(tmp_path / "run")
+    run_ingest(str(tmp_path / "src"), "h5toy", out, workers=1, progress=False, plugin_paths=(str(plugin),))
+    rows = {r["id"]: r for r in read_stage(str(tmp_path / "run" / "ingest"))}
+    assert rows["src/ok"]["ingest_status"] == "ok"
+    reason = rows["src/broken"]["ingest_reason"]
+    assert reason.startswith("unreadable: EpisodeError") and "states.h5: field 'observation/q'" in reason
+    assert "expected a (T, J) dataset, found missing" in reason
