@@ -31,6 +31,7 @@ import io
 import json
 from typing import Any, Iterable
 
+from ._optional import require
 from .reader import EpisodeRef
 
 __all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet", "is_alive",
@@ -76,7 +77,7 @@ def rejection(row: dict[str, Any]) -> tuple[str, str] | None:
 
 def rows_to_parquet(rows: Iterable[dict[str, Any]]) -> bytes:
     """Parquet bytes of rows (dicts of plain values; columns are the union, missing values null)."""
-    import pyarrow as pa
+    pa = require("pyarrow", "data")
     import pyarrow.parquet as pq
 
     rows = list(rows)
@@ -93,7 +94,7 @@ def rows_to_parquet(rows: Iterable[dict[str, Any]]) -> bytes:
 
 def rows_from_parquet(data: bytes, where: str = "<parquet>") -> list[dict[str, Any]]:
     """Rows of a parquet table written by :func:`rows_to_parquet`; ValueError naming ``where`` when unreadable."""
-    import pyarrow as pa
+    pa = require("pyarrow", "data")
     import pyarrow.parquet as pq
 
     try:
