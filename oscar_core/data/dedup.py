@@ -194,14 +194,15 @@ def _sorted_pairs(pairs: np.ndarray) -> np.ndarray:
 
 
 def candidate_pairs(emb: np.ndarray, threshold: float = 0.95, *, nlist: int | None = None, nprobe: int = 16,
-                    exact_below: int = 2048, batch: int = 65536, seed: int = 0) -> np.ndarray:
+                    exact_below: int = 2048, batch: int = 65536, train_per_list: int = 40, niter: int = 10,
+                    seed: int = 0) -> np.ndarray:
     """(P, 2) int64 sorted pairs i < j with cosine(emb_i, emb_j) > threshold; emb: (N, D) unit rows.
 
     Below ``exact_below`` rows (and with no ``nlist``) a flat range search
-    (exact); otherwise faiss IVF: k-means into ``nlist`` clusters (default
-    4·sqrt(N), trained on at most 256 points per cluster), then each row's range
-    search visits its ``nprobe`` nearest clusters. Queries run in batches of
-    ``batch`` rows to bound memory.
+    (exact); otherwise faiss IVF: k-means (``niter`` iterations on at most
+    ``train_per_list`` sampled points per cluster) into ``nlist`` clusters
+    (default 4·sqrt(N)), then each row's range search visits its ``nprobe``
+    nearest clusters. Queries run in batches of ``batch`` rows to bound memory.
     """
     faiss = require("faiss", "data")
     x = np.ascontiguousarray(emb, dtype=np.float32)
@@ -212,13 +213,16 @@ def candidate_pairs(emb: np.ndarray, threshold: float = 0.95, *, nlist: int | No
         index = faiss.IndexFlatIP(d)
     else:
         k = int(nlist or max(1, round(4 * np.sqrt(n))))
-        k = max(1, min(k, n // 4 if n >= 8 else 1))
-        quant = faiss.IndexFlatIP(d)
-        index = faiss.IndexIVFFlat(quant, d, k, faiss.METRIC_INNER_PRODUCT)
+        k = max(1, min(k, n // 39 if n >= 78 else 1))  # faiss wants >= 39 training points per cluster
         rng = np.random.default_rng(seed)
-        train = x if n <= 256 * k else x[rng.choice(n, 256 * k, replace=False)]
-        index.cp.seed = seed
-        index.train(train)
+        m = min(n, max(39, train_per_list) * k)
+        train = x if m >= n else x[np.sort(rng.choice(n, m, replace=False))]
+        km = faiss.Kmeans(d, k, niter=niter, seed=seed, spherical=True, verbose=False)
+        km.train(train)
+        quant = faiss.IndexFlatIP(d)
+        quant.add(km.centroids)
+        index = faiss.IndexIVFFlat(quant, d, k, faiss.METRIC_INNER_PRODUCT)
+        index.is_trained = True
         index.nprobe = min(nprobe, k)
     index.add(x)
     out = []
