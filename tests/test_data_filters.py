@@ -179,3 +179,13 @@ def oscar_register_readers():
     reason = rows["src/broken"]["ingest_reason"]
     assert reason.startswith("unreadable: EpisodeError") and "states.h5: field 'observation/q'" in reason
     assert "expected a (T, J) dataset, found missing" in reason
+
+
+def test_unknown_embodiment_is_a_rejection_not_a_crash(tmp_path):
+    folder = write_episode(tmp_path / "src", "ok", seed=0)
+    other = write_episode(tmp_path / "src", "alien", seed=0)
+    (other / "episode.json").write_text(json.dumps({"embodiment": "nobody"}))
+    run_ingest(str(tmp_path / "src"), "npz", str(tmp_path / "run"), workers=1, progress=False)
+    rows = {r["id"]: r for r in read_stage(str(tmp_path / "run" / "ingest"))}
+    assert rows["src/ok"]["ingest_status"] == "ok" and folder.is_dir()
+    assert rows["src/alien"]["ingest_status"] == "rejected" and "nobody" in rows["src/alien"]["ingest_reason"]

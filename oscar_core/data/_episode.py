@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 from typing import Any
 
+from ..errors import OscarError
 from .manifest import row_to_ref
 
 __all__ = ["registry", "load_row", "reason_of", "camera_at_video_size"]
@@ -39,5 +40,5 @@ def reason_of(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {msg}"[:500]
 
 
-# errors that mean "this episode is broken", not "the pipeline has a bug"
-EPISODE_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError)
+# errors that mean "this episode is broken" (bad input, an embodiment no plugin provides), not "the pipeline has a bug"
+EPISODE_ERRORS: tuple[type[BaseException], ...] = (OscarError, ValueError, OSError)
