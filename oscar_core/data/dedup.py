@@ -157,8 +157,8 @@ class EmbedStage:
         except EPISODE_ERRORS as exc:
             out.update(dedup_status="rejected", dedup_reason=f"unreadable: {reason_of(exc)}")
             return out
-        out["dedup_embedding"] = vec.tolist()
-        out["dedup_traj"] = pts.astype(np.float32).ravel().tolist()
+        out["dedup_embedding"] = vec.astype(np.float32)
+        out["dedup_traj"] = pts.astype(np.float32).ravel()
         return out
 
 
@@ -257,19 +257,35 @@ class UnionFind:
         return True
 
 
-def dedup_rows(rows: list[dict], cfg: DedupConfig = DedupConfig()) -> tuple[list[dict], dict[str, Any]]:
+def dedup_rows(rows, cfg: DedupConfig = DedupConfig()) -> tuple[list[dict], dict[str, Any]]:
     """Decide duplicates among embedded rows; returns (rows with ``dedup_*`` set and the big columns dropped, summary).
 
+    rows: the embed stage's manifest, a pyarrow Table (read columnar: the
+    embeddings become one (N, D) float32 array) or a list of row dicts.
     A duplicate gets ``dedup_status = "rejected"``, ``dedup_reason =
     "duplicate: of <kept id> (rms … m < … m)"`` and ``dedup_value`` = its
     verifying RMS; every row in a group gets ``dedup_group`` = the kept id.
     """
-    live = [i for i, r in enumerate(rows) if r.get("dedup_embedding") is not None and r.get("dedup_status") == "ok"]
-    summary: dict[str, Any] = {"episodes": len(live), "candidates": 0, "verified": 0, "removed": 0}
-    out = [{k: v for k, v in r.items() if k not in ("dedup_embedding", "dedup_traj")} for r in rows]
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    table = rows if isinstance(rows, pa.Table) else pa.Table.from_pylist(list(rows))
+    big = [c for c in ("dedup_embedding", "dedup_traj") if c in table.column_names]
+    out = table.drop_columns(big).to_pylist()
+    summary: dict[str, Any] = {"episodes": 0, "candidates": 0, "verified": 0, "removed": 0}
+    if "dedup_embedding" not in big:
+        return out, summary
+    emb_col = table.column("dedup_embedding").combine_chunks()
+    traj_col = table.column("dedup_traj").combine_chunks()
+    valid = emb_col.is_valid().to_numpy(zero_copy_only=False)
+    ok = np.array([r.get("dedup_status") == "ok" for r in out], dtype=bool)
+    live = np.nonzero(valid & ok)[0]
+    summary["episodes"] = int(len(live))
     if len(live) < 2:
         return out, summary
-    emb = np.asarray([rows[i]["dedup_embedding"] for i in live], dtype=np.float32)
+    live_col = emb_col.take(pa.array(live))
+    dim = len(live_col[0])
+    emb = np.asarray(pc.list_flatten(live_col).to_numpy(zero_copy_only=False), dtype=np.float32).reshape(len(live), dim)
     pairs = candidate_pairs(emb, cfg.cosine, nlist=cfg.nlist, nprobe=cfg.nprobe)
     summary["candidates"] = int(len(pairs))
     trajs: dict[int, np.ndarray] = {}
@@ -277,10 +293,12 @@ def dedup_rows(rows: list[dict], cfg: DedupConfig = DedupConfig()) -> tuple[list
 
     def traj(k: int) -> np.ndarray:
         if k not in trajs:
-            trajs[k] = np.asarray(rows[live[k]]["dedup_traj"], dtype=np.float64).reshape(cfg.steps, -1, 3)
+            flat = traj_col[int(live[k])].values.to_numpy(zero_copy_only=False)
+            trajs[k] = np.asarray(flat, dtype=np.float64).reshape(cfg.steps, -1, 3)
             scales[k] = motion_scale(trajs[k])
         return trajs[k]
 
+    rows = out
     uf = UnionFind(len(live))
     link_rms: dict[int, tuple[float, float]] = {}
     for a, b in pairs.tolist():

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from . import _fs
-from .manifest import rows_from_parquet, rows_to_parquet
+from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 
 __all__ = ["ENGINES", "StageRun", "run_sharded", "run_shard", "read_stage", "stage_done", "write_stage_manifest",
            "StageIncomplete"]
@@ -48,7 +48,19 @@ class StageRun:
     processed: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     incomplete: list[str] = field(default_factory=list)
-    rows: list[dict[str, Any]] = field(default_factory=list)
+    table: Any = None  # the stage manifest (pyarrow Table) when every shard is done
+    _rows: list[dict[str, Any]] | None = None
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """The manifest's rows (id order); empty while shards are unfinished."""
+        if self._rows is None:
+            self._rows = [] if self.table is None else self.table.to_pylist()
+        return self._rows
+
+    @rows.setter
+    def rows(self, value: list[dict[str, Any]]) -> None:
+        self._rows = value
 
 
 def _shard_url(stage_url: str, name: str) -> str:
@@ -171,7 +183,7 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     run.processed.sort()
     run.incomplete.sort()
     if not run.incomplete:
-        run.rows = write_stage_manifest(stage_url, list(plan))
+        run.table = write_stage_manifest(stage_url, list(plan))
     return run
 
 
@@ -191,15 +203,23 @@ def _run_ray(fn, tasks, stage_url, n_workers) -> list[tuple[str, int, bool]]:
     return [(r["name"], int(r["n"]), bool(r["done"])) for r in ds.take_all()]
 
 
-def write_stage_manifest(stage_url: str, names: list[str]) -> list[dict]:
-    """Merge the shards into ``manifest.parquet`` (rows in id order) and return the rows."""
-    rows: list[dict] = []
+def write_stage_manifest(stage_url: str, names: list[str]):
+    """Merge the shards into ``manifest.parquet`` (rows in id order) and return it as a pyarrow Table.
+
+    Columns stay columnar (no Python objects per value), so embedding columns
+    of millions of rows merge in Arrow's memory, not as lists of floats.
+    """
+    import pyarrow as pa
+
+    tables = []
     for name in names:
         url = _shard_url(stage_url, name)
-        rows.extend(rows_from_parquet(_fs.read_bytes(url), url))
-    rows.sort(key=lambda r: r["id"])
-    _fs.write_bytes_atomic(_fs.join(stage_url, MANIFEST), rows_to_parquet(rows))
-    return rows
+        tables.append(table_from_parquet(_fs.read_bytes(url), url))
+    tables = [t for t in tables if t.num_columns]
+    table = pa.concat_tables(tables, promote_options="permissive") if tables else pa.table({"id": pa.array([], pa.string())})
+    table = table.sort_by("id")
+    _fs.write_bytes_atomic(_fs.join(stage_url, MANIFEST), table_to_parquet(table))
+    return table
 
 
 def stage_done(stage_url: str) -> bool:

@@ -34,7 +34,8 @@ from typing import Any, Iterable
 from ._optional import require
 from .reader import EpisodeRef
 
-__all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet", "is_alive",
+__all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet",
+           "table_from_parquet", "table_to_parquet", "is_alive",
            "rejection"]
 
 STAGES = ("ingest", "filter", "dedup", "caption", "export")
@@ -92,13 +93,25 @@ def rows_to_parquet(rows: Iterable[dict[str, Any]]) -> bytes:
     return buf.getvalue()
 
 
-def rows_from_parquet(data: bytes, where: str = "<parquet>") -> list[dict[str, Any]]:
-    """Rows of a parquet table written by :func:`rows_to_parquet`; ValueError naming ``where`` when unreadable."""
+def table_from_parquet(data: bytes, where: str = "<parquet>"):
+    """The pyarrow Table of parquet bytes; ValueError naming ``where`` when unreadable."""
     pa = require("pyarrow", "data")
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(io.BytesIO(data))
+        return pq.read_table(io.BytesIO(data))
     except (pa.ArrowInvalid, OSError) as exc:
         raise ValueError(f"{where}: expected a parquet manifest shard, found unreadable data ({exc})") from None
-    return table.to_pylist()
+
+
+def table_to_parquet(table) -> bytes:
+    import pyarrow.parquet as pq
+
+    buf = io.BytesIO()
+    pq.write_table(table, buf)
+    return buf.getvalue()
+
+
+def rows_from_parquet(data: bytes, where: str = "<parquet>") -> list[dict[str, Any]]:
+    """Rows of a parquet table written by :func:`rows_to_parquet`; ValueError naming ``where`` when unreadable."""
+    return table_from_parquet(data, where).to_pylist()

@@ -63,10 +63,10 @@ def run_dedup(run: str, embedder, config=None, *, plugin_paths: tuple[str, ...] 
     url = _fs.join(run, "dedup")
     res = run_sharded(EmbedStage(embedder, cfg, tuple(plugin_paths)), rows, _fs.join(url, "embed"), desc="dedup embed",
                       **_opts(kw))
-    out, summary = dedup_rows(res.rows, cfg)
+    out, summary = dedup_rows(res.table, cfg)
     _fs.write_bytes_atomic(_fs.join(url, "summary.json"), json.dumps(summary).encode())
     _fs.write_bytes_atomic(_fs.join(url, "manifest.parquet"), rows_to_parquet(out))
-    res.rows = out
+    res.table, res.rows = None, out
     return res, summary
 
 
