@@ -152,3 +152,13 @@ def _has_ray():
     except ImportError:
         return False
     return True
+
+
+def test_atomic_write_leaves_no_temporary_and_local_path_refuses_object_stores(tmp_path):
+    url = f"file://{tmp_path}/a/b.bin"
+    _fs.write_bytes_atomic(url, b"one")
+    _fs.write_bytes_atomic(url, b"two")
+    assert _fs.read_bytes(url) == b"two" and os.listdir(tmp_path / "a") == ["b.bin"]
+    assert _fs.local_path(url) == str(tmp_path / "a" / "b.bin") and _fs.local_path("rel/x").endswith("rel/x")
+    with pytest.raises(ValueError, match=r"memory://x/clips: expected a local folder or a file:// URL"):
+        _fs.local_path("memory://x/clips")
