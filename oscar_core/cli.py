@@ -98,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_eval_parser(sub)
     add_model_parsers(sub)
+    from .data.cli import add_data_parser; add_data_parser(sub)  # noqa: E702  (oscar data …)
     return p
 
 

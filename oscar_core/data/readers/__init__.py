@@ -21,6 +21,7 @@ BUILTIN_READERS: list[str] = [
     "oscar_core.data.readers.epic_vitra:EpicVitraReader",
     "oscar_core.data.readers.interndata_a1:InternDataA1Reader",
     "oscar_core.data.readers.rh20t:RH20TReader",
+    "oscar_core.data.readers.npz:NpzReader",
 ]
 
 

@@ -1,0 +1,163 @@
+"""Data-pipeline throughput: episodes/s per stage and engine, and dedup candidate search at scale.
+
+    python benchmarks/data.py stages [--episodes 16] [--json benchmarks/results/data_stages.json]
+    python benchmarks/data.py dedup [--sizes 10000,100000] [--json benchmarks/results/data_dedup.json]
+
+``stages``: synthetic episodes (the toy arm, 81 frames at 128x72, lossless
+MKV) through ingest, filter, dedup-embed (a tiny random SigLIP: this measures
+the pipeline's own cost — decoding, FK, I/O — not a real SigLIP forward pass)
+and export, with the in-process loop (the naive way), the local process pool
+and Ray Data (when installed). Episodes/s are end to end, pool start-up
+included.
+
+``dedup``: unit embeddings of SigLIP-base width (768) in clusters of near
+duplicates; each size runs in a fresh process so its peak memory (max RSS)
+is its own. faiss IVF range search against the brute-force all-pairs scan at
+10k (recall and time). Timings on shared machines swing; compare within a run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+
+
+def _table(head, rows):
+    widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(head)]
+    line = lambda cells: "  ".join(str(c).rjust(w) for c, w in zip(cells, widths))
+    return "\n".join([line(head), "  ".join("-" * w for w in widths), *map(line, rows)])
+
+
+def bench_stages(n: int, workers: int) -> list[dict]:
+    import numpy as np
+    import torch
+    import transformers
+
+    from _datasets import write_episode
+    from oscar_core.data.dedup import SiglipEmbedder
+    from oscar_core.data.run import run_dedup, run_export, run_filter, run_ingest
+
+    tmp = Path(tempfile.mkdtemp(prefix="oscar-data-bench-"))
+    for i in range(n):
+        write_episode(tmp / "src", f"ep{i:04d}", seed=i)
+    torch.manual_seed(0)
+    cfg = transformers.SiglipVisionConfig(hidden_size=32, intermediate_size=37, num_hidden_layers=2,
+                                          num_attention_heads=2, image_size=32, patch_size=8)
+    transformers.SiglipVisionModel(cfg).save_pretrained(tmp / "siglip")
+    engines = {"in-process (naive)": dict(engine="local", workers=1), f"local pool x{workers}": dict(engine="local", workers=workers)}
+    try:
+        import ray  # noqa: F401
+
+        engines[f"ray x{workers}"] = dict(engine="ray", workers=workers)
+    except ImportError:
+        print("ray not installed: skipping the ray engine")
+    results = []
+    shard = max(1, n // (2 * workers))
+    for label, kw in engines.items():
+        run = str(tmp / f"run-{kw['engine']}-{kw['workers']}")
+        steps = {
+            "ingest": lambda: run_ingest(str(tmp / "src"), "npz", run, shard_size=shard, progress=False, **kw),
+            "filter": lambda: run_filter(run, shard_size=shard, progress=False, **kw),
+            "dedup (tiny SigLIP)": lambda: run_dedup(run, SiglipEmbedder(str(tmp / "siglip")), shard_size=shard,
+                                                     progress=False, **kw),
+            "export": lambda: run_export(run, str(tmp / f"clips-{label[:5]}"), shard_size=shard, progress=False, **kw),
+        }
+        for stage, fn in steps.items():
+            t = time.perf_counter()
+            fn()
+            dt = time.perf_counter() - t
+            results.append({"engine": label, "stage": stage, "episodes": n, "seconds": round(dt, 2),
+                            "episodes_per_s": round(n / dt, 2)})
+            print(f"{label:22s} {stage:20s} {n / dt:7.2f} episodes/s", flush=True)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return results
+
+
+def synth(n: int, d: int = 768, per: int = 4, spread: float = 0.4, seed: int = 0):
+    """(n, d) float32 unit rows: n/per centres, each row at a random noise level (many pairs near cos 0.95)."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    centres = rng.standard_normal((max(1, n // per), d), dtype=np.float32)
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    x = centres[rng.integers(0, len(centres), n)]
+    x += rng.uniform(0, spread, (n, 1)).astype(np.float32) * rng.standard_normal((n, d), dtype=np.float32) / np.sqrt(d)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    return x
+
+
+def dedup_one(n: int, brute: bool) -> dict:
+    """Time and peak memory of the candidate search for n synthetic embeddings (run in its own process)."""
+    import numpy as np
+
+    from oscar_core.data.dedup import brute_force_pairs, candidate_pairs
+
+    x = synth(n)
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    t = time.perf_counter()
+    pairs = candidate_pairs(x, 0.95, nlist=max(1, round(4 * np.sqrt(n))), nprobe=16)
+    dt = time.perf_counter() - t
+    out = {"n": n, "dim": x.shape[1], "method": "faiss IVF range search (nprobe 16)", "seconds": round(dt, 2),
+           "pairs": int(len(pairs)), "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+           "embeddings_mb": round(x.nbytes / 2**20), "rss_before_mb": round(base)}
+    if brute:
+        t = time.perf_counter()
+        ref = brute_force_pairs(x)
+        out["brute_seconds"] = round(time.perf_counter() - t, 2)
+        found = {tuple(p) for p in pairs.tolist()}
+        out["brute_pairs"] = int(len(ref))
+        out["recall"] = round(sum(tuple(p) in found for p in ref.tolist()) / max(1, len(ref)), 6)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("part", choices=("stages", "dedup", "dedup-one"))
+    ap.add_argument("--episodes", type=int, default=16)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--sizes", default="10000,100000")
+    ap.add_argument("--brute-max", type=int, default=10000, help="run the brute-force scan up to this size")
+    ap.add_argument("--json", help="write results here")
+    args = ap.parse_args(argv)
+    meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version()}
+    if args.part == "dedup-one":
+        n = int(args.sizes)
+        print(json.dumps(dedup_one(n, n <= args.brute_max)))
+        return 0
+    if args.part == "stages":
+        res = bench_stages(args.episodes, args.workers)
+        print()
+        print(_table(["engine", "stage", "episodes", "seconds", "episodes/s"],
+                     [[r["engine"], r["stage"], r["episodes"], r["seconds"], r["episodes_per_s"]] for r in res]))
+    else:
+        res = []
+        for n in [int(s) for s in args.sizes.split(",")]:
+            p = subprocess.run([sys.executable, __file__, "dedup-one", "--sizes", str(n), "--brute-max",
+                                str(args.brute_max)], capture_output=True, text=True, check=True)
+            r = json.loads(p.stdout.strip().splitlines()[-1])
+            res.append(r)
+            print(json.dumps(r), flush=True)
+        print()
+        print(_table(["n", "seconds", "pairs", "peak RSS MB", "brute s", "recall"],
+                     [[r["n"], r["seconds"], r["pairs"], r["peak_rss_mb"], r.get("brute_seconds", "-"),
+                       r.get("recall", "-")] for r in res]))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"meta": meta, "results": res}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

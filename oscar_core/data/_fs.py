@@ -1,0 +1,79 @@
+"""fsspec helpers of the data pipeline: one place that turns a path or URL into a filesystem.
+
+Every stage reads and writes through these, so a local folder, ``file://``,
+``memory://`` (tests) or ``s3://`` (with s3fs installed) work the same way.
+Writes are atomic where the filesystem allows: the bytes go to a hidden
+temporary name beside the target, which is then moved onto it (a rename on
+local disks); readers only ever see complete files.
+"""
+
+from __future__ import annotations
+
+import posixpath
+import uuid
+
+__all__ = ["url_to_fs", "join", "write_bytes_atomic", "read_bytes", "exists", "listdir", "local_path"]
+
+
+def url_to_fs(url: str):
+    """(filesystem, path within it) for a local path or an fsspec URL."""
+    import fsspec
+
+    return fsspec.core.url_to_fs(str(url))
+
+
+def join(url: str, *parts: str) -> str:
+    """Join path parts onto a local path or URL with '/'."""
+    url = str(url)
+    if "://" in url:
+        proto, rest = url.split("://", 1)
+        return f"{proto}://{posixpath.join(rest, *parts)}"
+    return posixpath.join(url, *parts)
+
+
+def write_bytes_atomic(url: str, data: bytes) -> None:
+    """Write ``data`` to ``url``: to a temporary name in the same folder, then moved into place."""
+    fs, path = url_to_fs(url)
+    folder = posixpath.dirname(path)
+    fs.makedirs(folder, exist_ok=True)
+    tmp = posixpath.join(folder, f".{posixpath.basename(path)}.{uuid.uuid4().hex[:12]}.tmp")
+    with fs.open(tmp, "wb") as f:
+        f.write(data)
+    try:
+        fs.mv(tmp, path)
+    except BaseException:
+        try:
+            fs.rm(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def read_bytes(url: str) -> bytes:
+    fs, path = url_to_fs(url)
+    with fs.open(path, "rb") as f:
+        return f.read()
+
+
+def exists(url: str) -> bool:
+    fs, path = url_to_fs(url)
+    return bool(fs.exists(path))
+
+
+def listdir(url: str) -> list[str]:
+    """Base names of the entries of a folder (empty when it does not exist), sorted."""
+    fs, path = url_to_fs(url)
+    if not fs.exists(path):
+        return []
+    return sorted(posixpath.basename(p.rstrip("/")) for p in fs.ls(path, detail=False))
+
+
+def local_path(url: str) -> str:
+    """The local path of a local path or ``file://`` URL; ValueError naming the URL for any other filesystem."""
+    url = str(url)
+    fs, path = url_to_fs(url)
+    protocols = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
+    if "file" not in protocols and "local" not in protocols:
+        raise ValueError(f"{url}: expected a local folder or a file:// URL here (this output is written with local "
+                         f"file APIs), found protocol {protocols[0]!r}")
+    return path

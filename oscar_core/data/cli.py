@@ -1,0 +1,173 @@
+"""``oscar data``: the data pipeline's sub-commands (registered with one line in ``oscar_core.cli``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+__all__ = ["add_data_parser"]
+
+EXAMPLE = """\
+examples:
+  oscar data ingest /data/mydataset --reader npz --out runs/r1
+  oscar data filter runs/r1 --set min_length=70 --set max_camera_motion=0.02
+  oscar data dedup runs/r1 --siglip google/siglip-base-patch16-224
+  oscar data caption runs/r1 --endpoint http://localhost:8000/v1 --model Qwen/Qwen3-VL-30B-A3B-Instruct --budget 1000
+  oscar data export runs/r1 --out clips/r1
+  oscar data stats runs/r1 --plot runs/r1/stats.png
+every stage: --engine local|ray, --workers N, --shard-size N; re-running a stage finishes it without redoing work.
+"""
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local: a process pool (default); ray: Ray Data (pip install \"oscar-wm[ray]\")")
+    p.add_argument("--workers", type=int, default=None, help="worker processes / Ray CPUs (default: all cores; 1: in-process)")
+    p.add_argument("--shard-size", type=int, default=32, help="episodes per shard, the unit of resumption (default 32)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def _kw(args) -> dict:
+    return {"engine": args.engine, "workers": args.workers, "shard_size": args.shard_size,
+            "progress": not args.no_progress, "plugin_paths": tuple(args.plugin or ())}
+
+
+def _report(run, what: str) -> None:
+    print(f"{what}: {len(run.processed)} shards done now, {len(run.skipped)} already done"
+          + (f", {len(run.incomplete)} unfinished (run again)" if run.incomplete else ""))
+    if run.rows:
+        from .manifest import is_alive
+
+        alive = sum(is_alive(r) for r in run.rows)
+        print(f"{what}: {alive} of {len(run.rows)} episodes live -> {run.stage_url}")
+
+
+def cmd_ingest(args) -> int:
+    from .run import run_ingest
+
+    _report(run_ingest(args.source, args.reader, args.out, **_kw(args)), "ingest")
+    return 0
+
+
+def cmd_filter(args) -> int:
+    from .filters import FilterConfig
+    from .run import run_filter
+
+    _report(run_filter(args.run, FilterConfig.from_overrides(args.set), **_kw(args)), "filter")
+    return 0
+
+
+def cmd_dedup(args) -> int:
+    from .dedup import DedupConfig, SiglipEmbedder
+    from .run import run_dedup
+
+    cfg = DedupConfig(cosine=args.cosine, rms_alpha=args.rms_alpha, rms_floor=args.rms_floor, nprobe=args.nprobe)
+    res, summary = run_dedup(args.run, SiglipEmbedder(args.siglip, args.device), cfg, **_kw(args))
+    _report(res, "dedup")
+    print("dedup: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
+    return 0
+
+
+def cmd_caption(args) -> int:
+    from .caption import CaptionConfig
+    from .run import run_caption
+
+    cfg = CaptionConfig(base_url=args.endpoint, model=args.model, fps=args.fps, long_fps=args.long_fps,
+                        max_frames=args.max_frames, budget=args.budget, max_retries=args.retries,
+                        api_key_env=args.api_key_env)
+    res = run_caption(args.run, cfg, **_kw(args))
+    _report(res, "caption")
+    return 0 if not res.incomplete else 3
+
+
+def cmd_export(args) -> int:
+    from ..pipeline import parse_size
+    from .run import run_export
+
+    size = parse_size(args.size) if args.size else None
+    _report(run_export(args.run, args.out, size=size, render_skeleton=args.render_skeleton, video_codec=args.codec,
+                       **_kw(args)), "export")
+    return 0
+
+
+def cmd_stats(args) -> int:
+    from . import _fs
+    from .stats import compute_stats, format_table, plot_stats, stats_json
+
+    st = compute_stats(args.run)
+    text = stats_json(st)
+    _fs.write_bytes_atomic(_fs.join(args.run, "stats.json"), text.encode())
+    if args.plot:
+        plot_stats(st, args.plot)
+    sys.stdout.write(text + "\n" if args.json else format_table(st))
+    return 0
+
+
+def add_data_parser(sub) -> None:
+    """Register ``oscar data <stage>`` on the top-level sub-parser collection."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    d = sub.add_parser("data", help="data pipeline: ingest, filter, dedup, caption, export, stats",
+                       epilog=EXAMPLE, formatter_class=fmt)
+    ds = d.add_subparsers(dest="data_command", required=True)
+
+    p = ds.add_parser("ingest", help="list a dataset's episodes into a manifest and probe each one", epilog=EXAMPLE,
+                      formatter_class=fmt)
+    p.add_argument("source", help="dataset folder or fsspec URL")
+    p.add_argument("--reader", required=True, help="dataset reader name (npz, lerobot, droid, …)")
+    p.add_argument("--out", required=True, help="run folder or fsspec URL")
+    _common(p)
+    p.set_defaults(func=cmd_ingest)
+
+    p = ds.add_parser("filter", help="length, static camera, meaningful action, visible skeleton, joint spikes",
+                      epilog=EXAMPLE, formatter_class=fmt)
+    p.add_argument("run", help="run folder")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override a threshold (FilterConfig field: min_length, max_camera_motion, min_action, "
+                        "min_visible, max_joint_speed, max_point_speed, …); repeatable")
+    _common(p)
+    p.set_defaults(func=cmd_filter)
+
+    p = ds.add_parser("dedup", help="SigLIP candidates (cosine > 0.95) verified by trajectory RMS, one kept per group",
+                      epilog=EXAMPLE, formatter_class=fmt)
+    p.add_argument("run", help="run folder")
+    p.add_argument("--siglip", required=True, help="SigLIP vision model: Hub id or local folder")
+    p.add_argument("--device", default="cpu", help="torch device for SigLIP")
+    p.add_argument("--cosine", type=float, default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
+    p.add_argument("--rms-alpha", type=float, default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
+    p.add_argument("--rms-floor", type=float, default=0.01, help="... or below this many metres (default 0.01)")
+    p.add_argument("--nprobe", type=int, default=16, help="k-means clusters searched per episode (default 16)")
+    _common(p)
+    p.set_defaults(func=cmd_dedup)
+
+    p = ds.add_parser("caption", help="captions from an OpenAI-compatible VLM endpoint (cached, retried, budgeted)",
+                      epilog=EXAMPLE, formatter_class=fmt)
+    p.add_argument("run", help="run folder")
+    p.add_argument("--endpoint", required=True, help="base URL, e.g. http://localhost:8000/v1")
+    p.add_argument("--model", required=True, help="model name the endpoint serves")
+    p.add_argument("--budget", type=int, default=None, help="at most this many episodes sent this run")
+    p.add_argument("--fps", type=float, default=15.0, help="frames per second of episode sent (default 15)")
+    p.add_argument("--long-fps", type=float, default=2.0, help="for DROID / long episodes (default 2)")
+    p.add_argument("--max-frames", type=int, default=256, help="frames per request at most (default 256)")
+    p.add_argument("--retries", type=int, default=4, help="retries per request (default 4)")
+    p.add_argument("--api-key-env", default="OPENAI_API_KEY", help="environment variable with the API key")
+    _common(p)
+    p.set_defaults(func=cmd_caption)
+
+    p = ds.add_parser("export", help="live episodes as training clips (docs/formats.md, Training clips)",
+                      epilog=EXAMPLE, formatter_class=fmt)
+    p.add_argument("run", help="run folder")
+    p.add_argument("--out", required=True, help="clip set folder (local)")
+    p.add_argument("--size", help="WIDTHxHEIGHT to resize to (default: the video's)")
+    p.add_argument("--render-skeleton", action="store_true", help="store the skeleton video (default: the trainer "
+                                                                  "renders it on the fly)")
+    p.add_argument("--codec", choices=("ffv1", "h264"), default="ffv1", help="clip video codec (default ffv1, lossless)")
+    _common(p)
+    p.set_defaults(func=cmd_export)
+
+    p = ds.add_parser("stats", help="the paper's Table 1 for a run: public vs kept, rejections per filter",
+                      epilog=EXAMPLE, formatter_class=fmt)
+    p.add_argument("run", help="run folder")
+    p.add_argument("--json", action="store_true", help="print JSON (always written to RUN/stats.json)")
+    p.add_argument("--plot", metavar="PATH", help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])")
+    p.set_defaults(func=cmd_stats)

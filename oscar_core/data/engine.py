@@ -1,0 +1,262 @@
+"""Map a stage over sharded episodes with a local process pool or Ray Data; resumable by completions.
+
+A stage folder (``RUN/<stage>/``) holds::
+
+    plan.json                 shard name → episode ids (fixed on the first run)
+    shards/<name>.parquet     the stage's output rows of one shard (written atomically)
+    completions/<name>.json   written after its shard: the shard is done
+    manifest.parquet          every shard's rows, id order (written when all are done)
+
+The unit of work is a shard of ``shard_size`` episodes. A stage function is a
+plain picklable callable ``fn(rows, shard=name) -> rows`` with no global state
+(one row per input row, same ids). Both engines run the very same task
+(:func:`run_shard`): compute, write the shard, then its completion record.
+A killed run leaves finished shards with their completions and at worst a
+shard without one (or a temporary file); the next run skips every completed
+shard and redoes only the rest, so nothing is redone and nothing duplicated.
+A stage function may declare ``shard_complete(rows) -> bool``: a shard it
+calls incomplete (captions deferred by the request budget) is written but
+not recorded, and is done again on the next run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from . import _fs
+from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
+
+__all__ = ["ENGINES", "StageRun", "run_sharded", "run_shard", "read_stage", "stage_done", "write_stage_manifest",
+           "StageIncomplete"]
+
+ENGINES = ("local", "ray")
+MANIFEST = "manifest.parquet"
+
+
+class StageIncomplete(ValueError):
+    """A stage's output is asked for before every shard of it is done."""
+
+
+@dataclass
+class StageRun:
+    """What one call of :func:`run_sharded` did: shard names processed now, skipped as done, left incomplete."""
+
+    stage_url: str
+    processed: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    incomplete: list[str] = field(default_factory=list)
+    table: Any = None  # the stage manifest (pyarrow Table) when every shard is done
+    _rows: list[dict[str, Any]] | None = None
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """The manifest's rows (id order); empty while shards are unfinished."""
+        if self._rows is None:
+            self._rows = [] if self.table is None else self.table.to_pylist()
+        return self._rows
+
+    @rows.setter
+    def rows(self, value: list[dict[str, Any]]) -> None:
+        self._rows = value
+
+
+def _shard_url(stage_url: str, name: str) -> str:
+    return _fs.join(stage_url, "shards", f"{name}.parquet")
+
+
+def _completion_url(stage_url: str, name: str) -> str:
+    return _fs.join(stage_url, "completions", f"{name}.json")
+
+
+def run_shard(fn: Callable, rows: list[dict], stage_url: str, name: str) -> tuple[str, int, bool]:
+    """Run ``fn`` on one shard, write its rows, then (when complete) its completion record.
+
+    returns (shard name, rows written, completed).
+    """
+    out = fn(rows, shard=name)
+    want = [r["id"] for r in rows]
+    got = [r["id"] for r in out]
+    if got != want:
+        raise RuntimeError(f"stage {getattr(fn, 'name', fn)!r}, shard {name}: expected rows for ids {want[:3]}…, "
+                           f"found {got[:3]}… ({len(got)} rows for {len(want)})")
+    _fs.write_bytes_atomic(_shard_url(stage_url, name), rows_to_parquet(out))
+    check = getattr(fn, "shard_complete", None)
+    done = bool(check(out)) if check is not None else True
+    if done:
+        _fs.write_bytes_atomic(_completion_url(stage_url, name), json.dumps({"shard": name, "rows": len(out)}).encode())
+    return name, len(out), done
+
+
+def _plan(rows: list[dict], shard_size: int) -> dict[str, list[str]]:
+    ids = [r["id"] for r in rows]
+    if len(set(ids)) != len(ids):
+        dup = sorted({i for i in ids if ids.count(i) > 1})[:3]
+        raise ValueError(f"manifest: field 'id': expected unique episode ids, found duplicates {dup}")
+    return {f"part-{k // shard_size:06d}": ids[k:k + shard_size] for k in range(0, len(ids), shard_size)}
+
+
+def _worker_init() -> None:
+    # one thread per worker process: the pool already uses every core
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:  # pragma: no cover
+        pass
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:  # pragma: no cover
+        pass
+
+
+# modules a worker needs: imported once by the fork server, inherited by every worker it forks
+_PRELOAD = ["numpy", "cv2", "torch", "av", "pyarrow", "oscar_core.registry", "oscar_core.pipeline",
+            "oscar_core.data.ingest", "oscar_core.data.filters", "oscar_core.data.dedup", "oscar_core.data.export",
+            "oscar_core.data.caption"]
+
+
+def _pool_context():
+    """Process start method: a fork server with the heavy imports preloaded where available, else spawn.
+
+    Spawned workers each import torch, OpenCV and the plugins (seconds each);
+    forked from a preloaded server they start in milliseconds. Neither
+    inherits the parent's threads (plain fork after torch has run is unsafe).
+    """
+    import multiprocessing as mp
+
+    if "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(_PRELOAD)
+        return ctx
+    return mp.get_context("spawn")
+
+
+class _RayShardTask:
+    """The Ray Data ``map`` function: one item is one shard (rows as JSON, for a stable Arrow schema)."""
+
+    def __init__(self, fn, stage_url):
+        self.fn, self.stage_url = fn, stage_url
+
+    def __call__(self, item: dict) -> dict:
+        _worker_init()
+        name, n, done = run_shard(self.fn, json.loads(item["rows"]), self.stage_url, item["name"])
+        return {"name": name, "n": n, "done": done}
+
+
+def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: str = "local",
+                workers: int | None = None, progress: bool = True, desc: str = "") -> StageRun:
+    """Map ``fn`` over ``rows`` in shards into ``stage_url``; skip shards already completed.
+
+    rows: input rows in a fixed order (the plan is made from it on the first
+    run and checked on later ones); engine: ``local`` (process pool;
+    ``workers`` ≤ 1 runs in this process) or ``ray`` (Ray Data; uses a running
+    Ray or starts a local one with ``workers`` CPUs). Writes ``manifest.parquet``
+    when every shard is done. Returns a :class:`StageRun`.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"--engine: expected one of {list(ENGINES)}, found {engine!r}")
+    if shard_size < 1:
+        raise ValueError(f"--shard-size: expected a positive integer, found {shard_size}")
+    plan = _plan(rows, shard_size)
+    plan_url = _fs.join(stage_url, "plan.json")
+    if _fs.exists(plan_url):
+        old = json.loads(_fs.read_bytes(plan_url))
+        if old.get("shards") != plan:
+            raise ValueError(f"{plan_url}: expected the plan of this input (same episodes, same --shard-size), found "
+                             f"another run's plan; use a new output folder or delete this stage's folder")
+    else:
+        _fs.write_bytes_atomic(plan_url, json.dumps({"shards": plan, "shard_size": shard_size}).encode())
+    by_id = {r["id"]: r for r in rows}
+    done = {n[:-5] for n in _fs.listdir(_fs.join(stage_url, "completions")) if n.endswith(".json")}
+    run = StageRun(stage_url)
+    todo = [n for n in plan if n not in done]
+    run.skipped = [n for n in plan if n in done]
+    tasks = [(n, [by_id[i] for i in plan[n]]) for n in todo]
+    results: list[tuple[str, int, bool]] = []
+    if tasks:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(tasks), desc=desc or stage_url, unit="shard", disable=not progress)
+        n_workers = min(workers or os.cpu_count() or 1, len(tasks))
+        if engine == "ray":
+            results = _run_ray(fn, tasks, stage_url, n_workers)
+            bar.update(len(results))
+        elif n_workers <= 1:
+            for name, shard_rows in tasks:
+                results.append(run_shard(fn, shard_rows, stage_url, name))
+                bar.update(1)
+        else:
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_worker_init) as pool:
+                futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
+                for fut in as_completed(futures):
+                    results.append(fut.result())
+                    bar.update(1)
+        bar.close()
+    for name, _, ok in results:
+        (run.processed if ok else run.incomplete).append(name)
+    run.processed.sort()
+    run.incomplete.sort()
+    if not run.incomplete:
+        run.table = write_stage_manifest(stage_url, list(plan))
+    return run
+
+
+def _run_ray(fn, tasks, stage_url, n_workers) -> list[tuple[str, int, bool]]:
+    from ._optional import require
+
+    ray = require("ray", "ray")
+    if not ray.is_initialized():
+        ray.init(num_cpus=max(1, n_workers), include_dashboard=False, log_to_driver=False,
+                 configure_logging=False, ignore_reinit_error=True)
+    import ray.data
+
+    ctx = ray.data.DataContext.get_current()
+    ctx.enable_progress_bars = False
+    items = [{"name": name, "rows": json.dumps(rows)} for name, rows in tasks]
+    ds = ray.data.from_items(items, override_num_blocks=len(items)).map(_RayShardTask(fn, stage_url))
+    return [(r["name"], int(r["n"]), bool(r["done"])) for r in ds.take_all()]
+
+
+def write_stage_manifest(stage_url: str, names: list[str]):
+    """Merge the shards into ``manifest.parquet`` (rows in id order) and return it as a pyarrow Table.
+
+    Columns stay columnar (no Python objects per value), so embedding columns
+    of millions of rows merge in Arrow's memory, not as lists of floats.
+    """
+    import pyarrow as pa
+
+    tables = []
+    for name in names:
+        url = _shard_url(stage_url, name)
+        tables.append(table_from_parquet(_fs.read_bytes(url), url))
+    tables = [t for t in tables if t.num_columns]
+    table = pa.concat_tables(tables, promote_options="permissive") if tables else pa.table({"id": pa.array([], pa.string())})
+    table = table.sort_by("id")
+    _fs.write_bytes_atomic(_fs.join(stage_url, MANIFEST), table_to_parquet(table))
+    return table
+
+
+def stage_done(stage_url: str) -> bool:
+    return _fs.exists(_fs.join(stage_url, MANIFEST))
+
+
+def read_stage(stage_url: str) -> list[dict]:
+    """Rows of a finished stage (id order); :class:`StageIncomplete` naming what is missing otherwise."""
+    url = _fs.join(stage_url, MANIFEST)
+    if not _fs.exists(url):
+        plan_url = _fs.join(stage_url, "plan.json")
+        if _fs.exists(plan_url):
+            plan = json.loads(_fs.read_bytes(plan_url))["shards"]
+            done = {n[:-5] for n in _fs.listdir(_fs.join(stage_url, "completions"))}
+            missing = [n for n in plan if n not in done]
+            raise StageIncomplete(f"{stage_url}: expected a finished stage, found {len(missing)} of {len(plan)} shards "
+                                  f"not done ({', '.join(missing[:3])}…); run the stage again to finish it")
+        raise StageIncomplete(f"{url}: expected a stage manifest, found no such file (has the stage run?)")
+    return rows_from_parquet(_fs.read_bytes(url), url)

@@ -1,0 +1,87 @@
+"""``export``: live episodes into a training clip set (``oscar_core.train.clips``, docs/formats.md "Training clips").
+
+One export shard (``part-NNNNNN``) becomes one clip-set shard
+(``shard-part-NNNNNN``); the clip set's own rule (a shard exists once its
+``clips.jsonl`` does) and the stage's completion records agree, so a killed
+export resumes shard by shard. Each clip is the whole episode: RGB frames
+(resized to ``size`` when given, the camera rescaled the same way), the
+trajectory, the camera, the open/close signal, the caption (or none) and the
+dataset's task text. The skeleton is rendered on the fly by the trainer by
+default; ``render_skeleton`` stores it (``oscar_core.pipeline.render_skeleton_video``).
+Clip ids are the episode id with ``/`` and other characters outside
+``[A-Za-z0-9._-]`` replaced by ``-``, plus 8 hex digits of its hash (unique).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._episode import EPISODE_ERRORS, camera_at_video_size, load_row, reason_of
+from .manifest import is_alive
+
+__all__ = ["ExportStage", "clip_id"]
+
+
+def clip_id(episode_id: str) -> str:
+    """A clip id for an episode id: letters, digits, ``._-`` only, unique by a hash suffix."""
+    base = re.sub(r"[^A-Za-z0-9._-]+", "-", episode_id).strip("-._")[:180] or "episode"
+    return f"{base}-{hashlib.sha1(episode_id.encode()).hexdigest()[:8]}"
+
+
+@dataclass(frozen=True)
+class ExportStage:
+    """Sharded stage writing clip-set shards under ``out`` (a local folder)."""
+
+    out: str
+    size: tuple[int, int] | None = None
+    render_skeleton: bool = False
+    video_codec: str = "ffv1"
+    plugin_paths: tuple[str, ...] = ()
+    name: str = "export"
+
+    def __call__(self, rows: list[dict], shard: str = "") -> list[dict]:
+        from ..train.clips import ClipSetWriter
+
+        writer = ClipSetWriter(self.out, video_codec=self.video_codec)
+        name = f"shard-{shard or 'x'}"
+        out = []
+        with writer.shard(name) as sw:
+            for r in rows:
+                if not is_alive(r):
+                    out.append(r)
+                    continue
+                o = dict(r, export_status="ok", export_reason=None, export_value=None, export_clip=None,
+                         export_shard=None)
+                try:
+                    rec = sw.add(self._clip(r))
+                except EPISODE_ERRORS as exc:
+                    o.update(export_status="rejected", export_reason=f"unreadable: {reason_of(exc)}")
+                else:
+                    o.update(export_clip=rec.id, export_shard=name, export_value=float(rec.n_frames))
+                out.append(o)
+        return out
+
+    def _clip(self, row: dict):
+        from ..pipeline import fit_image, render_skeleton_video
+        from ..train.clips import Clip, ClipRecord, clip_openness
+
+        ep, emb = load_row(row, self.plugin_paths)
+        traj = emb.check_trajectory(ep.trajectory)
+        rgb = ep.video.read()
+        H, W = rgb.shape[1:3]
+        cam = camera_at_video_size(ep.camera, W, H)
+        if self.size is not None and (W, H) != tuple(self.size):
+            W, H = self.size
+            rgb = np.stack([fit_image(f, W, H, "crop") for f in rgb])
+            cam = cam.resized(W, H, mode="crop")
+        skeleton = render_skeleton_video(emb, traj, cam, (W, H)) if self.render_skeleton else None
+        op = clip_openness(emb, traj)
+        rec = ClipRecord(id=clip_id(row["id"]), source=row["source"], embodiment=row["embodiment"], n_frames=len(traj),
+                         fps=float(traj.fps), width=int(W), height=int(H), openness=tuple(map(tuple, op.tolist())),
+                         files={}, caption=row.get("caption"), task=row.get("task"),
+                         meta={"episode": row["id"], "frames": [0, len(traj)], "camera": row.get("camera")})
+        return Clip(rec, rgb=rgb, trajectory=traj, camera=cam, skeleton=skeleton)
