@@ -62,7 +62,19 @@ def test_psnr_hand_worked_and_identity():
     gt = np.zeros((1, 12, 12, 3), np.uint8)
     pred = np.full_like(gt, 51)  # every pixel off by 51/255 = 0.2 -> MSE 0.04 -> 10 log10(1/0.04) = 13.979 dB
     assert psnr(pred, gt, n_frames=None)[0] == pytest.approx(10 * math.log10(25))
-    assert np.isinf(psnr(gt, gt, n_frames=None)).all()
+    # identical frames: capped at 100 dB by convention (one identical frame must not make a clip mean inf) ...
+    assert psnr(gt, gt, n_frames=None).tolist() == [100.0]
+    assert np.isinf(psnr(gt, gt, n_frames=None, cap=None)).all()  # ... uncapped on request
+    video = np.stack([gt[0], pred[0]])  # frame 0 identical, frame 1 off: the clip mean stays finite
+    assert psnr(video, np.stack([gt[0], gt[0]]), n_frames=None).mean() == pytest.approx((100 + 10 * math.log10(25)) / 2)
+    # one 8-bit level in one value of a 512x288 frame is above the cap: 10 log10(255^2 * 512*288*3) = 104.6 dB
+    big = np.zeros((1, 288, 512, 3), np.uint8)
+    one = big.copy()
+    one[0, 0, 0, 0] = 1
+    assert psnr(one, big, n_frames=None, cap=None)[0] == pytest.approx(10 * math.log10(255**2 * 512 * 288 * 3))
+    assert psnr(one, big, n_frames=None)[0] == 100.0
+    with pytest.raises(MetricInputError, match="cap"):
+        psnr(gt, gt, cap=float("inf"), n_frames=None)
     assert ssim(gt, gt, n_frames=None) == pytest.approx([1.0])
 
 

@@ -21,7 +21,7 @@ from .._lazy import lazy_exports
 _EXPORTS = {
     "MetricInputError": "_common",
     # policy evaluation
-    "mmrv_simpler": "policy", "mmrv_rank": "policy", "spearman_rho": "policy", "pearson_r": "policy",
+    "mmrv_simpler": "policy", "mmrv_rank": "policy", "mmrv_rank_max": "policy", "spearman_rho": "policy", "pearson_r": "policy",
     "sisr_delta": "policy", "average_ranks": "policy", "success_rates": "policy",
     "PolicyComparison": "policy", "compare_policies": "policy",
     "Preference": "policy", "parse_preference": "policy", "BradleyTerryResult": "policy",
@@ -39,6 +39,7 @@ _EXPORTS = {
     "sample_frame_indices": "judge", "pairs_by_session": "judge", "success_by_policy": "judge",
     "preferences_from_verdicts": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
     "PAIRWISE_SYSTEM_PROMPT": "judge", "PAIRWISE_USER_PROMPT": "judge",
+    "ProgrammaticJudge": "programmatic", "check_verdict_fields": "programmatic",
     # plots
     "success_scatter_figure": "plots", "rank_slope_figure": "plots", "save_figure": "plots",
     "plot_success_scatter": "plots", "plot_rank_slope": "plots", "plot_comparison": "plots",

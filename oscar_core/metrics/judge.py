@@ -102,7 +102,7 @@ import urllib.error
 import urllib.request
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -532,6 +532,8 @@ class JudgeClip:
     instruction: str
     policy: str | None = None
     session: str | None = None
+    #: free-form facts about the clip for programmatic judges (e.g. a target position); not sent to a VLM
+    info: Mapping | None = field(default=None, compare=False)
 
     @property
     def policy_name(self) -> str:

@@ -45,6 +45,7 @@ from ._common import MetricInputError, nan_to_none
 
 __all__ = [
     "DEFAULT_FRAMES",
+    "PSNR_CAP_DB",
     "psnr",
     "ssim",
     "lpips",
@@ -66,6 +67,9 @@ __all__ = [
 
 #: Frames compared per clip: the paper's "first 49 frames" (Kinema4D protocol).
 DEFAULT_FRAMES = 49
+
+#: Per-frame PSNR cap in dB (see :func:`psnr`): identical frames score this instead of inf.
+PSNR_CAP_DB = 100.0
 
 #: Keyword arguments the StyleGAN-V ``i3d_torchscript.pt`` is called with: the
 #: input is already resized and scaled to [-1, 1]; return the 400 pre-softmax features.
@@ -141,24 +145,34 @@ def _to_tensor_nchw(frames: np.ndarray, device):
 # --------------------------------------------------------------------------- #
 # PSNR and SSIM
 # --------------------------------------------------------------------------- #
-def psnr(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
-    """Peak signal-to-noise ratio per frame, in dB.
+def psnr(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES, cap: float | None = PSNR_CAP_DB) -> np.ndarray:
+    """Peak signal-to-noise ratio per frame, in dB, capped at ``cap``.
 
-    ``PSNR_t = 10 log10(MAX² / MSE_t)`` with ``MSE_t`` the mean squared error
-    over all pixels and channels of frame t and MAX the data range (255 for
-    uint8, 1 for float frames) — the same value as
+    ``PSNR_t = min(10 log10(MAX² / MSE_t), cap)`` with ``MSE_t`` the mean
+    squared error over all pixels and channels of frame t and MAX the data
+    range (255 for uint8, 1 for float frames). Below the cap this is
     ``skimage.metrics.peak_signal_noise_ratio(gt[t], pred[t], data_range=MAX)``.
-    A frame identical to its ground truth gives ``inf``.
+
+    Convention: a frame identical to its ground truth has MSE 0 and an infinite
+    PSNR. Every frame is capped at :data:`PSNR_CAP_DB` = 100 dB (an MSE of
+    1e-10 of the squared range; one 8-bit level of difference in a single
+    value of a 512×288 RGB frame already scores 104.6 dB, so frames at the cap
+    are identical for every practical purpose). This keeps one identical
+    frame — typically the conditioning first frame — from turning a clip mean,
+    and with it a whole table, into inf. ``cap=None`` gives the uncapped value
+    (``inf`` for identical frames).
 
     ``pred``, ``gt``: videos (T, H, W, 3). Returns (T',) float64, T' = ``n_frames`` (or T).
     The clip PSNR is the mean over frames.
     """
+    if cap is not None and not (isinstance(cap, (int, float)) and math.isfinite(cap) and cap > 0):
+        raise MetricInputError("cap", "value", "a positive number of dB or None", repr(cap))
     pred, gt = _pair(pred, gt, n_frames)
     out = np.empty(len(pred))
     for t in range(len(pred)):
         mse = float(np.mean((_unit(pred[t]) - _unit(gt[t])) ** 2))
         out[t] = np.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
-    return out
+    return out if cap is None else np.minimum(out, float(cap))
 
 
 def _gaussian_window(size: int = 11, sigma: float = 1.5) -> np.ndarray:
