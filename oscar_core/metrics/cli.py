@@ -691,4 +691,8 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
     pw.add_argument("--preferences-out", metavar="JSONL",
                     help="write the valid verdicts as preferences for `eval policies --preferences`")
     pw.set_defaults(func=cmd_eval_pairwise)
+
+    from ..evaluation.cli import add_run_parser
+
+    add_run_parser(sub)
     return ev

@@ -71,9 +71,12 @@ DEFAULT_FRAMES = 49
 #: Per-frame PSNR cap in dB (see :func:`psnr`): identical frames score this instead of inf.
 PSNR_CAP_DB = 100.0
 
-#: Keyword arguments the StyleGAN-V ``i3d_torchscript.pt`` is called with: the
-#: input is already resized and scaled to [-1, 1]; return the 400 pre-softmax features.
-I3D_CALL_KWARGS = {"rescale": False, "resize": False, "return_features": True}
+#: Keyword arguments StyleGAN-V's FVD (``src/metrics/frechet_video_distance.py``) calls
+#: ``i3d_torchscript.pt`` with: the detector itself rescales [0, 255] to [-1, 1] and resizes every clip
+#: to 224×224 (no crop); return the 400 pre-softmax features.
+I3D_CALL_KWARGS = {"rescale": True, "resize": True, "return_features": True}
+#: ... and when the caller has already resized and scaled the clips (``video_features(resolution=R)``).
+I3D_PREPROCESSED_KWARGS = {"rescale": False, "resize": False, "return_features": True}
 #: Keyword arguments of the StyleGAN2-ADA ``inception-2015-12-05.pt``: 2048-d pool features.
 INCEPTION_CALL_KWARGS = {"return_features": True}
 
@@ -428,28 +431,35 @@ def _check_features(out, n: int, what: str) -> np.ndarray:
 
 
 def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAULT_FRAMES,
-                   resolution: int | None = 224, batch_size: int = 4, device="cpu",
+                   resolution: int | None = None, batch_size: int = 4, device="cpu",
                    extractor_kwargs: Mapping | None = None, source: str = "videos") -> np.ndarray:
     """Per-clip features for FVD (one feature vector per video).
 
-    Preprocessing follows the StyleGAN-V FVD code (Skorokhodov et al. 2022),
-    the PyTorch port of Unterthiner et al.'s FVD that uses
-    ``i3d_torchscript.pt``: frames scaled to [0, 1]; the first ``n_frames``
-    frames kept (the whole clip goes through the network at once — FVD values
-    computed with different frame counts are not comparable; the original FVD
-    uses 16 frames, the paper 49); shorter side resized to ``resolution``
-    (bilinear, ``align_corners=False``, no antialiasing) and a centre
-    ``resolution``² crop; values mapped to [-1, 1]; layout (B, 3, T, R, R)
-    float32. ``resolution=None`` skips resize and crop.
+    Default (``resolution=None``): exactly what StyleGAN-V's FVD
+    (Skorokhodov et al. 2022; ``src/metrics/metric_utils.py``, the PyTorch
+    port of Unterthiner et al.'s FVD that uses ``i3d_torchscript.pt``) feeds
+    its detector: the first ``n_frames`` frames of each clip as a ``torch.uint8``
+    tensor (B, 3, T, H, W) in [0, 255] at the clip's own size, called with
+    ``rescale=True, resize=True, return_features=True`` — the TorchScript I3D
+    scales to [-1, 1] and resizes the whole clip to 224×224 itself (no crop:
+    TF FVD's ``resize_bilinear`` of every frame). Clips of different sizes are
+    batched separately. FVD values computed with different frame counts are
+    not comparable (the original FVD uses 16 frames, the paper 49).
 
-    ``extractor``: callable (B, 3, T, R, R) → (B, D) features, or a path to a
-    TorchScript file, called with ``extractor_kwargs`` (default
-    ``rescale=False, resize=False, return_features=True``: the I3D's 400
-    pre-softmax logits). Returns (N, D) float64.
+    ``resolution=R`` instead resizes the shorter side to R (bilinear,
+    ``align_corners=False``), centre-crops R×R and maps to [-1, 1] float32
+    here (the content-debiased-FVD style), calling the detector with
+    ``rescale=False, resize=False``. The two give different numbers on clips
+    that are not square.
+
+    ``extractor``: callable (B, 3, T, H, W) → (B, D) features, or a path to a
+    TorchScript file called with ``extractor_kwargs`` (default as above).
+    Returns (N, D) float64.
     """
     torch = _torch()
-    kwargs = I3D_CALL_KWARGS if extractor_kwargs is None else extractor_kwargs
-    f = _callable(extractor, "fvd_extractor", kwargs, device=device)
+    if extractor_kwargs is None:
+        extractor_kwargs = I3D_CALL_KWARGS if resolution is None else I3D_PREPROCESSED_KWARGS
+    f = _callable(extractor, "fvd_extractor", extractor_kwargs, device=device)
     feats, batch = [], []
 
     def flush():
@@ -459,9 +469,15 @@ def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAUL
         batch.clear()
 
     for k, v in enumerate(videos):
-        batch.append(_preprocess_i3d(_frames(v, n_frames, f"{source}[{k}]"), resolution))
-        if len(batch) == batch_size:
+        clip = _frames(v, n_frames, f"{source}[{k}]")
+        if resolution is None:
+            u8 = clip if clip.dtype == np.uint8 else np.round(_unit(clip, np.float32) * 255.0).astype(np.uint8)
+            item = torch.from_numpy(np.ascontiguousarray(u8)).permute(3, 0, 1, 2).contiguous()  # 3, T, H, W
+        else:
+            item = _preprocess_i3d(clip, resolution)
+        if batch and (len(batch) == batch_size or batch[0].shape != item.shape):
             flush()
+        batch.append(item)
     if batch:
         flush()
     if not feats:
@@ -646,7 +662,7 @@ class VideoReport:
 
 
 def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRAMES, lpips_net=None, vae=None,
-                    fvd_extractor=None, fid_extractor=None, device="cpu", fvd_resolution: int | None = 224,
+                    fvd_extractor=None, fid_extractor=None, device="cpu", fvd_resolution: int | None = None,
                     progress: bool = False) -> VideoReport:
     """Every video metric for a list of clips.
 
@@ -665,7 +681,8 @@ def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRA
         raise MetricInputError("clips", "name", "unique clip names", f"duplicates {dup}")
     lp = _callable(lpips_net, "lpips_net", device=device) if lpips_net is not None else None
     enc = _callable(vae, "vae", device=device) if vae is not None else None
-    fv = _callable(fvd_extractor, "fvd_extractor", I3D_CALL_KWARGS, device) if fvd_extractor is not None else None
+    i3d_kwargs = I3D_CALL_KWARGS if fvd_resolution is None else I3D_PREPROCESSED_KWARGS
+    fv = _callable(fvd_extractor, "fvd_extractor", i3d_kwargs, device) if fvd_extractor is not None else None
     fi = _callable(fid_extractor, "fid_extractor", INCEPTION_CALL_KWARGS, device) if fid_extractor is not None else None
     if fv is not None and len(clips) < 2:
         raise MetricInputError("clips", "clips", "at least 2 clips for FVD (a covariance needs 2 samples)",
