@@ -382,13 +382,32 @@ def cmd_eval_video(args) -> int:
     if args.frames < 0:
         raise MetricInputError("--frames", "value", "a frame count >= 0 (0 = all frames)", args.frames)
     clips = collect_clips(args.pred, args.gt, embodiment=args.embodiment)
+    nets = {"lpips": _load_network(args.lpips, "--lpips"), "i3d": _load_network(args.i3d, "--i3d"),
+            "inception": _load_network(args.inception, "--inception")}
+    used_cache = []
+    if not args.no_cached_networks:  # the standard networks from `oscar eval weights pull`, hash-checked
+        from .weights import cached_networks
+
+        for key, net in cached_networks(device=args.device).items():
+            if nets[key] is None:
+                nets[key] = net
+                used_cache.append(key)
+    if args.i3d is None and "i3d" in used_cache:
+        from .video import I3D_CALL_KWARGS, load_torchscript
+
+        nets["i3d"] = load_torchscript(nets["i3d"], device=args.device, **I3D_CALL_KWARGS)
+    if args.inception is None and "inception" in used_cache:
+        from .video import INCEPTION_CALL_KWARGS, load_torchscript
+
+        nets["inception"] = load_torchscript(nets["inception"], device=args.device, **INCEPTION_CALL_KWARGS)
     report = evaluate_videos(
         clips, n_frames=None if args.frames == 0 else args.frames,
-        lpips_net=_load_network(args.lpips, "--lpips"), vae=_load_network(args.vae, "--vae"),
-        fvd_extractor=_load_network(args.i3d, "--i3d"), fid_extractor=_load_network(args.inception, "--inception"),
+        lpips_net=nets["lpips"], vae=_load_network(args.vae, "--vae"),
+        fvd_extractor=nets["i3d"] if len(clips) > 1 or args.i3d else None, fid_extractor=nets["inception"],
         device=args.device, progress=not args.json and sys.stderr.isatty(),
     )
     data = report.to_dict()
+    data["networks_from_cache"] = used_cache
     if args.out:
         _write_json(args.out, data)
     if args.json:
@@ -654,6 +673,8 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                                                 "input (1, 3, T, H, W) in [-1, 1]")
     v.add_argument("--i3d", metavar="NET", help="FVD feature extractor, e.g. i3d_torchscript.pt (StyleGAN-V)")
     v.add_argument("--inception", metavar="NET", help="FID feature extractor, e.g. inception-2015-12-05.pt")
+    v.add_argument("--no-cached-networks", action="store_true",
+                   help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)")
     v.add_argument("--device", default="cpu", help="torch device for the networks (cpu, cuda)")
     v.add_argument("--json", action="store_true", help="print JSON instead of a table")
     v.add_argument("--out", metavar="FILE", help="also write the JSON results here")
@@ -695,4 +716,65 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
     from ..evaluation.cli import add_run_parser
 
     add_run_parser(sub)
+
+    w = sub.add_parser("weights", help="fetch the standard metric networks (I3D, Inception, LPIPS) into a cache",
+                       description="Download the FVD / FID / LPIPS networks from their canonical URLs, check their "
+                                   "sha256 (pinned, or recorded on first use), and keep them in the cache that "
+                                   "`oscar eval video` uses by default.",
+                       epilog=WEIGHTS_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    wsub = w.add_subparsers(dest="weights_command", required=True)
+    wp = wsub.add_parser("pull", help="download and verify", epilog=WEIGHTS_EXAMPLES,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    wp.add_argument("names", nargs="*", help="i3d, inception, lpips-alex, lpips-vgg, alexnet, vgg16 "
+                                             "(default: i3d inception lpips-alex alexnet; 'all' for every file)")
+    wp.add_argument("--cache", metavar="DIR", help="cache folder (default $OSCAR_WEIGHTS_CACHE or "
+                                                   "~/.cache/oscar/weights)")
+    wp.add_argument("--force", action="store_true", help="download again even if cached")
+    wp.add_argument("--json", action="store_true", help="machine-readable output")
+    wp.set_defaults(func=cmd_eval_weights_pull)
+    wl = wsub.add_parser("list", help="the pinned files and what the cache holds")
+    wl.add_argument("--cache", metavar="DIR", help="cache folder")
+    wl.add_argument("--json", action="store_true", help="machine-readable output")
+    wl.set_defaults(func=cmd_eval_weights_list)
     return ev
+
+
+WEIGHTS_EXAMPLES = """examples:
+  oscar eval weights pull                  (I3D for FVD, Inception for FID, LPIPS-Alex: about 130 MB)
+  oscar eval weights pull all --cache /data/oscar-weights
+  oscar eval weights list --json
+  oscar eval video preds/ gts/             (uses the cached networks)
+"""
+
+
+def cmd_eval_weights_pull(args) -> int:
+    from .weights import GROUPS, pull_weights
+
+    names = list(args.names) or list(GROUPS["default"])
+    if names == ["all"]:
+        names = list(GROUPS["all"])
+    result = pull_weights(names, cache_dir=args.cache, force=args.force,
+                          log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        for name, r in result.items():
+            print(f"{name:11s} {r['status']:10s} sha256 {r['sha256'][:16]}...  ({r['check']})  {r['path']}")
+    return 0
+
+
+def cmd_eval_weights_list(args) -> int:
+    from .weights import WEIGHTS, _read_lock, weights_cache_dir
+
+    cache = weights_cache_dir(args.cache)
+    lock = _read_lock(cache) if cache.is_dir() else {}
+    rows = [{"name": w.name, "file": w.filename, "url": w.url, "pin": w.pin,
+             "sha256": w.sha256 or (lock.get(w.name) or {}).get("sha256"), "sha256_prefix": w.sha256_prefix,
+             "cached": (cache / w.filename).is_file(), "source": w.source} for w in WEIGHTS.values()]
+    if args.json:
+        print(json.dumps({"cache": str(cache), "weights": rows}, indent=2))
+    else:
+        for r in rows:
+            print(f"{r['name']:11s} {'cached' if r['cached'] else '-':7s} {r['pin']:18s} {r['url']}")
+        print(f"cache: {cache}")
+    return 0
