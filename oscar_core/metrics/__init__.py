@@ -37,7 +37,7 @@ _EXPORTS = {
     "SuccessVerdict": "judge", "PairwiseVerdict": "judge", "ChatClient": "judge", "MalformedAnswer": "judge",
     "JudgeRequestError": "judge", "parse_success_answer": "judge", "parse_pairwise_answer": "judge",
     "sample_frame_indices": "judge", "pairs_by_session": "judge", "success_by_policy": "judge",
-    "preferences_from_verdicts": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
+    "preferences_from_verdicts": "judge", "PAPER_SUCCESS_PROMPT": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
     "PAIRWISE_SYSTEM_PROMPT": "judge", "PAIRWISE_USER_PROMPT": "judge",
     "ProgrammaticJudge": "programmatic", "check_verdict_fields": "programmatic",
     # plots

@@ -492,20 +492,26 @@ def _judge_kwargs(args) -> dict:
                 max_side=args.max_side or None, image_format=args.image_format, jpeg_quality=args.jpeg_quality,
                 temperature=args.temperature, max_tokens=args.max_tokens, extra_body=extra, timeout=args.timeout,
                 max_attempts=args.max_attempts, backoff=args.backoff, concurrency=args.concurrency,
+                token_field=args.token_field, max_timeout_retries=args.max_timeout_retries,
+                max_requests=args.max_requests,
                 cache_dir=None if args.no_cache else (args.cache or _default_cache_dir()))
 
 
 def _status_summary(verdicts) -> dict:
     counts = {status: sum(v.status == status for v in verdicts) for status in ("ok", "malformed", "error")}
     requests = sum(v.attempts for v in verdicts)
+    usage = {k: sum((v.usage or {}).get(k, 0) for v in verdicts if not v.cached)
+             for k in ("prompt_tokens", "completion_tokens", "total_tokens")}
     return {"total": len(verdicts), **counts, "cached": sum(v.cached for v in verdicts), "requests": requests,
-            "retries": sum(max(0, v.attempts - 1) for v in verdicts)}
+            "retries": sum(max(0, v.attempts - 1) for v in verdicts), "usage": usage}
 
 
 def _summary_line(summary: dict, what: str) -> str:
+    u = summary["usage"]
     return (f"{summary['total']} {what}: {summary['ok']} ok, {summary['malformed']} malformed, "
             f"{summary['error']} failed; {summary['requests']} requests ({summary['retries']} retries), "
-            f"{summary['cached']} from the cache")
+            f"{summary['cached']} from the cache; tokens {u['prompt_tokens']} prompt + {u['completion_tokens']} "
+            f"completion = {u['total_tokens']}")
 
 
 def _print_problems(verdicts, name_of) -> None:
@@ -519,12 +525,47 @@ def _print_problems(verdicts, name_of) -> None:
         print(line)
 
 
+def _prompt(spec: str) -> str:
+    """``--prompt``: "paper", "oscar", or a text file holding a template with {instruction}."""
+    if spec in ("paper", "oscar"):
+        return spec
+    path = Path(spec)
+    if not path.is_file():
+        raise MetricInputError(spec, "--prompt", "paper, oscar or a text file with a {instruction} template",
+                               "no such file")
+    return path.read_text()
+
+
+def _print_plan(plan: list[dict], judge, as_json: bool) -> int:
+    """``--dry-run``: the requests and images that would be sent; nothing is sent."""
+    todo = [p for p in plan if not p["cached"]]
+    if as_json:
+        print(json.dumps({"judge": judge.describe(), "requests": todo,
+                          "cached": [p["clip"] for p in plan if p["cached"]]}, indent=2))
+        return 0
+    for p in plan:
+        if p["cached"]:
+            print(f"{p['clip']}: cached, no request")
+            continue
+        w, h = p["image_size"]
+        print(f"{p['clip']}: 1 request to {judge.model}: {p['images']} images {w}x{h} "
+              f"({p['image_bytes'] / 1e6:.2f} MB base64) of {p['frames_total']} frames; sampling {p['sampling']}")
+        for t in p["texts"]:
+            print("    | " + t.replace("\n", "\n    | "))
+    print(f"dry run: {len(todo)} requests would be sent ({len(plan) - len(todo)} cached), "
+          f"{sum(p['images'] for p in todo)} images, {sum(p['image_bytes'] for p in todo) / 1e6:.2f} MB; "
+          "nothing was sent")
+    return 0
+
+
 def cmd_eval_judge(args) -> int:
     from .judge import SuccessJudge, success_by_policy
 
     kwargs = _judge_kwargs(args)
     clips = read_tasks(args.tasks, collect_judge_videos(args.videos))
-    judge = SuccessJudge(**kwargs)
+    judge = SuccessJudge(prompt=_prompt(args.prompt), **kwargs)
+    if args.dry_run:
+        return _print_plan(judge.plan(clips), judge, args.json)
     verdicts = judge.judge_many(clips, progress=not args.json and sys.stderr.isatty())
     policies = success_by_policy(verdicts)
     summary = _status_summary(verdicts)
@@ -570,7 +611,14 @@ def cmd_eval_pairwise(args) -> int:
     if not pairs:
         raise MetricInputError(args.tasks, "sessions", "at least one session with clips of two different policies",
                                f"{len(clips)} clips and no such session")
-    judge = PairwiseJudge(seed=args.seed, layout=args.layout, **kwargs)
+    judge = PairwiseJudge(seed=args.seed, layout=args.layout, both_orders=args.both_orders, **kwargs)
+    if args.dry_run:
+        per = 2 if args.both_orders else 1
+        print(json.dumps({"judge": judge.describe(), "pairs": [p.id for p in pairs], "requests": per * len(pairs),
+                          "images_per_request": f"up to 2 x {judge.n_frames}"}, indent=2) if args.json else
+              f"dry run: {per * len(pairs)} requests would be sent for {len(pairs)} pairs (cached ones are not "
+              f"re-sent), up to 2 x {judge.n_frames} images each; nothing was sent")
+        return 0
     verdicts = judge.compare_many(pairs, progress=not args.json and sys.stderr.isatty())
     prefs = preferences_from_verdicts(verdicts)
     summary = _status_summary(verdicts)
@@ -633,7 +681,16 @@ def _add_judge_args(p, default_frames: int) -> None:
     p.add_argument("--image-format", choices=("jpeg", "png"), default="jpeg", help="image encoding (default jpeg)")
     p.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality 1-100 (default 90)")
     p.add_argument("--temperature", type=float, help="sampling temperature (default: not sent)")
-    p.add_argument("--max-tokens", type=int, help="max_tokens (default: not sent)")
+    p.add_argument("--max-tokens", type=int, help="answer token limit, sent as max_completion_tokens "
+                                                  "(default: not sent)")
+    p.add_argument("--token-field", choices=("max_completion_tokens", "max_tokens"), default="max_completion_tokens",
+                   help="request field for --max-tokens (max_tokens for older servers)")
+    p.add_argument("--max-requests", type=int, help="request budget of this run: requests beyond it are not sent "
+                                                    "(those items fail, uncached; a re-run continues)")
+    p.add_argument("--max-timeout-retries", type=int, default=1,
+                   help="retries of a timed-out request at most (default 1: a timed-out request may be billed)")
+    p.add_argument("--dry-run", action="store_true", help="print the requests and images that would be sent; "
+                                                          "send nothing")
     p.add_argument("--extra-body", metavar="JSON",
                    help='extra request fields, e.g. \'{"reasoning_effort": "high"}\'')
     p.add_argument("--concurrency", type=int, default=4, help="requests in flight at once (default 4)")
@@ -699,6 +756,9 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                        epilog=JUDGE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(j, DEFAULT_JUDGE_FRAMES)
     j.add_argument("--wm-out", metavar="FILE", help="write per-policy success rates for `eval policies --wm`")
+    j.add_argument("--prompt", default="paper", help="paper (the paper's prompt, word for word; default), oscar "
+                                                     "(a more detailed one), or a text file with an {instruction} "
+                                                     "template")
     j.set_defaults(func=cmd_eval_judge)
 
     pw = sub.add_parser("pairwise", help="VLM pairwise preferences within sessions + Bradley-Terry",
@@ -707,6 +767,8 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                         epilog=PAIRWISE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(pw, DEFAULT_PAIRWISE_FRAMES)
     pw.add_argument("--seed", type=int, default=0, help="seed of the per-pair A/B order (default 0)")
+    pw.add_argument("--both-orders", action="store_true",
+                    help="ask every pair in both orders; disagreeing orders count as a tie (position bias)")
     pw.add_argument("--layout", choices=("sets", "side_by_side"), default="sets",
                     help="all frames of A then all of B (sets, default), or A|B side by side per time step")
     pw.add_argument("--preferences-out", metavar="JSONL",
