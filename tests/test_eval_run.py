@@ -249,3 +249,29 @@ def test_unknown_embodiment_and_python_api(tmp_path, model_dir):
                          sampler=SamplerConfig(steps=1), log=lambda m: None)
     assert res.counts["verdicts_reused"] == 2 and res.counts["verdicts_done"] == 1 and res.counts["verdicts_not_ok"] == 0
     assert res.counts["rollouts_reused"] == 3
+
+
+def test_eval_video_latent_l2_uses_the_project_vae(tmp_path, model_dir, capsys):
+    import torch
+
+    from oscar_core.metrics import latent_l2
+
+    rng = np.random.default_rng(0)
+    pred, gt = rng.integers(0, 256, (5, 32, 32, 3), dtype=np.uint8), rng.integers(0, 256, (5, 32, 32, 3), np.uint8)
+    np.save(tmp_path / "pred.npy", pred)
+    np.save(tmp_path / "gt.npy", gt)
+    args = ["eval", "video", tmp_path / "pred.npy", tmp_path / "gt.npy", "--frames", "0", "--json",
+            "--no-cached-networks"]
+    assert _cli(*args, "--vae-model", model_dir) == 0
+    data = json.loads(capsys.readouterr().out)
+    # the same number straight from the model's own VAE: mean squared difference of the normalised latents
+    vae = oscar_zoo.load(str(model_dir)).vae
+    with torch.no_grad():
+        z = [vae.encode(vae.to_pixels(v)) for v in (pred, gt)]
+    expected = float(((z[0] - z[1]) ** 2).mean())
+    assert data["aggregate"]["latent_l2"] == pytest.approx(expected, rel=1e-5) and expected > 0
+    assert latent_l2(pred, gt, lambda x: vae.encode(x), n_frames=None) == pytest.approx(expected, rel=1e-5)
+    # the default checkpoint is not in this (empty) cache: skipped and said so, nothing downloaded
+    assert _cli(*args) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert "latent_l2" not in data["aggregate"] and data["notes"]["latent_l2"].startswith("skipped: the VAE of 'oscar-2b'")

@@ -638,13 +638,17 @@ def test_docs_show_the_prompts_and_every_option():
     from oscar_core.metrics import judge as judge_module
 
     doc = (Path(__file__).parent.parent / "docs" / "evaluation.md").read_text()
-    for prompt in (SUCCESS_SYSTEM_PROMPT, PAIRWISE_SYSTEM_PROMPT):
+    for prompt in (PAPER_SUCCESS_PROMPT, SUCCESS_SYSTEM_PROMPT, PAIRWISE_SYSTEM_PROMPT):
         assert f"```text\n{prompt}\n```" in doc
     parser = argparse.ArgumentParser(prog="oscar")
     ev = add_eval_parser(parser.add_subparsers(dest="command", required=True))
     sub = next(a for a in ev._actions if isinstance(a, argparse._SubParsersAction))
-    for name in ("judge", "pairwise", "policies"):
-        for action in sub.choices[name]._actions:
+    for name in ("judge", "pairwise", "policies", "run", "video", "weights"):
+        parsers = [sub.choices[name]]
+        if name == "weights":
+            inner = next(a for a in parsers[0]._actions if isinstance(a, argparse._SubParsersAction))
+            parsers = list(inner.choices.values())
+        for action in [a for p in parsers for a in p._actions]:
             for opt in action.option_strings:
                 if opt.startswith("--") and opt != "--help":
                     assert f"`{opt}" in doc or f"{opt} " in doc, f"{name} {opt} is not documented"

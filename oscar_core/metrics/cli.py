@@ -400,20 +400,35 @@ def cmd_eval_video(args) -> int:
         from .video import INCEPTION_CALL_KWARGS, load_torchscript
 
         nets["inception"] = load_torchscript(nets["inception"], device=args.device, **INCEPTION_CALL_KWARGS)
+    vae, notes = _load_network(args.vae, "--vae"), {}
+    if vae is None and args.vae_model != "none":  # the project's own VAE, from the local cache only
+        from .project_vae import load_project_vae
+
+        try:
+            vae = load_project_vae(args.vae_model, device=args.device)
+        except Exception as exc:  # noqa: BLE001 - not cached / not a checkpoint: latent L2 is skipped, and said so
+            notes["latent_l2"] = (f"skipped: the VAE of {args.vae_model!r} is not available locally "
+                                  f"({type(exc).__name__}: {str(exc)[:200]}); `oscar zoo pull {args.vae_model}` or "
+                                  "--vae / --vae-model FOLDER")
     report = evaluate_videos(
         clips, n_frames=None if args.frames == 0 else args.frames,
-        lpips_net=nets["lpips"], vae=_load_network(args.vae, "--vae"),
+        lpips_net=nets["lpips"], vae=vae,
         fvd_extractor=nets["i3d"] if len(clips) > 1 or args.i3d else None, fid_extractor=nets["inception"],
         device=args.device, progress=not args.json and sys.stderr.isatty(),
     )
     data = report.to_dict()
     data["networks_from_cache"] = used_cache
+    data["notes"] = notes
     if args.out:
         _write_json(args.out, data)
     if args.json:
         print(json.dumps(data, indent=2))
     else:
         print(report.format_table())
+        for what, note in notes.items():
+            print(f"note: {what}: {note}")
+        if used_cache:
+            print(f"networks from the weights cache: {', '.join(used_cache)}")
         if args.out:
             print(f"wrote {args.out}")
     return 0
@@ -730,6 +745,9 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                                                 "input (1, 3, T, H, W) in [-1, 1]")
     v.add_argument("--i3d", metavar="NET", help="FVD feature extractor, e.g. i3d_torchscript.pt (StyleGAN-V)")
     v.add_argument("--inception", metavar="NET", help="FID feature extractor, e.g. inception-2015-12-05.pt")
+    v.add_argument("--vae-model", default="oscar-2b", metavar="MODEL",
+                   help="checkpoint (zoo name, Hub id or folder) whose VAE computes latent L2 when --vae is not "
+                        "given, if it is in the local cache (default oscar-2b; none = skip)")
     v.add_argument("--no-cached-networks", action="store_true",
                    help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)")
     v.add_argument("--device", default="cpu", help="torch device for the networks (cpu, cuda)")
