@@ -1,4 +1,5 @@
-"""The ``oscar eval`` sub-commands: ``video``, ``policies``, ``judge`` and ``pairwise``.
+"""The ``oscar eval`` sub-commands: ``video``, ``policies``, ``judge``, ``pairwise``, ``weights``; ``run`` is
+registered here from :mod:`oscar_core.evaluation.cli`.
 
 Wire into the main parser with ``add_eval_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code), like the other sub-commands.
