@@ -83,6 +83,48 @@ def make_study(root: Path, frames: int = 5) -> Path:
     return root / "manifest.json"
 
 
+class MockChat:
+    """A loopback OpenAI-compatible chat server: success -> {"binary": 1, ...}; pairwise -> "A"."""
+
+    def __init__(self):
+        import threading
+        from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+        self.bodies = []
+        mock = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *a):
+                pass
+
+            def do_POST(self):
+                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+                mock.bodies.append(body)
+                pairwise = body["messages"][0]["role"] == "system"
+                answer = ('{"winner": "A", "reason": "r"}' if pairwise else
+                          '{"binary": 1, "partial": 100, "reason": "done"}')
+                data = json.dumps({"id": "x", "object": "chat.completion", "created": 0, "model": body["model"],
+                                   "choices": [{"index": 0, "finish_reason": "stop",
+                                                "message": {"role": "assistant", "content": answer}}],
+                                   "usage": {"prompt_tokens": 10, "completion_tokens": 2, "total_tokens": 12}})
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(data)))
+                self.end_headers()
+                self.wfile.write(data.encode())
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
 def _cli(*argv):
     return oscar_main([str(a) for a in argv])
 
@@ -137,6 +179,20 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     assert code == 0 and again["counts"]["rollouts_reused"] == 6 and again["counts"]["verdicts_reused"] == 6
     assert again["comparison"] == report["comparison"]
     assert len(log.read_text().split()) == 6  # the pairwise stage reuses the stored verdicts
+    # the same rollouts judged by a VLM behind a loopback OpenAI-compatible server, one budget for the run
+    with MockChat() as chat:
+        code = _cli("eval", "run", manifest, "--model", model_dir, "--out", out, "--judge", "vlm", "--pairwise",
+                    "--judge-base-url", chat.url, "--judge-model", "mock-vlm", "--max-requests", "8",
+                    "--steps", "1", "--no-progress", "--json")
+    vlm = json.loads(capsys.readouterr().out)
+    assert code == 0 and vlm["counts"]["rollouts_reused"] == 6 and vlm["counts"]["verdicts_done"] == 6
+    assert len(chat.bodies) == 8  # 6 success requests + 2 pairwise; the other 4 pairs are over the budget
+    (user,) = chat.bodies[0]["messages"]  # the paper's prompt, one user message, then 5 frames as images
+    assert user["content"][0]["text"].startswith("You are evaluating whether a robot manipulation rollout")
+    assert "Task: put the block in the bin" in user["content"][0]["text"] and len(user["content"]) == 1 + 5
+    assert [p["status"] for p in vlm["pairs"]].count("ok") == 2
+    assert all("request budget of 8 requests spent" in p["error"] for p in vlm["pairs"] if p["status"] != "ok")
+    assert {p["policy"]: p["wm_success_rate"] for p in vlm["policies"]} == {"good": 1.0, "mid": 1.0, "bad": 1.0}
 
 
 def test_rollout_key_changes_with_every_input(tmp_path):
@@ -241,14 +297,15 @@ def test_unknown_embodiment_and_python_api(tmp_path, model_dir):
 
     res = run_evaluation(manifest, tmp_path / "out2", model=model, judge=ProgrammaticJudge(flaky),
                          sampler=SamplerConfig(steps=1), log=lambda m: None)
-    assert res.counts["verdicts_not_ok"] == 1 and res.report["comparison"] is not None
+    assert res.counts["verdicts_not_ok"] == 1 and res.report["comparison"] is None  # "bad" has no verdict left
+    assert res.report["comparison_error"] == "no valid world-model verdict for policies ['bad']"
     bad = [c for c in res.report["cells"] if c["status"] != "ok"]
     assert [(c["cell"], c["status"], c["error"]) for c in bad] == [("s1/bad", "error", "RuntimeError: object not found")]
     assert res.report["policies"][2]["not_judged"] == 1
     res = run_evaluation(manifest, tmp_path / "out2", model=model, judge=ProgrammaticJudge(flaky),
                          sampler=SamplerConfig(steps=1), log=lambda m: None)
     assert res.counts["verdicts_reused"] == 2 and res.counts["verdicts_done"] == 1 and res.counts["verdicts_not_ok"] == 0
-    assert res.counts["rollouts_reused"] == 3
+    assert res.counts["rollouts_reused"] == 3 and res.report["comparison"] is not None
 
 
 def test_eval_video_latent_l2_uses_the_project_vae(tmp_path, model_dir, capsys):

@@ -236,3 +236,15 @@ def test_eval_video_uses_the_cached_networks(served, tmp_path, monkeypatch, caps
     assert oscar_main(["eval", "video", str(pred), str(gt), "--frames", "0", "--json", "--no-cached-networks"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["networks_from_cache"] == [] and "lpips" not in data["aggregate"]
+
+
+def test_cached_detectors_are_loaded_from_the_checked_bytes(served):
+    srv, table, sha, cache = served
+    pull_weights(["i3d"], cache_dir=cache, table=table)
+    nets = cached_networks(cache_dir=cache, table=table)
+    x = torch.arange(2 * 3 * 2 * 4 * 4, dtype=torch.uint8).view(2, 3, 2, 4, 4)
+    assert torch.equal(nets["i3d"](x), x.float().mean(dim=(2, 3, 4)))  # called like StyleGAN-V calls it
+    from oscar_core.metrics.video import load_torchscript
+
+    with pytest.raises(Exception, match="field 'sha256': expected 0000"):
+        load_torchscript(cache / "i3d_torchscript.pt", sha256="0" * 64)

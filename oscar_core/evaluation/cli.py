@@ -95,8 +95,9 @@ def cmd_eval_run(args) -> int:
         from ..metrics.judge import PairwiseJudge, SuccessJudge
 
         judge = SuccessJudge(**_vlm_kwargs(args))
-        if args.pairwise:
-            pairwise = PairwiseJudge(both_orders=args.both_orders, **_vlm_kwargs(args))
+        if args.pairwise:  # one client: --max-requests is the budget of the whole run
+            pairwise = PairwiseJudge(both_orders=args.both_orders, client=judge.client,
+                                     cache_dir=Path(args.out) / "judge_cache")
     elif args.judge != "none":
         judge = load_judge(args.judge)
         if args.pairwise:

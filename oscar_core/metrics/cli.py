@@ -393,14 +393,6 @@ def cmd_eval_video(args) -> int:
             if nets[key] is None:
                 nets[key] = net
                 used_cache.append(key)
-    if args.i3d is None and "i3d" in used_cache:
-        from .video import I3D_CALL_KWARGS, load_torchscript
-
-        nets["i3d"] = load_torchscript(nets["i3d"], device=args.device, **I3D_CALL_KWARGS)
-    if args.inception is None and "inception" in used_cache:
-        from .video import INCEPTION_CALL_KWARGS, load_torchscript
-
-        nets["inception"] = load_torchscript(nets["inception"], device=args.device, **INCEPTION_CALL_KWARGS)
     vae, notes = _load_network(args.vae, "--vae"), {}
     if vae is None and args.vae_model != "none":  # the project's own VAE, from the local cache only
         from .project_vae import load_project_vae

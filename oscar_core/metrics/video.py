@@ -227,22 +227,34 @@ def ssim(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
 # --------------------------------------------------------------------------- #
 # networks passed by the caller
 # --------------------------------------------------------------------------- #
-def load_torchscript(path, *, device="cpu", **call_kwargs) -> Callable:
+def load_torchscript(path, *, device="cpu", sha256: str | None = None, **call_kwargs) -> Callable:
     """Load a TorchScript module with ``torch.jit.load`` and return ``f(x) = module(x, **call_kwargs)``.
 
     Used for the feature extractors (e.g. ``i3d_torchscript.pt`` with
-    ``rescale=False, resize=False, return_features=True``), an LPIPS network
+    ``rescale=True, resize=True, return_features=True``), an LPIPS network
     saved as TorchScript, or a VAE encoder. The file must exist locally;
-    nothing is downloaded.
+    nothing is downloaded. ``sha256``: the file's bytes are read once, hashed,
+    and loaded from memory only if they match (no window between the check
+    and the load).
     """
+    import hashlib
+    import io
+
     torch = _torch()
     p = Path(path)
     if not p.is_file():
         raise MetricInputError(p, "file", "a TorchScript file (.pt) saved with torch.jit.save", "no such file")
+    source = str(p)
+    if sha256 is not None:
+        data = p.read_bytes()
+        digest = hashlib.sha256(data).hexdigest()
+        if digest != sha256:
+            raise MetricInputError(p, "sha256", sha256, digest)
+        source = io.BytesIO(data)
     try:
         with warnings.catch_warnings():  # torch ≥ 2.10 flags torch.jit as deprecated; it is the format asked for
             warnings.simplefilter("ignore", DeprecationWarning)
-            module = torch.jit.load(str(p), map_location=device)
+            module = torch.jit.load(source, map_location=device)
     except Exception as exc:  # torch raises RuntimeError/ValueError with varying text
         raise MetricInputError(p, "contents", "a TorchScript archive (torch.jit.save)",
                                f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc

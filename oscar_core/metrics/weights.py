@@ -217,6 +217,12 @@ def weight_path(name: str, *, cache_dir=None, table: Mapping[str, WeightFile] | 
     The file is re-hashed and must match its pin or its lock entry (a file with
     neither — never pulled through oscar — is refused).
     """
+    found = _verified(name, cache_dir, table)
+    return None if found is None else found[0]
+
+
+def _verified(name: str, cache_dir, table) -> tuple[Path, str] | None:
+    """(path, sha256) of a cached file that matches its pin or lock entry; None if not cached."""
     table = WEIGHTS if table is None else table
     if name not in table:
         return None
@@ -226,25 +232,28 @@ def weight_path(name: str, *, cache_dir=None, table: Mapping[str, WeightFile] | 
     if not path.is_file():
         return None
     lock = _read_lock(cache)
-    how = _check(w, _sha256(path), lock, path)
+    digest = _sha256(path)
+    how = _check(w, digest, lock, path)
     if how == "trust on first use":
         raise WeightHashError(path, "sha256", f"an entry in {cache / LOCK_NAME} (pull it with oscar eval weights "
                               "pull)", "a file oscar did not download")
-    return path
+    return path, digest
 
 
 def cached_networks(*, cache_dir=None, device="cpu", table: Mapping[str, WeightFile] | None = None) -> dict:
-    """The metric networks available in the cache: ``{"lpips": LPIPS, "i3d": path, "inception": path}`` (subset).
+    """The metric networks available in the cache, ready to call: ``{"lpips", "i3d", "inception"}`` (subset).
 
-    LPIPS (AlexNet) needs both ``alexnet`` and ``lpips-alex``. TorchScript
-    files are returned as paths; :func:`~oscar_core.metrics.video.load_torchscript`
-    loads them after this hash check.
+    LPIPS (AlexNet) needs both ``alexnet`` and ``lpips-alex``. The TorchScript
+    detectors are loaded from the very bytes whose sha256 was checked, with
+    the reference call arguments (``I3D_CALL_KWARGS``, ``INCEPTION_CALL_KWARGS``).
     """
+    from .video import I3D_CALL_KWARGS, INCEPTION_CALL_KWARGS, load_torchscript
+
     out: dict = {}
-    for key in ("i3d", "inception"):
-        p = weight_path(key, cache_dir=cache_dir, table=table)
-        if p is not None:
-            out[key] = p
+    for key, kwargs in (("i3d", I3D_CALL_KWARGS), ("inception", INCEPTION_CALL_KWARGS)):
+        found = _verified(key, cache_dir, table)
+        if found is not None:
+            out[key] = load_torchscript(found[0], device=device, sha256=found[1], **kwargs)
     trunk = weight_path("alexnet", cache_dir=cache_dir, table=table)
     lin = weight_path("lpips-alex", cache_dir=cache_dir, table=table)
     if trunk is not None and lin is not None:
