@@ -213,6 +213,7 @@ def test_rollout_key_changes_with_every_input(tmp_path):
 @pytest.mark.slow
 def test_resume_after_kill_redoes_no_finished_cell(tmp_path, model_dir):
     manifest = make_study(tmp_path / "study")
+    _edit(manifest, lambda d: d.update(cells=d["cells"][:3]))  # session s1 only: 3 cells keep the test short
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "oscar_core.cli", "eval", "run", str(manifest), "--model", str(model_dir), "--out",
            str(out), "--judge", f"{manifest.parent / 'judge_fns.py'}:judge", "--steps", "1", "--no-progress"]
@@ -225,7 +226,7 @@ def test_resume_after_kill_redoes_no_finished_cell(tmp_path, model_dir):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     done = records()
-    assert 1 <= len(done) < 6, f"kill landed outside the run: {len(done)} cells finished"
+    assert 1 <= len(done) < 3, f"kill landed outside the run: {len(done)} cells finished"
     before = {p: (p.stat().st_mtime_ns, json.loads(p.read_text())) for p in done}
     videos = {p: (out / json.loads(p.read_text())["video"]).stat().st_mtime_ns for p in done}
     assert not (tmp_path / "judge.log").exists()  # killed before the judging stage
@@ -233,12 +234,13 @@ def test_resume_after_kill_redoes_no_finished_cell(tmp_path, model_dir):
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["counts"]["rollouts_reused"] == len(done)
-    assert report["counts"]["rollouts_done"] == 6 - len(done)
+    assert report["counts"]["rollouts_done"] == 3 - len(done)
     for p, (_, rec) in before.items():  # finished cells untouched: same video, same rollout record
         assert (out / rec["video"]).stat().st_mtime_ns == videos[p]
         assert json.loads(p.read_text())["rollout_key"] == rec["rollout_key"]
         assert json.loads(p.read_text())["video_sha256"] == rec["video_sha256"]
-    assert report["comparison"]["metrics"]["sisr_delta_pp"] == pytest.approx(100 / 3)
+    # s1: real good 1, mid 1, bad 0; world model good 1, mid 0, bad 1 -> SISR (0 + 100 + 100) / 3
+    assert report["comparison"]["metrics"]["sisr_delta_pp"] == pytest.approx(200 / 3)
     assert not list(out.rglob(".*.tmp*"))  # no temporary file left behind by the kill... or renamed into place
 
 
