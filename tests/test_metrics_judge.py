@@ -32,6 +32,7 @@ from oscar_core.metrics import (
     sample_frame_indices,
     success_by_policy,
 )
+from oscar_core.metrics.judge import PAPER_SUCCESS_PROMPT
 from oscar_core.metrics.policy import BradleyTerryWarning
 
 MODEL = "mock-vlm-7b"
@@ -57,6 +58,7 @@ class MockVLM:
         self.bodies, self.headers = [], []
         self.per_instruction = Counter()
         self.in_flight = self.max_in_flight = 0
+        self.times = []
 
     @property
     def count(self):
@@ -64,9 +66,10 @@ class MockVLM:
             return len(self.bodies)
 
     def reply(self, body):
-        user = body["messages"][1]["content"]
+        user = body["messages"][-1]["content"]
         text = user[0]["text"]
-        instruction = re.match(r"Instruction: (.*)", text).group(1)
+        found = re.match(r"Instruction: (.*)", text) or re.search(r"\nTask: (.*)", text)
+        instruction = found.group(1)
         with self.lock:
             self.per_instruction[instruction] += 1
             n = self.per_instruction[instruction]
@@ -82,6 +85,10 @@ class MockVLM:
             return (500, None) if n == 1 else (200, VALID)
         if "ratelimit" in instruction:
             return (429, None) if n == 1 else (200, VALID)
+        if "waitlimit" in instruction:  # 429 with Retry-After: 1 the first time
+            with self.lock:
+                self.times.append(time.monotonic())
+            return (4291, None) if n == 1 else (200, VALID)
         if "slow-once" in instruction:
             return ("sleep", None) if n == 1 else (200, VALID)
         if "slow-always" in instruction:
@@ -128,19 +135,24 @@ def server():
             body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
             with mock.lock:
                 mock.bodies.append(body)
-                mock.headers.append(dict(self.headers))
+                mock.headers.append({k.lower(): v for k, v in self.headers.items()})
             assert self.path == "/v1/chat/completions"
             code, content = mock.reply(body)
             if code == "sleep":
                 time.sleep(0.8)  # past the client's timeout
                 code, content = 200, VALID
+            retry_after = "0"
+            if code == 4291:
+                code, retry_after = 429, "1"
             if code == "raw":
                 payload = content.encode()
                 code = 200
             elif code == 200:
                 payload = json.dumps({"id": "x", "object": "chat.completion", "model": body["model"],
                                       "choices": [{"index": 0, "finish_reason": "stop",
-                                                   "message": {"role": "assistant", "content": content}}]}).encode()
+                                                   "message": {"role": "assistant", "content": content}}],
+                                      "usage": {"prompt_tokens": 1000, "completion_tokens": 20,
+                                                "total_tokens": 1020}}).encode()
             else:  # like some servers, echo the key in the error (the client must mask it)
                 auth = self.headers.get("Authorization")
                 payload = json.dumps({"error": {"message": f"mock {code}, key {auth}"}}).encode()
@@ -149,7 +161,7 @@ def server():
                 self.send_header("Content-Type", "application/json")
                 self.send_header("Content-Length", str(len(payload)))
                 if code == 429:
-                    self.send_header("Retry-After", "0")
+                    self.send_header("Retry-After", retry_after)
                 self.end_headers()
                 self.wfile.write(payload)
             except OSError:
@@ -278,8 +290,10 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
     assert by["ratelimit"].attempt_errors[0].startswith("HTTP 429")
     assert by["slow-once"].attempt_errors[0].startswith("timeout")
     slow = by["slow-always"]
-    assert (slow.status, slow.attempts, slow.binary) == ("error", 3, None)
-    assert all(e.startswith("timeout") for e in slow.attempt_errors) and "after 3 attempts" in slow.error
+    # a timed-out request is retried once at most (max_timeout_retries=1), although max_attempts is 3
+    assert (slow.status, slow.attempts, slow.binary) == ("error", 2, None)
+    assert all(e.startswith("timeout") for e in slow.attempt_errors)
+    assert "timed out 2 time(s); not retried beyond max_timeout_retries=1" in slow.error
     shape = by["shape"]  # a 200 that is not a chat completion: an error, not retried, body kept
     assert (shape.status, shape.attempts) == ("error", 1) and "not an OpenAI chat completion" in shape.error
     assert json.loads(shape.raw) == {"result": {"binary": 1}}
@@ -289,21 +303,23 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
     short = by["short"]
     assert (short.status, short.frames_total, short.frames_sent) == ("ok", 5, 5)
 
-    # request bodies: model, system prompt, instruction, one image per sampled frame, resized
+    # request bodies: model, the paper's prompt word for word (one user message, no system message), the
+    # instruction, one image per sampled frame, resized
     for body, headers in zip(server.bodies, server.headers):
         assert body["model"] == MODEL and set(body) == {"model", "messages"}
-        assert headers["Authorization"] == "Bearer sk-secret-123"
-        system, user = body["messages"]
-        assert system == {"role": "system", "content": SUCCESS_SYSTEM_PROMPT}
+        assert headers["authorization"] == "Bearer sk-secret-123"
+        (user,) = body["messages"]
         assert user["role"] == "user" and user["content"][0]["type"] == "text"
+        instruction = re.search(r"\nTask: (.*)\n", user["content"][0]["text"]).group(1)
+        assert user["content"][0]["text"] == PAPER_SUCCESS_PROMPT.replace("{instruction}", instruction)
         images = [p["image_url"]["url"] for p in user["content"][1:]]
         assert all(p["type"] == "image_url" for p in user["content"][1:])
-        n = 5 if "short" in user["content"][0]["text"] else 32
-        assert len(images) == n and f"The {n} frames" in user["content"][0]["text"]
-        assert "put the cup in the bowl" in user["content"][0]["text"] or "short" in user["content"][0]["text"]
+        n = 5 if "short" in instruction else 32
+        assert len(images) == n
+        assert "put the cup in the bowl" in user["content"][0]["text"] or "short" in instruction
         shape_hw = _decode(images[0]).shape
-        assert shape_hw == ((36, 64, 3) if "short" not in user["content"][0]["text"] else (24, 32, 3))
-    assert server.count == 1 + 1 + 1 + 2 + 2 + 2 + 3 + 1 + 1 + 1
+        assert shape_hw == ((36, 64, 3) if "short" not in instruction else (24, 32, 3))
+    assert server.count == 1 + 1 + 1 + 2 + 2 + 2 + 2 + 1 + 1 + 1
     assert sum(v.attempts for v in verdicts) == server.count
     assert "sk-secret" not in json.dumps([v.to_dict() for v in verdicts]) + repr(judge.client)
     assert "sk-secret" not in "".join(p.read_text() for p in (tmp_path / "cache").glob("*.json"))
@@ -356,8 +372,8 @@ def test_success_judge_video_files_frame_folders_and_unreadable(server, tmp_path
     assert [v.status for v in verdicts] == ["ok", "ok", "error", "ok"]
     assert [(v.frames_total, v.frames_sent) for v in verdicts if v.ok] == [(12, 8), (3, 3), (12, 8)]
     assert "broken.mp4" in verdicts[2].error and verdicts[2].attempts == 0
-    first = next(b for b in server.bodies if "valid a" in b["messages"][1]["content"][0]["text"])
-    urls = [p["image_url"]["url"] for p in first["messages"][1]["content"][1:]]
+    first = next(b for b in server.bodies if "valid a" in b["messages"][-1]["content"][0]["text"])
+    urls = [p["image_url"]["url"] for p in first["messages"][-1]["content"][1:]]
     # PNG is lossless: the sent frames are exactly the sampled ones
     for url, i in zip(urls, sample_frame_indices(12, 8)):
         assert url.startswith("data:image/png;base64,") and np.array_equal(_decode(url), frames[i])
@@ -398,14 +414,17 @@ def test_bad_input_is_reported_before_any_request(server, tmp_path, monkeypatch)
     monkeypatch.setenv("OSCAR_JUDGE_BASE_URL", server.url + "/chat/completions")
     monkeypatch.setenv("OSCAR_JUDGE_MODEL", "env-model")
     v = SuccessJudge(timeout=2).judge(good)
-    assert v.ok and server.bodies[-1]["model"] == "env-model" and "Authorization" not in server.headers[-1]
+    assert v.ok and server.bodies[-1]["model"] == "env-model" and "authorization" not in server.headers[-1]
 
 
 def test_sampling_fields_and_unreachable_server(server, tmp_path):
     judge = _judge(server, tmp_path, temperature=0.0, max_tokens=64, extra_body={"reasoning_effort": "high"})
     assert judge.judge(JudgeClip("x", _video(0), "valid x")).ok
     body = server.bodies[-1]
-    assert (body["temperature"], body["max_tokens"], body["reasoning_effort"]) == (0.0, 64, "high")
+    assert (body["temperature"], body["max_completion_tokens"], body["reasoning_effort"]) == (0.0, 64, "high")
+    assert "max_tokens" not in body  # OpenAI's newer models reject max_tokens; older servers: token_field
+    assert _judge(server, tmp_path, max_tokens=64, token_field="max_tokens").judge(JudgeClip("y", _video(1), "valid y")).ok
+    assert server.bodies[-1]["max_tokens"] == 64 and "max_completion_tokens" not in server.bodies[-1]
     # nothing listens on this port: connection errors are retried, then the clip is an error
     import socket
 
@@ -538,7 +557,9 @@ def test_cli_judge_and_pairwise_feed_eval_policies(server, tmp_path, capsys):
     assert code == 0, out + err
     data = json.loads((tmp_path / "j.json").read_text())
     assert data["summary"] == {"total": 8, "ok": 8, "malformed": 0, "error": 0, "cached": 0, "requests": 8,
-                               "retries": 0}
+                               "retries": 0, "usage": {"prompt_tokens": 8000, "completion_tokens": 160,
+                                                       "total_tokens": 8160}}  # summed from the responses
+    assert data["clips"][0]["usage"] == {"prompt_tokens": 1000, "completion_tokens": 20, "total_tokens": 1020}
     rows = {c["clip"]: c for c in data["clips"]}
     assert rows["s2/oddball"]["policy"] == "poor" and rows["s2/oddball"]["session"] == "s2"
     assert rows["s1/good"]["instruction"] == "valid: stack the blocks" and rows["s1/good"]["frames_sent"] == 6
@@ -617,15 +638,88 @@ def test_docs_show_the_prompts_and_every_option():
     from oscar_core.metrics import judge as judge_module
 
     doc = (Path(__file__).parent.parent / "docs" / "evaluation.md").read_text()
-    for prompt in (SUCCESS_SYSTEM_PROMPT, PAIRWISE_SYSTEM_PROMPT):
+    for prompt in (PAPER_SUCCESS_PROMPT, SUCCESS_SYSTEM_PROMPT, PAIRWISE_SYSTEM_PROMPT):
         assert f"```text\n{prompt}\n```" in doc
     parser = argparse.ArgumentParser(prog="oscar")
     ev = add_eval_parser(parser.add_subparsers(dest="command", required=True))
     sub = next(a for a in ev._actions if isinstance(a, argparse._SubParsersAction))
-    for name in ("judge", "pairwise", "policies"):
-        for action in sub.choices[name]._actions:
+    for name in ("judge", "pairwise", "policies", "run", "video", "weights"):
+        parsers = [sub.choices[name]]
+        if name == "weights":
+            inner = next(a for a in parsers[0]._actions if isinstance(a, argparse._SubParsersAction))
+            parsers = list(inner.choices.values())
+        for action in [a for p in parsers for a in p._actions]:
             for opt in action.option_strings:
                 if opt.startswith("--") and opt != "--help":
                     assert f"`{opt}" in doc or f"{opt} " in doc, f"{name} {opt} is not documented"
     user = judge_module.SUCCESS_USER_PROMPT.split("{instruction}")[0]
     assert user in doc
+
+
+def test_retry_after_budget_and_dry_run(server, tmp_path, capsys):
+    # Retry-After: 1 is honoured even though the backoff is 10 ms
+    v = _judge(server, tmp_path, cache_dir=None, timeout=5).judge(JudgeClip("w", _video(0, frames=3), "waitlimit w"))
+    assert (v.status, v.attempts) == ("ok", 2) and v.attempt_errors[0].startswith("HTTP 429")
+    assert server.times and time.monotonic() - server.times[0] >= 0.95
+    # a budget of 3 requests for 5 clips: 3 answered, 2 failed without a request, nothing cached for those
+    clips = [JudgeClip(f"b{k}", _video(k, frames=3), f"valid {k}") for k in range(5)]
+    before = server.count
+    judge = _judge(server, tmp_path, max_requests=3, concurrency=1)
+    verdicts = judge.judge_many(clips)
+    assert server.count - before == 3 and judge.client.requests_sent == 3
+    assert [v.status for v in verdicts] == ["ok", "ok", "ok", "error", "error"]
+    assert "request budget of 3 requests spent" in verdicts[3].error and verdicts[3].attempts == 0
+    assert judge.client.usage == {"prompt_tokens": 3000, "completion_tokens": 60, "total_tokens": 3060}
+    again = _judge(server, tmp_path, max_requests=2).judge_many(clips)  # a re-run continues where it stopped
+    assert [v.cached for v in again] == [True, True, True, False, False] and all(v.ok for v in again)
+    # dry run: prints what would be sent, sends nothing
+    root = tmp_path / "videos" / "s1"
+    root.mkdir(parents=True)
+    np.save(root / "pi0.npy", _video(1, frames=40, size=(288, 512)))
+    np.save(root / "pg.npy", _video(2, frames=40, size=(288, 512)))
+    (tmp_path / "tasks.json").write_text(json.dumps({"s1": "valid: put the cup in the bowl"}))
+    before = server.count
+    code, out, err = run(capsys, "judge", "--videos", tmp_path / "videos", "--tasks", tmp_path / "tasks.json",
+                         "--base-url", server.url, "--model", MODEL, "--cache", tmp_path / "c2", "--dry-run")
+    assert code == 0 and server.count == before, err
+    assert "s1/pi0: 1 request to" in out and "32 images 512x288" in out and "nothing was sent" in out
+    assert "| Task: valid: put the cup in the bowl" in out and "| Frames in temporal order:" in out
+    code, out, _ = run(capsys, "judge", "--videos", tmp_path / "videos", "--tasks", tmp_path / "tasks.json",
+                       "--base-url", server.url, "--model", MODEL, "--cache", tmp_path / "c2", "--dry-run", "--json")
+    plan = json.loads(out)
+    assert [r["images"] for r in plan["requests"]] == [32, 32] and server.count == before
+
+
+def test_prompt_options(server, tmp_path):
+    clip = JudgeClip("x", _video(0, frames=3), "valid x")
+    assert _judge(server, tmp_path, prompt="oscar", cache_dir=None).judge(clip).ok
+    system, user = server.bodies[-1]["messages"]
+    assert system == {"role": "system", "content": SUCCESS_SYSTEM_PROMPT}
+    assert user["content"][0]["text"] == "Instruction: valid x\n\nThe 3 frames of the attempt follow, in temporal order."
+    assert _judge(server, tmp_path, prompt="Rate this.\nTask: {instruction} ({n_frames} frames)\n",
+                  cache_dir=None).judge(clip).ok
+    (user,) = server.bodies[-1]["messages"]
+    assert user["content"][0]["text"] == "Rate this.\nTask: valid x (3 frames)\n"
+    with pytest.raises(MetricInputError, match="prompt"):
+        _judge(server, tmp_path, prompt="no placeholder")
+
+
+def test_pairwise_both_orders_reconciles_position_bias(server, tmp_path):
+    clips = _session_clips("s1", "compare: put the cup in the bowl")[:2]  # best (bright) vs good (less bright)
+    pair = pairs_by_session(clips)[0]
+    v = PairwiseJudge(base_url=server.url, model=MODEL, cache_dir=None, both_orders=True, timeout=2).compare(pair)
+    assert v.ok and v.orders_agree is True and v.winner == "a" and v.attempts == 2
+    assert [o.swapped for o in v.orders] == [False, True] and [o.winner for o in v.orders] == ["a", "a"]
+    assert v.usage == {"prompt_tokens": 2000, "completion_tokens": 40, "total_tokens": 2040}
+
+    class Biased(PairwiseJudge):  # a judge that always answers "A": the orders disagree -> a tie
+        def _compare_once(self, pair, swapped):
+            from dataclasses import replace as _replace
+
+            v = super()._compare_once(pair, swapped)
+            shown = pair.b.policy_name if swapped else pair.a.policy_name
+            return _replace(v, model_winner="A", winner="b" if swapped else "a", reason=f"{shown} first")
+
+    v = Biased(base_url=server.url, model=MODEL, cache_dir=None, both_orders=True, timeout=2).compare(pair)
+    assert v.ok and v.orders_agree is False and v.winner == "tie" and "disagree" in v.reason
+    assert v.preference().outcome == 1  # a tie for Bradley-Terry

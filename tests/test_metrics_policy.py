@@ -1,5 +1,6 @@
 """Policy-evaluation metrics: rank fidelity (MMRV, rho, r, SISR_delta) and Bradley-Terry-Davidson."""
 
+import itertools
 import json
 import math
 import warnings
@@ -331,3 +332,27 @@ def test_parse_preference_forms():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert parse_preference(["x", "y", 2]).outcome == 2
+
+
+def test_pearson_is_nan_for_constant_input_like_scipy():
+    # the mean of seven 0.1's is not exactly 0.1: a centred-sum test would return float noise instead of NaN
+    const, other = [0.1] * 7, [0.3, 0.2, 0.5, 0.1, 0.9, 0.4, 0.7]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # scipy's ConstantInputWarning
+        assert math.isnan(st.pearsonr(other, const).statistic)
+    assert math.isnan(pearson_r(other, const)) and math.isnan(pearson_r(const, other))
+    assert math.isnan(spearman_rho(other, const))
+
+
+def test_mmrv_rank_true_range_by_exhaustive_search():
+    from oscar_core.metrics import mmrv_rank_max
+
+    # every pair of score vectors over a small grid (ties included) for N = 2, 3; every pair of orders for N = 4, 5
+    for n, grid in ((2, True), (3, True), (4, False), (5, False)):
+        vectors = list(itertools.product(range(n), repeat=n)) if grid else list(itertools.permutations(range(n)))
+        best = max(mmrv_rank(list(r), list(w)) for r in vectors for w in vectors)
+        assert best == pytest.approx(mmrv_rank_max(n)), n
+    # the paper's N = 7: 33/7, reached by the reversed ranking (the paper states [0, 6])
+    assert mmrv_rank_max(7) == pytest.approx(33 / 7)
+    assert mmrv_rank(list(range(7)), list(range(7))[::-1]) == pytest.approx(33 / 7)
+    assert mmrv_rank_max(2) == 1.0

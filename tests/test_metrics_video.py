@@ -3,6 +3,7 @@ LPIPS/tLPIPS/latent-L2/FVD/FID with small deterministic stand-in networks."""
 
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -62,7 +63,19 @@ def test_psnr_hand_worked_and_identity():
     gt = np.zeros((1, 12, 12, 3), np.uint8)
     pred = np.full_like(gt, 51)  # every pixel off by 51/255 = 0.2 -> MSE 0.04 -> 10 log10(1/0.04) = 13.979 dB
     assert psnr(pred, gt, n_frames=None)[0] == pytest.approx(10 * math.log10(25))
-    assert np.isinf(psnr(gt, gt, n_frames=None)).all()
+    # identical frames: capped at 100 dB by convention (one identical frame must not make a clip mean inf) ...
+    assert psnr(gt, gt, n_frames=None).tolist() == [100.0]
+    assert np.isinf(psnr(gt, gt, n_frames=None, cap=None)).all()  # ... uncapped on request
+    video = np.stack([gt[0], pred[0]])  # frame 0 identical, frame 1 off: the clip mean stays finite
+    assert psnr(video, np.stack([gt[0], gt[0]]), n_frames=None).mean() == pytest.approx((100 + 10 * math.log10(25)) / 2)
+    # one 8-bit level in one value of a 512x288 frame is above the cap: 10 log10(255^2 * 512*288*3) = 104.6 dB
+    big = np.zeros((1, 288, 512, 3), np.uint8)
+    one = big.copy()
+    one[0, 0, 0, 0] = 1
+    assert psnr(one, big, n_frames=None, cap=None)[0] == pytest.approx(10 * math.log10(255**2 * 512 * 288 * 3))
+    assert psnr(one, big, n_frames=None)[0] == 100.0
+    with pytest.raises(MetricInputError, match="cap"):
+        psnr(gt, gt, cap=float("inf"), n_frames=None)
     assert ssim(gt, gt, n_frames=None) == pytest.approx([1.0])
 
 
@@ -277,7 +290,7 @@ def test_evaluate_videos_per_clip_aggregate_and_embodiments(tmp_path):
         else:
             clips.append(Clip(f"clip{k}", pred, gt, emb))
     rep = evaluate_videos(clips, n_frames=5, lpips_net=TinyLPIPS().eval(), vae=lambda x: x[:, :, :, ::4, ::4],
-                          fvd_extractor=lambda x: x.mean(dim=(2, 3, 4)), fid_extractor=lambda x: x.float().mean((2, 3)))
+                          fvd_extractor=lambda x: x.float().mean(dim=(2, 3, 4)), fid_extractor=lambda x: x.float().mean((2, 3)))
     assert [c["name"] for c in rep.clips] == [f"clip{k}" for k in range(5)]
     pred1, gt1 = clips[1].pred, clips[1].gt
     row = rep.clips[1]
@@ -301,3 +314,77 @@ def test_evaluate_videos_per_clip_aggregate_and_embodiments(tmp_path):
         evaluate_videos([clips[1], clips[1]], n_frames=5)
     with pytest.raises(MetricInputError, match=r"clip1: pred: field 'frames': expected at least 49 frames"):
         evaluate_videos(clips[1:3], n_frames=49)
+
+
+class RefI3D(torch.nn.Module):
+    """Fixture with the i3d_torchscript.pt interface: rescales [0, 255] and resizes to 224x224 itself when asked,
+    and returns features that see *where* things are (a 4x4 grid of channel means), so a crop changes them."""
+
+    def forward(self, x, rescale: bool = False, resize: bool = False, return_features: bool = False):
+        x = x.float()
+        if rescale:
+            x = x / 127.5 - 1.0
+        if resize:
+            x = torch.nn.functional.interpolate(x, size=(x.shape[2], 224, 224), mode="trilinear", align_corners=False)
+        return torch.nn.functional.adaptive_avg_pool3d(x, (1, 4, 4)).flatten(1)
+
+
+class RefInception(torch.nn.Module):
+    """Fixture with the inception-2015-12-05.pt interface: uint8 (B, 3, H, W), resized to 299x299 inside."""
+
+    def forward(self, x, return_features: bool = False):
+        assert x.dtype == torch.uint8
+        x = torch.nn.functional.interpolate(x.float(), size=(299, 299), mode="bilinear", align_corners=False)
+        return torch.nn.functional.adaptive_avg_pool2d(x, (3, 3)).flatten(1)
+
+
+def _wide_clips(seed, n=4, t=6):
+    """Non-square (36x96) clips whose left and right thirds differ from the middle: a centre crop loses them."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        v = rng.integers(90, 110, (t, 36, 96, 3)).astype(np.uint8)
+        v[:, :, :32] = rng.integers(0, 256)  # the edges carry most of the difference between clips
+        v[:, :, 64:] = rng.integers(0, 256)
+        out.append(v)
+    return out
+
+
+def test_fvd_and_fid_preprocessing_match_the_reference_code(tmp_path):
+    # StyleGAN-V: uint8 (B, 3, T, H, W) straight into the detector, called with rescale=True, resize=True
+    i3d_path = tmp_path / "i3d.pt"
+    torch.jit.script(RefI3D()).save(str(i3d_path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        det = torch.jit.load(str(i3d_path))
+    pred, gt = _wide_clips(1), _wide_clips(2)
+
+    def reference_features(clips):
+        x = torch.from_numpy(np.stack(clips)).permute(0, 4, 1, 2, 3).contiguous()  # [b, c, t, h, w] uint8
+        return det(x, rescale=True, resize=True, return_features=True).double().numpy()
+
+    ref = frechet_distance_from_features(reference_features(pred), reference_features(gt))
+    ours = fvd(pred, gt, i3d_path, n_frames=None)
+    assert ours == pytest.approx(ref, rel=1e-9) and ref > 1.0
+    # a centre crop (shorter side -> 224, crop 224x224) or our own stretch to [-1, 1] change the number
+    cropped = fvd(pred, gt, i3d_path, n_frames=None, resolution=224)
+    assert abs(cropped - ref) > 0.1 * ref
+    seen = []
+    video_features(pred[:2] + [pred[2][:, :, :48]], lambda x: seen.append((x.dtype, tuple(x.shape))) or
+                   torch.zeros(len(x), 2), n_frames=4)
+    assert seen == [(torch.uint8, (2, 3, 4, 36, 96)), (torch.uint8, (1, 3, 4, 36, 48))]  # sizes batched apart
+    # StyleGAN2-ADA FID: uint8 (B, 3, H, W) frames at their own size; the detector resizes to 299x299
+    inc_path = tmp_path / "inception.pt"
+    torch.jit.script(RefInception()).save(str(inc_path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        inc = torch.jit.load(str(inc_path))
+
+    def reference_frames(clips):
+        x = torch.from_numpy(np.concatenate(clips)).permute(0, 3, 1, 2).contiguous()
+        return inc(x, return_features=True).double().numpy()
+
+    ref_fid = frechet_distance_from_features(reference_frames(pred), reference_frames(gt))
+    assert fid(pred, gt, inc_path, n_frames=None) == pytest.approx(ref_fid, rel=1e-9)
+    crop = lambda clips: [np.ascontiguousarray(c[:, :, 30:66]) for c in clips]  # noqa: E731 - a centre crop first
+    assert abs(fid(crop(pred), crop(gt), inc_path, n_frames=None) - ref_fid) > 0.1 * ref_fid

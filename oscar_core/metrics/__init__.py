@@ -6,6 +6,11 @@
   Fréchet distances (FVD / FID) with user-supplied networks.
 * :mod:`oscar_core.metrics.judge` — VLM judges of rollouts through any
   OpenAI-compatible endpoint: per-clip success and pairwise preferences.
+* :mod:`oscar_core.metrics.programmatic` — judges that are functions of the video.
+* :mod:`oscar_core.metrics.weights` — ``oscar eval weights pull``: the standard
+  I3D / Inception / LPIPS files, pinned and hash-checked, in a cache;
+  :mod:`oscar_core.metrics.lpips_net` — LPIPS without torchvision;
+  :mod:`oscar_core.metrics.project_vae` — latent L2 with the project's VAE.
 * :mod:`oscar_core.metrics.plots` — success-rate scatter and rank slope chart
   (matplotlib, optional).
 * :mod:`oscar_core.metrics.cli` — the ``oscar eval`` sub-commands.
@@ -21,7 +26,7 @@ from .._lazy import lazy_exports
 _EXPORTS = {
     "MetricInputError": "_common",
     # policy evaluation
-    "mmrv_simpler": "policy", "mmrv_rank": "policy", "spearman_rho": "policy", "pearson_r": "policy",
+    "mmrv_simpler": "policy", "mmrv_rank": "policy", "mmrv_rank_max": "policy", "spearman_rho": "policy", "pearson_r": "policy",
     "sisr_delta": "policy", "average_ranks": "policy", "success_rates": "policy",
     "PolicyComparison": "policy", "compare_policies": "policy",
     "Preference": "policy", "parse_preference": "policy", "BradleyTerryResult": "policy",
@@ -37,8 +42,13 @@ _EXPORTS = {
     "SuccessVerdict": "judge", "PairwiseVerdict": "judge", "ChatClient": "judge", "MalformedAnswer": "judge",
     "JudgeRequestError": "judge", "parse_success_answer": "judge", "parse_pairwise_answer": "judge",
     "sample_frame_indices": "judge", "pairs_by_session": "judge", "success_by_policy": "judge",
-    "preferences_from_verdicts": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
+    "preferences_from_verdicts": "judge", "PAPER_SUCCESS_PROMPT": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
     "PAIRWISE_SYSTEM_PROMPT": "judge", "PAIRWISE_USER_PROMPT": "judge",
+    "ProgrammaticJudge": "programmatic", "check_verdict_fields": "programmatic",
+    # standard networks
+    "LPIPS": "lpips_net", "WEIGHTS": "weights", "WeightFile": "weights", "WeightHashError": "weights",
+    "pull_weights": "weights", "weight_path": "weights", "cached_networks": "weights",
+    "load_project_vae": "project_vae",
     # plots
     "success_scatter_figure": "plots", "rank_slope_figure": "plots", "save_figure": "plots",
     "plot_success_scatter": "plots", "plot_rank_slope": "plots", "plot_comparison": "plots",

@@ -1,4 +1,5 @@
-"""The ``oscar eval`` sub-commands: ``video``, ``policies``, ``judge`` and ``pairwise``.
+"""The ``oscar eval`` sub-commands: ``video``, ``policies``, ``judge``, ``pairwise``, ``weights``; ``run`` is
+registered here from :mod:`oscar_core.evaluation.cli`.
 
 Wire into the main parser with ``add_eval_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code), like the other sub-commands.
@@ -382,19 +383,45 @@ def cmd_eval_video(args) -> int:
     if args.frames < 0:
         raise MetricInputError("--frames", "value", "a frame count >= 0 (0 = all frames)", args.frames)
     clips = collect_clips(args.pred, args.gt, embodiment=args.embodiment)
+    nets = {"lpips": _load_network(args.lpips, "--lpips"), "i3d": _load_network(args.i3d, "--i3d"),
+            "inception": _load_network(args.inception, "--inception")}
+    used_cache = []
+    if not args.no_cached_networks:  # the standard networks from `oscar eval weights pull`, hash-checked
+        from .weights import cached_networks
+
+        for key, net in cached_networks(device=args.device).items():
+            if nets[key] is None:
+                nets[key] = net
+                used_cache.append(key)
+    vae, notes = _load_network(args.vae, "--vae"), {}
+    if vae is None and args.vae_model != "none":  # the project's own VAE, from the local cache only
+        from .project_vae import load_project_vae
+
+        try:
+            vae = load_project_vae(args.vae_model, device=args.device)
+        except Exception as exc:  # noqa: BLE001 - not cached / not a checkpoint: latent L2 is skipped, and said so
+            notes["latent_l2"] = (f"skipped: the VAE of {args.vae_model!r} is not available locally "
+                                  f"({type(exc).__name__}: {str(exc)[:200]}); `oscar zoo pull {args.vae_model}` or "
+                                  "--vae / --vae-model FOLDER")
     report = evaluate_videos(
         clips, n_frames=None if args.frames == 0 else args.frames,
-        lpips_net=_load_network(args.lpips, "--lpips"), vae=_load_network(args.vae, "--vae"),
-        fvd_extractor=_load_network(args.i3d, "--i3d"), fid_extractor=_load_network(args.inception, "--inception"),
+        lpips_net=nets["lpips"], vae=vae,
+        fvd_extractor=nets["i3d"] if len(clips) > 1 or args.i3d else None, fid_extractor=nets["inception"],
         device=args.device, progress=not args.json and sys.stderr.isatty(),
     )
     data = report.to_dict()
+    data["networks_from_cache"] = used_cache
+    data["notes"] = notes
     if args.out:
         _write_json(args.out, data)
     if args.json:
         print(json.dumps(data, indent=2))
     else:
         print(report.format_table())
+        for what, note in notes.items():
+            print(f"note: {what}: {note}")
+        if used_cache:
+            print(f"networks from the weights cache: {', '.join(used_cache)}")
         if args.out:
             print(f"wrote {args.out}")
     return 0
@@ -473,20 +500,26 @@ def _judge_kwargs(args) -> dict:
                 max_side=args.max_side or None, image_format=args.image_format, jpeg_quality=args.jpeg_quality,
                 temperature=args.temperature, max_tokens=args.max_tokens, extra_body=extra, timeout=args.timeout,
                 max_attempts=args.max_attempts, backoff=args.backoff, concurrency=args.concurrency,
+                token_field=args.token_field, max_timeout_retries=args.max_timeout_retries,
+                max_requests=args.max_requests,
                 cache_dir=None if args.no_cache else (args.cache or _default_cache_dir()))
 
 
 def _status_summary(verdicts) -> dict:
     counts = {status: sum(v.status == status for v in verdicts) for status in ("ok", "malformed", "error")}
     requests = sum(v.attempts for v in verdicts)
+    usage = {k: sum((v.usage or {}).get(k, 0) for v in verdicts if not v.cached)
+             for k in ("prompt_tokens", "completion_tokens", "total_tokens")}
     return {"total": len(verdicts), **counts, "cached": sum(v.cached for v in verdicts), "requests": requests,
-            "retries": sum(max(0, v.attempts - 1) for v in verdicts)}
+            "retries": sum(max(0, v.attempts - 1) for v in verdicts), "usage": usage}
 
 
 def _summary_line(summary: dict, what: str) -> str:
+    u = summary["usage"]
     return (f"{summary['total']} {what}: {summary['ok']} ok, {summary['malformed']} malformed, "
             f"{summary['error']} failed; {summary['requests']} requests ({summary['retries']} retries), "
-            f"{summary['cached']} from the cache")
+            f"{summary['cached']} from the cache; tokens {u['prompt_tokens']} prompt + {u['completion_tokens']} "
+            f"completion = {u['total_tokens']}")
 
 
 def _print_problems(verdicts, name_of) -> None:
@@ -500,12 +533,47 @@ def _print_problems(verdicts, name_of) -> None:
         print(line)
 
 
+def _prompt(spec: str) -> str:
+    """``--prompt``: "paper", "oscar", or a text file holding a template with {instruction}."""
+    if spec in ("paper", "oscar"):
+        return spec
+    path = Path(spec)
+    if not path.is_file():
+        raise MetricInputError(spec, "--prompt", "paper, oscar or a text file with a {instruction} template",
+                               "no such file")
+    return path.read_text()
+
+
+def _print_plan(plan: list[dict], judge, as_json: bool) -> int:
+    """``--dry-run``: the requests and images that would be sent; nothing is sent."""
+    todo = [p for p in plan if not p["cached"]]
+    if as_json:
+        print(json.dumps({"judge": judge.describe(), "requests": todo,
+                          "cached": [p["clip"] for p in plan if p["cached"]]}, indent=2))
+        return 0
+    for p in plan:
+        if p["cached"]:
+            print(f"{p['clip']}: cached, no request")
+            continue
+        w, h = p["image_size"]
+        print(f"{p['clip']}: 1 request to {judge.model}: {p['images']} images {w}x{h} "
+              f"({p['image_bytes'] / 1e6:.2f} MB base64) of {p['frames_total']} frames; sampling {p['sampling']}")
+        for t in p["texts"]:
+            print("    | " + t.replace("\n", "\n    | "))
+    print(f"dry run: {len(todo)} requests would be sent ({len(plan) - len(todo)} cached), "
+          f"{sum(p['images'] for p in todo)} images, {sum(p['image_bytes'] for p in todo) / 1e6:.2f} MB; "
+          "nothing was sent")
+    return 0
+
+
 def cmd_eval_judge(args) -> int:
     from .judge import SuccessJudge, success_by_policy
 
     kwargs = _judge_kwargs(args)
     clips = read_tasks(args.tasks, collect_judge_videos(args.videos))
-    judge = SuccessJudge(**kwargs)
+    judge = SuccessJudge(prompt=_prompt(args.prompt), **kwargs)
+    if args.dry_run:
+        return _print_plan(judge.plan(clips), judge, args.json)
     verdicts = judge.judge_many(clips, progress=not args.json and sys.stderr.isatty())
     policies = success_by_policy(verdicts)
     summary = _status_summary(verdicts)
@@ -551,7 +619,14 @@ def cmd_eval_pairwise(args) -> int:
     if not pairs:
         raise MetricInputError(args.tasks, "sessions", "at least one session with clips of two different policies",
                                f"{len(clips)} clips and no such session")
-    judge = PairwiseJudge(seed=args.seed, layout=args.layout, **kwargs)
+    judge = PairwiseJudge(seed=args.seed, layout=args.layout, both_orders=args.both_orders, **kwargs)
+    if args.dry_run:
+        per = 2 if args.both_orders else 1
+        print(json.dumps({"judge": judge.describe(), "pairs": [p.id for p in pairs], "requests": per * len(pairs),
+                          "images_per_request": f"up to 2 x {judge.n_frames}"}, indent=2) if args.json else
+              f"dry run: {per * len(pairs)} requests would be sent for {len(pairs)} pairs (cached ones are not "
+              f"re-sent), up to 2 x {judge.n_frames} images each; nothing was sent")
+        return 0
     verdicts = judge.compare_many(pairs, progress=not args.json and sys.stderr.isatty())
     prefs = preferences_from_verdicts(verdicts)
     summary = _status_summary(verdicts)
@@ -614,7 +689,16 @@ def _add_judge_args(p, default_frames: int) -> None:
     p.add_argument("--image-format", choices=("jpeg", "png"), default="jpeg", help="image encoding (default jpeg)")
     p.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality 1-100 (default 90)")
     p.add_argument("--temperature", type=float, help="sampling temperature (default: not sent)")
-    p.add_argument("--max-tokens", type=int, help="max_tokens (default: not sent)")
+    p.add_argument("--max-tokens", type=int, help="answer token limit, sent as max_completion_tokens "
+                                                  "(default: not sent)")
+    p.add_argument("--token-field", choices=("max_completion_tokens", "max_tokens"), default="max_completion_tokens",
+                   help="request field for --max-tokens (max_tokens for older servers)")
+    p.add_argument("--max-requests", type=int, help="request budget of this run: requests beyond it are not sent "
+                                                    "(those items fail, uncached; a re-run continues)")
+    p.add_argument("--max-timeout-retries", type=int, default=1,
+                   help="retries of a timed-out request at most (default 1: a timed-out request may be billed)")
+    p.add_argument("--dry-run", action="store_true", help="print the requests and images that would be sent; "
+                                                          "send nothing")
     p.add_argument("--extra-body", metavar="JSON",
                    help='extra request fields, e.g. \'{"reasoning_effort": "high"}\'')
     p.add_argument("--concurrency", type=int, default=4, help="requests in flight at once (default 4)")
@@ -654,6 +738,11 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                                                 "input (1, 3, T, H, W) in [-1, 1]")
     v.add_argument("--i3d", metavar="NET", help="FVD feature extractor, e.g. i3d_torchscript.pt (StyleGAN-V)")
     v.add_argument("--inception", metavar="NET", help="FID feature extractor, e.g. inception-2015-12-05.pt")
+    v.add_argument("--vae-model", default="oscar-2b", metavar="MODEL",
+                   help="checkpoint (zoo name, Hub id or folder) whose VAE computes latent L2 when --vae is not "
+                        "given, if it is in the local cache (default oscar-2b; none = skip)")
+    v.add_argument("--no-cached-networks", action="store_true",
+                   help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)")
     v.add_argument("--device", default="cpu", help="torch device for the networks (cpu, cuda)")
     v.add_argument("--json", action="store_true", help="print JSON instead of a table")
     v.add_argument("--out", metavar="FILE", help="also write the JSON results here")
@@ -678,6 +767,9 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                        epilog=JUDGE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(j, DEFAULT_JUDGE_FRAMES)
     j.add_argument("--wm-out", metavar="FILE", help="write per-policy success rates for `eval policies --wm`")
+    j.add_argument("--prompt", default="paper", help="paper (the paper's prompt, word for word; default), oscar "
+                                                     "(a more detailed one), or a text file with an {instruction} "
+                                                     "template")
     j.set_defaults(func=cmd_eval_judge)
 
     pw = sub.add_parser("pairwise", help="VLM pairwise preferences within sessions + Bradley-Terry",
@@ -686,9 +778,76 @@ def add_eval_parser(subparsers) -> argparse.ArgumentParser:
                         epilog=PAIRWISE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(pw, DEFAULT_PAIRWISE_FRAMES)
     pw.add_argument("--seed", type=int, default=0, help="seed of the per-pair A/B order (default 0)")
+    pw.add_argument("--both-orders", action="store_true",
+                    help="ask every pair in both orders; disagreeing orders count as a tie (position bias)")
     pw.add_argument("--layout", choices=("sets", "side_by_side"), default="sets",
                     help="all frames of A then all of B (sets, default), or A|B side by side per time step")
     pw.add_argument("--preferences-out", metavar="JSONL",
                     help="write the valid verdicts as preferences for `eval policies --preferences`")
     pw.set_defaults(func=cmd_eval_pairwise)
+
+    from ..evaluation.cli import add_run_parser
+
+    add_run_parser(sub)
+
+    w = sub.add_parser("weights", help="fetch the standard metric networks (I3D, Inception, LPIPS) into a cache",
+                       description="Download the FVD / FID / LPIPS networks from their canonical URLs, check their "
+                                   "sha256 (pinned, or recorded on first use), and keep them in the cache that "
+                                   "`oscar eval video` uses by default.",
+                       epilog=WEIGHTS_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    wsub = w.add_subparsers(dest="weights_command", required=True)
+    wp = wsub.add_parser("pull", help="download and verify", epilog=WEIGHTS_EXAMPLES,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    wp.add_argument("names", nargs="*", help="i3d, inception, lpips-alex, lpips-vgg, alexnet, vgg16 "
+                                             "(default: i3d inception lpips-alex alexnet; 'all' for every file)")
+    wp.add_argument("--cache", metavar="DIR", help="cache folder (default $OSCAR_WEIGHTS_CACHE or "
+                                                   "~/.cache/oscar/weights)")
+    wp.add_argument("--force", action="store_true", help="download again even if cached")
+    wp.add_argument("--json", action="store_true", help="machine-readable output")
+    wp.set_defaults(func=cmd_eval_weights_pull)
+    wl = wsub.add_parser("list", help="the pinned files and what the cache holds")
+    wl.add_argument("--cache", metavar="DIR", help="cache folder")
+    wl.add_argument("--json", action="store_true", help="machine-readable output")
+    wl.set_defaults(func=cmd_eval_weights_list)
     return ev
+
+
+WEIGHTS_EXAMPLES = """examples:
+  oscar eval weights pull                  (I3D for FVD, Inception for FID, LPIPS-Alex: about 130 MB)
+  oscar eval weights pull all --cache /data/oscar-weights
+  oscar eval weights list --json
+  oscar eval video preds/ gts/             (uses the cached networks)
+"""
+
+
+def cmd_eval_weights_pull(args) -> int:
+    from .weights import GROUPS, pull_weights
+
+    names = list(args.names) or list(GROUPS["default"])
+    if names == ["all"]:
+        names = list(GROUPS["all"])
+    result = pull_weights(names, cache_dir=args.cache, force=args.force,
+                          log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        for name, r in result.items():
+            print(f"{name:11s} {r['status']:10s} sha256 {r['sha256'][:16]}...  ({r['check']})  {r['path']}")
+    return 0
+
+
+def cmd_eval_weights_list(args) -> int:
+    from .weights import WEIGHTS, _read_lock, weights_cache_dir
+
+    cache = weights_cache_dir(args.cache)
+    lock = _read_lock(cache) if cache.is_dir() else {}
+    rows = [{"name": w.name, "file": w.filename, "url": w.url, "pin": w.pin,
+             "sha256": w.sha256 or (lock.get(w.name) or {}).get("sha256"), "sha256_prefix": w.sha256_prefix,
+             "cached": (cache / w.filename).is_file(), "source": w.source} for w in WEIGHTS.values()]
+    if args.json:
+        print(json.dumps({"cache": str(cache), "weights": rows}, indent=2))
+    else:
+        for r in rows:
+            print(f"{r['name']:11s} {'cached' if r['cached'] else '-':7s} {r['pin']:18s} {r['url']}")
+        print(f"cache: {cache}")
+    return 0

@@ -89,7 +89,6 @@ from __future__ import annotations
 
 import base64
 import hashlib
-import http.client
 import itertools
 import json
 import math
@@ -98,11 +97,9 @@ import random
 import re
 import threading
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +113,8 @@ __all__ = [
     "DEFAULT_JUDGE_FRAMES",
     "DEFAULT_PAIRWISE_FRAMES",
     "DEFAULT_MAX_SIDE",
+    "PAPER_SUCCESS_PROMPT",
+    "SUCCESS_PROMPTS",
     "SUCCESS_SYSTEM_PROMPT",
     "SUCCESS_USER_PROMPT",
     "PAIRWISE_SYSTEM_PROMPT",
@@ -154,8 +153,32 @@ DEFAULT_MAX_SIDE = 512
 CACHE_VERSION = 1
 
 # --------------------------------------------------------------------------- #
-# prompts (our own wording; see docs/evaluation.md for the reasoning)
+# prompts
 # --------------------------------------------------------------------------- #
+#: The paper's success prompt, word for word (OSCAR Appendix "VLM success scoring", the box "Prompt for the VLM
+#: success evaluator"; paragraphs as in the LaTeX source). Sent as the text of one user message, with the task
+#: in place of ``{instruction}``; the frames follow it as images ("Frames in temporal order: <32 images>").
+#: No system message. Filled with ``str.replace`` (the JSON braces are literal).
+PAPER_SUCCESS_PROMPT = """\
+You are evaluating whether a robot manipulation rollout successfully completes a described task. You see frames \
+sampled uniformly across the rollout duration.
+
+Output one JSON object only, no prose:
+
+{"binary": 0 or 1, "partial": 0-100, "reason": "<one short sentence>"}
+
+- binary = 1 only if the task is fully completed as described
+
+- partial: 0 = no progress, 100 = fully complete, intermediate = partial progress
+
+Task: {instruction}
+
+Frames in temporal order:"""
+
+#: ``SuccessJudge(prompt=...)`` choices: the paper's (default) and oscar's earlier, more detailed wording.
+SUCCESS_PROMPTS = ("paper", "oscar")
+
+# oscar's own, more detailed wording (``prompt="oscar"``; docs/evaluation.md explains each choice)
 SUCCESS_SYSTEM_PROMPT = """\
 You grade videos of a robot carrying out a manipulation instruction. You get \
 the instruction and still frames taken at even time intervals from one \
@@ -201,7 +224,6 @@ PAIRWISE_SIDE_BY_SIDE_NOTE = ("{n_frames} images in temporal order follow. Each 
 
 STATUSES = ("ok", "malformed", "error")
 _RETRY_HTTP = frozenset({408, 429})
-_MAX_RESPONSE_BYTES = 16 * 1024 * 1024
 _SEPARATOR_PX = 8
 
 
@@ -372,21 +394,43 @@ def _message_text(body: dict):
     raise ValueError(f"expected 'choices[0].message.content' to be text, found {type(content).__name__}")
 
 
+def _openai():
+    """The ``openai`` package, or an ImportError naming the install command (checked only here)."""
+    try:
+        import openai
+    except ImportError:
+        raise ImportError("oscar's VLM judges use the OpenAI Python SDK, which is not installed; install it with: "
+                          'pip install "oscar-wm[judge]"') from None
+    return openai
+
+
 class ChatClient:
-    """A minimal OpenAI-compatible ``/chat/completions`` client with retries (standard library only).
+    """An OpenAI-compatible chat-completions client (the OpenAI Python SDK) with oscar's retry and cost rules.
 
     ``base_url`` / ``model`` / ``api_key`` default to ``$OSCAR_JUDGE_BASE_URL``,
-    ``$OSCAR_JUDGE_MODEL`` / ``$OSCAR_JUDGE_API_KEY``. ``temperature`` and
-    ``max_tokens`` are sent only when set (reasoning models such as GPT-5 reject
-    a temperature); ``extra_body`` is merged into every request body (e.g.
-    ``{"reasoning_effort": "high"}`` or ``{"response_format": {"type":
-    "json_object"}}``). Retry rules in the module docstring. Thread-safe.
+    ``$OSCAR_JUDGE_MODEL`` / ``$OSCAR_JUDGE_API_KEY`` (no key: no
+    ``Authorization`` header, as a local vLLM server wants). ``temperature``
+    and ``max_tokens`` are sent only when set (reasoning models such as GPT-5
+    reject a temperature); ``max_tokens`` goes out as ``max_completion_tokens``
+    (what OpenAI's newer models require; vLLM accepts it) unless
+    ``token_field="max_tokens"``. ``extra_body`` is merged into every request
+    body (e.g. ``{"reasoning_effort": "high"}``).
+
+    The SDK's own retries are off; ``complete`` retries 408, 429, 5xx and
+    connection errors up to ``max_attempts`` requests, honouring ``Retry-After``
+    (up to ``backoff_max``), but a **timed-out** request — the expensive kind:
+    the server may still be working on it, and bill it — is retried at most
+    ``max_timeout_retries`` times (default 1). ``max_requests`` caps the HTTP
+    requests this client sends in all (a budget shared by every clip and
+    thread; once spent, requests fail at once with "request budget ... spent").
+    Thread-safe.
     """
 
     def __init__(self, base_url: str | None = None, model: str | None = None, api_key: str | None = None, *,
                  timeout: float = 120.0, max_attempts: int = 5, backoff: float = 1.0, backoff_max: float = 30.0,
                  temperature: float | None = None, max_tokens: int | None = None,
-                 extra_body: Mapping | None = None):
+                 extra_body: Mapping | None = None, token_field: str = "max_completion_tokens",
+                 max_timeout_retries: int = 1, max_requests: int | None = None):
         self.base_url = _resolve(base_url, ENV_BASE_URL, "base URL", True)
         self.url = _chat_url(self.base_url)
         self.model = _resolve(model, ENV_MODEL, "model name", True)
@@ -397,11 +441,17 @@ class ChatClient:
                     or value < 0 or (positive and value == 0)):
                 raise MetricInputError(name, "value", "a number of seconds " + ("> 0" if positive else ">= 0"),
                                        repr(value))
-        if isinstance(max_attempts, bool) or not isinstance(max_attempts, int) or max_attempts < 1:
-            raise MetricInputError("max_attempts", "value", "an integer >= 1", repr(max_attempts))
+        for name, value, low in (("max_attempts", max_attempts, 1), ("max_timeout_retries", max_timeout_retries, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise MetricInputError(name, "value", f"an integer >= {low}", repr(value))
+        if max_requests is not None and (isinstance(max_requests, bool) or not isinstance(max_requests, int)
+                                         or max_requests < 0):
+            raise MetricInputError("max_requests", "value", "an integer >= 0 or None", repr(max_requests))
         if max_tokens is not None and (isinstance(max_tokens, bool) or not isinstance(max_tokens, int)
                                        or max_tokens < 1):
             raise MetricInputError("max_tokens", "value", "an integer >= 1 or None", repr(max_tokens))
+        if token_field not in ("max_completion_tokens", "max_tokens"):
+            raise MetricInputError("token_field", "value", '"max_completion_tokens" or "max_tokens"', repr(token_field))
         if extra_body is not None and not isinstance(extra_body, Mapping):
             raise MetricInputError("extra_body", "type", "a JSON object (mapping)", type(extra_body).__name__)
         reserved = sorted({"model", "messages"} & set(extra_body or {}))
@@ -410,11 +460,18 @@ class ChatClient:
                                    reserved)
         self.timeout, self.max_attempts = float(timeout), max_attempts
         self.backoff, self.backoff_max = float(backoff), float(backoff_max)
-        self.temperature, self.max_tokens = temperature, max_tokens
+        self.temperature, self.max_tokens, self.token_field = temperature, max_tokens, token_field
+        self.max_timeout_retries, self.max_requests = max_timeout_retries, max_requests
         self.extra_body = dict(extra_body or {})
-        self._opener = urllib.request.build_opener()
+        openai = _openai()
+        sdk_base = self.url[: -len("/chat/completions")]
+        self._sdk = openai.OpenAI(base_url=sdk_base, api_key=self._api_key or "no-key", timeout=self.timeout,
+                                  max_retries=0)
+        self._no_auth = None if self._api_key else {"Authorization": openai.Omit()}
         self._rng = random.Random()
-        self._rng_lock = threading.Lock()
+        self._lock = threading.Lock()
+        self.requests_sent = 0
+        self.usage = {"prompt_tokens": 0, "completion_tokens": 0, "total_tokens": 0}
 
     def __repr__(self) -> str:  # never shows the key
         return f"ChatClient(url={self.url!r}, model={self.model!r}, key={'set' if self._api_key else 'none'})"
@@ -425,12 +482,12 @@ class ChatClient:
         if self.temperature is not None:
             out["temperature"] = self.temperature
         if self.max_tokens is not None:
-            out["max_tokens"] = self.max_tokens
+            out[self.token_field] = self.max_tokens
         out.update(self.extra_body)
         return out
 
     def _delay(self, attempt: int, retry_after: float | None) -> float:
-        with self._rng_lock:
+        with self._lock:
             jitter = 1.0 + 0.25 * (2.0 * self._rng.random() - 1.0)
         delay = min(self.backoff_max, self.backoff * 2.0 ** (attempt - 1)) * jitter
         if retry_after is not None:
@@ -441,75 +498,92 @@ class ChatClient:
         """``text`` with the API key masked (a server may echo it in an error message)."""
         return text.replace(self._api_key, "***") if self._api_key and len(self._api_key) >= 4 else text
 
-    def _post(self, data: bytes) -> bytes:
-        headers = {"Content-Type": "application/json", "Accept": "application/json", "User-Agent": "oscar-judge/1"}
-        if self._api_key:
-            headers["Authorization"] = f"Bearer {self._api_key}"
-        request = urllib.request.Request(self.url, data=data, headers=headers, method="POST")
-        deadline = time.monotonic() + self.timeout
-        with self._opener.open(request, timeout=self.timeout) as response:
-            chunks, size = [], 0
-            while True:
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f"no complete response within {self.timeout:g} s")
-                chunk = response.read(65536)
-                if not chunk:
-                    break
-                size += len(chunk)
-                if size > _MAX_RESPONSE_BYTES:
-                    raise ValueError(f"response larger than {_MAX_RESPONSE_BYTES} bytes")
-                chunks.append(chunk)
-        return b"".join(chunks)
+    def _take_request(self) -> bool:
+        with self._lock:
+            if self.max_requests is not None and self.requests_sent >= self.max_requests:
+                return False
+            self.requests_sent += 1
+            return True
 
-    def complete(self, messages: list) -> tuple[str | None, int, tuple[str, ...]]:
-        """Send one chat request; returns ``(answer text or None, attempts, attempt_errors)``.
+    def _send(self, messages: list) -> str:
+        """One HTTP request through the SDK; returns the reply body's text (SDK exceptions propagate)."""
+        raw = self._sdk.chat.completions.with_raw_response.create(
+            model=self.model, messages=messages, extra_body=self.sampling() or None, extra_headers=self._no_auth)
+        return raw.http_response.text
+
+    def complete(self, messages: list) -> tuple[str | None, int, tuple[str, ...], dict | None]:
+        """Send one chat request; returns ``(answer text or None, attempts, attempt_errors, usage or None)``.
 
         Raises :class:`JudgeRequestError` when no chat completion was obtained.
         """
-        body = {"model": self.model, "messages": messages, **self.sampling()}
-        data = json.dumps(body).encode()
+        openai = _openai()
         errors: list[str] = []
-        attempt = 0
+        attempt = timeouts = 0
         raw = None
         while True:
+            if not self._take_request():
+                msg = f"request budget of {self.max_requests} requests spent (max_requests); not sent"
+                errors.append(msg)
+                raise JudgeRequestError(msg, attempts=attempt, attempt_errors=errors, retryable=False)
             attempt += 1
             retry_after = None
             try:
-                payload = self._post(data)
-            except urllib.error.HTTPError as exc:
+                text = self._send(messages)
+            except openai.APIStatusError as exc:
                 try:
-                    raw = self._redact(exc.read(4000).decode("utf-8", "replace"))
+                    raw = self._redact(exc.response.text[:4000])
                 except Exception:  # noqa: BLE001 - the body is informational only
                     raw = None
-                finally:
-                    exc.close()
-                retryable = exc.code in _RETRY_HTTP or 500 <= exc.code <= 599
-                errors.append(f"HTTP {exc.code}" + (f": {raw[:200]}" if raw else ""))
-                retry_after = _retry_after(exc.headers)
-            except (TimeoutError, urllib.error.URLError, http.client.HTTPException, OSError) as exc:
-                reason = getattr(exc, "reason", exc)
-                kind = "timeout" if isinstance(reason, TimeoutError) or isinstance(exc, TimeoutError) else "connection"
-                errors.append(f"{kind}: {type(reason).__name__}: {reason}")
+                code = exc.status_code
+                retryable = code in _RETRY_HTTP or 500 <= code <= 599
+                errors.append(f"HTTP {code}" + (f": {raw[:200]}" if raw else ""))
+                retry_after = _retry_after(exc.response.headers)
+            except openai.APITimeoutError:
+                timeouts += 1
+                errors.append(f"timeout: no complete response within {self.timeout:g} s")
+                retryable = timeouts <= self.max_timeout_retries
+                raw = None
+                if not retryable:
+                    raise JudgeRequestError(
+                        f"request to {self.url} timed out {timeouts} time(s); not retried beyond "
+                        f"max_timeout_retries={self.max_timeout_retries} (a timed-out request may still be billed)",
+                        attempts=attempt, attempt_errors=errors, retryable=True) from None
+            except openai.APIConnectionError as exc:
+                cause = exc.__cause__ or exc
+                errors.append(f"connection: {type(cause).__name__}: {cause}")
                 retryable = True
                 raw = None
-            except ValueError as exc:  # oversized response
-                errors.append(str(exc))
-                raise JudgeRequestError(str(exc), attempts=attempt, attempt_errors=errors) from None
             else:
-                text = self._redact(payload.decode("utf-8", "replace"))
+                text = self._redact(text)
                 try:
-                    content = _message_text(json.loads(text))
+                    body = json.loads(text)
+                    content = _message_text(body)
                 except (json.JSONDecodeError, ValueError) as exc:
                     msg = (f"not an OpenAI chat completion from {self.url}: "
                            + ("the body is not JSON" if isinstance(exc, json.JSONDecodeError) else str(exc)))
                     errors.append(msg)
                     raise JudgeRequestError(msg, attempts=attempt, attempt_errors=errors, raw=text[:4000]) from None
-                return content, attempt, tuple(errors)
+                usage = _usage(body)
+                if usage:
+                    with self._lock:
+                        for k in self.usage:
+                            self.usage[k] += usage.get(k, 0)
+                return content, attempt, tuple(errors), usage
             if not retryable or attempt >= self.max_attempts:
                 what = "failed" if not retryable else f"failed after {attempt} attempts"
                 raise JudgeRequestError(f"request to {self.url} {what}: {errors[-1]}", attempts=attempt,
                                         attempt_errors=errors, raw=raw, retryable=retryable)
             time.sleep(self._delay(attempt, retry_after))
+
+
+def _usage(body: dict) -> dict | None:
+    """``usage`` of a chat completion as ``{prompt_tokens, completion_tokens, total_tokens}`` (ints), or None."""
+    u = body.get("usage") if isinstance(body, dict) else None
+    if not isinstance(u, dict):
+        return None
+    out = {k: int(u[k]) for k in ("prompt_tokens", "completion_tokens", "total_tokens")
+           if isinstance(u.get(k), int) and not isinstance(u.get(k), bool)}
+    return out or None
 
 
 # --------------------------------------------------------------------------- #
@@ -532,6 +606,8 @@ class JudgeClip:
     instruction: str
     policy: str | None = None
     session: str | None = None
+    #: free-form facts about the clip for programmatic judges (e.g. a target position); not sent to a VLM
+    info: Mapping | None = field(default=None, compare=False)
 
     @property
     def policy_name(self) -> str:
@@ -790,6 +866,8 @@ class SuccessVerdict:
     frames_sent: int | None = None
     cache_key: str | None = None
     model: str | None = None
+    #: token usage of the request that produced the answer (from the response; also kept for cached answers)
+    usage: dict | None = None
 
     @property
     def ok(self) -> bool:
@@ -800,7 +878,7 @@ class SuccessVerdict:
                 "status": self.status, "binary": self.binary, "partial": self.partial, "reason": self.reason,
                 "raw": self.raw, "error": self.error, "attempts": self.attempts, "cached": self.cached,
                 "attempt_errors": list(self.attempt_errors), "frames_total": self.frames_total,
-                "frames_sent": self.frames_sent, "cache_key": self.cache_key, "model": self.model}
+                "frames_sent": self.frames_sent, "cache_key": self.cache_key, "model": self.model, "usage": self.usage}
 
 
 @dataclass(frozen=True)
@@ -833,6 +911,10 @@ class PairwiseVerdict:
     frames_sent: tuple[int, int] | None = None
     cache_key: str | None = None
     model: str | None = None
+    usage: dict | None = None
+    #: both_orders: the verdicts of the two presentations (shown as is, then swapped) and whether they agreed
+    orders: tuple | None = None
+    orders_agree: bool | None = None
 
     @property
     def ok(self) -> bool:
@@ -861,7 +943,8 @@ class PairwiseVerdict:
                 "winner_policy": self.winner_policy, "reason": self.reason, "raw": self.raw, "error": self.error,
                 "attempts": self.attempts, "cached": self.cached, "attempt_errors": list(self.attempt_errors),
                 "frames_sent": list(self.frames_sent) if self.frames_sent else None, "cache_key": self.cache_key,
-                "model": self.model}
+                "model": self.model, "usage": self.usage, "orders_agree": self.orders_agree,
+                "orders": [o.to_dict() for o in self.orders] if self.orders else None}
 
 
 def success_by_policy(verdicts: Iterable[SuccessVerdict]) -> dict[str, dict]:
@@ -915,7 +998,9 @@ class _BaseJudge:
                  max_side: int | None = DEFAULT_MAX_SIDE, image_format: str = "jpeg", jpeg_quality: int = 90,
                  temperature: float | None = None, max_tokens: int | None = None, extra_body: Mapping | None = None,
                  timeout: float = 120.0, max_attempts: int = 5, backoff: float = 1.0, backoff_max: float = 30.0,
-                 concurrency: int = 4, cache_dir=None, client: ChatClient | None = None):
+                 concurrency: int = 4, cache_dir=None, client: ChatClient | None = None,
+                 token_field: str = "max_completion_tokens", max_timeout_retries: int = 1,
+                 max_requests: int | None = None):
         n_frames = self.default_frames if n_frames is None else n_frames
         if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 1:
             raise MetricInputError("n_frames", "value", "an integer >= 1", repr(n_frames))
@@ -930,7 +1015,8 @@ class _BaseJudge:
             raise MetricInputError("concurrency", "value", "an integer >= 1", repr(concurrency))
         self.client = client or ChatClient(base_url, model, api_key, timeout=timeout, max_attempts=max_attempts,
                                            backoff=backoff, backoff_max=backoff_max, temperature=temperature,
-                                           max_tokens=max_tokens, extra_body=extra_body)
+                                           max_tokens=max_tokens, extra_body=extra_body, token_field=token_field,
+                                           max_timeout_retries=max_timeout_retries, max_requests=max_requests)
         self.n_frames, self.max_side = n_frames, max_side
         self.image_format, self.jpeg_quality = image_format, jpeg_quality
         self.concurrency = concurrency
@@ -958,6 +1044,7 @@ class _BaseJudge:
         """JSON-ready description of the judge (no API key)."""
         return {"base_url": self.client.base_url, "model": self.model, **self.settings(),
                 "max_attempts": self.client.max_attempts, "timeout": self.client.timeout,
+                "max_timeout_retries": self.client.max_timeout_retries, "max_requests": self.client.max_requests,
                 "concurrency": self.concurrency, "cache_dir": None if self.cache_dir is None else str(self.cache_dir)}
 
     def _hash(self, video) -> str:
@@ -1021,14 +1108,56 @@ class SuccessJudge(_BaseJudge):
     >>> verdicts = judge.judge_many([JudgeClip("s1/pi0", "s1/pi0.mp4", "put the cup in the bowl")])  # doctest: +SKIP
     """
 
-    system_prompt = SUCCESS_SYSTEM_PROMPT
-    user_prompt = SUCCESS_USER_PROMPT
+    def __init__(self, *, prompt: str = "paper", **kwargs):
+        super().__init__(**kwargs)
+        if prompt == "paper":
+            self.system_prompt, self.user_prompt = None, PAPER_SUCCESS_PROMPT
+        elif prompt == "oscar":
+            self.system_prompt, self.user_prompt = SUCCESS_SYSTEM_PROMPT, SUCCESS_USER_PROMPT
+        elif isinstance(prompt, str) and "{instruction}" in prompt:
+            self.system_prompt, self.user_prompt = None, prompt
+        else:
+            raise MetricInputError("prompt", "value", '"paper", "oscar" or a template containing {instruction} '
+                                   "(and optionally {n_frames})", repr(prompt)[:80])
+        self.prompt = prompt if prompt in SUCCESS_PROMPTS else "custom"
+
+    def settings(self) -> dict:
+        return {**super().settings(), "prompt": self.prompt}
 
     def messages(self, instruction: str, images: Sequence[str]) -> list:
-        """The chat messages for one clip: system prompt, then the user text followed by the images."""
-        user = self.user_prompt.format(instruction=instruction.strip(), n_frames=len(images))
-        return [{"role": "system", "content": self.system_prompt},
-                {"role": "user", "content": [{"type": "text", "text": user}, *map(_image_part, images)]}]
+        """The chat messages for one clip: (system prompt,) then the user text followed by the images.
+
+        Templates are filled with ``str.replace`` of ``{instruction}`` and ``{n_frames}``.
+        """
+        user = self.user_prompt.replace("{instruction}", instruction.strip()).replace("{n_frames}", str(len(images)))
+        msgs = [] if self.system_prompt is None else [{"role": "system", "content": self.system_prompt}]
+        return msgs + [{"role": "user", "content": [{"type": "text", "text": user}, *map(_image_part, images)]}]
+
+    def plan(self, clips: Iterable[JudgeClip]) -> list[dict]:
+        """What :meth:`judge_many` would send, without sending anything (``--dry-run``).
+
+        One entry per clip: ``cached`` (True: the answer is in the cache, no
+        request), the text parts, and the images (count, width × height,
+        encoded bytes) of the request.
+        """
+        clips = [_check_clip(c, f"clips[{k}]") for k, c in enumerate(clips)]
+        _check_unique([c.name for c in clips], "clips", "name")
+        out = []
+        for clip in clips:
+            key = _key(self._cache_fields(self._hash(clip.video), clip.instruction))
+            if _cache_read(self.cache_dir, key) is not None:
+                out.append({"clip": clip.name, "cached": True, "cache_key": key})
+                continue
+            frames, total = self._frames(clip.video, clip.name)
+            urls = [_encode_image(f, self.image_format, self.jpeg_quality) for f in frames]
+            msgs = self.messages(clip.instruction, urls)
+            texts = [m["content"] if isinstance(m["content"], str) else
+                     "".join(p["text"] for p in m["content"] if p["type"] == "text") for m in msgs]
+            out.append({"clip": clip.name, "cached": False, "model": self.model, "texts": texts,
+                        "images": len(urls), "frames_total": total,
+                        "image_size": [int(frames[0].shape[1]), int(frames[0].shape[0])],
+                        "image_bytes": sum(len(u) for u in urls), "sampling": self.client.sampling()})
+        return out
 
     def _cache_fields(self, content_hash: str, instruction: str) -> dict:
         # the prompt templates, the instruction, the video content and the settings determine the request
@@ -1064,21 +1193,23 @@ class SuccessJudge(_BaseJudge):
             base = {"cache_key": key}
             entry = _cache_read(self.cache_dir, key)
             if entry is not None:
-                base.update(frames_total=entry.get("frames_total"), frames_sent=entry.get("frames_sent"))
+                base.update(frames_total=entry.get("frames_total"), frames_sent=entry.get("frames_sent"),
+                            usage=entry.get("usage"))
                 return self._from_answer(clip, entry["answer"], base, attempts=0, cached=True, errors=())
             frames, total = self._frames(clip.video, clip.name)
             base.update(frames_total=total, frames_sent=len(frames))
             images = [_encode_image(f, self.image_format, self.jpeg_quality) for f in frames]
             try:
-                answer, attempts, errors = self.client.complete(self.messages(clip.instruction, images))
+                answer, attempts, errors, usage = self.client.complete(self.messages(clip.instruction, images))
             except JudgeRequestError as exc:
                 return self._verdict(clip, status="error", error=str(exc), raw=exc.raw, attempts=exc.attempts,
                                      attempt_errors=exc.attempt_errors, **base)
             _cache_write(self.cache_dir, key, {"key": key, "kind": "success", "model": self.model,
                                                "clip": clip.name, "instruction": clip.instruction,
                                                "frames_total": total, "frames_sent": len(frames),
-                                               "settings": self.settings(), "answer": answer,
+                                               "settings": self.settings(), "answer": answer, "usage": usage,
                                                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+            base["usage"] = usage
             return self._from_answer(clip, answer, base, attempts=attempts, cached=False, errors=errors)
         except Exception as exc:  # noqa: BLE001 - one bad clip must not stop the run
             return self._verdict(clip, status="error", error=f"{type(exc).__name__}: {exc}", **base)
@@ -1092,6 +1223,13 @@ class SuccessJudge(_BaseJudge):
                                  attempts=attempts, cached=cached, attempt_errors=tuple(errors), **base)
         return self._verdict(clip, status="ok", raw=answer, attempts=attempts, cached=cached,
                              attempt_errors=tuple(errors), **parsed, **base)
+
+
+def _sum_usage(usages) -> dict | None:
+    usages = [u for u in usages if u]
+    if not usages:
+        return None
+    return {k: sum(u.get(k, 0) for u in usages) for k in ("prompt_tokens", "completion_tokens", "total_tokens")}
 
 
 def _swap(seed, pair_id: str) -> bool:
@@ -1124,17 +1262,17 @@ class PairwiseJudge(_BaseJudge):
     set_labels = PAIRWISE_SETS_LABELS
     side_by_side_note = PAIRWISE_SIDE_BY_SIDE_NOTE
 
-    def __init__(self, *, seed: int = 0, layout: str = "sets", **kwargs):
+    def __init__(self, *, seed: int = 0, layout: str = "sets", both_orders: bool = False, **kwargs):
         super().__init__(**kwargs)
         if layout not in ("sets", "side_by_side"):
             raise MetricInputError("layout", "value", '"sets" or "side_by_side"', repr(layout))
-        self.seed, self.layout = seed, layout
+        self.seed, self.layout, self.both_orders = seed, layout, bool(both_orders)
 
     def settings(self) -> dict:
         return {**super().settings(), "layout": self.layout}
 
     def describe(self) -> dict:
-        return {**super().describe(), "seed": self.seed}
+        return {**super().describe(), "seed": self.seed, "both_orders": self.both_orders}
 
     def swapped(self, pair: JudgePair) -> bool:
         """True if ``pair.b`` is shown as "A" (see ``seed``)."""
@@ -1193,7 +1331,25 @@ class PairwiseJudge(_BaseJudge):
                                model=self.model, **kw)
 
     def _compare(self, pair: JudgePair) -> PairwiseVerdict:
-        swapped = self.swapped(pair)
+        """One verdict; with ``both_orders`` the pair is asked as is and swapped, then reconciled:
+        both valid and agreeing → that winner; both valid and disagreeing (position bias) → a tie; either
+        not valid → that order's status (the pair gives no preference)."""
+        if not self.both_orders:
+            return self._compare_once(pair, self.swapped(pair))
+        v1, v2 = self._compare_once(pair, False), self._compare_once(pair, True)
+        both = dict(orders=(v1, v2), attempts=v1.attempts + v2.attempts, cached=v1.cached and v2.cached,
+                    attempt_errors=v1.attempt_errors + v2.attempt_errors, swapped=False,
+                    usage=_sum_usage([v1.usage, v2.usage]))
+        bad = next((v for v in (v1, v2) if not v.ok), None)
+        if bad is not None:
+            return replace(bad, model_winner=None, winner=None, reason=None, **both)
+        agree = v1.winner == v2.winner
+        reason = v1.reason if agree else (f"the two orders disagree (as shown: {v1.winner}, swapped: {v2.winner}); "
+                                          "counted as a tie")
+        return replace(v1, model_winner=None, winner=v1.winner if agree else "tie", reason=reason,
+                       orders_agree=agree, raw=None, cache_key=None, **both)
+
+    def _compare_once(self, pair: JudgePair, swapped: bool) -> PairwiseVerdict:
         first, second = (pair.b, pair.a) if swapped else (pair.a, pair.b)
         base: dict = {}
         try:
@@ -1207,6 +1363,7 @@ class PairwiseJudge(_BaseJudge):
             if entry is not None:
                 sent = entry.get("frames_sent")
                 base["frames_sent"] = tuple(sent) if isinstance(sent, list) else None
+                base["usage"] = entry.get("usage")
                 return self._from_answer(pair, swapped, entry["answer"], base, attempts=0, cached=True, errors=())
             f1, _ = self._frames(first.video, first.name)
             f2, _ = self._frames(second.video, second.name)
@@ -1221,7 +1378,7 @@ class PairwiseJudge(_BaseJudge):
             urls1 = [_encode_image(f, self.image_format, self.jpeg_quality) for f in f1]
             urls2 = [_encode_image(f, self.image_format, self.jpeg_quality) for f in f2]
             try:
-                answer, attempts, errors = self.client.complete(self.messages(pair.a.instruction, urls1, urls2))
+                answer, attempts, errors, usage = self.client.complete(self.messages(pair.a.instruction, urls1, urls2))
             except JudgeRequestError as exc:
                 return self._verdict(pair, swapped, status="error", error=str(exc), raw=exc.raw,
                                      attempts=exc.attempts, attempt_errors=exc.attempt_errors, **base)
@@ -1229,8 +1386,9 @@ class PairwiseJudge(_BaseJudge):
                                                "shown_first": first.name, "shown_second": second.name,
                                                "instruction": pair.a.instruction,
                                                "frames_sent": list(base["frames_sent"]),
-                                               "settings": self.settings(), "answer": answer,
+                                               "settings": self.settings(), "answer": answer, "usage": usage,
                                                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+            base["usage"] = usage
             return self._from_answer(pair, swapped, answer, base, attempts=attempts, cached=False, errors=errors)
         except Exception as exc:  # noqa: BLE001 - one bad pair must not stop the run
             return self._verdict(pair, swapped, status="error", error=f"{type(exc).__name__}: {exc}", **base)

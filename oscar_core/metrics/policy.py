@@ -13,7 +13,10 @@ the results measured on real robots ("real"):
     MMRV is the mean over policies. Range [0, max real gap] (⊂ [0, 1] for rates).
   - :func:`mmrv_rank` is the form the OSCAR paper reports ("MMRV on the
     seven-policy rank vector, range [0, 6]"): the same violations, each costing
-    the distance between the two policies' *real ranks*. Range [0, N − 1].
+    the distance between the two policies' *real ranks*. Its true range is
+    [0, :func:`mmrv_rank_max` (N)] with ``mmrv_rank_max(N) = 1/N Σ_i max(i − 1, N − i)``,
+    reached by the reversed ranking: 33/7 ≈ 4.714 for the paper's N = 7, not
+    the paper's stated 6 (N − 1 is reached only for N = 2).
 
 * **Spearman ρ** between the per-policy rank vectors (:func:`spearman_rho`).
 * **Pearson r** between per-policy mean binary success rates (:func:`pearson_r`).
@@ -57,6 +60,7 @@ from ._common import MetricInputError, align_policy_values, nan_to_none
 __all__ = [
     "mmrv_simpler",
     "mmrv_rank",
+    "mmrv_rank_max",
     "spearman_rho",
     "pearson_r",
     "sisr_delta",
@@ -133,8 +137,10 @@ def mmrv_rank(real, wm, *, names=None) -> float:
     ``MMRV_rank = 1/N Σ_i max_j |R_i − R_j| · 1[(wm_i > wm_j) ≠ (real_i > real_j)]``
     with ``R`` the average ranks of ``real`` (:func:`average_ranks`). The
     violation test is unchanged (ranking preserves order and ties); only the
-    cost becomes the real-rank distance, so the range is [0, N − 1] (N − 1 is
-    reached only for N = 2) and multiples of 1/N appear when there are no ties —
+    cost becomes the real-rank distance, so the range is [0, :func:`mmrv_rank_max` (N)]
+    (policy i's cost is at most its distance to the farther end of the ranking,
+    max(i − 1, N − i); the reversed ranking reaches all these bounds at once:
+    33/7 ≈ 4.714 for N = 7, where the paper states [0, 6]) and multiples of 1/N appear when there are no ties —
     consistent with the paper's 0.571 = 4/7, 0.714 = 5/7, 1.429 = 10/7.
     (The table cannot pin the reading down further: by exhaustive search over
     7-policy orders, MMRV_rank = 4/7 with Spearman ρ = 0.750, and 5/7 with
@@ -149,7 +155,26 @@ def mmrv_rank(real, wm, *, names=None) -> float:
     return float(_max_violations(r, w, average_ranks(r)).mean())
 
 
+def mmrv_rank_max(n: int) -> float:
+    """The largest value :func:`mmrv_rank` can take for ``n`` policies: ``1/n Σ_{i=1..n} max(i − 1, n − i)``.
+
+    Policy i (real rank i, no ties) can at worst violate against the policy
+    farthest from it in real rank, at distance max(i − 1, n − i); the reversed
+    ranking makes every policy violate against every other, so all these
+    bounds are reached together. Ties only shrink rank distances. 1 for n = 2,
+    2.5 for n = 4, 33/7 ≈ 4.714 for n = 7; ≈ 3n/4 for large n.
+    """
+    n = int(n)
+    if n < 2:
+        raise MetricInputError("n", "value", "at least 2 policies", n)
+    return sum(max(i - 1, n - i) for i in range(1, n + 1)) / n
+
+
 def _pearson(x: np.ndarray, y: np.ndarray) -> float:
+    # constant input: r is undefined. Test the values, not the centred sum of squares: the mean of
+    # seven 0.1's is not exactly 0.1 in floating point, which would turn "undefined" into noise
+    if len(x) < 2 or bool(np.all(x == x[0])) or bool(np.all(y == y[0])):
+        return float("nan")
     xc, yc = x - x.mean(), y - y.mean()
     denom = math.sqrt(float(xc @ xc) * float(yc @ yc))
     if denom == 0.0:
@@ -287,7 +312,7 @@ class PolicyComparison:
 
         lines.append("")
         lines.append(f"ranked by: real={self.ranked_by['real']}, wm={self.ranked_by['wm']}")
-        lines.append(f"MMRV (rank, range [0, {len(self.policies) - 1}]) {f(m['mmrv'], '.3f')}   "
+        lines.append(f"MMRV (rank, range [0, {mmrv_rank_max(len(self.policies)):.3f}]) {f(m['mmrv'], '.3f')}   "
                      f"MMRV (SIMPLER, SR gap) {f(m['mmrv_simpler'], '.3f')}   "
                      f"Spearman rho {f(m['spearman_rho'], '+.3f')}   Pearson r {f(m['pearson_r'], '+.3f')}   "
                      f"SISR_delta {f(m['sisr_delta_pp'], '.2f')} pp")

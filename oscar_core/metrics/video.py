@@ -45,6 +45,7 @@ from ._common import MetricInputError, nan_to_none
 
 __all__ = [
     "DEFAULT_FRAMES",
+    "PSNR_CAP_DB",
     "psnr",
     "ssim",
     "lpips",
@@ -67,9 +68,15 @@ __all__ = [
 #: Frames compared per clip: the paper's "first 49 frames" (Kinema4D protocol).
 DEFAULT_FRAMES = 49
 
-#: Keyword arguments the StyleGAN-V ``i3d_torchscript.pt`` is called with: the
-#: input is already resized and scaled to [-1, 1]; return the 400 pre-softmax features.
-I3D_CALL_KWARGS = {"rescale": False, "resize": False, "return_features": True}
+#: Per-frame PSNR cap in dB (see :func:`psnr`): identical frames score this instead of inf.
+PSNR_CAP_DB = 100.0
+
+#: Keyword arguments StyleGAN-V's FVD (``src/metrics/frechet_video_distance.py``) calls
+#: ``i3d_torchscript.pt`` with: the detector itself rescales [0, 255] to [-1, 1] and resizes every clip
+#: to 224×224 (no crop); return the 400 pre-softmax features.
+I3D_CALL_KWARGS = {"rescale": True, "resize": True, "return_features": True}
+#: ... and when the caller has already resized and scaled the clips (``video_features(resolution=R)``).
+I3D_PREPROCESSED_KWARGS = {"rescale": False, "resize": False, "return_features": True}
 #: Keyword arguments of the StyleGAN2-ADA ``inception-2015-12-05.pt``: 2048-d pool features.
 INCEPTION_CALL_KWARGS = {"return_features": True}
 
@@ -141,24 +148,34 @@ def _to_tensor_nchw(frames: np.ndarray, device):
 # --------------------------------------------------------------------------- #
 # PSNR and SSIM
 # --------------------------------------------------------------------------- #
-def psnr(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
-    """Peak signal-to-noise ratio per frame, in dB.
+def psnr(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES, cap: float | None = PSNR_CAP_DB) -> np.ndarray:
+    """Peak signal-to-noise ratio per frame, in dB, capped at ``cap``.
 
-    ``PSNR_t = 10 log10(MAX² / MSE_t)`` with ``MSE_t`` the mean squared error
-    over all pixels and channels of frame t and MAX the data range (255 for
-    uint8, 1 for float frames) — the same value as
+    ``PSNR_t = min(10 log10(MAX² / MSE_t), cap)`` with ``MSE_t`` the mean
+    squared error over all pixels and channels of frame t and MAX the data
+    range (255 for uint8, 1 for float frames). Below the cap this is
     ``skimage.metrics.peak_signal_noise_ratio(gt[t], pred[t], data_range=MAX)``.
-    A frame identical to its ground truth gives ``inf``.
+
+    Convention: a frame identical to its ground truth has MSE 0 and an infinite
+    PSNR. Every frame is capped at :data:`PSNR_CAP_DB` = 100 dB (an MSE of
+    1e-10 of the squared range; one 8-bit level of difference in a single
+    value of a 512×288 RGB frame already scores 104.6 dB, so frames at the cap
+    are identical for every practical purpose). This keeps one identical
+    frame — typically the conditioning first frame — from turning a clip mean,
+    and with it a whole table, into inf. ``cap=None`` gives the uncapped value
+    (``inf`` for identical frames).
 
     ``pred``, ``gt``: videos (T, H, W, 3). Returns (T',) float64, T' = ``n_frames`` (or T).
     The clip PSNR is the mean over frames.
     """
+    if cap is not None and not (isinstance(cap, (int, float)) and math.isfinite(cap) and cap > 0):
+        raise MetricInputError("cap", "value", "a positive number of dB or None", repr(cap))
     pred, gt = _pair(pred, gt, n_frames)
     out = np.empty(len(pred))
     for t in range(len(pred)):
         mse = float(np.mean((_unit(pred[t]) - _unit(gt[t])) ** 2))
         out[t] = np.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
-    return out
+    return out if cap is None else np.minimum(out, float(cap))
 
 
 def _gaussian_window(size: int = 11, sigma: float = 1.5) -> np.ndarray:
@@ -210,22 +227,34 @@ def ssim(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
 # --------------------------------------------------------------------------- #
 # networks passed by the caller
 # --------------------------------------------------------------------------- #
-def load_torchscript(path, *, device="cpu", **call_kwargs) -> Callable:
+def load_torchscript(path, *, device="cpu", sha256: str | None = None, **call_kwargs) -> Callable:
     """Load a TorchScript module with ``torch.jit.load`` and return ``f(x) = module(x, **call_kwargs)``.
 
     Used for the feature extractors (e.g. ``i3d_torchscript.pt`` with
-    ``rescale=False, resize=False, return_features=True``), an LPIPS network
+    ``rescale=True, resize=True, return_features=True``), an LPIPS network
     saved as TorchScript, or a VAE encoder. The file must exist locally;
-    nothing is downloaded.
+    nothing is downloaded. ``sha256``: the file's bytes are read once, hashed,
+    and loaded from memory only if they match (no window between the check
+    and the load).
     """
+    import hashlib
+    import io
+
     torch = _torch()
     p = Path(path)
     if not p.is_file():
         raise MetricInputError(p, "file", "a TorchScript file (.pt) saved with torch.jit.save", "no such file")
+    source = str(p)
+    if sha256 is not None:
+        data = p.read_bytes()
+        digest = hashlib.sha256(data).hexdigest()
+        if digest != sha256:
+            raise MetricInputError(p, "sha256", sha256, digest)
+        source = io.BytesIO(data)
     try:
         with warnings.catch_warnings():  # torch ≥ 2.10 flags torch.jit as deprecated; it is the format asked for
             warnings.simplefilter("ignore", DeprecationWarning)
-            module = torch.jit.load(str(p), map_location=device)
+            module = torch.jit.load(source, map_location=device)
     except Exception as exc:  # torch raises RuntimeError/ValueError with varying text
         raise MetricInputError(p, "contents", "a TorchScript archive (torch.jit.save)",
                                f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
@@ -414,28 +443,35 @@ def _check_features(out, n: int, what: str) -> np.ndarray:
 
 
 def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAULT_FRAMES,
-                   resolution: int | None = 224, batch_size: int = 4, device="cpu",
+                   resolution: int | None = None, batch_size: int = 4, device="cpu",
                    extractor_kwargs: Mapping | None = None, source: str = "videos") -> np.ndarray:
     """Per-clip features for FVD (one feature vector per video).
 
-    Preprocessing follows the StyleGAN-V FVD code (Skorokhodov et al. 2022),
-    the PyTorch port of Unterthiner et al.'s FVD that uses
-    ``i3d_torchscript.pt``: frames scaled to [0, 1]; the first ``n_frames``
-    frames kept (the whole clip goes through the network at once — FVD values
-    computed with different frame counts are not comparable; the original FVD
-    uses 16 frames, the paper 49); shorter side resized to ``resolution``
-    (bilinear, ``align_corners=False``, no antialiasing) and a centre
-    ``resolution``² crop; values mapped to [-1, 1]; layout (B, 3, T, R, R)
-    float32. ``resolution=None`` skips resize and crop.
+    Default (``resolution=None``): exactly what StyleGAN-V's FVD
+    (Skorokhodov et al. 2022; ``src/metrics/metric_utils.py``, the PyTorch
+    port of Unterthiner et al.'s FVD that uses ``i3d_torchscript.pt``) feeds
+    its detector: the first ``n_frames`` frames of each clip as a ``torch.uint8``
+    tensor (B, 3, T, H, W) in [0, 255] at the clip's own size, called with
+    ``rescale=True, resize=True, return_features=True`` — the TorchScript I3D
+    scales to [-1, 1] and resizes the whole clip to 224×224 itself (no crop:
+    TF FVD's ``resize_bilinear`` of every frame). Clips of different sizes are
+    batched separately. FVD values computed with different frame counts are
+    not comparable (the original FVD uses 16 frames, the paper 49).
 
-    ``extractor``: callable (B, 3, T, R, R) → (B, D) features, or a path to a
-    TorchScript file, called with ``extractor_kwargs`` (default
-    ``rescale=False, resize=False, return_features=True``: the I3D's 400
-    pre-softmax logits). Returns (N, D) float64.
+    ``resolution=R`` instead resizes the shorter side to R (bilinear,
+    ``align_corners=False``), centre-crops R×R and maps to [-1, 1] float32
+    here (the content-debiased-FVD style), calling the detector with
+    ``rescale=False, resize=False``. The two give different numbers on clips
+    that are not square.
+
+    ``extractor``: callable (B, 3, T, H, W) → (B, D) features, or a path to a
+    TorchScript file called with ``extractor_kwargs`` (default as above).
+    Returns (N, D) float64.
     """
     torch = _torch()
-    kwargs = I3D_CALL_KWARGS if extractor_kwargs is None else extractor_kwargs
-    f = _callable(extractor, "fvd_extractor", kwargs, device=device)
+    if extractor_kwargs is None:
+        extractor_kwargs = I3D_CALL_KWARGS if resolution is None else I3D_PREPROCESSED_KWARGS
+    f = _callable(extractor, "fvd_extractor", extractor_kwargs, device=device)
     feats, batch = [], []
 
     def flush():
@@ -445,9 +481,15 @@ def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAUL
         batch.clear()
 
     for k, v in enumerate(videos):
-        batch.append(_preprocess_i3d(_frames(v, n_frames, f"{source}[{k}]"), resolution))
-        if len(batch) == batch_size:
+        clip = _frames(v, n_frames, f"{source}[{k}]")
+        if resolution is None:
+            u8 = clip if clip.dtype == np.uint8 else np.round(_unit(clip, np.float32) * 255.0).astype(np.uint8)
+            item = torch.from_numpy(np.ascontiguousarray(u8)).permute(3, 0, 1, 2).contiguous()  # 3, T, H, W
+        else:
+            item = _preprocess_i3d(clip, resolution)
+        if batch and (len(batch) == batch_size or batch[0].shape != item.shape):
             flush()
+        batch.append(item)
     if batch:
         flush()
     if not feats:
@@ -632,7 +674,7 @@ class VideoReport:
 
 
 def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRAMES, lpips_net=None, vae=None,
-                    fvd_extractor=None, fid_extractor=None, device="cpu", fvd_resolution: int | None = 224,
+                    fvd_extractor=None, fid_extractor=None, device="cpu", fvd_resolution: int | None = None,
                     progress: bool = False) -> VideoReport:
     """Every video metric for a list of clips.
 
@@ -651,7 +693,8 @@ def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRA
         raise MetricInputError("clips", "name", "unique clip names", f"duplicates {dup}")
     lp = _callable(lpips_net, "lpips_net", device=device) if lpips_net is not None else None
     enc = _callable(vae, "vae", device=device) if vae is not None else None
-    fv = _callable(fvd_extractor, "fvd_extractor", I3D_CALL_KWARGS, device) if fvd_extractor is not None else None
+    i3d_kwargs = I3D_CALL_KWARGS if fvd_resolution is None else I3D_PREPROCESSED_KWARGS
+    fv = _callable(fvd_extractor, "fvd_extractor", i3d_kwargs, device) if fvd_extractor is not None else None
     fi = _callable(fid_extractor, "fid_extractor", INCEPTION_CALL_KWARGS, device) if fid_extractor is not None else None
     if fv is not None and len(clips) < 2:
         raise MetricInputError("clips", "clips", "at least 2 clips for FVD (a covariance needs 2 samples)",

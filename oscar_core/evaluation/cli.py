@@ -1,0 +1,162 @@
+"""``oscar eval run MANIFEST``: the whole policy-evaluation loop in one command.
+
+Registered under ``oscar eval`` by :func:`add_run_parser`; the loop itself is
+:func:`oscar_core.evaluation.loop.run_evaluation`, the manifest format
+:mod:`oscar_core.evaluation.manifest`, the report :mod:`oscar_core.evaluation.report`.
+
+``--judge`` picks the success judge:
+
+* ``vlm`` — :class:`~oscar_core.metrics.judge.SuccessJudge` (the paper's
+  prompt) behind ``--judge-base-url`` / ``--judge-model`` (or
+  ``$OSCAR_JUDGE_BASE_URL`` / ``$OSCAR_JUDGE_MODEL``), key from
+  ``$OSCAR_JUDGE_API_KEY`` (or the variable ``--api-key-env`` names);
+* ``module:attr`` or ``path/to/file.py:attr`` — a judge object (anything with
+  ``judge_many``) or a function ``(video, clip) -> {"binary", "partial",
+  "reason"}``, wrapped in :class:`~oscar_core.metrics.programmatic.ProgrammaticJudge`;
+* ``none`` — rollouts and contact sheets only.
+
+``--pairwise`` also compares every two policies of a session (a VLM
+:class:`~oscar_core.metrics.judge.PairwiseJudge`, or the programmatic judge's
+``compare_many``) and ranks the world-model side by their Bradley–Terry Elo.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import json
+import os
+import sys
+from pathlib import Path
+
+from ..metrics._common import MetricInputError
+
+__all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
+
+RUN_EXAMPLES = """examples:
+  oscar eval run manifest.json --model oscar-2b --out eval_out/ --judge vlm \\
+      --judge-base-url http://127.0.0.1:8000/v1 --judge-model Qwen/Qwen2.5-VL-7B-Instruct --pairwise
+  oscar eval run manifest.json --model ./my-finetune --out eval_out/ --judge my_judges.py:cube_in_bin --pairwise
+  oscar eval run manifest.json --model oscar-2b --out eval_out/ --judge none --steps 20 --device cuda --dtype bfloat16
+  (re-running the same command resumes: finished rollouts and valid verdicts are reused)
+"""
+
+
+def _import_attr(spec: str):
+    target, _, attr = spec.rpartition(":")
+    if not target or not attr:
+        raise MetricInputError(spec, "--judge", "vlm, none, module:attr or path/to/file.py:attr", repr(spec))
+    try:
+        if target.endswith(".py"):
+            path = Path(target)
+            if not path.is_file():
+                raise MetricInputError(target, "--judge", "an existing Python file", "no such file")
+            mod_spec = importlib.util.spec_from_file_location(f"oscar_user_judge_{path.stem}", path)
+            module = importlib.util.module_from_spec(mod_spec)
+            mod_spec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(target)
+        return getattr(module, attr)
+    except (ImportError, AttributeError) as exc:
+        raise MetricInputError(spec, "--judge", "an importable module:attr", f"{type(exc).__name__}: {exc}") from None
+
+
+def load_judge(spec: str):
+    """A judge object from ``module:attr`` / ``file.py:attr`` (rules in the module docstring)."""
+    from ..metrics.programmatic import ProgrammaticJudge
+
+    obj = _import_attr(spec)
+    if hasattr(obj, "judge_many"):
+        return obj
+    if callable(obj):
+        return ProgrammaticJudge(obj, name=spec.replace(os.sep, "/"))
+    raise MetricInputError(spec, "--judge", "a judge object (with judge_many) or a function (video, clip) -> verdict",
+                           type(obj).__name__)
+
+
+def _vlm_kwargs(args) -> dict:
+    api_key = os.environ.get(args.api_key_env) or None
+    return dict(base_url=args.judge_base_url, model=args.judge_model, api_key=api_key,
+                max_tokens=args.judge_max_tokens, timeout=args.judge_timeout,
+                cache_dir=Path(args.out) / "judge_cache", max_requests=args.max_requests)
+
+
+def cmd_eval_run(args) -> int:
+    import torch
+
+    from ..model.sampler import SamplerConfig
+    from .loop import run_evaluation
+    from .manifest import load_manifest
+
+    manifest = load_manifest(args.manifest)  # every row checked before anything else
+    judge = pairwise = None
+    if args.judge == "vlm":
+        from ..metrics.judge import PairwiseJudge, SuccessJudge
+
+        judge = SuccessJudge(**_vlm_kwargs(args))
+        if args.pairwise:  # one client: --max-requests is the budget of the whole run
+            pairwise = PairwiseJudge(both_orders=args.both_orders, client=judge.client,
+                                     cache_dir=Path(args.out) / "judge_cache")
+    elif args.judge != "none":
+        judge = load_judge(args.judge)
+        if args.pairwise:
+            if not hasattr(judge, "compare_many"):
+                raise MetricInputError(args.judge, "--pairwise", "a judge with compare_many", type(judge).__name__)
+            pairwise = judge
+    elif args.pairwise:
+        raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
+    sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
+                            guidance_form=args.guidance_form)
+    result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
+                            pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
+                            device=args.device, dtype=getattr(torch, args.dtype),
+                            plugin_paths=getattr(args, "plugin", None) or (),
+                            progress=not args.no_progress and sys.stderr.isatty(),
+                            plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
+                            log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
+    report = result.report
+    if args.json:
+        print(json.dumps({**report, "files": result.paths}, indent=2))
+    else:
+        print(Path(result.paths["summary"]).read_text())
+        print(f"wrote {result.paths['report']}, {result.paths['summary']}")
+    bad = report["counts"]["verdicts_not_ok"]
+    return 0 if bad == 0 else 1
+
+
+def add_run_parser(sub) -> argparse.ArgumentParser:
+    """Add ``run`` to the ``oscar eval`` sub-parsers."""
+    from ..metrics.judge import ENV_API_KEY
+
+    r = sub.add_parser("run", help="roll out every (session, policy) of a manifest, judge, compare with reality",
+                       description="The policy-evaluation loop: roll the world model out for every cell of the "
+                                   "manifest (resumable), judge success and pairwise preferences, compare with the "
+                                   "real outcomes (MMRV, Spearman rho, Pearson r, SISR_delta), write a report folder.",
+                       epilog=RUN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("manifest", help="manifest JSON (docs/evaluation.md)")
+    r.add_argument("--model", required=True, help="world model: zoo name, Hub id owner/name, or folder")
+    r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
+    r.add_argument("--out", required=True, help="report folder (created; re-running resumes in it)")
+    r.add_argument("--judge", default="none", help="vlm, none, module:attr or file.py:attr (default none)")
+    r.add_argument("--pairwise", action="store_true", help="pairwise preferences within sessions + Bradley-Terry")
+    r.add_argument("--both-orders", action="store_true", help="VLM pairwise: ask A/B and B/A, reconcile")
+    r.add_argument("--judge-base-url", help="VLM endpoint (default $OSCAR_JUDGE_BASE_URL)")
+    r.add_argument("--judge-model", help="VLM model name (default $OSCAR_JUDGE_MODEL)")
+    r.add_argument("--api-key-env", default=ENV_API_KEY, metavar="VAR", help=f"variable holding the API key "
+                                                                             f"(default {ENV_API_KEY})")
+    r.add_argument("--judge-max-tokens", type=int, help="VLM max_completion_tokens (default: not sent)")
+    r.add_argument("--judge-timeout", type=float, default=120.0, help="VLM seconds per request (default 120)")
+    r.add_argument("--max-requests", type=int, help="VLM request budget for this run (default: unlimited)")
+    r.add_argument("--steps", type=int, default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
+    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6)")
+    r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
+    r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's)")
+    r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32", help="DiT dtype")
+    r.add_argument("--plot-format", default="png", help="comma-separated plot formats (png, pdf, svg)")
+    r.add_argument("--no-progress", action="store_true", help="no progress bars")
+    r.add_argument("--json", action="store_true", help="print the report JSON")
+    r.set_defaults(func=cmd_eval_run)
+    return r

@@ -1,0 +1,315 @@
+"""The policy-evaluation loop: manifest → rollouts → verdicts → fidelity report.
+
+:func:`run_evaluation` does, for a :class:`~oscar_core.evaluation.manifest.Manifest`:
+
+1. **Rollouts.** Every cell is rolled out with the world model from its first
+   frame along the skeleton video of its trajectory (rendered from the
+   embodiment plugin and the camera, fitted to the rollout size like
+   ``oscar rollout`` does) and written losslessly to
+   ``OUT/rollouts/<session>/<policy>.mkv``. A record
+   ``OUT/cells/<session>/<policy>.json`` is written atomically after the video;
+   its ``rollout_key`` is the SHA-256 of everything that determines the video
+   (the model's identity, sampler settings, chunk length, size, seed, and the
+   bytes of the first frame, trajectory, camera and prompt embedding). A
+   re-run skips every cell whose record has the same key and whose video still
+   has the recorded SHA-256 — so a killed run resumes where it stopped, and a
+   changed input redoes exactly the cells it affects.
+2. **Success verdicts** from a judge (``judge_many``): a VLM
+   (:class:`~oscar_core.metrics.judge.SuccessJudge`) or a function of the
+   video (:class:`~oscar_core.metrics.programmatic.ProgrammaticJudge`). An
+   ``ok`` verdict is stored in the cell's record with the judge's description
+   and reused while both match; malformed and failed verdicts are not stored,
+   so a re-run asks again.
+3. **Pairwise preferences** within each session (``compare_many`` of the
+   pairwise judge, if any) and their Bradley–Terry–Davidson scores.
+4. **Fidelity** against the real results where the manifest has them (MMRV in
+   both forms, Spearman ρ, Pearson r, SISR_Δ: :func:`~oscar_core.metrics.policy.compare_policies`),
+   and the report folder (:mod:`oscar_core.evaluation.report`).
+
+The world model is anything with ``rollout(first_frame, skeleton, prompt_embeds,
+*, chunk_frames, sampler, seed, progress, keep_chunks)`` returning an object
+with ``frames`` (T, H, W, 3) uint8 and a ``card`` (``width``, ``height``,
+``chunk_frames``, ``fps``) — :class:`~oscar_core.model.OscarWorldModel`, loaded
+by :func:`oscar_zoo.load` from a zoo name, a Hub id or a folder. It is loaded
+only when some cell needs a rollout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import atomic_write_bytes
+from ..metrics._common import MetricInputError
+from .manifest import Cell, Manifest, file_digest, load_manifest
+
+__all__ = ["RECORD_VERSION", "EvaluationResult", "run_evaluation", "model_identity", "rollout_key",
+           "record_path", "video_path"]
+
+RECORD_VERSION = 1
+VIDEO_SUFFIX = ".mkv"  # FFV1, lossless: judges and metrics see exactly the generated pixels
+
+
+@dataclass
+class EvaluationResult:
+    """What :func:`run_evaluation` did and found.
+
+    ``records``: one per cell (manifest order); ``counts``: rollouts done /
+    reused, verdicts done / reused; ``report``: the JSON written to
+    ``OUT/report.json``; ``paths``: the files written.
+    """
+
+    out: Path
+    records: list[dict]
+    counts: dict
+    report: dict
+    paths: dict = field(default_factory=dict)
+
+
+def record_path(out: Path, cell: Cell) -> Path:
+    return Path(out) / "cells" / cell.session / f"{cell.policy}.json"
+
+
+def video_path(out: Path, cell: Cell) -> Path:
+    return Path(out) / "rollouts" / cell.session / f"{cell.policy}{VIDEO_SUFFIX}"
+
+
+def model_identity(spec, revision: str | None = None) -> str:
+    """A string that changes when the model's weights can: a folder's manifest digest, else ``name@revision``."""
+    p = Path(str(spec))
+    manifest = p / "oscar_manifest.json"
+    if p.is_dir() and manifest.is_file():
+        return f"folder-manifest:{file_digest(manifest)}"
+    return f"{spec}@{revision or 'pinned'}"
+
+
+def rollout_key(cell: Cell, *, model_id: str, sampler: dict, chunk_frames, size, fps) -> str:
+    """SHA-256 of everything that determines a cell's rollout (module docstring, step 1)."""
+    fields = {"v": RECORD_VERSION, "model": model_id, "sampler": sampler, "chunk_frames": chunk_frames,
+              "size": list(size) if size else None, "fps": fps, "seed": cell.seed, "embodiment": cell.embodiment,
+              "first_frame": file_digest(cell.first_frame), "trajectory": file_digest(cell.trajectory),
+              "camera": file_digest(cell.camera),
+              "prompt_embeds": file_digest(cell.prompt_embeds) if cell.prompt_embeds else None}
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+
+def _judge_id(judge) -> str:
+    desc = judge.describe() if hasattr(judge, "describe") else {"repr": repr(judge)}
+    desc = {k: v for k, v in desc.items() if k not in ("concurrency", "cache_dir", "timeout", "max_attempts",
+                                                       "max_requests", "dry_run")}
+    return hashlib.sha256(json.dumps(desc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _write_json(path: Path, data) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
+
+
+def _read_record(path: Path) -> dict | None:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None  # missing or half-written by something else: redo the cell
+    return data if isinstance(data, dict) and data.get("v") == RECORD_VERSION else None
+
+
+class _LazyModel:
+    """Loads the world model on first use (a fully resumed run never loads it)."""
+
+    def __init__(self, model, loader: Callable | None):
+        self._model, self._loader = model, loader
+
+    def get(self):
+        if self._model is None:
+            self._model = self._loader()
+        return self._model
+
+
+def _prompt(cell: Cell):
+    if cell.prompt_embeds is None:
+        return None
+    from safetensors.torch import load_file
+
+    from ..model._weights import check_safetensors
+
+    check_safetensors(cell.prompt_embeds)
+    tensors = load_file(str(cell.prompt_embeds))
+    if "prompt_embeds" in tensors:
+        return tensors["prompt_embeds"]
+    if len(tensors) == 1:
+        return next(iter(tensors.values()))
+    raise MetricInputError(cell.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
+
+
+def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_paths, progress) -> tuple[np.ndarray, float]:
+    """Render the cell's skeleton video and roll the model out; returns (frames (T, H, W, 3) uint8, fps)."""
+    from ..errors import InputFileError
+    from ..model._image import read_image
+    from ..pipeline import fit_image, render_skeleton_video
+    from ..registry import get_embodiment
+    from ..trajectory import load_trajectory
+
+    emb = get_embodiment(cell.embodiment, plugin_paths)
+    traj = load_trajectory(cell.trajectory)
+    camera = emb.load_camera(cell.camera)
+    first = read_image(cell.first_frame)
+    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
+    if (first.shape[1], first.shape[0]) != cam_size:
+        raise InputFileError(cell.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
+                             f"{cell.camera})", f"{first.shape[1]}x{first.shape[0]}")
+    card = model.card
+    if size is None:
+        size = (card.width, card.height) if card.width and card.height else cam_size
+    skeleton = render_skeleton_video(emb, traj, camera, size, resize_mode="crop", camera_source=str(cell.camera))
+    first = fit_image(first, size[0], size[1], "crop")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
+        result = model.rollout(first, skeleton, _prompt(cell), chunk_frames=chunk_frames, sampler=sampler,
+                               seed=cell.seed, progress=progress, keep_chunks=False)
+    return result.frames, float(traj.fps)
+
+
+def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
+    from ..errors import OscarError
+    from ..registry import get_embodiment
+
+    for cell in manifest.cells:
+        try:
+            get_embodiment(cell.embodiment, plugin_paths)
+        except (OscarError, KeyError, ValueError) as exc:
+            raise MetricInputError(f"{manifest.path}: cells[{cell.row}] (session {cell.session!r}, policy "
+                                   f"{cell.policy!r})", "embodiment", "an installed embodiment (oscar embodiments)",
+                                   f"{cell.embodiment!r}: {exc}") from None
+
+
+def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, revision: str | None = None,
+                   judge=None, pairwise_judge=None, sampler=None, chunk_frames: int | None = None,
+                   device="cpu", dtype=None, plugin_paths=(), progress: bool = False,
+                   plot_formats=("png",), log: Callable[[str], None] | None = None) -> EvaluationResult:
+    """Run the loop of the module docstring and write the report folder ``out``.
+
+    manifest: a path or a loaded :class:`Manifest`. model: a loaded world model,
+    or None to load ``model_spec`` (zoo name, Hub id or folder) with
+    ``oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)`` when a
+    rollout is needed. judge: success judge (``judge_many``) or None (no
+    world-model success rates); pairwise_judge: ``compare_many`` or None.
+    sampler: :class:`~oscar_core.model.SamplerConfig` (default: the paper's).
+    """
+    from ..model.sampler import SamplerConfig
+
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    manifest = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
+    _check_embodiments(manifest, plugin_paths)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if model is None and model_spec is None:
+        raise MetricInputError("model", "model", "a world model or a model spec (zoo name, Hub id or folder)", "none")
+    sampler = sampler or SamplerConfig()
+    sampler_fields = dataclasses.asdict(sampler)
+    model_id = model_identity(model_spec, revision) if model_spec is not None else f"object:{type(model).__name__}"
+
+    def load():
+        import oscar_zoo
+
+        log(f"loading world model {model_spec}")
+        return oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)
+
+    lazy = _LazyModel(model, load)
+    size = manifest.size
+    counts = {"cells": len(manifest.cells), "rollouts_done": 0, "rollouts_reused": 0, "verdicts_done": 0,
+              "verdicts_reused": 0, "verdicts_not_ok": 0}
+    records: list[dict] = []
+
+    # 1. rollouts -------------------------------------------------------------------------------
+    for k, cell in enumerate(manifest.cells):
+        rpath, vpath = record_path(out, cell), video_path(out, cell)
+        key = rollout_key(cell, model_id=model_id, sampler=sampler_fields, chunk_frames=chunk_frames, size=size,
+                          fps=None)
+        rec = _read_record(rpath)
+        if (rec is not None and rec.get("rollout_key") == key and vpath.is_file()
+                and rec.get("video_sha256") == file_digest(vpath)):
+            counts["rollouts_reused"] += 1
+            records.append(rec)
+            continue
+        t0 = time.perf_counter()
+        m = lazy.get()
+        frames, fps = _rollout_cell(m, cell, size, sampler=sampler, chunk_frames=chunk_frames,
+                                    plugin_paths=plugin_paths, progress=progress)
+        from ..video import write_video
+
+        vpath.parent.mkdir(parents=True, exist_ok=True)
+        write_video(vpath, frames, fps)
+        rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
+               "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
+               "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
+               "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])], "fps": fps,
+               "seconds": round(time.perf_counter() - t0, 3), "verdict": None,
+               "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        _write_json(rpath, rec)
+        counts["rollouts_done"] += 1
+        records.append(rec)
+        log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in {rec['seconds']:.1f} s")
+
+    # 2. success verdicts ------------------------------------------------------------------------
+    from ..metrics.judge import JudgeClip, SuccessVerdict, pairs_by_session, success_by_policy
+
+    clips = [JudgeClip(name=c.id, video=out / r["video"], instruction=c.task, policy=c.policy, session=c.session,
+                       info=c.info) for c, r in zip(manifest.cells, records)]
+    verdicts: list[SuccessVerdict | None] = [None] * len(clips)
+    if judge is not None:
+        jid = _judge_id(judge)
+        todo = []
+        for k, rec in enumerate(records):
+            stored = rec.get("verdict")
+            if isinstance(stored, dict) and stored.get("judge_id") == jid and stored.get("status") == "ok":
+                v = dict(stored["verdict"])
+                v["attempt_errors"] = tuple(v.get("attempt_errors") or ())
+                verdicts[k] = SuccessVerdict(**v)
+                counts["verdicts_reused"] += 1
+            else:
+                todo.append(k)
+        if todo:
+            log(f"judging {len(todo)} rollouts")
+            fresh = judge.judge_many([clips[k] for k in todo], progress=progress)
+            for k, v in zip(todo, fresh):
+                verdicts[k] = v
+                counts["verdicts_done"] += 1
+                if v.ok:
+                    records[k]["verdict"] = {"judge_id": jid, "status": "ok", "verdict": v.to_dict()}
+                    _write_json(record_path(out, manifest.cells[k]), records[k])
+                else:
+                    counts["verdicts_not_ok"] += 1
+        counts["verdicts_not_ok"] = sum(1 for v in verdicts if v is not None and not v.ok)
+
+    # 3. pairwise preferences ----------------------------------------------------------------------
+    pair_verdicts = []
+    if pairwise_judge is not None:
+        pairs = pairs_by_session(clips)
+        if pairs:
+            log(f"comparing {len(pairs)} pairs")
+            kwargs = {}
+            if getattr(pairwise_judge, "kind", None) == "programmatic" and judge is pairwise_judge:
+                kwargs["verdicts"] = [v for v in verdicts if v is not None]
+            pair_verdicts = pairwise_judge.compare_many(pairs, progress=progress, **kwargs)
+
+    # 4. metrics and report ------------------------------------------------------------------------
+    from .report import build_report, write_report
+
+    wm = success_by_policy([v for v in verdicts if v is not None]) if judge is not None else {}
+    report = build_report(manifest, records, verdicts, pair_verdicts, wm, counts=counts,
+                          model=model_spec if model_spec is not None else model_id,
+                          judge=judge.describe() if judge is not None and hasattr(judge, "describe") else None,
+                          pairwise_judge=(pairwise_judge.describe() if pairwise_judge is not None
+                                          and hasattr(pairwise_judge, "describe") else None),
+                          sampler=sampler_fields)
+    paths = write_report(out, report, manifest, records, plot_formats=plot_formats, log=log)
+    return EvaluationResult(out=out, records=records, counts=counts, report=report, paths=paths)
