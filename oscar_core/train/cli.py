@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
@@ -85,10 +86,8 @@ def cmd_train(args) -> int:
         result = train(config, progress=not args.no_progress, source=args.config)
     summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
                "export": str(result.export) if result.export else None}
-    import os
-
     if int(os.environ.get("RANK", "0")) == 0:
-        print(json.dumps(summary) if args.json else
-              f"trained {summary['run_dir']} to step {summary['step']} (loss {summary['loss']:.4f})"
+        loss = "no steps left to run" if result.last_loss is None else f"loss {result.last_loss:.4f}"
+        print(json.dumps(summary) if args.json else f"trained {summary['run_dir']} to step {summary['step']} ({loss})"
               + (f"; exported to {summary['export']}" if summary["export"] else ""))
     return 0

@@ -28,7 +28,9 @@ def write_toy_clipset(root, clips: int = 4, frames: int = 33, width: int = 64, h
     Clip i has source ``sources[i % len(sources)]`` and id ``toy-<i>``.
     stored_skeleton: also store the skeleton video; prompt_dim: store a seeded
     (3, prompt_dim) prompt embedding; latents_vae (a ``VideoVAE``) with
-    ``latents_window``: store cached latents of every window start.
+    ``latents_window``: store cached latents of every window start —
+    ``latents_vae="random"`` stores seeded N(0, 1) latents of the right shape
+    instead (16 channels; fast, for tests of the loop that need no VAE).
     """
     from ..camera import load_camera
     from ..pipeline import render_skeleton_video
@@ -64,7 +66,9 @@ def write_toy_clipset(root, clips: int = 4, frames: int = 33, width: int = 64, h
                     extra["skeleton"] = skel
                 if prompt_dim:
                     extra["prompt_embeds"] = _prompt(prompt_dim, i)
-                if latents_vae is not None:
+                if isinstance(latents_vae, str) and latents_vae == "random":
+                    extra["latents"] = _random_latents(i, frames, width, height, latents_window or frames)
+                elif latents_vae is not None:
                     extra["latents"] = _latents(latents_vae, rgb, skel, latents_window or frames)
                 shard.add(Clip(rec, rgb=rgb, trajectory=traj, camera=camera, **extra))
     return Path(root)
@@ -83,3 +87,13 @@ def _latents(vae, rgb: np.ndarray, skel: np.ndarray, window: int) -> dict:
     video = torch.cat([vae.encode(vae.to_pixels(rgb[s:s + window])) for s in starts])
     skeleton = torch.cat([vae.encode(vae.to_pixels(skel[s:s + window])) for s in starts])
     return {"video": video, "skeleton": skeleton, "starts": starts, "window": window, "vae": "tiny"}
+
+
+def _random_latents(i: int, frames: int, width: int, height: int, window: int) -> dict:
+    import torch
+
+    starts = list(range(0, frames - window + 1))
+    g = torch.Generator().manual_seed(2000 + i)
+    shape = (len(starts), 16, (window - 1) // 4 + 1, height // 8, width // 8)
+    return {"video": torch.randn(shape, generator=g), "skeleton": torch.randn(shape, generator=g), "starts": starts,
+            "window": window, "vae": "random"}
