@@ -22,7 +22,7 @@ import torch
 
 from .._atomic import atomic_write_bytes
 from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
-from .config import TrainConfig, TrainConfigError, config_to_dict, load_config, save_config
+from .config import TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .models import build_transformer, build_vae
@@ -74,10 +74,6 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     with autocast or contextlib.nullcontext():
         pred = model(**kwargs)[0]
     return flow_loss(pred, inputs)
-
-
-def _unwrap(model):
-    return model.module if isinstance(model, torch.nn.parallel.DistributedDataParallel) else model
 
 
 def _grad_norm(model, max_norm: float) -> float:
@@ -227,7 +223,3 @@ def _train(config, resume, progress, stop_after, registry, export, source, info:
 
         exported = export_run(run_dir)
     return TrainResult(run_dir, end, last_loss, exported)
-
-
-def config_summary(config: TrainConfig) -> str:  # pragma: no cover - used by the CLI's --print-config
-    return json.dumps(config_to_dict(config), indent=2)
