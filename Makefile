@@ -31,6 +31,7 @@ test-install: install
 bench: install
 	$(PYTHON) benchmarks/render.py
 	$(PYTHON) benchmarks/rollout.py
+	$(PYTHON) benchmarks/train.py
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

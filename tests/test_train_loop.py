@@ -56,6 +56,7 @@ def weights(run_dir, key="model"):
 
 
 # ---------------------------------------------------------------------- learning
+@pytest.mark.slow
 def test_tiny_config_overfits_one_clip(tmp_path):
     clips = write_toy_clipset(tmp_path / "one", clips=1, frames=9, width=32, height=32, latents_vae="random",
                               latents_window=9)
@@ -78,6 +79,7 @@ def test_tiny_config_overfits_one_clip(tmp_path):
     assert {"loss", "lr", "grad_norm", "steps_per_s"} <= set(rows[1])
 
 
+@pytest.mark.slow
 def test_exact_resume_is_bitwise(tmp_path, clipset):
     straight = tiny(clipset, tmp_path / "straight", steps=4)
     train(straight, progress=False)
@@ -143,6 +145,17 @@ def test_export_is_a_zoo_loadable_model_with_ema_weights(tmp_path, clipset):
     out = model.rollout(np.zeros((32, 32, 3), np.uint8), np.zeros((9, 32, 32, 3), np.uint8), progress=False,
                         sampler=SamplerConfig(steps=2, guidance=None))
     assert out.frames.shape == (9, 32, 32, 3)
+
+
+def test_gradient_checkpointing_gives_the_same_step_and_bf16_autocast_runs(tmp_path, clipset):
+    plain = tiny(clipset, tmp_path / "plain", steps=1, save_every=1)
+    ckpt = tiny(clipset, tmp_path / "ckpt", steps=1, save_every=1, **{"model.gradient_checkpointing": True})
+    train(plain, progress=False)
+    train(ckpt, progress=False)
+    a, b = weights(plain.run_dir), weights(ckpt.run_dir)
+    assert all(torch.allclose(a[k], b[k], atol=1e-7) for k in a)
+    bf16 = tiny(clipset, tmp_path / "bf16", steps=1, save_every=1, **{"model.dtype": "bfloat16"})
+    assert np.isfinite(train(bf16, progress=False).last_loss)
 
 
 # ---------------------------------------------------------------------- conditions and stages
