@@ -110,12 +110,18 @@ def train(config: TrainConfig | str | Path | None = None, *, resume=None, progre
     """
     info = init_distributed()
     try:
-        return _train(config, resume, progress, stop_after, registry, export, source, info)
+        result, config = _train(config, resume, progress, stop_after, registry, source, info)
     finally:
         close_distributed(info)
+    # export after the process group is gone: rank 0 alone, one process reading the (resharded) checkpoint
+    if (config.export if export is None else export) and result.step == config.steps and info.main:
+        from .export import export_run
+
+        result.export = export_run(result.run_dir)
+    return result
 
 
-def _train(config, resume, progress, stop_after, registry, export, source, info: DistInfo) -> TrainResult:
+def _train(config, resume, progress, stop_after, registry, source, info: DistInfo):
     from tqdm.auto import tqdm
 
     # ------------------------------------------------------------------ build
@@ -216,10 +222,4 @@ def _train(config, resume, progress, stop_after, registry, export, source, info:
         bar.close()
         if log:
             log.close()
-    exported = None
-    finished = end == config.steps
-    if (config.export if export is None else export) and finished and info.main:
-        from .export import export_run
-
-        exported = export_run(run_dir)
-    return TrainResult(run_dir, end, last_loss, exported)
+    return TrainResult(run_dir, end, last_loss, None), config

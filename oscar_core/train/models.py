@@ -68,6 +68,9 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
             raise TrainConfigError(source, "model.init", f"weights matching the transformer config ({init})",
                                    f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}")
         # the keys the base lacks (PE_s, the action MLPs) keep their constructor init: zero outputs
+    if config.condition != "skeleton":
+        # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
+        model.skeleton_embed.requires_grad_(False)
     model.train()
     if m.gradient_checkpointing:
         model.enable_gradient_checkpointing()
