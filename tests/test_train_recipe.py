@@ -60,7 +60,7 @@ def test_conditioning_frame_contributes_exactly_zero_loss():
     assert float(flow_loss(wild, fi)) == float(loss.detach())
     # the value is the MSE over frames 1.. (per sample, then averaged)
     want = ((pred.detach() - fi.target)[:, :, 1:] ** 2).mean()
-    assert float(loss) == pytest.approx(float(want), rel=1e-6)
+    assert float(loss.detach()) == pytest.approx(float(want), rel=1e-6)
 
 
 # ---------------------------------------------------------------------- mixing and dropout
