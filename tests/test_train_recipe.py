@@ -144,3 +144,15 @@ def test_window_prior_falls_back_to_uniform():
         window_prior(np.zeros((50, 1)), 81)
     mixed = window_prior(np.r_[np.full((50, 1), 0.9), np.full((50, 1), 0.1)], 81, uniform=0.5)
     assert mixed.min() >= 0.5 / 20 - 1e-12
+
+
+def test_window_prior_over_cached_starts_only():
+    op = np.full((120, 1), 0.9)
+    op[60:] = 0.1
+    starts = np.array([0, 10, 39, 100 - 81 + 20])  # the windows a latent cache holds
+    p = window_prior(op, 81, starts=starts)
+    want = trapezoid(60 - starts, 81, 0.25)
+    np.testing.assert_allclose(p, want / want.sum())
+    planner = StepPlanner([("a", 120, op, starts)], 81, seed=0)
+    drawn = {it.start for step in range(50) for it in planner.plan(step, 4)}
+    assert drawn <= set(starts.tolist())
