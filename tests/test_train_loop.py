@@ -305,3 +305,26 @@ def test_cli_trains_resumes_and_exports(tmp_path, clipset, capsys):
     assert main(["train", "--resume", str(run), "--no-progress"]) == 0  # already finished: nothing to do
     assert main(["train"]) == 2
     assert "exactly one" in capsys.readouterr().err
+
+
+def test_config_names_a_vae_folder_and_a_transformer_config(tmp_path):
+    """What the toy world needs: its own small DiT config, its own VAE folder, 17-frame windows at 64x64."""
+    from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG, build_tiny_vae
+
+    build_tiny_vae(seed=7).save_pretrained(tmp_path / "vae", safe_serialization=True)
+    (tmp_path / "dit.json").write_text(json.dumps({**TINY_TRANSFORMER_CONFIG, "num_layers": 1,
+                                                   "num_attention_heads": 1}))
+    clips = write_toy_clipset(tmp_path / "clips", clips=1, frames=17, width=64, height=64, latents_vae="random",
+                              latents_window=17)
+    cfg = tiny(clips, tmp_path / "run", steps=1, batch_size=1, export=True,
+               **{"model.vae": str(tmp_path / "vae"), "model.transformer": str(tmp_path / "dit.json"),
+                  "data.window": 17, "data.width": 64, "data.height": 64})
+    result = train(cfg, progress=False)
+    import oscar_zoo
+
+    model = oscar_zoo.load(result.export)
+    assert model.transformer.config.num_layers == 1 and model.card.chunk_frames == 17
+    vae = build_tiny_vae(seed=7)
+    assert all(torch.equal(v, model.vae.vae.state_dict()[k]) for k, v in vae.state_dict().items())
+    with pytest.raises(TrainConfigError, match="model.transformer"):
+        train(tiny(clips, tmp_path / "bad", **{"model.transformer": str(tmp_path / "nope.json")}), progress=False)
