@@ -63,8 +63,10 @@ def wrap_model(model: torch.nn.Module, mode: str, info: DistInfo) -> torch.nn.Mo
         return model
     if not info.distributed:
         if mode == "fsdp":
-            # one process: FSDP2 still applies (a world of 1) but needs a process group; start a local one
-            raise RuntimeError("parallel: fsdp: expected a torchrun launch (a process group), found a single process")
+            from .config import TrainConfigError
+
+            raise TrainConfigError("<config>", "parallel", "'fsdp' under a torchrun launch of several processes "
+                                   "(or 'none' / 'auto' for one process)", "'fsdp' in a single process")
         return model
     if mode == "ddp":
         from torch.nn.parallel import DistributedDataParallel
