@@ -34,6 +34,7 @@ bench: install
 	$(PYTHON) benchmarks/render.py
 	$(PYTHON) benchmarks/rollout.py
 	$(PYTHON) benchmarks/render_scale.py
+	$(PYTHON) benchmarks/train.py
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

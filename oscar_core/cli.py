@@ -21,6 +21,7 @@ EXAMPLES = """examples:
   oscar zoo list
   oscar rollout --model oscar-2b --embodiment franka --first-frame img.png --trajectory traj.npz --camera cam.json --out rollout.mp4
   oscar eval video pred.mp4 gt.mp4
+  oscar train configs/train/tiny-cpu.yaml
   oscar --plugin ./my_robot.py embodiments (load a one-file plugin)
 """
 
@@ -98,7 +99,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_eval_parser(sub)
     add_model_parsers(sub)
-    from .data.cli import add_data_parser; add_data_parser(sub)  # noqa: E702  (oscar data …)
+    from .data.cli import add_data_parser
+    from .train.cli import add_train_parser
+
+    add_data_parser(sub)
+    add_train_parser(sub)
     return p
 
 

@@ -162,6 +162,8 @@ class Embodiment:
     default_pose: ClassVar[Mapping[str, float]] = {}
     example_trajectory: ClassVar[Path | str | None] = None
     example_camera: ClassVar[Path | str | None] = None
+    # links whose poses are the end effectors (one per arm, left arm first; used by the latent-action baseline)
+    end_effector_links: ClassVar[tuple[str, ...]] = ()
 
     # ---- contract checks -------------------------------------------------
     @classmethod
@@ -217,6 +219,9 @@ class Embodiment:
         for g in self.grippers:
             if g.joint is not None and g.joint not in tree_joints:
                 out.append(f"grippers[{g.name}].joint: expected a movable, non-mimic joint of the tree, found {g.joint!r}")
+        for link in self.end_effector_links:
+            if link not in known:
+                out.append(f"end_effector_links: expected links of the kinematic tree, found {link!r}")
         if self.camera.mount_link is not None and self.camera.mount_link not in known:
             out.append(f"camera.mount_link: expected a link of the kinematic tree, found {self.camera.mount_link!r}")
         if self.default_pose:

@@ -78,6 +78,7 @@ class AgiBotG1(Embodiment):
         groups={"left_arm": _LEFT, "right_arm": _RIGHT, "torso_head": _TORSO},
         colors={"left_arm": (255, 170, 0), "right_arm": (0, 170, 255), "torso_head": (255, 60, 200)},
     )
+    end_effector_links = ("gripper_l_center_link", "gripper_r_center_link")  # the gripper's link (latent-action baseline)
     grippers = (
         Gripper("left_gripper", link="gripper_l_center_link", signal_range=(0.0, 1.0), closed_at="high",
                 joint="idx41_gripper_l_outer_joint1", joint_range=(0.0, 0.7853981633974483)),

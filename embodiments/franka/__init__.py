@@ -97,6 +97,7 @@ class Franka(Embodiment):
     # drives panda_finger_joint1 (0 .. 0.04 m per finger; joint2 mimics it).
     # The indicator is drawn at the flange (panda_hand's origin), above the
     # palm, so that it does not cover the jaw drawn by the fingertips.
+    end_effector_links = ("panda_hand",)  # the gripper's link (latent-action baseline)
     grippers = (
         Gripper("gripper", link="panda_hand", point=(0.0, 0.0, 0.0), signal_range=(0.0, 0.08),
                 closed_at="low", joint="panda_finger_joint1", joint_range=(0.0, 0.04)),

@@ -117,6 +117,7 @@ class FrankaRobotiq(Embodiment):
         Gripper("gripper", link="robotiq_base", point=(0.0, 0.0, 0.0), signal_range=(0.0, 1.0), closed_at="high",
                 joint="finger_joint", joint_range=(ROBOTIQ_CLOSED, 0.0)),
     )
+    end_effector_links = ("robotiq_base",)  # the gripper's link (latent-action baseline)
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=None)
     example_trajectory = ASSETS / "example_trajectory_robotiq.npz"
     example_camera = ASSETS / "example_camera_robotiq.json"

@@ -96,6 +96,7 @@ class HSR(Embodiment):
         colors={"base": (140, 100, 255), "arm": (255, 170, 0), "torso_head": (255, 60, 200), "hand": (0, 170, 255)},
     )
     # the indicator sits between the fingertips (9 cm out of the palm)
+    end_effector_links = ("hand_palm_link",)  # the gripper's link (latent-action baseline)
     grippers = (Gripper("hand", link="hand_palm_link", point=(0.0, 0.0, 0.09), signal_range=HAND_RANGE,
                         closed_at="low", joint="hand_motor_joint", joint_range=(HAND_CONTACT, HAND_RANGE[1])),)
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=HEAD_CAMERA_LINK)

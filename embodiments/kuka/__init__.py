@@ -58,6 +58,7 @@ class KukaIiwa14(Embodiment):
     # Robotiq position: 0 = open, 1 = closed (Robotiq's 0..255 position byte
     # divided by 255). It drives the schematic fingertips; the indicator is
     # drawn on the fixed palm frame, behind the jaw, so it does not cover it.
+    end_effector_links = ("gripper_palm",)  # the gripper's link (latent-action baseline)
     grippers = (
         Gripper("gripper", link="gripper_palm", point=(0.0, 0.0, 0.0), signal_range=(0.0, 1.0),
                 closed_at="high", joint="gripper_finger_joint", joint_range=(0.0, 0.0425)),

@@ -30,6 +30,7 @@ class ToyArm(Embodiment):
     )
     # gripper signal: finger opening width in metres, 0 (closed) .. 0.08 (open)
     # it also drives finger_left (0 .. 0.04 m per finger; finger_right mimics it)
+    end_effector_links = ("tool",)  # the gripper's link (latent-action baseline)
     grippers = (Gripper("gripper", link="tool", point=(0.0, 0.0, 0.0), signal_range=(0.0, 0.08), closed_at="low",
                         joint="finger_left", joint_range=(0.0, 0.04)),)
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=None)

@@ -1,0 +1,93 @@
+"""The ``oscar train`` sub-command (also ``python -m oscar_core.train`` for torchrun).
+
+Wire into the main parser with ``add_train_parser(subparsers)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+__all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
+
+EXAMPLES = """examples:
+  oscar train configs/train/tiny-cpu.yaml
+  oscar train configs/train/tiny-cpu.yaml --set run_dir=runs/try2 --set optim.lr=1e-4
+  oscar train --resume runs/tiny-cpu                 (continue exactly where it stopped)
+  oscar train --export runs/tiny-cpu --out my_model  (EMA weights of the latest checkpoint)
+  torchrun --nproc-per-node 4 -m oscar_core.train configs/train/oscar-2b.yaml
+  oscar rollout --model runs/tiny-cpu/export ...     (an exported run is a model folder)
+"""
+
+
+def _parse_value(text: str):
+    import yaml
+
+    return yaml.safe_load(text)
+
+
+def _add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", nargs="?", help="training config (YAML; see configs/train/ and docs/training.md)")
+    p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its latest checkpoint")
+    p.add_argument("--export", metavar="RUN_DIR", help="export a run's checkpoint as a model folder and exit")
+    p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export)")
+    p.add_argument("--step", type=int, help="with --export: the checkpoint's step (default: the latest)")
+    p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (metrics still go to metrics.jsonl)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_train)
+
+
+def add_train_parser(subparsers) -> None:
+    """Add ``train`` to an ``argparse`` sub-parser set."""
+    p = subparsers.add_parser("train", help="train the world model (the paper's fine-tuning recipe)", epilog=EXAMPLES,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_arguments(p)
+
+
+def build_train_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m oscar_core.train", epilog=EXAMPLES,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_arguments(p)
+    return p
+
+
+def cmd_train(args) -> int:
+    from .config import TrainConfigError, load_config
+
+    modes = [bool(args.config), bool(args.resume), bool(args.export)]
+    if sum(modes) != 1:
+        raise TrainConfigError("<command line>", "config / --resume / --export", "exactly one of them",
+                               f"{sum(modes)} given")
+    if args.export:
+        from .export import export_run
+
+        out = export_run(args.export, args.out, step=args.step, weights=args.weights)
+        print(json.dumps({"export": str(out)}) if args.json else f"exported {args.export} to {out}")
+        return 0
+    from .loop import train
+
+    if args.resume:
+        if args.set:
+            raise TrainConfigError("<command line>", "--set", "no overrides with --resume (the run's config.yaml rules)",
+                                   args.set)
+        result = train(resume=args.resume, progress=not args.no_progress)
+    else:
+        overrides = {}
+        for item in args.set:
+            if "=" not in item:
+                raise TrainConfigError("<command line>", "--set", "KEY=VALUE", repr(item))
+            k, v = item.split("=", 1)
+            overrides[k.strip()] = _parse_value(v)
+        config = load_config(args.config, overrides)
+        result = train(config, progress=not args.no_progress, source=args.config)
+    summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
+               "export": str(result.export) if result.export else None}
+    if int(os.environ.get("RANK", "0")) == 0:
+        loss = "no steps left to run" if result.last_loss is None else f"loss {result.last_loss:.4f}"
+        print(json.dumps(summary) if args.json else f"trained {summary['run_dir']} to step {summary['step']} ({loss})"
+              + (f"; exported to {summary['export']}" if summary["export"] else ""))
+    return 0

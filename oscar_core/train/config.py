@@ -1,0 +1,298 @@
+"""The training configuration: a tree of dataclasses read from YAML.
+
+Every field has a default and a comment saying where its value comes from.
+Defaults are the paper's recipe (Appendix "Training implementation
+details") where it gives a number, else Cosmos-Predict2.5's public trainer
+defaults (``shared/design/architecture.md`` §7), else our own choice (said so).
+``configs/train/oscar-2b.yaml`` restates them with the same comments;
+``configs/train/tiny-cpu.yaml`` is the CPU smoke-test config.
+
+A YAML file holds the same tree (unknown keys are errors naming the file and
+the key)::
+
+    run_dir: runs/tiny
+    model: {transformer: tiny, vae: tiny}
+    data: {clips: [clipsets/toy], window: 9, width: 32, height: 32}
+    optim: {lr: 3.0e-5}
+    steps: 100
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import OscarError
+
+__all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "TrainConfig",
+           "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
+
+CONDITIONS = ("skeleton", "latent_action", "none")
+PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
+LATENT_MODES = ("auto", "cached", "on_the_fly")
+UNCONDITIONAL = ("zero_latent", "black_video")
+
+
+class TrainConfigError(OscarError, ValueError):
+    """A training config is invalid; names the file, the field, what was expected and what was found."""
+
+    def __init__(self, source, field_name, expected, found):
+        self.source, self.field, self.expected, self.found = str(source), field_name, expected, found
+        super().__init__(f"{source}: field '{field_name}': expected {expected}, found {found}")
+
+    def __reduce__(self):
+        return (type(self), (self.source, self.field, self.expected, self.found))
+
+
+@dataclass
+class ModelSection:
+    """Which networks to train and where their weights start."""
+
+    # "tiny" (oscar_core.model.tiny, seeded random), "cosmos-2b" (the 2B architecture, random init), a path to a
+    # transformer config.json (or a folder holding one), or an inline dict of OscarTransformer3DModel arguments
+    transformer: Any = "tiny"
+    # where the transformer's weights start: null (random: seeded for "tiny", diffusers' init otherwise, PE_s
+    # zero), "cosmos_base:FOLDER" (Cosmos-Predict2.5 diffusers transformer folder + zero PE_s, the paper's start),
+    # or an OSCAR model folder (oscar_zoo.load layout) or an OSCAR transformer folder
+    init: str | None = None
+    # the VAE: "tiny" (seeded random), an AutoencoderKLWan folder (config.json + safetensors), or an OSCAR model
+    # folder (its vae/); needed for on-the-fly encoding, the black-video unconditional latent and export
+    vae: str = "tiny"
+    # seed of the "tiny" presets' random weights (ours)
+    seed: int = 0
+    # gradient checkpointing of every DiT block (the paper's recipe on GPU; slower, saves activation memory)
+    gradient_checkpointing: bool = False
+    # compute dtype of the forward: "float32" on CPU (issue), "bfloat16" autocast on GPU (Cosmos trains in bf16)
+    dtype: str = "float32"
+
+
+@dataclass
+class DataSection:
+    """Where clips come from and how windows are drawn."""
+
+    # clip-set folders (oscar_core.train.clips); all their finished shards are used
+    clips: list = field(default_factory=list)
+    # keep only clips of these sources (stage 1: the robot sources), null = all
+    sources: list | None = None
+    # frames per training window, 4k+1 (the paper: 81)
+    window: int = 81
+    # training resolution in pixels; clips of another size are centre-cropped and scaled, the camera with them
+    # (the paper's 512x288, architecture.md §8)
+    width: int = 512
+    height: int = 288
+    # "cached": use the clips' cached VAE latents; "on_the_fly": encode videos in the loop; "auto": cached when
+    # every clip has latents for this window and size, else on the fly
+    latents: str = "auto"
+    # source-mixing temperature T: w_i ∝ n_frames_i^(1/T) (the paper: T = 3)
+    mixing_temperature: float = 3.0
+    # trapezoid window prior: ramp width as a fraction of the window (ours; the paper gives none, docs/training.md)
+    prior_ramp: float = 0.25
+    # mixture weight of a uniform prior added to the trapezoid one (ours; 0 = the paper's pure trapezoid)
+    prior_uniform: float = 0.0
+    # skeleton dropout probability per sample, for classifier-free guidance (the paper: 0.2)
+    skeleton_dropout: float = 0.2
+    # what a dropped skeleton becomes: "zero_latent" or "black_video" (the paper: "replaced with zeros")
+    unconditional_skeleton: str = "zero_latent"
+    # false: a bad clip (too short, unknown embodiment, unreadable files) is an error naming shard and clip;
+    # true: it is skipped and counted (metrics.jsonl "skipped_clips")
+    skip_bad_clips: bool = False
+    # open every clip's files before training (trajectory length, video frame count and size); catches broken
+    # clips up front at the cost of one pass over the files
+    check_files: bool = True
+
+
+@dataclass
+class FlowSection:
+    """Rectified flow as Cosmos-Predict2.5 trains it."""
+
+    # schedule shift s: sigma = s u / (1 + (s - 1) u) (the paper and Cosmos: 5)
+    shift: float = 5.0
+    # u = sigmoid(N(mean, std)) (Cosmos: logit-normal with mean 0, std 1)
+    logit_mean: float = 0.0
+    logit_std: float = 1.0
+    # timestep fed for the clean conditioning frame (the sampler's and diffusers' 1e-4)
+    cond_timestep: float = 1e-4
+
+
+@dataclass
+class OptimSection:
+    """AdamW, warm-up, clipping, EMA."""
+
+    # learning rate (the paper: 3e-5)
+    lr: float = 3e-5
+    # AdamW weight decay (Cosmos-Predict2.5 trainer: 1e-3)
+    weight_decay: float = 1e-3
+    # AdamW betas and eps (PyTorch defaults; the paper gives none)
+    betas: tuple = (0.9, 0.999)
+    eps: float = 1e-8
+    # gradient-norm clipping (Cosmos-Predict2.5 trainer: 0.1)
+    grad_clip: float = 0.1
+    # linear warm-up steps (Cosmos-Predict2.5 trainer: 100)
+    warmup_steps: int = 100
+    # EMA decay per step (ours; the paper gives none)
+    ema_decay: float = 0.9999
+
+
+@dataclass
+class TrainConfig:
+    """A whole training run."""
+
+    # the run folder (checkpoints, metrics.jsonl, config.yaml, export/)
+    run_dir: str = "runs/oscar"
+    # what conditions the DiT: "skeleton" (OSCAR), "latent_action" (the paper's ablation), "none" (text only)
+    condition: str = "skeleton"
+    # warm start from another run's latest checkpoint (stage 2 names the stage-1 run), or null
+    parent_run: str | None = None
+    # seed of every random draw (windows, timesteps, noise, dropout)
+    seed: int = 0
+    # optimiser steps (the paper: stage 1 = 15k iterations)
+    steps: int = 15000
+    # global batch in clips per optimiser step (the paper: 16)
+    batch_size: int = 16
+    # clips per forward on one process; batch_size = processes x micro_batch x accumulation (ours: 1 fits a GPU)
+    micro_batch: int = 1
+    # "auto" (DDP when launched on several processes), "none", "ddp" or "fsdp" (fully_shard per block)
+    parallel: str = "auto"
+    # write metrics every n steps, a checkpoint every n steps (and at the end), keep the last n checkpoints
+    log_every: int = 10
+    save_every: int = 1000
+    keep_last: int = 3
+    # write a zoo-loadable folder (EMA weights) to RUN_DIR/export at the end
+    export: bool = True
+    model: ModelSection = field(default_factory=ModelSection)
+    data: DataSection = field(default_factory=DataSection)
+    flow: FlowSection = field(default_factory=FlowSection)
+    optim: OptimSection = field(default_factory=OptimSection)
+
+    def validate(self, source: str = "<config>") -> "TrainConfig":
+        """Raise :class:`TrainConfigError` naming the first bad field."""
+        def bad(name, expected, found):
+            raise TrainConfigError(source, name, expected, repr(found))
+
+        if self.condition not in CONDITIONS:
+            bad("condition", f"one of {CONDITIONS}", self.condition)
+        if self.parallel not in PARALLEL_MODES:
+            bad("parallel", f"one of {PARALLEL_MODES}", self.parallel)
+        for name in ("steps", "batch_size", "micro_batch", "log_every", "save_every", "keep_last"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                bad(name, "a positive integer", v)
+        if self.batch_size % self.micro_batch:
+            bad("micro_batch", f"a divisor of batch_size {self.batch_size}", self.micro_batch)
+        d = self.data
+        if not isinstance(d.window, int) or d.window < 5 or (d.window - 1) % 4:
+            bad("data.window", "a frame count 4k+1 >= 5 (e.g. 9, 17, 81)", d.window)
+        for name in ("width", "height"):
+            v = getattr(d, name)
+            if not isinstance(v, int) or v < 16 or v % 16:
+                bad(f"data.{name}", "a positive multiple of 16 pixels (VAE x8, patch x2)", v)
+        if d.latents not in LATENT_MODES:
+            bad("data.latents", f"one of {LATENT_MODES}", d.latents)
+        if not 0.0 <= d.skeleton_dropout <= 1.0:
+            bad("data.skeleton_dropout", "a probability in [0, 1]", d.skeleton_dropout)
+        if d.unconditional_skeleton not in UNCONDITIONAL:
+            bad("data.unconditional_skeleton", f"one of {UNCONDITIONAL}", d.unconditional_skeleton)
+        if not d.mixing_temperature > 0:
+            bad("data.mixing_temperature", "a positive number", d.mixing_temperature)
+        if not 0.0 < d.prior_ramp <= 0.5:
+            bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
+        if not 0.0 <= d.prior_uniform <= 1.0:
+            bad("data.prior_uniform", "a fraction in [0, 1]", d.prior_uniform)
+        if not isinstance(d.clips, list) or not d.clips:
+            bad("data.clips", "a non-empty list of clip-set folders", d.clips)
+        f = self.flow
+        if not f.shift > 0:
+            bad("flow.shift", "a positive number", f.shift)
+        if not f.logit_std > 0:
+            bad("flow.logit_std", "a positive number", f.logit_std)
+        o = self.optim
+        if not o.lr > 0:
+            bad("optim.lr", "a positive number", o.lr)
+        if not 0.0 <= o.ema_decay < 1.0:
+            bad("optim.ema_decay", "a number in [0, 1)", o.ema_decay)
+        if not o.grad_clip > 0:
+            bad("optim.grad_clip", "a positive number (the max gradient norm)", o.grad_clip)
+        if o.warmup_steps < 0:
+            bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
+        if self.model.dtype not in ("float32", "bfloat16"):
+            bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
+        return self
+
+
+_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection}
+
+
+def _build(cls, data: Any, source: str, prefix: str):
+    if not isinstance(data, dict):
+        raise TrainConfigError(source, prefix or "<root>", "a mapping", type(data).__name__)
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise TrainConfigError(source, f"{prefix}{unknown[0]}", f"one of {sorted(names)}", "an unknown key")
+    kwargs = {}
+    for key, value in data.items():
+        if cls is TrainConfig and key in _SECTIONS:
+            kwargs[key] = _build(_SECTIONS[key], value or {}, source, f"{key}.")
+        elif key == "betas":
+            if not isinstance(value, (list, tuple)) or len(value) != 2:
+                raise TrainConfigError(source, f"{prefix}{key}", "two numbers", repr(value))
+            kwargs[key] = tuple(float(v) for v in value)
+        else:
+            default = names[key].default
+            if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            if isinstance(default, (int, float)) and not isinstance(default, bool) and isinstance(value, str):
+                raise TrainConfigError(source, f"{prefix}{key}", "a number", repr(value))
+            kwargs[key] = value
+    return cls(**kwargs)
+
+
+def config_from_dict(data: dict, source: str = "<config>") -> TrainConfig:
+    """Build and validate a :class:`TrainConfig` from a nested mapping."""
+    return _build(TrainConfig, data, source, "").validate(source)
+
+
+def config_to_dict(config: TrainConfig) -> dict:
+    """Plain nested dict (tuples as lists), the inverse of :func:`config_from_dict`."""
+    def plain(v):
+        if isinstance(v, tuple):
+            return [plain(x) for x in v]
+        if isinstance(v, list):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        return v
+
+    return plain(dataclasses.asdict(config))
+
+
+def load_config(path, overrides: dict | None = None) -> TrainConfig:
+    """Read a YAML config; ``overrides`` ({"optim.lr": 1e-4, ...}) replace single fields."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise TrainConfigError(path, "<file>", "a YAML file", "no such file") from None
+    except yaml.YAMLError as exc:
+        raise TrainConfigError(path, "<file>", "valid YAML", str(exc).splitlines()[0]) from None
+    data = data or {}
+    for dotted, value in (overrides or {}).items():
+        node = data
+        *parents, last = dotted.split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[last] = value
+    return config_from_dict(data, str(path))
+
+
+def save_config(config: TrainConfig, path) -> Path:
+    """Write the resolved config as YAML (atomically)."""
+    import yaml
+
+    from .._atomic import atomic_write_bytes
+
+    return atomic_write_bytes(path, yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())

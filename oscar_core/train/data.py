@@ -1,0 +1,250 @@
+"""From clip sets to model-ready batches: select usable clips, then load, render and encode windows.
+
+:class:`TrainData` opens the clip sets of a config, keeps the clips of the
+wanted sources that can give a window (bad clips raise, or are skipped and
+counted when the config says so), and turns plan items into tensors:
+
+* video latent z_0: the cached latent of the window (``latents.safetensors``)
+  or the VAE encoding of the RGB window, fitted to the training size;
+* skeleton latent: cached, or the VAE encoding of the stored skeleton video,
+  or of the skeleton rendered on the fly from trajectory + camera; a dropped
+  skeleton is zeros (``zero_latent``) or the latent of a black video
+  (``black_video``);
+* prompt embedding (L, D): the clip's, else zeros (1, D); a batch is padded
+  with zero tokens to its longest prompt;
+* latent actions (window − 1, 14) for the latent-action baseline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .clips import ClipFormatError, ClipRecord, ClipSet
+from .config import TrainConfig
+from .sampling import PlanItem, StepPlanner
+
+__all__ = ["TrainData", "Batch", "UsableClip"]
+
+
+@dataclass
+class UsableClip:
+    """A clip the trainer may draw: its set, record, and (cached mode) allowed window starts."""
+
+    clipset: ClipSet
+    record: ClipRecord
+    starts: np.ndarray | None = None
+
+
+@dataclass
+class Batch:
+    """One micro-batch. z0: (B, C, T', h, w); skeleton: (B, C_s, T', h, w) or None; text: (B, L, D);
+    actions: (B, window − 1, 14) or None."""
+
+    z0: torch.Tensor
+    skeleton: torch.Tensor | None
+    text: torch.Tensor
+    actions: torch.Tensor | None
+
+
+class TrainData:
+    """The usable clips of a config and the means to load them.
+
+    config: the run's config; vae: a ``VideoVAE`` (None when every clip has
+    cached latents and the black-video latent is not needed); text_dim: the
+    DiT's prompt dimension; registry: embodiment registry (default: installed plugins).
+    """
+
+    def __init__(self, config: TrainConfig, vae=None, text_dim: int = 1024, registry=None):
+        from ..registry import Registry
+
+        self.config, self.vae, self.text_dim = config, vae, int(text_dim)
+        self.registry = registry if registry is not None else Registry()
+        d = config.data
+        self.window, self.size = d.window, (d.width, d.height)
+        self.skipped: list[dict] = []
+        self.clips: list[UsableClip] = []
+        for root in d.clips:
+            cs = ClipSet(root)
+            for rec in cs:
+                if d.sources is not None and rec.source not in d.sources:
+                    continue
+                try:
+                    self.clips.append(self._check(cs, rec))
+                except ClipFormatError as exc:
+                    if not d.skip_bad_clips:
+                        raise
+                    self.skipped.append({"clip": rec.id, "shard": str(cs.shard_of[rec.id]), "reason": str(exc)})
+        if not self.clips:
+            raise ClipFormatError(", ".join(map(str, d.clips)), None, "clips",
+                                  f"at least one usable clip (sources {d.sources or 'any'}, >= {self.window} frames)",
+                                  f"none ({len(self.skipped)} skipped)")
+        self.cached = self._choose_cached()
+        if not self.cached:
+            for c in self.clips:
+                c.starts = None
+        self._black: torch.Tensor | None = None
+        self._embodiments: dict = {}
+
+    # ------------------------------------------------------------------ checks
+    def _check(self, cs: ClipSet, rec: ClipRecord) -> UsableClip:
+        shard = cs.shard_of[rec.id]
+        if rec.n_frames < self.window:
+            raise ClipFormatError(shard, rec.id, "n_frames", f"at least the window's {self.window} frames", rec.n_frames)
+        if rec.embodiment not in self.registry.names():
+            raise ClipFormatError(shard, rec.id, "embodiment", f"an installed embodiment {self.registry.names()}",
+                                  repr(rec.embodiment))
+        starts = None
+        if "latents" in rec.files:
+            starts = self._cached_starts(cs, rec)
+        if self.config.data.check_files:
+            self._check_files(cs, rec)
+        return UsableClip(cs, rec, starts)
+
+    def _cached_starts(self, cs: ClipSet, rec: ClipRecord) -> np.ndarray | None:
+        from safetensors import safe_open
+
+        path = cs.path(rec, "latents")
+        if not path.is_file():
+            raise ClipFormatError(cs.shard_of[rec.id], rec.id, "files.latents", f"a file at {rec.files['latents']}",
+                                  "no such file")
+        with safe_open(str(path), "pt") as f:
+            meta = f.metadata() or {}
+            if int(meta.get("window", -1)) != self.window:
+                return None
+            video = f.get_slice("video").get_shape()
+            if video[-2:] != [self.size[1] // 8, self.size[0] // 8]:
+                return None
+            return f.get_tensor("starts").numpy().astype(np.int64)
+
+    def _check_files(self, cs: ClipSet, rec: ClipRecord) -> None:
+        from ..errors import InputFileError
+        from ..trajectory import load_trajectory
+        from ..video import video_info
+
+        shard = cs.shard_of[rec.id]
+        for role, rel in rec.files.items():
+            if not (shard / rel).exists():
+                raise ClipFormatError(shard, rec.id, f"files.{role}", f"a file at {rel}", "no such file")
+        try:
+            traj = load_trajectory(shard / rec.files["trajectory"])
+        except InputFileError as exc:
+            raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
+        if len(traj) != rec.n_frames:
+            raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
+        for role in ("rgb", "skeleton"):
+            if role in rec.files:
+                try:
+                    info = video_info(shard / rec.files[role])
+                except Exception as exc:  # noqa: BLE001 - any decoder failure is a bad file
+                    raise ClipFormatError(shard, rec.id, f"files.{role}", "a readable video", str(exc)) from None
+                if info["frames"] != rec.n_frames:
+                    raise ClipFormatError(shard, rec.id, role, f"{rec.n_frames} frames (n_frames, the trajectory's)",
+                                          f"{info['frames']} frames")
+                if (info["width"], info["height"]) != (rec.width, rec.height):
+                    raise ClipFormatError(shard, rec.id, role, f"frames of {rec.width}x{rec.height}",
+                                          f"{info['width']}x{info['height']}")
+
+    def _choose_cached(self) -> bool:
+        mode = self.config.data.latents
+        have = all(c.starts is not None and len(c.starts) for c in self.clips)
+        if mode == "cached" and not have:
+            bad = next(c for c in self.clips if c.starts is None or not len(c.starts))
+            raise ClipFormatError(bad.clipset.shard_of[bad.record.id], bad.record.id, "latents",
+                                  f"cached latents of {self.window}-frame windows at "
+                                  f"{self.size[0] // 8}x{self.size[1] // 8} (data.latents: cached)",
+                                  "none" if "latents" not in bad.record.files else "another window or size")
+        return mode == "cached" or (mode == "auto" and have)
+
+    # ------------------------------------------------------------------ planning
+    def planner(self) -> StepPlanner:
+        c, d, f = self.config, self.config.data, self.config.flow
+        clips = [(u.record.source, u.record.n_frames, u.record.openness_array, u.starts) for u in self.clips]
+        return StepPlanner(clips, self.window, seed=c.seed, temperature=d.mixing_temperature, ramp=d.prior_ramp,
+                           uniform=d.prior_uniform, dropout=d.skeleton_dropout if c.condition == "skeleton" else 0.0,
+                           shift=f.shift, logit_mean=f.logit_mean, logit_std=f.logit_std)
+
+    # ------------------------------------------------------------------ loading
+    def embodiment(self, name: str):
+        if name not in self._embodiments:
+            self._embodiments[name] = self.registry.get(name)
+        return self._embodiments[name]
+
+    def _need_vae(self, what: str):
+        if self.vae is None:
+            raise ClipFormatError("<config>", None, "model.vae", f"a VAE ({what})", "none")
+        return self.vae
+
+    def black_latent(self) -> torch.Tensor:
+        """(C, T', h, w) VAE latent of an all-black window at the training size (computed once)."""
+        if self._black is None:
+            vae = self._need_vae("the black-video unconditional latent")
+            w, h = self.size
+            black = np.zeros((self.window, h, w, 3), dtype=np.uint8)
+            self._black = vae.encode(vae.to_pixels(black))[0]
+        return self._black
+
+    def load_item(self, item: PlanItem, condition: str) -> dict:
+        """Tensors of one plan item: z0 (C, T', h, w), skeleton (C_s, T', h, w) or None, text (L, D), actions."""
+        from ..pipeline import fit_image, render_skeleton_video
+
+        u = self.clips[item.clip]
+        rec, cs = u.record, u.clipset
+        w, h = self.size
+        want_skeleton = condition == "skeleton" and not item.drop
+        out: dict = {"skeleton": None, "actions": None}
+        need_traj = (want_skeleton and not self.cached and "skeleton" not in rec.files) or condition == "latent_action"
+        clip = cs.load(rec, start=item.start, frames=self.window, video=not self.cached,
+                       skeleton=want_skeleton and not self.cached, registry=self.registry if need_traj else None)
+        if self.cached:
+            lat = clip.latents
+            row = int(np.nonzero(lat["starts"].numpy() == item.start)[0][0])
+            out["z0"] = lat["video"][row].float()
+            if want_skeleton:
+                out["skeleton"] = lat["skeleton"][row].float()
+        else:
+            vae = self._need_vae("on-the-fly encoding")
+            rgb = np.stack([fit_image(f, w, h, "crop") for f in clip.rgb])
+            out["z0"] = vae.encode(vae.to_pixels(rgb))[0]
+            if want_skeleton:
+                if clip.skeleton is not None:
+                    skel = np.stack([fit_image(f, w, h, "crop") for f in clip.skeleton])
+                else:
+                    skel = render_skeleton_video(self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
+                                                 resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
+                out["skeleton"] = vae.encode(vae.to_pixels(skel))[0]
+        if condition == "skeleton" and item.drop:
+            out["skeleton"] = (self.black_latent() if self.config.data.unconditional_skeleton == "black_video"
+                               else torch.zeros_like(out["z0"]))
+        if clip.prompt_embeds is not None:
+            pe = clip.prompt_embeds.float()
+            if pe.shape[-1] != self.text_dim:
+                raise ClipFormatError(cs.shard_of[rec.id], rec.id, "prompt_embeds",
+                                      f"(L, {self.text_dim}) (the DiT's text dimension)", f"{tuple(pe.shape)}")
+            out["text"] = pe
+        else:
+            out["text"] = torch.zeros(1, self.text_dim)
+        if condition == "latent_action":
+            from .latent_action import latent_actions
+
+            out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
+        return out
+
+    def batch(self, items: list[PlanItem], condition: str) -> Batch:
+        """Stack the items of one micro-batch (prompts zero-padded to the longest)."""
+        loaded = [self.load_item(it, condition) for it in items]
+        L = max(x["text"].shape[0] for x in loaded)
+        text = torch.stack([torch.cat([x["text"], x["text"].new_zeros(L - x["text"].shape[0], self.text_dim)])
+                            for x in loaded])
+        skel = torch.stack([x["skeleton"] for x in loaded]) if condition == "skeleton" else None
+        acts = torch.stack([x["actions"] for x in loaded]) if condition == "latent_action" else None
+        return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts)
+
+    def summary(self) -> dict:
+        sources: dict[str, int] = {}
+        for u in self.clips:
+            sources[u.record.source] = sources.get(u.record.source, 0) + 1
+        return {"clips": len(self.clips), "skipped_clips": len(self.skipped), "sources": sources,
+                "latents": "cached" if self.cached else "on_the_fly"}

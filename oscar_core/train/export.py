@@ -1,0 +1,68 @@
+"""Export a run (any saved checkpoint) as a folder ``oscar_zoo.load`` and ``oscar rollout --model`` accept.
+
+The transformer gets the checkpoint's EMA weights (or its raw weights with
+``weights="model"``), the VAE is the config's, and the model card records
+the window (``chunk_frames``), the training size, the clips' embodiments and
+frame rate, the starting weights (``base``) and ``unconditional_skeleton``
+(what skeleton dropout fed, so the sampler's unconditional branch matches).
+
+A ``latent_action`` run is exported as ``transformer/`` (a
+``LatentActionTransformer``) and ``vae/`` only: the zoo's world model is
+skeleton-conditioned and cannot roll a latent-action model out.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+from .checkpoint import checkpoint_dir, latest_checkpoint, load_weights
+from .clips import ClipSet
+from .config import load_config
+from .models import build_transformer, build_vae
+
+__all__ = ["export_run"]
+
+
+def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "ema", name: str | None = None) -> Path:
+    """Write ``run_dir``'s checkpoint (latest, or ``step``) to ``out`` (default RUN_DIR/export); returns ``out``.
+
+    The folder is assembled beside ``out`` and renamed into place, replacing an older export.
+    """
+    from ..model.world_model import ModelCard, OscarWorldModel
+
+    run_dir = Path(run_dir)
+    config = load_config(run_dir / "config.yaml")
+    ckpt = latest_checkpoint(run_dir) if step is None else checkpoint_dir(run_dir, step)
+    out = Path(out) if out is not None else run_dir / "export"
+    base = config.model.init or (config.model.transformer if isinstance(config.model.transformer, str) else None)
+    config.model.init = None  # the weights come from the checkpoint
+    transformer = build_transformer(config)
+    load_weights(ckpt, transformer, key=weights)
+    transformer.eval()
+    vae = build_vae(config)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        if config.condition == "latent_action":
+            transformer.save_pretrained(tmp / "transformer", safe_serialization=True)
+            vae.vae.save_pretrained(tmp / "vae", safe_serialization=True)
+        else:
+            records = [r for root in config.data.clips for r in ClipSet(root)
+                       if config.data.sources is None or r.source in config.data.sources]
+            fps = Counter(r.fps for r in records).most_common(1)[0][0] if records else None
+            card = ModelCard(name=name or run_dir.name, chunk_frames=config.data.window, width=config.data.width,
+                             height=config.data.height, fps=fps,
+                             embodiments=tuple(sorted({r.embodiment for r in records})),
+                             base=base, unconditional_skeleton=config.data.unconditional_skeleton)
+            OscarWorldModel(transformer, vae, card).save_pretrained(tmp)
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+

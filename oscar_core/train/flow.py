@@ -1,0 +1,94 @@
+"""Rectified-flow training as Cosmos-Predict2.5 does it, matching ``oscar_core.model.sampler``.
+
+* Timesteps: u ~ sigmoid(N(m, s)), σ = shift·u / (1 + (shift − 1)·u) (logit-normal, shifted);
+  :func:`sigma_cdf` is the analytic CDF of σ (for the KS test).
+* Noising: z_σ = (1 − σ) z_0 + σ ε, target v = ε − z_0 (the sampler's eq. 1).
+* The first latent frame is the clean conditioning frame: it is fed clean, the
+  condition mask marks it, its timestep is ``cond_timestep`` (1e-4), and it is
+  excluded from the loss (MSE over latent frames 1..T'−1, uniform weight).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["shift_sigma", "sample_sigmas", "sigma_cdf", "FlowInputs", "flow_inputs", "flow_loss"]
+
+
+def shift_sigma(u, shift: float):
+    """σ = s·u / (1 + (s − 1)·u): the schedule shift the sampler uses (``flow_sigmas``)."""
+    return shift * u / (1.0 + (shift - 1.0) * u)
+
+
+def sample_sigmas(n: int, generator: torch.Generator, shift: float = 5.0, mean: float = 0.0,
+                  std: float = 1.0) -> torch.Tensor:
+    """(n,) float64 flow times σ in (0, 1): u = sigmoid(N(mean, std)), then shifted."""
+    u = torch.sigmoid(torch.randn(n, generator=generator, dtype=torch.float64) * std + mean)
+    return shift_sigma(u, shift)
+
+
+def sigma_cdf(s, shift: float = 5.0, mean: float = 0.0, std: float = 1.0):
+    """P(σ ≤ s) of :func:`sample_sigmas`: invert the shift, u = s / (shift − (shift − 1) s), then Φ((logit u − mean)/std)."""
+    s = float(s)
+    if s <= 0.0:
+        return 0.0
+    if s >= 1.0:
+        return 1.0
+    u = s / (shift - (shift - 1.0) * s)
+    z = (math.log(u / (1.0 - u)) - mean) / std
+    return 0.5 * (1.0 + math.erf(z / math.sqrt(2.0)))
+
+
+@dataclass
+class FlowInputs:
+    """What the DiT sees for one batch, and what it must predict.
+
+    x: (B, C, T, H, W) model input (frame 0 clean, the rest noised);
+    timestep: (B, 1, T, 1, 1) float32 (frame 0: cond_timestep, others σ_b);
+    condition_mask: (B, 1, T, H, W) 1 on frame 0; target: (B, C, T, H, W) ε − z_0;
+    loss_mask: (B, 1, T, 1, 1) 0 on frame 0, 1 elsewhere.
+    """
+
+    x: torch.Tensor
+    timestep: torch.Tensor
+    condition_mask: torch.Tensor
+    target: torch.Tensor
+    loss_mask: torch.Tensor
+
+
+def flow_inputs(z0: torch.Tensor, noise: torch.Tensor, sigma: torch.Tensor, cond_timestep: float = 1e-4) -> FlowInputs:
+    """Noise clean latents ``z0`` (B, C, T, H, W) with ``noise`` (same shape) at per-sample ``sigma`` (B,).
+
+    Exactly the sampler's conventions: z_σ = (1 − σ) z_0 + σ ε on frames ≥ 1,
+    frame 0 replaced by its clean latent under the condition mask.
+    """
+    if z0.ndim != 5 or noise.shape != z0.shape:
+        raise ValueError(f"z0, noise: expected equal (B, C, T, H, W) shapes, found {tuple(z0.shape)} and "
+                         f"{tuple(noise.shape)}")
+    b, _, t, h, w = z0.shape
+    if sigma.shape != (b,):
+        raise ValueError(f"sigma: expected shape ({b},), found {tuple(sigma.shape)}")
+    s = sigma.to(z0.dtype).view(b, 1, 1, 1, 1)
+    noisy = (1.0 - s) * z0 + s * noise
+    indicator = torch.zeros(b, 1, t, 1, 1, dtype=z0.dtype, device=z0.device)
+    indicator[:, :, 0] = 1.0
+    x = indicator * z0 + (1.0 - indicator) * noisy
+    timestep = (indicator * cond_timestep + (1.0 - indicator) * s).float()
+    return FlowInputs(x=x, timestep=timestep, condition_mask=indicator.expand(b, 1, t, h, w),
+                      target=noise - z0, loss_mask=1.0 - indicator)
+
+
+def flow_loss(pred: torch.Tensor, inputs: FlowInputs, reduction: str = "mean") -> torch.Tensor:
+    """MSE between the predicted velocity (B, C, T, H, W) and ε − z_0 on latent frames ≥ 1.
+
+    Per sample: the mean over the C·(T−1)·H·W loss elements; ``reduction``
+    "mean" averages the samples, "none" returns (B,). The conditioning frame
+    contributes exactly zero (its error is multiplied by 0, gradient included).
+    """
+    err = (pred.float() - inputs.target.float()).square() * inputs.loss_mask
+    b, c, t, h, w = err.shape
+    per_sample = err.sum(dim=(1, 2, 3, 4)) / (c * (t - 1) * h * w)
+    return per_sample.mean() if reduction == "mean" else per_sample

@@ -1,0 +1,225 @@
+"""The training loop, top to bottom: build → (resume) → step → log → save → export.
+
+One optimiser step: the planner draws the global batch of step k from (seed,
+k); this process takes its share, split into micro-batches (gradient
+accumulation, the all-reduce only on the last); each micro-batch's loss is
+the rectified-flow MSE (:mod:`.flow`) averaged over its clips and divided by
+the number of micro-batches, so the summed (and, across processes,
+averaged) gradient is that of the mean loss over the global batch. Then
+gradient-norm clipping, AdamW at the warm-up learning rate, and the EMA.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from .._atomic import atomic_write_bytes
+from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
+from .config import TrainConfig, TrainConfigError, load_config, save_config
+from .data import Batch, TrainData
+from .flow import flow_inputs, flow_loss
+from .models import build_transformer, build_vae
+from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
+from .sampling import PlanItem, StepPlanner
+
+__all__ = ["train", "TrainResult", "lr_at", "step_loss", "METRICS_FILE", "CONFIG_FILE"]
+
+METRICS_FILE = "metrics.jsonl"
+CONFIG_FILE = "config.yaml"
+
+
+@dataclass
+class TrainResult:
+    """run_dir; step: optimiser steps done; last_loss; export: the exported folder or None."""
+
+    run_dir: Path
+    step: int
+    last_loss: float | None
+    export: Path | None
+
+
+def lr_at(step: int, lr: float, warmup: int) -> float:
+    """Learning rate of optimiser step ``step`` (0-based): linear warm-up over ``warmup`` steps, then constant."""
+    if warmup <= 0:
+        return lr
+    return lr * min(1.0, (step + 1) / warmup)
+
+
+def _noise(items: list[PlanItem], shape) -> torch.Tensor:
+    """(B, *shape) float32 noise, item i drawn from its own seed (the same on any process count)."""
+    return torch.stack([torch.randn(shape, generator=torch.Generator().manual_seed(it.noise_seed)) for it in items])
+
+
+def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, device, autocast=None) -> torch.Tensor:
+    """Rectified-flow loss (scalar, mean over the micro-batch) of ``model`` on one loaded micro-batch."""
+    z0 = batch.z0.to(device, torch.float32)
+    noise = _noise(items, tuple(z0.shape[1:])).to(device)
+    sigma = torch.tensor([it.sigma for it in items], dtype=torch.float64)
+    inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep)
+    h, w = z0.shape[-2:]
+    kwargs = dict(hidden_states=inputs.x, timestep=inputs.timestep, encoder_hidden_states=batch.text.to(device),
+                  condition_mask=inputs.condition_mask, padding_mask=torch.zeros(1, 1, h, w, device=device),
+                  return_dict=False)
+    if config.condition == "skeleton":
+        kwargs["skeleton_latents"] = batch.skeleton.to(device)
+    elif config.condition == "latent_action":
+        kwargs["actions"] = batch.actions.to(device)
+    with autocast or contextlib.nullcontext():
+        pred = model(**kwargs)[0]
+    return flow_loss(pred, inputs)
+
+
+def _grad_norm(model, max_norm: float) -> float:
+    norm = torch.nn.utils.clip_grad_norm_(model.parameters(), max_norm)
+    if hasattr(norm, "full_tensor"):
+        norm = norm.full_tensor()
+    return float(norm)
+
+
+def _read_metrics(path: Path, upto: int) -> bytes:
+    """The metrics lines of steps ≤ ``upto`` (what a resumed run keeps)."""
+    if not path.is_file():
+        return b""
+    keep = []
+    for line in path.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            continue
+        if rec.get("step", 0) <= upto:
+            keep.append(line)
+    return "".join(k + "\n" for k in keep).encode()
+
+
+def train(config: TrainConfig | str | Path | None = None, *, resume=None, progress: bool = True,
+          stop_after: int | None = None, registry=None, export: bool | None = None,
+          source: str = "<config>") -> TrainResult:
+    """Train a run; with ``resume`` (a run folder) continue it from its latest checkpoint.
+
+    config: a TrainConfig or a YAML path (ignored when resuming: the run's
+    ``config.yaml`` is used). stop_after: stop after this many optimiser steps
+    in total (a simulated interruption, after saving a checkpoint; tests).
+    export: override ``config.export``. Every process of a torchrun launch calls this.
+    """
+    info = init_distributed()
+    try:
+        result, config = _train(config, resume, progress, stop_after, registry, source, info)
+    finally:
+        close_distributed(info)
+    # export after the process group is gone: rank 0 alone, one process reading the (resharded) checkpoint
+    if (config.export if export is None else export) and result.step == config.steps and info.main:
+        from .export import export_run
+
+        result.export = export_run(result.run_dir)
+    return result
+
+
+def _train(config, resume, progress, stop_after, registry, source, info: DistInfo):
+    from tqdm.auto import tqdm
+
+    # ------------------------------------------------------------------ build
+    ckpt = None
+    if resume is not None:
+        run_dir = Path(resume)
+        if not (run_dir / CONFIG_FILE).is_file():
+            raise TrainConfigError(run_dir, CONFIG_FILE, "a run folder written by `oscar train`", "no config.yaml")
+        config = load_config(run_dir / CONFIG_FILE)
+        ckpt = latest_checkpoint(run_dir)
+    elif not isinstance(config, TrainConfig):
+        source = str(config)
+        config = load_config(config)
+    config.validate(source)
+    run_dir = Path(config.run_dir) if resume is None else Path(resume)
+    if resume is None and list_checkpoints(run_dir):
+        raise TrainConfigError(source, "run_dir", "a new run folder (continue an existing run with --resume RUN_DIR)",
+                               f"{run_dir} (holds checkpoints)")
+    per_rank, rem = divmod(config.batch_size, info.world * config.micro_batch)
+    if rem or per_rank < 1:
+        raise TrainConfigError(source, "batch_size", f"a multiple of processes x micro_batch = "
+                               f"{info.world} x {config.micro_batch}", config.batch_size)
+    accum = per_rank
+    torch.manual_seed(config.seed)
+
+    vae = build_vae(config, device=info.device, source=source)
+    model = build_transformer(config, source)
+    data = TrainData(config, vae, model.text_dim, registry)
+    planner: StepPlanner = data.planner()
+    if config.parent_run and ckpt is None:
+        load_weights(latest_checkpoint(config.parent_run), model, key="model")
+    model.to(info.device)
+    wrapped = wrap_model(model, config.parallel, info)
+    o = config.optim
+    optimizer = torch.optim.AdamW(wrapped.parameters(), lr=o.lr, betas=tuple(o.betas), eps=o.eps,
+                                  weight_decay=o.weight_decay)
+    ema = {n: p.detach().clone().float() for n, p in model.named_parameters()}
+    start = 0
+    if ckpt is not None:
+        start = load_checkpoint(ckpt, wrapped, optimizer, ema, info)
+    metrics_path = run_dir / METRICS_FILE
+    if info.main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        if resume is None:
+            save_config(config, run_dir / CONFIG_FILE)
+        atomic_write_bytes(metrics_path, _read_metrics(metrics_path, start))
+    autocast = (torch.autocast(info.device.type, dtype=torch.bfloat16) if config.model.dtype == "bfloat16"
+                else None)
+
+    # ------------------------------------------------------------------ loop
+    end = config.steps if stop_after is None else min(config.steps, stop_after)
+    log = open(metrics_path, "a") if info.main else None
+    if log and start == 0:
+        log.write(json.dumps({"step": 0, "event": "start", "world_size": info.world, "accumulation": accum,
+                              "parallel": config.parallel, **data.summary(), "skipped": data.skipped,
+                              "mixing_weights": planner.weights}) + "\n")
+        log.flush()
+    bar = tqdm(total=config.steps, initial=start, disable=not (progress and info.main), unit="step",
+               dynamic_ncols=True)
+    last_loss, t0, done_at_t0 = None, time.perf_counter(), start
+    try:
+        for step in range(start, end):
+            lr = lr_at(step, o.lr, o.warmup_steps)
+            for g in optimizer.param_groups:
+                g["lr"] = lr
+            mine = StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
+            optimizer.zero_grad(set_to_none=True)
+            loss_sum = 0.0
+            for k in range(accum):
+                micro = mine[k * config.micro_batch:(k + 1) * config.micro_batch]
+                batch = data.batch(micro, config.condition)
+                with no_sync(wrapped, k == accum - 1):
+                    loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
+                    (loss / accum).backward()
+                loss_sum += float(loss.detach()) / accum
+            grad_norm = _grad_norm(wrapped, o.grad_clip)
+            optimizer.step()
+            with torch.no_grad():
+                for n, p in model.named_parameters():
+                    ema[n].lerp_(p.detach().float(), 1.0 - o.ema_decay)
+            loss_mean = all_reduce_mean(loss_sum, info)
+            last_loss = loss_mean
+            done = step + 1
+            if not math.isfinite(loss_mean):
+                raise FloatingPointError(f"{run_dir}: loss: expected a finite number, found {loss_mean} at step {done}")
+            rate = (done - done_at_t0) / max(time.perf_counter() - t0, 1e-9)
+            bar.set_postfix(loss=f"{loss_mean:.4f}", lr=f"{lr:.2e}", refresh=False)
+            bar.update(1)
+            if log and (done % config.log_every == 0 or done == end):
+                log.write(json.dumps({"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm,
+                                      "steps_per_s": rate, "elapsed_s": time.perf_counter() - t0,
+                                      "sigma_mean": sum(i.sigma for i in mine) / len(mine),
+                                      "skeleton_dropped": sum(i.drop for i in mine)}) + "\n")
+                log.flush()
+            if done % config.save_every == 0 or done == end:
+                save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
+    finally:
+        bar.close()
+        if log:
+            log.close()
+    return TrainResult(run_dir, end, last_loss, None), config

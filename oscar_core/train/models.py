@@ -1,0 +1,114 @@
+"""Build the networks a config names: the DiT (skeleton / latent-action / text-only) and the VAE."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from .config import TrainConfig, TrainConfigError
+
+__all__ = ["build_transformer", "build_vae", "transformer_config"]
+
+
+def transformer_config(spec, source: str = "<config>") -> dict:
+    """OscarTransformer3DModel arguments from ``model.transformer`` ("tiny", "cosmos-2b", a path or a dict)."""
+    from ..model.tiny import COSMOS_2B_TRANSFORMER_CONFIG, TINY_TRANSFORMER_CONFIG
+
+    if isinstance(spec, dict):
+        return dict(spec)
+    if spec == "tiny":
+        return dict(TINY_TRANSFORMER_CONFIG)
+    if spec == "cosmos-2b":
+        return dict(COSMOS_2B_TRANSFORMER_CONFIG)
+    path = Path(str(spec))
+    if path.is_dir():
+        path = path / "config.json"
+    if not path.is_file():
+        raise TrainConfigError(source, "model.transformer", "'tiny', 'cosmos-2b', a config.json (or its folder) "
+                               "or a mapping", repr(spec))
+    data = json.loads(path.read_text())
+    return {k: v for k, v in data.items() if not k.startswith("_") and k not in ("action_frames", "action_dim")}
+
+
+def build_transformer(config: TrainConfig, source: str = "<config>"):
+    """The DiT to train, its weights initialised as ``model.init`` says (float32, train mode)."""
+    from ..model.tiny import _randomise
+    from ..model.transformer import OscarTransformer3DModel
+    from .latent_action import LatentActionTransformer
+
+    m = config.model
+    args = transformer_config(m.transformer, source)
+    cls = OscarTransformer3DModel
+    if config.condition == "latent_action":
+        cls = LatentActionTransformer
+        args.update(action_frames=config.data.window - 1, action_dim=14)
+    init = m.init
+    if init is None:
+        torch.manual_seed(m.seed)  # diffusers' default init draws from the global generator
+        model = cls(**args)
+        if m.transformer == "tiny":
+            # the tiny preset's weights, as oscar_core.model.tiny draws them (diffusers zero-inits some layers)
+            _randomise(model, m.seed, 0.05)
+        with torch.no_grad():
+            model.skeleton_embed.proj.weight.zero_()
+            if cls is LatentActionTransformer:
+                for mlp in (model.action_embed_d, model.action_embed_3d):
+                    mlp[2].weight.zero_()
+                    mlp[2].bias.zero_()
+    else:
+        base = _base_weights(init, source)
+        torch.manual_seed(m.seed)
+        model = cls(**args)
+        missing, unexpected = model.load_state_dict(base, strict=False)
+        allowed = {"skeleton_embed.proj.weight"} | {k for k in model.state_dict() if k.startswith("action_embed")}
+        bad_missing = [k for k in missing if k not in allowed]
+        if bad_missing or unexpected:
+            raise TrainConfigError(source, "model.init", f"weights matching the transformer config ({init})",
+                                   f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}")
+        # the keys the base lacks (PE_s, the action MLPs) keep their constructor init: zero outputs
+    if config.condition != "skeleton":
+        # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
+        model.skeleton_embed.requires_grad_(False)
+    model.train()
+    if m.gradient_checkpointing:
+        model.enable_gradient_checkpointing()
+    return model
+
+
+def _base_weights(init: str, source: str) -> dict:
+    """State dict named by ``model.init``: ``cosmos_base:FOLDER``, an OSCAR model folder or a transformer folder."""
+    from ..model._weights import load_state_dict
+
+    if init.startswith("cosmos_base:"):
+        folder = Path(init.split(":", 1)[1])
+    else:
+        folder = Path(init)
+        if (folder / "transformer").is_dir():
+            folder = folder / "transformer"
+    if not folder.is_dir():
+        raise TrainConfigError(source, "model.init", "a folder of transformer weights (safetensors)", f"{folder} (missing)")
+    return load_state_dict(folder)
+
+
+def build_vae(config: TrainConfig, device="cpu", source: str = "<config>"):
+    """The ``VideoVAE`` a config names ("tiny", an AutoencoderKLWan folder, or an OSCAR model folder's vae/)."""
+    from ..model.tiny import build_tiny_vae
+    from ..model.vae import VideoVAE
+
+    spec = config.model.vae
+    if spec == "tiny":
+        return VideoVAE(build_tiny_vae(config.model.seed), device=device)
+    from diffusers import AutoencoderKLWan
+
+    from ..model._weights import build_strict, load_state_dict, read_config
+
+    folder = Path(spec)
+    if (folder / "vae").is_dir():
+        folder = folder / "vae"
+    if not (folder / "config.json").is_file():
+        raise TrainConfigError(source, "model.vae", "'tiny', an AutoencoderKLWan folder or an OSCAR model folder",
+                               f"{spec} (no config.json)")
+    vae = build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder)
+    return VideoVAE(vae, device=device)
