@@ -148,10 +148,10 @@ class TextEncoder:
         if Path(repo).expanduser().is_dir():
             return cls.from_folder(Path(repo).expanduser(), encoder_id=encoder_id, subfolder=sub, device=device,
                                    dtype=dtype)
-        root, commit = hub_snapshot(repo, revision, [f"{sub}/*.json", f"{sub}/*.safetensors", "tokenizer/*"],
+        root, _commit = hub_snapshot(repo, revision, [f"{sub}/*.json", f"{sub}/*.safetensors", "tokenizer/*"],
                                     cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
                                     token=token)
-        return cls.from_folder(root, encoder_id=f"{repo}@{revision or 'main'}#{commit}:{sub}", subfolder=sub,
+        return cls.from_folder(root, encoder_id=encoder_id, subfolder=sub,
                                device=device, dtype=dtype)
 
     @property
