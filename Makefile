@@ -12,7 +12,7 @@ install: $(STAMP)
 # the package metadata accepts a range.
 $(STAMP): pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.txt
 	$(PIP) install -r requirements-ci.txt
-	$(PIP) install -e ".[dev,mano]" -e examples/oscar-toyarm
+	$(PIP) install -e ".[dev,mano,text]" -e examples/oscar-toyarm
 	@mkdir -p .make && touch $(STAMP)
 
 demo: install

@@ -428,13 +428,14 @@ def _write_streams(chunks, skeleton, out, side_path, fps):
     def side_frames():
         while (item := side_q.get()) is not done:
             yield from item
+        state["side_done"] = True
 
     def write_side():
         try:
             state["side"] = write_video(side_path, side_frames(), fps)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
             state["error"] = exc
-            while side_q.get() is not done:  # keep the producer from blocking
+            while not state.get("side_done") and side_q.get() is not done:  # keep the producer from blocking
                 pass
 
     thread = None
