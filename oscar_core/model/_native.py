@@ -117,11 +117,15 @@ def read_native_state(path) -> dict[str, torch.Tensor]:
     return _unwrap(obj, path)
 
 
-def map_native_state(state: dict[str, torch.Tensor], source) -> dict[str, torch.Tensor]:
-    """Native keys → diffusers keys; the EMA copy (``net_ema.``) wins when both it and ``net.`` are present."""
+def map_native_state(state: dict[str, torch.Tensor], source, origin: dict[str, str] | None = None
+                     ) -> dict[str, torch.Tensor]:
+    """Native keys → diffusers keys; the EMA copy (``net_ema.``) wins when both it and ``net.`` are present.
+
+    origin: filled with {diffusers key: native key} when given (for reports).
+    """
     has_ema = any(k.startswith("net_ema.") for k in state)
     out: dict[str, torch.Tensor] = {}
-    origin: dict[str, str] = {}
+    origin = {} if origin is None else origin
     for key, value in state.items():
         if has_ema and key.startswith("net."):
             continue

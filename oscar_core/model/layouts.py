@@ -105,7 +105,7 @@ def _vae(folder: Path):
                         load_state_dict(folder / "vae"), folder / "vae")
 
 
-def _transformer_from_state(config: dict, state: dict, source, report: list[str]):
+def _transformer_from_state(config: dict, state: dict, source, report: list[str], origin: dict | None = None):
     """OscarTransformer3DModel from a base (Cosmos) config + state; PE_s found under any plausible name or zero."""
     from .transformer import SKELETON_EMBED_KEY, OscarTransformer3DModel
 
@@ -130,7 +130,7 @@ def _transformer_from_state(config: dict, state: dict, source, report: list[str]
     channels = weight.shape[1] // vol
     config["skeleton_channels"] = None if channels == int(config["out_channels"]) else channels
     state[SKELETON_EMBED_KEY] = weight
-    report.append(f"skeleton embedder: {key} -> {SKELETON_EMBED_KEY} {tuple(weight.shape)}")
+    report.append(f"skeleton embedder: {(origin or {}).get(key, key)} -> {SKELETON_EMBED_KEY} {tuple(weight.shape)}")
     return build_strict(OscarTransformer3DModel, config, state, source)
 
 
@@ -163,9 +163,10 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
         report.insert(0, f"layout: diffusers ({folder})")
     elif layout.kind == "cosmos-native":
         path = folder / layout.native_file
-        state = map_native_state(read_native_state(path), path)
+        origin: dict[str, str] = {}
+        state = map_native_state(read_native_state(path), path, origin)
         config = infer_config(state, path, read_overrides(path))
-        transformer = _transformer_from_state(config, state, path, report)
+        transformer = _transformer_from_state(config, state, path, report, origin)
         report.insert(0, f"layout: cosmos-native ({path}; keys mapped to diffusers' names)")
     else:
         raise CheckpointLayoutError(folder, "layout", " or ".join(LAYOUTS), repr(layout.kind))
