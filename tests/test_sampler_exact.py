@@ -147,13 +147,14 @@ def test_the_seed_frame_follows_the_true_velocity_whatever_the_model_says(solver
 
 
 def test_guidance_runs_one_branch_when_the_formula_reduces_to_one():
-    assert branches(SamplerConfig(guidance=1.0)) == ("cond",)
-    assert branches(SamplerConfig(guidance=0.0)) == ("uncond",)
+    assert SamplerConfig().guidance_form == "diffusers"  # the default (docs/world-model.md says why)
+    assert branches(SamplerConfig(guidance=1.0, guidance_form="standard")) == ("cond",)
+    assert branches(SamplerConfig(guidance=0.0, guidance_form="standard")) == ("uncond",)
     assert branches(SamplerConfig(guidance=0.0, guidance_form="diffusers")) == ("cond",)
     assert branches(SamplerConfig(guidance=1.0, guidance_form="diffusers")) == ("cond", "uncond")
     assert branches(SamplerConfig(guidance=None)) == ("cond",)
-    for config, uses_skeleton in ((SamplerConfig(steps=2, guidance=1.0), True),
-                                  (SamplerConfig(steps=2, guidance=0.0), False),
+    for config, uses_skeleton in ((SamplerConfig(steps=2, guidance=1.0, guidance_form="standard"), True),
+                                  (SamplerConfig(steps=2, guidance=0.0, guidance_form="standard"), False),
                                   (SamplerConfig(steps=2, guidance=0.0, guidance_form="diffusers"), True)):
         spy = _Spy()
         _, _, skel, _ = _chunk(spy, config)

@@ -85,10 +85,11 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
                    "(default: the checkpoint's scheduler, else unipc)")
     r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6; 0 with --guidance-form "
-                   "diffusers or 1 with standard = conditional only)")
-    r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard",
-                   help="standard: v_u + w(v_c - v_u) (paper); diffusers: v_c + w(v_c - v_u)")
+    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
+                   "--guidance-form diffusers or 1 with standard = conditional branch only)")
+    r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
+                   help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
+                   "standard: v_u + w(v_c - v_u)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
                    "(less memory) instead of one batched forward")
     r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same video)")

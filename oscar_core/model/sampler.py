@@ -26,10 +26,16 @@ latent of an all-black skeleton video (``"black_video"``), whichever the
 checkpoint was trained to drop to (``ModelCard.unconditional_skeleton``; the
 rollout passes it as ``uncond_skeleton``).
 
-* ``guidance_form="standard"`` (default, the paper's): v = v_u + w (v_c − v_u);
-  w = 1 is the conditional branch, w = 0 the unconditional one.
-* ``guidance_form="diffusers"`` (diffusers' Cosmos pipelines): v = v_c + w (v_c − v_u);
-  it equals the standard form with w + 1, so w = 0 is the conditional branch.
+* ``guidance_form="diffusers"`` (default): v = v_c + w (v_c − v_u), i.e.
+  (1 + w) v_c − w v_u. This is Ho & Salimans' classifier-free guidance
+  (their eq. 6, (1 + w) ε_c − w ε_u), which the paper cites for its w = 6;
+  NVIDIA's Cosmos-Predict2.5 rectified-flow sampler (``velocity_fn``:
+  ``cond_v + guidance * (cond_v - uncond_v)``, 35 steps, shift 5), which the
+  paper's model was fine-tuned in; and diffusers' Cosmos pipelines. w = 0 is
+  the conditional branch.
+* ``guidance_form="standard"``: v = v_u + w (v_c − v_u); equals the form
+  above with w − 1 (w = 1 is the conditional branch, w = 0 the
+  unconditional one). See docs/world-model.md for the comparison.
 
 When the guided velocity equals one branch (w = 1 or 0 in the standard form,
 w = 0 in the diffusers form, or ``guidance=None``) only that branch runs.
@@ -73,7 +79,7 @@ class SamplerConfig:
     steps: int = 35
     shift: float = 5.0
     guidance: float | None = 6.0
-    guidance_form: str = "standard"
+    guidance_form: str = "diffusers"
     batched_cfg: bool = True
     cond_timestep: float = 1e-4
     fps: float | None = None
