@@ -265,3 +265,25 @@ def test_streamed_frames_are_uint8_and_equal_the_collected_rollout():
     pieces = list(iter_rollout(*args, **kw))
     assert [len(p) for p in pieces] == [9, 8, 6] and all(p.dtype == np.uint8 for p in pieces)
     np.testing.assert_array_equal(np.concatenate(pieces), rollout(*args, **kw).frames)
+
+
+def test_the_next_seed_is_clamped_before_it_is_re_encoded():
+    class LoudVAE(_IndexVAE):
+        def __init__(self):
+            super().__init__()
+            self.seeds = []
+
+        def encode(self, pixels):
+            if pixels.shape[2] == 1:
+                self.seeds.append(float(pixels.max()))
+            return super().encode(pixels)
+
+        def decode(self, latents):
+            return super().decode(latents) + 5.0  # far outside [-1, 1]
+
+    vae = LoudVAE()
+    skel = _index_video(17)
+    frames = rollout(_Spy(), vae, skel[0], skel, torch.zeros(1, 1, 8), chunk_frames=9, progress=False,
+                     sampler=SamplerConfig(steps=1, guidance=None)).frames
+    assert len(vae.seeds) == 2 and vae.seeds[1] <= 1.0  # chunk 1's seed: the clamped last frame of chunk 0
+    assert frames.dtype == np.uint8 and frames[1:].min() == 255
