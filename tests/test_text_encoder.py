@@ -141,3 +141,35 @@ def test_cli_encode_prompt_writes_cache_and_file(pipeline_folder, tmp_path, caps
     assert first["shape"] == [1, 512, 48] and first["was_cached"] is False and out.is_file()
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out)["was_cached"] is True
+
+
+@pytest.mark.slow
+def test_rollout_prompt_uses_the_checkpoints_encoder_and_says_where_text_came_from(pipeline_folder, tmp_path, capsys):
+    from pathlib import Path
+
+    import cv2
+    import numpy as np
+
+    import oscar_zoo
+    from oscar_core.cli import main
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+
+    assets = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny", chunk_frames=81, fps=15.0,
+                                                   text_encoder_id=str(pipeline_folder)))
+    folder = oscar_zoo.export(model, tmp_path / "m")
+    first = tmp_path / "first.png"
+    cv2.imwrite(str(first), np.zeros((360, 640, 3), np.uint8))
+    base = ["rollout", "--model", str(folder), "--embodiment", "toyarm", "--first-frame", str(first),
+            "--trajectory", str(assets / "example_trajectory.npz"), "--camera", str(assets / "example_camera.json"),
+            "--size", "32x16", "--steps", "1", "--no-progress", "--no-side-by-side", "--prompt-cache",
+            str(tmp_path / "c"), "--json"]
+    assert main(base + ["--out", str(tmp_path / "a.mkv"), "--prompt", "wave"]) == 0
+    out, err = capsys.readouterr()
+    assert "text: prompt 'wave', computed with" in err and json.loads(out)["text"].startswith("prompt 'wave'")
+    assert main(base + ["--out", str(tmp_path / "b.mkv"), "--prompt", "wave"]) == 0
+    assert "text: prompt 'wave', cached" in capsys.readouterr().err
+    assert main(base + ["--out", str(tmp_path / "c.mkv")]) == 0  # no prompt: the encoder's empty prompt
+    assert "text: empty-prompt embedding (no --prompt), computed with" in capsys.readouterr().err

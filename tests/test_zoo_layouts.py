@@ -347,6 +347,7 @@ def test_offline_reads_the_cache_with_no_request_and_never_a_layout_complaint(tm
     assert "layout:" not in str(err.value)
 
 
+@pytest.mark.slow
 def test_cli_reports_an_unreachable_hub_in_seconds(tmp_path):
     import subprocess
     import sys
