@@ -222,7 +222,7 @@ def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only
     if verify or update_lock:
         pinned = {f.path: f.sha256 for f in spec.files}
         hashes = verify_folder(root, pinned, label=resolved.label, files=need, name=spec.name,
-                               locked=lock.files if lock else None)
+                               locked=lock.files if lock else None, hash_all=update_lock)
     if update_lock:
         write_lock(Lock(spec.repo_id, revision, commit, layout.kind, hashes), cache_dir)
     return Fetched(root, layout, resolved.label, commit, tuple(need))
@@ -252,11 +252,13 @@ def hub_snapshot(repo_id: str, revision: str | None, patterns, *, cache_dir=None
 
 
 def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, files=None, name: str | None = None,
-                  locked: dict[str, str] | None = None) -> dict[str, str]:
+                  locked: dict[str, str] | None = None, hash_all: bool = False) -> dict[str, str]:
     """Hash each file once and check it against the pinned (table/registry), locked and manifest sha256.
 
-    Also checks every safetensors file's structure. Returns {file: sha256}
-    of ``files`` (default: every file under ``root``).
+    Also checks every safetensors file's structure. Only files with an
+    expected hash are hashed, unless ``hash_all`` (a pull writing its lock).
+    Returns {file: sha256} of the hashed files among ``files`` (default:
+    every file under ``root``).
     """
     hint_name = name or label
     files = list(files) if files is not None else list_folder(root)
@@ -276,6 +278,10 @@ def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, file
                                         f"missing {', '.join(missing)}")
         hashes = {}
         for rel in sorted(set(files) | set(expected)):
+            if rel not in expected and not hash_all:
+                if rel.endswith(".safetensors"):
+                    check_safetensors(root / rel)
+                continue
             hashes[rel] = sha256_file(root / rel)
             for digest, origin in expected.get(rel, []):
                 if hashes[rel] != digest:
