@@ -173,12 +173,17 @@ def cmd_zoo_list(args) -> int:
 def cmd_zoo_pull(args) -> int:
     import oscar_zoo
 
+    from oscar_zoo._hub import lock_path
+
     folder = oscar_zoo.pull(args.name, args.revision, force_download=args.force,
                             local_files_only=True if args.offline else None, native_file=args.native_file)
+    resolved = oscar_zoo.resolve(args.name, args.revision)
+    lock = lock_path(resolved.spec.repo_id, resolved.revision) if resolved.spec is not None else None
+    lock = lock if lock is not None and lock.is_file() else None
     if args.json:
-        print(json.dumps({"name": args.name, "folder": str(folder)}))
+        print(json.dumps({"name": args.name, "folder": str(folder), "lock": str(lock) if lock else None}))
     else:
-        print(f"{args.name}: verified, in {folder}")
+        print(f"{args.name}: verified, in {folder}" + (f" (pinned in {lock})" if lock else ""))
     return 0
 
 
