@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.tx
 	$(PIP) install -r requirements-ci.txt
 	@# the distribution was called "oscar" before it became "oscar-wm": remove that old install (only if it is ours)
 	@$(PYTHON) -c "import importlib.metadata as m, sys; sys.exit('Skeleton-conditioned' not in (m.metadata('oscar')['Summary'] or ''))" 2>/dev/null && $(PIP) uninstall -y -q oscar || true
-	$(PIP) install -e ".[dev,mano,data,judge]" -e examples/oscar-toyarm
+	$(PIP) install -e ".[dev,mano,data,judge,text]" -e examples/oscar-toyarm
 	@mkdir -p .make && touch $(STAMP)
 
 demo: install

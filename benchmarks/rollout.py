@@ -1,6 +1,7 @@
 """World-model speed and memory: one denoising step and one rollout, batched CFG against two passes.
 
     python benchmarks/rollout.py [--repeats 5] [--steps 4] [--json benchmarks/results/rollout.json]
+    python benchmarks/rollout.py --gpu [--gpu-steps 35] [--compile]     (CUDA: the real 2B size, bf16)
 
 For the tiny configuration (``oscar_core.model.tiny``: a 2-block DiT of
 hidden 64 and a WAN 2.1 VAE of base width 8) at two resolutions and two
@@ -21,8 +22,20 @@ call starts from a clean level). Timings on shared machines swing; compare
 ratios within one run.
 
 It also prints what the 2B model implies, computed from its configuration
-(``COSMOS_2B_TRANSFORMER_CONFIG``, the values of architecture.md §4) on the
-meta device: parameters, bf16 weight memory and latent tokens per chunk.
+(``COSMOS_2B_TRANSFORMER_CONFIG``, diffusers' conversion of
+Cosmos-Predict2.5-2B) on the meta device: parameters, bf16 weight memory,
+latent tokens per chunk, and FLOPs counted by ``torch.utils.flop_counter``
+on the meta device (one guided DiT step = one forward of batch 2; the WAN
+2.1 VAE encode/decode of an 81-frame 512x288 chunk), turned into seconds
+per chunk and frames/s on one H100 (989 TFLOP/s dense bf16) at stated
+utilisations, beside the paper's 2.214 frames/s on a GH200. These are
+*computed*, not measured.
+
+``--gpu`` (CUDA only) measures the real size with random weights in bf16:
+seconds per guided denoising step (batched guidance, batch 2), seconds per
+81-frame 512x288 chunk (``--gpu-steps`` UniPC steps, VAE encodes and decode
+included) and peak GPU memory, with and without ``torch.compile`` when
+``--compile`` is given.
 """
 
 from __future__ import annotations
@@ -122,7 +135,7 @@ def bench_case(model: OscarWorldModel, width: int, height: int, chunk: int, args
     mask = torch.zeros(1, 1, t, h, w, device=device)
     mask[:, :, 0] = 1
     timestep = torch.full((1, 1, t, 1, 1), 0.5, device=device)
-    text = model.prompt_embeds().to(device)
+    text = torch.zeros(1, 1, transformer.text_dim, device=device)  # timing only: any embedding of the right width
     padding = torch.zeros(1, 1, h, w, device=device)
     rng = np.random.default_rng(0)
     first = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
@@ -136,13 +149,108 @@ def bench_case(model: OscarWorldModel, width: int, height: int, chunk: int, args
                 guided_velocity(transformer, x, timestep, text, skel, mask, padding, config)
 
         def roll():
-            model.rollout(first, skeleton, chunk_frames=chunk, sampler=config, seed=0, progress=False,
+            model.rollout(first, skeleton, text, chunk_frames=chunk, sampler=config, seed=0, progress=False,
                           keep_chunks=False)
 
         row[f"step_{name}"] = measure(step, args.repeats, device)
         row[f"rollout_{name}"] = measure(roll, max(1, args.repeats // 2), device)
     row["rollout_frames"] = len(skeleton)
     return row
+
+
+H100_BF16_TFLOPS = 989.4  # NVIDIA H100 SXM dense bf16 (the GH200's GPU has the same tensor-core peak)
+PAPER_FPS_GH200 = 2.214  # the paper's reported rollout speed
+UTILISATIONS = (0.2, 0.3, 0.4, 0.5, 1.0)
+
+
+def _dit_inputs(batch, frames, width, height, device, dtype):
+    t, h, w = (frames - 1) // 4 + 1, height // 8, width // 8
+    return dict(hidden_states=torch.zeros(batch, 16, t, h, w, device=device, dtype=dtype),
+                timestep=torch.full((batch, 1, t, 1, 1), 0.5, device=device),
+                encoder_hidden_states=torch.zeros(batch, 512, 1024, device=device, dtype=dtype),
+                condition_mask=torch.zeros(batch, 1, t, h, w, device=device, dtype=dtype), padding_mask=None,
+                skeleton_latents=torch.zeros(batch, 16, t, h, w, device=device, dtype=dtype), return_dict=False,
+                text_projected=True)
+
+
+def computed_2b(steps: int = 35, frames: int = 81, width: int = 512, height: int = 288) -> dict:
+    """FLOPs of one guided step and one chunk of the 2B model, counted on the meta device (no memory used)."""
+    from diffusers import AutoencoderKLWan
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with torch.device("meta"):
+        model = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG)
+        vae = AutoencoderKLWan()  # diffusers' defaults are the WAN 2.1 VAE's configuration
+    with FlopCounterMode(display=False) as fc, torch.no_grad():
+        model(**_dit_inputs(2, frames, width, height, "meta", torch.float32))
+    step = fc.get_total_flops()
+    with FlopCounterMode(display=False) as fc, torch.no_grad():
+        model.crossattn_proj(torch.zeros(1, 512, 100352, device="meta"))
+    text = fc.get_total_flops()
+    with FlopCounterMode(display=False) as fc, torch.no_grad():
+        z = vae.encode(torch.zeros(1, 3, frames, height, width, device="meta")).latent_dist.mode()
+    encode = fc.get_total_flops()
+    with FlopCounterMode(display=False) as fc, torch.no_grad():
+        vae.encode(torch.zeros(1, 3, 1, height, width, device="meta"))
+    encode_seed = fc.get_total_flops()
+    with FlopCounterMode(display=False) as fc, torch.no_grad():
+        vae.decode(z)
+    decode = fc.get_total_flops()
+    chunk = steps * step + text + encode + encode_seed + decode
+    new_frames = frames - 1  # the seed frame of every chunk after the first is the previous chunk's last
+    table = []
+    for u in UTILISATIONS:
+        seconds = chunk / (H100_BF16_TFLOPS * 1e12 * u)
+        table.append({"utilisation": u, "seconds_per_chunk": seconds, "frames_per_second": new_frames / seconds})
+    return {"steps": steps, "frames": frames, "size": f"{width}x{height}", "tflop_per_guided_step": step / 1e12,
+            "tflop_text_projection": text / 1e12, "tflop_vae_encode_chunk": encode / 1e12,
+            "tflop_vae_encode_seed": encode_seed / 1e12, "tflop_vae_decode_chunk": decode / 1e12,
+            "tflop_per_chunk": chunk / 1e12, "new_frames_per_chunk": new_frames,
+            "h100_bf16_tflops": H100_BF16_TFLOPS, "h100": table, "paper_fps_gh200": PAPER_FPS_GH200,
+            "paper_fps_implied_utilisation": PAPER_FPS_GH200 * chunk / new_frames / (H100_BF16_TFLOPS * 1e12)}
+
+
+def gpu_2b(args) -> dict:
+    """Measured on CUDA: the real-size DiT and VAE with random weights in bf16."""
+    from diffusers import AutoencoderKLWan
+
+    from oscar_core.model.sampler import sample_chunk
+    from oscar_core.model.vae import VideoVAE
+
+    if not torch.cuda.is_available():
+        raise SystemExit("--gpu needs a CUDA device (torch.cuda.is_available() is False here)")
+    device, dtype = torch.device("cuda"), torch.bfloat16
+    torch.manual_seed(0)
+    with device:
+        transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).to(dtype).eval()
+        vae = VideoVAE(AutoencoderKLWan().eval(), device=device, dtype=dtype)
+    frames, width, height = 81, 512, 288
+    inputs = _dit_inputs(2, frames, width, height, device, dtype)
+    text = torch.zeros(1, 512, 100352)
+    rng = np.random.default_rng(0)
+    first = VideoVAE.to_pixels(rng.integers(0, 256, (1, height, width, 3), dtype=np.uint8))
+    skeleton = VideoVAE.to_pixels(rng.integers(0, 256, (frames, height, width, 3), dtype=np.uint8))
+    out = {"device": torch.cuda.get_device_name(), "dtype": "bfloat16", "steps": args.gpu_steps}
+    variants = [("eager", transformer)]
+    if args.compile:
+        compiled = torch.compile(transformer)
+        compiled.project_text = transformer.project_text
+        variants.append(("compiled", compiled))
+    for name, dit in variants:
+        def step():
+            with torch.no_grad():
+                dit(**inputs)
+
+        def chunk():
+            with torch.no_grad():
+                latent = sample_chunk(dit, vae.encode(first),
+                                      vae.encode(skeleton), text,
+                                      SamplerConfig(steps=args.gpu_steps, guidance=6.0, solver="unipc"))
+                vae.decode(latent)
+
+        out[f"step_{name}"] = measure(step, args.repeats, device)
+        out[f"chunk_{name}"] = measure(chunk, 1, device)
+    return out
 
 
 def expected_2b() -> dict:
@@ -194,6 +302,11 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--steps", type=int, default=4, help="denoising steps per chunk in the rollout timing")
     p.add_argument("--device", default="cpu")
+    p.add_argument("--gpu", action="store_true", help="measure the real 2B size on CUDA (random weights, bf16)")
+    p.add_argument("--gpu-steps", type=int, default=35, help="UniPC steps per chunk in --gpu mode and in the "
+                   "computed table")
+    p.add_argument("--compile", action="store_true", help="--gpu: also time a torch.compile'd DiT")
+    p.add_argument("--skip-tiny", action="store_true", help="skip the tiny CPU timings")
     p.add_argument("--json", default=str(Path(__file__).parent / "results" / "rollout.json"))
     args = p.parse_args(argv)
     device = torch.device(args.device)
@@ -204,23 +317,45 @@ def main(argv=None) -> int:
           f"{device}; rollout = 2 chunks x {args.steps} steps, guidance w = 6")
     rows = []
     for width, height in SIZES:
-        for chunk in CHUNKS:
+        for chunk in CHUNKS if not args.skip_tiny else ():
             rows.append(bench_case(model, width, height, chunk, args, device))
             print(f"  done {width}x{height}, {chunk} frames", file=sys.stderr)
-    print_table(rows)
+    if rows:
+        print_table(rows)
     big = expected_2b()
     print(f"\n2B model (from its config): {big['parameters'] / 1e9:.3f} B parameters "
           f"({big['parameters_blocks'] / 1e9:.3f} B in the 28 blocks, {big['parameters_text_projection'] / 1e6:.1f} M "
           f"text projection, {big['parameters_pe_s']:,} PE_s), {big['weights_bf16_gib']:.2f} GiB of bf16 weights")
     for what, n in big["latent_tokens_per_chunk"].items():
         print(f"  latent tokens per chunk, {what}: {n:,} (x2 with batched guidance)")
+    comp = computed_2b(args.gpu_steps)
+    print(f"\nComputed (FLOPs counted on the meta device, not measured): one guided step (batch 2, "
+          f"{big['latent_tokens_per_chunk']['81 frames 512x288 (paper)']:,} tokens each) = "
+          f"{comp['tflop_per_guided_step']:.1f} TFLOP; an 81-frame 512x288 chunk with {comp['steps']} steps = "
+          f"{comp['tflop_per_chunk']:.0f} TFLOP (VAE encode {comp['tflop_vae_encode_chunk']:.1f} + decode "
+          f"{comp['tflop_vae_decode_chunk']:.1f}, text projection {comp['tflop_text_projection']:.2f})")
+    print(f"  one H100 ({H100_BF16_TFLOPS:g} TFLOP/s dense bf16), {comp['new_frames_per_chunk']} new frames per chunk:")
+    print("  utilisation  s/chunk  frames/s")
+    for row in comp["h100"]:
+        print(f"  {row['utilisation']:>10.0%}  {row['seconds_per_chunk']:7.2f}  {row['frames_per_second']:8.2f}")
+    print(f"  paper: {PAPER_FPS_GH200} frames/s on a GH200 = {comp['paper_fps_implied_utilisation']:.1%} utilisation "
+          f"at these FLOPs")
+    gpu = None
+    if args.gpu:
+        gpu = gpu_2b(args)
+        print(f"\nMeasured on {gpu['device']} (bf16, random weights):")
+        for key, value in gpu.items():
+            if isinstance(value, dict):
+                print(f"  {key}: median {value['median_ms'] / 1e3:.3f} s, best {value['best_ms'] / 1e3:.3f} s, "
+                      f"peak {value['peak_mib'] / 1024:.1f} GiB")
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
                                            "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),
                                            "device": str(device)},
                                "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
-                               "tiny": rows, "expected_2b": big}, indent=2) + "\n")
+                               "tiny": rows, "expected_2b": big, "computed_2b": comp, "gpu_2b": gpu},
+                              indent=2) + "\n")
     print(f"wrote {out}")
     return 0
 

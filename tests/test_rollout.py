@@ -47,8 +47,8 @@ def test_flow_sigmas_are_shifted_and_end_at_zero():
 
 def test_guidance_w1_equals_the_conditional_branch(model):
     cond_only = _sample(model, SamplerConfig(steps=STEPS, guidance=None))
-    for config in (SamplerConfig(steps=STEPS, guidance=1.0),  # standard: v_u + 1 (v_c - v_u)
-                   SamplerConfig(steps=STEPS, guidance=1.0, batched_cfg=False),
+    for config in (SamplerConfig(steps=STEPS, guidance=1.0, guidance_form="standard"),  # v_u + 1 (v_c - v_u)
+                   SamplerConfig(steps=STEPS, guidance=1.0, batched_cfg=False, guidance_form="standard"),
                    SamplerConfig(steps=STEPS, guidance=0.0, guidance_form="diffusers")):  # v_c + 0 (v_c - v_u)
         torch.testing.assert_close(_sample(model, config), cond_only, rtol=1e-5, atol=1e-5)
     assert (_sample(model, SamplerConfig(steps=STEPS, guidance=6.0)) - cond_only).abs().max() > 1e-4
@@ -87,7 +87,8 @@ def test_guidance_forms_and_unconditional_branch():
     s = torch.randn(1, 4, 3, 2, 2)
     t, mask, text = torch.rand(1, 1, 3, 1, 1), torch.zeros(1, 1, 3, 2, 2), torch.zeros(1, 1, 8)
     v_c, v_u = 2 * s + 0.5 * x, 0.5 * x
-    std = guided_velocity(spy, x, t, text, s, mask, None, SamplerConfig(guidance=6.0, batched_cfg=False))
+    std = guided_velocity(spy, x, t, text, s, mask, None, SamplerConfig(guidance=6.0, batched_cfg=False,
+                                                                        guidance_form="standard"))
     torch.testing.assert_close(std, v_u + 6 * (v_c - v_u))
     assert torch.count_nonzero(spy.calls[-1][2]) == 0  # the unconditional branch sees a zero skeleton
     dif = guided_velocity(spy, x, t, text, s, mask, None, SamplerConfig(guidance=6.0, guidance_form="diffusers"))

@@ -111,5 +111,6 @@ def test_zoo_list_and_pull(capsys, tmp_path, model_dir, monkeypatch):
     assert code == 0, err
     folder = Path(json.loads(out)["folder"])
     assert (folder / "oscar_model.json").is_file() and "models--me--tiny" in str(folder)
+    assert json.loads(out)["lock"].endswith("oscar-locks/models--me--tiny/main.json")
     code, out, _ = run(capsys, "zoo", "pull", "me/tiny", "--offline")
     assert code == 0 and "verified" in out

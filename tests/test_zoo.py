@@ -164,8 +164,10 @@ def test_missing_files_report_expected_and_found(hub):
     with pytest.raises(CheckpointLayoutError) as err:
         oscar_zoo.load("oscar-2b", endpoint=hub.url)
     message = str(err.value)
-    assert "expected oscar_model.json, transformer/config.json" in message
-    assert "found README.md, model.pt" in message and "pickle-based files (model.pt) are never loaded" in message
+    assert "layouts tried — oscar: oscar_model.json, transformer/config.json" in message
+    assert "diffusers: transformer/config.json" in message and "cosmos-native: one DiT checkpoint" in message
+    assert "found README.md, model.pt" in message and "model.pt but no diffusers vae/" in message
+    assert "unverified" in message
 
 
 def test_missing_weights_in_a_partial_repo(hub, exported):

@@ -19,9 +19,9 @@ over loopback for tests.
 from __future__ import annotations
 
 from ._fetch import UnknownModelError, list_models, resolve
-from ._load import export, load, pull, push
+from ._load import convert, export, load, pull, push
 from ._registry import register, registry_path, unregister, user_models
 from ._table import CHECKPOINTS, COSMOS_TEXT_ENCODER_ID, CheckpointSpec, FileSpec
 
-__all__ = ["CHECKPOINTS", "COSMOS_TEXT_ENCODER_ID", "CheckpointSpec", "FileSpec", "UnknownModelError", "export",
+__all__ = ["CHECKPOINTS", "COSMOS_TEXT_ENCODER_ID", "CheckpointSpec", "FileSpec", "UnknownModelError", "convert", "export",
            "list_models", "load", "pull", "push", "register", "registry_path", "resolve", "unregister", "user_models"]

@@ -1,10 +1,13 @@
 """Resolve a name / Hub id / folder, download what the layout needs, and verify it.
 
-Downloads go through ``huggingface_hub.hf_hub_download`` one file at a time
-(the file list follows from the layout: configs, then a single safetensors
-file or an index and its shards), into the standard Hub cache, so a second
-load — or one with ``HF_HUB_OFFLINE=1`` — reads the cache. Only safetensors
-and JSON files are ever requested.
+Online, one request (:func:`._hub.probe`) resolves the revision to a commit
+and lists the repository; the layout (``oscar_core.model.layouts``: oscar,
+diffusers or cosmos-native) is decided from that listing, and only the files
+it needs are fetched with ``hf_hub_download`` at that commit, into the
+standard Hub cache. Offline, the commit comes from the pull's lock file or
+the cache's refs, and the snapshot folder is read with no network at all.
+Only JSON, safetensors and (cosmos-native) one ``.pt`` state dict — read
+with ``weights_only=True`` — are ever requested.
 
 ``HF_ENDPOINT`` and ``HF_HUB_OFFLINE`` are read when a function is called
 (huggingface_hub itself reads them once, at import), and passed on
@@ -13,22 +16,25 @@ explicitly; ``endpoint=`` / ``local_files_only=`` arguments override them.
 
 from __future__ import annotations
 
-import json
+import json  # noqa: F401
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from oscar_core.errors import OscarError
-from oscar_core.model._manifest import MANIFEST_NAME, read_manifest, verify_files
-from oscar_core.model._weights import INDEX_NAME, WEIGHTS_NAME, check_safetensors
+from oscar_core.model._manifest import MANIFEST_NAME, read_manifest, sha256_file
+from oscar_core.model._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, check_safetensors
 from oscar_core.model.errors import CheckpointIntegrityError, CheckpointLayoutError
+from oscar_core.model.layouts import SCHEDULER_CONFIG, Layout, detect_layout, list_folder
 from oscar_core.model.world_model import EMPTY_PROMPT_FILE, MODEL_FILE
 
+from ._hub import (HubUnreachableError, Lock, cached_commit, probe, read_lock, snapshot_folder, write_lock)
 from ._registry import user_models
 from ._table import CHECKPOINTS, CheckpointSpec
 
-__all__ = ["UnknownModelError", "Resolved", "resolve", "fetch", "list_models", "local_kind", "is_offline",
-           "OSCAR_LAYOUT"]
+__all__ = ["UnknownModelError", "Resolved", "resolve", "fetch", "list_models", "is_offline", "OSCAR_LAYOUT",
+           "needed_files", "hub_snapshot", "HubUnreachableError", "Fetched"]
 
 OSCAR_LAYOUT = (MODEL_FILE, "transformer/config.json", f"transformer/{WEIGHTS_NAME} (or an index + shards)",
                 "vae/config.json", f"vae/{WEIGHTS_NAME}", f"{MANIFEST_NAME} (optional)", f"{EMPTY_PROMPT_FILE} (optional)")
@@ -102,169 +108,187 @@ def _replace_revision(spec: CheckpointSpec, revision: str) -> CheckpointSpec:
     return replace(spec, revision=revision, files=files)
 
 
-def local_kind(folder: Path) -> str:
-    """"oscar" or "cosmos-base" for a local folder, from the files it holds."""
-    if (folder / MODEL_FILE).is_file():
-        return "oscar"
-    config = folder / "transformer" / "config.json"
-    if config.is_file():
+_SHARD = re.compile(r"^diffusion_pytorch_model-\d+-of-\d+\.safetensors$")
+
+
+def _component(files: set[str], sub: str) -> list[str]:
+    """config + non-variant weights (single file, or index + numbered shards) of ``sub/``."""
+    out = [f"{sub}/{CONFIG_NAME}"] if f"{sub}/{CONFIG_NAME}" in files else []
+    if f"{sub}/{WEIGHTS_NAME}" in files:
+        return out + [f"{sub}/{WEIGHTS_NAME}"]
+    if f"{sub}/{INDEX_NAME}" in files:
+        shards = [f for f in files if f.startswith(sub + "/") and _SHARD.match(f[len(sub) + 1:])]
+        return out + [f"{sub}/{INDEX_NAME}"] + sorted(shards)
+    return out
+
+
+def needed_files(layout: Layout, files) -> list[str]:
+    """The files of a listing that loading ``layout`` reads (nothing else is downloaded)."""
+    files = set(files)
+    need = _component(files, "transformer") + _component(files, "vae") if layout.kind != "cosmos-native" \
+        else [layout.native_file] + _component(files, "vae")
+    if layout.kind == "cosmos-native":
+        beside = str(Path(layout.native_file).parent / CONFIG_NAME).removeprefix("./")
+        need += [beside] if beside in files else []
+    for optional in (MODEL_FILE, MANIFEST_NAME, EMPTY_PROMPT_FILE, SCHEDULER_CONFIG):
+        if optional in files and (layout.kind == "oscar" or optional == SCHEDULER_CONFIG):
+            need.append(optional)
+    return sorted(set(need))
+
+
+@dataclass
+class Fetched:
+    """A checkpoint on disk: its folder, layout, label, commit (Hub) and the files that were verified."""
+
+    folder: Path
+    layout: Layout
+    label: str
+    commit: str | None = None
+    files: tuple[str, ...] = ()
+
+
+def _download(repo_id: str, commit: str, paths, *, cache_dir, endpoint, token, force: bool) -> Path:
+    """hf_hub_download each path at ``commit``; returns the snapshot folder."""
+    from huggingface_hub import hf_hub_download
+
+    from ._hub import hub_timeout
+
+    root = None
+    for path in paths:
         try:
-            name = json.loads(config.read_text()).get("_class_name")
-        except ValueError:
-            name = None
-        if name == "CosmosTransformer3DModel":
-            return "cosmos-base"
-    found = ", ".join(sorted(p.relative_to(folder).as_posix() for p in folder.iterdir())) or "an empty folder"
-    raise CheckpointLayoutError(folder, "files", f"an OSCAR model folder ({', '.join(OSCAR_LAYOUT)}) or a diffusers "
-                                f"Cosmos-Predict2.5 folder (transformer/, vae/)", found)
-
-
-class _Fetcher:
-    """hf_hub_download with oscar's error messages; remembers the snapshot folder and what was missing."""
-
-    def __init__(self, resolved: Resolved, cache_dir, endpoint, offline: bool, force: bool, token):
-        self.r, self.spec = resolved, resolved.spec
-        self.cache_dir = str(cache_dir) if cache_dir is not None else (os.environ.get("HF_HUB_CACHE") or None)
-        self.endpoint = endpoint or os.environ.get("HF_ENDPOINT") or None
-        self.offline, self.force, self.token = offline, force, token
-        self.root: Path | None = None
-        self.got: list[str] = []
-        self.missing: list[str] = []
-
-    def get(self, path: str, required: bool = True) -> Path | None:
-        from huggingface_hub import hf_hub_download
-        from huggingface_hub.errors import (EntryNotFoundError, GatedRepoError, LocalEntryNotFoundError,
-                                            RepositoryNotFoundError, RevisionNotFoundError)
-
-        if path in self.got:
-            return self.root / path
-        try:
-            local = hf_hub_download(self.spec.repo_id, path, revision=self.r.revision, cache_dir=self.cache_dir,
-                                    endpoint=self.endpoint, local_files_only=self.offline,
-                                    force_download=self.force and not self.offline, token=self.token)
-        except RevisionNotFoundError:
-            raise CheckpointLayoutError(self.r.label, "revision", f"a branch, tag or commit of {self.spec.repo_id}",
-                                        f"no revision {self.r.revision!r}") from None
-        except (RepositoryNotFoundError, GatedRepoError) as exc:
-            raise CheckpointLayoutError(self.r.label, "repository", f"an accessible Hub repository {self.spec.repo_id}",
-                                        f"{type(exc).__name__}", "check the id, your token and the endpoint "
-                                        f"({self.endpoint or 'huggingface.co'})") from None
-        except (LocalEntryNotFoundError, EntryNotFoundError):
-            if required:
-                self.missing.append(path)
-            return None
-        except OSError as exc:  # e.g. huggingface_hub's size "consistency check failed" on a partial download
-            raise CheckpointIntegrityError(f"{self.r.label}: {path}", "download", "a complete file",
-                                           f"{type(exc).__name__}: {exc}") from None
-        local = Path(local)
+            local = hf_hub_download(repo_id, path, revision=commit, cache_dir=cache_dir, endpoint=endpoint,
+                                    force_download=force, token=token, etag_timeout=hub_timeout())
+        except OSError as exc:  # connection errors are OSErrors too: say which
+            name = type(exc).__name__
+            if "Connect" in name or "Timeout" in name or "Offline" in name:
+                raise HubUnreachableError(f"cannot reach the Hub ({endpoint or 'huggingface.co'}: {name} while "
+                                          f"downloading {path}); set HF_HUB_OFFLINE=1 to use the cache") from None
+            raise CheckpointIntegrityError(f"{repo_id}@{commit}: {path}", "download", "a complete file",
+                                           f"{name}: {exc}") from None
         root = Path(str(local)[: -len(path)])
-        if self.root is None:
-            self.root = root
-        elif root != self.root:
-            raise CheckpointLayoutError(self.r.label, "snapshot", f"every file from one commit ({self.root.name})",
-                                        f"{path} from {root.name}", "the branch moved during the download; pin a "
-                                        "commit with revision=... or retry")
-        self.got.append(path)
-        return local
-
-    def component(self, sub: str) -> None:
-        """``sub/config.json`` + the safetensors weights (single file or index + shards)."""
-        self.get(f"{sub}/config.json")
-        if self.get(f"{sub}/{WEIGHTS_NAME}", required=False) is not None:
-            return
-        index = self.get(f"{sub}/{INDEX_NAME}", required=False)
-        if index is None:
-            self.missing.append(f"{sub}/{WEIGHTS_NAME} (or {INDEX_NAME})")
-            return
-        try:
-            shards = sorted(set(json.loads(index.read_text())["weight_map"].values()))
-        except (ValueError, KeyError, TypeError):
-            raise CheckpointLayoutError(index, "weight_map", "a JSON object {tensor: shard}", "an unreadable index") \
-                from None
-        for shard in shards:
-            if not shard.endswith(".safetensors"):
-                raise CheckpointLayoutError(index, "weight_map", "safetensors shards", shard)
-            self.get(f"{sub}/{shard}")
-
-    def found(self) -> str:
-        """What the repository (online) or the local cache (offline) holds, for error messages."""
-        if not self.offline:
-            try:
-                from huggingface_hub import HfApi
-
-                files = HfApi(endpoint=self.endpoint, token=self.token).list_repo_files(
-                    self.spec.repo_id, revision=self.r.revision)
-                pickles = [f for f in files if f.endswith(_PICKLES)]
-                note = (f" — pickle-based files ({', '.join(pickles)}) are never loaded by oscar; convert them to "
-                        "safetensors") if pickles else ""
-                return (", ".join(sorted(files)) or "an empty repository") + note
-            except Exception as exc:  # noqa: BLE001 - listing is a courtesy for the message
-                return f"(could not list the repository: {type(exc).__name__})"
-        if self.root is not None and self.root.is_dir():
-            files = sorted(p.relative_to(self.root).as_posix() for p in self.root.rglob("*") if p.is_file())
-            return "in the local cache: " + (", ".join(files) or "nothing")
-        return "nothing in the local cache (offline: HF_HUB_OFFLINE=1 or local_files_only=True)"
-
-    def raise_missing(self, expected) -> None:
-        if not self.missing:
-            return
-        hint = f"missing {', '.join(self.missing)}"
-        if self.offline:
-            hint += "; offline mode reads only the local cache: run `oscar zoo pull NAME` online once"
-        if self.spec.source == "table" and self.spec.name == "oscar-2b":
-            hint += "; the layout of this release is unverified: please report what the repository holds"
-        raise CheckpointLayoutError(self.r.label, "files", ", ".join(expected), self.found(), hint)
+    return root
 
 
 def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only: bool | None = None,
-          force_download: bool = False, token=None, verify: bool = True) -> tuple[Path, str]:
-    """Download (or find in the cache) what ``resolved`` needs; verify it; return (folder, kind)."""
+          force_download: bool = False, token=None, verify: bool = True, native_file: str | None = None,
+          update_lock: bool = False) -> Fetched:
+    """Download (or find in the cache) what ``resolved`` needs, verify it, and say which layout it is.
+
+    update_lock: resolve the revision anew and rewrite the lock (``pull``);
+    otherwise an existing lock pins the commit and its hashes are checked.
+    """
     if resolved.folder is not None:
-        kind = local_kind(resolved.folder)
+        folder = resolved.folder
+        files = list_folder(folder)
+        layout = detect_layout(files, folder, native_file)
+        need = needed_files(layout, files)
         if verify:
-            verify_folder(resolved.folder, {}, label=str(resolved.folder))
-        return resolved.folder, kind
+            verify_folder(folder, {}, label=str(folder), files=need)
+        return Fetched(folder, layout, str(folder), None, tuple(need))
     spec = resolved.spec
-    f = _Fetcher(resolved, cache_dir, endpoint, is_offline(local_files_only), force_download, token)
-    if spec.kind == "oscar":
-        if f.get(MODEL_FILE) is None:
-            f.raise_missing(OSCAR_LAYOUT)
-        manifest = f.get(MANIFEST_NAME, required=False)
-        listed = sorted(json.loads(manifest.read_text()).get("files", {})) if manifest is not None else []
-        if listed:
-            for path in listed:
-                f.get(path)
-        else:
-            f.component("transformer")
-            f.component("vae")
-            f.get(EMPTY_PROMPT_FILE, required=False)
-        expected = OSCAR_LAYOUT
+    endpoint = endpoint or os.environ.get("HF_ENDPOINT") or None
+    cache_dir = str(cache_dir) if cache_dir is not None else (os.environ.get("HF_HUB_CACHE") or None)
+    revision = resolved.revision
+    lock = None if update_lock else read_lock(spec.repo_id, revision, cache_dir)
+    if is_offline(local_files_only):
+        commit = lock.commit if lock else cached_commit(spec.repo_id, revision, cache_dir)
+        root = snapshot_folder(spec.repo_id, commit, cache_dir) if commit else None
+        if root is None or not root.is_dir():
+            raise CheckpointLayoutError(resolved.label, "local cache", f"a cached snapshot of {spec.repo_id}@{revision}",
+                                        "nothing in the local cache (offline: HF_HUB_OFFLINE=1 or "
+                                        "local_files_only=True)", "run `oscar zoo pull NAME` online once")
+        files = list_folder(root)
     else:
-        f.component("transformer")
-        f.component("vae")
-        expected = ("transformer/config.json", f"transformer/{WEIGHTS_NAME} (or an index + shards)",
-                    "vae/config.json", f"vae/{WEIGHTS_NAME}")
-    for file in spec.files:
-        f.get(file.path)
-    f.raise_missing(expected)
-    if verify:
-        verify_folder(f.root, {file.path: file.sha256 for file in spec.files}, label=resolved.label, files=f.got,
-                      name=spec.name)
-    return f.root, spec.kind
-
-
-def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, files=None, name: str | None = None) -> None:
-    """Pinned sha256 (table/registry), then the folder's manifest, then every safetensors file's structure."""
-    hint_name = name or label
+        info = probe(spec.repo_id, lock.commit if lock else revision, endpoint=endpoint, token=token)
+        commit, files, root = info.commit, list(info.files), None
     try:
-        verify_files(root, pinned, source=label)
-        manifest = read_manifest(root)
-        if manifest is not None:
-            verify_files(root, {p: m.get("sha256") for p, m in manifest.items()}, source=label)
-        paths = files if files is not None else [p.relative_to(root).as_posix() for p in root.rglob("*.safetensors")]
-        for rel in paths:
+        layout = detect_layout(files, resolved.label, native_file)
+    except CheckpointLayoutError as exc:
+        if spec.source == "table" and spec.name == "oscar-2b":
+            hint = "; ".join(h for h in (exc.hint, "the layout of this release is unverified: please report what "
+                                         "the repository holds") if h)
+            raise CheckpointLayoutError(exc.source, exc.what, exc.expected, exc.found, hint) from None
+        raise
+    need = needed_files(layout, files)
+    if root is None:
+        root = _download(spec.repo_id, commit, need, cache_dir=cache_dir, endpoint=endpoint, token=token,
+                         force=force_download)
+    else:
+        absent = [p for p in need if not (root / p).is_file()]
+        if absent:
+            raise CheckpointLayoutError(resolved.label, "local cache", ", ".join(need), f"missing {', '.join(absent)}",
+                                        "offline mode reads only the local cache: run `oscar zoo pull NAME` online")
+    hashes = None
+    if verify or update_lock:
+        pinned = {f.path: f.sha256 for f in spec.files}
+        hashes = verify_folder(root, pinned, label=resolved.label, files=need, name=spec.name,
+                               locked=lock.files if lock else None, hash_all=update_lock)
+    if update_lock:
+        write_lock(Lock(spec.repo_id, revision, commit, layout.kind, hashes), cache_dir)
+    return Fetched(root, layout, resolved.label, commit, tuple(need))
+
+
+def hub_snapshot(repo_id: str, revision: str | None, patterns, *, cache_dir=None, endpoint=None,
+                 local_files_only: bool | None = None, token=None) -> tuple[Path, str]:
+    """Files of ``repo_id`` matching ``patterns`` (fnmatch) at ``revision``: (snapshot folder, commit)."""
+    from fnmatch import fnmatch
+
+    revision = revision or "main"
+    endpoint = endpoint or os.environ.get("HF_ENDPOINT") or None
+    cache_dir = str(cache_dir) if cache_dir is not None else (os.environ.get("HF_HUB_CACHE") or None)
+    if is_offline(local_files_only):
+        commit = cached_commit(repo_id, revision, cache_dir)
+        root = snapshot_folder(repo_id, commit, cache_dir) if commit else None
+        if root is None or not root.is_dir():
+            raise CheckpointLayoutError(f"{repo_id}@{revision}", "local cache", f"a cached snapshot of {repo_id}",
+                                        "nothing in the local cache (offline)", "run it online once")
+        return root, commit
+    info = probe(repo_id, revision, endpoint=endpoint, token=token)
+    need = [f for f in info.files if any(fnmatch(f, p) for p in patterns)]
+    if not need:
+        raise CheckpointLayoutError(f"{repo_id}@{revision}", "files", ", ".join(patterns), ", ".join(info.files))
+    root = _download(repo_id, info.commit, need, cache_dir=cache_dir, endpoint=endpoint, token=token, force=False)
+    return root, info.commit
+
+
+def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, files=None, name: str | None = None,
+                  locked: dict[str, str] | None = None, hash_all: bool = False) -> dict[str, str]:
+    """Hash each file once and check it against the pinned (table/registry), locked and manifest sha256.
+
+    Also checks every safetensors file's structure. Only files with an
+    expected hash are hashed, unless ``hash_all`` (a pull writing its lock).
+    Returns {file: sha256} of the hashed files among ``files`` (default:
+    every file under ``root``).
+    """
+    hint_name = name or label
+    files = list(files) if files is not None else list_folder(root)
+    try:
+        expected: dict[str, list[tuple[str, str]]] = {}
+        for origin, table in (("pinned", pinned), ("lock file", locked or {})):
+            for path, digest in table.items():
+                if digest:
+                    expected.setdefault(path, []).append((digest.lower(), origin))
+        manifest = read_manifest(root) if (root / MANIFEST_NAME).is_file() else None
+        for path, meta in (manifest or {}).items():
+            if meta.get("sha256"):
+                expected.setdefault(path, []).append((meta["sha256"].lower(), "manifest"))
+        missing = sorted(p for p in set(expected) | set(pinned) if not (root / p).is_file())
+        if missing:
+            raise CheckpointLayoutError(label, "files", ", ".join(sorted(set(expected) | set(pinned))),
+                                        f"missing {', '.join(missing)}")
+        hashes = {}
+        for rel in sorted(set(files) | set(expected)):
+            if rel not in expected and not hash_all:
+                if rel.endswith(".safetensors"):
+                    check_safetensors(root / rel)
+                continue
+            hashes[rel] = sha256_file(root / rel)
+            for digest, origin in expected.get(rel, []):
+                if hashes[rel] != digest:
+                    raise CheckpointIntegrityError(root / rel, "sha256", f"{digest} ({origin})", hashes[rel])
             if rel.endswith(".safetensors"):
                 check_safetensors(root / rel)
+        return {k: v for k, v in hashes.items() if k in set(files)}
     except CheckpointIntegrityError as exc:
         raise CheckpointIntegrityError(exc.path, exc.what, exc.expected, exc.found,
                                        f"the file is corrupted, partial or was changed; fetch it again with "

@@ -11,16 +11,23 @@ import torch
 from oscar_core.model._manifest import read_manifest
 from oscar_core.model.world_model import MODEL_FILE, ModelCard, OscarWorldModel
 
-from ._fetch import fetch, resolve
-from ._registry import register
-from ._table import CheckpointSpec
+from oscar_core.model.layouts import load_folder
 
-__all__ = ["load", "pull", "export", "push"]
+from ._fetch import fetch, is_offline, resolve
+from ._registry import register
+from ._table import COSMOS_TEXT_ENCODER_ID, CheckpointSpec
+
+__all__ = ["load", "pull", "export", "push", "convert"]
 
 
 def pull(name_or_repo_or_path, revision: str | None = None, *, cache_dir=None, endpoint=None,
-         local_files_only: bool | None = None, force_download: bool = False, token=None, verify: bool = True) -> Path:
+         local_files_only: bool | None = None, force_download: bool = False, token=None, verify: bool = True,
+         native_file: str | None = None) -> Path:
     """Download (or find in the cache) and verify a checkpoint; return its local folder.
+
+    Online, a pull resolves the revision anew and records the commit and the
+    sha256 of every file in a lock file beside the cache; later loads use
+    that commit and check the files against it.
 
     name_or_repo_or_path: a zoo name (``oscar_zoo.list_models()``), a Hub id
         ``owner/name`` or a local folder. revision: overrides the pinned one
@@ -29,16 +36,17 @@ def pull(name_or_repo_or_path, revision: str | None = None, *, cache_dir=None, e
         ``HF_ENDPOINT`` now, else huggingface.co). local_files_only: None →
         ``HF_HUB_OFFLINE``. force_download: fetch again (after a corruption).
     """
-    folder, _ = fetch(resolve(name_or_repo_or_path, revision), cache_dir=cache_dir, endpoint=endpoint,
-                      local_files_only=local_files_only, force_download=force_download, token=token, verify=verify)
-    return folder
+    got = fetch(resolve(name_or_repo_or_path, revision), cache_dir=cache_dir, endpoint=endpoint,
+                local_files_only=local_files_only, force_download=force_download, token=token, verify=verify,
+                native_file=native_file, update_lock=not is_offline(local_files_only))
+    return got.folder
 
 
 def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype: torch.dtype | None = None, *,
          vae_dtype: torch.dtype | None = None, offload_vae: bool = False, offload_text: bool = False,
          cache_dir=None, endpoint=None,
          local_files_only: bool | None = None, force_download: bool = False, token=None,
-         verify: bool = True) -> OscarWorldModel:
+         verify: bool = True, native_file: str | None = None, report: list | None = None) -> OscarWorldModel:
     """Load a world model by zoo name, Hub id or folder (arguments as :func:`pull`).
 
     Safetensors only, never ``trust_remote_code``, never unpickles; sha256
@@ -53,21 +61,34 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
     projection on the CPU (see ``OscarWorldModel.from_modules``).
     """
     resolved = resolve(name_or_repo_or_path, revision)
-    folder, kind = fetch(resolved, cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
-                         force_download=force_download, token=token, verify=verify)
+    got = fetch(resolved, cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
+                force_download=force_download, token=token, verify=verify, native_file=native_file)
     options = dict(device=device, dtype=dtype, vae_dtype=vae_dtype, offload_vae=offload_vae, offload_text=offload_text)
-    if kind == "cosmos-base":
-        return OscarWorldModel.from_cosmos_base(folder, _card_from_spec(resolved.spec), **options)
-    return OscarWorldModel.from_pretrained(folder, verify=False, **options)  # fetch() verified it
+    card = None if got.layout.kind == "oscar" else _card_from_spec(resolved.spec)
+    model, layout = load_folder(got.folder, got.layout, card, verify=False, **options)  # fetch() verified it
+    if report is not None:
+        report.extend(layout.report)
+    return model
 
 
 def _card_from_spec(spec: CheckpointSpec | None) -> ModelCard:
     if spec is None:
-        return ModelCard(name="cosmos-base")
+        return ModelCard(name="cosmos-base", text_encoder_id=COSMOS_TEXT_ENCODER_ID)
     base = f"{spec.repo_id}@{spec.revision or 'main'}"
     return ModelCard(name=spec.name, chunk_frames=spec.chunk_frames or 81, width=spec.width, height=spec.height,
                      fps=spec.fps, embodiments=spec.embodiments, text_encoder_id=spec.text_encoder_id, base=base,
                      license=spec.license)
+
+
+def convert(src, dst, *, revision: str | None = None, native_file: str | None = None, card: ModelCard | None = None,
+            report: list | None = None, **fetch_options) -> Path:
+    """Load ``src`` in any layout (zoo name, Hub id or folder) and write it to ``dst`` in oscar's layout.
+
+    The weights keep their stored dtype; the scheduler config (if any) is
+    kept. Returns ``dst``. ``report`` receives what the loader found.
+    """
+    model = load(src, revision, native_file=native_file, report=report, **fetch_options)
+    return model.save_pretrained(dst, card)
 
 
 def export(model: OscarWorldModel, folder, card: ModelCard | None = None) -> Path:

@@ -7,9 +7,11 @@ fps it expects. What could not be verified is left as None, never guessed:
 * ``oscar-2b`` (``zywu2115/OSCAR-2B``): the paper's release. Its file layout,
   license, commit and file hashes were not available to verify: revision is
   None (the loader uses "main" and says it is unpinned), every sha256 is
-  None, and the loader expects oscar's folder layout
-  (``oscar_core.model.world_model``), reporting what it expected and what
-  the repository holds when they differ. Frames (81-frame training windows)
+  None, and the loader detects its layout from the repository listing
+  (oscar's, diffusers' or a native Cosmos checkpoint:
+  ``oscar_core.model.layouts``), reporting the files found, the layouts
+  tried and what each expected when none matches. ``oscar zoo pull``
+  pins the commit it saw in a lock file. Frames (81-frame training windows)
   and resolution (512x288, "native" in the paper's appendix) are from the
   paper; its fps is not stated there.
 * ``cosmos-predict2.5-2b`` (``nvidia/Cosmos-Predict2.5-2B``, revision
@@ -50,7 +52,8 @@ class CheckpointSpec:
     """A named checkpoint.
 
     kind: "oscar" (oscar's folder layout: oscar_model.json, transformer/, vae/)
-        or "cosmos-base" (a diffusers Cosmos-Predict2.5 repo: transformer/, vae/).
+        or "cosmos-base" (a diffusers Cosmos-Predict2.5 repo: transformer/, vae/);
+        informative only: the loader detects the layout from the files.
     revision: branch, tag or commit on the Hub; None = "main", unpinned.
     files: files checked after download; the loader fetches what the layout
         needs (configs, single or sharded safetensors) in any case.

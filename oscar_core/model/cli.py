@@ -13,13 +13,15 @@ import json
 import sys
 from pathlib import Path
 
-__all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "side_by_side_path"]
+__all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
+           "side_by_side_path"]
 
 ROLLOUT_EXAMPLES = """examples:
   oscar rollout --model oscar-2b --embodiment franka --first-frame img.png --trajectory traj.npz \\
       --camera cam.json --prompt "put the cup in the sink" --out video.mp4
   oscar rollout ... --out video.mp4 --side-by-side compare.mp4 --device cuda --dtype bfloat16 --vae-tiling
   oscar rollout ... --prompt-embeds embeds.safetensors --steps 20 --seed 3 --json
+  oscar rollout ... --solver euler --guidance 1      (first-order sampler, conditional branch only)
 
 The rollout is written to --out; a side-by-side video (rollout | skeleton over
 the rollout) to --side-by-side (default: OUT_side.mp4).
@@ -30,6 +32,16 @@ ZOO_EXAMPLES = """examples:
   oscar zoo list --json
   oscar zoo pull oscar-2b
   HF_HUB_OFFLINE=1 oscar zoo pull oscar-2b     (check that the cache holds it)
+  oscar zoo convert ./cosmos-native-folder ./oscar-folder     (any layout -> oscar's, safetensors)
+"""
+
+ENCODE_EXAMPLES = """examples:
+  oscar encode-prompt "put the cup in the sink" --model oscar-2b
+  oscar encode-prompt "" --model cosmos-predict2.5-2b            (the empty-prompt embedding)
+  oscar encode-prompt "wave" --encoder ./cosmos-pipeline-folder --out wave.safetensors --json
+
+The embedding (1, 512, 100352 for Cosmos-Reason1) goes into the prompt cache
+keyed by prompt and encoder revision; `oscar rollout --prompt` reads it there.
 """
 
 _DTYPES = ("float32", "bfloat16", "float16")
@@ -56,27 +68,35 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--side-by-side", help="side-by-side video path (default: OUT_side.mp4)")
     r.add_argument("--no-side-by-side", action="store_true", help="do not write the side-by-side video")
     text = r.add_mutually_exclusive_group()
-    text.add_argument("--prompt", help="task text; its embedding must be in the prompt cache (--prompt-cache)")
+    text.add_argument("--prompt", help="task text; embedded with the model's text encoder on the first use, then "
+                      "read from the prompt cache (--prompt-cache)")
     text.add_argument("--prompt-embeds", metavar="FILE", help="precomputed prompt embedding (.safetensors, tensor "
                       "'prompt_embeds' of shape (1, L, D))")
     r.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds "
                    "or ~/.cache/oscar/prompt_embeds)")
+    r.add_argument("--text-encoder", metavar="ID_OR_FOLDER", help="text encoder for --prompt (default: the "
+                   "checkpoint's text_encoder_id)")
+    r.add_argument("--native-file", help="which native Cosmos checkpoint file, when a folder/repo holds several")
     r.add_argument("--size", help="rollout WIDTHxHEIGHT, multiples of 16 (default: the model's, else the camera's)")
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how camera and first frame are fitted to --size (default: centre crop)")
     r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
     r.add_argument("--steps", type=int, default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
+                   "(default: the checkpoint's scheduler, else unipc)")
     r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6; 0 with --guidance-form "
-                   "diffusers or 1 with standard = conditional only)")
-    r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard",
-                   help="standard: v_u + w(v_c - v_u) (paper); diffusers: v_c + w(v_c - v_u)")
+    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
+                   "--guidance-form diffusers or 1 with standard = conditional branch only)")
+    r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
+                   help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
+                   "standard: v_u + w(v_c - v_u)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
                    "(less memory) instead of one batched forward")
     r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same video)")
     r.add_argument("--fps", type=float, help="output frame rate (default: the trajectory's)")
-    r.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:1)")
-    r.add_argument("--dtype", choices=_DTYPES, default="float32", help="DiT dtype (bfloat16 on GPUs)")
+    r.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
+    r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
+    r.add_argument("--compile", action="store_true", help="torch.compile the DiT (GPU; first chunk pays the compile)")
     r.add_argument("--vae-tiling", action="store_true", help="tile VAE encode/decode (GPU memory)")
     r.add_argument("--vae-slicing", action="store_true", help="VAE one batch element at a time")
     r.add_argument("--offload-vae", action="store_true", help="keep the VAE on the CPU between uses")
@@ -100,7 +120,31 @@ def add_model_parsers(subparsers) -> None:
     zp.add_argument("--force", action="store_true", help="download again even if cached (after a corruption)")
     zp.add_argument("--offline", action="store_true", help="only check the local cache")
     zp.add_argument("--json", action="store_true", help="machine-readable output")
+    zp.add_argument("--native-file", help="which native Cosmos checkpoint file, when the repo holds several")
     zp.set_defaults(func=cmd_zoo_pull)
+    zc = zsub.add_parser("convert", help="write any checkpoint layout (oscar, diffusers, native Cosmos) as oscar's "
+                         "(safetensors)", epilog=ZOO_EXAMPLES, formatter_class=fmt)
+    zc.add_argument("src", help="zoo name, Hub id owner/name, or folder, in any supported layout")
+    zc.add_argument("dst", help="output folder (oscar layout)")
+    zc.add_argument("--revision", help="Hub revision")
+    zc.add_argument("--native-file", help="which native Cosmos checkpoint file, when SRC holds several")
+    zc.add_argument("--offline", action="store_true", help="only the local cache")
+    zc.add_argument("--json", action="store_true", help="machine-readable output")
+    zc.set_defaults(func=cmd_zoo_convert)
+
+    e = subparsers.add_parser("encode-prompt", help="compute (and cache) the text embedding of a prompt",
+                              epilog=ENCODE_EXAMPLES, formatter_class=fmt)
+    e.add_argument("prompt", help='the prompt text ("" for the empty prompt)')
+    e.add_argument("--model", help="zoo name / Hub id whose text_encoder_id to use (default: cosmos-predict2.5-2b's)")
+    e.add_argument("--encoder", metavar="ID_OR_FOLDER", help="text encoder: 'owner/name@revision:text_encoder' or a "
+                   "diffusers pipeline folder (text_encoder/ + tokenizer/)")
+    e.add_argument("--out", help="also write the embedding here (.safetensors, tensor 'prompt_embeds')")
+    e.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache folder")
+    e.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
+    e.add_argument("--dtype", choices=_DTYPES, help="encoder dtype (default: the checkpoint's)")
+    e.add_argument("--offline", action="store_true", help="only the local Hub cache")
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+    e.set_defaults(func=cmd_encode_prompt)
 
 
 # --------------------------------------------------------------------------- zoo
@@ -129,19 +173,104 @@ def cmd_zoo_list(args) -> int:
 def cmd_zoo_pull(args) -> int:
     import oscar_zoo
 
+    from oscar_zoo._hub import lock_path
+
     folder = oscar_zoo.pull(args.name, args.revision, force_download=args.force,
-                            local_files_only=True if args.offline else None)
+                            local_files_only=True if args.offline else None, native_file=args.native_file)
+    resolved = oscar_zoo.resolve(args.name, args.revision)
+    lock = lock_path(resolved.spec.repo_id, resolved.revision) if resolved.spec is not None else None
+    lock = lock if lock is not None and lock.is_file() else None
     if args.json:
-        print(json.dumps({"name": args.name, "folder": str(folder)}))
+        print(json.dumps({"name": args.name, "folder": str(folder), "lock": str(lock) if lock else None}))
     else:
-        print(f"{args.name}: verified, in {folder}")
+        print(f"{args.name}: verified, in {folder}" + (f" (pinned in {lock})" if lock else ""))
+    return 0
+
+
+def cmd_zoo_convert(args) -> int:
+    import oscar_zoo
+    from oscar_zoo._fetch import fetch, resolve
+
+    report: list[str] = []
+    got = fetch(resolve(args.src, args.revision), local_files_only=True if args.offline else None,
+                native_file=args.native_file)
+    out = oscar_zoo.convert(got.folder, args.dst, native_file=args.native_file, report=report)
+    if args.json:
+        print(json.dumps({"src": args.src, "dst": str(out), "layout": got.layout.kind, "report": report}, indent=2))
+    else:
+        for line in report:
+            print(line, file=sys.stderr)
+        print(f"{args.src} ({got.layout.kind}) -> {out} (oscar layout, safetensors)")
+    return 0
+
+
+# --------------------------------------------------------------------------- text
+
+
+def _default_device() -> str:
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def _encoder_id_for(model: str | None) -> str:
+    import oscar_zoo
+
+    if model:
+        spec = oscar_zoo.resolve(model).spec
+        if spec is not None and spec.text_encoder_id:
+            return spec.text_encoder_id
+        from .errors import ModelInputError
+
+        raise ModelInputError(f"model {model!r}: expected a zoo entry with a text_encoder_id, found none; pass "
+                              "--encoder ID_OR_FOLDER")
+    return oscar_zoo.COSMOS_TEXT_ENCODER_ID
+
+
+def _text_encoder(encoder_id: str, device, dtype, offline: bool):
+    import torch
+
+    from .text_encoder import TextEncoder
+
+    dt = getattr(torch, dtype) if dtype else None
+    return TextEncoder.from_hub(encoder_id, device=device, dtype=dt, local_files_only=True if offline else None)
+
+
+def cmd_encode_prompt(args) -> int:
+    from .text import PromptEmbeddingCache
+
+    encoder_id = args.encoder or _encoder_id_for(args.model)
+    cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder_id)
+    embeds = cache.get(args.prompt)
+    cached = embeds is not None
+    if not cached:
+        encoder = _text_encoder(encoder_id, args.device or _default_device(), args.dtype, args.offline)
+        cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder.encoder_id)
+        embeds, cached = encoder.cached(args.prompt, args.prompt_cache)
+    summary = {"prompt": args.prompt, "encoder_id": cache.encoder_id, "shape": list(embeds.shape),
+               "cache_file": str(cache.path(args.prompt)), "was_cached": cached}
+    if args.out:
+        from safetensors.torch import save_file
+
+        from .._atomic import atomic_output
+
+        with atomic_output(args.out) as tmp:
+            save_file({"prompt_embeds": embeds.contiguous()}, str(tmp),
+                      metadata={"prompt": args.prompt, "encoder_id": cache.encoder_id})
+        summary["out"] = str(args.out)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        how = "from the cache" if cached else "computed and cached"
+        print(f"{args.prompt!r}: {tuple(embeds.shape)} {how} in {summary['cache_file']}")
     return 0
 
 
 # --------------------------------------------------------------------------- rollout
 
 
-def _prompt_embeds(args, model):
+def _prompt_embeds(args, model, device) -> tuple:
+    """(embedding or None, where it came from) for ``oscar rollout`` — never a silent zero embedding."""
     import torch
 
     from .text import PromptEmbeddingCache
@@ -154,26 +283,35 @@ def _prompt_embeds(args, model):
         check_safetensors(args.prompt_embeds)
         tensors = load_file(args.prompt_embeds)
         if "prompt_embeds" in tensors:
-            return tensors["prompt_embeds"]
+            return tensors["prompt_embeds"], f"--prompt-embeds {args.prompt_embeds}"
         if len(tensors) == 1:
-            return next(iter(tensors.values()))
+            return next(iter(tensors.values())), f"--prompt-embeds {args.prompt_embeds}"
         from ..errors import InputFileError
 
         raise InputFileError(args.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
+    encoder = args.text_encoder or model.card.text_encoder_id
     if args.prompt is None:
-        return None
-    encoder = model.card.text_encoder_id or "unknown-encoder"
-    cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder)
-    found = cache.get(args.prompt)
-    if found is None:
+        if model.empty_prompt is not None:
+            return None, "empty-prompt embedding stored in the checkpoint (no --prompt)"
+        if not encoder:
+            return None, ("ZERO text embedding: no --prompt and the checkpoint names no text encoder "
+                          "(text_encoder_id) and ships no empty-prompt embedding")
+    prompt = "" if args.prompt is None else args.prompt
+    what = "empty-prompt embedding (no --prompt)" if args.prompt is None else f"prompt {prompt!r}"
+    cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder or "unknown-encoder")
+    found = cache.get(prompt)
+    if found is not None:
+        return found.to(torch.float32), f"{what}, cached ({cache.path(prompt)})"
+    if not encoder:
         from .errors import ModelInputError
 
         raise ModelInputError(
-            f"{cache.root}: prompt {args.prompt!r}: expected a cached embedding made by encoder {encoder!r} "
-            f"({cache.path(args.prompt).name}), found none; compute it once with that text encoder and store it "
-            f"with oscar_core.model.PromptEmbeddingCache({str(cache.root)!r}, {encoder!r}).put(prompt, embeds), "
-            "or pass --prompt-embeds FILE")
-    return found.to(torch.float32)
+            f"{cache.root}: prompt {prompt!r}: expected a cached embedding made by encoder 'unknown-encoder' "
+            f"({cache.path(prompt).name}), found none, and the checkpoint names no text encoder; pass "
+            "--text-encoder ID_OR_FOLDER, or --prompt-embeds FILE")
+    text = _text_encoder(encoder, device, None, args.offline)
+    embeds, _ = text.cached(prompt, args.prompt_cache)
+    return embeds.to(torch.float32), f"{what}, computed with {text.encoder_id} and cached"
 
 
 def _rollout_size(args, card, camera) -> tuple[int, int]:
@@ -200,10 +338,9 @@ def cmd_rollout(args) -> int:
     import oscar_zoo
 
     from ..errors import InputFileError
-    from ..pipeline import fit_image, overlay_skeleton, render_skeleton_video
+    from ..pipeline import fit_image, render_skeleton_video
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
-    from ..video import write_video
     from ._image import read_image
     from .sampler import SamplerConfig
 
@@ -216,11 +353,18 @@ def cmd_rollout(args) -> int:
         raise InputFileError(args.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
                              f"{args.camera})", f"{first.shape[1]}x{first.shape[0]}")
     sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
-                            guidance_form=args.guidance_form, batched_cfg=not args.two_pass_cfg)
-    dtype = getattr(torch, args.dtype)
-    model = oscar_zoo.load(args.model, args.revision, device=args.device, dtype=dtype,
+                            guidance_form=args.guidance_form, batched_cfg=not args.two_pass_cfg, solver=args.solver)
+    device = args.device or _default_device()
+    dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
+    report: list[str] = []
+    model = oscar_zoo.load(args.model, args.revision, device=device, dtype=dtype,
                            offload_vae=args.offload_vae, offload_text=args.offload_text,
-                           local_files_only=True if args.offline else None)
+                           local_files_only=True if args.offline else None, native_file=args.native_file,
+                           report=report)
+    for line in report:
+        print(line, file=sys.stderr)
+    if args.compile:
+        model.transformer.forward = torch.compile(model.transformer.forward)
     if args.vae_tiling:
         model.enable_vae_tiling()
     if args.vae_slicing:
@@ -229,20 +373,28 @@ def cmd_rollout(args) -> int:
     skeleton = render_skeleton_video(emb, traj, camera, (width, height), resize_mode=args.resize,
                                      camera_source=args.camera)
     first = fit_image(first, width, height, args.resize)
-    prompt = _prompt_embeds(args, model)
+    prompt, text_source = _prompt_embeds(args, model, device)
+    print(f"text: {text_source}", file=sys.stderr)
+    if prompt is None and model.empty_prompt is None:
+        prompt = torch.zeros(1, 1, model.transformer.text_dim)
     if model.card.fps and abs(model.card.fps - traj.fps) > 1e-6:
         print(f"warning: {args.trajectory} is at {traj.fps:g} fps but the model was trained at {model.card.fps:g} fps; "
               "resample the trajectory for faithful motion speed", file=sys.stderr)
-    result = model.rollout(first, skeleton, prompt, chunk_frames=args.chunk_frames, sampler=sampler, seed=args.seed,
-                           progress=not args.no_progress, keep_chunks=False)
+    from .rollout import RolloutResult
+
     fps = args.fps or traj.fps
-    out = write_video(args.out, result.frames, fps)
-    summary = {"rollout": str(out), "frames": int(len(result.frames)), "size": [width, height], "fps": fps,
-               "chunks": len(result.starts), "model": args.model, "seed": args.seed,
+    result = RolloutResult(frames=np.empty(0, np.uint8))
+    chunks = model.iter_rollout(first, skeleton, prompt, chunk_frames=args.chunk_frames, sampler=sampler,
+                                seed=args.seed, progress=not args.no_progress, result=result)
+    side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
+    out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
+    summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
+               "chunks": len(result.starts), "model": args.model, "seed": args.seed, "text": text_source,
+               "sampler": model.sampler_for(sampler).resolved_solver, "steps": args.steps,
+               "unconditional_skeleton": model.card.unconditional_skeleton,
                "guidance": {"w": args.guidance, "form": args.guidance_form}}
-    if not args.no_side_by_side:
-        side = np.concatenate([result.frames, overlay_skeleton(skeleton, result.frames)], axis=2)
-        summary["side_by_side"] = str(write_video(args.side_by_side or side_by_side_path(args.out), side, fps))
+    if side_out is not None:
+        summary["side_by_side"] = str(side_out)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -250,3 +402,61 @@ def cmd_rollout(args) -> int:
         print(f"wrote {out}{extra}: {summary['frames']} frames, {width}x{height}, {fps:g} fps, "
               f"{summary['chunks']} chunk(s)")
     return 0
+
+
+def _write_streams(chunks, skeleton, out, side_path, fps):
+    """Write the rollout (and its side-by-side) while chunks arrive; returns (out, side or None, frames)."""
+    import queue
+    import threading
+
+    import numpy as np
+
+    from ..pipeline import overlay_skeleton
+    from ..video import write_video
+
+    done = object()
+    side_q: queue.Queue = queue.Queue(maxsize=4)
+    state = {"count": 0, "error": None, "side": None}
+
+    def frames():
+        state["started"] = True
+        try:
+            for block in chunks:
+                start = state["count"]
+                state["count"] += len(block)
+                if side_path is not None:
+                    skel = skeleton[start:start + len(block)]
+                    side_q.put(np.concatenate([block, overlay_skeleton(skel, block)], axis=2))
+                yield from block
+        finally:
+            side_q.put(done)
+
+    def side_frames():
+        while (item := side_q.get()) is not done:
+            yield from item
+        state["side_done"] = True
+
+    def write_side():
+        try:
+            state["side"] = write_video(side_path, side_frames(), fps)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+            state["error"] = exc
+            while not state.get("side_done") and side_q.get() is not done:  # keep the producer from blocking
+                pass
+
+    thread = None
+    if side_path is not None:
+        thread = threading.Thread(target=write_side, name="oscar-side-by-side", daemon=True)
+        thread.start()
+    gen = frames()
+    try:
+        written = write_video(out, gen, fps)
+    finally:
+        gen.close()
+        if not state.get("started"):
+            side_q.put(done)
+        if thread is not None:
+            thread.join()
+    if state["error"] is not None:
+        raise state["error"]
+    return written, state["side"], state["count"]

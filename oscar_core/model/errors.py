@@ -27,6 +27,7 @@ class CheckpointLayoutError(CheckpointError):
 
     def __init__(self, source, what, expected, found, hint: str = ""):
         self.source, self.what, self.expected, self.found = str(source), what, expected, found
+        self.hint = hint
         msg = f"{source}: {what}: expected {expected}, found {found}"
         super().__init__(msg + (f". {hint}" if hint else ""))
 

@@ -8,7 +8,18 @@ four pixel frames, so it cannot be reused as a first-frame latent). The
 output keeps chunk 0 whole and drops frame 0 of every later chunk (it is the
 seed again), so no frame is duplicated, then cuts the video to T frames. The
 skeleton video of the last chunk is padded with its last frame when the
-chunks overrun T.
+chunks overrun T. Latent frame k of a chunk is conditioned on latent frame k
+of the VAE latent of that chunk's own skeleton frames.
+
+Memory at real sizes: each chunk is decoded, clamped to [-1, 1] and turned
+into uint8 frames at once; :func:`iter_rollout` yields them chunk by chunk, so
+a writer can stream them to disk while the next chunk is sampled, and the
+float video of a chunk is dropped unless ``keep_chunks``. The seed of the
+next chunk is the clamped last frame.
+
+The unconditional guidance branch sees ``uncond_skeleton``: ``"zero_latent"``
+(zeros) or ``"black_video"`` (the VAE latent of an all-black skeleton video of
+the chunk's frame count, encoded once per chunk size and reused).
 """
 
 from __future__ import annotations
@@ -24,7 +35,9 @@ from .errors import ModelInputError
 from .sampler import SamplerConfig, sample_chunk
 from .vae import VideoVAE, check_frame_count
 
-__all__ = ["RolloutResult", "chunk_plan", "rollout"]
+__all__ = ["RolloutResult", "chunk_plan", "rollout", "iter_rollout", "UNCONDITIONAL_SKELETONS"]
+
+UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 
 
 @dataclass
@@ -76,10 +89,81 @@ def _check_inputs(first_frame, skeleton, spatial: int):
     return first, skel
 
 
+class _UncondSkeletons:
+    """The unconditional branch's skeleton latent per chunk size, computed once (``"black_video"``) or None."""
+
+    def __init__(self, vae: VideoVAE, kind: str):
+        if kind not in UNCONDITIONAL_SKELETONS:
+            raise ModelInputError(f"uncond_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, found {kind!r}")
+        self.vae, self.kind, self.cache = vae, kind, {}
+        self.encodes = 0
+
+    def get(self, frames: int, height: int, width: int) -> torch.Tensor | None:
+        if self.kind == "zero_latent":
+            return None
+        key = (frames, height, width)
+        if key not in self.cache:
+            black = np.zeros((frames, height, width, 3), np.uint8)
+            self.cache[key] = self.vae.encode(VideoVAE.to_pixels(black))
+            self.encodes += 1
+        return self.cache[key]
+
+
+@torch.no_grad()
+def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *,
+                 chunk_frames: int = 81, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
+                 progress: bool = True, uncond_skeleton: str = "zero_latent", result: RolloutResult | None = None,
+                 keep_chunks: bool = False):
+    """Like :func:`rollout`, but yields each chunk's new frames as soon as they are decoded.
+
+    Yields (N_c, H, W, 3) uint8 arrays whose concatenation is the T-frame
+    rollout (chunk 0 whole, later chunks without their seed frame, the last
+    one cut at T). ``result``, when given, receives ``starts`` (and
+    ``chunks``/``seeds`` with ``keep_chunks``).
+    """
+    patch = int(transformer.config.patch_size[1])
+    first, skel = _check_inputs(first_frame, skeleton, vae.spatial * patch)
+    total = len(skel)
+    starts = chunk_plan(total, chunk_frames, vae.temporal)
+    padded_len = starts[-1] + chunk_frames
+    if padded_len > total:
+        skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
+    uncond = _UncondSkeletons(vae, uncond_skeleton)
+    generator = torch.Generator(device="cpu").manual_seed(int(seed))
+    if result is not None:
+        result.starts = list(starts)
+    seed_pixels = VideoVAE.to_pixels(first[None])  # (1, 3, 1, H, W)
+    height, width = first.shape[:2]
+    emitted = 0
+    outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
+    try:
+        for index, start in enumerate(starts):
+            skeleton_latent = vae.encode(VideoVAE.to_pixels(skel[start:start + chunk_frames]))
+            first_latent = vae.encode(seed_pixels)
+            with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
+                      disable=not progress) as bar:
+                latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
+                                      generator=generator, progress=bar,
+                                      uncond_skeleton=uncond.get(chunk_frames, height, width))
+            video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (1, 3, L, H, W)
+            if keep_chunks and result is not None:
+                result.chunks.append(video)
+                result.seeds.append(seed_pixels)
+            new = video if index == 0 else video[:, :, 1:]
+            frames = VideoVAE.to_uint8(new)[0][: total - emitted]
+            emitted += len(frames)
+            seed_pixels = video[:, :, -1:].clone()  # clamped: the re-encoded seed is a valid image
+            del video, latent
+            outer.update(1)
+            yield frames
+    finally:
+        outer.close()
+
+
 @torch.no_grad()
 def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *, chunk_frames: int = 81,
             sampler: SamplerConfig = SamplerConfig(), seed: int = 0, progress: bool = True,
-            keep_chunks: bool = True) -> RolloutResult:
+            keep_chunks: bool = True, uncond_skeleton: str = "zero_latent") -> RolloutResult:
     """Roll the world model out along a skeleton video.
 
     transformer: OscarTransformer3DModel; vae: VideoVAE.
@@ -89,37 +173,12 @@ def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: to
     chunk_frames: L = 4k+1 frames per chunk; sampler: SamplerConfig.
     seed: seeds the noise of every chunk (one CPU generator, drawn in order):
         the same seed gives the same video.
+    uncond_skeleton: "zero_latent" or "black_video" (module docstring).
     returns: RolloutResult with T frames.
     """
-    patch = int(transformer.config.patch_size[1])
-    first, skel = _check_inputs(first_frame, skeleton, vae.spatial * patch)
-    total = len(skel)
-    starts = chunk_plan(total, chunk_frames, vae.temporal)
-    padded_len = starts[-1] + chunk_frames
-    if padded_len > total:
-        skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
-    generator = torch.Generator(device="cpu").manual_seed(int(seed))
-    result = RolloutResult(frames=np.empty(0, np.uint8), starts=list(starts))
-    pieces: list[torch.Tensor] = []
-    seed_pixels = VideoVAE.to_pixels(first[None])  # (1, 3, 1, H, W)
-    outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
-    try:
-        for index, start in enumerate(starts):
-            skeleton_latent = vae.encode(VideoVAE.to_pixels(skel[start:start + chunk_frames]))
-            first_latent = vae.encode(seed_pixels)
-            with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
-                      disable=not progress) as bar:
-                latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
-                                      generator=generator, progress=bar)
-            video = vae.decode(latent).cpu()  # (1, 3, L, H, W)
-            if keep_chunks:
-                result.chunks.append(video)
-                result.seeds.append(seed_pixels)
-            pieces.append(video if index == 0 else video[:, :, 1:])
-            seed_pixels = video[:, :, -1:].clone()
-            outer.update(1)
-    finally:
-        outer.close()
-    full = torch.cat(pieces, dim=2)[:, :, :total]
-    result.frames = VideoVAE.to_uint8(full)[0]
+    result = RolloutResult(frames=np.empty(0, np.uint8))
+    pieces = list(iter_rollout(transformer, vae, first_frame, skeleton, prompt_embeds, chunk_frames=chunk_frames,
+                               sampler=sampler, seed=seed, progress=progress, uncond_skeleton=uncond_skeleton,
+                               result=result, keep_chunks=keep_chunks))
+    result.frames = np.concatenate(pieces, axis=0)
     return result

@@ -2,7 +2,17 @@
 
 Flow convention (paper eq. 1): z_σ = (1 − σ) z_0 + σ ε, the model predicts the
 velocity v = ε − z_0, and sampling integrates dz/dσ = v from σ = 1 (noise) to
-σ = 0 with Euler steps on a shifted schedule σ' = s·σ / (1 + (s − 1)·σ).
+σ = 0. The model receives σ itself as its timestep (Cosmos 2.5 feeds σ, not
+1000 σ). Two solvers (``SamplerConfig.solver``):
+
+* ``"unipc"`` (default; what Cosmos-Predict2.5 and diffusers' pipeline use):
+  diffusers' ``UniPCMultistepScheduler`` (second order, predictor-corrector)
+  with flow sigmas, ``prediction_type="flow_prediction"`` and
+  ``flow_shift = shift``, or the checkpoint's own scheduler config
+  (``SamplerConfig.scheduler_config``, read from a diffusers ``scheduler/``
+  folder);
+* ``"euler"``: first-order Euler on the shifted schedule
+  σ' = s·σ / (1 + (s − 1)·σ), σ = linspace(1, 0, steps + 1).
 
 First frame, as in diffusers' Cosmos 2.5 pipeline: at every step latent frame
 0 is overwritten by the clean latent z_0 of the seed image, the condition
@@ -10,14 +20,25 @@ mask marks it, its timestep is a tiny constant (1e-4), and its predicted
 velocity is replaced by the true one, ε − z_0 (so the Euler path of frame 0
 is the exact straight line and ends at z_0).
 
-Guidance over the skeleton: the unconditional branch is the same call with the
-skeleton latent zeroed (PE_s has no bias, so that is the base model's view).
+Guidance over the skeleton: the unconditional branch is the same call with
+the unconditional skeleton latent: zeros (``"zero_latent"``) or the VAE
+latent of an all-black skeleton video (``"black_video"``), whichever the
+checkpoint was trained to drop to (``ModelCard.unconditional_skeleton``; the
+rollout passes it as ``uncond_skeleton``).
 
-* ``guidance_form="standard"`` (default, the paper's): v = v_u + w (v_c − v_u);
-  w = 1 is the conditional branch, w = 0 the unconditional one.
-* ``guidance_form="diffusers"`` (diffusers' Cosmos pipelines): v = v_c + w (v_c − v_u);
-  it equals the standard form with w + 1, so w = 0 is the conditional branch.
+* ``guidance_form="diffusers"`` (default): v = v_c + w (v_c − v_u), i.e.
+  (1 + w) v_c − w v_u. This is Ho & Salimans' classifier-free guidance
+  (their eq. 6, (1 + w) ε_c − w ε_u), which the paper cites for its w = 6;
+  NVIDIA's Cosmos-Predict2.5 rectified-flow sampler (``velocity_fn``:
+  ``cond_v + guidance * (cond_v - uncond_v)``, 35 steps, shift 5), which the
+  paper's model was fine-tuned in; and diffusers' Cosmos pipelines. w = 0 is
+  the conditional branch.
+* ``guidance_form="standard"``: v = v_u + w (v_c − v_u); equals the form
+  above with w − 1 (w = 1 is the conditional branch, w = 0 the
+  unconditional one). See docs/world-model.md for the comparison.
 
+When the guided velocity equals one branch (w = 1 or 0 in the standard form,
+w = 0 in the diffusers form, or ``guidance=None``) only that branch runs.
 ``batched_cfg=True`` runs both branches as one forward of batch 2B;
 ``False`` runs two forwards of batch B (less peak memory, usually slower).
 """
@@ -25,35 +46,45 @@ skeleton latent zeroed (PE_s has no bias, so that is the base model's view).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 
 from .errors import ModelInputError
 
-__all__ = ["SamplerConfig", "flow_sigmas", "guided_velocity", "sample_chunk", "GUIDANCE_FORMS"]
+__all__ = ["SamplerConfig", "flow_sigmas", "guided_velocity", "sample_chunk", "integrate", "unipc_scheduler",
+           "branches", "GUIDANCE_FORMS", "SOLVERS"]
 
 GUIDANCE_FORMS = ("standard", "diffusers")
+SOLVERS = ("unipc", "euler")
 
 
 @dataclass(frozen=True)
 class SamplerConfig:
     """Sampler settings.
 
-    steps: Euler steps per chunk; shift: schedule shift s (the paper trains with 5);
+    steps: solver steps (model evaluations per branch) per chunk;
+    shift: schedule shift s (the paper trains with 5);
     guidance: w, or None for the conditional branch alone (no second branch);
     guidance_form: "standard" or "diffusers" (module docstring);
     batched_cfg: one forward of batch 2B for both branches;
     cond_timestep: timestep fed for the clean first latent frame (diffusers' 1e-4);
-    fps: passed to the DiT's RoPE (None, as the Cosmos 2.5 pipeline does).
+    fps: passed to the DiT's RoPE (None, as the Cosmos 2.5 pipeline does);
+    solver: "unipc", "euler", or None for the checkpoint's choice (its
+        scheduler config; "unipc" when it has none);
+    scheduler_config: a ``UniPCMultistepScheduler`` config (dict) that
+        replaces the default flow-sigma one (a checkpoint's ``scheduler/``).
     """
 
     steps: int = 35
     shift: float = 5.0
     guidance: float | None = 6.0
-    guidance_form: str = "standard"
+    guidance_form: str = "diffusers"
     batched_cfg: bool = True
     cond_timestep: float = 1e-4
     fps: float | None = None
+    solver: str | None = None
+    scheduler_config: dict | None = None
 
     def __post_init__(self):
         if int(self.steps) < 1:
@@ -62,6 +93,14 @@ class SamplerConfig:
             raise ModelInputError(f"sampler shift: expected a positive number, found {self.shift!r}")
         if self.guidance_form not in GUIDANCE_FORMS:
             raise ModelInputError(f"guidance_form: expected one of {GUIDANCE_FORMS}, found {self.guidance_form!r}")
+        if self.solver is not None and self.solver not in SOLVERS:
+            raise ModelInputError(f"sampler solver: expected one of {SOLVERS} (or None: the checkpoint's), "
+                                  f"found {self.solver!r}")
+
+    @property
+    def resolved_solver(self) -> str:
+        """The solver that runs: ``solver``, else "unipc"."""
+        return self.solver or "unipc"
 
 
 def flow_sigmas(steps: int, shift: float = 5.0) -> torch.Tensor:
@@ -70,13 +109,68 @@ def flow_sigmas(steps: int, shift: float = 5.0) -> torch.Tensor:
     return shift * s / (1.0 + (shift - 1.0) * s)
 
 
+def unipc_scheduler(config: SamplerConfig):
+    """diffusers' ``UniPCMultistepScheduler`` for ``config``: its ``scheduler_config`` or flow sigmas + shift."""
+    from diffusers import UniPCMultistepScheduler
+
+    if config.scheduler_config is not None:
+        cfg = {k: v for k, v in dict(config.scheduler_config).items() if not k.startswith("_")}
+        scheduler = UniPCMultistepScheduler.from_config(cfg)
+        if not scheduler.config.use_flow_sigmas or scheduler.config.prediction_type != "flow_prediction":
+            raise ModelInputError("scheduler config: expected use_flow_sigmas=True and prediction_type="
+                                  f"'flow_prediction' (a rectified-flow model), found use_flow_sigmas="
+                                  f"{scheduler.config.use_flow_sigmas}, prediction_type="
+                                  f"{scheduler.config.prediction_type!r}")
+        return scheduler
+    return UniPCMultistepScheduler(use_flow_sigmas=True, prediction_type="flow_prediction",
+                                   flow_shift=float(config.shift))
+
+
+def integrate(velocity: Callable[[torch.Tensor, float], torch.Tensor], x: torch.Tensor, config: SamplerConfig,
+              progress=None) -> torch.Tensor:
+    """Integrate dz/dσ = velocity(z, σ) from σ ≈ 1 (``x``, the noise) down to σ = 0 with ``config``'s solver.
+
+    velocity: (z float32 of x's shape, σ float) → velocity of the same shape;
+    returns z at σ = 0 (float32). One velocity call per step.
+    """
+    x = x.float()
+    if config.resolved_solver == "euler":
+        sigmas = flow_sigmas(config.steps, config.shift).tolist()
+        for i in range(config.steps):
+            x = x + (sigmas[i + 1] - sigmas[i]) * velocity(x, sigmas[i])
+            if progress is not None:
+                progress.update(1)
+        return x
+    scheduler = unipc_scheduler(config)
+    scheduler.set_timesteps(int(config.steps), device=x.device)
+    for i, t in enumerate(scheduler.timesteps):
+        sigma = float(scheduler.sigmas[i])  # the pipeline's sigma_t: what the model is fed
+        x = scheduler.step(velocity(x, sigma).float(), t, x, return_dict=False)[0].float()
+        if progress is not None:
+            progress.update(1)
+    return x
+
+
+def branches(config: SamplerConfig) -> tuple[str, ...]:
+    """Which model branches the guided velocity needs: ("cond",), ("uncond",) or ("cond", "uncond")."""
+    if config.guidance is None:
+        return ("cond",)
+    w = float(config.guidance)
+    if config.guidance_form == "standard":
+        return ("cond",) if w == 1.0 else ("uncond",) if w == 0.0 else ("cond", "uncond")
+    return ("cond",) if w == 0.0 else ("cond", "uncond")
+
+
 def guided_velocity(transformer, latents, timestep, text, skeleton, condition_mask, padding_mask,
-                    config: SamplerConfig, text_projected: bool = False) -> torch.Tensor:
+                    config: SamplerConfig, text_projected: bool = False,
+                    uncond_skeleton: torch.Tensor | None = None) -> torch.Tensor:
     """The guided velocity (B, C, T, H, W) of one denoising step (float32).
 
     latents: (B, C, T, H, W) model input; timestep: (B, 1, T, 1, 1);
     text: (B, L, D) prompt embedding, or its projection with ``text_projected``;
-    skeleton: (B, C_s, T, H, W); condition_mask: (B, 1, T, H, W).
+    skeleton: (B, C_s, T, H, W); condition_mask: (B, 1, T, H, W);
+    uncond_skeleton: (1 or B, C_s, T, H, W) skeleton latent of the
+    unconditional branch (None: zeros).
     """
     dtype = transformer.dtype  # the timestep stays float32: bf16 would round sigma to 3 digits
 
@@ -86,9 +180,18 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
                           skeleton_latents=skel.to(dtype), return_dict=False, text_projected=text_projected)[0]
         return out.float()
 
-    if config.guidance is None:
+    need = branches(config)
+    if "uncond" in need:
+        if uncond_skeleton is None:
+            uncond_skeleton = torch.zeros_like(skeleton)
+        elif uncond_skeleton.shape[1:] != skeleton.shape[1:] or uncond_skeleton.shape[0] not in (1, skeleton.shape[0]):
+            raise ModelInputError(f"uncond_skeleton: expected shape (1 or {skeleton.shape[0]}, "
+                                  f"{tuple(skeleton.shape[1:])}), found {tuple(uncond_skeleton.shape)}")
+        uncond_skeleton = uncond_skeleton.to(skeleton.device, skeleton.dtype).expand_as(skeleton)
+    if need == ("cond",):
         return call(latents, timestep, text, skeleton, condition_mask)
-    uncond_skeleton = torch.zeros_like(skeleton)
+    if need == ("uncond",):
+        return call(latents, timestep, text, uncond_skeleton, condition_mask)
     if config.batched_cfg:
         both = call(torch.cat([latents, latents]), torch.cat([timestep, timestep]), torch.cat([text, text]),
                     torch.cat([skeleton, uncond_skeleton]), torch.cat([condition_mask, condition_mask]))
@@ -105,15 +208,17 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
 @torch.no_grad()
 def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch.Tensor, text: torch.Tensor,
                  config: SamplerConfig = SamplerConfig(), generator: torch.Generator | None = None,
-                 progress=None) -> torch.Tensor:
+                 progress=None, uncond_skeleton: torch.Tensor | None = None) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
     first_latent: (B, C, 1, H, W) normalised clean latent of the seed frame.
-    skeleton_latent: (B, C_s, T, H, W) normalised skeleton latent of the chunk.
+    skeleton_latent: (B, C_s, T, H, W) normalised skeleton latent of the chunk;
+        latent frame k conditions latent frame k of the video.
     text: (B or 1, L, D) prompt embedding.
     generator: CPU generator for the initial noise (drawn on the CPU, so a seed
         gives the same noise on every device); progress: optional tqdm-like
         object, ``update(1)`` per step.
+    uncond_skeleton: the unconditional branch's skeleton latent (None: zeros).
     """
     device = next(transformer.parameters()).device
     b, _, t, h, w = skeleton_latent.shape
@@ -126,6 +231,8 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     # the prompt is the same at every step: project it once (where the projection lives), not per step
     text = transformer.project_text(text).to(device).expand(b, -1, -1)
     skeleton_latent = skeleton_latent.to(device)
+    if uncond_skeleton is not None:
+        uncond_skeleton = uncond_skeleton.to(device)
 
     noise = torch.randn((b, c, t, h, w), generator=generator, dtype=torch.float32).to(device)
     clean = torch.zeros_like(noise)
@@ -136,17 +243,13 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     true_velocity = (noise - clean) * mask  # ε − z_0 on the conditioning frame, 0 elsewhere
     padding = torch.zeros(1, 1, h, w, device=device)  # no padded pixels (latent size; resize is a no-op)
 
-    sigmas = flow_sigmas(config.steps, config.shift).tolist()
-    x = noise
-    for i in range(config.steps):
-        sigma, sigma_next = sigmas[i], sigmas[i + 1]
+    def velocity(x: torch.Tensor, sigma: float) -> torch.Tensor:
         model_in = mask * clean + (1.0 - mask) * x
         timestep = indicator * config.cond_timestep + (1.0 - indicator) * sigma
         v = guided_velocity(transformer, model_in, timestep, text, skeleton_latent, mask, padding, config,
-                            text_projected=True)
-        v = true_velocity + v * (1.0 - mask)
-        x = x + (sigma_next - sigma) * v
-        if progress is not None:
-            progress.update(1)
+                            text_projected=True, uncond_skeleton=uncond_skeleton)
+        return true_velocity + v * (1.0 - mask)
+
+    x = integrate(velocity, noise, config, progress)
     x[:, :, :1] = clean[:, :, :1]
     return x

@@ -27,14 +27,14 @@ TINY_TRANSFORMER_CONFIG = dict(
 TINY_VAE_CONFIG = dict(base_dim=8, z_dim=16, dim_mult=[1, 2, 2, 2], num_res_blocks=1, attn_scales=[],
                        temperal_downsample=[False, True, True])
 
-#: Cosmos-Predict2.5-2B transformer, from the facts in docs (architecture.md §4): 28 blocks, 16 heads x 128,
-#: patch (1, 2, 2), 16 + 1 condition-mask input channels + padding mask, text 100352 -> 1024.
-#: max_size, rope_scale and the learnable positional embedding are diffusers' defaults (not verified against
-#: the Hub config; they change the parameter count by < 0.1 %).
+#: Cosmos-Predict2.5-2B transformer exactly as diffusers' conversion script builds it
+#: (``scripts/convert_cosmos_to_diffusers.py``, entry "Cosmos-2.5-Predict-Base-2B"): 28 blocks, 16 heads x 128,
+#: patch (1, 2, 2), 16 + 1 condition-mask input channels + padding mask, text 100352 -> 1024, RoPE scale
+#: (1, 3, 3) and no learnable positional embedding (the native config says "learnable" but ships no weights).
 COSMOS_2B_TRANSFORMER_CONFIG = dict(
     in_channels=17, out_channels=16, num_attention_heads=16, attention_head_dim=128, num_layers=28, mlp_ratio=4.0,
     text_embed_dim=1024, adaln_lora_dim=256, max_size=(128, 240, 240), patch_size=(1, 2, 2),
-    concat_padding_mask=True, extra_pos_embed_type="learnable", use_crossattn_projection=True,
+    rope_scale=(1.0, 3.0, 3.0), concat_padding_mask=True, extra_pos_embed_type=None, use_crossattn_projection=True,
     crossattn_proj_in_channels=100352, encoder_hidden_states_channels=1024,
 )
 

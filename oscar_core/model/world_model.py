@@ -8,6 +8,7 @@ A saved model is a folder (the layout the zoo expects on the Hub)::
     vae/config.json                          AutoencoderKLWan
     vae/diffusion_pytorch_model.safetensors
     text/empty_prompt_embeds.safetensors     optional: the encoder's embedding of ""
+    scheduler/scheduler_config.json          optional: the UniPC (or Euler) scheduler the sampler uses
     oscar_manifest.json                      size + sha256 of every other file
 
 Loading reads safetensors only, builds on the meta device and assigns the
@@ -37,6 +38,7 @@ __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 MODEL_FILE = "oscar_model.json"
 FORMAT = "oscar-world-model"
 EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
+SCHEDULER_FILE = "scheduler/scheduler_config.json"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 
 
@@ -101,6 +103,7 @@ class OscarWorldModel:
     vae: VideoVAE
     card: ModelCard = field(default_factory=ModelCard)
     empty_prompt: torch.Tensor | None = None
+    scheduler_config: dict | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -153,8 +156,15 @@ class OscarWorldModel:
             if "prompt_embeds" not in tensors:
                 raise CheckpointLayoutError(folder / EMPTY_PROMPT_FILE, "tensors", "'prompt_embeds'", sorted(tensors))
             empty = tensors["prompt_embeds"]
-        return cls.from_modules(transformer, vae, card, empty, device=device, dtype=dtype, vae_dtype=vae_dtype,
-                                offload_vae=offload_vae, offload_text=offload_text)
+        model = cls.from_modules(transformer, vae, card, empty, device=device, dtype=dtype, vae_dtype=vae_dtype,
+                                 offload_vae=offload_vae, offload_text=offload_text)
+        if (folder / SCHEDULER_FILE).is_file():
+            try:
+                model.scheduler_config = json.loads((folder / SCHEDULER_FILE).read_text())
+            except ValueError as exc:
+                raise CheckpointLayoutError(folder / SCHEDULER_FILE, "JSON", "a JSON object",
+                                            f"unreadable JSON ({exc})") from None
+        return model
 
     @classmethod
     def from_cosmos_base(cls, folder, card: ModelCard | None = None, *, skeleton_channels: int | None = None,
@@ -178,6 +188,9 @@ class OscarWorldModel:
         card = card or self.card
         self.transformer.save_pretrained(folder / "transformer", safe_serialization=True, max_shard_size=max_shard_size)
         self.vae.vae.save_pretrained(folder / "vae", safe_serialization=True, max_shard_size=max_shard_size)
+        if self.scheduler_config is not None:
+            (folder / "scheduler").mkdir(exist_ok=True)
+            (folder / SCHEDULER_FILE).write_text(json.dumps(self.scheduler_config, indent=2) + "\n")
         if self.empty_prompt is not None:
             (folder / "text").mkdir(exist_ok=True)
             save_file({"prompt_embeds": self.empty_prompt.detach().cpu().contiguous()}, str(folder / EMPTY_PROMPT_FILE))
@@ -192,13 +205,55 @@ class OscarWorldModel:
         return next(self.transformer.parameters()).device
 
     def prompt_embeds(self, prompt_embeds: torch.Tensor | None = None) -> torch.Tensor:
-        """(1, L, D) embedding to condition on: the given one, else the stored empty prompt, else zeros."""
+        """(1, L, D) embedding to condition on (see :meth:`resolve_prompt`, which also says where it came from)."""
+        return self.resolve_prompt(prompt_embeds)[0]
+
+    def resolve_prompt(self, prompt_embeds: torch.Tensor | None = None, cache_dir=None) -> tuple[torch.Tensor, str]:
+        """(embedding (1, L, D), where it came from).
+
+        The given one; else the encoder's embedding of the empty prompt: the
+        one the checkpoint ships (``text/empty_prompt_embeds.safetensors``),
+        else the one in the prompt cache under the card's ``text_encoder_id``
+        (``oscar encode-prompt ""`` puts it there). Only when neither exists
+        does it fall back to zeros, and it warns: the model never saw a zero
+        embedding.
+        """
         dim = self.transformer.text_dim
         if prompt_embeds is not None:
-            return check_prompt_embeds(prompt_embeds, dim)
+            return check_prompt_embeds(prompt_embeds, dim), "given prompt embedding"
         if self.empty_prompt is not None:
-            return self.empty_prompt
-        return empty_prompt_embeds(dim)
+            return self.empty_prompt, "empty-prompt embedding stored in the checkpoint"
+        if self.card.text_encoder_id:
+            from .text import PromptEmbeddingCache
+
+            cache = PromptEmbeddingCache(cache_dir, encoder_id=self.card.text_encoder_id)
+            found = cache.get("")
+            if found is not None:
+                return check_prompt_embeds(found.float(), dim, str(cache.path(""))), \
+                    f"empty-prompt embedding from the prompt cache ({cache.path('')})"
+        import warnings
+
+        warnings.warn("no prompt embedding and no empty-prompt embedding (none in the checkpoint, none cached for "
+                      f"encoder {self.card.text_encoder_id!r}): using a ZERO text embedding, which the model never "
+                      "saw in training; run `oscar encode-prompt \"\" --model NAME` once", stacklevel=3)
+        return empty_prompt_embeds(dim), "ZERO text embedding (no empty-prompt embedding available)"
+
+    def sampler_for(self, sampler: SamplerConfig) -> SamplerConfig:
+        """``sampler`` with the checkpoint's choices filled in: solver (and UniPC config) from its scheduler."""
+        from dataclasses import replace
+
+        if sampler.solver is not None:
+            if sampler.solver == "unipc" and sampler.scheduler_config is None and self._unipc_config() is not None:
+                return replace(sampler, scheduler_config=self._unipc_config())
+            return sampler
+        cls = (self.scheduler_config or {}).get("_class_name")
+        if cls == "FlowMatchEulerDiscreteScheduler":
+            return replace(sampler, solver="euler")
+        return replace(sampler, solver="unipc", scheduler_config=sampler.scheduler_config or self._unipc_config())
+
+    def _unipc_config(self) -> dict | None:
+        cfg = self.scheduler_config or {}
+        return dict(cfg) if cfg.get("_class_name") == "UniPCMultistepScheduler" else None
 
     def enable_vae_tiling(self, **kwargs) -> None:
         self.vae.enable_tiling(**kwargs)
@@ -221,7 +276,19 @@ class OscarWorldModel:
                 warnings.warn(f"model {self.card.name or ''} was trained at {self.card.width}x{self.card.height}; "
                               f"rolling out at {w}x{h}", stacklevel=2)
         return rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
-                       chunk_frames=chunk, sampler=sampler, seed=seed, progress=progress, keep_chunks=keep_chunks)
+                       chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
+                       keep_chunks=keep_chunks, uncond_skeleton=self.card.unconditional_skeleton)
+
+    def iter_rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
+                     chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
+                     progress: bool = True, result=None):
+        """Stream a rollout: yields each chunk's new uint8 frames (see :func:`oscar_core.model.rollout.iter_rollout`)."""
+        from .rollout import iter_rollout
+
+        chunk = int(chunk_frames or self.card.chunk_frames)
+        return iter_rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
+                            chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
+                            uncond_skeleton=self.card.unconditional_skeleton, result=result)
 
 
 def _read_card(folder: Path) -> ModelCard:
