@@ -182,75 +182,58 @@ class Registry:
         except (ValueError, pluggy.PluginValidationError) as exc:  # already registered, or bad hookimpl signature
             self._fail(plugin, who, str(exc).replace("\n", " "))
             return
-        self._register_readers(module, plugin, dist, version)
-        impls = [i for i in self.pm.hook.oscar_register_embodiments.get_hookimpls() if i.plugin is module]
         unknown = [n for n in dir(module) if n.startswith("oscar_") and callable(getattr(module, n))
                    and not hasattr(self.pm.hook, n)]
         if unknown:
             self._fail(plugin, who, f"unknown hooks {unknown}; known: {[h for h in dir(self.pm.hook) if h.startswith('oscar_')]}")
-        for impl in impls:
+        from .data.reader import Reader
+
+        for hook, base, entries, kind in (("oscar_register_embodiments", Embodiment, self.entries, "embodiment"),
+                                          ("oscar_register_readers", Reader, self.reader_entries, "reader")):
+            for cls in self._hook_classes(module, hook, base, plugin, who):
+                self._add_class(cls, plugin, dist, version, entries, kind)
+
+    def _hook_classes(self, module, hook: str, base: type, plugin: str, who: str) -> list[type]:
+        """The classes ``module``'s implementation of registration hook ``hook`` returns; failures are recorded."""
+        classes = []
+        for impl in [i for i in getattr(self.pm.hook, hook).get_hookimpls() if i.plugin is module]:
             try:
-                classes = impl.function()
+                returned = impl.function()
             except Exception as exc:
-                self._fail(plugin, who, f"oscar_register_embodiments raised {type(exc).__name__}: {exc}")
+                self._fail(plugin, who, f"{hook} raised {type(exc).__name__}: {exc}")
                 continue
-            if classes is None:
+            if returned is None:
                 continue
-            if isinstance(classes, type) or not isinstance(classes, (list, tuple)):
-                self._fail(plugin, who, f"oscar_register_embodiments must return a list of Embodiment classes, returned {type(classes).__name__}")
+            if isinstance(returned, type) or not isinstance(returned, (list, tuple)):
+                self._fail(plugin, who, f"{hook} must return a list of {base.__name__} classes, returned {type(returned).__name__}")
                 continue
-            for cls in classes:
-                self._add_class(cls, plugin, dist, version)
+            classes.extend(returned)
+        return classes
 
-    def _add_class(self, cls, plugin: str, dist: str, version: str) -> None:
-        who = f"{dist} {version}".strip()
-        if not (isinstance(cls, type) and issubclass(cls, Embodiment)):
-            self._fail(plugin, who, f"expected an Embodiment subclass, found {cls!r}")
-            return
-        problems = cls.class_problems()
-        if problems:
-            self._fail(plugin, who, f"{cls.__qualname__} breaks the contract: " + "; ".join(problems))
-            return
-        prior = self.entries.get(cls.name)
-        if prior is not None:
-            self._fail(plugin, who, f"embodiment name {cls.name!r} is already registered by "
-                                    f"{prior.distribution} {prior.version}".rstrip() + f" (plugin {prior.plugin!r}); "
-                                    f"{who} registers it again ({cls.__module__}.{cls.__qualname__})")
-            return
-        self.entries[cls.name] = EmbodimentEntry(cls.name, cls, plugin, dist, version)
-
-    def _register_readers(self, module, plugin: str, dist: str, version: str) -> None:
-        """Collect the dataset readers a plugin module registers (``oscar_register_readers``)."""
+    def _add_class(self, cls, plugin: str, dist: str, version: str, entries: dict | None = None,
+                   kind: str = "embodiment") -> None:
+        """Check one registered class (an embodiment, or with ``kind="reader"`` a dataset reader) and keep it."""
         from .data.reader import Reader
 
         who = f"{dist} {version}".strip()
-        for impl in [i for i in self.pm.hook.oscar_register_readers.get_hookimpls() if i.plugin is module]:
-            try:
-                classes = impl.function()
-            except Exception as exc:
-                self._fail(plugin, who, f"oscar_register_readers raised {type(exc).__name__}: {exc}")
-                continue
-            if classes is None:
-                continue
-            if isinstance(classes, type) or not isinstance(classes, (list, tuple)):
-                self._fail(plugin, who, f"oscar_register_readers must return a list of Reader classes, "
-                                        f"returned {type(classes).__name__}")
-                continue
-            for cls in classes:
-                if not (isinstance(cls, type) and issubclass(cls, Reader)):
-                    self._fail(plugin, who, f"expected a Reader subclass, found {cls!r}")
-                    continue
-                problems = cls.class_problems()
-                if problems:
-                    self._fail(plugin, who, f"{cls.__qualname__} breaks the reader contract: " + "; ".join(problems))
-                    continue
-                prior = self.reader_entries.get(cls.name)
-                if prior is not None:
-                    self._fail(plugin, who, f"reader name {cls.name!r} is already registered by "
-                                            f"{prior.distribution} {prior.version}".rstrip()
-                                            + f" (plugin {prior.plugin!r}); {who} registers it again")
-                    continue
-                self.reader_entries[cls.name] = EmbodimentEntry(cls.name, cls, plugin, dist, version)
+        entries = self.entries if entries is None else entries
+        base = Embodiment if kind == "embodiment" else Reader
+        if not (isinstance(cls, type) and issubclass(cls, base)):
+            article = "an" if base.__name__[0] in "AEIOU" else "a"
+            self._fail(plugin, who, f"expected {article} {base.__name__} subclass, found {cls!r}")
+            return
+        problems = cls.class_problems()
+        if problems:
+            contract = "the contract" if kind == "embodiment" else "the reader contract"
+            self._fail(plugin, who, f"{cls.__qualname__} breaks {contract}: " + "; ".join(problems))
+            return
+        prior = entries.get(cls.name)
+        if prior is not None:
+            self._fail(plugin, who, f"{kind} name {cls.name!r} is already registered by "
+                                    f"{prior.distribution} {prior.version}".rstrip() + f" (plugin {prior.plugin!r}); "
+                                    f"{who} registers it again ({cls.__module__}.{cls.__qualname__})")
+            return
+        entries[cls.name] = EmbodimentEntry(cls.name, cls, plugin, dist, version)
 
     # ---- use -------------------------------------------------------------
     def reader_names(self) -> list[str]:
