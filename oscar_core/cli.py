@@ -139,6 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_eval_parser(sub)
     add_model_parsers(sub)
+    __import__("oscar_core.toyworld.cli", fromlist=["x"]).add_toyworld_parser(sub)
     return p
 
 
