@@ -19,7 +19,7 @@ from .motion import Motion, check_supported, sample_motion
 from .raster import Canvas
 from .scene import EE_RGB, OBJECT_RGB, Scene, background, sample_camera, sample_scene
 
-__all__ = ["Episode", "RenderResult", "render_world", "make_episode", "episode_rng", "link_radii"]
+__all__ = ["Episode", "RenderResult", "render_world", "plan_episode", "make_episode", "episode_rng", "link_radii"]
 
 
 @dataclass
@@ -51,12 +51,13 @@ def link_radii(n_edges: int, scale: float) -> np.ndarray:
 
 
 def render_world(emb: Embodiment, motion: Motion, scene: Scene, camera: Camera, ss: int = 2,
-                 draw_robot: bool = True) -> RenderResult:
+                 draw_robot: bool = True, full_frame: bool = False) -> RenderResult:
     """Render ``motion`` seen by a static ``camera`` (output size = the camera's image size).
 
     ss: supersampling factor (the frame is drawn at ss× the size and area-averaged
     down: anti-aliasing). draw_robot=False draws the scene without the robot
-    (tests use it to find which pixels the robot changed).
+    (tests use it to find which pixels the robot changed). full_frame: draw each
+    primitive over the whole image (the naive way, for benchmarks; same pixels).
     """
     import cv2
 
@@ -88,7 +89,7 @@ def render_world(emb: Embodiment, motion: Motion, scene: Scene, camera: Camera, 
         sigma = 1.3 * R + 0.5 * max(o[2] - R, 0.0)
         strength = 0.55 * np.exp(-max(o[2] - R, 0.0) / (4 * R))
         shade = 1.0 - strength * np.exp(-d2 / (2 * sigma * sigma))
-        canvas = Canvas(bg * shade[..., None], bg_depth)
+        canvas = Canvas(bg * shade[..., None], bg_depth, full_frame=full_frame)
         if draw_robot:
             for e, (a, b) in enumerate(edges):
                 za, zb = pts.depth[t, a], pts.depth[t, b]
@@ -154,9 +155,9 @@ def episode_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index)]))
 
 
-def make_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
-                 fps: float = 10.0, ss: int = 2) -> Episode:
-    """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``."""
+def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
+                 fps: float = 10.0) -> tuple[Motion, Scene, Camera]:
+    """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels)."""
     check_supported(emb)
     motion = sample_motion(emb, rng, frames, fps)
     scene = sample_scene(rng, len(emb.edges), motion.scale)
@@ -165,5 +166,12 @@ def make_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: 
     seen = np.concatenate([motion.points.reshape(-1, 3), motion.object + [0, 0, R], motion.object - [0, 0, R]])
     base_xy = motion.points[0, 0, :2]
     camera = sample_camera(rng, seen, width, height, base_xy=base_xy, embodiment=emb.name)
+    return motion, scene, camera
+
+
+def make_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
+                 fps: float = 10.0, ss: int = 2) -> Episode:
+    """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``."""
+    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps)
     render = render_world(emb, motion, scene, camera, ss=ss)
     return Episode(emb.name, motion.trajectory, camera, render.rgb, motion, scene, render)

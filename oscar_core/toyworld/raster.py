@@ -54,17 +54,22 @@ class Canvas:
 
     rgb: (H, W, 3); depth: (H, W) metres (inf = empty); label: (H, W) int32,
     -1 where nothing but the background was drawn, else the id passed to the
-    draw call that won the pixel.
+    draw call that won the pixel. full_frame: evaluate every primitive over
+    the whole image instead of its bounding box (the naive way; benchmarks
+    compare against it; same pixels).
     """
 
-    def __init__(self, background: np.ndarray, depth: np.ndarray | None = None):
+    def __init__(self, background: np.ndarray, depth: np.ndarray | None = None, full_frame: bool = False):
         self.rgb = np.array(background, dtype=np.float64, copy=True)
         H, W = self.rgb.shape[:2]
         self.depth = np.full((H, W), np.inf) if depth is None else np.array(depth, dtype=np.float64, copy=True)
         self.label = np.full((H, W), -1, dtype=np.int32)
         self.height, self.width = H, W
+        self.full_frame = full_frame
 
     def _box(self, u0, u1, v0, v1):
+        if self.full_frame:
+            u0, u1, v0, v1 = 0, self.width - 1, 0, self.height - 1
         x0, x1 = max(int(np.floor(u0)), 0), min(int(np.ceil(u1)) + 1, self.width)
         y0, y1 = max(int(np.floor(v0)), 0), min(int(np.ceil(v1)) + 1, self.height)
         if x0 >= x1 or y0 >= y1:
