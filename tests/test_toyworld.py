@@ -345,3 +345,43 @@ def test_cli_rejects_hands_and_unknown_embodiments(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "'mano'" in err and "keypoints" in err
     assert not (tmp_path / "x").exists()  # rejected before anything is written
+
+
+# ------------------------------------------------------------------ the VAE
+
+
+@pytest.mark.slow
+def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
+    import torch
+
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny import build_tiny_transformer
+    from oscar_core.model.vae import VideoVAE
+    from oscar_core.toyworld.vae_train import VAETrainConfig, load_toy_vae, train_vae, write_reconstructions
+
+    clips = tmp_path / "clips"
+    generate_clipset(GenerateConfig(("toyarm",), episodes=10, width=16, height=16, frames=5, seed=0, shard_size=10,
+                                    skeleton=False), clips, REG)
+    n = torch.get_num_threads()
+    card = train_vae(clips, tmp_path / "vae", VAETrainConfig(steps=2, batch=1, base_dim=4, eval_every=0, eval_clips=1),
+                     log=lambda m: None)
+    torch.set_num_threads(n)
+    assert card["steps_done"] == 2 and card["heldout_clips"] == ["toyarm-000009"]
+    assert (tmp_path / "vae" / "vae" / "diffusion_pytorch_model.safetensors").is_file()
+    vae = load_toy_vae(tmp_path / "vae")
+    # latents_mean/std are the training latents' statistics: normalised latents are zero-mean, unit-std
+    train = np.stack([ClipSet(clips).load(f"toyarm-{i:06d}", skeleton=False).rgb for i in range(9)])
+    z = VideoVAE(vae).encode(VideoVAE.to_pixels(train)).transpose(0, 1).reshape(16, -1)
+    np.testing.assert_allclose(z.mean(1).numpy(), 0.0, atol=1e-4)
+    np.testing.assert_allclose(z.std(1).numpy(), 1.0, atol=1e-3)
+    # the reconstructions scored by `oscar toyworld eval` give the PSNR the trainer reported
+    ids = write_reconstructions(clips, tmp_path / "vae", tmp_path / "recon")
+    table = evaluate_conditions(clips, {"vae": str(tmp_path / "recon")})
+    assert ids == ["toyarm-000009"] and table["rows"]["vae"]["clips"] == 1
+    assert table["rows"]["vae"]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-9)
+    # and the folder is the vae/ of a world model
+    model = OscarWorldModel.from_modules(build_tiny_transformer(), vae, ModelCard(name="toy", chunk_frames=5))
+    model.save_pretrained(tmp_path / "model")
+    again = OscarWorldModel.from_pretrained(tmp_path / "model")
+    for (k, a), (_, b) in zip(vae.state_dict().items(), again.vae.vae.state_dict().items()):
+        assert torch.equal(a, b), k

@@ -1,4 +1,4 @@
-"""The ``oscar toyworld`` sub-commands: ``generate``, ``train-vae`` and ``eval``.
+"""The ``oscar toyworld`` sub-commands: ``generate``, ``train-vae``, ``reconstruct`` and ``eval``.
 
 Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code). Heavy imports happen inside the
@@ -11,12 +11,13 @@ import argparse
 import json
 import sys
 
-__all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_eval"]
+__all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_eval"]
 
 EXAMPLES = """examples:
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 100 --size 64x64 --frames 17 \\
       --seed 0 --out toy_clips
-  oscar toyworld train-vae toy_clips --out toy_vae --steps 2000 --seed 0
+  oscar toyworld train-vae toy_clips --out toy_vae --steps 600 --batch 2 --base-dim 16 --seed 0
+  oscar toyworld reconstruct toy_clips --vae toy_vae --out recon/
   oscar toyworld eval --gt toy_clips --pred rollouts/ --out table.json --plot table.png
   oscar toyworld eval --gt toy_clips --pred true=rollouts_true/ --pred shuffled=rollouts_shuffled/
 """
@@ -57,6 +58,16 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     for name in ("lr", "kl", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.set_defaults(func=cmd_train_vae)
+
+    r = sub.add_parser("reconstruct", help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    r.add_argument("clips", help="clip set")
+    r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
+    r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions")
+    r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    r.add_argument("--limit", type=int, help="at most this many clips")
+    r.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    r.set_defaults(func=cmd_reconstruct)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)
@@ -113,6 +124,15 @@ def cmd_train_vae(args) -> int:
     card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from .vae_train import write_reconstructions
+
+    ids = write_reconstructions(args.clips, args.vae, args.out, None if args.split == "all" else args.split,
+                                args.limit, args.threads)
+    print(f"{args.out}: {len(ids)} reconstructions")
     return 0
 
 

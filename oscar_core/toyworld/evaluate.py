@@ -103,11 +103,18 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
         if not per:
             raise ValueError(f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
                              f"{cs.root}" + (f" (split {split!r})" if split else "") + ", found none")
-        row = {k: float(np.nanmean([m[k] for m in per.values()])) for k in METRICS + ("ee_found", "object_found")}
+        row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
         row["clips"] = len(per)
         rows[name] = row
         clips[name] = per
     return {"ground_truth": str(cs.root), "split": split, "metrics": list(METRICS), "rows": rows, "clips": clips}
+
+
+def _nanmean(values) -> float:
+    """Mean over the finite values; NaN (no warning) when there are none (a target never shown)."""
+    a = np.asarray(values, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else float("nan")
 
 
 def format_table(table: dict) -> str:

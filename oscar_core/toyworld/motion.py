@@ -154,8 +154,8 @@ def _batch_fk(emb: Embodiment, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: float = 10.0,
                   pick_place_prob: float = 0.75, n_candidates: int = 768) -> Motion:
-    """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper and can
-    reach the floor) with probability ``pick_place_prob``, else reaching through random poses."""
+    """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
+    reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses."""
     check_supported(emb)
     if frames < 5:
         raise ToyWorldError(f"toyworld: --frames: expected at least 5 frames, found {frames}")
@@ -179,7 +179,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
     G = len(emb.grippers)
     T = frames
     kind = "reach"
-    if G and len(grasp) >= 2 and len(high) >= 1 and rng.uniform() < pick_place_prob:
+    if G and T >= 9 and len(grasp) >= 2 and len(high) >= 1 and rng.uniform() < pick_place_prob:
         g = int(rng.choice(grasp))
         d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
         far_enough = grasp[d >= 0.2 * scale]
@@ -193,8 +193,8 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
             a = int(round((T - 1) * rng.uniform(0.28, 0.38)))
             hold = a + max(1, int(round(0.1 * (T - 1))))
             b = int(round((T - 1) * rng.uniform(0.72, 0.8)))
-            b = max(b, hold + 2)
-            release = min(b + max(1, int(round(0.08 * (T - 1)))), T - 2)
+            b = min(max(b, hold + 2), T - 2)
+            release = min(b + max(1, int(round(0.08 * (T - 1)))), T - 1)
             times = np.array([0, a, hold, (hold + b) // 2, b, release, T - 1])
             keys = q[[start, g, g, lift, p, p, end]]
             times, keep = np.unique(times, return_index=True)

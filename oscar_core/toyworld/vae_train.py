@@ -32,7 +32,8 @@ import numpy as np
 
 from .._atomic import atomic_write_bytes
 
-__all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", "vae_psnr", "load_toy_vae"]
+__all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", "vae_psnr", "load_toy_vae",
+           "write_reconstructions"]
 
 #: The toy world's VAE: z = 16 channels, 4x time and 8x space compression (as the real WAN 2.1 VAE), base width 32.
 TOY_VAE_CONFIG = dict(base_dim=32, z_dim=16, dim_mult=[1, 2, 2, 2], num_res_blocks=1, attn_scales=[],
@@ -219,3 +220,34 @@ def load_toy_vae(folder):
     if (folder / "vae").is_dir():
         folder = folder / "vae"
     return build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder).eval()
+
+
+def write_reconstructions(clipset, vae_folder, out, split: str | None = "heldout", limit: int | None = None,
+                          threads: int = 1) -> list[str]:
+    """Write decode(encode(clip)) of each clip (of ``split``) as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8).
+
+    These are what ``oscar toyworld eval`` scores as the VAE's ceiling: no
+    generated video can be closer to the truth than its own VAE's
+    reconstruction. Returns the clip ids written.
+    """
+    import io
+
+    import torch
+
+    from ..model.vae import VideoVAE
+    from ..train.clips import ClipSet
+
+    torch.set_num_threads(threads)
+    cs = ClipSet(clipset)
+    vv = VideoVAE(load_toy_vae(vae_folder))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    recs = [r for r in cs if split is None or r.meta.get("split") == split][:limit]
+    for r in recs:
+        rgb = cs.load(r, skeleton=False).rgb
+        with torch.no_grad():
+            y = VideoVAE.to_uint8(vv.reconstruct(VideoVAE.to_pixels(rgb)))[0]
+        buf = io.BytesIO()
+        np.save(buf, y)
+        atomic_write_bytes(out / f"{r.id}.npy", buf.getvalue())
+    return [r.id for r in recs]
