@@ -288,6 +288,15 @@ def test_cli_eval_writes_json_and_plot(tmp_path, small_set, capsys):
     assert (tmp_path / "t.png").read_bytes()[:4] == b"\x89PNG"
     rc = main(["toyworld", "eval", "--gt", str(small_set.root), "--pred", f"x={tmp_path}"])
     assert rc == 2 and "found none" in capsys.readouterr().err
+    # the model-free reference row: the first frame held still
+    assert main(["toyworld", "baseline", str(small_set.root), "--split", "all", "--out", str(tmp_path / "ff")]) == 0
+    first = np.load(tmp_path / "ff" / f"{small_set.records[0].id}.npy")
+    truth = small_set.load(small_set.records[0], skeleton=False).rgb
+    assert first.shape == truth.shape and (first == truth[0]).all()
+    capsys.readouterr()
+    assert main(["toyworld", "eval", "--gt", str(small_set.root), "--pred", f"ff={tmp_path / 'ff'}", "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["rows"]["ff"]
+    assert row["clips"] == len(small_set) and row["psnr_db"] < 100 and row["ee_error_px"] > 0
 
 
 # ------------------------------------------------------------------ any plugin, through the CLI

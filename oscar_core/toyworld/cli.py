@@ -1,4 +1,4 @@
-"""The ``oscar toyworld`` sub-commands: ``generate``, ``train-vae``, ``reconstruct`` and ``eval``.
+"""The ``oscar toyworld`` sub-commands: ``generate``, ``train-vae``, ``reconstruct``, ``baseline`` and ``eval``.
 
 Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code). Heavy imports happen inside the
@@ -11,14 +11,16 @@ import argparse
 import json
 import sys
 
-__all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_eval"]
+__all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
 EXAMPLES = """examples:
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 100 --size 64x64 --frames 17 \\
       --seed 0 --out toy_clips
   oscar toyworld train-vae toy_clips --out toy_vae --steps 600 --batch 2 --base-dim 16 --seed 0
   oscar toyworld reconstruct toy_clips --vae toy_vae --out recon/
-  oscar toyworld eval --gt toy_clips --pred rollouts/ --out table.json --plot table.png
+  oscar toyworld baseline toy_clips --out first_frame/
+  oscar toyworld eval --gt toy_clips --split heldout --pred vae=recon/ --pred first_frame=first_frame/ \
+      --out table.json --plot table.png
   oscar toyworld eval --gt toy_clips --pred true=rollouts_true/ --pred shuffled=rollouts_shuffled/
 """
 
@@ -68,6 +70,14 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     r.add_argument("--limit", type=int, help="at most this many clips")
     r.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     r.set_defaults(func=cmd_reconstruct)
+
+    b = sub.add_parser("baseline", help="write model-free reference predictions (first frame repeated)",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    b.add_argument("clips", help="clip set")
+    b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
+    b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
+    b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    b.set_defaults(func=cmd_baseline)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)
@@ -133,6 +143,14 @@ def cmd_reconstruct(args) -> int:
     ids = write_reconstructions(args.clips, args.vae, args.out, None if args.split == "all" else args.split,
                                 args.limit, args.threads)
     print(f"{args.out}: {len(ids)} reconstructions")
+    return 0
+
+
+def cmd_baseline(args) -> int:
+    from .baselines import write_baseline
+
+    ids = write_baseline(args.clips, args.out, args.kind, None if args.split == "all" else args.split)
+    print(f"{args.out}: {len(ids)} {args.kind} predictions")
     return 0
 
 
