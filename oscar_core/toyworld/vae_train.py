@@ -10,7 +10,7 @@ Loss: mean squared error of the reconstruction in [-1, 1] pixels + ``kl``
 × the posterior's KL divergence to N(0, I) per latent element (sampled latents during training,
 the posterior mode at evaluation). After training, ``latents_mean`` and
 ``latents_std`` of the config are set to the per-channel statistics of the
-training clips' latents, so the normalised latents the DiT sees are about
+training latents (32 clips spread over the set), so the normalised latents the DiT sees are about
 zero-mean, unit-variance.
 
 Output folder::
@@ -190,7 +190,7 @@ def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, 
     import shutil
 
     final = copy.deepcopy(vae).eval()
-    mean, std = _latent_stats(final, train[: min(len(train), 32)])
+    mean, std = _latent_stats(final, train[:: max(1, len(train) // 32)][:32])  # 32 clips spread over the set
     final.register_to_config(latents_mean=mean, latents_std=std)
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / ".vae.tmp"
