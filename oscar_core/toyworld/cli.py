@@ -59,6 +59,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
     for name in ("lr", "kl", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
+    v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
     v.set_defaults(func=cmd_train_vae)
 
     r = sub.add_parser("reconstruct", help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
@@ -130,7 +131,7 @@ def cmd_train_vae(args) -> int:
 
     cfg = VAETrainConfig(steps=args.steps, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
-                         eval_every=args.eval_every, eval_clips=args.eval_clips)
+                         eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init)
     card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")

@@ -56,6 +56,7 @@ class VAETrainConfig:
     eval_every: int = 250  # held-out PSNR every N steps (0 = only at the end)
     eval_clips: int = 16  # held-out clips used for PSNR
     config: dict = field(default_factory=dict)  # AutoencoderKLWan overrides
+    init: str = ""  # start from this train-vae output folder (fine-tuning, e.g. on longer windows)
 
 
 def load_clip_frames(clipset, split: str, limit: int | None = None, embodiments=None) -> tuple[np.ndarray, list[str]]:
@@ -133,8 +134,12 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
     N, T = train.shape[:2]
     if T < cfg.window:
         raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
-    config = {**TOY_VAE_CONFIG, "base_dim": cfg.base_dim, **cfg.config}
-    vae = AutoencoderKLWan(**config)
+    if cfg.init:
+        vae = load_toy_vae(cfg.init)
+        config = {k: vae.config[k] for k in TOY_VAE_CONFIG}
+    else:
+        config = {**TOY_VAE_CONFIG, "base_dim": cfg.base_dim, **cfg.config}
+        vae = AutoencoderKLWan(**config)
     n_params = sum(p.numel() for p in vae.parameters())
     opt = torch.optim.AdamW(vae.parameters(), lr=cfg.lr, weight_decay=0.0)
     sched = torch.optim.lr_scheduler.LambdaLR(
