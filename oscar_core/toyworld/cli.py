@@ -16,10 +16,10 @@ __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstr
 EXAMPLES = """examples:
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 100 --size 64x64 --frames 17 \\
       --seed 0 --out toy_clips
-  oscar toyworld train-vae toy_clips --out toy_vae --steps 600 --batch 2 --base-dim 16 --seed 0
+  oscar toyworld train-vae toy_clips --out toy_vae --steps 600 --batch 2 --base-dim 16 --seed 0 --eval-clips 12
   oscar toyworld reconstruct toy_clips --vae toy_vae --out recon/
   oscar toyworld baseline toy_clips --out first_frame/
-  oscar toyworld eval --gt toy_clips --split heldout --pred vae=recon/ --pred first_frame=first_frame/ \
+  oscar toyworld eval --gt toy_clips --split heldout --pred vae=recon/ --pred first_frame=first_frame/ \\
       --out table.json --plot table.png
   oscar toyworld eval --gt toy_clips --pred true=rollouts_true/ --pred shuffled=rollouts_shuffled/
 """
