@@ -100,10 +100,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_eval_parser(sub)
     add_model_parsers(sub)
     from .data.cli import add_data_parser
+    from .toyworld.cli import add_toyworld_parser
     from .train.cli import add_train_parser
 
     add_data_parser(sub)
     add_train_parser(sub)
+    add_toyworld_parser(sub)
     return p
 
 

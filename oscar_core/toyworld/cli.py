@@ -1,0 +1,169 @@
+"""The ``oscar toyworld`` sub-commands: ``generate``, ``train-vae``, ``reconstruct``, ``baseline`` and ``eval``.
+
+Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
+parser sets ``func`` (returns an exit code). Heavy imports happen inside the
+commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+__all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
+
+EXAMPLES = """examples:
+  oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 100 --size 64x64 --frames 17 \\
+      --seed 0 --out toy_clips
+  oscar toyworld train-vae toy_clips --out toy_vae --steps 600 --batch 2 --base-dim 16 --seed 0 --eval-clips 12
+  oscar toyworld reconstruct toy_clips --vae toy_vae --out recon/
+  oscar toyworld baseline toy_clips --out first_frame/
+  oscar toyworld eval --gt toy_clips --split heldout --pred vae=recon/ --pred first_frame=first_frame/ \\
+      --out table.json --plot table.png
+  oscar toyworld eval --gt toy_clips --pred true=rollouts_true/ --pred shuffled=rollouts_shuffled/
+"""
+
+
+def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
+    fmt = argparse.RawDescriptionHelpFormatter
+    tw = subparsers.add_parser("toyworld", help="the procedural toy world: generate clips, train its VAE, evaluate",
+                               description="A procedural world small enough to train OSCAR on a CPU.",
+                               epilog=EXAMPLES, formatter_class=fmt)
+    sub = tw.add_subparsers(dest="toyworld_command", required=True)
+
+    g = sub.add_parser("generate", help="write toy-world episodes as a training clip set",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    g.add_argument("--embodiments", required=True, help="comma-separated embodiment names (plugins included)")
+    g.add_argument("--episodes", type=int, required=True, help="episodes per embodiment")
+    g.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels (default 64x64)")
+    g.add_argument("--frames", type=int, default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
+    g.add_argument("--fps", type=float, default=10.0, help="frame rate written to the clips (default 10)")
+    g.add_argument("--seed", type=int, default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
+    g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)")
+    g.add_argument("--shard-size", type=int, default=50, help="episodes per shard (default 50)")
+    g.add_argument("--supersample", type=int, default=2, help="anti-aliasing factor (default 2)")
+    g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
+    g.add_argument("--threads", type=int, default=1, help="torch threads for forward kinematics (default 1)")
+    g.add_argument("--json", action="store_true", help="print the summary as JSON")
+    g.set_defaults(func=cmd_generate)
+
+    v = sub.add_parser("train-vae", help="train the toy world's AutoencoderKLWan on a clip set",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    v.add_argument("clips", help="clip set written by `oscar toyworld generate`")
+    v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)")
+    from .vae_train import VAETrainConfig
+
+    d = VAETrainConfig()
+    for name in ("steps", "batch", "window", "seed", "threads", "base_dim", "eval_every", "eval_clips"):
+        v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
+    for name in ("lr", "kl", "max_minutes"):
+        v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
+    v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
+    v.set_defaults(func=cmd_train_vae)
+
+    r = sub.add_parser("reconstruct", help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    r.add_argument("clips", help="clip set")
+    r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
+    r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions")
+    r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    r.add_argument("--limit", type=int, help="at most this many clips")
+    r.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    r.set_defaults(func=cmd_reconstruct)
+
+    b = sub.add_parser("baseline", help="write model-free reference predictions (first frame repeated)",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    b.add_argument("clips", help="clip set")
+    b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
+    b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
+    b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    b.set_defaults(func=cmd_baseline)
+
+    e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    e.add_argument("--gt", required=True, help="the clip set holding the ground truth")
+    e.add_argument("--pred", action="append", required=True, metavar="[NAME=]FOLDER",
+                   help="folder of generated videos named <clip id>.mp4/.mkv/.npy (or a folder of PNGs per clip); "
+                        "repeat with NAME= for several conditions (rows of the table)")
+    e.add_argument("--split", default=None, help="only clips of this meta.split (e.g. heldout; default: every "
+                                                 "clip that has a prediction)")
+    e.add_argument("--out", help="write the table as JSON here")
+    e.add_argument("--plot", help="write a PNG bar chart of the table here")
+    e.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    e.set_defaults(func=cmd_eval)
+    return tw
+
+
+def _registry(args):
+    from ..registry import Registry
+
+    return Registry(plugin_paths=getattr(args, "plugin", None) or ())
+
+
+def cmd_generate(args) -> int:
+    import torch
+
+    from ..pipeline import parse_size
+    from .generate import GenerateConfig, generate_clipset
+
+    torch.set_num_threads(max(1, args.threads))
+    w, h = parse_size(args.size)
+    names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
+    if not names:
+        raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
+    cfg = GenerateConfig(names, args.episodes, w, h, args.frames, args.fps, args.seed, args.shard_size,
+                         args.supersample, not args.no_skeleton)
+    quiet = args.json
+    summary = generate_clipset(cfg, args.out, _registry(args),
+                               progress=None if quiet else (lambda m: print(m, file=sys.stderr, flush=True)))
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        eps = summary["episodes_per_s"]
+        print(f"{args.out}: {summary['episodes_written']} episodes written, {summary['episodes_skipped']} kept from "
+              f"an earlier run, {summary['wall_s']:.1f} s" + (f" ({eps:.2f} episodes/s)" if eps else ""))
+    return 0
+
+
+def cmd_train_vae(args) -> int:
+    from .vae_train import VAETrainConfig, train_vae
+
+    cfg = VAETrainConfig(steps=args.steps, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, seed=args.seed,
+                         threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
+                         eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init)
+    card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
+    print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
+          f"{card['wall_s']:.0f} s")
+    return 0
+
+
+def cmd_reconstruct(args) -> int:
+    from .vae_train import write_reconstructions
+
+    ids = write_reconstructions(args.clips, args.vae, args.out, None if args.split == "all" else args.split,
+                                args.limit, args.threads)
+    print(f"{args.out}: {len(ids)} reconstructions")
+    return 0
+
+
+def cmd_baseline(args) -> int:
+    from .baselines import write_baseline
+
+    ids = write_baseline(args.clips, args.out, args.kind, None if args.split == "all" else args.split)
+    print(f"{args.out}: {len(ids)} {args.kind} predictions")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from .evaluate import evaluate_conditions, format_table, plot_table, parse_pred_args
+    from .._atomic import atomic_write_bytes
+
+    conditions = parse_pred_args(args.pred)
+    table = evaluate_conditions(args.gt, conditions, split=args.split)
+    if args.out:
+        atomic_write_bytes(args.out, (json.dumps(table, indent=2) + "\n").encode())
+    if args.plot:
+        plot_table(table, args.plot)
+    print(json.dumps(table, indent=2) if args.json else format_table(table))
+    return 0

@@ -1,0 +1,177 @@
+"""One toy-world episode: motion + scene + camera → RGB frames and the ground truth the evaluator needs.
+
+The RGB renderer uses the same forward kinematics (``Embodiment.frames``) and
+projection (:func:`oscar_core.camera.project`) as the skeleton renderer: every
+skeleton edge is a shaded capsule between the same projected points, so the
+skeleton video is an exact abstraction of the RGB video.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import Camera, project
+from ..embodiment import Embodiment
+from ..trajectory import Trajectory
+from .motion import Motion, check_supported, sample_motion
+from .raster import Canvas
+from .scene import EE_RGB, OBJECT_RGB, Scene, background, sample_camera, sample_scene
+
+__all__ = ["Episode", "RenderResult", "render_world", "plan_episode", "make_episode", "episode_rng", "link_radii"]
+
+
+@dataclass
+class RenderResult:
+    """Rendered frames and what is where.
+
+    rgb: (T, H, W, 3) uint8; label: (T, H·ss, W·ss) int32 at the supersampled
+    render size (-1 background, e in [0, E) edge e, E object, E + 1
+    end-effector marker); ss: supersampling factor; object_px, ee_px: (T, 2)
+    projected centres in output pixels; object_area, ee_area: (T,) visible
+    area in output pixels² (0 = hidden).
+    """
+
+    rgb: np.ndarray
+    label: np.ndarray
+    ss: int
+    object_px: np.ndarray
+    ee_px: np.ndarray
+    object_area: np.ndarray
+    ee_area: np.ndarray
+
+
+def link_radii(n_edges: int, scale: float) -> np.ndarray:
+    """(E,) capsule radii, metres: 4 % of the reach at the base tapering to 2.4 % at the last edge."""
+    if n_edges == 0:
+        return np.zeros(0)
+    f = np.linspace(0.0, 1.0, n_edges) if n_edges > 1 else np.zeros(1)
+    return scale * (0.04 - 0.016 * f)
+
+
+def render_world(emb: Embodiment, motion: Motion, scene: Scene, camera: Camera, ss: int = 2,
+                 draw_robot: bool = True, full_frame: bool = False) -> RenderResult:
+    """Render ``motion`` seen by a static ``camera`` (output size = the camera's image size).
+
+    ss: supersampling factor (the frame is drawn at ss× the size and area-averaged
+    down: anti-aliasing). draw_robot=False draws the scene without the robot
+    (tests use it to find which pixels the robot changed). full_frame: draw each
+    primitive over the whole image (the naive way, for benchmarks; same pixels).
+    """
+    import cv2
+
+    if camera.mount_link is not None:
+        raise ValueError("toyworld render: expected a static camera (mount: null), "
+                         f"found one mounted on {camera.mount_link!r}")
+    W, H = camera.intrinsics.width, camera.intrinsics.height
+    cam = camera.resized(W * ss, H * ss, mode="stretch") if ss != 1 else camera
+    f = cam.intrinsics.fx
+    bg, bg_depth, floor_xy = background(scene, cam)
+    T = len(motion.points)
+    edges = emb.edge_index()
+    E = len(edges)
+    pts = project(motion.points, cam)
+    obj = project(motion.object, cam)
+    ee = project(motion.ee, cam)
+    radii = link_radii(E, motion.scale)
+    R = motion.object_radius
+    marker_r = 0.45 * R
+    light = scene.light
+    rgb = np.empty((T, H, W, 3), dtype=np.uint8)
+    labels = np.empty((T, H * ss, W * ss), dtype=np.int32)
+    obj_area, ee_area = np.zeros(T), np.zeros(T)
+    on_floor = np.isfinite(floor_xy[..., 0])
+    for t in range(T):
+        # soft shadow of the ball on the floor, fading as it is lifted
+        o = motion.object[t]
+        d2 = np.where(on_floor, ((floor_xy - o[:2]) ** 2).sum(-1), np.inf)
+        sigma = 1.3 * R + 0.5 * max(o[2] - R, 0.0)
+        strength = 0.55 * np.exp(-max(o[2] - R, 0.0) / (4 * R))
+        shade = 1.0 - strength * np.exp(-d2 / (2 * sigma * sigma))
+        canvas = Canvas(bg * shade[..., None], bg_depth, full_frame=full_frame)
+        if draw_robot:
+            for e, (a, b) in enumerate(edges):
+                za, zb = pts.depth[t, a], pts.depth[t, b]
+                if za <= 1e-3 or zb <= 1e-3:
+                    continue
+                canvas.capsule(pts.uv[t, a], pts.uv[t, b], za, zb, radii[e], f, scene.link_colors[e], light, e)
+            if len(emb.grippers) and ee.depth[t] > 1e-3:
+                canvas.sphere(ee.uv[t], ee.depth[t], marker_r, f, EE_RGB, light, E + 1)
+        if obj.depth[t] > 1e-3:
+            canvas.sphere(obj.uv[t], obj.depth[t], R, f, OBJECT_RGB, light, E)
+        img = canvas.rgb
+        if ss != 1:
+            img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
+        rgb[t] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        labels[t] = canvas.label
+        obj_area[t] = (canvas.label == E).sum() / ss**2
+        ee_area[t] = (canvas.label == E + 1).sum() / ss**2
+
+    def to_out(uv):  # supersampled pixel centres → output pixel centres
+        return (uv + 0.5) / ss - 0.5
+
+    return RenderResult(rgb, labels, ss, to_out(obj.uv), to_out(ee.uv), obj_area, ee_area)
+
+
+@dataclass
+class Episode:
+    """A generated episode: inputs (trajectory, camera), frames and ground truth.
+
+    rgb: (T, H, W, 3) uint8; motion: the :class:`Motion`; scene: the
+    :class:`Scene`; render: the :class:`RenderResult`.
+    """
+
+    embodiment: str
+    trajectory: Trajectory
+    camera: Camera
+    rgb: np.ndarray
+    motion: Motion
+    scene: Scene
+    render: RenderResult
+    meta: dict = field(default_factory=dict)
+
+    def ground_truth(self) -> dict:
+        """JSON-ready ground truth (the ``meta.toyworld`` of a clip record; docs/formats.md)."""
+        r, m = self.render, self.motion
+
+        def rows(a):
+            return [[round(float(x), 3) for x in row] for row in a]
+
+        return {
+            "kind": m.kind,
+            "ee_px": rows(r.ee_px), "ee_area": [round(float(a), 2) for a in r.ee_area],
+            "object_px": rows(r.object_px), "object_area": [round(float(a), 2) for a in r.object_area],
+            "attached": [bool(a) for a in m.attached],
+            "object_radius_m": round(m.object_radius, 5), "reach_m": round(m.scale, 5),
+        }
+
+
+def episode_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
+    """The generator of episode ``index`` of ``embodiment`` under ``seed``: independent of every other
+    episode, so any subset (a shard) is regenerated identically."""
+    import zlib
+
+    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index)]))
+
+
+def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
+                 fps: float = 10.0) -> tuple[Motion, Scene, Camera]:
+    """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels)."""
+    check_supported(emb)
+    motion = sample_motion(emb, rng, frames, fps)
+    scene = sample_scene(rng, len(emb.edges), motion.scale)
+    R = motion.object_radius
+    # everything that must be in view: skeleton points, the ball (its top and bottom), its resting place
+    seen = np.concatenate([motion.points.reshape(-1, 3), motion.object + [0, 0, R], motion.object - [0, 0, R]])
+    base_xy = motion.points[0, 0, :2]
+    camera = sample_camera(rng, seen, width, height, base_xy=base_xy, embodiment=emb.name)
+    return motion, scene, camera
+
+
+def make_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
+                 fps: float = 10.0, ss: int = 2) -> Episode:
+    """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``."""
+    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps)
+    render = render_world(emb, motion, scene, camera, ss=ss)
+    return Episode(emb.name, motion.trajectory, camera, render.rgb, motion, scene, render)

@@ -1,0 +1,146 @@
+"""The toy world's table: PSNR, SSIM, end-effector and object errors of generated videos per condition.
+
+A *condition* (a row: "true skeleton", "shuffled skeleton", ...) is a folder of
+generated videos, one per ground-truth clip, named by the clip id:
+``<id>.mp4``, ``<id>.mkv``, ``<id>.npy`` ((T, H, W, 3) uint8) or a folder
+``<id>/`` of PNG frames. The ground truth is the clip set's RGB video of that
+clip. Every frame is compared (the first one included); the prediction must
+have the clip's frame count and size.
+
+Per clip: PSNR and SSIM (:mod:`oscar_core.metrics`, frame means; a frame
+identical to the truth scores :data:`PSNR_CAP` dB instead of infinity), and
+the end-effector and object localisation errors of
+:func:`~oscar_core.toyworld.locate.position_errors` (pixels, both located by
+colour in both videos; a missed target counts as the image diagonal). A row
+is the mean over its clips.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .locate import EE_TARGET, OBJECT_TARGET, position_errors
+
+__all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "plot_table",
+           "parse_pred_args"]
+
+PSNR_CAP = 100.0
+METRICS = ("psnr_db", "ssim", "ee_error_px", "object_error_px")
+_SUFFIXES = (".mp4", ".mkv", ".npy")
+
+
+def parse_pred_args(values) -> dict[str, str]:
+    """``["true=dir1", "dir2"]`` → ``{"true": "dir1", "dir2": "dir2"}`` (a bare folder is named by itself)."""
+    out: dict[str, str] = {}
+    for v in values:
+        name, sep, path = v.partition("=")
+        if not sep:
+            name, path = Path(v).name or v, v
+        if not name or not path:
+            raise ValueError(f"--pred: expected NAME=FOLDER or FOLDER, found {v!r}")
+        if name in out:
+            raise ValueError(f"--pred: condition {name!r} given twice")
+        out[name] = path
+    return out
+
+
+def find_prediction(folder, clip_id: str) -> Path | None:
+    """The generated video for ``clip_id`` in ``folder``, or None."""
+    folder = Path(folder)
+    for s in _SUFFIXES:
+        if (folder / f"{clip_id}{s}").is_file():
+            return folder / f"{clip_id}{s}"
+    if (folder / clip_id).is_dir():
+        return folder / clip_id
+    return None
+
+
+def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> dict:
+    """Metrics of one generated clip against its ground truth; both (T, H, W, 3) uint8."""
+    from ..metrics import psnr, ssim
+
+    pred, gt = np.asarray(pred), np.asarray(gt)
+    if pred.shape != gt.shape or pred.dtype != np.uint8:
+        raise ValueError(f"{where}: expected a uint8 video of shape {gt.shape} (the ground truth's), "
+                         f"found {pred.dtype} {pred.shape}")
+    p = np.minimum(psnr(pred, gt, n_frames=None), PSNR_CAP)
+    s = ssim(pred, gt, n_frames=None)
+    ee = position_errors(pred, gt, EE_TARGET)
+    ob = position_errors(pred, gt, OBJECT_TARGET)
+    return {"psnr_db": float(p.mean()), "ssim": float(s.mean()), "ee_error_px": ee["error_px"],
+            "object_error_px": ob["error_px"], "ee_found": ee["found"], "object_found": ob["found"]}
+
+
+def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | None = None) -> dict:
+    """The table: one row per condition (name → folder of generated videos).
+
+    Clips evaluated: those of the clip set (with ``meta.split == split`` when
+    given) that have a prediction in the condition's folder; a condition
+    with none is an error naming its folder. Returns a JSON-ready dict with
+    ``rows`` (condition → mean metrics, clip count) and ``clips`` (condition →
+    clip id → metrics).
+    """
+    from ..metrics.video import load_video
+    from ..train.clips import ClipSet
+
+    cs = gt_clipset if isinstance(gt_clipset, ClipSet) else ClipSet(gt_clipset)
+    recs = [r for r in cs if split is None or r.meta.get("split") == split]
+    rows, clips = {}, {}
+    cache: dict[str, np.ndarray] = {}
+    for name, folder in conditions.items():
+        if not Path(folder).is_dir():
+            raise FileNotFoundError(f"--pred {name}={folder}: no such folder")
+        per = {}
+        for r in recs:
+            path = find_prediction(folder, r.id)
+            if path is None:
+                continue
+            if r.id not in cache:
+                cache[r.id] = cs.load(r, skeleton=False).rgb
+            per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path))
+        if not per:
+            raise ValueError(f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
+                             f"{cs.root}" + (f" (split {split!r})" if split else "") + ", found none")
+        row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
+        row["clips"] = len(per)
+        rows[name] = row
+        clips[name] = per
+    return {"ground_truth": str(cs.root), "split": split, "metrics": list(METRICS), "rows": rows, "clips": clips}
+
+
+def _nanmean(values) -> float:
+    """Mean over the finite values; NaN (no warning) when there are none (a target never shown)."""
+    a = np.asarray(values, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if a.size else float("nan")
+
+
+def format_table(table: dict) -> str:
+    """The rows as a Markdown table."""
+    head = "| condition | clips | PSNR (dB) ↑ | SSIM ↑ | end-effector error (px) ↓ | object error (px) ↓ |"
+    lines = [head, "|---|---|---|---|---|---|"]
+    for name, r in table["rows"].items():
+        lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r['ee_error_px']:.2f} | "
+                     f"{r['object_error_px']:.2f} |")
+    return "\n".join(lines)
+
+
+def plot_table(table: dict, path) -> Path:
+    """A PNG with one bar chart per metric, one bar per condition (needs matplotlib: ``oscar[plots]``)."""
+    from ..metrics.plots import _new_figure, save_figure
+
+    names = list(table["rows"])
+    labels = {"psnr_db": "PSNR (dB) ↑", "ssim": "SSIM ↑", "ee_error_px": "end-effector error (px) ↓",
+              "object_error_px": "object error (px) ↓"}
+    fig = _new_figure((3.2 * len(METRICS), 3.2), 100)
+    for i, m in enumerate(METRICS):
+        ax = fig.add_subplot(1, len(METRICS), i + 1)
+        vals = [table["rows"][n][m] for n in names]
+        ax.bar(range(len(names)), vals, color=[f"C{j}" for j in range(len(names))])
+        ax.set_xticks(range(len(names)))
+        ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
+        ax.set_title(labels[m], fontsize=9)
+    fig.subplots_adjust(bottom=0.3, wspace=0.35, left=0.05, right=0.98)
+    return save_figure(fig, path)

@@ -1,0 +1,230 @@
+"""Random reaching and pick-and-place motions for any kinematic-tree embodiment, and the object they move.
+
+Joint values are drawn inside the URDF limits (``Embodiment.tree.limits``,
+shrunk by 5 %; unlimited joints use [-pi, pi]) and joined by minimum-jerk
+segments, so every frame is inside the limits and velocity is zero at each
+keyframe. Keyframes are chosen from a batch of random configurations by their
+forward kinematics (no IK): the grasp and place poses put the end-effector
+just above the floor, the "lift" pose well above it, and no pose puts a
+skeleton point under the floor.
+
+The object rule (:func:`carry_object`): the object is a ball of radius R
+resting on the floor (z = R). It attaches to the end-effector on a frame
+where the gripper *closes* (openness drops below 0.5) while the end-effector
+is within ``grab_distance`` of the ball's centre, then keeps its offset from
+the end-effector while the gripper stays closed; when the gripper opens it
+drops to the floor below where it was (z = R, same x, y) on that frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..embodiment import Embodiment
+from ..errors import OscarError
+from ..trajectory import Trajectory
+
+__all__ = ["ToyWorldError", "check_supported", "joint_limits", "Motion", "sample_motion", "carry_object",
+           "min_jerk", "openness_to_signal", "ee_points"]
+
+OPEN_THRESHOLD = 0.5
+
+
+class ToyWorldError(OscarError, ValueError):
+    """An embodiment or an input the toy world cannot use; the message says which and why."""
+
+
+def check_supported(emb: Embodiment) -> None:
+    """Raise :class:`ToyWorldError` unless ``emb`` computes its skeleton from a kinematic tree (URDF/xacro)."""
+    if not emb.uses_kinematic_tree():
+        raise ToyWorldError(
+            f"toyworld: embodiment {emb.name!r} reads its skeleton from keypoints (it overrides Embodiment.frames, "
+            f"as hands do); the toy world draws joint-space motions inside URDF limits and supports only "
+            f"kinematic-tree embodiments (urdf/xacro)")
+    if len(emb.joint_names) == 0:
+        raise ToyWorldError(f"toyworld: embodiment {emb.name!r} has no movable joints to move")
+    if len(emb.edges) == 0:
+        raise ToyWorldError(f"toyworld: embodiment {emb.name!r} has no skeleton edges to draw")
+
+
+def joint_limits(emb: Embodiment, shrink: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """(J,) lower and upper limits of ``emb.joint_names`` (radians / metres), shrunk by ``shrink`` of the range."""
+    lo, hi = emb.tree.limits()
+    pos = {n: i for i, n in enumerate(emb.tree.joint_names)}
+    idx = [pos[n] for n in emb.joint_names]
+    lo, hi = lo[idx].astype(np.float64), hi[idx].astype(np.float64)
+    lo = np.where(np.isfinite(lo), lo, -np.pi)
+    hi = np.where(np.isfinite(hi), hi, np.pi)
+    span = hi - lo
+    return lo + shrink * span, hi - shrink * span
+
+
+def openness_to_signal(emb: Embodiment, openness: np.ndarray) -> np.ndarray:
+    """(T, G) openness in [0, 1] → (T, G) raw gripper signals in each gripper's ``signal_range``."""
+    cols = []
+    for i, g in enumerate(emb.grippers):
+        lo, hi = g.signal_range
+        o = openness[:, i]
+        cols.append(lo + o * (hi - lo) if g.closed_at == "low" else hi - o * (hi - lo))
+    return np.stack(cols, axis=1) if cols else np.zeros((openness.shape[0], 0))
+
+
+def min_jerk(keys: np.ndarray, times: np.ndarray, T: int) -> np.ndarray:
+    """Piecewise minimum-jerk interpolation: keys (N, J) at integer frames ``times`` (N,), increasing,
+    times[0] = 0, times[-1] = T - 1 → (T, J). Each segment is a convex blend of its two keys."""
+    keys = np.asarray(keys, dtype=np.float64)
+    out = np.empty((T, keys.shape[1]))
+    for k in range(len(times) - 1):
+        t0, t1 = int(times[k]), int(times[k + 1])
+        s = (np.arange(t0, t1 + 1) - t0) / max(t1 - t0, 1)
+        w = 10 * s**3 - 15 * s**4 + 6 * s**5
+        out[t0:t1 + 1] = keys[k] + w[:, None] * (keys[k + 1] - keys[k])
+    return out
+
+
+def ee_points(emb: Embodiment, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """World positions of the skeleton points (T, K, 3) and of the end-effector (T, 3), metres.
+
+    The end-effector is the first gripper's indicator point, or the last
+    skeleton point for an embodiment without grippers.
+    """
+    fr = emb.frames(traj)
+    ee = fr.gripper_points[:, 0] if len(emb.grippers) else fr.points[:, -1]
+    return fr.points, ee
+
+
+def carry_object(ee: np.ndarray, openness: np.ndarray, start: np.ndarray, radius: float,
+                 grab_distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Object positions under the attachment rule of the module docstring.
+
+    ee: (T, 3) end-effector, metres; openness: (T,) of the gripper that
+    grabs, in [0, 1]; start: (3,) the ball's centre at frame 0 (z = radius).
+    Returns positions (T, 3) metres and attached (T,) bool.
+    """
+    T = len(ee)
+    pos = np.empty((T, 3))
+    attached = np.zeros(T, dtype=bool)
+    p = np.asarray(start, dtype=np.float64).copy()
+    offset = None
+    for t in range(T):
+        closed = openness[t] < OPEN_THRESHOLD
+        was_open = t == 0 or openness[t - 1] >= OPEN_THRESHOLD
+        if offset is not None and not closed:  # release: drop to the floor below
+            offset = None
+            p = np.array([p[0], p[1], radius])
+        if offset is None and closed and was_open and np.linalg.norm(ee[t] - p) <= grab_distance:
+            offset = p - ee[t]
+        if offset is not None:
+            p = ee[t] + offset
+            attached[t] = True
+        pos[t] = p
+    return pos, attached
+
+
+@dataclass(frozen=True)
+class Motion:
+    """One episode's motion.
+
+    trajectory: the robot's :class:`Trajectory` (T frames, raw gripper
+    signals); kind: "pick_place" or "reach"; points: (T, K, 3) skeleton
+    points, metres; ee: (T, 3) end-effector, metres; object: (T, 3) ball
+    centre, metres; attached: (T,) bool; object_radius: metres; scale:
+    the robot's reach, metres (sizes of everything else follow it).
+    """
+
+    trajectory: Trajectory
+    kind: str
+    points: np.ndarray
+    ee: np.ndarray
+    object: np.ndarray
+    attached: np.ndarray
+    object_radius: float
+    scale: float
+
+
+def _batch_fk(emb: Embodiment, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Skeleton points (N, K, 3) and end-effectors (N, 3) of N configurations (grippers open)."""
+    G = len(emb.grippers)
+    gripper = openness_to_signal(emb, np.ones((len(q), G)))
+    traj = Trajectory(emb.joint_names, q, 10.0, gripper, emb.gripper_names or None)
+    return ee_points(emb, traj)
+
+
+def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: float = 10.0,
+                  pick_place_prob: float = 0.75, n_candidates: int = 768) -> Motion:
+    """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
+    reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses."""
+    check_supported(emb)
+    if frames < 5:
+        raise ToyWorldError(f"toyworld: --frames: expected at least 5 frames, found {frames}")
+    lo, hi = joint_limits(emb)
+    J = len(lo)
+    q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
+    pts, ee = _batch_fk(emb, q)
+    base = pts[:, 0].mean(0)
+    scale = float(np.percentile(np.linalg.norm(ee - base, axis=1), 90))
+    scale = max(scale, 1e-3)
+    R = 0.07 * scale
+    above = (pts[..., 2].min(1) >= -0.02 * scale) & (ee[:, 2] >= R)
+    far = np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale
+    valid = np.flatnonzero(above & far)
+    if len(valid) == 0:
+        valid = np.flatnonzero(above)
+    if len(valid) == 0:
+        valid = np.argsort(-pts[..., 2].min(1))[:8]  # least-bad poses: the floor hides what is under it
+    grasp = valid[np.abs(ee[valid, 2] - 2 * R) <= 0.6 * R]
+    high = valid[ee[valid, 2] >= 2 * R + 0.25 * scale]
+    G = len(emb.grippers)
+    T = frames
+    kind = "reach"
+    if G and T >= 9 and len(grasp) >= 2 and len(high) >= 1 and rng.uniform() < pick_place_prob:
+        g = int(rng.choice(grasp))
+        d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
+        far_enough = grasp[d >= 0.2 * scale]
+        if len(far_enough):
+            kind = "pick_place"
+            p = int(rng.choice(far_enough))
+            mid = (q[g] + q[p]) / 2
+            lift = int(high[np.argmin(np.linalg.norm(q[high] - mid, axis=1))])
+            start = int(rng.choice(high)) if rng.uniform() < 0.7 else int(rng.choice(valid))
+            end = int(rng.choice(high))
+            a = int(round((T - 1) * rng.uniform(0.28, 0.38)))
+            hold = a + max(1, int(round(0.1 * (T - 1))))
+            b = int(round((T - 1) * rng.uniform(0.72, 0.8)))
+            b = min(max(b, hold + 2), T - 2)
+            release = min(b + max(1, int(round(0.08 * (T - 1)))), T - 1)
+            times = np.array([0, a, hold, (hold + b) // 2, b, release, T - 1])
+            keys = q[[start, g, g, lift, p, p, end]]
+            times, keep = np.unique(times, return_index=True)
+            keys = keys[keep]
+            qt = min_jerk(keys, times, T)
+            openness = np.ones((T, G))
+            close_at = (a + hold) // 2 if hold > a + 1 else hold
+            openness[close_at:release, 0] = 0.0
+            if close_at > 0:
+                openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
+            obj0 = np.array([ee[g, 0], ee[g, 1], R])
+    if kind == "reach":
+        n_keys = int(rng.integers(3, 5))
+        keys = q[rng.choice(valid, size=n_keys)]
+        times = np.unique(np.round(np.linspace(0, T - 1, n_keys)).astype(int))
+        qt = min_jerk(keys[:len(times)], times, T)
+        openness = np.ones((T, G))
+        for i in range(G):
+            if rng.uniform() < 0.6:
+                t0 = int(rng.integers(1, T - 1))
+                openness[t0:, i] = 0.0 if rng.uniform() < 0.5 else 1.0
+                openness[:t0, i] = 1.0 - openness[t0, i]
+        # the object lies somewhere on the floor in the workspace
+        k = int(rng.choice(valid))
+        obj0 = np.array([ee[k, 0], ee[k, 1], R])
+    traj = Trajectory(emb.joint_names, qt, fps, openness_to_signal(emb, openness), emb.gripper_names or None,
+                      source=f"<toyworld {emb.name}>")
+    points, ee_t = ee_points(emb, traj)
+    if G:
+        obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=2.2 * R)
+    else:
+        obj, attached = np.repeat(obj0[None], T, 0), np.zeros(T, dtype=bool)
+    return Motion(traj, kind, points, ee_t, obj, attached, R, scale)

@@ -1,0 +1,258 @@
+"""Train a small ``AutoencoderKLWan`` (the class the real pipeline uses) on toy-world frames.
+
+Seeded and single-threaded by default. The data are 5-frame windows (1 + 4:
+one latent frame for the first pixel frame, one for the next four, as the
+causal VAE splits time) cut at random from the clip set's ``train`` clips;
+PSNR is measured by encoding and decoding whole held-out clips
+(``meta.split == "heldout"``) through :class:`~oscar_core.model.vae.VideoVAE`.
+
+Loss: mean squared error of the reconstruction in [-1, 1] pixels + ``kl``
+× the posterior's KL divergence to N(0, I) per latent element (sampled latents during training,
+the posterior mode at evaluation). After training, ``latents_mean`` and
+``latents_std`` of the config are set to the per-channel statistics of the
+training latents (32 clips spread over the set), so the normalised latents the DiT sees are about
+zero-mean, unit-variance.
+
+Output folder::
+
+    OUT/vae/config.json, OUT/vae/diffusion_pytorch_model.safetensors   (what OscarWorldModel loads as vae/)
+    OUT/vae_card.json   the command's settings, loss curve, held-out PSNR, wall time
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .._atomic import atomic_write_bytes
+
+__all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", "vae_psnr", "load_toy_vae",
+           "write_reconstructions"]
+
+#: The toy world's VAE: z = 16 channels, 4x time and 8x space compression (as the real WAN 2.1 VAE), base width 32.
+TOY_VAE_CONFIG = dict(base_dim=32, z_dim=16, dim_mult=[1, 2, 2, 2], num_res_blocks=1, attn_scales=[],
+                      temperal_downsample=[False, True, True])
+
+
+@dataclass
+class VAETrainConfig:
+    """Settings of ``oscar toyworld train-vae`` (every field is a CLI flag of the same name)."""
+
+    steps: int = 2000  # optimiser steps
+    batch: int = 4  # windows per step
+    window: int = 5  # frames per window (4k + 1)
+    lr: float = 1e-3  # AdamW learning rate, cosine-decayed to 5 % over the run
+    kl: float = 1e-4  # weight of the KL term (mean over latent elements)
+    seed: int = 0
+    threads: int = 1  # torch.set_num_threads
+    base_dim: int = 32
+    max_minutes: float = 0.0  # stop early after this wall time (0 = no limit)
+    eval_every: int = 250  # held-out PSNR every N steps (0 = only at the end)
+    eval_clips: int = 16  # held-out clips used for PSNR
+    config: dict = field(default_factory=dict)  # AutoencoderKLWan overrides
+    init: str = ""  # start from this train-vae output folder (fine-tuning, e.g. on longer windows)
+
+
+def load_clip_frames(clipset, split: str, limit: int | None = None, embodiments=None) -> tuple[np.ndarray, list[str]]:
+    """(N, T, H, W, 3) uint8 RGB of the clips whose ``meta.split`` is ``split`` (all same size), and their ids."""
+    from ..train.clips import ClipSet
+
+    cs = clipset if isinstance(clipset, ClipSet) else ClipSet(clipset)
+    recs = [r for r in cs if r.meta.get("split") == split and (embodiments is None or r.embodiment in embodiments)]
+    if limit is not None:
+        recs = recs[:limit]
+    if not recs:
+        raise ValueError(f"{cs.root}: expected clips with meta.split == {split!r}, found none")
+    frames = [cs.load(r, skeleton=False).rgb for r in recs]
+    shapes = {f.shape for f in frames}
+    if len(shapes) != 1:
+        raise ValueError(f"{cs.root}: expected clips of one size, found {sorted(shapes)}")
+    return np.stack(frames), [r.id for r in recs]
+
+
+def vae_psnr(vae, frames: np.ndarray, batch: int = 4) -> tuple[float, np.ndarray]:
+    """Mean PSNR (dB, over clips and frames) of decode(encode(clip)) through ``VideoVAE``; and the reconstructions.
+
+    vae: an ``AutoencoderKLWan``; frames: (N, T, H, W, 3) uint8 with T = 4k + 1.
+    """
+    import torch
+
+    from ..metrics import psnr
+    from ..model.vae import VideoVAE
+
+    vv = VideoVAE(vae)
+    recs, scores = [], []
+    with torch.no_grad():
+        for i in range(0, len(frames), batch):
+            x = VideoVAE.to_pixels(frames[i:i + batch])
+            y = VideoVAE.to_uint8(vv.reconstruct(x))
+            for a, b in zip(y, frames[i:i + batch]):
+                s = psnr(a, b, n_frames=None)
+                scores.append(np.minimum(s, 100.0).mean())
+                recs.append(a)
+    vae.train()
+    return float(np.mean(scores)), np.stack(recs)
+
+
+def _latent_stats(vae, frames: np.ndarray, batch: int = 4) -> tuple[list[float], list[float]]:
+    import torch
+
+    from ..model.vae import VideoVAE
+
+    zs = []
+    with torch.no_grad():
+        for i in range(0, len(frames), batch):
+            x = VideoVAE.to_pixels(frames[i:i + batch])
+            zs.append(vae.encode(x).latent_dist.mode().float())
+    z = torch.cat(zs).transpose(0, 1).reshape(vae.config.z_dim, -1)
+    return z.mean(1).tolist(), z.std(1).clamp_min(1e-4).tolist()
+
+
+def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = print) -> dict:
+    """Train, evaluate and save; returns the card (also written to ``OUT/vae_card.json``)."""
+    import torch
+    from diffusers import AutoencoderKLWan
+
+    from ..model.vae import check_frame_count
+
+    check_frame_count(cfg.window, what="--window")
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    out = Path(out)
+    t_load = time.perf_counter()
+    train, _ = load_clip_frames(clipset, "train")
+    held, held_ids = load_clip_frames(clipset, "heldout", limit=cfg.eval_clips)
+    log(f"data: {len(train)} train clips {train.shape[1:]}, {len(held)} held-out clips "
+        f"({time.perf_counter() - t_load:.1f} s to load)")
+    N, T = train.shape[:2]
+    if T < cfg.window:
+        raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
+    if cfg.init:
+        vae = load_toy_vae(cfg.init)
+        config = {k: vae.config[k] for k in TOY_VAE_CONFIG}
+    else:
+        config = {**TOY_VAE_CONFIG, "base_dim": cfg.base_dim, **cfg.config}
+        vae = AutoencoderKLWan(**config)
+    n_params = sum(p.numel() for p in vae.parameters())
+    opt = torch.optim.AdamW(vae.parameters(), lr=cfg.lr, weight_decay=0.0)
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s / max(cfg.steps, 1), 1.0))))
+    vae.train()
+    curve, evals = [], []
+    t0 = time.perf_counter()
+    step = 0
+    psnr0, _ = vae_psnr(vae, held)
+    evals.append({"step": 0, "psnr_db": psnr0, "wall_s": 0.0})
+    log(f"model: AutoencoderKLWan {config}, {n_params / 1e6:.2f} M parameters; held-out PSNR at step 0: {psnr0:.2f} dB")
+    stopped = "steps"
+    while step < cfg.steps:
+        idx = rng.integers(0, N, cfg.batch)
+        starts = rng.integers(0, T - cfg.window + 1, cfg.batch)
+        clip = np.stack([train[i, s:s + cfg.window] for i, s in zip(idx, starts)])
+        flip = rng.uniform(size=cfg.batch) < 0.5  # horizontal flips: more views for free
+        clip[flip] = clip[flip][:, :, :, ::-1]
+        x = torch.from_numpy(np.ascontiguousarray(clip)).permute(0, 4, 1, 2, 3).float().div(127.5).sub(1.0)
+        post = vae.encode(x).latent_dist
+        y = vae.decode(post.sample()).sample
+        rec = torch.mean((y - x) ** 2)
+        kl = 0.5 * torch.mean(post.mean ** 2 + post.var - 1.0 - post.logvar)  # per latent element
+        loss = rec + cfg.kl * kl
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(vae.parameters(), 1.0)
+        opt.step()
+        sched.step()
+        step += 1
+        wall = time.perf_counter() - t0
+        if step % 25 == 0 or step == 1:
+            curve.append({"step": step, "mse": float(rec.detach()), "kl": float(kl.detach()), "wall_s": round(wall, 1)})
+            log(f"step {step}/{cfg.steps}  mse {curve[-1]['mse']:.5f}  (≈ {10 * math.log10(4 / max(curve[-1]['mse'], 1e-12)):.2f} dB "
+                f"train)  kl {curve[-1]['kl']:.4g}  {wall:.0f} s")
+        if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
+            p, _ = vae_psnr(vae, held)
+            evals.append({"step": step, "psnr_db": p, "wall_s": round(time.perf_counter() - t0, 1)})
+            log(f"step {step}: held-out PSNR {p:.2f} dB")
+            _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, "checkpoint")
+        if cfg.max_minutes and wall > 60 * cfg.max_minutes:
+            stopped = f"max_minutes ({cfg.max_minutes:g})"
+            break
+    p, _ = vae_psnr(vae, held)
+    evals.append({"step": step, "psnr_db": p, "wall_s": round(time.perf_counter() - t0, 1)})
+    log(f"done: {step} steps, held-out PSNR {p:.2f} dB, {time.perf_counter() - t0:.0f} s (stopped by {stopped})")
+    return _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped)
+
+
+def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped) -> dict:
+    import copy
+    import os
+    import shutil
+
+    final = copy.deepcopy(vae).eval()
+    mean, std = _latent_stats(final, train[:: max(1, len(train) // 32)][:32])  # 32 clips spread over the set
+    final.register_to_config(latents_mean=mean, latents_std=std)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / ".vae.tmp"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    final.save_pretrained(tmp, safe_serialization=True)
+    if (out / "vae").exists():
+        shutil.rmtree(out / "vae")
+    os.replace(tmp, out / "vae")
+    card = {
+        "format": "oscar-toy-vae", "class": "AutoencoderKLWan", "config": config, "parameters": n_params,
+        "settings": asdict(cfg), "steps_done": step, "stopped_by": stopped,
+        "wall_s": round(time.perf_counter() - t0, 1), "heldout_clips": held_ids,
+        "heldout_psnr_db": evals[-1]["psnr_db"], "evals": evals, "curve": curve,
+    }
+    atomic_write_bytes(out / "vae_card.json", (json.dumps(card, indent=2) + "\n").encode())
+    return card
+
+
+def load_toy_vae(folder):
+    """The trained ``AutoencoderKLWan`` from ``FOLDER/vae`` (or ``FOLDER`` itself), loaded strictly from safetensors."""
+    from diffusers import AutoencoderKLWan
+
+    from ..model._weights import build_strict, load_state_dict, read_config
+
+    folder = Path(folder)
+    if (folder / "vae").is_dir():
+        folder = folder / "vae"
+    return build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder).eval()
+
+
+def write_reconstructions(clipset, vae_folder, out, split: str | None = "heldout", limit: int | None = None,
+                          threads: int = 1) -> list[str]:
+    """Write decode(encode(clip)) of each clip (of ``split``) as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8).
+
+    These are what ``oscar toyworld eval`` scores as the VAE's ceiling: no
+    generated video can be closer to the truth than its own VAE's
+    reconstruction. Returns the clip ids written.
+    """
+    import io
+
+    import torch
+
+    from ..model.vae import VideoVAE
+    from ..train.clips import ClipSet
+
+    torch.set_num_threads(threads)
+    cs = ClipSet(clipset)
+    vv = VideoVAE(load_toy_vae(vae_folder))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    recs = [r for r in cs if split is None or r.meta.get("split") == split][:limit]
+    for r in recs:
+        rgb = cs.load(r, skeleton=False).rgb
+        with torch.no_grad():
+            y = VideoVAE.to_uint8(vv.reconstruct(VideoVAE.to_pixels(rgb)))[0]
+        buf = io.BytesIO()
+        np.save(buf, y)
+        atomic_write_bytes(out / f"{r.id}.npy", buf.getvalue())
+    return [r.id for r in recs]
