@@ -128,7 +128,7 @@ def format_table(table: dict) -> str:
 
 
 def plot_table(table: dict, path) -> Path:
-    """A PNG with one bar chart per metric, one bar per condition (needs matplotlib: ``oscar[plots]``)."""
+    """A PNG with one bar chart per metric, one bar per condition (needs matplotlib: ``oscar-wm[plots]``)."""
     from ..metrics.plots import _new_figure, save_figure
 
     names = list(table["rows"])
