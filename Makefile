@@ -13,6 +13,8 @@ install: $(STAMP)
 $(STAMP): pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.txt
 	$(PIP) install -r requirements-ci.txt
 	@# the distribution was called "oscar" before it became "oscar-wm": remove that old install (only if it is ours)
+	@# and the metadata folder its editable install left in the checkout (found on sys.path when run from here)
+	rm -rf oscar.egg-info
 	@$(PYTHON) -c "import importlib.metadata as m, sys; sys.exit('Skeleton-conditioned' not in (m.metadata('oscar')['Summary'] or ''))" 2>/dev/null && $(PIP) uninstall -y -q oscar || true
 	$(PIP) install -e ".[dev,mano,data,judge,text]" -e examples/oscar-toyarm
 	@mkdir -p .make && touch $(STAMP)

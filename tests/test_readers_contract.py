@@ -26,7 +26,7 @@ def test_all_builtin_readers_register_through_the_entry_point():
         assert isinstance(r, Reader) and r.description and r.embodiments
         assert set(r.embodiments) <= set(reg.names()), (name, r.embodiments)
         entry = reg.reader_entries[name]
-        assert entry.distribution == "oscar"
+        assert entry.distribution == "oscar-wm"
 
 
 def test_listing_the_readers_imports_no_heavy_dependency():
