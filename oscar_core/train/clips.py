@@ -406,6 +406,23 @@ class ClipSet:
             raise ClipFormatError(self.shard_of[rec.id], rec.id, f"files.{role}", "present", "missing")
         return self.shard_of[rec.id] / rec.files[role]
 
+    def read_trajectory(self, rec: ClipRecord):
+        """Check that every file of a clip exists and return its trajectory, which must have ``n_frames`` frames."""
+        from ..errors import InputFileError
+        from ..trajectory import load_trajectory
+
+        shard = self.shard_of[rec.id]
+        for role, rel in rec.files.items():
+            if not (shard / rel).exists():
+                raise ClipFormatError(shard, rec.id, f"files.{role}", f"a file at {rel}", "no such file")
+        try:
+            traj = load_trajectory(shard / rec.files["trajectory"])
+        except InputFileError as exc:
+            raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
+        if len(traj) != rec.n_frames:
+            raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
+        return traj
+
     def load(self, rec: ClipRecord | str, *, start: int = 0, frames: int | None = None, video: bool = True,
              skeleton: bool = True, registry=None) -> Clip:
         """Read a clip, or the window ``[start, start + frames)`` of it, and check it against its record.
@@ -418,7 +435,6 @@ class ClipSet:
         """
         from ..camera import load_camera
         from ..errors import InputFileError
-        from ..trajectory import load_trajectory
         from ..video import read_video
 
         if isinstance(rec, str):
@@ -428,19 +444,14 @@ class ClipSet:
         if start < 0 or n < 1 or start + n > rec.n_frames:
             raise ClipFormatError(shard, rec.id, "n_frames", f"at least {start + max(n, 1)} frames for the window "
                                   f"[{start}, {start + n})", rec.n_frames)
-        for role, rel in rec.files.items():
-            if not (shard / rel).exists():
-                raise ClipFormatError(shard, rec.id, f"files.{role}", f"a file at {rel}", "no such file")
+        traj = self.read_trajectory(rec)
         try:
-            traj = load_trajectory(shard / rec.files["trajectory"])
             if registry is not None:
                 camera = registry.get(rec.embodiment).load_camera(shard / rec.files["camera"])
             else:
                 camera = load_camera(shard / rec.files["camera"])
         except InputFileError as exc:
             raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
-        if len(traj) != rec.n_frames:
-            raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
         if camera.num_frames is not None and camera.num_frames != rec.n_frames:  # one extrinsic per frame
             raise ClipFormatError(shard, rec.id, "camera", f"{rec.n_frames} per-frame extrinsics (n_frames)",
                                   f"{camera.num_frames}")

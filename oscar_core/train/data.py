@@ -120,20 +120,10 @@ class TrainData:
             return f.get_tensor("starts").numpy().astype(np.int64)
 
     def _check_files(self, cs: ClipSet, rec: ClipRecord) -> None:
-        from ..errors import InputFileError
-        from ..trajectory import load_trajectory
         from ..video import video_info
 
         shard = cs.shard_of[rec.id]
-        for role, rel in rec.files.items():
-            if not (shard / rel).exists():
-                raise ClipFormatError(shard, rec.id, f"files.{role}", f"a file at {rel}", "no such file")
-        try:
-            traj = load_trajectory(shard / rec.files["trajectory"])
-        except InputFileError as exc:
-            raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
-        if len(traj) != rec.n_frames:
-            raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
+        cs.read_trajectory(rec)  # every file present, the trajectory n_frames long
         for role in ("rgb", "skeleton"):
             if role in rec.files:
                 try:
