@@ -99,24 +99,13 @@ def probe_video(episode_id: str, path: Path, n_frames: int, fps: float | None, *
     cut off) fails here, as does a shared file that ends inside the episode.
     fps: the episode's frame rate (None: the video's own).
     """
-    av = require("av", reader or "video")
     path = Path(path)
-    if not path.is_file():
-        raise EpisodeError(episode_id, path, field, "a video file", "no such file")
-    try:
-        with av.open(str(path)) as container:
-            if not container.streams.video:
-                raise EpisodeError(episode_id, path, field, "a video stream", "none")
-            s = container.streams.video[0]
-            rate = float(s.average_rate) if s.average_rate else None
-            fps = float(fps or rate or 0.0)
-            if fps <= 0:
-                raise EpisodeError(episode_id, path, field, "a frame rate (from the dataset or the video)", "none")
-            have = _count_packets(container, s, start, n_frames, fps)
-    except EpisodeError:
-        raise
-    except (av.error.FFmpegError, OSError) as e:
-        raise EpisodeError(episode_id, path, field, "a readable video", f"{type(e).__name__}: {e}") from None
+    with _open_video(episode_id, path, field, reader) as (container, s):
+        rate = float(s.average_rate) if s.average_rate else None
+        fps = float(fps or rate or 0.0)
+        if fps <= 0:
+            raise EpisodeError(episode_id, path, field, "a frame rate (from the dataset or the video)", "none")
+        have = _count_packets(container, s, start, n_frames, fps)
     if have < n_frames:
         raise EpisodeError(episode_id, path, field,
                            f"{n_frames} frames at {fps:g} fps from {start:g} s (one per state frame)",
@@ -145,17 +134,22 @@ def _count_packets(container, stream, start: float, n_frames: int, fps: float) -
 
 def video_header(episode_id: str, path: Path, field: str = "video", reader: str = "") -> tuple[float | None, int, int]:
     """(frame rate or None, width, height) of a video, from its header only; :class:`EpisodeError` if unreadable."""
+    with _open_video(episode_id, Path(path), field, reader) as (_, s):
+        return (float(s.average_rate) if s.average_rate else None, int(s.codec_context.width),
+                int(s.codec_context.height))
+
+
+@contextlib.contextmanager
+def _open_video(episode_id: str, path: Path, field: str, reader: str):
+    """Open a video and yield (container, its first video stream); any failure is an :class:`EpisodeError`."""
     av = require("av", reader or "video")
-    path = Path(path)
     if not path.is_file():
         raise EpisodeError(episode_id, path, field, "a video file", "no such file")
     try:
         with av.open(str(path)) as container:
             if not container.streams.video:
                 raise EpisodeError(episode_id, path, field, "a video stream", "none")
-            s = container.streams.video[0]
-            return (float(s.average_rate) if s.average_rate else None, int(s.codec_context.width),
-                    int(s.codec_context.height))
+            yield container, container.streams.video[0]
     except EpisodeError:
         raise
     except (av.error.FFmpegError, OSError) as e:
