@@ -443,16 +443,15 @@ class Embodiment:
 
         return load_camera(path, defaults=self.camera)
 
-    def check_camera(self, camera, source: str = "<camera>", num_frames: int | None = None):
-        """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment,
-        or (given ``num_frames``, the trajectory's T) has per-frame extrinsics for another frame count.
+    def check_camera(self, camera, source: str = "<camera>"):
+        """Raise :class:`CameraFileError` if ``camera`` was calibrated for another mount or embodiment.
 
         A static camera (in the world / robot base frame) fits every
         embodiment; a camera riding on a link must ride on this embodiment's
-        ``camera.mount_link`` (its head camera, say).
+        ``camera.mount_link`` (its head camera, say). A camera with one
+        extrinsic per frame is checked against the trajectory's length by
+        :meth:`Camera.check_frames`, where the renderer meets both.
         """
-        if num_frames is not None:
-            camera.check_frames(num_frames, source)
         if camera.embodiment is not None and camera.embodiment != self.name:
             raise CameraFileError(source, "embodiment", f"{self.name!r}", repr(camera.embodiment))
         if camera.mount_link is not None and camera.mount_link != self.camera.mount_link:
