@@ -166,7 +166,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
     base = pts[:, 0].mean(0)
     scale = float(np.percentile(np.linalg.norm(ee - base, axis=1), 90))
     scale = max(scale, 1e-3)
-    R = 0.07 * scale
+    R = 0.09 * scale  # a ball about 7 pixels across at 64 x 64
     above = (pts[..., 2].min(1) >= -0.02 * scale) & (ee[:, 2] >= R)
     far = np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale
     valid = np.flatnonzero(above & far)

@@ -74,7 +74,7 @@ def sample_scene(rng: np.random.Generator, n_edges: int, scale: float) -> Scene:
     offset = int(rng.integers(len(LINK_HUES)))
     links = np.stack([_hsv(LINK_HUES[(offset + e) % len(LINK_HUES)] + rng.uniform(-8, 8), rng.uniform(0.45, 0.7),
                            rng.uniform(0.7, 0.95)) for e in range(n_edges)]) if n_edges else np.zeros((0, 3))
-    return Scene(np.stack([c1, c2]), float(scale * rng.uniform(0.12, 0.3)), int(rng.integers(2**31)), sky_top,
+    return Scene(np.stack([c1, c2]), float(scale * rng.uniform(0.3, 0.6)), int(rng.integers(2**31)), sky_top,
                  sky_bottom, light, links, float(scale * rng.uniform(3.0, 6.0)))
 
 
@@ -118,10 +118,11 @@ def background(scene: Scene, camera: Camera) -> tuple[np.ndarray, np.ndarray, np
     elev = dirs[..., 2] / np.linalg.norm(dirs, axis=-1)
     g = np.clip((elev + 0.3) / 1.0, 0.0, 1.0)[..., None]
     sky = scene.sky_bottom * (1 - g) + scene.sky_top * g
-    # floor: checker tiles with value noise, lit by the light (floor normal is world +z)
+    # floor: checker tiles with faint value noise, lit by the light (floor normal is world +z); tiles of
+    # 0.3-0.6 reach and noise at 1.5 tiles keep the floor low-frequency, which a small VAE can reproduce
     checker = ((np.floor(xy[..., 0] / scene.tile) + np.floor(xy[..., 1] / scene.tile)) % 2).astype(int)
     base = scene.floor_colors[checker]
-    base = base * (0.8 + 0.4 * _value_noise(scene.noise_seed, xy, scene.tile * 0.7))[..., None]
+    base = base * (0.9 + 0.2 * _value_noise(scene.noise_seed, xy, scene.tile * 1.5))[..., None]
     n_cam = R.T @ np.array([0.0, 0.0, 1.0])
     floor = scene.light.shade(np.broadcast_to(n_cam, (H * W, 3)), base.reshape(-1, 3)).reshape(H, W, 3)
     fog = np.clip(np.where(hit, t, np.inf) / scene.fog, 0.0, 1.0)[..., None] ** 2

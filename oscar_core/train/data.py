@@ -64,6 +64,8 @@ class TrainData:
         self.registry = registry if registry is not None else Registry()
         d = config.data
         self.window, self.size = d.window, (d.width, d.height)
+        # spatial compression of cached latents: the VAE's when one is given (the toy world's is 4), else WAN's 8
+        self.spatial = int(getattr(vae, "spatial", 8)) if vae is not None else 8
         self.skipped: list[dict] = []
         self.clips: list[UsableClip] = []
         for root in d.clips:
@@ -115,7 +117,7 @@ class TrainData:
             if int(meta.get("window", -1)) != self.window:
                 return None
             video = f.get_slice("video").get_shape()
-            if video[-2:] != [self.size[1] // 8, self.size[0] // 8]:
+            if video[-2:] != [self.size[1] // self.spatial, self.size[0] // self.spatial]:
                 return None
             return f.get_tensor("starts").numpy().astype(np.int64)
 
@@ -144,7 +146,7 @@ class TrainData:
             bad = next(c for c in self.clips if c.starts is None or not len(c.starts))
             raise ClipFormatError(bad.clipset.shard_of[bad.record.id], bad.record.id, "latents",
                                   f"cached latents of {self.window}-frame windows at "
-                                  f"{self.size[0] // 8}x{self.size[1] // 8} (data.latents: cached)",
+                                  f"{self.size[0] // self.spatial}x{self.size[1] // self.spatial} (data.latents: cached)",
                                   "none" if "latents" not in bad.record.files else "another window or size")
         return mode == "cached" or (mode == "auto" and have)
 

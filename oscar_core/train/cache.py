@@ -1,0 +1,110 @@
+"""Cache VAE latents in a clip set, so that training runs without the VAE in the loop.
+
+``cache_latents(SRC, OUT, vae)`` copies every clip of the clip set ``SRC``
+into ``OUT`` with a ``latents.safetensors`` added (docs/formats.md, "Training
+clips"): the normalised latents of both streams for windows of ``window``
+frames starting every ``stride`` frames, at the clip's own size. The skeleton
+is the clip's stored skeleton video, else rendered from trajectory + camera +
+embodiment. A clip shorter than the window gets no latents (the trainer then
+encodes it on the fly or skips it, as its config says).
+
+Work is per shard: a shard already finished in ``OUT`` is kept, so a killed
+run resumes where it stopped and nothing is written twice.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["CacheSummary", "cache_latents", "window_starts"]
+
+
+@dataclass
+class CacheSummary:
+    """What a run did: shards written and kept, clips with latents, clips without (too short), seconds."""
+
+    out: str
+    shards_written: int
+    shards_kept: int
+    clips_cached: int
+    clips_too_short: int
+    wall_s: float
+
+
+def window_starts(n_frames: int, window: int, stride: int) -> np.ndarray:
+    """(N,) int64 window starts 0, stride, 2·stride, … with start + window <= n_frames (empty when too short)."""
+    if window < 1 or stride < 1:
+        raise ValueError(f"window and stride: expected >= 1, found {window} and {stride}")
+    if n_frames < window:
+        return np.zeros(0, dtype=np.int64)
+    return np.arange(0, n_frames - window + 1, stride, dtype=np.int64)
+
+
+def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_name: str = "",
+                  registry=None, log: Callable[[str], None] = print) -> CacheSummary:
+    """Write ``OUT``: the clip set ``SRC`` with cached latents of ``window``-frame windows.
+
+    vae: a :class:`~oscar_core.model.vae.VideoVAE`; window: frames per window
+    (4k + 1); stride: frames between window starts (default: the window, i.e.
+    non-overlapping); vae_name: recorded in each file's metadata (default: the
+    VAE config's hash). Returns a :class:`CacheSummary`.
+    """
+    import hashlib
+    import json
+
+    import torch
+
+    from ..model.vae import check_frame_count
+    from ..pipeline import render_skeleton_video
+    from ..registry import Registry
+    from .clips import Clip, ClipSet, ClipSetWriter
+
+    check_frame_count(window, what="window")
+    stride = int(stride or window)
+    source = ClipSet(src)
+    if Path(out).resolve() == source.root.resolve():
+        raise ValueError(f"{out}: expected an output folder other than the source clip set")
+    registry = registry if registry is not None else Registry()
+    if not vae_name:
+        cfg = json.dumps(dict(vae.vae.config), sort_keys=True, default=str)
+        vae_name = "config-sha256:" + hashlib.sha256(cfg.encode()).hexdigest()[:16]
+    writer = ClipSetWriter(out)
+    writer.remove_stale()
+    by_shard: dict[Path, list] = {}
+    for rec in source:
+        by_shard.setdefault(source.shard_of[rec.id], []).append(rec)
+    t0 = time.perf_counter()
+    written = kept = cached = short = 0
+    for shard, recs in sorted(by_shard.items()):
+        if writer.shard_done(shard.name):
+            kept += 1
+            continue
+        with writer.shard(shard.name) as sw:
+            for rec in recs:
+                clip = source.load(rec, registry=registry)
+                starts = window_starts(rec.n_frames, window, stride)
+                if len(starts):
+                    skel = clip.skeleton
+                    if skel is None:
+                        skel = render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera,
+                                                     (rec.width, rec.height),
+                                                     camera_source=str(source.path(rec, "camera")))
+                    with torch.no_grad():
+                        video = torch.cat([vae.encode(vae.to_pixels(clip.rgb[s:s + window])) for s in starts])
+                        skeleton = torch.cat([vae.encode(vae.to_pixels(skel[s:s + window])) for s in starts])
+                    clip = Clip(rec, rgb=clip.rgb, trajectory=clip.trajectory, camera=clip.camera, skeleton=clip.skeleton,
+                                prompt_embeds=clip.prompt_embeds,
+                                latents={"video": video.float(), "skeleton": skeleton.float(), "starts": starts,
+                                         "window": window, "vae": vae_name})
+                    cached += 1
+                else:
+                    short += 1
+                sw.add(clip)
+        written += 1
+        log(f"{shard.name}: {len(recs)} clips ({cached} cached so far, {time.perf_counter() - t0:.0f} s)")
+    return CacheSummary(str(out), written, kept, cached, short, round(time.perf_counter() - t0, 1))
