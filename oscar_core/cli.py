@@ -69,7 +69,8 @@ def cmd_demo(args) -> int:
     from .pipeline import parse_size
     from .registry import Registry
 
-    run_demo(args.out, size=parse_size(args.size), registry=Registry(plugin_paths=args.plugin or ()))
+    run_demo(args.out, size=parse_size(args.size), registry=Registry(plugin_paths=args.plugin or ()),
+             toy_model=None if args.no_toy_world else args.toy_model)
     return 0
 
 
@@ -89,9 +90,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_render_parser(sub)
 
-    d = sub.add_parser("demo", help="render every embodiment's bundled example (MP4s + contact sheet)")
+    d = sub.add_parser("demo", help="render every embodiment's bundled example and roll the toy world model out "
+                                    "(MP4s + contact sheet)")
     d.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
     d.add_argument("--size", default="512x288", help="output WIDTHxHEIGHT (default 512x288)")
+    d.add_argument("--toy-model", default="oscar-toy", help="toy-world model rolled out on a held-out episode "
+                                                             "(default oscar-toy, bundled)")
+    d.add_argument("--no-toy-world", action="store_true", help="skip the toy-world rollout")
     d.set_defaults(func=cmd_demo)
 
     from .metrics.cli import add_eval_parser

@@ -58,9 +58,30 @@ def _write_png(path: Path, image: np.ndarray) -> None:
             raise OSError(f"could not encode {path}")
 
 
+def _toy_world_row(out_dir: Path, toy_model, registry, rows, labels, summary, log) -> None:
+    """Add the toy world's rollout (rollout | ground truth | skeleton) as a video and a contact-sheet row."""
+    from .toyworld.demo import toy_rollout_demo
+
+    try:
+        video, info = toy_rollout_demo(out_dir, toy_model, registry)
+    except (OscarError, OSError, ValueError) as exc:
+        summary["skipped"].append({"toy_world": str(toy_model), "reason": str(exc)})
+        log(f"skipped the toy-world rollout: {exc}")
+        return
+    rows.append(video)
+    labels.append("oscar-toy")
+    summary["toy_world"] = info
+    log(f"toy world: {info['model']} rolled out on held-out episode {info['episode']} in {info['rollout_seconds']:.1f} s "
+        f"(PSNR {info['psnr_db']:.1f} dB) -> {info['path']} (rollout | ground truth | skeleton)")
+
+
 def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: Registry | None = None,
-             names: list[str] | None = None, log=print) -> dict:
+             names: list[str] | None = None, log=print, toy_model: str | None = "oscar-toy") -> dict:
     """Render each embodiment's bundled example to ``out_dir/<name>.mp4`` plus ``contact_sheet.png``.
+
+    toy_model: also roll this toy-world model (zoo name or folder) out on a
+    held-out episode (``toyworld_rollout.mp4`` + a contact-sheet row); None
+    skips it.
 
     Returns a summary dict (also written as ``out_dir/summary.json``).
     """
@@ -96,6 +117,8 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
         log(f"{name}: {len(video)} frames -> {path} (rendered in {t_render * 1000:.0f} ms)")
     if not rows:
         raise RuntimeError(f"no embodiment with a bundled example; registered: {registry.names()}")
+    if toy_model:
+        _toy_world_row(out_dir, toy_model, registry, rows, labels, summary, log)
     sheet_path = out_dir / "contact_sheet.png"
     _write_png(sheet_path, contact_sheet(rows, labels=labels))
     summary["contact_sheet"] = str(sheet_path)

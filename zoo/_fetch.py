@@ -83,6 +83,9 @@ def resolve(name_or_repo_or_path, revision: str | None = None) -> Resolved:
         return Resolved(str(path), folder=path)
     for spec in list_models():
         if spec.name == text:
+            if revision is not None and spec.bundled:
+                raise UnknownModelError(f"model {text!r}: expected no revision (it is bundled with oscar-wm), "
+                                        f"found {revision!r}")
             if revision is not None:
                 spec = _replace_revision(spec, revision)
             return Resolved(f"{spec.name} ({spec.repo_id}@{spec.revision or 'main'})", spec=spec)
@@ -98,6 +101,15 @@ def resolve(name_or_repo_or_path, revision: str | None = None) -> Resolved:
     known = ", ".join(s.name for s in list_models())
     raise UnknownModelError(f"model {text!r}: expected a zoo name ({known}), a Hub repo id 'owner/name' or an "
                             f"existing folder, found none of these")
+
+
+def bundled_folder(spec: CheckpointSpec) -> Path:
+    """The folder of a checkpoint shipped inside the ``oscar_zoo`` package (``spec.bundled``)."""
+    folder = Path(__file__).resolve().parent / spec.bundled
+    if not folder.is_dir():
+        raise CheckpointLayoutError(spec.name, "bundled", f"the folder {folder} shipped with oscar-wm",
+                                    "no such folder", "reinstall oscar-wm")
+    return folder
 
 
 def _replace_revision(spec: CheckpointSpec, revision: str) -> CheckpointSpec:
@@ -186,6 +198,15 @@ def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only
             verify_folder(folder, {}, label=str(folder), files=need)
         return Fetched(folder, layout, str(folder), None, tuple(need))
     spec = resolved.spec
+    if spec.bundled:  # shipped inside the package: no Hub, no cache, every file's sha256 pinned
+        folder = bundled_folder(spec)
+        files = list_folder(folder)
+        layout = detect_layout(files, resolved.label, native_file)
+        need = needed_files(layout, files)
+        if verify or update_lock:
+            verify_folder(folder, {f.path: f.sha256 for f in spec.files}, label=resolved.label, files=need,
+                          name=spec.name)
+        return Fetched(folder, layout, resolved.label, None, tuple(need))
     endpoint = endpoint or os.environ.get("HF_ENDPOINT") or None
     cache_dir = str(cache_dir) if cache_dir is not None else (os.environ.get("HF_HUB_CACHE") or None)
     revision = resolved.revision

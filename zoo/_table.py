@@ -57,6 +57,9 @@ class CheckpointSpec:
     revision: branch, tag or commit on the Hub; None = "main", unpinned.
     files: files checked after download; the loader fetches what the layout
         needs (configs, single or sharded safetensors) in any case.
+    bundled: a folder inside the ``oscar_zoo`` package that holds the
+        checkpoint (shipped with the library, loaded offline, every file's
+        sha256 pinned in ``files``); None for checkpoints on the Hub.
     chunk_frames, width, height, fps: what the model expects (None: unknown).
     """
 
@@ -74,6 +77,7 @@ class CheckpointSpec:
     files: tuple[FileSpec, ...] = ()
     text_encoder_id: str | None = None
     notes: str = ""
+    bundled: str | None = None
     source: str = field(default="table", compare=False)
 
     @property
@@ -88,7 +92,8 @@ class CheckpointSpec:
                 "kind": self.kind, "license": self.license, "paper": self.paper,
                 "embodiments": list(self.embodiments), "chunk_frames": self.chunk_frames,
                 "resolution": f"{self.width}x{self.height}" if self.width and self.height else None, "fps": self.fps,
-                "files": {f.path: f.sha256 for f in self.files}, "source": self.source, "notes": self.notes}
+                "files": {f.path: f.sha256 for f in self.files}, "source": self.source, "notes": self.notes,
+                "bundled": self.bundled}
 
 
 _OSCAR_LAYOUT = (FileSpec("oscar_model.json"), FileSpec("transformer/config.json"), FileSpec("vae/config.json"))

@@ -160,7 +160,8 @@ def cmd_zoo_list(args) -> int:
     header = ("name", "repo@revision", "kind", "license", "embodiments", "frames", "size", "fps")
     rows = [header]
     for s in specs:
-        rows.append((s.name, f"{s.repo_id}@{s.revision or 'main (unpinned)'}", s.kind, s.license or "?",
+        where = "bundled with oscar-wm" if s.bundled else f"{s.repo_id}@{s.revision or 'main (unpinned)'}"
+        rows.append((s.name, where, s.kind, s.license or "?",
                      ",".join(s.embodiments) or "-", str(s.chunk_frames or "?"),
                      f"{s.width}x{s.height}" if s.width and s.height else "?", f"{s.fps:g}" if s.fps else "?"))
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]

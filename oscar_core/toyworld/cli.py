@@ -57,7 +57,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     d = VAETrainConfig()
     for name in ("steps", "batch", "window", "seed", "threads", "base_dim", "eval_every", "eval_clips"):
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
-    for name in ("lr", "kl", "max_minutes"):
+    for name in ("lr", "kl", "chroma", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
     v.set_defaults(func=cmd_train_vae)
@@ -79,6 +79,23 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
     b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     b.set_defaults(func=cmd_baseline)
+
+    o = sub.add_parser("rollout", help="roll a world model out on every clip of a split (true / shuffled / zero "
+                                       "skeleton) as predictions for eval", epilog=EXAMPLES, formatter_class=fmt)
+    o.add_argument("clips", help="clip set (first frames and skeletons come from it)")
+    o.add_argument("--model", required=True, help="zoo name (oscar-toy) or model folder")
+    o.add_argument("--condition", default="true", choices=("true", "shuffled", "zero"),
+                   help="the skeleton the model sees (default true)")
+    o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)")
+    o.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    o.add_argument("--limit", type=int, help="at most this many clips")
+    o.add_argument("--steps", type=int, default=None, help="sampler steps (default: the model card's, else 35)")
+    o.add_argument("--guidance", type=float, default=None, help="guidance w (default: the model card's, else 6)")
+    o.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
+                   help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)")
+    o.add_argument("--seed", type=int, default=0, help="noise seed (default 0; the same for every condition)")
+    o.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    o.set_defaults(func=cmd_rollout)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)
@@ -129,7 +146,7 @@ def cmd_generate(args) -> int:
 def cmd_train_vae(args) -> int:
     from .vae_train import VAETrainConfig, train_vae
 
-    cfg = VAETrainConfig(steps=args.steps, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, seed=args.seed,
+    cfg = VAETrainConfig(steps=args.steps, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, chroma=args.chroma, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
                          eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init)
     card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
@@ -152,6 +169,25 @@ def cmd_baseline(args) -> int:
 
     ids = write_baseline(args.clips, args.out, args.kind, None if args.split == "all" else args.split)
     print(f"{args.out}: {len(ids)} {args.kind} predictions")
+    return 0
+
+
+def cmd_rollout(args) -> int:
+    import torch
+
+    import oscar_zoo
+
+    from .rollouts import sampler_for_card, write_rollouts
+
+    torch.set_num_threads(max(1, args.threads))
+    model = oscar_zoo.load(args.model)
+    sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form)
+    summary = write_rollouts(model, args.clips, args.out, args.condition,
+                             split=None if args.split == "all" else args.split, limit=args.limit, sampler=sampler,
+                             seed=args.seed, registry=_registry(args))
+    per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
+    print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
+          f"an earlier run{per}")
     return 0
 
 

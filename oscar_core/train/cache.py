@@ -46,13 +46,19 @@ def window_starts(n_frames: int, window: int, stride: int) -> np.ndarray:
 
 
 def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_name: str = "",
-                  registry=None, log: Callable[[str], None] = print) -> CacheSummary:
+                  split: str | None = None, batch: int = 8, registry=None,
+                  log: Callable[[str], None] = print) -> CacheSummary:
     """Write ``OUT``: the clip set ``SRC`` with cached latents of ``window``-frame windows.
 
     vae: a :class:`~oscar_core.model.vae.VideoVAE`; window: frames per window
     (4k + 1); stride: frames between window starts (default: the window, i.e.
     non-overlapping); vae_name: recorded in each file's metadata (default: the
-    VAE config's hash). Returns a :class:`CacheSummary`.
+    VAE config's hash); split: copy only the clips whose ``meta.split`` is this
+    (e.g. ``"train"``, leaving held-out clips out of training); batch: windows
+    per VAE call (the toy VAE encodes 4x faster per clip at 16 than at 1;
+    memory grows with it: 8 windows of 81 frames at 512x288 are ~1.2 GB of
+    float32 pixels). Returns a
+    :class:`CacheSummary`.
     """
     import hashlib
     import json
@@ -65,6 +71,8 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     from .clips import Clip, ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")
+    if batch < 1:
+        raise ValueError(f"batch: expected >= 1, found {batch}")
     stride = int(stride or window)
     source = ClipSet(src)
     if Path(out).resolve() == source.root.resolve():
@@ -77,6 +85,8 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     writer.remove_stale()
     by_shard: dict[Path, list] = {}
     for rec in source:
+        if split is not None and rec.meta.get("split") != split:
+            continue
         by_shard.setdefault(source.shard_of[rec.id], []).append(rec)
     t0 = time.perf_counter()
     written = kept = cached = short = 0
@@ -84,22 +94,32 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
         if writer.shard_done(shard.name):
             kept += 1
             continue
+        # read every clip of the shard, encode all windows of both streams in batches, then write the clips
+        loaded, windows = [], []
+        for rec in recs:
+            clip = source.load(rec, registry=registry)
+            starts = window_starts(rec.n_frames, window, stride)
+            skel = clip.skeleton
+            if len(starts) and skel is None:
+                skel = render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera,
+                                             (rec.width, rec.height), camera_source=str(source.path(rec, "camera")))
+            loaded.append((rec, clip, starts))
+            windows += [(len(loaded) - 1, "video", clip.rgb[s:s + window]) for s in starts]
+            windows += [(len(loaded) - 1, "skeleton", skel[s:s + window]) for s in starts]
+        encoded: dict[tuple[int, str], list] = {}
+        with torch.no_grad():
+            for i in range(0, len(windows), batch):
+                part = windows[i:i + batch]
+                z = vae.encode(vae.to_pixels(np.stack([w for _, _, w in part])))
+                for (k, role, _), zk in zip(part, z):
+                    encoded.setdefault((k, role), []).append(zk)
         with writer.shard(shard.name) as sw:
-            for rec in recs:
-                clip = source.load(rec, registry=registry)
-                starts = window_starts(rec.n_frames, window, stride)
+            for k, (rec, clip, starts) in enumerate(loaded):
                 if len(starts):
-                    skel = clip.skeleton
-                    if skel is None:
-                        skel = render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera,
-                                                     (rec.width, rec.height),
-                                                     camera_source=str(source.path(rec, "camera")))
-                    with torch.no_grad():
-                        video = torch.cat([vae.encode(vae.to_pixels(clip.rgb[s:s + window])) for s in starts])
-                        skeleton = torch.cat([vae.encode(vae.to_pixels(skel[s:s + window])) for s in starts])
                     clip = Clip(rec, rgb=clip.rgb, trajectory=clip.trajectory, camera=clip.camera, skeleton=clip.skeleton,
                                 prompt_embeds=clip.prompt_embeds,
-                                latents={"video": video.float(), "skeleton": skeleton.float(), "starts": starts,
+                                latents={"video": torch.stack(encoded[k, "video"]).float(),
+                                         "skeleton": torch.stack(encoded[k, "skeleton"]).float(), "starts": starts,
                                          "window": window, "vae": vae_name})
                     cached += 1
                 else:

@@ -18,6 +18,8 @@ EXAMPLES = """examples:
   oscar train --export runs/tiny-cpu --out my_model  (EMA weights of the latest checkpoint)
   torchrun --nproc-per-node 4 -m oscar_core.train configs/train/oscar-2b.yaml
   oscar rollout --model runs/tiny-cpu/export ...     (an exported run is a model folder)
+  oscar train --cache-latents clipsets/toy --vae runs/toy-vae --window 17 --out clipsets/toy-latents
+                                                     (a copy of a clip set with cached VAE latents)
 """
 
 
@@ -31,7 +33,16 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", nargs="?", help="training config (YAML; see configs/train/ and docs/training.md)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its latest checkpoint")
     p.add_argument("--export", metavar="RUN_DIR", help="export a run's checkpoint as a model folder and exit")
-    p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export)")
+    p.add_argument("--cache-latents", metavar="CLIPS", help="write a copy of a clip set with cached VAE latents "
+                                                            "(needs --vae, --window, --out) and exit")
+    p.add_argument("--vae", help="with --cache-latents: an AutoencoderKLWan folder or an OSCAR model folder")
+    p.add_argument("--window", type=int, help="with --cache-latents: frames per window (4k+1)")
+    p.add_argument("--stride", type=int, help="with --cache-latents: frames between window starts (default: window)")
+    p.add_argument("--threads", type=int, help="with --cache-latents: torch threads (default: torch's)")
+    p.add_argument("--split", help="with --cache-latents: copy only clips whose meta.split is this (e.g. train)")
+    p.add_argument("--batch", type=int, default=8, help="with --cache-latents: windows per VAE call (default 8)")
+    p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
+                                 "the new clip set")
     p.add_argument("--step", type=int, help="with --export: the checkpoint's step (default: the latest)")
     p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -58,10 +69,12 @@ def build_train_parser() -> argparse.ArgumentParser:
 def cmd_train(args) -> int:
     from .config import TrainConfigError, load_config
 
-    modes = [bool(args.config), bool(args.resume), bool(args.export)]
+    modes = [bool(args.config), bool(args.resume), bool(args.export), bool(args.cache_latents)]
     if sum(modes) != 1:
-        raise TrainConfigError("<command line>", "config / --resume / --export", "exactly one of them",
-                               f"{sum(modes)} given")
+        raise TrainConfigError("<command line>", "config / --resume / --export / --cache-latents",
+                               "exactly one of them", f"{sum(modes)} given")
+    if args.cache_latents:
+        return _cache_latents(args)
     if args.export:
         from .export import export_run
 
@@ -90,4 +103,29 @@ def cmd_train(args) -> int:
         loss = "no steps left to run" if result.last_loss is None else f"loss {result.last_loss:.4f}"
         print(json.dumps(summary) if args.json else f"trained {summary['run_dir']} to step {summary['step']} ({loss})"
               + (f"; exported to {summary['export']}" if summary["export"] else ""))
+    return 0
+
+
+def _cache_latents(args) -> int:
+    from dataclasses import asdict
+
+    from .cache import cache_latents
+    from .config import TrainConfig, TrainConfigError
+    from .models import build_vae
+
+    for flag in ("vae", "window", "out"):
+        if getattr(args, flag) is None:
+            raise TrainConfigError("<command line>", f"--{flag}", "given with --cache-latents", "missing")
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    config = TrainConfig()
+    config.model.vae = args.vae
+    vae = build_vae(config, source="--vae")
+    summary = cache_latents(args.cache_latents, args.out, vae, args.window, args.stride, split=args.split, batch=args.batch,
+                            log=(lambda _m: None) if args.json else print)
+    print(json.dumps(asdict(summary)) if args.json else
+          f"{summary.out}: {summary.clips_cached} clips cached, {summary.clips_too_short} too short for the window; "
+          f"{summary.shards_written} shards written, {summary.shards_kept} kept from an earlier run ({summary.wall_s} s)")
     return 0

@@ -1,0 +1,122 @@
+"""World-model predictions for the toy-world table: roll a model out on each clip under one skeleton condition.
+
+Conditions (the rows of ``oscar toyworld eval``'s table):
+
+* ``true``: the clip's own skeleton video (stored, else rendered from its
+  trajectory + camera);
+* ``shuffled``: the skeleton of another clip of the same embodiment (clip i
+  takes clip i + 1's, cyclically within the embodiment, over the clips of the
+  split: a fixed derangement, so every clip gets a foreign skeleton);
+* ``zero``: the model's unconditional branch alone (the skeleton it was
+  trained to see when the skeleton is dropped: ``guidance 0`` in the
+  ``standard`` form, whatever skeleton is passed).
+
+Every rollout starts from the clip's true first frame, runs ``n_frames``
+frames in chunks of the model card's length, uses the empty (zero) prompt of
+the toy model, and is seeded by ``seed`` (the same noise for every condition).
+Predictions are written as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8), the
+layout ``oscar toyworld eval`` reads; a clip already written is skipped, so a
+killed run resumes.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .._atomic import atomic_write_bytes
+
+__all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card"]
+
+CONDITIONS = ("true", "shuffled", "zero")
+
+
+def skeleton_partners(records) -> dict[str, str]:
+    """clip id → the clip id whose skeleton the ``shuffled`` condition uses (next clip of the same embodiment).
+
+    An embodiment with a single clip keeps its own (nothing to shuffle with).
+    """
+    by_emb: dict[str, list[str]] = {}
+    for r in records:
+        by_emb.setdefault(r.embodiment, []).append(r.id)
+    out = {}
+    for ids in by_emb.values():
+        for i, cid in enumerate(ids):
+            out[cid] = ids[(i + 1) % len(ids)]
+    return out
+
+
+def sampler_for_card(card, steps: int | None = None, guidance: float | None = None,
+                     guidance_form: str = "diffusers"):
+    """A ``SamplerConfig``: the given steps / guidance, else the library's defaults (35 steps, guidance 6)."""
+    from ..model.sampler import SamplerConfig
+
+    d = SamplerConfig()
+    return SamplerConfig(steps=steps or d.steps, guidance=d.guidance if guidance is None else guidance,
+                         guidance_form=guidance_form)
+
+
+def _skeleton(cs, rec, registry) -> np.ndarray:
+    from ..pipeline import render_skeleton_video
+
+    clip = cs.load(rec, video=False, skeleton=True, registry=registry)
+    if clip.skeleton is not None:
+        return clip.skeleton
+    return render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
+                                 camera_source=str(cs.path(rec, "camera")))
+
+
+def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
+                   limit: int | None = None, sampler=None, seed: int = 0, registry=None,
+                   log: Callable[[str], None] | None = None) -> dict:
+    """Roll ``model`` (an ``OscarWorldModel``) out on every clip of ``split`` under ``condition``; see the module.
+
+    sampler: a :class:`~oscar_core.model.sampler.SamplerConfig` (default: the
+    library's, 35 UniPC steps, guidance 6 diffusers form); for ``zero`` its
+    guidance is replaced by the unconditional branch. Returns a summary:
+    clips written and kept, seconds per rollout.
+    """
+    from ..model.sampler import SamplerConfig
+    from ..registry import Registry
+    from ..train.clips import ClipSet
+
+    if condition not in CONDITIONS:
+        raise ValueError(f"condition: expected one of {CONDITIONS}, found {condition!r}")
+    sampler = sampler or SamplerConfig()
+    if condition == "zero":
+        sampler = replace(sampler, guidance=0.0, guidance_form="standard")
+    registry = registry if registry is not None else Registry()
+    cs = ClipSet(clipset)
+    recs = [r for r in cs if split is None or r.meta.get("split") == split][:limit]
+    if not recs:
+        raise ValueError(f"{cs.root}: expected clips with meta.split == {split!r}, found none")
+    partner = skeleton_partners(recs)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = kept = 0
+    seconds = []
+    for rec in recs:
+        target = out / f"{rec.id}.npy"
+        if target.is_file():
+            kept += 1
+            continue
+        first = cs.load(rec, frames=1, skeleton=False).rgb[0]
+        source = cs.record(partner[rec.id]) if condition == "shuffled" else rec
+        skel = _skeleton(cs, source, registry)[:rec.n_frames]
+        t0 = time.perf_counter()
+        video = model.rollout(first, skel, sampler=sampler, seed=seed, progress=False, keep_chunks=False)
+        seconds.append(time.perf_counter() - t0)
+        frames = np.asarray(video.frames if hasattr(video, "frames") else video)
+        buf = io.BytesIO()
+        np.save(buf, frames.astype(np.uint8))
+        atomic_write_bytes(target, buf.getvalue())
+        written += 1
+        if log:
+            log(f"{rec.id}: {condition} rollout {seconds[-1]:.2f} s")
+    return {"condition": condition, "written": written, "kept": kept,
+            "s_per_rollout": float(np.mean(seconds)) if seconds else None}
