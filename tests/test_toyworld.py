@@ -400,3 +400,19 @@ def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
     again = OscarWorldModel.from_pretrained(tmp_path / "model")
     for (k, a), (_, b) in zip(vae.state_dict().items(), again.vae.vae.state_dict().items()):
         assert torch.equal(a, b), k
+
+
+def test_motion_iou_on_known_masks():
+    from oscar_core.toyworld.evaluate import motion_iou, motion_mask
+
+    gt = np.full((3, 8, 8, 3), 50, np.uint8)
+    gt[1:, 0:2, 0:4] = 200  # 8 pixels change in frames 1 and 2
+    pred = np.full((3, 8, 8, 3), 50, np.uint8)
+    pred[1:, 0:2, 2:6] = 200  # 8 pixels change, 4 of them where the truth changed
+    assert motion_mask(gt).sum() == 16
+    assert motion_iou(pred, gt) == pytest.approx(8 / 24)  # per frame 4 shared of 12 in the union
+    assert motion_iou(gt, gt) == 1.0
+    grey = gt.mean(-1, keepdims=True).astype(np.uint8).repeat(3, -1)
+    assert motion_iou(grey, gt) == 1.0  # colour-free: a grey rendering of the same motion scores 1
+    still = np.full((3, 8, 8, 3), 50, np.uint8)
+    assert motion_iou(still, gt) == 0.0 and np.isnan(motion_iou(still, still))

@@ -82,7 +82,8 @@ def test_train_split_shuffles_across_clips_and_resume_keeps_written(tmp_path, cl
     t = write_rollouts(model, clips, tmp_path / "tr", "true", split="train", limit=3, sampler=FAST)
     b = {p.stem: np.load(p) for p in (tmp_path / "tr").glob("*.npy")}
     assert t["written"] == 3 and all(not np.array_equal(a[k], b[k]) for k in a)
-    (tmp_path / "sh" / "toyarm-000000.npy").unlink()
+    assert {k.split("-")[0] for k in a} == {"franka", "toyarm"}  # the limit spreads over the set
+    (tmp_path / "sh" / f"{sorted(a)[0]}.npy").unlink()
     s = write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3, sampler=FAST)
     assert (s["written"], s["kept"]) == (1, 2)
     with pytest.raises(ValueError, match="condition"):
@@ -123,3 +124,29 @@ def test_demo_adds_the_toy_world_row(tmp_path, model):
     summary = run_demo(tmp_path / "demo2", size=(64, 48), names=["toyarm"], toy_model=str(tmp_path / "none"),
                        log=lambda m: None)
     assert "toy_world" not in summary and any("toy_world" in s for s in summary["skipped"])
+
+
+def test_package_writes_a_loadable_named_folder_with_a_model_card(tmp_path, model):
+    from oscar_core.toyworld.package import file_hashes, package_toy_model
+
+    export = tmp_path / "export"
+    model.save_pretrained(export)
+    table = {"rows": {"true skeleton": {"clips": 3, "psnr_db": 20.0, "ssim": 0.5, "motion_iou": 0.4,
+                                        "ee_error_px": 5.0, "object_error_px": 6.0}},
+             "markdown": "| condition | clips |\n|---|---|\n| true skeleton | 3 |"}
+    hashes = package_toy_model(export, tmp_path / "out", name="toy-x", training={"steps": 7, "wall": "1 min"},
+                               table=table)
+    assert hashes == file_hashes(tmp_path / "out") and "README.md" in hashes
+    loaded = OscarWorldModel.from_pretrained(tmp_path / "out")
+    assert (loaded.card.name, loaded.card.license, loaded.card.text_encoder_id) == ("toy-x", "Apache-2.0", None)
+    assert loaded.empty_prompt.shape == (1, 1, model.transformer.text_dim) and not loaded.empty_prompt.any()
+    readme = (tmp_path / "out" / "README.md").read_text()
+    assert "# toy-x" in readme and "- steps: 7" in readme and "| true skeleton | 3 |" in readme
+    assert "Apache-2.0" in readme
+    # no prompt given: the stored zero prompt is used, silently (no "zeros" warning)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        emb, source = loaded.resolve_prompt()
+    assert not emb.any()

@@ -76,7 +76,9 @@ def test_table_is_sorted_frozen_and_honest():
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec["oscar-2b"].revision = "x"
     assert spec["oscar-2b"].repo_id == "zywu2115/OSCAR-2B" and spec["oscar-2b"].revision is None
-    assert all(f.sha256 is None for s in oscar_zoo.CHECKPOINTS for f in s.files)  # nothing invented
+    # nothing invented: Hub entries pin no hash that could not be verified; a bundled entry pins every file
+    assert all(f.sha256 is None for s in oscar_zoo.CHECKPOINTS if not s.bundled for f in s.files)
+    assert all(f.sha256 for s in oscar_zoo.CHECKPOINTS if s.bundled for f in s.files)
     base = spec["cosmos-predict2.5-2b"]
     assert (base.repo_id, base.revision, base.kind) == ("nvidia/Cosmos-Predict2.5-2B", COSMOS_REV, "cosmos-base")
 
@@ -187,7 +189,7 @@ def test_registry_names_cannot_shadow_the_table():
     with pytest.raises(ValueError, match="no '/'"):
         oscar_zoo.register("me/x", "me/x")
     spec = oscar_zoo.register("mine", "me/x", "main", chunk_frames=9)
-    assert [s.name for s in oscar_zoo.list_models()] == ["cosmos-predict2.5-2b", "mine", "oscar-2b"]
+    assert [s.name for s in oscar_zoo.list_models()] == ["cosmos-predict2.5-2b", "mine", "oscar-2b", "oscar-toy"]
     assert spec.source == str(oscar_zoo.registry_path()) and oscar_zoo.unregister("mine")
 
 

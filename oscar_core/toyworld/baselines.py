@@ -19,8 +19,11 @@ __all__ = ["BASELINES", "write_baseline"]
 BASELINES = ("first_frame",)
 
 
-def write_baseline(clipset, out, kind: str = "first_frame", split: str | None = "heldout") -> list[str]:
-    """Write the ``kind`` prediction of each clip (of ``split``) as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8)."""
+def write_baseline(clipset, out, kind: str = "first_frame", split: str | None = "heldout",
+                   limit: int | None = None) -> list[str]:
+    """Write the ``kind`` prediction of each clip (of ``split``; at most ``limit``, every k-th) as
+    ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8)."""
+    from .rollouts import spread
     from ..train.clips import ClipSet
 
     if kind not in BASELINES:
@@ -29,9 +32,7 @@ def write_baseline(clipset, out, kind: str = "first_frame", split: str | None = 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ids = []
-    for r in cs:
-        if split is not None and r.meta.get("split") != split:
-            continue
+    for r in spread([r for r in cs if split is None or r.meta.get("split") == split], limit):
         rgb = cs.load(r, frames=1, skeleton=False).rgb
         pred = np.repeat(rgb[:1], r.n_frames, axis=0)
         buf = io.BytesIO()

@@ -14,14 +14,16 @@ import sys
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
 EXAMPLES = """examples:
-  oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 100 --size 64x64 --frames 17 \\
-      --seed 0 --out toy_clips
-  oscar toyworld train-vae toy_clips --out toy_vae --steps 600 --batch 2 --base-dim 16 --seed 0 --eval-clips 12
-  oscar toyworld reconstruct toy_clips --vae toy_vae --out recon/
-  oscar toyworld baseline toy_clips --out first_frame/
-  oscar toyworld eval --gt toy_clips --split heldout --pred vae=recon/ --pred first_frame=first_frame/ \\
-      --out table.json --plot table.png
-  oscar toyworld eval --gt toy_clips --pred true=rollouts_true/ --pred shuffled=rollouts_shuffled/
+  oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 400 --size 64x64 --frames 17 \\
+      --seed 0 --out clipsets/toyworld
+  oscar toyworld train-vae clipsets/toyworld --out runs/toyworld-vae --steps 2500 --batch 3 --window 9 --seed 0
+  oscar toyworld reconstruct clipsets/toyworld --vae runs/toyworld-vae --out preds/vae
+  oscar toyworld baseline clipsets/toyworld --out preds/first_frame
+  oscar toyworld rollout clipsets/toyworld --model oscar-toy --condition true --out preds/true
+  oscar toyworld rollout clipsets/toyworld --model oscar-toy --condition shuffled --out preds/shuffled
+  oscar toyworld eval --gt clipsets/toyworld --pred true=preds/true --pred shuffled=preds/shuffled \\
+      --pred vae=preds/vae --pred first_frame=preds/first_frame --out table.json --plot table.png
+  oscar toyworld package runs/toyworld/export --out my-toy --table table.json
 """
 
 
@@ -68,7 +70,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
     r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions")
     r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
-    r.add_argument("--limit", type=int, help="at most this many clips")
+    r.add_argument("--limit", type=int, help="at most this many clips, every k-th")
     r.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     r.set_defaults(func=cmd_reconstruct)
 
@@ -78,6 +80,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
     b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
     b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    b.add_argument("--limit", type=int, help="at most this many clips, every k-th")
     b.set_defaults(func=cmd_baseline)
 
     o = sub.add_parser("rollout", help="roll a world model out on every clip of a split (true / shuffled / zero "
@@ -97,9 +100,20 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     o.set_defaults(func=cmd_rollout)
 
+    k = sub.add_parser("package", help="turn an exported toy-world run into a shippable model folder (card, "
+                                       "zero prompt, README model card, sha256 of every file)",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    k.add_argument("export", help="the exported run (RUN_DIR/export)")
+    k.add_argument("--out", required=True, help="the model folder to write (replaced atomically)")
+    k.add_argument("--name", default="oscar-toy", help="model name in the card (default oscar-toy)")
+    k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
+    k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
+    k.set_defaults(func=cmd_package)
+
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)
-    e.add_argument("--gt", required=True, help="the clip set holding the ground truth")
+    e.add_argument("--gt", required=True, action="append", help="the clip set holding the ground truth (repeat for "
+                                                                 "several sets, e.g. held-out embodiments)")
     e.add_argument("--pred", action="append", required=True, metavar="[NAME=]FOLDER",
                    help="folder of generated videos named <clip id>.mp4/.mkv/.npy (or a folder of PNGs per clip); "
                         "repeat with NAME= for several conditions (rows of the table)")
@@ -167,7 +181,7 @@ def cmd_reconstruct(args) -> int:
 def cmd_baseline(args) -> int:
     from .baselines import write_baseline
 
-    ids = write_baseline(args.clips, args.out, args.kind, None if args.split == "all" else args.split)
+    ids = write_baseline(args.clips, args.out, args.kind, None if args.split == "all" else args.split, args.limit)
     print(f"{args.out}: {len(ids)} {args.kind} predictions")
     return 0
 
@@ -188,6 +202,19 @@ def cmd_rollout(args) -> int:
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")
+    return 0
+
+
+def cmd_package(args) -> int:
+    from .evaluate import format_table
+    from .package import package_toy_model
+
+    training = json.loads(open(args.training).read()) if args.training else None
+    table = json.loads(open(args.table).read()) if args.table else None
+    if table is not None:
+        table = {**table, "markdown": format_table(table)}
+    hashes = package_toy_model(args.export, args.out, name=args.name, training=training, table=table)
+    print(json.dumps(hashes, indent=2))
     return 0
 
 

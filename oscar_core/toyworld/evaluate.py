@@ -24,10 +24,29 @@ import numpy as np
 from .locate import EE_TARGET, OBJECT_TARGET, position_errors
 
 __all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "plot_table",
-           "parse_pred_args"]
+           "parse_pred_args", "motion_iou", "motion_mask", "MOTION_THRESHOLD"]
 
 PSNR_CAP = 100.0
-METRICS = ("psnr_db", "ssim", "ee_error_px", "object_error_px")
+METRICS = ("psnr_db", "ssim", "motion_iou", "ee_error_px", "object_error_px")
+#: a pixel "moved" at frame t when its grey level differs from frame 0's by more than this (0-255 scale)
+MOTION_THRESHOLD = 24.0
+
+
+def motion_mask(video: np.ndarray, threshold: float = MOTION_THRESHOLD) -> np.ndarray:
+    """(T − 1, H, W) bool: pixels whose grey level (mean of RGB) changed from frame 0 by more than ``threshold``."""
+    g = np.asarray(video, dtype=np.float32).mean(-1)
+    return np.abs(g[1:] - g[:1]) > threshold
+
+
+def motion_iou(pred: np.ndarray, gt: np.ndarray, threshold: float = MOTION_THRESHOLD) -> float:
+    """Intersection over union of the changed-pixel masks of ``pred`` and ``gt`` (frames 1…, pooled), in [0, 1].
+
+    Where the robot and the ball moved, and nothing else: colour-free, so it
+    scores a model whose VAE renders grey. NaN when neither video changes.
+    """
+    a, b = motion_mask(pred, threshold), motion_mask(gt, threshold)
+    union = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum() / union) if union else float("nan")
 _SUFFIXES = (".mp4", ".mkv", ".npy")
 
 
@@ -69,13 +88,16 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
     s = ssim(pred, gt, n_frames=None)
     ee = position_errors(pred, gt, EE_TARGET)
     ob = position_errors(pred, gt, OBJECT_TARGET)
-    return {"psnr_db": float(p.mean()), "ssim": float(s.mean()), "ee_error_px": ee["error_px"],
+    return {"psnr_db": float(p.mean()), "ssim": float(s.mean()), "motion_iou": motion_iou(pred, gt),
+            "ee_error_px": ee["error_px"],
             "object_error_px": ob["error_px"], "ee_found": ee["found"], "object_found": ob["found"]}
 
 
 def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | None = None) -> dict:
     """The table: one row per condition (name → folder of generated videos).
 
+    gt_clipset: a clip set, or a list of them (clip ids must be unique across
+    them; e.g. the training embodiments' and the held-out embodiments' sets).
     Clips evaluated: those of the clip set (with ``meta.split == split`` when
     given) that have a prediction in the condition's folder; a condition
     with none is an error naming its folder. Returns a JSON-ready dict with
@@ -85,8 +107,16 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
     from ..metrics.video import load_video
     from ..train.clips import ClipSet
 
-    cs = gt_clipset if isinstance(gt_clipset, ClipSet) else ClipSet(gt_clipset)
-    recs = [r for r in cs if split is None or r.meta.get("split") == split]
+    sets = [g if isinstance(g, ClipSet) else ClipSet(g)
+            for g in (gt_clipset if isinstance(gt_clipset, (list, tuple)) else [gt_clipset])]
+    recs, owner = [], {}
+    for c in sets:
+        for r in c:
+            if split is None or r.meta.get("split") == split:
+                if r.id in owner:
+                    raise ValueError(f"--gt: clip id {r.id!r} is in both {owner[r.id].root} and {c.root}")
+                owner[r.id] = c
+                recs.append(r)
     rows, clips = {}, {}
     cache: dict[str, np.ndarray] = {}
     for name, folder in conditions.items():
@@ -98,16 +128,18 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
             if path is None:
                 continue
             if r.id not in cache:
-                cache[r.id] = cs.load(r, skeleton=False).rgb
+                cache[r.id] = owner[r.id].load(r, skeleton=False).rgb
             per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path))
         if not per:
             raise ValueError(f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
-                             f"{cs.root}" + (f" (split {split!r})" if split else "") + ", found none")
+                             f"{', '.join(str(c.root) for c in sets)}" + (f" (split {split!r})" if split else "")
+                             + ", found none")
         row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
         row["clips"] = len(per)
         rows[name] = row
         clips[name] = per
-    return {"ground_truth": str(cs.root), "split": split, "metrics": list(METRICS), "rows": rows, "clips": clips}
+    roots = [str(c.root) for c in sets]
+    return {"ground_truth": roots[0] if len(roots) == 1 else roots, "split": split, "metrics": list(METRICS), "rows": rows, "clips": clips}
 
 
 def _nanmean(values) -> float:
@@ -119,11 +151,12 @@ def _nanmean(values) -> float:
 
 def format_table(table: dict) -> str:
     """The rows as a Markdown table."""
-    head = "| condition | clips | PSNR (dB) ↑ | SSIM ↑ | end-effector error (px) ↓ | object error (px) ↓ |"
-    lines = [head, "|---|---|---|---|---|---|"]
+    head = ("| condition | clips | PSNR (dB) ↑ | SSIM ↑ | motion IoU ↑ | end-effector error (px) ↓ | "
+            "object error (px) ↓ |")
+    lines = [head, "|---|---|---|---|---|---|---|"]
     for name, r in table["rows"].items():
-        lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r['ee_error_px']:.2f} | "
-                     f"{r['object_error_px']:.2f} |")
+        lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r.get('motion_iou', float('nan')):.3f} | "
+                     f"{r['ee_error_px']:.2f} | {r['object_error_px']:.2f} |")
     return "\n".join(lines)
 
 
@@ -132,7 +165,7 @@ def plot_table(table: dict, path) -> Path:
     from ..metrics.plots import _new_figure, save_figure
 
     names = list(table["rows"])
-    labels = {"psnr_db": "PSNR (dB) ↑", "ssim": "SSIM ↑", "ee_error_px": "end-effector error (px) ↓",
+    labels = {"psnr_db": "PSNR (dB) ↑", "ssim": "SSIM ↑", "motion_iou": "motion IoU ↑", "ee_error_px": "end-effector error (px) ↓",
               "object_error_px": "object error (px) ↓"}
     fig = _new_figure((3.2 * len(METRICS), 3.2), 100)
     for i, m in enumerate(METRICS):

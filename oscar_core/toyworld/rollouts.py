@@ -11,7 +11,9 @@ Conditions (the rows of ``oscar toyworld eval``'s table):
   trained to see when the skeleton is dropped: ``guidance 0`` in the
   ``standard`` form, whatever skeleton is passed).
 
-Every rollout starts from the clip's true first frame, runs ``n_frames``
+A latent-action model (card ``condition: latent_action``) gets the 14-D
+actions of the same trajectory instead of its skeleton video (``zero``: its
+unconditional branch, no actions). Every rollout starts from the clip's true first frame, runs ``n_frames``
 frames in chunks of the model card's length, uses the empty (zero) prompt of
 the toy model, and is seeded by ``seed`` (the same noise for every condition).
 Predictions are written as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8), the
@@ -31,9 +33,16 @@ import numpy as np
 
 from .._atomic import atomic_write_bytes
 
-__all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card"]
+__all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
 
 CONDITIONS = ("true", "shuffled", "zero")
+
+
+def spread(records: list, limit: int | None) -> list:
+    """At most ``limit`` of ``records``, every k-th (so every embodiment of a clip set is represented)."""
+    if limit is None or len(records) <= limit:
+        return list(records)
+    return list(records[::len(records) // limit][:limit])
 
 
 def skeleton_partners(records) -> dict[str, str]:
@@ -76,7 +85,8 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
                    log: Callable[[str], None] | None = None) -> dict:
     """Roll ``model`` (an ``OscarWorldModel``) out on every clip of ``split`` under ``condition``; see the module.
 
-    sampler: a :class:`~oscar_core.model.sampler.SamplerConfig` (default: the
+    limit: at most this many clips, every k-th of the split's (so every
+    embodiment is represented). sampler: a :class:`~oscar_core.model.sampler.SamplerConfig` (default: the
     library's, 35 UniPC steps, guidance 6 diffusers form); for ``zero`` its
     guidance is replaced by the unconditional branch. Returns a summary:
     clips written and kept, seconds per rollout.
@@ -92,7 +102,7 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
         sampler = replace(sampler, guidance=0.0, guidance_form="standard")
     registry = registry if registry is not None else Registry()
     cs = ClipSet(clipset)
-    recs = [r for r in cs if split is None or r.meta.get("split") == split][:limit]
+    recs = spread([r for r in cs if split is None or r.meta.get("split") == split], limit)
     if not recs:
         raise ValueError(f"{cs.root}: expected clips with meta.split == {split!r}, found none")
     partner = skeleton_partners(recs)
@@ -107,9 +117,17 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
             continue
         first = cs.load(rec, frames=1, skeleton=False).rgb[0]
         source = cs.record(partner[rec.id]) if condition == "shuffled" else rec
-        skel = _skeleton(cs, source, registry)[:rec.n_frames]
         t0 = time.perf_counter()
-        video = model.rollout(first, skel, sampler=sampler, seed=seed, progress=False, keep_chunks=False)
+        if getattr(model.card, "condition", "skeleton") == "latent_action":
+            from ..train.latent_action import latent_actions
+
+            traj = cs.load(source, video=False, skeleton=False).trajectory
+            acts = latent_actions(registry.get(source.embodiment), traj)[:rec.n_frames - 1]
+            video = model.rollout(first, None, sampler=sampler, seed=seed, progress=False, keep_chunks=False,
+                                  actions=acts)
+        else:
+            skel = _skeleton(cs, source, registry)[:rec.n_frames]
+            video = model.rollout(first, skel, sampler=sampler, seed=seed, progress=False, keep_chunks=False)
         seconds.append(time.perf_counter() - t0)
         frames = np.asarray(video.frames if hasattr(video, "frames") else video)
         buf = io.BytesIO()

@@ -256,7 +256,9 @@ def write_reconstructions(clipset, vae_folder, out, split: str | None = "heldout
     vv = VideoVAE(load_toy_vae(vae_folder))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    recs = [r for r in cs if split is None or r.meta.get("split") == split][:limit]
+    from .rollouts import spread
+
+    recs = spread([r for r in cs if split is None or r.meta.get("split") == split], limit)
     for r in recs:
         rgb = cs.load(r, skeleton=False).rgb
         with torch.no_grad():
