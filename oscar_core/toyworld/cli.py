@@ -22,6 +22,7 @@ EXAMPLES = """examples:
   oscar toyworld eval --gt toy_clips --split heldout --pred vae=recon/ --pred first_frame=first_frame/ \\
       --out table.json --plot table.png
   oscar toyworld eval --gt toy_clips --pred true=rollouts_true/ --pred shuffled=rollouts_shuffled/
+  oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
 """
 
 
@@ -96,6 +97,13 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--seed", type=int, default=0, help="noise seed (default 0; the same for every condition)")
     o.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     o.set_defaults(func=cmd_rollout)
+
+    pe = sub.add_parser("policy-eval", help="scripted pick-and-place policies: write an `oscar eval run` manifest "
+                                            "with their real outcomes", epilog=EXAMPLES, formatter_class=fmt)
+    from .policy_eval import add_policy_eval_arguments, cmd_policy_eval
+
+    add_policy_eval_arguments(pe)
+    pe.set_defaults(func=cmd_policy_eval)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)
