@@ -24,6 +24,7 @@ EXAMPLES = """examples:
   oscar toyworld eval --gt clipsets/toyworld --pred true=preds/true --pred shuffled=preds/shuffled \\
       --pred vae=preds/vae --pred first_frame=preds/first_frame --out table.json --plot table.png
   oscar toyworld package runs/toyworld/export --out my-toy --table table.json
+  oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
 """
 
 
@@ -109,6 +110,12 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
     k.set_defaults(func=cmd_package)
+    pe = sub.add_parser("policy-eval", help="scripted pick-and-place policies: write an `oscar eval run` manifest "
+                                            "with their real outcomes", epilog=EXAMPLES, formatter_class=fmt)
+    from .policy_eval import add_policy_eval_arguments, cmd_policy_eval
+
+    add_policy_eval_arguments(pe)
+    pe.set_defaults(func=cmd_policy_eval)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)

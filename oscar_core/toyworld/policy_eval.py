@@ -1,0 +1,423 @@
+"""Scripted pick-and-place policies in the toy world, and the ``oscar eval run`` manifest of their episodes.
+
+A **session** is one scene: embodiment, camera, scene look, the ball's start
+position, the place position and the robot's start and end poses, all fixed,
+so every policy of a session starts from the same first frame. A **policy**
+is the scripted pick-and-place of :mod:`~oscar_core.toyworld.motion`
+(start → grasp, the gripper closes → lift → place, the gripper opens → end;
+joint-space keyframes joined by minimum-jerk segments, poses found by
+forward kinematics of sampled configurations, no IK) whose grasp is aimed at
+the ball's centre plus an error drawn per episode from a 2D Gaussian of
+standard deviation ``aim_sigma`` ball radii (:data:`POLICIES`). The grasp pose
+is the sampled configuration whose end-effector is nearest the aimed point
+(2 ball radii above the floor), refined by a few rounds of random
+perturbations in joint space (still only sampling + FK).
+
+**Real success** is the toy simulator's outcome under the attachment rule of
+:func:`~oscar_core.toyworld.motion.carry_object` (grab distance 2.2 ball
+radii): the ball was grabbed and its centre ends at least
+:data:`SUCCESS_RADII` ball radii (horizontally) from where it started. The
+place pose puts the end-effector at least :data:`PLACE_MIN_RADII` radii from
+the ball, so a grabbed ball always travels well past the threshold.
+
+:func:`write_policy_eval` writes one folder per session (first frame PNG,
+camera JSON, one trajectory ``.npz`` and one rendered real episode ``.mkv``
+per policy) and ``manifest.json`` in the ``oscar eval run`` format
+(docs/evaluation.md); each cell's ``info`` carries what
+:func:`oscar_core.toyworld.judge.ball_moved` needs: the ball's start pixel,
+its radius in pixels and the homography from pixels to the plane of the
+resting ball's centre in ball radii.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..camera import Camera, project
+from ..embodiment import Embodiment
+from ..trajectory import Trajectory
+from .motion import (Motion, ToyWorldError, _batch_fk, carry_object, check_supported, ee_points, joint_limits,
+                     min_jerk, openness_to_signal)
+
+__all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
+           "plan_session", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
+           "add_policy_eval_arguments", "cmd_policy_eval"]
+
+#: The ball must end at least this many ball radii (horizontally) from its start for a success.
+SUCCESS_RADII = 3.0
+#: The place pose's end-effector is at least this many ball radii from the ball's start.
+PLACE_MIN_RADII = 6.0
+#: The carry rule's grab distance, ball radii (as in ``sample_motion``).
+GRAB_RADII = 2.2
+TASK = "pick up the yellow ball and put it down elsewhere"
+
+
+@dataclass(frozen=True)
+class Policy:
+    """A scripted pick-and-place: the grasp is aimed at the ball plus an error ~ N(0, aim_sigma²) per axis,
+    in ball radii (horizontal plane)."""
+
+    name: str
+    aim_sigma: float
+
+
+#: The default policies, best first.
+POLICIES: tuple[Policy, ...] = (Policy("expert", 0.3), Policy("good", 1.25), Policy("sloppy", 2.0),
+                                 Policy("random", 4.0))
+
+
+@dataclass
+class PolicyEpisode:
+    """One policy's episode in a session: its motion, real outcome and aim.
+
+    aim_error: (2,) the drawn aiming error, ball radii; grasp_error: (2,) where the
+    grasp pose's end-effector actually is relative to the ball, ball radii;
+    displacement: horizontal distance the ball moved by the end, ball radii.
+    """
+
+    policy: Policy
+    motion: Motion
+    success: int
+    grabbed: bool
+    displacement: float
+    aim_error: np.ndarray
+    grasp_error: np.ndarray
+
+
+@dataclass
+class Session:
+    """One scene shared by every policy: start pose, ball, place pose, timing, scene and camera.
+
+    ball: (3,) the ball's start centre, metres (z = radius); radius, scale: metres;
+    episodes: one :class:`PolicyEpisode` per policy, in policy order.
+    """
+
+    embodiment: str
+    ball: np.ndarray
+    radius: float
+    scale: float
+    scene: object
+    camera: Camera
+    episodes: list[PolicyEpisode] = field(default_factory=list)
+
+
+def session_rng(seed: int, embodiment: str, index: int, attempt: int = 0, policy: str | None = None
+                ) -> np.random.Generator:
+    """The generator of session ``index`` of ``embodiment`` (and of one policy's aim in it): independent of
+    every other session, and of the training episodes of the same seed (``episode_rng``)."""
+    words = [int(seed), zlib.crc32(embodiment.encode()), int(index), 0x9E55, int(attempt)]
+    if policy is not None:
+        words.append(zlib.crc32(policy.encode()))
+    return np.random.default_rng(np.random.SeedSequence(words))
+
+
+def _reach(emb: Embodiment, q: np.ndarray, ee: np.ndarray, ok: np.ndarray, target: np.ndarray, lo: np.ndarray,
+           hi: np.ndarray, floor: float, rng: np.random.Generator, rounds: int = 10, keep: int = 6,
+           proposals: int = 24) -> np.ndarray:
+    """The configuration (J,) whose end-effector is nearest ``target`` (3,) metres: the best of the candidates
+    ``q`` (N, J) (``ee`` (N, 3), ``ok`` (N,) allowed), refined by ``rounds`` of Gaussian perturbations in joint
+    space with a shrinking step; a proposal with a skeleton point below ``floor`` metres is rejected."""
+    d = np.where(ok, np.linalg.norm(ee - target, axis=1), np.inf)
+    order = np.argsort(d)[:keep]
+    cur, cost = q[order].copy(), d[order].copy()
+    step = 0.08 * (hi - lo)
+    J = q.shape[1]
+    for _ in range(rounds):
+        prop = cur[:, None, :] + rng.normal(0.0, 1.0, (len(cur), proposals, J)) * step
+        prop = np.clip(prop, lo, hi).reshape(-1, J)
+        pts, pe = _batch_fk(emb, prop)
+        c = np.linalg.norm(pe - target, axis=1)
+        c = np.where(pts[..., 2].min(1) >= floor, c, np.inf).reshape(len(cur), proposals)
+        best = c.argmin(1)
+        better = c[np.arange(len(cur)), best] < cost
+        cur[better] = prop.reshape(len(cur), proposals, J)[np.arange(len(cur)), best][better]
+        cost[better] = c[np.arange(len(cur)), best][better]
+        step = step * 0.6
+    return cur[int(np.argmin(cost))]
+
+
+def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
+                 fps: float = 10.0, policies=POLICIES, policy_rngs: dict | None = None,
+                 n_candidates: int = 768) -> Session:
+    """Plan one session and every policy's episode in it (no rendering).
+
+    rng: the session's generator (scene, ball, poses, timing, camera);
+    policy_rngs: ``{policy name: generator}`` for the aiming errors (default:
+    drawn from ``rng``). Raises :class:`ToyWorldError` when the robot cannot
+    do the task (no gripper, fewer than 9 frames, no reachable place far
+    enough from the ball), ``ValueError`` when no camera sees it all.
+    """
+    from .scene import sample_camera, sample_scene
+
+    check_supported(emb)
+    if not len(emb.grippers):
+        raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r} has no gripper to pick with")
+    if frames < 9:
+        raise ToyWorldError(f"toyworld policy-eval: --frames: expected at least 9 frames, found {frames}")
+    lo, hi = joint_limits(emb)
+    J = len(lo)
+    q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
+    pts, ee = _batch_fk(emb, q)
+    base = pts[:, 0].mean(0)
+    scale = max(float(np.percentile(np.linalg.norm(ee - base, axis=1), 90)), 1e-3)
+    R = 0.09 * scale  # as sample_motion: a ball about 7 pixels across at 64 x 64
+    floor = -0.02 * scale
+    above = (pts[..., 2].min(1) >= floor) & (ee[:, 2] >= R)
+    grasp = np.flatnonzero(above & (np.abs(ee[:, 2] - 2 * R) <= 0.6 * R)
+                           & (np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale))
+    high = np.flatnonzero(above & (ee[:, 2] >= 2 * R + 0.25 * scale))
+    if len(grasp) < 2 or len(high) < 1:
+        raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r}: expected poses that reach the floor and "
+                            f"lift well above it, found {len(grasp)} floor and {len(high)} high poses")
+    # the ball: under a floor pose that has another floor pose (the place) far enough away
+    far = np.linalg.norm(ee[grasp, None, :2] - ee[None, grasp, :2], axis=-1) >= PLACE_MIN_RADII * R
+    usable = grasp[far.any(1)]
+    if len(usable) == 0:
+        raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r}: expected two floor poses at least "
+                            f"{PLACE_MIN_RADII} ball radii apart, found none")
+    g = int(rng.choice(usable))
+    ball = np.array([ee[g, 0], ee[g, 1], R])
+    places = grasp[np.linalg.norm(ee[grasp, :2] - ball[:2], axis=1) >= PLACE_MIN_RADII * R]
+    place = q[int(rng.choice(places))]
+    start, end = q[int(rng.choice(high))], q[int(rng.choice(high))]
+    T = frames
+    a = int(round((T - 1) * rng.uniform(0.28, 0.38)))
+    hold = a + max(1, int(round(0.1 * (T - 1))))
+    b = int(round((T - 1) * rng.uniform(0.72, 0.8)))
+    b = min(max(b, hold + 2), T - 2)
+    release = min(b + max(1, int(round(0.08 * (T - 1)))), T - 1)
+    times = np.array([0, a, hold, (hold + b) // 2, b, release, T - 1])
+    close_at = (a + hold) // 2 if hold > a + 1 else hold
+    episodes = []
+    for pol in policies:
+        prng = (policy_rngs or {}).get(pol.name, rng)
+        aim = prng.normal(0.0, pol.aim_sigma, 2)
+        target = np.array([ball[0] + aim[0] * R, ball[1] + aim[1] * R, 2 * R])
+        qg = _reach(emb, q, ee, above, target, lo, hi, floor, prng)
+        mid = (qg + place) / 2
+        lift = q[int(high[np.argmin(np.linalg.norm(q[high] - mid, axis=1))])]
+        motion = policy_motion(emb, [start, qg, qg, lift, place, place, end], times, close_at, release, ball, R,
+                               scale, fps)
+        disp = float(np.linalg.norm(motion.object[-1, :2] - ball[:2]) / R)
+        grabbed = bool(motion.attached.any())
+        grasp_err = (motion.ee[a, :2] - ball[:2]) / R
+        episodes.append(PolicyEpisode(pol, motion, int(grabbed and disp >= SUCCESS_RADII), grabbed, disp, aim,
+                                      grasp_err))
+    scene = sample_scene(rng, len(emb.edges), scale)
+    seen = np.concatenate([np.concatenate([ep.motion.points.reshape(-1, 3), ep.motion.object + [0, 0, R],
+                                           ep.motion.object - [0, 0, R]]) for ep in episodes])
+    camera = sample_camera(rng, seen, width, height, base_xy=pts[0, 0, :2], embodiment=emb.name)
+    return Session(emb.name, ball, R, scale, scene, camera, episodes)
+
+
+def policy_motion(emb: Embodiment, keys, times: np.ndarray, close_at: int, release: int, ball: np.ndarray,
+                  radius: float, scale: float, fps: float = 10.0) -> Motion:
+    """A pick-and-place :class:`Motion` through joint keyframes ``keys`` (7 of (J,): start, grasp, grasp, lift,
+    place, place, end) at frames ``times`` (7,): the first gripper closes at frame ``close_at`` (one in-between
+    frame before) and opens at ``release``; the ball (3,) metres of ``radius`` metres moves by the carry rule."""
+    keys = np.asarray(keys, dtype=np.float64)
+    times, keep = np.unique(np.asarray(times), return_index=True)
+    T = int(times[-1]) + 1
+    qt = min_jerk(keys[keep], times, T)
+    G = len(emb.grippers)
+    openness = np.ones((T, G))
+    openness[close_at:release, 0] = 0.0
+    if close_at > 0:
+        openness[close_at - 1, 0] = 0.6  # as sample_motion: fingers on the way
+    traj = Trajectory(emb.joint_names, qt, fps, openness_to_signal(emb, openness), emb.gripper_names or None,
+                      source=f"<toyworld policy-eval {emb.name}>")
+    points, ee = ee_points(emb, traj)
+    obj, attached = carry_object(ee, openness[:, 0], ball, radius, grab_distance=GRAB_RADII * radius)
+    return Motion(traj, "pick_place", points, ee, obj, attached, radius, scale)
+
+
+def floor_homography(camera: Camera, height_m: float, unit_m: float) -> np.ndarray:
+    """(3, 3) homography from output pixels (x, y, 1) to world (x, y, 1) / ``unit_m`` on the plane z = ``height_m``
+    (fitted to exact projections of a grid on that plane; exact for a pinhole camera)."""
+    import cv2
+
+    K = camera.intrinsics
+    T_wc = np.linalg.inv(camera.world_to_cv())
+    eye = T_wc[:3, 3]
+    span = max(abs(eye[2] - height_m), unit_m) * 2
+    gx, gy = np.meshgrid(np.linspace(-1, 1, 5), np.linspace(-1, 1, 5))
+    # a grid on the plane around where the optical axis meets it (or under the camera)
+    axis = T_wc[:3, 2]
+    t = (height_m - eye[2]) / axis[2] if abs(axis[2]) > 1e-6 else 0.0
+    c = eye + max(t, 0.0) * axis
+    world = np.stack([c[0] + span * gx.ravel(), c[1] + span * gy.ravel(), np.full(gx.size, height_m)], 1)
+    pr = project(world, camera)
+    good = pr.in_front & (pr.depth > 1e-6)
+    if good.sum() < 4:
+        raise ValueError(f"floor homography: expected the plane z = {height_m:.3g} m in front of the camera, "
+                         f"found {int(good.sum())} of 25 grid points in front ({K.width}x{K.height} camera)")
+    Hm, _ = cv2.findHomography(pr.uv[good].astype(np.float64), world[good, :2] / unit_m, 0)
+    return Hm
+
+
+MAX_ATTEMPTS = 20
+
+
+def _radius_px(s: Session) -> float:
+    """The ball's radius in output pixels at its start (focal length x radius / depth)."""
+    pr = project(s.ball[None], s.camera)
+    return float(s.camera.intrinsics.fx * s.radius / max(float(pr.depth[0]), 1e-9))
+
+
+def _outcome_visible(s: Session, renders) -> bool:
+    """Whether every episode shows at least half the ball at frame 0 and in its last frame (the arm or the robot's
+    base can hide where the ball was put down; such a session cannot be judged from the video)."""
+    full = np.pi * _radius_px(s) ** 2
+    return all(r.object_area[0] >= 0.5 * full and r.object_area[-1] >= 0.5 * full for r in renders)
+
+
+def _png_bytes(img: np.ndarray) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img[..., ::-1]))
+    if not ok:
+        raise ValueError("png encoding failed")
+    return buf.tobytes()
+
+
+def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: int = 64, height: int = 64,
+                      frames: int = 17, fps: float = 10.0, supersample: int = 2, policies=POLICIES, registry=None,
+                      progress: Callable[[str], None] | None = None) -> dict:
+    """Write ``sessions`` sessions per embodiment and ``out``/manifest.json; returns the summary also written
+    to ``out``/policy_eval.json (true success rate per policy, per embodiment and overall).
+
+    Layout: ``out/<embodiment>-<i>/first.png``, ``camera.json``, ``<policy>.npz``, ``<policy>_real.mkv``.
+    Session ``i`` of embodiment ``e`` depends only on (seed, e, i); a session whose plan fails (no camera sees
+    it all) is re-drawn with the next attempt number (recorded in the summary).
+    """
+    from .._atomic import atomic_write_bytes
+    from ..camera import save_camera
+    from ..registry import Registry
+    from ..trajectory import save_trajectory
+    from ..video import write_video
+    from .episode import render_world
+
+    if sessions < 1:
+        raise ValueError(f"toyworld policy-eval: --sessions: expected at least 1, found {sessions}")
+    if width % 16 or height % 16 or width <= 0 or height <= 0:
+        raise ValueError(f"toyworld policy-eval: --size: expected WIDTHxHEIGHT, both multiples of 16 (the rollout "
+                         f"size of oscar eval run), found {width}x{height}")
+    names = [p.name for p in policies]
+    if len(set(names)) != len(names) or not names:
+        raise ValueError(f"toyworld policy-eval: policies: expected unique names, found {names}")
+    registry = registry or Registry()
+    embs = [registry.get(n) for n in embodiments]
+    for e in embs:
+        check_supported(e)
+        if not len(e.grippers):
+            raise ToyWorldError(f"toyworld policy-eval: embodiment {e.name!r} has no gripper to pick with")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cells, rows = [], []
+    for emb in embs:
+        for i in range(sessions):
+            for attempt in range(MAX_ATTEMPTS):
+                try:
+                    s = plan_session(emb, session_rng(seed, emb.name, i, attempt), width, height, frames, fps,
+                                     policies, {n: session_rng(seed, emb.name, i, attempt, n) for n in names})
+                except ValueError as exc:  # no camera sees it all: draw the session again
+                    if isinstance(exc, ToyWorldError) or attempt == MAX_ATTEMPTS - 1:
+                        raise
+                    continue
+                renders = [render_world(emb, ep.motion, s.scene, s.camera, ss=supersample) for ep in s.episodes]
+                if _outcome_visible(s, renders):
+                    break
+                if attempt == MAX_ATTEMPTS - 1:
+                    raise ToyWorldError(f"toyworld policy-eval: {emb.name} session {i}: expected a camera that sees "
+                                        f"the ball at the start and the end of every episode, found none in "
+                                        f"{MAX_ATTEMPTS} attempts")
+            name = f"{emb.name}-{i:04d}"
+            folder = out / name
+            folder.mkdir(exist_ok=True)
+            save_camera(s.camera, folder / "camera.json")
+            R = s.radius
+            Hm = floor_homography(s.camera, R, R)
+            first = renders[0].rgb[0]
+            start_px = renders[0].object_px[0]
+            r_px = _radius_px(s)
+            atomic_write_bytes(folder / "first.png", _png_bytes(first))
+            for ep, render in zip(s.episodes, renders):
+                if not np.array_equal(first, render.rgb[0]):
+                    raise AssertionError(f"{name}: policy {ep.policy.name!r} starts from a different first frame")
+                save_trajectory(ep.motion.trajectory, folder / f"{ep.policy.name}.npz")
+                write_video(folder / f"{ep.policy.name}_real.mkv", render.rgb, fps)
+                info = {"ball_start_px": [round(float(v), 3) for v in start_px], "ball_radius_px": round(r_px, 3),
+                        "px_to_floor_radii": [[float(v) for v in row] for row in Hm],
+                        "success_radii": SUCCESS_RADII}  # nothing about the outcome or the policy
+                cells.append({"session": name, "policy": ep.policy.name, "embodiment": emb.name,
+                              "first_frame": f"{name}/first.png", "trajectory": f"{name}/{ep.policy.name}.npz",
+                              "camera": f"{name}/camera.json", "real_success": ep.success,
+                              "real_video": f"{name}/{ep.policy.name}_real.mkv", "info": info})
+                rows.append({"session": name, "embodiment": emb.name, "policy": ep.policy.name,
+                             "attempt": attempt, "real_success": ep.success, "grabbed": ep.grabbed,
+                             "displacement_radii": round(ep.displacement, 3),
+                             "aim_error_radii": [round(float(v), 3) for v in ep.aim_error],
+                             "grasp_error_radii": [round(float(v), 3) for v in ep.grasp_error]})
+            if progress:
+                progress(f"{name}: " + ", ".join(f"{ep.policy.name} {ep.success}" for ep in s.episodes))
+    manifest = {"format": "oscar-eval-manifest", "policies": names,
+                "description": (f"toy-world pick-and-place, {sessions} sessions x {len(embs)} embodiments "
+                                f"({','.join(e.name for e in embs)}), seed {seed}; oscar toyworld policy-eval"),
+                "defaults": {"size": f"{width}x{height}", "task": TASK}, "cells": cells}
+    atomic_write_bytes(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
+    summary = {"seed": seed, "sessions": sessions, "embodiments": [e.name for e in embs], "frames": frames,
+               "size": [width, height], "success_radii": SUCCESS_RADII, "grab_radii": GRAB_RADII,
+               "policies": {p.name: {"aim_sigma_radii": p.aim_sigma} for p in policies}, "rows": rows}
+    for p in names:
+        mine = [r for r in rows if r["policy"] == p]
+        summary["policies"][p]["success_rate"] = float(np.mean([r["real_success"] for r in mine]))
+        summary["policies"][p]["by_embodiment"] = {
+            e.name: float(np.mean([r["real_success"] for r in mine if r["embodiment"] == e.name])) for e in embs}
+    atomic_write_bytes(out / "policy_eval.json", (json.dumps(summary, indent=1) + "\n").encode())
+    return summary
+
+
+def add_policy_eval_arguments(p) -> None:
+    """The options of ``oscar toyworld policy-eval`` (on the argparse parser ``p``)."""
+    p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
+    p.add_argument("--sessions", type=int, required=True, help="sessions (scenes) per embodiment")
+    p.add_argument("--seed", type=int, default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
+    p.add_argument("--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders")
+    p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
+    p.add_argument("--frames", type=int, default=17, help="frames per episode (default 17: one oscar-toy chunk)")
+    p.add_argument("--fps", type=float, default=10.0, help="frame rate of the trajectories (default 10)")
+    p.add_argument("--supersample", type=int, default=2, help="anti-aliasing factor of the real renders (default 2)")
+    p.add_argument("--json", action="store_true", help="print the summary (without per-episode rows) as JSON")
+
+
+def cmd_policy_eval(args) -> int:
+    """``oscar toyworld policy-eval``: write the manifest and print the true success rate per policy."""
+    import sys
+
+    from ..pipeline import parse_size
+    from ..registry import Registry
+
+    w, h = parse_size(args.size)
+    names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
+    if not names:
+        raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
+    summary = write_policy_eval(args.out, names, args.sessions, seed=args.seed, width=w, height=h,
+                                frames=args.frames, fps=args.fps, supersample=args.supersample,
+                                registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
+                                progress=None if args.json else (lambda m: print(m, file=sys.stderr, flush=True)))
+    if args.json:
+        print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
+        return 0
+    print(f"{args.out}/manifest.json: {len(summary['rows'])} cells, {args.sessions} sessions x "
+          f"{len(names)} embodiments; true success rate per policy (ball grabbed and moved >= "
+          f"{SUCCESS_RADII:g} ball radii):")
+    for p, v in summary["policies"].items():
+        per = ", ".join(f"{e} {r:.2f}" for e, r in v["by_embodiment"].items())
+        print(f"  {p:<8} aim sigma {v['aim_sigma_radii']:.2f} R: {v['success_rate']:.2f}  ({per})")
+    return 0
