@@ -24,7 +24,9 @@ ROLLOUT_EXAMPLES = """examples:
   oscar rollout ... --solver euler --guidance 1      (first-order sampler, conditional branch only)
 
 The rollout is written to --out; a side-by-side video (rollout | skeleton over
-the rollout) to --side-by-side (default: OUT_side.mp4).
+the rollout) to --side-by-side (default: OUT_side.mp4). A latent-action model
+(an exported `condition: latent_action` run) takes the same arguments and is
+fed the trajectory's end-effector actions instead of the skeleton.
 """
 
 ZOO_EXAMPLES = """examples:
@@ -90,6 +92,8 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
                    help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
                    "standard: v_u + w(v_c - v_u)")
+    r.add_argument("--action-guidance", type=float, help="latent-action models: guidance w over the actions "
+                   "(unconditional branch: no action tokens; default: none, the conditional branch only)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
                    "(less memory) instead of one batched forward")
     r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same video)")
@@ -353,7 +357,8 @@ def cmd_rollout(args) -> int:
         raise InputFileError(args.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
                              f"{args.camera})", f"{first.shape[1]}x{first.shape[0]}")
     sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
-                            guidance_form=args.guidance_form, batched_cfg=not args.two_pass_cfg, solver=args.solver)
+                            guidance_form=args.guidance_form, batched_cfg=not args.two_pass_cfg, solver=args.solver,
+                            action_guidance=getattr(args, "action_guidance", None))
     device = args.device or _default_device()
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
@@ -384,15 +389,20 @@ def cmd_rollout(args) -> int:
 
     fps = args.fps or traj.fps
     result = RolloutResult(frames=np.empty(0, np.uint8))
-    chunks = model.iter_rollout(first, skeleton, prompt, chunk_frames=args.chunk_frames, sampler=sampler,
-                                seed=args.seed, progress=not args.no_progress, result=result)
+    latent_action = model.card.condition == "latent_action"
+    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
+    chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=args.chunk_frames,
+                                sampler=sampler, seed=args.seed, progress=not args.no_progress, result=result,
+                                actions=actions)
     side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
     out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
     summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
                "chunks": len(result.starts), "model": args.model, "seed": args.seed, "text": text_source,
                "sampler": model.sampler_for(sampler).resolved_solver, "steps": args.steps,
                "unconditional_skeleton": model.card.unconditional_skeleton,
-               "guidance": {"w": args.guidance, "form": args.guidance_form}}
+               "guidance": {"w": args.guidance, "form": args.guidance_form}, "condition": model.card.condition}
+    if latent_action:
+        summary["guidance"] = {"action_w": sampler.action_guidance, "form": args.guidance_form}
     if side_out is not None:
         summary["side_by_side"] = str(side_out)
     if args.json:

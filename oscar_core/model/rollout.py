@@ -20,6 +20,13 @@ next chunk is the clamped last frame.
 The unconditional guidance branch sees ``uncond_skeleton``: ``"zero_latent"``
 (zeros) or ``"black_video"`` (the VAE latent of an all-black skeleton video of
 the chunk's frame count, encoded once per chunk size and reused).
+
+A latent-action model (``ModelCard.condition == "latent_action"``) is rolled
+out from ``actions`` instead of a skeleton video: per-transition features
+(N, 14), row i the transition from frame i to i + 1, at least as many as the
+padded chunk plan needs (``num_frames`` T gives the video's length); chunk c
+gets rows [start, start + L − 1), the (L − 1, 14) window its trainer saw.
+``OscarWorldModel.rollout_trajectory`` computes and pads them.
 """
 
 from __future__ import annotations
@@ -72,6 +79,31 @@ def chunk_plan(num_frames: int, chunk_frames: int, temporal: int = 4) -> list[in
     return [c * (chunk_frames - 1) for c in range(count)]
 
 
+def _check_first(first_frame, spatial: int) -> np.ndarray:
+    first = np.asarray(first_frame)
+    if first.dtype != np.uint8 or first.ndim != 3 or first.shape[-1] != 3:
+        raise ModelInputError(f"first frame: expected (H, W, 3) uint8 RGB, found {first.dtype} {first.shape}")
+    h, w = first.shape[:2]
+    if h % spatial or w % spatial:
+        raise ModelInputError(f"frame size: expected width and height divisible by {spatial} (VAE x DiT patch), "
+                              f"found {w}x{h}")
+    return first
+
+
+def _check_actions(actions, num_frames: int | None, chunk_frames: int, temporal: int):
+    """(actions float32 tensor (N, F), T, chunk starts) of an action rollout, N covering the padded plan."""
+    acts = torch.as_tensor(np.asarray(actions), dtype=torch.float32)
+    if acts.ndim != 2 or len(acts) < 1:
+        raise ModelInputError(f"actions: expected (T - 1, F) per-transition features, found {tuple(acts.shape)}")
+    total = int(num_frames) if num_frames is not None else len(acts) + 1
+    starts = chunk_plan(total, chunk_frames, temporal)
+    need = starts[-1] + chunk_frames - 1
+    if len(acts) < need:
+        raise ModelInputError(f"actions: expected at least {need} rows (transitions of {len(starts)} chunk(s) of "
+                              f"{chunk_frames} frames covering {total} frames), found {len(acts)}")
+    return acts, total, starts
+
+
 def _check_inputs(first_frame, skeleton, spatial: int):
     first = np.asarray(first_frame)
     skel = np.asarray(skeleton)
@@ -113,21 +145,29 @@ class _UncondSkeletons:
 def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *,
                  chunk_frames: int = 81, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
                  progress: bool = True, uncond_skeleton: str = "zero_latent", result: RolloutResult | None = None,
-                 keep_chunks: bool = False):
+                 keep_chunks: bool = False, actions=None, num_frames: int | None = None):
     """Like :func:`rollout`, but yields each chunk's new frames as soon as they are decoded.
 
     Yields (N_c, H, W, 3) uint8 arrays whose concatenation is the T-frame
     rollout (chunk 0 whole, later chunks without their seed frame, the last
     one cut at T). ``result``, when given, receives ``starts`` (and
-    ``chunks``/``seeds`` with ``keep_chunks``).
+    ``chunks``/``seeds`` with ``keep_chunks``). With ``actions`` (a
+    latent-action model; module docstring) ``skeleton`` is None.
     """
     patch = int(transformer.config.patch_size[1])
-    first, skel = _check_inputs(first_frame, skeleton, vae.spatial * patch)
-    total = len(skel)
-    starts = chunk_plan(total, chunk_frames, vae.temporal)
-    padded_len = starts[-1] + chunk_frames
-    if padded_len > total:
-        skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
+    if actions is not None:
+        if skeleton is not None:
+            raise ModelInputError("rollout: expected a skeleton video or actions, found both")
+        first = _check_first(first_frame, vae.spatial * patch)
+        acts, total, starts = _check_actions(actions, num_frames, chunk_frames, vae.temporal)
+        skel = None
+    else:
+        first, skel = _check_inputs(first_frame, skeleton, vae.spatial * patch)
+        total = len(skel)
+        starts = chunk_plan(total, chunk_frames, vae.temporal)
+        padded_len = starts[-1] + chunk_frames
+        if padded_len > total:
+            skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
     uncond = _UncondSkeletons(vae, uncond_skeleton)
     generator = torch.Generator(device="cpu").manual_seed(int(seed))
     if result is not None:
@@ -138,13 +178,18 @@ def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embed
     outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
     try:
         for index, start in enumerate(starts):
-            skeleton_latent = vae.encode(VideoVAE.to_pixels(skel[start:start + chunk_frames]))
             first_latent = vae.encode(seed_pixels)
             with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
                       disable=not progress) as bar:
-                latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
-                                      generator=generator, progress=bar,
-                                      uncond_skeleton=uncond.get(chunk_frames, height, width))
+                if skel is None:
+                    latent = sample_chunk(transformer, first_latent, None, prompt_embeds, sampler, generator=generator,
+                                          progress=bar, actions=acts[None, start:start + chunk_frames - 1],
+                                          latent_frames=(chunk_frames - 1) // vae.temporal + 1)
+                else:
+                    skeleton_latent = vae.encode(VideoVAE.to_pixels(skel[start:start + chunk_frames]))
+                    latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
+                                          generator=generator, progress=bar,
+                                          uncond_skeleton=uncond.get(chunk_frames, height, width))
             video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (1, 3, L, H, W)
             if keep_chunks and result is not None:
                 result.chunks.append(video)
@@ -163,7 +208,8 @@ def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embed
 @torch.no_grad()
 def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *, chunk_frames: int = 81,
             sampler: SamplerConfig = SamplerConfig(), seed: int = 0, progress: bool = True,
-            keep_chunks: bool = True, uncond_skeleton: str = "zero_latent") -> RolloutResult:
+            keep_chunks: bool = True, uncond_skeleton: str = "zero_latent", actions=None,
+            num_frames: int | None = None) -> RolloutResult:
     """Roll the world model out along a skeleton video.
 
     transformer: OscarTransformer3DModel; vae: VideoVAE.
@@ -174,11 +220,14 @@ def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: to
     seed: seeds the noise of every chunk (one CPU generator, drawn in order):
         the same seed gives the same video.
     uncond_skeleton: "zero_latent" or "black_video" (module docstring).
+    actions: for a latent-action model, (≥ T − 1, 14) features instead of a
+        skeleton video (then ``skeleton`` is None; ``num_frames`` T, default
+        len(actions) + 1; module docstring).
     returns: RolloutResult with T frames.
     """
     result = RolloutResult(frames=np.empty(0, np.uint8))
     pieces = list(iter_rollout(transformer, vae, first_frame, skeleton, prompt_embeds, chunk_frames=chunk_frames,
                                sampler=sampler, seed=seed, progress=progress, uncond_skeleton=uncond_skeleton,
-                               result=result, keep_chunks=keep_chunks))
+                               result=result, keep_chunks=keep_chunks, actions=actions, num_frames=num_frames))
     result.frames = np.concatenate(pieces, axis=0)
     return result

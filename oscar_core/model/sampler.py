@@ -41,6 +41,14 @@ When the guided velocity equals one branch (w = 1 or 0 in the standard form,
 w = 0 in the diffusers form, or ``guidance=None``) only that branch runs.
 ``batched_cfg=True`` runs both branches as one forward of batch 2B;
 ``False`` runs two forwards of batch B (less peak memory, usually slower).
+
+Latent-action models (``oscar_core.train.latent_action``): ``sample_chunk``
+takes ``actions`` (B, window − 1, 14) instead of a skeleton latent. Guidance
+is then over the actions, with weight ``action_guidance`` (``guidance`` is the
+skeleton's and is ignored): the unconditional branch omits the action tokens
+(the base pathway). Its default, None, runs the conditional branch alone —
+the latent-action trainer never drops the actions, so that branch is a model
+it never trained. The two branches always run as two forwards.
 """
 
 from __future__ import annotations
@@ -73,7 +81,10 @@ class SamplerConfig:
     solver: "unipc", "euler", or None for the checkpoint's choice (its
         scheduler config; "unipc" when it has none);
     scheduler_config: a ``UniPCMultistepScheduler`` config (dict) that
-        replaces the default flow-sigma one (a checkpoint's ``scheduler/``).
+        replaces the default flow-sigma one (a checkpoint's ``scheduler/``);
+    action_guidance: latent-action models only: w over the actions
+        (unconditional branch: no action tokens), None (default): the
+        conditional branch alone (module docstring).
     """
 
     steps: int = 35
@@ -85,6 +96,7 @@ class SamplerConfig:
     fps: float | None = None
     solver: str | None = None
     scheduler_config: dict | None = None
+    action_guidance: float | None = None
 
     def __post_init__(self):
         if int(self.steps) < 1:
@@ -163,7 +175,7 @@ def branches(config: SamplerConfig) -> tuple[str, ...]:
 
 def guided_velocity(transformer, latents, timestep, text, skeleton, condition_mask, padding_mask,
                     config: SamplerConfig, text_projected: bool = False,
-                    uncond_skeleton: torch.Tensor | None = None) -> torch.Tensor:
+                    uncond_skeleton: torch.Tensor | None = None, actions: torch.Tensor | None = None) -> torch.Tensor:
     """The guided velocity (B, C, T, H, W) of one denoising step (float32).
 
     latents: (B, C, T, H, W) model input; timestep: (B, 1, T, 1, 1);
@@ -171,7 +183,13 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
     skeleton: (B, C_s, T, H, W); condition_mask: (B, 1, T, H, W);
     uncond_skeleton: (1 or B, C_s, T, H, W) skeleton latent of the
     unconditional branch (None: zeros).
+    actions: (B, window − 1, 14) latent actions of a ``LatentActionTransformer``
+    (then ``skeleton`` is None and the guidance is ``config.action_guidance``
+    over the actions; see :func:`_action_guided_velocity`).
     """
+    if actions is not None:
+        return _action_guided_velocity(transformer, latents, timestep, text, actions, condition_mask, padding_mask,
+                                       config, text_projected)
     dtype = transformer.dtype  # the timestep stays float32: bf16 would round sigma to 3 digits
 
     def call(x, t, txt, skel, mask):
@@ -205,10 +223,36 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
     return v_cond + w * (v_cond - v_uncond)
 
 
+def _action_guided_velocity(transformer, latents, timestep, text, actions, condition_mask, padding_mask,
+                            config: SamplerConfig, text_projected: bool) -> torch.Tensor:
+    """Guided velocity of a latent-action model: w = ``config.action_guidance``, unconditional = no action tokens."""
+    from dataclasses import replace
+
+    dtype = transformer.dtype
+
+    def call(act):
+        out = transformer(hidden_states=latents.to(dtype), timestep=timestep, encoder_hidden_states=text.to(dtype),
+                          condition_mask=condition_mask.to(dtype), padding_mask=padding_mask, fps=config.fps,
+                          actions=act, return_dict=False, text_projected=text_projected)[0]
+        return out.float()
+
+    need = branches(replace(config, guidance=config.action_guidance))
+    if need == ("cond",):
+        return call(actions)
+    if need == ("uncond",):
+        return call(None)
+    v_cond, v_uncond = call(actions), call(None)
+    w = float(config.action_guidance)
+    if config.guidance_form == "standard":
+        return v_uncond + w * (v_cond - v_uncond)
+    return v_cond + w * (v_cond - v_uncond)
+
+
 @torch.no_grad()
-def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch.Tensor, text: torch.Tensor,
+def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch.Tensor | None, text: torch.Tensor,
                  config: SamplerConfig = SamplerConfig(), generator: torch.Generator | None = None,
-                 progress=None, uncond_skeleton: torch.Tensor | None = None) -> torch.Tensor:
+                 progress=None, uncond_skeleton: torch.Tensor | None = None, *,
+                 actions: torch.Tensor | None = None, latent_frames: int | None = None) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
     first_latent: (B, C, 1, H, W) normalised clean latent of the seed frame.
@@ -219,8 +263,24 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
         gives the same noise on every device); progress: optional tqdm-like
         object, ``update(1)`` per step.
     uncond_skeleton: the unconditional branch's skeleton latent (None: zeros).
+    actions: (B, window − 1, 14) latent actions of the chunk, for a
+        ``LatentActionTransformer``: then ``skeleton_latent`` is None and
+        ``latent_frames`` (T, the chunk's latent frames) gives the length.
     """
     device = next(transformer.parameters()).device
+    if actions is not None:
+        if skeleton_latent is not None or latent_frames is None:
+            raise ModelInputError("sample_chunk: with actions, expected skeleton_latent=None and latent_frames set, "
+                                  f"found skeleton_latent={'a tensor' if skeleton_latent is not None else None}, "
+                                  f"latent_frames={latent_frames}")
+        b, _, _, h, w = first_latent.shape
+        t = int(latent_frames)
+        if actions.ndim != 3 or actions.shape[0] != b:
+            raise ModelInputError(f"actions: expected (B={b}, window - 1, 14), found {tuple(actions.shape)}")
+        actions = actions.to(device, torch.float32)
+        skeleton_latent = first_latent.new_empty((b, 0, t, h, w))  # shape only; never fed to the model
+    elif skeleton_latent is None:
+        raise ModelInputError("sample_chunk: expected a skeleton latent (or actions), found neither")
     b, _, t, h, w = skeleton_latent.shape
     c = first_latent.shape[1]
     if first_latent.shape != (b, c, 1, h, w):
@@ -246,8 +306,9 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     def velocity(x: torch.Tensor, sigma: float) -> torch.Tensor:
         model_in = mask * clean + (1.0 - mask) * x
         timestep = indicator * config.cond_timestep + (1.0 - indicator) * sigma
-        v = guided_velocity(transformer, model_in, timestep, text, skeleton_latent, mask, padding, config,
-                            text_projected=True, uncond_skeleton=uncond_skeleton)
+        v = guided_velocity(transformer, model_in, timestep, text, None if actions is not None else skeleton_latent,
+                            mask, padding, config, text_projected=True, uncond_skeleton=uncond_skeleton,
+                            actions=actions)
         return true_velocity + v * (1.0 - mask)
 
     x = integrate(velocity, noise, config, progress)

@@ -22,6 +22,7 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
@@ -40,6 +41,7 @@ FORMAT = "oscar-world-model"
 EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
 SCHEDULER_FILE = "scheduler/scheduler_config.json"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
+CONDITIONS = ("skeleton", "latent_action", "none")
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,12 @@ class ModelCard:
     sampler's unconditional branch sees the same thing: ``"zero_latent"`` (a
     zero skeleton latent) or ``"black_video"`` (the VAE latent of an all-black
     skeleton video).
+    condition: what the model is conditioned on besides the first frame and
+    the text: ``"skeleton"`` (the skeleton video; cards written before this
+    field load as skeleton), ``"latent_action"`` (the paper's latent-action
+    baseline: a ``LatentActionTransformer`` fed (chunk_frames − 1, 14)
+    end-effector actions per chunk) or ``"none"`` (text and first frame
+    only; its PE_s is zero, so a skeleton fed to it changes nothing).
     """
 
     name: str | None = None
@@ -69,12 +77,15 @@ class ModelCard:
     base: str | None = None
     license: str | None = None
     unconditional_skeleton: str = "zero_latent"
+    condition: str = "skeleton"
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
         if self.unconditional_skeleton not in UNCONDITIONAL_SKELETONS:
             raise ModelInputError(f"model card unconditional_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, "
                                   f"found {self.unconditional_skeleton!r}")
+        if self.condition not in CONDITIONS:
+            raise ModelInputError(f"model card condition: expected one of {CONDITIONS}, found {self.condition!r}")
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
 
     def to_dict(self) -> dict:
@@ -146,7 +157,12 @@ class OscarWorldModel:
             manifest = read_manifest(folder)
             if manifest is not None:
                 verify_files(folder, {p: m.get("sha256") for p, m in manifest.items()}, source=folder)
-        transformer = OscarTransformer3DModel.load_strict(folder / "transformer")
+        transformer_cls = OscarTransformer3DModel
+        if card.condition == "latent_action":
+            from ..train.latent_action import LatentActionTransformer
+
+            transformer_cls = LatentActionTransformer
+        transformer = transformer_cls.load_strict(folder / "transformer")
         vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
                            load_state_dict(folder / "vae"), folder / "vae")
         empty = None
@@ -263,11 +279,17 @@ class OscarWorldModel:
 
     def rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
                 chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
-                progress: bool = True, keep_chunks: bool = True):
-        """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default."""
+                progress: bool = True, keep_chunks: bool = True, actions=None):
+        """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default.
+
+        A latent-action model takes ``actions`` (T − 1, 14) (``latent_actions``
+        of the trajectory) and ``skeleton=None``; :meth:`rollout_trajectory`
+        builds either input from a trajectory.
+        """
         from .rollout import rollout
 
         chunk = int(chunk_frames or self.card.chunk_frames)
+        actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
         if self.card.width and self.card.height:
             h, w = first_frame.shape[:2]
             if (w, h) != (self.card.width, self.card.height):
@@ -277,18 +299,77 @@ class OscarWorldModel:
                               f"rolling out at {w}x{h}", stacklevel=2)
         return rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
                        chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
-                       keep_chunks=keep_chunks, uncond_skeleton=self.card.unconditional_skeleton)
+                       keep_chunks=keep_chunks, uncond_skeleton=self.card.unconditional_skeleton, actions=actions,
+                       num_frames=num_frames)
 
     def iter_rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
                      chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
-                     progress: bool = True, result=None):
+                     progress: bool = True, result=None, actions=None):
         """Stream a rollout: yields each chunk's new uint8 frames (see :func:`oscar_core.model.rollout.iter_rollout`)."""
         from .rollout import iter_rollout
 
         chunk = int(chunk_frames or self.card.chunk_frames)
+        actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
         return iter_rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
                             chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
-                            uncond_skeleton=self.card.unconditional_skeleton, result=result)
+                            uncond_skeleton=self.card.unconditional_skeleton, result=result, actions=actions,
+                            num_frames=num_frames)
+
+    def _rollout_actions(self, skeleton, actions, chunk: int):
+        """(actions padded to the chunk plan or None, frame count or None); checks the input fits the card."""
+        if self.card.condition != "latent_action":
+            if actions is not None:
+                raise ModelInputError(f"rollout: model {self.card.name or ''} is conditioned on "
+                                      f"{self.card.condition!r}: expected a skeleton video, found actions")
+            return None, None
+        if actions is None or skeleton is not None:
+            raise ModelInputError(f"rollout: model {self.card.name or ''} is a latent-action model: expected "
+                                  "actions (T - 1, 14) and skeleton=None (rollout_trajectory builds them), found "
+                                  f"{'a skeleton video' if skeleton is not None else 'no actions'}")
+        from ..train.latent_action import hold_actions
+        from .rollout import chunk_plan
+
+        trained = int(getattr(self.transformer.config, "action_frames", chunk - 1)) + 1
+        if chunk != trained:
+            raise ModelInputError(f"chunk_frames: a latent-action model takes the window it was trained on "
+                                  f"({trained} frames: its actions are (chunk_frames - 1, 14) = "
+                                  f"({trained - 1}, 14)), found {chunk}")
+        actions = np.asarray(actions)
+        total = len(actions) + 1
+        starts = chunk_plan(total, chunk, self.vae.temporal)
+        return hold_actions(actions, max(starts[-1] + chunk - 1, len(actions))), total
+
+    def rollout_inputs(self, trajectory, camera, embodiment, size: tuple[int, int] | None = None, *,
+                       resize_mode: str = "crop", camera_source: str = "<camera>") -> dict:
+        """What this model's rollout is conditioned on, from a trajectory: ``{"skeleton": ...}`` or ``{"actions": ...}``.
+
+        skeleton: (T, H, W, 3) uint8 video rendered at ``size`` (width, height)
+        pixels (None: the card's size, else the camera's); actions: (T − 1, 14)
+        float64 ``latent_actions(embodiment, trajectory)`` (latent-action models).
+        """
+        if self.card.condition == "latent_action":
+            from ..train.latent_action import latent_actions
+
+            return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
+        from ..pipeline import render_skeleton_video
+
+        if size is None and self.card.width and self.card.height:
+            size = (self.card.width, self.card.height)
+        return {"skeleton": render_skeleton_video(embodiment, trajectory, camera, size, resize_mode=resize_mode,
+                                                  camera_source=camera_source)}
+
+    def rollout_trajectory(self, first_frame, trajectory, camera, embodiment, prompt_embeds: torch.Tensor | None = None,
+                           *, size: tuple[int, int] | None = None, resize_mode: str = "crop", **options):
+        """Roll out along a trajectory, whatever the card's condition: skeleton rendered, or latent actions.
+
+        first_frame: (H, W, 3) uint8 already at the rollout size; trajectory,
+        camera, embodiment: as :func:`oscar_core.pipeline.render_skeleton_video`
+        takes them; size: (width, height) of the skeleton video (default: the
+        first frame's). ``options``: :meth:`rollout`'s. Returns a RolloutResult.
+        """
+        h, w = np.asarray(first_frame).shape[:2]
+        inputs = self.rollout_inputs(trajectory, camera, embodiment, size or (w, h), resize_mode=resize_mode)
+        return self.rollout(first_frame, inputs["skeleton"], prompt_embeds, actions=inputs.get("actions"), **options)
 
 
 def _read_card(folder: Path) -> ModelCard:

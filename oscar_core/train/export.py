@@ -4,11 +4,10 @@ The transformer gets the checkpoint's EMA weights (or its raw weights with
 ``weights="model"``), the VAE is the config's, and the model card records
 the window (``chunk_frames``), the training size, the clips' embodiments and
 frame rate, the starting weights (``base``) and ``unconditional_skeleton``
-(what skeleton dropout fed, so the sampler's unconditional branch matches).
-
-A ``latent_action`` run is exported as ``transformer/`` (a
-``LatentActionTransformer``) and ``vae/`` only: the zoo's world model is
-skeleton-conditioned and cannot roll a latent-action model out.
+(what skeleton dropout fed, so the sampler's unconditional branch matches)
+and the run's ``condition``: a ``latent_action`` run's folder holds a
+``LatentActionTransformer`` and loads (``oscar_zoo.load``) as an
+``OscarWorldModel`` whose rollout is fed latent actions instead of a skeleton.
 """
 
 from __future__ import annotations
@@ -46,18 +45,15 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
-        if config.condition == "latent_action":
-            transformer.save_pretrained(tmp / "transformer", safe_serialization=True)
-            vae.vae.save_pretrained(tmp / "vae", safe_serialization=True)
-        else:
-            records = [r for root in config.data.clips for r in ClipSet(root)
-                       if config.data.sources is None or r.source in config.data.sources]
-            fps = Counter(r.fps for r in records).most_common(1)[0][0] if records else None
-            card = ModelCard(name=name or run_dir.name, chunk_frames=config.data.window, width=config.data.width,
-                             height=config.data.height, fps=fps,
-                             embodiments=tuple(sorted({r.embodiment for r in records})),
-                             base=base, unconditional_skeleton=config.data.unconditional_skeleton)
-            OscarWorldModel(transformer, vae, card).save_pretrained(tmp)
+        records = [r for root in config.data.clips for r in ClipSet(root)
+                   if config.data.sources is None or r.source in config.data.sources]
+        fps = Counter(r.fps for r in records).most_common(1)[0][0] if records else None
+        card = ModelCard(name=name or run_dir.name, chunk_frames=config.data.window, width=config.data.width,
+                         height=config.data.height, fps=fps,
+                         embodiments=tuple(sorted({r.embodiment for r in records})),
+                         base=base, unconditional_skeleton=config.data.unconditional_skeleton,
+                         condition=config.condition)
+        OscarWorldModel(transformer, vae, card).save_pretrained(tmp)
         if out.exists():
             shutil.rmtree(out)
         tmp.rename(out)

@@ -29,7 +29,8 @@ from torch import nn
 from ..model.errors import ModelInputError
 from ..model.transformer import OscarTransformer3DModel
 
-__all__ = ["ACTION_DIM", "ACTION_SCALE", "latent_actions", "actions_from_poses", "LatentActionTransformer"]
+__all__ = ["ACTION_DIM", "ACTION_SCALE", "latent_actions", "actions_from_poses", "hold_actions",
+           "LatentActionTransformer"]
 
 ACTION_DIM = 14
 ACTION_SCALE = 20.0
@@ -70,6 +71,26 @@ def latent_actions(embodiment, trajectory) -> np.ndarray:
     poses = embodiment.fk(embodiment.full_configuration(traj), traj.base_pose, links=list(links)).to(torch.float64)
     openness = embodiment.gripper_openness(traj.gripper, traj.source)
     return actions_from_poses(poses.cpu().numpy(), openness)
+
+
+def hold_actions(actions: np.ndarray, transitions: int) -> np.ndarray:
+    """(N, 14) actions extended to (``transitions``, 14) by a robot that holds its last pose.
+
+    The added rows are exactly what :func:`latent_actions` gives for a
+    trajectory padded with copies of its last frame (as a rollout pads the
+    skeleton video of its last chunk): zero translation and rotation deltas,
+    the last openness of each arm (dims 6 and 13). N ≥ 1; fewer rows than N
+    are refused (this only extends).
+    """
+    actions = np.asarray(actions)
+    if actions.ndim != 2 or actions.shape[1] != ACTION_DIM or len(actions) < 1:
+        raise ModelInputError(f"latent actions: expected (N >= 1, {ACTION_DIM}), found {actions.shape}")
+    if transitions < len(actions):
+        raise ModelInputError(f"latent actions: expected at most {transitions} rows to extend to {transitions}, "
+                              f"found {len(actions)}")
+    hold = np.zeros((transitions - len(actions), ACTION_DIM), dtype=actions.dtype)
+    hold[:, 6::7] = actions[-1, 6::7]
+    return np.concatenate([actions, hold])
 
 
 def _mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
