@@ -101,6 +101,11 @@ class DataSection:
     # open every clip's files before training (trajectory length, video frame count and size); catches broken
     # clips up front at the cost of one pass over the files
     check_files: bool = True
+    # threads that load micro-batches ahead of the training step (ours; 0 = load in the loop, the default);
+    # the batches are the same for any number (oscar_core.train.loader)
+    workers: int = 0
+    # micro-batches each worker keeps loaded ahead (ours; as torch DataLoader's prefetch_factor)
+    prefetch: int = 2
 
 
 @dataclass
@@ -200,6 +205,10 @@ class TrainConfig:
             bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
         if not 0.0 <= d.prior_uniform <= 1.0:
             bad("data.prior_uniform", "a fraction in [0, 1]", d.prior_uniform)
+        if not isinstance(d.workers, int) or isinstance(d.workers, bool) or d.workers < 0:
+            bad("data.workers", "an integer >= 0 (0: load in the training loop)", d.workers)
+        if not isinstance(d.prefetch, int) or isinstance(d.prefetch, bool) or d.prefetch < 1:
+            bad("data.prefetch", "a positive integer (micro-batches loaded ahead per worker)", d.prefetch)
         if not isinstance(d.clips, list) or not d.clips:
             bad("data.clips", "a non-empty list of clip-set folders", d.clips)
         f = self.flow

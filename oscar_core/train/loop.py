@@ -25,6 +25,7 @@ from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, lo
 from .config import TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
+from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
@@ -182,17 +183,23 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     bar = tqdm(total=config.steps, initial=start, disable=not (progress and info.main), unit="step",
                dynamic_ncols=True)
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
+
+    def plan(step: int) -> list[PlanItem]:
+        return StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
+
+    batches = iter_batches(data, micro_batches(plan, start, end, accum, config.micro_batch), config.condition,
+                           config.data.workers, config.data.prefetch)
     try:
         for step in range(start, end):
             lr = lr_at(step, o.lr, o.warmup_steps)
             for g in optimizer.param_groups:
                 g["lr"] = lr
-            mine = StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
+            mine = plan(step)
             optimizer.zero_grad(set_to_none=True)
             loss_sum = 0.0
             for k in range(accum):
-                micro = mine[k * config.micro_batch:(k + 1) * config.micro_batch]
-                batch = data.batch(micro, config.condition)
+                got_step, got_k, micro, batch = next(batches)
+                assert (got_step, got_k) == (step, k), "the loader hands out micro-batches in plan order"
                 with no_sync(wrapped, k == accum - 1):
                     loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
                     (loss / accum).backward()
@@ -219,6 +226,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             if done % config.save_every == 0 or done == end:
                 save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
     finally:
+        batches.close()
         bar.close()
         if log:
             log.close()
