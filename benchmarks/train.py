@@ -9,7 +9,9 @@ windows, global batch 4, one thread per process:
 * 1 process (gradient accumulation 4) against 2 processes under DDP (gloo,
   accumulation 2): the same global batch, so the same training;
 * cached latents against the naive way, encoding RGB and rendered skeleton
-  with the VAE in the loop (1 process).
+  with the VAE in the loop (1 process);
+* that on-the-fly run again with ``data.workers: 2`` (threads loading the
+  next micro-batches while the step runs; the same batches, so the same loss).
 
 Steps/s is taken from the run's ``metrics.jsonl`` over the steps after the
 first (which pays for imports and allocation).
@@ -56,12 +58,12 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
-def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size: int = 32) -> dict:
+def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size: int = 32, workers: int = 0) -> dict:
     import yaml
 
     cfg = {"run_dir": str(work / name), "steps": steps, "batch_size": 4, "micro_batch": 1, "save_every": steps,
            "log_every": 1, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-           "data": {"clips": [str(clips)], "window": 9, "width": size, "height": size},
+           "data": {"clips": [str(clips)], "window": 9, "width": size, "height": size, "workers": workers},
            "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0}}
     path = work / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -80,7 +82,7 @@ def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size:
     rows = [r for r in rows if "loss" in r]
     first, last = rows[0], rows[-1]
     rate = (last["step"] - first["step"]) / (last["elapsed_s"] - first["elapsed_s"])
-    return {"run": name, "processes": nproc, "steps": steps, "steps_per_s": rate, "wall_s": wall,
+    return {"run": name, "processes": nproc, "workers": workers, "steps": steps, "steps_per_s": rate, "wall_s": wall,
             "final_loss": last["loss"]}
 
 
@@ -93,7 +95,8 @@ def speed(steps: int) -> list[dict]:
     raw = write_toy_clipset(work / "raw", clips=4, frames=13, width=32, height=32, prompt_dim=48)
     return [_speed_run(work, "cached-1proc", cached, steps, 1),
             _speed_run(work, "cached-2proc-ddp", cached, steps, 2),
-            _speed_run(work, "on-the-fly-1proc", raw, steps, 1)]
+            _speed_run(work, "on-the-fly-1proc", raw, steps, 1),
+            _speed_run(work, "on-the-fly-2workers", raw, steps, 1, workers=2)]
 
 
 # --------------------------------------------------------------------------- memory (computed)

@@ -26,7 +26,7 @@ from typing import Any
 
 from ..errors import OscarError
 
-__all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "TrainConfig",
+__all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
 CONDITIONS = ("skeleton", "latent_action", "none")
@@ -141,6 +141,14 @@ class OptimSection:
 
 
 @dataclass
+class LogSection:
+    """Where metrics go besides RUN_DIR/metrics.jsonl."""
+
+    # also write the metrics as TensorBoard scalars to RUN_DIR/tensorboard (ours; needs oscar-wm[tensorboard])
+    tensorboard: bool = False
+
+
+@dataclass
 class TrainConfig:
     """A whole training run."""
 
@@ -170,6 +178,7 @@ class TrainConfig:
     data: DataSection = field(default_factory=DataSection)
     flow: FlowSection = field(default_factory=FlowSection)
     optim: OptimSection = field(default_factory=OptimSection)
+    log: LogSection = field(default_factory=LogSection)
 
     def validate(self, source: str = "<config>") -> "TrainConfig":
         """Raise :class:`TrainConfigError` naming the first bad field."""
@@ -225,12 +234,15 @@ class TrainConfig:
             bad("optim.grad_clip", "a positive number (the max gradient norm)", o.grad_clip)
         if o.warmup_steps < 0:
             bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
+        if not isinstance(self.log.tensorboard, bool):
+            bad("log.tensorboard", "true or false", self.log.tensorboard)
         if self.model.dtype not in ("float32", "bfloat16"):
             bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
         return self
 
 
-_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection}
+_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection,
+             "log": LogSection}
 
 
 def _build(cls, data: Any, source: str, prefix: str):

@@ -137,6 +137,10 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         source = str(config)
         config = load_config(config)
     config.validate(source)
+    if config.log.tensorboard:
+        from .tensorboard import require_tensorboard
+
+        require_tensorboard()  # before anything is built or written
     run_dir = Path(config.run_dir) if resume is None else Path(resume)
     if resume is None and list_checkpoints(run_dir):
         raise TrainConfigError(source, "run_dir", "a new run folder (continue an existing run with --resume RUN_DIR)",
@@ -174,6 +178,11 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
 
     # ------------------------------------------------------------------ loop
     end = config.steps if stop_after is None else min(config.steps, stop_after)
+    tb = None
+    if info.main and config.log.tensorboard:
+        from .tensorboard import TensorBoardLog
+
+        tb = TensorBoardLog(run_dir, purge_step=start + 1 if start else None)
     log = open(metrics_path, "a") if info.main else None
     if log and start == 0:
         log.write(json.dumps({"step": 0, "event": "start", "world_size": info.world, "accumulation": accum,
@@ -218,11 +227,13 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             bar.set_postfix(loss=f"{loss_mean:.4f}", lr=f"{lr:.2e}", refresh=False)
             bar.update(1)
             if log and (done % config.log_every == 0 or done == end):
-                log.write(json.dumps({"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm,
-                                      "steps_per_s": rate, "elapsed_s": time.perf_counter() - t0,
-                                      "sigma_mean": sum(i.sigma for i in mine) / len(mine),
-                                      "skeleton_dropped": sum(i.drop for i in mine)}) + "\n")
+                record = {"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm, "steps_per_s": rate,
+                          "elapsed_s": time.perf_counter() - t0, "sigma_mean": sum(i.sigma for i in mine) / len(mine),
+                          "skeleton_dropped": sum(i.drop for i in mine)}
+                log.write(json.dumps(record) + "\n")
                 log.flush()
+                if tb is not None:
+                    tb.write(record)
             if done % config.save_every == 0 or done == end:
                 save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
     finally:
@@ -230,4 +241,6 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         bar.close()
         if log:
             log.close()
+        if tb is not None:
+            tb.close()
     return TrainResult(run_dir, end, last_loss, None), config
