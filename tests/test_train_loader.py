@@ -89,3 +89,11 @@ def test_workers_and_prefetch_are_checked(tmp_path, onthefly):
         tiny(onthefly, tmp_path, **{"data.workers": -1})
     with pytest.raises(TrainConfigError, match="data.prefetch': expected a positive integer"):
         tiny(onthefly, tmp_path, **{"data.prefetch": 0})
+
+
+def test_the_start_line_counts_clips_trained_without_text(tmp_path, onthefly):
+    cfg = tiny(onthefly, tmp_path / "r")
+    assert TrainData(cfg, None, 48).summary()["prompts"] == {"embedded": 0, "caption_only_zero_text": 3,
+                                                             "none_zero_text": 0}
+    embedded = write_toy_clipset(tmp_path / "emb", clips=2, frames=13, width=32, height=32, prompt_dim=48)
+    assert TrainData(tiny(embedded, tmp_path / "r2"), None, 48).summary()["prompts"]["embedded"] == 2

@@ -251,5 +251,10 @@ class TrainData:
         sources: dict[str, int] = {}
         for u in self.clips:
             sources[u.record.source] = sources.get(u.record.source, 0) + 1
+        embedded = sum("prompt_embeds" in u.record.files for u in self.clips)
+        captioned = sum("prompt_embeds" not in u.record.files and bool(u.record.caption) for u in self.clips)
+        # a clip without a stored prompt embedding trains on a zero text embedding (its caption is not encoded here)
+        prompts = {"embedded": embedded, "caption_only_zero_text": captioned,
+                   "none_zero_text": len(self.clips) - embedded - captioned}
         return {"clips": len(self.clips), "skipped_clips": len(self.skipped), "sources": sources,
-                "latents": "cached" if self.cached else "on_the_fly"}
+                "latents": "cached" if self.cached else "on_the_fly", "prompts": prompts}
