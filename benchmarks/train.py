@@ -9,7 +9,11 @@ windows, global batch 4, one thread per process:
 * 1 process (gradient accumulation 4) against 2 processes under DDP (gloo,
   accumulation 2): the same global batch, so the same training;
 * cached latents against the naive way, encoding RGB and rendered skeleton
-  with the VAE in the loop (1 process).
+  with the VAE in the loop (1 process);
+* that on-the-fly run again with ``data.workers: 2`` (threads loading the
+  next micro-batches while the step runs; the same batches, so the same loss).
+  The two on-the-fly runs alternate ``--repeats`` times (0, 2, 0, 2, ...) and
+  each row is the median, so that a load change on a shared machine hits both.
 
 Steps/s is taken from the run's ``metrics.jsonl`` over the steps after the
 first (which pays for imports and allocation).
@@ -56,12 +60,12 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
-def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size: int = 32) -> dict:
+def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size: int = 32, workers: int = 0) -> dict:
     import yaml
 
     cfg = {"run_dir": str(work / name), "steps": steps, "batch_size": 4, "micro_batch": 1, "save_every": steps,
            "log_every": 1, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-           "data": {"clips": [str(clips)], "window": 9, "width": size, "height": size},
+           "data": {"clips": [str(clips)], "window": 9, "width": size, "height": size, "workers": workers},
            "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0}}
     path = work / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -80,20 +84,31 @@ def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size:
     rows = [r for r in rows if "loss" in r]
     first, last = rows[0], rows[-1]
     rate = (last["step"] - first["step"]) / (last["elapsed_s"] - first["elapsed_s"])
-    return {"run": name, "processes": nproc, "steps": steps, "steps_per_s": rate, "wall_s": wall,
+    return {"run": name, "processes": nproc, "workers": workers, "steps": steps, "steps_per_s": rate, "wall_s": wall,
             "final_loss": last["loss"]}
 
 
-def speed(steps: int) -> list[dict]:
+def speed(steps: int, repeats: int = 3) -> list[dict]:
     from oscar_core.train.synthetic import write_toy_clipset
 
     work = Path(tempfile.mkdtemp(prefix="oscar-train-bench-"))
     cached = write_toy_clipset(work / "cached", clips=4, frames=13, width=32, height=32, latents_vae="random",
                                latents_window=9, prompt_dim=48)
     raw = write_toy_clipset(work / "raw", clips=4, frames=13, width=32, height=32, prompt_dim=48)
-    return [_speed_run(work, "cached-1proc", cached, steps, 1),
-            _speed_run(work, "cached-2proc-ddp", cached, steps, 2),
-            _speed_run(work, "on-the-fly-1proc", raw, steps, 1)]
+    rows = [_speed_run(work, "cached-1proc", cached, steps, 1),
+            _speed_run(work, "cached-2proc-ddp", cached, steps, 2)]
+    pair: dict[int, list[dict]] = {0: [], 2: []}
+    for r in range(repeats):
+        for workers in (0, 2):
+            name = "on-the-fly-1proc" if workers == 0 else "on-the-fly-2workers"
+            pair[workers].append(_speed_run(work, f"{name}-{r}", raw, steps, 1, workers=workers))
+    for workers, runs in pair.items():
+        runs = sorted(runs, key=lambda x: x["steps_per_s"])
+        row = dict(runs[len(runs) // 2])
+        row["run"] = "on-the-fly-1proc" if workers == 0 else "on-the-fly-2workers"
+        row["repeats_steps_per_s"] = [x["steps_per_s"] for x in pair[workers]]
+        rows.append(row)
+    return rows
 
 
 # --------------------------------------------------------------------------- memory (computed)
@@ -186,19 +201,24 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=20, help="optimiser steps per speed run (default 20)")
     ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "train.json"))
     ap.add_argument("--skip-speed", action="store_true", help="only the computed memory table")
+    ap.add_argument("--skip-memory", action="store_true", help="only the measured speed table")
+    ap.add_argument("--repeats", type=int, default=3, help="alternating repeats of the on-the-fly pair (median)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
               "torch": torch.__version__}
     if not args.skip_speed:
-        runs = speed(args.steps)
+        runs = speed(args.steps, args.repeats)
         result["speed"] = runs
         base = runs[0]["steps_per_s"]
         print("\nTiny config, CPU, global batch 4 (measured; one thread per process)")
         print(f"{'run':<20} {'procs':>5} {'steps/s':>8} {'vs 1 proc cached':>17} {'final loss':>10}")
         for r in runs:
             print(f"{r['run']:<20} {r['processes']:>5} {r['steps_per_s']:>8.2f} {r['steps_per_s'] / base:>16.2f}x "
-                  f"{r['final_loss']:>10.4f}")
+                  f"{r['final_loss']:>10.4f}" + (f"  (median of {', '.join(f'{v:.2f}' for v in r['repeats_steps_per_s'])})"
+                                                 if "repeats_steps_per_s" in r else ""))
+    if args.skip_memory:
+        return _write(result, args.json)
     mem = memory_table()
     result["memory"] = mem
     print(f"\nOSCAR-2B training memory per GPU, FSDP2, AdamW + EMA (COMPUTED, not measured: no GPU here)")
@@ -212,7 +232,11 @@ def main(argv=None) -> int:
         fits = lambda g: "yes" if g * GIB < 80e9 * 0.95 else "no"  # noqa: E731 - 5 % for the allocator and CUDA
         print(f"{r['gpus']:>4} {r['state_gib']:>10.1f} {r['total_no_ckpt_gib']:>10.1f} {r['total_ckpt_gib']:>8.1f}  "
               f"{fits(r['total_ckpt_gib'])} / {fits(r['total_no_ckpt_gib'])}")
-    out = Path(args.json)
+    return _write(result, args.json)
+
+
+def _write(result: dict, path) -> int:
+    out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"\nwrote {out}")

@@ -26,7 +26,7 @@ from typing import Any
 
 from ..errors import OscarError
 
-__all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "TrainConfig",
+__all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
 CONDITIONS = ("skeleton", "latent_action", "none")
@@ -101,6 +101,11 @@ class DataSection:
     # open every clip's files before training (trajectory length, video frame count and size); catches broken
     # clips up front at the cost of one pass over the files
     check_files: bool = True
+    # threads that load micro-batches ahead of the training step (ours; 0 = load in the loop, the default);
+    # the batches are the same for any number (oscar_core.train.loader)
+    workers: int = 0
+    # micro-batches each worker keeps loaded ahead (ours; as torch DataLoader's prefetch_factor)
+    prefetch: int = 2
 
 
 @dataclass
@@ -136,6 +141,14 @@ class OptimSection:
 
 
 @dataclass
+class LogSection:
+    """Where metrics go besides RUN_DIR/metrics.jsonl."""
+
+    # also write the metrics as TensorBoard scalars to RUN_DIR/tensorboard (ours; needs oscar-wm[tensorboard])
+    tensorboard: bool = False
+
+
+@dataclass
 class TrainConfig:
     """A whole training run."""
 
@@ -165,6 +178,7 @@ class TrainConfig:
     data: DataSection = field(default_factory=DataSection)
     flow: FlowSection = field(default_factory=FlowSection)
     optim: OptimSection = field(default_factory=OptimSection)
+    log: LogSection = field(default_factory=LogSection)
 
     def validate(self, source: str = "<config>") -> "TrainConfig":
         """Raise :class:`TrainConfigError` naming the first bad field."""
@@ -200,6 +214,10 @@ class TrainConfig:
             bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
         if not 0.0 <= d.prior_uniform <= 1.0:
             bad("data.prior_uniform", "a fraction in [0, 1]", d.prior_uniform)
+        if not isinstance(d.workers, int) or isinstance(d.workers, bool) or d.workers < 0:
+            bad("data.workers", "an integer >= 0 (0: load in the training loop)", d.workers)
+        if not isinstance(d.prefetch, int) or isinstance(d.prefetch, bool) or d.prefetch < 1:
+            bad("data.prefetch", "a positive integer (micro-batches loaded ahead per worker)", d.prefetch)
         if not isinstance(d.clips, list) or not d.clips:
             bad("data.clips", "a non-empty list of clip-set folders", d.clips)
         f = self.flow
@@ -216,12 +234,15 @@ class TrainConfig:
             bad("optim.grad_clip", "a positive number (the max gradient norm)", o.grad_clip)
         if o.warmup_steps < 0:
             bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
+        if not isinstance(self.log.tensorboard, bool):
+            bad("log.tensorboard", "true or false", self.log.tensorboard)
         if self.model.dtype not in ("float32", "bfloat16"):
             bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
         return self
 
 
-_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection}
+_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection,
+             "log": LogSection}
 
 
 def _build(cls, data: Any, source: str, prefix: str):

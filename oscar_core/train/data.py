@@ -17,6 +17,7 @@ counted when the config says so), and turns plan items into tensors:
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,6 +90,10 @@ class TrainData:
                 c.starts = None
         self._black: torch.Tensor | None = None
         self._embodiments: dict = {}
+        # load_item may run in worker threads (oscar_core.train.loader): the VAE (one causal-conv cache on the
+        # module) encodes one video at a time, and the caches below are filled once
+        self._vae_lock = threading.Lock()
+        self._cache_lock = threading.Lock()
 
     # ------------------------------------------------------------------ checks
     def _check(self, cs: ClipSet, rec: ClipRecord) -> UsableClip:
@@ -160,9 +165,17 @@ class TrainData:
 
     # ------------------------------------------------------------------ loading
     def embodiment(self, name: str):
-        if name not in self._embodiments:
-            self._embodiments[name] = self.registry.get(name)
-        return self._embodiments[name]
+        with self._cache_lock:
+            if name not in self._embodiments:
+                self._embodiments[name] = self.registry.get(name)
+            return self._embodiments[name]
+
+    def _encode(self, frames: np.ndarray, what: str) -> torch.Tensor:
+        """(C, T', h, w) VAE latent of (T, H, W, 3) uint8 frames; one encode at a time (thread-safe)."""
+        vae = self._need_vae(what)
+        pixels = vae.to_pixels(frames)
+        with self._vae_lock:
+            return vae.encode(pixels)[0]
 
     def _need_vae(self, what: str):
         if self.vae is None:
@@ -171,12 +184,12 @@ class TrainData:
 
     def black_latent(self) -> torch.Tensor:
         """(C, T', h, w) VAE latent of an all-black window at the training size (computed once)."""
-        if self._black is None:
-            vae = self._need_vae("the black-video unconditional latent")
-            w, h = self.size
-            black = np.zeros((self.window, h, w, 3), dtype=np.uint8)
-            self._black = vae.encode(vae.to_pixels(black))[0]
-        return self._black
+        with self._cache_lock:
+            if self._black is None:
+                w, h = self.size
+                black = np.zeros((self.window, h, w, 3), dtype=np.uint8)
+                self._black = self._encode(black, "the black-video unconditional latent")
+            return self._black
 
     def load_item(self, item: PlanItem, condition: str) -> dict:
         """Tensors of one plan item: z0 (C, T', h, w), skeleton (C_s, T', h, w) or None, text (L, D), actions."""
@@ -197,16 +210,16 @@ class TrainData:
             if want_skeleton:
                 out["skeleton"] = lat["skeleton"][row].float()
         else:
-            vae = self._need_vae("on-the-fly encoding")
+            self._need_vae("on-the-fly encoding")
             rgb = np.stack([fit_image(f, w, h, "crop") for f in clip.rgb])
-            out["z0"] = vae.encode(vae.to_pixels(rgb))[0]
+            out["z0"] = self._encode(rgb, "on-the-fly encoding")
             if want_skeleton:
                 if clip.skeleton is not None:
                     skel = np.stack([fit_image(f, w, h, "crop") for f in clip.skeleton])
                 else:
                     skel = render_skeleton_video(self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
                                                  resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
-                out["skeleton"] = vae.encode(vae.to_pixels(skel))[0]
+                out["skeleton"] = self._encode(skel, "on-the-fly encoding")
         if condition == "skeleton" and item.drop:
             out["skeleton"] = (self.black_latent() if self.config.data.unconditional_skeleton == "black_video"
                                else torch.zeros_like(out["z0"]))
@@ -238,5 +251,10 @@ class TrainData:
         sources: dict[str, int] = {}
         for u in self.clips:
             sources[u.record.source] = sources.get(u.record.source, 0) + 1
+        embedded = sum("prompt_embeds" in u.record.files for u in self.clips)
+        captioned = sum("prompt_embeds" not in u.record.files and bool(u.record.caption) for u in self.clips)
+        # a clip without a stored prompt embedding trains on a zero text embedding (its caption is not encoded here)
+        prompts = {"embedded": embedded, "caption_only_zero_text": captioned,
+                   "none_zero_text": len(self.clips) - embedded - captioned}
         return {"clips": len(self.clips), "skipped_clips": len(self.skipped), "sources": sources,
-                "latents": "cached" if self.cached else "on_the_fly"}
+                "latents": "cached" if self.cached else "on_the_fly", "prompts": prompts}

@@ -25,6 +25,7 @@ from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, lo
 from .config import TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
+from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
@@ -136,6 +137,10 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         source = str(config)
         config = load_config(config)
     config.validate(source)
+    if config.log.tensorboard:
+        from .tensorboard import require_tensorboard
+
+        require_tensorboard()  # before anything is built or written
     run_dir = Path(config.run_dir) if resume is None else Path(resume)
     if resume is None and list_checkpoints(run_dir):
         raise TrainConfigError(source, "run_dir", "a new run folder (continue an existing run with --resume RUN_DIR)",
@@ -173,6 +178,11 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
 
     # ------------------------------------------------------------------ loop
     end = config.steps if stop_after is None else min(config.steps, stop_after)
+    tb = None
+    if info.main and config.log.tensorboard:
+        from .tensorboard import TensorBoardLog
+
+        tb = TensorBoardLog(run_dir, purge_step=start + 1 if start else None)
     log = open(metrics_path, "a") if info.main else None
     if log and start == 0:
         log.write(json.dumps({"step": 0, "event": "start", "world_size": info.world, "accumulation": accum,
@@ -182,17 +192,23 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     bar = tqdm(total=config.steps, initial=start, disable=not (progress and info.main), unit="step",
                dynamic_ncols=True)
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
+
+    def plan(step: int) -> list[PlanItem]:
+        return StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
+
+    batches = iter_batches(data, micro_batches(plan, start, end, accum, config.micro_batch), config.condition,
+                           config.data.workers, config.data.prefetch)
     try:
         for step in range(start, end):
             lr = lr_at(step, o.lr, o.warmup_steps)
             for g in optimizer.param_groups:
                 g["lr"] = lr
-            mine = StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
+            mine = plan(step)
             optimizer.zero_grad(set_to_none=True)
             loss_sum = 0.0
             for k in range(accum):
-                micro = mine[k * config.micro_batch:(k + 1) * config.micro_batch]
-                batch = data.batch(micro, config.condition)
+                got_step, got_k, micro, batch = next(batches)
+                assert (got_step, got_k) == (step, k), "the loader hands out micro-batches in plan order"
                 with no_sync(wrapped, k == accum - 1):
                     loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
                     (loss / accum).backward()
@@ -211,15 +227,20 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             bar.set_postfix(loss=f"{loss_mean:.4f}", lr=f"{lr:.2e}", refresh=False)
             bar.update(1)
             if log and (done % config.log_every == 0 or done == end):
-                log.write(json.dumps({"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm,
-                                      "steps_per_s": rate, "elapsed_s": time.perf_counter() - t0,
-                                      "sigma_mean": sum(i.sigma for i in mine) / len(mine),
-                                      "skeleton_dropped": sum(i.drop for i in mine)}) + "\n")
+                record = {"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm, "steps_per_s": rate,
+                          "elapsed_s": time.perf_counter() - t0, "sigma_mean": sum(i.sigma for i in mine) / len(mine),
+                          "skeleton_dropped": sum(i.drop for i in mine)}
+                log.write(json.dumps(record) + "\n")
                 log.flush()
+                if tb is not None:
+                    tb.write(record)
             if done % config.save_every == 0 or done == end:
                 save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
     finally:
+        batches.close()
         bar.close()
         if log:
             log.close()
+        if tb is not None:
+            tb.close()
     return TrainResult(run_dir, end, last_loss, None), config
