@@ -11,8 +11,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _datasets import base_parts, write_episode  # noqa: E402
 
 from oscar_core.data.dedup import (DedupConfig, SiglipEmbedder, UnionFind, adaptive_threshold,  # noqa: E402
-                                   brute_force_pairs, candidate_pairs, dedup_rows, motion_scale, resample_points,
-                                   trajectory_rms)
+                                   brute_force_pairs, candidate_pairs, dedup_rows, motion_scale, pca_projection,
+                                   resample_points, trajectory_rms)
 
 transformers = pytest.importorskip("transformers")
 pytest.importorskip("faiss")
@@ -50,6 +50,34 @@ def test_found_pairs_are_identical_to_brute_force():
     # and the reference itself against the definition
     i, j = np.nonzero(np.triu(sims > 0.95, 1))
     np.testing.assert_array_equal(bf, np.stack([i, j], 1))
+
+
+def test_projected_search_loses_no_pair_and_keeps_no_false_one():
+    # 256-d rows projected onto 24 principal directions: the projection never lengthens a distance, so probing every
+    # list finds exactly the brute-force pairs; the default probes at this size find them all too
+    x = clustered(3000, d=256, per=6)
+    bf = brute_force_pairs(x)
+    assert len(bf) > 2000
+    np.testing.assert_array_equal(candidate_pairs(x, 0.95, nlist=32, nprobe=32, reduce_dim=24), bf)
+    timings = {}
+    np.testing.assert_array_equal(candidate_pairs(x, 0.95, nlist=32, nprobe=8, reduce_dim=24, timings=timings), bf)
+    assert set(timings) == {"project", "kmeans", "assign", "blocks", "check"}
+    # small blocks (many matrix products per list) give the same pairs
+    np.testing.assert_array_equal(candidate_pairs(x, 0.95, nlist=32, nprobe=8, reduce_dim=24, block=1000), bf)
+
+
+def test_pca_projection_is_orthonormal_and_never_lengthens_a_distance():
+    x = clustered(2000, d=96)
+    mean, basis = pca_projection(x, 16)
+    np.testing.assert_allclose(basis.T @ basis, np.eye(16), atol=1e-5)
+    rng = np.random.default_rng(3)
+    i, j = rng.integers(0, len(x), (2, 5000))
+    full = np.linalg.norm(x[i] - x[j], axis=1)
+    proj = np.linalg.norm((x[i] - mean) @ basis - (x[j] - mean) @ basis, axis=1)
+    assert np.all(proj <= full + 1e-5) and proj.mean() < full.mean()
+    # the first direction is the one of largest variance: it matches numpy's SVD of the centred rows
+    _, _, vt = np.linalg.svd(x - x.mean(0), full_matrices=False)
+    assert abs(float(basis[:, 0] @ vt[0])) == pytest.approx(1.0, abs=1e-4)
 
 
 def test_one_probe_misses_pairs_that_more_probes_find():

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -162,3 +163,69 @@ def test_atomic_write_leaves_no_temporary_and_local_path_refuses_object_stores(t
     assert _fs.local_path(url) == str(tmp_path / "a" / "b.bin") and _fs.local_path("rel/x").endswith("rel/x")
     with pytest.raises(ValueError, match=r"memory://x/clips: expected a local folder or a file:// URL"):
         _fs.local_path("memory://x/clips")
+
+
+@pytest.mark.slow
+def test_memory_run_ingest_filter_resume_and_export(tmp_path):
+    # a whole run on fsspec's in-memory filesystem: manifests written and read back, a resumed stage skips what is
+    # done, and the exported clip set (copied back to disk) equals the one exported to a local folder
+    import fsspec
+
+    from oscar_core.data.run import run_export
+    from oscar_core.train.clips import ClipSet
+
+    src = _source(tmp_path, 3)
+    run = "memory://oscar-test-run/r1"
+    run_ingest(src, "npz", run, workers=1, shard_size=1, progress=False)
+    run_filter(run, workers=1, shard_size=1, progress=False)
+    ingest = read_stage(_fs.join(run, "ingest"))
+    assert [r["ingest_status"] for r in ingest] == ["ok"] * 3
+    local = str(tmp_path / "local")
+    run_ingest(src, "npz", local, workers=1, shard_size=1, progress=False)
+    run_filter(local, workers=1, shard_size=1, progress=False)
+    assert read_stage(_fs.join(run, "filter")) == read_stage(_fs.join(local, "filter"))
+    # resume: forget one shard's completion and the manifest; the re-run redoes that shard only
+    fs = fsspec.filesystem("memory")
+    fs.rm("/oscar-test-run/r1/filter/completions/part-000001.json")
+    fs.rm("/oscar-test-run/r1/filter/manifest.parquet")
+    with pytest.raises(StageIncomplete, match="part-000001"):
+        read_stage(_fs.join(run, "filter"))
+    again = run_filter(run, workers=1, shard_size=1, progress=False)
+    assert again.skipped == ["part-000000", "part-000002"] and again.processed == ["part-000001"]
+    assert read_stage(_fs.join(run, "filter")) == read_stage(_fs.join(local, "filter"))
+    # export to memory:// and to disk
+    clips = "memory://oscar-test-run/clips"
+    with pytest.raises(ValueError, match=r"memory://oscar-test-run/clips: a memory:// folder lives in this process"):
+        run_export(run, clips, workers=2, progress=False)
+    run_export(run, clips, workers=1, shard_size=2, progress=False)
+    run_export(local, str(tmp_path / "clips"), workers=1, shard_size=2, progress=False)
+    names = sorted(p.rsplit("/", 1)[-1] for p in fs.find("/oscar-test-run/clips"))
+    assert names.count("clips.jsonl") == 2 and "oscar_clips.json" in names
+    fs.get("/oscar-test-run/clips", str(tmp_path / "copied"), recursive=True)
+    got, ref = ClipSet(tmp_path / "copied"), ClipSet(tmp_path / "clips")
+    assert sorted(r.id for r in got) == sorted(r.id for r in ref) and len(ref) == 3
+    for rec in ref:
+        a, b = got.load(rec.id), ref.load(rec)
+        np.testing.assert_array_equal(a.rgb, b.rgb)
+        np.testing.assert_array_equal(a.trajectory.q, b.trajectory.q)
+    assert read_stage(_fs.join(run, "export")) == read_stage(_fs.join(local, "export"))
+    fs.rm("/oscar-test-run", recursive=True)
+
+
+def test_unknown_protocol_and_missing_filesystem_package_are_named():
+    with pytest.raises(ValueError, match=r"nosuchfs://bucket/run: expected a local path or an fsspec URL, found the "
+                                         r"unknown protocol 'nosuchfs'"):
+        _fs.exists("nosuchfs://bucket/run")
+    from fsspec.registry import known_implementations
+
+    missing = next(p for p in ("gcs", "s3", "az", "oci", "webhdfs") if _missing(known_implementations[p]["class"]))
+    package = known_implementations[missing]["class"].split(".")[0]
+    with pytest.raises(ImportError, match=rf"{missing}://b/run/plan.json: the {missing}:// filesystem needs the Python package "
+                                          rf"'{package}' \(pip install {package}\)"):
+        run_sharded(Double(), rows(2), f"{missing}://b/run", workers=1, progress=False)
+
+
+def _missing(cls_path: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(cls_path.split(".")[0]) is None

@@ -12,14 +12,62 @@ from __future__ import annotations
 import posixpath
 import uuid
 
-__all__ = ["url_to_fs", "join", "write_bytes_atomic", "read_bytes", "exists", "listdir", "local_path"]
+__all__ = ["url_to_fs", "join", "write_bytes_atomic", "read_bytes", "exists", "listdir", "local_path", "is_local",
+           "process_local", "put_tree"]
 
 
 def url_to_fs(url: str):
-    """(filesystem, path within it) for a local path or an fsspec URL."""
-    import fsspec
+    """(filesystem, path within it) for a local path or an fsspec URL.
 
-    return fsspec.core.url_to_fs(str(url))
+    An unknown protocol is a ValueError naming the URL; a known one whose
+    package is missing (``s3://`` without s3fs) an ImportError naming the
+    package to install.
+    """
+    import fsspec
+    from fsspec.registry import known_implementations
+
+    url = str(url)
+    try:
+        return fsspec.core.url_to_fs(url)
+    except ImportError as exc:
+        proto = url.split("://", 1)[0]
+        impl = known_implementations.get(proto, {}).get("class", "")
+        package = impl.split(".", 1)[0] or "the filesystem's package"
+        raise ImportError(f"{url}: the {proto}:// filesystem needs the Python package {package!r} "
+                          f"(pip install {package}); fsspec says: {exc}") from None
+    except ValueError as exc:
+        if "Protocol not known" not in str(exc):
+            raise
+        proto = url.split("://", 1)[0]
+        raise ValueError(f"{url}: expected a local path or an fsspec URL, found the unknown protocol {proto!r} "
+                         f"(known: file, memory, s3, gcs, az, hdfs, … see fsspec.available_protocols())") from None
+
+
+def process_local(url: str) -> bool:
+    """True for a filesystem only this process sees (``memory://``): worker processes would write elsewhere."""
+    fs, _ = url_to_fs(url)
+    protocols = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
+    return "memory" in protocols
+
+
+def put_tree(local_dir: str, url: str, last: tuple[str, ...] = ()) -> None:
+    """Copy the files under a local folder to ``url`` (a folder), replacing what is there; the files named in
+    ``last`` (paths relative to the folder) are copied after all others, so a reader that waits for them never
+    sees a partial folder."""
+    import os
+
+    fs, root = url_to_fs(url)
+    if fs.exists(root):
+        fs.rm(root, recursive=True)
+    files = []
+    for base, _, names in os.walk(local_dir):
+        for name in names:
+            files.append(os.path.relpath(os.path.join(base, name), local_dir).replace(os.sep, "/"))
+    files.sort(key=lambda f: (f in last, last.index(f) if f in last else 0, f))
+    for rel in files:
+        target = posixpath.join(root, rel)
+        fs.makedirs(posixpath.dirname(target), exist_ok=True)
+        fs.put_file(os.path.join(local_dir, rel), target)
 
 
 def join(url: str, *parts: str) -> str:
@@ -66,6 +114,13 @@ def listdir(url: str) -> list[str]:
     if not fs.exists(path):
         return []
     return sorted(posixpath.basename(p.rstrip("/")) for p in fs.ls(path, detail=False))
+
+
+def is_local(url: str) -> bool:
+    """True for a local path or a ``file://`` URL."""
+    fs, _ = url_to_fs(url)
+    protocols = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
+    return "file" in protocols or "local" in protocols
 
 
 def local_path(url: str) -> str:

@@ -157,7 +157,7 @@ def add_data_parser(sub) -> None:
     p = ds.add_parser("export", help="live episodes as training clips (docs/formats.md, Training clips)",
                       epilog=EXAMPLE, formatter_class=fmt)
     p.add_argument("run", help="run folder")
-    p.add_argument("--out", required=True, help="clip set folder (local)")
+    p.add_argument("--out", required=True, help="clip set folder or fsspec URL")
     p.add_argument("--size", help="WIDTHxHEIGHT to resize to (default: the video's)")
     p.add_argument("--render-skeleton", action="store_true", help="store the skeleton video (default: the trainer "
                                                                   "renders it on the fly)")

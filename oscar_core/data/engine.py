@@ -148,6 +148,14 @@ class _RayShardTask:
         return {"name": name, "n": n, "done": done}
 
 
+def check_workers_see(url: str, engine: str, workers: int | None) -> None:
+    """ValueError when worker processes (``--workers`` > 1 or Ray) would write ``url`` on a filesystem only this
+    process sees (``memory://``): their output would be lost."""
+    if (engine == "ray" or (workers or os.cpu_count() or 1) > 1) and _fs.process_local(url):
+        raise ValueError(f"{url}: a memory:// folder lives in this process only; expected --workers 1 and "
+                         f"--engine local with it, found --engine {engine} --workers {workers or os.cpu_count()}")
+
+
 def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: str = "local",
                 workers: int | None = None, progress: bool = True, desc: str = "") -> StageRun:
     """Map ``fn`` over ``rows`` in shards into ``stage_url``; skip shards already completed.
@@ -162,6 +170,7 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         raise ValueError(f"--engine: expected one of {list(ENGINES)}, found {engine!r}")
     if shard_size < 1:
         raise ValueError(f"--shard-size: expected a positive integer, found {shard_size}")
+    check_workers_see(stage_url, engine, workers)
     plan = _plan(rows, shard_size)
     plan_url = _fs.join(stage_url, "plan.json")
     if _fs.exists(plan_url):

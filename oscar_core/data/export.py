@@ -8,6 +8,8 @@ export resumes shard by shard. Each clip is the whole episode: RGB frames
 trajectory, the camera, the open/close signal, the caption (or none) and the
 dataset's task text. The skeleton is rendered on the fly by the trainer by
 default; ``render_skeleton`` stores it (``oscar_core.pipeline.render_skeleton_video``).
+The clip set may be a local folder or an fsspec URL (``s3://…``; the trainer
+reads a local copy).
 Clip ids are the episode id with ``/`` and other characters outside
 ``[A-Za-z0-9._-]`` replaced by ``-``, plus 8 hex digits of its hash (unique).
 """
@@ -15,11 +17,14 @@ Clip ids are the episode id with ``/`` and other characters outside
 from __future__ import annotations
 
 import hashlib
+import json
 import re
+import tempfile
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import _fs
 from ._episode import EPISODE_ERRORS, camera_at_video_size, load_row, reason_of
 from .manifest import is_alive
 
@@ -34,7 +39,12 @@ def clip_id(episode_id: str) -> str:
 
 @dataclass(frozen=True)
 class ExportStage:
-    """Sharded stage writing clip-set shards under ``out`` (a local folder)."""
+    """Sharded stage writing clip-set shards under ``out`` (a local folder or an fsspec URL).
+
+    For a URL each shard is written to a local temporary folder, then copied
+    to ``out/shard-…/`` with its index (``clips.jsonl``) last, so the shard
+    exists for a reader only once all its files are there.
+    """
 
     out: str
     size: tuple[int, int] | None = None
@@ -44,10 +54,18 @@ class ExportStage:
     name: str = "export"
 
     def __call__(self, rows: list[dict], shard: str = "") -> list[dict]:
+        name = f"shard-{shard or 'x'}"
+        if _fs.is_local(self.out):
+            return self._write(rows, _fs.local_path(self.out), name)
+        with tempfile.TemporaryDirectory(prefix="oscar-export-") as tmp:
+            out = self._write(rows, tmp, name)
+            _put_clip_set(tmp, self.out, name)
+        return out
+
+    def _write(self, rows: list[dict], root: str, name: str) -> list[dict]:
         from ..train.clips import ClipSetWriter
 
-        writer = ClipSetWriter(self.out, video_codec=self.video_codec)
-        name = f"shard-{shard or 'x'}"
+        writer = ClipSetWriter(root, video_codec=self.video_codec)
         out = []
         with writer.shard(name) as sw:
             for r in rows:
@@ -85,3 +103,21 @@ class ExportStage:
                          files={}, caption=row.get("caption"), task=row.get("task"),
                          meta={"episode": row["id"], "frames": [0, len(traj)], "camera": row.get("camera")})
         return Clip(rec, rgb=rgb, trajectory=traj, camera=cam, skeleton=skeleton)
+
+
+def _put_clip_set(local_root: str, url: str, shard: str) -> None:
+    """Copy one finished clip-set shard (and the clip set's marker, when ``url`` has none yet) to ``url``."""
+    from ..train.clips import CLIPSET_FILE, CLIPSET_FORMAT, SHARD_INDEX
+
+    marker = _fs.join(url, CLIPSET_FILE)
+    if _fs.exists(marker):
+        try:
+            fmt = json.loads(_fs.read_bytes(marker)).get("format")
+        except (ValueError, AttributeError):
+            fmt = "unreadable JSON"
+        if fmt != CLIPSET_FORMAT:
+            raise ValueError(f"{marker}: expected a clip set marker (format {CLIPSET_FORMAT!r}), found {fmt!r}")
+    else:
+        with open(f"{local_root}/{CLIPSET_FILE}", "rb") as f:
+            _fs.write_bytes_atomic(marker, f.read())
+    _fs.put_tree(f"{local_root}/{shard}", _fs.join(url, shard), last=(SHARD_INDEX,))

@@ -83,10 +83,11 @@ def run_caption(run: str, config, *, plugin_paths: tuple[str, ...] = (), **kw) -
 
 def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, video_codec: str = "ffv1",
                plugin_paths: tuple[str, ...] = (), **kw) -> StageRun:
-    """Write every live episode as a training clip into the clip set ``out`` (a local folder)."""
+    """Write every live episode as a training clip into the clip set ``out`` (a local folder or an fsspec URL)."""
+    from .engine import check_workers_see
     from .export import ExportStage
 
+    check_workers_see(out, kw.get("engine", "local"), kw.get("workers"))
     _, rows = input_rows(run, "export")
-    stage = ExportStage(_fs.local_path(out), tuple(size) if size else None, render_skeleton, video_codec,
-                        tuple(plugin_paths))
+    stage = ExportStage(str(out), tuple(size) if size else None, render_skeleton, video_codec, tuple(plugin_paths))
     return run_sharded(stage, rows, _fs.join(run, "export"), desc="export", **_opts(kw))
