@@ -145,6 +145,23 @@ def test_export_is_a_zoo_loadable_model_with_ema_weights(tmp_path, clipset):
     out = model.rollout(np.zeros((32, 32, 3), np.uint8), np.zeros((9, 32, 32, 3), np.uint8), progress=False,
                         sampler=SamplerConfig(steps=2, guidance=None))
     assert out.frames.shape == (9, 32, 32, 3)
+    assert model.empty_prompt is None  # the clips carried prompt embeddings: no empty prompt is invented
+
+
+def test_export_of_a_run_without_prompts_stores_the_zero_prompt_it_trained_on(tmp_path):
+    import warnings
+
+    import oscar_zoo
+
+    clips = write_toy_clipset(tmp_path / "noprompt", clips=1, frames=9, width=32, height=32, latents_vae="random",
+                              latents_window=9)
+    cfg = tiny(clips, tmp_path / "run", steps=1, export=True)
+    model = oscar_zoo.load(train(cfg, progress=False).export)
+    assert model.empty_prompt.shape == (1, 1, 48) and not model.empty_prompt.any()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "ZERO text embedding" warning: it is what training used
+        emb, source = model.resolve_prompt()
+    assert "stored in the checkpoint" in source
 
 
 def test_gradient_checkpointing_gives_the_same_step_and_bf16_autocast_runs(tmp_path, clipset):

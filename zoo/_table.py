@@ -22,6 +22,11 @@ fps it expects. What could not be verified is left as None, never guessed:
   files. Defaults (93 frames, 1280x704, 16 fps) are those of diffusers'
   ``Cosmos2_5_PredictBasePipeline`` (its ``__call__`` defaults and example).
 
+* ``oscar-toy`` (bundled: ``zoo/assets/oscar-toy``, shipped inside the
+  package, loaded offline): the toy world's model (docs/toyworld.md), a 1.8 M
+  parameter DiT and 0.66 M parameter VAE trained on this project's CPU; the
+  sha256 of every file it ships is pinned here.
+
 File hashes that are None are still checked for integrity after download:
 the safetensors structure of every weight file (partial/corrupted files),
 and the sha256 manifest when a checkpoint ships one.
@@ -125,5 +130,36 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
         files=_OSCAR_LAYOUT,
         text_encoder_id=COSMOS_TEXT_ENCODER_ID,
         notes="the paper's release; file layout, license, commit and hashes unverified",
+    ),
+    CheckpointSpec(
+        name="oscar-toy",
+        repo_id="",
+        revision=None,
+        kind="oscar",
+        license="Apache-2.0",
+        paper="oscar's toy-world reproduction of OSCAR's central claim (docs/toyworld.md)",
+        embodiments=("franka", "kuka", "toyarm"),
+        chunk_frames=17, width=64, height=64, fps=10.0,
+        files=(
+            FileSpec("README.md",
+                     "0690498b93cf5e1876857f33fb3f5dd49a9249a271128e472e88c1fe4c7384b7"),
+            FileSpec("oscar_manifest.json",
+                     "09d7940425a7af17617104025dec89178cfaf3bd5ac8bd71af45ea67fef36449"),
+            FileSpec("oscar_model.json",
+                     "76fdf970212b2e42b0f7189d0559f41d3f93231a4aa6e357541fb84bf8426c85"),
+            FileSpec("text/empty_prompt_embeds.safetensors",
+                     "315a414f568f65357cd9dd70dab0b3a573913300961246539db4ecbb13f595d2"),
+            FileSpec("transformer/config.json",
+                     "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"),
+            FileSpec("transformer/diffusion_pytorch_model.safetensors",
+                     "c30652832077cfb9070257154803c91d6030b2b16c4bd634d10933b312d3c773"),
+            FileSpec("vae/config.json",
+                     "0e21fa078366996425e0969d0d68e47429d56c547c1c017917a9f04e9046780e"),
+            FileSpec("vae/diffusion_pytorch_model.safetensors",
+                     "33cfa6dd5f7be069bccdcb15dd5af04d097fb4903c6a1c012b0da674fbc8a74c"),
+        ),
+        text_encoder_id=None,
+        notes="bundled: a small DiT + VAE trained on the procedural toy world on a CPU; not a model of real robots",
+        bundled="assets/oscar-toy",
     ),
 ), key=lambda spec: spec.name))

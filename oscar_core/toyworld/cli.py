@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
@@ -216,8 +217,8 @@ def cmd_package(args) -> int:
     from .evaluate import format_table
     from .package import package_toy_model
 
-    training = json.loads(open(args.training).read()) if args.training else None
-    table = json.loads(open(args.table).read()) if args.table else None
+    training = json.loads(Path(args.training).read_text()) if args.training else None
+    table = json.loads(Path(args.table).read_text()) if args.table else None
     if table is not None:
         table = {**table, "markdown": format_table(table)}
     hashes = package_toy_model(args.export, args.out, name=args.name, training=training, table=table)

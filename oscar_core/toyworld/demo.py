@@ -32,11 +32,12 @@ def side_by_side(*videos: np.ndarray, scale: int = 2, gap: int = 2) -> np.ndarra
     return np.concatenate(parts, axis=2)
 
 
-def toy_rollout_demo(out_dir, model="oscar-toy", registry=None, steps: int | None = None,
-                     guidance: float | None = None, seed: int = 0) -> tuple[np.ndarray, dict]:
+def toy_rollout_demo(out_dir, model="oscar-toy", registry=None, steps: int | None = 20,
+                     guidance: float | None = 3.0, seed: int = 0) -> tuple[np.ndarray, dict]:
     """Roll ``model`` out on :data:`DEMO_EPISODE`; returns the side-by-side video and a summary.
 
-    Writes ``OUT_DIR/toyworld_rollout.mp4``. The summary holds the path, the
+    Writes ``OUT_DIR/toyworld_rollout.mp4``. Sampler: 20 UniPC steps,
+    guidance 3 (the settings of the toy table, docs/toyworld.md). The summary holds the path, the
     wall time of the rollout and its PSNR against the ground truth.
     """
     import torch

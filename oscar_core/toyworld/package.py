@@ -32,8 +32,9 @@ def model_card_markdown(name: str, card: dict, training: dict, table: dict | Non
     """The README.md of a shipped toy model (markdown)."""
     lines = [f"# {name}", "",
              "A small OSCAR world model trained on oscar's procedural toy world (docs/toyworld.md) on a 2-core CPU.",
-             "It shows at toy scale what the paper claims at full scale: the skeleton video drives the generated "
-             "video. It is not a model of real robots or real scenes.", "",
+             "It is the toy-scale test of the paper's central claim, that the skeleton video drives the generated "
+             "video; the table below says how far this checkpoint gets. It is not a model of real robots or real "
+             "scenes.", "",
              "## Model", "",
              f"- DiT: `OscarTransformer3DModel`, {training.get('transformer_parameters', '?')} parameters; "
              f"VAE: `AutoencoderKLWan` (4x time, 4x space), {training.get('vae_parameters', '?')} parameters.",

@@ -17,6 +17,8 @@ import tempfile
 from collections import Counter
 from pathlib import Path
 
+import torch
+
 from .checkpoint import checkpoint_dir, latest_checkpoint, load_weights
 from .clips import ClipSet
 from .config import load_config
@@ -29,6 +31,9 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
     """Write ``run_dir``'s checkpoint (latest, or ``step``) to ``out`` (default RUN_DIR/export); returns ``out``.
 
     The folder is assembled beside ``out`` and renamed into place, replacing an older export.
+    When no training clip had a prompt embedding (every step saw the zero text
+    embedding), the export stores that zero embedding as the model's empty
+    prompt.
     """
     from ..model.world_model import ModelCard, OscarWorldModel
 
@@ -53,7 +58,12 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
                          embodiments=tuple(sorted({r.embodiment for r in records})),
                          base=base, unconditional_skeleton=config.data.unconditional_skeleton,
                          condition=config.condition)
-        OscarWorldModel(transformer, vae, card).save_pretrained(tmp)
+        model = OscarWorldModel(transformer, vae, card)
+        if records and not any("prompt_embeds" in r.files for r in records):
+            # every clip trained on the zero text embedding (1, D): that is this model's empty prompt, stored so
+            # that a rollout without a prompt uses what training used (and does not warn about zeros)
+            model.empty_prompt = torch.zeros(1, 1, transformer.text_dim)
+        model.save_pretrained(tmp)
         if out.exists():
             shutil.rmtree(out)
         tmp.rename(out)
