@@ -39,6 +39,15 @@ def test_docs_plugin_walkthrough(tmp_path):
     env_dir = tmp_path / "venv"
     venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
     py = str(env_dir / "bin" / "python")
+    # system_site_packages shows the base interpreter's packages, not those of a virtual environment the tests
+    # may run in: add the running interpreter's site-packages (their .pth files too: editable installs)
+    import sysconfig
+
+    site_dir = subprocess.run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    parents = sorted({sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]})
+    Path(site_dir, "_tests_parent_env.pth").write_text(
+        "".join(f"import site; site.addsitedir({d!r})\n" for d in parents))
     work = tmp_path / "work"
     work.mkdir()
     outputs = []

@@ -334,3 +334,18 @@ def test_eval_video_latent_l2_uses_the_project_vae(tmp_path, model_dir, capsys):
     assert _cli(*args) == 0
     data = json.loads(capsys.readouterr().out)
     assert "latent_l2" not in data["aggregate"] and data["notes"]["latent_l2"].startswith("skipped: the VAE of 'oscar-2b'")
+
+
+def test_all_tied_preferences_give_tied_ranks_not_float_noise(tmp_path, model_dir):
+    """A judge that fails every rollout: every pairwise comparison is a tie, the fitted Elo are equal up to
+    float noise, and the rank metrics must see ties (Spearman NaN), not an order from the last digits."""
+    manifest = make_study(tmp_path / "study")
+    never = ProgrammaticJudge(lambda video, clip: {"binary": 0, "partial": 0, "reason": "no"})
+    from oscar_core.model import SamplerConfig
+
+    res = run_evaluation(manifest, tmp_path / "out", model=oscar_zoo.load(str(model_dir)), judge=never,
+                         pairwise_judge=never, sampler=SamplerConfig(steps=1), log=lambda m: None)
+    comp = res.report["comparison"]
+    elo = [p["bt_elo"] for p in res.report["policies"]]
+    assert max(elo) - min(elo) < 1e-6
+    assert comp["metrics"]["spearman_rho"] is None  # NaN in JSON: one side is constant

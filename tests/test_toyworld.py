@@ -387,13 +387,16 @@ def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
     ids = write_reconstructions(clips, tmp_path / "vae", tmp_path / "recon")
     table = evaluate_conditions(clips, {"vae": str(tmp_path / "recon")})
     assert ids == ["toyarm-000009"] and table["rows"]["vae"]["clips"] == 1
-    assert table["rows"]["vae"]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-9)
+    # equal up to float rounding: the saved VAE normalises its latents ((z - mean) / std, then back), the
+    # trainer's evaluation ran before the statistics were set
+    assert table["rows"]["vae"]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-3)
     # fine-tuning starts from the saved weights (same architecture, whatever --base-dim says)
     tuned = train_vae(clips, tmp_path / "tuned", VAETrainConfig(steps=1, batch=1, base_dim=99, eval_every=0,
                                                                 eval_clips=1, init=str(tmp_path / "vae")),
                       log=lambda m: None)
     torch.set_num_threads(n)
-    assert tuned["config"] == card["config"] and tuned["evals"][0]["psnr_db"] == pytest.approx(card["heldout_psnr_db"])
+    assert tuned["config"] == card["config"]
+    assert tuned["evals"][0]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-3)  # normalisation rounding
     # and the folder is the vae/ of a world model
     model = OscarWorldModel.from_modules(build_tiny_transformer(), vae, ModelCard(name="toy", chunk_frames=5))
     model.save_pretrained(tmp_path / "model")

@@ -87,8 +87,11 @@ def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pa
         missing = [p for p, v in wm_sr.items() if v is None]
         comparison_error = f"no valid world-model verdict for policies {missing}"
     else:
+        # Elo rounded to 1e-6: scores equal up to the fit's float noise (e.g. every comparison a tie) are tied
+        # ranks, not an order drawn from the last digits
+        wm_elo = {p: round(v, 6) for p, v in bt.scores("elo").items()} if bt is not None else None
         comparison = compare_policies(real_sr, wm_sr, real_score=manifest.real_scores,
-                                      wm_score=bt.scores("elo") if bt is not None else None,
+                                      wm_score=wm_elo,
                                       real_score_label="real_scores", wm_score_label="bradley_terry_elo")
     by_cell = {v.clip: v for v in verdicts if v is not None}
     cells = []

@@ -5,8 +5,9 @@ Conditions (the rows of ``oscar toyworld eval``'s table):
 * ``true``: the clip's own skeleton video (stored, else rendered from its
   trajectory + camera);
 * ``shuffled``: the skeleton of another clip of the same embodiment (clip i
-  takes clip i + 1's, cyclically within the embodiment, over the clips of the
-  split: a fixed derangement, so every clip gets a foreign skeleton);
+  takes clip i + 1's, cyclically within the embodiment, over the clips rolled
+  out — the split, or its ``limit`` subset: a fixed derangement, so every clip
+  gets a foreign skeleton unless it is its embodiment's only clip);
 * ``zero``: the model's unconditional branch alone (the skeleton it was
   trained to see when the skeleton is dropped: ``guidance 0`` in the
   ``standard`` form, whatever skeleton is passed).

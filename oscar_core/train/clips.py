@@ -23,7 +23,8 @@ The skeleton is rendered on the fly from trajectory + camera + embodiment
 unless a stored ``skeleton`` video is given. Cached latents hold, for N
 windows of ``window`` frames starting at ``starts``, the normalised VAE
 latents of both streams: tensors ``video`` and ``skeleton`` of shape
-(N, C, 1 + (window − 1) / 4, H / 8, W / 8) and ``starts`` (N,) int64, with
+(N, C, 1 + (window − 1) / 4, H / s, W / s) (s: the VAE's spatial compression, 8 for WAN 2.1) and
+``starts`` (N,) int64, with
 metadata ``window``, ``vae`` (the VAE's name or hash), ``width``, ``height``.
 """
 
