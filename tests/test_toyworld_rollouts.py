@@ -14,12 +14,7 @@ from oscar_core.toyworld.rollouts import sampler_for_card, skeleton_partners, wr
 from oscar_core.train.clips import ClipRecord, ClipSet
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

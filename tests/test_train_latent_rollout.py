@@ -29,12 +29,7 @@ STEPS = SamplerConfig(steps=2)  # action_guidance None: the conditional branch a
 pytestmark = pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
