@@ -26,10 +26,10 @@ from test_train_loop import tiny  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 STEPS = SamplerConfig(steps=2)  # action_guidance None: the conditional branch alone
-pytestmark = pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning")
+pytestmark = [pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
+              pytest.mark.usefixtures("one_thread")]  # tests/conftest.py
 
 
-pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
