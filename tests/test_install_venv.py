@@ -62,6 +62,8 @@ def test_fresh_venv_install_with_mano_extra(tmp_path):
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
     rendered = {v["embodiment"] for v in summary["videos"]}
     assert {"franka", "kuka", "agibot_g1", "hsr", "mano"} <= rendered, out
+    # the bundled oscar-toy checkpoint is in the wheel (package data) and rolls out from it, offline
+    assert summary["toy_world"]["model"] == "oscar-toy" and (tmp_path / "demo" / "toyworld_rollout.mp4").is_file(), out
     probe = ("import json, smplx, oscar_core; from oscar_core import get_embodiment; "
              "import oscar_embodiments.mano.mano_model as m; m.require_smplx(); "
              "print(json.dumps({'where': oscar_core.__file__, 'mano': get_embodiment('mano').info()['mano_parameters']}))")
