@@ -71,16 +71,6 @@ def sampler_for_card(card, steps: int | None = None, guidance: float | None = No
                          guidance_form=guidance_form)
 
 
-def _skeleton(cs, rec, registry) -> np.ndarray:
-    from ..pipeline import render_skeleton_video
-
-    clip = cs.load(rec, video=False, skeleton=True, registry=registry)
-    if clip.skeleton is not None:
-        return clip.skeleton
-    return render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
-                                 camera_source=str(cs.path(rec, "camera")))
-
-
 def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
                    limit: int | None = None, sampler=None, seed: int = 0, registry=None,
                    log: Callable[[str], None] | None = None) -> dict:
@@ -118,16 +108,15 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
             continue
         first = cs.load(rec, frames=1, skeleton=False).rgb[0]
         source = cs.record(partner[rec.id]) if condition == "shuffled" else rec
+        clip = cs.load(source, video=False, registry=registry)
         t0 = time.perf_counter()
-        if getattr(model.card, "condition", "skeleton") == "latent_action":
-            from ..train.latent_action import latent_actions
-
-            traj = cs.load(source, video=False, skeleton=False).trajectory
-            acts = latent_actions(registry.get(source.embodiment), traj)[:rec.n_frames - 1]
+        if model.card.condition == "latent_action":  # the model builds its actions from the trajectory
+            acts = model.rollout_inputs(clip.trajectory, clip.camera, registry.get(source.embodiment))["actions"]
+            acts = acts[:rec.n_frames - 1]
             video = model.rollout(first, None, sampler=sampler, seed=seed, progress=False, keep_chunks=False,
                                   actions=acts)
         else:
-            skel = _skeleton(cs, source, registry)[:rec.n_frames]
+            skel = cs.skeleton_video(source, clip, registry)[:rec.n_frames]
             video = model.rollout(first, skel, sampler=sampler, seed=seed, progress=False, keep_chunks=False)
         seconds.append(time.perf_counter() - t0)
         frames = np.asarray(video.frames if hasattr(video, "frames") else video)

@@ -66,7 +66,6 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     import torch
 
     from ..model.vae import check_frame_count
-    from ..pipeline import render_skeleton_video
     from ..registry import Registry
     from .clips import Clip, ClipSet, ClipSetWriter
 
@@ -99,10 +98,7 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
         for rec in recs:
             clip = source.load(rec, registry=registry)
             starts = window_starts(rec.n_frames, window, stride)
-            skel = clip.skeleton
-            if len(starts) and skel is None:
-                skel = render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera,
-                                             (rec.width, rec.height), camera_source=str(source.path(rec, "camera")))
+            skel = source.skeleton_video(rec, clip, registry) if len(starts) else None
             loaded.append((rec, clip, starts))
             windows += [(len(loaded) - 1, "video", clip.rgb[s:s + window]) for s in starts]
             windows += [(len(loaded) - 1, "skeleton", skel[s:s + window]) for s in starts]

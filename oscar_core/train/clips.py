@@ -424,6 +424,16 @@ class ClipSet:
             raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
         return traj
 
+    def skeleton_video(self, rec: ClipRecord, clip: Clip, registry) -> np.ndarray:
+        """(T, H, W, 3) uint8 skeleton video of a loaded ``clip``: its stored one, else rendered at the clip's size
+        from its trajectory and camera through ``registry``'s embodiment."""
+        if clip.skeleton is not None:
+            return clip.skeleton
+        from ..pipeline import render_skeleton_video
+
+        return render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
+                                     camera_source=str(self.path(rec, "camera")))
+
     def load(self, rec: ClipRecord | str, *, start: int = 0, frames: int | None = None, video: bool = True,
              skeleton: bool = True, registry=None) -> Clip:
         """Read a clip, or the window ``[start, start + frames)`` of it, and check it against its record.
