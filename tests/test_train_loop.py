@@ -298,8 +298,34 @@ def test_config_errors_name_file_and_field(tmp_path):
     for name in ("tiny-cpu.yaml", "oscar-2b.yaml"):
         cfg = load_config(REPO / "configs" / "train" / name)
         assert cfg.data.skeleton_dropout == 0.2 and cfg.flow.shift == 5.0 and cfg.data.mixing_temperature == 3.0
+    for name in ("toyworld.yaml", "toyworld-latent-action.yaml"):  # trained from scratch: condition layers drawn
+        cfg = load_config(REPO / "configs" / "train" / name)
+        assert cfg.model.init is None and cfg.model.condition_init == "default"
     big = load_config(REPO / "configs" / "train" / "oscar-2b.yaml")
     assert (big.optim.lr, big.batch_size, big.data.window) == (3e-5, 16, 81)
+
+
+def test_condition_init_zero_or_default(tmp_path, clipset):
+    """From scratch, model.condition_init picks a zero PE_s (the fine-tuning recipe) or nn.Linear's own init;
+    the rest of the model is the same draw either way, and so are the latent-action MLPs' first layers."""
+    zero = build_transformer(tiny(clipset, tmp_path))
+    drawn = build_transformer(tiny(clipset, tmp_path, **{"model.condition_init": "default"}))
+    assert torch.count_nonzero(zero.skeleton_embed.proj.weight) == 0
+    w = drawn.skeleton_embed.proj.weight.detach()
+    bound = 1 / w.shape[1] ** 0.5  # kaiming_uniform(a=sqrt(5)) of nn.Linear: U(-1/sqrt(fan_in), 1/sqrt(fan_in))
+    assert torch.count_nonzero(w) == w.numel() and float(w.abs().max()) <= bound and float(w.std()) > bound / 3
+    a, b = zero.state_dict(), drawn.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a if k != "skeleton_embed.proj.weight")
+    la = {"condition": "latent_action", "model.condition_init": "default"}
+    la_zero = build_transformer(tiny(clipset, tmp_path, condition="latent_action"))
+    la_drawn = build_transformer(tiny(clipset, tmp_path, **la))
+    for name in ("action_embed_d", "action_embed_3d"):
+        assert torch.count_nonzero(getattr(la_zero, name)[2].weight) == 0
+        assert torch.count_nonzero(getattr(la_drawn, name)[2].weight) > 0
+        assert torch.equal(getattr(la_zero, name)[0].weight, getattr(la_drawn, name)[0].weight)
+    assert torch.count_nonzero(la_drawn.skeleton_embed.proj.weight) == 0  # never sees a skeleton
+    with pytest.raises(TrainConfigError, match=r"model.condition_init.*'zero' or 'default'.*'normal'"):
+        tiny(clipset, tmp_path, **{"model.condition_init": "normal"})
 
 
 def test_cli_trains_resumes_and_exports(tmp_path, clipset, capsys):

@@ -62,6 +62,12 @@ class ModelSection:
     vae: str = "tiny"
     # seed of the "tiny" presets' random weights (ours)
     seed: int = 0
+    # how the layers that bring the condition in start when init is null (training from scratch): "zero" (the
+    # paper's fine-tuning recipe: PE_s, or the latent-action MLPs' last layers, output zero, so the model starts as
+    # its base) or "default" (the constructor's own init, as the video patch embedder's; ours: from scratch there
+    # is no base to preserve, and a zero PE_s grew ~9x slower than the video embedder in the toy world). With a
+    # base (init set), the new layers are always zero.
+    condition_init: str = "zero"
     # gradient checkpointing of every DiT block (the paper's recipe on GPU; slower, saves activation memory)
     gradient_checkpointing: bool = False
     # compute dtype of the forward: "float32" on CPU (issue), "bfloat16" autocast on GPU (Cosmos trains in bf16)
@@ -236,6 +242,8 @@ class TrainConfig:
             bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
         if not isinstance(self.log.tensorboard, bool):
             bad("log.tensorboard", "true or false", self.log.tensorboard)
+        if self.model.condition_init not in ("zero", "default"):
+            bad("model.condition_init", "'zero' or 'default'", self.model.condition_init)
         if self.model.dtype not in ("float32", "bfloat16"):
             bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
         return self

@@ -51,12 +51,23 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
         if m.transformer == "tiny":
             # the tiny preset's weights, as oscar_core.model.tiny draws them (diffusers zero-inits some layers)
             _randomise(model, m.seed, 0.05)
-        with torch.no_grad():
-            model.skeleton_embed.proj.weight.zero_()
+        if m.condition_init == "zero":
+            with torch.no_grad():
+                model.skeleton_embed.proj.weight.zero_()
+                if cls is LatentActionTransformer:
+                    for mlp in (model.action_embed_d, model.action_embed_3d):
+                        mlp[2].weight.zero_()
+                        mlp[2].bias.zero_()
+        else:  # "default": the condition layers draw nn.Linear's own init, seeded after the rest of the model
+            torch.manual_seed(m.seed + 1)
+            if config.condition == "skeleton":
+                model.skeleton_embed.proj.reset_parameters()
+            else:  # PE_s stays zero (and frozen, below) in a model that never sees a skeleton
+                with torch.no_grad():
+                    model.skeleton_embed.proj.weight.zero_()
             if cls is LatentActionTransformer:
                 for mlp in (model.action_embed_d, model.action_embed_3d):
-                    mlp[2].weight.zero_()
-                    mlp[2].bias.zero_()
+                    mlp[2].reset_parameters()
     else:
         base = _base_weights(init, source)
         torch.manual_seed(m.seed)
