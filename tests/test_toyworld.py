@@ -397,12 +397,56 @@ def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
     torch.set_num_threads(n)
     assert tuned["config"] == card["config"]
     assert tuned["evals"][0]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-3)  # normalisation rounding
+    # --residual: the Wan 2.2 variant of the same class, recorded in config.json and the card
+    res = train_vae(clips, tmp_path / "res", VAETrainConfig(steps=5, stop_at=1, batch=1, base_dim=4, eval_every=0,
+                                                            eval_clips=1, config={"is_residual": True},
+                                                            foreground=10.0),
+                    log=lambda m: None)
+    torch.set_num_threads(n)
+    assert res["config"]["is_residual"] and load_toy_vae(tmp_path / "res").config.is_residual
+    assert (res["steps_done"], res["stopped_by"]) == (1, "stop_at (1)")
+    assert not card["config"]["is_residual"]
+    assert 0.0 <= res["heldout_chroma_ratio"] == res["evals"][-1]["chroma_ratio"]
     # and the folder is the vae/ of a world model
     model = OscarWorldModel.from_modules(build_tiny_transformer(), vae, ModelCard(name="toy", chunk_frames=5))
     model.save_pretrained(tmp_path / "model")
     again = OscarWorldModel.from_pretrained(tmp_path / "model")
     for (k, a), (_, b) in zip(vae.state_dict().items(), again.vae.vae.state_dict().items()):
         assert torch.equal(a, b), k
+
+
+def test_chroma_ratio_on_known_colours():
+    from oscar_core.toyworld.vae_train import chroma_ratio
+
+    truth = np.zeros((2, 4, 4, 3), np.uint8)
+    truth[..., 0] = 200  # red: chroma (+133.3, -66.7, -66.7)
+    grey = np.full_like(truth, 67)
+    half = truth.copy()
+    half[..., 0] = 100  # chroma (+66.7, -33.3, -33.3): half the truth's
+    assert chroma_ratio(grey, truth) == 0.0
+    assert chroma_ratio(truth, truth) == pytest.approx(1.0)
+    assert chroma_ratio(half, truth) == pytest.approx(0.5)
+
+
+def test_moving_pixels_marks_a_moving_square_and_its_rim():
+    import torch
+
+    from oscar_core.toyworld.vae_train import moving_pixels
+
+    x = torch.full((1, 3, 5, 12, 12), -0.5)
+    for t in range(5):  # a 2 x 2 square moving one pixel right per frame on row 5-6; a still 2 x 2 square at 0-1
+        x[0, :, t, 5:7, 2 + t:4 + t] = 0.8
+    x[0, :, :, 0:2, 0:2] = 0.9
+    x[0, 1, :, 10, 10] += torch.linspace(0, 0.05, 5)  # changes by less than the threshold: still
+    m = moving_pixels(x)
+    assert m.shape == (1, 1, 5, 12, 12)
+    assert m[0, 0, :, 0:2, 0:2].sum() == 0 and m[0, 0, :, 10, 10].sum() == 0
+    # frame 0: the square covers x 2-3; the median over time of those pixels is background, so they move
+    core = torch.zeros(12, 12)
+    core[5:7, 2:4] = 1
+    rim = torch.nn.functional.max_pool2d(core[None, None], 3, 1, 1)[0, 0]
+    assert torch.equal(m[0, 0, 0] * rim, rim)  # the square and a one-pixel rim around it
+    assert m[0, 0, 0, 0:4].sum() == 0 and m[0, 0, 0, 8:].sum() == 0  # nothing beyond the rim rows
 
 
 def test_motion_iou_on_known_masks():

@@ -59,11 +59,16 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     from .vae_train import VAETrainConfig
 
     d = VAETrainConfig()
-    for name in ("steps", "batch", "window", "seed", "threads", "base_dim", "eval_every", "eval_clips"):
+    for name in ("steps", "stop_at", "batch", "window", "seed", "threads", "base_dim", "eval_every", "eval_clips"):
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
-    for name in ("lr", "kl", "chroma", "max_minutes"):
+    for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
+    v.add_argument("--residual", action="store_true",
+                   help="the Wan 2.2 variant of the class (is_residual=True): pixel-averaging shortcuts around each "
+                        "down/up-sampling block, which carry colour to the latent from the first step")
+    v.add_argument("--sample-posterior", action="store_true",
+                   help="decode a sample of the posterior in training (the textbook VAE); default: its mean")
     v.set_defaults(func=cmd_train_vae)
 
     r = sub.add_parser("reconstruct", help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
@@ -168,9 +173,12 @@ def cmd_generate(args) -> int:
 def cmd_train_vae(args) -> int:
     from .vae_train import VAETrainConfig, train_vae
 
-    cfg = VAETrainConfig(steps=args.steps, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, chroma=args.chroma, seed=args.seed,
+    cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, chroma=args.chroma, foreground=args.foreground,
+                         seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
-                         eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init)
+                         eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init,
+                         config={"is_residual": True} if args.residual else {},
+                         sample_posterior=args.sample_posterior)
     card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")
