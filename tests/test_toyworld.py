@@ -415,6 +415,32 @@ def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
         assert torch.equal(a, b), k
 
 
+@pytest.mark.slow
+def test_foreground_weight_changes_the_update_and_only_through_moving_pixels(tmp_path, monkeypatch):
+    """--foreground adds foreground x MSE on moving pixels: with the mask forced empty the run is the plain one."""
+    import torch
+    from safetensors.torch import load_file
+
+    import oscar_core.toyworld.vae_train as vt
+
+    clips = tmp_path / "clips"
+    generate_clipset(GenerateConfig(("toyarm",), episodes=10, width=16, height=16, frames=5, seed=0, shard_size=10,
+                                    skeleton=False), clips, REG)
+    n = torch.get_num_threads()
+
+    def weights(name, **kw):
+        vt.train_vae(clips, tmp_path / name, vt.VAETrainConfig(steps=2, batch=1, base_dim=4, eval_every=0,
+                                                               eval_clips=1, **kw), log=lambda m: None)
+        torch.set_num_threads(n)
+        return load_file(tmp_path / name / "vae" / "diffusion_pytorch_model.safetensors")
+
+    plain, weighted = weights("plain"), weights("fg", foreground=10.0)
+    assert any(not torch.equal(plain[k], weighted[k]) for k in plain)
+    monkeypatch.setattr(vt, "moving_pixels", lambda x: torch.zeros_like(x[:, :1]))
+    masked = weights("masked", foreground=10.0)
+    assert all(torch.equal(plain[k], masked[k]) for k in plain)
+
+
 def test_chroma_ratio_on_known_colours():
     from oscar_core.toyworld.vae_train import chroma_ratio
 

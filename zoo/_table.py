@@ -24,7 +24,7 @@ fps it expects. What could not be verified is left as None, never guessed:
 
 * ``oscar-toy`` (bundled: ``zoo/assets/oscar-toy``, shipped inside the
   package, loaded offline): the toy world's model (docs/toyworld.md), a 1.8 M
-  parameter DiT and 0.66 M parameter VAE trained on this project's CPU; the
+  parameter DiT and 0.69 M parameter VAE trained on this project's CPU; the
   sha256 of every file it ships is pinned here.
 
 File hashes that are None are still checked for integrity after download:
@@ -142,9 +142,9 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
         chunk_frames=17, width=64, height=64, fps=10.0,
         files=(
             FileSpec("README.md",
-                     "0690498b93cf5e1876857f33fb3f5dd49a9249a271128e472e88c1fe4c7384b7"),
+                     "4e47032a061aa48ca67266ed9e0c633e89d28027f54af83cb4ea8fa8f23e3d81"),
             FileSpec("oscar_manifest.json",
-                     "09d7940425a7af17617104025dec89178cfaf3bd5ac8bd71af45ea67fef36449"),
+                     "f80b46afa9766238b3a5a3d3e9e5c0942712008df3ed58997c7d1b39eaaaaca8"),
             FileSpec("oscar_model.json",
                      "76fdf970212b2e42b0f7189d0559f41d3f93231a4aa6e357541fb84bf8426c85"),
             FileSpec("text/empty_prompt_embeds.safetensors",
@@ -152,11 +152,11 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
             FileSpec("transformer/config.json",
                      "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"),
             FileSpec("transformer/diffusion_pytorch_model.safetensors",
-                     "c30652832077cfb9070257154803c91d6030b2b16c4bd634d10933b312d3c773"),
+                     "e20f0c20e57931ff04422683ed2a563fabba0382888946a04ade2984512f5d55"),
             FileSpec("vae/config.json",
-                     "0e21fa078366996425e0969d0d68e47429d56c547c1c017917a9f04e9046780e"),
+                     "750a9a1fad8678bcda27b417ac2aff7fe00779bbbd795af652fcdaee18daa9d6"),
             FileSpec("vae/diffusion_pytorch_model.safetensors",
-                     "33cfa6dd5f7be069bccdcb15dd5af04d097fb4903c6a1c012b0da674fbc8a74c"),
+                     "1b3bb605c1316222e8c9e93249756185ee0c3493037905d546cc76c3819efa31"),
         ),
         text_encoder_id=None,
         notes="bundled: a small DiT + VAE trained on the procedural toy world on a CPU; not a model of real robots",
