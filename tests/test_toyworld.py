@@ -257,10 +257,31 @@ def test_eval_scores_ground_truth_against_itself_perfectly_and_a_shift_by_its_si
     assert row["clips"] == len(small_set)
     assert row["psnr_db"] == 100.0 and row["ssim"] == pytest.approx(1.0)
     assert row["ee_error_px"] == 0.0 and row["object_error_px"] == 0.0
+    assert row["moved_object_error_px"] == 0.0 if row["moved_object_clips"] else np.isnan(row["moved_object_error_px"])
     sh = table["rows"]["shifted"]
     assert sh["psnr_db"] < 40 and sh["ssim"] < 0.99
     assert 2.5 < sh["object_error_px"] < 3.5 and 2.5 < sh["ee_error_px"] < 3.5
-    assert table["clips"]["shifted"] == expected
+    np.testing.assert_equal(table["clips"]["shifted"], expected)  # NaN == NaN: a ball that never moves
+
+
+def test_moved_object_error_counts_only_frames_where_the_true_ball_moved():
+    from oscar_core.toyworld.evaluate import moved_object_error
+
+    gt = np.full((5, 20, 20, 3), 100, np.uint8)
+    xs = [4, 4, 8, 12, 16]  # the ball lies still for a frame, then is carried 4 px per frame
+    for t, x in enumerate(xs):
+        gt[t, 8:10, x:x + 2] = (255, 212, 0)
+    still = np.repeat(gt[:1], 5, axis=0)  # a prediction that leaves the ball where it lay
+    r = moved_object_error(still, gt)
+    assert r["frames"] == 3 and r["error_px"] == pytest.approx(np.mean([4.0, 8.0, 12.0]))
+    assert moved_object_error(gt, gt) == {"error_px": 0.0, "frames": 3}
+    lost = gt.copy()
+    lost[4] = 100
+    assert moved_object_error(lost, gt)["error_px"] == pytest.approx(np.hypot(20, 20) / 3)
+    r = moved_object_error(gt, still)  # a truth whose ball never moves: not counted
+    assert r["frames"] == 0 and np.isnan(r["error_px"])
+    r = moved_object_error(gt, gt, min_shift=4.0)  # "more than": a 4 px shift is not a move at 4 px
+    assert r["frames"] == 2
 
 
 def test_position_errors_count_a_lost_target_as_the_diagonal():

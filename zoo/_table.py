@@ -142,7 +142,7 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
         chunk_frames=17, width=64, height=64, fps=10.0,
         files=(
             FileSpec("README.md",
-                     "4e47032a061aa48ca67266ed9e0c633e89d28027f54af83cb4ea8fa8f23e3d81"),
+                     "b3196d6fa8dfe3609eb9814a1ff63c79923a0796dfdec912f6cb16bb000a5004"),
             FileSpec("oscar_manifest.json",
                      "f80b46afa9766238b3a5a3d3e9e5c0942712008df3ed58997c7d1b39eaaaaca8"),
             FileSpec("oscar_model.json",

@@ -11,8 +11,12 @@ Per clip: PSNR and SSIM (:mod:`oscar_core.metrics`, frame means; a frame
 identical to the truth scores :data:`PSNR_CAP` dB instead of infinity), and
 the end-effector and object localisation errors of
 :func:`~oscar_core.toyworld.locate.position_errors` (pixels, both located by
-colour in both videos; a missed target counts as the image diagonal). A row
-is the mean over its clips.
+colour in both videos; a missed target counts as the image diagonal); the
+*moved-object* error, the object error over only the frames where the true
+ball has left its frame-0 position (carried by the gripper: the consequence
+of an action, where the plain object error is mostly a ball lying still);
+and motion IoU. A row is the mean over its clips (for the moved-object
+error, over the clips whose ball moves).
 """
 
 from __future__ import annotations
@@ -21,15 +25,37 @@ from pathlib import Path
 
 import numpy as np
 
-from .locate import EE_TARGET, OBJECT_TARGET, position_errors
+from .locate import EE_TARGET, OBJECT_TARGET, locate, position_errors
 
 __all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "plot_table",
-           "parse_pred_args", "motion_iou", "motion_mask", "MOTION_THRESHOLD"]
+           "parse_pred_args", "motion_iou", "motion_mask", "MOTION_THRESHOLD", "moved_object_error",
+           "MOVED_OBJECT_SHIFT_PX"]
 
 PSNR_CAP = 100.0
-METRICS = ("psnr_db", "ssim", "motion_iou", "ee_error_px", "object_error_px")
+METRICS = ("psnr_db", "ssim", "motion_iou", "ee_error_px", "object_error_px", "moved_object_error_px")
 #: a pixel "moved" at frame t when its grey level differs from frame 0's by more than this (0-255 scale)
 MOTION_THRESHOLD = 24.0
+#: the true ball "has moved" at frame t when its centroid is more than this from frame 0's (pixels; about one
+#: ball radius at 64 x 64)
+MOVED_OBJECT_SHIFT_PX = 3.0
+
+
+def moved_object_error(pred: np.ndarray, gt: np.ndarray, min_shift: float = MOVED_OBJECT_SHIFT_PX) -> dict:
+    """The object error over the frames where the ground-truth object has moved, i.e. where an action moved it.
+
+    pred, gt: (T, H, W, 3) uint8. A frame counts when the object is shown in
+    ``gt`` at frame 0 and at frame t, more than ``min_shift`` pixels apart;
+    its error is :func:`~oscar_core.toyworld.locate.position_errors`' (the
+    image diagonal when the prediction lost the object). Returns
+    ``error_px`` (mean; NaN when the object never moves) and ``frames``.
+    """
+    gp, _ = locate(gt, OBJECT_TARGET)
+    with np.errstate(invalid="ignore"):
+        moved = np.linalg.norm(gp - gp[0], axis=1) > min_shift  # False where either centroid is NaN
+    if not moved.any():
+        return {"error_px": float("nan"), "frames": 0}
+    err = position_errors(pred, gt, OBJECT_TARGET)["per_frame"][moved]
+    return {"error_px": float(err.mean()), "frames": int(moved.sum())}
 
 
 def motion_mask(video: np.ndarray, threshold: float = MOTION_THRESHOLD) -> np.ndarray:
@@ -88,9 +114,11 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
     s = ssim(pred, gt, n_frames=None)
     ee = position_errors(pred, gt, EE_TARGET)
     ob = position_errors(pred, gt, OBJECT_TARGET)
+    moved = moved_object_error(pred, gt)
     return {"psnr_db": float(p.mean()), "ssim": float(s.mean()), "motion_iou": motion_iou(pred, gt),
             "ee_error_px": ee["error_px"],
-            "object_error_px": ob["error_px"], "ee_found": ee["found"], "object_found": ob["found"]}
+            "object_error_px": ob["error_px"], "ee_found": ee["found"], "object_found": ob["found"],
+            "moved_object_error_px": moved["error_px"], "moved_object_frames": moved["frames"]}
 
 
 def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | None = None) -> dict:
@@ -136,6 +164,7 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
                              + ", found none")
         row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
         row["clips"] = len(per)
+        row["moved_object_clips"] = sum(1 for m in per.values() if m.get("moved_object_frames", 0))
         rows[name] = row
         clips[name] = per
     roots = [str(c.root) for c in sets]
@@ -152,11 +181,14 @@ def _nanmean(values) -> float:
 def format_table(table: dict) -> str:
     """The rows as a Markdown table."""
     head = ("| condition | clips | PSNR (dB) ↑ | SSIM ↑ | motion IoU ↑ | end-effector error (px) ↓ | "
-            "object error (px) ↓ |")
-    lines = [head, "|---|---|---|---|---|---|---|"]
+            "object error (px) ↓ | moved-object error (px) ↓ |")
+    lines = [head, "|---|---|---|---|---|---|---|---|"]
+    nan = float("nan")
     for name, r in table["rows"].items():
-        lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r.get('motion_iou', float('nan')):.3f} | "
-                     f"{r['ee_error_px']:.2f} | {r['object_error_px']:.2f} |")
+        moved = r.get("moved_object_error_px", nan)
+        lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r.get('motion_iou', nan):.3f} | "
+                     f"{r['ee_error_px']:.2f} | {r['object_error_px']:.2f} | "
+                     f"{moved:.2f} ({r.get('moved_object_clips', 0)} clips) |")
     return "\n".join(lines)
 
 
@@ -166,11 +198,11 @@ def plot_table(table: dict, path) -> Path:
 
     names = list(table["rows"])
     labels = {"psnr_db": "PSNR (dB) ↑", "ssim": "SSIM ↑", "motion_iou": "motion IoU ↑", "ee_error_px": "end-effector error (px) ↓",
-              "object_error_px": "object error (px) ↓"}
+              "object_error_px": "object error (px) ↓", "moved_object_error_px": "moved-object error (px) ↓"}
     fig = _new_figure((3.2 * len(METRICS), 3.2), 100)
     for i, m in enumerate(METRICS):
         ax = fig.add_subplot(1, len(METRICS), i + 1)
-        vals = [table["rows"][n][m] for n in names]
+        vals = [table["rows"][n].get(m, float("nan")) for n in names]
         ax.bar(range(len(names)), vals, color=[f"C{j}" for j in range(len(names))])
         ax.set_xticks(range(len(names)))
         ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
