@@ -142,7 +142,7 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
         chunk_frames=17, width=64, height=64, fps=10.0,
         files=(
             FileSpec("README.md",
-                     "b3196d6fa8dfe3609eb9814a1ff63c79923a0796dfdec912f6cb16bb000a5004"),
+                     "487c0e1d2aac51355d9e52429b0f5fc12b7cf05030b32ef6275a810786064c3c"),
             FileSpec("oscar_manifest.json",
                      "f80b46afa9766238b3a5a3d3e9e5c0942712008df3ed58997c7d1b39eaaaaca8"),
             FileSpec("oscar_model.json",

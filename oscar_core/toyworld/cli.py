@@ -173,8 +173,8 @@ def cmd_generate(args) -> int:
 def cmd_train_vae(args) -> int:
     from .vae_train import VAETrainConfig, train_vae
 
-    cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr, kl=args.kl, chroma=args.chroma, foreground=args.foreground,
-                         seed=args.seed,
+    cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr,
+                         kl=args.kl, chroma=args.chroma, foreground=args.foreground, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
                          eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init,
                          config={"is_residual": True} if args.residual else {},

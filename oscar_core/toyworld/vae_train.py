@@ -7,12 +7,16 @@ PSNR is measured by encoding and decoding whole held-out clips
 (``meta.split == "heldout"``) through :class:`~oscar_core.model.vae.VideoVAE`.
 
 Loss: mean squared error of the reconstruction in [-1, 1] pixels + ``kl``
-× the posterior's KL divergence to N(0, I) per latent element (the decoder sees the posterior's
-mean, or a sample of it with ``sample_posterior``; evaluation always uses the mean) + ``chroma`` × the mean squared error of each pixel's chroma
-(RGB minus its mean over the three channels). Without the chroma term a short run on
-scenes of many background hues settles on grey reconstructions (luminance carries most
-of the squared error), and the evaluation finds the yellow ball and the magenta marker
-by their hue. After training, ``latents_mean`` and
+× the posterior's KL divergence to N(0, I) per latent element + ``chroma``
+× the mean squared error of each pixel's chroma (RGB minus its mean over the
+three channels) + ``foreground`` × the mean squared error on moving pixels
+(:func:`moving_pixels`). The decoder sees the posterior's mean (a sample of
+it with ``sample_posterior``); evaluation always uses the mean. Plain MSE
+settles on the floor, which is most of every frame: grey, blurred
+reconstructions in which the arm is faint and the yellow ball and magenta
+marker, which the evaluation finds by hue, are lost. The moving-pixel term
+is what brought the arm, the ball and then the scene's hues back
+(docs/toyworld.md, "The VAE"). After training, ``latents_mean`` and
 ``latents_std`` of the config are set to the per-channel statistics of the
 training latents (32 clips spread over the set), so the normalised latents the DiT sees are about
 zero-mean, unit-variance.
