@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .locate import EE_TARGET, OBJECT_TARGET, locate, position_errors
+from .locate import EE_TARGET, OBJECT_TARGET, position_errors
 
 __all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "plot_table",
            "parse_pred_args", "motion_iou", "motion_mask", "MOTION_THRESHOLD", "moved_object_error",
@@ -40,22 +40,26 @@ MOTION_THRESHOLD = 24.0
 MOVED_OBJECT_SHIFT_PX = 3.0
 
 
-def moved_object_error(pred: np.ndarray, gt: np.ndarray, min_shift: float = MOVED_OBJECT_SHIFT_PX) -> dict:
+def moved_object_error(pred: np.ndarray, gt: np.ndarray, min_shift: float = MOVED_OBJECT_SHIFT_PX,
+                       errors: dict | None = None) -> dict:
     """The object error over the frames where the ground-truth object has moved, i.e. where an action moved it.
 
     pred, gt: (T, H, W, 3) uint8. A frame counts when the object is shown in
     ``gt`` at frame 0 and at frame t, more than ``min_shift`` pixels apart;
     its error is :func:`~oscar_core.toyworld.locate.position_errors`' (the
-    image diagonal when the prediction lost the object). Returns
-    ``error_px`` (mean; NaN when the object never moves) and ``frames``.
+    image diagonal when the prediction lost the object). ``errors``: that
+    function's result for (pred, gt, OBJECT_TARGET) when the caller has it
+    already. Returns ``error_px`` (mean; NaN when the object never moves)
+    and ``frames``.
     """
-    gp, _ = locate(gt, OBJECT_TARGET)
+    if errors is None:
+        errors = position_errors(pred, gt, OBJECT_TARGET)
+    gp = errors["gt_px"]
     with np.errstate(invalid="ignore"):
         moved = np.linalg.norm(gp - gp[0], axis=1) > min_shift  # False where either centroid is NaN
     if not moved.any():
         return {"error_px": float("nan"), "frames": 0}
-    err = position_errors(pred, gt, OBJECT_TARGET)["per_frame"][moved]
-    return {"error_px": float(err.mean()), "frames": int(moved.sum())}
+    return {"error_px": float(errors["per_frame"][moved].mean()), "frames": int(moved.sum())}
 
 
 def motion_mask(video: np.ndarray, threshold: float = MOTION_THRESHOLD) -> np.ndarray:
@@ -114,7 +118,7 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
     s = ssim(pred, gt, n_frames=None)
     ee = position_errors(pred, gt, EE_TARGET)
     ob = position_errors(pred, gt, OBJECT_TARGET)
-    moved = moved_object_error(pred, gt)
+    moved = moved_object_error(pred, gt, errors=ob)
     return {"psnr_db": float(p.mean()), "ssim": float(s.mean()), "motion_iou": motion_iou(pred, gt),
             "ee_error_px": ee["error_px"],
             "object_error_px": ob["error_px"], "ee_found": ee["found"], "object_found": ob["found"],

@@ -77,7 +77,8 @@ def position_errors(pred: np.ndarray, gt: np.ndarray, target: ColorTarget) -> di
     scored with the image diagonal (so losing the object is never better than
     misplacing it). Returns ``error_px`` (mean), ``median_px``, ``found``
     (fraction of frames with a detection in the prediction), ``frames``
-    (frames counted) and ``per_frame`` (T,) errors (NaN where not counted).
+    (frames counted), ``per_frame`` (T,) errors (NaN where not counted) and
+    ``gt_px`` (T, 2) the ground truth's centroids (NaN where not shown).
     """
     pp, _ = locate(pred, target)
     gp, _ = locate(gt, target)
@@ -92,4 +93,4 @@ def position_errors(pred: np.ndarray, gt: np.ndarray, target: ColorTarget) -> di
     n = int(shown.sum())
     return {"error_px": float(np.nanmean(err)) if n else float("nan"),
             "median_px": float(np.nanmedian(err)) if n else float("nan"),
-            "found": float(found[shown].mean()) if n else float("nan"), "frames": n, "per_frame": err}
+            "found": float(found[shown].mean()) if n else float("nan"), "frames": n, "per_frame": err, "gt_px": gp}

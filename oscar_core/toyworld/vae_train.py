@@ -193,8 +193,15 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
     curve, evals = [], []
     t0 = time.perf_counter()
     step = 0
-    psnr0, rec0 = vae_psnr(vae, held)
-    evals.append({"step": 0, "psnr_db": psnr0, "chroma_ratio": chroma_ratio(rec0, held), "wall_s": 0.0})
+
+    def held_out_eval(step: int, wall_s: float | None = None) -> dict:
+        """PSNR and chroma ratio of the held-out clips, appended to ``evals`` (wall_s: measured when None)."""
+        p, recs = vae_psnr(vae, held)
+        evals.append({"step": step, "psnr_db": p, "chroma_ratio": chroma_ratio(recs, held),
+                      "wall_s": round(time.perf_counter() - t0, 1) if wall_s is None else wall_s})
+        return evals[-1]
+
+    psnr0 = held_out_eval(0, wall_s=0.0)["psnr_db"]
     log(f"model: AutoencoderKLWan {config}, {n_params / 1e6:.2f} M parameters; held-out PSNR at step 0: {psnr0:.2f} dB")
     stopped = "steps"
     while step < cfg.steps:
@@ -226,10 +233,8 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
             log(f"step {step}/{cfg.steps}  mse {curve[-1]['mse']:.5f}  (≈ {10 * math.log10(4 / max(curve[-1]['mse'], 1e-12)):.2f} dB "
                 f"train)  kl {curve[-1]['kl']:.4g}  {wall:.0f} s")
         if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
-            p, recs = vae_psnr(vae, held)
-            evals.append({"step": step, "psnr_db": p, "chroma_ratio": chroma_ratio(recs, held),
-                          "wall_s": round(time.perf_counter() - t0, 1)})
-            log(f"step {step}: held-out PSNR {p:.2f} dB, chroma ratio {evals[-1]['chroma_ratio']:.3f}")
+            e = held_out_eval(step)
+            log(f"step {step}: held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}")
             _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, "checkpoint")
         if cfg.stop_at and step >= cfg.stop_at:
             stopped = f"stop_at ({cfg.stop_at})"
@@ -237,10 +242,8 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
         if cfg.max_minutes and wall > 60 * cfg.max_minutes:
             stopped = f"max_minutes ({cfg.max_minutes:g})"
             break
-    p, recs = vae_psnr(vae, held)
-    evals.append({"step": step, "psnr_db": p, "chroma_ratio": chroma_ratio(recs, held),
-                  "wall_s": round(time.perf_counter() - t0, 1)})
-    log(f"done: {step} steps, held-out PSNR {p:.2f} dB, chroma ratio {evals[-1]['chroma_ratio']:.3f}, "
+    e = held_out_eval(step)
+    log(f"done: {step} steps, held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}, "
         f"{time.perf_counter() - t0:.0f} s (stopped by {stopped})")
     return _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped)
 
