@@ -174,6 +174,9 @@ def _safe_render(index: int, spec: EpisodeSpec, options: RenderOptions, registry
 
 
 def _init_worker() -> None:
+    from ._interrupt import worker_ignores_interrupt
+
+    worker_ignores_interrupt()  # Ctrl-C: the parent stops the pool
     try:
         import cv2
 
@@ -265,14 +268,21 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
             ctx = _pool_context(specs, options)
             with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx,
                                      initializer=_init_worker) as pool:
-                futures = {pool.submit(_safe_render, i, s, options): i for i, s in enumerate(specs)}
-                bar = new_bar()  # after the workers exist: tqdm's monitor thread is not forked
-                for fut in as_completed(futures):
-                    try:
-                        done(fut.result())
-                    except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
-                        i = futures[fut]
-                        done(EpisodeResult(i, specs[i], False, error=f"worker process failed: {type(exc).__name__}: {exc}"))
+                try:
+                    futures = {pool.submit(_safe_render, i, s, options): i for i, s in enumerate(specs)}
+                    bar = new_bar()  # after the workers exist: tqdm's monitor thread is not forked
+                    for fut in as_completed(futures):
+                        try:
+                            done(fut.result())
+                        except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
+                            i = futures[fut]
+                            done(EpisodeResult(i, specs[i], False,
+                                               error=f"worker process failed: {type(exc).__name__}: {exc}"))
+                except KeyboardInterrupt:  # stop now rather than render the rest of the queue first
+                    from ._interrupt import stop_pool
+
+                    stop_pool(pool)
+                    raise
     finally:
         if bar is not None:
             bar.close()
