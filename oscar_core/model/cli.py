@@ -360,6 +360,15 @@ def cmd_rollout(args) -> int:
     sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
                             guidance_form=args.guidance_form, batched_cfg=not args.two_pass_cfg, solver=args.solver,
                             action_guidance=getattr(args, "action_guidance", None))
+    # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
+    from ..pipeline import parse_size
+    from ..video import check_output
+
+    size = parse_size(args.size) if args.size else None
+    check_output(args.out, size=size)
+    side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
+    if side_path is not None:
+        check_output(side_path)
     device = args.device or _default_device()
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
@@ -395,7 +404,6 @@ def cmd_rollout(args) -> int:
     chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=args.chunk_frames,
                                 sampler=sampler, seed=args.seed, progress=not args.no_progress, result=result,
                                 actions=actions)
-    side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
     out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
     summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
                "chunks": len(result.starts), "model": args.model, "seed": args.seed, "text": text_source,

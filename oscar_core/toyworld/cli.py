@@ -132,6 +132,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                         "repeat with NAME= for several conditions (rows of the table)")
     e.add_argument("--split", default=None, help="only clips of this meta.split (e.g. heldout; default: every "
                                                  "clip that has a prediction)")
+    e.add_argument("--clips", choices=("same", "common", "each"), default="same",
+                   help="when the --pred folders cover different clips: same (default) refuses, common scores the "
+                        "clips all of them have, each scores every row over its own clips and marks the table")
     e.add_argument("--out", help="write the table as JSON here")
     e.add_argument("--plot", help="write a PNG bar chart of the table here")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -239,7 +242,7 @@ def cmd_eval(args) -> int:
     from .._atomic import atomic_write_bytes
 
     conditions = parse_pred_args(args.pred)
-    table = evaluate_conditions(args.gt, conditions, split=args.split)
+    table = evaluate_conditions(args.gt, conditions, split=args.split, clips_mode=args.clips)
     if args.out:
         atomic_write_bytes(args.out, (json.dumps(table, indent=2) + "\n").encode())
     if args.plot:
