@@ -25,7 +25,7 @@ from typing import Any, ClassVar, Iterator, Sequence
 
 import numpy as np
 
-from ..errors import OscarError
+from .errors import OscarError
 
 __all__ = ["EpisodeError", "EpisodeRef", "Episode", "VideoSource", "Reader"]
 
