@@ -11,6 +11,7 @@ __all__ = ["add_data_parser"]
 EXAMPLE = """\
 examples:
   oscar data ingest /data/mydataset --reader npz --out runs/r1
+  oscar data ingest /data/droid_1.0.1 --reader lerobot --reader-option intrinsics=droid_cams.json --out runs/droid
   oscar data filter runs/r1 --set min_length=70 --set max_camera_motion=0.02
   oscar data dedup runs/r1 --siglip google/siglip-base-patch16-224
   oscar data caption runs/r1 --endpoint http://localhost:8000/v1 --model Qwen/Qwen3-VL-30B-A3B-Instruct --budget 1000
@@ -44,9 +45,11 @@ def _report(run, what: str) -> None:
 
 
 def cmd_ingest(args) -> int:
+    from .reader_options import parse_reader_options
     from .run import run_ingest
 
-    _report(run_ingest(args.source, args.reader, args.out, **_kw(args)), "ingest")
+    options = parse_reader_options(args.reader_option)
+    _report(run_ingest(args.source, args.reader, args.out, reader_options=options, **_kw(args)), "ingest")
     return 0
 
 
@@ -115,6 +118,9 @@ def add_data_parser(sub) -> None:
                       formatter_class=fmt)
     p.add_argument("source", help="dataset folder or fsspec URL")
     p.add_argument("--reader", required=True, help="dataset reader name (npz, lerobot, droid, …)")
+    p.add_argument("--reader-option", action="append", metavar="NAME=VALUE",
+                   help="a reader's constructor option (docs/datasets.md), e.g. intrinsics=cam.json for DROID from "
+                        "the Hub; VALUE is YAML or a .json/.yaml file; repeatable")
     p.add_argument("--out", required=True, help="run folder or fsspec URL")
     _common(p)
     p.set_defaults(func=cmd_ingest)

@@ -33,11 +33,12 @@ def _opts(kw: dict[str, Any]) -> dict[str, Any]:
     return {k: kw[k] for k in ("engine", "workers", "shard_size", "progress") if k in kw}
 
 
-def run_ingest(source: str, reader: str, run: str, *, plugin_paths: tuple[str, ...] = (), **kw) -> StageRun:
-    """List ``source`` with ``reader`` and probe every episode into ``RUN/ingest``."""
+def run_ingest(source: str, reader: str, run: str, *, plugin_paths: tuple[str, ...] = (),
+               reader_options: dict | None = None, **kw) -> StageRun:
+    """List ``source`` with ``reader`` (built with ``reader_options``) and probe every episode into ``RUN/ingest``."""
     from .ingest import IngestStage, list_rows
 
-    rows = list_rows(source, reader, tuple(plugin_paths))
+    rows = list_rows(source, reader, tuple(plugin_paths), reader_options)
     if not rows:
         raise ValueError(f"{source}: expected episodes for reader {reader!r}, found none")
     return run_sharded(IngestStage(tuple(plugin_paths)), rows, _fs.join(run, "ingest"), desc="ingest", **_opts(kw))

@@ -38,7 +38,7 @@ import numpy as np
 from ...reader import EpisodeError
 from ._common import require
 
-__all__ = ["LeRobotLayout", "EpisodeRow"]
+__all__ = ["LeRobotLayout", "EpisodeRow", "unreadable_table"]
 
 V3_DATA = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 V3_VIDEO = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
@@ -59,6 +59,17 @@ class EpisodeRow:
     tasks: tuple[str, ...]
     data: str
     videos: dict[str, tuple[str, float]]
+    # set on a row that stands for an unreadable episode table (``data`` is then that table's path): its
+    # episodes cannot be listed, so the table becomes one rejected manifest row and the other tables go on
+    error: str | None = None
+
+
+def unreadable_table(ref) -> None:
+    """Raise the :class:`EpisodeError` of a ref listed for an unreadable episode table (else nothing)."""
+    reason = (ref.meta or {}).get("unreadable_table")
+    if reason:
+        raise EpisodeError(ref.episode_id, ref.paths.get("states", "?"), "<file>",
+                           "a LeRobot v3.0 episode table (parquet); its episodes were not listed", reason)
 
 
 class LeRobotLayout:
@@ -120,7 +131,11 @@ class LeRobotLayout:
         video_tpl = self.info.get("video_path") or V3_VIDEO
         keys = self.video_keys
         for path in files:
-            schema = pq.read_schema(path)
+            try:
+                schema = pq.read_schema(path)
+            except Exception as e:  # noqa: BLE001 - ArrowInvalid / OSError ("Parquet magic bytes not found") name no file
+                yield EpisodeRow(-1, 0, (), str(path), {}, error=f"{type(e).__name__}: {e}")
+                continue
             want = ["episode_index", "length", "tasks", "data/chunk_index", "data/file_index"]
             for k in keys:
                 want += [f"videos/{k}/{c}" for c in ("chunk_index", "file_index", "from_timestamp")]
@@ -128,7 +143,11 @@ class LeRobotLayout:
             if missing:
                 raise ValueError(f"{path}: field '{missing[0]}': expected the LeRobot v3.0 episode columns {want}, "
                                  f"found missing {missing}")
-            table = pq.read_table(path, columns=want).to_pydict()
+            try:
+                table = pq.read_table(path, columns=want).to_pydict()
+            except Exception as e:  # noqa: BLE001 - a table whose footer reads but whose pages do not
+                yield EpisodeRow(-1, 0, (), str(path), {}, error=f"{type(e).__name__}: {e}")
+                continue
             for i in range(len(table["episode_index"])):
                 row = {c: table[c][i] for c in want}
                 data = self.root / data_tpl.format(chunk_index=int(row["data/chunk_index"]),
