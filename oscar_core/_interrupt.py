@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import signal
 
-__all__ = ["EXIT_INTERRUPTED", "message", "output_of", "stop_pool", "worker_ignores_interrupt"]
+__all__ = ["EXIT_INTERRUPTED", "Interrupted", "message", "output_of", "report", "stop_pool",
+           "worker_ignores_interrupt"]
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
 
@@ -40,10 +41,35 @@ def stop_pool(pool) -> None:
         p.join(timeout=5)
 
 
-def message(where: str | None) -> str:
-    """The one line printed on Ctrl-C; ``where``: the command's output folder or file, if it has one."""
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C in a command that resumes another way than by running it again (``oscar train``: ``--resume``).
+
+    where: what holds the finished work; resume: the command that resumes it.
+    """
+
+    def __init__(self, where: str, resume: str):
+        super().__init__(where, resume)
+        self.where, self.resume = where, resume
+
+
+def message(where: str | None, resume: str | None = None) -> str:
+    """The one line printed on Ctrl-C; ``where``: the command's output folder or file, if it has one;
+    ``resume``: the command that resumes (default: the same command)."""
     kept = f"finished work is kept in {where}" if where else "finished work is kept"
-    return f"interrupted; {kept}; run the same command to resume"
+    how = f"run {resume} to resume" if resume else "run the same command to resume"
+    return f"interrupted; {kept}; {how}"
+
+
+def report(exc: KeyboardInterrupt, args=None) -> int:
+    """Print the Ctrl-C line for ``exc`` (an :class:`Interrupted` or a plain ``KeyboardInterrupt``); returns 130."""
+    import sys
+
+    if isinstance(exc, Interrupted):
+        line = message(exc.where, exc.resume)
+    else:
+        line = message(output_of(args) if args is not None else None)
+    print(line, file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def output_of(args) -> str | None:

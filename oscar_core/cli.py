@@ -126,11 +126,10 @@ def main(argv=None) -> int:
     except (OscarError, ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        from ._interrupt import EXIT_INTERRUPTED, message, output_of
+    except KeyboardInterrupt as exc:
+        from ._interrupt import report
 
-        print(message(output_of(args)), file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return report(exc, args)
     except BrokenPipeError:
         # the reader went away (`oscar ... | head`): stop quietly; point stdout at
         # devnull so the interpreter's final flush does not raise again

@@ -94,3 +94,59 @@ def test_the_line_names_the_commands_output():
     assert output_of(p.parse_args(["data", "export", "runs/r1", "--out", "clips/c1"])) == "clips/c1"
     assert output_of(p.parse_args(["embodiments"])) is None
     assert message(None) == "interrupted; finished work is kept; run the same command to resume"
+    assert message("runs/a", "`oscar train --resume runs/a`") == (
+        "interrupted; finished work is kept in runs/a; run `oscar train --resume runs/a` to resume")
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_training_names_the_run_and_how_to_resume(tmp_path):
+    import json
+
+    import yaml
+
+    from oscar_core.train.synthetic import write_toy_clipset
+
+    clips = write_toy_clipset(tmp_path / "clips", clips=2, frames=13, width=32, height=32, latents_vae="random",
+                              latents_window=9, prompt_dim=48)
+    run = tmp_path / "run"
+    cfg = {"run_dir": str(run), "steps": 60, "batch_size": 1, "micro_batch": 1, "save_every": 1, "keep_last": 2,
+           "log_every": 1, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
+           "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32}}
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(CLI + ["train", str(path), "--no-progress"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=ENV, start_new_session=True)
+    metrics = run / "metrics.jsonl"
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and (
+            not metrics.is_file() or metrics.read_text().count('"loss"') < 2):
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-3000:]
+    assert err == (f"interrupted; finished work is kept in {run} (its saved checkpoints); "
+                   f"run `oscar train --resume {run}` to resume\n")
+    steps = [json.loads(x)["step"] for x in metrics.read_text().splitlines() if '"loss"' in x]
+    again = subprocess.run(CLI + ["train", "--resume", str(run), "--no-progress", "--json"], capture_output=True,
+                           text=True, env=ENV, timeout=600)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert json.loads(again.stdout)["step"] == 60 and steps and steps[-1] < 60
+
+
+def test_an_interrupt_torch_checkpointing_wrapped_is_still_an_interrupt():
+    from torch.distributed.checkpoint.api import CheckpointException
+
+    from oscar_core._interrupt import Interrupted
+    from oscar_core.train.cli import _resume_hint
+
+    with pytest.raises(Interrupted) as err:
+        with _resume_hint("runs/a"):
+            raise CheckpointException("save", {0: (KeyboardInterrupt(), None)})
+    assert (err.value.where, err.value.resume) == ("runs/a (its saved checkpoints)", "`oscar train --resume runs/a`")
+    with pytest.raises(CheckpointException):  # a real checkpoint failure stays what it is
+        with _resume_hint("runs/a"):
+            raise CheckpointException("save", {0: (OSError("disk full"), None)})
+    with pytest.raises(Interrupted):
+        with _resume_hint("runs/a"):
+            raise KeyboardInterrupt

@@ -15,6 +15,10 @@ def main(argv=None) -> int:
     except (OscarError, ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:
+        from .._interrupt import report
+
+        return report(exc, args)
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ Wire into the main parser with ``add_train_parser(subparsers)``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 
@@ -87,7 +88,8 @@ def cmd_train(args) -> int:
         if args.set:
             raise TrainConfigError("<command line>", "--set", "no overrides with --resume (the run's config.yaml rules)",
                                    args.set)
-        result = train(resume=args.resume, progress=not args.no_progress)
+        with _resume_hint(args.resume):
+            result = train(resume=args.resume, progress=not args.no_progress)
     else:
         overrides = {}
         for item in args.set:
@@ -96,7 +98,8 @@ def cmd_train(args) -> int:
             k, v = item.split("=", 1)
             overrides[k.strip()] = _parse_value(v)
         config = load_config(args.config, overrides)
-        result = train(config, progress=not args.no_progress, source=args.config)
+        with _resume_hint(config.run_dir):
+            result = train(config, progress=not args.no_progress, source=args.config)
     summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
                "export": str(result.export) if result.export else None}
     if int(os.environ.get("RANK", "0")) == 0:
@@ -104,6 +107,30 @@ def cmd_train(args) -> int:
         print(json.dumps(summary) if args.json else f"trained {summary['run_dir']} to step {summary['step']} ({loss})"
               + (f"; exported to {summary['export']}" if summary["export"] else ""))
     return 0
+
+
+@contextlib.contextmanager
+def _resume_hint(run_dir: str):
+    """Ctrl-C in a training run: the saved checkpoints stay; the same command would refuse the used run folder."""
+    from .._interrupt import Interrupted
+
+    try:
+        yield
+    except Interrupted:
+        raise
+    except BaseException as exc:
+        if not _is_interrupt(exc):
+            raise
+        raise Interrupted(f"{run_dir} (its saved checkpoints)", f"`oscar train --resume {run_dir}`") from None
+
+
+def _is_interrupt(exc: BaseException) -> bool:
+    """A KeyboardInterrupt, also one torch.distributed.checkpoint caught mid-save and wrapped in its
+    ``CheckpointException`` (a BaseException holding each rank's exception)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return True
+    failures = getattr(exc, "failures", None) if type(exc).__name__ == "CheckpointException" else None
+    return bool(failures) and all(isinstance(f[0], KeyboardInterrupt) for f in failures.values())
 
 
 def _cache_latents(args) -> int:
