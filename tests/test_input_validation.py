@@ -138,11 +138,42 @@ def test_rollout_checks_its_outputs_before_loading_weights(capsys, monkeypatch, 
     assert "--size: expected WIDTHxHEIGHT" in msg
 
 
-@pytest.mark.parametrize("flag, value", [("--guidance", "nan"), ("--guidance", "inf"), ("--guidance", "-2"),
-                                         ("--steps", "0")])
-def test_rollout_refuses_bad_sampler_settings_before_loading_weights(capsys, monkeypatch, tmp_path, flag, value):
-    msg = _rollout(capsys, monkeypatch, tmp_path, tmp_path / "v.mp4", flag, value)
-    assert msg.startswith("sampler ") and "expected" in msg
+@pytest.mark.parametrize("flag, value, expected", [
+    ("--guidance", "nan", "expected a finite number, found 'nan'"),
+    ("--guidance", "inf", "expected a finite number, found 'inf'"),
+    ("--guidance", "-2", "expected a number >= 0, found -2"),
+    ("--steps", "0", "expected an integer >= 1, found 0"),
+    ("--steps", "2.5", "expected an integer, found '2.5'"),
+    ("--shift", "0", "expected a number > 0, found 0"),
+])
+def test_rollout_options_are_refused_by_the_parser(capsys, monkeypatch, tmp_path, flag, value, expected):
+    with pytest.raises(SystemExit) as exit_:
+        _rollout(capsys, monkeypatch, tmp_path, tmp_path / "v.mp4", flag, value)
+    assert exit_.value.code == 2
+    assert f"argument {flag}: {expected}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["data", "filter", "r", "--workers", "0"], "argument --workers: expected an integer >= 1, found 0"),
+    (["data", "filter", "r", "--shard-size", "-4"], "argument --shard-size: expected an integer >= 1, found -4"),
+    (["data", "dedup", "r", "--siglip", "s", "--cosine", "nan"], "argument --cosine: expected a finite number"),
+    (["data", "dedup", "r", "--siglip", "s", "--cosine", "1.5"], "argument --cosine: expected a number <= 1"),
+    (["data", "caption", "r", "--endpoint", "e", "--model", "m", "--fps", "0"], "argument --fps: expected a number > 0"),
+    (["data", "caption", "r", "--endpoint", "e", "--model", "m", "--budget", "-1"], "argument --budget: expected an "
+                                                                                    "integer >= 0, found -1"),
+    (["render", "--alpha", "2"], "argument --alpha: expected a number <= 1, found 2"),
+    (["toyworld", "generate", "--embodiments", "kuka", "--episodes", "0", "--out", "o"],
+     "argument --episodes: expected an integer >= 1, found 0"),
+    (["toyworld", "rollout", "m", "c", "--out", "o", "--guidance", "inf"], "argument --guidance: expected a finite"),
+    (["train", "--cache-latents", "c", "--window", "2.5"], "argument --window: expected an integer, found '2.5'"),
+])
+def test_cli_options_are_range_checked_by_the_parser(capsys, argv, expected):
+    from oscar_core.cli import build_parser
+
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args(argv)
+    assert exit_.value.code == 2
+    assert expected in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ sizes bounded by memory

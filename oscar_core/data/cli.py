@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from .._cli_types import count, number
+
 __all__ = ["add_data_parser"]
 
 EXAMPLE = """\
@@ -24,8 +26,8 @@ every stage: --engine local|ray, --workers N, --shard-size N; re-running a stage
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local: a process pool (default); ray: Ray Data (pip install \"oscar-wm[ray]\")")
-    p.add_argument("--workers", type=int, default=None, help="worker processes / Ray CPUs (default: all cores; 1: in-process)")
-    p.add_argument("--shard-size", type=int, default=32, help="episodes per shard, the unit of resumption (default 32)")
+    p.add_argument("--workers", type=count(1), default=None, help="worker processes / Ray CPUs (default: all cores; 1: in-process)")
+    p.add_argument("--shard-size", type=count(1), default=32, help="episodes per shard, the unit of resumption (default 32)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -139,10 +141,10 @@ def add_data_parser(sub) -> None:
     p.add_argument("run", help="run folder")
     p.add_argument("--siglip", required=True, help="SigLIP vision model: Hub id or local folder")
     p.add_argument("--device", default="cpu", help="torch device for SigLIP")
-    p.add_argument("--cosine", type=float, default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
-    p.add_argument("--rms-alpha", type=float, default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
-    p.add_argument("--rms-floor", type=float, default=0.01, help="... or below this many metres (default 0.01)")
-    p.add_argument("--nprobe", type=int, default=16, help="k-means clusters searched per episode (default 16)")
+    p.add_argument("--cosine", type=number(-1.0, 1.0), default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
+    p.add_argument("--rms-alpha", type=number(0.0), default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
+    p.add_argument("--rms-floor", type=number(0.0), default=0.01, help="... or below this many metres (default 0.01)")
+    p.add_argument("--nprobe", type=count(1), default=16, help="k-means clusters searched per episode (default 16)")
     _common(p)
     p.set_defaults(func=cmd_dedup)
 
@@ -151,11 +153,11 @@ def add_data_parser(sub) -> None:
     p.add_argument("run", help="run folder")
     p.add_argument("--endpoint", required=True, help="base URL, e.g. http://localhost:8000/v1")
     p.add_argument("--model", required=True, help="model name the endpoint serves")
-    p.add_argument("--budget", type=int, default=None, help="at most this many episodes sent this run")
-    p.add_argument("--fps", type=float, default=15.0, help="frames per second of episode sent (default 15)")
-    p.add_argument("--long-fps", type=float, default=2.0, help="for DROID / long episodes (default 2)")
-    p.add_argument("--max-frames", type=int, default=256, help="frames per request at most (default 256)")
-    p.add_argument("--retries", type=int, default=4, help="retries per request (default 4)")
+    p.add_argument("--budget", type=count(0), default=None, help="at most this many episodes sent this run")
+    p.add_argument("--fps", type=number(above=0.0), default=15.0, help="frames per second of episode sent (default 15)")
+    p.add_argument("--long-fps", type=number(above=0.0), default=2.0, help="for DROID / long episodes (default 2)")
+    p.add_argument("--max-frames", type=count(1), default=256, help="frames per request at most (default 256)")
+    p.add_argument("--retries", type=count(0), default=4, help="retries per request (default 4)")
     p.add_argument("--api-key-env", default="OPENAI_API_KEY", help="environment variable with the API key")
     _common(p)
     p.set_defaults(func=cmd_caption)

@@ -13,6 +13,8 @@ import json
 import sys
 from pathlib import Path
 
+from .._cli_types import count, number
+
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
            "side_by_side_path"]
 
@@ -82,22 +84,22 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--size", help="rollout WIDTHxHEIGHT, multiples of 16 (default: the model's, else the camera's)")
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how camera and first frame are fitted to --size (default: centre crop)")
-    r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument("--steps", type=int, default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
+    r.add_argument("--steps", type=count(1), default=35, help="denoising steps per chunk (default 35)")
     r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
                    "(default: the checkpoint's scheduler, else unipc)")
-    r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
+    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
                    "--guidance-form diffusers or 1 with standard = conditional branch only)")
     r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
                    help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
                    "standard: v_u + w(v_c - v_u)")
-    r.add_argument("--action-guidance", type=float, help="latent-action models: guidance w over the actions "
+    r.add_argument("--action-guidance", type=number(0.0), help="latent-action models: guidance w over the actions "
                    "(unconditional branch: no action tokens; default: none, the conditional branch only)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
                    "(less memory) instead of one batched forward")
-    r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same video)")
-    r.add_argument("--fps", type=float, help="output frame rate (default: the trajectory's)")
+    r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
+    r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
     r.add_argument("--compile", action="store_true", help="torch.compile the DiT (GPU; first chunk pays the compile)")

@@ -10,6 +10,8 @@ import contextlib
 import json
 import os
 
+from .._cli_types import count
+
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
 EXAMPLES = """examples:
@@ -37,14 +39,14 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache-latents", metavar="CLIPS", help="write a copy of a clip set with cached VAE latents "
                                                             "(needs --vae, --window, --out) and exit")
     p.add_argument("--vae", help="with --cache-latents: an AutoencoderKLWan folder or an OSCAR model folder")
-    p.add_argument("--window", type=int, help="with --cache-latents: frames per window (4k+1)")
-    p.add_argument("--stride", type=int, help="with --cache-latents: frames between window starts (default: window)")
-    p.add_argument("--threads", type=int, help="with --cache-latents: torch threads (default: torch's)")
+    p.add_argument("--window", type=count(1), help="with --cache-latents: frames per window (4k+1)")
+    p.add_argument("--stride", type=count(1), help="with --cache-latents: frames between window starts (default: window)")
+    p.add_argument("--threads", type=count(1), help="with --cache-latents: torch threads (default: torch's)")
     p.add_argument("--split", help="with --cache-latents: copy only clips whose meta.split is this (e.g. train)")
-    p.add_argument("--batch", type=int, default=8, help="with --cache-latents: windows per VAE call (default 8)")
+    p.add_argument("--batch", type=count(1), default=8, help="with --cache-latents: windows per VAE call (default 8)")
     p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
                                  "the new clip set")
-    p.add_argument("--step", type=int, help="with --export: the checkpoint's step (default: the latest)")
+    p.add_argument("--step", type=count(0), help="with --export: the checkpoint's step (default: the latest)")
     p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable)")
