@@ -264,3 +264,22 @@ def test_toyworld_eval_common_clips_or_marked_rows(toy_preds):
     assert "not comparable: the rows are means over different clips" in format_table(each)
     same = evaluate_conditions(clips, {"a": str(a), "a2": str(a)})  # identical clip sets: nothing to refuse
     assert same["same_clips"] is True and not math.isnan(same["rows"]["a2"]["psnr_db"])
+
+
+def test_rollout_and_export_refuse_a_size_beyond_memory_before_work(capsys, monkeypatch, tmp_path):
+    from oscar_core import _memory
+    from oscar_core.data.run import run_export, run_ingest
+
+    monkeypatch.setattr(_memory, "available_bytes", lambda: 1024 ** 3)
+    msg = _rollout(capsys, monkeypatch, tmp_path, tmp_path / "v.mp4", "--size", "4096x4096")
+    assert msg.startswith("the skeleton video (T, H, W, 3) uint8 at --size of shape (81, 4096, 4096, 3) needs 3.8 GiB")
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from _datasets import write_episode
+
+    write_episode(tmp_path / "src", "ep0")
+    run_ingest(str(tmp_path / "src"), "npz", str(tmp_path / "run"), workers=1, progress=False)
+    with pytest.raises(OscarError, match=r"the longest live episode at --size \(T, H, W, 3\) uint8 of shape "
+                                         r"\(\d+, 8192, 8192, 3\) needs .* GiB, found 1.0 GiB"):
+        run_export(str(tmp_path / "run"), str(tmp_path / "clips"), size=(8192, 8192), workers=1, progress=False)
+    assert not (tmp_path / "clips").exists() and not (tmp_path / "run" / "export").exists()

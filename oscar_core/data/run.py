@@ -90,5 +90,12 @@ def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, 
 
     check_workers_see(out, kw.get("engine", "local"), kw.get("workers"))
     _, rows = input_rows(run, "export")
+    if size:  # refuse a --size no episode fits in memory at before any work (--size 100000x100000: 447 GiB)
+        from .._memory import check_fits
+        from .manifest import is_alive
+
+        longest = max((int(r.get("length") or 0) for r in rows if is_alive(r)), default=0)
+        check_fits((max(longest, 1), int(size[1]), int(size[0]), 3), 1,
+                   "the longest live episode at --size (T, H, W, 3) uint8", "use a smaller --size")
     stage = ExportStage(str(out), tuple(size) if size else None, render_skeleton, video_codec, tuple(plugin_paths))
     return run_sharded(stage, rows, _fs.join(run, "export"), desc="export", **_opts(kw))

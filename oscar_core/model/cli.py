@@ -368,6 +368,11 @@ def cmd_rollout(args) -> int:
 
     size = parse_size(args.size) if args.size else None
     check_output(args.out, size=size)
+    if size is not None:  # the skeleton video of the whole trajectory is held in memory
+        from .._memory import check_fits
+
+        check_fits((len(traj), size[1], size[0], 3), 1, "the skeleton video (T, H, W, 3) uint8 at --size",
+                   "use a smaller --size")
     side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
     if side_path is not None:
         check_output(side_path)
