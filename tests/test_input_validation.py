@@ -166,6 +166,11 @@ def test_rollout_options_are_refused_by_the_parser(capsys, monkeypatch, tmp_path
      "argument --episodes: expected an integer >= 1, found 0"),
     (["toyworld", "rollout", "m", "c", "--out", "o", "--guidance", "inf"], "argument --guidance: expected a finite"),
     (["train", "--cache-latents", "c", "--window", "2.5"], "argument --window: expected an integer, found '2.5'"),
+    (["eval", "run", "--guidance", "nan"], "argument --guidance: expected a finite number, found 'nan'"),
+    (["eval", "run", "--steps", "0"], "argument --steps: expected an integer >= 1, found 0"),
+    (["eval", "judge", "--concurrency", "0"], "argument --concurrency: expected an integer >= 1, found 0"),
+    (["eval", "judge", "--timeout", "-1"], "argument --timeout: expected a number > 0, found -1"),
+    (["eval", "video", "--frames", "-1"], "argument --frames: expected an integer >= 0, found -1"),
 ])
 def test_cli_options_are_range_checked_by_the_parser(capsys, argv, expected):
     from oscar_core.cli import build_parser

@@ -30,6 +30,7 @@ import os
 import sys
 from pathlib import Path
 
+from .._cli_types import count, number
 from ..metrics._common import MetricInputError
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
@@ -159,17 +160,17 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--judge-model", help="VLM model name (default $OSCAR_JUDGE_MODEL)")
     r.add_argument("--api-key-env", default=ENV_API_KEY, metavar="VAR", help=f"variable holding the API key "
                                                                              f"(default {ENV_API_KEY})")
-    r.add_argument("--judge-max-tokens", type=int, help="VLM max_completion_tokens (default: not sent)")
-    r.add_argument("--judge-timeout", type=float, default=120.0, help="VLM seconds per request (default 120)")
+    r.add_argument("--judge-max-tokens", type=count(1), help="VLM max_completion_tokens (default: not sent)")
+    r.add_argument("--judge-timeout", type=number(above=0.0), default=120.0, help="VLM seconds per request (default 120)")
     r.add_argument("--judge-extra-body", metavar="JSON",
                    help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
                         'judge ran at high reasoning effort)')
-    r.add_argument("--max-requests", type=int, help="VLM request budget for this run (default: unlimited)")
-    r.add_argument("--steps", type=int, default=35, help="denoising steps per chunk (default 35)")
-    r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6)")
+    r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
+    r.add_argument("--steps", type=count(1), default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6)")
     r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
-    r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's)")
+    r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
     r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32", help="DiT dtype")
     r.add_argument("--plot-format", default="png", help="comma-separated plot formats (png, pdf, svg)")
