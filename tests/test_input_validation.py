@@ -288,3 +288,19 @@ def test_rollout_and_export_refuse_a_size_beyond_memory_before_work(capsys, monk
                                          r"\(\d+, 8192, 8192, 3\) needs .* GiB, found 1.0 GiB"):
         run_export(str(tmp_path / "run"), str(tmp_path / "clips"), size=(8192, 8192), workers=1, progress=False)
     assert not (tmp_path / "clips").exists() and not (tmp_path / "run" / "export").exists()
+
+
+@pytest.mark.parametrize("item, expected", [
+    ("min_length=nan", "--set min_length: expected a number (int), found 'nan'"),
+    ("max_camera_motion=nan", "--set max_camera_motion: expected a finite number >= 0 (float), found 'nan'"),
+    ("min_action=-0.1", "--set min_action: expected a finite number >= 0 (float), found '-0.1'"),
+    ("motion_pairs=0", "--set motion_pairs: expected a finite number >= 1 (int), found '0'"),
+    ("min_length=7.5", "--set min_length: expected a number (int), found '7.5'"),
+])
+def test_filter_thresholds_are_checked(item, expected):
+    from oscar_core.data.filters import FilterConfig
+
+    with pytest.raises(ValueError) as err:
+        FilterConfig.from_overrides([item])
+    assert str(err.value) == expected
+    assert FilterConfig.from_overrides(["min_length=0", "min_visible=0.5"]).min_visible == 0.5
