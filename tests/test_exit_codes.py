@@ -150,3 +150,34 @@ def test_an_interrupt_torch_checkpointing_wrapped_is_still_an_interrupt():
     with pytest.raises(Interrupted):
         with _resume_hint("runs/a"):
             raise KeyboardInterrupt
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_a_batch_render_stops_its_workers_and_exits_130(tmp_path):
+    import shutil
+
+    assets = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
+    trajs = tmp_path / "trajs"
+    trajs.mkdir()
+    for i in range(24):
+        shutil.copy(assets / "example_trajectory.npz", trajs / f"ep{i:02d}.npz")
+        shutil.copy(assets / "example_camera.json", trajs / f"ep{i:02d}.json")
+    out = tmp_path / "out"
+    cmd = CLI + ["render", "--embodiment", "toyarm", "--trajectories", str(trajs), "--out", f"{out}/",
+                 "--workers", "2", "--size", "640x360", "--no-progress"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
+                            start_new_session=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and not list(out.glob("*.mp4")):
+        time.sleep(0.02)
+    assert proc.poll() is None, "the batch finished before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-3000:]
+    assert err == message(f"{out}/") + "\n"
+    left = _group(proc.pid)
+    while left and time.time() < deadline:
+        time.sleep(0.1)
+        left = _group(proc.pid)
+    assert left == [], f"processes of the interrupted command still alive: {left}"
+    assert len(list(out.glob("*.mp4"))) < 24  # the queue was cancelled, not rendered first
