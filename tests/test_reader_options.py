@@ -108,6 +108,28 @@ def test_an_unreadable_episode_table_names_itself_and_the_rest_goes_on(tmp_path,
     rows = {r["id"]: r for r in read_stage(str(tmp_path / "run" / "ingest"))}
     bad = rows["droid/meta/episodes/chunk-000/file-001.parquet"]
     assert bad["ingest_status"] == "rejected"
-    assert str(broken) in bad["ingest_reason"] and "a LeRobot v3.0 episode table (parquet)" in bad["ingest_reason"]
+    assert str(broken) in bad["ingest_reason"] and "a readable LeRobot episode table (meta/episodes)" in bad["ingest_reason"]
     assert "magic bytes" in bad["ingest_reason"].lower() or "parquet" in bad["ingest_reason"].lower()
     assert rows["droid/0"]["ingest_status"] == rows["droid/1"]["ingest_status"] == "ok"
+
+
+def test_a_broken_line_of_a_v21_episode_list_is_one_rejected_row(tmp_path):
+    from test_reader_interndata_a1 import write_task
+
+    from oscar_core.data.readers.interndata_a1 import InternDataA1Reader
+    from oscar_core.reader import EpisodeError
+
+    write_task(tmp_path, lengths=(9, 11, 10))
+    ds = tmp_path / "articulation_tasks" / "franka" / "close_the_electriccooker"
+    jl = ds / "meta" / "episodes.jsonl"
+    lines = jl.read_text().splitlines()
+    lines[1] = '{"episode_index": 1, "tasks": ["x"], "len'  # a truncated line
+    jl.write_text("\n".join(lines) + "\n")
+    reader = InternDataA1Reader()
+    refs = list(reader.list_episodes(str(tmp_path)))
+    base = "interndata_a1/articulation_tasks/franka/close_the_electriccooker"
+    assert [r.episode_id for r in refs] == [f"{base}/0", f"{base}/meta/episodes.jsonl:2", f"{base}/2"]
+    with pytest.raises(EpisodeError, match=r"episodes.jsonl: field '<file>': expected a readable LeRobot episode "
+                                           r"table \(meta/episodes\); .* found line 2: expected \{episode_index"):
+        reader.load_episode(refs[1])
+    assert reader.load_episode(refs[2]).n_frames == 10

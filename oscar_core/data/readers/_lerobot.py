@@ -59,9 +59,15 @@ class EpisodeRow:
     tasks: tuple[str, ...]
     data: str
     videos: dict[str, tuple[str, float]]
-    # set on a row that stands for an unreadable episode table (``data`` is then that table's path): its
-    # episodes cannot be listed, so the table becomes one rejected manifest row and the other tables go on
+    # set on a row that stands for an unreadable episode table (``data`` is then that table's path; ``index``
+    # the line of a v2.1 episodes.jsonl, -1 for a whole v3.0 table): its episodes cannot be listed, so it
+    # becomes one rejected manifest row and the other tables (lines) go on
     error: str | None = None
+
+    @property
+    def error_id(self) -> str:
+        """The manifest id suffix of an error row, relative to the dataset: ``meta/…parquet`` or ``…jsonl:LINE``."""
+        return "" if self.index < 0 else f":{self.index}"
 
 
 def unreadable_table(ref) -> None:
@@ -69,7 +75,7 @@ def unreadable_table(ref) -> None:
     reason = (ref.meta or {}).get("unreadable_table")
     if reason:
         raise EpisodeError(ref.episode_id, ref.paths.get("states", "?"), "<file>",
-                           "a LeRobot v3.0 episode table (parquet); its episodes were not listed", reason)
+                           "a readable LeRobot episode table (meta/episodes); its episodes were not listed", reason)
 
 
 class LeRobotLayout:
@@ -175,8 +181,10 @@ class LeRobotLayout:
                     row = json.loads(line)
                     index, length = int(row["episode_index"]), int(row["length"])
                 except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
-                    raise ValueError(f"{path}: line {n}: expected {{episode_index, tasks, length}}, found "
-                                     f"{type(e).__name__}: {e}") from None
+                    # one rejected row for this line (index: the line number); the other lines go on
+                    yield EpisodeRow(n, 0, (), str(path), {}, error=f"line {n}: expected {{episode_index, tasks, "
+                                                                      f"length}}, found {type(e).__name__}: {e}")
+                    continue
                 chunk = index // chunks
                 data = self.root / data_tpl.format(episode_chunk=chunk, episode_index=index)
                 videos = {k: (str(self.root / video_tpl.format(episode_chunk=chunk, video_key=k, episode_index=index)), 0.0)

@@ -65,7 +65,7 @@ class InternDataA1Reader(Reader):
             for row in layout.episodes():
                 if row.error:  # one rejected row naming the broken table; the other tables' episodes go on
                     table = Path(row.data).relative_to(dataset).as_posix()
-                    yield EpisodeRef(f"interndata_a1/{rel}/{table}", "interndata_a1", self.name, "franka",
+                    yield EpisodeRef(f"interndata_a1/{rel}/{table}{row.error_id}", "interndata_a1", self.name, "franka",
                                      {"root": str(dataset), "states": row.data}, fps=layout.fps,
                                      meta={"unreadable_table": row.error})
                     continue

@@ -92,7 +92,7 @@ class LeRobotReader(Reader):
         for row in layout.episodes():
             if row.error:  # one rejected row naming the broken table; the other tables' episodes go on
                 rel = Path(row.data).relative_to(root).as_posix()
-                yield EpisodeRef(f"{src}/{rel}", src, self.name, emb, {"root": str(root), "states": row.data},
+                yield EpisodeRef(f"{src}/{rel}{row.error_id}", src, self.name, emb, {"root": str(root), "states": row.data},
                                  fps=layout.fps, cameras=cams, meta={"unreadable_table": row.error})
                 continue
             paths = {"root": str(root), "data": row.data, "states": row.data}
