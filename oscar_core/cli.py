@@ -126,6 +126,12 @@ def main(argv=None) -> int:
     except (OscarError, ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except MemoryError as exc:
+        # numpy says "Unable to allocate 596. GiB for an array with shape …": one line, not a traceback
+        detail = str(exc) or "an allocation failed"
+        print(f"error: out of memory: {detail}; a smaller --size, fewer frames or fewer workers need less",
+              file=sys.stderr)
+        return 2
     except KeyboardInterrupt as exc:
         from ._interrupt import report
 

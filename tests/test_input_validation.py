@@ -201,10 +201,10 @@ def test_render_of_a_huge_size_is_an_error_not_a_traceback(tmp_path, capsys, mon
 
     monkeypatch.setattr(_memory, "available_bytes", lambda: 2 * 1024 ** 3)  # whatever this machine has
     rc = main(["render", "--embodiment", "toyarm", "--trajectory", str(TRAJ), "--camera", str(CAM),
-               "--out", str(tmp_path / "big.mkv"), "--size", "100000x100000"])
+               "--out", str(tmp_path / "big.mkv"), "--size", "20000x20000"])  # one frame fits, a chunk does not
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("error: the skeleton video (T, H, W, 3) uint8 of shape (")  # T: a chunk
-    assert ", 100000, 100000, 3) needs " in err and len(err.splitlines()) == 1
+    assert ", 20000, 20000, 3) needs " in err and len(err.splitlines()) == 1
     assert "found 2.0 GiB of memory available; use a smaller --size" in err
     assert not (tmp_path / "big.mkv").exists()
 
@@ -304,3 +304,31 @@ def test_filter_thresholds_are_checked(item, expected):
         FilterConfig.from_overrides([item])
     assert str(err.value) == expected
     assert FilterConfig.from_overrides(["min_length=0", "min_visible=0.5"]).min_visible == 0.5
+
+
+def test_a_size_whose_one_frame_exceeds_memory_is_refused_by_every_command(monkeypatch, capsys):
+    from oscar_core import _memory
+    from oscar_core.cli import main
+    from oscar_core.pipeline import parse_size
+
+    monkeypatch.setattr(_memory, "available_bytes", lambda: 1024 ** 3)
+    assert parse_size("512x288") == (512, 288)
+    with pytest.raises(OscarError, match=r"--size 20000x20000: one RGB frame of shape \(20000, 20000, 3\) needs "
+                                         r"1.1 GiB, found 1.0 GiB of memory available; use a smaller --size"):
+        parse_size("20000x20000")
+    assert main(["toyworld", "generate", "--embodiments", "kuka", "--episodes", "1", "--size", "20000x20000",
+                 "--out", "unused"]) == 2
+    assert capsys.readouterr().err.startswith("error: --size 20000x20000: one RGB frame")
+
+
+def test_an_allocation_failure_is_one_line(monkeypatch, capsys):
+    import oscar_core.cli as cli
+
+    def boom(args):
+        raise MemoryError("Unable to allocate 596. GiB for an array with shape (2, 200000, 200000) and data type int64")
+
+    monkeypatch.setattr(cli, "cmd_embodiments", boom)
+    assert cli.main(["embodiments"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("error: out of memory: Unable to allocate 596. GiB for an array with shape (2, 200000, 200000) and "
+                   "data type int64; a smaller --size, fewer frames or fewer workers need less\n")
