@@ -35,7 +35,7 @@ __all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "it
            "render_mesh_video"]
 
 #: default vertex-clustering cell, metres (docs/mesh-condition.md: silhouette IoU against the full meshes)
-DEFAULT_SIMPLIFY = 0.005
+DEFAULT_SIMPLIFY = 0.008
 
 
 @dataclass(frozen=True)

@@ -273,7 +273,10 @@ def _visual_triangles(vis, source: str, where: str, urdf_dir: Path | None,
             raise KinematicsFileError(source, f"{w}.filename", "an existing mesh file (STL, DAE, OBJ)",
                                       f"{filename!r} → {path} (no such file)")
         v, f = _cached_mesh(str(path.resolve()), os.path.getmtime(path))
-        v = v * _floats(shape, "scale", 3, (1.0, 1.0, 1.0), source, w)
+        scale = _floats(shape, "scale", 3, (1.0, 1.0, 1.0), source, w)
+        v = v * scale
+        if np.prod(scale) < 0:  # a mirror: keep the faces wound counter-clockwise seen from outside
+            f = f[:, ::-1]
     else:
         raise KinematicsFileError(source, f"{where}.geometry", "one of mesh, box, cylinder, sphere, capsule",
                                   f"<{shape.tag}>")
