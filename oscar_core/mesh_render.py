@@ -31,7 +31,7 @@ from .render_stream import (DEFAULT_CHUNK_FRAMES, EmptyViewError, EmptyViewWarni
                             _to_camera, format_frames)
 from .visual import VisualGeometry
 
-__all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "iter_mesh_chunks",
+__all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "mesh_vertices", "iter_mesh_chunks",
            "render_mesh_video"]
 
 #: default vertex-clustering cell, metres (docs/mesh-condition.md: silhouette IoU against the full meshes)
@@ -154,11 +154,11 @@ def _world_vertices(mesh: _Mesh, poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
+def _vertices_cv(job: _Job, start: int, stop: int):
+    """Frames start:stop → (camera slice, (n, V, 3) camera-frame vertices, (n, V, 2) pixels, (n, V) folded)."""
     from .fk_numpy import link_poses
 
     cam = job.camera.time_slice(start, stop)
-    intr = cam.intrinsics
     sub = job.traj.time_slice(start, stop)
     emb = job.embodiment
     mount = [cam.mount_link] if cam.mount_link else []
@@ -166,7 +166,26 @@ def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stat
     poses = link_poses(emb, emb.full_configuration(sub), sub.base_pose, links, job.device)
     M = cam.world_to_cv(poses[:, -1] if mount else None)
     Pc = _to_camera(_world_vertices(job.mesh, poses[:, :len(job.mesh.links)]), M)
-    uv, folded = _project_cv(Pc, intr)  # the skeleton's projection; folded: beyond the distortion's valid radius
+    uv, folded = _project_cv(Pc, cam.intrinsics)  # the skeleton's projection; folded: beyond the lens model's valid radius
+    return cam, Pc, uv, folded
+
+
+def mesh_vertices(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
+                  style: MeshStyle | None = None, resize_mode: str = "crop", device="cpu",
+                  camera_source: str = "<camera>") -> tuple[np.ndarray, np.ndarray]:
+    """Where the renderer puts every vertex: (T, V, 2) pixels and (T, V) depth in metres.
+
+    Vertices are those of :func:`mesh_geometry` (``style.simplify``), links in
+    its order. The renderer draws exactly these positions.
+    """
+    job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
+    _, Pc, uv, _ = _vertices_cv(job, 0, len(job.traj))
+    return uv, Pc[..., 2]
+
+
+def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
+    cam, Pc, uv, folded = _vertices_cv(job, start, stop)
+    intr = cam.intrinsics
     n = stop - start
     if out is None:
         out = np.zeros((n, intr.height, intr.width, 3), np.uint8)

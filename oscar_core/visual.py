@@ -171,7 +171,7 @@ def capsule_mesh(radius: float, length: float, n: int = ROUND_SEGMENTS) -> tuple
     q = max(2, n // 4)  # bands per hemisphere
     th = np.linspace(np.pi, np.pi / 2, q + 1)
     lower = [(float(np.sin(t)), -h + float(radius * np.cos(t))) for t in th]
-    upper = [(float(np.sin(t)), h + float(radius * np.cos(t))) for t in th[::-1]]
+    upper = [(float(np.sin(t)), h + float(radius * np.cos(t))) for t in np.linspace(np.pi / 2, 0.0, q + 1)]
     return _latitude_stack(radius, lower + upper, n)
 
 
