@@ -100,6 +100,17 @@ def test_urdf_visual_origin_and_mesh_scale(tmp_path):
     np.testing.assert_allclose(g.vertices, [[0, 0, 1], [0, 2, 1], [-2, 0, 1]], atol=1e-12)
 
 
+def test_a_mirroring_mesh_scale_keeps_faces_outward(tmp_path):
+    # a tetrahedron wound outward; scale z by -1 mirrors it: the faces must be flipped to stay outward
+    (tmp_path / "tet.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    for scale in ("1 1 1", "1 1 -1"):
+        urdf = f'<link name="a"><visual><geometry><mesh filename="tet.obj" scale="{scale}"/></geometry></visual></link>'
+        (g,) = make_embodiment(tmp_path, urdf, "", ("a",), name="tet")().visual_geometry().links
+        v, f = g.vertices, g.faces
+        signed = np.einsum("fi,fi->f", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6
+        assert signed == pytest.approx(1 / 6), scale
+
+
 # ------------------------------------------------------------------------------ rasteriser
 
 
@@ -109,11 +120,11 @@ def test_shared_edges_through_pixel_centres_leave_no_hole():
     uv = np.array([[2.0, 2.0], [9.0, 2.0], [9.0, 9.0], [2.0, 9.0]])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
     rgb = np.array([[255, 0, 0], [0, 255, 0]], np.uint8)
-    img = rasterise_mesh(uv, np.ones(4), faces, rgb, (12, 12))
-    covered = img.any(-1)
     expect = np.zeros((12, 12), bool)
     expect[2:10, 2:10] = True
-    np.testing.assert_array_equal(covered, expect)
+    for f in (faces, faces[:, ::-1]):  # either winding (no culling here)
+        img = rasterise_mesh(uv, np.ones(4), f, rgb, (12, 12))
+        np.testing.assert_array_equal(img.any(-1), expect)
 
 
 def test_random_fan_has_no_cracks():
@@ -217,6 +228,17 @@ def test_a_frame_alone_equals_the_same_frame_in_a_video():
         alone = render_mesh_video(emb, traj.time_slice(t, t + 1), cam, (256, 144))[0]
         np.testing.assert_array_equal(alone, video[t])
     assert video[7].any()
+
+
+def test_back_face_culling_changes_nothing_on_closed_meshes():
+    emb = ToyArm()
+    cam = Camera(Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360), look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4)))
+    traj = Trajectory(("base_yaw", "shoulder", "elbow", "wrist_pitch"), np.array([[0.7, 0.9, 1.3, 0.7]]), fps=10,
+                      gripper=np.array([[0.04]]))
+    culled = render_mesh_video(emb, traj, cam, (320, 180), style=MeshStyle(cull_back=True))[0]
+    both = render_mesh_video(emb, traj, cam, (320, 180), style=MeshStyle(cull_back=False))[0]
+    differ = (culled != both).any(-1).sum()
+    assert culled.any(-1).sum() > 1000 and differ <= 0.005 * culled.any(-1).sum()  # silhouette-edge ties at most
 
 
 def test_the_gripper_state_shows_through_the_fingers():
