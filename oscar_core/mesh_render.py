@@ -1,6 +1,6 @@
 """The mesh condition: each link's visual geometry drawn through the skeleton's camera.
 
-FK gives every link's pose; the link's triangles (its URDF ``<visual>``
+FK gives every link's pose (the same FK as the skeleton's); the link's triangles (its URDF ``<visual>``
 geometry, or what the plugin's :meth:`~oscar_core.embodiment.Embodiment.visual_geometry`
 returns) are moved there, projected by exactly the function the skeleton uses
 (:func:`oscar_core.camera.project_points_cv`: the same intrinsics, distortion and
@@ -156,14 +156,13 @@ def _world_vertices(mesh: _Mesh, poses: np.ndarray) -> np.ndarray:
 
 def _vertices_cv(job: _Job, start: int, stop: int):
     """Frames start:stop → (camera slice, (n, V, 3) camera-frame vertices, (n, V, 2) pixels, (n, V) folded)."""
-    from .fk_numpy import link_poses
-
     cam = job.camera.time_slice(start, stop)
     sub = job.traj.time_slice(start, stop)
     emb = job.embodiment
     mount = [cam.mount_link] if cam.mount_link else []
     links = list(job.mesh.links) + mount
-    poses = link_poses(emb, emb.full_configuration(sub), sub.base_pose, links, job.device)
+    # the FK the skeleton's frames() uses (NumPy on the CPU, the plugin's own fk otherwise)
+    poses = emb._link_poses(emb.full_configuration(sub), sub.base_pose, links, job.device)
     M = cam.world_to_cv(poses[:, -1] if mount else None)
     Pc = _to_camera(_world_vertices(job.mesh, poses[:, :len(job.mesh.links)]), M)
     uv, folded = _project_cv(Pc, cam.intrinsics)  # the skeleton's projection; folded: beyond the lens model's valid radius
