@@ -1,8 +1,10 @@
 """The condition videos oscar can render, by name: ``skeleton`` (the paper's) and ``mesh``.
 
-Every consumer of a condition video (``oscar render``, the batch renderer, and
-later the trainer and rollouts) picks its renderer here, so a new condition is
-added in one place.
+Every consumer of a condition video (``oscar render``, the batch renderer, the
+trainer, rollouts and ``oscar eval run``) picks its renderer here, so a new
+condition is added in one place. Both go through the VAE and the DiT's PE_s in
+the same way (the model's "skeleton" stream carries whichever condition video
+its card names).
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from typing import Callable
 
 from .errors import OscarError
 
-__all__ = ["CONDITIONS", "DEFAULT_CONDITION", "check_condition", "chunk_renderer", "video_renderer"]
+__all__ = ["CONDITIONS", "DEFAULT_CONDITION", "check_condition", "chunk_renderer", "video_renderer",
+           "condition_video"]
 
 CONDITIONS = ("skeleton", "mesh")
 DEFAULT_CONDITION = "skeleton"
@@ -45,3 +48,10 @@ def video_renderer(name: str) -> Callable:
     from .pipeline import render_skeleton_video
 
     return render_skeleton_video
+
+
+def condition_video(name: str, embodiment, trajectory, camera, size, *, resize_mode: str = "crop",
+                    camera_source: str = "<camera>"):
+    """(T, H, W, 3) uint8 condition video ``name`` of ``trajectory`` seen by ``camera`` at ``size`` (width, height)."""
+    return video_renderer(name)(embodiment, trajectory, camera, size, resize_mode=resize_mode,
+                                camera_source=camera_source)
