@@ -40,7 +40,8 @@ def chunk_renderer(name: str) -> Callable:
 
 
 def video_renderer(name: str) -> Callable:
-    """The whole-video renderer of condition ``name``: ``f(embodiment, traj, camera, size, ...)`` → (T, H, W, 3) uint8."""
+    """The whole-video renderer of condition ``name``:
+    ``f(embodiment, traj, camera, size, ...)`` → (T, H, W, 3) uint8."""
     if check_condition(name) == "mesh":
         from .mesh_render import render_mesh_video
 

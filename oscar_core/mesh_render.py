@@ -1,10 +1,11 @@
 """The mesh condition: each link's visual geometry drawn through the skeleton's camera.
 
-FK gives every link's pose (the same FK as the skeleton's); the link's triangles (its URDF ``<visual>``
-geometry, or what the plugin's :meth:`~oscar_core.embodiment.Embodiment.visual_geometry`
-returns) are moved there, projected by exactly the function the skeleton uses
-(:func:`oscar_core.camera.project_points_cv`: the same intrinsics, distortion and
-convention), shaded flat with a fixed colour per link and a headlight
+FK gives every link's pose (the same FK as the skeleton's); the link's
+triangles (its URDF ``<visual>`` geometry, or what the plugin's
+:meth:`~oscar_core.embodiment.Embodiment.visual_geometry` returns) are moved
+there, projected by exactly the function the skeleton uses
+(:func:`oscar_core.camera.project_points_cv`: the same intrinsics, distortion
+and convention), shaded flat with a fixed colour per link and a headlight
 (:func:`oscar_core.mesh_raster.shade_faces`) and drawn with a z-buffer on the same
 black canvas (:func:`oscar_core.mesh_raster.rasterise_mesh`). The gripper state
 shows through the fingers' own geometry, which the finger joints move.
@@ -165,7 +166,8 @@ def _vertices_cv(job: _Job, start: int, stop: int):
     poses = emb._link_poses(emb.full_configuration(sub), sub.base_pose, links, job.device)
     M = cam.world_to_cv(poses[:, -1] if mount else None)
     Pc = _to_camera(_world_vertices(job.mesh, poses[:, :len(job.mesh.links)]), M)
-    uv, folded = _project_cv(Pc, cam.intrinsics)  # the skeleton's projection; folded: beyond the lens model's valid radius
+    # the skeleton's projection; folded: beyond the lens model's valid radius
+    uv, folded = _project_cv(Pc, cam.intrinsics)
     return cam, Pc, uv, folded
 
 
