@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["shade_faces", "rasterise_mesh", "NEAR", "MAX_FRAGMENTS"]
+__all__ = ["shade_faces", "clip_near", "rasterise_mesh", "NEAR", "CLIP_Z", "MAX_FRAGMENTS"]
 
 NEAR = 1e-3  # metres: triangles with a corner nearer the camera than this are not drawn
+CLIP_Z = 2 * NEAR  # metres: :func:`clip_near` cuts triangles at this depth
 MAX_FRAGMENTS = 1 << 20  # candidate pixels per batch of triangles (bounds memory: ~150 MB)
 
 
@@ -40,6 +41,58 @@ def shade_faces(points_cv: np.ndarray, faces: np.ndarray, base_rgb: np.ndarray, 
     cos = np.nan_to_num(cos, nan=0.0)
     light = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
     return np.clip(base_rgb * light[:, None] + 0.5, 0, 255).astype(np.uint8)
+
+
+def clip_near(points_cv: np.ndarray, faces: np.ndarray, z: float = CLIP_Z) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cut triangles at the plane ``depth = z`` in front of the camera (camera frame, OpenCV axes).
+
+    points_cv: (V, 3) metres; faces: (F, 3). Returns (V', 3) points (the V
+    given, then the cut points), (F', 3) faces and (F',) index of the face each
+    came from. Faces wholly in front are kept as they are; wholly behind are
+    dropped; one corner behind gives two triangles, two give one, wound as the
+    face was. A cut point depends only on its edge's two vertex indices (taken
+    smaller first), so neighbours sharing a cut edge share its point exactly.
+    """
+    behind = ~(points_cv[:, 2] > z)  # NaN counts as behind
+    nb = behind[faces].sum(1)
+    keep = np.flatnonzero(nb == 0)
+    one, two = np.flatnonzero(nb == 1), np.flatnonzero(nb == 2)
+    if len(one) == 0 and len(two) == 0:
+        return points_cv, faces[keep], keep
+    new_points, new_faces, src = [points_cv], [faces[keep]], [keep]
+    count = len(points_cv)
+
+    def rotated(idx, odd):
+        """Faces idx rotated so their odd-one-out corner (behind for one, in front for two) comes first."""
+        f = faces[idx]
+        k = np.argmax(behind[f] == odd, axis=1)
+        return f[np.arange(len(f))[:, None], (k[:, None] + np.arange(3)) % 3]
+
+    def cut(p, q):
+        """Points (n, 3) where edges p-q (vertex indices) cross the plane, from the smaller index's end."""
+        lo, hi = np.minimum(p, q), np.maximum(p, q)
+        a, b = points_cv[lo], points_cv[hi]
+        t = (z - a[:, 2]) / (b[:, 2] - a[:, 2])
+        out = a + t[:, None] * (b - a)
+        out[:, 2] = z
+        return out
+
+    for idx, odd in ((one, True), (two, False)):
+        if not len(idx):
+            continue
+        f = rotated(idx, odd)
+        ab, ac = cut(f[:, 0], f[:, 1]), cut(f[:, 0], f[:, 2])
+        n = len(f)
+        i_ab, i_ac = count + np.arange(n), count + n + np.arange(n)
+        new_points += [ab, ac]
+        count += 2 * n
+        if odd:  # a behind: the quad ab, b, c, ac in the face's order
+            new_faces += [np.stack([i_ab, f[:, 1], f[:, 2]], 1), np.stack([i_ab, f[:, 2], i_ac], 1)]
+            src += [idx, idx]
+        else:  # b and c behind: a, ab, ac
+            new_faces.append(np.stack([f[:, 0], i_ab, i_ac], 1))
+            src.append(idx)
+    return np.concatenate(new_points), np.concatenate(new_faces), np.concatenate(src)
 
 
 def _edge_params(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -63,7 +116,7 @@ def rasterise_mesh(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, face_rg
     is not to be trusted (triangles using one are skipped); cull_back: skip
     triangles facing away from the camera (right only for closed meshes wound
     counter-clockwise seen from outside). Triangles with a corner nearer than
-    :data:`NEAR` are skipped (no near-plane clipping). Returns the canvas.
+    :data:`NEAR` are skipped (cut them first with :func:`clip_near`). Returns the canvas.
     """
     W, H = int(size[0]), int(size[1])
     if out is None:

@@ -27,7 +27,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import PluginError
-from .mesh_raster import rasterise_mesh, shade_faces
+from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
 from .render_stream import (DEFAULT_CHUNK_FRAMES, EmptyViewError, EmptyViewWarning, RenderStats, _project_cv,
                             _to_camera, format_frames)
 from .visual import VisualGeometry
@@ -194,11 +194,18 @@ def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stat
         out[...] = 0
     size = (intr.width, intr.height)
     for i in range(n):
-        def shade(kept, P=Pc[i]):
-            return shade_faces(P, job.mesh.faces[kept], job.mesh.face_rgb[kept], job.style.ambient)
+        P, faces, src, uv_i, ok = Pc[i], job.mesh.faces, None, uv[i], ~folded[i]
+        if not (P[:, 2] > CLIP_Z).all():  # some geometry at or behind the near plane: cut the triangles there
+            P, faces, src = clip_near(P, faces)
+            extra, extra_folded = _project_cv(P[len(Pc[i]):], intr)
+            uv_i = np.concatenate([uv_i, extra])
+            ok = np.concatenate([ok, ~extra_folded])
 
-        rasterise_mesh(uv[i], Pc[i, :, 2], job.mesh.faces, shade, size, out[i], usable=~folded[i],
-                       cull_back=job.style.cull_back)
+        def shade(kept, P=P, faces=faces, src=src):
+            base = job.mesh.face_rgb[kept if src is None else src[kept]]
+            return shade_faces(P, faces[kept], base, job.style.ambient)
+
+        rasterise_mesh(uv_i, P[:, 2], faces, shade, size, out[i], usable=ok, cull_back=job.style.cull_back)
     if stats is not None:
         seen = out.reshape(n, -1).any(axis=1)
         stats.frames += n

@@ -199,6 +199,45 @@ def test_one_box_link_matches_its_analytic_silhouette(tmp_path):
         np.testing.assert_array_equal(video[t].any(-1), expect, err_msg=f"frame {t}")
 
 
+def test_triangles_reaching_behind_the_camera_are_cut_not_dropped(tmp_path):
+    # a 20 m floor plate under a camera 0.5 m up looking ahead and down: its two top triangles have corners
+    # behind the camera; cut at the near plane they still cover exactly the floor the camera sees
+    links = '<link name="base"/>' + box_link("floor", "20 20 0.01", "0 0 -0.005")
+    emb = make_embodiment(tmp_path, links, slider("slide", "base", "floor"), ("base", "floor"), name="floor")()
+    cam = Camera(Intrinsics(60.0, 60.0, 63.5, 47.5, 128, 96), look_at((0.0, 0.0, 0.5), (1.0, 0.0, 0.0)))
+    traj = Trajectory(("slide",), np.zeros((1, 1)), fps=10, gripper=np.zeros((1, 0)))
+    img = render_mesh_video(emb, traj, cam, style=FULL)[0]
+    # analytic: the ray through each pixel centre meets z = 0 inside the plate
+    yy, xx = np.mgrid[0:96, 0:128]
+    d_cv = np.stack([(xx - 63.5) / 60.0, (yy - 47.5) / 60.0, np.ones_like(xx, float)], -1)
+    M = cam.world_to_cv(None)
+    d = d_cv @ M[:3, :3]  # camera-to-world rotation applied to each ray (R^T d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -0.5 / d[..., 2]
+        hit = (d[..., 2] < 0) & (np.abs(s * d[..., 0]) < 10) & (np.abs(s * d[..., 1]) < 10)
+    covered = img.any(-1)
+    assert hit.mean() > 0.3
+    assert (covered != hit).mean() < 0.01  # the plate's far edge: a pixel row at most
+
+
+def test_clip_near_shares_cut_points_and_keeps_the_winding():
+    from oscar_core.mesh_raster import clip_near
+
+    rng = np.random.default_rng(1)
+    P = np.concatenate([rng.uniform(-1, 1, (4, 2)), [[-0.3], [0.7], [0.5], [-0.2]]], 1)  # depths: 0, 3 behind
+    faces = np.array([[0, 1, 2], [1, 0, 3], [1, 2, 3]])  # edge 0-1 shared (crossing), in both directions
+    Q, f, src = clip_near(P, faces, z=0.1)
+    assert (Q[f][..., 2] >= 0.1 - 1e-15).all()
+    cuts = Q[len(P):]
+    on_01 = [c for c in cuts if np.allclose(np.cross(c - P[0], P[1] - P[0]), 0, atol=1e-12)]
+    assert len(on_01) >= 2 and all(np.array_equal(on_01[0], c) for c in on_01)  # bitwise the same point
+    # each piece faces the way its face did
+    def normal(V, t):
+        return np.cross(V[t[1]] - V[t[0]], V[t[2]] - V[t[0]])
+    for t, k in zip(f, src):
+        assert normal(Q, t) @ normal(P, faces[k]) > 0
+
+
 def test_mesh_vertices_agree_with_camera_project():
     emb = ToyArm()
     cam = Camera(Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
