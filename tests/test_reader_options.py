@@ -133,3 +133,17 @@ def test_a_broken_line_of_a_v21_episode_list_is_one_rejected_row(tmp_path):
                                            r"table \(meta/episodes\); .* found line 2: expected \{episode_index"):
         reader.load_episode(refs[1])
     assert reader.load_episode(refs[2]).n_frames == 10
+
+
+def test_a_plugin_reader_taking_any_keyword_gets_its_options_unchecked_by_name():
+    from oscar_core.reader import Reader
+
+    class Open(Reader):
+        name = "open"
+
+        def __init__(self, root: str = ".", **extra):
+            self.root, self.extra = root, extra
+
+    assert check_reader_options(Open, {"root": "/d", "anything": [1, 2]}) == {"root": "/d", "anything": [1, 2]}
+    with pytest.raises(ReaderOptionError, match="--reader-option root \\(reader 'open'\\): expected a string, found int 3"):
+        check_reader_options(Open, {"root": 3})

@@ -76,13 +76,15 @@ def check_reader_options(cls, options: dict[str, Any]) -> dict[str, Any]:
     and what was found.
     """
     known = reader_options(cls)
+    params = inspect.signature(cls.__init__).parameters.values()
+    open_ended = any(p.kind is p.VAR_KEYWORD for p in params)  # a constructor taking **kwargs checks its own
     try:
         hints = typing.get_type_hints(cls.__init__)
     except Exception:  # noqa: BLE001 - an annotation that does not evaluate: check names only
         hints = {}
     out = {}
     for name, value in options.items():
-        if name not in known:
+        if name not in known and not open_ended:
             takes = ", ".join(sorted(known)) or "none"
             raise ReaderOptionError(f"--reader-option {name}: reader {cls.name!r} has no such option; it takes: {takes}")
         out[name] = _typed(hints.get(name, Any), value, f"--reader-option {name} (reader {cls.name!r})")
