@@ -13,11 +13,13 @@ same command resumes.
 from __future__ import annotations
 
 import signal
+import time
 
 __all__ = ["EXIT_INTERRUPTED", "Interrupted", "message", "output_of", "report", "stop_pool",
            "worker_ignores_interrupt"]
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
+GRACE_S = 3.0  # seconds busy threads get to end after Ctrl-C before the process exits without them
 
 
 def worker_ignores_interrupt() -> None:
@@ -61,14 +63,34 @@ def message(where: str | None, resume: str | None = None) -> str:
 
 
 def report(exc: KeyboardInterrupt, args=None) -> int:
-    """Print the Ctrl-C line for ``exc`` (an :class:`Interrupted` or a plain ``KeyboardInterrupt``); returns 130."""
+    """Print the Ctrl-C line for ``exc`` (an :class:`Interrupted` or a plain ``KeyboardInterrupt``); returns 130.
+
+    When threads of a pool are still busy after ``GRACE_S`` (a judge request
+    in flight for up to its timeout), the interpreter would wait for them
+    before exiting: then this exits the process, with status 130, after
+    flushing output.
+    Their work is not finished work; whatever finished is already on disk.
+    """
+    import os
     import sys
+    import threading
 
     if isinstance(exc, Interrupted):
         line = message(exc.where, exc.resume)
     else:
         line = message(output_of(args) if args is not None else None)
     print(line, file=sys.stderr)
+
+    def busy():
+        return [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon and t.is_alive()]
+
+    deadline = time.monotonic() + GRACE_S  # a stopped process pool's manager thread ends in well under a second
+    for t in busy():
+        t.join(max(0.0, deadline - time.monotonic()))
+    if busy():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(EXIT_INTERRUPTED)
     return EXIT_INTERRUPTED
 
 

@@ -181,3 +181,25 @@ def test_ctrl_c_in_a_batch_render_stops_its_workers_and_exits_130(tmp_path):
         left = _group(proc.pid)
     assert left == [], f"processes of the interrupted command still alive: {left}"
     assert len(list(out.glob("*.mp4"))) < 24  # the queue was cancelled, not rendered first
+
+
+def test_ctrl_c_does_not_wait_for_busy_pool_threads():
+    # a judge request in flight (up to its 120 s timeout) used to hold the exit after Ctrl-C
+    code = """if True:
+        import sys, time
+        from concurrent.futures import ThreadPoolExecutor
+        import oscar_core.cli as cli
+
+        def busy(args):
+            pool = ThreadPoolExecutor(2)
+            pool.submit(time.sleep, 60)
+            time.sleep(0.2)
+            raise KeyboardInterrupt
+        cli.cmd_embodiments = busy
+        sys.exit(cli.main(["embodiments"]))
+    """
+    t0 = time.time()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=120)
+    assert proc.returncode == 130
+    assert proc.stderr == "interrupted; finished work is kept; run the same command to resume\n"
+    assert time.time() - t0 < 30
