@@ -12,14 +12,49 @@ same command resumes.
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import threading
 import time
 
-__all__ = ["EXIT_INTERRUPTED", "Interrupted", "message", "output_of", "report", "stop_pool",
-           "worker_ignores_interrupt"]
+__all__ = ["EXIT_INTERRUPTED", "Interrupted", "interrupted", "message", "noting_interrupts", "output_of", "report",
+           "stop_pool", "worker_ignores_interrupt"]
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
 GRACE_S = 3.0  # seconds busy threads get to end after Ctrl-C before the process exits without them
+
+
+_NOTED = {"sigint": False}
+
+
+def _note_and_raise(signum, frame):
+    _NOTED["sigint"] = True
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def noting_interrupts():
+    """While the block runs, SIGINT raises ``KeyboardInterrupt`` as usual and is also noted (:func:`interrupted`).
+
+    Some libraries catch the ``KeyboardInterrupt`` and raise their own error
+    (torch's checkpoint writer turns it into a ``RuntimeError`` inside a
+    ``CheckpointException``); the note lets the CLI still report Ctrl-C.
+    Only in the main thread (elsewhere signal handlers cannot be set: no-op).
+    """
+    _NOTED["sigint"] = False
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, _note_and_raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def interrupted() -> bool:
+    """Whether SIGINT arrived inside the current :func:`noting_interrupts` block."""
+    return _NOTED["sigint"]
 
 
 def worker_ignores_interrupt() -> None:

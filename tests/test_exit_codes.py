@@ -203,3 +203,31 @@ def test_ctrl_c_does_not_wait_for_busy_pool_threads():
     assert proc.returncode == 130
     assert proc.stderr == "interrupted; finished work is kept; run the same command to resume\n"
     assert time.time() - t0 < 30
+
+
+def test_an_error_a_library_made_of_the_interrupt_is_still_reported_as_one(monkeypatch, capsys):
+    # torch's checkpoint writer turns a KeyboardInterrupt raised inside torch.save into a RuntimeError
+    import oscar_core.cli as cli
+    from oscar_core._interrupt import interrupted, noting_interrupts
+
+    def swallowing(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            raise RuntimeError("unexpected pos 321 vs 222") from None
+
+    before = signal.getsignal(signal.SIGINT)
+    monkeypatch.setattr(cli, "cmd_embodiments", swallowing)
+    assert cli.main(["embodiments"]) == 130
+    assert capsys.readouterr().err == "interrupted; finished work is kept; run the same command to resume\n"
+    assert signal.getsignal(signal.SIGINT) is before  # the CLI's handler is gone again
+
+    def failing(args):
+        raise RuntimeError("a real bug")
+
+    monkeypatch.setattr(cli, "cmd_embodiments", failing)
+    with pytest.raises(RuntimeError, match="a real bug"):  # without Ctrl-C an error stays an error
+        cli.main(["embodiments"])
+    with noting_interrupts():
+        assert not interrupted()

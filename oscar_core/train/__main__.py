@@ -9,16 +9,19 @@ from .cli import build_train_parser
 
 
 def main(argv=None) -> int:
-    args = build_train_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (OscarError, ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as exc:
-        from .._interrupt import report
+    from .._interrupt import interrupted, noting_interrupts, report
 
-        return report(exc, args)
+    args = build_train_parser().parse_args(argv)
+    with noting_interrupts():
+        try:
+            return args.func(args)
+        except KeyboardInterrupt as exc:
+            return report(exc, args)
+        except (OscarError, ValueError, FileNotFoundError) as exc:
+            if interrupted():
+                return report(KeyboardInterrupt(), args)
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

@@ -114,14 +114,14 @@ def cmd_train(args) -> int:
 @contextlib.contextmanager
 def _resume_hint(run_dir: str):
     """Ctrl-C in a training run: the saved checkpoints stay; the same command would refuse the used run folder."""
-    from .._interrupt import Interrupted
+    from .._interrupt import Interrupted, interrupted
 
     try:
         yield
     except Interrupted:
         raise
     except BaseException as exc:
-        if not _is_interrupt(exc):
+        if not (_is_interrupt(exc) or (interrupted() and not isinstance(exc, SystemExit))):
             raise
         raise Interrupted(f"{run_dir} (its saved checkpoints)", f"`oscar train --resume {run_dir}`") from None
 
