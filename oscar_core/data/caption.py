@@ -12,8 +12,10 @@ user message, in time order.
   ``long_sources`` (``droid``) or episodes longer than ``long_seconds``; at most
   ``max_frames``, resized to ``frame_width`` pixels wide.
 * Cache: one JSON file per episode under ``RUN/caption/cache/``, keyed by the
-  model, the prompt, the episode id and the frame indices; a re-run asks
-  nothing it has asked before.
+  model, the prompt, the episode id, the frame indices, the frame width, JPEG
+  quality, token limit and the cache format (:meth:`CaptionConfig.key_fields`);
+  a re-run asks nothing it has asked before, and a changed setting never
+  reuses an answer to another request.
 * Retries: the OpenAI SDK's own (``max_retries`` with exponential back-off on
   connection errors, 408/409/429 and 5xx, honouring ``Retry-After``).
 * Budget: at most ``budget`` episodes are sent per run (cached ones are free);
@@ -37,6 +39,8 @@ from ._caption_prompt import SYSTEM_PROMPT
 from ._episode import EPISODE_ERRORS, load_row, reason_of
 from ._optional import require
 from .manifest import is_alive
+
+CACHE_FORMAT = 2  # 2: the key also holds jpeg_quality and max_tokens (1 had neither: such entries are not reused)
 
 __all__ = ["SYSTEM_PROMPT", "CaptionConfig", "CaptionStage", "frame_indices", "cache_key", "plan_budget"]
 
@@ -67,8 +71,13 @@ class CaptionConfig:
     budget: int | None = None              # episodes sent per run (None: no limit)
 
     def key_fields(self) -> dict:
-        return {k: v for k, v in asdict(self).items() if k in ("model", "fps", "long_fps", "long_sources",
-                                                                "long_seconds", "max_frames", "frame_width")}
+        """What a caption depends on (the cache key's fields besides episode, frames and prompt; the stage's
+        fingerprint settings): model, frame sampling, frame size and JPEG quality, the answer's token limit, and
+        the cache format. Not the endpoint URL, retries, timeout or budget (they change how, not what, is asked)."""
+        return {"cache_format": CACHE_FORMAT,
+                **{k: v for k, v in asdict(self).items() if k in ("model", "fps", "long_fps", "long_sources",
+                                                                   "long_seconds", "max_frames", "frame_width",
+                                                                   "jpeg_quality", "max_tokens")}}
 
 
 def frame_indices(n_frames: int, fps: float, source: str, cfg: CaptionConfig) -> np.ndarray:
