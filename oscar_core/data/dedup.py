@@ -173,20 +173,21 @@ def _hub_folder(repo_id: str) -> tuple[str, str]:
     from huggingface_hub.errors import LocalEntryNotFoundError
 
     patterns = ["*.json", "*.safetensors", "*.txt"]
+    cache_dir = os.environ.get("HF_HUB_CACHE") or None  # read now, not when huggingface_hub was imported
     offline = os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in ("1", "true", "yes", "on")
     try:
-        folder = snapshot_download(repo_id, allow_patterns=patterns, local_files_only=True)
+        folder = snapshot_download(repo_id, allow_patterns=patterns, local_files_only=True, cache_dir=cache_dir)
     except (LocalEntryNotFoundError, OSError, ValueError):
         folder = None
     if folder is not None and (Path(folder) / "config.json").is_file():
         return folder, Path(folder).name
     if offline:
-        raise ModelLoadError(f"--siglip {repo_id}: not in the Hub cache ({constants.HF_HUB_CACHE}) and HF_HUB_OFFLINE "
+        raise ModelLoadError(f"--siglip {repo_id}: not in the Hub cache ({cache_dir or constants.HF_HUB_CACHE}) and HF_HUB_OFFLINE "
                              "is set; run once online (unset HF_HUB_OFFLINE) or pass a local model folder")
     base = (os.environ.get("HF_ENDPOINT") or constants.ENDPOINT).rstrip("/")
     _check_reachable(f"{base}/api/models/{repo_id}/revision/main", base, repo_id)
     try:
-        folder = snapshot_download(repo_id, allow_patterns=patterns, etag_timeout=_hub_timeout())
+        folder = snapshot_download(repo_id, allow_patterns=patterns, etag_timeout=_hub_timeout(), cache_dir=cache_dir)
     except Exception as exc:  # noqa: BLE001 - any failure here is the whole stage's, named with its cause
         raise ModelLoadError(f"--siglip {repo_id}: download failed ({type(exc).__name__}: {str(exc)[:300]}); with "
                              "the model in the cache, HF_HUB_OFFLINE=1 skips the Hub") from None
