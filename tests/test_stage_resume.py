@@ -377,3 +377,24 @@ def test_workers_die_with_a_killed_parent(tmp_path):
     while any(alive(x) for x in family) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not [x for x in family if alive(x)]
+
+
+def test_render_many_resume_skips_unchanged_episodes_and_redoes_changed_ones(tmp_path):
+    from oscar_core import load_trajectory, save_trajectory
+    from oscar_core.batch_render import EpisodeSpec, RenderOptions, record_path, render_many
+
+    trajs = []
+    for i in range(2):
+        trajs.append(tmp_path / f"t{i}.npz")
+        save_trajectory(load_trajectory(ASSETS / "example_trajectory.npz").time_slice(3 * i, 3 * i + 3), trajs[-1])
+    specs = [EpisodeSpec("toyarm", str(t), str(ASSETS / "example_camera.json"), str(tmp_path / "v" / f"{t.stem}.mkv"),
+                         size=(32, 32)) for t in trajs]
+    first = render_many(specs, resume=True)
+    assert [r.skipped for r in first] == [False, False] and all(record_path(s).is_file() for s in specs)
+    assert [r.skipped for r in render_many(specs, resume=True)] == [True, True]
+    save_trajectory(load_trajectory(ASSETS / "example_trajectory.npz").time_slice(10, 13), trajs[1])  # new input
+    assert [r.skipped for r in render_many(specs, resume=True)] == [True, False]
+    again = render_many(specs, RenderOptions(crf=30), resume=True)  # another encoder setting: every episode
+    assert [r.skipped for r in again] == [False, False] and all(r.ok for r in again)
+    (tmp_path / "v" / "t0.mkv").unlink()  # an output gone: rendered again even though its record is there
+    assert [r.skipped for r in render_many(specs, RenderOptions(crf=30), resume=True)] == [False, True]
