@@ -32,8 +32,8 @@ from typing import Any, Mapping, Sequence
 
 from .errors import OscarError
 
-__all__ = ["FORMAT_VERSION", "fingerprint", "changes", "StageChanged", "pool_context", "watch_parent",
-           "worker_initializer"]
+__all__ = ["FORMAT_VERSION", "fingerprint", "changes", "StageChanged", "model_identity", "check_stage",
+           "pool_context", "watch_parent", "worker_initializer"]
 
 FORMAT_VERSION = 1  # bump when a stage's stored output changes meaning; every stage then recomputes
 
@@ -76,6 +76,47 @@ def changes(old: Mapping[str, Any] | None, new: Mapping[str, Any], prefix: str =
         else:
             out.append(f"{name}: {_short(a)} -> {_short(b)}")
     return out
+
+
+def model_identity(spec, revision: str | None = None) -> str:
+    """A string that changes when a world model's weights can: a folder's ``oscar_manifest.json`` sha256
+    (``folder-manifest:<hex>``), else ``name@revision`` (``@pinned``: the zoo's pinned revision)."""
+    from pathlib import Path
+
+    p = Path(str(spec))
+    manifest = p / "oscar_manifest.json"
+    if p.is_dir() and manifest.is_file():
+        with open(manifest, "rb") as f:
+            return f"folder-manifest:{hashlib.file_digest(f, 'sha256').hexdigest()}"
+    return f"{spec}@{revision or 'pinned'}"
+
+
+def check_stage(folder, parts: Mapping[str, Any], *, redo: str) -> None:
+    """Refuse to add to a local output ``folder`` made under other ``parts``; else record them.
+
+    ``folder/fingerprint.json`` holds the parts of the run that wrote the
+    folder. Absent (a new folder), it is written; equal, nothing happens;
+    different, :class:`StageChanged` names every change and ``redo`` (the
+    option or step that redoes the stage, e.g. "use another --out").
+    """
+    from pathlib import Path
+
+    from ._atomic import atomic_write_bytes
+
+    path = Path(folder) / "fingerprint.json"
+    new = fingerprint(parts)
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError):
+            old = None
+        if isinstance(old, dict) and old.get("fingerprint") == new:
+            return
+        what = changes(old.get("parts") if isinstance(old, dict) else None, parts)
+        raise StageChanged(f"{folder}: expected output of the same inputs and settings as this run, found one made "
+                           f"under others ({'; '.join(what)}); {redo}")
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, json.dumps({"fingerprint": new, "parts": _canonical(parts)}, indent=1).encode())
 
 
 def _short(v: Any) -> str:
