@@ -398,3 +398,17 @@ def test_render_many_resume_skips_unchanged_episodes_and_redoes_changed_ones(tmp
     assert [r.skipped for r in again] == [False, False] and all(r.ok for r in again)
     (tmp_path / "v" / "t0.mkv").unlink()  # an output gone: rendered again even though its record is there
     assert [r.skipped for r in render_many(specs, RenderOptions(crf=30), resume=True)] == [False, True]
+
+
+def test_zoo_pull_against_a_silent_hub_fails_within_the_timeout_counted_from_the_start(tmp_path, silent_hub):
+    """The whole command, interpreter start-up and imports included: no agent-registry request before ours,
+    no diffusers import before the request, and the request's timeout counted from the process's start."""
+    env = dict(os.environ, PYTHONPATH=str(REPO), HF_ENDPOINT=silent_hub, HF_HUB_CACHE=str(tmp_path / "cache"),
+               HF_HOME=str(tmp_path / "home"), OSCAR_HUB_TIMEOUT="6")
+    env.pop("HF_HUB_OFFLINE", None)
+    t0 = time.monotonic()
+    p = subprocess.run([sys.executable, "-m", "oscar_core.cli", "zoo", "pull", "oscar-2b"], capture_output=True,
+                       text=True, env=env, cwd=REPO, timeout=120)
+    wall = time.monotonic() - t0
+    assert p.returncode != 0 and "cannot reach the Hub" in p.stderr and "HF_HUB_OFFLINE=1" in p.stderr, p.stderr
+    assert wall < 6 + 2.5, f"{wall:.1f} s for a 6 s timeout"
