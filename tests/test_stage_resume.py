@@ -412,3 +412,42 @@ def test_zoo_pull_against_a_silent_hub_fails_within_the_timeout_counted_from_the
     wall = time.monotonic() - t0
     assert p.returncode != 0 and "cannot reach the Hub" in p.stderr and "HF_HUB_OFFLINE=1" in p.stderr, p.stderr
     assert wall < 6 + 2.5, f"{wall:.1f} s for a 6 s timeout"
+
+
+def test_a_down_caption_endpoint_fails_the_stage_at_once(tmp_path, src, silent_hub):
+    from oscar_core.data.caption import CaptionConfig, EndpointUnreachable
+    from oscar_core.data.run import run_caption
+
+    run = tmp_path / "run"
+    assert main(["data", "ingest", str(src), "--reader", "npz", "--out", str(run), *COMMON]) == 0
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    refused = f"http://127.0.0.1:{srv.getsockname()[1]}/v1"
+    srv.close()  # nothing listens: connections are refused
+    t0 = time.monotonic()
+    with pytest.raises(EndpointUnreachable, match=r"--endpoint http://127.0.0.1:\d+/v1: cannot reach"):
+        run_caption(str(run), CaptionConfig(base_url=refused, model="m", max_retries=4), workers=1, progress=False)
+    assert time.monotonic() - t0 < 3.0
+    with pytest.raises(EndpointUnreachable, match=r"no answer within 1 s"):
+        run_caption(str(run), CaptionConfig(base_url=silent_hub + "/v1", model="m", timeout=1.0), workers=1,
+                    progress=False)
+    assert not (run / "caption" / "completions").exists() and not (run / "caption" / "shards").exists()
+
+
+def test_a_full_disk_during_export_fails_the_stage_instead_of_rejecting_episodes(tmp_path, src, monkeypatch):
+    import errno
+
+    from oscar_core.train import clips
+
+    run = tmp_path / "run"
+    assert main(["data", "ingest", str(src), "--reader", "npz", "--out", str(run), *COMMON]) == 0
+
+    def full(self, clip):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(clips.ShardWriter, "add", full)
+    from oscar_core.data.run import run_export
+
+    with pytest.raises(OSError, match="No space left"):
+        run_export(str(run), str(tmp_path / "clips"), workers=1, progress=False)
+    assert not (run / "export" / "completions").exists()

@@ -144,6 +144,10 @@ def run_caption(run: str, config, *, plugin_paths: tuple[str, ...] = (), **kw) -
     url = _fs.join(run, "caption")
     cache = _fs.join(url, "cache")  # kept across recomputes: its keys carry the request's own fingerprint
     allowed = plan_budget(rows, config, cache)
+    if allowed:  # requests to send: a down endpoint fails the stage now, not every episode after its retries
+        from .caption import check_endpoint
+
+        check_endpoint(config.base_url, min(float(config.timeout), 10.0))
     parts = stage_parts("caption", input=_input(run, prev), settings={**config.key_fields(),
                                                                       "plugin_paths": list(plugin_paths)})
     return run_sharded(CaptionStage(config, cache, allowed, tuple(plugin_paths)), rows, url, desc="caption",

@@ -41,6 +41,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from .._atomic import _TMP_NAME as _TMP_WITH_PID
 from .._atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
 from ..errors import OscarError
 
@@ -336,9 +337,15 @@ class ClipSetWriter:
         return ShardWriter(self.root / name, self.video_codec)
 
     def remove_stale(self) -> list[Path]:
-        """Delete the temporary shard folders of killed writers (their pid no longer runs); returns what was
-        removed. A live writer's temporary, in this or another process, is left alone."""
-        return sweep_dead_temporaries(self.root)
+        """Delete the temporary shard folders of killed writers (their pid no longer runs) and those without a pid
+        in their name (an older oscar's); returns what was removed. A live writer's temporary, in this or another
+        process, is left alone."""
+        removed = sweep_dead_temporaries(self.root)
+        for p in self.root.glob(".shard-*.tmp"):
+            if p.is_dir() and not _TMP_WITH_PID.match(p.name):
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+        return removed
 
 
 def _read_marker(path: Path) -> dict:
