@@ -21,7 +21,10 @@ do not change the frames). ``render_many(resume=True)`` (``oscar render``
 batches by default; ``--no-resume`` redoes everything) skips an episode whose
 output exists and whose record matches, and renders it again otherwise.
 Worker processes come from a fork server (never a plain fork after threads
-exist) and exit when the process that made the pool dies.
+exist) and exit when the process that made the pool dies. As with spawn
+(macOS, Windows), each worker imports the calling script as ``__mp_main__``:
+a script calling ``render_many(workers > 1)`` keeps its top-level work under
+``if __name__ == "__main__":``.
 
 A manifest (``read_manifest``) is JSONL or CSV; see docs/formats.md.
 """

@@ -451,3 +451,19 @@ def test_a_full_disk_during_export_fails_the_stage_instead_of_rejecting_episodes
     with pytest.raises(OSError, match="No space left"):
         run_export(str(run), str(tmp_path / "clips"), workers=1, progress=False)
     assert not (run / "export" / "completions").exists()
+
+
+def test_a_killed_checkpoint_saves_temporary_is_removed_by_the_next_save(tmp_path):
+    import torch
+
+    from oscar_core.train.checkpoint import list_checkpoints, save_checkpoint
+    from oscar_core.train.parallel import DistInfo
+
+    model = torch.nn.Linear(2, 2)
+    opt = torch.optim.SGD(model.parameters(), lr=0.1)
+    killed = tmp_path / "checkpoints" / ".step-00000005.tmp"  # a save of step 5 killed mid-write
+    killed.mkdir(parents=True)
+    (killed / "__0_0.distcp").write_bytes(b"half")
+    save_checkpoint(tmp_path, 10, model, opt, {}, DistInfo())
+    assert [p.name for p in list_checkpoints(tmp_path)] == ["step-00000010"]
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["step-00000010"]
