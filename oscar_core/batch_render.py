@@ -14,8 +14,8 @@ its :class:`EpisodeResult` and the others go on.
 
 Resuming: with ``resume=True``, after each rendered episode a record
 ``.<output name>.oscar-render.json`` is written beside the output with the episode's fingerprint — the sha256 of
-its trajectory and camera files, its embodiment, size, fps, resize and
-format, the encoder settings (preset, crf, yuv), strictness, FK device kind,
+its trajectory and camera files, its embodiment, size, fps, resize,
+format and condition (skeleton or mesh), the encoder settings (preset, crf, yuv), strictness, FK device kind,
 plugin paths and a format version (threads and chunk size are left out: they
 do not change the frames). ``render_many(resume=True)`` (``oscar render``
 batches by default; ``--no-resume`` redoes everything) skips an episode whose
@@ -55,7 +55,7 @@ __all__ = [
     "summarise",
 ]
 
-MANIFEST_FIELDS = ("embodiment", "trajectory", "camera", "out", "size", "fps", "resize", "format")
+MANIFEST_FIELDS = ("embodiment", "trajectory", "camera", "out", "size", "fps", "resize", "format", "condition")
 REQUIRED_FIELDS = ("embodiment", "trajectory", "camera", "out")
 
 
@@ -66,7 +66,8 @@ class EpisodeSpec:
     embodiment: registered name; trajectory: ``.npz`` path; camera: ``.json`` path;
     out: output path (``.mp4``, ``.mkv`` or a name ending in ``/``);
     size: (width, height) pixels or None (the calibration's); fps: None (the
-    trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png".
+    trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png";
+    condition: None (``RenderOptions.condition``), "skeleton" or "mesh" (see :mod:`oscar_core.conditions`).
     """
 
     embodiment: str
@@ -77,6 +78,7 @@ class EpisodeSpec:
     fps: float | None = None
     resize: str = "crop"
     format: str | None = None
+    condition: str | None = None
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,8 @@ class RenderOptions:
     :class:`oscar_core.video.VideoWriter`); threads: encoder threads per episode
     (None: 1 with several workers, else automatic); strict: frames where the camera
     sees nothing of the robot are an error; chunk_frames: frames per streamed chunk;
-    device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins.
+    device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins;
+    condition: the condition video of episodes that do not name one ("skeleton" or "mesh").
     """
 
     preset: str | None = None
@@ -98,6 +101,7 @@ class RenderOptions:
     chunk_frames: int | None = None
     device: str = "cpu"
     plugin_paths: tuple[str, ...] = ()
+    condition: str = "skeleton"
 
 
 @dataclass
@@ -148,12 +152,14 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
     rendering. Warnings (joint limits, an empty view) are caught and returned in
     the result, not printed. Returns an :class:`EpisodeResult` with ``ok=True``.
     """
-    from .render_stream import DEFAULT_CHUNK_FRAMES, RenderStats, iter_skeleton_chunks
+    from .conditions import check_condition, chunk_renderer
+    from .render_stream import DEFAULT_CHUNK_FRAMES, RenderStats
     from .trajectory import load_trajectory
     from .video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output
 
     t0 = time.perf_counter()
     check_output(spec.out, format=spec.format)  # suffix and folder, before reading anything
+    iter_chunks = chunk_renderer(check_condition(spec.condition or options.condition, "condition"))
     registry = registry if registry is not None else _registry(options.plugin_paths)
     emb = registry.get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)
@@ -166,9 +172,9 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
                              preset=options.preset or DEFAULT_PRESET, yuv=options.yuv or DEFAULT_YUV,
                              threads=0 if options.threads is None else options.threads, size=size)
         with writer:
-            for chunk in iter_skeleton_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
-                                              camera_source=str(spec.camera), strict=options.strict, stats=stats,
-                                              chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
+            for chunk in iter_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
+                                     camera_source=str(spec.camera), strict=options.strict, stats=stats,
+                                     chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
                 writer.write(chunk)
     seen, messages = set(), []
     for w in caught:
@@ -222,9 +228,9 @@ def episode_parts(spec: EpisodeSpec, options: RenderOptions) -> dict:
     return {"format_version": _stage.FORMAT_VERSION, "embodiment": spec.embodiment,
             "trajectory": _file_sha256(spec.trajectory), "camera": _file_sha256(spec.camera),
             "size": list(spec.size) if spec.size else None, "fps": spec.fps, "resize": spec.resize,
-            "format": spec.format, "preset": options.preset, "crf": options.crf, "yuv": options.yuv,
-            "strict": options.strict, "device": str(options.device).split(":")[0],
-            "plugin_paths": list(options.plugin_paths)}
+            "format": spec.format, "condition": spec.condition or options.condition, "preset": options.preset,
+            "crf": options.crf, "yuv": options.yuv, "strict": options.strict,
+            "device": str(options.device).split(":")[0], "plugin_paths": list(options.plugin_paths)}
 
 
 def _resumed(index: int, spec: EpisodeSpec, parts: dict) -> EpisodeResult | None:
@@ -381,7 +387,8 @@ def _pool_context(specs: Sequence[EpisodeSpec], options: RenderOptions):
     or OpenCV's pools) can copy a held lock into the child and hang it
     forever — it did, in a second pool made in the same process; a fork
     server is a clean single-threaded process, so pools can be made again and
-    again. Each worker loads the plugins and embodiments it uses once.
+    again. Each worker loads the plugins and embodiments it uses once (and,
+    for ``--condition mesh``, reads and simplifies their meshes once).
     """
     import multiprocessing as mp
 
@@ -459,15 +466,20 @@ def _spec_from_row(row: dict, where: str, source: str, base: Path) -> EpisodeSpe
     fmt = row.get("format") or None
     if fmt not in (None, "mp4", "mkv", "png"):
         raise InputFileError(source, f"{where}.format", "mp4, mkv or png", repr(fmt))
+    from .conditions import CONDITIONS
+
+    condition = row.get("condition") or None
+    if condition not in (None, *CONDITIONS):
+        raise InputFileError(source, f"{where}.condition", " or ".join(CONDITIONS), repr(condition))
     return EpisodeSpec(row["embodiment"].strip(), resolve(row["trajectory"]), resolve(row["camera"]),
-                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt)
+                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt, condition)
 
 
 def read_manifest(path) -> list[EpisodeSpec]:
     """Episode specs from a ``.jsonl`` (one JSON object per line) or ``.csv`` (header row) manifest.
 
     Fields: embodiment, trajectory, camera, out (required); size, fps, resize,
-    format (optional). Relative paths are relative to the manifest's folder.
+    format, condition (optional). Relative paths are relative to the manifest's folder.
     Blank lines and JSONL lines starting with ``#`` are skipped. Raises
     :class:`InputFileError` naming the file, the line and the field.
     """
