@@ -212,6 +212,7 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
+    from .._stage import model_identity
     from .rollouts import sampler_for_card, write_rollouts
 
     torch.set_num_threads(max(1, args.threads))
@@ -219,7 +220,7 @@ def cmd_rollout(args) -> int:
     sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form)
     summary = write_rollouts(model, args.clips, args.out, args.condition,
                              split=None if args.split == "all" else args.split, limit=args.limit, sampler=sampler,
-                             seed=args.seed, registry=_registry(args))
+                             seed=args.seed, registry=_registry(args), model_id=model_identity(args.model))
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")
