@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
+
+from .._log import run_log
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
@@ -158,9 +159,8 @@ def cmd_generate(args) -> int:
         raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
     cfg = GenerateConfig(names, args.episodes, w, h, args.frames, args.fps, args.seed, args.shard_size,
                          args.supersample, not args.no_skeleton)
-    quiet = args.json
-    summary = generate_clipset(cfg, args.out, _registry(args),
-                               progress=None if quiet else (lambda m: print(m, file=sys.stderr, flush=True)))
+    with run_log(args.out, "toyworld-generate"):
+        summary = generate_clipset(cfg, args.out, _registry(args))
     if args.json:
         print(json.dumps(summary))
     else:
@@ -179,7 +179,8 @@ def cmd_train_vae(args) -> int:
                          eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init,
                          config={"is_residual": True} if args.residual else {},
                          sample_posterior=args.sample_posterior)
-    card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
+    with run_log(args.out, "toyworld-train-vae"):
+        card = train_vae(args.clips, args.out, cfg)
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")
     return 0
@@ -212,9 +213,10 @@ def cmd_rollout(args) -> int:
     torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
     sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form)
-    summary = write_rollouts(model, args.clips, args.out, args.condition,
-                             split=None if args.split == "all" else args.split, limit=args.limit, sampler=sampler,
-                             seed=args.seed, registry=_registry(args))
+    with run_log(args.out, f"toyworld-rollout-{args.condition}"):
+        summary = write_rollouts(model, args.clips, args.out, args.condition,
+                                 split=None if args.split == "all" else args.split, limit=args.limit,
+                                 sampler=sampler, seed=args.seed, registry=_registry(args))
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")
