@@ -13,6 +13,9 @@
 ``OUT/plots/success_scatter.png``, ``OUT/plots/rank_slope.png``
     World-model against real success rate per policy; the two rankings
     (:func:`oscar_core.metrics.plots.plot_comparison`; needs matplotlib).
+``OUT/report.html``
+    The same as a page for the browser, with every rollout playing beside its
+    real outcome (:mod:`oscar_core.evaluation.html`; media under ``OUT/media/``).
 ``OUT/contact_sheets/<session>.png``
     One row per policy (manifest order): :data:`SHEET_FRAMES` rollout frames
     sampled uniformly over time, and under them the same instants of the real
@@ -274,6 +277,11 @@ def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict
             paths["plots"] = {k: [str(p) for p in v] for k, v in written.items()}
         except ImportError as exc:
             warn(f"no plots: {exc}")
+    from .html import write_html_report
+
+    plots = [p for v in paths.get("plots", {}).values() for p in v]
+    paths["html"] = str(write_html_report(out, report, manifest, records, plots=plots,
+                                          sheets={s: out / "contact_sheets" / f"{s}.png" for s in sheets}))
     report_path = out / "report.json"
     atomic_write_bytes(report_path, (json.dumps({**report, "files": paths}, indent=2) + "\n").encode())
     summary = out / "summary.md"
