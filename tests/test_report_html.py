@@ -1,0 +1,95 @@
+"""The HTML reports, opened in a real headless Chromium: every video plays, numbers equal the JSON."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from _browser import keep_screenshot, open_page, report_json, require_browser
+from oscar_core.cli import main
+
+pytestmark = pytest.mark.slow
+
+
+def _fmt(v, spec):
+    return "n/a" if v is None else format(v, spec)
+
+
+@pytest.fixture(scope="module")
+def eval_report(tmp_path_factory):
+    """An `oscar eval run` report folder (2 sessions x 3 policies, a real video, a programmatic judge)."""
+    require_browser()
+    from test_eval_run import make_study, model_dir  # noqa: F401 - the fixture's body, called directly below
+
+    import oscar_zoo
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+
+    root = tmp_path_factory.mktemp("eval")
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny", chunk_frames=5, fps=15.0))
+    mdir = oscar_zoo.export(model, root / "tiny")
+    manifest = make_study(root / "study")
+    out = root / "out"
+    code = main(["eval", "run", str(manifest), "--model", str(mdir), "--out", str(out), "--judge",
+                 str(manifest.parent / "judge_fns.py:judge"), "--pairwise", "--steps", "1", "--no-progress",
+                 "--json"])
+    assert code == 0
+    return out
+
+
+def test_eval_run_report_plays_and_matches_report_json(eval_report, tmp_path, monkeypatch):
+    monkeypatch.setenv("OSCAR_TEST_JUDGE_LOG", str(tmp_path / "judge.log"))
+    report = report_json(eval_report)
+    check = open_page(eval_report / "report.html", tmp_path / "eval.png",
+                      select={"policy": "#policies td[data-field]", "metric": "#fidelity td[data-metric]",
+                              "cell": ".item [data-field]", "items": ".item"},
+                      screenshot_at="#rollouts")
+    assert check.problems == []
+    assert len(check.videos) == 7  # 6 rollouts + the one real video
+    assert all(v["width"] > 0 for v in check.videos)
+    pol = {p["policy"]: p for p in report["policies"]}
+    specs = {"cells": "d", "real_success_rate": ".3f", "wm_success_rate": ".3f", "wm_mean_partial": ".1f",
+             "not_judged": "d", "real_score": ".4g", "bt_elo": ".1f"}
+    # each td sits in a row whose data-policy names the policy: read it through the row order
+    tds = check.texts["policy"]
+    assert len(tds) == len(pol) * len(specs)
+    for k, td in enumerate(tds):
+        p = report["policies"][k // len(specs)]
+        assert td["text"] == _fmt(p[td["data"]["field"]], specs[td["data"]["field"]]), (p["policy"], td)
+    m = report["comparison"]["metrics"]
+    mspecs = {"mmrv": ".3f", "mmrv_simpler": ".3f", "spearman_rho": "+.3f", "pearson_r": "+.3f",
+              "sisr_delta_pp": ".2f"}
+    assert {t["data"]["metric"]: t["text"] for t in check.texts["metric"]} == {
+        k: _fmt(m[k], s) for k, s in mspecs.items()}
+    cells = {c["cell"]: c for c in report["cells"]}
+    assert sorted(i["data"]["cell"] for i in check.texts["items"]) == sorted(cells)
+    for item in check.texts["items"]:
+        c = cells[item["data"]["cell"]]
+        want = "none" if c["wm_success"] is None else ("success" if c["wm_success"] else "failure")
+        assert item["data"]["verdict"] == want
+        assert f"partial {_fmt(c['wm_partial'], '.0f')}" in item["text"]
+        assert c["reason"] in item["text"]
+    keep_screenshot(check, "report-eval-run.png")
+
+
+def test_a_broken_video_path_fails_the_check(eval_report, tmp_path):
+    broken = tmp_path / "copy"
+    shutil.copytree(eval_report, broken)
+    media = sorted((broken / "media" / "rollouts").rglob("*.mp4"))
+    media[0].unlink()  # a missing file
+    media[1].write_bytes(b"not a video")  # a file the browser cannot decode
+    check = open_page(broken / "report.html", tmp_path / "broken.png")
+    bad = [v for v in check.videos if v["error"] or not v["played"]]
+    assert len(bad) == 2 and len(check.problems) >= 2
+    assert any(media[0].name in p for p in check.problems)
+
+
+def test_the_report_references_media_relatively_and_has_no_network(eval_report):
+    html = (eval_report / "report.html").read_text()
+    assert "http://" not in html and "https://" not in html and str(eval_report) not in html
+    assert 'preload="none"' in html and "IntersectionObserver" in html
+    files = json.loads((eval_report / "report.json").read_text())["files"]
+    assert files["html"].endswith("report.html")
