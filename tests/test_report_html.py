@@ -93,3 +93,45 @@ def test_the_report_references_media_relatively_and_has_no_network(eval_report):
     assert 'preload="none"' in html and "IntersectionObserver" in html
     files = json.loads((eval_report / "report.json").read_text())["files"]
     assert files["html"].endswith("report.html")
+
+
+@pytest.fixture(scope="module")
+def toy_report(tmp_path_factory):
+    """`oscar toyworld eval` of two conditions (the truth itself, the first frame held) on a small clip set."""
+    require_browser()
+    import numpy as np
+
+    from oscar_core.train.clips import ClipSet
+
+    root = tmp_path_factory.mktemp("toy")
+    assert main(["toyworld", "generate", "--embodiments", "toyarm,franka", "--episodes", "2", "--size", "48x48",
+                 "--frames", "9", "--out", str(root / "clips"), "--no-progress", "--json"]) == 0
+    cs = ClipSet(root / "clips")
+    (root / "same").mkdir()
+    for r in cs:
+        np.save(root / "same" / f"{r.id}.npy", cs.load(r, skeleton=False).rgb)
+    assert main(["toyworld", "baseline", str(root / "clips"), "--split", "all", "--out", str(root / "ff")]) == 0
+    assert main(["toyworld", "eval", "--gt", str(root / "clips"), "--pred", f"true={root / 'same'}",
+                 "--pred", f"first_frame={root / 'ff'}", "--out", str(root / "table.json"),
+                 "--plot", str(root / "table.png")]) == 0
+    return root
+
+
+def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
+    table = json.loads((toy_report / "table.json").read_text())
+    check = open_page(toy_report / "table.html", tmp_path / "toy.png",
+                      select={"row": "#rows td[data-field]", "fig": ".item figure[data-condition] [data-field]",
+                              "items": ".item"}, screenshot_at="#clips")
+    assert check.problems == []
+    n_clips = len(check.texts["items"])
+    assert n_clips == 4 and len(check.videos) == n_clips * 3  # truth + 2 conditions per clip
+    specs = {"clips": "d", "psnr_db": ".2f", "ssim": ".3f", "motion_iou": ".3f", "ee_error_px": ".2f",
+             "object_error_px": ".2f", "moved_object_error_px": ".2f"}
+    tds = check.texts["row"]
+    names = list(table["rows"])
+    assert len(tds) == len(names) * len(specs)
+    for k, td in enumerate(tds):
+        f = td["data"]["field"]
+        assert td["text"] == _fmt(table["rows"][names[k // len(specs)]][f], specs[f])
+    assert "100.00" in [t["text"] for t in check.texts["fig"]]  # the truth against itself, per clip
+    keep_screenshot(check, "report-toyworld-eval.png")

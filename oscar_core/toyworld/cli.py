@@ -25,6 +25,7 @@ EXAMPLES = """examples:
   oscar toyworld rollout clipsets/toyworld --model oscar-toy --condition shuffled --out preds/shuffled
   oscar toyworld eval --gt clipsets/toyworld --pred true=preds/true --pred shuffled=preds/shuffled \\
       --pred vae=preds/vae --pred first_frame=preds/first_frame --out table.json --plot table.png
+      (also writes table.html: the table and rollouts under each condition beside the truth)
   oscar toyworld package runs/toyworld/export --out my-toy --table table.json
   oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
 """
@@ -135,6 +136,10 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                                                  "clip that has a prediction)")
     e.add_argument("--out", help="write the table as JSON here")
     e.add_argument("--plot", help="write a PNG bar chart of the table here")
+    e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
+                                  "default: beside --out as <name>.html, media in <name>_media/")
+    e.add_argument("--no-html", action="store_true", help="no page")
+    e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     e.set_defaults(func=cmd_eval)
     return tw
@@ -246,5 +251,12 @@ def cmd_eval(args) -> int:
         atomic_write_bytes(args.out, (json.dumps(table, indent=2) + "\n").encode())
     if args.plot:
         plot_table(table, args.plot)
+    html = args.html or (str(Path(args.out).with_suffix(".html")) if args.out else None)
+    if html and not args.no_html:
+        from .html import write_eval_html
+
+        write_eval_html(table, args.gt, conditions, html, plot=args.plot, max_clips=args.html_clips)
     print(json.dumps(table, indent=2) if args.json else format_table(table))
+    if html and not args.no_html and not args.json:
+        print(f"wrote {html}")
     return 0
