@@ -103,10 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-toy-world", action="store_true", help="skip the toy-world rollout")
     d.set_defaults(func=cmd_demo)
 
+    from .evaluation.cli import add_run_parser
     from .metrics.cli import add_eval_parser
     from .model.cli import add_model_parsers
 
-    add_eval_parser(sub)
+    add_eval_parser(sub, extra_commands=(add_run_parser,))
     add_model_parsers(sub)
     from .data.cli import add_data_parser
     from .toyworld.cli import add_toyworld_parser

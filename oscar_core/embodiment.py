@@ -21,7 +21,7 @@ import functools
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar, Mapping
+from typing import ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -410,6 +410,28 @@ class Embodiment:
         cols = [g.openness(gripper[:, i], source) for i, g in enumerate(self.grippers)]
         return np.stack(cols, axis=1) if cols else np.zeros((gripper.shape[0], 0))
 
+    def _link_poses(self, q_full: np.ndarray, base_pose, links: Sequence[str], device="cpu") -> np.ndarray:
+        """(T, K, 4, 4) float64 world poses of ``links`` for ``q_full`` (T, J_tree).
+
+        On the CPU with the base class's kinematics this is
+        :class:`~oscar_core.fk_numpy.NumpyForwardKinematics` (no torch import); on
+        another device, or when a plugin overrides ``fk`` or ``forward_kinematics``,
+        it is the embodiment's own (torch) ``fk``.
+        """
+        cls = type(self)
+        on_cpu = str(device).split(":")[0] == "cpu"
+        if on_cpu and cls.fk is Embodiment.fk and cls.forward_kinematics is Embodiment.forward_kinematics:
+            from .fk_numpy import NumpyForwardKinematics
+
+            cache = self.__dict__.setdefault("_numpy_fk", {})
+            fk = cache.get("fk")
+            if fk is None:
+                fk = cache["fk"] = NumpyForwardKinematics(self.tree)
+            return fk(q_full, list(links), base_pose)
+        import torch
+
+        return self.fk(q_full, base_pose, links=list(links), device=device).to("cpu", torch.float64).numpy()
+
     def frames(self, traj: Trajectory, device="cpu", mount_link: str | None = None) -> SkeletonFrames:
         """World-frame skeleton points, gripper indicator points and the camera mount's pose.
 
@@ -418,13 +440,11 @@ class Embodiment:
         world pose is returned as ``mount_pose``; None for a static camera.
         One FK call covers the skeleton links, the gripper links and the mount.
         """
-        from .fk_numpy import link_poses
-
         sk_links = list(self.skeleton.links)
         g_links = [g.link for g in self.grippers]
         mount = [mount_link] if mount_link else []
         links = list(dict.fromkeys(sk_links + g_links + mount))
-        poses = link_poses(self, self.full_configuration(traj), traj.base_pose, links, device)  # numpy on the CPU
+        poses = self._link_poses(self.full_configuration(traj), traj.base_pose, links, device)  # numpy on the CPU
         at = {l: i for i, l in enumerate(links)}
 
         def points_of(names, offsets):

@@ -16,7 +16,7 @@ import numpy as np
 
 from .urdf import Joint, KinematicTree
 
-__all__ = ["NumpyForwardKinematics", "link_poses"]
+__all__ = ["NumpyForwardKinematics"]
 
 
 def _motion(joint: Joint, value: np.ndarray) -> np.ndarray:
@@ -112,28 +112,3 @@ class NumpyForwardKinematics:
                 raise ValueError(f"base_pose: expected shape (4, 4) or ({T}, 4, 4), found {base.shape}")
             out = (base[:, None] if base.ndim == 3 else base) @ out
         return out
-
-
-def _is_cpu(device) -> bool:
-    return str(device).split(":")[0] == "cpu"
-
-
-def link_poses(embodiment, q_full: np.ndarray, base_pose, links: Sequence[str], device="cpu") -> np.ndarray:
-    """(T, K, 4, 4) float64 world poses of ``links`` for ``q_full`` (T, J_tree).
-
-    On the CPU with the base class's kinematics this is :class:`NumpyForwardKinematics`
-    (no torch import); on another device, or when a plugin overrides ``fk`` or
-    ``forward_kinematics``, it is the embodiment's own (torch) ``fk``.
-    """
-    from .embodiment import Embodiment
-
-    cls = type(embodiment)
-    if _is_cpu(device) and cls.fk is Embodiment.fk and cls.forward_kinematics is Embodiment.forward_kinematics:
-        cache = embodiment.__dict__.setdefault("_numpy_fk", {})
-        fk = cache.get("fk")
-        if fk is None:
-            fk = cache["fk"] = NumpyForwardKinematics(embodiment.tree)
-        return fk(q_full, list(links), base_pose)
-    import torch
-
-    return embodiment.fk(q_full, base_pose, links=list(links), device=device).to("cpu", torch.float64).numpy()

@@ -33,7 +33,7 @@ def oscar_register_readers():
     """Return the dataset-reader classes this plugin provides.
 
     Called once per plugin when the registry loads. Return a list (or tuple)
-    of :class:`oscar_core.data.reader.Reader` subclasses; each declares a
+    of :class:`oscar_core.reader.Reader` subclasses; each declares a
     unique ``name`` (``oscar data ingest SOURCE --reader NAME``). Not
     ``firstresult``: every plugin's readers are collected, and a plugin that
     raises here is reported without stopping the others.

@@ -186,7 +186,7 @@ class Registry:
                    and not hasattr(self.pm.hook, n)]
         if unknown:
             self._fail(plugin, who, f"unknown hooks {unknown}; known: {[h for h in dir(self.pm.hook) if h.startswith('oscar_')]}")
-        from .data.reader import Reader
+        from .reader import Reader
 
         for hook, base, entries, kind in (("oscar_register_embodiments", Embodiment, self.entries, "embodiment"),
                                           ("oscar_register_readers", Reader, self.reader_entries, "reader")):
@@ -213,7 +213,7 @@ class Registry:
     def _add_class(self, cls, plugin: str, dist: str, version: str, entries: dict | None = None,
                    kind: str = "embodiment") -> None:
         """Check one registered class (an embodiment, or with ``kind="reader"`` a dataset reader) and keep it."""
-        from .data.reader import Reader
+        from .reader import Reader
 
         who = f"{dist} {version}".strip()
         entries = self.entries if entries is None else entries

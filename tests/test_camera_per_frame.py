@@ -197,7 +197,8 @@ def test_link_mounted_per_frame_render_agibot():
 
 def test_batch_paths_equal_the_frame_by_frame_ones():
     """The one-pass parser and checker of long per-frame lists give what the per-frame code gives."""
-    from oscar_core.camera import _parse_one_extrinsic, _per_frame_fast, as_rigid_transform, as_rigid_transforms
+    from oscar_core.camera import as_rigid_transform, as_rigid_transforms
+    from oscar_core.camera_extrinsics import _parse_one_extrinsic, _per_frame_fast
 
     rng = np.random.default_rng(11)
     rot = Rotation.random(50, random_state=rng)

@@ -147,7 +147,7 @@ def test_h5_missing_field_is_rejected_through_a_plugin_reader(tmp_path):
     plugin = tmp_path / "h5reader.py"
     plugin.write_text('''
 from oscar_core.hookspecs import hookimpl
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.npz import NpzReader
 
 

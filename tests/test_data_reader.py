@@ -5,7 +5,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from oscar_core.data.reader import EpisodeError, EpisodeRef, Reader, VideoSource
+from oscar_core.reader import EpisodeError, EpisodeRef, Reader, VideoSource
 from oscar_core.errors import PluginError
 from oscar_core.registry import Registry
 from oscar_core.video import write_video
@@ -20,7 +20,7 @@ def _plugin(tmp_path, body):
 def test_reader_registers_through_the_hook(tmp_path):
     reg = _plugin(tmp_path, """
         from oscar_core.hookspecs import hookimpl
-        from oscar_core.data.reader import Reader, EpisodeRef
+        from oscar_core.reader import Reader, EpisodeRef
 
         class Mine(Reader):
             name = "mine"
@@ -43,7 +43,7 @@ def test_reader_registers_through_the_hook(tmp_path):
 def test_broken_reader_is_reported_and_others_load(tmp_path):
     reg = _plugin(tmp_path, """
         from oscar_core.hookspecs import hookimpl
-        from oscar_core.data.reader import Reader
+        from oscar_core.reader import Reader
 
         class NoLoad(Reader):
             name = "noload"

@@ -641,7 +641,9 @@ def test_docs_show_the_prompts_and_every_option():
     for prompt in (PAPER_SUCCESS_PROMPT, SUCCESS_SYSTEM_PROMPT, PAIRWISE_SYSTEM_PROMPT):
         assert f"```text\n{prompt}\n```" in doc
     parser = argparse.ArgumentParser(prog="oscar")
-    ev = add_eval_parser(parser.add_subparsers(dest="command", required=True))
+    from oscar_core.evaluation.cli import add_run_parser
+
+    ev = add_eval_parser(parser.add_subparsers(dest="command", required=True), extra_commands=(add_run_parser,))
     sub = next(a for a in ev._actions if isinstance(a, argparse._SubParsersAction))
     for name in ("judge", "pairwise", "policies", "run", "video", "weights"):
         parsers = [sub.choices[name]]

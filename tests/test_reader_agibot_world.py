@@ -7,7 +7,7 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.agibot_world import AgiBotWorldReader
 from oscar_core.trajectory import Trajectory
 from oscar_core.video import write_video

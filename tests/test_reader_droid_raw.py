@@ -9,7 +9,7 @@ h5py = pytest.importorskip("h5py")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.droid import DroidRawReader
 from oscar_core.video import write_video
 

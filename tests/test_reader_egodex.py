@@ -7,7 +7,7 @@ h5py = pytest.importorskip("h5py")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.egodex import EGODEX_JOINTS, EgoDexReader
 from oscar_core.video import write_video
 from oscar_embodiments.mano.synthetic import hand_keypoints

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.epic_vitra import EpicVitraReader, parse_episode_name
 from oscar_core.video import write_video
 from oscar_embodiments.mano.synthetic import hand_keypoints

@@ -10,7 +10,7 @@ pq = pytest.importorskip("pyarrow.parquet")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.lerobot import LeRobotReader
 from oscar_core.video import write_video
 

@@ -7,7 +7,7 @@ import pytest
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.data.reader import EpisodeError
+from oscar_core.reader import EpisodeError
 from oscar_core.data.readers.rh20t import CONFIGS, RH20TReader, calib_tcp_quaternion
 from oscar_core.video import write_video
 

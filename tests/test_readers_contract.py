@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("h5py")
 pytest.importorskip("pyarrow")
 
-from oscar_core.data.reader import EpisodeError, EpisodeRef, Reader
+from oscar_core.reader import EpisodeError, EpisodeRef, Reader
 from oscar_core.data.readers import BUILTIN_READERS
 from oscar_core.registry import Registry
 

@@ -16,7 +16,7 @@ from oscar_core.model.errors import ModelInputError
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.world_model import MODEL_FILE, ModelCard
 from oscar_core.registry import Registry
-from oscar_core.train.latent_action import ACTION_DIM, LatentActionTransformer, hold_actions, latent_actions
+from oscar_core.model.latent_action import ACTION_DIM, LatentActionTransformer, hold_actions, latent_actions
 from oscar_core.train.loop import train
 from oscar_core.train.synthetic import write_toy_clipset
 from oscar_core.trajectory import load_trajectory

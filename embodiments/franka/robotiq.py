@@ -49,7 +49,7 @@ def build_franka_robotiq_tree(panda_urdf: str | Path | None = None, coupling_len
 
     from oscar_core.urdf import build_tree_from_urdf_string, expand_xacro
 
-    from . import panda_urdf_path
+    from ._panda_urdf import panda_urdf_path
 
     panda_urdf = Path(panda_urdf) if panda_urdf is not None else panda_urdf_path()
     robot = etree.fromstring(panda_urdf.read_bytes(), parser=etree.XMLParser(remove_comments=True, resolve_entities=False))
@@ -83,7 +83,7 @@ class _ArmURDF:
     def __get__(self, obj, owner=None):
         if obj is None:
             return self
-        from . import panda_urdf_path
+        from ._panda_urdf import panda_urdf_path
 
         return panda_urdf_path()
 

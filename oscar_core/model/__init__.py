@@ -18,6 +18,7 @@ _EXPORTS = {
     "integrate": "sampler", "unipc_scheduler": "sampler",
     "TextEncoder": "text_encoder", "encode_prompts": "text_encoder",
     "detect_layout": "layouts", "load_folder": "layouts", "LAYOUTS": "layouts",
+    "LatentActionTransformer": "latent_action", "latent_actions": "latent_action",
     "OscarWorldModel": "world_model", "ModelCard": "world_model",
     "ModelInputError": "errors", "CheckpointError": "errors", "CheckpointLayoutError": "errors",
     "CheckpointIntegrityError": "errors",

@@ -42,7 +42,7 @@ w = 0 in the diffusers form, or ``guidance=None``) only that branch runs.
 ``batched_cfg=True`` runs both branches as one forward of batch 2B;
 ``False`` runs two forwards of batch B (less peak memory, usually slower).
 
-Latent-action models (``oscar_core.train.latent_action``): ``sample_chunk``
+Latent-action models (``oscar_core.model.latent_action``): ``sample_chunk``
 takes ``actions`` (B, window − 1, 14) instead of a skeleton latent. Guidance
 is then over the actions, with weight ``action_guidance`` (``guidance`` is the
 skeleton's and is ignored): the unconditional branch omits the action tokens

@@ -159,7 +159,7 @@ class OscarWorldModel:
                 verify_files(folder, {p: m.get("sha256") for p, m in manifest.items()}, source=folder)
         transformer_cls = OscarTransformer3DModel
         if card.condition == "latent_action":
-            from ..train.latent_action import LatentActionTransformer
+            from .latent_action import LatentActionTransformer
 
             transformer_cls = LatentActionTransformer
         transformer = transformer_cls.load_strict(folder / "transformer")
@@ -326,7 +326,7 @@ class OscarWorldModel:
             raise ModelInputError(f"rollout: model {self.card.name or ''} is a latent-action model: expected "
                                   "actions (T - 1, 14) and skeleton=None (rollout_trajectory builds them), found "
                                   f"{'a skeleton video' if skeleton is not None else 'no actions'}")
-        from ..train.latent_action import hold_actions
+        from .latent_action import hold_actions
         from .rollout import chunk_plan
 
         trained = int(getattr(self.transformer.config, "action_frames", chunk - 1)) + 1
@@ -348,7 +348,7 @@ class OscarWorldModel:
         float64 ``latent_actions(embodiment, trajectory)`` (latent-action models).
         """
         if self.card.condition == "latent_action":
-            from ..train.latent_action import latent_actions
+            from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
         from ..pipeline import render_skeleton_video

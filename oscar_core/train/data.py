@@ -232,7 +232,7 @@ class TrainData:
         else:
             out["text"] = torch.zeros(1, self.text_dim)
         if condition == "latent_action":
-            from .latent_action import latent_actions
+            from ..model.latent_action import latent_actions
 
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
         return out

@@ -36,7 +36,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
     """The DiT to train, its weights initialised as ``model.init`` says (float32, train mode)."""
     from ..model.tiny import _randomise
     from ..model.transformer import OscarTransformer3DModel
-    from .latent_action import LatentActionTransformer
+    from ..model.latent_action import LatentActionTransformer
 
     m = config.model
     args = transformer_config(m.transformer, source)

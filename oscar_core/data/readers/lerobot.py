@@ -35,7 +35,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Iterator
 
-from ..reader import Episode, EpisodeError, EpisodeRef, Reader
+from ...reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video
 from ._lerobot import LeRobotLayout
 

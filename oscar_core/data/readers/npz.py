@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import posixpath
 
-from ..reader import Episode, EpisodeError, EpisodeRef, Reader, VideoSource
+from ...reader import Episode, EpisodeError, EpisodeRef, Reader, VideoSource
 
 __all__ = ["NpzReader"]
 
