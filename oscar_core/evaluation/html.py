@@ -10,7 +10,7 @@ session's pairwise preferences. Filters by session, policy and verdict; videos
 load only when scrolled to (``preload="none"`` and an IntersectionObserver),
 so hundreds of cells stay usable.
 
-Media (:func:`oscar_core._html.browser_video`): the lossless rollouts
+Media (:func:`oscar_core.metrics.report_html.browser_video`): the lossless rollouts
 (``rollouts/<session>/<policy>.mkv``, FFV1, which no browser plays) and the
 manifest's real videos are re-encoded once to H.264 MP4 under
 ``OUT/media/rollouts/…`` and ``OUT/media/real/…``; the page links them
@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .._html import browser_video, relative_url, render_page
+from ..metrics.report_html import browser_video, relative_url, render_page
 from .._log import get_logger, progress_bar
 from .manifest import Manifest
 

@@ -4,7 +4,8 @@ The pages of ``oscar eval run`` (:mod:`oscar_core.evaluation.html`),
 ``oscar toyworld eval`` (:mod:`oscar_core.toyworld.html`) and ``oscar data
 stats`` (:mod:`oscar_core.data.html`) are rendered from
 ``oscar_core/templates/*.html.j2`` (autoescaped) and written atomically beside
-the JSON they show. They open from disk: no server, no network, every media
+the JSON they show (this module sits in the metrics layer, beside the plots,
+so every layer that writes a report can use it). They open from disk: no server, no network, every media
 file referenced by a path relative to the page.
 
 Videos are re-encoded for the browser by :func:`browser_video`: H.264 in
@@ -23,12 +24,12 @@ from urllib.parse import quote
 
 import numpy as np
 
-from ._atomic import atomic_write_bytes
+from .._atomic import atomic_write_bytes
 
 __all__ = ["TEMPLATES", "render_page", "browser_video", "browser_image", "relative_url", "even_size"]
 
 #: The folder of the report templates (shipped as package data).
-TEMPLATES = Path(__file__).parent / "templates"
+TEMPLATES = Path(__file__).parent.parent / "templates"
 
 
 def _environment():
@@ -80,14 +81,14 @@ def browser_video(source, dest, *, fps: float | None = None, min_height: int = 1
     this are scaled up by an integer factor (nearest neighbour), so a 64 x 64
     toy clip is not a smudge in the browser's 2x layout. Returns ``dest``.
     """
-    from .video import VideoWriter
+    from ..video import VideoWriter
 
     dest = Path(dest)
     if not isinstance(source, np.ndarray):
         src = Path(source)
         if dest.is_file() and dest.stat().st_mtime >= src.stat().st_mtime:
             return dest
-        from .metrics.video import load_video
+        from .video import load_video
 
         frames = load_video(src)
         if fps is None:
