@@ -68,11 +68,24 @@ _PLAY_ALL = """async () => {
 }"""
 
 
+# every <img>: scrolled to (they may be loading="lazy"), then whether it decoded
+_IMAGES = """async () => {
+  const out = [];
+  for (const img of Array.from(document.querySelectorAll('img'))) {
+    img.scrollIntoView();
+    try { await img.decode(); } catch (e) {}
+    out.push({src: img.getAttribute('src'), ok: img.complete && img.naturalWidth > 0, width: img.naturalWidth});
+  }
+  return out;
+}"""
+
+
 @dataclass
 class PageCheck:
     """What a page did in the browser."""
 
     videos: list = field(default_factory=list)  # one dict per <video>: src, played, error, readyState, width
+    images: list = field(default_factory=list)  # one dict per <img>: src, ok, width
     problems: list = field(default_factory=list)  # console errors, page errors, failed requests, bad videos
     texts: dict = field(default_factory=dict)  # selector → list of text contents (see :func:`open_page`)
     screenshot: Path | None = None
@@ -104,6 +117,8 @@ def open_page(html: Path, screenshot: Path, *, select: dict[str, str] | None = N
             for v in check.videos:
                 if v["error"] or not v["played"]:
                     check.problems.append(f"video {v['src']}: {v['error'] or 'did not play'}")
+            check.images = page.evaluate(_IMAGES)
+            check.problems += [f"image {i['src']}: not loaded" for i in check.images if not i["ok"]]
             for name, css in (select or {}).items():
                 check.texts[name] = page.eval_on_selector_all(
                     css, "els => els.map(e => ({text: e.textContent.trim(), data: Object.assign({}, e.dataset)}))")
@@ -125,10 +140,13 @@ def keep_screenshot(check: PageCheck, name: str) -> None:
         return
     import cv2
 
+    from PIL import Image
+
     img = cv2.imread(str(check.screenshot))
     img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
     DOCS_IMAGES.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(DOCS_IMAGES / name), img, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    # a 64-colour palette keeps the docs' pictures small (tens of kB)
+    Image.fromarray(img[..., ::-1]).quantize(colors=64).save(DOCS_IMAGES / name, optimize=True)
 
 
 def report_json(folder: Path) -> dict:

@@ -7,6 +7,10 @@ import shutil
 
 import pytest
 
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
 from _browser import keep_screenshot, open_page, report_json, require_browser
 from oscar_core.cli import main
 
@@ -135,3 +139,47 @@ def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
         assert td["text"] == _fmt(table["rows"][names[k // len(specs)]][f], specs[f])
     assert "100.00" in [t["text"] for t in check.texts["fig"]]  # the truth against itself, per clip
     keep_screenshot(check, "report-toyworld-eval.png")
+
+
+@pytest.fixture(scope="module")
+def data_run(tmp_path_factory):
+    """A data run of four episodes: two kept, one too short, one filmed by a panning camera."""
+    require_browser()
+    from _datasets import base_parts, write_episode
+
+    root = tmp_path_factory.mktemp("data")
+    traj, _ = base_parts()
+    write_episode(root / "src", "ep0", seed=0, task="wave")
+    write_episode(root / "src", "ep1", seed=1)
+    write_episode(root / "src", "short", traj.time_slice(0, 40), seed=2)
+    write_episode(root / "src", "pan", seed=3, pan=1.5)
+    run = root / "run"
+    common = ["--workers", "1", "--no-progress"]
+    assert main(["data", "ingest", str(root / "src"), "--reader", "npz", "--out", str(run), *common]) == 0
+    assert main(["data", "filter", str(run), *common]) == 0
+    assert main(["data", "stats", str(run)]) == 0
+    return run
+
+
+def test_data_stats_page_shows_the_funnel_of_stats_json_with_thumbnails(data_run, tmp_path):
+    stats = json.loads((data_run / "stats.json").read_text())
+    check = open_page(data_run / "stats.html", tmp_path / "stats.png",
+                      select={"funnel": "#funnel tr[data-key] td[data-field]", "rows": "#funnel tr[data-key]",
+                              "items": ".item"})
+    assert check.problems == []
+    keys = [r["data"]["key"] for r in check.texts["rows"]]
+    assert keys == ["public", *stats["columns"], "kept"] and len(stats["columns"]) == 2
+    want = [stats["total"]["public"], *[stats["total"]["rejected"][c] for c in stats["columns"]], stats["total"]["kept"]]
+    assert [int(t["text"]) for t in check.texts["funnel"]] == want
+    # one example per rejection (each reason has one episode), two kept, each with its middle frame
+    assert sorted(i["data"]["column"] for i in check.texts["items"]) == sorted([*stats["columns"], "kept", "kept"])
+    assert len(check.images) == 4 and all(i["width"] > 0 for i in check.images)
+    keep_screenshot(check, "report-data-stats.png")
+
+
+def test_a_missing_thumbnail_fails_the_check(data_run, tmp_path):
+    broken = tmp_path / "run"
+    shutil.copytree(data_run, broken)
+    next((broken / "stats_media").rglob("*.png")).unlink()
+    check = open_page(broken / "stats.html", tmp_path / "broken.png")
+    assert len([i for i in check.images if not i["ok"]]) == 1 and any("image" in p for p in check.problems)

@@ -15,7 +15,7 @@ examples:
   oscar data dedup runs/r1 --siglip google/siglip-base-patch16-224
   oscar data caption runs/r1 --endpoint http://localhost:8000/v1 --model Qwen/Qwen3-VL-30B-A3B-Instruct --budget 1000
   oscar data export runs/r1 --out clips/r1
-  oscar data stats runs/r1 --plot runs/r1/stats.png
+  oscar data stats runs/r1 --plot runs/r1/stats.png   (also writes runs/r1/stats.html)
 every stage: --engine local|ray, --workers N, --shard-size N; re-running a stage finishes it without redoing work.
 """
 
@@ -100,7 +100,14 @@ def cmd_stats(args) -> int:
     _fs.write_bytes_atomic(_fs.join(args.run, "stats.json"), text.encode())
     if args.plot:
         plot_stats(st, args.plot)
+    page = None
+    if not args.no_html:
+        from .html import write_stats_html
+
+        page = write_stats_html(st, args.run, plugin_paths=tuple(args.plugin or ()))
     sys.stdout.write(text + "\n" if args.json else format_table(st))
+    if page is not None and not args.json:
+        sys.stdout.write(f"wrote {page}\n")
     return 0
 
 
@@ -170,4 +177,6 @@ def add_data_parser(sub) -> None:
     p.add_argument("run", help="run folder")
     p.add_argument("--json", action="store_true", help="print JSON (always written to RUN/stats.json)")
     p.add_argument("--plot", metavar="PATH", help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])")
+    p.add_argument("--no-html", action="store_true", help="do not write RUN/stats.html (the funnel with thumbnails "
+                                                         "of rejected episodes per reason)")
     p.set_defaults(func=cmd_stats)

@@ -118,6 +118,7 @@ def browser_image(frame: np.ndarray, dest, *, min_height: int = 96) -> Path:
     if not ok:
         raise ValueError(f"{dest}: cannot encode a frame of shape {frame.shape} as PNG")
     dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(dest, buf.tobytes())
     return dest
 
