@@ -27,6 +27,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
 from ._weights import build_strict, cast_model, check_safetensors, load_state_dict, read_config
 from .errors import CheckpointLayoutError, ModelInputError
 from .sampler import SamplerConfig
@@ -36,10 +37,7 @@ from .vae import VideoVAE, check_frame_count
 
 __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 
-MODEL_FILE = "oscar_model.json"
 FORMAT = "oscar-world-model"
-EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
-SCHEDULER_FILE = "scheduler/scheduler_config.json"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 CONDITIONS = ("skeleton", "latent_action", "none")
 
