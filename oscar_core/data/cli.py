@@ -10,6 +10,9 @@ __all__ = ["add_data_parser"]
 
 EXAMPLE = """\
 examples:
+  oscar data sample-dataset data/sample        (a small LeRobot v3.0 dataset, made here: no download)
+  oscar data ingest data/sample --reader lerobot --out runs/sample
+  oscar data dedup runs/sample --embedder trajectory   (no SigLIP weights)
   oscar data ingest /data/mydataset --reader npz --out runs/r1
   oscar data filter runs/r1 --set min_length=70 --set max_camera_motion=0.02
   oscar data dedup runs/r1 --siglip google/siglip-base-patch16-224
@@ -59,11 +62,15 @@ def cmd_filter(args) -> int:
 
 
 def cmd_dedup(args) -> int:
-    from .dedup import DedupConfig, SiglipEmbedder
+    from .dedup import DedupConfig, SiglipEmbedder, TrajectoryEmbedder
     from .run import run_dedup
 
+    if args.embedder == "siglip" and not args.siglip:
+        raise ValueError("oscar data dedup: --siglip: expected a SigLIP model (Hub id or folder) with --embedder siglip, "
+                         "found none (or use --embedder trajectory, which needs no weights)")
+    embedder = SiglipEmbedder(args.siglip, args.device) if args.embedder == "siglip" else TrajectoryEmbedder()
     cfg = DedupConfig(cosine=args.cosine, rms_alpha=args.rms_alpha, rms_floor=args.rms_floor, nprobe=args.nprobe)
-    res, summary = run_dedup(args.run, SiglipEmbedder(args.siglip, args.device), cfg, **_kw(args))
+    res, summary = run_dedup(args.run, embedder, cfg, **_kw(args))
     _report(res, "dedup")
     print("dedup: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
     return 0
@@ -111,12 +118,32 @@ def cmd_stats(args) -> int:
     return 0
 
 
+def cmd_sample_dataset(args) -> int:
+    from .sample import write_sample_dataset
+
+    summary = write_sample_dataset(args.out, frames=args.frames, seed=args.seed)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{summary['dataset']}: {summary['episodes']} episodes, {summary['frames']} frames, LeRobot v3.0 "
+              f"(DROID columns, one shared MP4); ingest it with --reader {summary['reader']}")
+    return 0
+
+
 def add_data_parser(sub) -> None:
     """Register ``oscar data <stage>`` on the top-level sub-parser collection."""
     fmt = argparse.RawDescriptionHelpFormatter
     d = sub.add_parser("data", help="data pipeline: ingest, filter, dedup, caption, export, stats",
                        epilog=EXAMPLE, formatter_class=fmt)
     ds = d.add_subparsers(dest="data_command", required=True)
+
+    p = ds.add_parser("sample-dataset", help="write a small LeRobot v3.0 dataset (7 episodes, one shared MP4) to try "
+                                             "the pipeline offline", epilog=EXAMPLE, formatter_class=fmt)
+    p.add_argument("out", help="a new folder")
+    p.add_argument("--frames", type=int, default=80, help="frames per episode (default 80)")
+    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print the summary (with each episode's expected fate) as JSON")
+    p.set_defaults(func=cmd_sample_dataset)
 
     p = ds.add_parser("ingest", help="list a dataset's episodes into a manifest and probe each one", epilog=EXAMPLE,
                       formatter_class=fmt)
@@ -135,10 +162,14 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_filter)
 
-    p = ds.add_parser("dedup", help="SigLIP candidates (cosine > 0.95) verified by trajectory RMS, one kept per group",
+    p = ds.add_parser("dedup", help="SigLIP (or motion) candidates (cosine > 0.95) verified by trajectory RMS, one kept "
+                                    "per group",
                       epilog=EXAMPLE, formatter_class=fmt)
     p.add_argument("run", help="run folder")
-    p.add_argument("--siglip", required=True, help="SigLIP vision model: Hub id or local folder")
+    p.add_argument("--embedder", choices=("siglip", "trajectory"), default="siglip",
+                   help="siglip: SigLIP picture embeddings find candidates (the paper; needs --siglip); trajectory: "
+                        "the skeleton's motion does, no weights to download")
+    p.add_argument("--siglip", help="SigLIP vision model: Hub id or local folder (with --embedder siglip)")
     p.add_argument("--device", default="cpu", help="torch device for SigLIP")
     p.add_argument("--cosine", type=float, default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
     p.add_argument("--rms-alpha", type=float, default=0.25, help="duplicate when RMS < alpha x smaller motion scale")

@@ -188,9 +188,9 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     tasks = [(n, [by_id[i] for i in plan[n]]) for n in todo]
     results: list[tuple[str, int, bool]] = []
     if tasks:
-        from tqdm import tqdm
+        from .._log import progress_bar
 
-        bar = tqdm(total=len(tasks), desc=desc or stage_url, unit="shard", disable=not progress)
+        bar = progress_bar(total=len(tasks), desc=desc or stage_url, unit="shard", enabled=progress)
         n_workers = min(workers or os.cpu_count() or 1, len(tasks))
         if engine == "ray":
             results = _run_ray(fn, tasks, stage_url, n_workers)
