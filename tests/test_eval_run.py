@@ -159,10 +159,20 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     assert m["pearson_r"] == pytest.approx(0.5)
     assert m["spearman_rho"] == pytest.approx(0.5)
     assert m["mmrv"] == pytest.approx(2 / 3) and m["mmrv_simpler"] == pytest.approx(1 / 3)
-    # pairwise from (binary, partial): good beats both everywhere, bad beats mid in s1, ties it in s2 -> BT order
-    assert report["comparison"]["ranked_by"]["wm"] == "bradley_terry_elo"
-    assert [b["policy"] for b in report["bradley_terry"]["board"]] == ["good", "bad", "mid"]
-    assert len(report["pairs"]) == 6 and report["bradley_terry"]["warnings"] == []  # a tie in s1 links everyone
+    # pairwise from (binary, partial): good beats mid twice and bad once, ties bad in s1; bad beats mid in s1 and
+    # ties it in s2. Davidson's likelihood has no finite maximum here (good -> +inf, mid -> -inf with the tie
+    # parameter -> inf: the fit stops with nu at its bound e^10 and Elo 5777 +- 54237), so there is no ranking
+    # and the world model is ranked by success rate, saying so
+    bt = report["bradley_terry"]
+    assert "tie parameter reached the optimiser's bound" in bt["degenerate"]
+    assert report["comparison"]["ranked_by"]["wm"] == "success_rate"
+    assert report["comparison"]["wm_ranking_fallback"].startswith("no Bradley-Terry ranking: the tie parameter")
+    assert report["comparison"]["partial"] is None and bt["partial"] is None  # every cell and pair judged
+    assert all(p["bt_elo"] is None for p in report["policies"])
+    assert len(report["pairs"]) == 6 and bt["warnings"] == []  # a tie in s1 links everyone
+    summary = (out / "summary.md").read_text()
+    assert "No ranking: the tie parameter reached" in summary and "No Bradley-Terry ranking" in summary
+    assert "| policy | Elo |" not in summary and "PARTIAL" not in summary
     # the report folder
     for name in ("report.json", "summary.md", "plots/success_scatter.png", "plots/rank_slope.png",
                  "contact_sheets/s1.png", "contact_sheets/s2.png"):
@@ -183,8 +193,9 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     with MockChat() as chat:
         code = _cli("eval", "run", manifest, "--model", model_dir, "--out", out, "--judge", "vlm", "--pairwise",
                     "--judge-base-url", chat.url, "--judge-model", "mock-vlm", "--max-requests", "8",
-                    "--steps", "1", "--no-progress", "--json")
+                    "--judge-extra-body", '{"reasoning_effort": "high"}', "--steps", "1", "--no-progress", "--json")
     vlm = json.loads(capsys.readouterr().out)
+    assert all(b["reasoning_effort"] == "high" for b in chat.bodies)  # extra request fields reach the judge
     assert code == 0 and vlm["counts"]["rollouts_reused"] == 6 and vlm["counts"]["verdicts_done"] == 6
     assert len(chat.bodies) == 8  # 6 success requests + 2 pairwise; the other 4 pairs are over the budget
     (user,) = chat.bodies[0]["messages"]  # the paper's prompt, one user message, then 5 frames as images
@@ -193,6 +204,32 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     assert [p["status"] for p in vlm["pairs"]].count("ok") == 2
     assert all("request budget of 8 requests spent" in p["error"] for p in vlm["pairs"] if p["status"] != "ok")
     assert {p["policy"]: p["wm_success_rate"] for p in vlm["policies"]} == {"good": 1.0, "mid": 1.0, "bad": 1.0}
+    # 2 of 6 pairs judged (which 2 depends on the threads), both won by A: a policy without comparisons (no
+    # fit), two groups no preference orders (no ranking), or a strict chain x > y > z (a ranking); a fit from
+    # the judged pairs says it is partial, and a missing ranking is said where the ranking is shown
+    bt, comp = vlm["bradley_terry"], vlm["comparison"]
+    if bt is not None:
+        assert bt["partial"] == {"judged": 2, "total": 6, "what": "pairs",
+                                 "not_judged": {"not sent (request budget spent)": 4}}
+    if bt is not None and bt["degenerate"] is None:
+        assert comp["ranked_by"]["wm"] == "bradley_terry_elo" and comp["wm_ranking_fallback"] is None
+    else:
+        why = vlm["bradley_terry_error"] if bt is None else bt["degenerate"]
+        assert "no comparisons for" in why or "undetermined" in why
+        assert comp["ranked_by"]["wm"] == "success_rate"
+        assert comp["wm_ranking_fallback"].startswith(f"no Bradley-Terry ranking: {why}")
+    # a budget that leaves cells unjudged: every figure from the judged subset says so
+    with MockChat() as chat:
+        code = _cli("eval", "run", manifest, "--model", model_dir, "--out", tmp_path / "out2", "--judge", "vlm",
+                    "--judge-base-url", chat.url, "--judge-model", "mock-vlm", "--max-requests", "4",
+                    "--steps", "1", "--no-progress", "--json")
+    part = json.loads(capsys.readouterr().out)
+    assert code == 1 and len(chat.bodies) == 4
+    assert part["comparison"]["partial"] == {"judged": 4, "total": 6, "what": "cells",
+                                             "not_judged": {"not sent (request budget spent)": 2}}
+    summary = (tmp_path / "out2" / "summary.md").read_text()
+    assert "**PARTIAL: 4 of 6 cells judged (2 not sent (request budget spent))**" in summary
+    assert "| metric | value (partial) |" in summary
 
 
 def test_rollout_key_changes_with_every_input(tmp_path):
@@ -346,6 +383,7 @@ def test_all_tied_preferences_give_tied_ranks_not_float_noise(tmp_path, model_di
     res = run_evaluation(manifest, tmp_path / "out", model=oscar_zoo.load(str(model_dir)), judge=never,
                          pairwise_judge=never, sampler=SamplerConfig(steps=1), log=lambda m: None)
     comp = res.report["comparison"]
-    elo = [p["bt_elo"] for p in res.report["policies"]]
-    assert max(elo) - min(elo) < 1e-6
+    assert res.report["bradley_terry"]["degenerate"].startswith("every comparison is a tie")
+    assert [p["bt_elo"] for p in res.report["policies"]] == [None, None, None]  # no numbers for a degenerate fit
+    assert comp["ranked_by"]["wm"] == "success_rate" and "every comparison is a tie" in comp["wm_ranking_fallback"]
     assert comp["metrics"]["spearman_rho"] is None  # NaN in JSON: one side is constant

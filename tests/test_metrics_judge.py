@@ -425,15 +425,15 @@ def test_sampling_fields_and_unreachable_server(server, tmp_path):
     assert "max_tokens" not in body  # OpenAI's newer models reject max_tokens; older servers: token_field
     assert _judge(server, tmp_path, max_tokens=64, token_field="max_tokens").judge(JudgeClip("y", _video(1), "valid y")).ok
     assert server.bodies[-1]["max_tokens"] == 64 and "max_completion_tokens" not in server.bodies[-1]
-    # nothing listens on this port: connection errors are retried, then the clip is an error
-    import socket
+    # nothing listens on this port: connection errors are retried, then the whole run stops (it never answered;
+    # test_an_endpoint_that_refuses_every_connection_stops_the_run); after answers they stay per-clip errors
+    # (test_refused_connections_after_answers_stay_per_clip_errors)
+    from oscar_core.metrics import JudgeEndpointUnreachable
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    dead = SuccessJudge(base_url=f"http://127.0.0.1:{port}/v1", model=MODEL, timeout=1, max_attempts=2,
-                        backoff=0.01).judge(JudgeClip("x", _video(0), "valid x"))
-    assert (dead.status, dead.attempts) == ("error", 2) and dead.attempt_errors[0].startswith("connection")
+    dead = SuccessJudge(base_url=_refusing_url(), model=MODEL, timeout=1, max_attempts=2, backoff=0.01)
+    with pytest.raises(JudgeEndpointUnreachable):
+        dead.judge(JudgeClip("x", _video(0), "valid x"))
+    assert dead.client.requests_sent == 2
 
 
 # --------------------------------------------------------------------------- #
@@ -725,3 +725,69 @@ def test_pairwise_both_orders_reconciles_position_bias(server, tmp_path):
     v = Biased(base_url=server.url, model=MODEL, cache_dir=None, both_orders=True, timeout=2).compare(pair)
     assert v.ok and v.orders_agree is False and v.winner == "tie" and "disagree" in v.reason
     assert v.preference().outcome == 1  # a tie for Bradley-Terry
+
+
+def test_retry_after_reads_seconds_and_http_dates():
+    from oscar_core.metrics.judge_client import _retry_after
+
+    now = 1_700_000_000.0  # 2023-11-14T22:13:20Z
+    assert _retry_after({"Retry-After": "7"}, now) == 7.0
+    assert _retry_after({"Retry-After": "-3"}, now) == 0.0
+    assert _retry_after({"Retry-After": "Tue, 14 Nov 2023 22:13:50 GMT"}, now) == pytest.approx(30.0)
+    assert _retry_after({"Retry-After": "Tuesday, 14-Nov-23 22:14:20 GMT"}, now) == pytest.approx(60.0)  # RFC 850
+    assert _retry_after({"Retry-After": "Tue, 14 Nov 2023 22:00:00 GMT"}, now) == 0.0  # already past
+    assert _retry_after({"Retry-After": "soon"}, now) is None
+    assert _retry_after({"Retry-After": "inf"}, now) is None
+    assert _retry_after({}, now) is None and _retry_after(None, now) is None
+
+
+def _refusing_url() -> str:
+    import socket
+
+    with socket.socket() as s:  # a port that was free a moment ago: connections to it are refused
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    return f"http://127.0.0.1:{port}/v1"
+
+
+def test_an_endpoint_that_refuses_every_connection_stops_the_run(tmp_path):
+    from oscar_core.metrics import JudgeEndpointUnreachable
+
+    clips = [JudgeClip(f"s0/p{k}", _video(k, frames=4), "put the cup in the bowl") for k in range(6)]
+    judge = SuccessJudge(base_url=_refusing_url(), model=MODEL, max_attempts=3, backoff=0.0, concurrency=2,
+                         cache_dir=tmp_path / "cache")
+    t0 = time.monotonic()
+    with pytest.raises(JudgeEndpointUnreachable,
+                       match=r"refused all 3 connections and never answered.*--judge-base-url"):
+        judge.judge_many(clips)
+    assert time.monotonic() - t0 < 10
+    # it stops: no clip beyond the first few tried, and every later request fails at once without a connection
+    assert judge.client.requests_sent <= 3 + 2 * 3
+    sent = judge.client.requests_sent
+    with pytest.raises(JudgeEndpointUnreachable):
+        judge.judge_many(clips[:1])
+    assert judge.client.requests_sent == sent and not list((tmp_path / "cache").glob("*.json"))
+
+
+def test_refused_connections_after_answers_stay_per_clip_errors(server, tmp_path):
+    # the endpoint answered before: a later refusal is one clip's error, not the end of the run
+    judge = SuccessJudge(base_url=server.url, model=MODEL, max_attempts=2, backoff=0.0)
+    ok = judge.judge_many([JudgeClip("a", _video(1, frames=4), "valid a")])
+    assert ok[0].status == "ok"
+    judge.client._sdk = judge.client._sdk.with_options(base_url=_refusing_url())
+    (bad,) = judge.judge_many([JudgeClip("b", _video(2, frames=4), "valid b")])
+    assert bad.status == "error" and "connection" in bad.error
+
+
+def test_eval_judge_exits_non_zero_naming_the_unreachable_endpoint(tmp_path, capsys):
+    from oscar_core.cli import main
+
+    root = tmp_path / "rollouts" / "s1"
+    root.mkdir(parents=True)
+    np.save(root / "p0.npy", _video(0, frames=4))
+    (tmp_path / "tasks.json").write_text(json.dumps({"s1": "put the cup in the bowl"}))
+    url = _refusing_url()
+    code = main(["eval", "judge", "--videos", str(tmp_path / "rollouts"), "--tasks", str(tmp_path / "tasks.json"),
+                 "--base-url", url, "--model", MODEL, "--backoff", "0", "--no-cache"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"the judge endpoint {url}/chat/completions refused all 5 connections" in err

@@ -356,3 +356,77 @@ def test_mmrv_rank_true_range_by_exhaustive_search():
     assert mmrv_rank_max(7) == pytest.approx(33 / 7)
     assert mmrv_rank(list(range(7)), list(range(7))[::-1]) == pytest.approx(33 / 7)
     assert mmrv_rank_max(2) == 1.0
+
+
+# --------------------------------------------------------------------------- #
+# degenerate Bradley-Terry fits and the one ranking rule of eval policies / eval run
+# --------------------------------------------------------------------------- #
+def test_degenerate_fits_say_no_ranking_instead_of_numbers():
+    import warnings
+
+    from oscar_core.metrics.bradley_terry import PHI_BOUND, world_model_ranking
+
+    all_ties = fit_bradley_terry([("a", "b", "tie"), ("b", "c", "tie"), ("a", "c", "tie")] * 3)
+    assert all_ties.degenerate.startswith("every comparison is a tie")
+    assert all_ties.format_table().startswith("no ranking: every comparison is a tie") and "1500" not in \
+        all_ties.format_table()
+    assert all_ties.ranking_scores() is None and all_ties.to_dict()["degenerate"] == all_ties.degenerate
+    scores, label, fallback = world_model_ranking(all_ties)
+    assert (scores, label) == (None, "success_rate")
+    assert fallback == (f"no Bradley-Terry ranking: {all_ties.degenerate}; "
+                        "the world model is ranked by its success rates")
+    # mostly ties, one decision: nu runs to its bound (the likelihood's maximum is at infinity)
+    mostly = fit_bradley_terry([("a", "b", "a"), ("a", "b", "tie"), ("b", "c", "tie"), ("c", "a", "tie")] * 2
+                               + [("b", "c", "b"), ("a", "c", "tie")])
+    assert mostly.tie_nu == pytest.approx(np.exp(PHI_BOUND)) and "optimiser's bound" in mostly.degenerate
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BradleyTerryWarning)
+        # g beats b and m, nothing orders b against m: undetermined, whatever the optimiser's path says
+        star = fit_bradley_terry([("g", "b", "a"), ("g", "m", "a")])
+        chain = fit_bradley_terry([("g", "b", "a"), ("b", "m", "a"), ("g", "m", "a")])
+    assert "leave the order of the groups" in star.degenerate and "['m']" in star.degenerate
+    assert chain.degenerate is None and chain.ranking() == ["g", "b", "m"]  # a strict order is a ranking
+    assert world_model_ranking(None, "no valid pairwise verdicts")[2].startswith(
+        "no Bradley-Terry ranking: no valid pairwise verdicts;")
+
+
+def test_ranking_scores_tie_float_noise_but_keep_real_gaps():
+    from oscar_core.metrics.bradley_terry import ELO_TIE_DECIMALS, BradleyTerryResult, world_model_ranking
+
+    bt = fit_bradley_terry([("a", "b", "a"), ("a", "b", "a"), ("b", "a", "a"), ("a", "c", "a"), ("a", "c", "a"),
+                            ("c", "a", "a"), ("b", "c", "tie"), ("b", "c", "a"), ("c", "b", "a")])
+    assert bt.degenerate is None
+    noisy = BradleyTerryResult(bt.policies, bt.theta + np.array([0.0, 3e-11, -3e-11]), bt.std, bt.tie_nu,
+                               bt.n_comparisons, bt.log_likelihood, bt.iterations, bt.converged)
+    scores, label, fallback = world_model_ranking(noisy)
+    assert label == "bradley_terry_elo" and fallback is None
+    assert scores["b"] == scores["c"]  # b and c are symmetric: equal up to noise -> tied ranks
+    assert scores == {p: round(v, ELO_TIE_DECIMALS) for p, v in noisy.scores("elo").items()}
+    assert spearman_rho({"a": 1.0, "b": 0.5, "c": 0.5}, scores) == pytest.approx(1.0)
+
+
+def test_eval_policies_on_an_all_tie_board_states_the_fallback(tmp_path, capsys):
+    import argparse
+    import json
+
+    from oscar_core.metrics import add_eval_parser
+
+    (tmp_path / "real.json").write_text(json.dumps({"a": 0.9, "b": 0.5, "c": 0.2}))
+    (tmp_path / "wm.json").write_text(json.dumps({"a": 0.8, "b": 0.6, "c": 0.2}))
+    (tmp_path / "p.jsonl").write_text("\n".join(json.dumps({"a": x, "b": y, "winner": "tie"})
+                                                for x, y in [("a", "b"), ("b", "c"), ("a", "c")] * 4))
+    parser = argparse.ArgumentParser(prog="oscar")
+    add_eval_parser(parser.add_subparsers(dest="command", required=True))
+    argv = ["eval", "policies", "--real", str(tmp_path / "real.json"), "--wm", str(tmp_path / "wm.json"),
+            "--preferences", str(tmp_path / "p.jsonl")]
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "no ranking: every comparison is a tie" in out and "1500.0" not in out
+    assert "ranked by: real=success_rate, wm=success_rate" in out
+    assert "no Bradley-Terry ranking: every comparison is a tie" in out
+    args = parser.parse_args(argv + ["--json"])
+    args.func(args)
+    data = json.loads(capsys.readouterr().out)
+    assert data["metrics"]["spearman_rho"] == pytest.approx(1.0) and data["ranked_by"]["wm"] == "success_rate"
+    assert data["wm_ranking_fallback"].startswith("no Bradley-Terry ranking") and data["bradley_terry"]["degenerate"]

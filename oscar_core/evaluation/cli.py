@@ -76,11 +76,25 @@ def load_judge(spec: str):
                            type(obj).__name__)
 
 
+def _extra_body(text: str | None) -> dict | None:
+    """``--judge-extra-body``: a JSON object of extra request fields, e.g. ``{"reasoning_effort": "high"}``."""
+    if text is None:
+        return None
+    try:
+        extra = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise MetricInputError("--judge-extra-body", "value", "a JSON object", f"invalid JSON ({exc.msg})") from None
+    if not isinstance(extra, dict):
+        raise MetricInputError("--judge-extra-body", "value", "a JSON object", type(extra).__name__)
+    return extra
+
+
 def _vlm_kwargs(args) -> dict:
     api_key = os.environ.get(args.api_key_env) or None
     return dict(base_url=args.judge_base_url, model=args.judge_model, api_key=api_key,
                 max_tokens=args.judge_max_tokens, timeout=args.judge_timeout,
-                cache_dir=Path(args.out) / "judge_cache", max_requests=args.max_requests)
+                extra_body=_extra_body(args.judge_extra_body), cache_dir=Path(args.out) / "judge_cache",
+                max_requests=args.max_requests)
 
 
 def cmd_eval_run(args) -> int:
@@ -148,6 +162,9 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
                                                                              f"(default {ENV_API_KEY})")
     r.add_argument("--judge-max-tokens", type=int, help="VLM max_completion_tokens (default: not sent)")
     r.add_argument("--judge-timeout", type=float, default=120.0, help="VLM seconds per request (default 120)")
+    r.add_argument("--judge-extra-body", metavar="JSON",
+                   help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
+                        'judge ran at high reasoning effort)')
     r.add_argument("--max-requests", type=int, help="VLM request budget for this run (default: unlimited)")
     r.add_argument("--steps", type=int, default=35, help="denoising steps per chunk (default 35)")
     r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")

@@ -52,6 +52,7 @@ _BAR = 4
 def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pair_verdicts: Sequence, wm: dict, *,
                  counts: dict, model, judge, pairwise_judge, sampler: dict) -> dict:
     """Everything ``report.json`` holds (module docstring)."""
+    from ..metrics.bradley_terry import world_model_ranking
     from ..metrics.judge import preferences_from_verdicts
     from ..metrics.policy import BradleyTerryWarning, compare_policies, fit_bradley_terry
 
@@ -79,8 +80,8 @@ def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pa
                    "wm_success_rate": w.get("success_rate"), "wm_episodes": w.get("episodes", []),
                    "wm_mean_partial": w.get("mean_partial"), "judged": w.get("judged", 0),
                    "not_judged": w.get("not_judged", 0),
-                   "bt_elo": bt.scores("elo")[p] if bt is not None else None}
-    comparison, comparison_error = None, None
+                   "bt_elo": bt.scores("elo")[p] if bt is not None and bt.degenerate is None else None}
+    comparison, comparison_error, wm_fallback = None, None, None
     wm_sr = {p: rows[p]["wm_success_rate"] for p in policies}
     if len(policies) < 2:
         comparison_error = "fewer than 2 policies"
@@ -93,12 +94,14 @@ def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pa
         missing = [p for p, v in wm_sr.items() if v is None]
         comparison_error = f"no valid world-model verdict for policies {missing}"
     else:
-        # Elo rounded to 1e-6: scores equal up to the fit's float noise (e.g. every comparison a tie) are tied
-        # ranks, not an order drawn from the last digits
-        wm_elo = {p: round(v, 6) for p, v in bt.scores("elo").items()} if bt is not None else None
+        # one ranking rule with `oscar eval policies`: tied Elo (to ELO_TIE_DECIMALS) are tied ranks, and a
+        # degenerate fit or no fit at all falls back to success rates, saying so
+        wm_elo, wm_label, wm_fallback = world_model_ranking(bt, bt_error) if pairwise_judge is not None \
+            else (None, "success_rate", None)
         comparison = compare_policies(real_sr, wm_sr, real_score=manifest.real_scores,
                                       wm_score=wm_elo,
-                                      real_score_label="real_scores", wm_score_label="bradley_terry_elo")
+                                      real_score_label="real_scores", wm_score_label=wm_label)
+    pair_rows = [v.to_dict() for v in pair_verdicts]
     by_cell = {v.clip: v for v in verdicts if v is not None}
     cells = []
     for cell, rec in zip(manifest.cells, records):
@@ -113,12 +116,42 @@ def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pa
         "manifest": str(manifest.path), "model": model, "sampler": sampler, "judge": judge,
         "pairwise_judge": pairwise_judge, "counts": counts,
         "policies": [rows[p] for p in policies],
-        "comparison": comparison.to_dict() if comparison is not None else None,
+        "comparison": ({**comparison.to_dict(), "partial": _partial(cells, "cells"), "wm_ranking_fallback": wm_fallback}
+                       if comparison is not None else None),
         "comparison_error": comparison_error,
-        "bradley_terry": {**bt.to_dict(), "warnings": bt_warnings} if bt is not None else None,
+        "bradley_terry": ({**bt.to_dict(), "warnings": bt_warnings, "partial": _partial(pair_rows, "pairs")}
+                          if bt is not None else None),
         "bradley_terry_error": bt_error,
-        "cells": cells, "pairs": [v.to_dict() for v in pair_verdicts],
+        "cells": cells, "pairs": pair_rows,
     })
+
+
+def _not_judged_reason(status: str | None, error: str | None) -> str:
+    if status is None:
+        return "no verdict"
+    if status == "error" and error and "not sent" in error:
+        return "not sent (request budget spent)"
+    return status
+
+
+def _partial(rows: list[dict], what: str) -> dict | None:
+    """None when every row has an "ok" verdict, else ``{"judged", "total", "what", "not_judged": {reason: n}}``:
+    figures computed from the judged subset must say so wherever they are shown."""
+    reasons: dict[str, int] = {}
+    for r in rows:
+        if r.get("status") != "ok":
+            why = _not_judged_reason(r.get("status"), r.get("error"))
+            reasons[why] = reasons.get(why, 0) + 1
+    if not reasons:
+        return None
+    return {"judged": len(rows) - sum(reasons.values()), "total": len(rows), "what": what, "not_judged": reasons}
+
+
+def _partial_note(partial: dict | None) -> str:
+    if not partial:
+        return ""
+    why = ", ".join(f"{n} {reason}" for reason, n in partial["not_judged"].items())
+    return f"PARTIAL: {partial['judged']} of {partial['total']} {partial['what']} judged ({why})"
 
 
 def _fmt(v, spec: str) -> str:
@@ -148,17 +181,27 @@ def format_summary(report: dict, sheets: dict[str, list[str]] | None = None) -> 
         m, n = comp["metrics"], comp["n_policies"]
         from ..metrics.policy import mmrv_rank_max
 
-        lines += ["| metric | value |", "|---|---|",
+        partial = _partial_note(comp.get("partial"))
+        if partial:
+            lines += [f"**{partial}**: every figure below comes from the judged cells only.", ""]
+        lines += [f"| metric | value{' (partial)' if partial else ''} |", "|---|---|",
                   f"| MMRV (rank form, range [0, {mmrv_rank_max(n):.3f}]) ↓ | {_fmt(m['mmrv'], '.3f')} |",
                   f"| MMRV (SIMPLER, success-rate gap) ↓ | {_fmt(m['mmrv_simpler'], '.3f')} |",
                   f"| Spearman ρ ↑ | {_fmt(m['spearman_rho'], '+.3f')} |",
                   f"| Pearson r ↑ | {_fmt(m['pearson_r'], '+.3f')} |",
                   f"| SISR_Δ (pp) ↓ | {_fmt(m['sisr_delta_pp'], '.2f')} |", "",
                   f"Ranked by: real = {comp['ranked_by']['real']}, world model = {comp['ranked_by']['wm']}."]
+        if comp.get("wm_ranking_fallback"):
+            lines.append(f"\n{comp['wm_ranking_fallback'][0].upper()}{comp['wm_ranking_fallback'][1:]}.")
     bt = report["bradley_terry"]
-    if bt is not None:
+    if bt is not None and bt.get("degenerate"):
         lines += ["", "## Bradley–Terry–Davidson (world-model pairwise preferences)", "",
-                  "| policy | Elo | ± std |", "|---|---|---|"]
+                  f"No ranking: {bt['degenerate']} ({bt['n_comparisons']} comparisons)."]
+    elif bt is not None:
+        partial = _partial_note(bt.get("partial"))
+        lines += ["", "## Bradley–Terry–Davidson (world-model pairwise preferences)", ""]
+        lines += [f"**{partial}**.", ""] if partial else []
+        lines += ["| policy | Elo | ± std |", "|---|---|---|"]
         lines += [f"| {b['policy']} | {b['elo']:.1f} | {b['elo_std']:.1f} |" for b in bt["board"]]
         lines.append(f"\n{bt['n_comparisons']} comparisons, tie ν {bt['tie_nu']:.4f}"
                      + ("" if bt["converged"] else " (NOT converged)"))

@@ -40,7 +40,8 @@ _EXPORTS = {
     # VLM judges
     "JudgeClip": "judge", "JudgePair": "judge", "SuccessJudge": "judge", "PairwiseJudge": "judge",
     "SuccessVerdict": "judge", "PairwiseVerdict": "judge", "ChatClient": "judge", "MalformedAnswer": "judge",
-    "JudgeRequestError": "judge", "parse_success_answer": "judge", "parse_pairwise_answer": "judge",
+    "JudgeRequestError": "judge", "JudgeEndpointUnreachable": "judge", "parse_success_answer": "judge",
+    "parse_pairwise_answer": "judge",
     "sample_frame_indices": "judge", "pairs_by_session": "judge", "success_by_policy": "judge",
     "preferences_from_verdicts": "judge", "PAPER_SUCCESS_PROMPT": "judge", "SUCCESS_SYSTEM_PROMPT": "judge", "SUCCESS_USER_PROMPT": "judge",
     "PAIRWISE_SYSTEM_PROMPT": "judge", "PAIRWISE_USER_PROMPT": "judge",

@@ -19,12 +19,18 @@ from ._common import MetricInputError, nan_to_none
 
 __all__ = [
     "Preference", "parse_preference", "BradleyTerryResult", "BradleyTerryWarning", "fit_bradley_terry",
-    "ELO_SCALE", "ELO_SHIFT"
+    "ELO_SCALE", "ELO_SHIFT", "ELO_TIE_DECIMALS", "PHI_BOUND", "world_model_ranking"
 ]
 
 #: RoboArena's display transform of a Bradley–Terry score θ: Elo = 200·θ + 1500.
 ELO_SCALE = 200.0
 ELO_SHIFT = 1500.0
+#: Elo scores are compared for ranking after rounding to this many decimals: scores equal up to the fit's
+#: float noise (e.g. 1500.0000000055 against 1499.9999999986) are tied ranks, not an order drawn from the
+#: last digits. ``oscar eval policies`` and ``oscar eval run`` both rank through :func:`world_model_ranking`.
+ELO_TIE_DECIMALS = 6
+#: The fit clips φ = log ν to [−PHI_BOUND, PHI_BOUND] (as RoboArena's backend does).
+PHI_BOUND = 10.0
 
 
 # --------------------------------------------------------------------------- #
@@ -100,6 +106,14 @@ class BradleyTerryResult:
     order of ``policies``. ``elo = 200·θ + 1500`` and ``elo_std = 200·std``
     (RoboArena rounds them for display; we do not). ``tie_nu`` is Davidson's
     tie parameter ν.
+
+    ``degenerate``: None for a fit whose scores rank the policies, else why they do
+    not (every comparison a tie; ν at the optimiser's bound; groups of policies that no
+    chain of preferences orders — their scores are infinite and their order comes from
+    the optimiser's path; no convergence). A strict order of groups (everyone beats
+    everyone below) is a ranking, although its scores are infinite (a warning says so). A degenerate result keeps its
+    numbers for inspection, but :meth:`format_table` and :func:`world_model_ranking`
+    show "no ranking: …" instead of them.
     """
 
     policies: tuple[str, ...]
@@ -110,6 +124,7 @@ class BradleyTerryResult:
     log_likelihood: float
     iterations: int
     converged: bool
+    degenerate: str | None = None
 
     @property
     def elo(self) -> np.ndarray:
@@ -126,6 +141,12 @@ class BradleyTerryResult:
             raise MetricInputError("kind", "kind", '"elo" or "theta"', repr(kind))
         return {p: float(v) for p, v in zip(self.policies, vals)}
 
+    def ranking_scores(self) -> dict[str, float] | None:
+        """``{policy: Elo}`` rounded to :data:`ELO_TIE_DECIMALS` for ranking, or None for a degenerate fit."""
+        if self.degenerate is not None:
+            return None
+        return {p: round(v, ELO_TIE_DECIMALS) for p, v in self.scores("elo").items()}
+
     def ranking(self) -> list[str]:
         """Policies from strongest to weakest."""
         return [self.policies[k] for k in np.argsort(-self.theta, kind="mergesort")]
@@ -136,11 +157,14 @@ class BradleyTerryResult:
             "model": "bradley_terry_davidson",
             "tie_nu": self.tie_nu, "n_comparisons": self.n_comparisons,
             "log_likelihood": self.log_likelihood, "iterations": self.iterations, "converged": self.converged,
+            "degenerate": self.degenerate,
             "board": [{"policy": self.policies[k], "theta": float(self.theta[k]), "std": float(self.std[k]),
                        "elo": float(self.elo[k]), "elo_std": float(self.elo_std[k])} for k in order],
         })
 
     def format_table(self) -> str:
+        if self.degenerate is not None:
+            return f"no ranking: {self.degenerate} ({self.n_comparisons} comparisons)"
         rows = [("policy", "Elo", "± std", "theta")] + [
             (b["policy"], f"{b['elo']:.1f}", f"{b['elo_std']:.1f}", f"{b['theta']:+.4f}")
             for b in self.to_dict()["board"]]
@@ -160,6 +184,22 @@ def _components(n: int, edges: list[tuple[int, int]], strong: bool) -> tuple[int
     data = np.ones(len(rows)) if edges else np.zeros(1)
     graph = coo_matrix((data, (rows, cols)), shape=(n, n))
     return connected_components(graph, directed=True, connection="strong" if strong else "weak")
+
+
+def _unordered_groups(n_groups: int, labels: np.ndarray, edges: list[tuple[int, int]], names) -> list | None:
+    """Two groups of policies (strongly connected components of the "beats or ties" graph) that no chain of
+    preferences orders, or None when the groups form one strict order (then the ranking is determined even
+    though the scores are infinite)."""
+    reach = np.eye(n_groups, dtype=bool)
+    for a, b in edges:
+        reach[labels[a], labels[b]] = True
+    for k in range(n_groups):  # transitive closure (Floyd–Warshall on booleans)
+        reach |= reach[:, k:k + 1] & reach[k:k + 1, :]
+    for g in range(n_groups):
+        for h in range(g + 1, n_groups):
+            if not reach[g, h] and not reach[h, g]:
+                return [[names[k] for k in range(len(labels)) if labels[k] == c] for c in (g, h)]
+    return None
 
 
 def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: float = 1e-8,
@@ -294,7 +334,7 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
         nll, grad, hess = nll_grad_hess(params)
         # φ held at its clip bound while the likelihood pushes it further out (e.g. no ties at all:
         # the MLE of ν is 0) — project that coordinate out, so the θ's still converge
-        at_bound = (params[-1] <= -10.0 and grad[-1] > 0) or (params[-1] >= 10.0 and grad[-1] < 0)
+        at_bound = (params[-1] <= -PHI_BOUND and grad[-1] > 0) or (params[-1] >= PHI_BOUND and grad[-1] < 0)
         if at_bound:
             grad = grad.copy()
             grad[-1] = 0.0
@@ -319,7 +359,7 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
         alpha, accepted = 1.0, False
         while alpha >= 1e-8:
             cand = params - alpha * step
-            cand[-1] = float(np.clip(cand[-1], -10.0, 10.0))
+            cand[-1] = float(np.clip(cand[-1], -PHI_BOUND, PHI_BOUND))
             if nll_grad_hess(cand)[0] <= nll - 1e-4 * alpha * directional:
                 params, accepted = cand, True
                 break
@@ -345,6 +385,32 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
     center = np.eye(n) - np.full((n, n), 1.0 / n)
     std = np.sqrt(np.clip(np.diag(center @ cov_ref @ center.T), 0.0, None))
     std = np.nan_to_num(std, nan=0.0, posinf=0.0, neginf=0.0)
+    if np.all(y == 1):
+        degenerate = "every comparison is a tie, so the preferences do not order the policies"
+    elif params[-1] >= PHI_BOUND:
+        degenerate = (f"the tie parameter reached the optimiser's bound (nu = e^{PHI_BOUND:g}): almost every "
+                      f"comparison is a tie")
+    elif n_strong > 1 and (undetermined := _unordered_groups(n_strong, slabels, edges, names)):
+        degenerate = (f"the preferences leave the order of the groups {undetermined} undetermined (and the "
+                      f"maximum-likelihood scores are infinite)")
+    elif not converged and n_strong == 1:  # with infinite scores (a strict order of groups) it cannot converge
+        degenerate = f"the fit did not converge in {iterations} steps"
+    else:
+        degenerate = None
     return BradleyTerryResult(policies=tuple(names), theta=theta, std=std, tie_nu=float(math.exp(params[-1])),
                               n_comparisons=len(prefs), log_likelihood=-final_nll, iterations=iterations,
-                              converged=converged)
+                              converged=converged, degenerate=degenerate)
+
+
+def world_model_ranking(bt: BradleyTerryResult | None, no_fit_reason: str | None = None):
+    """The world model's ranking scores from a Bradley–Terry fit, shared by ``eval policies`` and ``eval run``.
+
+    Returns ``(scores, label, fallback)``: Elo rounded to :data:`ELO_TIE_DECIMALS` with label
+    ``"bradley_terry_elo"`` and ``fallback`` None; or, when there is no fit (``no_fit_reason`` says
+    why) or the fit is degenerate, ``(None, "success_rate", "no Bradley-Terry ranking: <why>; the world
+    model is ranked by its success rates")`` — a sentence to show wherever the ranking is shown.
+    """
+    if bt is not None and bt.degenerate is None:
+        return bt.ranking_scores(), "bradley_terry_elo", None
+    why = bt.degenerate if bt is not None else (no_fit_reason or "no preferences")
+    return None, "success_rate", f"no Bradley-Terry ranking: {why}; the world model is ranked by its success rates"

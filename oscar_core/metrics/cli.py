@@ -138,21 +138,23 @@ def cmd_eval_video(args) -> int:
 
 
 def cmd_eval_policies(args) -> int:
+    from .bradley_terry import world_model_ranking
     from .policy import compare_policies, fit_bradley_terry
 
     real_sr, real_score = read_policy_results(args.real)
     wm_sr, wm_score = read_policy_results(args.wm)
     compare_policies(real_sr, wm_sr)  # the two files must name the same policies before anything else
-    bt, wm_label = None, "score"
+    bt, wm_label, fallback = None, "score", None
     if args.preferences:
         bt = fit_bradley_terry(read_preferences(args.preferences), policies=list(real_sr),
                                source=str(args.preferences))
-        wm_score, wm_label = bt.scores("elo"), "bradley_terry_elo"
+        wm_score, wm_label, fallback = world_model_ranking(bt)
     comparison = compare_policies(real_sr, wm_sr, real_score=real_score, wm_score=wm_score,
                                   wm_score_label=wm_label)
     data = comparison.to_dict()
     if bt is not None:
         data["bradley_terry"] = bt.to_dict()
+        data["wm_ranking_fallback"] = fallback
     if args.plot:
         from .plots import plot_comparison
 
@@ -168,6 +170,8 @@ def cmd_eval_policies(args) -> int:
         print(bt.format_table())
         print()
     print(comparison.format_table())
+    if fallback:
+        print(fallback)
     for paths in data.get("plots", {}).values():
         print("wrote " + ", ".join(paths))
     if args.out:

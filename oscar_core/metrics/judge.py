@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ._common import MetricInputError
-from .judge_client import CACHE_VERSION, ENV_API_KEY, ENV_BASE_URL, ENV_MODEL, ChatClient, JudgeRequestError, \
-    _cache_read, _cache_write, _key
+from .judge_client import (CACHE_VERSION, ENV_API_KEY, ENV_BASE_URL, ENV_MODEL, ChatClient, JudgeEndpointUnreachable,
+                           JudgeRequestError, _cache_read, _cache_write, _key)
 from .judge_frames import DEFAULT_MAX_SIDE, _content_hash, _encode_image, _fit, _image_part, _load_frames, \
     _side_by_side, sample_frame_indices
 from .judge_prompts import (DEFAULT_JUDGE_FRAMES, DEFAULT_PAIRWISE_FRAMES, PAIRWISE_SETS_LABELS,
@@ -59,6 +59,7 @@ __all__ = [
     "PAIRWISE_SIDE_BY_SIDE_NOTE",
     "MalformedAnswer",
     "JudgeRequestError",
+    "JudgeEndpointUnreachable",
     "ChatClient",
     "JudgeClip",
     "JudgePair",
@@ -305,6 +306,8 @@ class SuccessJudge(_BaseJudge):
                                                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
             base["usage"] = usage
             return self._from_answer(clip, answer, base, attempts=attempts, cached=False, errors=errors)
+        except JudgeEndpointUnreachable:
+            raise  # the whole run's fault, not this clip's
         except Exception as exc:  # noqa: BLE001 - one bad clip must not stop the run
             return self._verdict(clip, status="error", error=f"{type(exc).__name__}: {exc}", **base)
 
@@ -484,6 +487,8 @@ class PairwiseJudge(_BaseJudge):
                                                "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
             base["usage"] = usage
             return self._from_answer(pair, swapped, answer, base, attempts=attempts, cached=False, errors=errors)
+        except JudgeEndpointUnreachable:
+            raise  # the whole run's fault, not this pair's
         except Exception as exc:  # noqa: BLE001 - one bad pair must not stop the run
             return self._verdict(pair, swapped, status="error", error=f"{type(exc).__name__}: {exc}", **base)
 

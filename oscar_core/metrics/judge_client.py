@@ -47,9 +47,11 @@ import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from ..errors import OscarError
 from ._common import MetricInputError
 
-__all__ = ["ENV_BASE_URL", "ENV_MODEL", "ENV_API_KEY", "CACHE_VERSION", "JudgeRequestError", "ChatClient"]
+__all__ = ["ENV_BASE_URL", "ENV_MODEL", "ENV_API_KEY", "CACHE_VERSION", "JudgeRequestError", "JudgeEndpointUnreachable",
+           "ChatClient"]
 
 ENV_BASE_URL = "OSCAR_JUDGE_BASE_URL"
 ENV_MODEL = "OSCAR_JUDGE_MODEL"
@@ -58,6 +60,15 @@ ENV_API_KEY = "OSCAR_JUDGE_API_KEY"
 #: Cache-format version; part of every cache key.
 CACHE_VERSION = 1
 _RETRY_HTTP = frozenset({408, 429})
+
+
+class JudgeEndpointUnreachable(OscarError, RuntimeError):
+    """The endpoint refused every connection and never answered: a fault of the whole run, not of one clip.
+
+    Raised by :meth:`ChatClient.complete` once ``max_attempts`` connections in a row have failed before any
+    HTTP response came back; judges let it through (it is not a per-clip verdict), so ``oscar eval`` stops at
+    once with a non-zero exit instead of spending every clip's retries on a server that is not there.
+    """
 
 
 class JudgeRequestError(RuntimeError):
@@ -97,14 +108,34 @@ def _chat_url(base_url: str) -> str:
     return url if url.endswith("/chat/completions") else url + "/chat/completions"
 
 
-def _retry_after(headers) -> float | None:
+def _retry_after(headers, now: float | None = None) -> float | None:
+    """Seconds to wait from a ``Retry-After`` header: delay-seconds or an HTTP date (RFC 9110 §10.2.3).
+
+    ``now``: the current time as a Unix timestamp (default: the clock). A date in the past waits 0 s;
+    a missing or unreadable header gives None.
+    """
     if headers is None:
         return None
     value = headers.get("Retry-After")
-    try:
-        return max(0.0, float(value)) if value is not None else None
-    except ValueError:
+    if value is None:
         return None
+    try:
+        seconds = float(value)
+    except ValueError:
+        from email.utils import parsedate_to_datetime
+
+        try:
+            when = parsedate_to_datetime(value.strip())
+        except (TypeError, ValueError, IndexError):
+            return None
+        if when is None:
+            return None
+        if when.tzinfo is None:  # HTTP dates are GMT; a date without a zone is read as such
+            import datetime
+
+            when = when.replace(tzinfo=datetime.timezone.utc)
+        seconds = when.timestamp() - (time.time() if now is None else now)
+    return max(0.0, seconds) if math.isfinite(seconds) else None
 
 
 def _message_text(body: dict):
@@ -211,6 +242,9 @@ class ChatClient:
         self._rng = random.Random()
         self._lock = threading.Lock()
         self.requests_sent = 0
+        self.responses = 0  # HTTP responses of any status: the endpoint is there
+        self._refused_in_a_row = 0
+        self._unreachable: str | None = None
         self.usage = {"prompt_tokens": 0, "completion_tokens": 0, "total_tokens": 0}
 
     def __repr__(self) -> str:  # never shows the key
@@ -245,6 +279,24 @@ class ChatClient:
             self.requests_sent += 1
             return True
 
+    def _answered(self) -> None:
+        with self._lock:
+            self.responses += 1
+            self._refused_in_a_row = 0
+
+    def _refused(self, cause: str) -> None:
+        """Count a failed connection; after ``max_attempts`` in a row with no response ever, the endpoint is
+        unreachable for the whole run (every later request fails at once)."""
+        with self._lock:
+            self._refused_in_a_row += 1
+            if self.responses == 0 and self._refused_in_a_row >= self.max_attempts and self._unreachable is None:
+                self._unreachable = (
+                    f"the judge endpoint {self.url} refused all {self._refused_in_a_row} connections and never "
+                    f"answered ({cause}); nothing was judged. Start the server, or point --judge-base-url / "
+                    f"${ENV_BASE_URL} at a running one, then run the same command again")
+        if self._unreachable is not None:
+            raise JudgeEndpointUnreachable(self._unreachable)
+
     def _send(self, messages: list) -> str:
         """One HTTP request through the SDK; returns the reply body's text (SDK exceptions propagate)."""
         raw = self._sdk.chat.completions.with_raw_response.create(
@@ -261,6 +313,8 @@ class ChatClient:
         attempt = timeouts = 0
         raw = None
         while True:
+            if self._unreachable is not None:
+                raise JudgeEndpointUnreachable(self._unreachable)
             if not self._take_request():
                 msg = f"request budget of {self.max_requests} requests spent (max_requests); not sent"
                 errors.append(msg)
@@ -270,6 +324,7 @@ class ChatClient:
             try:
                 text = self._send(messages)
             except openai.APIStatusError as exc:
+                self._answered()
                 try:
                     raw = self._redact(exc.response.text[:4000])
                 except Exception:  # noqa: BLE001 - the body is informational only
@@ -279,6 +334,7 @@ class ChatClient:
                 errors.append(f"HTTP {code}" + (f": {raw[:200]}" if raw else ""))
                 retry_after = _retry_after(exc.response.headers)
             except openai.APITimeoutError:
+                self._answered()  # connected: the server is there, only slow
                 timeouts += 1
                 errors.append(f"timeout: no complete response within {self.timeout:g} s")
                 retryable = timeouts <= self.max_timeout_retries
@@ -293,7 +349,9 @@ class ChatClient:
                 errors.append(f"connection: {type(cause).__name__}: {cause}")
                 retryable = True
                 raw = None
+                self._refused(f"{type(cause).__name__}: {cause}")
             else:
+                self._answered()
                 text = self._redact(text)
                 try:
                     body = json.loads(text)
