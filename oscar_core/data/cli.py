@@ -26,7 +26,8 @@ every stage: --engine local|ray, --workers N, --shard-size N; re-running a stage
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local: a process pool (default); ray: Ray Data (pip install \"oscar-wm[ray]\")")
-    p.add_argument("--workers", type=int, default=None, help="worker processes / Ray CPUs (default: all cores; 1: in-process)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes / Ray CPUs, one torch thread each (default: the cores idle now; "
+                        "1: in-process)")
     p.add_argument("--shard-size", type=int, default=32, help="episodes per shard, the unit of resumption (default 32)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 

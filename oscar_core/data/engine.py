@@ -191,7 +191,11 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         from .._log import progress_bar
 
         bar = progress_bar(total=len(tasks), desc=desc or stage_url, unit="shard", enabled=progress)
-        n_workers = min(workers or os.cpu_count() or 1, len(tasks))
+        from .._threads import check_threads, default_threads
+
+        if workers:
+            check_threads(workers, "--workers")
+        n_workers = min(workers or default_threads(), len(tasks))  # default: the cores idle now, one thread each
         if engine == "ray":
             results = _run_ray(fn, tasks, stage_url, n_workers)
             bar.update(len(results))

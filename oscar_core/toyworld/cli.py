@@ -61,8 +61,11 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     from .vae_train import VAETrainConfig
 
     d = VAETrainConfig()
-    for name in ("steps", "stop_at", "batch", "window", "seed", "threads", "base_dim", "eval_every", "eval_clips"):
+    for name in ("steps", "stop_at", "batch", "window", "seed", "base_dim", "eval_every", "eval_clips"):
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
+    v.add_argument("--threads", type=int, default=None,
+                   help="torch threads (default: the cores idle now, at least 1; more than that warns: on a busy "
+                        "machine they run slower, not faster)")
     for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
@@ -176,8 +179,13 @@ def cmd_generate(args) -> int:
 
 
 def cmd_train_vae(args) -> int:
+    from .._threads import check_threads, default_threads
     from .vae_train import VAETrainConfig, train_vae
 
+    if args.threads is None:
+        args.threads = default_threads()
+    else:
+        check_threads(args.threads, "toyworld train-vae --threads")
     cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr,
                          kl=args.kl, chroma=args.chroma, foreground=args.foreground, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
