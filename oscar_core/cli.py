@@ -139,8 +139,8 @@ def _add_output_flags(parser: argparse.ArgumentParser, default) -> None:
         parser.add_argument("-q", "--quiet", action="count", default=0 if default is None else default,
                             help="less output: -q warnings and results only, -qq errors and results only")
     if "--no-progress" in have:
-        for a in parser._actions:
-            if "--no-progress" in a.option_strings:
+        for a in parser._actions:  # `render` has its own --progress/--no-progress (dest "progress"): left alone
+            if "--no-progress" in a.option_strings and a.dest == "no_progress":
                 a.default = argparse.SUPPRESS
     else:
         parser.add_argument("--no-progress", action="store_true", default=False if default is None else default,

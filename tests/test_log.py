@@ -130,3 +130,7 @@ def test_every_command_takes_the_same_output_flags():
     assert args.no_progress and args.quiet == 1  # the top-level spelling is not overwritten by the leaf's default
     args = parser.parse_args(["toyworld", "baseline", "clips", "--out", "x", "--no-progress"])
     assert args.no_progress and args.quiet == 0
+    # a command with its own --progress/--no-progress pair keeps its default
+    args = parser.parse_args(["render", "--embodiment", "toyarm", "--trajectory", "t.npz", "--camera", "c.json",
+                              "--out", "o.mp4"])
+    assert args.progress is None and args.no_progress is False
