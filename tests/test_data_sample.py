@@ -35,6 +35,9 @@ def test_the_quick_start_runs_offline_and_every_episode_meets_its_fate(tmp_path,
     assert fates == expected
     assert len(list(ClipSet(tmp_path / "clips"))) == list(expected.values()).count("kept")
     assert main(["data", "sample-dataset", str(data)]) == 2  # never written over
+    for stage in ("ingest", "filter", "dedup", "export"):  # each stage keeps a timestamped log in the run folder
+        (log,) = (run / "logs").glob(f"data-{stage}-*.log")
+        assert "shards done" in log.read_text(), stage
 
 
 def test_dedup_without_an_embedder_choice_needs_a_model(tmp_path, capsys):

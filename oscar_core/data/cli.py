@@ -37,6 +37,17 @@ def _kw(args) -> dict:
             "progress": not args.no_progress, "plugin_paths": tuple(args.plugin or ())}
 
 
+def _run_log(run: str, stage: str):
+    """``RUN/logs/data-<stage>-<UTC>.log`` for a local run folder (``oscar_core._log.run_log``); nothing for a URL."""
+    import contextlib
+
+    from .._log import run_log
+
+    if "://" in str(run) and not str(run).startswith("file://"):
+        return contextlib.nullcontext()
+    return run_log(str(run).removeprefix("file://"), f"data-{stage}")
+
+
 def _report(run, what: str) -> None:
     print(f"{what}: {len(run.processed)} shards done now, {len(run.skipped)} already done"
           + (f", {len(run.incomplete)} unfinished (run again)" if run.incomplete else ""))
@@ -50,7 +61,9 @@ def _report(run, what: str) -> None:
 def cmd_ingest(args) -> int:
     from .run import run_ingest
 
-    _report(run_ingest(args.source, args.reader, args.out, **_kw(args)), "ingest")
+    with _run_log(args.out, "ingest"):
+        res = run_ingest(args.source, args.reader, args.out, **_kw(args))
+    _report(res, "ingest")
     return 0
 
 
@@ -58,7 +71,9 @@ def cmd_filter(args) -> int:
     from .filters import FilterConfig
     from .run import run_filter
 
-    _report(run_filter(args.run, FilterConfig.from_overrides(args.set), **_kw(args)), "filter")
+    with _run_log(args.run, "filter"):
+        res = run_filter(args.run, FilterConfig.from_overrides(args.set), **_kw(args))
+    _report(res, "filter")
     return 0
 
 
@@ -71,7 +86,8 @@ def cmd_dedup(args) -> int:
                          "found none (or use --embedder trajectory, which needs no weights)")
     embedder = SiglipEmbedder(args.siglip, args.device) if args.embedder == "siglip" else TrajectoryEmbedder()
     cfg = DedupConfig(cosine=args.cosine, rms_alpha=args.rms_alpha, rms_floor=args.rms_floor, nprobe=args.nprobe)
-    res, summary = run_dedup(args.run, embedder, cfg, **_kw(args))
+    with _run_log(args.run, "dedup"):
+        res, summary = run_dedup(args.run, embedder, cfg, **_kw(args))
     _report(res, "dedup")
     print("dedup: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
     return 0
@@ -84,7 +100,8 @@ def cmd_caption(args) -> int:
     cfg = CaptionConfig(base_url=args.endpoint, model=args.model, fps=args.fps, long_fps=args.long_fps,
                         max_frames=args.max_frames, budget=args.budget, max_retries=args.retries,
                         api_key_env=args.api_key_env)
-    res = run_caption(args.run, cfg, **_kw(args))
+    with _run_log(args.run, "caption"):
+        res = run_caption(args.run, cfg, **_kw(args))
     _report(res, "caption")
     return 0 if not res.incomplete else 3
 
@@ -94,8 +111,10 @@ def cmd_export(args) -> int:
     from .run import run_export
 
     size = parse_size(args.size) if args.size else None
-    _report(run_export(args.run, args.out, size=size, render_skeleton=args.render_skeleton, video_codec=args.codec,
-                       **_kw(args)), "export")
+    with _run_log(args.run, "export"):
+        res = run_export(args.run, args.out, size=size, render_skeleton=args.render_skeleton, video_codec=args.codec,
+                         **_kw(args))
+    _report(res, "export")
     return 0
 
 
