@@ -27,7 +27,6 @@ import importlib
 import importlib.util
 import json
 import os
-import sys
 from pathlib import Path
 
 from .._log import progress_bars_enabled, run_log
