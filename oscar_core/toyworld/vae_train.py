@@ -322,7 +322,7 @@ def write_reconstructions(clipset, vae_folder, out, split: str | None = "heldout
     from .rollouts import spread
 
     recs = spread([r for r in cs if split is None or r.meta.get("split") == split], limit)
-    for r in recs:
+    for r in progress_bar(recs, desc="toyworld reconstruct", unit="clip"):
         rgb = cs.load(r, skeleton=False).rgb
         with torch.no_grad():
             y = VideoVAE.to_uint8(vv.reconstruct(VideoVAE.to_pixels(rgb)))[0]
