@@ -50,3 +50,20 @@ def test_the_toy_packager_writes_the_block():
     md = model_card_markdown("my-toy", {"license": "Apache-2.0", "embodiments": ["toyarm"], "base": None}, {}, None)
     meta, body = front_matter(md)
     assert meta["library_name"] == "oscar-wm" and "toy-world" in meta["tags"] and body.lstrip().startswith("# my-toy")
+
+
+def test_an_exported_model_folder_has_a_card_with_the_block(tmp_path):
+    import oscar_zoo
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model._manifest import read_manifest
+    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny-ft", embodiments=("franka",), license="MIT",
+                                                   base="nvidia/Cosmos-Predict2.5-2B@main"))
+    folder = oscar_zoo.export(model, tmp_path / "m")
+    meta, body = front_matter((folder / "README.md").read_text())
+    assert meta["license"] == "mit" and meta["base_model"] == "nvidia/Cosmos-Predict2.5-2B"
+    assert "embodiment:franka" in meta["tags"] and body.lstrip().startswith("# tiny-ft")
+    assert "README.md" not in read_manifest(folder)  # documentation: a download fetches the weights' files only
+    oscar_zoo.load(str(folder))  # and the folder still loads

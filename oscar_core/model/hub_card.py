@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import yaml
 
-__all__ = ["LIBRARY_NAME", "PIPELINE_TAG", "hub_metadata", "hub_license", "with_hub_metadata"]
+__all__ = ["LIBRARY_NAME", "PIPELINE_TAG", "hub_metadata", "hub_license", "with_hub_metadata", "default_model_card"]
 
 LIBRARY_NAME = "oscar-wm"
 PIPELINE_TAG = "image-to-video"
@@ -61,3 +61,21 @@ def with_hub_metadata(markdown: str, card: dict, *, tags=()) -> str:
             body = body[end + len("\n---\n"):].lstrip("\n")
     block = yaml.safe_dump(hub_metadata(card, tags=tags), sort_keys=False, allow_unicode=True)
     return f"---\n{block}---\n\n{body}"
+
+
+def default_model_card(card: dict) -> str:
+    """The ``README.md`` an exported model folder gets when it has none (``OscarWorldModel.save_pretrained``):
+    the metadata block, what the folder is and how to load it. Replace it with a real card before sharing."""
+    name = card.get("name") or "oscar-model"
+    emb = ", ".join(card.get("embodiments") or []) or "not recorded"
+    size = f"{card.get('width')}x{card.get('height')}" if card.get("width") else "not recorded"
+    lines = [f"# {name}", "",
+             "An OSCAR skeleton-conditioned video world model in oscar's folder layout (`oscar-wm` on the "
+             "package index).", "",
+             f"- embodiments: {emb}", f"- chunk: {card.get('chunk_frames')} frames at {size}, {card.get('fps')} fps",
+             f"- condition: {card.get('condition', 'skeleton')}; base: {card.get('base') or 'none recorded'}",
+             f"- licence: {card.get('license') or 'not recorded'}", "",
+             "```python", "import oscar_zoo", "", 'model = oscar_zoo.load("<this folder or its Hub repo>")', "```", "",
+             "This card was written by `save_pretrained`; say how the model was trained and what it was measured to "
+             "do before sharing it.", ""]
+    return with_hub_metadata("\n".join(lines), card)
