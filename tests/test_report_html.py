@@ -183,3 +183,37 @@ def test_a_missing_thumbnail_fails_the_check(data_run, tmp_path):
     next((broken / "stats_media").rglob("*.png")).unlink()
     check = open_page(broken / "stats.html", tmp_path / "broken.png")
     assert len([i for i in check.images if not i["ok"]]) == 1 and any("image" in p for p in check.problems)
+
+
+def test_the_filters_keep_only_the_chosen_cells(eval_report):
+    """Choosing a verdict, a policy or a session hides every other cell (and sessions left empty)."""
+    import tempfile
+
+    from playwright.sync_api import sync_playwright
+
+    from _browser import FLAGS
+
+    report = report_json(eval_report)
+    exe = require_browser()
+    with tempfile.TemporaryDirectory() as profile, sync_playwright() as p:
+        ctx = p.chromium.launch_persistent_context(profile, executable_path=exe, headless=True, args=FLAGS)
+        try:
+            page = ctx.new_page()
+            page.goto((eval_report / "report.html").resolve().as_uri())
+
+            def shown():
+                return sorted(page.eval_on_selector_all(".item:not([hidden])", "els => els.map(e => e.dataset.cell)"))
+
+            assert shown() == sorted(c["cell"] for c in report["cells"])
+            page.select_option("select[data-filter=verdict]", "failure")
+            failures = sorted(c["cell"] for c in report["cells"] if c["wm_success"] is not None and not c["wm_success"])
+            assert failures and shown() == failures
+            assert page.inner_text("#shown") == str(len(shown()))
+            page.select_option("select[data-filter=verdict]", "")
+            page.select_option("select[data-filter=policy]", "good")
+            page.select_option("select[data-filter=session]", "s2")
+            assert shown() == ["s2/good"]
+            hidden = page.eval_on_selector_all("section[data-group][hidden]", "els => els.map(e => e.dataset.group)")
+            assert hidden == ["s1"]
+        finally:
+            ctx.close()
