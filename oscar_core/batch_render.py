@@ -12,6 +12,20 @@ memory does not grow with its length; each worker process loads the plugins
 once and keeps the embodiments it has used. A failing episode is recorded in
 its :class:`EpisodeResult` and the others go on.
 
+Resuming: with ``resume=True``, after each rendered episode a record
+``.<output name>.oscar-render.json`` is written beside the output with the episode's fingerprint — the sha256 of
+its trajectory and camera files, its embodiment, size, fps, resize,
+format and condition (skeleton or mesh), the encoder settings (preset, crf, yuv), strictness, FK device kind,
+plugin paths and a format version (threads and chunk size are left out: they
+do not change the frames). ``render_many(resume=True)`` (``oscar render``
+batches by default; ``--no-resume`` redoes everything) skips an episode whose
+output exists and whose record matches, and renders it again otherwise.
+Worker processes come from a fork server (never a plain fork after threads
+exist) and exit when the process that made the pool dies. As with spawn
+(macOS, Windows), each worker imports the calling script as ``__mp_main__``:
+a script calling ``render_many(workers > 1)`` keeps its top-level work under
+``if __name__ == "__main__":``.
+
 A manifest (``read_manifest``) is JSONL or CSV; see docs/formats.md.
 """
 
@@ -27,6 +41,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
+from . import _stage
 from .errors import InputFileError, OscarError, OutputPathError
 
 __all__ = [
@@ -40,7 +55,7 @@ __all__ = [
     "summarise",
 ]
 
-MANIFEST_FIELDS = ("embodiment", "trajectory", "camera", "out", "size", "fps", "resize", "format")
+MANIFEST_FIELDS = ("embodiment", "trajectory", "camera", "out", "size", "fps", "resize", "format", "condition")
 REQUIRED_FIELDS = ("embodiment", "trajectory", "camera", "out")
 
 
@@ -51,7 +66,8 @@ class EpisodeSpec:
     embodiment: registered name; trajectory: ``.npz`` path; camera: ``.json`` path;
     out: output path (``.mp4``, ``.mkv`` or a name ending in ``/``);
     size: (width, height) pixels or None (the calibration's); fps: None (the
-    trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png".
+    trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png";
+    condition: None (``RenderOptions.condition``), "skeleton" or "mesh" (see :mod:`oscar_core.conditions`).
     """
 
     embodiment: str
@@ -62,6 +78,7 @@ class EpisodeSpec:
     fps: float | None = None
     resize: str = "crop"
     format: str | None = None
+    condition: str | None = None
 
 
 @dataclass(frozen=True)
@@ -72,7 +89,8 @@ class RenderOptions:
     :class:`oscar_core.video.VideoWriter`); threads: encoder threads per episode
     (None: 1 with several workers, else automatic); strict: frames where the camera
     sees nothing of the robot are an error; chunk_frames: frames per streamed chunk;
-    device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins.
+    device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins;
+    condition: the condition video of episodes that do not name one ("skeleton" or "mesh").
     """
 
     preset: str | None = None
@@ -83,6 +101,7 @@ class RenderOptions:
     chunk_frames: int | None = None
     device: str = "cpu"
     plugin_paths: tuple[str, ...] = ()
+    condition: str = "skeleton"
 
 
 @dataclass
@@ -101,6 +120,7 @@ class EpisodeResult:
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
     empty_frames: list[int] = field(default_factory=list)
+    skipped: bool = False  # resumed: the output and its record matched this episode's fingerprint; not rendered again
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -132,12 +152,14 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
     rendering. Warnings (joint limits, an empty view) are caught and returned in
     the result, not printed. Returns an :class:`EpisodeResult` with ``ok=True``.
     """
-    from .render_stream import DEFAULT_CHUNK_FRAMES, RenderStats, iter_skeleton_chunks
+    from .conditions import check_condition, chunk_renderer
+    from .render_stream import DEFAULT_CHUNK_FRAMES, RenderStats
     from .trajectory import load_trajectory
     from .video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output
 
     t0 = time.perf_counter()
     check_output(spec.out, format=spec.format)  # suffix and folder, before reading anything
+    iter_chunks = chunk_renderer(check_condition(spec.condition or options.condition, "condition"))
     registry = registry if registry is not None else _registry(options.plugin_paths)
     emb = registry.get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)
@@ -150,9 +172,9 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
                              preset=options.preset or DEFAULT_PRESET, yuv=options.yuv or DEFAULT_YUV,
                              threads=0 if options.threads is None else options.threads, size=size)
         with writer:
-            for chunk in iter_skeleton_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
-                                              camera_source=str(spec.camera), strict=options.strict, stats=stats,
-                                              chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
+            for chunk in iter_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
+                                     camera_source=str(spec.camera), strict=options.strict, stats=stats,
+                                     chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
                 writer.write(chunk)
     seen, messages = set(), []
     for w in caught:
@@ -179,6 +201,61 @@ def _init_worker() -> None:
 
         cv2.setNumThreads(1)
     except ImportError:  # pragma: no cover - cv2 is a dependency
+        pass
+
+
+# -------------------------------------------------------------------- resume
+
+
+def record_path(spec: EpisodeSpec) -> Path:
+    """The completion record of ``spec``'s output: ``.<name>.oscar-render.json`` beside it."""
+    out = Path(spec.out.rstrip("/" + os.sep))
+    return out.with_name(f".{out.name}.oscar-render.json")
+
+
+def _file_sha256(path: str) -> str | None:
+    import hashlib
+
+    try:
+        with open(path, "rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    except OSError:
+        return None
+
+
+def episode_parts(spec: EpisodeSpec, options: RenderOptions) -> dict:
+    """What ``spec``'s output depends on (its fingerprint parts; see the module docstring)."""
+    return {"format_version": _stage.FORMAT_VERSION, "embodiment": spec.embodiment,
+            "trajectory": _file_sha256(spec.trajectory), "camera": _file_sha256(spec.camera),
+            "size": list(spec.size) if spec.size else None, "fps": spec.fps, "resize": spec.resize,
+            "format": spec.format, "condition": spec.condition or options.condition, "preset": options.preset,
+            "crf": options.crf, "yuv": options.yuv, "strict": options.strict,
+            "device": str(options.device).split(":")[0], "plugin_paths": list(options.plugin_paths)}
+
+
+def _resumed(index: int, spec: EpisodeSpec, parts: dict) -> EpisodeResult | None:
+    """The recorded result when ``spec``'s output exists and its record has this fingerprint, else None."""
+    rec = record_path(spec)
+    if not rec.is_file() or not Path(spec.out.rstrip("/" + os.sep)).exists():
+        return None
+    try:
+        got = json.loads(rec.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(got, dict) or got.get("fingerprint") != _stage.fingerprint(parts):
+        return None
+    return EpisodeResult(index, spec, True, got.get("out"), int(got.get("frames", 0)), got.get("width"),
+                         got.get("height"), got.get("fps"), 0.0, skipped=True)
+
+
+def _write_record(r: EpisodeResult, parts: dict) -> None:
+    from ._atomic import atomic_write_bytes
+
+    body = {"fingerprint": _stage.fingerprint(parts), "parts": parts, "out": r.out, "frames": r.frames,
+            "width": r.width, "height": r.height, "fps": r.fps}
+    try:
+        atomic_write_bytes(record_path(r.spec), json.dumps(body, indent=1).encode())
+    except OSError:  # pragma: no cover - the video itself was written; a missing record only costs a re-render
         pass
 
 
@@ -214,7 +291,7 @@ def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
 
 def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOptions(), *, workers: int = 1,
                 progress: bool | None = False, on_result: Callable[[EpisodeResult], None] | None = None,
-                registry=None) -> list[EpisodeResult]:
+                registry=None, resume: bool = False) -> list[EpisodeResult]:
     """Render every spec; returns one :class:`EpisodeResult` per spec, in input order.
 
     workers: processes (1: in this process, reusing ``registry`` if given).
@@ -227,6 +304,9 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
     are recorded in its result; the others go on. Problems with the batch as a
     whole (two episodes writing the same output, an output under a file) raise
     :class:`OutputPathError` before anything is rendered.
+    resume: skip an episode whose output and record match its fingerprint
+    (its result has ``skipped=True``) and write each rendered episode's
+    record (without ``resume`` no record is read or written).
     """
     specs = list(specs)
     _prepare_outputs(specs)
@@ -240,8 +320,12 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
 
     bar = None
 
+    parts = [episode_parts(s, options) for s in specs]
+
     def done(r: EpisodeResult) -> None:
         results[r.index] = r
+        if resume and r.ok and not r.skipped:
+            _write_record(r, parts[r.index])
         bar.update(1)
         if not r.ok:
             bar.set_postfix_str(f"{sum(1 for x in results if x is not None and not x.ok)} failed")
@@ -252,21 +336,33 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
         return tqdm(total=len(specs), desc="rendering", unit="episode",
                     disable=None if progress is None else not progress)
 
+    todo = []
+    for i, s in enumerate(specs):
+        r = _resumed(i, s, parts[i]) if resume else None
+        if r is None:
+            todo.append(i)
+        else:
+            results[i] = r
     try:
-        if workers == 1 or len(specs) <= 1:
-            if registry is None:
+        bar = new_bar()
+        for r in results:
+            if r is not None:
+                bar.update(1)
+                if on_result is not None:
+                    on_result(r)
+        if workers == 1 or len(todo) <= 1:
+            if registry is None and todo:
                 registry = _registry(options.plugin_paths)
-            bar = new_bar()
-            for i, s in enumerate(specs):
-                done(_safe_render(i, s, options, registry))
+            for i in todo:
+                done(_safe_render(i, specs[i], options, registry))
         else:
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
             ctx = _pool_context(specs, options)
-            with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx,
-                                     initializer=_init_worker) as pool:
-                futures = {pool.submit(_safe_render, i, s, options): i for i, s in enumerate(specs)}
-                bar = new_bar()  # after the workers exist: tqdm's monitor thread is not forked
+            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx,
+                                     initializer=_stage.worker_initializer,
+                                     initargs=(os.getpid(), _init_worker)) as pool:
+                futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
                 for fut in as_completed(futures):
                     try:
                         done(fut.result())
@@ -279,38 +375,41 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
     return [r for r in results if r is not None]
 
 
+# modules a render worker needs: imported once by the fork server, inherited by every worker it forks
+_PRELOAD = ["numpy", "av", "cv2", "oscar_core.batch_render", "oscar_core.registry", "oscar_core.render_stream",
+            "oscar_core.trajectory", "oscar_core.video"]
+
+
 def _pool_context(specs: Sequence[EpisodeSpec], options: RenderOptions):
-    """``fork`` on Linux for CPU rendering, after loading the plugins, the embodiments used
-    and the encoder here once, so workers start with them (a spawned worker re-imports
-    everything: about 0.6 s of CPU each); ``spawn`` elsewhere and for CUDA."""
+    """A fork server with the renderer's imports preloaded (spawn where there is none, and for CUDA FK).
+
+    A plain ``fork`` after this process has threads (tqdm's monitor, torch's
+    or OpenCV's pools) can copy a held lock into the child and hang it
+    forever — it did, in a second pool made in the same process; a fork
+    server is a clean single-threaded process, so pools can be made again and
+    again. Each worker loads the plugins and embodiments it uses once (and,
+    for ``--condition mesh``, reads and simplifies their meshes once).
+    """
     import multiprocessing as mp
-    import sys
 
-    if not sys.platform.startswith("linux") or str(options.device).split(":")[0] != "cpu":
+    if str(options.device).split(":")[0] != "cpu":
         return mp.get_context("spawn")
-    import av  # noqa: F401 - imported once, shared by the forked workers
-    import cv2  # noqa: F401
-
-    registry = _registry(options.plugin_paths)
-    for name in dict.fromkeys(s.embodiment for s in specs):
-        try:
-            registry.get(name).edges  # parses its kinematic description once
-        except Exception:  # noqa: BLE001 - the episode reports it
-            pass
-    return mp.get_context("fork")
+    return _stage.pool_context(_PRELOAD)
 
 
 def summarise(results: Sequence[EpisodeResult], seconds: float) -> dict:
-    """Counts, frames and rates of a batch; ``seconds`` is its wall time."""
+    """Counts, frames and rates of a batch; ``seconds`` is its wall time. ``ok`` includes the episodes skipped as
+    unchanged (``skipped``); ``frames`` and the rates count only episodes rendered now."""
     ok = [r for r in results if r.ok]
-    frames = sum(r.frames for r in ok)
+    frames = sum(r.frames for r in ok if not r.skipped)  # frames rendered now: rates never count skipped work
     return {
         "episodes": len(results),
         "ok": len(ok),
         "failed": len(results) - len(ok),
+        "skipped": sum(1 for r in ok if r.skipped),
         "frames": frames,
         "seconds": round(seconds, 3),
-        "episodes_per_second": round(len(ok) / seconds, 3) if seconds > 0 else None,
+        "episodes_per_second": round(sum(1 for r in ok if not r.skipped) / seconds, 3) if seconds > 0 else None,
         "frames_per_second": round(frames / seconds, 1) if seconds > 0 else None,
         "warnings": sum(len(r.warnings) for r in results),
     }
@@ -367,15 +466,20 @@ def _spec_from_row(row: dict, where: str, source: str, base: Path) -> EpisodeSpe
     fmt = row.get("format") or None
     if fmt not in (None, "mp4", "mkv", "png"):
         raise InputFileError(source, f"{where}.format", "mp4, mkv or png", repr(fmt))
+    from .conditions import CONDITIONS
+
+    condition = row.get("condition") or None
+    if condition not in (None, *CONDITIONS):
+        raise InputFileError(source, f"{where}.condition", " or ".join(CONDITIONS), repr(condition))
     return EpisodeSpec(row["embodiment"].strip(), resolve(row["trajectory"]), resolve(row["camera"]),
-                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt)
+                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt, condition)
 
 
 def read_manifest(path) -> list[EpisodeSpec]:
     """Episode specs from a ``.jsonl`` (one JSON object per line) or ``.csv`` (header row) manifest.
 
     Fields: embodiment, trajectory, camera, out (required); size, fps, resize,
-    format (optional). Relative paths are relative to the manifest's folder.
+    format, condition (optional). Relative paths are relative to the manifest's folder.
     Blank lines and JSONL lines starting with ``#`` are skipped. Raises
     :class:`InputFileError` naming the file, the line and the field.
     """

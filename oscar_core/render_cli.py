@@ -13,12 +13,13 @@ from .errors import OscarError
 EPILOG = """examples:
   oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json --out skel.mp4 --size 512x288
   oscar render ... --out skel.mkv              (lossless FFV1)
+  oscar render ... --condition mesh --out mesh.mp4   (the robot's URDF visual geometry instead of the skeleton)
   oscar render ... --out frames/               (PNG frames; or --format png)
   oscar render --manifest episodes.jsonl --workers 2 --json
   oscar render --embodiment franka --trajectories trajs/ --out videos/ --size 512x288 --workers 2
 
 A manifest is JSONL or CSV with the fields embodiment, trajectory, camera, out
-(and optionally size, fps, resize, format); see docs/formats.md. With
+(and optionally size, fps, resize, format, condition); see docs/formats.md. With
 --trajectories each DIR/<stem>.npz uses DIR/<stem>.json, else DIR/camera.json,
 else --camera, and writes OUT/<stem>.mp4 (or .mkv, or <stem>/ with --format).
 Exit status: 0 all written, 1 some episodes failed (listed), 2 bad arguments.
@@ -29,7 +30,8 @@ def add_render_parser(sub) -> None:
     """Register ``oscar render`` on the sub-command parsers ``sub``."""
     from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
-    r = sub.add_parser("render", help="render skeleton videos from trajectories (one, or many with a worker pool)",
+    r = sub.add_parser("render", help="render skeleton (or mesh) condition videos from trajectories "
+                                      "(one, or many with a worker pool)",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     r.add_argument("--embodiment", help="embodiment name (see `oscar embodiments`)")
     r.add_argument("--trajectory", help="trajectory .npz (docs/formats.md)")
@@ -40,6 +42,9 @@ def add_render_parser(sub) -> None:
     r.add_argument("--trajectories", metavar="DIR", help="render every DIR/*.npz (cameras beside them) into --out")
     r.add_argument("--format", choices=("mp4", "mkv", "png"),
                    help="output format instead of the suffix (png: a folder of PNG frames)")
+    r.add_argument("--condition", choices=("skeleton", "mesh"), default="skeleton",
+                   help="condition video: the skeleton (default) or the robot's visual geometry (mesh; "
+                        "needs <visual> elements and the mesh extra: docs/mesh-condition.md)")
     r.add_argument("--size", help="output WIDTHxHEIGHT, e.g. 512x288 (default: the calibration's image size)")
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)")
@@ -56,6 +61,9 @@ def add_render_parser(sub) -> None:
     r.add_argument("--strict", action="store_true",
                    help="a frame where the camera sees nothing of the robot is an error (default: a warning)")
     r.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    r.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="batches: skip episodes whose output and its .<name>.oscar-render.json record match the "
+                        "inputs and settings (default); --no-resume renders every episode again")
     r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
     r.set_defaults(func=cmd_render)
@@ -101,7 +109,7 @@ def _options(args):
     from .batch_render import RenderOptions
 
     return RenderOptions(preset=args.preset, crf=args.crf, yuv=args.yuv, strict=args.strict, device=args.device,
-                         plugin_paths=tuple(args.plugin or ()))
+                         plugin_paths=tuple(args.plugin or ()), condition=args.condition)
 
 
 def cmd_render(args) -> int:
@@ -127,7 +135,7 @@ def cmd_render(args) -> int:
 
     # --progress / --no-progress of this command, else the one progress setup (-q, OSCAR_DISABLE_PROGRESS_BARS, tty)
     progress = args.progress if args.progress is not None else progress_bars_enabled()
-    results = render_many(specs, options, workers=args.workers, progress=progress)
+    results = render_many(specs, options, workers=args.workers, progress=progress, resume=args.resume)
     summary = summarise(results, time.perf_counter() - t0)
     if args.json:
         print(json.dumps({"summary": summary, "episodes": [r.to_dict() for r in results]}, indent=2))
@@ -137,7 +145,8 @@ def cmd_render(args) -> int:
                 print(f"warning: episode {r.index} ({r.spec.trajectory}): {w}", file=sys.stderr)
             if not r.ok:
                 print(f"error: episode {r.index} ({r.spec.trajectory} -> {r.spec.out}): {r.error}", file=sys.stderr)
-        print(f"rendered {summary['ok']} of {summary['episodes']} episodes ({summary['failed']} failed), "
+        skipped = f", {summary['skipped']} unchanged and skipped" if summary["skipped"] else ""
+        print(f"rendered {summary['ok']} of {summary['episodes']} episodes ({summary['failed']} failed{skipped}), "
               f"{summary['frames']} frames in {summary['seconds']:.2f} s: "
               f"{summary['episodes_per_second'] or 0:.2f} episodes/s, {summary['frames_per_second'] or 0:.0f} frames/s")
     return 0 if summary["failed"] == 0 else 1
@@ -147,7 +156,7 @@ def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
     from .batch_render import _registry
     from .pipeline import fit_image, overlay_skeleton
-    from .render_stream import iter_skeleton_chunks
+    from .conditions import chunk_renderer
     from .trajectory import load_trajectory
     from .video import DEFAULT_PRESET, VideoWriter, check_output, read_video, video_info
 
@@ -168,8 +177,9 @@ def _render_overlay(args, spec) -> int:
     with VideoWriter(spec.out, fps, format=spec.format, preset=args.preset or DEFAULT_PRESET, crf=args.crf,
                      yuv=args.yuv, size=tuple(size)) as writer:
         t = 0
-        for chunk in iter_skeleton_chunks(emb, traj, cam, tuple(size), resize_mode=spec.resize, device=args.device,
-                                          camera_source=str(spec.camera), strict=args.strict):
+        for chunk in chunk_renderer(args.condition)(emb, traj, cam, tuple(size), resize_mode=spec.resize,
+                                                    device=args.device, camera_source=str(spec.camera),
+                                                    strict=args.strict):
             H, W = chunk.shape[1:3]
             # the real frames are fitted to the output size exactly as the calibration was (--resize)
             real = np.stack([fit_image(f, W, H, spec.resize) for f in rgb[t:t + len(chunk)]])

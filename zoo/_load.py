@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING
 from oscar_core.model._files import MODEL_FILE
 from oscar_core.model._manifest import read_manifest
 
-
 from ._fetch import fetch, is_offline, resolve
 from ._registry import register
 from ._table import COSMOS_TEXT_ENCODER_ID, CheckpointSpec

@@ -47,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .. import _stage
+from .._atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._log import get_logger, progress_bar
 from ..metrics._common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
@@ -84,13 +85,7 @@ def video_path(out: Path, cell: Cell) -> Path:
     return Path(out) / "rollouts" / cell.session / f"{cell.policy}{VIDEO_SUFFIX}"
 
 
-def model_identity(spec, revision: str | None = None) -> str:
-    """A string that changes when the model's weights can: a folder's manifest digest, else ``name@revision``."""
-    p = Path(str(spec))
-    manifest = p / "oscar_manifest.json"
-    if p.is_dir() and manifest.is_file():
-        return f"folder-manifest:{file_digest(manifest)}"
-    return f"{spec}@{revision or 'pinned'}"
+model_identity = _stage.model_identity  # shared with toyworld rollouts (one definition, in the bottom layer)
 
 
 def rollout_key(cell: Cell, *, model_id: str, sampler: dict, chunk_frames, size, fps) -> str:
@@ -155,7 +150,8 @@ def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_path
     """Render the cell's skeleton video and roll the model out; returns (frames (T, H, W, 3) uint8, fps)."""
     from ..errors import InputFileError
     from ..model._image import read_image
-    from ..pipeline import fit_image, render_skeleton_video
+    from ..conditions import condition_video
+    from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
 
@@ -170,7 +166,9 @@ def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_path
     card = model.card
     if size is None:
         size = (card.width, card.height) if card.width and card.height else cam_size
-    skeleton = render_skeleton_video(emb, traj, camera, size, resize_mode="crop", camera_source=str(cell.camera))
+    # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
+    skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
+                               resize_mode="crop", camera_source=str(cell.camera))
     first = fit_image(first, size[0], size[1], "crop")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
@@ -212,6 +210,9 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     _check_embodiments(manifest, plugin_paths)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # temporaries of killed runs (videos, cell records, report files), even when every cell is then reused
+    for folder in (out, *sorted((out / "cells").glob("*")), *sorted((out / "rollouts").glob("*"))):
+        sweep_dead_temporaries(folder)
     if model is None and model_spec is None:
         raise MetricInputError("model", "model", "a world model or a model spec (zoo name, Hub id or folder)", "none")
     sampler = sampler or SamplerConfig()

@@ -39,7 +39,7 @@ __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 
 FORMAT = "oscar-world-model"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-CONDITIONS = ("skeleton", "latent_action", "none")
+CONDITIONS = ("skeleton", "mesh", "latent_action", "none")  # mesh: the robot's visual geometry in the skeleton stream
 
 
 @dataclass(frozen=True)
@@ -353,12 +353,14 @@ class OscarWorldModel:
             from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
-        from ..pipeline import render_skeleton_video
+        from ..conditions import condition_video
 
         if size is None and self.card.width and self.card.height:
             size = (self.card.width, self.card.height)
-        return {"skeleton": render_skeleton_video(embodiment, trajectory, camera, size, resize_mode=resize_mode,
-                                                  camera_source=camera_source)}
+        # the card's condition video (skeleton, or mesh) goes in the skeleton stream
+        name = "mesh" if self.card.condition == "mesh" else "skeleton"
+        return {"skeleton": condition_video(name, embodiment, trajectory, camera, size, resize_mode=resize_mode,
+                                            camera_source=camera_source)}
 
     def rollout_trajectory(self, first_frame, trajectory, camera, embodiment, prompt_embeds: torch.Tensor | None = None,
                            *, size: tuple[int, int] | None = None, resize_mode: str = "crop", **options):
