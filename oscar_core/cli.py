@@ -8,6 +8,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from ._log import cli_output
 from .errors import OscarError
 
 EXAMPLES = """examples:
@@ -23,6 +24,8 @@ EXAMPLES = """examples:
   oscar eval video pred.mp4 gt.mp4
   oscar train configs/train/tiny-cpu.yaml
   oscar --plugin ./my_robot.py embodiments (load a one-file plugin)
+  oscar -q toyworld generate ...   (warnings and results only; -v for debug lines, also: OSCAR_VERBOSITY)
+  oscar toyworld generate ... --no-progress   (no progress bars; also when stderr is not a terminal)
 """
 
 
@@ -79,6 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--plugin", action="append", metavar="PATH",
                    help="load a one-file plugin (.py) or a folder of them; repeatable (also: OSCAR_PLUGINS)")
+    _add_output_flags(p, None)
     sub = p.add_subparsers(dest="command", required=True)
 
     e = sub.add_parser("embodiments", help="list installed embodiments",
@@ -112,7 +116,49 @@ def build_parser() -> argparse.ArgumentParser:
     add_data_parser(sub)
     add_train_parser(sub)
     add_toyworld_parser(sub)
+    for leaf in _leaves(p):
+        _add_output_flags(leaf, argparse.SUPPRESS)
     return p
+
+
+def _add_output_flags(parser: argparse.ArgumentParser, default) -> None:
+    """``-v/--verbose``, ``-q/--quiet`` and ``--no-progress``: the one flag family of every command.
+
+    On the top parser they default to 0/False; on each sub-command they are
+    repeated with ``default=SUPPRESS`` so ``oscar -q data run ...`` and
+    ``oscar data run ... -q`` both work (argparse would otherwise let the
+    sub-command's default overwrite the top-level value). A sub-command that
+    already declares ``--no-progress`` keeps its help text; only its default
+    is suppressed.
+    """
+    have = {opt for a in parser._actions for opt in a.option_strings}
+    if "-v" not in have:
+        parser.add_argument("-v", "--verbose", action="count", default=0 if default is None else default,
+                            help="more output: debug lines (logging level DEBUG)")
+    if "-q" not in have:
+        parser.add_argument("-q", "--quiet", action="count", default=0 if default is None else default,
+                            help="less output: -q warnings and results only, -qq errors and results only")
+    if "--no-progress" in have:
+        for a in parser._actions:  # `render` has its own --progress/--no-progress (dest "progress"): left alone
+            if "--no-progress" in a.option_strings and a.dest == "no_progress":
+                a.default = argparse.SUPPRESS
+    else:
+        parser.add_argument("--no-progress", action="store_true", default=False if default is None else default,
+                            help="no progress bars (they are also off when stderr is not a terminal)")
+
+
+def _leaves(parser: argparse.ArgumentParser):
+    """Every sub-command parser that has no sub-commands of its own."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield parser
+        return
+    seen = set()
+    for action in subs:
+        for child in action.choices.values():
+            if id(child) not in seen:  # aliases map several names to one parser
+                seen.add(id(child))
+                yield from _leaves(child)
 
 
 def main(argv=None) -> int:
@@ -123,7 +169,8 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     with noting_interrupts():
         try:
-            code = args.func(args)
+            with cli_output(args.verbose, args.quiet, progress=not args.no_progress):
+                code = args.func(args)
             sys.stdout.flush()
             return code
         except KeyboardInterrupt as exc:

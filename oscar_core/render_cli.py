@@ -132,7 +132,11 @@ def cmd_render(args) -> int:
             print(f"wrote {result.out}: {result.frames} frames, {result.width}x{result.height}, {result.fps:g} fps")
         return 0
     t0 = time.perf_counter()
-    results = render_many(specs, options, workers=args.workers, progress=args.progress, resume=args.resume)
+    from ._log import progress_bars_enabled
+
+    # --progress / --no-progress of this command, else the one progress setup (-q, OSCAR_DISABLE_PROGRESS_BARS, tty)
+    progress = args.progress if args.progress is not None else progress_bars_enabled()
+    results = render_many(specs, options, workers=args.workers, progress=progress, resume=args.resume)
     summary = summarise(results, time.perf_counter() - t0)
     if args.json:
         print(json.dumps({"summary": summary, "episodes": [r.to_dict() for r in results]}, indent=2))

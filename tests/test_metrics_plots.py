@@ -59,6 +59,21 @@ def test_success_scatter_plots_the_input():
     assert by_gid(fig2, "label:b").get_text() == "b"
 
 
+def test_success_scatter_labels_never_overlap_and_stay_inside():
+    # crowded: two points on top of each other, three close together, one in a corner
+    real = {"pi0_flow": 0.5, "pi0_fast": 0.5, "pg_bin": 0.1, "pg_fast": 0.12, "pg_fsq": 0.11, "octo_base": 1.0}
+    wm = {"pi0_flow": 0.5, "pi0_fast": 0.5, "pg_bin": 0.2, "pg_fast": 0.21, "pg_fsq": 0.19, "octo_base": 1.0}
+    fig = success_scatter_figure(real, wm)
+    renderer = fig.canvas.get_renderer()
+    inside = fig.axes[0].get_window_extent(renderer)
+    boxes = {n: by_gid(fig, f"label:{n}").get_window_extent(renderer) for n in real}
+    for a in real:
+        assert np.allclose(by_gid(fig, f"label:{a}").xy, (real[a], wm[a]))  # still pointing at its own point
+        assert inside.x0 <= boxes[a].x0 and boxes[a].x1 <= inside.x1 and inside.y0 <= boxes[a].y0 <= boxes[a].y1 <= inside.y1
+        for b in real:
+            assert a == b or not boxes[a].overlaps(boxes[b]), (a, b)
+
+
 def test_rank_slope_plots_both_rankings_with_ties():
     fig = rank_slope_figure(REAL, WM, labels=("RoboArena", "OSCAR"))
     # real: pi0_fast 1, pg_fast 2, pi0_flow 3, pg_bin / pg_fsq tied 4.5; wm: pg_fast 1, pi0_fast 2, ...

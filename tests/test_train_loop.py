@@ -337,6 +337,15 @@ def test_cli_trains_resumes_and_exports(tmp_path, clipset, capsys):
             "--json"]
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["step"] == 2
+    # the run folder keeps a plain log and the training curves (loss, grad norm, lr)
+    logs = list((run / "logs").glob("train-*.log"))
+    assert len(logs) == 1 and "training curves:" in logs[0].read_text()
+    from oscar_core.train.curves import read_curves
+
+    curves = read_curves(run / "metrics.jsonl")
+    assert curves["step"] == [2.0] and all(v > 0 for v in curves["loss"] + curves["grad_norm"])
+    pytest.importorskip("matplotlib")
+    assert (run / "curves.png").read_bytes()[:4] == b"\x89PNG"
     assert main(["train", "--export", str(run), "--out", str(tmp_path / "model"), "--json"]) == 0
     assert (tmp_path / "model" / "oscar_model.json").is_file()
     assert main(["train", "--resume", str(run), "--no-progress"]) == 0  # already finished: nothing to do

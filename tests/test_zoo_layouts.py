@@ -229,8 +229,8 @@ def test_convert_native_to_oscar_layout_and_cli(tmp_path, capsys):
     assert main(["zoo", "convert", str(folder), str(tmp_path / "out"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["layout"] == "cosmos-native" and any("skeleton_embedder" in line for line in out["report"])
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["oscar_manifest.json", "oscar_model.json",
-                                                                      "transformer", "vae"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["README.md", "oscar_manifest.json",
+                                                                      "oscar_model.json", "transformer", "vae"]
     assert not list((tmp_path / "out").rglob("*.pt")) and not list((tmp_path / "out").rglob("*.bin"))
     back = oscar_zoo.load(str(tmp_path / "out"))
     assert _same(back.transformer, dit)

@@ -6,18 +6,19 @@ import json
 import os
 from pathlib import Path
 
-import torch
+from typing import TYPE_CHECKING
 
+from oscar_core.model._files import MODEL_FILE
 from oscar_core.model._manifest import read_manifest
-# the world model (diffusers: seconds to import) loads only where a model is built, so that a pull's one Hub
-# request, and its timeout, come right after start-up
-from oscar_core.model.layouts import MODEL_FILE
-
-from oscar_core.model.layouts import load_folder
 
 from ._fetch import fetch, is_offline, resolve
 from ._registry import register
 from ._table import COSMOS_TEXT_ENCODER_ID, CheckpointSpec
+
+if TYPE_CHECKING:  # torch and diffusers load with the model, not with `oscar zoo list` / `pull`
+    import torch
+
+    from oscar_core.model.world_model import ModelCard, OscarWorldModel
 
 __all__ = ["load", "pull", "export", "push", "convert"]
 
@@ -62,6 +63,8 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
     CPU between encode/decode calls; offload_text: keep the DiT's text
     projection on the CPU (see ``OscarWorldModel.from_modules``).
     """
+    from oscar_core.model.layouts import load_folder
+
     resolved = resolve(name_or_repo_or_path, revision)
     got = fetch(resolved, cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
                 force_download=force_download, token=token, verify=verify, native_file=native_file)

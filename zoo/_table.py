@@ -142,7 +142,7 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
         chunk_frames=17, width=64, height=64, fps=10.0,
         files=(
             FileSpec("README.md",
-                     "487c0e1d2aac51355d9e52429b0f5fc12b7cf05030b32ef6275a810786064c3c"),
+                     "4e53a322a63d8fdb419512a6ec402f5d3af54d6a25f331db99a0aab2258abe0a"),
             FileSpec("oscar_manifest.json",
                      "f80b46afa9766238b3a5a3d3e9e5c0942712008df3ed58997c7d1b39eaaaaca8"),
             FileSpec("oscar_model.json",

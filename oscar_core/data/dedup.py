@@ -42,7 +42,7 @@ from ..errors import OscarError
 from ._episode import EPISODE_ERRORS, load_row, reason_of
 from ._optional import require
 
-__all__ = ["DedupConfig", "ModelLoadError", "SiglipEmbedder", "EmbedStage", "resample_points", "candidate_pairs", "pca_projection", "brute_force_pairs",
+__all__ = ["DedupConfig", "ModelLoadError", "SiglipEmbedder", "TrajectoryEmbedder", "trajectory_embedding", "EmbedStage", "resample_points", "candidate_pairs", "pca_projection", "brute_force_pairs",
            "trajectory_rms", "motion_scale", "adaptive_threshold", "UnionFind", "dedup_rows"]
 
 
@@ -224,6 +224,32 @@ def _check_reachable(url: str, base: str, repo_id: str) -> None:
                              f"{result['status']}); check the id and your token (HF_TOKEN)")
 
 
+class TrajectoryEmbedder:
+    """The weight-free candidate search: an episode's motion as its embedding, no image model.
+
+    ``--embedder trajectory``: in place of SigLIP's picture, the embedding is
+    the path of the skeleton's centroid over the resampled steps, centred on
+    its mean and L2-normalised ((steps · 3) floats; :func:`trajectory_embedding`),
+    so cosine > ``cosine`` finds episodes whose motion has the same shape;
+    the verification (trajectory RMS under the adaptive threshold) and the
+    merge are the same as with SigLIP. It reads no video and downloads
+    nothing. It cannot see that two different motions happened in the same
+    scene, nor tell apart visually different episodes with the same motion
+    before the RMS check (which then decides alone).
+    """
+
+    name = "trajectory"
+    uses_video = False
+
+
+def trajectory_embedding(points: np.ndarray) -> np.ndarray:
+    """(steps, K, 3) resampled skeleton points → (steps · 3,) the centroid path, centred, unit length."""
+    path = np.asarray(points, dtype=np.float64).mean(axis=1)
+    path = (path - path.mean(axis=0)).ravel()
+    n = np.linalg.norm(path)
+    return path / n if n > 1e-12 else path
+
+
 def episode_embedding(per_frame: np.ndarray) -> np.ndarray:
     """(D,) unit vector: the normalised mean of (N, D) per-frame unit embeddings."""
     v = per_frame.mean(axis=0)
@@ -281,10 +307,13 @@ class EmbedStage:
         try:
             ep, emb = load_row(row, self.plugin_paths)
             traj = emb.check_trajectory(ep.trajectory)
-            n = ep.video.n_frames
-            idx = np.linspace(0, n - 1, self.config.frames).round().astype(int)
-            vec = episode_embedding(self.embedder(ep.video.read(idx)))
             pts = resample_points(emb.frames(traj).points, self.config.steps)
+            if getattr(self.embedder, "uses_video", True):
+                n = ep.video.n_frames
+                idx = np.linspace(0, n - 1, self.config.frames).round().astype(int)
+                vec = episode_embedding(self.embedder(ep.video.read(idx)))
+            else:
+                vec = trajectory_embedding(pts)
         except EPISODE_ERRORS as exc:
             out.update(dedup_status="rejected", dedup_reason=f"unreadable: {reason_of(exc)}")
             return out

@@ -40,12 +40,15 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from .. import _stage
+from .._log import get_logger
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 
 __all__ = ["ENGINES", "StageRun", "run_sharded", "run_shard", "read_stage", "stage_done", "write_stage_manifest",
            "StageIncomplete", "StageRecomputed", "FINGERPRINT", "read_fingerprint", "stage_parts", "ids_hash",
            "use_fingerprint"]
+
+_log = get_logger(__name__)
 
 ENGINES = ("local", "ray")
 MANIFEST = "manifest.parquet"
@@ -275,10 +278,16 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     tasks = [(n, [by_id[i] for i in plan[n]]) for n in todo]
     results: list[tuple[str, int, bool]] = []
     if tasks:
-        from tqdm import tqdm
+        from .._log import progress_bar
 
-        bar = tqdm(total=len(tasks), desc=desc or stage_url, unit="shard", disable=not progress)
-        n_workers = min(workers or os.cpu_count() or 1, len(tasks))
+        bar = progress_bar(total=len(tasks), desc=desc or stage_url, unit="shard", enabled=progress)
+        from .._threads import check_threads, default_threads
+
+        if workers:
+            check_threads(workers, "--workers")
+        n_workers = min(workers or default_threads(), len(tasks))  # default: the cores idle now, one thread each
+        _log.info("%s: %d shards of %d to do (%d done earlier), engine %s, %d worker(s)", desc or stage_url,
+                  len(tasks), len(plan), len(run.skipped), engine, n_workers)
         if engine == "ray":
             results = _run_ray(fn, tasks, stage_url, n_workers)
             bar.update(len(results))
@@ -306,6 +315,11 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         (run.processed if ok else run.incomplete).append(name)
     run.processed.sort()
     run.incomplete.sort()
+    if run.incomplete:
+        _log.warning("%s: %d shard(s) unfinished (%s); run the stage again", desc or stage_url, len(run.incomplete),
+                     ", ".join(run.incomplete[:5]))
+    elif tasks:
+        _log.info("%s: %d shards done -> %s", desc or stage_url, len(run.processed), stage_url)
     if not run.incomplete:
         run.table = write_stage_manifest(stage_url, list(plan))
     return run

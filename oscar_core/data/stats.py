@@ -18,7 +18,7 @@ from . import _fs
 from .engine import read_stage, stage_done
 from .manifest import STAGES, is_alive, rejection
 
-__all__ = ["compute_stats", "format_table", "plot_stats", "latest_stage"]
+__all__ = ["compute_stats", "format_table", "plot_stats", "latest_stage", "column_of"]
 
 
 def latest_stage(run: str, before: str | None = None) -> str | None:
@@ -28,6 +28,15 @@ def latest_stage(run: str, before: str | None = None) -> str | None:
         if stage_done(_fs.join(run, stage)):
             return stage
     return None
+
+
+def column_of(row: dict[str, Any]) -> str | None:
+    """The rejection column (``stage:filter``) a final-stage row is counted under, or None when it is kept."""
+    rej = rejection(row)
+    if rej is None and is_alive(row):
+        return None
+    st, reason = rej if rej else ("?", "unknown")
+    return f"{st}:{reason.split(':', 1)[0].strip()}"
 
 
 def compute_stats(run: str) -> dict[str, Any]:
@@ -41,13 +50,10 @@ def compute_stats(run: str) -> dict[str, Any]:
         key = (r["source"], r["embodiment"])
         g = groups.setdefault(key, {"source": key[0], "embodiment": key[1], "public": 0, "kept": 0, "rejected": {}})
         g["public"] += 1
-        row = final.get(r["id"], r)
-        rej = rejection(row)
-        if rej is None and is_alive(row):
+        col = column_of(final.get(r["id"], r))
+        if col is None:
             g["kept"] += 1
             continue
-        st, reason = rej if rej else ("?", "unknown")
-        col = f"{st}:{reason.split(':', 1)[0].strip()}"
         if col not in columns:
             columns.append(col)
         g["rejected"][col] = g["rejected"].get(col, 0) + 1

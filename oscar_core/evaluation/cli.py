@@ -27,10 +27,10 @@ import importlib
 import importlib.util
 import json
 import os
-import sys
 from pathlib import Path
 
 from .._cli_types import count, number
+from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
@@ -123,13 +123,13 @@ def cmd_eval_run(args) -> int:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
     sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
                             guidance_form=args.guidance_form)
-    result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
-                            pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
-                            device=args.device, dtype=getattr(torch, args.dtype),
-                            plugin_paths=getattr(args, "plugin", None) or (),
-                            progress=not args.no_progress and sys.stderr.isatty(),
-                            plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
-                            log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
+    with run_log(args.out, "eval-run"):
+        result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
+                                pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
+                                device=args.device, dtype=getattr(torch, args.dtype),
+                                plugin_paths=getattr(args, "plugin", None) or (),
+                                progress=not args.no_progress and progress_bars_enabled(),
+                                plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()])
     report = result.report
     if args.json:
         print(json.dumps({**report, "files": result.paths}, indent=2))

@@ -39,7 +39,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -50,6 +49,7 @@ import numpy as np
 
 from .. import _stage
 from .._atomic import atomic_write_bytes, sweep_dead_temporaries
+from .._log import get_logger, progress_bar
 from ..metrics._common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
@@ -57,6 +57,7 @@ __all__ = ["RECORD_VERSION", "EvaluationResult", "run_evaluation", "model_identi
            "record_path", "video_path"]
 
 RECORD_VERSION = 1
+_log = get_logger(__name__)
 VIDEO_SUFFIX = ".mkv"  # FFV1, lossless: judges and metrics see exactly the generated pixels
 
 
@@ -204,7 +205,7 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     """
     from ..model.sampler import SamplerConfig
 
-    log = log or (lambda msg: print(msg, file=sys.stderr))
+    user_log, log = log, log or _log.info
     manifest = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
     _check_embodiments(manifest, plugin_paths)
     out = Path(out)
@@ -231,7 +232,8 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     records: list[dict] = []
 
     # 1. rollouts -------------------------------------------------------------------------------
-    for k, cell in enumerate(manifest.cells):
+    # a bar over the cells: rate and ETA of the whole evaluation (reused cells count at once)
+    for k, cell in enumerate(progress_bar(manifest.cells, desc="eval run: rollouts", unit="cell", enabled=progress)):
         rpath, vpath = record_path(out, cell), video_path(out, cell)
         key = rollout_key(cell, model_id=model_id, sampler=sampler_fields, chunk_frames=chunk_frames, size=size,
                           fps=None)
@@ -312,5 +314,5 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
                           pairwise_judge=(pairwise_judge.describe() if pairwise_judge is not None
                                           and hasattr(pairwise_judge, "describe") else None),
                           sampler=sampler_fields)
-    paths = write_report(out, report, manifest, records, plot_formats=plot_formats, log=log)
+    paths = write_report(out, report, manifest, records, plot_formats=plot_formats, log=user_log)
     return EvaluationResult(out=out, records=records, counts=counts, report=report, paths=paths)

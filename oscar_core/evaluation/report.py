@@ -13,6 +13,9 @@
 ``OUT/plots/success_scatter.png``, ``OUT/plots/rank_slope.png``
     World-model against real success rate per policy; the two rankings
     (:func:`oscar_core.metrics.plots.plot_comparison`; needs matplotlib).
+``OUT/report.html``
+    The same as a page for the browser, with every rollout playing beside its
+    real outcome (:mod:`oscar_core.evaluation.html`; media under ``OUT/media/``).
 ``OUT/contact_sheets/<session>.png``
     One row per policy (manifest order): :data:`SHEET_FRAMES` rollout frames
     sampled uniformly over time, and under them the same instants of the real
@@ -31,10 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_write_bytes
+from .._log import get_logger
 from ..metrics._common import MetricInputError, nan_to_none
 from .manifest import Manifest
 
 __all__ = ["SHEET_FRAMES", "SHEET_HEIGHT", "build_report", "write_report", "contact_sheet", "format_summary"]
+
+_log = get_logger(__name__)
 
 #: Frames per band of a contact sheet (the paper's qualitative figures show six time steps).
 SHEET_FRAMES = 6
@@ -262,8 +268,18 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 
 def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict], *, plot_formats=("png",),
-                 log: Callable[[str], None] = print) -> dict:
-    """Write ``report.json``, ``summary.md``, the plots and the contact sheets; returns their paths."""
+                 log: Callable[[str], None] | None = None) -> dict:
+    """Write ``report.json``, ``summary.md``, the plots and the contact sheets; returns their paths.
+
+    Problems that do not stop the report (an unreadable real video, no
+    matplotlib) are logged as warnings on the ``oscar`` logger and also passed
+    to ``log`` if given.
+    """
+
+    def warn(msg: str) -> None:
+        _log.warning(msg)
+        if log is not None:
+            log(f"warning: {msg}")
     from ..metrics.video import load_video
 
     out = Path(out)
@@ -280,7 +296,7 @@ def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict
                 try:
                     real = load_video(cell.real_video)
                 except (MetricInputError, OSError, ValueError) as exc:
-                    log(f"warning: contact sheet {session}: cannot read {cell.real_video}: {exc}")
+                    warn(f"contact sheet {session}: cannot read {cell.real_video}: {exc}")
             rows.append((load_video(out / rec["video"]), real))
             names.append(cell.policy + (" (+ real)" if real is not None else ""))
         path = out / "contact_sheets" / f"{session}.png"
@@ -303,7 +319,12 @@ def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict
             written = plot_comparison(c, out / "plots", formats=plot_formats)
             paths["plots"] = {k: [str(p) for p in v] for k, v in written.items()}
         except ImportError as exc:
-            log(f"warning: no plots: {exc}")
+            warn(f"no plots: {exc}")
+    from .html import write_html_report
+
+    plots = [p for v in paths.get("plots", {}).values() for p in v]
+    paths["html"] = str(write_html_report(out, report, manifest, records, plots=plots,
+                                          sheets={s: out / "contact_sheets" / f"{s}.png" for s in sheets}))
     report_path = out / "report.json"
     atomic_write_bytes(report_path, (json.dumps({**report, "files": paths}, indent=2) + "\n").encode())
     summary = out / "summary.md"

@@ -58,6 +58,7 @@ import json
 import sys
 
 from .._cli_types import count
+from .._log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _load_network, _write_json, collect_clips, collect_judge_videos, read_policy_results, \
     read_preferences, read_tasks
@@ -118,7 +119,7 @@ def cmd_eval_video(args) -> int:
         clips, n_frames=None if args.frames == 0 else args.frames,
         lpips_net=nets["lpips"], vae=vae,
         fvd_extractor=nets["i3d"] if len(clips) > 1 or args.i3d else None, fid_extractor=nets["inception"],
-        device=args.device, progress=not args.json and sys.stderr.isatty(),
+        device=args.device, progress=not args.json and progress_bars_enabled(),
     )
     data = report.to_dict()
     data["networks_from_cache"] = used_cache

@@ -60,6 +60,7 @@ import sys
 from pathlib import Path
 
 from .._cli_types import count, number
+from .._log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _write_json, collect_judge_videos, read_tasks
 
@@ -182,7 +183,7 @@ def cmd_eval_judge(args) -> int:
     judge = SuccessJudge(prompt=_prompt(args.prompt), **kwargs)
     if args.dry_run:
         return _print_plan(judge.plan(clips), judge, args.json)
-    verdicts = judge.judge_many(clips, progress=not args.json and sys.stderr.isatty())
+    verdicts = judge.judge_many(clips, progress=not args.json and progress_bars_enabled())
     policies = success_by_policy(verdicts)
     summary = _status_summary(verdicts)
     data = {"judge": judge.describe(), "summary": summary, "policies": policies,
@@ -235,7 +236,7 @@ def cmd_eval_pairwise(args) -> int:
               f"dry run: {per * len(pairs)} requests would be sent for {len(pairs)} pairs (cached ones are not "
               f"re-sent), up to 2 x {judge.n_frames} images each; nothing was sent")
         return 0
-    verdicts = judge.compare_many(pairs, progress=not args.json and sys.stderr.isatty())
+    verdicts = judge.compare_many(pairs, progress=not args.json and progress_bars_enabled())
     prefs = preferences_from_verdicts(verdicts)
     summary = _status_summary(verdicts)
     data = {"judge": judge.describe(), "summary": summary, "bradley_terry": None, "bradley_terry_error": None,

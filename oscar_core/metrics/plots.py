@@ -95,9 +95,6 @@ def success_scatter_figure(real, wm, *, names=None, title: str | None = None, fi
     ax.plot([0.0, 1.0], [0.0, 1.0], linestyle="--", color="0.6", linewidth=1.0, zorder=1, gid="identity",
             label="y = x")
     ax.scatter(r, w, s=36, color="tab:blue", edgecolor="white", linewidth=0.6, zorder=3, gid="points")
-    for name, x, y in zip(order, r, w):
-        ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=8, gid=f"label:{name}",
-                    zorder=4)
     pad = 0.04
     ax.set_xlim(-pad, 1.0 + pad)
     ax.set_ylim(-pad, 1.0 + pad)
@@ -108,7 +105,39 @@ def success_scatter_figure(real, wm, *, names=None, title: str | None = None, fi
     if title:
         ax.set_title(title, fontsize=10)
     fig.subplots_adjust(left=0.14, right=0.95, bottom=0.11, top=0.92)
+    labels = [ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=8, gid=f"label:{name}",
+                          zorder=4) for name, x, y in zip(order, r, w)]
+    place_labels(fig, ax, labels)
     return fig
+
+
+#: Offsets (points) and alignment tried for a point's label, in order: right-above, right-below, left-above,
+#: left-below, then further up and down on both sides.
+_LABEL_SLOTS = [((4, 4), "left"), ((4, -11), "left"), ((-4, 4), "right"), ((-4, -11), "right")] + [
+    ((dx, dy), ha) for k in range(1, 12) for dy in (4 + 10 * k, -11 - 10 * k)
+    for dx, ha in (((4, "left"), (-4, "right")))]
+
+
+def place_labels(fig, ax, labels) -> None:
+    """Move each annotation (in order) to the first slot of :data:`_LABEL_SLOTS` where it overlaps no label
+    placed before it and stays inside the axes; the arrow-less label keeps pointing at its own point
+    (``xy`` is unchanged). A label with no free slot keeps the first one."""
+    renderer = fig.canvas.get_renderer()
+    inside = ax.get_window_extent(renderer)
+    placed = []
+    for label in labels:
+        for (dx, dy), ha in _LABEL_SLOTS:
+            label.xyann = (dx, dy)
+            label.set_horizontalalignment(ha)
+            box = label.get_window_extent(renderer)
+            fits = (box.x0 >= inside.x0 and box.x1 <= inside.x1 and box.y0 >= inside.y0 and box.y1 <= inside.y1)
+            if fits and not any(box.overlaps(other) for other in placed):
+                break
+        else:
+            label.xyann, _ = _LABEL_SLOTS[0]
+            label.set_horizontalalignment("left")
+            box = label.get_window_extent(renderer)
+        placed.append(box)
 
 
 def rank_slope_figure(real_score, wm_score, *, names=None, labels: Sequence[str] = ("real", "world model"),

@@ -30,9 +30,12 @@ import json
 import re
 from pathlib import Path
 
-import torch
+from typing import TYPE_CHECKING
 
 from .errors import CheckpointLayoutError
+
+if TYPE_CHECKING:  # imported where tensors are read (keeps `oscar zoo list` free of torch)
+    import torch
 
 __all__ = ["NATIVE_RENAMES", "NATIVE_SUFFIXES", "map_native_key", "map_native_state", "read_native_state",
            "infer_config", "find_skeleton_key", "COSMOS25_DEFAULTS"]
@@ -89,6 +92,8 @@ def map_native_key(key: str) -> str | None:
 
 
 def _unwrap(obj, source) -> dict:
+    import torch
+
     for wrapper in ("model", "module", "state_dict"):
         if isinstance(obj, dict) and wrapper in obj and isinstance(obj[wrapper], dict):
             obj = obj[wrapper]
@@ -109,6 +114,8 @@ def read_native_state(path) -> dict[str, torch.Tensor]:
 
         check_safetensors(path)
         return load_file(str(path), device="cpu")
+    import torch
+
     try:
         obj = torch.load(str(path), map_location="cpu", weights_only=True, mmap=True)
     except Exception as exc:  # noqa: BLE001 - any refusal by the safe unpickler is a layout problem

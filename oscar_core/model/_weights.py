@@ -19,8 +19,7 @@ import json
 import struct
 from pathlib import Path
 
-import torch
-from safetensors.torch import load_file
+from typing import TYPE_CHECKING
 
 from .errors import CheckpointIntegrityError, CheckpointLayoutError
 
@@ -32,6 +31,9 @@ WEIGHTS_NAME = "diffusion_pytorch_model.safetensors"
 INDEX_NAME = WEIGHTS_NAME + ".index.json"
 _PICKLE_SUFFIXES = (".bin", ".pt", ".pth", ".ckpt", ".pkl")
 _MAX_HEADER = 100 * 1024 * 1024
+
+if TYPE_CHECKING:  # torch is imported where tensors are made: reading names and headers needs none (oscar zoo list)
+    import torch
 
 
 def _listing(folder: Path) -> str:
@@ -120,6 +122,8 @@ def read_config(folder, allowed_classes: tuple[str, ...]) -> dict:
 
 def load_state_dict(folder, check: bool = True) -> dict[str, torch.Tensor]:
     """All tensors of ``folder``'s safetensors weights, on the CPU."""
+    from safetensors.torch import load_file
+
     state = {}
     for path in weight_files(folder):
         if check:
@@ -142,6 +146,8 @@ def build_strict(cls, config: dict, state: dict[str, torch.Tensor], source, zero
     Raises CheckpointLayoutError naming missing/unexpected keys and shape
     mismatches; returns the model in eval mode on the CPU.
     """
+    import torch
+
     with torch.device("meta"):
         model = cls.from_config(config)
     expected = model.state_dict()
@@ -173,6 +179,8 @@ def build_strict(cls, config: dict, state: dict[str, torch.Tensor], source, zero
 
 def cast_model(model: torch.nn.Module, device=None, dtype: torch.dtype | None = None) -> torch.nn.Module:
     """Move ``model`` to ``device``/``dtype``; its keep-in-float32 modules stay float32."""
+    import torch
+
     kwargs = {k: v for k, v in (("device", device), ("dtype", dtype)) if v is not None}
     if kwargs:  # plain nn.Module.to: diffusers' override only adds a warning about float32 modules we handle here
         torch.nn.Module.to(model, **kwargs)

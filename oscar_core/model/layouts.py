@@ -27,12 +27,12 @@ from pathlib import Path
 from ._native import NATIVE_SUFFIXES, find_skeleton_key, infer_config, map_native_state, read_native_state, \
     read_overrides
 from ._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
+from ._files import MODEL_FILE
 from .errors import CheckpointLayoutError
 
 __all__ = ["LAYOUTS", "Layout", "detect_layout", "load_folder", "SCHEDULER_CONFIG"]
 
 SCHEDULER_CONFIG = "scheduler/scheduler_config.json"
-MODEL_FILE = "oscar_model.json"
 _COMPONENT_DIRS = ("transformer/", "vae/", "text_encoder/", "tokenizer/", "scheduler/", "text/", "safety_checker/")
 
 #: layout → what it expects (for error messages and docs).

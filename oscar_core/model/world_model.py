@@ -27,6 +27,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
 from ._weights import build_strict, cast_model, check_safetensors, load_state_dict, read_config
 from .errors import CheckpointLayoutError, ModelInputError
 from .sampler import SamplerConfig
@@ -36,10 +37,7 @@ from .vae import VideoVAE, check_frame_count
 
 __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 
-MODEL_FILE = "oscar_model.json"
 FORMAT = "oscar-world-model"
-EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
-SCHEDULER_FILE = "scheduler/scheduler_config.json"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 CONDITIONS = ("skeleton", "mesh", "latent_action", "none")  # mesh: the robot's visual geometry in the skeleton stream
 
@@ -213,6 +211,10 @@ class OscarWorldModel:
         (folder / MODEL_FILE).write_text(json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()},
                                                     indent=2) + "\n")
         write_manifest(folder)
+        if not (folder / "README.md").exists():  # a model card with the Hub's metadata block (model/hub_card.py);
+            from .hub_card import default_model_card  # documentation, outside the manifest like oscar-toy's README
+
+            (folder / "README.md").write_text(default_model_card(card.to_dict()))
         return folder
 
     # ------------------------------------------------------------------ use

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from .._cli_types import count, number
+from .._log import run_log
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
@@ -26,6 +26,7 @@ EXAMPLES = """examples:
   oscar toyworld rollout clipsets/toyworld --model oscar-toy --condition shuffled --out preds/shuffled
   oscar toyworld eval --gt clipsets/toyworld --pred true=preds/true --pred shuffled=preds/shuffled \\
       --pred vae=preds/vae --pred first_frame=preds/first_frame --out table.json --plot table.png
+      (also writes table.html: the table and rollouts under each condition beside the truth)
   oscar toyworld package runs/toyworld/export --out my-toy --table table.json
   oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
 """
@@ -61,8 +62,11 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     from .vae_train import VAETrainConfig
 
     d = VAETrainConfig()
-    for name in ("steps", "stop_at", "batch", "window", "seed", "threads", "base_dim", "eval_every", "eval_clips"):
+    for name in ("steps", "stop_at", "batch", "window", "seed", "base_dim", "eval_every", "eval_clips"):
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
+    v.add_argument("--threads", type=int, default=None,
+                   help="torch threads (default: the cores idle now, at least 1; more than that warns: on a busy "
+                        "machine they run slower, not faster)")
     for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
@@ -139,6 +143,10 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                         "clips all of them have, each scores every row over its own clips and marks the table")
     e.add_argument("--out", help="write the table as JSON here")
     e.add_argument("--plot", help="write a PNG bar chart of the table here")
+    e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
+                                  "default: beside --out as <name>.html, media in <name>_media/")
+    e.add_argument("--no-html", action="store_true", help="no page")
+    e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     e.set_defaults(func=cmd_eval)
     return tw
@@ -163,9 +171,8 @@ def cmd_generate(args) -> int:
         raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
     cfg = GenerateConfig(names, args.episodes, w, h, args.frames, args.fps, args.seed, args.shard_size,
                          args.supersample, not args.no_skeleton)
-    quiet = args.json
-    summary = generate_clipset(cfg, args.out, _registry(args),
-                               progress=None if quiet else (lambda m: print(m, file=sys.stderr, flush=True)))
+    with run_log(args.out, "toyworld-generate"):
+        summary = generate_clipset(cfg, args.out, _registry(args))
     if args.json:
         print(json.dumps(summary))
     else:
@@ -176,15 +183,21 @@ def cmd_generate(args) -> int:
 
 
 def cmd_train_vae(args) -> int:
+    from .._threads import check_threads, default_threads
     from .vae_train import VAETrainConfig, train_vae
 
+    if args.threads is None:
+        args.threads = default_threads()
+    else:
+        check_threads(args.threads, "toyworld train-vae --threads")
     cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr,
                          kl=args.kl, chroma=args.chroma, foreground=args.foreground, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
                          eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init,
                          config={"is_residual": True} if args.residual else {},
                          sample_posterior=args.sample_posterior)
-    card = train_vae(args.clips, args.out, cfg, log=lambda m: print(m, flush=True))
+    with run_log(args.out, "toyworld-train-vae"):
+        card = train_vae(args.clips, args.out, cfg)
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")
     return 0
@@ -218,9 +231,11 @@ def cmd_rollout(args) -> int:
     torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
     sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form)
-    summary = write_rollouts(model, args.clips, args.out, args.condition,
-                             split=None if args.split == "all" else args.split, limit=args.limit, sampler=sampler,
-                             seed=args.seed, registry=_registry(args), model_id=model_identity(args.model))
+    with run_log(args.out, f"toyworld-rollout-{args.condition}"):
+        summary = write_rollouts(model, args.clips, args.out, args.condition,
+                                 split=None if args.split == "all" else args.split, limit=args.limit,
+                                 sampler=sampler, seed=args.seed, registry=_registry(args),
+                                 model_id=model_identity(args.model))
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")
@@ -250,5 +265,12 @@ def cmd_eval(args) -> int:
         atomic_write_bytes(args.out, (json.dumps(table, indent=2) + "\n").encode())
     if args.plot:
         plot_table(table, args.plot)
+    html = args.html or (str(Path(args.out).with_suffix(".html")) if args.out else None)
+    if html and not args.no_html:
+        from .html import write_eval_html
+
+        write_eval_html(table, args.gt, conditions, html, plot=args.plot, max_clips=args.html_clips)
     print(json.dumps(table, indent=2) if args.json else format_table(table))
+    if html and not args.no_html and not args.json:
+        print(f"wrote {html}")
     return 0

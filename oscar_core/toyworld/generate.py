@@ -21,6 +21,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode
 from .motion import check_supported
@@ -55,10 +56,15 @@ def split_of(index: int) -> str:
     return "heldout" if index % 10 == 9 else "train"
 
 
+_log = get_logger(__name__)
+
+
 def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str], None] | None = None) -> dict:
     """Generate (or resume) the clip set at ``out``; returns a summary with timings.
 
     registry: an :class:`~oscar_core.registry.Registry` (plugins included).
+    A progress bar counts episodes (:func:`oscar_core._log.progress_bar`);
+    each finished shard is logged at INFO and passed to ``progress`` if given.
     Unsupported embodiments are rejected before anything is written.
     """
     from ..pipeline import render_skeleton_video
@@ -73,6 +79,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
     done = skipped = 0
     t0 = time.perf_counter()
     render_s = 0.0
+    bar = progress_bar(total=cfg.episodes * len(embs), desc="toyworld generate", unit="episode")
     for emb in embs:
         n_shards = (cfg.episodes + cfg.shard_size - 1) // cfg.shard_size
         for k in range(n_shards):
@@ -80,6 +87,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
             lo, hi = k * cfg.shard_size, min((k + 1) * cfg.shard_size, cfg.episodes)
             if writer.shard_done(name):
                 skipped += hi - lo
+                bar.update(hi - lo)
                 continue
             with writer.shard(name) as shard:
                 for i in range(lo, hi):
@@ -98,8 +106,12 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                                      files={}, caption=None, task=_task(ep.motion.kind), meta=meta)
                     shard.add(Clip(rec, rgb=ep.rgb, trajectory=ep.trajectory, camera=ep.camera, skeleton=skel))
                     done += 1
+                    bar.update(1)
+            msg = f"{name}: {hi - lo} episodes ({done} new, {skipped} already there)"
+            _log.info(msg)
             if progress:
-                progress(f"{name}: {hi - lo} episodes ({done} new, {skipped} already there)")
+                progress(msg)
+    bar.close()
     wall = time.perf_counter() - t0
     return {"episodes_written": done, "episodes_skipped": skipped, "wall_s": wall, "render_s": render_s,
             "episodes_per_s": done / wall if done and wall > 0 else None}

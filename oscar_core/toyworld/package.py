@@ -15,6 +15,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from ..model.hub_card import with_hub_metadata
+
 __all__ = ["package_toy_model", "file_hashes", "model_card_markdown"]
 
 
@@ -29,7 +31,8 @@ def file_hashes(folder) -> dict[str, str]:
 
 
 def model_card_markdown(name: str, card: dict, training: dict, table: dict | None) -> str:
-    """The README.md of a shipped toy model (markdown)."""
+    """The README.md of a shipped toy model (markdown, with the Hub's YAML metadata block on top:
+    :func:`oscar_core.model.hub_card.with_hub_metadata`)."""
     lines = [f"# {name}", "",
              "A small OSCAR world model trained on oscar's procedural toy world (docs/toyworld.md) on a 2-core CPU.",
              "It is the toy-scale test of the paper's central claim, that the skeleton video drives the generated "
@@ -51,7 +54,7 @@ def model_card_markdown(name: str, card: dict, training: dict, table: dict | Non
         lines += ["", "## Measured (held-out episodes)", "", table.get("markdown", "").rstrip()]
     lines += ["", "## Licence", "", f"{card.get('license') or 'Apache-2.0'} (the weights, like the code of oscar-wm).",
               ""]
-    return "\n".join(lines)
+    return with_hub_metadata("\n".join(lines), card, tags=("toy-world",))
 
 
 def package_toy_model(export, out, *, name: str = "oscar-toy", license: str = "Apache-2.0",

@@ -40,6 +40,7 @@ from typing import Callable
 import numpy as np
 
 from .._cli_types import count, number
+from .._log import get_logger
 from ..camera import Camera, project
 from ..embodiment import Embodiment
 from ..trajectory import Trajectory
@@ -49,6 +50,8 @@ from .motion import (Motion, ToyWorldError, _batch_fk, carry_object, check_suppo
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
            "plan_session", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
            "add_policy_eval_arguments", "cmd_policy_eval"]
+
+_log = get_logger(__name__)
 
 #: The ball must end at least this many ball radii (horizontally) from its start for a success.
 SUCCESS_RADII = 3.0
@@ -399,8 +402,6 @@ def add_policy_eval_arguments(p) -> None:
 
 def cmd_policy_eval(args) -> int:
     """``oscar toyworld policy-eval``: write the manifest and print the true success rate per policy."""
-    import sys
-
     from ..pipeline import parse_size
     from ..registry import Registry
 
@@ -411,7 +412,7 @@ def cmd_policy_eval(args) -> int:
     summary = write_policy_eval(args.out, names, args.sessions, seed=args.seed, width=w, height=h,
                                 frames=args.frames, fps=args.fps, supersample=args.supersample,
                                 registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
-                                progress=None if args.json else (lambda m: print(m, file=sys.stderr, flush=True)))
+                                progress=_log.info)
     if args.json:
         print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
         return 0

@@ -40,6 +40,7 @@ import numpy as np
 
 from .. import _stage
 from .._atomic import atomic_write_bytes, sweep_dead_temporaries
+from .._log import get_logger, progress_bar
 
 __all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
 
@@ -66,6 +67,9 @@ def skeleton_partners(records) -> dict[str, str]:
         for i, cid in enumerate(ids):
             out[cid] = ids[(i + 1) % len(ids)]
     return out
+
+
+_log = get_logger(__name__)
 
 
 def sampler_for_card(card, steps: int | None = None, guidance: float | None = None,
@@ -119,7 +123,8 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
     sweep_dead_temporaries(out)
     written = kept = 0
     seconds = []
-    for rec in recs:
+    bar = progress_bar(recs, desc=f"toyworld rollout ({condition})", unit="clip")
+    for rec in bar:
         target = out / f"{rec.id}.npy"
         if target.is_file():
             kept += 1
@@ -142,7 +147,10 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
         np.save(buf, frames.astype(np.uint8))
         atomic_write_bytes(target, buf.getvalue())
         written += 1
+        msg = f"{rec.id}: {condition} rollout {seconds[-1]:.2f} s"
+        _log.debug(msg)
         if log:
-            log(f"{rec.id}: {condition} rollout {seconds[-1]:.2f} s")
+            log(msg)
+    bar.close()
     return {"condition": condition, "written": written, "kept": kept,
             "s_per_rollout": float(np.mean(seconds)) if seconds else None}

@@ -39,6 +39,7 @@ from typing import Callable
 import numpy as np
 
 from .._atomic import atomic_write_bytes
+from .._log import get_logger, progress_bar
 
 __all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", "vae_psnr", "load_toy_vae",
            "write_reconstructions", "chroma_ratio", "moving_pixels"]
@@ -48,6 +49,9 @@ __all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", 
 #: the 7-pixel ball blurred away: 18.4 dB after 45 min of training); base width 16.
 TOY_VAE_CONFIG = dict(base_dim=16, z_dim=16, dim_mult=[1, 2, 2], num_res_blocks=1, attn_scales=[],
                       temperal_downsample=[True, True], is_residual=False)
+
+
+_log = get_logger(__name__)
 
 
 @dataclass
@@ -159,8 +163,13 @@ def _latent_stats(vae, frames: np.ndarray, batch: int = 4) -> tuple[list[float],
     return z.mean(1).tolist(), z.std(1).clamp_min(1e-4).tolist()
 
 
-def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = print) -> dict:
-    """Train, evaluate and save; returns the card (also written to ``OUT/vae_card.json``)."""
+def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | None = None) -> dict:
+    """Train, evaluate and save; returns the card (also written to ``OUT/vae_card.json``).
+
+    Progress: a bar over the steps (rate, ETA, the last training MSE) and the
+    same lines as before at INFO on the ``oscar`` logger (or to ``log`` if given).
+    """
+    log = log or _log.info
     import torch
     from diffusers import AutoencoderKLWan
 
@@ -204,6 +213,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
     psnr0 = held_out_eval(0, wall_s=0.0)["psnr_db"]
     log(f"model: AutoencoderKLWan {config}, {n_params / 1e6:.2f} M parameters; held-out PSNR at step 0: {psnr0:.2f} dB")
     stopped = "steps"
+    bar = progress_bar(total=cfg.steps, desc="toyworld train-vae", unit="step")
     while step < cfg.steps:
         idx = rng.integers(0, N, cfg.batch)
         starts = rng.integers(0, T - cfg.window + 1, cfg.batch)
@@ -227,8 +237,10 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
         opt.step()
         sched.step()
         step += 1
+        bar.update(1)
         wall = time.perf_counter() - t0
         if step % 25 == 0 or step == 1:
+            bar.set_postfix(mse=f"{float(rec.detach()):.5f}", refresh=False)
             curve.append({"step": step, "mse": float(rec.detach()), "kl": float(kl.detach()), "wall_s": round(wall, 1)})
             log(f"step {step}/{cfg.steps}  mse {curve[-1]['mse']:.5f}  (≈ {10 * math.log10(4 / max(curve[-1]['mse'], 1e-12)):.2f} dB "
                 f"train)  kl {curve[-1]['kl']:.4g}  {wall:.0f} s")
@@ -242,6 +254,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] = pr
         if cfg.max_minutes and wall > 60 * cfg.max_minutes:
             stopped = f"max_minutes ({cfg.max_minutes:g})"
             break
+    bar.close()
     e = held_out_eval(step)
     log(f"done: {step} steps, held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}, "
         f"{time.perf_counter() - t0:.0f} s (stopped by {stopped})")
@@ -309,7 +322,7 @@ def write_reconstructions(clipset, vae_folder, out, split: str | None = "heldout
     from .rollouts import spread
 
     recs = spread([r for r in cs if split is None or r.meta.get("split") == split], limit)
-    for r in recs:
+    for r in progress_bar(recs, desc="toyworld reconstruct", unit="clip"):
         rgb = cs.load(r, skeleton=False).rgb
         with torch.no_grad():
             y = VideoVAE.to_uint8(vv.reconstruct(VideoVAE.to_pixels(rgb)))[0]

@@ -86,11 +86,15 @@ def cmd_train(args) -> int:
         return 0
     from .loop import train
 
+    from .._log import run_log
+
+    main_rank = int(os.environ.get("RANK", "0")) == 0
     if args.resume:
         if args.set:
             raise TrainConfigError("<command line>", "--set", "no overrides with --resume (the run's config.yaml rules)",
                                    args.set)
-        with _resume_hint(args.resume):
+        log = run_log(args.resume, "train") if main_rank else contextlib.nullcontext()
+        with _resume_hint(args.resume), log:
             result = train(resume=args.resume, progress=not args.no_progress)
     else:
         overrides = {}
@@ -100,7 +104,8 @@ def cmd_train(args) -> int:
             k, v = item.split("=", 1)
             overrides[k.strip()] = _parse_value(v)
         config = load_config(args.config, overrides)
-        with _resume_hint(config.run_dir):
+        log = run_log(config.run_dir, "train") if main_rank else contextlib.nullcontext()
+        with _resume_hint(config.run_dir), log:
             result = train(config, progress=not args.no_progress, source=args.config)
     summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
                "export": str(result.export) if result.export else None}

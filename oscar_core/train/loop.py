@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 from .._atomic import atomic_write_bytes
+from .._log import get_logger, progress_bar
 from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
 from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData
@@ -32,6 +33,7 @@ from .sampling import PlanItem, StepPlanner
 
 __all__ = ["train", "TrainResult", "lr_at", "step_loss", "METRICS_FILE", "CONFIG_FILE"]
 
+_log = get_logger(__name__)
 METRICS_FILE = "metrics.jsonl"
 CONFIG_FILE = "config.yaml"
 
@@ -114,6 +116,8 @@ def train(config: TrainConfig | str | Path | None = None, *, resume=None, progre
         result, config = _train(config, resume, progress, stop_after, registry, source, info)
     finally:
         close_distributed(info)
+    if info.main:
+        _write_curves(result.run_dir)
     # export after the process group is gone: rank 0 alone, one process reading the (resharded) checkpoint
     if (config.export if export is None else export) and result.step == config.steps and info.main:
         from .export import export_run
@@ -122,8 +126,20 @@ def train(config: TrainConfig | str | Path | None = None, *, resume=None, progre
     return result
 
 
+def _write_curves(run_dir: Path) -> None:
+    """``RUN_DIR/curves.png`` (:mod:`oscar_core.train.curves`); skipped, with an INFO line, without matplotlib."""
+    from .curves import plot_training_curves
+
+    try:
+        path = plot_training_curves(run_dir)
+    except ImportError as exc:
+        _log.info("no training-curve plot: %s", exc)
+        return
+    if path is not None:
+        _log.info("training curves: %s", path)
+
+
 def _train(config, resume, progress, stop_after, registry, source, info: DistInfo):
-    from tqdm.auto import tqdm
 
     # ------------------------------------------------------------------ build
     ckpt = None
@@ -189,8 +205,8 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                               "parallel": config.parallel, **data.summary(), "skipped": data.skipped,
                               "mixing_weights": planner.weights}) + "\n")
         log.flush()
-    bar = tqdm(total=config.steps, initial=start, disable=not (progress and info.main), unit="step",
-               dynamic_ncols=True)
+    bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step",
+                       desc="train")
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
 
     def plan(step: int) -> list[PlanItem]:

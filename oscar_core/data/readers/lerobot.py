@@ -19,7 +19,10 @@ The dataset's profile is recognised from ``meta/info.json`` features:
     published: pass ``intrinsics={cam: (fx, fy, cx, cy)}`` (pixels of the
     stored video) to the reader, or put ``"intrinsics"`` in ``ref.meta``;
     without them :meth:`load_episode` raises :class:`EpisodeError` naming the
-    field. Converted by :func:`oscar_embodiments.franka.adapters.from_droid`.
+    field. A dataset that ships them may put them in ``meta/info.json`` as
+    ``features[<video key>]["info"]["camera.intrinsics"]`` (``[fx, fy, cx,
+    cy]``; ``oscar data sample-dataset`` does). Converted by
+    :func:`oscar_embodiments.franka.adapters.from_droid`.
     Default camera: ``exterior_1_left`` (third-person, as the paper).
 ``airoa_moma`` (``airoa-org/airoa-moma``)
     ``observation.state`` named by ``features["observation.state"]["names"]``
@@ -134,7 +137,8 @@ class LeRobotReader(Reader):
         cols = layout.frames(ref.episode_id, data, index, list(DROID_STATE) + [ext_col], ref.n_frames)
         for c in DROID_STATE:
             finite(cols[c], ref.episode_id, data, c, "joint / gripper state")
-        K = ref.meta.get("intrinsics") or self.intrinsics.get(short) or self.intrinsics.get(cam)
+        K = (ref.meta.get("intrinsics") or self.intrinsics.get(short) or self.intrinsics.get(cam)
+             or ((layout.features.get(cam) or {}).get("info") or {}).get("camera.intrinsics"))
         if K is None:
             raise EpisodeError(ref.episode_id, layout.info_path, f"intrinsics of {cam}",
                                "(fx, fy, cx, cy) in pixels: DROID on the Hub publishes none; pass "

@@ -1,0 +1,219 @@
+"""The HTML reports, opened in a real headless Chromium: every video plays, numbers equal the JSON."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _browser import keep_screenshot, open_page, report_json, require_browser
+from oscar_core.cli import main
+
+pytestmark = pytest.mark.slow
+
+
+def _fmt(v, spec):
+    return "n/a" if v is None else format(v, spec)
+
+
+@pytest.fixture(scope="module")
+def eval_report(tmp_path_factory):
+    """An `oscar eval run` report folder (2 sessions x 3 policies, a real video, a programmatic judge)."""
+    require_browser()
+    from test_eval_run import make_study, model_dir  # noqa: F401 - the fixture's body, called directly below
+
+    import oscar_zoo
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+
+    root = tmp_path_factory.mktemp("eval")
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny", chunk_frames=5, fps=15.0))
+    mdir = oscar_zoo.export(model, root / "tiny")
+    manifest = make_study(root / "study")
+    out = root / "out"
+    code = main(["eval", "run", str(manifest), "--model", str(mdir), "--out", str(out), "--judge",
+                 str(manifest.parent / "judge_fns.py:judge"), "--pairwise", "--steps", "1", "--no-progress",
+                 "--json"])
+    assert code == 0
+    return out
+
+
+def test_eval_run_report_plays_and_matches_report_json(eval_report, tmp_path, monkeypatch):
+    monkeypatch.setenv("OSCAR_TEST_JUDGE_LOG", str(tmp_path / "judge.log"))
+    report = report_json(eval_report)
+    check = open_page(eval_report / "report.html", tmp_path / "eval.png",
+                      select={"policy": "#policies td[data-field]", "metric": "#fidelity td[data-metric]",
+                              "cell": ".item [data-field]", "items": ".item"},
+                      screenshot_at="#rollouts")
+    assert check.problems == []
+    assert len(check.videos) == 7  # 6 rollouts + the one real video
+    assert all(v["width"] > 0 for v in check.videos)
+    pol = {p["policy"]: p for p in report["policies"]}
+    specs = {"cells": "d", "real_success_rate": ".3f", "wm_success_rate": ".3f", "wm_mean_partial": ".1f",
+             "not_judged": "d", "real_score": ".4g", "bt_elo": ".1f"}
+    # each td sits in a row whose data-policy names the policy: read it through the row order
+    tds = check.texts["policy"]
+    assert len(tds) == len(pol) * len(specs)
+    for k, td in enumerate(tds):
+        p = report["policies"][k // len(specs)]
+        assert td["text"] == _fmt(p[td["data"]["field"]], specs[td["data"]["field"]]), (p["policy"], td)
+    m = report["comparison"]["metrics"]
+    mspecs = {"mmrv": ".3f", "mmrv_simpler": ".3f", "spearman_rho": "+.3f", "pearson_r": "+.3f",
+              "sisr_delta_pp": ".2f"}
+    assert {t["data"]["metric"]: t["text"] for t in check.texts["metric"]} == {
+        k: _fmt(m[k], s) for k, s in mspecs.items()}
+    cells = {c["cell"]: c for c in report["cells"]}
+    assert sorted(i["data"]["cell"] for i in check.texts["items"]) == sorted(cells)
+    for item in check.texts["items"]:
+        c = cells[item["data"]["cell"]]
+        want = "none" if c["wm_success"] is None else ("success" if c["wm_success"] else "failure")
+        assert item["data"]["verdict"] == want
+        assert f"partial {_fmt(c['wm_partial'], '.0f')}" in item["text"]
+        assert c["reason"] in item["text"]
+    keep_screenshot(check, "report-eval-run.png")
+
+
+def test_a_broken_video_path_fails_the_check(eval_report, tmp_path):
+    broken = tmp_path / "copy"
+    shutil.copytree(eval_report, broken)
+    media = sorted((broken / "media" / "rollouts").rglob("*.mp4"))
+    media[0].unlink()  # a missing file
+    media[1].write_bytes(b"not a video")  # a file the browser cannot decode
+    check = open_page(broken / "report.html", tmp_path / "broken.png")
+    bad = [v for v in check.videos if v["error"] or not v["played"]]
+    assert len(bad) == 2 and len(check.problems) >= 2
+    assert any(media[0].name in p for p in check.problems)
+
+
+def test_the_report_references_media_relatively_and_has_no_network(eval_report):
+    html = (eval_report / "report.html").read_text()
+    assert "http://" not in html and "https://" not in html and str(eval_report) not in html
+    assert 'preload="none"' in html and "IntersectionObserver" in html
+    files = json.loads((eval_report / "report.json").read_text())["files"]
+    assert files["html"].endswith("report.html")
+
+
+@pytest.fixture(scope="module")
+def toy_report(tmp_path_factory):
+    """`oscar toyworld eval` of two conditions (the truth itself, the first frame held) on a small clip set."""
+    require_browser()
+    import numpy as np
+
+    from oscar_core.train.clips import ClipSet
+
+    root = tmp_path_factory.mktemp("toy")
+    assert main(["toyworld", "generate", "--embodiments", "toyarm,franka", "--episodes", "2", "--size", "48x48",
+                 "--frames", "9", "--out", str(root / "clips"), "--no-progress", "--json"]) == 0
+    cs = ClipSet(root / "clips")
+    (root / "same").mkdir()
+    for r in cs:
+        np.save(root / "same" / f"{r.id}.npy", cs.load(r, skeleton=False).rgb)
+    assert main(["toyworld", "baseline", str(root / "clips"), "--split", "all", "--out", str(root / "ff")]) == 0
+    assert main(["toyworld", "eval", "--gt", str(root / "clips"), "--pred", f"true={root / 'same'}",
+                 "--pred", f"first_frame={root / 'ff'}", "--out", str(root / "table.json"),
+                 "--plot", str(root / "table.png")]) == 0
+    return root
+
+
+def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
+    table = json.loads((toy_report / "table.json").read_text())
+    check = open_page(toy_report / "table.html", tmp_path / "toy.png",
+                      select={"row": "#rows td[data-field]", "fig": ".item figure[data-condition] [data-field]",
+                              "items": ".item"}, screenshot_at="#clips")
+    assert check.problems == []
+    n_clips = len(check.texts["items"])
+    assert n_clips == 4 and len(check.videos) == n_clips * 3  # truth + 2 conditions per clip
+    specs = {"clips": "d", "psnr_db": ".2f", "ssim": ".3f", "motion_iou": ".3f", "ee_error_px": ".2f",
+             "object_error_px": ".2f", "moved_object_error_px": ".2f"}
+    tds = check.texts["row"]
+    names = list(table["rows"])
+    assert len(tds) == len(names) * len(specs)
+    for k, td in enumerate(tds):
+        f = td["data"]["field"]
+        assert td["text"] == _fmt(table["rows"][names[k // len(specs)]][f], specs[f])
+    assert "100.00" in [t["text"] for t in check.texts["fig"]]  # the truth against itself, per clip
+    keep_screenshot(check, "report-toyworld-eval.png")
+
+
+@pytest.fixture(scope="module")
+def data_run(tmp_path_factory):
+    """A data run of four episodes: two kept, one too short, one filmed by a panning camera."""
+    require_browser()
+    from _datasets import base_parts, write_episode
+
+    root = tmp_path_factory.mktemp("data")
+    traj, _ = base_parts()
+    write_episode(root / "src", "ep0", seed=0, task="wave")
+    write_episode(root / "src", "ep1", seed=1)
+    write_episode(root / "src", "short", traj.time_slice(0, 40), seed=2)
+    write_episode(root / "src", "pan", seed=3, pan=1.5)
+    run = root / "run"
+    common = ["--workers", "1", "--no-progress"]
+    assert main(["data", "ingest", str(root / "src"), "--reader", "npz", "--out", str(run), *common]) == 0
+    assert main(["data", "filter", str(run), *common]) == 0
+    assert main(["data", "stats", str(run)]) == 0
+    return run
+
+
+def test_data_stats_page_shows_the_funnel_of_stats_json_with_thumbnails(data_run, tmp_path):
+    stats = json.loads((data_run / "stats.json").read_text())
+    check = open_page(data_run / "stats.html", tmp_path / "stats.png",
+                      select={"funnel": "#funnel tr[data-key] td[data-field]", "rows": "#funnel tr[data-key]",
+                              "items": ".item"})
+    assert check.problems == []
+    keys = [r["data"]["key"] for r in check.texts["rows"]]
+    assert keys == ["public", *stats["columns"], "kept"] and len(stats["columns"]) == 2
+    want = [stats["total"]["public"], *[stats["total"]["rejected"][c] for c in stats["columns"]], stats["total"]["kept"]]
+    assert [int(t["text"]) for t in check.texts["funnel"]] == want
+    # one example per rejection (each reason has one episode), two kept, each with its middle frame
+    assert sorted(i["data"]["column"] for i in check.texts["items"]) == sorted([*stats["columns"], "kept", "kept"])
+    assert len(check.images) == 4 and all(i["width"] > 0 for i in check.images)
+    keep_screenshot(check, "report-data-stats.png")
+
+
+def test_a_missing_thumbnail_fails_the_check(data_run, tmp_path):
+    broken = tmp_path / "run"
+    shutil.copytree(data_run, broken)
+    next((broken / "stats_media").rglob("*.png")).unlink()
+    check = open_page(broken / "stats.html", tmp_path / "broken.png")
+    assert len([i for i in check.images if not i["ok"]]) == 1 and any("image" in p for p in check.problems)
+
+
+def test_the_filters_keep_only_the_chosen_cells(eval_report):
+    """Choosing a verdict, a policy or a session hides every other cell (and sessions left empty)."""
+    import tempfile
+
+    from playwright.sync_api import sync_playwright
+
+    from _browser import FLAGS
+
+    report = report_json(eval_report)
+    exe = require_browser()
+    with tempfile.TemporaryDirectory() as profile, sync_playwright() as p:
+        ctx = p.chromium.launch_persistent_context(profile, executable_path=exe, headless=True, args=FLAGS)
+        try:
+            page = ctx.new_page()
+            page.goto((eval_report / "report.html").resolve().as_uri())
+
+            def shown():
+                return sorted(page.eval_on_selector_all(".item:not([hidden])", "els => els.map(e => e.dataset.cell)"))
+
+            assert shown() == sorted(c["cell"] for c in report["cells"])
+            page.select_option("select[data-filter=verdict]", "failure")
+            failures = sorted(c["cell"] for c in report["cells"] if c["wm_success"] is not None and not c["wm_success"])
+            assert failures and shown() == failures
+            assert page.inner_text("#shown") == str(len(shown()))
+            page.select_option("select[data-filter=verdict]", "")
+            page.select_option("select[data-filter=policy]", "good")
+            page.select_option("select[data-filter=session]", "s2")
+            assert shown() == ["s2/good"]
+            hidden = page.eval_on_selector_all("section[data-group][hidden]", "els => els.map(e => e.dataset.group)")
+            assert hidden == ["s1"]
+        finally:
+            ctx.close()
