@@ -287,3 +287,60 @@ def test_the_next_seed_is_clamped_before_it_is_re_encoded():
                      sampler=SamplerConfig(steps=1, guidance=None)).frames
     assert len(vae.seeds) == 2 and vae.seeds[1] <= 1.0  # chunk 1's seed: the clamped last frame of chunk 0
     assert frames.dtype == np.uint8 and frames[1:].min() == 255
+
+
+# --------------------------------------------------------------------------- #
+# guidance interval and presets
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("solver", ["euler", "unipc"])
+def test_guidance_interval_guides_exactly_the_steps_inside_it(solver):
+    from oscar_core.model.sampler import model_calls, step_sigmas
+
+    lo, hi = 0.3, 0.9
+    config = SamplerConfig(steps=8, solver=solver, guidance=3.0, guidance_interval=(lo, hi))
+    spy = _Spy(lambda x, s: 0.1 * x + s)  # depends on the skeleton, so the branches differ
+    _, _, skel, _ = _chunk(spy, config)
+    sigmas = step_sigmas(config)
+    # batched guidance is one call of batch 2 (cond then uncond); an unguided step one call of batch 1 (cond)
+    batch = [c["x"].shape[0] for c in spy.calls]
+    assert len(batch) == 8 and batch == [2 if lo <= s <= hi else 1 for s in sigmas]
+    assert 0 < batch.count(2) < 8  # the interval cuts this schedule
+    for call, sigma in zip(spy.calls, sigmas):
+        torch.testing.assert_close(call["t"][:, :, 1:], torch.full_like(call["t"][:, :, 1:], sigma))
+        assert torch.equal(call["s"][:1], skel)  # the first item is always the conditional branch
+    assert model_calls(config) == sum(batch)
+    assert model_calls(SamplerConfig(steps=8, solver=solver, guidance=3.0)) == 16
+    assert model_calls(SamplerConfig(steps=8, solver=solver, guidance=None)) == 8
+
+
+def test_guidance_interval_covering_all_or_no_steps_equals_full_or_no_guidance():
+    fn = lambda x, s: 0.1 * x + s  # noqa: E731
+    full, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=3.0))
+    every, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=3.0, guidance_interval=(0.0, 1.0)))
+    cond, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=None))
+    never, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=3.0, guidance_interval=(0.0, 0.0)))
+    assert torch.equal(full, every) and torch.equal(cond, never) and not torch.equal(full, cond)
+
+
+@pytest.mark.parametrize("bad", [(0.5, 0.2), (-0.1, 0.5), (0.2, 1.5), (0.1,), "0.1,0.9", (float("nan"), 1.0),
+                                 (True, 1.0)])
+def test_guidance_interval_refuses_what_is_not_an_interval_of_noise_levels(bad):
+    from oscar_core.model import ModelInputError
+
+    with pytest.raises(ModelInputError, match="guidance_interval: expected"):
+        SamplerConfig(guidance_interval=bad)
+
+
+def test_presets_set_steps_and_interval_and_keep_the_rest():
+    from oscar_core.model import ModelInputError
+    from oscar_core.model.sampler import SAMPLER_PRESETS, apply_preset
+
+    base = SamplerConfig(guidance=3.0, shift=4.0)
+    assert apply_preset(base, None) is base
+    paper = apply_preset(base, "paper")
+    assert (paper.steps, paper.guidance_interval, paper.guidance, paper.shift) == (35, None, 3.0, 4.0)
+    fast = apply_preset(base, "fast")
+    assert (fast.steps, fast.guidance_interval) == (SAMPLER_PRESETS["fast"]["steps"],
+                                                    SAMPLER_PRESETS["fast"]["guidance_interval"])
+    with pytest.raises(ModelInputError, match="sampler preset: expected one of"):
+        apply_preset(base, "turbo")

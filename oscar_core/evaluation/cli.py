@@ -30,6 +30,7 @@ import os
 import sys
 from pathlib import Path
 
+from .._cli_types import interval
 from ..metrics._common import MetricInputError
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
@@ -99,7 +100,7 @@ def _vlm_kwargs(args) -> dict:
 def cmd_eval_run(args) -> int:
     import torch
 
-    from ..model.sampler import SamplerConfig
+    from ..model.sampler import sampler_from_options
     from .loop import run_evaluation
     from .manifest import load_manifest
 
@@ -120,8 +121,8 @@ def cmd_eval_run(args) -> int:
             pairwise = judge
     elif args.pairwise:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
-    sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
-                            guidance_form=args.guidance_form)
+    sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
+                                   shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form)
     result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
                             pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
                             device=args.device, dtype=getattr(torch, args.dtype),
@@ -165,7 +166,10 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
                    help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
                         'judge ran at high reasoning effort)')
     r.add_argument("--max-requests", type=int, help="VLM request budget for this run (default: unlimited)")
-    r.add_argument("--steps", type=int, default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--steps", type=int, help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget (as oscar rollout --preset)")
+    r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
+                   help="guide only the steps with noise level in [LO, HI]")
     r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
     r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6)")
     r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
