@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.tx
 	@# and the metadata folder its editable install left in the checkout (found on sys.path when run from here)
 	rm -rf oscar.egg-info
 	@$(PYTHON) -c "import importlib.metadata as m, sys; sys.exit('Skeleton-conditioned' not in (m.metadata('oscar')['Summary'] or ''))" 2>/dev/null && $(PIP) uninstall -y -q oscar || true
-	$(PIP) install -e ".[dev,mano,data,judge,text,tensorboard,ray]" -e examples/oscar-toyarm
+	$(PIP) install -e ".[dev,mano,mesh,data,judge,text,tensorboard,ray]" -e examples/oscar-toyarm
 	@mkdir -p .make && touch $(STAMP)
 
 demo: install

@@ -8,6 +8,15 @@ FK, projection, rasterisation and H.264 encoding, and the same job done the
 naive way (yourdfpy FK frame by frame, cv2.projectPoints and a fresh canvas
 per frame). Prints a table and writes JSON. Timings on shared machines
 swing; compare the ratios within one run.
+
+The mesh condition (docs/mesh-condition.md) is timed beside it at 512x288:
+render_mesh_video over the same trajectories with the full meshes and without
+back-face culling (the naive way), then culled, then simplified at several
+vertex-clustering cells, each with its silhouette IoU against the full meshes
+and its triangle count; and the peak traced memory of the streamed renderer
+for a trajectory and the same trajectory five times as long.
+
+    python benchmarks/render.py --skip-skeleton --mesh-embodiments franka toyarm
 """
 
 from __future__ import annotations
@@ -130,11 +139,91 @@ def bench_embodiment(name: str, repeats: int) -> list[dict]:
     return rows
 
 
+MESH_CELLS = (None, 0.005, 0.008, 0.01)  # metres; None: the meshes as given
+
+
+def _mesh_fps(emb, traj, cam, style, repeats: int) -> tuple[float, float, np.ndarray]:
+    from oscar_core.mesh_render import render_mesh_video
+
+    render_mesh_video(emb, traj.time_slice(0, 1), cam, style=style)  # loads and simplifies the meshes once
+    video = None
+
+    def run():
+        nonlocal video
+        video = render_mesh_video(emb, traj, cam, style=style)
+
+    best, median = best_and_median(run, repeats)
+    return len(traj) / best, len(traj) / median, video
+
+
+def _stream_peak_mb(emb, traj, cam) -> float:
+    """Peak traced memory (MB) of streaming ``traj`` chunk by chunk, each chunk dropped as a writer would."""
+    import tracemalloc
+
+    from oscar_core.mesh_render import iter_mesh_chunks
+
+    tracemalloc.start()
+    for _ in iter_mesh_chunks(emb, traj, cam, chunk_frames=16):
+        pass
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return peak / 2 ** 20
+
+
+def bench_mesh(name: str, repeats: int, size=(512, 288)) -> list[dict]:
+    """The mesh condition of ``name``'s example trajectory at ``size``, per simplification."""
+    from oscar_core.mesh_render import MeshStyle, mesh_geometry
+    from oscar_core.trajectory import Trajectory
+
+    emb = get_embodiment(name)
+    traj = emb.check_trajectory(load_trajectory(emb.example_trajectory)).time_slice(0, FRAMES)
+    cam = load_camera(emb.example_camera).resized(*size)
+    rows, full = [], None
+    for cell, cull in [(None, False)] + [(c, True) for c in MESH_CELLS]:
+        style = MeshStyle(simplify=cell, cull_back=cull)
+        fps, median_fps, video = _mesh_fps(emb, traj, cam, style, repeats)
+        sil = video.any(-1)
+        if full is None:
+            full = sil
+        inter, union = (sil & full).sum((1, 2)), (sil | full).sum((1, 2))
+        iou = inter / np.maximum(union, 1)
+        rows.append({"embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": len(traj),
+                     "simplify_m": cell, "cull_back": cull, "triangles": mesh_geometry(emb, cell).face_count,
+                     "fps": fps, "median_fps": median_fps, "us_per_frame": 1e6 / fps,
+                     "silhouette_iou_mean": float(iou.mean()), "silhouette_iou_min": float(iou.min()),
+                     "silhouette_pixels_differing": float((sil != full).sum((1, 2)).mean()),
+                     "silhouette_pixels": float(full.sum((1, 2)).mean())})
+    long = Trajectory(traj.joint_names, np.concatenate([traj.q] * 5), traj.fps, np.concatenate([traj.gripper] * 5),
+                      traj.gripper_names)
+    rows[-1]["stream_peak_mb"] = {len(traj): _stream_peak_mb(emb, traj, cam), len(long): _stream_peak_mb(emb, long, cam)}
+    return rows
+
+
+def print_mesh_table(rows: list[dict]) -> None:
+    cols = [("embodiment", "{}"), ("size", "{}"), ("simplify_m", "{}"), ("cull_back", "{}"), ("triangles", "{}"),
+            ("us_per_frame", "{:.0f}"), ("fps", "{:.0f}"), ("median_fps", "{:.0f}"), ("silhouette_iou_mean", "{:.4f}"),
+            ("silhouette_iou_min", "{:.4f}")]
+    table = [[c for c, _ in cols]] + [[f.format(r[c]) for c, f in cols] for r in rows]
+    widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
+    print(f"mesh condition, {FRAMES}-frame trajectories, one CPU thread (best of repeats); "
+          "IoU of the silhouette against the full meshes")
+    for row in table:
+        print("  ".join(v.rjust(w) for v, w in zip(row, widths)))
+    for r in rows:
+        if "stream_peak_mb" in r:
+            print(f"{r['embodiment']}: streamed peak traced memory (MB) by trajectory length: "
+                  + ", ".join(f"{n} frames {mb:.1f}" for n, mb in r["stream_peak_mb"].items()))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--embodiments", nargs="*", help="default: every registered embodiment with a bundled example")
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "render.json"))
+    ap.add_argument("--mesh-embodiments", nargs="*", default=["franka", "toyarm"],
+                    help="embodiments whose mesh condition is timed (default: franka toyarm)")
+    ap.add_argument("--skip-skeleton", action="store_true", help="time the mesh condition only")
+    ap.add_argument("--skip-mesh", action="store_true", help="time the skeleton only")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
@@ -143,7 +232,7 @@ def main(argv=None) -> int:
     reg = default_registry()
     names = args.embodiments or [n for n in reg.names()
                                  if reg.get(n).example_trajectory is not None and reg.get(n).uses_kinematic_tree()]
-    rows = [r for n in names for r in bench_embodiment(n, args.repeats)]
+    rows = [] if args.skip_skeleton else [r for n in names for r in bench_embodiment(n, args.repeats)]
     cols = [("embodiment", "{}"), ("size", "{}"), ("points", "{}"), ("fk_us", "{:.1f}"), ("project_us", "{:.1f}"),
             ("raster_us", "{:.1f}"), ("encode_us", "{:.0f}"), ("pipeline_fps", "{:.0f}"),
             ("pipeline_with_h264_fps", "{:.0f}"), ("naive_fps", "{:.0f}"), ("speedup_vs_naive", "{:.1f}x")]
@@ -152,12 +241,15 @@ def main(argv=None) -> int:
     print(f"per-frame costs in microseconds, {FRAMES}-frame trajectories, one CPU thread (best of repeats)")
     for row in table:
         print("  ".join(v.rjust(w) for v, w in zip(row, widths)))
+    mesh_rows = [] if args.skip_mesh else [r for n in args.mesh_embodiments for r in bench_mesh(n, args.repeats)]
+    if mesh_rows:
+        print_mesh_table(mesh_rows)
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
             "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    out.write_text(json.dumps({"meta": meta, "rows": rows, "mesh_rows": mesh_rows}, indent=2))
     print(f"wrote {out}")
     return 0
 

@@ -28,6 +28,8 @@ _EXPORTS = {
     # rendering and video
     "SkeletonStyle": "render", "GripperMarks": "render", "rasterise": "render",
     "render_skeleton_video": "pipeline", "overlay_skeleton": "pipeline",
+    "render_mesh_video": "mesh_render", "MeshStyle": "mesh_render", "VisualGeometry": "visual",
+    "LinkGeometry": "visual",
     "write_video": "video", "read_video": "video",
     # errors
     "OscarError": "errors", "InputFileError": "errors", "CameraFileError": "errors", "KinematicsFileError": "errors",

@@ -40,7 +40,7 @@ __all__ = [
     "summarise",
 ]
 
-MANIFEST_FIELDS = ("embodiment", "trajectory", "camera", "out", "size", "fps", "resize", "format")
+MANIFEST_FIELDS = ("embodiment", "trajectory", "camera", "out", "size", "fps", "resize", "format", "condition")
 REQUIRED_FIELDS = ("embodiment", "trajectory", "camera", "out")
 
 
@@ -51,7 +51,8 @@ class EpisodeSpec:
     embodiment: registered name; trajectory: ``.npz`` path; camera: ``.json`` path;
     out: output path (``.mp4``, ``.mkv`` or a name ending in ``/``);
     size: (width, height) pixels or None (the calibration's); fps: None (the
-    trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png".
+    trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png";
+    condition: None (``RenderOptions.condition``), "skeleton" or "mesh" (see :mod:`oscar_core.conditions`).
     """
 
     embodiment: str
@@ -62,6 +63,7 @@ class EpisodeSpec:
     fps: float | None = None
     resize: str = "crop"
     format: str | None = None
+    condition: str | None = None
 
 
 @dataclass(frozen=True)
@@ -72,7 +74,8 @@ class RenderOptions:
     :class:`oscar_core.video.VideoWriter`); threads: encoder threads per episode
     (None: 1 with several workers, else automatic); strict: frames where the camera
     sees nothing of the robot are an error; chunk_frames: frames per streamed chunk;
-    device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins.
+    device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins;
+    condition: the condition video of episodes that do not name one ("skeleton" or "mesh").
     """
 
     preset: str | None = None
@@ -83,6 +86,7 @@ class RenderOptions:
     chunk_frames: int | None = None
     device: str = "cpu"
     plugin_paths: tuple[str, ...] = ()
+    condition: str = "skeleton"
 
 
 @dataclass
@@ -132,12 +136,14 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
     rendering. Warnings (joint limits, an empty view) are caught and returned in
     the result, not printed. Returns an :class:`EpisodeResult` with ``ok=True``.
     """
-    from .render_stream import DEFAULT_CHUNK_FRAMES, RenderStats, iter_skeleton_chunks
+    from .conditions import check_condition, chunk_renderer
+    from .render_stream import DEFAULT_CHUNK_FRAMES, RenderStats
     from .trajectory import load_trajectory
     from .video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output
 
     t0 = time.perf_counter()
     check_output(spec.out, format=spec.format)  # suffix and folder, before reading anything
+    iter_chunks = chunk_renderer(check_condition(spec.condition or options.condition, "condition"))
     registry = registry if registry is not None else _registry(options.plugin_paths)
     emb = registry.get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)
@@ -150,9 +156,9 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
                              preset=options.preset or DEFAULT_PRESET, yuv=options.yuv or DEFAULT_YUV,
                              threads=0 if options.threads is None else options.threads, size=size)
         with writer:
-            for chunk in iter_skeleton_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
-                                              camera_source=str(spec.camera), strict=options.strict, stats=stats,
-                                              chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
+            for chunk in iter_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
+                                     camera_source=str(spec.camera), strict=options.strict, stats=stats,
+                                     chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
                 writer.write(chunk)
     seen, messages = set(), []
     for w in caught:
@@ -292,9 +298,15 @@ def _pool_context(specs: Sequence[EpisodeSpec], options: RenderOptions):
     import cv2  # noqa: F401
 
     registry = _registry(options.plugin_paths)
+    meshes = {s.embodiment for s in specs if (s.condition or options.condition) == "mesh"}
     for name in dict.fromkeys(s.embodiment for s in specs):
         try:
-            registry.get(name).edges  # parses its kinematic description once
+            emb = registry.get(name)
+            emb.edges  # parses its kinematic description once
+            if name in meshes:
+                from .mesh_render import MeshStyle, mesh_geometry
+
+                mesh_geometry(emb, MeshStyle().simplify)  # reads and simplifies its meshes once
         except Exception:  # noqa: BLE001 - the episode reports it
             pass
     return mp.get_context("fork")
@@ -367,15 +379,20 @@ def _spec_from_row(row: dict, where: str, source: str, base: Path) -> EpisodeSpe
     fmt = row.get("format") or None
     if fmt not in (None, "mp4", "mkv", "png"):
         raise InputFileError(source, f"{where}.format", "mp4, mkv or png", repr(fmt))
+    from .conditions import CONDITIONS
+
+    condition = row.get("condition") or None
+    if condition not in (None, *CONDITIONS):
+        raise InputFileError(source, f"{where}.condition", " or ".join(CONDITIONS), repr(condition))
     return EpisodeSpec(row["embodiment"].strip(), resolve(row["trajectory"]), resolve(row["camera"]),
-                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt)
+                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt, condition)
 
 
 def read_manifest(path) -> list[EpisodeSpec]:
     """Episode specs from a ``.jsonl`` (one JSON object per line) or ``.csv`` (header row) manifest.
 
     Fields: embodiment, trajectory, camera, out (required); size, fps, resize,
-    format (optional). Relative paths are relative to the manifest's folder.
+    format, condition (optional). Relative paths are relative to the manifest's folder.
     Blank lines and JSONL lines starting with ``#`` are skipped. Raises
     :class:`InputFileError` naming the file, the line and the field.
     """

@@ -327,6 +327,34 @@ class Embodiment:
         fk = self.forward_kinematics(device, dtype)
         return fk(q, list(links or self.skeleton.links), base_pose)
 
+    # ---- visual geometry (the mesh condition) -----------------------------
+    def visual_geometry(self):
+        """Triangles of each link in its own frame: a :class:`~oscar_core.visual.VisualGeometry`.
+
+        Default: the ``<visual>`` elements of the URDF (or expanded xacro) this
+        embodiment loads, ``package://`` names resolved through ``packages`` (see
+        :func:`oscar_core.visual.read_urdf_visuals`). Override it to give or replace
+        geometry (e.g. meshes from elsewhere for a kinematic-only description).
+        Raises :class:`PluginError` when there is none.
+        """
+        from .visual import read_urdf_visuals
+
+        if not self.uses_kinematic_tree():
+            raise PluginError(f"embodiment {self.name!r} has no visual geometry: it computes its points itself "
+                              "(no URDF); override Embodiment.visual_geometry to give triangles per link")
+        if self.urdf is not None:
+            geo = read_urdf_visuals(self.urdf, self.packages)
+        else:
+            from .urdf import expand_xacro
+
+            geo = read_urdf_visuals(expand_xacro(self.xacro, self.xacro_args, self.packages), self.packages,
+                                    source=str(self.xacro), base_dir=Path(self.xacro).parent)
+        if not geo.links:
+            raise PluginError(f"embodiment {self.name!r} has no visual geometry: {geo.source} has no <visual> "
+                              "elements (a kinematic-only description); add them to its links or override "
+                              "Embodiment.visual_geometry")
+        return geo
+
     # ---- trajectories ----------------------------------------------------
     def check_trajectory(self, traj: Trajectory) -> Trajectory:
         """Validate ``traj`` against this embodiment; returns it in this joint order.

@@ -13,12 +13,13 @@ from .errors import OscarError
 EPILOG = """examples:
   oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json --out skel.mp4 --size 512x288
   oscar render ... --out skel.mkv              (lossless FFV1)
+  oscar render ... --condition mesh --out mesh.mp4   (the robot's URDF visual geometry instead of the skeleton)
   oscar render ... --out frames/               (PNG frames; or --format png)
   oscar render --manifest episodes.jsonl --workers 2 --json
   oscar render --embodiment franka --trajectories trajs/ --out videos/ --size 512x288 --workers 2
 
 A manifest is JSONL or CSV with the fields embodiment, trajectory, camera, out
-(and optionally size, fps, resize, format); see docs/formats.md. With
+(and optionally size, fps, resize, format, condition); see docs/formats.md. With
 --trajectories each DIR/<stem>.npz uses DIR/<stem>.json, else DIR/camera.json,
 else --camera, and writes OUT/<stem>.mp4 (or .mkv, or <stem>/ with --format).
 Exit status: 0 all written, 1 some episodes failed (listed), 2 bad arguments.
@@ -29,7 +30,8 @@ def add_render_parser(sub) -> None:
     """Register ``oscar render`` on the sub-command parsers ``sub``."""
     from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
-    r = sub.add_parser("render", help="render skeleton videos from trajectories (one, or many with a worker pool)",
+    r = sub.add_parser("render", help="render skeleton (or mesh) condition videos from trajectories "
+                                      "(one, or many with a worker pool)",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     r.add_argument("--embodiment", help="embodiment name (see `oscar embodiments`)")
     r.add_argument("--trajectory", help="trajectory .npz (docs/formats.md)")
@@ -40,6 +42,9 @@ def add_render_parser(sub) -> None:
     r.add_argument("--trajectories", metavar="DIR", help="render every DIR/*.npz (cameras beside them) into --out")
     r.add_argument("--format", choices=("mp4", "mkv", "png"),
                    help="output format instead of the suffix (png: a folder of PNG frames)")
+    r.add_argument("--condition", choices=("skeleton", "mesh"), default="skeleton",
+                   help="condition video: the skeleton (default) or the robot's visual geometry (mesh; "
+                        "needs <visual> elements and the mesh extra: docs/mesh-condition.md)")
     r.add_argument("--size", help="output WIDTHxHEIGHT, e.g. 512x288 (default: the calibration's image size)")
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)")
@@ -101,7 +106,7 @@ def _options(args):
     from .batch_render import RenderOptions
 
     return RenderOptions(preset=args.preset, crf=args.crf, yuv=args.yuv, strict=args.strict, device=args.device,
-                         plugin_paths=tuple(args.plugin or ()))
+                         plugin_paths=tuple(args.plugin or ()), condition=args.condition)
 
 
 def cmd_render(args) -> int:
@@ -143,7 +148,7 @@ def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
     from .batch_render import _registry
     from .pipeline import fit_image, overlay_skeleton
-    from .render_stream import iter_skeleton_chunks
+    from .conditions import chunk_renderer
     from .trajectory import load_trajectory
     from .video import DEFAULT_PRESET, VideoWriter, check_output, read_video, video_info
 
@@ -164,8 +169,9 @@ def _render_overlay(args, spec) -> int:
     with VideoWriter(spec.out, fps, format=spec.format, preset=args.preset or DEFAULT_PRESET, crf=args.crf,
                      yuv=args.yuv, size=tuple(size)) as writer:
         t = 0
-        for chunk in iter_skeleton_chunks(emb, traj, cam, tuple(size), resize_mode=spec.resize, device=args.device,
-                                          camera_source=str(spec.camera), strict=args.strict):
+        for chunk in chunk_renderer(args.condition)(emb, traj, cam, tuple(size), resize_mode=spec.resize,
+                                                    device=args.device, camera_source=str(spec.camera),
+                                                    strict=args.strict):
             H, W = chunk.shape[1:3]
             # the real frames are fitted to the output size exactly as the calibration was (--resize)
             real = np.stack([fit_image(f, W, H, spec.resize) for f in rgb[t:t + len(chunk)]])

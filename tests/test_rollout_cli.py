@@ -114,3 +114,21 @@ def test_zoo_list_and_pull(capsys, tmp_path, model_dir, monkeypatch):
     assert json.loads(out)["lock"].endswith("oscar-locks/models--me--tiny/main.json")
     code, out, _ = run(capsys, "zoo", "pull", "me/tiny", "--offline")
     assert code == 0 and "verified" in out
+
+
+def test_rollout_of_a_mesh_model_is_conditioned_on_the_mesh_video(capsys, tmp_path, first_frame):
+    from oscar_core import get_embodiment, load_camera, load_trajectory
+    from oscar_core.mesh_render import render_mesh_video
+
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny-mesh", chunk_frames=41, fps=15.0, condition="mesh"))
+    folder = oscar_zoo.export(model, tmp_path / "tiny-mesh")
+    out = tmp_path / "video.mkv"
+    code, _, err = run(capsys, *_args(folder, first_frame, out))
+    assert code == 0, err
+    from oscar_core.pipeline import overlay_skeleton
+
+    side = read_video(side_by_side_path(out))  # right half: the condition video it was given, over the rollout
+    mesh = render_mesh_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (64, 32))
+    assert mesh.any()
+    np.testing.assert_array_equal(side[:, :, 64:], overlay_skeleton(mesh, side[:, :, :64]))

@@ -85,8 +85,9 @@ def test_card_condition_defaults_to_skeleton_and_is_checked():
     old = {"name": "old", "chunk_frames": 81}  # a card written before the field existed
     assert ModelCard.from_dict(old).condition == "skeleton"
     assert ModelCard.from_dict(ModelCard(condition="none").to_dict()).condition == "none"
-    with pytest.raises(ModelInputError, match="model card condition: expected one of .* found 'mesh'"):
-        ModelCard(condition="mesh")
+    assert ModelCard(condition="mesh").condition == "mesh"
+    with pytest.raises(ModelInputError, match="model card condition: expected one of .* found 'depth'"):
+        ModelCard(condition="depth")
 
 
 # ---------------------------------------------------------------------- the rollout

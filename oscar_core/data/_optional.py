@@ -1,16 +1,7 @@
-"""Optional dependencies of the data pipeline, checked in one place."""
+"""Optional dependencies of the data pipeline: the package-wide helper (:mod:`oscar_core._optional`)."""
 
 from __future__ import annotations
 
-from importlib import import_module
+from .._optional import require
 
 __all__ = ["require"]
-
-
-def require(module: str, extra: str):
-    """Import ``module`` or raise ImportError naming ``pip install "oscar-wm[<extra>]"``."""
-    try:
-        return import_module(module)
-    except ImportError as exc:
-        raise ImportError(f"{module} is needed here and is not installed ({exc}); "
-                          f'install it with: pip install "oscar-wm[{extra}]"') from None

@@ -154,7 +154,8 @@ def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_path
     """Render the cell's skeleton video and roll the model out; returns (frames (T, H, W, 3) uint8, fps)."""
     from ..errors import InputFileError
     from ..model._image import read_image
-    from ..pipeline import fit_image, render_skeleton_video
+    from ..conditions import condition_video
+    from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
 
@@ -169,7 +170,9 @@ def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_path
     card = model.card
     if size is None:
         size = (card.width, card.height) if card.width and card.height else cam_size
-    skeleton = render_skeleton_video(emb, traj, camera, size, resize_mode="crop", camera_source=str(cell.camera))
+    # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
+    skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
+                               resize_mode="crop", camera_source=str(cell.camera))
     first = fit_image(first, size[0], size[1], "crop")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead

@@ -349,7 +349,8 @@ def cmd_rollout(args) -> int:
     import oscar_zoo
 
     from ..errors import InputFileError
-    from ..pipeline import fit_image, render_skeleton_video
+    from ..conditions import condition_video
+    from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
     from ._image import read_image
@@ -383,8 +384,9 @@ def cmd_rollout(args) -> int:
     if args.vae_slicing:
         model.enable_vae_slicing()
     width, height = _rollout_size(args, model.card, camera)
-    skeleton = render_skeleton_video(emb, traj, camera, (width, height), resize_mode=args.resize,
-                                     camera_source=args.camera)
+    # the card's condition video (the skeleton, or the mesh for a mesh-conditioned model)
+    skeleton = condition_video("mesh" if model.card.condition == "mesh" else "skeleton", emb, traj, camera,
+                               (width, height), resize_mode=args.resize, camera_source=args.camera)
     first = fit_image(first, width, height, args.resize)
     prompt, text_source = _prompt_embeds(args, model, device)
     print(f"text: {text_source}", file=sys.stderr)

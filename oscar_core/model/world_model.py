@@ -41,7 +41,7 @@ FORMAT = "oscar-world-model"
 EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"
 SCHEDULER_FILE = "scheduler/scheduler_config.json"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-CONDITIONS = ("skeleton", "latent_action", "none")
+CONDITIONS = ("skeleton", "mesh", "latent_action", "none")  # mesh: the robot's visual geometry in the skeleton stream
 
 
 @dataclass(frozen=True)
@@ -351,12 +351,14 @@ class OscarWorldModel:
             from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
-        from ..pipeline import render_skeleton_video
+        from ..conditions import condition_video
 
         if size is None and self.card.width and self.card.height:
             size = (self.card.width, self.card.height)
-        return {"skeleton": render_skeleton_video(embodiment, trajectory, camera, size, resize_mode=resize_mode,
-                                                  camera_source=camera_source)}
+        # the card's condition video (skeleton, or mesh) goes in the skeleton stream
+        name = "mesh" if self.card.condition == "mesh" else "skeleton"
+        return {"skeleton": condition_video(name, embodiment, trajectory, camera, size, resize_mode=resize_mode,
+                                            camera_source=camera_source)}
 
     def rollout_trajectory(self, first_frame, trajectory, camera, embodiment, prompt_embeds: torch.Tensor | None = None,
                            *, size: tuple[int, int] | None = None, resize_mode: str = "crop", **options):

@@ -29,7 +29,8 @@ from ..errors import OscarError
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
-CONDITIONS = ("skeleton", "latent_action", "none")
+CONDITIONS = ("skeleton", "mesh", "latent_action", "none")
+VIDEO_CONDITIONS = ("skeleton", "mesh")  # conditions given as a video through the VAE and PE_s
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 LATENT_MODES = ("auto", "cached", "on_the_fly")
 UNCONDITIONAL = ("zero_latent", "black_video")
@@ -160,7 +161,9 @@ class TrainConfig:
 
     # the run folder (checkpoints, metrics.jsonl, config.yaml, export/)
     run_dir: str = "runs/oscar"
-    # what conditions the DiT: "skeleton" (OSCAR), "latent_action" (the paper's ablation), "none" (text only)
+    # what conditions the DiT: "skeleton" (OSCAR), "mesh" (the robot's URDF visual geometry rendered through the
+    # same camera, through the VAE and PE_s like the skeleton: the paper's ablation), "latent_action" (the paper's
+    # ablation), "none" (text only)
     condition: str = "skeleton"
     # warm start from another run's latest checkpoint (stage 2 names the stage-1 run), or null
     parent_run: str | None = None

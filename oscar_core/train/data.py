@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from .clips import ClipFormatError, ClipRecord, ClipSet
-from .config import TrainConfig
+from .config import VIDEO_CONDITIONS, TrainConfig
 from .sampling import PlanItem, StepPlanner
 
 __all__ = ["TrainData", "Batch", "UsableClip"]
@@ -160,7 +160,7 @@ class TrainData:
         c, d, f = self.config, self.config.data, self.config.flow
         clips = [(u.record.source, u.record.n_frames, u.record.openness_array, u.starts) for u in self.clips]
         return StepPlanner(clips, self.window, seed=c.seed, temperature=d.mixing_temperature, ramp=d.prior_ramp,
-                           uniform=d.prior_uniform, dropout=d.skeleton_dropout if c.condition == "skeleton" else 0.0,
+                           uniform=d.prior_uniform, dropout=d.skeleton_dropout if c.condition in VIDEO_CONDITIONS else 0.0,
                            shift=f.shift, logit_mean=f.logit_mean, logit_std=f.logit_std)
 
     # ------------------------------------------------------------------ loading
@@ -198,29 +198,38 @@ class TrainData:
         u = self.clips[item.clip]
         rec, cs = u.record, u.clipset
         w, h = self.size
-        want_skeleton = condition == "skeleton" and not item.drop
+        want_skeleton = condition in VIDEO_CONDITIONS and not item.drop
+        # stored skeleton videos and cached skeleton latents are skeletons: a mesh condition is rendered here
+        stored = condition == "skeleton"
         out: dict = {"skeleton": None, "actions": None}
-        need_traj = (want_skeleton and not self.cached and "skeleton" not in rec.files) or condition == "latent_action"
+        need_traj = ((want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files)))
+                     or condition == "latent_action")
         clip = cs.load(rec, start=item.start, frames=self.window, video=not self.cached,
-                       skeleton=want_skeleton and not self.cached, registry=self.registry if need_traj else None)
+                       skeleton=want_skeleton and stored and not self.cached, registry=self.registry if need_traj else None)
         if self.cached:
             lat = clip.latents
             row = int(np.nonzero(lat["starts"].numpy() == item.start)[0][0])
             out["z0"] = lat["video"][row].float()
-            if want_skeleton:
+            if want_skeleton and stored:
                 out["skeleton"] = lat["skeleton"][row].float()
         else:
             self._need_vae("on-the-fly encoding")
             rgb = np.stack([fit_image(f, w, h, "crop") for f in clip.rgb])
             out["z0"] = self._encode(rgb, "on-the-fly encoding")
-            if want_skeleton:
+            if want_skeleton and stored:
                 if clip.skeleton is not None:
                     skel = np.stack([fit_image(f, w, h, "crop") for f in clip.skeleton])
                 else:
                     skel = render_skeleton_video(self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
                                                  resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
                 out["skeleton"] = self._encode(skel, "on-the-fly encoding")
-        if condition == "skeleton" and item.drop:
+        if want_skeleton and not stored:
+            from ..conditions import condition_video
+
+            video = condition_video(condition, self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
+                                    resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
+            out["skeleton"] = self._encode(video, f"the {condition} condition video")
+        if condition in VIDEO_CONDITIONS and item.drop:
             out["skeleton"] = (self.black_latent() if self.config.data.unconditional_skeleton == "black_video"
                                else torch.zeros_like(out["z0"]))
         if clip.prompt_embeds is not None:
@@ -243,7 +252,7 @@ class TrainData:
         L = max(x["text"].shape[0] for x in loaded)
         text = torch.stack([torch.cat([x["text"], x["text"].new_zeros(L - x["text"].shape[0], self.text_dim)])
                             for x in loaded])
-        skel = torch.stack([x["skeleton"] for x in loaded]) if condition == "skeleton" else None
+        skel = torch.stack([x["skeleton"] for x in loaded]) if condition in VIDEO_CONDITIONS else None
         acts = torch.stack([x["actions"] for x in loaded]) if condition == "latent_action" else None
         return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts)
 

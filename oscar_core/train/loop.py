@@ -22,7 +22,7 @@ import torch
 
 from .._atomic import atomic_write_bytes
 from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
-from .config import TrainConfig, TrainConfigError, load_config, save_config
+from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
@@ -68,7 +68,7 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     kwargs = dict(hidden_states=inputs.x, timestep=inputs.timestep, encoder_hidden_states=batch.text.to(device),
                   condition_mask=inputs.condition_mask, padding_mask=torch.zeros(1, 1, h, w, device=device),
                   return_dict=False)
-    if config.condition == "skeleton":
+    if config.condition in VIDEO_CONDITIONS:
         kwargs["skeleton_latents"] = batch.skeleton.to(device)
     elif config.condition == "latent_action":
         kwargs["actions"] = batch.actions.to(device)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from .config import TrainConfig, TrainConfigError
+from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError
 
 __all__ = ["build_transformer", "build_vae", "transformer_config"]
 
@@ -60,7 +60,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
                         mlp[2].bias.zero_()
         else:  # "default": the condition layers draw nn.Linear's own init, seeded after the rest of the model
             torch.manual_seed(m.seed + 1)
-            if config.condition == "skeleton":
+            if config.condition in VIDEO_CONDITIONS:
                 model.skeleton_embed.proj.reset_parameters()
             else:  # PE_s stays zero (and frozen, below) in a model that never sees a skeleton
                 with torch.no_grad():
@@ -79,7 +79,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
             raise TrainConfigError(source, "model.init", f"weights matching the transformer config ({init})",
                                    f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}")
         # the keys the base lacks (PE_s, the action MLPs) keep their constructor init: zero outputs
-    if config.condition != "skeleton":
+    if config.condition not in VIDEO_CONDITIONS:
         # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
         model.skeleton_embed.requires_grad_(False)
     model.train()

@@ -1,0 +1,44 @@
+"""``oscar eval run`` rolls a mesh-conditioned model out on the mesh video (the card's condition)."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from oscar_core import get_embodiment, load_camera, load_trajectory
+from oscar_core.evaluation.loop import _rollout_cell
+from oscar_core.evaluation.manifest import Cell
+from oscar_core.mesh_render import render_mesh_video
+from oscar_core.model import ModelCard, OscarWorldModel
+from oscar_core.model.sampler import SamplerConfig
+from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+from oscar_core.pipeline import render_skeleton_video
+
+ASSETS = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
+
+
+def test_a_cell_of_a_mesh_model_is_conditioned_on_the_mesh(tmp_path):
+    first = tmp_path / "first.png"
+    cv2.imwrite(str(first), np.full((360, 640, 3), 90, np.uint8))
+    traj_path = tmp_path / "t.npz"
+    traj = load_trajectory(ASSETS / "example_trajectory.npz").time_slice(0, 9)
+    from oscar_core import save_trajectory
+
+    save_trajectory(traj, traj_path)
+    cell = Cell("s", "p", "task", "toyarm", first, traj_path, ASSETS / "example_camera.json", 0)
+    seen = {}
+    for condition in ("mesh", "skeleton"):
+        model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
+                                             ModelCard(name="m", chunk_frames=9, fps=15.0, condition=condition))
+
+        def spy(first_frame, skeleton, *args, _rollout=model.rollout, **kwargs):
+            seen[condition] = skeleton
+            return _rollout(first_frame, skeleton, *args, **kwargs)
+
+        model.rollout = spy
+        frames, _ = _rollout_cell(model, cell, (64, 32), sampler=SamplerConfig(steps=1), chunk_frames=9, plugin_paths=(),
+                                  progress=False)
+        assert frames.shape == (9, 32, 64, 3)
+    emb, cam = get_embodiment("toyarm"), load_camera(ASSETS / "example_camera.json")
+    np.testing.assert_array_equal(seen["mesh"], render_mesh_video(emb, traj, cam, (64, 32)))
+    np.testing.assert_array_equal(seen["skeleton"], render_skeleton_video(emb, traj, cam, (64, 32)))
