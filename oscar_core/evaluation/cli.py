@@ -129,6 +129,7 @@ def cmd_eval_run(args) -> int:
                             plugin_paths=getattr(args, "plugin", None) or (),
                             progress=not args.no_progress and sys.stderr.isatty(),
                             plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
+                            batch_cells=args.batch_cells,
                             log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
     report = result.report
     if args.json:
@@ -174,6 +175,9 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6)")
     r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
     r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's)")
+    r.add_argument("--batch-cells", type=int, default=1, metavar="N",
+                   help="roll out up to N cells in one batch (same frame count and size; each video equals its "
+                        "one-at-a-time rollout up to float rounding; default 1)")
     r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32", help="DiT dtype")
     r.add_argument("--plot-format", default="png", help="comma-separated plot formats (png, pdf, svg)")

@@ -150,8 +150,9 @@ def _prompt(cell: Cell):
     raise MetricInputError(cell.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
 
 
-def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_paths, progress) -> tuple[np.ndarray, float]:
-    """Render the cell's skeleton video and roll the model out; returns (frames (T, H, W, 3) uint8, fps)."""
+def _cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
+    """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
+    condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
     from ..errors import InputFileError
     from ..model._image import read_image
     from ..conditions import condition_video
@@ -174,11 +175,25 @@ def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_path
     skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
                                resize_mode="crop", camera_source=str(cell.camera))
     first = fit_image(first, size[0], size[1], "crop")
+    return {"first": first, "video": skeleton, "prompt": _prompt(cell), "fps": float(traj.fps)}
+
+
+def _batch_key(inputs: dict) -> tuple:
+    """Cells roll out in one batch only with one chunk plan and size and one prompt shape."""
+    prompt = inputs["prompt"]
+    return inputs["video"].shape, None if prompt is None else tuple(prompt.shape)
+
+
+def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
+    """Roll out a group of cells' inputs: one at a time for a group of one, else as one batch."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
-        result = model.rollout(first, skeleton, _prompt(cell), chunk_frames=chunk_frames, sampler=sampler,
-                               seed=cell.seed, progress=progress, keep_chunks=False)
-    return result.frames, float(traj.fps)
+        if len(group) == 1:
+            return [model.rollout(group[0]["first"], group[0]["video"], group[0]["prompt"], chunk_frames=chunk_frames,
+                                  sampler=sampler, seed=seeds[0], progress=progress, keep_chunks=False).frames]
+        return model.rollout_batch([g["first"] for g in group], [g["video"] for g in group],
+                                   [g["prompt"] for g in group], chunk_frames=chunk_frames, sampler=sampler,
+                                   seeds=seeds, progress=progress)
 
 
 def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
@@ -197,7 +212,8 @@ def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
 def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, revision: str | None = None,
                    judge=None, pairwise_judge=None, sampler=None, chunk_frames: int | None = None,
                    device="cpu", dtype=None, plugin_paths=(), progress: bool = False,
-                   plot_formats=("png",), log: Callable[[str], None] | None = None) -> EvaluationResult:
+                   plot_formats=("png",), log: Callable[[str], None] | None = None,
+                   batch_cells: int = 1) -> EvaluationResult:
     """Run the loop of the module docstring and write the report folder ``out``.
 
     manifest: a path or a loaded :class:`Manifest`. model: a loaded world model,
@@ -206,7 +222,12 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     rollout is needed. judge: success judge (``judge_many``) or None (no
     world-model success rates); pairwise_judge: ``compare_many`` or None.
     sampler: :class:`~oscar_core.model.SamplerConfig` (default: the paper's).
+    batch_cells: roll out up to this many cells in one batch (cells in manifest order that share a frame count,
+    size and prompt shape; each cell's video equals its one-at-a-time rollout up to float rounding, and its
+    record is written as soon as its batch finishes). Latent-action models roll out one at a time.
     """
+    if isinstance(batch_cells, bool) or not isinstance(batch_cells, int) or batch_cells < 1:
+        raise MetricInputError("batch_cells", "value", "an integer >= 1", repr(batch_cells))
     from ..model.sampler import SamplerConfig
 
     log = log or (lambda msg: print(msg, file=sys.stderr))
@@ -230,9 +251,10 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     size = manifest.size
     counts = {"cells": len(manifest.cells), "rollouts_done": 0, "rollouts_reused": 0, "verdicts_done": 0,
               "verdicts_reused": 0, "verdicts_not_ok": 0}
-    records: list[dict] = []
+    done: dict[int, dict] = {}
 
     # 1. rollouts -------------------------------------------------------------------------------
+    pending = []  # (index, cell, key) of the cells without a valid rollout
     for k, cell in enumerate(manifest.cells):
         rpath, vpath = record_path(out, cell), video_path(out, cell)
         key = rollout_key(cell, model_id=model_id, sampler=sampler_fields, chunk_frames=chunk_frames, size=size,
@@ -241,26 +263,47 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
         if (rec is not None and rec.get("rollout_key") == key and vpath.is_file()
                 and rec.get("video_sha256") == file_digest(vpath)):
             counts["rollouts_reused"] += 1
-            records.append(rec)
-            continue
-        t0 = time.perf_counter()
-        m = lazy.get()
-        frames, fps = _rollout_cell(m, cell, size, sampler=sampler, chunk_frames=chunk_frames,
-                                    plugin_paths=plugin_paths, progress=progress)
+            done[k] = rec
+        else:
+            pending.append((k, cell, key))
+
+    def finish(group: list[tuple], inputs: list[dict]) -> None:
         from ..video import write_video
 
-        vpath.parent.mkdir(parents=True, exist_ok=True)
-        write_video(vpath, frames, fps)
-        rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
-               "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
-               "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
-               "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])], "fps": fps,
-               "seconds": round(time.perf_counter() - t0, 3), "verdict": None,
-               "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-        _write_json(rpath, rec)
-        counts["rollouts_done"] += 1
-        records.append(rec)
-        log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in {rec['seconds']:.1f} s")
+        t0 = time.perf_counter()
+        videos = _roll_out(m, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for _, c, _ in group],
+                           progress=progress)
+        seconds = (time.perf_counter() - t0) / len(group)
+        for (k, cell, key), frames, inp in zip(group, videos, inputs):
+            rpath, vpath = record_path(out, cell), video_path(out, cell)
+            vpath.parent.mkdir(parents=True, exist_ok=True)
+            write_video(vpath, frames, inp["fps"])
+            rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
+                   "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
+                   "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
+                   "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])],
+                   "fps": inp["fps"], "seconds": round(seconds, 3), "verdict": None, "batch": len(group),
+                   "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+            _write_json(rpath, rec)
+            counts["rollouts_done"] += 1
+            done[k] = rec
+            log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
+                f"{rec['seconds']:.1f} s" + (f" (batch of {len(group)})" if len(group) > 1 else ""))
+
+    group: list[tuple] = []
+    inputs: list[dict] = []
+    for k, cell, key in pending:
+        m = lazy.get()
+        per_batch = batch_cells if m.card.condition != "latent_action" else 1
+        inp = _cell_inputs(m, cell, size, plugin_paths)
+        if group and (len(group) >= per_batch or _batch_key(inp) != _batch_key(inputs[0])):
+            finish(group, inputs)
+            group, inputs = [], []
+        group.append((k, cell, key))
+        inputs.append(inp)
+    if group:
+        finish(group, inputs)
+    records = [done[k] for k in range(len(manifest.cells))]
 
     # 2. success verdicts ------------------------------------------------------------------------
     from ..metrics.judge import JudgeClip, SuccessVerdict, pairs_by_session, success_by_policy

@@ -329,7 +329,8 @@ def _action_guided_velocity(transformer, latents, timestep, text, actions, condi
 def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch.Tensor | None, text: torch.Tensor,
                  config: SamplerConfig = SamplerConfig(), generator: torch.Generator | None = None,
                  progress=None, uncond_skeleton: torch.Tensor | None = None, *,
-                 actions: torch.Tensor | None = None, latent_frames: int | None = None) -> torch.Tensor:
+                 actions: torch.Tensor | None = None, latent_frames: int | None = None,
+                 generators=None) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
     first_latent: (B, C, 1, H, W) normalised clean latent of the seed frame.
@@ -338,7 +339,9 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     text: (B or 1, L, D) prompt embedding.
     generator: CPU generator for the initial noise (drawn on the CPU, so a seed
         gives the same noise on every device); progress: optional tqdm-like
-        object, ``update(1)`` per step.
+        object, ``update(1)`` per step. generators: instead of ``generator``,
+        one CPU generator per batch item, each drawing its item's noise (B
+        independent rollouts in one batch draw what each would draw alone).
     uncond_skeleton: the unconditional branch's skeleton latent (None: zeros).
     actions: (B, window − 1, 14) latent actions of the chunk, for a
         ``LatentActionTransformer``: then ``skeleton_latent`` is None and
@@ -371,7 +374,13 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     if uncond_skeleton is not None:
         uncond_skeleton = uncond_skeleton.to(device)
 
-    noise = torch.randn((b, c, t, h, w), generator=generator, dtype=torch.float32).to(device)
+    if generators is not None:
+        if len(generators) != b:
+            raise ModelInputError(f"generators: expected one per batch item ({b}), found {len(generators)}")
+        noise = torch.cat([torch.randn((1, c, t, h, w), generator=g, dtype=torch.float32) for g in generators])
+        noise = noise.to(device)
+    else:
+        noise = torch.randn((b, c, t, h, w), generator=generator, dtype=torch.float32).to(device)
     clean = torch.zeros_like(noise)
     clean[:, :, :1] = first_latent.to(device, torch.float32)
     indicator = torch.zeros(b, 1, t, 1, 1, device=device)
