@@ -38,7 +38,8 @@ import numpy as np  # noqa: E402
 #: name -> (steps, guidance interval or None); "s35" is the reference (the paper's 35 steps, guidance everywhere)
 PRESETS = {
     "s35": (35, None), "s20": (20, None), "s12": (12, None), "s8": (8, None),
-    "s12_iv": (12, (0.3, 1.0)), "s12_iv_mid": (12, (0.3, 0.9)), "s8_iv": (8, (0.3, 1.0)),
+    "s12_iv": (12, (0.3, 1.0)), "s12_iv_mid": (12, (0.3, 0.9)), "s12_iv_low": (12, (0.0, 0.8)),
+    "s12_iv_high": (12, (0.8, 1.0)), "s8_iv": (8, (0.3, 1.0)), "s8_iv_mid": (8, (0.3, 0.9)),
     "s35_cond": (35, "cond"),
 }
 REFERENCE = "s35"
@@ -129,8 +130,13 @@ def main() -> int:
               f"{r['h200_frames_per_s_computed']:5.1f}")
     print("* frames/s of the 2B on one H200: computed from the FLOPs (576 TFLOP/s compiled + 2.1 s VAE per "
           "81-frame chunk), not measured")
+    floor = None
+    if (preds / "shuffled20").is_dir():  # the skeleton-following floor: another clip's skeleton, 20 steps
+        shuffled = evaluate_conditions(args.clips, {"shuffled": str(preds / "shuffled20")}, split="heldout")
+        floor = float(np.mean([shuffled["clips"]["shuffled"][i]["motion_iou"] for i in ids]))
+        print(f"floor: a shuffled skeleton (20 steps, guidance everywhere) scores motion IoU {floor:.3f} on these clips")
     out = {"machine": platform.platform(), "python": sys.version.split()[0], "clips": args.clips,
-           "reference": REFERENCE, "guidance": GUIDANCE, "rows": rows}
+           "reference": REFERENCE, "guidance": GUIDANCE, "rows": rows, "shuffled_skeleton_motion_iou": floor}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     print(f"wrote {args.json}")

@@ -16,7 +16,7 @@ import pytest
 import oscar_zoo
 from oscar_core.cli import main as oscar_main
 from oscar_core.evaluation import ManifestError, load_manifest, run_evaluation
-from oscar_core.metrics import ProgrammaticJudge
+from oscar_core.metrics import MetricInputError, ProgrammaticJudge
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
@@ -411,3 +411,28 @@ def test_batched_cells_equal_one_at_a_time_and_resume(tmp_path, model_dir):
     assert again.report["counts"]["rollouts_reused"] == 6 and again.report["counts"]["rollouts_done"] == 0
     with pytest.raises(Exception, match="batch_cells"):
         run_evaluation(manifest, tmp_path / "bad", batch_cells=0, **kwargs)
+
+
+@pytest.mark.slow
+def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
+    pytest.importorskip("ray", reason='ray is not installed (pip install "oscar-wm[ray]")')
+    from oscar_core.model import SamplerConfig
+    from oscar_core.video import read_video
+
+    manifest = make_study(tmp_path / "study")
+    judge = ProgrammaticJudge(lambda video, clip: {"binary": clip.info["wm"], "partial": 50, "reason": "ok"})
+    kwargs = dict(model_spec=str(model_dir), sampler=SamplerConfig(steps=2), judge=judge, batch_cells=2,
+                  log=lambda m: None)
+    local = run_evaluation(manifest, tmp_path / "local", **kwargs)
+    ray_run = run_evaluation(manifest, tmp_path / "ray", engine="ray", workers=2, **kwargs)
+    assert ray_run.report["counts"] == local.report["counts"]
+    assert ray_run.report["comparison"] == local.report["comparison"]
+    for a, b in zip(local.report["cells"], ray_run.report["cells"]):
+        assert a["cell"] == b["cell"] and a["wm_success"] == b["wm_success"]
+        va, vb = read_video(tmp_path / "local" / a["video"]), read_video(tmp_path / "ray" / b["video"])
+        assert np.abs(va.astype(int) - vb.astype(int)).max() <= 1
+    again = run_evaluation(manifest, tmp_path / "ray", engine="ray", workers=2, **kwargs)
+    assert again.report["counts"]["rollouts_reused"] == 6 and again.report["counts"]["rollouts_done"] == 0
+    with pytest.raises(MetricInputError, match="a model spec"):
+        run_evaluation(manifest, tmp_path / "obj", engine="ray", model=oscar_zoo.load(str(model_dir)),
+                       sampler=SamplerConfig(steps=2), log=lambda m: None)

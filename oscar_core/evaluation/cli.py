@@ -129,7 +129,7 @@ def cmd_eval_run(args) -> int:
                             plugin_paths=getattr(args, "plugin", None) or (),
                             progress=not args.no_progress and sys.stderr.isatty(),
                             plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
-                            batch_cells=args.batch_cells,
+                            batch_cells=args.batch_cells, engine=args.engine, workers=args.workers,
                             log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
     report = result.report
     if args.json:
@@ -175,6 +175,11 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6)")
     r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
     r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's)")
+    r.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="where rollouts run: this process (default), or Ray actors (a running cluster via "
+                        "RAY_ADDRESS, else a local one), one model per GPU (pip install \"oscar-wm[ray]\")")
+    r.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)")
     r.add_argument("--batch-cells", type=int, default=1, metavar="N",
                    help="roll out up to N cells in one batch (same frame count and size; each video equals its "
                         "one-at-a-time rollout up to float rounding; default 1)")

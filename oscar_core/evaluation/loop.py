@@ -41,7 +41,6 @@ import hashlib
 import json
 import sys
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -134,68 +133,6 @@ class _LazyModel:
         return self._model
 
 
-def _prompt(cell: Cell):
-    if cell.prompt_embeds is None:
-        return None
-    from safetensors.torch import load_file
-
-    from ..model._weights import check_safetensors
-
-    check_safetensors(cell.prompt_embeds)
-    tensors = load_file(str(cell.prompt_embeds))
-    if "prompt_embeds" in tensors:
-        return tensors["prompt_embeds"]
-    if len(tensors) == 1:
-        return next(iter(tensors.values()))
-    raise MetricInputError(cell.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
-
-
-def _cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
-    """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
-    condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
-    from ..errors import InputFileError
-    from ..model._image import read_image
-    from ..conditions import condition_video
-    from ..pipeline import fit_image
-    from ..registry import get_embodiment
-    from ..trajectory import load_trajectory
-
-    emb = get_embodiment(cell.embodiment, plugin_paths)
-    traj = load_trajectory(cell.trajectory)
-    camera = emb.load_camera(cell.camera)
-    first = read_image(cell.first_frame)
-    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
-    if (first.shape[1], first.shape[0]) != cam_size:
-        raise InputFileError(cell.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
-                             f"{cell.camera})", f"{first.shape[1]}x{first.shape[0]}")
-    card = model.card
-    if size is None:
-        size = (card.width, card.height) if card.width and card.height else cam_size
-    # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
-    skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
-                               resize_mode="crop", camera_source=str(cell.camera))
-    first = fit_image(first, size[0], size[1], "crop")
-    return {"first": first, "video": skeleton, "prompt": _prompt(cell), "fps": float(traj.fps)}
-
-
-def _batch_key(inputs: dict) -> tuple:
-    """Cells roll out in one batch only with one chunk plan and size and one prompt shape."""
-    prompt = inputs["prompt"]
-    return inputs["video"].shape, None if prompt is None else tuple(prompt.shape)
-
-
-def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
-    """Roll out a group of cells' inputs: one at a time for a group of one, else as one batch."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
-        if len(group) == 1:
-            return [model.rollout(group[0]["first"], group[0]["video"], group[0]["prompt"], chunk_frames=chunk_frames,
-                                  sampler=sampler, seed=seeds[0], progress=progress, keep_chunks=False).frames]
-        return model.rollout_batch([g["first"] for g in group], [g["video"] for g in group],
-                                   [g["prompt"] for g in group], chunk_frames=chunk_frames, sampler=sampler,
-                                   seeds=seeds, progress=progress)
-
-
 def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
     from ..errors import OscarError
     from ..registry import get_embodiment
@@ -213,7 +150,7 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
                    judge=None, pairwise_judge=None, sampler=None, chunk_frames: int | None = None,
                    device="cpu", dtype=None, plugin_paths=(), progress: bool = False,
                    plot_formats=("png",), log: Callable[[str], None] | None = None,
-                   batch_cells: int = 1) -> EvaluationResult:
+                   batch_cells: int = 1, engine: str = "local", workers: int = 1) -> EvaluationResult:
     """Run the loop of the module docstring and write the report folder ``out``.
 
     manifest: a path or a loaded :class:`Manifest`. model: a loaded world model,
@@ -225,9 +162,15 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     batch_cells: roll out up to this many cells in one batch (cells in manifest order that share a frame count,
     size and prompt shape; each cell's video equals its one-at-a-time rollout up to float rounding, and its
     record is written as soon as its batch finishes). Latent-action models roll out one at a time.
+    engine: ``local`` (this process) or ``ray``: ``workers`` Ray actors (one GPU each on CUDA), each loading the
+    model once from ``model_spec`` and rolling out groups of cells; this process writes every video and record,
+    so the run folder, the resume rule and the report are the local run's.
     """
-    if isinstance(batch_cells, bool) or not isinstance(batch_cells, int) or batch_cells < 1:
-        raise MetricInputError("batch_cells", "value", "an integer >= 1", repr(batch_cells))
+    for name, value in (("batch_cells", batch_cells), ("workers", workers)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise MetricInputError(name, "value", "an integer >= 1", repr(value))
+    if engine not in ("local", "ray"):
+        raise MetricInputError("engine", "value", '"local" or "ray"', repr(engine))
     from ..model.sampler import SamplerConfig
 
     log = log or (lambda msg: print(msg, file=sys.stderr))
@@ -267,42 +210,43 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
         else:
             pending.append((k, cell, key))
 
-    def finish(group: list[tuple], inputs: list[dict]) -> None:
+    def record(k: int, cell: Cell, key: str, frames: np.ndarray, fps: float, seconds: float, batch: int) -> None:
+        """Write one rolled-out cell's video, then its record (the record last: a killed run redoes the cell)."""
         from ..video import write_video
 
-        t0 = time.perf_counter()
-        videos = _roll_out(m, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for _, c, _ in group],
-                           progress=progress)
-        seconds = (time.perf_counter() - t0) / len(group)
-        for (k, cell, key), frames, inp in zip(group, videos, inputs):
-            rpath, vpath = record_path(out, cell), video_path(out, cell)
-            vpath.parent.mkdir(parents=True, exist_ok=True)
-            write_video(vpath, frames, inp["fps"])
-            rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
-                   "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
-                   "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
-                   "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])],
-                   "fps": inp["fps"], "seconds": round(seconds, 3), "verdict": None, "batch": len(group),
-                   "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-            _write_json(rpath, rec)
-            counts["rollouts_done"] += 1
-            done[k] = rec
-            log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
-                f"{rec['seconds']:.1f} s" + (f" (batch of {len(group)})" if len(group) > 1 else ""))
+        rpath, vpath = record_path(out, cell), video_path(out, cell)
+        vpath.parent.mkdir(parents=True, exist_ok=True)
+        write_video(vpath, frames, fps)
+        rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
+               "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
+               "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
+               "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])],
+               "fps": fps, "seconds": round(seconds, 3), "verdict": None, "batch": batch,
+               "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        _write_json(rpath, rec)
+        counts["rollouts_done"] += 1
+        done[k] = rec
+        log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
+            f"{rec['seconds']:.1f} s" + (f" (batch of {batch})" if batch > 1 else ""))
 
-    group: list[tuple] = []
-    inputs: list[dict] = []
-    for k, cell, key in pending:
-        m = lazy.get()
-        per_batch = batch_cells if m.card.condition != "latent_action" else 1
-        inp = _cell_inputs(m, cell, size, plugin_paths)
-        if group and (len(group) >= per_batch or _batch_key(inp) != _batch_key(inputs[0])):
-            finish(group, inputs)
-            group, inputs = [], []
-        group.append((k, cell, key))
-        inputs.append(inp)
-    if group:
-        finish(group, inputs)
+    options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, plugin_paths=tuple(plugin_paths),
+                   batch_cells=batch_cells)
+    if pending and engine == "ray":
+        from .rollout_engines import roll_out_on_ray
+
+        if model_spec is None:
+            raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
+                                   f"a model object ({type(model).__name__})")
+        roll_out_on_ray(pending, record, model_spec=model_spec, revision=revision, device=device, dtype=dtype,
+                        workers=workers, log=log, **options)
+    elif pending:
+        from .rollout_engines import roll_out_cells
+
+        for group, videos in roll_out_cells(lazy.get(), [c for _, c, _ in pending], progress=progress, **options):
+            at = {id(c): (k, key) for k, c, key in pending}
+            for (cell, seconds), (frames, fps) in zip(group, videos):
+                k, key = at[id(cell)]
+                record(k, cell, key, frames, fps, seconds, len(group))
     records = [done[k] for k in range(len(manifest.cells))]
 
     # 2. success verdicts ------------------------------------------------------------------------

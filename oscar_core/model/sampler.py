@@ -145,7 +145,7 @@ class SamplerConfig:
 #: The others were measured against it on the toy model (docs/world-model.md, "Sampling presets").
 SAMPLER_PRESETS: dict[str, dict] = {
     "paper": {"steps": 35, "guidance_interval": None},
-    "fast": {"steps": 12, "guidance_interval": (0.3, 1.0)},
+    "fast": {"steps": 12, "guidance_interval": (0.0, 0.8)},
 }
 
 
