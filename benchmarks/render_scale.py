@@ -9,6 +9,8 @@ Everything runs as the user would run it, in subprocesses of this script:
 2. throughput: N 81-frame 512x288 H.264 franka episodes through one
    ``oscar render --manifest`` with 1 and 2 workers, against the naive way
    (one ``oscar render`` process per episode) and the in-process Python API;
+   and the same batch run again unchanged (every episode skipped by its
+   resume record: the cost of checking, start-up included);
 3. encoder presets and the RGB→YUV path: seconds per 81-frame episode, MP4 size
    and PSNR of the decoded video against the rendered frames (= a lossless copy);
 4. peak memory (ru_maxrss of the child) of a long 1280x704 render, streamed,
@@ -104,11 +106,15 @@ def bench_startup(tmp: Path) -> dict:
 def bench_throughput(tmp: Path, n: int, naive_n: int, preset: str) -> dict:
     manifest, rows = make_episodes(tmp, n)
     out = {"episodes": n, "frames": 81, "size": "512x288", "preset": preset}
-    for workers in (1, 2):
+    for workers in (1, 2):  # the first run also writes the resume records; the second renders every episode again
         w, c = run_timed(OSCAR + ["render", "--manifest", str(manifest), "--workers", str(workers), "--preset", preset,
-                                  "--no-progress"])
+                                  "--no-progress"] + (["--no-resume"] if workers > 1 else []))
         out[f"workers_{workers}_eps"] = n / w
         out[f"workers_{workers}_cpu_s_per_episode"] = c / n
+    # the same command again with nothing changed: every episode's inputs hashed, its record read, nothing rendered
+    w, c = run_timed(OSCAR + ["render", "--manifest", str(manifest), "--workers", "2", "--preset", preset,
+                              "--no-progress"])
+    out["rerun_unchanged_wall_s"], out["rerun_unchanged_cpu_s"] = w, c
     w = c = 0.0
     for r in rows[:naive_n]:
         dw, dc = run_timed(OSCAR + ["render", "--embodiment", r["embodiment"], "--trajectory", r["trajectory"],
@@ -226,6 +232,7 @@ def main(argv=None) -> int:
                                                       "naive_process_per_episode_eps", "in_process_api_eps")]))
             print(table([t], [(k, "{:.3f}") for k in ("workers_1_cpu_s_per_episode", "workers_2_cpu_s_per_episode",
                                                       "naive_cpu_s_per_episode", "in_process_api_cpu_s_per_episode")]))
+            print(table([t], [(k, "{:.2f}") for k in ("rerun_unchanged_wall_s", "rerun_unchanged_cpu_s")]))
         if "presets" not in args.skip:
             p = result["presets"] = bench_presets(tmp, args.repeats)
             print("\nencoder presets, one 81-frame 512x288 franka episode, one thread: CPU seconds (best of repeats)")

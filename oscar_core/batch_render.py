@@ -12,6 +12,20 @@ memory does not grow with its length; each worker process loads the plugins
 once and keeps the embodiments it has used. A failing episode is recorded in
 its :class:`EpisodeResult` and the others go on.
 
+Resuming: with ``resume=True``, after each rendered episode a record
+``.<output name>.oscar-render.json`` is written beside the output with the episode's fingerprint — the sha256 of
+its trajectory and camera files, its embodiment, size, fps, resize,
+format and condition (skeleton or mesh), the encoder settings (preset, crf, yuv), strictness, FK device kind,
+plugin paths and a format version (threads and chunk size are left out: they
+do not change the frames). ``render_many(resume=True)`` (``oscar render``
+batches by default; ``--no-resume`` redoes everything) skips an episode whose
+output exists and whose record matches, and renders it again otherwise.
+Worker processes come from a fork server (never a plain fork after threads
+exist) and exit when the process that made the pool dies. As with spawn
+(macOS, Windows), each worker imports the calling script as ``__mp_main__``:
+a script calling ``render_many(workers > 1)`` keeps its top-level work under
+``if __name__ == "__main__":``.
+
 A manifest (``read_manifest``) is JSONL or CSV; see docs/formats.md.
 """
 
@@ -27,6 +41,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
+from . import _stage
 from .errors import InputFileError, OscarError, OutputPathError
 
 __all__ = [
@@ -105,6 +120,7 @@ class EpisodeResult:
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
     empty_frames: list[int] = field(default_factory=list)
+    skipped: bool = False  # resumed: the output and its record matched this episode's fingerprint; not rendered again
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -188,6 +204,61 @@ def _init_worker() -> None:
         pass
 
 
+# -------------------------------------------------------------------- resume
+
+
+def record_path(spec: EpisodeSpec) -> Path:
+    """The completion record of ``spec``'s output: ``.<name>.oscar-render.json`` beside it."""
+    out = Path(spec.out.rstrip("/" + os.sep))
+    return out.with_name(f".{out.name}.oscar-render.json")
+
+
+def _file_sha256(path: str) -> str | None:
+    import hashlib
+
+    try:
+        with open(path, "rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    except OSError:
+        return None
+
+
+def episode_parts(spec: EpisodeSpec, options: RenderOptions) -> dict:
+    """What ``spec``'s output depends on (its fingerprint parts; see the module docstring)."""
+    return {"format_version": _stage.FORMAT_VERSION, "embodiment": spec.embodiment,
+            "trajectory": _file_sha256(spec.trajectory), "camera": _file_sha256(spec.camera),
+            "size": list(spec.size) if spec.size else None, "fps": spec.fps, "resize": spec.resize,
+            "format": spec.format, "condition": spec.condition or options.condition, "preset": options.preset,
+            "crf": options.crf, "yuv": options.yuv, "strict": options.strict,
+            "device": str(options.device).split(":")[0], "plugin_paths": list(options.plugin_paths)}
+
+
+def _resumed(index: int, spec: EpisodeSpec, parts: dict) -> EpisodeResult | None:
+    """The recorded result when ``spec``'s output exists and its record has this fingerprint, else None."""
+    rec = record_path(spec)
+    if not rec.is_file() or not Path(spec.out.rstrip("/" + os.sep)).exists():
+        return None
+    try:
+        got = json.loads(rec.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(got, dict) or got.get("fingerprint") != _stage.fingerprint(parts):
+        return None
+    return EpisodeResult(index, spec, True, got.get("out"), int(got.get("frames", 0)), got.get("width"),
+                         got.get("height"), got.get("fps"), 0.0, skipped=True)
+
+
+def _write_record(r: EpisodeResult, parts: dict) -> None:
+    from ._atomic import atomic_write_bytes
+
+    body = {"fingerprint": _stage.fingerprint(parts), "parts": parts, "out": r.out, "frames": r.frames,
+            "width": r.width, "height": r.height, "fps": r.fps}
+    try:
+        atomic_write_bytes(record_path(r.spec), json.dumps(body, indent=1).encode())
+    except OSError:  # pragma: no cover - the video itself was written; a missing record only costs a re-render
+        pass
+
+
 # -------------------------------------------------------------------- many
 
 
@@ -220,7 +291,7 @@ def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
 
 def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOptions(), *, workers: int = 1,
                 progress: bool | None = False, on_result: Callable[[EpisodeResult], None] | None = None,
-                registry=None) -> list[EpisodeResult]:
+                registry=None, resume: bool = False) -> list[EpisodeResult]:
     """Render every spec; returns one :class:`EpisodeResult` per spec, in input order.
 
     workers: processes (1: in this process, reusing ``registry`` if given).
@@ -233,6 +304,9 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
     are recorded in its result; the others go on. Problems with the batch as a
     whole (two episodes writing the same output, an output under a file) raise
     :class:`OutputPathError` before anything is rendered.
+    resume: skip an episode whose output and record match its fingerprint
+    (its result has ``skipped=True``) and write each rendered episode's
+    record (without ``resume`` no record is read or written).
     """
     specs = list(specs)
     _prepare_outputs(specs)
@@ -246,8 +320,12 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
 
     bar = None
 
+    parts = [episode_parts(s, options) for s in specs]
+
     def done(r: EpisodeResult) -> None:
         results[r.index] = r
+        if resume and r.ok and not r.skipped:
+            _write_record(r, parts[r.index])
         bar.update(1)
         if not r.ok:
             bar.set_postfix_str(f"{sum(1 for x in results if x is not None and not x.ok)} failed")
@@ -258,21 +336,33 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
         return tqdm(total=len(specs), desc="rendering", unit="episode",
                     disable=None if progress is None else not progress)
 
+    todo = []
+    for i, s in enumerate(specs):
+        r = _resumed(i, s, parts[i]) if resume else None
+        if r is None:
+            todo.append(i)
+        else:
+            results[i] = r
     try:
-        if workers == 1 or len(specs) <= 1:
-            if registry is None:
+        bar = new_bar()
+        for r in results:
+            if r is not None:
+                bar.update(1)
+                if on_result is not None:
+                    on_result(r)
+        if workers == 1 or len(todo) <= 1:
+            if registry is None and todo:
                 registry = _registry(options.plugin_paths)
-            bar = new_bar()
-            for i, s in enumerate(specs):
-                done(_safe_render(i, s, options, registry))
+            for i in todo:
+                done(_safe_render(i, specs[i], options, registry))
         else:
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
             ctx = _pool_context(specs, options)
-            with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx,
-                                     initializer=_init_worker) as pool:
-                futures = {pool.submit(_safe_render, i, s, options): i for i, s in enumerate(specs)}
-                bar = new_bar()  # after the workers exist: tqdm's monitor thread is not forked
+            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx,
+                                     initializer=_stage.worker_initializer,
+                                     initargs=(os.getpid(), _init_worker)) as pool:
+                futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
                 for fut in as_completed(futures):
                     try:
                         done(fut.result())
@@ -285,44 +375,41 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
     return [r for r in results if r is not None]
 
 
+# modules a render worker needs: imported once by the fork server, inherited by every worker it forks
+_PRELOAD = ["numpy", "av", "cv2", "oscar_core.batch_render", "oscar_core.registry", "oscar_core.render_stream",
+            "oscar_core.trajectory", "oscar_core.video"]
+
+
 def _pool_context(specs: Sequence[EpisodeSpec], options: RenderOptions):
-    """``fork`` on Linux for CPU rendering, after loading the plugins, the embodiments used
-    and the encoder here once, so workers start with them (a spawned worker re-imports
-    everything: about 0.6 s of CPU each); ``spawn`` elsewhere and for CUDA."""
+    """A fork server with the renderer's imports preloaded (spawn where there is none, and for CUDA FK).
+
+    A plain ``fork`` after this process has threads (tqdm's monitor, torch's
+    or OpenCV's pools) can copy a held lock into the child and hang it
+    forever — it did, in a second pool made in the same process; a fork
+    server is a clean single-threaded process, so pools can be made again and
+    again. Each worker loads the plugins and embodiments it uses once (and,
+    for ``--condition mesh``, reads and simplifies their meshes once).
+    """
     import multiprocessing as mp
-    import sys
 
-    if not sys.platform.startswith("linux") or str(options.device).split(":")[0] != "cpu":
+    if str(options.device).split(":")[0] != "cpu":
         return mp.get_context("spawn")
-    import av  # noqa: F401 - imported once, shared by the forked workers
-    import cv2  # noqa: F401
-
-    registry = _registry(options.plugin_paths)
-    meshes = {s.embodiment for s in specs if (s.condition or options.condition) == "mesh"}
-    for name in dict.fromkeys(s.embodiment for s in specs):
-        try:
-            emb = registry.get(name)
-            emb.edges  # parses its kinematic description once
-            if name in meshes:
-                from .mesh_render import MeshStyle, mesh_geometry
-
-                mesh_geometry(emb, MeshStyle().simplify)  # reads and simplifies its meshes once
-        except Exception:  # noqa: BLE001 - the episode reports it
-            pass
-    return mp.get_context("fork")
+    return _stage.pool_context(_PRELOAD)
 
 
 def summarise(results: Sequence[EpisodeResult], seconds: float) -> dict:
-    """Counts, frames and rates of a batch; ``seconds`` is its wall time."""
+    """Counts, frames and rates of a batch; ``seconds`` is its wall time. ``ok`` includes the episodes skipped as
+    unchanged (``skipped``); ``frames`` and the rates count only episodes rendered now."""
     ok = [r for r in results if r.ok]
-    frames = sum(r.frames for r in ok)
+    frames = sum(r.frames for r in ok if not r.skipped)  # frames rendered now: rates never count skipped work
     return {
         "episodes": len(results),
         "ok": len(ok),
         "failed": len(results) - len(ok),
+        "skipped": sum(1 for r in ok if r.skipped),
         "frames": frames,
         "seconds": round(seconds, 3),
-        "episodes_per_second": round(len(ok) / seconds, 3) if seconds > 0 else None,
+        "episodes_per_second": round(sum(1 for r in ok if not r.skipped) / seconds, 3) if seconds > 0 else None,
         "frames_per_second": round(frames / seconds, 1) if seconds > 0 else None,
         "warnings": sum(len(r.warnings) for r in results),
     }

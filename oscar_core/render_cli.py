@@ -61,6 +61,9 @@ def add_render_parser(sub) -> None:
     r.add_argument("--strict", action="store_true",
                    help="a frame where the camera sees nothing of the robot is an error (default: a warning)")
     r.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    r.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
+                   help="batches: skip episodes whose output and its .<name>.oscar-render.json record match the "
+                        "inputs and settings (default); --no-resume renders every episode again")
     r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
     r.set_defaults(func=cmd_render)
@@ -128,7 +131,7 @@ def cmd_render(args) -> int:
             print(f"wrote {result.out}: {result.frames} frames, {result.width}x{result.height}, {result.fps:g} fps")
         return 0
     t0 = time.perf_counter()
-    results = render_many(specs, options, workers=args.workers, progress=args.progress)
+    results = render_many(specs, options, workers=args.workers, progress=args.progress, resume=args.resume)
     summary = summarise(results, time.perf_counter() - t0)
     if args.json:
         print(json.dumps({"summary": summary, "episodes": [r.to_dict() for r in results]}, indent=2))
@@ -138,7 +141,8 @@ def cmd_render(args) -> int:
                 print(f"warning: episode {r.index} ({r.spec.trajectory}): {w}", file=sys.stderr)
             if not r.ok:
                 print(f"error: episode {r.index} ({r.spec.trajectory} -> {r.spec.out}): {r.error}", file=sys.stderr)
-        print(f"rendered {summary['ok']} of {summary['episodes']} episodes ({summary['failed']} failed), "
+        skipped = f", {summary['skipped']} unchanged and skipped" if summary["skipped"] else ""
+        print(f"rendered {summary['ok']} of {summary['episodes']} episodes ({summary['failed']} failed{skipped}), "
               f"{summary['frames']} frames in {summary['seconds']:.2f} s: "
               f"{summary['episodes_per_second'] or 0:.2f} episodes/s, {summary['frames_per_second'] or 0:.0f} frames/s")
     return 0 if summary["failed"] == 0 else 1

@@ -17,6 +17,7 @@ from typing import Iterable
 
 import numpy as np
 
+from ._atomic import sweep_dead_temporaries, sweep_once, tmp_prefix
 from .errors import OutputPathError
 from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
@@ -122,44 +123,15 @@ def check_output(path, *, format: str | None = None, size: tuple[int, int] | Non
 # ------------------------------------------------------------- temporary outputs
 
 
-def _tmp_prefix(path: Path) -> str:
-    return f".{path.name}.{os.getpid()}."
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def remove_stale_temporaries(path) -> list[Path]:
     """Remove the temporary files or folders a killed writer left beside ``path``.
 
     Writers name them ``.<name>.<pid>.<random>.tmp[<suffix>]``; one whose process
-    is no longer running is stale. Returns what was removed.
+    is no longer running is stale (:func:`oscar_core._atomic.sweep_dead_temporaries`).
+    Returns what was removed.
     """
     path = Path(path)
-    removed = []
-    if not path.parent.is_dir():
-        return removed
-    head = f".{path.name}."
-    for p in path.parent.iterdir():
-        rest = p.name[len(head):] if p.name.startswith(head) else ""
-        parts = rest.split(".")
-        if len(parts) < 3 or not parts[0].isdigit() or not parts[2].startswith("tmp"):
-            continue
-        if int(parts[0]) == os.getpid() or _pid_alive(int(parts[0])):
-            continue
-        if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p, ignore_errors=True)
-        else:
-            p.unlink(missing_ok=True)
-        removed.append(p)
-    return removed
+    return sweep_dead_temporaries(path.parent, target=path.name)
 
 
 # ------------------------------------------------------------------ RGB -> YUV
@@ -227,12 +199,12 @@ class VideoWriter:
         self._container = self._stream = None
         self._bar = None
         self._done = False
-        remove_stale_temporaries(self.path)
+        sweep_once(self.path.parent)  # every dead writer's temporaries in the folder, not only this target's
         try:
             if self.codec == "png":
-                self.tmp = Path(tempfile.mkdtemp(prefix=_tmp_prefix(self.path), suffix=_TMP_MARK, dir=self.path.parent))
+                self.tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(self.path), suffix=_TMP_MARK, dir=self.path.parent))
             else:
-                fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(self.path), suffix=_TMP_MARK + self.path.suffix,
+                fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(self.path), suffix=_TMP_MARK + self.path.suffix,
                                            dir=self.path.parent)
                 os.close(fd)
                 self.tmp = Path(tmp)

@@ -128,8 +128,11 @@ def test_two_workers_give_the_same_videos_as_one_process(tmp_path, capsys):
     assert len(bad) == 1 and "nope.npz" in bad[0]["error"]
     for t in trajs:
         np.testing.assert_array_equal(read_video(tmp_path / "v" / f"{t.stem}.mkv"), direct(t, (64, 36)))
-    code, out, err = run(capsys, "render", "--manifest", manifest, "--size", "64x36")
-    assert code == 1 and "rendered 4 of 5 episodes (1 failed)" in out and "error: episode 4" in err
+    code, out, err = run(capsys, "render", "--manifest", manifest, "--size", "64x36")  # a rerun: nothing changed
+    assert code == 1 and "rendered 4 of 5 episodes (1 failed, 4 unchanged and skipped), 0 frames" in out
+    assert "error: episode 4" in err
+    code, out, err = run(capsys, "render", "--manifest", manifest, "--size", "64x36", "--no-resume")
+    assert code == 1 and "rendered 4 of 5 episodes (1 failed), 20 frames" in out and "error: episode 4" in err
 
 
 def test_trajectories_folder_through_the_cli(tmp_path, capsys):

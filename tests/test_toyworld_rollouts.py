@@ -87,6 +87,16 @@ def test_train_split_shuffles_across_clips_and_resume_keeps_written(tmp_path, cl
     (tmp_path / "sh" / f"{sorted(a)[0]}.npy").unlink()
     s = write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3, sampler=FAST)
     assert (s["written"], s["kept"]) == (1, 2)
+    # other settings into the same folder: refused, naming what changed, never "kept"
+    from oscar_core._stage import StageChanged
+
+    with pytest.raises(StageChanged, match=r"seed: 0 -> 1.*use another --out"):
+        write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3, sampler=FAST, seed=1)
+    with pytest.raises(StageChanged, match=r"condition: shuffled -> true"):
+        write_rollouts(model, clips, tmp_path / "sh", "true", split="train", limit=3, sampler=FAST)
+    with pytest.raises(StageChanged, match=r"sampler.steps: 2 -> 3"):
+        write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3,
+                       sampler=SamplerConfig(steps=3, guidance=2.0))
     with pytest.raises(ValueError, match="condition"):
         write_rollouts(model, clips, tmp_path / "x", "reversed")
     with pytest.raises(ValueError, match="meta.split == 'nope'"):

@@ -89,7 +89,16 @@ def test_unfinished_shard_is_ignored_and_stale_temp_removed(tmp_path, parts):
     s.add(Clip(record(traj, "late"), rgb=rgb, trajectory=traj, camera=cam))  # never closed: a killed writer
     assert [r.id for r in ClipSet(tmp_path)] == ["ep0"]
     assert not w.shard_done("shard-000001") and w.shard_done("shard-000000")
-    assert [p.name for p in w.remove_stale()] == [s.tmp.name] and not s.tmp.exists()
+    assert w.remove_stale() == [] and s.tmp.exists()  # its writer (this process) is alive: kept
+    import os
+    import subprocess
+    import sys
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    gone = s.tmp.with_name(s.tmp.name.replace(f".{os.getpid()}.", f".{dead.pid}."))
+    s.tmp.rename(gone)  # as if the writer had been that process, killed
+    assert [p.name for p in w.remove_stale()] == [gone.name] and not gone.exists()
 
 
 def test_exception_leaves_nothing(tmp_path, parts):

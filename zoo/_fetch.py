@@ -26,8 +26,9 @@ from oscar_core.errors import OscarError
 from oscar_core.model._manifest import MANIFEST_NAME, read_manifest, sha256_file
 from oscar_core.model._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, check_safetensors
 from oscar_core.model.errors import CheckpointIntegrityError, CheckpointLayoutError
-from oscar_core.model.layouts import SCHEDULER_CONFIG, Layout, detect_layout, list_folder
-from oscar_core.model.world_model import EMPTY_PROMPT_FILE, MODEL_FILE
+from oscar_core.model.layouts import MODEL_FILE, SCHEDULER_CONFIG, Layout, detect_layout, list_folder
+
+EMPTY_PROMPT_FILE = "text/empty_prompt_embeds.safetensors"  # as oscar_core.model.world_model (not imported: diffusers)
 
 from ._hub import (HubUnreachableError, Lock, cached_commit, probe, read_lock, snapshot_folder, write_lock)
 from ._registry import user_models

@@ -4,7 +4,10 @@
   {endpoint}/api/models/{repo}/revision/{revision}`` gives the commit and the
   file listing, so the layout is decided before any download and no request
   is repeated. Connection refused, a timeout (``OSCAR_HUB_TIMEOUT`` seconds,
-  default 10) or a server error raise :class:`HubUnreachableError` at once —
+  default 10, counted from the process's start when the request is made
+  during start-up, :func:`request_timeout`; nothing else talks to the
+  network first, :func:`_headers`) or a server error raise
+  :class:`HubUnreachableError` at once —
   "cannot reach the Hub (…); set HF_HUB_OFFLINE=1 to use the cache" — with
   no retry loop.
 * Offline (``HF_HUB_OFFLINE=1`` or ``local_files_only``), :func:`cached_commit`
@@ -51,6 +54,29 @@ def hub_timeout(timeout: float | None = None) -> float:
     return float(os.environ.get("OSCAR_HUB_TIMEOUT") or 10.0)
 
 
+MIN_REQUEST_SECONDS = 2.0  # the least a request is given, however late in start-up it is made
+
+
+def process_age() -> float | None:
+    """Seconds since this process started (interpreter start-up included; Linux ``/proc``), or None."""
+    try:
+        start_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+
+
+def request_timeout(seconds: float) -> float:
+    """The timeout of a Hub request, so that a command that goes to the Hub during its start-up fails within
+    ``seconds`` of its start: ``seconds`` minus the process's age while it is younger than ``seconds`` (at least
+    :data:`MIN_REQUEST_SECONDS`), else ``seconds``."""
+    age = process_age()
+    if age is None or age >= seconds:
+        return seconds
+    return min(seconds, max(seconds - age, MIN_REQUEST_SECONDS))
+
+
 def cache_root(cache_dir=None) -> Path:
     """The Hub cache folder: ``cache_dir``, else ``HF_HUB_CACHE`` now, else huggingface_hub's default."""
     if cache_dir is not None:
@@ -77,13 +103,12 @@ def probe(repo_id: str, revision: str, *, endpoint: str | None = None, token=Non
     """Resolve ``revision`` of ``repo_id`` with one request; see the module docstring for the errors."""
     import httpx
     from huggingface_hub import constants
-    from huggingface_hub.utils import build_hf_headers
 
     base = (endpoint or os.environ.get("HF_ENDPOINT") or constants.ENDPOINT).rstrip("/")
     url = f"{base}/api/models/{repo_id}/revision/{quote(revision, safe='')}"
     seconds = hub_timeout(timeout)
     try:
-        response = httpx.get(url, headers=build_hf_headers(token=token), timeout=seconds, follow_redirects=True)
+        response = httpx.get(url, headers=_headers(token), timeout=request_timeout(seconds), follow_redirects=True)
     except httpx.TimeoutException:
         raise HubUnreachableError(f"cannot reach the Hub ({base}: no answer within {seconds:g} s); set "
                                   "HF_HUB_OFFLINE=1 to use the cache") from None
@@ -110,6 +135,25 @@ def probe(repo_id: str, revision: str, *, endpoint: str | None = None, token=Non
         raise CheckpointLayoutError(url, "repo info", "a JSON object with 'sha' and 'siblings'",
                                     response.text[:120]) from None
     return HubInfo(repo_id, revision, commit, files)
+
+
+def _headers(token) -> dict[str, str]:
+    """The probe's HTTP headers: a user agent and the token (``token``; None: ``HF_TOKEN`` or the saved login).
+
+    Not ``huggingface_hub.utils.build_hf_headers``: its user agent fetches an
+    agent registry from the Hub first (a 3 s timeout of its own, repeated on
+    every run while the Hub is unreachable), which made a probe that gives up
+    after 10 s fail only after 13 s and more.
+    """
+    from huggingface_hub import get_token
+
+    from oscar_core import __version__
+
+    tok = None if token is False else (token if isinstance(token, str) else get_token())
+    headers = {"user-agent": f"oscar/{__version__}"}
+    if tok:
+        headers["authorization"] = f"Bearer {tok}"
+    return headers
 
 
 def _repo_folder(cache_dir, repo_id: str) -> Path:

@@ -9,7 +9,9 @@ from pathlib import Path
 import torch
 
 from oscar_core.model._manifest import read_manifest
-from oscar_core.model.world_model import MODEL_FILE, ModelCard, OscarWorldModel
+# the world model (diffusers: seconds to import) loads only where a model is built, so that a pull's one Hub
+# request, and its timeout, come right after start-up
+from oscar_core.model.layouts import MODEL_FILE
 
 from oscar_core.model.layouts import load_folder
 
@@ -72,6 +74,8 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
 
 
 def _card_from_spec(spec: CheckpointSpec | None) -> ModelCard:
+    from oscar_core.model.world_model import ModelCard
+
     if spec is None:
         return ModelCard(name="cosmos-base", text_encoder_id=COSMOS_TEXT_ENCODER_ID)
     base = f"{spec.repo_id}@{spec.revision or 'main'}"

@@ -4,11 +4,15 @@ Every stage reads and writes through these, so a local folder, ``file://``,
 ``memory://`` (tests) or ``s3://`` (with s3fs installed) work the same way.
 Writes are atomic where the filesystem allows: the bytes go to a hidden
 temporary name beside the target, which is then moved onto it (a rename on
-local disks); readers only ever see complete files.
+local disks); readers only ever see complete files. The temporary's name
+carries the writer's pid, and on a local disk the first write of a process
+into a folder removes the temporaries of dead processes there
+(:func:`oscar_core._atomic.sweep_dead_temporaries`).
 """
 
 from __future__ import annotations
 
+import os
 import posixpath
 import uuid
 
@@ -84,7 +88,12 @@ def write_bytes_atomic(url: str, data: bytes) -> None:
     fs, path = url_to_fs(url)
     folder = posixpath.dirname(path)
     fs.makedirs(folder, exist_ok=True)
-    tmp = posixpath.join(folder, f".{posixpath.basename(path)}.{uuid.uuid4().hex[:12]}.tmp")
+    if _is_local_fs(fs):
+        from .._atomic import sweep_once
+
+        sweep_once(folder)
+    # the writer's pid in the name: the next writer into this folder sweeps it if this process dies first
+    tmp = posixpath.join(folder, f".{posixpath.basename(path)}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
     with fs.open(tmp, "wb") as f:
         f.write(data)
     try:
@@ -116,11 +125,15 @@ def listdir(url: str) -> list[str]:
     return sorted(posixpath.basename(p.rstrip("/")) for p in fs.ls(path, detail=False))
 
 
+def _is_local_fs(fs) -> bool:
+    protocols = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
+    return "file" in protocols or "local" in protocols
+
+
 def is_local(url: str) -> bool:
     """True for a local path or a ``file://`` URL."""
     fs, _ = url_to_fs(url)
-    protocols = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
-    return "file" in protocols or "local" in protocols
+    return _is_local_fs(fs)
 
 
 def local_path(url: str) -> str:

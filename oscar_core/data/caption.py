@@ -12,14 +12,20 @@ user message, in time order.
   ``long_sources`` (``droid``) or episodes longer than ``long_seconds``; at most
   ``max_frames``, resized to ``frame_width`` pixels wide.
 * Cache: one JSON file per episode under ``RUN/caption/cache/``, keyed by the
-  model, the prompt, the episode id and the frame indices; a re-run asks
-  nothing it has asked before.
+  model, the prompt, the episode id, the frame indices, the frame width, JPEG
+  quality, token limit and the cache format (:meth:`CaptionConfig.key_fields`);
+  a re-run asks nothing it has asked before, and a changed setting never
+  reuses an answer to another request.
 * Retries: the OpenAI SDK's own (``max_retries`` with exponential back-off on
   connection errors, 408/409/429 and 5xx, honouring ``Retry-After``).
 * Budget: at most ``budget`` episodes are sent per run (cached ones are free);
   the rest are ``deferred``: their shards stay unfinished and the next run
   captions them. An episode that still fails after the retries is ``failed``
   (its shard also stays unfinished).
+* Endpoint down: before the first request of a run, :func:`check_endpoint`
+  must get an answer within 10 s (``timeout`` if shorter); a refused
+  connection or silence fails the whole stage with :class:`EndpointUnreachable`
+  naming ``--endpoint``, and nothing is recorded.
 """
 
 from __future__ import annotations
@@ -32,13 +38,17 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..errors import OscarError
 from . import _fs
 from ._caption_prompt import SYSTEM_PROMPT
 from ._episode import EPISODE_ERRORS, load_row, reason_of
 from ._optional import require
 from .manifest import is_alive
 
-__all__ = ["SYSTEM_PROMPT", "CaptionConfig", "CaptionStage", "frame_indices", "cache_key", "plan_budget"]
+CACHE_FORMAT = 2  # 2: the key also holds jpeg_quality and max_tokens (1 had neither: such entries are not reused)
+
+__all__ = ["SYSTEM_PROMPT", "CaptionConfig", "CaptionStage", "frame_indices", "cache_key", "plan_budget",
+           "EndpointUnreachable", "check_endpoint"]
 
 USER_TEXT = "Describe this video."
 
@@ -67,8 +77,48 @@ class CaptionConfig:
     budget: int | None = None              # episodes sent per run (None: no limit)
 
     def key_fields(self) -> dict:
-        return {k: v for k, v in asdict(self).items() if k in ("model", "fps", "long_fps", "long_sources",
-                                                                "long_seconds", "max_frames", "frame_width")}
+        """What a caption depends on (the cache key's fields besides episode, frames and prompt; the stage's
+        fingerprint settings): model, frame sampling, frame size and JPEG quality, the answer's token limit, and
+        the cache format. Not the endpoint URL, retries, timeout or budget (they change how, not what, is asked)."""
+        return {"cache_format": CACHE_FORMAT,
+                **{k: v for k, v in asdict(self).items() if k in ("model", "fps", "long_fps", "long_sources",
+                                                                   "long_seconds", "max_frames", "frame_width",
+                                                                   "jpeg_quality", "max_tokens")}}
+
+
+class EndpointUnreachable(OscarError, ConnectionError):
+    """The captioning endpoint refuses connections or never answers: the whole stage fails, nothing is recorded."""
+
+
+def check_endpoint(base_url: str, seconds: float = 10.0) -> None:
+    """:class:`EndpointUnreachable` unless ``GET {base_url}/models`` gets any HTTP answer within ``seconds`` in all.
+
+    Any status counts as an answer (a server without ``/models`` still
+    answers); a refused connection, a DNS failure or silence do not. Run
+    before the first request, so a down endpoint fails the stage in seconds
+    instead of every episode after its retries.
+    """
+    import threading
+
+    import httpx
+
+    url = base_url.rstrip("/") + "/models"
+    got: dict = {}
+
+    def get() -> None:
+        try:
+            got["status"] = httpx.get(url, timeout=seconds).status_code
+        except Exception as exc:  # noqa: BLE001 - reported below
+            got["error"] = f"{type(exc).__name__}: {exc}"
+
+    t = threading.Thread(target=get, daemon=True, name="oscar-endpoint-check")
+    t.start()
+    t.join(seconds)
+    if t.is_alive() or "error" in got:
+        cause = f"no answer within {seconds:g} s" if t.is_alive() else got["error"][:200]
+        raise EndpointUnreachable(f"--endpoint {base_url}: cannot reach the captioning endpoint ({cause}); start "
+                                  "the server or fix --endpoint, then run the same command again (nothing was "
+                                  "recorded; cached captions are kept)")
 
 
 def frame_indices(n_frames: int, fps: float, source: str, cfg: CaptionConfig) -> np.ndarray:

@@ -29,15 +29,20 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
+import threading
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..errors import OscarError
 from ._episode import EPISODE_ERRORS, load_row, reason_of
 from ._optional import require
 
-__all__ = ["DedupConfig", "SiglipEmbedder", "EmbedStage", "resample_points", "candidate_pairs", "pca_projection", "brute_force_pairs",
+__all__ = ["DedupConfig", "ModelLoadError", "SiglipEmbedder", "EmbedStage", "resample_points", "candidate_pairs", "pca_projection", "brute_force_pairs",
            "trajectory_rms", "motion_scale", "adaptive_threshold", "UnionFind", "dedup_rows"]
 
 
@@ -55,27 +60,67 @@ class DedupConfig:
     reduce_dim: int | None = 128  # candidate search on this many principal directions (None: full width)
 
 
+class ModelLoadError(OscarError, RuntimeError):
+    """The stage's model cannot be loaded (Hub unreachable, not in the cache, broken folder): the whole stage fails."""
+
+
 class SiglipEmbedder:
     """SigLIP image embeddings with transformers' ``SiglipVisionModel``.
 
     model: a Hub id (``google/siglip-base-patch16-224``) or a local folder
-    (``save_pretrained``). The model loads on first use, once per process.
-    Frames are resized to the model's square input (PIL bicubic), scaled to
-    [0, 1] and normalised with mean = std = 0.5, exactly as transformers'
-    ``SiglipImageProcessor`` prepares them (a test checks it).
+    (``save_pretrained``). :meth:`prepare` (called once by ``run_dedup``,
+    before any episode) finds the model — a local folder as is, a Hub id in
+    the Hub cache, else downloaded after one reachability check bounded by
+    ``OSCAR_HUB_TIMEOUT`` seconds (default 10) — and raises
+    :class:`ModelLoadError` naming the cause and the fix when it cannot;
+    workers then load that local folder only. The model loads on first use,
+    once per process. Frames are resized to the model's square input (PIL
+    bicubic), scaled to [0, 1] and normalised with mean = std = 0.5, exactly
+    as transformers' ``SiglipImageProcessor`` prepares them (a test checks it).
     """
 
     def __init__(self, model: str, device: str = "cpu"):
         self.model_name, self.device = str(model), device
         self._model = None
+        self._folder: str | None = None  # the local folder prepare() resolved
+        self.revision: str | None = None  # the Hub commit, or a hash of a local folder's config and weight sizes
 
     def __getstate__(self):
-        return {"model_name": self.model_name, "device": self.device, "_model": None}
+        return {"model_name": self.model_name, "device": self.device, "_model": None, "_folder": self._folder,
+                "revision": self.revision}
+
+    def identity(self) -> dict:
+        """What the embeddings depend on: model name, resolved revision, device kind (part of the stage fingerprint)."""
+        if self._folder is None:
+            self.prepare()
+        return {"model": self.model_name, "revision": self.revision, "device": str(self.device).split(":")[0]}
+
+    def prepare(self) -> str:
+        """The model's local folder (downloading it if needed); :class:`ModelLoadError` naming cause and fix."""
+        if self._folder is not None:
+            return self._folder
+        local = Path(self.model_name).expanduser()
+        if local.is_dir():
+            if not (local / "config.json").is_file():
+                raise ModelLoadError(f"--siglip {self.model_name}: expected a model folder with config.json "
+                                     "(save_pretrained), found none")
+            self._folder, self.revision = str(local.resolve()), _folder_hash(local)
+            return self._folder
+        if local.exists() or self.model_name.count("/") != 1 or self.model_name.startswith(("/", ".", "~")):
+            raise ModelLoadError(f"--siglip {self.model_name}: expected a Hub id (owner/name) or a model folder, "
+                                 "found neither")
+        self._folder, self.revision = _hub_folder(self.model_name)
+        return self._folder
 
     def model(self):
         if self._model is None:
             tr = require("transformers", "data")
-            self._model = tr.SiglipVisionModel.from_pretrained(self.model_name).to(self.device).eval()
+            folder = self.prepare()
+            try:
+                self._model = tr.SiglipVisionModel.from_pretrained(folder, local_files_only=True).to(self.device).eval()
+            except (OSError, ValueError, RuntimeError) as exc:
+                raise ModelLoadError(f"--siglip {self.model_name}: cannot load the model from {folder} "
+                                     f"({type(exc).__name__}: {str(exc)[:300]})") from None
         return self._model
 
     @staticmethod
@@ -97,6 +142,86 @@ class SiglipEmbedder:
         with torch.no_grad():
             out = m(pixel_values=x).pooler_output.float().cpu().numpy()
         return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
+
+
+_WEIGHT_FILES = ("config.json", "model.safetensors", "pytorch_model.bin", "model.safetensors.index.json")
+
+
+def _folder_hash(folder: Path) -> str:
+    """sha256 of a model folder's config.json and the names and sizes of its files (a cheap identity)."""
+    h = hashlib.sha256((folder / "config.json").read_bytes())
+    for p in sorted(folder.iterdir()):
+        if p.is_file():
+            h.update(f"{p.name}:{p.stat().st_size};".encode())
+    return h.hexdigest()[:16]
+
+
+def _hub_timeout() -> float:
+    return float(os.environ.get("OSCAR_HUB_TIMEOUT") or 10.0)
+
+
+def _hub_folder(repo_id: str) -> tuple[str, str]:
+    """(local snapshot folder, commit) of a Hub model: from the cache, else downloaded after a bounded check.
+
+    Offline (``HF_HUB_OFFLINE=1``) only the cache is read. Online, a model
+    already cached at the branch's last known commit is used as is (no
+    request); otherwise one request (``GET /api/models/{id}/revision/main``)
+    must answer within ``OSCAR_HUB_TIMEOUT`` seconds in all (a thread with a
+    deadline, whatever the socket does) before the download starts.
+    """
+    from huggingface_hub import constants, snapshot_download
+    from huggingface_hub.errors import LocalEntryNotFoundError
+
+    patterns = ["*.json", "*.safetensors", "*.txt"]
+    cache_dir = os.environ.get("HF_HUB_CACHE") or None  # read now, not when huggingface_hub was imported
+    offline = os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in ("1", "true", "yes", "on")
+    try:
+        folder = snapshot_download(repo_id, allow_patterns=patterns, local_files_only=True, cache_dir=cache_dir)
+    except (LocalEntryNotFoundError, OSError, ValueError):
+        folder = None
+    if folder is not None and (Path(folder) / "config.json").is_file():
+        return folder, Path(folder).name
+    if offline:
+        raise ModelLoadError(f"--siglip {repo_id}: not in the Hub cache ({cache_dir or constants.HF_HUB_CACHE}) and HF_HUB_OFFLINE "
+                             "is set; run once online (unset HF_HUB_OFFLINE) or pass a local model folder")
+    base = (os.environ.get("HF_ENDPOINT") or constants.ENDPOINT).rstrip("/")
+    _check_reachable(f"{base}/api/models/{repo_id}/revision/main", base, repo_id)
+    try:
+        folder = snapshot_download(repo_id, allow_patterns=patterns, etag_timeout=_hub_timeout(), cache_dir=cache_dir)
+    except Exception as exc:  # noqa: BLE001 - any failure here is the whole stage's, named with its cause
+        raise ModelLoadError(f"--siglip {repo_id}: download failed ({type(exc).__name__}: {str(exc)[:300]}); with "
+                             "the model in the cache, HF_HUB_OFFLINE=1 skips the Hub") from None
+    return folder, Path(folder).name
+
+
+def _check_reachable(url: str, base: str, repo_id: str) -> None:
+    """ModelLoadError unless ``url`` answers (any HTTP status below 500) within the Hub timeout, start to end."""
+    import httpx
+
+    seconds = _hub_timeout()
+    result: dict[str, Any] = {}
+
+    def get() -> None:
+        try:
+            result["status"] = httpx.get(url, timeout=seconds, follow_redirects=True).status_code
+        except Exception as exc:  # noqa: BLE001 - reported below
+            result["error"] = f"{type(exc).__name__}: {exc}"
+
+    t = threading.Thread(target=get, daemon=True, name="oscar-hub-check")
+    t.start()
+    t.join(seconds)
+    fix = (f"set HF_HUB_OFFLINE=1 to use the cache ({repo_id} must be in it: download it once online) or pass a "
+           "local model folder to --siglip")
+    if t.is_alive():
+        raise ModelLoadError(f"--siglip {repo_id}: cannot reach the Hub ({base}: no answer within {seconds:g} s, "
+                             f"OSCAR_HUB_TIMEOUT); {fix}")
+    if "error" in result:
+        raise ModelLoadError(f"--siglip {repo_id}: cannot reach the Hub ({base}: {result['error'][:200]}); {fix}")
+    if result["status"] >= 500:
+        raise ModelLoadError(f"--siglip {repo_id}: cannot reach the Hub ({base}: HTTP {result['status']}); {fix}")
+    if result["status"] in (401, 403, 404):
+        raise ModelLoadError(f"--siglip {repo_id}: the Hub has no accessible model {repo_id} (HTTP "
+                             f"{result['status']}); check the id and your token (HF_TOKEN)")
 
 
 def episode_embedding(per_frame: np.ndarray) -> np.ndarray:
@@ -147,6 +272,8 @@ class EmbedStage:
     def __call__(self, rows: list[dict], shard: str = "") -> list[dict]:
         from .manifest import is_alive
 
+        if any(is_alive(r) for r in rows) and hasattr(self.embedder, "model"):
+            self.embedder.model()  # a model that cannot load fails the stage, not each episode
         return [self.one(r) if is_alive(r) else r for r in rows]
 
     def one(self, row: dict) -> dict:

@@ -17,23 +17,43 @@ shard and redoes only the rest, so nothing is redone and nothing duplicated.
 A stage function may declare ``shard_complete(rows) -> bool``: a shard it
 calls incomplete (captions deferred by the request budget) is written but
 not recorded, and is done again on the next run.
+
+``fingerprint.json`` (written before any shard, atomically) records what the
+stage's output depends on: the stage, its input (the previous stage's
+fingerprint and a hash of the episode ids), its effective settings, its model
+and a format version (:mod:`oscar_core._stage`). A re-run with other parts
+recomputes the stage — its plan, shards, completions and manifest are
+deleted first, and a warning names what changed — so a completion record
+always belongs to the settings in the fingerprint beside it. A stage folder
+with completions but no fingerprint (an older oscar) is recomputed too.
+Worker processes come from a fork server (never a plain fork after threads
+exist) and exit when the process that made the pool dies.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
+from .. import _stage
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 
 __all__ = ["ENGINES", "StageRun", "run_sharded", "run_shard", "read_stage", "stage_done", "write_stage_manifest",
-           "StageIncomplete"]
+           "StageIncomplete", "StageRecomputed", "FINGERPRINT", "read_fingerprint", "stage_parts", "ids_hash",
+           "use_fingerprint"]
 
 ENGINES = ("local", "ray")
 MANIFEST = "manifest.parquet"
+FINGERPRINT = "fingerprint.json"
+
+
+class StageRecomputed(UserWarning):
+    """A stage's recorded fingerprint differs from this run's: its old output is deleted and it is computed again."""
 
 
 class StageIncomplete(ValueError):
@@ -48,6 +68,7 @@ class StageRun:
     processed: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     incomplete: list[str] = field(default_factory=list)
+    changed: list[str] = field(default_factory=list)  # what differed from the recorded fingerprint (recomputed)
     table: Any = None  # the stage manifest (pyarrow Table) when every shard is done
     _rows: list[dict[str, Any]] | None = None
 
@@ -127,13 +148,66 @@ def _pool_context():
     forked from a preloaded server they start in milliseconds. Neither
     inherits the parent's threads (plain fork after torch has run is unsafe).
     """
-    import multiprocessing as mp
+    return _stage.pool_context(_PRELOAD)
 
-    if "forkserver" in mp.get_all_start_methods():
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(_PRELOAD)
-        return ctx
-    return mp.get_context("spawn")
+
+def ids_hash(rows: list[dict]) -> str:
+    """sha256 (16 hex digits) of the rows' episode ids in order: the identity of a stage's input episodes."""
+    h = hashlib.sha256()
+    for r in rows:
+        h.update(str(r["id"]).encode() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def stage_parts(stage: str, *, input: Mapping[str, Any], settings: Mapping[str, Any],
+                model: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The fingerprint parts of a data stage (see the module docstring)."""
+    return {"stage": stage, "format": _stage.FORMAT_VERSION, "input": dict(input), "settings": dict(settings),
+            "model": dict(model) if model else None}
+
+
+def read_fingerprint(stage_url: str) -> dict | None:
+    """A stage folder's recorded ``{"fingerprint": hex, "parts": {...}}``, or None when it has none."""
+    url = _fs.join(stage_url, FINGERPRINT)
+    if not _fs.exists(url):
+        return None
+    try:
+        got = json.loads(_fs.read_bytes(url))
+    except ValueError:
+        return None
+    return got if isinstance(got, dict) and "fingerprint" in got else None
+
+
+def _clear_stage(stage_url: str, extra: tuple[str, ...] = ()) -> None:
+    fs, root = _fs.url_to_fs(stage_url)
+    for name in ("plan.json", MANIFEST, FINGERPRINT, *extra):
+        path = f"{root.rstrip('/')}/{name}"
+        if fs.exists(path):
+            fs.rm(path)
+    for name in ("shards", "completions"):
+        path = f"{root.rstrip('/')}/{name}"
+        if fs.exists(path):
+            fs.rm(path, recursive=True)
+
+
+def use_fingerprint(stage_url: str, parts: Mapping[str, Any], *, clear: tuple[str, ...] = ()) -> list[str]:
+    """Make ``stage_url`` belong to ``parts``: when its recorded fingerprint differs (or is absent while the folder
+    has work in it), delete its plan, shards, completions, manifest and the files named in ``clear``, warn with
+    :class:`StageRecomputed` naming what changed, and record the new fingerprint. Returns what changed ([] when
+    nothing did)."""
+    new = _stage.fingerprint(parts)
+    old = read_fingerprint(stage_url)
+    if old is not None and old["fingerprint"] == new:
+        return []
+    has_work = _fs.exists(_fs.join(stage_url, "plan.json")) or _fs.exists(_fs.join(stage_url, MANIFEST))
+    what = _stage.changes(old.get("parts") if old else None, parts) if (old or has_work) else []
+    if what:
+        _clear_stage(stage_url, clear)
+        warnings.warn(f"{stage_url}: made under other inputs or settings ({'; '.join(what)}); its old output is "
+                      "deleted and the stage is computed again", StageRecomputed, stacklevel=3)
+    _fs.write_bytes_atomic(_fs.join(stage_url, FINGERPRINT),
+                           json.dumps({"fingerprint": new, "parts": _stage._canonical(parts)}).encode())
+    return what
 
 
 class _RayShardTask:
@@ -157,14 +231,18 @@ def check_workers_see(url: str, engine: str, workers: int | None) -> None:
 
 
 def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: str = "local",
-                workers: int | None = None, progress: bool = True, desc: str = "") -> StageRun:
+                workers: int | None = None, progress: bool = True, desc: str = "",
+                parts: Mapping[str, Any] | None = None) -> StageRun:
     """Map ``fn`` over ``rows`` in shards into ``stage_url``; skip shards already completed.
 
     rows: input rows in a fixed order (the plan is made from it on the first
     run and checked on later ones); engine: ``local`` (process pool;
     ``workers`` ≤ 1 runs in this process) or ``ray`` (Ray Data; uses a running
     Ray or starts a local one with ``workers`` CPUs). Writes ``manifest.parquet``
-    when every shard is done. Returns a :class:`StageRun`.
+    when every shard is done. parts: the stage's fingerprint parts
+    (:func:`stage_parts`; the shard size and the input ids are added here):
+    a stage recorded under other parts is computed again
+    (:func:`use_fingerprint`). Returns a :class:`StageRun`.
     """
     if engine not in ENGINES:
         raise ValueError(f"--engine: expected one of {list(ENGINES)}, found {engine!r}")
@@ -172,6 +250,11 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         raise ValueError(f"--shard-size: expected a positive integer, found {shard_size}")
     check_workers_see(stage_url, engine, workers)
     plan = _plan(rows, shard_size)
+    if parts is not None:
+        parts = dict(parts, input=dict(parts.get("input") or {}, ids=ids_hash(rows), shard_size=shard_size))
+        run_changes = use_fingerprint(stage_url, parts)
+    else:
+        run_changes = []
     plan_url = _fs.join(stage_url, "plan.json")
     if _fs.exists(plan_url):
         old = json.loads(_fs.read_bytes(plan_url))
@@ -183,6 +266,7 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     by_id = {r["id"]: r for r in rows}
     done = {n[:-5] for n in _fs.listdir(_fs.join(stage_url, "completions")) if n.endswith(".json")}
     run = StageRun(stage_url)
+    run.changed = run_changes
     todo = [n for n in plan if n not in done]
     run.skipped = [n for n in plan if n in done]
     tasks = [(n, [by_id[i] for i in plan[n]]) for n in todo]
@@ -202,7 +286,8 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         else:
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
-            with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_worker_init) as pool:
+            with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_stage.worker_initializer,
+                                     initargs=(os.getpid(), _worker_init)) as pool:
                 futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
                 for fut in as_completed(futures):
                     results.append(fut.result())

@@ -75,10 +75,12 @@ class ExportStage:
                 o = dict(r, export_status="ok", export_reason=None, export_value=None, export_clip=None,
                          export_shard=None)
                 try:
-                    rec = sw.add(self._clip(r))
+                    clip = self._clip(r)
                 except EPISODE_ERRORS as exc:
                     o.update(export_status="rejected", export_reason=f"unreadable: {reason_of(exc)}")
                 else:
+                    # outside the episode's try: a failed write (a full disk) fails the stage, never the episode
+                    rec = sw.add(clip)
                     o.update(export_clip=rec.id, export_shard=name, export_value=float(rec.n_frames))
                 out.append(o)
         return out

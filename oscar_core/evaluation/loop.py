@@ -47,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .. import _stage
+from .._atomic import atomic_write_bytes, sweep_dead_temporaries
 from ..metrics._common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
@@ -82,13 +83,7 @@ def video_path(out: Path, cell: Cell) -> Path:
     return Path(out) / "rollouts" / cell.session / f"{cell.policy}{VIDEO_SUFFIX}"
 
 
-def model_identity(spec, revision: str | None = None) -> str:
-    """A string that changes when the model's weights can: a folder's manifest digest, else ``name@revision``."""
-    p = Path(str(spec))
-    manifest = p / "oscar_manifest.json"
-    if p.is_dir() and manifest.is_file():
-        return f"folder-manifest:{file_digest(manifest)}"
-    return f"{spec}@{revision or 'pinned'}"
+model_identity = _stage.model_identity  # shared with toyworld rollouts (one definition, in the bottom layer)
 
 
 def rollout_key(cell: Cell, *, model_id: str, sampler: dict, chunk_frames, size, fps) -> str:
@@ -178,6 +173,9 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     _check_embodiments(manifest, plugin_paths)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # temporaries of killed runs (videos, cell records, report files), even when every cell is then reused
+    for folder in (out, *sorted((out / "cells").glob("*")), *sorted((out / "rollouts").glob("*"))):
+        sweep_dead_temporaries(folder)
     if model is None and model_spec is None:
         raise MetricInputError("model", "model", "a world model or a model spec (zoo name, Hub id or folder)", "none")
     sampler = sampler or SamplerConfig()

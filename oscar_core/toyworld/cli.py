@@ -215,6 +215,7 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
+    from .._stage import model_identity
     from .rollouts import sampler_for_card, write_rollouts
 
     torch.set_num_threads(max(1, args.threads))
@@ -223,7 +224,7 @@ def cmd_rollout(args) -> int:
                                guidance_interval=args.guidance_interval, preset=args.preset)
     summary = write_rollouts(model, args.clips, args.out, args.condition,
                              split=None if args.split == "all" else args.split, limit=args.limit, sampler=sampler,
-                             seed=args.seed, registry=_registry(args))
+                             seed=args.seed, registry=_registry(args), model_id=model_identity(args.model))
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")

@@ -19,11 +19,17 @@ frames in chunks of the model card's length, uses the empty (zero) prompt of
 the toy model, and is seeded by ``seed`` (the same noise for every condition).
 Predictions are written as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8), the
 layout ``oscar toyworld eval`` reads; a clip already written is skipped, so a
-killed run resumes.
+killed run resumes. ``OUT/fingerprint.json`` records what the predictions
+depend on (model identity and card, condition, split and limit, the clips
+rolled out, sampler, seed, format version): a run with others into the same
+``OUT`` is refused (:class:`oscar_core._stage.StageChanged`, naming what
+changed) instead of mixing predictions; use another ``--out``, or delete it
+to redo.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import time
 from dataclasses import replace
@@ -32,7 +38,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .. import _stage
+from .._atomic import atomic_write_bytes, sweep_dead_temporaries
 
 __all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
 
@@ -78,14 +85,17 @@ def sampler_for_card(card, steps: int | None = None, guidance: float | None = No
 
 def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
                    limit: int | None = None, sampler=None, seed: int = 0, registry=None,
-                   log: Callable[[str], None] | None = None) -> dict:
+                   log: Callable[[str], None] | None = None, model_id: str | None = None) -> dict:
     """Roll ``model`` (an ``OscarWorldModel``) out on every clip of ``split`` under ``condition``; see the module.
 
     limit: at most this many clips, every k-th of the split's (so every
     embodiment is represented). sampler: a :class:`~oscar_core.model.sampler.SamplerConfig` (default: the
     library's, 35 UniPC steps, guidance 6 diffusers form); for ``zero`` its
-    guidance is replaced by the unconditional branch. Returns a summary:
-    clips written and kept, seconds per rollout.
+    guidance is replaced by the unconditional branch. model_id: what names the
+    weights (``oscar_core._stage.model_identity`` of the spec loaded; None:
+    the card alone). Returns a summary: clips written and kept, seconds per
+    rollout. ``StageChanged`` when ``out`` holds predictions made under other
+    settings (see the module docstring).
     """
     from ..model.sampler import SamplerConfig
     from ..registry import Registry
@@ -103,7 +113,15 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
         raise ValueError(f"{cs.root}: expected clips with meta.split == {split!r}, found none")
     partner = skeleton_partners(recs)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    card = model.card
+    parts = {"stage": "toyworld-rollout", "format": _stage.FORMAT_VERSION, "model": model_id,
+             "card": dataclasses.asdict(card) if dataclasses.is_dataclass(card) else repr(card),
+             "condition": condition, "split": split, "limit": limit,
+             "clips": {"set": str(Path(clipset).resolve()), "ids": [r.id for r in recs],
+                       "frames": [r.n_frames for r in recs]},
+             "sampler": dataclasses.asdict(sampler), "seed": seed}
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
+    sweep_dead_temporaries(out)
     written = kept = 0
     seconds = []
     for rec in recs:

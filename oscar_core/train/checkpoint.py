@@ -91,7 +91,9 @@ def save_checkpoint(run_dir, step: int, model, optimizer, ema: dict, info: DistI
     final = checkpoint_dir(run_dir, step)
     tmp = final.with_name(f".{final.name}.tmp")
     if info.main:
-        shutil.rmtree(tmp, ignore_errors=True)
+        # one trainer writes a run folder: any other step's temporary is a killed save's leftover
+        for stale in final.parent.glob(".step-*.tmp") if final.parent.is_dir() else ():
+            shutil.rmtree(stale, ignore_errors=True)
         tmp.mkdir(parents=True)
     barrier(info)
     with _quiet(not info.distributed):

@@ -41,7 +41,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .._atomic import _TMP_NAME as _TMP_WITH_PID
+from .._atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
 from ..errors import OscarError
 
 __all__ = [
@@ -212,7 +213,8 @@ class ShardWriter:
 
     def __init__(self, final: Path, video_codec: str = "ffv1"):
         self.final = final
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+        sweep_once(final.parent)
+        self.tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final), suffix=".tmp", dir=final.parent))
         self.records: list[ClipRecord] = []
         self.video_codec = video_codec
 
@@ -335,11 +337,15 @@ class ClipSetWriter:
         return ShardWriter(self.root / name, self.video_codec)
 
     def remove_stale(self) -> list[Path]:
-        """Delete temporary folders left by killed writers; returns what was removed."""
-        stale = [p for p in self.root.glob(".shard-*.tmp") if p.is_dir()]
-        for p in stale:
-            shutil.rmtree(p, ignore_errors=True)
-        return stale
+        """Delete the temporary shard folders of killed writers (their pid no longer runs) and those without a pid
+        in their name (an older oscar's); returns what was removed. A live writer's temporary, in this or another
+        process, is left alone."""
+        removed = sweep_dead_temporaries(self.root)
+        for p in self.root.glob(".shard-*.tmp"):
+            if p.is_dir() and not _TMP_WITH_PID.match(p.name):
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+        return removed
 
 
 def _read_marker(path: Path) -> dict:
