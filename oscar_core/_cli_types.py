@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["count", "number"]
+__all__ = ["count", "interval", "number"]
 
 
 def count(minimum: int = 1):
@@ -48,3 +48,17 @@ def number(minimum: float | None = None, maximum: float | None = None, *, above:
 
     parse.__name__ = "number"
     return parse
+
+
+def interval(text: str) -> tuple[float, float]:
+    """``LO,HI`` → (lo, hi): two finite numbers with 0 <= LO <= HI <= 1 (a range of noise levels)."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        lo, hi = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO,HI (two numbers), found {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi <= 1.0):
+        raise argparse.ArgumentTypeError(f"expected 0 <= LO <= HI <= 1, found {text!r}")
+    return lo, hi

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from oscar_core import get_embodiment, load_camera, load_trajectory
-from oscar_core.evaluation.loop import _rollout_cell
+from oscar_core.evaluation.rollout_engines import _roll_out, cell_inputs
 from oscar_core.evaluation.manifest import Cell
 from oscar_core.mesh_render import render_mesh_video
 from oscar_core.model import ModelCard, OscarWorldModel
@@ -36,8 +36,9 @@ def test_a_cell_of_a_mesh_model_is_conditioned_on_the_mesh(tmp_path):
             return _rollout(first_frame, skeleton, *args, **kwargs)
 
         model.rollout = spy
-        frames, _ = _rollout_cell(model, cell, (64, 32), sampler=SamplerConfig(steps=1), chunk_frames=9, plugin_paths=(),
-                                  progress=False)
+        inputs = cell_inputs(model, cell, (64, 32), plugin_paths=())
+        (frames,) = _roll_out(model, [inputs], sampler=SamplerConfig(steps=1), chunk_frames=9, seeds=[cell.seed],
+                              progress=False)
         assert frames.shape == (9, 32, 64, 3)
     emb, cam = get_embodiment("toyarm"), load_camera(ASSETS / "example_camera.json")
     np.testing.assert_array_equal(seen["mesh"], render_mesh_video(emb, traj, cam, (64, 32)))

@@ -287,3 +287,101 @@ def test_the_next_seed_is_clamped_before_it_is_re_encoded():
                      sampler=SamplerConfig(steps=1, guidance=None)).frames
     assert len(vae.seeds) == 2 and vae.seeds[1] <= 1.0  # chunk 1's seed: the clamped last frame of chunk 0
     assert frames.dtype == np.uint8 and frames[1:].min() == 255
+
+
+# --------------------------------------------------------------------------- #
+# guidance interval and presets
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("solver", ["euler", "unipc"])
+def test_guidance_interval_guides_exactly_the_steps_inside_it(solver):
+    from oscar_core.model.sampler import model_calls, step_sigmas
+
+    lo, hi = 0.3, 0.9
+    config = SamplerConfig(steps=8, solver=solver, guidance=3.0, guidance_interval=(lo, hi))
+    spy = _Spy(lambda x, s: 0.1 * x + s)  # depends on the skeleton, so the branches differ
+    _, _, skel, _ = _chunk(spy, config)
+    sigmas = step_sigmas(config)
+    # batched guidance is one call of batch 2 (cond then uncond); an unguided step one call of batch 1 (cond)
+    batch = [c["x"].shape[0] for c in spy.calls]
+    assert len(batch) == 8 and batch == [2 if lo <= s <= hi else 1 for s in sigmas]
+    assert 0 < batch.count(2) < 8  # the interval cuts this schedule
+    for call, sigma in zip(spy.calls, sigmas):
+        torch.testing.assert_close(call["t"][:, :, 1:], torch.full_like(call["t"][:, :, 1:], sigma))
+        assert torch.equal(call["s"][:1], skel)  # the first item is always the conditional branch
+    assert model_calls(config) == sum(batch)
+    assert model_calls(SamplerConfig(steps=8, solver=solver, guidance=3.0)) == 16
+    assert model_calls(SamplerConfig(steps=8, solver=solver, guidance=None)) == 8
+
+
+def test_guidance_interval_covering_all_or_no_steps_equals_full_or_no_guidance():
+    fn = lambda x, s: 0.1 * x + s  # noqa: E731
+    full, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=3.0))
+    every, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=3.0, guidance_interval=(0.0, 1.0)))
+    cond, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=None))
+    never, _, _, _ = _chunk(_Spy(fn), SamplerConfig(steps=5, guidance=3.0, guidance_interval=(0.0, 0.0)))
+    assert torch.equal(full, every) and torch.equal(cond, never) and not torch.equal(full, cond)
+
+
+@pytest.mark.parametrize("bad", [(0.5, 0.2), (-0.1, 0.5), (0.2, 1.5), (0.1,), "0.1,0.9", (float("nan"), 1.0),
+                                 (True, 1.0)])
+def test_guidance_interval_refuses_what_is_not_an_interval_of_noise_levels(bad):
+    from oscar_core.model import ModelInputError
+
+    with pytest.raises(ModelInputError, match="guidance_interval: expected"):
+        SamplerConfig(guidance_interval=bad)
+
+
+def test_presets_set_steps_and_interval_and_keep_the_rest():
+    from oscar_core.model import ModelInputError
+    from oscar_core.model.sampler import SAMPLER_PRESETS, apply_preset
+
+    base = SamplerConfig(guidance=3.0, shift=4.0)
+    assert apply_preset(base, None) is base
+    paper = apply_preset(base, "paper")
+    assert (paper.steps, paper.guidance_interval, paper.guidance, paper.shift) == (35, None, 3.0, 4.0)
+    fast = apply_preset(base, "fast")
+    assert (fast.steps, fast.guidance_interval) == (SAMPLER_PRESETS["fast"]["steps"],
+                                                    SAMPLER_PRESETS["fast"]["guidance_interval"])
+    with pytest.raises(ModelInputError, match="sampler preset: expected one of"):
+        apply_preset(base, "turbo")
+
+
+# --------------------------------------------------------------------------- #
+# batched rollouts
+# --------------------------------------------------------------------------- #
+def test_per_item_generators_draw_what_each_item_draws_alone():
+    fn = lambda x, s: 0.1 * x + s  # noqa: E731
+    g = torch.Generator().manual_seed(100)
+    first = torch.randn(3, 4, 1, 2, 2, generator=g)
+    skel = torch.randn(3, 4, 3, 2, 2, generator=g)
+    config = SamplerConfig(steps=4, guidance=3.0)
+    batch = sample_chunk(_Spy(fn), first, skel, torch.zeros(1, 1, 8), config,
+                         generators=[torch.Generator().manual_seed(s) for s in (7, 8, 9)])
+    for i, s in enumerate((7, 8, 9)):
+        alone = sample_chunk(_Spy(fn), first[i:i + 1], skel[i:i + 1], torch.zeros(1, 1, 8), config,
+                             generator=torch.Generator().manual_seed(s))
+        torch.testing.assert_close(batch[i:i + 1], alone, rtol=1e-5, atol=1e-5)
+    with pytest.raises(Exception, match="generators: expected one per batch item"):
+        sample_chunk(_Spy(fn), first, skel, torch.zeros(1, 1, 8), config, generators=[torch.Generator()])
+
+
+def test_rollout_batch_equals_one_at_a_time():
+    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
+                                         ModelCard(name="t", chunk_frames=5, fps=15.0))
+    rng = np.random.default_rng(0)
+    firsts = [rng.integers(0, 255, (16, 32, 3), dtype=np.uint8) for _ in range(3)]
+    skels = [rng.integers(0, 255, (11, 16, 32, 3), dtype=np.uint8) for _ in range(3)]  # 3 chunks, the last padded
+    prompt = torch.randn(1, 4, model.transformer.text_dim, generator=torch.Generator().manual_seed(1))
+    config = SamplerConfig(steps=3, guidance=2.0)
+    alone = [model.rollout(f, s, prompt, sampler=config, seed=10 + k, progress=False).frames
+             for k, (f, s) in enumerate(zip(firsts, skels))]
+    batch = model.rollout_batch(firsts, skels, [prompt] * 3, sampler=config, seeds=[10, 11, 12])
+    for a, b in zip(alone, batch):
+        assert a.shape == b.shape == (11, 16, 32, 3)
+        diff = np.abs(a.astype(int) - b.astype(int))
+        assert diff.max() <= 1 and (diff == 0).mean() > 0.99  # float rounding of batched matmuls, nothing more
+    assert not np.array_equal(batch[0], batch[1])  # each item its own inputs and noise
+    with pytest.raises(Exception, match="one length and size"):
+        model.rollout_batch(firsts[:2], [skels[0], skels[1][:9]], sampler=config)

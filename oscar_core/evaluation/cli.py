@@ -29,7 +29,7 @@ import json
 import os
 from pathlib import Path
 
-from .._cli_types import count, number
+from .._cli_types import count, interval, number
 from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
 
@@ -100,7 +100,7 @@ def _vlm_kwargs(args) -> dict:
 def cmd_eval_run(args) -> int:
     import torch
 
-    from ..model.sampler import SamplerConfig
+    from ..model.sampler import sampler_from_options
     from .loop import run_evaluation
     from .manifest import load_manifest
 
@@ -121,15 +121,16 @@ def cmd_eval_run(args) -> int:
             pairwise = judge
     elif args.pairwise:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
-    sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
-                            guidance_form=args.guidance_form)
+    sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
+                                   shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form)
     with run_log(args.out, "eval-run"):
         result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
                                 pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
                                 device=args.device, dtype=getattr(torch, args.dtype),
                                 plugin_paths=getattr(args, "plugin", None) or (),
                                 progress=not args.no_progress and progress_bars_enabled(),
-                                plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()])
+                                plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
+                                batch_cells=args.batch_cells, engine=args.engine, workers=args.workers)
     report = result.report
     if args.json:
         print(json.dumps({**report, "files": result.paths}, indent=2))
@@ -166,11 +167,22 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
                    help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
                         'judge ran at high reasoning effort)')
     r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
-    r.add_argument("--steps", type=count(1), default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget (as oscar rollout --preset)")
+    r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
+                   help="guide only the steps with noise level in [LO, HI]")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
     r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6)")
     r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
+    r.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="where rollouts run: this process (default), or Ray actors (a running cluster via "
+                        "RAY_ADDRESS, else a local one), one model per GPU (pip install \"oscar-wm[ray]\")")
+    r.add_argument("--workers", type=count(1), default=1, metavar="N",
+                   help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)")
+    r.add_argument("--batch-cells", type=count(1), default=1, metavar="N",
+                   help="roll out up to N cells in one batch (same frame count and size; each video equals its "
+                        "one-at-a-time rollout up to float rounding; default 1)")
     r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32", help="DiT dtype")
     r.add_argument("--plot-format", default="png", help="comma-separated plot formats (png, pdf, svg)")

@@ -40,7 +40,6 @@ import dataclasses
 import hashlib
 import json
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,53 +129,6 @@ class _LazyModel:
         return self._model
 
 
-def _prompt(cell: Cell):
-    if cell.prompt_embeds is None:
-        return None
-    from safetensors.torch import load_file
-
-    from ..model._weights import check_safetensors
-
-    check_safetensors(cell.prompt_embeds)
-    tensors = load_file(str(cell.prompt_embeds))
-    if "prompt_embeds" in tensors:
-        return tensors["prompt_embeds"]
-    if len(tensors) == 1:
-        return next(iter(tensors.values()))
-    raise MetricInputError(cell.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
-
-
-def _rollout_cell(model, cell: Cell, size, *, sampler, chunk_frames, plugin_paths, progress) -> tuple[np.ndarray, float]:
-    """Render the cell's skeleton video and roll the model out; returns (frames (T, H, W, 3) uint8, fps)."""
-    from ..errors import InputFileError
-    from ..model._image import read_image
-    from ..conditions import condition_video
-    from ..pipeline import fit_image
-    from ..registry import get_embodiment
-    from ..trajectory import load_trajectory
-
-    emb = get_embodiment(cell.embodiment, plugin_paths)
-    traj = load_trajectory(cell.trajectory)
-    camera = emb.load_camera(cell.camera)
-    first = read_image(cell.first_frame)
-    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
-    if (first.shape[1], first.shape[0]) != cam_size:
-        raise InputFileError(cell.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
-                             f"{cell.camera})", f"{first.shape[1]}x{first.shape[0]}")
-    card = model.card
-    if size is None:
-        size = (card.width, card.height) if card.width and card.height else cam_size
-    # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
-    skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
-                               resize_mode="crop", camera_source=str(cell.camera))
-    first = fit_image(first, size[0], size[1], "crop")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
-        result = model.rollout(first, skeleton, _prompt(cell), chunk_frames=chunk_frames, sampler=sampler,
-                               seed=cell.seed, progress=progress, keep_chunks=False)
-    return result.frames, float(traj.fps)
-
-
 def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
     from ..errors import OscarError
     from ..registry import get_embodiment
@@ -193,7 +145,8 @@ def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
 def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, revision: str | None = None,
                    judge=None, pairwise_judge=None, sampler=None, chunk_frames: int | None = None,
                    device="cpu", dtype=None, plugin_paths=(), progress: bool = False,
-                   plot_formats=("png",), log: Callable[[str], None] | None = None) -> EvaluationResult:
+                   plot_formats=("png",), log: Callable[[str], None] | None = None,
+                   batch_cells: int = 1, engine: str = "local", workers: int = 1) -> EvaluationResult:
     """Run the loop of the module docstring and write the report folder ``out``.
 
     manifest: a path or a loaded :class:`Manifest`. model: a loaded world model,
@@ -202,7 +155,18 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     rollout is needed. judge: success judge (``judge_many``) or None (no
     world-model success rates); pairwise_judge: ``compare_many`` or None.
     sampler: :class:`~oscar_core.model.SamplerConfig` (default: the paper's).
+    batch_cells: roll out up to this many cells in one batch (cells in manifest order that share a frame count,
+    size and prompt shape; each cell's video equals its one-at-a-time rollout up to float rounding, and its
+    record is written as soon as its batch finishes). Latent-action models roll out one at a time.
+    engine: ``local`` (this process) or ``ray``: ``workers`` Ray actors (one GPU each on CUDA), each loading the
+    model once from ``model_spec`` and rolling out groups of cells; this process writes every video and record,
+    so the run folder, the resume rule and the report are the local run's.
     """
+    for name, value in (("batch_cells", batch_cells), ("workers", workers)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise MetricInputError(name, "value", "an integer >= 1", repr(value))
+    if engine not in ("local", "ray"):
+        raise MetricInputError("engine", "value", '"local" or "ray"', repr(engine))
     from ..model.sampler import SamplerConfig
 
     user_log, log = log, log or _log.info
@@ -229,11 +193,13 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     size = manifest.size
     counts = {"cells": len(manifest.cells), "rollouts_done": 0, "rollouts_reused": 0, "verdicts_done": 0,
               "verdicts_reused": 0, "verdicts_not_ok": 0}
-    records: list[dict] = []
+    done: dict[int, dict] = {}
 
     # 1. rollouts -------------------------------------------------------------------------------
     # a bar over the cells: rate and ETA of the whole evaluation (reused cells count at once)
-    for k, cell in enumerate(progress_bar(manifest.cells, desc="eval run: rollouts", unit="cell", enabled=progress)):
+    bar = progress_bar(total=len(manifest.cells), desc="eval run: rollouts", unit="cell", enabled=progress)
+    pending = []  # (index, cell, key) of the cells without a valid rollout
+    for k, cell in enumerate(manifest.cells):
         rpath, vpath = record_path(out, cell), video_path(out, cell)
         key = rollout_key(cell, model_id=model_id, sampler=sampler_fields, chunk_frames=chunk_frames, size=size,
                           fps=None)
@@ -241,26 +207,51 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
         if (rec is not None and rec.get("rollout_key") == key and vpath.is_file()
                 and rec.get("video_sha256") == file_digest(vpath)):
             counts["rollouts_reused"] += 1
-            records.append(rec)
-            continue
-        t0 = time.perf_counter()
-        m = lazy.get()
-        frames, fps = _rollout_cell(m, cell, size, sampler=sampler, chunk_frames=chunk_frames,
-                                    plugin_paths=plugin_paths, progress=progress)
+            done[k] = rec
+            bar.update(1)
+        else:
+            pending.append((k, cell, key))
+
+    def record(k: int, cell: Cell, key: str, frames: np.ndarray, fps: float, seconds: float, batch: int) -> None:
+        """Write one rolled-out cell's video, then its record (the record last: a killed run redoes the cell)."""
         from ..video import write_video
 
+        rpath, vpath = record_path(out, cell), video_path(out, cell)
         vpath.parent.mkdir(parents=True, exist_ok=True)
         write_video(vpath, frames, fps)
         rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
                "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
                "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
-               "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])], "fps": fps,
-               "seconds": round(time.perf_counter() - t0, 3), "verdict": None,
+               "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])],
+               "fps": fps, "seconds": round(seconds, 3), "verdict": None, "batch": batch,
                "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         _write_json(rpath, rec)
         counts["rollouts_done"] += 1
-        records.append(rec)
-        log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in {rec['seconds']:.1f} s")
+        done[k] = rec
+        bar.update(1)
+        log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
+            f"{rec['seconds']:.1f} s" + (f" (batch of {batch})" if batch > 1 else ""))
+
+    options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, plugin_paths=tuple(plugin_paths),
+                   batch_cells=batch_cells)
+    if pending and engine == "ray":
+        from .rollout_engines import roll_out_on_ray
+
+        if model_spec is None:
+            raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
+                                   f"a model object ({type(model).__name__})")
+        roll_out_on_ray(pending, record, model_spec=model_spec, revision=revision, device=device, dtype=dtype,
+                        workers=workers, log=log, **options)
+    elif pending:
+        from .rollout_engines import roll_out_cells
+
+        for group, videos in roll_out_cells(lazy.get(), [c for _, c, _ in pending], progress=progress, **options):
+            at = {id(c): (k, key) for k, c, key in pending}
+            for (cell, seconds), (frames, fps) in zip(group, videos):
+                k, key = at[id(cell)]
+                record(k, cell, key, frames, fps, seconds, len(group))
+    bar.close()
+    records = [done[k] for k in range(len(manifest.cells))]
 
     # 2. success verdicts ------------------------------------------------------------------------
     from ..metrics.judge import JudgeClip, SuccessVerdict, pairs_by_session, success_by_policy

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cli_types import count, number
+from .._cli_types import count, interval, number
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
            "side_by_side_path"]
@@ -85,7 +85,11 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how camera and first frame are fitted to --size (default: centre crop)")
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument("--steps", type=count(1), default=35, help="denoising steps per chunk (default 35)")
+    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget: paper (35 steps, guidance at every "
+                   "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md)")
+    r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
+                   help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch")
     r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
                    "(default: the checkpoint's scheduler, else unipc)")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
@@ -350,7 +354,7 @@ def cmd_rollout(args) -> int:
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
     from ._image import read_image
-    from .sampler import SamplerConfig
+    from .sampler import sampler_from_options
 
     emb = get_embodiment(args.embodiment, getattr(args, "plugin", None) or ())
     traj = load_trajectory(args.trajectory)
@@ -360,9 +364,10 @@ def cmd_rollout(args) -> int:
     if (first.shape[1], first.shape[0]) != cam_size:
         raise InputFileError(args.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
                              f"{args.camera})", f"{first.shape[1]}x{first.shape[0]}")
-    sampler = SamplerConfig(steps=args.steps, shift=args.shift, guidance=args.guidance,
-                            guidance_form=args.guidance_form, batched_cfg=not args.two_pass_cfg, solver=args.solver,
-                            action_guidance=getattr(args, "action_guidance", None))
+    sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
+                                   shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form,
+                                   batched_cfg=not args.two_pass_cfg, solver=args.solver,
+                                   action_guidance=getattr(args, "action_guidance", None))
     # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
     from ..pipeline import parse_size
     from ..video import check_output

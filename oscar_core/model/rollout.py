@@ -42,7 +42,7 @@ from .errors import ModelInputError
 from .sampler import SamplerConfig, sample_chunk
 from .vae import VideoVAE, check_frame_count
 
-__all__ = ["RolloutResult", "chunk_plan", "rollout", "iter_rollout", "UNCONDITIONAL_SKELETONS"]
+__all__ = ["RolloutResult", "chunk_plan", "rollout", "iter_rollout", "rollout_batch", "UNCONDITIONAL_SKELETONS"]
 
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 
@@ -172,8 +172,25 @@ def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embed
     generator = torch.Generator(device="cpu").manual_seed(int(seed))
     if result is not None:
         result.starts = list(starts)
-    seed_pixels = VideoVAE.to_pixels(first[None])  # (1, 3, 1, H, W)
-    height, width = first.shape[:2]
+    results = [result] if result is not None else None
+    for frames in _chunks(transformer, vae, [first], None if skel is None else [skel],
+                          None if skel is not None else acts, prompt_embeds, starts, total, chunk_frames, sampler,
+                          [generator], progress, uncond, results, keep_chunks):
+        yield frames[0]
+
+
+def _chunks(transformer, vae: VideoVAE, firsts: list, skels: list | None, acts, prompt_embeds, starts, total: int,
+            chunk_frames: int, sampler: SamplerConfig, generators: list, progress: bool, uncond: _UncondSkeletons,
+            results: list | None, keep_chunks: bool):
+    """The chunk loop of B rollouts sharing one chunk plan: yields, per chunk, B arrays (N_c, H, W, 3) uint8.
+
+    firsts: B (H, W, 3) seed frames; skels: B padded (≥ starts[-1] + L, H, W, 3) condition videos, or None with
+    ``acts`` (N, F) for one latent-action rollout; generators: one CPU generator per rollout (its noise);
+    results: None or B RolloutResult receiving chunks and seeds with ``keep_chunks``.
+    """
+    b = len(firsts)
+    seed_pixels = torch.cat([VideoVAE.to_pixels(f[None]) for f in firsts])  # (B, 3, 1, H, W)
+    height, width = firsts[0].shape[:2]
     emitted = 0
     outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
     try:
@@ -181,28 +198,71 @@ def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embed
             first_latent = vae.encode(seed_pixels)
             with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
                       disable=not progress) as bar:
-                if skel is None:
-                    latent = sample_chunk(transformer, first_latent, None, prompt_embeds, sampler, generator=generator,
-                                          progress=bar, actions=acts[None, start:start + chunk_frames - 1],
+                if skels is None:
+                    latent = sample_chunk(transformer, first_latent, None, prompt_embeds, sampler,
+                                          generator=generators[0], progress=bar,
+                                          actions=acts[None, start:start + chunk_frames - 1],
                                           latent_frames=(chunk_frames - 1) // vae.temporal + 1)
                 else:
-                    skeleton_latent = vae.encode(VideoVAE.to_pixels(skel[start:start + chunk_frames]))
+                    window = np.stack([s[start:start + chunk_frames] for s in skels])  # (B, L, H, W, 3)
+                    skeleton_latent = vae.encode(VideoVAE.to_pixels(window))
                     latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
-                                          generator=generator, progress=bar,
-                                          uncond_skeleton=uncond.get(chunk_frames, height, width))
-            video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (1, 3, L, H, W)
-            if keep_chunks and result is not None:
-                result.chunks.append(video)
-                result.seeds.append(seed_pixels)
+                                          progress=bar, uncond_skeleton=uncond.get(chunk_frames, height, width),
+                                          **({"generator": generators[0]} if b == 1 else {"generators": generators}))
+            video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (B, 3, L, H, W)
+            if keep_chunks and results is not None:
+                for i, res in enumerate(results):
+                    res.chunks.append(video[i:i + 1])
+                    res.seeds.append(seed_pixels[i:i + 1])
             new = video if index == 0 else video[:, :, 1:]
-            frames = VideoVAE.to_uint8(new)[0][: total - emitted]
-            emitted += len(frames)
+            frames = VideoVAE.to_uint8(new)[:, : total - emitted]
+            emitted += frames.shape[1]
             seed_pixels = video[:, :, -1:].clone()  # clamped: the re-encoded seed is a valid image
             del video, latent
             outer.update(1)
-            yield frames
+            yield [frames[i] for i in range(b)]
     finally:
         outer.close()
+
+
+@torch.no_grad()
+def rollout_batch(transformer, vae: VideoVAE, first_frames, skeletons, prompt_embeds: torch.Tensor, *,
+                  chunk_frames: int = 81, sampler: SamplerConfig = SamplerConfig(), seeds=None,
+                  progress: bool = False, uncond_skeleton: str = "zero_latent") -> list[np.ndarray]:
+    """B rollouts in one batch: each equals :func:`rollout` of its own inputs and seed, up to float rounding.
+
+    first_frames: B (H, W, 3) uint8 images; skeletons: B (T, H, W, 3) uint8 condition videos, all of the same
+    length and size (one chunk plan); prompt_embeds: (1 or B, L, D); seeds: B integers (default 0 each).
+    Every model call and VAE pass runs on the batch; each rollout's noise comes from its own generator, so a
+    rollout does not depend on its batch mates. Returns B (T, H, W, 3) uint8 videos.
+    """
+    b = len(first_frames)
+    if b == 0 or len(skeletons) != b:
+        raise ModelInputError(f"rollout_batch: expected as many skeleton videos as first frames (>= 1), found "
+                              f"{len(skeletons)} and {b}")
+    seeds = [0] * b if seeds is None else [int(s) for s in seeds]
+    if len(seeds) != b:
+        raise ModelInputError(f"rollout_batch: expected {b} seeds, found {len(seeds)}")
+    patch = int(transformer.config.patch_size[1])
+    pairs = [_check_inputs(f, s, vae.spatial * patch) for f, s in zip(first_frames, skeletons)]
+    shapes = {s.shape for _, s in pairs}
+    if len(shapes) != 1:
+        raise ModelInputError(f"rollout_batch: expected skeleton videos of one length and size, found {sorted(shapes)}")
+    total = len(pairs[0][1])
+    starts = chunk_plan(total, chunk_frames, vae.temporal)
+    padded_len = starts[-1] + chunk_frames
+    skels = [np.concatenate([s, np.repeat(s[-1:], padded_len - total, axis=0)]) if padded_len > total else s
+             for _, s in pairs]
+    if prompt_embeds.shape[0] not in (1, b):
+        raise ModelInputError(f"prompt_embeds: expected batch 1 or {b}, found shape {tuple(prompt_embeds.shape)}")
+    generators = [torch.Generator(device="cpu").manual_seed(s) for s in seeds]
+    pieces = [[] for _ in range(b)]
+    for frames in _chunks(transformer, vae, [f for f, _ in pairs], skels, None, prompt_embeds, starts, total,
+                          chunk_frames, sampler, generators, progress, _UncondSkeletons(vae, uncond_skeleton), None,
+                          False):
+        for i, f in enumerate(frames):
+            pieces[i].append(f)
+    return [np.concatenate(p, axis=0) for p in pieces]
 
 
 @torch.no_grad()

@@ -37,6 +37,17 @@ rollout passes it as ``uncond_skeleton``).
   above with w − 1 (w = 1 is the conditional branch, w = 0 the
   unconditional one). See docs/world-model.md for the comparison.
 
+Guidance interval (``SamplerConfig.guidance_interval = (lo, hi)``): guidance
+only at the steps whose noise level σ lies in [lo, hi]; the other steps run the
+conditional branch alone (one model call instead of two), as in Kynkäänniemi
+et al. 2024, "Applying guidance in a limited interval improves sample and
+distribution quality in diffusion models". ``None`` (default) guides every step.
+
+Presets (:data:`SAMPLER_PRESETS`, ``--preset`` on the CLI): named budgets of
+steps and guided steps; :func:`model_calls` counts the DiT evaluations (batch
+items) a chunk costs under a config, the basis of the FLOPs each preset
+reports. docs/world-model.md has their measured quality on the toy model.
+
 When the guided velocity equals one branch (w = 1 or 0 in the standard form,
 w = 0 in the diffusers form, or ``guidance=None``) only that branch runs.
 ``batched_cfg=True`` runs both branches as one forward of batch 2B;
@@ -63,7 +74,8 @@ import torch
 from .errors import ModelInputError
 
 __all__ = ["SamplerConfig", "flow_sigmas", "guided_velocity", "sample_chunk", "integrate", "unipc_scheduler",
-           "branches", "GUIDANCE_FORMS", "SOLVERS"]
+           "branches", "GUIDANCE_FORMS", "SOLVERS", "SAMPLER_PRESETS", "apply_preset", "model_calls",
+           "step_sigmas", "sampler_from_options"]
 
 GUIDANCE_FORMS = ("standard", "diffusers")
 SOLVERS = ("unipc", "euler")
@@ -86,7 +98,10 @@ class SamplerConfig:
         replaces the default flow-sigma one (a checkpoint's ``scheduler/``);
     action_guidance: latent-action models only: w over the actions
         (unconditional branch: no action tokens), None (default): the
-        conditional branch alone (module docstring).
+        conditional branch alone (module docstring);
+    guidance_interval: (lo, hi) noise levels, 0 <= lo <= hi <= 1: guidance
+        only at steps with lo <= σ <= hi, the conditional branch alone at the
+        others; None (default): every step.
     """
 
     steps: int = 35
@@ -99,8 +114,18 @@ class SamplerConfig:
     solver: str | None = None
     scheduler_config: dict | None = None
     action_guidance: float | None = None
+    guidance_interval: tuple[float, float] | None = None
 
     def __post_init__(self):
+        if self.guidance_interval is not None:
+            iv = self.guidance_interval
+            ok = (isinstance(iv, (tuple, list)) and len(iv) == 2
+                  and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in iv)
+                  and 0.0 <= float(iv[0]) <= float(iv[1]) <= 1.0)
+            if not ok:
+                raise ModelInputError(f"guidance_interval: expected (lo, hi) noise levels with 0 <= lo <= hi <= 1, "
+                                      f"found {iv!r}")
+            object.__setattr__(self, "guidance_interval", (float(iv[0]), float(iv[1])))
         steps = self.steps
         if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
             raise ModelInputError(f"sampler steps: expected an integer >= 1, found {steps!r}")
@@ -128,6 +153,58 @@ class SamplerConfig:
 def _finite(x) -> bool:
     """A real number (not a bool), neither NaN nor infinite."""
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+
+
+#: Named sampling budgets: fields of :class:`SamplerConfig` that a preset sets (the rest, e.g. the guidance
+#: weight, stay the model's or the user's). ``paper``: the paper's 35 UniPC steps, guidance at every step.
+#: The others were measured against it on the toy model (docs/world-model.md, "Sampling presets").
+SAMPLER_PRESETS: dict[str, dict] = {
+    "paper": {"steps": 35, "guidance_interval": None},
+    "fast": {"steps": 12, "guidance_interval": (0.0, 0.8)},
+}
+
+
+def apply_preset(config: "SamplerConfig", name: str | None) -> "SamplerConfig":
+    """``config`` with the fields of preset ``name`` (None: unchanged); an unknown name is an error."""
+    if name is None:
+        return config
+    if name not in SAMPLER_PRESETS:
+        raise ModelInputError(f"sampler preset: expected one of {sorted(SAMPLER_PRESETS)}, found {name!r}")
+    from dataclasses import replace
+
+    return replace(config, **SAMPLER_PRESETS[name])
+
+
+def sampler_from_options(*, steps: int | None = None, preset: str | None = None,
+                         guidance_interval: tuple[float, float] | None = None, **fields) -> "SamplerConfig":
+    """The CLI's sampler: ``fields`` (guidance, shift, ...), then ``preset``'s steps and interval, then the
+    explicit ``steps`` / ``guidance_interval`` (None: the preset's, else the defaults: 35 steps, every step)."""
+    from dataclasses import replace
+
+    config = apply_preset(SamplerConfig(**fields), preset)
+    return replace(config, steps=config.steps if steps is None else steps,
+                   guidance_interval=config.guidance_interval if guidance_interval is None else guidance_interval)
+
+
+def step_sigmas(config: "SamplerConfig") -> list[float]:
+    """The noise level σ of each model evaluation of one chunk, in order (what the guidance interval sees)."""
+    if config.resolved_solver == "euler":
+        return [float(x) for x in flow_sigmas(config.steps, config.shift)[:-1]]
+    sched = unipc_scheduler(config)
+    sched.set_timesteps(int(config.steps))
+    return [float(x) for x in sched.sigmas[:-1]]
+
+
+def guided_at(config: "SamplerConfig", sigma: float) -> bool:
+    """Whether the step at noise level ``sigma`` applies guidance (inside ``guidance_interval``)."""
+    iv = config.guidance_interval
+    return iv is None or iv[0] <= sigma <= iv[1]
+
+
+def model_calls(config: "SamplerConfig") -> int:
+    """DiT evaluations (batch items) one chunk costs: per step, 2 where both branches run, else 1."""
+    both = len(branches(config)) == 2
+    return sum(2 if both and guided_at(config, s) else 1 for s in step_sigmas(config))
 
 
 def flow_sigmas(steps: int, shift: float = 5.0) -> torch.Tensor:
@@ -267,7 +344,8 @@ def _action_guided_velocity(transformer, latents, timestep, text, actions, condi
 def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch.Tensor | None, text: torch.Tensor,
                  config: SamplerConfig = SamplerConfig(), generator: torch.Generator | None = None,
                  progress=None, uncond_skeleton: torch.Tensor | None = None, *,
-                 actions: torch.Tensor | None = None, latent_frames: int | None = None) -> torch.Tensor:
+                 actions: torch.Tensor | None = None, latent_frames: int | None = None,
+                 generators=None) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
     first_latent: (B, C, 1, H, W) normalised clean latent of the seed frame.
@@ -276,7 +354,9 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     text: (B or 1, L, D) prompt embedding.
     generator: CPU generator for the initial noise (drawn on the CPU, so a seed
         gives the same noise on every device); progress: optional tqdm-like
-        object, ``update(1)`` per step.
+        object, ``update(1)`` per step. generators: instead of ``generator``,
+        one CPU generator per batch item, each drawing its item's noise (B
+        independent rollouts in one batch draw what each would draw alone).
     uncond_skeleton: the unconditional branch's skeleton latent (None: zeros).
     actions: (B, window − 1, 14) latent actions of the chunk, for a
         ``LatentActionTransformer``: then ``skeleton_latent`` is None and
@@ -309,7 +389,13 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     if uncond_skeleton is not None:
         uncond_skeleton = uncond_skeleton.to(device)
 
-    noise = torch.randn((b, c, t, h, w), generator=generator, dtype=torch.float32).to(device)
+    if generators is not None:
+        if len(generators) != b:
+            raise ModelInputError(f"generators: expected one per batch item ({b}), found {len(generators)}")
+        noise = torch.cat([torch.randn((1, c, t, h, w), generator=g, dtype=torch.float32) for g in generators])
+        noise = noise.to(device)
+    else:
+        noise = torch.randn((b, c, t, h, w), generator=generator, dtype=torch.float32).to(device)
     clean = torch.zeros_like(noise)
     clean[:, :, :1] = first_latent.to(device, torch.float32)
     indicator = torch.zeros(b, 1, t, 1, 1, device=device)
@@ -318,11 +404,16 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     true_velocity = (noise - clean) * mask  # ε − z_0 on the conditioning frame, 0 elsewhere
     padding = torch.zeros(1, 1, h, w, device=device)  # no padded pixels (latent size; resize is a no-op)
 
+    from dataclasses import replace
+
+    unguided = replace(config, guidance=None, action_guidance=None)  # the conditional branch alone
+
     def velocity(x: torch.Tensor, sigma: float) -> torch.Tensor:
         model_in = mask * clean + (1.0 - mask) * x
         timestep = indicator * config.cond_timestep + (1.0 - indicator) * sigma
+        step_config = config if guided_at(config, float(sigma)) else unguided
         v = guided_velocity(transformer, model_in, timestep, text, None if actions is not None else skeleton_latent,
-                            mask, padding, config, text_projected=True, uncond_skeleton=uncond_skeleton,
+                            mask, padding, step_config, text_projected=True, uncond_skeleton=uncond_skeleton,
                             actions=actions)
         return true_velocity + v * (1.0 - mask)
 

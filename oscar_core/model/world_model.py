@@ -304,6 +304,30 @@ class OscarWorldModel:
                        keep_chunks=keep_chunks, uncond_skeleton=self.card.unconditional_skeleton, actions=actions,
                        num_frames=num_frames)
 
+    def rollout_batch(self, first_frames, skeletons, prompt_embeds=None, *, chunk_frames: int | None = None,
+                      sampler: SamplerConfig = SamplerConfig(), seeds=None, progress: bool = False) -> list:
+        """B rollouts in one batch (see :func:`oscar_core.model.rollout.rollout_batch`): B (T, H, W, 3) uint8 videos,
+        each equal to :meth:`rollout` of its own inputs and seed up to float rounding.
+
+        prompt_embeds: None (the card's empty prompt for all), one (1, L, D) tensor, or a list of B (1, L, D) /
+        None; condition videos of one length and size. Skeleton- and mesh-conditioned models only.
+        """
+        from .rollout import rollout_batch
+
+        if self.card.condition == "latent_action":
+            raise ModelInputError("rollout_batch: latent-action models roll out one at a time (rollout)")
+        if isinstance(prompt_embeds, (list, tuple)):
+            embeds = [self.prompt_embeds(e) for e in prompt_embeds]
+            if len({tuple(e.shape) for e in embeds}) != 1:
+                raise ModelInputError(f"prompt_embeds: expected one shape for the batch, found "
+                                      f"{sorted({tuple(e.shape) for e in embeds})}")
+            prompt = torch.cat(embeds)
+        else:
+            prompt = self.prompt_embeds(prompt_embeds)
+        return rollout_batch(self.transformer, self.vae, first_frames, skeletons, prompt,
+                             chunk_frames=int(chunk_frames or self.card.chunk_frames), sampler=self.sampler_for(sampler),
+                             seeds=seeds, progress=progress, uncond_skeleton=self.card.unconditional_skeleton)
+
     def iter_rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
                      chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
                      progress: bool = True, result=None, actions=None):

@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from .._cli_types import count, number
+from .._cli_types import count, interval, number
 from .._log import run_log
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
@@ -110,6 +110,12 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
                    help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)")
     o.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0; the same for every condition)")
+    o.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
+                   help="guide only the steps with noise level in [LO, HI] (e.g. 0.3,1.0); the others run the "
+                        "conditional branch alone")
+    o.add_argument("--preset", choices=("paper", "fast"),
+                   help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
+                        "sets the steps and the guidance interval")
     o.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
     o.set_defaults(func=cmd_rollout)
 
@@ -230,7 +236,8 @@ def cmd_rollout(args) -> int:
 
     torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
-    sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form)
+    sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form,
+                               guidance_interval=args.guidance_interval, preset=args.preset)
     with run_log(args.out, f"toyworld-rollout-{args.condition}"):
         summary = write_rollouts(model, args.clips, args.out, args.condition,
                                  split=None if args.split == "all" else args.split, limit=args.limit,

@@ -73,13 +73,18 @@ _log = get_logger(__name__)
 
 
 def sampler_for_card(card, steps: int | None = None, guidance: float | None = None,
-                     guidance_form: str = "diffusers"):
-    """A ``SamplerConfig``: the given steps / guidance, else the library's defaults (35 steps, guidance 6)."""
-    from ..model.sampler import SamplerConfig
+                     guidance_form: str = "diffusers", guidance_interval: tuple[float, float] | None = None,
+                     preset: str | None = None):
+    """A ``SamplerConfig``: the given steps / guidance / interval, else the library's defaults (35 steps,
+    guidance 6 at every step). A ``preset`` sets steps and interval first; explicit ``steps`` /
+    ``guidance_interval`` override it."""
+    from dataclasses import replace
 
-    d = SamplerConfig()
-    return SamplerConfig(steps=steps or d.steps, guidance=d.guidance if guidance is None else guidance,
-                         guidance_form=guidance_form)
+    from ..model.sampler import SamplerConfig, apply_preset
+
+    d = apply_preset(SamplerConfig(guidance_form=guidance_form), preset)
+    return replace(d, steps=steps or d.steps, guidance=d.guidance if guidance is None else guidance,
+                   guidance_interval=guidance_interval if guidance_interval is not None else d.guidance_interval)
 
 
 def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
@@ -104,7 +109,7 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
         raise ValueError(f"condition: expected one of {CONDITIONS}, found {condition!r}")
     sampler = sampler or SamplerConfig()
     if condition == "zero":
-        sampler = replace(sampler, guidance=0.0, guidance_form="standard")
+        sampler = replace(sampler, guidance=0.0, guidance_form="standard", guidance_interval=None)
     registry = registry if registry is not None else Registry()
     cs = ClipSet(clipset)
     recs = spread([r for r in cs if split is None or r.meta.get("split") == split], limit)

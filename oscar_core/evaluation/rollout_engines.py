@@ -1,0 +1,191 @@
+"""Where ``oscar eval run``'s rollouts happen: in this process, or on Ray actors across GPUs and machines.
+
+Both engines use :func:`roll_out_cells`: a cell's inputs (its first frame at the rollout size, the card's
+condition video — skeleton or mesh — and its prompt embedding) are computed, consecutive cells sharing one
+frame count, size and prompt shape are rolled out together in batches of up to ``batch_cells``
+(:meth:`~oscar_core.model.OscarWorldModel.rollout_batch`: each video equals its one-at-a-time rollout up to
+float rounding), and each group is handed back as soon as it is done.
+
+``engine="ray"`` (:func:`roll_out_on_ray`) starts ``workers`` actors (``num_gpus=1`` each on CUDA, else one
+CPU each), each loading the model once from the model spec; groups of cells are queued to whichever actor is
+free, and the frames come back to this process, which writes every video and record — so the run folder,
+the resume rule (a killed run redoes only the cells without a record) and the report are the local engine's,
+and the workers need no access to the output folder. It joins a running Ray cluster (``ray.init()`` finds
+``RAY_ADDRESS``) or starts a local one.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+
+import numpy as np
+
+from ..metrics._common import MetricInputError
+from .manifest import Cell
+
+__all__ = ["cell_inputs", "cell_prompt", "roll_out_cells", "roll_out_on_ray"]
+
+
+def cell_prompt(cell: Cell):
+    """The cell's prompt embedding (1, L, D) from its safetensors file, or None (the model's empty prompt)."""
+    if cell.prompt_embeds is None:
+        return None
+    from safetensors.torch import load_file
+
+    from ..model._weights import check_safetensors
+
+    check_safetensors(cell.prompt_embeds)
+    tensors = load_file(str(cell.prompt_embeds))
+    if "prompt_embeds" in tensors:
+        return tensors["prompt_embeds"]
+    if len(tensors) == 1:
+        return next(iter(tensors.values()))
+    raise MetricInputError(cell.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
+
+
+
+def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
+    """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
+    condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
+    from ..errors import InputFileError
+    from ..model._image import read_image
+    from ..conditions import condition_video
+    from ..pipeline import fit_image
+    from ..registry import get_embodiment
+    from ..trajectory import load_trajectory
+
+    emb = get_embodiment(cell.embodiment, plugin_paths)
+    traj = load_trajectory(cell.trajectory)
+    camera = emb.load_camera(cell.camera)
+    first = read_image(cell.first_frame)
+    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
+    if (first.shape[1], first.shape[0]) != cam_size:
+        raise InputFileError(cell.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
+                             f"{cell.camera})", f"{first.shape[1]}x{first.shape[0]}")
+    card = model.card
+    if size is None:
+        size = (card.width, card.height) if card.width and card.height else cam_size
+    # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
+    skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
+                               resize_mode="crop", camera_source=str(cell.camera))
+    first = fit_image(first, size[0], size[1], "crop")
+    return {"first": first, "video": skeleton, "prompt": cell_prompt(cell), "fps": float(traj.fps)}
+
+
+def _batch_key(inputs: dict) -> tuple:
+    """Cells roll out in one batch only with one chunk plan and size and one prompt shape."""
+    prompt = inputs["prompt"]
+    return inputs["video"].shape, None if prompt is None else tuple(prompt.shape)
+
+
+def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
+    """Roll out a group of cells' inputs: one at a time for a group of one, else as one batch."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
+        if len(group) == 1:
+            return [model.rollout(group[0]["first"], group[0]["video"], group[0]["prompt"], chunk_frames=chunk_frames,
+                                  sampler=sampler, seed=seeds[0], progress=progress, keep_chunks=False).frames]
+        return model.rollout_batch([g["first"] for g in group], [g["video"] for g in group],
+                                   [g["prompt"] for g in group], chunk_frames=chunk_frames, sampler=sampler,
+                                   seeds=seeds, progress=progress)
+
+
+def roll_out_cells(model, cells: Sequence[Cell], *, size, sampler, chunk_frames, plugin_paths, batch_cells: int,
+                   progress: bool = False) -> Iterator[tuple[list, list]]:
+    """Roll ``cells`` out in order; yields ``([(cell, seconds per cell), ...], [(frames, fps), ...])`` per group.
+
+    A group is consecutive cells with one :func:`_batch_key`, at most ``batch_cells`` of them (one for a
+    latent-action model); frames are (T, H, W, 3) uint8.
+    """
+    per_batch = batch_cells if model.card.condition != "latent_action" else 1
+    group: list[Cell] = []
+    inputs: list[dict] = []
+
+    def flush():
+        t0 = time.perf_counter()
+        videos = _roll_out(model, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for c in group],
+                           progress=progress)
+        seconds = (time.perf_counter() - t0) / len(group)
+        return [(c, seconds) for c in group], [(v, inp["fps"]) for v, inp in zip(videos, inputs)]
+
+    for cell in cells:
+        inp = cell_inputs(model, cell, size, plugin_paths)
+        if group and (len(group) >= per_batch or _batch_key(inp) != _batch_key(inputs[0])):
+            yield flush()
+            group, inputs = [], []
+        group.append(cell)
+        inputs.append(inp)
+    if group:
+        yield flush()
+
+
+class _RolloutWorker:
+    """A Ray actor's state: one model, loaded once; :meth:`roll` rolls a list of cells out."""
+
+    def __init__(self, model_spec: str, revision, device: str, dtype_name: str | None, plugin_paths: tuple):
+        import torch
+
+        import oscar_zoo
+
+        dtype = getattr(torch, dtype_name) if dtype_name else None
+        self.model = oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)
+        self.plugin_paths = plugin_paths
+
+    def roll(self, cells: list[Cell], options: dict) -> list[tuple[str, np.ndarray, float, float, int]]:
+        """[(cell id, frames, fps, seconds per cell, batch size)] of ``cells``, in order."""
+        out = []
+        for group, videos in roll_out_cells(self.model, cells, plugin_paths=self.plugin_paths, **options):
+            out += [(c.id, frames, fps, seconds, len(group)) for (c, seconds), (frames, fps) in zip(group, videos)]
+        return out
+
+
+def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, model_spec: str, revision, device,
+                    dtype, workers: int, size, sampler, chunk_frames, plugin_paths, batch_cells: int,
+                    log: Callable[[str], None]) -> None:
+    """Roll the ``pending`` cells ((index, cell, rollout key), manifest order) out on ``workers`` Ray actors and
+    call ``record(index, cell, key, frames, fps, seconds, batch)`` for each as its group comes back."""
+    from .._optional import require
+
+    ray = require("ray", "ray")
+    if not ray.is_initialized():
+        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, ignore_reinit_error=True)
+    gpu = str(device).startswith("cuda")
+    resources = {"num_gpus": 1, "num_cpus": 0} if gpu else {"num_cpus": 1}
+    actor_cls = ray.remote(**resources)(_RolloutWorker)
+    dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
+    n = min(workers, len(pending))
+    actors = [actor_cls.remote(model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths))
+              for _ in range(n)]
+    log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
+    options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, batch_cells=batch_cells)
+    step = max(1, batch_cells)
+    queue = [pending[i:i + step] for i in range(0, len(pending), step)]
+    by_id = {c.id: (k, c, key) for k, c, key in pending}
+    in_flight: dict = {}
+
+    def submit(actor) -> None:
+        if queue:
+            chunk = queue.pop(0)
+            in_flight[actor.roll.remote([c for _, c, _ in chunk], options)] = actor
+
+    try:
+        for actor in actors:
+            submit(actor)
+        while in_flight:
+            (ref,), _ = ray.wait(list(in_flight), num_returns=1)
+            actor = in_flight.pop(ref)
+            try:
+                results = ray.get(ref)
+            except ray.exceptions.RayTaskError as exc:  # a worker's fault is the run's: its cause, not Ray's wrapper
+                cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
+                raise MetricInputError("engine", "ray", "every worker's rollouts", f"{type(cause).__name__}: "
+                                       f"{cause}") from None
+            submit(actor)
+            for cell_id, frames, fps, seconds, batch in results:
+                k, cell, key = by_id[cell_id]
+                record(k, cell, key, frames, fps, seconds, batch)
+    finally:
+        for actor in actors:
+            ray.kill(actor)
