@@ -1,11 +1,53 @@
-"""argparse ``type=`` functions that refuse what a bare ``int``/``float`` lets through."""
+"""argparse ``type=`` functions that refuse what a bare ``int``/``float`` lets through.
+
+``type=float`` accepts ``nan``, ``inf`` and negatives, ``type=int`` accepts 0
+and negatives; the option then fails late or, worse, silently does something
+else (``--guidance nan``: a black video). These check the range too, so a bad
+option is refused by the parser, before any work, as ``argument --X: …``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
 
-__all__ = ["interval"]
+__all__ = ["count", "interval", "number"]
+
+
+def count(minimum: int = 1):
+    """An integer ≥ ``minimum`` (``count(0)``: 0 allowed; ``count(None)``: any integer)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, found {text!r}") from None
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, found {value}")
+        return value
+
+    parse.__name__ = "integer"  # argparse names the type in its own messages
+    return parse
+
+
+def number(minimum: float | None = None, maximum: float | None = None, *, above: float | None = None):
+    """A finite number in [``minimum``, ``maximum``] (and > ``above`` when given)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, found {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, found {text!r}")
+        if above is not None and not value > above:
+            raise argparse.ArgumentTypeError(f"expected a number > {above:g}, found {value:g}")
+        if minimum is not None and value < minimum:
+            raise argparse.ArgumentTypeError(f"expected a number >= {minimum:g}, found {value:g}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"expected a number <= {maximum:g}, found {value:g}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
 
 
 def interval(text: str) -> tuple[float, float]:

@@ -196,6 +196,9 @@ def _safe_render(index: int, spec: EpisodeSpec, options: RenderOptions, registry
 
 
 def _init_worker() -> None:
+    from ._interrupt import worker_ignores_interrupt
+
+    worker_ignores_interrupt()  # Ctrl-C: the parent stops the pool
     try:
         import cv2
 
@@ -362,13 +365,20 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
             with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx,
                                      initializer=_stage.worker_initializer,
                                      initargs=(os.getpid(), _init_worker)) as pool:
-                futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
-                for fut in as_completed(futures):
-                    try:
-                        done(fut.result())
-                    except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
-                        i = futures[fut]
-                        done(EpisodeResult(i, specs[i], False, error=f"worker process failed: {type(exc).__name__}: {exc}"))
+                try:
+                    futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
+                    for fut in as_completed(futures):
+                        try:
+                            done(fut.result())
+                        except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
+                            i = futures[fut]
+                            done(EpisodeResult(i, specs[i], False,
+                                               error=f"worker process failed: {type(exc).__name__}: {exc}"))
+                except KeyboardInterrupt:  # stop now rather than render the rest of the queue first
+                    from ._interrupt import stop_pool
+
+                    stop_pool(pool)
+                    raise
     finally:
         if bar is not None:
             bar.close()

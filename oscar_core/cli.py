@@ -162,24 +162,43 @@ def _leaves(parser: argparse.ArgumentParser):
 
 
 def main(argv=None) -> int:
+    from ._interrupt import interrupted, noting_interrupts, report
+
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.simplefilter("default")
-    try:
-        with cli_output(args.verbose, args.quiet, progress=not args.no_progress):
-            code = args.func(args)
-        sys.stdout.flush()
-        return code
-    except (OscarError, ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except BrokenPipeError:
-        # the reader went away (`oscar ... | head`): stop quietly; point stdout at
-        # devnull so the interpreter's final flush does not raise again
-        import os
+    with noting_interrupts():
+        try:
+            with cli_output(args.verbose, args.quiet, progress=not args.no_progress):
+                code = args.func(args)
+            sys.stdout.flush()
+            return code
+        except KeyboardInterrupt as exc:
+            return report(exc, args)
+        except (OscarError, ValueError, FileNotFoundError) as exc:
+            if interrupted():  # an error Ctrl-C caused (e.g. a write cut short): report the interrupt
+                return report(KeyboardInterrupt(), args)
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except MemoryError as exc:
+            # numpy says "Unable to allocate 596. GiB for an array with shape …": one line, not a traceback
+            detail = str(exc) or "an allocation failed"
+            print(f"error: out of memory: {detail}; a smaller --size, fewer frames or fewer workers need less",
+                  file=sys.stderr)
+            return 2
+        except BrokenPipeError:
+            # the reader went away (`oscar ... | head`): stop quietly; point stdout at
+            # devnull so the interpreter's final flush does not raise again
+            import os
 
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 1
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 1
+        except BaseException:
+            # a library that turns the KeyboardInterrupt into its own error (torch's checkpoint
+            # writer: RuntimeError inside a CheckpointException) still ends as an interrupt
+            if interrupted():
+                return report(KeyboardInterrupt(), args)
+            raise
 
 
 if __name__ == "__main__":

@@ -22,6 +22,10 @@ def parse_size(text: str) -> tuple[int, int]:
         raise ValueError(f"--size: expected WIDTHxHEIGHT such as 512x288, found {text!r}") from None
     if w < 2 or h < 2:
         raise ValueError(f"--size: expected a size of at least 2x2 pixels, found {text!r}")
+    from ._memory import check_fits
+
+    # a lower bound that every command holds at least once (most hold many frames, and check again)
+    check_fits((h, w, 3), 1, f"--size {text}: one RGB frame", "use a smaller --size")
     return w, h
 
 

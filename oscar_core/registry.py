@@ -239,13 +239,13 @@ class Registry:
     def reader_names(self) -> list[str]:
         return sorted(self.reader_entries)
 
-    def get_reader(self, name: str):
-        """A new instance of the dataset reader ``name``."""
+    def get_reader(self, name: str, options: dict | None = None):
+        """A new instance of the dataset reader ``name``; options: its constructor's keywords (checked by the caller)."""
         if name not in self.reader_entries:
             raise PluginError(f"unknown dataset reader {name!r}; registered: {', '.join(self.reader_names()) or 'none'}")
         entry = self.reader_entries[name]
         try:
-            return entry.cls()
+            return entry.cls(**(options or {}))
         except Exception as exc:
             raise PluginError(f"reader {name!r} from {entry.distribution} {entry.version}".rstrip()
                               + f" could not be created: {exc}") from exc

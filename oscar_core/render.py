@@ -255,6 +255,10 @@ def rasterise(
 
     shape = (T, height, width, 3)
     if out is None:
+        from ._memory import check_fits
+
+        check_fits(shape, 1, "the skeleton video (T, H, W, 3) uint8",
+                   "use a smaller --size (or render fewer frames at a time)")
         out = np.zeros(shape, dtype=np.uint8)
     else:
         if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from ._cli_types import count, number
 from .errors import OscarError
 
 EPILOG = """examples:
@@ -49,13 +50,13 @@ def add_render_parser(sub) -> None:
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)")
     r.add_argument("--overlay", metavar="RGB_VIDEO", help="blend the skeleton over this video to check the calibration")
-    r.add_argument("--alpha", type=float, default=0.8, help="overlay opacity of the skeleton (default 0.8)")
-    r.add_argument("--fps", type=float, help="output frame rate (default: the trajectory's)")
+    r.add_argument("--alpha", type=number(0.0, 1.0), default=0.8, help="overlay opacity of the skeleton (default 0.8)")
+    r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)")
-    r.add_argument("--workers", type=int, default=1, help="processes rendering episodes in parallel (default 1)")
+    r.add_argument("--workers", type=count(1), default=1, help="processes rendering episodes in parallel (default 1)")
     r.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
                    help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)")
-    r.add_argument("--crf", type=int, default=18, help="x264 quality, lower is better (default 18)")
+    r.add_argument("--crf", type=count(0), default=18, help="x264 quality, lower is better (default 18)")
     r.add_argument("--yuv", choices=YUV_PATHS, default=DEFAULT_YUV,
                    help=f"RGB to yuv420p conversion for .mp4 (default {DEFAULT_YUV}; both BT.601 limited range)")
     r.add_argument("--strict", action="store_true",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import json
 from typing import Any
 
 from ..errors import OscarError
@@ -22,7 +23,13 @@ def registry(plugin_paths: tuple[str, ...] = ()):
 def load_row(row: dict[str, Any], plugin_paths: tuple[str, ...] = ()):
     """(episode, embodiment) of a manifest row, through its reader."""
     reg = registry(tuple(plugin_paths))
-    reader = reg.get_reader(row["reader"])
+    options = row.get("reader_options")  # JSON of ingest's --reader-option values (absent in older manifests)
+    if options:
+        from .reader_options import check_reader_options
+
+        entry = reg.reader_entries.get(row["reader"])
+        options = check_reader_options(entry.cls, json.loads(options)) if entry is not None else None
+    reader = reg.get_reader(row["reader"], options or None)
     ep = reader.load_episode(row_to_ref(row), reg)
     return ep, reg.get(row["embodiment"])
 

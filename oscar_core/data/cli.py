@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from .._cli_types import count, number
+
 __all__ = ["add_data_parser"]
 
 EXAMPLE = """\
@@ -14,6 +16,7 @@ examples:
   oscar data ingest data/sample --reader lerobot --out runs/sample
   oscar data dedup runs/sample --embedder trajectory   (no SigLIP weights)
   oscar data ingest /data/mydataset --reader npz --out runs/r1
+  oscar data ingest /data/droid_1.0.1 --reader lerobot --reader-option intrinsics=droid_cams.json --out runs/droid
   oscar data filter runs/r1 --set min_length=70 --set max_camera_motion=0.02
   oscar data dedup runs/r1 --siglip google/siglip-base-patch16-224
   oscar data caption runs/r1 --endpoint http://localhost:8000/v1 --model Qwen/Qwen3-VL-30B-A3B-Instruct --budget 1000
@@ -26,9 +29,9 @@ every stage: --engine local|ray, --workers N, --shard-size N; re-running a stage
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local: a process pool (default); ray: Ray Data (pip install \"oscar-wm[ray]\")")
-    p.add_argument("--workers", type=int, default=None, help="worker processes / Ray CPUs, one torch thread each (default: the cores idle now; "
+    p.add_argument("--workers", type=count(1), default=None, help="worker processes / Ray CPUs, one torch thread each (default: the cores idle now; "
                         "1: in-process)")
-    p.add_argument("--shard-size", type=int, default=32, help="episodes per shard, the unit of resumption (default 32)")
+    p.add_argument("--shard-size", type=count(1), default=32, help="episodes per shard, the unit of resumption (default 32)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -59,10 +62,12 @@ def _report(run, what: str) -> None:
 
 
 def cmd_ingest(args) -> int:
+    from .reader_options import parse_reader_options
     from .run import run_ingest
 
+    options = parse_reader_options(args.reader_option)
     with _run_log(args.out, "ingest"):
-        res = run_ingest(args.source, args.reader, args.out, **_kw(args))
+        res = run_ingest(args.source, args.reader, args.out, reader_options=options, **_kw(args))
     _report(res, "ingest")
     return 0
 
@@ -169,6 +174,9 @@ def add_data_parser(sub) -> None:
                       formatter_class=fmt)
     p.add_argument("source", help="dataset folder or fsspec URL")
     p.add_argument("--reader", required=True, help="dataset reader name (npz, lerobot, droid, …)")
+    p.add_argument("--reader-option", action="append", metavar="NAME=VALUE",
+                   help="a reader's constructor option (docs/datasets.md), e.g. intrinsics=cam.json for DROID from "
+                        "the Hub; VALUE is YAML or a .json/.yaml file; repeatable")
     p.add_argument("--out", required=True, help="run folder or fsspec URL")
     _common(p)
     p.set_defaults(func=cmd_ingest)
@@ -191,10 +199,10 @@ def add_data_parser(sub) -> None:
                         "the skeleton's motion does, no weights to download")
     p.add_argument("--siglip", help="SigLIP vision model: Hub id or local folder (with --embedder siglip)")
     p.add_argument("--device", default="cpu", help="torch device for SigLIP")
-    p.add_argument("--cosine", type=float, default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
-    p.add_argument("--rms-alpha", type=float, default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
-    p.add_argument("--rms-floor", type=float, default=0.01, help="... or below this many metres (default 0.01)")
-    p.add_argument("--nprobe", type=int, default=16, help="k-means clusters searched per episode (default 16)")
+    p.add_argument("--cosine", type=number(-1.0, 1.0), default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
+    p.add_argument("--rms-alpha", type=number(0.0), default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
+    p.add_argument("--rms-floor", type=number(0.0), default=0.01, help="... or below this many metres (default 0.01)")
+    p.add_argument("--nprobe", type=count(1), default=16, help="k-means clusters searched per episode (default 16)")
     _common(p)
     p.set_defaults(func=cmd_dedup)
 
@@ -203,11 +211,11 @@ def add_data_parser(sub) -> None:
     p.add_argument("run", help="run folder")
     p.add_argument("--endpoint", required=True, help="base URL, e.g. http://localhost:8000/v1")
     p.add_argument("--model", required=True, help="model name the endpoint serves")
-    p.add_argument("--budget", type=int, default=None, help="at most this many episodes sent this run")
-    p.add_argument("--fps", type=float, default=15.0, help="frames per second of episode sent (default 15)")
-    p.add_argument("--long-fps", type=float, default=2.0, help="for DROID / long episodes (default 2)")
-    p.add_argument("--max-frames", type=int, default=256, help="frames per request at most (default 256)")
-    p.add_argument("--retries", type=int, default=4, help="retries per request (default 4)")
+    p.add_argument("--budget", type=count(0), default=None, help="at most this many episodes sent this run")
+    p.add_argument("--fps", type=number(above=0.0), default=15.0, help="frames per second of episode sent (default 15)")
+    p.add_argument("--long-fps", type=number(above=0.0), default=2.0, help="for DROID / long episodes (default 2)")
+    p.add_argument("--max-frames", type=count(1), default=256, help="frames per request at most (default 256)")
+    p.add_argument("--retries", type=count(0), default=4, help="retries per request (default 4)")
     p.add_argument("--api-key-env", default="OPENAI_API_KEY", help="environment variable with the API key")
     _common(p)
     p.set_defaults(func=cmd_caption)

@@ -123,6 +123,9 @@ def _plan(rows: list[dict], shard_size: int) -> dict[str, list[str]]:
 
 
 def _worker_init() -> None:
+    from .._interrupt import worker_ignores_interrupt
+
+    worker_ignores_interrupt()  # Ctrl-C: the parent stops the pool
     # one thread per worker process: the pool already uses every core
     try:
         import torch
@@ -295,12 +298,18 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         else:
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
+            from .._interrupt import stop_pool
+
             with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_stage.worker_initializer,
                                      initargs=(os.getpid(), _worker_init)) as pool:
-                futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
-                for fut in as_completed(futures):
-                    results.append(fut.result())
-                    bar.update(1)
+                try:
+                    futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
+                    for fut in as_completed(futures):
+                        results.append(fut.result())
+                        bar.update(1)
+                except KeyboardInterrupt:  # stop now rather than run the rest of the queue first
+                    stop_pool(pool)
+                    raise
         bar.close()
     for name, _, ok in results:
         (run.processed if ok else run.incomplete).append(name)

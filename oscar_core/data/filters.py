@@ -31,6 +31,7 @@ Measurements (all on the episode's own trajectory, camera and video):
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
@@ -73,6 +74,9 @@ class FilterConfig:
                 values[name] = int(text) if kinds[name] == "int" else float(text)
             except ValueError:
                 raise ValueError(f"--set {name}: expected a number ({kinds[name]}), found {text!r}") from None
+            least = 1 if name in ("motion_pairs", "motion_width") else 0  # every threshold is a size, count or rate
+            if not math.isfinite(values[name]) or values[name] < least:
+                raise ValueError(f"--set {name}: expected a finite number >= {least} ({kinds[name]}), found {text!r}")
         return cls(**values)
 
     def to_dict(self) -> dict:

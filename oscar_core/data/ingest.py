@@ -9,6 +9,7 @@ The probe measures ``length``/``fps`` (from the trajectory), ``width``/
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,12 +19,23 @@ from .manifest import ref_to_row
 __all__ = ["list_rows", "IngestStage"]
 
 
-def list_rows(source: str, reader_name: str, plugin_paths: tuple[str, ...] = ()) -> list[dict[str, Any]]:
-    """Base manifest rows of every episode the reader lists under ``source``, sorted by id."""
-    from ._episode import registry
+def list_rows(source: str, reader_name: str, plugin_paths: tuple[str, ...] = (),
+              reader_options: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Base manifest rows of every episode the reader lists under ``source``, sorted by id.
 
-    reader = registry(tuple(plugin_paths)).get_reader(reader_name)
-    rows = [ref_to_row(ref) for ref in reader.list_episodes(source)]
+    reader_options: the reader's constructor keywords (``--reader-option``),
+    checked against its signature before listing and kept in every row's
+    ``reader_options`` column (JSON) for the later stages.
+    """
+    from ._episode import registry
+    from .reader_options import check_reader_options
+
+    reg = registry(tuple(plugin_paths))
+    entry = reg.reader_entries.get(reader_name)  # an unknown name: get_reader's error lists the registered ones
+    options = check_reader_options(entry.cls, dict(reader_options or {})) if entry is not None else {}
+    reader = reg.get_reader(reader_name, options)
+    stored = json.dumps(options, sort_keys=True) if options else None
+    rows = [dict(ref_to_row(ref), reader_options=stored) for ref in reader.list_episodes(source)]
     rows.sort(key=lambda r: r["id"])
     return rows
 

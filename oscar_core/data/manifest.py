@@ -93,13 +93,29 @@ def rows_to_parquet(rows: Iterable[dict[str, Any]]) -> bytes:
     return buf.getvalue()
 
 
+def _arrow_owned(pa, data: bytes):
+    """A copy of ``data`` in memory pyarrow owns (no reference back to the Python object).
+
+    ``pq.read_table`` on a Python object (``io.BytesIO``, or a buffer that wraps
+    ``bytes``) leaves read-ahead work on pyarrow's I/O threads after it returns;
+    when that work ends during interpreter shutdown it drops its last reference
+    to the Python buffer, which needs the GIL, and the thread is torn down inside
+    a C++ destructor: ``terminate called without an active exception``, exit 134
+    after the stage had finished (apache/arrow#33975). An arrow-owned copy read
+    through the synchronous ``ParquetFile.read`` leaves nothing behind.
+    """
+    buf = pa.allocate_buffer(len(data))
+    pa.FixedSizeBufferWriter(buf).write(data)
+    return buf
+
+
 def table_from_parquet(data: bytes, where: str = "<parquet>"):
     """The pyarrow Table of parquet bytes; ValueError naming ``where`` when unreadable."""
     pa = require("pyarrow", "data")
     import pyarrow.parquet as pq
 
     try:
-        return pq.read_table(io.BytesIO(data))
+        return pq.ParquetFile(pa.BufferReader(_arrow_owned(pa, data))).read()
     except (pa.ArrowInvalid, OSError) as exc:
         raise ValueError(f"{where}: expected a parquet manifest shard, found unreadable data ({exc})") from None
 

@@ -83,16 +83,17 @@ def _opts(kw: dict[str, Any]) -> dict[str, Any]:
     return {k: kw[k] for k in ("engine", "workers", "shard_size", "progress") if k in kw}
 
 
-def run_ingest(source: str, reader: str, run: str, *, plugin_paths: tuple[str, ...] = (), **kw) -> StageRun:
-    """List ``source`` with ``reader`` and probe every episode into ``RUN/ingest``."""
+def run_ingest(source: str, reader: str, run: str, *, plugin_paths: tuple[str, ...] = (),
+               reader_options: dict | None = None, **kw) -> StageRun:
+    """List ``source`` with ``reader`` (built with ``reader_options``) and probe every episode into ``RUN/ingest``."""
     from .ingest import IngestStage, list_rows
 
-    rows = list_rows(source, reader, tuple(plugin_paths))
+    rows = list_rows(source, reader, tuple(plugin_paths), reader_options)
     if not rows:
         raise ValueError(f"{source}: expected episodes for reader {reader!r}, found none")
     listing = hashlib.sha256(json.dumps(rows, sort_keys=True, default=str).encode()).hexdigest()[:16]
     parts = stage_parts("ingest", input={"source": str(source), "reader": reader, "listing": listing},
-                        settings={"plugin_paths": list(plugin_paths)})
+                        settings={"plugin_paths": list(plugin_paths), "reader_options": dict(reader_options or {})})
     return run_sharded(IngestStage(tuple(plugin_paths)), rows, _fs.join(run, "ingest"), desc="ingest", parts=parts,
                        **_opts(kw))
 
@@ -162,6 +163,13 @@ def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, 
 
     check_workers_see(out, kw.get("engine", "local"), kw.get("workers"))
     prev, rows = input_rows(run, "export")
+    if size:  # refuse a --size no episode fits in memory at before any work (--size 100000x100000: 447 GiB)
+        from .._memory import check_fits
+        from .manifest import is_alive
+
+        longest = max((int(r.get("length") or 0) for r in rows if is_alive(r)), default=0)
+        check_fits((max(longest, 1), int(size[1]), int(size[0]), 3), 1,
+                   "the longest live episode at --size (T, H, W, 3) uint8", "use a smaller --size")
     out = str(out)
     where = os.path.abspath(_fs.local_path(out)) if _fs.is_local(out) else out
     if _fs.is_local(out):

@@ -29,7 +29,7 @@ import json
 import os
 from pathlib import Path
 
-from .._cli_types import interval
+from .._cli_types import count, interval, number
 from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
 
@@ -161,26 +161,26 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--judge-model", help="VLM model name (default $OSCAR_JUDGE_MODEL)")
     r.add_argument("--api-key-env", default=ENV_API_KEY, metavar="VAR", help=f"variable holding the API key "
                                                                              f"(default {ENV_API_KEY})")
-    r.add_argument("--judge-max-tokens", type=int, help="VLM max_completion_tokens (default: not sent)")
-    r.add_argument("--judge-timeout", type=float, default=120.0, help="VLM seconds per request (default 120)")
+    r.add_argument("--judge-max-tokens", type=count(1), help="VLM max_completion_tokens (default: not sent)")
+    r.add_argument("--judge-timeout", type=number(above=0.0), default=120.0, help="VLM seconds per request (default 120)")
     r.add_argument("--judge-extra-body", metavar="JSON",
                    help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
                         'judge ran at high reasoning effort)')
-    r.add_argument("--max-requests", type=int, help="VLM request budget for this run (default: unlimited)")
-    r.add_argument("--steps", type=int, help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
+    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
     r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget (as oscar rollout --preset)")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]")
-    r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6)")
+    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6)")
     r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
-    r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's)")
+    r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
     r.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="where rollouts run: this process (default), or Ray actors (a running cluster via "
                         "RAY_ADDRESS, else a local one), one model per GPU (pip install \"oscar-wm[ray]\")")
-    r.add_argument("--workers", type=int, default=1, metavar="N",
+    r.add_argument("--workers", type=count(1), default=1, metavar="N",
                    help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)")
-    r.add_argument("--batch-cells", type=int, default=1, metavar="N",
+    r.add_argument("--batch-cells", type=count(1), default=1, metavar="N",
                    help="roll out up to N cells in one batch (same frame count and size; each video equals its "
                         "one-at-a-time rollout up to float rounding; default 1)")
     r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")

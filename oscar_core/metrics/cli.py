@@ -57,6 +57,7 @@ import argparse
 import json
 import sys
 
+from .._cli_types import count
 from .._log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _load_network, _write_json, collect_clips, collect_judge_videos, read_policy_results, \
@@ -213,7 +214,7 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                        epilog=VIDEO_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     v.add_argument("pred", help="predicted video, or folder of predicted clips")
     v.add_argument("gt", help="ground-truth video, or folder of ground-truth clips")
-    v.add_argument("--frames", type=int, default=49, help="compare the first N frames (default 49; 0 = all)")
+    v.add_argument("--frames", type=count(0), default=49, help="compare the first N frames (default 49; 0 = all)")
     v.add_argument("--embodiment", help="tag every clip with this embodiment (default: the sub-folder name)")
     v.add_argument("--lpips", metavar="NET", help="LPIPS network: TorchScript .pt taking (x, y) in [-1, 1], "
                                                   "or module:attr (enables LPIPS and tLPIPS)")
@@ -260,7 +261,7 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                                     "session is better, for every pair, and fit Bradley-Terry-Davidson scores.",
                         epilog=PAIRWISE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(pw, DEFAULT_PAIRWISE_FRAMES)
-    pw.add_argument("--seed", type=int, default=0, help="seed of the per-pair A/B order (default 0)")
+    pw.add_argument("--seed", type=count(0), default=0, help="seed of the per-pair A/B order (default 0)")
     pw.add_argument("--both-orders", action="store_true",
                     help="ask every pair in both orders; disagreeing orders count as a tie (position bias)")
     pw.add_argument("--layout", choices=("sets", "side_by_side"), default="sets",

@@ -59,6 +59,7 @@ import os
 import sys
 from pathlib import Path
 
+from .._cli_types import count, number
 from .._log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _write_json, collect_judge_videos, read_tasks
@@ -289,31 +290,31 @@ def _add_judge_args(p, default_frames: int) -> None:
     p.add_argument("--model", help=f"model name (default ${ENV_MODEL})")
     p.add_argument("--api-key-env", default=ENV_API_KEY, metavar="VAR",
                    help=f"environment variable holding the API key (default {ENV_API_KEY}; unset = no key)")
-    p.add_argument("--frames", type=int, default=default_frames,
+    p.add_argument("--frames", type=count(1), default=default_frames,
                    help=f"frames sampled uniformly per rollout (default {default_frames}; "
                         "shorter clips send all their frames)")
-    p.add_argument("--max-side", type=int, default=DEFAULT_MAX_SIDE,
+    p.add_argument("--max-side", type=count(0), default=DEFAULT_MAX_SIDE,
                    help=f"downscale frames whose longer side exceeds this (default {DEFAULT_MAX_SIDE}; 0 = never)")
     p.add_argument("--image-format", choices=("jpeg", "png"), default="jpeg", help="image encoding (default jpeg)")
-    p.add_argument("--jpeg-quality", type=int, default=90, help="JPEG quality 1-100 (default 90)")
-    p.add_argument("--temperature", type=float, help="sampling temperature (default: not sent)")
-    p.add_argument("--max-tokens", type=int, help="answer token limit, sent as max_completion_tokens "
+    p.add_argument("--jpeg-quality", type=count(1), default=90, help="JPEG quality 1-100 (default 90)")
+    p.add_argument("--temperature", type=number(0.0), help="sampling temperature (default: not sent)")
+    p.add_argument("--max-tokens", type=count(1), help="answer token limit, sent as max_completion_tokens "
                                                   "(default: not sent)")
     p.add_argument("--token-field", choices=("max_completion_tokens", "max_tokens"), default="max_completion_tokens",
                    help="request field for --max-tokens (max_tokens for older servers)")
-    p.add_argument("--max-requests", type=int, help="request budget of this run: requests beyond it are not sent "
+    p.add_argument("--max-requests", type=count(0), help="request budget of this run: requests beyond it are not sent "
                                                     "(those items fail, uncached; a re-run continues)")
-    p.add_argument("--max-timeout-retries", type=int, default=1,
+    p.add_argument("--max-timeout-retries", type=count(0), default=1,
                    help="retries of a timed-out request at most (default 1: a timed-out request may be billed)")
     p.add_argument("--dry-run", action="store_true", help="print the requests and images that would be sent; "
                                                           "send nothing")
     p.add_argument("--extra-body", metavar="JSON",
                    help='extra request fields, e.g. \'{"reasoning_effort": "high"}\'')
-    p.add_argument("--concurrency", type=int, default=4, help="requests in flight at once (default 4)")
-    p.add_argument("--timeout", type=float, default=120.0, help="seconds per request (default 120)")
-    p.add_argument("--max-attempts", type=int, default=5,
+    p.add_argument("--concurrency", type=count(1), default=4, help="requests in flight at once (default 4)")
+    p.add_argument("--timeout", type=number(above=0.0), default=120.0, help="seconds per request (default 120)")
+    p.add_argument("--max-attempts", type=count(1), default=5,
                    help="requests per item at most, retrying 429/5xx/timeouts (default 5)")
-    p.add_argument("--backoff", type=float, default=1.0, help="first retry delay in seconds, doubled each time")
+    p.add_argument("--backoff", type=number(0.0), default=1.0, help="first retry delay in seconds, doubled each time")
     p.add_argument("--cache", metavar="DIR", help="answer cache folder (default ~/.cache/oscar/judge)")
     p.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cli_types import interval
+from .._cli_types import count, interval, number
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
            "side_by_side_path"]
@@ -84,26 +84,26 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--size", help="rollout WIDTHxHEIGHT, multiples of 16 (default: the model's, else the camera's)")
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how camera and first frame are fitted to --size (default: centre crop)")
-    r.add_argument("--chunk-frames", type=int, help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument("--steps", type=int, help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
+    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
     r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget: paper (35 steps, guidance at every "
                    "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md)")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch")
     r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
                    "(default: the checkpoint's scheduler, else unipc)")
-    r.add_argument("--shift", type=float, default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=float, default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
+    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
                    "--guidance-form diffusers or 1 with standard = conditional branch only)")
     r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
                    help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
                    "standard: v_u + w(v_c - v_u)")
-    r.add_argument("--action-guidance", type=float, help="latent-action models: guidance w over the actions "
+    r.add_argument("--action-guidance", type=number(0.0), help="latent-action models: guidance w over the actions "
                    "(unconditional branch: no action tokens; default: none, the conditional branch only)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
                    "(less memory) instead of one batched forward")
-    r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same video)")
-    r.add_argument("--fps", type=float, help="output frame rate (default: the trajectory's)")
+    r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
+    r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
     r.add_argument("--compile", action="store_true", help="torch.compile the DiT (GPU; first chunk pays the compile)")
@@ -368,6 +368,20 @@ def cmd_rollout(args) -> int:
                                    shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form,
                                    batched_cfg=not args.two_pass_cfg, solver=args.solver,
                                    action_guidance=getattr(args, "action_guidance", None))
+    # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
+    from ..pipeline import parse_size
+    from ..video import check_output
+
+    size = parse_size(args.size) if args.size else None
+    check_output(args.out, size=size)
+    if size is not None:  # the skeleton video of the whole trajectory is held in memory
+        from .._memory import check_fits
+
+        check_fits((len(traj), size[1], size[0], 3), 1, "the skeleton video (T, H, W, 3) uint8 at --size",
+                   "use a smaller --size")
+    side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
+    if side_path is not None:
+        check_output(side_path)
     device = args.device or _default_device()
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
@@ -404,7 +418,6 @@ def cmd_rollout(args) -> int:
     chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=args.chunk_frames,
                                 sampler=sampler, seed=args.seed, progress=not args.no_progress, result=result,
                                 actions=actions)
-    side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
     out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
     summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
                "chunks": len(result.starts), "model": args.model, "seed": args.seed, "text": text_source,

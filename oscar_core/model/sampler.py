@@ -64,6 +64,8 @@ it never trained. The two branches always run as two forwards.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 from typing import Callable
 
@@ -124,10 +126,18 @@ class SamplerConfig:
                 raise ModelInputError(f"guidance_interval: expected (lo, hi) noise levels with 0 <= lo <= hi <= 1, "
                                       f"found {iv!r}")
             object.__setattr__(self, "guidance_interval", (float(iv[0]), float(iv[1])))
-        if int(self.steps) < 1:
-            raise ModelInputError(f"sampler steps: expected an integer >= 1, found {self.steps!r}")
-        if not self.shift > 0:
-            raise ModelInputError(f"sampler shift: expected a positive number, found {self.shift!r}")
+        steps = self.steps
+        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
+            raise ModelInputError(f"sampler steps: expected an integer >= 1, found {steps!r}")
+        if not _finite(self.shift) or not self.shift > 0:
+            raise ModelInputError(f"sampler shift: expected a positive finite number, found {self.shift!r}")
+        for name in ("guidance", "action_guidance"):
+            w = getattr(self, name)
+            if w is not None and (not _finite(w) or w < 0):
+                raise ModelInputError(f"sampler {name}: expected a finite number >= 0 (or None: the conditional "
+                                      f"branch alone), found {w!r}")
+        if not _finite(self.cond_timestep) or self.cond_timestep < 0:
+            raise ModelInputError(f"sampler cond_timestep: expected a finite number >= 0, found {self.cond_timestep!r}")
         if self.guidance_form not in GUIDANCE_FORMS:
             raise ModelInputError(f"guidance_form: expected one of {GUIDANCE_FORMS}, found {self.guidance_form!r}")
         if self.solver is not None and self.solver not in SOLVERS:
@@ -138,6 +148,11 @@ class SamplerConfig:
     def resolved_solver(self) -> str:
         """The solver that runs: ``solver``, else "unipc"."""
         return self.solver or "unipc"
+
+
+def _finite(x) -> bool:
+    """A real number (not a bool), neither NaN nor infinite."""
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
 #: Named sampling budgets: fields of :class:`SamplerConfig` that a preset sets (the rest, e.g. the guidance

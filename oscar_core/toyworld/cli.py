@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from .._cli_types import interval
+from .._cli_types import count, interval, number
 from .._log import run_log
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
@@ -42,16 +42,16 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g = sub.add_parser("generate", help="write toy-world episodes as a training clip set",
                        epilog=EXAMPLES, formatter_class=fmt)
     g.add_argument("--embodiments", required=True, help="comma-separated embodiment names (plugins included)")
-    g.add_argument("--episodes", type=int, required=True, help="episodes per embodiment")
+    g.add_argument("--episodes", type=count(1), required=True, help="episodes per embodiment")
     g.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels (default 64x64)")
-    g.add_argument("--frames", type=int, default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
-    g.add_argument("--fps", type=float, default=10.0, help="frame rate written to the clips (default 10)")
-    g.add_argument("--seed", type=int, default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
+    g.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
+    g.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate written to the clips (default 10)")
+    g.add_argument("--seed", type=count(0), default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
     g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)")
-    g.add_argument("--shard-size", type=int, default=50, help="episodes per shard (default 50)")
-    g.add_argument("--supersample", type=int, default=2, help="anti-aliasing factor (default 2)")
+    g.add_argument("--shard-size", type=count(1), default=50, help="episodes per shard (default 50)")
+    g.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor (default 2)")
     g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
-    g.add_argument("--threads", type=int, default=1, help="torch threads for forward kinematics (default 1)")
+    g.add_argument("--threads", type=count(1), default=1, help="torch threads for forward kinematics (default 1)")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
 
@@ -83,8 +83,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
     r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions")
     r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
-    r.add_argument("--limit", type=int, help="at most this many clips, every k-th")
-    r.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    r.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
+    r.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
     r.set_defaults(func=cmd_reconstruct)
 
     b = sub.add_parser("baseline", help="write model-free reference predictions (first frame repeated)",
@@ -93,7 +93,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
     b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
     b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
-    b.add_argument("--limit", type=int, help="at most this many clips, every k-th")
+    b.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
     b.set_defaults(func=cmd_baseline)
 
     o = sub.add_parser("rollout", help="roll a world model out on every clip of a split (true / shuffled / zero "
@@ -104,19 +104,19 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                    help="the skeleton the model sees (default true)")
     o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)")
     o.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
-    o.add_argument("--limit", type=int, help="at most this many clips")
-    o.add_argument("--steps", type=int, default=None, help="sampler steps (default: the model card's, else 35)")
-    o.add_argument("--guidance", type=float, default=None, help="guidance w (default: the model card's, else 6)")
+    o.add_argument("--limit", type=count(1), help="at most this many clips")
+    o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
+    o.add_argument("--guidance", type=number(0.0), default=None, help="guidance w (default: the model card's, else 6)")
     o.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
                    help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)")
-    o.add_argument("--seed", type=int, default=0, help="noise seed (default 0; the same for every condition)")
+    o.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0; the same for every condition)")
     o.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI] (e.g. 0.3,1.0); the others run the "
                         "conditional branch alone")
     o.add_argument("--preset", choices=("paper", "fast"),
                    help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
                         "sets the steps and the guidance interval")
-    o.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    o.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
     o.set_defaults(func=cmd_rollout)
 
     k = sub.add_parser("package", help="turn an exported toy-world run into a shippable model folder (card, "
@@ -144,6 +144,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                         "repeat with NAME= for several conditions (rows of the table)")
     e.add_argument("--split", default=None, help="only clips of this meta.split (e.g. heldout; default: every "
                                                  "clip that has a prediction)")
+    e.add_argument("--clips", choices=("same", "common", "each"), default="same",
+                   help="when the --pred folders cover different clips: same (default) refuses, common scores the "
+                        "clips all of them have, each scores every row over its own clips and marks the table")
     e.add_argument("--out", help="write the table as JSON here")
     e.add_argument("--plot", help="write a PNG bar chart of the table here")
     e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
@@ -264,7 +267,7 @@ def cmd_eval(args) -> int:
     from .._atomic import atomic_write_bytes
 
     conditions = parse_pred_args(args.pred)
-    table = evaluate_conditions(args.gt, conditions, split=args.split)
+    table = evaluate_conditions(args.gt, conditions, split=args.split, clips_mode=args.clips)
     if args.out:
         atomic_write_bytes(args.out, (json.dumps(table, indent=2) + "\n").encode())
     if args.plot:

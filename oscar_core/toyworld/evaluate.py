@@ -125,17 +125,28 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
             "moved_object_error_px": moved["error_px"], "moved_object_frames": moved["frames"]}
 
 
-def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | None = None) -> dict:
+CLIP_MODES = ("same", "common", "each")
+
+
+def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | None = None,
+                        clips_mode: str = "same") -> dict:
     """The table: one row per condition (name → folder of generated videos).
 
     gt_clipset: a clip set, or a list of them (clip ids must be unique across
     them; e.g. the training embodiments' and the held-out embodiments' sets).
     Clips evaluated: those of the clip set (with ``meta.split == split`` when
     given) that have a prediction in the condition's folder; a condition
-    with none is an error naming its folder. Returns a JSON-ready dict with
-    ``rows`` (condition → mean metrics, clip count) and ``clips`` (condition →
-    clip id → metrics).
+    with none is an error naming its folder. Rows are means, comparable only
+    over the same clips, so clips_mode says what happens when the folders
+    hold predictions for different clips: "same" (default) refuses, naming
+    the condition and the clips it lacks or adds; "common" scores every row
+    over the clips all conditions have; "each" scores each row over its own
+    clips and marks the table (``same_clips`` false, the rows' clip counts).
+    Returns a JSON-ready dict with ``rows`` (condition → mean metrics, clip
+    count), ``clips`` (condition → clip id → metrics) and ``same_clips``.
     """
+    if clips_mode not in CLIP_MODES:
+        raise ValueError(f"clips_mode: expected one of {CLIP_MODES}, found {clips_mode!r}")
     from ..metrics.video import load_video
     from ..train.clips import ClipSet
 
@@ -149,30 +160,55 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
                     raise ValueError(f"--gt: clip id {r.id!r} is in both {owner[r.id].root} and {c.root}")
                 owner[r.id] = c
                 recs.append(r)
-    rows, clips = {}, {}
-    cache: dict[str, np.ndarray] = {}
+    found: dict[str, dict[str, Path]] = {}  # condition → clip id → prediction, before any scoring
     for name, folder in conditions.items():
         if not Path(folder).is_dir():
             raise FileNotFoundError(f"--pred {name}={folder}: no such folder")
-        per = {}
-        for r in recs:
-            path = find_prediction(folder, r.id)
-            if path is None:
-                continue
-            if r.id not in cache:
-                cache[r.id] = owner[r.id].load(r, skeleton=False).rgb
-            per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path))
-        if not per:
+        found[name] = {r.id: p for r in recs if (p := find_prediction(folder, r.id)) is not None}
+        if not found[name]:
             raise ValueError(f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
                              f"{', '.join(str(c.root) for c in sets)}" + (f" (split {split!r})" if split else "")
                              + ", found none")
+    ids = {name: set(got) for name, got in found.items()}
+    common = set.intersection(*ids.values()) if ids else set()
+    same = all(v == common for v in ids.values())
+    if not same and clips_mode == "same":
+        first = next(iter(ids))
+        diffs = []
+        for name, v in ids.items():
+            if v != ids[first]:
+                lacks, extra = sorted(ids[first] - v), sorted(v - ids[first])
+                diffs.append(f"--pred {name} has {len(v)} clips against {len(ids[first])} of --pred {first}"
+                             + (f", lacking {_few(lacks)}" if lacks else "") + (f", adding {_few(extra)}" if extra else ""))
+        raise ValueError("the rows would be means over different clips: " + "; ".join(diffs)
+                         + f"; expected predictions for the same clips, or --clips common (score the {len(common)} "
+                           "clips all have) or --clips each (score each row over its own clips, marked)")
+    if clips_mode == "common":
+        if not common:
+            raise ValueError(f"--clips common: expected clips every condition has, found none ({', '.join(ids)})")
+        found = {name: {i: p for i, p in got.items() if i in common} for name, got in found.items()}
+    rows, clips = {}, {}
+    cache: dict[str, np.ndarray] = {}
+    by_id = {r.id: r for r in recs}
+    for name, got in found.items():
+        per = {}
+        for rid, path in got.items():
+            r = by_id[rid]
+            if r.id not in cache:
+                cache[r.id] = owner[r.id].load(r, skeleton=False).rgb
+            per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path))
         row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
         row["clips"] = len(per)
         row["moved_object_clips"] = sum(1 for m in per.values() if m.get("moved_object_frames", 0))
         rows[name] = row
         clips[name] = per
     roots = [str(c.root) for c in sets]
-    return {"ground_truth": roots[0] if len(roots) == 1 else roots, "split": split, "metrics": list(METRICS), "rows": rows, "clips": clips}
+    return {"ground_truth": roots[0] if len(roots) == 1 else roots, "split": split, "metrics": list(METRICS),
+            "same_clips": len({frozenset(v) for v in clips.values()}) <= 1, "rows": rows, "clips": clips}
+
+
+def _few(ids: list[str], n: int = 3) -> str:
+    return ", ".join(ids[:n]) + (f" and {len(ids) - n} more" if len(ids) > n else "")
 
 
 def _nanmean(values) -> float:
@@ -193,6 +229,8 @@ def format_table(table: dict) -> str:
         lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r.get('motion_iou', nan):.3f} | "
                      f"{r['ee_error_px']:.2f} | {r['object_error_px']:.2f} | "
                      f"{moved:.2f} ({r.get('moved_object_clips', 0)} clips) |")
+    if table.get("same_clips") is False:
+        lines.append("\nnot comparable: the rows are means over different clips (see the clips column)")
     return "\n".join(lines)
 
 

@@ -39,6 +39,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._cli_types import count, number
 from .._log import get_logger
 from ..camera import Camera, project
 from ..embodiment import Embodiment
@@ -389,13 +390,13 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
 def add_policy_eval_arguments(p) -> None:
     """The options of ``oscar toyworld policy-eval`` (on the argparse parser ``p``)."""
     p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
-    p.add_argument("--sessions", type=int, required=True, help="sessions (scenes) per embodiment")
-    p.add_argument("--seed", type=int, default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
+    p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
+    p.add_argument("--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
     p.add_argument("--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders")
     p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
-    p.add_argument("--frames", type=int, default=17, help="frames per episode (default 17: one oscar-toy chunk)")
-    p.add_argument("--fps", type=float, default=10.0, help="frame rate of the trajectories (default 10)")
-    p.add_argument("--supersample", type=int, default=2, help="anti-aliasing factor of the real renders (default 2)")
+    p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
+    p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
+    p.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor of the real renders (default 2)")
     p.add_argument("--json", action="store_true", help="print the summary (without per-episode rows) as JSON")
 
 

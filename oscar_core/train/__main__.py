@@ -9,12 +9,19 @@ from .cli import build_train_parser
 
 
 def main(argv=None) -> int:
+    from .._interrupt import interrupted, noting_interrupts, report
+
     args = build_train_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (OscarError, ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    with noting_interrupts():
+        try:
+            return args.func(args)
+        except KeyboardInterrupt as exc:
+            return report(exc, args)
+        except (OscarError, ValueError, FileNotFoundError) as exc:
+            if interrupted():
+                return report(KeyboardInterrupt(), args)
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

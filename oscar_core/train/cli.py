@@ -10,6 +10,8 @@ import contextlib
 import json
 import os
 
+from .._cli_types import count
+
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
 EXAMPLES = """examples:
@@ -37,14 +39,14 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache-latents", metavar="CLIPS", help="write a copy of a clip set with cached VAE latents "
                                                             "(needs --vae, --window, --out) and exit")
     p.add_argument("--vae", help="with --cache-latents: an AutoencoderKLWan folder or an OSCAR model folder")
-    p.add_argument("--window", type=int, help="with --cache-latents: frames per window (4k+1)")
-    p.add_argument("--stride", type=int, help="with --cache-latents: frames between window starts (default: window)")
-    p.add_argument("--threads", type=int, help="with --cache-latents: torch threads (default: torch's)")
+    p.add_argument("--window", type=count(1), help="with --cache-latents: frames per window (4k+1)")
+    p.add_argument("--stride", type=count(1), help="with --cache-latents: frames between window starts (default: window)")
+    p.add_argument("--threads", type=count(1), help="with --cache-latents: torch threads (default: torch's)")
     p.add_argument("--split", help="with --cache-latents: copy only clips whose meta.split is this (e.g. train)")
-    p.add_argument("--batch", type=int, default=8, help="with --cache-latents: windows per VAE call (default 8)")
+    p.add_argument("--batch", type=count(1), default=8, help="with --cache-latents: windows per VAE call (default 8)")
     p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
                                  "the new clip set")
-    p.add_argument("--step", type=int, help="with --export: the checkpoint's step (default: the latest)")
+    p.add_argument("--step", type=count(0), help="with --export: the checkpoint's step (default: the latest)")
     p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable)")
@@ -91,7 +93,8 @@ def cmd_train(args) -> int:
         if args.set:
             raise TrainConfigError("<command line>", "--set", "no overrides with --resume (the run's config.yaml rules)",
                                    args.set)
-        with run_log(args.resume, "train") if main_rank else contextlib.nullcontext():
+        log = run_log(args.resume, "train") if main_rank else contextlib.nullcontext()
+        with _resume_hint(args.resume), log:
             result = train(resume=args.resume, progress=not args.no_progress)
     else:
         overrides = {}
@@ -101,7 +104,8 @@ def cmd_train(args) -> int:
             k, v = item.split("=", 1)
             overrides[k.strip()] = _parse_value(v)
         config = load_config(args.config, overrides)
-        with run_log(config.run_dir, "train") if main_rank else contextlib.nullcontext():
+        log = run_log(config.run_dir, "train") if main_rank else contextlib.nullcontext()
+        with _resume_hint(config.run_dir), log:
             result = train(config, progress=not args.no_progress, source=args.config)
     summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
                "export": str(result.export) if result.export else None}
@@ -110,6 +114,30 @@ def cmd_train(args) -> int:
         print(json.dumps(summary) if args.json else f"trained {summary['run_dir']} to step {summary['step']} ({loss})"
               + (f"; exported to {summary['export']}" if summary["export"] else ""))
     return 0
+
+
+@contextlib.contextmanager
+def _resume_hint(run_dir: str):
+    """Ctrl-C in a training run: the saved checkpoints stay; the same command would refuse the used run folder."""
+    from .._interrupt import Interrupted, interrupted
+
+    try:
+        yield
+    except Interrupted:
+        raise
+    except BaseException as exc:
+        if not (_is_interrupt(exc) or (interrupted() and not isinstance(exc, SystemExit))):
+            raise
+        raise Interrupted(f"{run_dir} (its saved checkpoints)", f"`oscar train --resume {run_dir}`") from None
+
+
+def _is_interrupt(exc: BaseException) -> bool:
+    """A KeyboardInterrupt, also one torch.distributed.checkpoint caught mid-save and wrapped in its
+    ``CheckpointException`` (a BaseException holding each rank's exception)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return True
+    failures = getattr(exc, "failures", None) if type(exc).__name__ == "CheckpointException" else None
+    return bool(failures) and all(isinstance(f[0], KeyboardInterrupt) for f in failures.values())
 
 
 def _cache_latents(args) -> int:

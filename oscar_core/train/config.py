@@ -20,6 +20,9 @@ the key)::
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -80,9 +83,9 @@ class DataSection:
     """Where clips come from and how windows are drawn."""
 
     # clip-set folders (oscar_core.train.clips); all their finished shards are used
-    clips: list = field(default_factory=list)
+    clips: list[str] = field(default_factory=list)
     # keep only clips of these sources (stage 1: the robot sources), null = all
-    sources: list | None = None
+    sources: list[str] | None = None
     # frames per training window, 4k+1 (the paper: 81)
     window: int = 81
     # training resolution in pixels; clips of another size are centre-cropped and scaled, the camera with them
@@ -260,6 +263,7 @@ def _build(cls, data: Any, source: str, prefix: str):
     if not isinstance(data, dict):
         raise TrainConfigError(source, prefix or "<root>", "a mapping", type(data).__name__)
     names = {f.name: f for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise TrainConfigError(source, f"{prefix}{unknown[0]}", f"one of {sorted(names)}", "an unknown key")
@@ -270,15 +274,48 @@ def _build(cls, data: Any, source: str, prefix: str):
         elif key == "betas":
             if not isinstance(value, (list, tuple)) or len(value) != 2:
                 raise TrainConfigError(source, f"{prefix}{key}", "two numbers", repr(value))
-            kwargs[key] = tuple(float(v) for v in value)
+            kwargs[key] = tuple(_typed(float, v, source, f"{prefix}{key}[{i}]") for i, v in enumerate(value))
         else:
-            default = names[key].default
-            if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-                value = float(value)
-            if isinstance(default, (int, float)) and not isinstance(default, bool) and isinstance(value, str):
-                raise TrainConfigError(source, f"{prefix}{key}", "a number", repr(value))
-            kwargs[key] = value
+            kwargs[key] = _typed(hints[key], value, source, f"{prefix}{key}")
     return cls(**kwargs)
+
+
+_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+_KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list"}
+
+
+def _typed(hint, value: Any, source: str, name: str) -> Any:
+    """``value`` checked against a field's type hint (``int`` as a float is a float); TrainConfigError if it is not.
+
+    YAML gives ``nope`` as a string, ``2.5`` as a float and ``droid`` as a
+    string: a boolean takes only true/false, a count only an integer, a list
+    only a list (of strings where the field says so).
+    """
+    args = typing.get_args(hint)
+    if type(None) in args:  # X | None
+        if value is None:
+            return None
+        hint = next(a for a in args if a is not type(None))
+        args = typing.get_args(hint)
+    origin = typing.get_origin(hint) or hint
+    if origin is Any:
+        return value
+    ok = {bool: lambda v: isinstance(v, bool),
+          int: lambda v: isinstance(v, int) and not isinstance(v, bool),
+          float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+          str: lambda v: isinstance(v, str),
+          list: lambda v: isinstance(v, list)}[origin]
+    if origin is float and isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
+        value = float(value)  # YAML 1.2's 1e-4, which PyYAML (YAML 1.1) reads as a string
+    if not ok(value):
+        found = "null" if value is None else f"{type(value).__name__} {value!r}"
+        raise TrainConfigError(source, name, _KINDS[origin], found)
+    if origin is list and args:
+        for i, item in enumerate(value):
+            _typed(args[0], item, source, f"{name}[{i}]")
+    if origin is float and not math.isfinite(value):
+        raise TrainConfigError(source, name, "a finite number", repr(value))
+    return float(value) if origin is float else value
 
 
 def config_from_dict(data: dict, source: str = "<config>") -> TrainConfig:

@@ -243,9 +243,12 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             bar.set_postfix(loss=f"{loss_mean:.4f}", lr=f"{lr:.2e}", refresh=False)
             bar.update(1)
             if log and (done % config.log_every == 0 or done == end):
+                # figures of the whole global batch, not this rank's share: the plan is a function of (seed, step),
+                # so rank 0 recomputes it rather than gathering the other ranks' shares
+                whole = planner.plan(step, config.batch_size) if info.world > 1 else mine
                 record = {"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm, "steps_per_s": rate,
-                          "elapsed_s": time.perf_counter() - t0, "sigma_mean": sum(i.sigma for i in mine) / len(mine),
-                          "skeleton_dropped": sum(i.drop for i in mine)}
+                          "elapsed_s": time.perf_counter() - t0, "sigma_mean": sum(i.sigma for i in whole) / len(whole),
+                          "skeleton_dropped": sum(i.drop for i in whole)}
                 log.write(json.dumps(record) + "\n")
                 log.flush()
                 if tb is not None:

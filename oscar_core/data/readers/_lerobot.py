@@ -38,7 +38,7 @@ import numpy as np
 from ...reader import EpisodeError
 from ._common import require
 
-__all__ = ["LeRobotLayout", "EpisodeRow"]
+__all__ = ["LeRobotLayout", "EpisodeRow", "unreadable_table"]
 
 V3_DATA = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 V3_VIDEO = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
@@ -59,6 +59,23 @@ class EpisodeRow:
     tasks: tuple[str, ...]
     data: str
     videos: dict[str, tuple[str, float]]
+    # set on a row that stands for an unreadable episode table (``data`` is then that table's path; ``index``
+    # the line of a v2.1 episodes.jsonl, -1 for a whole v3.0 table): its episodes cannot be listed, so it
+    # becomes one rejected manifest row and the other tables (lines) go on
+    error: str | None = None
+
+    @property
+    def error_id(self) -> str:
+        """The manifest id suffix of an error row, relative to the dataset: ``meta/…parquet`` or ``…jsonl:LINE``."""
+        return "" if self.index < 0 else f":{self.index}"
+
+
+def unreadable_table(ref) -> None:
+    """Raise the :class:`EpisodeError` of a ref listed for an unreadable episode table (else nothing)."""
+    reason = (ref.meta or {}).get("unreadable_table")
+    if reason:
+        raise EpisodeError(ref.episode_id, ref.paths.get("states", "?"), "<file>",
+                           "a readable LeRobot episode table (meta/episodes); its episodes were not listed", reason)
 
 
 class LeRobotLayout:
@@ -120,7 +137,11 @@ class LeRobotLayout:
         video_tpl = self.info.get("video_path") or V3_VIDEO
         keys = self.video_keys
         for path in files:
-            schema = pq.read_schema(path)
+            try:
+                schema = pq.read_schema(path)
+            except Exception as e:  # noqa: BLE001 - ArrowInvalid / OSError ("Parquet magic bytes not found") name no file
+                yield EpisodeRow(-1, 0, (), str(path), {}, error=f"{type(e).__name__}: {e}")
+                continue
             want = ["episode_index", "length", "tasks", "data/chunk_index", "data/file_index"]
             for k in keys:
                 want += [f"videos/{k}/{c}" for c in ("chunk_index", "file_index", "from_timestamp")]
@@ -128,7 +149,11 @@ class LeRobotLayout:
             if missing:
                 raise ValueError(f"{path}: field '{missing[0]}': expected the LeRobot v3.0 episode columns {want}, "
                                  f"found missing {missing}")
-            table = pq.read_table(path, columns=want).to_pydict()
+            try:
+                table = pq.read_table(path, columns=want).to_pydict()
+            except Exception as e:  # noqa: BLE001 - a table whose footer reads but whose pages do not
+                yield EpisodeRow(-1, 0, (), str(path), {}, error=f"{type(e).__name__}: {e}")
+                continue
             for i in range(len(table["episode_index"])):
                 row = {c: table[c][i] for c in want}
                 data = self.root / data_tpl.format(chunk_index=int(row["data/chunk_index"]),
@@ -156,8 +181,10 @@ class LeRobotLayout:
                     row = json.loads(line)
                     index, length = int(row["episode_index"]), int(row["length"])
                 except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
-                    raise ValueError(f"{path}: line {n}: expected {{episode_index, tasks, length}}, found "
-                                     f"{type(e).__name__}: {e}") from None
+                    # one rejected row for this line (index: the line number); the other lines go on
+                    yield EpisodeRow(n, 0, (), str(path), {}, error=f"line {n}: expected {{episode_index, tasks, "
+                                                                      f"length}}, found {type(e).__name__}: {e}")
+                    continue
                 chunk = index // chunks
                 data = self.root / data_tpl.format(episode_chunk=chunk, episode_index=index)
                 videos = {k: (str(self.root / video_tpl.format(episode_chunk=chunk, video_key=k, episode_index=index)), 0.0)

@@ -29,7 +29,7 @@ from typing import Iterator
 
 from ...reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video
-from ._lerobot import LeRobotLayout
+from ._lerobot import LeRobotLayout, unreadable_table
 
 __all__ = ["InternDataA1Reader"]
 
@@ -63,6 +63,12 @@ class InternDataA1Reader(Reader):
             rel = dataset.relative_to(root).as_posix() if dataset != root else dataset.name
             layout = LeRobotLayout(dataset, self.name)
             for row in layout.episodes():
+                if row.error:  # one rejected row naming the broken table; the other tables' episodes go on
+                    table = Path(row.data).relative_to(dataset).as_posix()
+                    yield EpisodeRef(f"interndata_a1/{rel}/{table}{row.error_id}", "interndata_a1", self.name, "franka",
+                                     {"root": str(dataset), "states": row.data}, fps=layout.fps,
+                                     meta={"unreadable_table": row.error})
+                    continue
                 video = row.videos.get(VIDEO)
                 yield EpisodeRef(f"interndata_a1/{rel}/{row.index}", "interndata_a1", self.name, "franka",
                                  {"root": str(dataset), "data": row.data, "states": row.data, "video": video[0] if video else ""},
@@ -74,6 +80,7 @@ class InternDataA1Reader(Reader):
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         from oscar_embodiments.franka.adapters import from_interndata
 
+        unreadable_table(ref)
         eid = ref.episode_id
         cam = ref.meta.get("camera") or "head"
         if cam != "head":

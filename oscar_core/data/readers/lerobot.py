@@ -40,7 +40,7 @@ from typing import Any, Iterator
 
 from ...reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video
-from ._lerobot import LeRobotLayout
+from ._lerobot import LeRobotLayout, unreadable_table
 
 __all__ = ["LeRobotReader", "PROFILES"]
 
@@ -93,6 +93,11 @@ class LeRobotReader(Reader):
         default = _default_camera(profile, keys)
         cams = tuple(([default] if default else []) + [k for k in keys if k != default])
         for row in layout.episodes():
+            if row.error:  # one rejected row naming the broken table; the other tables' episodes go on
+                rel = Path(row.data).relative_to(root).as_posix()
+                yield EpisodeRef(f"{src}/{rel}{row.error_id}", src, self.name, emb, {"root": str(root), "states": row.data},
+                                 fps=layout.fps, cameras=cams, meta={"unreadable_table": row.error})
+                continue
             paths = {"root": str(root), "data": row.data, "states": row.data}
             if default in row.videos:
                 paths["video"] = row.videos[default][0]  # the default camera's (shared) file
@@ -103,6 +108,7 @@ class LeRobotReader(Reader):
                              task=row.tasks[0] if row.tasks else None, cameras=cams, meta=meta)
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
+        unreadable_table(ref)
         root = Path(ref.paths["root"])
         layout = LeRobotLayout(root, self.name)
         profile = ref.meta.get("profile") or _profile(layout)
