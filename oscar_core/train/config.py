@@ -156,6 +156,12 @@ class LogSection:
 
     # also write the metrics as TensorBoard scalars to RUN_DIR/tensorboard (ours; needs oscar-wm[tensorboard])
     tensorboard: bool = False
+    # also log the metrics to a Weights & Biases run, as LeRobot and diffusers offer (ours; needs oscar-wm[wandb])
+    wandb: bool = False
+    # the W&B project (ours)
+    wandb_project: str = "oscar"
+    # offline (default: nothing leaves the machine; `wandb sync` later), online or disabled (ours)
+    wandb_mode: str = "offline"
 
 
 @dataclass
@@ -248,6 +254,12 @@ class TrainConfig:
             bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
         if not isinstance(self.log.tensorboard, bool):
             bad("log.tensorboard", "true or false", self.log.tensorboard)
+        if not isinstance(self.log.wandb, bool):
+            bad("log.wandb", "true or false", self.log.wandb)
+        if self.log.wandb_mode not in ("offline", "online", "disabled"):
+            bad("log.wandb_mode", "offline, online or disabled", self.log.wandb_mode)
+        if not isinstance(self.log.wandb_project, str) or not self.log.wandb_project:
+            bad("log.wandb_project", "a project name", self.log.wandb_project)
         if self.model.condition_init not in ("zero", "default"):
             bad("model.condition_init", "'zero' or 'default'", self.model.condition_init)
         if self.model.dtype not in ("float32", "bfloat16"):

@@ -157,6 +157,10 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         from .tensorboard import require_tensorboard
 
         require_tensorboard()  # before anything is built or written
+    if config.log.wandb:
+        from .wandb_log import require_wandb
+
+        require_wandb()
     run_dir = Path(config.run_dir) if resume is None else Path(resume)
     if resume is None and list_checkpoints(run_dir):
         raise TrainConfigError(source, "run_dir", "a new run folder (continue an existing run with --resume RUN_DIR)",
@@ -199,6 +203,13 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         from .tensorboard import TensorBoardLog
 
         tb = TensorBoardLog(run_dir, purge_step=start + 1 if start else None)
+    wb = None
+    if info.main and config.log.wandb:
+        from dataclasses import asdict
+
+        from .wandb_log import WandbLog
+
+        wb = WandbLog(run_dir, asdict(config), project=config.log.wandb_project, mode=config.log.wandb_mode)
     log = open(metrics_path, "a") if info.main else None
     if log and start == 0:
         log.write(json.dumps({"step": 0, "event": "start", "world_size": info.world, "accumulation": accum,
@@ -253,6 +264,8 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                 log.flush()
                 if tb is not None:
                     tb.write(record)
+                if wb is not None:
+                    wb.write(record)
             if done % config.save_every == 0 or done == end:
                 save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
     finally:
@@ -262,4 +275,6 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             log.close()
         if tb is not None:
             tb.close()
+        if wb is not None:
+            wb.close()
     return TrainResult(run_dir, end, last_loss, None), config
