@@ -49,8 +49,7 @@ def cell_prompt(cell: Cell):
 def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
     condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
-    from ..errors import InputFileError
-    from ..model._image import read_image
+    from ..model._image import read_first_frame
     from ..conditions import condition_video
     from ..pipeline import fit_image
     from ..registry import get_embodiment
@@ -59,14 +58,10 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     emb = get_embodiment(cell.embodiment, plugin_paths)
     traj = load_trajectory(cell.trajectory)
     camera = emb.load_camera(cell.camera)
-    first = read_image(cell.first_frame)
-    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
-    if (first.shape[1], first.shape[0]) != cam_size:
-        raise InputFileError(cell.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
-                             f"{cell.camera})", f"{first.shape[1]}x{first.shape[0]}")
+    first = read_first_frame(cell.first_frame, camera, cell.camera)
     card = model.card
     if size is None:
-        size = (card.width, card.height) if card.width and card.height else cam_size
+        size = (card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0])
     # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
     skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
                                resize_mode="crop", camera_source=str(cell.camera))
