@@ -148,9 +148,16 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
         ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, ignore_reinit_error=True)
     gpu = str(device).startswith("cuda")
     resources = {"num_gpus": 1, "num_cpus": 0} if gpu else {"num_cpus": 1}
+    kind = "GPU" if gpu else "CPU"
+    free = int(ray.available_resources().get(kind, 0))  # an actor Ray cannot place would wait forever
+    if free < 1:
+        raise MetricInputError("engine", "ray", f"a Ray cluster with a free {kind} for each worker",
+                               f"no free {kind} (cluster: {ray.cluster_resources()})")
+    n = min(workers, len(pending), free)
+    if n < min(workers, len(pending)):
+        log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
     actor_cls = ray.remote(**resources)(_RolloutWorker)
     dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
-    n = min(workers, len(pending))
     actors = [actor_cls.remote(model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths))
               for _ in range(n)]
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
