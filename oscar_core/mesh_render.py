@@ -29,7 +29,7 @@ from .camera import Camera
 from .errors import PluginError
 from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
 from .render_stream import (DEFAULT_CHUNK_FRAMES, EmptyViewError, EmptyViewWarning, RenderStats, _project_cv,
-                            _to_camera, format_frames)
+                            _to_camera, format_frames, stream_chunks)
 from .visual import VisualGeometry
 
 __all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "mesh_vertices", "iter_mesh_chunks",
@@ -231,17 +231,8 @@ def iter_mesh_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | N
     if chunk_frames < 1:
         raise ValueError(f"chunk_frames: expected a positive number of frames, found {chunk_frames}")
     job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    stats = stats if stats is not None else RenderStats()
-    T = len(job.traj)
-    for start in range(0, T, chunk_frames):
-        stop = min(T, start + chunk_frames)
-        before = len(stats.empty_frames)
-        chunk = _render_range(job, start, stop, None, stats)
-        if strict and len(stats.empty_frames) > before:
-            raise EmptyViewError(_empty_message(camera_source, stats.empty_frames[before:], T) + " (strict)")
-        yield chunk
-    if stats.empty_frames:
-        warnings.warn(_empty_message(camera_source, stats.empty_frames, T), EmptyViewWarning, stacklevel=2)
+    yield from stream_chunks(len(job.traj), lambda start, stop, st: _render_range(job, start, stop, None, st),
+                             chunk_frames, strict, stats, lambda empty, T: _empty_message(camera_source, empty, T))
 
 
 def render_mesh_video(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,

@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import warnings
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -248,6 +248,23 @@ def _empty_message(source: str, empty: list[int], total: int) -> str:
             f"the image) in {len(empty)} of {total} frames: {format_frames(empty)}")
 
 
+def stream_chunks(total: int, render: Callable[[int, int, RenderStats], np.ndarray], chunk_frames: int,
+                  strict: bool, stats: RenderStats | None, message: Callable[[list[int], int], str]):
+    """The chunk loop every condition renderer shares: yields ``render(start, stop, stats)`` for consecutive
+    ranges of at most ``chunk_frames`` of ``total`` frames. Frames ``render`` records as empty in
+    ``stats.empty_frames`` give one :class:`EmptyViewWarning` after the last chunk, worded by
+    ``message(empty frames, total)``; ``strict`` raises :class:`EmptyViewError` as soon as a chunk has one."""
+    stats = stats if stats is not None else RenderStats()
+    for start in range(0, total, chunk_frames):
+        before = len(stats.empty_frames)
+        chunk = render(start, min(total, start + chunk_frames), stats)
+        if strict and len(stats.empty_frames) > before:
+            raise EmptyViewError(message(stats.empty_frames[before:], total) + " (strict)")
+        yield chunk
+    if stats.empty_frames:
+        warnings.warn(message(stats.empty_frames, total), EmptyViewWarning, stacklevel=3)
+
+
 def iter_skeleton_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
                          style: SkeletonStyle | None = None, resize_mode: str = "crop", device="cpu",
                          camera_source: str = "<camera>", chunk_frames: int = DEFAULT_CHUNK_FRAMES,
@@ -266,17 +283,8 @@ def iter_skeleton_chunks(embodiment, traj, camera: Camera, size: tuple[int, int]
     if chunk_frames < 1:
         raise ValueError(f"chunk_frames: expected a positive number of frames, found {chunk_frames}")
     job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    stats = stats if stats is not None else RenderStats()
-    T = len(job.traj)
-    for start in range(0, T, chunk_frames):
-        stop = min(T, start + chunk_frames)
-        before = len(stats.empty_frames)
-        chunk = _render_range(job, start, stop, None, stats)
-        if strict and len(stats.empty_frames) > before:
-            raise EmptyViewError(_empty_message(camera_source, stats.empty_frames[before:], T) + " (strict)")
-        yield chunk
-    if stats.empty_frames:
-        warnings.warn(_empty_message(camera_source, stats.empty_frames, T), EmptyViewWarning, stacklevel=2)
+    yield from stream_chunks(len(job.traj), lambda start, stop, st: _render_range(job, start, stop, None, st),
+                             chunk_frames, strict, stats, lambda empty, T: _empty_message(camera_source, empty, T))
 
 
 def render_into(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,

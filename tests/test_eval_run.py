@@ -433,6 +433,12 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
         assert np.abs(va.astype(int) - vb.astype(int)).max() <= 1
     again = run_evaluation(manifest, tmp_path / "ray", engine="ray", workers=2, **kwargs)
     assert again.report["counts"]["rollouts_reused"] == 6 and again.report["counts"]["rollouts_done"] == 0
+    # more workers than the cluster can place: as many as it has free CPUs, said so (never a wait forever)
+    messages = []
+    wide = run_evaluation(manifest, tmp_path / "wide", engine="ray", workers=64,
+                          **{**kwargs, "log": messages.append})
+    assert wide.report["counts"]["rollouts_done"] == 6
+    assert any("free CPU(s): starting" in m and "instead of 64" in m for m in messages), messages
     with pytest.raises(MetricInputError, match="a model spec"):
         run_evaluation(manifest, tmp_path / "obj", engine="ray", model=oscar_zoo.load(str(model_dir)),
                        sampler=SamplerConfig(steps=2), log=lambda m: None)

@@ -49,8 +49,7 @@ def cell_prompt(cell: Cell):
 def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
     condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
-    from ..errors import InputFileError
-    from ..model._image import read_image
+    from ..model._image import read_first_frame
     from ..conditions import condition_video
     from ..pipeline import fit_image
     from ..registry import get_embodiment
@@ -59,14 +58,10 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     emb = get_embodiment(cell.embodiment, plugin_paths)
     traj = load_trajectory(cell.trajectory)
     camera = emb.load_camera(cell.camera)
-    first = read_image(cell.first_frame)
-    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
-    if (first.shape[1], first.shape[0]) != cam_size:
-        raise InputFileError(cell.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
-                             f"{cell.camera})", f"{first.shape[1]}x{first.shape[0]}")
+    first = read_first_frame(cell.first_frame, camera, cell.camera)
     card = model.card
     if size is None:
-        size = (card.width, card.height) if card.width and card.height else cam_size
+        size = (card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0])
     # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
     skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
                                resize_mode="crop", camera_source=str(cell.camera))
@@ -153,9 +148,16 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
         ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, ignore_reinit_error=True)
     gpu = str(device).startswith("cuda")
     resources = {"num_gpus": 1, "num_cpus": 0} if gpu else {"num_cpus": 1}
+    kind = "GPU" if gpu else "CPU"
+    free = int(ray.available_resources().get(kind, 0))  # an actor Ray cannot place would wait forever
+    if free < 1:
+        raise MetricInputError("engine", "ray", f"a Ray cluster with a free {kind} for each worker",
+                               f"no free {kind} (cluster: {ray.cluster_resources()})")
+    n = min(workers, len(pending), free)
+    if n < min(workers, len(pending)):
+        log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
     actor_cls = ray.remote(**resources)(_RolloutWorker)
     dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
-    n = min(workers, len(pending))
     actors = [actor_cls.remote(model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths))
               for _ in range(n)]
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import InputFileError
 
-__all__ = ["read_image"]
+__all__ = ["read_image", "read_first_frame"]
 
 
 def read_image(path) -> np.ndarray:
@@ -22,3 +22,14 @@ def read_image(path) -> np.ndarray:
     if bgr is None:
         raise InputFileError(path, "image", "a readable image file (PNG, JPEG)", "a file OpenCV cannot decode")
     return np.ascontiguousarray(bgr[:, :, ::-1])
+
+
+def read_first_frame(path, camera, camera_source) -> np.ndarray:
+    """The first frame of a rollout: ``path``'s image, (H, W, 3) uint8, checked to be the calibration's size
+    (``camera.intrinsics``; ``camera_source`` names the camera file in the error)."""
+    first = read_image(path)
+    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
+    if (first.shape[1], first.shape[0]) != cam_size:
+        raise InputFileError(path, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
+                             f"{camera_source})", f"{first.shape[1]}x{first.shape[0]}")
+    return first

@@ -348,22 +348,17 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
-    from ..errors import InputFileError
     from ..conditions import condition_video
     from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
-    from ._image import read_image
+    from ._image import read_first_frame
     from .sampler import sampler_from_options
 
     emb = get_embodiment(args.embodiment, getattr(args, "plugin", None) or ())
     traj = load_trajectory(args.trajectory)
     camera = emb.load_camera(args.camera)
-    first = read_image(args.first_frame)
-    cam_size = (camera.intrinsics.width, camera.intrinsics.height)
-    if (first.shape[1], first.shape[0]) != cam_size:
-        raise InputFileError(args.first_frame, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
-                             f"{args.camera})", f"{first.shape[1]}x{first.shape[0]}")
+    first = read_first_frame(args.first_frame, camera, args.camera)
     sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
                                    shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form,
                                    batched_cfg=not args.two_pass_cfg, solver=args.solver,
