@@ -51,5 +51,5 @@ def test_missing_tensorboard_names_the_extra_before_anything_is_written(tmp_path
 
 
 def test_the_switch_is_a_boolean(tmp_path, clipset):
-    with pytest.raises(TrainConfigError, match="'log.tensorboard': expected true or false, found 'yes'"):
+    with pytest.raises(TrainConfigError, match="'log.tensorboard': expected true or false, found str 'yes'"):
         tiny(clipset, tmp_path, **{"log.tensorboard": "yes"})
