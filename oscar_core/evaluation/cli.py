@@ -32,6 +32,7 @@ from pathlib import Path
 from .._cli_types import count, interval, number
 from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
+from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
 
@@ -168,7 +169,7 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
                         'judge ran at high reasoning effort)')
     r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
     r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
-    r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget (as oscar rollout --preset)")
+    r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget (as oscar rollout --preset)")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")

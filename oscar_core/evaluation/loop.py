@@ -167,6 +167,9 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
             raise MetricInputError(name, "value", "an integer >= 1", repr(value))
     if engine not in ("local", "ray"):
         raise MetricInputError("engine", "value", '"local" or "ray"', repr(engine))
+    if engine == "ray" and model_spec is None:
+        raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
+                               f"a model object ({type(model).__name__})")
     from ..model.sampler import SamplerConfig
 
     user_log, log = log, log or _log.info
@@ -237,16 +240,13 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     if pending and engine == "ray":
         from .rollout_engines import roll_out_on_ray
 
-        if model_spec is None:
-            raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
-                                   f"a model object ({type(model).__name__})")
         roll_out_on_ray(pending, record, model_spec=model_spec, revision=revision, device=device, dtype=dtype,
                         workers=workers, log=log, **options)
     elif pending:
         from .rollout_engines import roll_out_cells
 
+        at = {id(c): (k, key) for k, c, key in pending}
         for group, videos in roll_out_cells(lazy.get(), [c for _, c, _ in pending], progress=progress, **options):
-            at = {id(c): (k, key) for k, c, key in pending}
             for (cell, seconds), (frames, fps) in zip(group, videos):
                 k, key = at[id(cell)]
                 record(k, cell, key, frames, fps, seconds, len(group))

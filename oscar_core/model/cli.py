@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from .._cli_types import count, interval, number
+from .presets import SAMPLER_PRESETS
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
            "side_by_side_path"]
@@ -86,7 +87,7 @@ def add_model_parsers(subparsers) -> None:
                    help="how camera and first frame are fitted to --size (default: centre crop)")
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
     r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
-    r.add_argument("--preset", choices=("paper", "fast"), help="sampling budget: paper (35 steps, guidance at every "
+    r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget: paper (35 steps, guidance at every "
                    "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md)")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch")

@@ -72,6 +72,7 @@ from typing import Callable
 import torch
 
 from .errors import ModelInputError
+from .presets import SAMPLER_PRESETS
 
 __all__ = ["SamplerConfig", "flow_sigmas", "guided_velocity", "sample_chunk", "integrate", "unipc_scheduler",
            "branches", "GUIDANCE_FORMS", "SOLVERS", "SAMPLER_PRESETS", "apply_preset", "model_calls",
@@ -119,8 +120,7 @@ class SamplerConfig:
     def __post_init__(self):
         if self.guidance_interval is not None:
             iv = self.guidance_interval
-            ok = (isinstance(iv, (tuple, list)) and len(iv) == 2
-                  and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in iv)
+            ok = (isinstance(iv, (tuple, list)) and len(iv) == 2 and all(_finite(v) for v in iv)
                   and 0.0 <= float(iv[0]) <= float(iv[1]) <= 1.0)
             if not ok:
                 raise ModelInputError(f"guidance_interval: expected (lo, hi) noise levels with 0 <= lo <= hi <= 1, "
@@ -155,13 +155,6 @@ def _finite(x) -> bool:
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
-#: Named sampling budgets: fields of :class:`SamplerConfig` that a preset sets (the rest, e.g. the guidance
-#: weight, stay the model's or the user's). ``paper``: the paper's 35 UniPC steps, guidance at every step.
-#: The others were measured against it on the toy model (docs/world-model.md, "Sampling presets").
-SAMPLER_PRESETS: dict[str, dict] = {
-    "paper": {"steps": 35, "guidance_interval": None},
-    "fast": {"steps": 12, "guidance_interval": (0.0, 0.8)},
-}
 
 
 def apply_preset(config: "SamplerConfig", name: str | None) -> "SamplerConfig":

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from .._cli_types import count, interval, number
 from .._log import run_log
+from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
@@ -113,7 +114,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI] (e.g. 0.3,1.0); the others run the "
                         "conditional branch alone")
-    o.add_argument("--preset", choices=("paper", "fast"),
+    o.add_argument("--preset", choices=sorted(SAMPLER_PRESETS),
                    help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
                         "sets the steps and the guidance interval")
     o.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
