@@ -439,6 +439,10 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
                           **{**kwargs, "log": messages.append})
     assert wide.report["counts"]["rollouts_done"] == 6
     assert any("free CPU(s): starting" in m and "instead of 64" in m for m in messages), messages
+    # a worker whose model cannot load fails the run with one error naming the model, not a hang or Ray's wrapper
+    with pytest.raises(MetricInputError, match=r"a worker that loads .*no-such-model"):
+        run_evaluation(manifest, tmp_path / "broken", engine="ray", workers=1,
+                       **{**kwargs, "model_spec": str(tmp_path / "no-such-model")})
     with pytest.raises(MetricInputError, match="a model spec"):
         run_evaluation(manifest, tmp_path / "obj", engine="ray", model=oscar_zoo.load(str(model_dir)),
                        sampler=SamplerConfig(steps=2), log=lambda m: None)

@@ -162,8 +162,7 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
               for _ in range(n)]
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, batch_cells=batch_cells)
-    step = max(1, batch_cells)
-    queue = [pending[i:i + step] for i in range(0, len(pending), step)]
+    queue = [pending[i:i + batch_cells] for i in range(0, len(pending), batch_cells)]
     by_id = {c.id: (k, c, key) for k, c, key in pending}
     in_flight: dict = {}
 
@@ -184,6 +183,9 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
                 cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
                 raise MetricInputError("engine", "ray", "every worker's rollouts", f"{type(cause).__name__}: "
                                        f"{cause}") from None
+            except ray.exceptions.RayActorError as exc:  # the worker died, e.g. its model could not load
+                raise MetricInputError("engine", "ray", f"a worker that loads {model_spec}",
+                                       str(exc).strip().splitlines()[-1][:2000]) from None
             submit(actor)
             for cell_id, frames, fps, seconds, batch in results:
                 k, cell, key = by_id[cell_id]
