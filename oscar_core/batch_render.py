@@ -15,7 +15,7 @@ its :class:`EpisodeResult` and the others go on.
 Resuming: with ``resume=True``, after each rendered episode a record
 ``.<output name>.oscar-render.json`` is written beside the output with the episode's fingerprint — the sha256 of
 its trajectory and camera files, its embodiment, size, fps, resize,
-format and condition (skeleton or mesh), the encoder settings (preset, crf, yuv), strictness, FK device kind,
+format and condition (skeleton, mesh or capsules), the encoder settings (preset, crf, yuv), strictness, FK device kind,
 plugin paths and a format version (threads and chunk size are left out: they
 do not change the frames). ``render_many(resume=True)`` (``oscar render``
 batches by default; ``--no-resume`` redoes everything) skips an episode whose
@@ -67,7 +67,7 @@ class EpisodeSpec:
     out: output path (``.mp4``, ``.mkv`` or a name ending in ``/``);
     size: (width, height) pixels or None (the calibration's); fps: None (the
     trajectory's); resize: "crop" or "stretch"; format: None (from ``out``), "mp4", "mkv", "png";
-    condition: None (``RenderOptions.condition``), "skeleton" or "mesh" (see :mod:`oscar_core.conditions`).
+    condition: None (``RenderOptions.condition``), "skeleton", "mesh" or "capsules" (see :mod:`oscar_core.conditions`).
     """
 
     embodiment: str
@@ -90,7 +90,7 @@ class RenderOptions:
     (None: 1 with several workers, else automatic); strict: frames where the camera
     sees nothing of the robot are an error; chunk_frames: frames per streamed chunk;
     device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins;
-    condition: the condition video of episodes that do not name one ("skeleton" or "mesh").
+    condition: the condition video of episodes that do not name one ("skeleton", "mesh" or "capsules").
     """
 
     preset: str | None = None

@@ -1,8 +1,14 @@
-"""The condition videos oscar can render, by name: ``skeleton`` (the paper's) and ``mesh``.
+"""The condition videos oscar can render, by name: ``skeleton`` (the paper's), ``mesh`` and ``capsules``.
+
+- ``skeleton``: the paper's 2D kinematic skeleton (:mod:`oscar_core.render_stream`);
+- ``mesh``: each link's URDF visual geometry (:mod:`oscar_core.mesh_render`);
+- ``capsules``: shaded capsules along the skeleton's edges with fingers that open and close
+  (:mod:`oscar_core.capsule_body`): a mesh condition for any kinematic tree, with or without visual
+  geometry, and the toy world's own robot body.
 
 Every consumer of a condition video (``oscar render``, the batch renderer, the
 trainer, rollouts and ``oscar eval run``) picks its renderer here, so a new
-condition is added in one place. Both go through the VAE and the DiT's PE_s in
+condition is added in one place. All go through the VAE and the DiT's PE_s in
 the same way (the model's "skeleton" stream carries whichever condition video
 its card names).
 """
@@ -14,9 +20,27 @@ from typing import Callable
 from .errors import OscarError
 
 __all__ = ["CONDITIONS", "DEFAULT_CONDITION", "check_condition", "chunk_renderer", "video_renderer",
-           "condition_video"]
+           "condition_video", "video_condition_of"]
 
-CONDITIONS = ("skeleton", "mesh")
+CONDITIONS = ("skeleton", "mesh", "capsules")
+
+
+def _renderers(name: str) -> tuple[Callable, Callable]:
+    """(streaming renderer, whole-video renderer) of a checked condition name (imported on first use)."""
+    if name == "mesh":
+        from .mesh_render import iter_mesh_chunks, render_mesh_video
+
+        return iter_mesh_chunks, render_mesh_video
+    if name == "capsules":
+        from .capsule_body import iter_capsule_chunks, render_capsule_video
+
+        return iter_capsule_chunks, render_capsule_video
+    from .pipeline import render_skeleton_video
+    from .render_stream import iter_skeleton_chunks
+
+    return iter_skeleton_chunks, render_skeleton_video
+
+
 DEFAULT_CONDITION = "skeleton"
 
 
@@ -27,28 +51,22 @@ def check_condition(name, source: str = "condition") -> str:
     return name
 
 
+def video_condition_of(card_condition: str) -> str:
+    """The condition video a model whose card says ``card_condition`` is rolled out with: that condition
+    when it is a video condition, else the skeleton (models without a video condition ignore it)."""
+    return card_condition if card_condition in CONDITIONS else DEFAULT_CONDITION
+
+
 def chunk_renderer(name: str) -> Callable:
     """The streaming renderer of condition ``name``: ``f(embodiment, traj, camera, size, *, resize_mode,
     device, camera_source, chunk_frames, strict, stats)`` yielding (n, H, W, 3) uint8 chunks."""
-    if check_condition(name) == "mesh":
-        from .mesh_render import iter_mesh_chunks
-
-        return iter_mesh_chunks
-    from .render_stream import iter_skeleton_chunks
-
-    return iter_skeleton_chunks
+    return _renderers(check_condition(name))[0]
 
 
 def video_renderer(name: str) -> Callable:
     """The whole-video renderer of condition ``name``:
     ``f(embodiment, traj, camera, size, ...)`` → (T, H, W, 3) uint8."""
-    if check_condition(name) == "mesh":
-        from .mesh_render import render_mesh_video
-
-        return render_mesh_video
-    from .pipeline import render_skeleton_video
-
-    return render_skeleton_video
+    return _renderers(check_condition(name))[1]
 
 
 def condition_video(name: str, embodiment, trajectory, camera, size, *, resize_mode: str = "crop",

@@ -184,32 +184,51 @@ def mesh_vertices(embodiment, traj, camera: Camera, size: tuple[int, int] | None
     return uv, Pc[..., 2]
 
 
-def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
-    cam, Pc, uv, folded = _vertices_cv(job, start, stop)
-    intr = cam.intrinsics
-    n = stop - start
-    if out is None:
-        out = np.zeros((n, intr.height, intr.width, 3), np.uint8)
-    else:
-        out[...] = 0
+def draw_frames(Pc: np.ndarray, uv: np.ndarray, folded: np.ndarray, faces: np.ndarray, face_rgb: np.ndarray,
+                intr, ambient: float, cull_back: bool, out: np.ndarray) -> np.ndarray:
+    """Rasterise n frames of one triangle set into ``out`` (n, H, W, 3) uint8 (drawn over, not cleared).
+
+    Pc: (n, V, 3) camera-frame vertices, metres; uv: (n, V, 2) their pixels; folded: (n, V) bool,
+    True where the lens model is not to be trusted; faces: (F, 3); face_rgb: (F, 3) uint8 base
+    colours, shaded flat with a headlight (:func:`~oscar_core.mesh_raster.shade_faces`). Triangles
+    reaching behind the camera are cut at the near plane first. Shared by every renderer of
+    triangles (link meshes, :mod:`oscar_core.capsule_body`).
+    """
     size = (intr.width, intr.height)
-    for i in range(n):
-        P, faces, src, uv_i, ok = Pc[i], job.mesh.faces, None, uv[i], ~folded[i]
+    for i in range(len(Pc)):
+        P, f, src, uv_i, ok = Pc[i], faces, None, uv[i], ~folded[i]
         if not (P[:, 2] > CLIP_Z).all():  # some geometry at or behind the near plane: cut the triangles there
-            P, faces, src = clip_near(P, faces)
+            P, f, src = clip_near(P, f)
             extra, extra_folded = _project_cv(P[len(Pc[i]):], intr)
             uv_i = np.concatenate([uv_i, extra])
             ok = np.concatenate([ok, ~extra_folded])
 
-        def shade(kept, P=P, faces=faces, src=src):
-            base = job.mesh.face_rgb[kept if src is None else src[kept]]
-            return shade_faces(P, faces[kept], base, job.style.ambient)
+        def shade(kept, P=P, f=f, src=src):
+            base = face_rgb[kept if src is None else src[kept]]
+            return shade_faces(P, f[kept], base, ambient)
 
-        rasterise_mesh(uv_i, P[:, 2], faces, shade, size, out[i], usable=ok, cull_back=job.style.cull_back)
+        rasterise_mesh(uv_i, P[:, 2], f, shade, size, out[i], usable=ok, cull_back=cull_back)
+    return out
+
+
+def record_empty(out: np.ndarray, start: int, stats: RenderStats | None) -> None:
+    """Count the frames of ``out`` (n, H, W, 3) and record those with nothing drawn (frame numbers from ``start``)."""
     if stats is not None:
+        n = len(out)
         seen = out.reshape(n, -1).any(axis=1)
         stats.frames += n
         stats.empty_frames.extend((start + np.flatnonzero(~seen)).tolist())
+
+
+def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
+    cam, Pc, uv, folded = _vertices_cv(job, start, stop)
+    intr = cam.intrinsics
+    if out is None:
+        out = np.zeros((stop - start, intr.height, intr.width, 3), np.uint8)
+    else:
+        out[...] = 0
+    draw_frames(Pc, uv, folded, job.mesh.faces, job.mesh.face_rgb, intr, job.style.ambient, job.style.cull_back, out)
+    record_empty(out, start, stats)
     return out
 
 

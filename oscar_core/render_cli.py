@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from ._cli_types import count, number
+from .conditions import CONDITIONS
 from .errors import OscarError
 
 EPILOG = """examples:
@@ -43,9 +44,10 @@ def add_render_parser(sub) -> None:
     r.add_argument("--trajectories", metavar="DIR", help="render every DIR/*.npz (cameras beside them) into --out")
     r.add_argument("--format", choices=("mp4", "mkv", "png"),
                    help="output format instead of the suffix (png: a folder of PNG frames)")
-    r.add_argument("--condition", choices=("skeleton", "mesh"), default="skeleton",
-                   help="condition video: the skeleton (default) or the robot's visual geometry (mesh; "
-                        "needs <visual> elements and the mesh extra: docs/mesh-condition.md)")
+    r.add_argument("--condition", choices=CONDITIONS, default="skeleton",
+                   help="condition video: the skeleton (default), the robot's visual geometry (mesh; "
+                        "needs <visual> elements and the mesh extra: docs/mesh-condition.md) or capsules along "
+                        "the skeleton with fingers (capsules; any kinematic tree)")
     r.add_argument("--size", help="output WIDTHxHEIGHT, e.g. 512x288 (default: the calibration's image size)")
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)")
@@ -155,13 +157,13 @@ def cmd_render(args) -> int:
 
 def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
+    import numpy as np
+
     from .batch_render import _registry
-    from .pipeline import fit_image, overlay_skeleton
     from .conditions import chunk_renderer
+    from .pipeline import fit_image, overlay_skeleton
     from .trajectory import load_trajectory
     from .video import DEFAULT_PRESET, VideoWriter, check_output, read_video, video_info
-
-    import numpy as np
 
     check_output(spec.out, format=spec.format)
     emb = _registry(tuple(args.plugin or ())).get(spec.embodiment)

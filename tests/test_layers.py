@@ -31,7 +31,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("zoo", ["oscar_zoo", "oscar_zoo.*"]),
     ("model", ["oscar_core.model", "oscar_core.model.*"]),
     ("render", ["oscar_core.render", "oscar_core.render_stream", "oscar_core.video", "oscar_core.pipeline",
-                "oscar_core.batch_render", "oscar_core.mesh_render", "oscar_core.mesh_raster",
+                "oscar_core.batch_render", "oscar_core.mesh_render", "oscar_core.mesh_raster", "oscar_core.capsule_body",
                 "oscar_core.conditions"]),
     ("embodiments", ["oscar_embodiments", "oscar_embodiments.*"]),
     ("foundation", ["oscar_core", "oscar_core.*"]),

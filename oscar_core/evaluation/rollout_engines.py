@@ -50,7 +50,7 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
     condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
     from ..model._image import read_first_frame
-    from ..conditions import condition_video
+    from ..conditions import condition_video, video_condition_of
     from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
@@ -62,8 +62,8 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     card = model.card
     if size is None:
         size = (card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0])
-    # the card's condition video: the skeleton, or the mesh for a mesh-conditioned model
-    skeleton = condition_video("mesh" if card.condition == "mesh" else "skeleton", emb, traj, camera, size,
+    # the card's condition video: the skeleton, or the mesh / capsules for a model trained on those
+    skeleton = condition_video(video_condition_of(card.condition), emb, traj, camera, size,
                                resize_mode="crop", camera_source=str(cell.camera))
     first = fit_image(first, size[0], size[1], "crop")
     return {"first": first, "video": skeleton, "prompt": cell_prompt(cell), "fps": float(traj.fps)}

@@ -349,7 +349,7 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
-    from ..conditions import condition_video
+    from ..conditions import condition_video, video_condition_of
     from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
@@ -394,8 +394,8 @@ def cmd_rollout(args) -> int:
     if args.vae_slicing:
         model.enable_vae_slicing()
     width, height = _rollout_size(args, model.card, camera)
-    # the card's condition video (the skeleton, or the mesh for a mesh-conditioned model)
-    skeleton = condition_video("mesh" if model.card.condition == "mesh" else "skeleton", emb, traj, camera,
+    # the card's condition video (the skeleton, or the mesh / capsules for a model trained on those)
+    skeleton = condition_video(video_condition_of(model.card.condition), emb, traj, camera,
                                (width, height), resize_mode=args.resize, camera_source=args.camera)
     first = fit_image(first, width, height, args.resize)
     prompt, text_source = _prompt_embeds(args, model, device)

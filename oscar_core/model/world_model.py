@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from ..conditions import CONDITIONS as VIDEO_CONDITIONS
 from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
 from ._weights import build_strict, cast_model, check_safetensors, load_state_dict, read_config
@@ -39,7 +40,8 @@ __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 
 FORMAT = "oscar-world-model"
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-CONDITIONS = ("skeleton", "mesh", "latent_action", "none")  # mesh: the robot's visual geometry in the skeleton stream
+# video conditions (skeleton, mesh, capsules: oscar_core.conditions) travel in the skeleton stream
+CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 
 
 @dataclass(frozen=True)
@@ -377,12 +379,12 @@ class OscarWorldModel:
             from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
-        from ..conditions import condition_video
+        from ..conditions import condition_video, video_condition_of
 
         if size is None and self.card.width and self.card.height:
             size = (self.card.width, self.card.height)
-        # the card's condition video (skeleton, or mesh) goes in the skeleton stream
-        name = "mesh" if self.card.condition == "mesh" else "skeleton"
+        # the card's condition video (skeleton, mesh or capsules) goes in the skeleton stream
+        name = video_condition_of(self.card.condition)
         return {"skeleton": condition_video(name, embodiment, trajectory, camera, size, resize_mode=resize_mode,
                                             camera_source=camera_source)}
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import Camera, project
+from ..capsule_body import link_radii  # the capsule body's radii: the mesh condition of this world
 from ..embodiment import Embodiment
 from ..trajectory import Trajectory
 from .motion import Motion, check_supported, sample_motion
@@ -40,18 +41,6 @@ class RenderResult:
     ee_px: np.ndarray
     object_area: np.ndarray
     ee_area: np.ndarray
-
-
-def link_radii(n_edges: int, scale: float) -> np.ndarray:
-    """(E,) capsule radii, metres: 7 % of the reach at the base tapering to 4.5 % at the last edge.
-
-    Thick enough that every link is 3 pixels wide or more at 64 x 64, so a
-    small VAE keeps the arm (at 4 % the links were 1-2 pixels and blurred away).
-    """
-    if n_edges == 0:
-        return np.zeros(0)
-    f = np.linspace(0.0, 1.0, n_edges) if n_edges > 1 else np.zeros(1)
-    return scale * (0.07 - 0.025 * f)
 
 
 def render_world(emb: Embodiment, motion: Motion, scene: Scene, camera: Camera, ss: int = 2,

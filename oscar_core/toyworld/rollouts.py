@@ -42,7 +42,7 @@ from .. import _stage
 from .._atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._log import get_logger, progress_bar
 
-__all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
+__all__ = ["CONDITIONS", "condition_frames", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
 
 CONDITIONS = ("true", "shuffled", "zero")
 
@@ -85,6 +85,19 @@ def sampler_for_card(card, steps: int | None = None, guidance: float | None = No
     d = apply_preset(SamplerConfig(guidance_form=guidance_form), preset)
     return replace(d, steps=steps or d.steps, guidance=d.guidance if guidance is None else guidance,
                    guidance_interval=guidance_interval if guidance_interval is not None else d.guidance_interval)
+
+
+def condition_frames(clipset, rec, clip, registry, card_condition: str) -> np.ndarray:
+    """(T, H, W, 3) uint8 condition video of a loaded clip for a model whose card says ``card_condition``:
+    the clip's skeleton video (stored, else rendered) for a skeleton model, else the card's condition video
+    (``mesh``, ``capsules``: :mod:`oscar_core.conditions`) rendered at the clip's size."""
+    from ..conditions import condition_video, video_condition_of
+
+    name = video_condition_of(card_condition)
+    if name == "skeleton":
+        return clipset.skeleton_video(rec, clip, registry)
+    return condition_video(name, registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
+                           camera_source=str(clipset.path(rec, "camera")))
 
 
 def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
@@ -144,7 +157,7 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
             video = model.rollout(first, None, sampler=sampler, seed=seed, progress=False, keep_chunks=False,
                                   actions=acts)
         else:
-            skel = cs.skeleton_video(source, clip, registry)[:rec.n_frames]
+            skel = condition_frames(cs, source, clip, registry, model.card.condition)[:rec.n_frames]
             video = model.rollout(first, skel, sampler=sampler, seed=seed, progress=False, keep_chunks=False)
         seconds.append(time.perf_counter() - t0)
         frames = np.asarray(video.frames if hasattr(video, "frames") else video)

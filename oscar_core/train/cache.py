@@ -3,9 +3,11 @@
 ``cache_latents(SRC, OUT, vae)`` copies every clip of the clip set ``SRC``
 into ``OUT`` with a ``latents.safetensors`` added (docs/formats.md, "Training
 clips"): the normalised latents of both streams for windows of ``window``
-frames starting every ``stride`` frames, at the clip's own size. The skeleton
-is the clip's stored skeleton video, else rendered from trajectory + camera +
-embodiment. A clip shorter than the window gets no latents (the trainer then
+frames starting every ``stride`` frames, at the clip's own size. The condition
+stream is the skeleton (the clip's stored skeleton video, else rendered from
+trajectory + camera + embodiment) or another condition video of
+:mod:`oscar_core.conditions` (``condition="mesh"`` or ``"capsules"``, rendered),
+recorded in each file's metadata so the trainer uses it only for that condition. A clip shorter than the window gets no latents (the trainer then
 encodes it on the fly or skips it, as its config says).
 
 Work is per shard: a shard already finished in ``OUT`` is kept, so a killed
@@ -47,7 +49,7 @@ def window_starts(n_frames: int, window: int, stride: int) -> np.ndarray:
 
 def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_name: str = "",
                   split: str | None = None, batch: int = 8, registry=None,
-                  log: Callable[[str], None] = print) -> CacheSummary:
+                  log: Callable[[str], None] = print, condition: str = "skeleton") -> CacheSummary:
     """Write ``OUT``: the clip set ``SRC`` with cached latents of ``window``-frame windows.
 
     vae: a :class:`~oscar_core.model.vae.VideoVAE`; window: frames per window
@@ -57,7 +59,8 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     (e.g. ``"train"``, leaving held-out clips out of training); batch: windows
     per VAE call (the toy VAE encodes 4x faster per clip at 16 than at 1;
     memory grows with it: 8 windows of 81 frames at 512x288 are ~1.2 GB of
-    float32 pixels). Returns a
+    float32 pixels); condition: the condition video whose latents go in the
+    condition stream (:data:`oscar_core.conditions.CONDITIONS`). Returns a
     :class:`CacheSummary`.
     """
     import hashlib
@@ -69,7 +72,10 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     from ..registry import Registry
     from .clips import Clip, ClipSet, ClipSetWriter
 
+    from ..conditions import check_condition, condition_video
+
     check_frame_count(window, what="window")
+    check_condition(condition, "--condition")
     if batch < 1:
         raise ValueError(f"batch: expected >= 1, found {batch}")
     stride = int(stride or window)
@@ -98,7 +104,13 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
         for rec in recs:
             clip = source.load(rec, registry=registry)
             starts = window_starts(rec.n_frames, window, stride)
-            skel = source.skeleton_video(rec, clip, registry) if len(starts) else None
+            if not len(starts):
+                skel = None
+            elif condition == "skeleton":
+                skel = source.skeleton_video(rec, clip, registry)
+            else:
+                skel = condition_video(condition, registry.get(rec.embodiment), clip.trajectory, clip.camera,
+                                       (rec.width, rec.height), camera_source=str(source.path(rec, "camera")))
             loaded.append((rec, clip, starts))
             windows += [(len(loaded) - 1, "video", clip.rgb[s:s + window]) for s in starts]
             windows += [(len(loaded) - 1, "skeleton", skel[s:s + window]) for s in starts]
@@ -116,7 +128,7 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
                                 prompt_embeds=clip.prompt_embeds,
                                 latents={"video": torch.stack(encoded[k, "video"]).float(),
                                          "skeleton": torch.stack(encoded[k, "skeleton"]).float(), "starts": starts,
-                                         "window": window, "vae": vae_name})
+                                         "window": window, "vae": vae_name, "condition": condition})
                     cached += 1
                 else:
                     short += 1

@@ -11,6 +11,7 @@ import json
 import os
 
 from .._cli_types import count
+from ..conditions import CONDITIONS
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
@@ -44,6 +45,9 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=count(1), help="with --cache-latents: torch threads (default: torch's)")
     p.add_argument("--split", help="with --cache-latents: copy only clips whose meta.split is this (e.g. train)")
     p.add_argument("--batch", type=count(1), default=8, help="with --cache-latents: windows per VAE call (default 8)")
+    p.add_argument("--condition", choices=CONDITIONS, default="skeleton",
+                   help="with --cache-latents: the condition video cached beside the video (default skeleton; "
+                        "mesh or capsules for a model trained on those)")
     p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
                                  "the new clip set")
     p.add_argument("--step", type=count(0), help="with --export: the checkpoint's step (default: the latest)")
@@ -158,7 +162,7 @@ def _cache_latents(args) -> int:
     config.model.vae = args.vae
     vae = build_vae(config, source="--vae")
     summary = cache_latents(args.cache_latents, args.out, vae, args.window, args.stride, split=args.split, batch=args.batch,
-                            log=(lambda _m: None) if args.json else print)
+                            log=(lambda _m: None) if args.json else print, condition=args.condition)
     print(json.dumps(asdict(summary)) if args.json else
           f"{summary.out}: {summary.clips_cached} clips cached, {summary.clips_too_short} too short for the window; "
           f"{summary.shards_written} shards written, {summary.shards_kept} kept from an earlier run ({summary.wall_s} s)")

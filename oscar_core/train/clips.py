@@ -308,7 +308,8 @@ def _latents_to_file(latents: dict, where, rec: ClipRecord):
     if starts.shape != (video.shape[0],) or (starts < 0).any() or (starts + window > rec.n_frames).any():
         raise ClipFormatError(where, rec.id, "latents.starts", f"{video.shape[0]} starts with start + {window} <= {rec.n_frames}",
                               starts.tolist())
-    meta = {"window": str(window), "vae": str(latents["vae"]), "width": str(rec.width), "height": str(rec.height)}
+    meta = {"window": str(window), "vae": str(latents["vae"]), "width": str(rec.width), "height": str(rec.height),
+            "condition": str(latents.get("condition") or "skeleton")}  # what the condition stream encodes
     return {"video": video.contiguous(), "skeleton": skel.contiguous(), "starts": starts}, meta
 
 
@@ -507,4 +508,5 @@ class ClipSet:
                     meta = f.metadata() or {}
                     clip.latents = {k: f.get_tensor(k) for k in ("video", "skeleton", "starts")}
                     clip.latents.update({k: meta.get(k) for k in ("window", "vae", "width", "height")})
+                    clip.latents["condition"] = meta.get("condition", "skeleton")  # older files: skeleton
         return clip

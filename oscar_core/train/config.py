@@ -27,13 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..conditions import CONDITIONS as _VIDEO_CONDITIONS
 from ..errors import OscarError
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
-CONDITIONS = ("skeleton", "mesh", "latent_action", "none")
-VIDEO_CONDITIONS = ("skeleton", "mesh")  # conditions given as a video through the VAE and PE_s
+VIDEO_CONDITIONS = _VIDEO_CONDITIONS  # conditions given as a video through the VAE and PE_s (oscar_core.conditions)
+CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 LATENT_MODES = ("auto", "cached", "on_the_fly")
 UNCONDITIONAL = ("zero_latent", "black_video")
@@ -171,7 +172,8 @@ class TrainConfig:
     # the run folder (checkpoints, metrics.jsonl, config.yaml, export/)
     run_dir: str = "runs/oscar"
     # what conditions the DiT: "skeleton" (OSCAR), "mesh" (the robot's URDF visual geometry rendered through the
-    # same camera, through the VAE and PE_s like the skeleton: the paper's ablation), "latent_action" (the paper's
+    # same camera, through the VAE and PE_s like the skeleton: the paper's ablation), "capsules" (capsules along the
+    # skeleton's edges with fingers: the toy world's robot body, a mesh for robots without meshes), "latent_action" (the paper's
     # ablation), "none" (text only)
     condition: str = "skeleton"
     # warm start from another run's latest checkpoint (stage 2 names the stage-1 run), or null

@@ -32,11 +32,13 @@ __all__ = ["TrainData", "Batch", "UsableClip"]
 
 @dataclass
 class UsableClip:
-    """A clip the trainer may draw: its set, record, and (cached mode) allowed window starts."""
+    """A clip the trainer may draw: its set, record, and (cached mode) allowed window starts and the
+    condition video its cached condition latents encode ("skeleton" for files written before it was recorded)."""
 
     clipset: ClipSet
     record: ClipRecord
     starts: np.ndarray | None = None
+    cached_condition: str | None = None
 
 
 @dataclass
@@ -103,14 +105,16 @@ class TrainData:
         if rec.embodiment not in self.registry.names():
             raise ClipFormatError(shard, rec.id, "embodiment", f"an installed embodiment {self.registry.names()}",
                                   repr(rec.embodiment))
-        starts = None
+        starts = cached_condition = None
         if "latents" in rec.files:
-            starts = self._cached_starts(cs, rec)
+            starts, cached_condition = self._cached_starts(cs, rec)
         if self.config.data.check_files:
             self._check_files(cs, rec)
-        return UsableClip(cs, rec, starts)
+        return UsableClip(cs, rec, starts, cached_condition)
 
-    def _cached_starts(self, cs: ClipSet, rec: ClipRecord) -> np.ndarray | None:
+    def _cached_starts(self, cs: ClipSet, rec: ClipRecord) -> tuple[np.ndarray | None, str | None]:
+        """(window starts, condition of the cached condition latents) of a clip's latents file; starts None when
+        its window or latent size is not the training's."""
         from safetensors import safe_open
 
         path = cs.path(rec, "latents")
@@ -120,11 +124,11 @@ class TrainData:
         with safe_open(str(path), "pt") as f:
             meta = f.metadata() or {}
             if int(meta.get("window", -1)) != self.window:
-                return None
+                return None, None
             video = f.get_slice("video").get_shape()
             if video[-2:] != [self.size[1] // self.spatial, self.size[0] // self.spatial]:
-                return None
-            return f.get_tensor("starts").numpy().astype(np.int64)
+                return None, None
+            return f.get_tensor("starts").numpy().astype(np.int64), meta.get("condition", "skeleton")
 
     def _check_files(self, cs: ClipSet, rec: ClipRecord) -> None:
         from ..video import video_info
@@ -199,8 +203,9 @@ class TrainData:
         rec, cs = u.record, u.clipset
         w, h = self.size
         want_skeleton = condition in VIDEO_CONDITIONS and not item.drop
-        # stored skeleton videos and cached skeleton latents are skeletons: a mesh condition is rendered here
-        stored = condition == "skeleton"
+        # stored skeleton videos are skeletons, and cached condition latents encode the condition they record:
+        # another condition video (mesh, capsules) is rendered and encoded here
+        stored = condition == (u.cached_condition if self.cached else "skeleton")
         out: dict = {"skeleton": None, "actions": None}
         need_traj = ((want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files)))
                      or condition == "latent_action")
