@@ -168,7 +168,7 @@ def kmeans_representatives(x: np.ndarray, k: int, seed: int = 0) -> list[int]:
 def distinct_rows(x: np.ndarray) -> int:
     """How many different rows (N, D) ``x`` has (compared after rounding to 1e-9)."""
     x = np.asarray(x, dtype=np.float64)
-    return int(len(np.unique(np.round(x.reshape(len(x), -1), 9), axis=0))) if len(x) else 0
+    return len(np.unique(np.round(x.reshape(len(x), -1), 9), axis=0)) if len(x) else 0
 
 
 def sqrt_quotas(available: Mapping[Hashable, int], total: int, *, corpus: Mapping[Hashable, int] | None = None
