@@ -118,6 +118,9 @@ def benchmark_table(bench: dict, rows: dict[str, str], *, networks: dict | None 
                           "mean_over_embodiments": {**rep["mean_over_embodiments"], "fvd": rep["aggregate"].get("fvd"),
                                                     "fid": rep["aggregate"].get("fid"), "frames_per_s": speed},
                           "mean_over_clips": rep["aggregate"]}
+        for block in (out_rows[name]["mean_over_embodiments"], out_rows[name]["mean_over_clips"], *per.values()):
+            for key, _ in COLUMNS:  # a metric not computed is null (its reason in "missing"), never absent
+                block.setdefault(key, None)
         out_clips[name] = rep["clips"]
     return {"set": bench["path"], "set_fingerprint": bench["fingerprint"], "frames": frames,
             "clips": len(bench["clips"]), "embodiments": sorted({c["embodiment"] for c in bench["clips"]}),
