@@ -22,6 +22,7 @@ EXAMPLES = """examples:
   oscar zoo list
   oscar rollout --model oscar-2b --embodiment franka --first-frame img.png --trajectory traj.npz --camera cam.json --out rollout.mp4
   oscar eval video pred.mp4 gt.mp4
+  oscar eval benchmark build clips/ --out bench.json --total 200   (then: benchmark run, benchmark table)
   oscar train configs/train/tiny-cpu.yaml
   oscar --plugin ./my_robot.py embodiments (load a one-file plugin)
   oscar -q toyworld generate ...   (warnings and results only; -v for debug lines, also: OSCAR_VERBOSITY)
@@ -104,10 +105,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     from .evaluation.cli import add_run_parser
+    from .evaluation.cli_benchmark import add_benchmark_parser
     from .metrics.cli import add_eval_parser
     from .model.cli import add_model_parsers
 
-    add_eval_parser(sub, extra_commands=(add_run_parser,))
+    add_eval_parser(sub, extra_commands=(add_run_parser, add_benchmark_parser))
     add_model_parsers(sub)
     from .data.cli import add_data_parser
     from .toyworld.cli import add_toyworld_parser

@@ -60,7 +60,7 @@ import sys
 from .._cli_types import count
 from .._log import progress_bars_enabled
 from ._common import MetricInputError
-from .cli_inputs import _load_network, _write_json, collect_clips, collect_judge_videos, read_policy_results, \
+from .cli_inputs import _write_json, collect_clips, collect_judge_videos, read_policy_results, \
     read_preferences, read_tasks
 from .cli_judge import JUDGE_EXAMPLES, PAIRWISE_EXAMPLES, _add_judge_args, cmd_eval_judge, cmd_eval_pairwise
 
@@ -95,26 +95,13 @@ def cmd_eval_video(args) -> int:
     if args.frames < 0:
         raise MetricInputError("--frames", "value", "a frame count >= 0 (0 = all frames)", args.frames)
     clips = collect_clips(args.pred, args.gt, embodiment=args.embodiment)
-    nets = {"lpips": _load_network(args.lpips, "--lpips"), "i3d": _load_network(args.i3d, "--i3d"),
-            "inception": _load_network(args.inception, "--inception")}
-    used_cache = []
-    if not args.no_cached_networks:  # the standard networks from `oscar eval weights pull`, hash-checked
-        from .weights import cached_networks
+    from .networks import resolve_networks
 
-        for key, net in cached_networks(device=args.device).items():
-            if nets[key] is None:
-                nets[key] = net
-                used_cache.append(key)
-    vae, notes = _load_network(args.vae, "--vae"), {}
-    if vae is None and args.vae_model != "none":  # the project's own VAE, from the local cache only
-        from .project_vae import load_project_vae
-
-        try:
-            vae = load_project_vae(args.vae_model, device=args.device)
-        except Exception as exc:  # noqa: BLE001 - not cached / not a checkpoint: latent L2 is skipped, and said so
-            notes["latent_l2"] = (f"skipped: the VAE of {args.vae_model!r} is not available locally "
-                                  f"({type(exc).__name__}: {str(exc)[:200]}); `oscar zoo pull {args.vae_model}` or "
-                                  "--vae / --vae-model FOLDER")
+    nets, used_cache, notes = resolve_networks(lpips=args.lpips, i3d=args.i3d, inception=args.inception,
+                                               vae=args.vae, vae_model=args.vae_model,
+                                               use_cache=not args.no_cached_networks, device=args.device)
+    notes = {k: v for k, v in notes.items() if k == "latent_l2"}  # this command's notes: as before
+    vae = nets["vae"]
     report = evaluate_videos(
         clips, n_frames=None if args.frames == 0 else args.frames,
         lpips_net=nets["lpips"], vae=vae,

@@ -7,7 +7,6 @@ Their formats are in the docstrings of :mod:`oscar_core.metrics.cli` (``video``,
 from __future__ import annotations
 
 import glob
-import importlib
 import json
 from pathlib import Path
 
@@ -75,23 +74,10 @@ def collect_clips(pred, gt, *, embodiment: str | None = None) -> list:
 
 
 def _load_network(spec: str | None, what: str):
-    """A TorchScript path is returned as is (loaded by the metric); ``module:attr`` is imported and called."""
-    if spec is None:
-        return None
-    if spec.endswith((".pt", ".pth", ".ts")) or Path(spec).is_file():
-        if not Path(spec).is_file():
-            raise MetricInputError(spec, what, "an existing TorchScript file", "no such file")
-        return spec
-    if ":" not in spec:
-        raise MetricInputError(spec, what, "a TorchScript file (.pt) or module:attr", repr(spec))
-    mod_name, attr = spec.split(":", 1)
-    try:
-        obj = getattr(importlib.import_module(mod_name), attr)
-    except (ImportError, AttributeError) as exc:
-        raise MetricInputError(spec, what, "an importable module:attr", f"{type(exc).__name__}: {exc}") from exc
-    if not callable(obj):
-        raise MetricInputError(spec, what, "a callable that returns the network", type(obj).__name__)
-    return obj()
+    """Kept for old callers: :func:`oscar_core.metrics.networks.load_network`."""
+    from .networks import load_network
+
+    return load_network(spec, what)
 
 
 def _read_json(path: Path):

@@ -12,7 +12,9 @@ Conditions (the rows of ``oscar toyworld eval``'s table):
   trained to see when the skeleton is dropped: ``guidance 0`` in the
   ``standard`` form, whatever skeleton is passed).
 
-A latent-action model (card ``condition: latent_action``) gets the 14-D
+Each rollout is :func:`oscar_core.evaluation.benchmark_run.rollout_clip` (the
+benchmark's): a model trained on another condition video (``mesh``,
+``capsules``: its card says which) sees that rendering of the skeleton's trajectory. A latent-action model (card ``condition: latent_action``) gets the 14-D
 actions of the same trajectory instead of its skeleton video (``zero``: its
 unconditional branch, no actions). Every rollout starts from the clip's true first frame, runs ``n_frames``
 frames in chunks of the model card's length, uses the empty (zero) prompt of
@@ -31,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable
@@ -42,7 +43,7 @@ from .. import _stage
 from .._atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._log import get_logger, progress_bar
 
-__all__ = ["CONDITIONS", "condition_frames", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
+__all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
 
 CONDITIONS = ("true", "shuffled", "zero")
 
@@ -87,19 +88,6 @@ def sampler_for_card(card, steps: int | None = None, guidance: float | None = No
                    guidance_interval=guidance_interval if guidance_interval is not None else d.guidance_interval)
 
 
-def condition_frames(clipset, rec, clip, registry, card_condition: str) -> np.ndarray:
-    """(T, H, W, 3) uint8 condition video of a loaded clip for a model whose card says ``card_condition``:
-    the clip's skeleton video (stored, else rendered) for a skeleton model, else the card's condition video
-    (``mesh``, ``capsules``: :mod:`oscar_core.conditions`) rendered at the clip's size."""
-    from ..conditions import condition_video, video_condition_of
-
-    name = video_condition_of(card_condition)
-    if name == "skeleton":
-        return clipset.skeleton_video(rec, clip, registry)
-    return condition_video(name, registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
-                           camera_source=str(clipset.path(rec, "camera")))
-
-
 def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
                    limit: int | None = None, sampler=None, seed: int = 0, registry=None,
                    log: Callable[[str], None] | None = None, model_id: str | None = None) -> dict:
@@ -114,6 +102,7 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
     rollout. ``StageChanged`` when ``out`` holds predictions made under other
     settings (see the module docstring).
     """
+    from ..evaluation.benchmark_run import rollout_clip
     from ..model.sampler import SamplerConfig
     from ..registry import Registry
     from ..train.clips import ClipSet
@@ -147,20 +136,10 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
         if target.is_file():
             kept += 1
             continue
-        first = cs.load(rec, frames=1, skeleton=False).rgb[0]
         source = cs.record(partner[rec.id]) if condition == "shuffled" else rec
-        clip = cs.load(source, video=False, registry=registry)
-        t0 = time.perf_counter()
-        if model.card.condition == "latent_action":  # the model builds its actions from the trajectory
-            acts = model.rollout_inputs(clip.trajectory, clip.camera, registry.get(source.embodiment))["actions"]
-            acts = acts[:rec.n_frames - 1]
-            video = model.rollout(first, None, sampler=sampler, seed=seed, progress=False, keep_chunks=False,
-                                  actions=acts)
-        else:
-            skel = condition_frames(cs, source, clip, registry, model.card.condition)[:rec.n_frames]
-            video = model.rollout(first, skel, sampler=sampler, seed=seed, progress=False, keep_chunks=False)
-        seconds.append(time.perf_counter() - t0)
-        frames = np.asarray(video.frames if hasattr(video, "frames") else video)
+        frames, secs = rollout_clip(model, cs, rec, min(rec.n_frames, source.n_frames), sampler=sampler, seed=seed,
+                                    registry=registry, source=source, prompt="empty")
+        seconds.append(secs)
         buf = io.BytesIO()
         np.save(buf, frames.astype(np.uint8))
         atomic_write_bytes(target, buf.getvalue())
