@@ -6,7 +6,7 @@ for the set's horizon (``settings.frames`` frames, the first one given):
 * a skeleton-conditioned model sees the clip's stored skeleton video when it
   has one (what the model was trained on), else the skeleton rendered from the
   trajectory and camera at the clip's size;
-* a mesh-conditioned model sees the mesh rendering
+* a model trained on another condition video (mesh, capsules) sees that rendering
   (:meth:`~oscar_core.model.world_model.OscarWorldModel.rollout_inputs`);
 * a latent-action model gets the 14-D actions of the trajectory.
 
