@@ -70,10 +70,10 @@ def config_of(name: str):
 
 
 def paired_interval(diff: np.ndarray, rng: np.random.Generator, n: int = 2000) -> tuple[float, float]:
-    """95 % percentile bootstrap interval of the mean of paired differences."""
-    idx = rng.integers(0, len(diff), size=(n, len(diff)))
-    means = diff[idx].mean(axis=1)
-    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+    """95 % percentile bootstrap interval of the mean of paired differences (oscar_core.metrics.paired)."""
+    from oscar_core.metrics.paired import paired_bootstrap_interval
+
+    return paired_bootstrap_interval(diff, n, rng=rng)
 
 
 def main() -> int:

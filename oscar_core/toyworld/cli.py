@@ -148,6 +148,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     e.add_argument("--clips", choices=("same", "common", "each"), default="same",
                    help="when the --pred folders cover different clips: same (default) refuses, common scores the "
                         "clips all of them have, each scores every row over its own clips and marks the table")
+    e.add_argument("--paired", metavar="NAME", help="also give every other row minus row NAME per metric over the "
+                   "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)")
     e.add_argument("--out", help="write the table as JSON here")
     e.add_argument("--plot", help="write a PNG bar chart of the table here")
     e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
@@ -264,11 +266,15 @@ def cmd_package(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from .evaluate import evaluate_conditions, format_table, plot_table, parse_pred_args
+    from .evaluate import add_paired, evaluate_conditions, format_table, plot_table, parse_pred_args
     from .._atomic import atomic_write_bytes
 
     conditions = parse_pred_args(args.pred)
+    if args.paired is not None and args.paired not in conditions:
+        raise ValueError(f"--paired {args.paired}: expected the name of a --pred row ({', '.join(conditions)})")
     table = evaluate_conditions(args.gt, conditions, split=args.split, clips_mode=args.clips)
+    if args.paired is not None:
+        add_paired(table, args.paired)
     if args.out:
         atomic_write_bytes(args.out, (json.dumps(table, indent=2) + "\n").encode())
     if args.plot:

@@ -27,7 +27,7 @@ import numpy as np
 
 from .locate import EE_TARGET, OBJECT_TARGET, position_errors
 
-__all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "plot_table",
+__all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "add_paired", "format_paired", "plot_table",
            "parse_pred_args", "motion_iou", "motion_mask", "MOTION_THRESHOLD", "moved_object_error",
            "MOVED_OBJECT_SHIFT_PX"]
 
@@ -218,6 +218,40 @@ def _nanmean(values) -> float:
     return float(a.mean()) if a.size else float("nan")
 
 
+def add_paired(table: dict, reference: str, resamples: int = 2000, seed: int = 0) -> dict:
+    """Add ``table["paired"]``: every other row minus the ``reference`` row, per metric, over the clips both
+    scored (:func:`oscar_core.metrics.paired.paired_difference`: mean and 95 % percentile-bootstrap interval,
+    ``resamples`` resamples of the clips, seeded). Returns the table."""
+    from ..metrics.paired import paired_difference
+
+    if reference not in table["rows"]:
+        raise ValueError(f"--paired {reference}: expected the name of a --pred row ({', '.join(table['rows'])})")
+    ref = table["clips"][reference]
+    table["paired"] = {"reference": reference, "resamples": resamples, "seed": seed, "level": 0.95,
+                       "rows": {name: {m: paired_difference(per, ref, m, resamples, seed) for m in METRICS}
+                                for name, per in table["clips"].items() if name != reference}}
+    return table
+
+
+def format_paired(table: dict) -> str:
+    """The paired differences as a Markdown table: mean [95 % interval] per metric (empty without them)."""
+    paired = table.get("paired")
+    if not paired:
+        return ""
+    names = ("PSNR (dB)", "SSIM", "motion IoU", "end-effector error (px)", "object error (px)",
+             "moved-object error (px)")
+    lines = [f"\nminus {paired['reference']!r}, paired over the same clips (mean [95 % bootstrap interval]):",
+             "| condition | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for name, per in paired["rows"].items():
+        cells = []
+        for m in METRICS:
+            d = per[m]
+            digits = 3 if m in ("ssim", "motion_iou") else 2
+            cells.append(f"{d['mean']:+.{digits}f} [{d['ci'][0]:+.{digits}f}, {d['ci'][1]:+.{digits}f}]")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def format_table(table: dict) -> str:
     """The rows as a Markdown table."""
     head = ("| condition | clips | PSNR (dB) ↑ | SSIM ↑ | motion IoU ↑ | end-effector error (px) ↓ | "
@@ -231,7 +265,8 @@ def format_table(table: dict) -> str:
                      f"{moved:.2f} ({r.get('moved_object_clips', 0)} clips) |")
     if table.get("same_clips") is False:
         lines.append("\nnot comparable: the rows are means over different clips (see the clips column)")
-    return "\n".join(lines)
+    paired = format_paired(table)
+    return "\n".join(lines) + ("\n" + paired if paired else "")
 
 
 def plot_table(table: dict, path) -> Path:
