@@ -37,9 +37,21 @@ from pathlib import Path
 from .._log import get_logger
 from .errors import ModelInputError
 
-__all__ = ["COMPILE_MODES", "EAGER_CHUNK_S", "COMPILED_CHUNK_S", "COMPILE_COST_S", "PAPER_STEPS", "compile_decision",
-           "break_even_chunks", "compile_transformer", "is_compiled", "configure_compile_cache",
-           "default_compile_cache_dir", "check_compile_mode", "add_compile_options"]
+__all__ = [
+    "COMPILED_CHUNK_S",
+    "COMPILE_COST_S",
+    "COMPILE_MODES",
+    "EAGER_CHUNK_S",
+    "PAPER_STEPS",
+    "add_compile_options",
+    "break_even_chunks",
+    "check_compile_mode",
+    "compile_decision",
+    "compile_transformer",
+    "configure_compile_cache",
+    "default_compile_cache_dir",
+    "is_compiled",
+]
 
 _log = get_logger(__name__)
 
@@ -51,7 +63,7 @@ COMPILED_CHUNK_S = 11.8
 COMPILE_COST_S = 96.0 - 39.0 + (EAGER_CHUNK_S - COMPILED_CHUNK_S)
 PAPER_STEPS = 35
 
-_compiled: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()  # transformer -> _CompiledForward
+_compiled: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # transformer -> _CompiledForward
 
 
 def check_compile_mode(mode) -> str:
