@@ -2,6 +2,7 @@
 
 import argparse
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -211,3 +212,32 @@ def test_rollout_timings_cover_encode_sample_decode(clip):
     wall = time.perf_counter() - t0
     assert set(result.timings) == {"encode", "sample", "decode"}
     assert all(v > 0 for v in result.timings.values()) and sum(result.timings.values()) <= wall
+
+
+def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
+    """from_pretrained(device="cuda") asks safetensors for CUDA tensors (no host copy); the CPU path stays on the
+    CPU, and an offloaded VAE is read to the CPU. The reads themselves are redirected to the CPU (no GPU here)."""
+    import safetensors.torch
+
+    from oscar_core.model import transformer as transformer_module
+    from oscar_core.model import world_model
+
+    folder = _model().save_pretrained(tmp_path / "m")
+    original, asked = safetensors.torch.load_file, []
+
+    def load_file(path, device="cpu"):
+        asked.append((Path(path).parent.name, device))
+        return original(path, device="cpu")
+
+    monkeypatch.setattr(safetensors.torch, "load_file", load_file)
+    monkeypatch.setattr(transformer_module, "cast_model", lambda model, device=None, dtype=None: model)
+    monkeypatch.setattr(world_model, "cast_model", lambda model, device=None, dtype=None: model)
+    monkeypatch.setattr(world_model, "VideoVAE", lambda vae, device, dtype, offload: vae)
+    OscarWorldModel.from_pretrained(folder, device="cuda")
+    assert asked == [("transformer", "cuda"), ("vae", "cuda")]
+    asked.clear()
+    OscarWorldModel.from_pretrained(folder, device="cuda", offload_vae=True)
+    assert asked == [("transformer", "cuda"), ("vae", "cpu")]
+    asked.clear()
+    OscarWorldModel.from_pretrained(folder, device="cpu")
+    assert asked == [("transformer", "cpu"), ("vae", "cpu")]

@@ -172,9 +172,12 @@ class OscarWorldModel:
             from .latent_action import LatentActionTransformer
 
             transformer_cls = LatentActionTransformer
-        transformer = transformer_cls.load_strict(folder / "transformer")
+        # on a GPU the weights are read straight onto it (no host copy); the VAE too unless it is offloaded
+        gpu = torch.device(device).type == "cuda"
+        transformer = transformer_cls.load_strict(folder / "transformer", device=device if gpu else None)
         vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
-                           load_state_dict(folder / "vae"), folder / "vae")
+                           load_state_dict(folder / "vae", device=device if gpu and not offload_vae else "cpu"),
+                           folder / "vae")
         empty = None
         if (folder / EMPTY_PROMPT_FILE).is_file():
             check_safetensors(folder / EMPTY_PROMPT_FILE)
