@@ -27,10 +27,11 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-__all__ = ["ACT_BYTES_PER_TOKEN_PER_WIDTH", "CHECKPOINTING", "MemoryEstimate", "estimate_memory", "free_device_memory",
-           "choose_checkpointing", "tokens_per_clip"]
+from .config import CHECKPOINTING
 
-CHECKPOINTING = ("none", "full", "auto")
+__all__ = ["ACT_BYTES_PER_TOKEN_PER_WIDTH", "CHECKPOINTING", "FREE_FRACTION", "MemoryEstimate", "choose_checkpointing",
+           "estimate_memory", "free_device_memory", "model_estimate", "tokens_per_clip"]
+
 #: autograd-saved bytes per token per block per unit of hidden width, bf16 autocast (benchmarks/train.py: 332547 / 2048)
 ACT_BYTES_PER_TOKEN_PER_WIDTH = 332547 / 2048
 FREE_FRACTION = 0.9  # of the free memory a step may plan on (the rest: allocator fragmentation, CUDA workspaces)
