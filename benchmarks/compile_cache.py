@@ -94,10 +94,10 @@ def main(argv=None) -> int:
               f"{r['cpu_s']:>7.1f} {r['max_abs_diff_vs_eager']:>10}")
     result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(), "steps": args.steps,
               "rows": rows}
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"\nwrote {out}")
+    from oscar_core._atomic import atomic_write_bytes
+
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    print(f"\nwrote {atomic_write_bytes(args.json, (json.dumps(result, indent=2) + chr(10)).encode())}")
     return 0
 
 
