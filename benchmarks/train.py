@@ -23,7 +23,11 @@ device from ``COSMOS_2B_TRANSFORMER_CONFIG`` for its exact parameter count P.
 Training state per GPU under FSDP2 (everything sharded over N GPUs): fp32
 weights 4P + fp32 gradients 4P + AdamW moments 8P + fp32 EMA 4P = 20P/N
 bytes, plus the all-gathered fp32 weights of two blocks (the current one
-and the prefetched next). Activations per 81-frame 512x288 clip (21 latent
+and the prefetched next), plus what the older table left out: autocast's
+cached bf16 copy of every weight (2P) and the foreach AdamW step's fp32
+temporary (4P/N; none with ``fused=True``) — all from
+``oscar_core.train.memory``, the model ``activation_checkpointing: auto``
+decides with. Activations per 81-frame 512x288 clip (21 latent
 frames x 18 x 32 tokens after 2x2 patches = 12,096 tokens): the bytes
 autograd saves for backward are counted with ``saved_tensors_hooks`` on one
 real-width block (hidden 2048, 16 heads) under bf16 autocast for a few
@@ -176,22 +180,30 @@ def _saved_bytes_per_token() -> dict:
 
 
 def memory_table() -> dict:
+    """The 2B recipe's memory per GPU from ``oscar_core.train.memory`` (the model ``activation_checkpointing: auto``
+    uses), with the activation constant measured again here (a drift check of the library's constant)."""
+    from oscar_core.train.memory import ACT_BYTES_PER_TOKEN_PER_WIDTH, estimate_memory, tokens_per_clip
+
     total, block, layers = _param_counts()
     act = _saved_bytes_per_token()
-    tokens = 21 * (288 // 8 // 2) * (512 // 8 // 2)
-    no_ckpt = act["per_token_bytes"] * tokens * layers
-    # checkpointing: each block keeps its fp32 input; one block's activations live during its recomputation
-    ckpt = act["residual_bytes_per_token"] * tokens * layers + act["per_token_bytes"] * tokens
+    tokens = tokens_per_clip(81, 512, 288)
+    hidden = act["hidden"]
     rows = []
     for n in (1, 2, 4, 8):
-        state = 20 * total / n
-        gathered = 2 * 4 * block if n > 1 else 0
-        rows.append({"gpus": n, "state_gib": state / GIB, "gathered_gib": gathered / GIB,
-                     "total_ckpt_gib": (state + gathered + ckpt) / GIB,
-                     "total_no_ckpt_gib": (state + gathered + no_ckpt) / GIB})
+        est = estimate_memory(total, block, layers, hidden, tokens, shards=n)
+        fused = estimate_memory(total, block, layers, hidden, tokens, shards=n, fused_adamw=True)
+        rows.append({"gpus": n, **{f"{k}_gib": v / GIB for k, v in est.as_dict().items()},
+                     "total_ckpt_fused_adamw_gib": fused.total("full") / GIB,
+                     # the older figures, without autocast's weight copies and AdamW's temporaries
+                     "old_total_ckpt_gib": (est.state + est.gathered + est.activations_full) / GIB,
+                     "old_total_no_ckpt_gib": (est.state + est.gathered + est.activations_none) / GIB})
+    measured = act["per_token_bytes"] / hidden
     return {"params": total, "block_params": block, "layers": layers, "tokens_per_clip": tokens,
             "activation_bytes_per_token_per_block": act["per_token_bytes"],
-            "activations_no_ckpt_gib": no_ckpt / GIB, "activations_ckpt_gib": ckpt / GIB,
+            "library_bytes_per_token_per_width": ACT_BYTES_PER_TOKEN_PER_WIDTH,
+            "measured_bytes_per_token_per_width": measured,
+            "activations_no_ckpt_gib": rows[0]["activations_none_gib"],
+            "activations_ckpt_gib": rows[0]["activations_full_gib"],
             "quadratic_saved_tensor": act["quadratic_saved"], "rows": rows}
 
 
@@ -221,17 +233,28 @@ def main(argv=None) -> int:
         return _write(result, args.json)
     mem = memory_table()
     result["memory"] = mem
-    print(f"\nOSCAR-2B training memory per GPU, FSDP2, AdamW + EMA (COMPUTED, not measured: no GPU here)")
+    print("\nOSCAR-2B training memory per GPU, FSDP2, AdamW + EMA, bf16 autocast (COMPUTED, not measured: no GPU "
+          "here; oscar_core.train.memory)")
     print(f"parameters {mem['params'] / 1e9:.3f} B; {mem['tokens_per_clip']} tokens per 81-frame 512x288 clip; "
-          f"{mem['activation_bytes_per_token_per_block']:.0f} saved bytes/token/block (bf16 autocast)")
+          f"{mem['activation_bytes_per_token_per_block']:.0f} saved bytes/token/block measured now "
+          f"({mem['measured_bytes_per_token_per_width']:.1f} per unit of width; the library uses "
+          f"{mem['library_bytes_per_token_per_width']:.1f})")
+    drift = abs(mem["measured_bytes_per_token_per_width"] / mem["library_bytes_per_token_per_width"] - 1)
+    if drift > 0.05:
+        print(f"WARNING: the measured activation constant differs from oscar_core.train.memory's by {drift:.0%}")
     print(f"activations per clip: {mem['activations_no_ckpt_gib']:.1f} GiB without checkpointing, "
-          f"{mem['activations_ckpt_gib']:.1f} GiB with (fp32 weights + bf16 autocast, as this trainer runs; "
-          f"a tokens x tokens saved tensor: {'yes' if mem['quadratic_saved_tensor'] else 'none'})")
-    print(f"{'GPUs':>4} {'state GiB':>10} {'+ no ckpt':>10} {'+ ckpt':>8}  fits 80 GB (ckpt / no ckpt)")
+          f"{mem['activations_ckpt_gib']:.1f} GiB with (a tokens x tokens saved tensor: "
+          f"{'yes' if mem['quadratic_saved_tensor'] else 'none'})")
+    print(f"{'GPUs':>4} {'state':>6} {'bf16 w':>6} {'AdamW tmp':>9} {'gather':>6} {'total none':>10} "
+          f"{'total full':>10} {'full+fused':>10} {'old full':>8}  fits 80 GB (full / none)")
     for r in mem["rows"]:
         fits = lambda g: "yes" if g * GIB < 80e9 * 0.95 else "no"  # noqa: E731 - 5 % for the allocator and CUDA
-        print(f"{r['gpus']:>4} {r['state_gib']:>10.1f} {r['total_no_ckpt_gib']:>10.1f} {r['total_ckpt_gib']:>8.1f}  "
-              f"{fits(r['total_ckpt_gib'])} / {fits(r['total_no_ckpt_gib'])}")
+        print(f"{r['gpus']:>4} {r['state_gib']:>6.1f} {r['autocast_weights_gib']:>6.1f} "
+              f"{r['optimizer_temporaries_gib']:>9.1f} {r['gathered_gib']:>6.2f} {r['total_none_gib']:>10.1f} "
+              f"{r['total_full_gib']:>10.1f} {r['total_ckpt_fused_adamw_gib']:>10.1f} {r['old_total_ckpt_gib']:>8.1f}  "
+              f"{fits(r['total_full_gib'])} / {fits(r['total_none_gib'])}")
+    print("GiB per GPU; bf16 w: autocast's cached bf16 weight copies (whole model, an upper bound under FSDP); "
+          "AdamW tmp: the foreach step's fp32 temporary (0 with fused=True); old full: the table before these two")
     return _write(result, args.json)
 
 

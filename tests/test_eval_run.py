@@ -446,3 +446,24 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
     with pytest.raises(MetricInputError, match="a model spec"):
         run_evaluation(manifest, tmp_path / "obj", engine="ray", model=oscar_zoo.load(str(model_dir)),
                        sampler=SamplerConfig(steps=2), log=lambda m: None)
+
+
+def test_eval_run_compiles_once_for_all_cells_weighed_over_the_job(tmp_path, model_dir, monkeypatch):
+    """compile=always: one torch.compile for six cells; auto with a CUDA device (faked) weighs cells x chunks."""
+    import torch
+
+    from oscar_core.model import OscarWorldModel, SamplerConfig
+
+    calls = []
+    monkeypatch.setattr(torch, "compile", lambda fn, **kw: calls.append(kw) or fn)
+    manifest = make_study(tmp_path / "study")
+    model = oscar_zoo.load(str(model_dir))
+    res = run_evaluation(manifest, tmp_path / "out", model=model, sampler=SamplerConfig(steps=1), log=lambda m: None,
+                         compile="always")
+    assert res.report["counts"]["rollouts_done"] == 6 and len(calls) == 1 and model.compile_cells == 6
+    monkeypatch.setattr(OscarWorldModel, "device", property(lambda self: torch.device("cuda")))
+    fresh = oscar_zoo.load(str(model_dir))
+    run_evaluation(manifest, tmp_path / "auto", model=fresh, sampler=SamplerConfig(steps=1), log=lambda m: None)
+    assert len(calls) == 1 and "6 chunk(s) of 1 steps" in fresh.compile_reason  # far below the break-even
+    with pytest.raises(Exception, match="compile: expected one of"):
+        run_evaluation(manifest, tmp_path / "bad", model=fresh, compile="sometimes")

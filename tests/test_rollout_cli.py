@@ -132,3 +132,24 @@ def test_rollout_of_a_mesh_model_is_conditioned_on_the_mesh_video(capsys, tmp_pa
     mesh = render_mesh_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (64, 32))
     assert mesh.any()
     np.testing.assert_array_equal(side[:, :, 64:], overlay_skeleton(mesh, side[:, :, :64]))
+
+
+def test_rollout_reports_its_fixed_costs_and_compile_decision(capsys, tmp_path, model_dir, first_frame):
+    import time
+
+    t0 = time.perf_counter()
+    code, stdout, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "v.mkv", "--json", "--no-side-by-side"))
+    outer = time.perf_counter() - t0
+    assert code == 0, err
+    summary = json.loads(stdout)
+    timings = summary["timings"]
+    parts = ("startup", "import", "load", "render", "text", "encode", "sample", "decode", "write")
+    assert set(timings) == {*parts, "wall"}
+    assert all(timings[k] >= 0 for k in parts) and timings["sample"] > 0 and timings["decode"] > 0
+    assert sum(timings[k] for k in parts) <= timings["wall"] + 0.01  # each rounded to ms
+    # in this test process "startup" is the whole pytest session so far: the command itself took < outer
+    assert timings["wall"] - timings["startup"] <= outer + 0.01
+    assert summary["compile"].startswith("compile=auto: eager on cpu") and summary["dtype"] == "torch.float32"
+    code, stdout, _ = run(capsys, *_args(model_dir, first_frame, tmp_path / "w.mkv", "--json", "--no-side-by-side",
+                                         "--no-compile"))
+    assert code == 0 and json.loads(stdout)["compile"] == "compile=never"

@@ -165,6 +165,12 @@ def test_gradient_checkpointing_gives_the_same_step_and_bf16_autocast_runs(tmp_p
     train(ckpt, progress=False)
     a, b = weights(plain.run_dir), weights(ckpt.run_dir)
     assert all(torch.allclose(a[k], b[k], atol=1e-7) for k in a)
+    full = tiny(clipset, tmp_path / "full", steps=1, save_every=1, activation_checkpointing="full")
+    train(full, progress=False)
+    assert all(torch.allclose(a[k], c, atol=1e-7) for k, c in weights(full.run_dir).items())
+    starts = [json.loads((Path(c.run_dir) / "metrics.jsonl").read_text().splitlines()[0]) for c in (plain, ckpt, full)]
+    assert [s["activation_checkpointing"] for s in starts] == ["none", "full", "full"]  # auto is none on the CPU
+    assert "auto: none on cpu" in starts[0]["checkpointing_reason"] and starts[0]["compile"] is False
     bf16 = tiny(clipset, tmp_path / "bf16", steps=1, save_every=1, **{"model.dtype": "bfloat16"})
     assert np.isfinite(train(bf16, progress=False).last_loss)
 

@@ -32,6 +32,7 @@ from pathlib import Path
 from .._cli_types import count, interval, number
 from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
+from ..model.compile_policy import add_compile_options
 from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
@@ -41,6 +42,7 @@ RUN_EXAMPLES = """examples:
       --judge-base-url http://127.0.0.1:8000/v1 --judge-model Qwen/Qwen2.5-VL-7B-Instruct --pairwise
   oscar eval run manifest.json --model ./my-finetune --out eval_out/ --judge my_judges.py:cube_in_bin --pairwise
   oscar eval run manifest.json --model oscar-2b --out eval_out/ --judge none --steps 20 --device cuda --dtype bfloat16
+  oscar eval run manifest.json --model oscar-2b --out eval_out/ --device cuda --no-compile     (eager DiT)
   (re-running the same command resumes: finished rollouts and valid verdicts are reused)
 """
 
@@ -127,7 +129,8 @@ def cmd_eval_run(args) -> int:
     with run_log(args.out, "eval-run"):
         result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
                                 pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
-                                device=args.device, dtype=getattr(torch, args.dtype),
+                                device=args.device, dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
+                                compile=args.compile,
                                 plugin_paths=getattr(args, "plugin", None) or (),
                                 progress=not args.no_progress and progress_bars_enabled(),
                                 plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
@@ -185,7 +188,9 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
                    help="roll out up to N cells in one batch (same frame count and size; each video equals its "
                         "one-at-a-time rollout up to float rounding; default 1)")
     r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), default="float32", help="DiT dtype")
+    r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto",
+                   help="DiT dtype (default auto: bfloat16 on CUDA, float32 on the CPU)")
+    add_compile_options(r)
     r.add_argument("--plot-format", default="png", help="comma-separated plot formats (png, pdf, svg)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars")
     r.add_argument("--json", action="store_true", help="print the report JSON")

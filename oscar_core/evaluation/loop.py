@@ -146,7 +146,8 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
                    judge=None, pairwise_judge=None, sampler=None, chunk_frames: int | None = None,
                    device="cpu", dtype=None, plugin_paths=(), progress: bool = False,
                    plot_formats=("png",), log: Callable[[str], None] | None = None,
-                   batch_cells: int = 1, engine: str = "local", workers: int = 1) -> EvaluationResult:
+                   batch_cells: int = 1, engine: str = "local", workers: int = 1,
+                   compile: str | None = None) -> EvaluationResult:
     """Run the loop of the module docstring and write the report folder ``out``.
 
     manifest: a path or a loaded :class:`Manifest`. model: a loaded world model,
@@ -161,10 +162,17 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
     engine: ``local`` (this process) or ``ray``: ``workers`` Ray actors (one GPU each on CUDA), each loading the
     model once from ``model_spec`` and rolling out groups of cells; this process writes every video and record,
     so the run folder, the resume rule and the report are the local run's.
+    compile: ``auto``, ``always`` or ``never`` (:mod:`oscar_core.model.compile_policy`), weighed over every
+    pending cell (a worker's share on Ray); None: a given model's own ``compile_mode``, ``auto`` for a loaded one.
+    dtype None: bfloat16 on CUDA, else the checkpoint's.
     """
     for name, value in (("batch_cells", batch_cells), ("workers", workers)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise MetricInputError(name, "value", "an integer >= 1", repr(value))
+    if compile is not None:
+        from ..model.compile_policy import check_compile_mode
+
+        check_compile_mode(compile)
     if engine not in ("local", "ray"):
         raise MetricInputError("engine", "value", '"local" or "ray"', repr(engine))
     if engine == "ray" and model_spec is None:
@@ -241,12 +249,15 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
         from .rollout_engines import roll_out_on_ray
 
         roll_out_on_ray(pending, record, model_spec=model_spec, revision=revision, device=device, dtype=dtype,
-                        workers=workers, log=log, **options)
+                        workers=workers, log=log, compile=compile or "auto", **options)
     elif pending:
         from .rollout_engines import roll_out_cells
 
         at = {id(c): (k, key) for k, c, key in pending}
-        for group, videos in roll_out_cells(lazy.get(), [c for _, c, _ in pending], progress=progress, **options):
+        loaded = lazy.get()
+        if hasattr(loaded, "set_compile"):  # compile once for the whole job, weighed over its pending cells
+            loaded.set_compile(compile or getattr(loaded, "compile_mode", "auto"), cells=len(pending))
+        for group, videos in roll_out_cells(loaded, [c for _, c, _ in pending], progress=progress, **options):
             for (cell, seconds), (frames, fps) in zip(group, videos):
                 k, key = at[id(cell)]
                 record(k, cell, key, frames, fps, seconds, len(group))

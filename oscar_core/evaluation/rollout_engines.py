@@ -119,13 +119,15 @@ def roll_out_cells(model, cells: Sequence[Cell], *, size, sampler, chunk_frames,
 class _RolloutWorker:
     """A Ray actor's state: one model, loaded once; :meth:`roll` rolls a list of cells out."""
 
-    def __init__(self, model_spec: str, revision, device: str, dtype_name: str | None, plugin_paths: tuple):
+    def __init__(self, model_spec: str, revision, device: str, dtype_name: str | None, plugin_paths: tuple,
+                 compile: str = "auto", cells: int = 1):
         import torch
 
         import oscar_zoo
 
         dtype = getattr(torch, dtype_name) if dtype_name else None
         self.model = oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)
+        self.model.set_compile(compile, cells=cells)  # compiled once per worker, weighed over its share of cells
         self.plugin_paths = plugin_paths
 
     def roll(self, cells: list[Cell], options: dict) -> list[tuple[str, np.ndarray, float, float, int]]:
@@ -138,7 +140,7 @@ class _RolloutWorker:
 
 def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, model_spec: str, revision, device,
                     dtype, workers: int, size, sampler, chunk_frames, plugin_paths, batch_cells: int,
-                    log: Callable[[str], None]) -> None:
+                    log: Callable[[str], None], compile: str = "auto") -> None:
     """Roll the ``pending`` cells ((index, cell, rollout key), manifest order) out on ``workers`` Ray actors and
     call ``record(index, cell, key, frames, fps, seconds, batch)`` for each as its group comes back."""
     from .._optional import require
@@ -158,8 +160,9 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
         log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
     actor_cls = ray.remote(**resources)(_RolloutWorker)
     dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
-    actors = [actor_cls.remote(model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths))
-              for _ in range(n)]
+    share = -(-len(pending) // n)  # cells per worker, for the compile policy
+    actors = [actor_cls.remote(model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths),
+                               compile, share) for _ in range(n)]
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, batch_cells=batch_cells)
     queue = [pending[i:i + batch_cells] for i in range(0, len(pending), batch_cells)]

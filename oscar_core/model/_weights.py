@@ -120,15 +120,16 @@ def read_config(folder, allowed_classes: tuple[str, ...]) -> dict:
     return config
 
 
-def load_state_dict(folder, check: bool = True) -> dict[str, torch.Tensor]:
-    """All tensors of ``folder``'s safetensors weights, on the CPU."""
+def load_state_dict(folder, check: bool = True, device="cpu") -> dict[str, torch.Tensor]:
+    """All tensors of ``folder``'s safetensors weights, read straight onto ``device`` (default the CPU; a GPU
+    skips the host copy)."""
     from safetensors.torch import load_file
 
     state = {}
     for path in weight_files(folder):
         if check:
             check_safetensors(path)
-        state.update(load_file(str(path), device="cpu"))
+        state.update(load_file(str(path), device=str(device)))
     return state
 
 

@@ -25,6 +25,7 @@ ROLLOUT_EXAMPLES = """examples:
   oscar rollout ... --out video.mp4 --side-by-side compare.mp4 --device cuda --dtype bfloat16 --vae-tiling
   oscar rollout ... --prompt-embeds embeds.safetensors --steps 20 --seed 3 --json
   oscar rollout ... --solver euler --guidance 1      (first-order sampler, conditional branch only)
+  oscar rollout ... --compile always     (compile the DiT even for a short rollout; --no-compile: never)
 
 The rollout is written to --out; a side-by-side video (rollout | skeleton over
 the rollout) to --side-by-side (default: OUT_side.mp4). A latent-action model
@@ -107,7 +108,9 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
-    r.add_argument("--compile", action="store_true", help="torch.compile the DiT (GPU; first chunk pays the compile)")
+    from .compile_policy import add_compile_options
+
+    add_compile_options(r)
     r.add_argument("--vae-tiling", action="store_true", help="tile VAE encode/decode (GPU memory)")
     r.add_argument("--vae-slicing", action="store_true", help="VAE one batch element at a time")
     r.add_argument("--offload-vae", action="store_true", help="keep the VAE on the CPU between uses")
@@ -344,6 +347,10 @@ def _rollout_size(args, card, camera) -> tuple[int, int]:
 
 
 def cmd_rollout(args) -> int:
+    import time
+
+    t_start = time.perf_counter()
+    startup = _seconds_since_process_start()
     import numpy as np
     import torch
 
@@ -356,6 +363,8 @@ def cmd_rollout(args) -> int:
     from ._image import read_first_frame
     from .sampler import sampler_from_options
 
+    timings = {"startup": startup} if startup is not None else {}
+    timings["import"] = time.perf_counter() - t_start
     emb = get_embodiment(args.embodiment, getattr(args, "plugin", None) or ())
     traj = load_trajectory(args.trajectory)
     camera = emb.load_camera(args.camera)
@@ -381,24 +390,29 @@ def cmd_rollout(args) -> int:
     device = args.device or _default_device()
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
+    t0 = time.perf_counter()
     model = oscar_zoo.load(args.model, args.revision, device=device, dtype=dtype,
                            offload_vae=args.offload_vae, offload_text=args.offload_text,
                            local_files_only=True if args.offline else None, native_file=args.native_file,
                            report=report)
+    timings["load"] = time.perf_counter() - t0
     for line in report:
         print(line, file=sys.stderr)
-    if args.compile:
-        model.transformer.forward = torch.compile(model.transformer.forward)
+    model.set_compile(args.compile)
     if args.vae_tiling:
         model.enable_vae_tiling()
     if args.vae_slicing:
         model.enable_vae_slicing()
     width, height = _rollout_size(args, model.card, camera)
     # the card's condition video (the skeleton, or the mesh / capsules for a model trained on those)
+    t0 = time.perf_counter()
     skeleton = condition_video(video_condition_of(model.card.condition), emb, traj, camera,
                                (width, height), resize_mode=args.resize, camera_source=args.camera)
     first = fit_image(first, width, height, args.resize)
+    timings["render"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     prompt, text_source = _prompt_embeds(args, model, device)
+    timings["text"] = time.perf_counter() - t0
     print(f"text: {text_source}", file=sys.stderr)
     if prompt is None and model.empty_prompt is None:
         prompt = torch.zeros(1, 1, model.transformer.text_dim)
@@ -410,16 +424,25 @@ def cmd_rollout(args) -> int:
     fps = args.fps or traj.fps
     result = RolloutResult(frames=np.empty(0, np.uint8))
     latent_action = model.card.condition == "latent_action"
+    t0 = time.perf_counter()
     actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
+    timings["render"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
     chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=args.chunk_frames,
                                 sampler=sampler, seed=args.seed, progress=not args.no_progress, result=result,
                                 actions=actions)
     out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
+    streamed = time.perf_counter() - t0
+    timings.update({k: result.timings.get(k, 0.0) for k in ("encode", "sample", "decode")})
+    timings["write"] = max(streamed - sum(result.timings.values()), 0.0)  # what streaming added beyond the model
+    timings["wall"] = time.perf_counter() - t_start + (startup or 0.0)
     summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
                "chunks": len(result.starts), "model": args.model, "seed": args.seed, "text": text_source,
                "sampler": model.sampler_for(sampler).resolved_solver, "steps": args.steps,
                "unconditional_skeleton": model.card.unconditional_skeleton,
-               "guidance": {"w": args.guidance, "form": args.guidance_form}, "condition": model.card.condition}
+               "guidance": {"w": args.guidance, "form": args.guidance_form}, "condition": model.card.condition,
+               "compile": model.compile_reason, "dtype": str(next(model.transformer.parameters()).dtype),
+               "timings": {k: round(v, 3) for k, v in timings.items()}}
     if latent_action:
         summary["guidance"] = {"action_w": sampler.action_guidance, "form": args.guidance_form}
     if side_out is not None:
@@ -430,7 +453,24 @@ def cmd_rollout(args) -> int:
         extra = f" and {summary['side_by_side']}" if "side_by_side" in summary else ""
         print(f"wrote {out}{extra}: {summary['frames']} frames, {width}x{height}, {fps:g} fps, "
               f"{summary['chunks']} chunk(s)")
+        print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()) + f" ({model.compile_reason})",
+              file=sys.stderr)
     return 0
+
+
+def _seconds_since_process_start() -> float | None:
+    """Seconds since this process started (Linux ``/proc``; None elsewhere): the interpreter's start, the
+    ``oscar`` command's own imports and argument parsing, before a sub-command runs. 10 ms resolution."""
+    import os
+
+    try:
+        with open("/proc/self/stat") as fh:
+            start_ticks = int(fh.read().rsplit(")", 1)[1].split()[19])  # field 22: starttime, in clock ticks
+        with open("/proc/uptime") as fh:
+            uptime = float(fh.read().split()[0])
+        return max(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 0.0)
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _write_streams(chunks, skeleton, out, side_path, fps):

@@ -31,7 +31,9 @@ gets rows [start, start + L − 1), the (L − 1, 14) window its trainer saw.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,12 +57,40 @@ class RolloutResult:
     chunks: per chunk, its decoded video (1, 3, L, H, W) float32 in [-1, 1].
     seeds: per chunk, the seed frame it was conditioned on (1, 3, 1, H, W).
     starts: per chunk, the index of its first frame in the trajectory.
+    timings: wall seconds spent in ``encode`` (VAE encodes of seeds and condition videos), ``sample`` (the
+        denoising loops) and ``decode`` (VAE decodes and the uint8 conversion), summed over chunks; on CUDA each
+        is closed by a device synchronisation, so the figures are the GPU's work, not its queueing.
     """
 
     frames: np.ndarray
     chunks: list[torch.Tensor] = field(default_factory=list)
     seeds: list[torch.Tensor] = field(default_factory=list)
     starts: list[int] = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+
+
+class _Clock:
+    """Adds the wall seconds of each ``with clock(name):`` block to ``timings[name]`` (a no-op without timings)."""
+
+    def __init__(self, timings: dict | None, device):
+        self.timings = timings
+        self.cuda = timings is not None and torch.device(device).type == "cuda"
+        if timings is not None:
+            for name in ("encode", "sample", "decode"):
+                timings.setdefault(name, 0.0)
+
+    @contextlib.contextmanager
+    def __call__(self, name: str):
+        if self.timings is None:
+            yield
+            return
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            if self.cuda:
+                torch.cuda.synchronize()
+            self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
 
 
 def chunk_plan(num_frames: int, chunk_frames: int, temporal: int = 4) -> list[int]:
@@ -175,47 +205,57 @@ def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embed
     results = [result] if result is not None else None
     for frames in _chunks(transformer, vae, [first], None if skel is None else [skel],
                           None if skel is not None else acts, prompt_embeds, starts, total, chunk_frames, sampler,
-                          [generator], progress, uncond, results, keep_chunks):
+                          [generator], progress, uncond, results, keep_chunks,
+                          timings=result.timings if result is not None else None):
         yield frames[0]
 
 
 def _chunks(transformer, vae: VideoVAE, firsts: list, skels: list | None, acts, prompt_embeds, starts, total: int,
             chunk_frames: int, sampler: SamplerConfig, generators: list, progress: bool, uncond: _UncondSkeletons,
-            results: list | None, keep_chunks: bool):
+            results: list | None, keep_chunks: bool, timings: dict | None = None):
     """The chunk loop of B rollouts sharing one chunk plan: yields, per chunk, B arrays (N_c, H, W, 3) uint8.
 
     firsts: B (H, W, 3) seed frames; skels: B padded (≥ starts[-1] + L, H, W, 3) condition videos, or None with
     ``acts`` (N, F) for one latent-action rollout; generators: one CPU generator per rollout (its noise);
-    results: None or B RolloutResult receiving chunks and seeds with ``keep_chunks``.
+    results: None or B RolloutResult receiving chunks and seeds with ``keep_chunks``; timings: None or a dict
+    receiving the encode / sample / decode seconds (:class:`RolloutResult`).
     """
     b = len(firsts)
+    clock = _Clock(timings, next(transformer.parameters()).device if timings is not None else "cpu")
     seed_pixels = torch.cat([VideoVAE.to_pixels(f[None]) for f in firsts])  # (B, 3, 1, H, W)
     height, width = firsts[0].shape[:2]
     emitted = 0
     outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
     try:
         for index, start in enumerate(starts):
-            first_latent = vae.encode(seed_pixels)
+            with clock("encode"):
+                first_latent = vae.encode(seed_pixels)
             with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
                       disable=not progress) as bar:
                 if skels is None:
-                    latent = sample_chunk(transformer, first_latent, None, prompt_embeds, sampler,
-                                          generator=generators[0], progress=bar,
-                                          actions=acts[None, start:start + chunk_frames - 1],
-                                          latent_frames=(chunk_frames - 1) // vae.temporal + 1)
+                    with clock("sample"):
+                        latent = sample_chunk(transformer, first_latent, None, prompt_embeds, sampler,
+                                              generator=generators[0], progress=bar,
+                                              actions=acts[None, start:start + chunk_frames - 1],
+                                              latent_frames=(chunk_frames - 1) // vae.temporal + 1)
                 else:
                     window = np.stack([s[start:start + chunk_frames] for s in skels])  # (B, L, H, W, 3)
-                    skeleton_latent = vae.encode(VideoVAE.to_pixels(window))
-                    latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
-                                          progress=bar, uncond_skeleton=uncond.get(chunk_frames, height, width),
-                                          **({"generator": generators[0]} if b == 1 else {"generators": generators}))
-            video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (B, 3, L, H, W)
+                    with clock("encode"):
+                        skeleton_latent = vae.encode(VideoVAE.to_pixels(window))
+                        uncond_latent = uncond.get(chunk_frames, height, width)
+                    with clock("sample"):
+                        latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
+                                              progress=bar, uncond_skeleton=uncond_latent,
+                                              **({"generator": generators[0]} if b == 1 else {"generators": generators}))
+            with clock("decode"):
+                video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (B, 3, L, H, W)
             if keep_chunks and results is not None:
                 for i, res in enumerate(results):
                     res.chunks.append(video[i:i + 1])
                     res.seeds.append(seed_pixels[i:i + 1])
             new = video if index == 0 else video[:, :, 1:]
-            frames = VideoVAE.to_uint8(new)[:, : total - emitted]
+            with clock("decode"):
+                frames = VideoVAE.to_uint8(new)[:, : total - emitted]
             emitted += frames.shape[1]
             seed_pixels = video[:, :, -1:].clone()  # clamped: the re-encoded seed is a valid image
             del video, latent

@@ -103,7 +103,7 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
     def load_strict(cls, folder, device=None, dtype: torch.dtype | None = None) -> "OscarTransformer3DModel":
         """Load an OSCAR transformer folder (config.json + safetensors); every key must match, PE_s included."""
         config = read_config(folder, (cls.__name__,))
-        model = build_strict(cls, config, load_state_dict(folder), folder)
+        model = build_strict(cls, config, load_state_dict(folder, device=device or "cpu"), folder)
         return cast_model(model, device, dtype)
 
     @classmethod

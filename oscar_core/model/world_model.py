@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from .._log import get_logger
 from ..conditions import CONDITIONS as VIDEO_CONDITIONS
 from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
@@ -39,6 +40,7 @@ from .vae import VideoVAE, check_frame_count
 __all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
 
 FORMAT = "oscar-world-model"
+_log = get_logger(__name__)
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 # video conditions (skeleton, mesh, capsules: oscar_core.conditions) travel in the skeleton stream
 CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
@@ -108,6 +110,10 @@ class OscarWorldModel:
 
     transformer: OscarTransformer3DModel (already on its device/dtype);
     vae: VideoVAE; card: ModelCard; empty_prompt: (1, L, D) or None.
+    compile_mode: ``auto`` (default), ``always`` or ``never``: whether rollouts compile the DiT
+    (:mod:`oscar_core.model.compile_policy`; ``auto`` compiles on CUDA for jobs long enough to pay for it);
+    compile_cells: how many rollouts of this size the job will run (``oscar eval run`` sets it), so that
+    ``auto`` weighs the whole job, not one rollout. :meth:`set_compile` sets both.
     """
 
     transformer: OscarTransformer3DModel
@@ -115,6 +121,9 @@ class OscarWorldModel:
     card: ModelCard = field(default_factory=ModelCard)
     empty_prompt: torch.Tensor | None = None
     scheduler_config: dict | None = None
+    compile_mode: str = "auto"
+    compile_cells: int = 1
+    compile_reason: str | None = None  # the last rollout's compile decision, in words
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -123,12 +132,15 @@ class OscarWorldModel:
                      offload_vae: bool = False, offload_text: bool = False) -> "OscarWorldModel":
         """Assemble from an OscarTransformer3DModel and an AutoencoderKLWan (moved to device/dtype).
 
+        dtype None: bfloat16 on CUDA (the fast default), else the modules' own dtype.
         Memory options (GPU): ``dtype=torch.bfloat16``; ``offload_vae`` keeps the
         VAE on the CPU between encode/decode calls; ``offload_text`` keeps the
         DiT's text projection (100352 → 1024, ~103 M parameters in the 2B) on
         the CPU — samplers project the prompt once per chunk there, so calls
         to the transformer must then pass ``text_projected=True``.
         """
+        if dtype is None and torch.device(device).type == "cuda":
+            dtype = torch.bfloat16
         cast_model(transformer, device, dtype)
         if offload_text and transformer.config.use_crossattn_projection:
             transformer.crossattn_proj.to("cpu")
@@ -162,9 +174,12 @@ class OscarWorldModel:
             from .latent_action import LatentActionTransformer
 
             transformer_cls = LatentActionTransformer
-        transformer = transformer_cls.load_strict(folder / "transformer")
+        # on a GPU the weights are read straight onto it (no host copy); the VAE too unless it is offloaded
+        gpu = torch.device(device).type == "cuda"
+        transformer = transformer_cls.load_strict(folder / "transformer", device=device if gpu else None)
         vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
-                           load_state_dict(folder / "vae"), folder / "vae")
+                           load_state_dict(folder / "vae", device=device if gpu and not offload_vae else "cpu"),
+                           folder / "vae")
         empty = None
         if (folder / EMPTY_PROMPT_FILE).is_file():
             check_safetensors(folder / EMPTY_PROMPT_FILE)
@@ -275,6 +290,37 @@ class OscarWorldModel:
         cfg = self.scheduler_config or {}
         return dict(cfg) if cfg.get("_class_name") == "UniPCMultistepScheduler" else None
 
+    def set_compile(self, mode: str = "auto", *, cells: int = 1) -> "OscarWorldModel":
+        """Set :attr:`compile_mode` and :attr:`compile_cells` (rollouts of this size the job runs); returns self."""
+        from .compile_policy import check_compile_mode
+
+        check_compile_mode(mode)
+        if isinstance(cells, bool) or not isinstance(cells, int) or cells < 1:
+            raise ModelInputError(f"compile cells: expected an integer >= 1, found {cells!r}")
+        self.compile_mode, self.compile_cells = mode, cells
+        return self
+
+    def _prepare_compile(self, frames: int, chunk: int, sampler: SamplerConfig) -> None:
+        """Compile the DiT before a rollout of ``frames`` frames when the compile policy says so (once per process)."""
+        from .compile_policy import compile_decision, compile_transformer, is_compiled
+        from .rollout import chunk_plan
+
+        if self.compile_mode == "never":
+            self.compile_reason = "compile=never"
+            return
+        if is_compiled(self.transformer):
+            self.compile_reason = "compiled earlier in this process (reused)"
+            return
+        try:
+            chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal))
+        except (ModelInputError, TypeError, ValueError):
+            return  # the rollout itself reports the bad input
+        ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps)
+        self.compile_reason = why
+        _log.info("%s", why)
+        if ok and not compile_transformer(self.transformer):
+            self.compile_reason = f"{why}; compiling failed, eager"
+
     def enable_vae_tiling(self, **kwargs) -> None:
         self.vae.enable_tiling(**kwargs)
 
@@ -294,6 +340,7 @@ class OscarWorldModel:
 
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
+        self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
         if self.card.width and self.card.height:
             h, w = first_frame.shape[:2]
             if (w, h) != (self.card.width, self.card.height):
@@ -326,6 +373,9 @@ class OscarWorldModel:
             prompt = torch.cat(embeds)
         else:
             prompt = self.prompt_embeds(prompt_embeds)
+        chunk = int(chunk_frames or self.card.chunk_frames)
+        if len(skeletons):
+            self._prepare_compile(len(skeletons[0]), chunk, sampler)
         return rollout_batch(self.transformer, self.vae, first_frames, skeletons, prompt,
                              chunk_frames=int(chunk_frames or self.card.chunk_frames), sampler=self.sampler_for(sampler),
                              seeds=seeds, progress=progress, uncond_skeleton=self.card.unconditional_skeleton)
@@ -338,6 +388,7 @@ class OscarWorldModel:
 
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
+        self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
         return iter_rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
                             chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
                             uncond_skeleton=self.card.unconditional_skeleton, result=result, actions=actions,

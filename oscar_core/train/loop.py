@@ -27,7 +27,7 @@ from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError, load_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
-from .models import build_transformer, build_vae
+from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
 
@@ -178,6 +178,9 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     planner: StepPlanner = data.planner()
     if config.parent_run and ckpt is None:
         load_weights(latest_checkpoint(config.parent_run), model, key="model")
+    shards = info.world if config.parallel == "fsdp" else 1
+    checkpointing, why = prepare_for_training(model, config, info.device, shards)
+    _log.info("%s%s", why, "; model.compile: every DiT block compiled" if config.model.compile else "")
     model.to(info.device)
     wrapped = wrap_model(model, config.parallel, info)
     o = config.optim
@@ -213,7 +216,9 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     log = open(metrics_path, "a") if info.main else None
     if log and start == 0:
         log.write(json.dumps({"step": 0, "event": "start", "world_size": info.world, "accumulation": accum,
-                              "parallel": config.parallel, **data.summary(), "skipped": data.skipped,
+                              "parallel": config.parallel, "activation_checkpointing": checkpointing,
+                              "checkpointing_reason": why, "compile": config.model.compile,
+                              **data.summary(), "skipped": data.skipped,
                               "mixing_weights": planner.weights}) + "\n")
         log.flush()
     bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step",

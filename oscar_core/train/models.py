@@ -9,7 +9,7 @@ import torch
 
 from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError
 
-__all__ = ["build_transformer", "build_vae", "transformer_config"]
+__all__ = ["build_transformer", "build_vae", "transformer_config", "prepare_for_training"]
 
 
 def transformer_config(spec, source: str = "<config>") -> dict:
@@ -83,9 +83,24 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
         # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
         model.skeleton_embed.requires_grad_(False)
     model.train()
-    if m.gradient_checkpointing:
-        model.enable_gradient_checkpointing()
     return model
+
+
+def prepare_for_training(model, config: TrainConfig, device, shards: int = 1) -> tuple[str, str]:
+    """Apply the config's activation checkpointing (:func:`.memory.choose_checkpointing`) and ``model.compile``
+    (``torch.compile`` of every transformer block, in place: parameter names and checkpoints stay the same) to a
+    built transformer, before it moves to ``device``; returns (checkpointing chosen, why)."""
+    from .memory import choose_checkpointing
+
+    policy, why = choose_checkpointing(config, model, device, shards)
+    if policy == "full":
+        model.enable_gradient_checkpointing()
+    elif model.gradient_checkpointing:
+        model.disable_gradient_checkpointing()
+    if config.model.compile:
+        for block in model.transformer_blocks:
+            block.compile(dynamic=False)
+    return policy, why
 
 
 def _base_weights(init: str, source: str) -> dict:
