@@ -43,8 +43,19 @@ import numpy as np
 
 from .locate import OBJECT_TARGET, ColorTarget, color_mask
 
-__all__ = ["ball_moved", "ball_reading", "ball_displacement", "agreement_with_real", "BALL", "VERSION",
-           "LEFT_FRACTION", "MAX_AREA_RATIO", "MIN_AREA_RATIO", "MIN_FILL", "START_DISK_RADII"]
+__all__ = [
+    "BALL",
+    "LEFT_FRACTION",
+    "MAX_AREA_RATIO",
+    "MIN_AREA_RATIO",
+    "MIN_FILL",
+    "START_DISK_RADII",
+    "VERSION",
+    "agreement_with_real",
+    "ball_displacement",
+    "ball_moved",
+    "ball_reading",
+]
 
 VERSION = "2"
 #: The ball's colour target for generated frames: at least 3 pixels (a stray yellowish pixel is not a ball).
@@ -86,7 +97,7 @@ def _blobs(mask: np.ndarray, min_pixels: float) -> list[dict]:
         if len(xs) < min_pixels:
             continue
         c = np.array([xs.mean(), ys.mean()])
-        out.append({"n": int(len(xs)), "c": c, "reach": float(np.hypot(xs - c[0], ys - c[1]).max())})
+        out.append({"n": len(xs), "c": c, "reach": float(np.hypot(xs - c[0], ys - c[1]).max())})
     return sorted(out, key=lambda b: -b["n"])
 
 
@@ -127,9 +138,14 @@ def ball_reading(video: np.ndarray, info: dict) -> dict:
     else:
         return {"start_px": None, "reason": "ball not found in frame 0 and no info.ball_start_px"}
     ys, xs = np.mgrid[0:h, 0:w]
-    r_px = float(info["ball_radius_px"]) if "ball_radius_px" in info else float(np.sqrt(b0["n"] / np.pi))
+    if "ball_radius_px" in info:
+        r_px = float(info["ball_radius_px"])
+    elif first:
+        r_px = float(np.sqrt(b0["n"] / np.pi))
+    else:
+        return {"start_px": None, "reason": "ball not found in frame 0 and no info.ball_radius_px"}
     disk = np.hypot(xs - start[0], ys - start[1]) <= START_DISK_RADII * r_px
-    n0 = int((mask[0] & disk).sum()) if first else int(round(np.pi * r_px ** 2))
+    n0 = int((mask[0] & disk).sum()) if first else round(np.pi * r_px ** 2)
     n_ball = b0["n"] if first else np.pi * r_px ** 2
     a0 = _floor_area_per_px(H, start)
     s_floor = _to_floor(H, start)
