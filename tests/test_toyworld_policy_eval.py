@@ -128,6 +128,15 @@ def test_ball_moved_is_not_fooled_by_generation_artefacts():
     flicker = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
     flicker[6] = 90
     assert ball_moved(flicker, clip)["binary"] == 1  # one blank frame of three decides nothing
+    # the ball hidden (under the gripper) in the tail but for the last frame: a real render's case
+    hidden = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    hidden[6:8] = 90
+    assert ball_moved(hidden, clip)["binary"] == 1
+    # ... but a ball that is not in the last frame was not put down anywhere
+    unseen = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    unseen[8] = 90
+    v = ball_moved(unseen, clip)
+    assert v["binary"] == 0 and "no compact ball in the last frame" in v["reason"], v
     # a ball carried far but blurred to a blob 4x its area is not read as a ball
     big = _disc_video([(10, 10)] * 5 + [(20, 10)] * 4)
     big[5:] = np.maximum(big[5:], _disc_video([(20, 10)] * 4, r=5.0))
@@ -136,7 +145,7 @@ def test_ball_moved_is_not_fooled_by_generation_artefacts():
 
 def test_ball_reading_internals():
     r = ball_reading(_disc_video([(10, 10)] * 5 + [(18, 10)] * 4), _judge_clip().info)
-    assert r["start_px"] == [10.0, 10.0] and r["tail"] == [6, 7, 8] and r["left"] and r["found"] == 3
+    assert r["start_px"] == [10.0, 10.0] and r["tail"] == [6, 7, 8] and r["left"] and r["found"] == 3 and r["last_found"]
     assert r["distance"] == pytest.approx(4.0) and r["at_start"] == [0, 0, 0]
     assert all(b["compact"] and b["n"] == r["n0"] for b in r["blob"])
 
@@ -145,7 +154,7 @@ def test_function_judge_version_keys_stored_verdicts():
     from oscar_core.evaluation.cli import load_judge
     from oscar_core.toyworld import judge
 
-    assert load_judge("oscar_core.toyworld.judge:ball_moved").describe()["version"] == judge.VERSION == "2"
+    assert load_judge("oscar_core.toyworld.judge:ball_moved").describe()["version"] == judge.VERSION == "3"
 
 
 def test_manifest_real_outcomes_and_judge_agreement(tmp_path):

@@ -22,9 +22,12 @@ one smeared or blank generated frame decides nothing:
    the area the ball would have there (``n0`` scaled by the homography's local
    area ratio between the start and the blob) and filling at least
    :data:`MIN_FILL` of the disc its farthest pixel spans (a yellow smear or a
-   streak along the arm is not a ball); in at least half of the tail frames;
-3. **far enough** — the median floor distance of that blob from the start is
-   at least ``info.success_radii`` (3).
+   streak along the arm is not a ball) — in the last frame (``oscar toyworld
+   policy-eval`` re-draws a session until every episode's last frame shows at
+   least half the ball; earlier tail frames may hide it under the gripper);
+3. **far enough** — the median floor distance of that blob from the start,
+   over the tail frames that show a compact ball, is at least
+   ``info.success_radii`` (3).
 
 ``partial`` = the median distance of the compact blob as a percentage of
 ``success_radii`` (capped at 100; 0 where no compact blob is found). The
@@ -34,7 +37,9 @@ per-frame internals (the diagnosis in docs/evaluation.md reads them).
 
 Version 1 (before 2026-11-25) took the centroid of all yellow pixels in the
 last frame showing any: generated smears moved that centroid 3–11 radii where
-the ball stayed.
+the ball stayed. Version 2 (same day) needed the compact ball in half the tail
+frames, which failed one real render in 120 (the ball under the gripper in 3
+of the last 4 frames).
 """
 
 from __future__ import annotations
@@ -57,7 +62,7 @@ __all__ = [
     "ball_reading",
 ]
 
-VERSION = "2"
+VERSION = "3"
 #: The ball's colour target for generated frames: at least 3 pixels (a stray yellowish pixel is not a ball).
 BALL = ColorTarget("object", OBJECT_TARGET.hue, OBJECT_TARGET.hue_tol, OBJECT_TARGET.min_sat, OBJECT_TARGET.min_val,
                    min_pixels=3.0)
@@ -119,7 +124,7 @@ def ball_reading(video: np.ndarray, info: dict) -> dict:
     video: (T, H, W, 3) uint8 RGB; info: the manifest cell's ``info``. Returns ``start_px`` (2,) or None,
     ``start_src``, ``n0`` (frame 0's pixels in the start disk), ``r_px``, ``tail`` (frame indices),
     ``at_start`` (per tail frame), ``blob`` (per tail frame: None or ``{"px", "n", "expected_n", "fill",
-    "compact", "radii"}``), ``left`` (bool), ``found`` (tail frames with a compact blob), ``distance`` (median
+    "compact", "radii"}``), ``left`` (bool), ``found`` (tail frames with a compact blob), ``last_found`` (the last frame has one), ``distance`` (median
     radii over those frames, or None) and ``reason`` (why no start, where applicable).
     """
     H = _check_info(info)
@@ -169,19 +174,20 @@ def ball_reading(video: np.ndarray, info: dict) -> dict:
     left = bool(np.median(at_start) <= LEFT_FRACTION * n0)
     return {"start_px": [round(float(v), 2) for v in start], "start_src": src, "n0": n0, "r_px": round(r_px, 3),
             "tail": tail, "at_start": at_start, "blob": blobs, "left": left, "found": len(dists),
+            "last_found": bool(blobs[-1] is not None and blobs[-1]["compact"]),
             "distance": float(np.median(dists)) if dists else None}
 
 
 def ball_displacement(video: np.ndarray, info: dict) -> tuple[float | None, str]:
     """The median distance (ball radii on the floor) of the compact ball blob in the tail from the start, or None
-    when none is found in half the tail frames; and a reason. (Ignores whether the ball also stayed at its start:
+    when the last frame shows none; and a reason. (Ignores whether the ball also stayed at its start:
     :func:`ball_moved` checks that.)"""
     r = ball_reading(video, info)
     if r["start_px"] is None:
         return None, r["reason"]
     k = len(r["tail"])
-    if r["found"] * 2 < k:
-        return None, f"no compact ball blob in {k - r['found']} of the last {k} frames"
+    if not r["last_found"]:
+        return None, "no compact ball blob in the last frame"
     return r["distance"], (f"compact ball blob in {r['found']} of the last {k} frames, median {r['distance']:.2f} "
                            f"ball radii from its start ({r['start_px'][0]:.1f}, {r['start_px'][1]:.1f}) px "
                            f"({r['start_src']})")
@@ -200,12 +206,11 @@ def ball_moved(video: np.ndarray, clip) -> dict:
     k = len(r["tail"])
     stay = (f"{int(np.median(r['at_start']))} yellow pixels (median of the last {k} frames) left in the start "
             f"disk against {r['n0']} in frame 0")
-    if r["found"] * 2 < k:
-        seen = [b for b in r["blob"] if b is not None]
-        why = (f"largest yellow blob not ball-like (e.g. {seen[-1]['n']} px where a ball has "
-               f"{seen[-1]['expected_n']:.0f}, fill {seen[-1]['fill']:.2f})" if seen else "no yellow blob")
-        return {"binary": 0, "partial": 0,
-                "reason": f"no compact ball in {k - r['found']} of the last {k} frames: {why}; {stay}"}
+    if not r["last_found"]:
+        b = r["blob"][-1]
+        why = (f"its largest yellow blob is not ball-like ({b['n']} px where a ball has {b['expected_n']:.0f}, "
+               f"fill {b['fill']:.2f})" if b is not None else "no yellow blob")
+        return {"binary": 0, "partial": 0, "reason": f"no compact ball in the last frame: {why}; {stay}"}
     d = r["distance"]
     partial = int(min(100, round(100 * d / need)))
     where = f"compact ball blob {d:.2f} ball radii (median) from its start; {stay}; success needs {need:g}"
