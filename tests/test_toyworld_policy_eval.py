@@ -226,3 +226,12 @@ def test_eval_run_end_to_end_on_the_toy_manifest(tmp_path, capsys):
     assert all(c["status"] == "ok" for c in report["cells"]), report["cells"]
     assert (out / "summary.md").is_file() and len(list((out / "rollouts").rglob("*.mkv"))) == 8
     assert len(report["pairs"]) == 2 * 6  # 6 pairs of 4 policies per session
+    # the per-cell judge internals of the same rollouts, through the CLI
+    capsys.readouterr()
+    assert oscar_main(["toyworld", "carry", str(tmp_path / "pe" / "manifest.json"), str(out),
+                       "--json", str(tmp_path / "carry.json")]) == 0
+    table = capsys.readouterr().out
+    assert table.count("\n") == 2 + 4 and "| random | 2 |" in table, table
+    carried = json.loads((tmp_path / "carry.json").read_text())
+    assert len(carried["rows"]) == 8 and set(carried["summary"]) == set(real)
+    assert [r["wm_success"] for r in carried["rows"]] == [c["wm_success"] for c in report["cells"]]
