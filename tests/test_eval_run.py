@@ -446,3 +446,14 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
     with pytest.raises(MetricInputError, match="a model spec"):
         run_evaluation(manifest, tmp_path / "obj", engine="ray", model=oscar_zoo.load(str(model_dir)),
                        sampler=SamplerConfig(steps=2), log=lambda m: None)
+
+
+def test_function_judge_version_comes_from_its_attribute(tmp_path):
+    """``--judge file.py:fn`` keys stored verdicts on ``fn.version`` (default "1"), so a changed judge re-judges."""
+    from oscar_core.evaluation.cli import load_judge
+
+    src = tmp_path / "judges.py"
+    src.write_text("def plain(video, clip):\n    return 1, 100, 'ok'\n\n"
+                   "def versioned(video, clip):\n    return 1, 100, 'ok'\n\nversioned.version = 7\n")
+    assert load_judge(f"{src}:plain").describe()["version"] == "1"
+    assert load_judge(f"{src}:versioned").describe()["version"] == "7"
