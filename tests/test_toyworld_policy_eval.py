@@ -187,7 +187,7 @@ def test_manifest_real_outcomes_and_judge_agreement(tmp_path):
     # the grabbed ball ends at the place; the missed one stays at its start, at least PLACE_MIN_RADII from it
     assert s["expert"]["blob_to_place"] < 0.5 and s["never"]["blob_to_place"] >= PLACE_MIN_RADII, s
     (tmp_path / "ev" / "rollouts" / m.cells[0].session / "never.mkv").unlink()
-    with pytest.raises(FileNotFoundError, match="never.*oscar eval run"):
+    with pytest.raises(FileNotFoundError, match="oscar eval run, found 1 of 4 missing .first: toyarm-0000/never"):
         carry_rows(tmp_path / "pe" / "manifest.json", tmp_path / "ev")
 
 

@@ -46,6 +46,10 @@ def carry_rows(manifest, eval_out) -> list[dict]:
         raise FileNotFoundError(f"{pe}: expected the policy_eval.json of oscar toyworld policy-eval beside the "
                                 f"manifest (it says whether the real gripper grabbed the ball), found no such file")
     grabbed = {(r["session"], r["policy"]): bool(r["grabbed"]) for r in json.loads(pe.read_text())["rows"]}
+    missing = [c.id for c in m.cells if not video_path(Path(eval_out), c).is_file()]
+    if missing:  # before any video is read
+        raise FileNotFoundError(f"{eval_out}: expected the rollout of every cell written by oscar eval run, found "
+                                f"{len(missing)} of {len(m.cells)} missing (first: {missing[0]})")
     place, ee_end = {}, {}
     for c in m.cells:  # the session's real place position and the end-effector's end pose, pixels
         real = read_video(c.real_video)
@@ -54,10 +58,7 @@ def carry_rows(manifest, eval_out) -> list[dict]:
         ee_end.setdefault(c.session, locate(real[-1:], EE_TARGET)[0][0])
     rows = []
     for c in m.cells:
-        g = video_path(Path(eval_out), c)
-        if not g.is_file():
-            raise FileNotFoundError(f"{g}: expected the rollout of cell {c.id} written by oscar eval run, found none")
-        video = read_video(g)
+        video = read_video(video_path(Path(eval_out), c))
         H = np.asarray(c.info["px_to_floor_radii"], dtype=np.float64)
         r = ball_reading(video, c.info)
         v = ball_moved(video, SimpleNamespace(info=c.info))
