@@ -467,3 +467,14 @@ def test_eval_run_compiles_once_for_all_cells_weighed_over_the_job(tmp_path, mod
     assert len(calls) == 1 and "6 chunk(s) of 1 steps" in fresh.compile_reason  # far below the break-even
     with pytest.raises(Exception, match="compile: expected one of"):
         run_evaluation(manifest, tmp_path / "bad", model=fresh, compile="sometimes")
+
+
+def test_function_judge_version_comes_from_its_attribute(tmp_path):
+    """``--judge file.py:fn`` keys stored verdicts on ``fn.version`` (default "1"), so a changed judge re-judges."""
+    from oscar_core.evaluation.cli import load_judge
+
+    src = tmp_path / "judges.py"
+    src.write_text("def plain(video, clip):\n    return 1, 100, 'ok'\n\n"
+                   "def versioned(video, clip):\n    return 1, 100, 'ok'\n\nversioned.version = 7\n")
+    assert load_judge(f"{src}:plain").describe()["version"] == "1"
+    assert load_judge(f"{src}:versioned").describe()["version"] == "7"

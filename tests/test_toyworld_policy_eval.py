@@ -14,8 +14,9 @@ from oscar_core.camera import project
 from oscar_core.cli import main as oscar_main
 from oscar_core.evaluation import load_manifest
 from oscar_core.registry import Registry
-from oscar_core.toyworld.judge import agreement_with_real, ball_moved
-from oscar_core.toyworld.policy_eval import (SUCCESS_RADII, Policy, floor_homography, plan_session, session_rng,
+from oscar_core.toyworld.carry import carry_rows, carry_summary
+from oscar_core.toyworld.judge import agreement_with_real, ball_moved, ball_reading
+from oscar_core.toyworld.policy_eval import (PLACE_MIN_RADII, SUCCESS_RADII, Policy, floor_homography, plan_session, session_rng,
                                              write_policy_eval)
 from oscar_core.video import read_video
 
@@ -74,34 +75,99 @@ def _disc_video(centres, size=32, r=2.5):
     return v
 
 
+def _judge_clip():
+    # identity homography / 2: one ball radius = 2 pixels, so 3 radii = 6 pixels (the drawn disc: 2.5 px radius)
+    return SimpleNamespace(info={"px_to_floor_radii": np.diag([0.5, 0.5, 1.0]).tolist(), "success_radii": 3.0,
+                                 "ball_start_px": [10, 10], "ball_radius_px": 2.5})
+
+
+def _streak(v, t, x0, x1, y):
+    v[t, y:y + 2, x0:x1] = (255, 209, 0)  # a 2-pixel-thick yellow smear, not a ball
+
+
 def test_ball_moved_known_answers():
-    # identity homography / 2: one ball radius = 2 pixels, so 3 radii = 6 pixels
-    info = {"px_to_floor_radii": np.diag([0.5, 0.5, 1.0]).tolist(), "success_radii": 3.0, "ball_start_px": [10, 10]}
-    clip = SimpleNamespace(info=info)
+    clip = _judge_clip()
     moved = ball_moved(_disc_video([(10, 10)] * 5 + [(18, 10)] * 4), clip)  # 8 px = 4 radii
-    assert moved["binary"] == 1 and moved["partial"] == 100
+    assert moved["binary"] == 1 and moved["partial"] == 100, moved
     short = ball_moved(_disc_video([(10, 10)] * 5 + [(13, 10)] * 4), clip)  # 3 px = 1.5 radii = 50 %
     assert short["binary"] == 0 and short["partial"] == 50, short
     still = ball_moved(_disc_video([(10, 10)] * 9), clip)
     assert still["binary"] == 0 and still["partial"] == 0
     gone = _disc_video([(10, 10)] * 9)
-    gone[-3:] = 90  # the ball vanished from the last quarter
+    gone[-3:] = 90  # the ball vanished from the tail
     lost = ball_moved(gone, clip)
-    assert lost["binary"] == 0 and "not visible" in lost["reason"]
+    assert lost["binary"] == 0 and "no yellow blob" in lost["reason"], lost
     with pytest.raises(ValueError, match="px_to_floor_radii"):
         ball_moved(gone, SimpleNamespace(info={}))
 
 
+def test_ball_moved_is_not_fooled_by_generation_artefacts():
+    clip = _judge_clip()
+    # the ball stays put and a yellow smear (bigger than the ball) appears far away: version 1's centroid moved
+    smear = _disc_video([(10, 10)] * 9)
+    for t in range(5, 9):
+        _streak(smear, t, 10, 30, 24)
+    v = ball_moved(smear, clip)
+    assert v["binary"] == 0 and "not ball-like" in v["reason"], v
+    # the ball left its start but only a smear is left elsewhere: no ball was put down
+    smear_only = _disc_video([(10, 10)] * 5 + [(40, 40)] * 4)
+    for t in range(5, 9):
+        _streak(smear_only, t, 10, 30, 24)
+    assert ball_moved(smear_only, clip)["binary"] == 0
+    # the ball duplicated: a (slightly larger, so the largest blob) copy 4 radii away, the original at its start
+    dup = _disc_video([(10, 10)] * 9)
+    dup[5:] = np.maximum(dup[5:], _disc_video([(18, 10)] * 4, r=3.0))
+    dup[5:, 6:14, 6:14] = _disc_video([(10, 10)])[0, 6:14, 6:14]
+    v = ball_moved(dup, clip)
+    assert v["binary"] == 0 and "did not leave its start" in v["reason"] and v["partial"] == 100, v
+    # 9 frames: the tail is the last 3; two of them wrong (one blank, one showing the ball back at its start)
+    flicker = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    flicker[6] = 90
+    flicker[7] = _disc_video([(10, 10)])[0]
+    assert ball_moved(flicker, clip)["binary"] == 0  # two of four tail frames wrong: the median distance is 2 radii
+    flicker = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    flicker[6] = 90
+    assert ball_moved(flicker, clip)["binary"] == 1  # one blank frame of three decides nothing
+    # the ball hidden (under the gripper) in the tail but for the last frame: a real render's case
+    hidden = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    hidden[6:8] = 90
+    assert ball_moved(hidden, clip)["binary"] == 1
+    # ... but a ball that is not in the last frame was not put down anywhere
+    unseen = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    unseen[8] = 90
+    v = ball_moved(unseen, clip)
+    assert v["binary"] == 0 and "no compact ball in the last frame" in v["reason"], v
+    # a ball carried far but blurred to a blob 4x its area is not read as a ball
+    big = _disc_video([(10, 10)] * 5 + [(20, 10)] * 4)
+    big[5:] = np.maximum(big[5:], _disc_video([(20, 10)] * 4, r=5.0))
+    assert ball_moved(big, clip)["binary"] == 0
+
+
+def test_ball_reading_internals():
+    r = ball_reading(_disc_video([(10, 10)] * 5 + [(18, 10)] * 4), _judge_clip().info)
+    assert r["start_px"] == [10.0, 10.0] and r["tail"] == [6, 7, 8] and r["left"] and r["found"] == 3 and r["last_found"]
+    assert r["distance"] == pytest.approx(4.0) and r["at_start"] == [0, 0, 0]
+    assert all(b["compact"] and b["n"] == r["n0"] for b in r["blob"])
+
+
+def test_function_judge_version_keys_stored_verdicts():
+    from oscar_core.evaluation.cli import load_judge
+    from oscar_core.toyworld import judge
+
+    assert load_judge("oscar_core.toyworld.judge:ball_moved").describe()["version"] == judge.VERSION == "3"
+
+
 def test_manifest_real_outcomes_and_judge_agreement(tmp_path):
-    summary = write_policy_eval(tmp_path / "pe", ["toyarm"], 2, seed=0, width=32, height=32, frames=9,
+    # 64x64, the judge's design size (at 32x32 the carried ball shrinks below its 3-pixel minimum)
+    summary = write_policy_eval(tmp_path / "pe", ["toyarm"], 2, seed=0, width=64, height=64, frames=9,
                                 policies=SURE)
     m = load_manifest(tmp_path / "pe" / "manifest.json")
-    assert m.policies == ("expert", "never") and len(m.cells) == 4 and m.size == (32, 32)
+    assert m.policies == ("expert", "never") and len(m.cells) == 4 and m.size == (64, 64)
     assert m.real_success_rates() == {"expert": 1.0, "never": 0.0}
     assert summary["policies"]["expert"]["success_rate"] == 1.0
     for c in m.cells:
         video = read_video(c.real_video)
-        assert video.shape == (9, 32, 32, 3)
+        assert video.shape == (9, 64, 64, 3)
         first = cv2.imread(str(c.first_frame))[..., ::-1]
         assert np.array_equal(first, video[0]), c.id  # every policy of the session starts from this frame
         assert set(c.info) == {"ball_start_px", "ball_radius_px", "px_to_floor_radii", "success_radii"}
@@ -109,6 +175,20 @@ def test_manifest_real_outcomes_and_judge_agreement(tmp_path):
     agree = agreement_with_real(tmp_path / "pe" / "manifest.json")
     assert agree["cells"] == 4 and agree["agreement"] == 1.0, agree
     assert agree["tp"] == 2 and agree["tn"] == 2
+    # the carry table on "rollouts" that are the real renders: the ball left its start exactly when it was grabbed
+    for c in m.cells:
+        dst = tmp_path / "ev" / "rollouts" / c.session / f"{c.policy}.mkv"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        dst.write_bytes(Path(c.real_video).read_bytes())
+    rows = carry_rows(tmp_path / "pe" / "manifest.json", tmp_path / "ev")
+    assert [r["wm_success"] for r in rows] == [c.real_success for c in m.cells]
+    s = carry_summary(rows, m.policies)
+    assert s["expert"]["left_if_grabbed"] == 1.0 and s["never"]["left_if_missed"] == 0.0, s
+    # the grabbed ball ends at the place; the missed one stays at its start, at least PLACE_MIN_RADII from it
+    assert s["expert"]["blob_to_place"] < 0.5 and s["never"]["blob_to_place"] >= PLACE_MIN_RADII, s
+    (tmp_path / "ev" / "rollouts" / m.cells[0].session / "never.mkv").unlink()
+    with pytest.raises(FileNotFoundError, match="oscar eval run, found 1 of 4 missing .first: toyarm-0000/never"):
+        carry_rows(tmp_path / "pe" / "manifest.json", tmp_path / "ev")
 
 
 def test_same_seed_same_files(tmp_path):
@@ -146,3 +226,12 @@ def test_eval_run_end_to_end_on_the_toy_manifest(tmp_path, capsys):
     assert all(c["status"] == "ok" for c in report["cells"]), report["cells"]
     assert (out / "summary.md").is_file() and len(list((out / "rollouts").rglob("*.mkv"))) == 8
     assert len(report["pairs"]) == 2 * 6  # 6 pairs of 4 policies per session
+    # the per-cell judge internals of the same rollouts, through the CLI
+    capsys.readouterr()
+    assert oscar_main(["toyworld", "carry", str(tmp_path / "pe" / "manifest.json"), str(out),
+                       "--json", str(tmp_path / "carry.json")]) == 0
+    table = capsys.readouterr().out
+    assert table.count("\n") == 2 + 4 and "| random | 2 |" in table, table
+    carried = json.loads((tmp_path / "carry.json").read_text())
+    assert len(carried["rows"]) == 8 and set(carried["summary"]) == set(real)
+    assert [r["wm_success"] for r in carried["rows"]] == [c["wm_success"] for c in report["cells"]]

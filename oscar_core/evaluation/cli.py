@@ -12,7 +12,9 @@ Registered under ``oscar eval`` by :func:`add_run_parser`; the loop itself is
   ``$OSCAR_JUDGE_API_KEY`` (or the variable ``--api-key-env`` names);
 * ``module:attr`` or ``path/to/file.py:attr`` — a judge object (anything with
   ``judge_many``) or a function ``(video, clip) -> {"binary", "partial",
-  "reason"}``, wrapped in :class:`~oscar_core.metrics.programmatic.ProgrammaticJudge`;
+  "reason"}``, wrapped in :class:`~oscar_core.metrics.programmatic.ProgrammaticJudge`
+  (its ``version`` attribute, default ``"1"``, is the judge's version: bump it
+  when the function changes, or a re-run reuses the old verdicts);
 * ``none`` — rollouts and contact sheets only.
 
 ``--pairwise`` also compares every two policies of a session (a VLM
@@ -73,8 +75,8 @@ def load_judge(spec: str):
     obj = _import_attr(spec)
     if hasattr(obj, "judge_many"):
         return obj
-    if callable(obj):
-        return ProgrammaticJudge(obj, name=spec.replace(os.sep, "/"))
+    if callable(obj):  # a function's ``version`` attribute (default "1") keys the verdicts stored for resume
+        return ProgrammaticJudge(obj, name=spec.replace(os.sep, "/"), version=str(getattr(obj, "version", "1")))
     raise MetricInputError(spec, "--judge", "a judge object (with judge_many) or a function (video, clip) -> verdict",
                            type(obj).__name__)
 

@@ -30,6 +30,7 @@ EXAMPLES = """examples:
       (also writes table.html: the table and rollouts under each condition beside the truth)
   oscar toyworld package runs/toyworld/export --out my-toy --table table.json
   oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
+  oscar toyworld carry toy_policies/manifest.json toy_eval/ --json toy_eval/carry.json
 """
 
 
@@ -135,6 +136,13 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
 
     add_policy_eval_arguments(pe)
     pe.set_defaults(func=cmd_policy_eval)
+    cy = sub.add_parser("carry", help="where the generated ball goes: per-cell judge internals of an `oscar eval "
+                                      "run` on a policy-eval manifest, per policy against the real grab",
+                        epilog=EXAMPLES, formatter_class=fmt)
+    from .carry import add_carry_arguments, cmd_carry
+
+    add_carry_arguments(cy)
+    cy.set_defaults(func=cmd_carry)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
                        epilog=EXAMPLES, formatter_class=fmt)
