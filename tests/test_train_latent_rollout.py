@@ -219,3 +219,21 @@ def test_oscar_rollout_cli_rolls_a_latent_action_model_out(tmp_path, capsys, exp
     assert code == 0 and summary["condition"] == "latent_action" and summary["guidance"]["action_w"] is None
     assert summary["frames"] == 81 and summary["chunks"] == 10 and summary["size"] == [32, 32]
     assert read_video(out).shape == (81, 32, 32, 3)
+
+
+def test_eval_run_rolls_a_latent_action_model_out_from_each_cells_actions(model, tmp_path):
+    """``oscar eval run`` gives a latent-action model the actions of each cell's trajectory (not a skeleton video)."""
+    from test_eval_run import make_study
+
+    from oscar_core.evaluation.loop import run_evaluation
+
+    seen = record_actions(model)
+    manifest = make_study(tmp_path / "study", frames=9)
+    res = run_evaluation(manifest, tmp_path / "out", model=model, sampler=STEPS, log=lambda m: None)
+    assert res.report["counts"]["rollouts_done"] == 6
+    assert seen and all(a is not None for a in seen)
+    from oscar_core.evaluation.manifest import load_manifest
+
+    cell = load_manifest(manifest).cells[0]
+    want = latent_actions(Registry().get(cell.embodiment), load_trajectory(cell.trajectory))
+    assert any(np.allclose(a[0, :len(want)].numpy(), want, atol=1e-5) for a in seen)

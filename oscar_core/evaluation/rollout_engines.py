@@ -48,9 +48,9 @@ def cell_prompt(cell: Cell):
 
 def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
-    condition video (the card's: skeleton or mesh), ``prompt`` (1, L, D) or None, ``fps``."""
+    condition video (the card's: skeleton, mesh or capsules; None for a latent-action model), ``actions``
+    (T − 1, 14) for a latent-action model (else None), ``prompt`` (1, L, D) or None, ``fps``."""
     from ..model._image import read_first_frame
-    from ..conditions import condition_video, video_condition_of
     from ..pipeline import fit_image
     from ..registry import get_embodiment
     from ..trajectory import load_trajectory
@@ -62,17 +62,24 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     card = model.card
     if size is None:
         size = (card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0])
-    # the card's condition video: the skeleton, or the mesh / capsules for a model trained on those
-    skeleton = condition_video(video_condition_of(card.condition), emb, traj, camera, size,
-                               resize_mode="crop", camera_source=str(cell.camera))
+    # what the card's condition needs: its condition video (skeleton, mesh, capsules) or the trajectory's actions
+    if hasattr(model, "rollout_inputs"):  # an OscarWorldModel
+        cond = model.rollout_inputs(traj, camera, emb, size, resize_mode="crop", camera_source=str(cell.camera))
+    else:  # any model with rollout(first, skeleton, prompt, ...) (evaluation/loop.py): the card's condition video
+        from ..conditions import condition_video, video_condition_of
+
+        cond = {"skeleton": condition_video(video_condition_of(card.condition), emb, traj, camera, size,
+                                            resize_mode="crop", camera_source=str(cell.camera))}
     first = fit_image(first, size[0], size[1], "crop")
-    return {"first": first, "video": skeleton, "prompt": cell_prompt(cell), "fps": float(traj.fps)}
+    return {"first": first, "video": cond.get("skeleton"), "actions": cond.get("actions"),
+            "prompt": cell_prompt(cell), "fps": float(traj.fps)}
 
 
 def _batch_key(inputs: dict) -> tuple:
     """Cells roll out in one batch only with one chunk plan and size and one prompt shape."""
     prompt = inputs["prompt"]
-    return inputs["video"].shape, None if prompt is None else tuple(prompt.shape)
+    cond = inputs["video"] if inputs["video"] is not None else inputs["actions"]
+    return cond.shape, None if prompt is None else tuple(prompt.shape)
 
 
 def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
@@ -80,8 +87,10 @@ def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progres
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
         if len(group) == 1:
-            return [model.rollout(group[0]["first"], group[0]["video"], group[0]["prompt"], chunk_frames=chunk_frames,
-                                  sampler=sampler, seed=seeds[0], progress=progress, keep_chunks=False).frames]
+            g = group[0]
+            extra = {} if g["actions"] is None else {"actions": g["actions"]}  # a latent-action model's input
+            return [model.rollout(g["first"], g["video"], g["prompt"], chunk_frames=chunk_frames, sampler=sampler,
+                                  seed=seeds[0], progress=progress, keep_chunks=False, **extra).frames]
         return model.rollout_batch([g["first"] for g in group], [g["video"] for g in group],
                                    [g["prompt"] for g in group], chunk_frames=chunk_frames, sampler=sampler,
                                    seeds=seeds, progress=progress)
