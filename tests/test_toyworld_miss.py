@@ -161,3 +161,13 @@ def test_generated_records_say_which_picks_missed(tmp_path):
         assert gt["missed"] is (gt["kind"] == "pick_place") and gt["grabbed"] is False
     assert "pick_place" in kinds
     assert all("missed" not in r.meta["toyworld"] for r in ClipSet(tmp_path / "z"))
+
+
+def test_without_a_miss_generator_the_episode_stream_is_left_alone():
+    emb = REG.get("kuka")
+    for seed in range(4):  # seed 3 is a pick_place that misses
+        r0, r1 = np.random.default_rng(seed), np.random.default_rng(seed)
+        a, b = sample_motion(emb, r0, 9), sample_motion(emb, r1, 9, pick_miss=1.0)
+        np.testing.assert_array_equal(a.trajectory.q, b.trajectory.q)
+        assert b.missed == (b.kind == "pick_place") and r0.uniform() == r1.uniform()
+    assert b.missed

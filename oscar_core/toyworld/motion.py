@@ -193,7 +193,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
 
     pick_miss: probability in [0, 1] that a pick-and-place motion misses (its ball placed by
     :func:`miss_start`; the joint motion and gripper are unchanged). The miss is drawn from ``miss_rng``
-    (default: the first child spawned from ``rng``'s seed sequence, which leaves ``rng``'s stream as it was),
+    (default: a copy of ``rng``'s bit generator jumped far ahead, which leaves ``rng``'s stream as it was),
     never from ``rng``, and only when ``pick_miss`` > 0: the same ``rng`` gives the same robot motion for
     every ``pick_miss``, and with the same ``miss_rng`` an episode that misses at F misses at every F' > F.
     """
@@ -251,7 +251,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
                 openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
             obj0 = np.array([ee[g, 0], ee[g, 1], R])
             if pick_miss > 0:
-                mrng = miss_rng if miss_rng is not None else rng.spawn(1)[0]
+                mrng = miss_rng if miss_rng is not None else np.random.Generator(rng.bit_generator.jumped())
                 missed = bool(mrng.uniform() < pick_miss)
                 xy = miss_start(mrng, ee[g, :2], base[:2], R, scale)  # drawn either way: F only picks who misses
                 if missed:
