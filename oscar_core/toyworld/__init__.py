@@ -18,10 +18,10 @@ from .._lazy import lazy_exports
 
 _EXPORTS = {
     "ToyWorldError": "motion", "check_supported": "motion", "sample_motion": "motion", "carry_object": "motion",
-    "Motion": "motion", "joint_limits": "motion",
+    "Motion": "motion", "joint_limits": "motion", "miss_start": "motion",
     "Scene": "scene", "sample_scene": "scene", "sample_camera": "scene", "OBJECT_RGB": "scene", "EE_RGB": "scene",
     "Episode": "episode", "make_episode": "episode", "plan_episode": "episode", "render_world": "episode",
-    "episode_rng": "episode",
+    "episode_rng": "episode", "miss_rng": "episode",
     "GenerateConfig": "generate", "generate_clipset": "generate",
     "VAETrainConfig": "vae_train", "train_vae": "vae_train", "load_toy_vae": "vae_train",
     "write_reconstructions": "vae_train",

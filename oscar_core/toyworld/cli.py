@@ -20,6 +20,8 @@ __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstr
 EXAMPLES = """examples:
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 400 --size 64x64 --frames 17 \\
       --seed 0 --out clipsets/toyworld
+  oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 400 --pick-miss 0.3 --seed 0 \\
+      --out clipsets/toyworld-miss   (30 % of pick-and-place episodes miss the ball)
   oscar toyworld train-vae clipsets/toyworld --out runs/toyworld-vae --steps 2500 --batch 3 --window 9 --seed 0
   oscar toyworld reconstruct clipsets/toyworld --vae runs/toyworld-vae --out preds/vae
   oscar toyworld baseline clipsets/toyworld --out preds/first_frame
@@ -53,6 +55,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--shard-size", type=count(1), default=50, help="episodes per shard (default 50)")
     g.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor (default 2)")
     g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
+    g.add_argument("--pick-miss", type=number(0.0, 1.0), default=0.0, metavar="F",
+                   help="fraction in [0, 1] of pick-and-place episodes whose ball lies out of the gripper's reach "
+                        "(it closes beside the ball, lifts, and the ball stays); default 0 (sets as before)")
     g.add_argument("--threads", type=count(1), default=1, help="torch threads for forward kinematics (default 1)")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
@@ -187,7 +192,7 @@ def cmd_generate(args) -> int:
     if not names:
         raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
     cfg = GenerateConfig(names, args.episodes, w, h, args.frames, args.fps, args.seed, args.shard_size,
-                         args.supersample, not args.no_skeleton)
+                         args.supersample, not args.no_skeleton, args.pick_miss)
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))
     if args.json:

@@ -20,7 +20,8 @@ from .motion import Motion, check_supported, sample_motion
 from .raster import Canvas
 from .scene import EE_RGB, OBJECT_RGB, Scene, background, sample_camera, sample_scene
 
-__all__ = ["Episode", "RenderResult", "render_world", "plan_episode", "make_episode", "episode_rng", "link_radii"]
+__all__ = ["Episode", "RenderResult", "render_world", "plan_episode", "make_episode", "episode_rng", "miss_rng",
+           "link_radii"]
 
 
 @dataclass
@@ -124,19 +125,25 @@ class Episode:
     render: RenderResult
     meta: dict = field(default_factory=dict)
 
-    def ground_truth(self) -> dict:
-        """JSON-ready ground truth (the ``meta.toyworld`` of a clip record; docs/formats.md)."""
+    def ground_truth(self, miss_fields: bool = False) -> dict:
+        """JSON-ready ground truth (the ``meta.toyworld`` of a clip record; docs/formats.md).
+
+        miss_fields: also write ``missed`` (a pick_place episode whose ball lay out of reach) and ``grabbed``
+        (the ball attached on some frame); the generator writes them for sets made with ``pick_miss`` > 0 only,
+        so a default set's records stay byte-identical to those written before the option existed.
+        """
         r, m = self.render, self.motion
 
         def rows(a):
             return [[round(float(x), 3) for x in row] for row in a]
 
+        extra = {"missed": bool(m.missed), "grabbed": bool(np.any(m.attached))} if miss_fields else {}
         return {
             "kind": m.kind,
             "ee_px": rows(r.ee_px), "ee_area": [round(float(a), 2) for a in r.ee_area],
             "object_px": rows(r.object_px), "object_area": [round(float(a), 2) for a in r.object_area],
             "attached": [bool(a) for a in m.attached],
-            "object_radius_m": round(m.object_radius, 5), "reach_m": round(m.scale, 5),
+            "object_radius_m": round(m.object_radius, 5), "reach_m": round(m.scale, 5), **extra,
         }
 
 
@@ -148,11 +155,28 @@ def episode_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index)]))
 
 
+#: The last seed word of :func:`miss_rng` ("miss" in ASCII): its stream is unrelated to :func:`episode_rng`'s.
+_MISS_TAG = 0x6D697373
+
+
+def miss_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
+    """The generator of episode ``index``'s missed pick (:func:`~oscar_core.toyworld.motion.sample_motion`'s
+    ``miss_rng``): separate from :func:`episode_rng`, so the miss fraction changes no other draw."""
+    import zlib
+
+    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index),
+                                                         _MISS_TAG]))
+
+
 def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
-                 fps: float = 10.0) -> tuple[Motion, Scene, Camera]:
-    """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels)."""
+                 fps: float = 10.0, pick_miss: float = 0.0,
+                 miss_rng: np.random.Generator | None = None) -> tuple[Motion, Scene, Camera]:
+    """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels).
+
+    pick_miss, miss_rng: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's ball is
+    among the points the camera must see, like every ball)."""
     check_supported(emb)
-    motion = sample_motion(emb, rng, frames, fps)
+    motion = sample_motion(emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng)
     scene = sample_scene(rng, len(emb.edges), motion.scale)
     R = motion.object_radius
     # everything that must be in view: skeleton points, the ball (its top and bottom), its resting place
@@ -163,8 +187,10 @@ def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: 
 
 
 def make_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
-                 fps: float = 10.0, ss: int = 2) -> Episode:
-    """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``."""
-    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps)
+                 fps: float = 10.0, ss: int = 2, pick_miss: float = 0.0,
+                 miss_rng: np.random.Generator | None = None) -> Episode:
+    """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``
+    (``pick_miss``, ``miss_rng``: :func:`plan_episode`)."""
+    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng)
     render = render_world(emb, motion, scene, camera, ss=ss)
     return Episode(emb.name, motion.trajectory, camera, render.rgb, motion, scene, render)

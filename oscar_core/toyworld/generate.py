@@ -10,6 +10,9 @@ Each clip record carries the ground truth in ``meta.toyworld`` (docs/formats.md,
 "Toy-world clips"): per-frame end-effector and object pixel positions and
 visible areas, the attachment flags and the episode kind; ``meta.split`` is
 ``"heldout"`` for every tenth episode (index % 10 == 9) and ``"train"`` otherwise.
+With ``pick_miss`` > 0 a fraction of the pick-and-place episodes miss the ball
+(:func:`~oscar_core.toyworld.motion.miss_start`) and the ground truth adds
+``missed`` and ``grabbed``; the default 0 writes exactly what it wrote before.
 """
 
 from __future__ import annotations
@@ -23,8 +26,8 @@ import numpy as np
 
 from .._log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
-from .episode import episode_rng, make_episode
-from .motion import check_supported
+from .episode import episode_rng, make_episode, miss_rng
+from .motion import ToyWorldError, check_supported
 
 __all__ = ["GenerateConfig", "generate_clipset", "clip_id", "split_of", "SOURCE"]
 
@@ -45,6 +48,7 @@ class GenerateConfig:
     shard_size: int = 50
     supersample: int = 2
     skeleton: bool = True  # also store the skeleton video (rendered at the RGB size)
+    pick_miss: float = 0.0  # fraction of pick_place episodes whose ball lies out of reach (motion.miss_start)
 
 
 def clip_id(embodiment: str, index: int) -> str:
@@ -74,6 +78,8 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         check_supported(e)
     if cfg.episodes < 1:
         raise ValueError(f"toyworld generate: --episodes: expected at least 1, found {cfg.episodes}")
+    if not (isinstance(cfg.pick_miss, (int, float)) and 0.0 <= cfg.pick_miss <= 1.0):
+        raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
     writer = ClipSetWriter(out)
     writer.remove_stale()
     done = skipped = 0
@@ -93,13 +99,14 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                 for i in range(lo, hi):
                     r0 = time.perf_counter()
                     ep = make_episode(emb, episode_rng(cfg.seed, emb.name, i), cfg.width, cfg.height, cfg.frames,
-                                      cfg.fps, ss=cfg.supersample)
+                                      cfg.fps, ss=cfg.supersample, pick_miss=cfg.pick_miss,
+                                      miss_rng=miss_rng(cfg.seed, emb.name, i))
                     skel = None
                     if cfg.skeleton:
                         skel = render_skeleton_video(emb, ep.trajectory, ep.camera)
                     render_s += time.perf_counter() - r0
                     openness = clip_openness(emb, ep.trajectory)
-                    meta = {"seed": cfg.seed, "episode": i, "split": split_of(i), "toyworld": ep.ground_truth()}
+                    meta = {"seed": cfg.seed, "episode": i, "split": split_of(i), "toyworld": ep.ground_truth(cfg.pick_miss > 0)}
                     rec = ClipRecord(id=clip_id(emb.name, i), source=SOURCE, embodiment=emb.name, n_frames=cfg.frames,
                                      fps=cfg.fps, width=cfg.width, height=cfg.height,
                                      openness=tuple(tuple(float(v) for v in row) for row in openness),

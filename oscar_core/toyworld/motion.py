@@ -14,6 +14,12 @@ where the gripper *closes* (openness drops below 0.5) while the end-effector
 is within ``grab_distance`` of the ball's centre, then keeps its offset from
 the end-effector while the gripper stays closed; when the gripper opens it
 drops to the floor below where it was (z = R, same x, y) on that frame.
+
+Missed picks (``pick_miss`` > 0, :func:`miss_start`): a pick-and-place
+motion whose ball lies away from the grasp, so the gripper closes beside it,
+lifts and places nothing while the ball stays where it lay. Whether an
+episode misses and where its ball lies come from a second generator, so
+``pick_miss = 0`` draws nothing from it and leaves every episode as it was.
 """
 
 from __future__ import annotations
@@ -27,9 +33,18 @@ from ..errors import OscarError
 from ..trajectory import Trajectory
 
 __all__ = ["ToyWorldError", "check_supported", "joint_limits", "Motion", "sample_motion", "carry_object",
-           "min_jerk", "openness_to_signal", "ee_points"]
+           "min_jerk", "openness_to_signal", "ee_points", "miss_start", "GRAB_RADII", "MISS_NEAR_RADII",
+           "MISS_FAR_RADII", "MISS_NEAR_FRACTION"]
 
 OPEN_THRESHOLD = 0.5
+#: The carry rule's grab distance, ball radii.
+GRAB_RADII = 2.2
+#: A missed pick's ball: horizontal distance from the grasp end-effector, ball radii, in the near band (just
+#: outside the grab distance: it teaches the threshold) with probability MISS_NEAR_FRACTION, else the far band.
+#: The end-effector grasps 1.4-2.6 radii above the floor, so every miss is more than GRAB_RADII away in 3-D.
+MISS_NEAR_RADII = (2.3, 3.0)
+MISS_FAR_RADII = (3.0, 6.0)
+MISS_NEAR_FRACTION = 0.5
 
 
 class ToyWorldError(OscarError, ValueError):
@@ -142,6 +157,7 @@ class Motion:
     attached: np.ndarray
     object_radius: float
     scale: float
+    missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
 
 
 def _batch_fk(emb: Embodiment, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,13 +168,40 @@ def _batch_fk(emb: Embodiment, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ee_points(emb, traj)
 
 
+def miss_start(rng: np.random.Generator, grasp_xy: np.ndarray, base_xy: np.ndarray, radius: float,
+               scale: float) -> np.ndarray:
+    """(2,) floor position, metres, of a missed pick's ball: at a distance from ``grasp_xy`` (the grasp
+    end-effector, metres) drawn from the near band with probability :data:`MISS_NEAR_FRACTION` (else the far
+    band), in ``radius`` units, at the first of 16 uniform angles that keeps it at least 0.25 ``scale`` from the
+    robot's base ``base_xy`` (as every reaching episode's ball is; the farthest of them if none does).
+    Always makes the same draws (1 + 1 + 16 uniforms)."""
+    near = rng.uniform() < MISS_NEAR_FRACTION
+    lo, hi = MISS_NEAR_RADII if near else MISS_FAR_RADII
+    d = rng.uniform(lo, hi) * radius
+    ang = rng.uniform(-np.pi, np.pi, 16)
+    cand = np.asarray(grasp_xy, dtype=np.float64)[:2] + d * np.stack([np.cos(ang), np.sin(ang)], 1)
+    from_base = np.linalg.norm(cand - np.asarray(base_xy, dtype=np.float64)[:2], axis=1)
+    ok = np.flatnonzero(from_base >= 0.25 * scale)
+    return cand[ok[0] if len(ok) else int(np.argmax(from_base))]
+
+
 def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: float = 10.0,
-                  pick_place_prob: float = 0.75, n_candidates: int = 768) -> Motion:
+                  pick_place_prob: float = 0.75, n_candidates: int = 768, pick_miss: float = 0.0,
+                  miss_rng: np.random.Generator | None = None) -> Motion:
     """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
-    reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses."""
+    reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses.
+
+    pick_miss: probability in [0, 1] that a pick-and-place motion misses (its ball placed by
+    :func:`miss_start`; the joint motion and gripper are unchanged). The miss is drawn from ``miss_rng``
+    (default: a copy of ``rng``'s bit generator jumped far ahead, which leaves ``rng``'s stream as it was),
+    never from ``rng``, and only when ``pick_miss`` > 0: the same ``rng`` gives the same robot motion for
+    every ``pick_miss``, and with the same ``miss_rng`` an episode that misses at F misses at every F' > F.
+    """
     check_supported(emb)
     if frames < 5:
         raise ToyWorldError(f"toyworld: --frames: expected at least 5 frames, found {frames}")
+    if not (isinstance(pick_miss, (int, float)) and 0.0 <= pick_miss <= 1.0):
+        raise ToyWorldError(f"toyworld: --pick-miss: expected a fraction in [0, 1], found {pick_miss!r}")
     lo, hi = joint_limits(emb)
     J = len(lo)
     q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
@@ -179,6 +222,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
     G = len(emb.grippers)
     T = frames
     kind = "reach"
+    missed = False
     if G and T >= 9 and len(grasp) >= 2 and len(high) >= 1 and rng.uniform() < pick_place_prob:
         g = int(rng.choice(grasp))
         d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
@@ -206,6 +250,12 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
             if close_at > 0:
                 openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
             obj0 = np.array([ee[g, 0], ee[g, 1], R])
+            if pick_miss > 0:
+                mrng = miss_rng if miss_rng is not None else np.random.Generator(rng.bit_generator.jumped())
+                missed = bool(mrng.uniform() < pick_miss)
+                xy = miss_start(mrng, ee[g, :2], base[:2], R, scale)  # drawn either way: F only picks who misses
+                if missed:
+                    obj0 = np.array([xy[0], xy[1], R])
     if kind == "reach":
         n_keys = int(rng.integers(3, 5))
         keys = q[rng.choice(valid, size=n_keys)]
@@ -224,7 +274,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
                       source=f"<toyworld {emb.name}>")
     points, ee_t = ee_points(emb, traj)
     if G:
-        obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=2.2 * R)
+        obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=GRAB_RADII * R)
     else:
         obj, attached = np.repeat(obj0[None], T, 0), np.zeros(T, dtype=bool)
-    return Motion(traj, kind, points, ee_t, obj, attached, R, scale)
+    return Motion(traj, kind, points, ee_t, obj, attached, R, scale, missed)

@@ -44,8 +44,8 @@ from .._log import get_logger
 from ..camera import Camera, project
 from ..embodiment import Embodiment
 from ..trajectory import Trajectory
-from .motion import (Motion, ToyWorldError, _batch_fk, carry_object, check_supported, ee_points, joint_limits,
-                     min_jerk, openness_to_signal)
+from .motion import (GRAB_RADII, Motion, ToyWorldError, _batch_fk, carry_object, check_supported, ee_points,
+                     joint_limits, min_jerk, openness_to_signal)
 
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
            "plan_session", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
@@ -57,8 +57,6 @@ _log = get_logger(__name__)
 SUCCESS_RADII = 3.0
 #: The place pose's end-effector is at least this many ball radii from the ball's start.
 PLACE_MIN_RADII = 6.0
-#: The carry rule's grab distance, ball radii (as in ``sample_motion``).
-GRAB_RADII = 2.2
 TASK = "pick up the yellow ball and put it down elsewhere"
 
 
