@@ -188,3 +188,47 @@ def test_a_capsule_cache_holds_capsule_latents_and_a_capsule_run_uses_them(tmp_p
         want = vae.encode(vae.to_pixels(render_capsule_video(reg.get(r.embodiment), c.trajectory, c.camera,
                                                              (32, 32))))[0]
         assert torch.allclose(got, want, atol=1e-5), cached
+
+
+def test_a_capsules_model_exports_its_condition_and_rolls_out_through_the_clis(tmp_path, capsys):
+    """A capsules run exports ``condition: capsules``; ``oscar toyworld rollout`` and ``oscar eval benchmark run``
+    hand it the capsule video of each clip."""
+    import json
+
+    import oscar_zoo
+    from test_train_loop import tiny
+
+    from oscar_core.cli import main
+    from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
+    from oscar_core.train.cache import cache_latents
+    from oscar_core.train.clips import ClipSet
+    from oscar_core.train.loop import train
+    from oscar_core.train.models import build_vae
+
+    reg = Registry()
+    clips = tmp_path / "clips"
+    generate_clipset(GenerateConfig(("toyarm",), 10, width=32, height=32, frames=9, seed=0), clips, reg)
+    cfg = tiny(clips, tmp_path / "run", steps=2, export=True, condition="capsules", **{"data.latents": "on_the_fly"})
+    cache = tmp_path / "cached"
+    cache_latents(clips, cache, build_vae(cfg), 9, registry=reg, condition="capsules", log=lambda m: None)
+    cfg = tiny(cache, tmp_path / "run", steps=2, export=True, condition="capsules")
+    result = train(cfg, progress=False)
+    model = oscar_zoo.load(result.export)
+    assert model.card.condition == "capsules"
+    cs = ClipSet(clips)
+    rec = next(r for r in cs if r.meta["split"] == "heldout")
+    clip = cs.load(rec, registry=reg)
+    want = render_capsule_video(reg.get("toyarm"), clip.trajectory, clip.camera, (32, 32))
+    got = model.rollout_inputs(clip.trajectory, clip.camera, reg.get("toyarm"), (32, 32))["skeleton"]
+    np.testing.assert_array_equal(got, want)
+    out = tmp_path / "preds"
+    assert main(["toyworld", "rollout", str(clips), "--model", str(result.export), "--steps", "1", "--out", str(out)]) == 0
+    video = np.load(out / f"{rec.id}.npy")
+    assert video.shape == (9, 32, 32, 3)
+    fp = json.loads((out / "fingerprint.json").read_text())
+    assert "capsules" in json.dumps(fp)
+    assert main(["eval", "benchmark", "build", str(clips), "--out", str(tmp_path / "b.json"), "--total", "1",
+                 "--frames", "9"]) == 0
+    assert main(["eval", "benchmark", "run", str(tmp_path / "b.json"), "--model", str(result.export), "--steps", "1",
+                 "--out", str(tmp_path / "bp")]) == 0
+    assert len(list((tmp_path / "bp").glob("*.npy"))) == 1
