@@ -1,0 +1,105 @@
+"""Policy evaluation over several rollout seeds, and how sure its ranking is over sessions.
+
+A world model's verdict on one cell changes with the rollout's noise seed, so
+one ``oscar eval run`` per seed over the same cells gives a success rate per
+(session, policy) averaged over seeds. :func:`session_bootstrap` then resamples
+the sessions with replacement and recomputes both sides' per-policy success
+rates and Spearman ρ, which tells how much the ranking depends on which
+sessions were drawn.
+
+``python -m oscar_core.metrics.policy_seeds RUN [RUN ...]`` reads the
+``report.json`` of ``oscar eval run`` folders (one per seed, same manifest
+cells) and prints the per-policy rates, ρ, its 95 % session interval,
+P(ρ ≥ 0.8), Pearson r, MMRV and SISR_Δ.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
+
+__all__ = ["cell_rates", "session_bootstrap", "summarize_runs"]
+
+
+def cell_rates(reports: list[dict]) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
+    """(sessions, policies, real (S, P), wm (S, P)) from ``oscar eval run`` reports of the same cells.
+
+    real: the cell's real success (0/1); wm: its world-model success averaged over the reports
+    (cells a report did not judge are left out of that cell's mean; NaN when no report judged it).
+    Raises ValueError when the reports disagree on a cell's real outcome (not the same manifest).
+    """
+    cells: dict[tuple[str, str], dict] = {}
+    for rep in reports:
+        for c in rep["cells"]:
+            d = cells.setdefault((c["session"], c["policy"]), {"real": c["real_success"], "wm": []})
+            if d["real"] != c["real_success"]:
+                raise ValueError(f"cell {c['cell']}: real success {c['real_success']} in one report and {d['real']} "
+                                 "in another; expected runs over the same manifest")
+            if c.get("wm_success") is not None:
+                d["wm"].append(float(c["wm_success"]))
+    sessions = sorted({s for s, _ in cells})
+    policies = list(dict.fromkeys(p for _, p in cells))
+    real = np.full((len(sessions), len(policies)), np.nan)
+    wm = np.full_like(real, np.nan)
+    for (s, p), d in cells.items():
+        i, j = sessions.index(s), policies.index(p)
+        real[i, j] = np.nan if d["real"] is None else float(d["real"])
+        wm[i, j] = float(np.mean(d["wm"])) if d["wm"] else np.nan
+    return sessions, policies, real, wm
+
+
+def session_bootstrap(real: np.ndarray, wm: np.ndarray, resamples: int = 2000, seed: int = 0) -> np.ndarray:
+    """(resamples,) Spearman ρ of the per-policy mean rates over sessions drawn with replacement.
+
+    real, wm: (S, P) per-session success rates (NaN cells are left out of a policy's mean).
+    A resample where either side's rates are all equal gives NaN (no ranking).
+    """
+    rng = np.random.default_rng(seed)
+    out = np.empty(int(resamples))
+    with np.errstate(invalid="ignore"):
+        for k in range(len(out)):
+            idx = rng.integers(0, real.shape[0], real.shape[0])
+            r, w = np.nanmean(real[idx], 0), np.nanmean(wm[idx], 0)
+            out[k] = spearman_rho(r, w) if np.ptp(r) > 0 and np.ptp(w) > 0 else np.nan
+    return out
+
+
+def summarize_runs(folders, resamples: int = 2000, seed: int = 0) -> dict:
+    """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed)."""
+    reports = [json.loads((Path(f) / "report.json").read_text()) for f in folders]
+    sessions, policies, real, wm = cell_rates(reports)
+    r, w = np.nanmean(real, 0), np.nanmean(wm, 0)
+    boot = session_bootstrap(real, wm, resamples, seed)
+    ok = boot[np.isfinite(boot)]
+    return {"runs": [str(f) for f in folders], "sessions": len(sessions), "policies": policies,
+            "real_success": r.tolist(), "wm_success": w.tolist(), "spearman_rho": spearman_rho(r, w),
+            "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
+            "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
+            "pearson_r": pearson_r(r, w), "mmrv": mmrv_rank(r, w), "sisr_delta_pp": sisr_delta(r, w),
+            "resamples": resamples, "seed": seed}
+
+
+def main(argv=None) -> int:
+    args = sys.argv[1:] if argv is None else list(argv)
+    if not args:
+        print("usage: python -m oscar_core.metrics.policy_seeds RUN [RUN ...]  (oscar eval run folders, one per seed)",
+              file=sys.stderr)
+        return 2
+    s = summarize_runs(args)
+    print(f"{len(s['runs'])} runs, {s['sessions']} sessions")
+    print("policy: real / world model: " + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in
+                                                      zip(s["policies"], s["real_success"], s["wm_success"])))
+    ci = s["spearman_ci95"]
+    print(f"Spearman {s['spearman_rho']:+.3f}" + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
+          + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
+          f"SISR {s['sisr_delta_pp']:.2f} pp")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,59 @@
+"""Policy evaluation over rollout seeds and its session bootstrap (oscar_core/metrics/policy_seeds.py)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from oscar_core.metrics.policy_seeds import cell_rates, main, session_bootstrap, summarize_runs
+
+POLICIES = ("a", "b", "c")
+
+
+def report(wm_of, sessions=6, real_of=lambda s, j: int(s % 3 >= j)):
+    """An eval-run report: policy j of session s really succeeds when s % 3 >= j; wm_of(s, j) gives its verdict."""
+    return {"cells": [{"cell": f"s{s}/{p}", "session": f"s{s}", "policy": p, "real_success": real_of(s, j),
+                       "wm_success": wm_of(s, j)} for s in range(sessions) for j, p in enumerate(POLICIES)]}
+
+
+def test_rates_average_the_seeds_per_cell():
+    sessions, policies, real, wm = cell_rates([report(lambda s, j: 1), report(lambda s, j: 0),
+                                               report(lambda s, j: int(j == 0))])
+    assert policies == list(POLICIES) and len(sessions) == 6
+    np.testing.assert_allclose(wm[:, 0], 2 / 3)
+    np.testing.assert_allclose(wm[:, 1:], 1 / 3)
+    assert real[0].tolist() == [1, 0, 0]
+
+
+def test_a_world_model_that_agrees_ranks_perfectly_in_every_resample_and_a_reversed_one_never():
+    real = np.array([[1, 1, 0], [1, 0, 0], [1, 1, 1], [1, 0, 0]], float)
+    boot = session_bootstrap(real, real, resamples=300)
+    assert np.all(boot[np.isfinite(boot)] == pytest.approx(1.0))
+    boot = session_bootstrap(real, 1 - real, resamples=300)
+    assert np.all(boot[np.isfinite(boot)] == pytest.approx(-1.0))
+    assert np.array_equal(session_bootstrap(real, real, 50, seed=3), session_bootstrap(real, real, 50, seed=3),
+                          equal_nan=True)
+
+
+def test_runs_over_different_manifests_are_refused():
+    with pytest.raises(ValueError, match="same manifest"):
+        cell_rates([report(lambda s, j: 1), report(lambda s, j: 1, real_of=lambda s, j: 1)])
+
+
+def test_summary_and_command_line(tmp_path, capsys):
+    folders = []
+    for k in range(3):  # seed k: the world model agrees with the real outcome except one flipped cell per seed
+        f = tmp_path / f"run{k}"
+        f.mkdir()
+        rep = report(lambda s, j, k=k: int(s % 3 >= j) if (s, j) != (k, 1) else 1 - int(s % 3 >= j))
+        (f / "report.json").write_text(json.dumps(rep))
+        folders.append(f)
+    s = summarize_runs(folders, resamples=500)
+    assert s["real_success"] == pytest.approx([1.0, 2 / 3, 1 / 3])
+    assert s["spearman_rho"] == pytest.approx(1.0) and s["mmrv"] == 0.0
+    # policy b: sessions 0-2 each have one flipped seed (1/3, 2/3, 2/3), sessions 3-5 agree (0, 1, 1)
+    assert s["wm_success"] == pytest.approx([1.0, 11 / 18, 1 / 3])
+    assert 0 < s["p_rho_at_least_0_8"] <= 1 and s["spearman_ci95"][1] == pytest.approx(1.0)
+    assert main([str(f) for f in folders]) == 0
+    assert "Spearman +1.000" in capsys.readouterr().out
+    assert main([]) == 2
