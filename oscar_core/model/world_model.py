@@ -313,8 +313,8 @@ class OscarWorldModel:
             return
         try:
             chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal))
-        except (ModelInputError, TypeError, ValueError):
-            return  # the rollout itself reports the bad input
+        except (ModelInputError, TypeError, ValueError, AttributeError):
+            return  # the rollout itself reports the bad input (or a stand-in model without a VAE: nothing to weigh)
         ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps)
         self.compile_reason = why
         _log.info("%s", why)
