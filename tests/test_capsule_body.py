@@ -101,7 +101,6 @@ def test_the_silhouette_is_the_toy_worlds_own_capsules(registry, name):
         return (truth & ours & judged).sum() / ((truth | ours) & judged).sum()
 
     same = iou(ep.motion.scale)
-    print(name, same)
     assert same > 0.9, same
     # a body of the wrong size does not match as well: the check can fail
     assert iou(1.6 * ep.motion.scale) < same - 0.1
