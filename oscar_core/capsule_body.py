@@ -18,7 +18,6 @@ chunks of frames, each frame rasterised on its own.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -26,9 +25,10 @@ import numpy as np
 
 from .camera import Camera
 from .mesh_render import draw_frames, link_palette, record_empty
-from .render_stream import (DEFAULT_CHUNK_FRAMES, EmptyViewError, EmptyViewWarning, RenderStats, _project_cv,
-                            _to_camera, format_frames, stream_chunks)
+from .render_stream import (DEFAULT_CHUNK_FRAMES, RenderStats, _project_cv, _to_camera, format_frames,
+                            render_whole, stream_chunks)
 from .visual import capsule_mesh
+from .workspace import joint_limits, open_fk, reach_of
 
 __all__ = ["RADIUS_BASE", "RADIUS_TIP", "CapsuleStyle", "link_radii", "body_reach", "finger_axes",
            "body_vertices", "iter_capsule_chunks", "render_capsule_video"]
@@ -76,30 +76,13 @@ def body_reach(embodiment, samples: int = 768, seed: int = 0) -> float:
     joints: [−π, π]) with a fixed ``seed``, grippers open. The end-effector is the first gripper's
     indicator point, else the last skeleton point; the base is skeleton point 0 (mean over samples).
     Deterministic per embodiment (cached on it); the toy world's per-episode reach is the same statistic
-    over its own draws."""
+    (:func:`oscar_core.workspace.reach_of`) over its own draws."""
     cache = embodiment.__dict__.setdefault("_capsule_reach", {})
     key = (samples, seed)
     if key not in cache:
-        from .trajectory import Trajectory
-
-        lo, hi = embodiment.tree.limits()
-        pos = {n: i for i, n in enumerate(embodiment.tree.joint_names)}
-        idx = [pos[n] for n in embodiment.joint_names]
-        lo = np.where(np.isfinite(lo[idx]), lo[idx], -np.pi).astype(np.float64)
-        hi = np.where(np.isfinite(hi[idx]), hi[idx], np.pi).astype(np.float64)
-        span = hi - lo
-        lo, hi = lo + 0.05 * span, hi - 0.05 * span
+        lo, hi = joint_limits(embodiment)
         q = lo + np.random.default_rng(seed).uniform(0, 1, (samples, len(lo))) * (hi - lo)
-        grips = []
-        for g in embodiment.grippers:  # open
-            a, b = g.signal_range
-            grips.append(np.full(samples, b if g.closed_at == "low" else a, dtype=np.float64))
-        gripper = np.stack(grips, axis=1) if grips else None
-        traj = Trajectory(embodiment.joint_names, q, 10.0, gripper, embodiment.gripper_names or None)
-        fr = embodiment.frames(embodiment.check_trajectory(traj))
-        ee = fr.gripper_points[:, 0] if len(embodiment.grippers) else fr.points[:, -1]
-        base = fr.points[:, 0].mean(0)
-        cache[key] = max(float(np.percentile(np.linalg.norm(ee - base, axis=1), 90)), 1e-3)
+        cache[key] = reach_of(*open_fk(embodiment, q))
     return cache[key]
 
 
@@ -276,15 +259,7 @@ def render_capsule_video(embodiment, traj, camera: Camera, size: tuple[int, int]
     :class:`CapsuleStyle`).
     """
     job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    stats = stats if stats is not None else RenderStats()
-    T = len(job.traj)
     intr = job.camera.intrinsics
-    out = np.empty((T, intr.height, intr.width, 3), np.uint8)
-    for start in range(0, T, chunk_frames):
-        _render_range(job, start, min(T, start + chunk_frames), out[start:min(T, start + chunk_frames)], stats)
-    if stats.empty_frames:
-        message = _empty_message(camera_source, stats.empty_frames, T)
-        if strict:
-            raise EmptyViewError(message + " (strict)")
-        warnings.warn(message, EmptyViewWarning, stacklevel=2)
-    return out
+    return render_whole(len(job.traj), intr.height, intr.width,
+                        lambda start, stop, out, st: _render_range(job, start, stop, out, st), chunk_frames, strict,
+                        stats, lambda empty, T: _empty_message(camera_source, empty, T))

@@ -45,10 +45,10 @@ def end_effector_pixels(embodiment, trajectory, camera) -> tuple[np.ndarray, np.
     a camera mounted on a link moves with it (the renderer's projection).
     """
     from ..camera_projection import project
+    from ..workspace import end_effector
 
     fr = embodiment.frames(trajectory, mount_link=camera.mount_link)
-    ee = fr.gripper_points[:, 0] if len(embodiment.grippers) else fr.points[:, -1]
-    p = project(ee, camera, mount_pose=fr.mount_pose)
+    p = project(end_effector(embodiment, fr), camera, mount_pose=fr.mount_pose)
     return np.asarray(p.uv, dtype=np.float64), np.asarray(p.in_front, dtype=bool)
 
 

@@ -31,6 +31,7 @@ import numpy as np
 from ..embodiment import Embodiment
 from ..errors import OscarError
 from ..trajectory import Trajectory
+from ..workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of  # noqa: F401 (re-exported)
 
 __all__ = ["ToyWorldError", "check_supported", "joint_limits", "Motion", "sample_motion", "carry_object",
            "min_jerk", "openness_to_signal", "ee_points", "miss_start", "GRAB_RADII", "MISS_NEAR_RADII",
@@ -64,28 +65,6 @@ def check_supported(emb: Embodiment) -> None:
         raise ToyWorldError(f"toyworld: embodiment {emb.name!r} has no skeleton edges to draw")
 
 
-def joint_limits(emb: Embodiment, shrink: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    """(J,) lower and upper limits of ``emb.joint_names`` (radians / metres), shrunk by ``shrink`` of the range."""
-    lo, hi = emb.tree.limits()
-    pos = {n: i for i, n in enumerate(emb.tree.joint_names)}
-    idx = [pos[n] for n in emb.joint_names]
-    lo, hi = lo[idx].astype(np.float64), hi[idx].astype(np.float64)
-    lo = np.where(np.isfinite(lo), lo, -np.pi)
-    hi = np.where(np.isfinite(hi), hi, np.pi)
-    span = hi - lo
-    return lo + shrink * span, hi - shrink * span
-
-
-def openness_to_signal(emb: Embodiment, openness: np.ndarray) -> np.ndarray:
-    """(T, G) openness in [0, 1] → (T, G) raw gripper signals in each gripper's ``signal_range``."""
-    cols = []
-    for i, g in enumerate(emb.grippers):
-        lo, hi = g.signal_range
-        o = openness[:, i]
-        cols.append(lo + o * (hi - lo) if g.closed_at == "low" else hi - o * (hi - lo))
-    return np.stack(cols, axis=1) if cols else np.zeros((openness.shape[0], 0))
-
-
 def min_jerk(keys: np.ndarray, times: np.ndarray, T: int) -> np.ndarray:
     """Piecewise minimum-jerk interpolation: keys (N, J) at integer frames ``times`` (N,), increasing,
     times[0] = 0, times[-1] = T - 1 → (T, J). Each segment is a convex blend of its two keys."""
@@ -97,17 +76,6 @@ def min_jerk(keys: np.ndarray, times: np.ndarray, T: int) -> np.ndarray:
         w = 10 * s**3 - 15 * s**4 + 6 * s**5
         out[t0:t1 + 1] = keys[k] + w[:, None] * (keys[k + 1] - keys[k])
     return out
-
-
-def ee_points(emb: Embodiment, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
-    """World positions of the skeleton points (T, K, 3) and of the end-effector (T, 3), metres.
-
-    The end-effector is the first gripper's indicator point, or the last
-    skeleton point for an embodiment without grippers.
-    """
-    fr = emb.frames(traj)
-    ee = fr.gripper_points[:, 0] if len(emb.grippers) else fr.points[:, -1]
-    return fr.points, ee
 
 
 def carry_object(ee: np.ndarray, openness: np.ndarray, start: np.ndarray, radius: float,
@@ -160,14 +128,6 @@ class Motion:
     missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
 
 
-def _batch_fk(emb: Embodiment, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Skeleton points (N, K, 3) and end-effectors (N, 3) of N configurations (grippers open)."""
-    G = len(emb.grippers)
-    gripper = openness_to_signal(emb, np.ones((len(q), G)))
-    traj = Trajectory(emb.joint_names, q, 10.0, gripper, emb.gripper_names or None)
-    return ee_points(emb, traj)
-
-
 def miss_start(rng: np.random.Generator, grasp_xy: np.ndarray, base_xy: np.ndarray, radius: float,
                scale: float) -> np.ndarray:
     """(2,) floor position, metres, of a missed pick's ball: at a distance from ``grasp_xy`` (the grasp
@@ -205,10 +165,9 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
     lo, hi = joint_limits(emb)
     J = len(lo)
     q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
-    pts, ee = _batch_fk(emb, q)
+    pts, ee = open_fk(emb, q)
     base = pts[:, 0].mean(0)
-    scale = float(np.percentile(np.linalg.norm(ee - base, axis=1), 90))
-    scale = max(scale, 1e-3)
+    scale = reach_of(pts, ee)
     R = 0.09 * scale  # a ball about 7 pixels across at 64 x 64
     above = (pts[..., 2].min(1) >= -0.02 * scale) & (ee[:, 2] >= R)
     far = np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale

@@ -44,8 +44,8 @@ from .._log import get_logger
 from ..camera import Camera, project
 from ..embodiment import Embodiment
 from ..trajectory import Trajectory
-from .motion import (GRAB_RADII, Motion, ToyWorldError, _batch_fk, carry_object, check_supported, ee_points,
-                     joint_limits, min_jerk, openness_to_signal)
+from ..workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of
+from .motion import GRAB_RADII, Motion, ToyWorldError, carry_object, check_supported, min_jerk
 
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
            "plan_session", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
@@ -133,7 +133,7 @@ def _reach(emb: Embodiment, q: np.ndarray, ee: np.ndarray, ok: np.ndarray, targe
     for _ in range(rounds):
         prop = cur[:, None, :] + rng.normal(0.0, 1.0, (len(cur), proposals, J)) * step
         prop = np.clip(prop, lo, hi).reshape(-1, J)
-        pts, pe = _batch_fk(emb, prop)
+        pts, pe = open_fk(emb, prop)
         c = np.linalg.norm(pe - target, axis=1)
         c = np.where(pts[..., 2].min(1) >= floor, c, np.inf).reshape(len(cur), proposals)
         best = c.argmin(1)
@@ -165,9 +165,9 @@ def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: 
     lo, hi = joint_limits(emb)
     J = len(lo)
     q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
-    pts, ee = _batch_fk(emb, q)
+    pts, ee = open_fk(emb, q)
     base = pts[:, 0].mean(0)
-    scale = max(float(np.percentile(np.linalg.norm(ee - base, axis=1), 90)), 1e-3)
+    scale = reach_of(pts, ee)
     R = 0.09 * scale  # as sample_motion: a ball about 7 pixels across at 64 x 64
     floor = -0.02 * scale
     above = (pts[..., 2].min(1) >= floor) & (ee[:, 2] >= R)
