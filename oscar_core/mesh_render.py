@@ -19,7 +19,6 @@ The choice of this renderer and its measurements: docs/mesh-condition.md.
 from __future__ import annotations
 
 import colorsys
-import warnings
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -28,8 +27,8 @@ import numpy as np
 from .camera import Camera
 from .errors import PluginError
 from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
-from .render_stream import (DEFAULT_CHUNK_FRAMES, EmptyViewError, EmptyViewWarning, RenderStats, _project_cv,
-                            _to_camera, format_frames, stream_chunks)
+from .render_stream import (DEFAULT_CHUNK_FRAMES, RenderStats, _project_cv, _to_camera, format_frames,
+                            render_whole, stream_chunks)
 from .visual import VisualGeometry
 
 __all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "mesh_vertices", "iter_mesh_chunks",
@@ -266,16 +265,7 @@ def render_mesh_video(embodiment, traj, camera: Camera, size: tuple[int, int] | 
     without visual geometry.
     """
     job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    stats = stats if stats is not None else RenderStats()
-    T = len(job.traj)
     intr = job.camera.intrinsics
-    out = np.empty((T, intr.height, intr.width, 3), np.uint8)
-    for start in range(0, T, chunk_frames):
-        stop = min(T, start + chunk_frames)
-        _render_range(job, start, stop, out[start:stop], stats)
-    if stats.empty_frames:
-        message = _empty_message(camera_source, stats.empty_frames, T)
-        if strict:
-            raise EmptyViewError(message + " (strict)")
-        warnings.warn(message, EmptyViewWarning, stacklevel=2)
-    return out
+    return render_whole(len(job.traj), intr.height, intr.width,
+                        lambda start, stop, out, st: _render_range(job, start, stop, out, st), chunk_frames, strict,
+                        stats, lambda empty, T: _empty_message(camera_source, empty, T))

@@ -265,6 +265,26 @@ def stream_chunks(total: int, render: Callable[[int, int, RenderStats], np.ndarr
         warnings.warn(message(stats.empty_frames, total), EmptyViewWarning, stacklevel=3)
 
 
+def render_whole(total: int, height: int, width: int, render: Callable[[int, int, np.ndarray, RenderStats], object],
+                 chunk_frames: int, strict: bool, stats: RenderStats | None,
+                 message: Callable[[list[int], int], str]) -> np.ndarray:
+    """The loop every condition's whole-video renderer shares: a (total, height, width, 3) uint8 video whose
+    consecutive ranges of at most ``chunk_frames`` frames ``render(start, stop, out[start:stop], stats)`` fills.
+    Frames ``render`` records as empty in ``stats.empty_frames`` give one :class:`EmptyViewWarning` at the
+    end, worded by ``message(empty frames, total)`` (``strict``: :class:`EmptyViewError` instead)."""
+    stats = stats if stats is not None else RenderStats()
+    out = np.empty((total, height, width, 3), np.uint8)
+    for start in range(0, total, chunk_frames):
+        stop = min(total, start + chunk_frames)
+        render(start, stop, out[start:stop], stats)
+    if stats.empty_frames:
+        text = message(stats.empty_frames, total)
+        if strict:
+            raise EmptyViewError(text + " (strict)")
+        warnings.warn(text, EmptyViewWarning, stacklevel=3)
+    return out
+
+
 def iter_skeleton_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
                          style: SkeletonStyle | None = None, resize_mode: str = "crop", device="cpu",
                          camera_source: str = "<camera>", chunk_frames: int = DEFAULT_CHUNK_FRAMES,
@@ -293,16 +313,7 @@ def render_into(embodiment, traj, camera: Camera, size: tuple[int, int] | None =
                 stats: RenderStats | None = None) -> np.ndarray:
     """The whole video as one (T, H, W, 3) uint8 array, rendered chunk by chunk into it."""
     job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    stats = stats if stats is not None else RenderStats()
-    T = len(job.traj)
     intr = job.camera.intrinsics
-    out = np.empty((T, intr.height, intr.width, 3), np.uint8)
-    for start in range(0, T, chunk_frames):
-        stop = min(T, start + chunk_frames)
-        _render_range(job, start, stop, out[start:stop], stats)
-    if stats.empty_frames:
-        message = _empty_message(camera_source, stats.empty_frames, T)
-        if strict:
-            raise EmptyViewError(message + " (strict)")
-        warnings.warn(message, EmptyViewWarning, stacklevel=2)
-    return out
+    return render_whole(len(job.traj), intr.height, intr.width,
+                        lambda start, stop, out, st: _render_range(job, start, stop, out, st), chunk_frames, strict,
+                        stats, lambda empty, T: _empty_message(camera_source, empty, T))
