@@ -311,10 +311,12 @@ class OscarWorldModel:
         if is_compiled(self.transformer):
             self.compile_reason = "compiled earlier in this process (reused)"
             return
+        if self.vae is None:  # no VAE, no rollout to weigh (the rollout itself reports it)
+            return
         try:
             chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal))
-        except (ModelInputError, TypeError, ValueError, AttributeError):
-            return  # the rollout itself reports the bad input (or a stand-in model without a VAE: nothing to weigh)
+        except (ModelInputError, TypeError, ValueError):
+            return  # the rollout itself reports the bad input
         ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps)
         self.compile_reason = why
         _log.info("%s", why)
