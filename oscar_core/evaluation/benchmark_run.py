@@ -40,6 +40,7 @@ import numpy as np
 from .. import _stage
 from .._atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._log import get_logger, progress_bar
+from ..conditions import video_condition_of
 
 __all__ = ["PROMPT_MODES", "rollout_clip", "run_benchmark", "read_timing"]
 
@@ -67,12 +68,8 @@ def rollout_clip(model, clipset, rec, frames: int, *, sampler, seed: int = 0, re
     if model.card.condition == "latent_action":
         acts = model.rollout_inputs(clip.trajectory, clip.camera, emb)["actions"][:frames - 1]
         video = model.rollout(first, None, embeds, actions=acts, **options)
-    else:
-        if model.card.condition == "skeleton":
-            cond = clipset.skeleton_video(source, clip, registry)[:frames]
-        else:
-            cond = model.rollout_inputs(clip.trajectory, clip.camera, emb, (rec.width, rec.height),
-                                        camera_source=str(clipset.path(source, "camera")))["skeleton"]
+    else:  # the card's condition video: the stored skeleton, or the mesh / capsules rendered
+        cond = clipset.condition_video(source, clip, registry, video_condition_of(model.card.condition))[:frames]
         video = model.rollout(first, cond, embeds, **options)
     seconds = time.perf_counter() - t0
     return np.asarray(video.frames if hasattr(video, "frames") else video).astype(np.uint8), seconds

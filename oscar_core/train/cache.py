@@ -68,11 +68,10 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
 
     import torch
 
+    from ..conditions import check_condition
     from ..model.vae import check_frame_count
     from ..registry import Registry
     from .clips import Clip, ClipSet, ClipSetWriter
-
-    from ..conditions import check_condition, condition_video
 
     check_frame_count(window, what="window")
     check_condition(condition, "--condition")
@@ -104,13 +103,7 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
         for rec in recs:
             clip = source.load(rec, registry=registry)
             starts = window_starts(rec.n_frames, window, stride)
-            if not len(starts):
-                skel = None
-            elif condition == "skeleton":
-                skel = source.skeleton_video(rec, clip, registry)
-            else:
-                skel = condition_video(condition, registry.get(rec.embodiment), clip.trajectory, clip.camera,
-                                       (rec.width, rec.height), camera_source=str(source.path(rec, "camera")))
+            skel = source.condition_video(rec, clip, registry, condition) if len(starts) else None
             loaded.append((rec, clip, starts))
             windows += [(len(loaded) - 1, "video", clip.rgb[s:s + window]) for s in starts]
             windows += [(len(loaded) - 1, "skeleton", skel[s:s + window]) for s in starts]

@@ -441,6 +441,17 @@ class ClipSet:
         return render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
                                      camera_source=str(self.path(rec, "camera")))
 
+    def condition_video(self, rec: ClipRecord, clip: Clip, registry, condition: str = "skeleton") -> np.ndarray:
+        """(T, H, W, 3) uint8 condition video ``condition`` (:mod:`oscar_core.conditions`) of a loaded ``clip``:
+        for the skeleton :meth:`skeleton_video` (its stored one, else rendered), for another condition rendered
+        at the clip's size from its trajectory and camera through ``registry``'s embodiment."""
+        if condition == "skeleton":
+            return self.skeleton_video(rec, clip, registry)
+        from ..conditions import condition_video
+
+        return condition_video(condition, registry.get(rec.embodiment), clip.trajectory, clip.camera,
+                               (rec.width, rec.height), camera_source=str(self.path(rec, "camera")))
+
     def load(self, rec: ClipRecord | str, *, start: int = 0, frames: int | None = None, video: bool = True,
              skeleton: bool = True, registry=None) -> Clip:
         """Read a clip, or the window ``[start, start + frames)`` of it, and check it against its record.
