@@ -108,9 +108,10 @@ def benchmark_table(bench: dict, rows: dict[str, str], *, networks: dict | None 
         rep = evaluate_videos(clips, n_frames=frames, lpips_net=networks.get("lpips"), vae=networks.get("vae"),
                               fvd_extractor=networks.get("i3d"), fid_extractor=networks.get("inception"),
                               device=device).to_dict()
-        fps = [t["frames_per_s"] for e in bench["clips"] if (t := read_timing(folder, e["id"])) and t["frames_per_s"]]
+        timing = {e["id"]: read_timing(folder, e["id"]) for e in bench["clips"]}  # each record read once
+        fps = [t["frames_per_s"] for t in timing.values() if t and t["frames_per_s"]]
         speed = float(np.mean(fps)) if fps else None
-        per = {emb: {**vals, "frames_per_s": _mean([read_timing(folder, e["id"])["frames_per_s"]
+        per = {emb: {**vals, "frames_per_s": _mean([timing[e["id"]]["frames_per_s"]
                                                      for e in bench["clips"] if e["embodiment"] == emb])}
                for emb, vals in rep["per_embodiment"].items()}
         out_rows[name] = {"folder": str(folder), "model": fingerprints[name].get("model"),
