@@ -147,12 +147,18 @@ class Episode:
         }
 
 
+def _episode_generator(seed: int, embodiment: str, index: int, *tag: int) -> np.random.Generator:
+    """A generator seeded by (seed, crc32 of the embodiment's name, episode index, *tag)."""
+    import zlib
+
+    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index),
+                                                         *tag]))
+
+
 def episode_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
     """The generator of episode ``index`` of ``embodiment`` under ``seed``: independent of every other
     episode, so any subset (a shard) is regenerated identically."""
-    import zlib
-
-    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index)]))
+    return _episode_generator(seed, embodiment, index)
 
 
 #: The last seed word of :func:`miss_rng` ("miss" in ASCII): its stream is unrelated to :func:`episode_rng`'s.
@@ -162,10 +168,7 @@ _MISS_TAG = 0x6D697373
 def miss_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
     """The generator of episode ``index``'s missed pick (:func:`~oscar_core.toyworld.motion.sample_motion`'s
     ``miss_rng``): separate from :func:`episode_rng`, so the miss fraction changes no other draw."""
-    import zlib
-
-    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index),
-                                                         _MISS_TAG]))
+    return _episode_generator(seed, embodiment, index, _MISS_TAG)
 
 
 def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
