@@ -17,6 +17,10 @@ and its triangle count; and the peak traced memory of the streamed renderer
 for a trajectory and the same trajectory five times as long.
 
     python benchmarks/render.py --skip-skeleton --mesh-embodiments franka toyarm
+
+The capsules condition (docs/mesh-condition.md, "The capsules condition") is timed on each
+``--capsule-embodiments`` example trajectory at 512x288 and at the toy world's 64x64
+(``--skip-capsules`` leaves it out).
 """
 
 from __future__ import annotations
@@ -215,6 +219,21 @@ def print_mesh_table(rows: list[dict]) -> None:
                   + ", ".join(f"{n} frames {mb:.1f}" for n, mb in r["stream_peak_mb"].items()))
 
 
+def bench_capsules(name: str, repeats: int, sizes=((512, 288), (64, 64))) -> list[dict]:
+    """render_capsule_video of ``name``'s example trajectory, per size: microseconds per frame, frames/s."""
+    from oscar_core.capsule_body import body_reach, render_capsule_video
+
+    emb = get_embodiment(name)
+    traj, cam = load_trajectory(emb.example_trajectory), load_camera(emb.example_camera)
+    body_reach(emb)  # computed once per embodiment and cached: not part of a frame's cost
+    rows = []
+    for size in sizes:
+        best, median = best_and_median(lambda: render_capsule_video(emb, traj, cam, size), repeats)
+        rows.append({"embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": len(traj), "edges": len(emb.edges),
+                     "us_per_frame": best / len(traj) * 1e6, "fps": len(traj) / best, "median_fps": len(traj) / median})
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=7)
@@ -224,6 +243,9 @@ def main(argv=None) -> int:
                     help="embodiments whose mesh condition is timed (default: franka toyarm)")
     ap.add_argument("--skip-skeleton", action="store_true", help="time the mesh condition only")
     ap.add_argument("--skip-mesh", action="store_true", help="time the skeleton only")
+    ap.add_argument("--capsule-embodiments", nargs="*", default=["toyarm", "franka", "kuka", "hsr", "agibot_g1"],
+                    help="embodiments whose capsules condition is timed")
+    ap.add_argument("--skip-capsules", action="store_true", help="leave the capsules condition out")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
@@ -244,12 +266,20 @@ def main(argv=None) -> int:
     mesh_rows = [] if args.skip_mesh else [r for n in args.mesh_embodiments for r in bench_mesh(n, args.repeats)]
     if mesh_rows:
         print_mesh_table(mesh_rows)
+    capsule_rows = [] if args.skip_capsules else [r for n in args.capsule_embodiments
+                                                  for r in bench_capsules(n, args.repeats)]
+    if capsule_rows:
+        print(f"capsules condition, example trajectories, one CPU thread (best of {args.repeats}; median beside it)")
+        for r in capsule_rows:
+            print(f"  {r['embodiment']:>10s} {r['size']:>8s} {r['edges']:>3d} edges  {r['us_per_frame']:8.0f} us/frame  "
+                  f"{r['fps']:6.0f} fps  (median {r['median_fps']:.0f})")
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
             "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    out.write_text(json.dumps({"meta": meta, "rows": rows, "mesh_rows": mesh_rows}, indent=2))
+    out.write_text(json.dumps({"meta": meta, "rows": rows, "mesh_rows": mesh_rows, "capsule_rows": capsule_rows},
+                              indent=2))
     print(f"wrote {out}")
     return 0
 
