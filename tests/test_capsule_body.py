@@ -231,3 +231,27 @@ def test_a_capsules_model_exports_its_condition_and_rolls_out_through_the_clis(t
     assert main(["eval", "benchmark", "run", str(tmp_path / "b.json"), "--model", str(result.export), "--steps", "1",
                  "--out", str(tmp_path / "bp")]) == 0
     assert len(list((tmp_path / "bp").glob("*.npy"))) == 1
+
+
+def test_a_latent_cache_rerun_with_another_condition_or_vae_is_refused(tmp_path):
+    """cache_latents fingerprints its output: a changed condition or other VAE weights into the same folder are
+    refused, naming what changed, instead of keeping the finished shards of the other kind."""
+    from test_train_loop import tiny
+
+    from oscar_core._stage import StageChanged
+    from oscar_core.train.cache import cache_latents
+    from oscar_core.train.models import build_vae
+    from oscar_core.train.synthetic import write_toy_clipset
+
+    src = write_toy_clipset(tmp_path / "src", clips=2, frames=9, width=32, height=32, prompt_dim=48)
+    vae = build_vae(tiny(src, tmp_path / "r", steps=1))
+    reg = Registry()
+    first = cache_latents(src, tmp_path / "c", vae, 9, registry=reg, log=lambda m: None)
+    again = cache_latents(src, tmp_path / "c", vae, 9, registry=reg, log=lambda m: None)
+    assert first.shards_written > 0 and again.shards_written == 0 and again.shards_kept == first.shards_written
+    with pytest.raises(StageChanged, match="condition"):
+        cache_latents(src, tmp_path / "c", vae, 9, registry=reg, condition="capsules", log=lambda m: None)
+    with torch.no_grad():
+        next(vae.vae.parameters()).add_(1.0)  # same config, other weights
+    with pytest.raises(StageChanged, match="vae_weights"):
+        cache_latents(src, tmp_path / "c", vae, 9, registry=reg, log=lambda m: None)

@@ -171,3 +171,20 @@ def test_without_a_miss_generator_the_episode_stream_is_left_alone():
         np.testing.assert_array_equal(a.trajectory.q, b.trajectory.q)
         assert b.missed == (b.kind == "pick_place") and r0.uniform() == r1.uniform()
     assert b.missed
+
+
+def test_a_rerun_with_another_miss_fraction_is_refused_and_more_episodes_are_added(tmp_path):
+    """toyworld generate fingerprints what every episode depends on: a changed --pick-miss into the same folder
+    is refused (naming it) instead of mixing two kinds of episodes; more episodes only add shards."""
+    from oscar_core._stage import StageChanged
+    from oscar_core.registry import Registry
+    from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
+
+    reg, out = Registry(), tmp_path / "set"
+    cfg = GenerateConfig(("toyarm",), 2, width=32, height=32, frames=9, shard_size=2, pick_miss=0.5)
+    assert generate_clipset(cfg, out, reg)["episodes_written"] == 2
+    with pytest.raises(StageChanged, match="pick_miss"):
+        generate_clipset(GenerateConfig(("toyarm",), 2, width=32, height=32, frames=9, shard_size=2), out, reg)
+    more = generate_clipset(GenerateConfig(("toyarm",), 4, width=32, height=32, frames=9, shard_size=2,
+                                           pick_miss=0.5), out, reg)
+    assert (more["episodes_written"], more["episodes_skipped"]) == (2, 2)

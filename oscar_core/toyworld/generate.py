@@ -24,6 +24,7 @@ from typing import Callable
 
 import numpy as np
 
+from .. import _stage
 from .._log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode, miss_rng
@@ -80,6 +81,12 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         raise ValueError(f"toyworld generate: --episodes: expected at least 1, found {cfg.episodes}")
     if not (isinstance(cfg.pick_miss, (int, float)) and 0.0 <= cfg.pick_miss <= 1.0):
         raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
+    # what every episode depends on besides (seed, embodiment, index): a re-run with other settings into the same
+    # folder would mix episodes of two kinds; more episodes or embodiments only add shards, so they are left out
+    parts = {"stage": "toyworld-generate", "format": _stage.FORMAT_VERSION, "seed": cfg.seed, "width": cfg.width,
+             "height": cfg.height, "frames": cfg.frames, "fps": cfg.fps, "shard_size": cfg.shard_size,
+             "supersample": cfg.supersample, "skeleton": cfg.skeleton, "pick_miss": cfg.pick_miss}
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer = ClipSetWriter(out)
     writer.remove_stale()
     done = skipped = 0

@@ -47,6 +47,22 @@ def window_starts(n_frames: int, window: int, stride: int) -> np.ndarray:
     return np.arange(0, n_frames - window + 1, stride, dtype=np.int64)
 
 
+def _weights_digest(module) -> str:
+    """sha256 of a module's state (names, shapes, dtypes and bytes, in order): what the cached latents depend on
+    that a VAE config's hash does not say."""
+    import hashlib
+
+    import torch
+
+    h = hashlib.sha256()
+    for name, t in module.state_dict().items():
+        t = t.detach().cpu().contiguous()
+        h.update(f"{name}:{tuple(t.shape)}:{t.dtype};".encode())
+        if t.numel():
+            h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
 def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_name: str = "",
                   split: str | None = None, batch: int = 8, registry=None,
                   log: Callable[[str], None] = print, condition: str = "skeleton") -> CacheSummary:
@@ -68,6 +84,7 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
 
     import torch
 
+    from .. import _stage
     from ..conditions import check_condition
     from ..model.vae import check_frame_count
     from ..registry import Registry
@@ -85,6 +102,9 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     if not vae_name:
         cfg = json.dumps(dict(vae.vae.config), sort_keys=True, default=str)
         vae_name = "config-sha256:" + hashlib.sha256(cfg.encode()).hexdigest()[:16]
+    parts = {"stage": "latent-cache", "format": _stage.FORMAT_VERSION, "source": str(source.root.resolve()),
+             "vae": vae_name, "vae_weights": _weights_digest(vae.vae), "window": window, "stride": stride, "split": split, "condition": condition}
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer = ClipSetWriter(out)
     writer.remove_stale()
     by_shard: dict[Path, list] = {}
