@@ -109,8 +109,9 @@ class PeakMemory:
             self.peak = max(self.peak_abs, _rss()) - self.base
 
 
-def measure(fn, repeats: int, device: torch.device) -> dict:
-    fn()  # warm-up (allocator, thread pools)
+def measure(fn, repeats: int, device: torch.device, warmup: bool = True) -> dict:
+    if warmup:
+        fn()  # warm-up (allocator, thread pools)
     times, peaks = [], []
     for _ in range(repeats):
         with PeakMemory(device) as mem:
@@ -204,76 +205,228 @@ def computed_2b(steps: int = 35, frames: int = 81, width: int = 512, height: int
     for u in UTILISATIONS:
         seconds = chunk / (H100_BF16_TFLOPS * 1e12 * u)
         table.append({"utilisation": u, "seconds_per_chunk": seconds, "frames_per_second": new_frames / seconds})
+    from oscar_core.model.presets import SAMPLER_PRESETS
+    from oscar_core.model.sampler import apply_preset, model_calls
+
+    presets = {}
+    for name in SAMPLER_PRESETS:  # one DiT evaluation of batch 1 is half a guided step
+        config = apply_preset(SamplerConfig(guidance=6.0, solver="unipc"), name)
+        flops = model_calls(config) * step / 2 + text + encode + encode_seed + decode
+        presets[name] = {"steps": config.steps, "dit_evaluations": model_calls(config), "tflop_per_chunk": flops / 1e12,
+                         "h100_frames_per_s": {str(u): new_frames * H100_BF16_TFLOPS * 1e12 * u / flops
+                                               for u in UTILISATIONS}}
     return {"steps": steps, "frames": frames, "size": f"{width}x{height}", "tflop_per_guided_step": step / 1e12,
             "tflop_text_projection": text / 1e12, "tflop_vae_encode_chunk": encode / 1e12,
             "tflop_vae_encode_seed": encode_seed / 1e12, "tflop_vae_decode_chunk": decode / 1e12,
             "tflop_per_chunk": chunk / 1e12, "new_frames_per_chunk": new_frames,
             "h100_bf16_tflops": H100_BF16_TFLOPS, "h100": table, "paper_fps_gh200": PAPER_FPS_GH200,
-            "paper_fps_implied_utilisation": PAPER_FPS_GH200 * chunk / new_frames / (H100_BF16_TFLOPS * 1e12)}
+            "paper_fps_implied_utilisation": PAPER_FPS_GH200 * chunk / new_frames / (H100_BF16_TFLOPS * 1e12),
+            "presets": presets}
 
 
-def gpu_2b(args) -> dict:
-    """Measured on CUDA: the real-size DiT and VAE with random weights in bf16."""
+#: dense bf16 tensor-core peak (TFLOP/s) by device name, first match wins; ``--peak-tflops`` overrides
+PEAK_BF16_TFLOPS = (("GH200", 989.4), ("H200", 989.4), ("H100 PCIe", 756.5), ("H100", 989.4), ("A100", 312.0))
+MEASURE_SIZES = {"2b": (81, 512, 288), "tiny": (9, 128, 64)}  # frames per chunk, width, height
+
+
+def peak_tflops_of(device_name: str) -> float | None:
+    """The dense bf16 peak of a GPU named ``device_name`` (e.g. "NVIDIA H200"), None when unknown."""
+    for key, tflops in PEAK_BF16_TFLOPS:
+        if key in device_name:
+            return tflops
+    return None
+
+
+def count_flops(fn) -> int:
+    """FLOPs of one call of ``fn`` as ``torch.utils.flop_counter`` counts the operators it runs."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter, torch.no_grad():
+        fn()
+    return counter.get_total_flops()
+
+
+def build_measured(size: str, device: torch.device, dtype: torch.dtype):
+    """(transformer, VideoVAE) with random weights: the 2B (WAN 2.1 VAE) or the tiny test configuration."""
     from diffusers import AutoencoderKLWan
 
-    from oscar_core.model.sampler import sample_chunk
     from oscar_core.model.vae import VideoVAE
 
-    if not torch.cuda.is_available():
-        raise SystemExit("--gpu needs a CUDA device (torch.cuda.is_available() is False here)")
-    device, dtype = torch.device("cuda"), torch.bfloat16
     torch.manual_seed(0)
-    with device:
-        transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).to(dtype).eval()
-        vae = VideoVAE(AutoencoderKLWan().eval(), device=device, dtype=dtype)
-    frames, width, height = 81, 512, 288
-    inputs = _dit_inputs(2, frames, width, height, device, dtype)
-    text = torch.zeros(1, 512, 100352)
+    if size == "2b":
+        with device:  # initialise on the device: no 8 GB detour through host memory
+            transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).to(dtype).eval()
+            vae = AutoencoderKLWan().eval()  # diffusers' defaults are the WAN 2.1 VAE's configuration
+    else:
+        transformer = build_tiny_transformer(seed=0, skeleton_scale=0.05).to(device).eval()
+        if dtype != torch.float32:
+            transformer = transformer.to(dtype)
+        vae = build_tiny_vae(seed=0).to(device)
+    return transformer, VideoVAE(vae, device=device, dtype=dtype)
+
+
+def check_measure_args(args) -> None:
+    """Refuse a ``--measure`` setting this machine cannot run, before any work (SystemExit naming it)."""
+    from oscar_core.model.presets import SAMPLER_PRESETS
+
+    if args.presets is not None:
+        unknown = [p for p in args.presets.split(",") if p not in SAMPLER_PRESETS]
+        if unknown or not args.presets:
+            raise SystemExit(f"--presets: expected comma-separated names from {sorted(SAMPLER_PRESETS)}, "
+                             f"found {args.presets!r}")
+    if args.peak_tflops is not None and not args.peak_tflops > 0:
+        raise SystemExit(f"--peak-tflops: expected a positive number, found {args.peak_tflops}")
+    if not args.measure:
+        return
+    try:
+        device = torch.device(args.measure)
+    except RuntimeError as exc:
+        raise SystemExit(f"--measure: expected a torch device (cuda, cuda:1, cpu), found {args.measure!r}: {exc}")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SystemExit(f"--gpu / --measure {args.measure} needs a CUDA device (torch.cuda.is_available() is False "
+                         "here)")
+    if device.type not in ("cuda", "cpu"):
+        raise SystemExit(f"--measure: expected a cuda or cpu device, found {args.measure!r}")
+
+
+def measure_real(args) -> dict:
+    """Measured: seconds per denoising step and per chunk, frames/s and MFU of every sampling preset.
+
+    The model has random weights (speed does not depend on them). Per variant (eager; compiled through
+    ``oscar_core.model.compile_policy`` as ``oscar rollout`` compiles): one guided step (both branches, batch
+    2) and one conditional-only step (batch 1); per preset a whole chunk (seed and condition encodes,
+    the preset's UniPC steps at w = 6, decode). FLOPs are counted once per preset on the eager model
+    (``torch.utils.flop_counter``); MFU = counted FLOPs / (seconds x the device's dense bf16 peak).
+    """
+    from oscar_core.model.compile_policy import compile_transformer
+    from oscar_core.model.presets import SAMPLER_PRESETS
+    from oscar_core.model.sampler import apply_preset, model_calls, sample_chunk
+
+    check_measure_args(args)
+    device = torch.device(args.measure)
+    dtype = torch.bfloat16 if device.type == "cuda" else torch.float32
+    transformer, vae = build_measured(args.measure_size, device, dtype)
+    frames, width, height = MEASURE_SIZES[args.measure_size]
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or "cpu"
+    peak = args.peak_tflops if args.peak_tflops is not None else peak_tflops_of(name) if device.type == "cuda" else None
+    presets = args.presets.split(",") if args.presets else sorted(SAMPLER_PRESETS, key=lambda n: n != "paper")
+
     rng = np.random.default_rng(0)
-    first = VideoVAE.to_pixels(rng.integers(0, 256, (1, height, width, 3), dtype=np.uint8))
-    skeleton = VideoVAE.to_pixels(rng.integers(0, 256, (frames, height, width, 3), dtype=np.uint8))
-    out = {"device": torch.cuda.get_device_name(), "dtype": "bfloat16", "steps": args.gpu_steps}
-    latent = torch.randn(1, 16, (frames - 1) // 4 + 1, height // 8, width // 8, device=device)
+    first = vae.to_pixels(rng.integers(0, 256, (1, height, width, 3), dtype=np.uint8))
+    condition = vae.to_pixels(rng.integers(0, 256, (frames, height, width, 3), dtype=np.uint8))
+    text = torch.zeros(1, 512, transformer.text_dim)
+    t, h, w = (frames - 1) // vae.temporal + 1, height // vae.spatial, width // vae.spatial
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(1, vae.z_dim, t, h, w, generator=g).to(device)
+    skeleton = torch.randn(1, vae.z_dim, t, h, w, generator=g).to(device)
+    mask = torch.zeros(1, 1, t, h, w, device=device)
+    mask[:, :, 0] = 1
+    timestep = torch.full((1, 1, t, 1, 1), 0.5, device=device)
+    with torch.no_grad():
+        projected = transformer.project_text(text).to(device)
+    base = SamplerConfig(steps=35, guidance=6.0, solver="unipc")
+    configs = {p: apply_preset(base, p) for p in presets}
 
-    def vae_work():  # what a chunk asks of the VAE: seed and skeleton encodes, one decode
-        with torch.no_grad():
-            vae.encode(first)
-            vae.encode(skeleton)
-            vae.decode(latent)
-
-    out["vae_per_chunk"] = measure(vae_work, 1, device)
-    variants = ["eager"] + (["compiled"] if args.compile else [])
-    for name in variants:
-        if name == "compiled":  # the library's path: oscar_core.model.compile_policy, as oscar rollout compiles
-            from oscar_core.model.compile_policy import compile_transformer
-
-            compile_transformer(transformer)
-
-            def first_call():
-                with torch.no_grad():
-                    transformer(**inputs)
-
-            t0 = time.perf_counter()
-            first_call()  # the compile itself (cold or warm cache, whichever this machine has)
-            torch.cuda.synchronize()
-            out["compile_first_call_s"] = time.perf_counter() - t0
-
+    def step_fn(config):
         def step():
             with torch.no_grad():
-                transformer(**inputs)
+                guided_velocity(transformer, x, timestep, projected, skeleton, mask, None, config, text_projected=True)
+        return step
 
+    steps = {"guided": step_fn(SamplerConfig(guidance=6.0)), "conditional": step_fn(SamplerConfig(guidance=None))}
+
+    def vae_work():  # what a chunk asks of the VAE: seed and condition encodes, one decode of a chunk's latent
+        with torch.no_grad():
+            vae.encode(first)
+            vae.decode(vae.encode(condition))
+
+    def sync():
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+
+    def chunk_fn(config, parts: dict | None = None):
+        """One chunk; with ``parts``, the seconds of its encodes, sampling and decode are added to it."""
         def chunk():
+            marks = [time.perf_counter()]
             with torch.no_grad():
-                latent = sample_chunk(transformer, vae.encode(first),
-                                      vae.encode(skeleton), text,
-                                      SamplerConfig(steps=args.gpu_steps, guidance=6.0, solver="unipc"))
+                seed, cond = vae.encode(first), vae.encode(condition)
+                sync()
+                marks.append(time.perf_counter())
+                latent = sample_chunk(transformer, seed, cond, text, config, generator=torch.Generator().manual_seed(0))
+                sync()
+                marks.append(time.perf_counter())
                 vae.decode(latent)
+                sync()
+                marks.append(time.perf_counter())
+            if parts is not None:
+                for key, a, b in zip(("encode", "sample", "decode"), marks, marks[1:]):
+                    parts.setdefault(key, []).append(b - a)
+        return chunk
 
-        out[f"step_{name}"] = measure(step, args.repeats, device)
-        out[f"chunk_{name}"] = measure(chunk, 1, device)
-        out[f"vae_share_{name}"] = out["vae_per_chunk"]["median_ms"] / out[f"chunk_{name}"]["median_ms"]
-        out[f"frames_per_s_{name}"] = (frames - 1) / (out[f"chunk_{name}"]["median_ms"] / 1e3)
+    out = {"device": name, "dtype": str(dtype).replace("torch.", ""), "size": args.measure_size,
+           "frames": frames, "width": width, "height": height, "latent_tokens": t * (h // 2) * (w // 2),
+           "guidance": 6.0, "peak_tflops": peak, "flops": {}, "vae": {}, "steps": {}, "presets": []}
+    out["flops"]["step_" + "guided"] = count_flops(steps["guided"])
+    out["flops"]["step_conditional"] = count_flops(steps["conditional"])
+    out["flops"]["vae_per_chunk"] = count_flops(vae_work)
+    out["flops"]["text_projection"] = count_flops(lambda: transformer.project_text(text))
+    for p in presets:
+        out["flops"][f"chunk_{p}"] = count_flops(chunk_fn(configs[p]))
+    out["vae"] = measure(vae_work, args.repeats, device)
+    variants = ["eager"] + (["compiled"] if args.compile else [])
+    for variant in variants:
+        if variant == "compiled":
+            t0 = time.perf_counter()
+            out["compiled"] = compile_transformer(transformer)
+            steps["guided"]()  # the compile itself (cold or warm cache, whichever this machine has)
+            if device.type == "cuda":
+                torch.cuda.synchronize()
+            out["compile_first_call_s"] = time.perf_counter() - t0
+        for kind, fn in steps.items():
+            out["steps"][f"{kind}_{variant}"] = measure(fn, args.repeats, device)
+        for p in presets:
+            config = configs[p]
+            parts: dict[str, list[float]] = {}
+            chunk_fn(config)()  # warm-up (and, compiled, any recompile for this preset's batch sizes)
+            chunk = measure(chunk_fn(config, parts), max(1, args.repeats // 2), device, warmup=False)
+            chunk_s = chunk["median_ms"] / 1e3
+            part_s = {key: statistics.median(v) for key, v in parts.items()}  # the same runs, split
+            sample_s = part_s["sample"]
+            dit_flops = out["flops"][f"chunk_{p}"] - out["flops"]["vae_per_chunk"]  # + the text projection, once
+            row = {"preset": p, "variant": variant, "steps": config.steps,
+                   "guidance_interval": list(config.guidance_interval) if config.guidance_interval else None,
+                   "dit_evaluations": model_calls(config), "tflop_per_chunk": out["flops"][f"chunk_{p}"] / 1e12,
+                   "chunk": chunk, "seconds_per_chunk": chunk_s, "seconds_parts": part_s,
+                   "seconds_per_step": sample_s / config.steps,
+                   "vae_share": (part_s["encode"] + part_s["decode"]) / sum(part_s.values()),
+                   "frames_per_s": (frames - 1) / chunk_s,
+                   "mfu_sampling": dit_flops / (sample_s * peak * 1e12) if peak else None,
+                   "mfu_chunk": out["flops"][f"chunk_{p}"] / (chunk_s * peak * 1e12) if peak else None}
+            out["presets"].append(row)
     return out
+
+
+def print_measured(m: dict) -> None:
+    peak = f"{m['peak_tflops']:g} TFLOP/s dense bf16 peak" if m["peak_tflops"] else "no known peak: MFU not given"
+    print(f"\nMeasured on {m['device']} ({m['dtype']}, random weights, {m['size']}: {m['frames']}-frame "
+          f"{m['width']}x{m['height']} chunk, w = {m['guidance']:g}; {peak}):")
+    for key, value in m["steps"].items():
+        print(f"  one {key.replace('_', ' step, ')}: median {value['median_ms'] / 1e3:.4f} s, "
+              f"peak {value['peak_mib'] / 1024:.2f} GiB")
+    print(f"  VAE per chunk (2 encodes + decode): median {m['vae']['median_ms'] / 1e3:.3f} s")
+    if "compile_first_call_s" in m:
+        print(f"  compile (first compiled call): {m['compile_first_call_s']:.1f} s, compiled: {m['compiled']}")
+    head = ("preset", "variant", "steps", "DiT evals", "TFLOP/chunk", "s/step", "s/chunk", "VAE share", "frames/s",
+            "MFU sampling", "MFU chunk")
+    lines = [head]
+    for r in m["presets"]:
+        mfu = [f"{v:.1%}" if v is not None else "-" for v in (r["mfu_sampling"], r["mfu_chunk"])]
+        lines.append((r["preset"], r["variant"], str(r["steps"]), str(r["dit_evaluations"]),
+                      f"{r['tflop_per_chunk']:.4g}", f"{r['seconds_per_step']:.4f}", f"{r['seconds_per_chunk']:.3f}",
+                      f"{r['vae_share']:.1%}", f"{r['frames_per_s']:.2f}", *mfu))
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    for line in lines:
+        print("  " + "  ".join(c.rjust(wd) for c, wd in zip(line, widths)))
 
 
 def expected_2b() -> dict:
@@ -320,38 +473,12 @@ def print_table(rows: list[dict]) -> None:
         print("  ".join(c.rjust(w) for c, w in zip(line, widths)))
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--steps", type=int, default=4, help="denoising steps per chunk in the rollout timing")
-    p.add_argument("--device", default="cpu")
-    p.add_argument("--gpu", action="store_true", help="measure the real 2B size on CUDA (random weights, bf16)")
-    p.add_argument("--gpu-steps", type=int, default=35, help="UniPC steps per chunk in --gpu mode and in the "
-                   "computed table")
-    p.add_argument("--compile", action="store_true", help="--gpu: also time a torch.compile'd DiT")
-    p.add_argument("--skip-tiny", action="store_true", help="skip the tiny CPU timings")
-    p.add_argument("--json", default=str(Path(__file__).parent / "results" / "rollout.json"))
-    args = p.parse_args(argv)
-    device = torch.device(args.device)
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=9), device=device)
-    params = sum(q.numel() for q in model.transformer.parameters())
-    print(f"tiny DiT: {params / 1e3:.0f} k parameters; torch {torch.__version__}, {torch.get_num_threads()} threads, "
-          f"{device}; rollout = 2 chunks x {args.steps} steps, guidance w = 6")
-    rows = []
-    for width, height in SIZES:
-        for chunk in CHUNKS if not args.skip_tiny else ():
-            rows.append(bench_case(model, width, height, chunk, args, device))
-            print(f"  done {width}x{height}, {chunk} frames", file=sys.stderr)
-    if rows:
-        print_table(rows)
-    big = expected_2b()
+def print_computed(big: dict, comp: dict) -> None:
     print(f"\n2B model (from its config): {big['parameters'] / 1e9:.3f} B parameters "
           f"({big['parameters_blocks'] / 1e9:.3f} B in the 28 blocks, {big['parameters_text_projection'] / 1e6:.1f} M "
           f"text projection, {big['parameters_pe_s']:,} PE_s), {big['weights_bf16_gib']:.2f} GiB of bf16 weights")
     for what, n in big["latent_tokens_per_chunk"].items():
         print(f"  latent tokens per chunk, {what}: {n:,} (x2 with batched guidance)")
-    comp = computed_2b(args.gpu_steps)
     print(f"\nComputed (FLOPs counted on the meta device, not measured): one guided step (batch 2, "
           f"{big['latent_tokens_per_chunk']['81 frames 512x288 (paper)']:,} tokens each) = "
           f"{comp['tflop_per_guided_step']:.1f} TFLOP; an 81-frame 512x288 chunk with {comp['steps']} steps = "
@@ -363,25 +490,65 @@ def main(argv=None) -> int:
         print(f"  {row['utilisation']:>10.0%}  {row['seconds_per_chunk']:7.2f}  {row['frames_per_second']:8.2f}")
     print(f"  paper: {PAPER_FPS_GH200} frames/s on a GH200 = {comp['paper_fps_implied_utilisation']:.1%} utilisation "
           f"at these FLOPs")
-    gpu = None
+    print("  per sampling preset (w = 6), frames/s on one H100 at each utilisation:")
+    print("  preset  steps  DiT evals  TFLOP/chunk  " + "  ".join(f"{float(u):>5.0%}" for u in UTILISATIONS))
+    for name, row in comp["presets"].items():
+        fps = "  ".join(f"{v:5.1f}" for v in row["h100_frames_per_s"].values())
+        print(f"  {name:>6}  {row['steps']:5d}  {row['dit_evaluations']:9d}  {row['tflop_per_chunk']:11.0f}  {fps}")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--steps", type=int, default=4, help="denoising steps per chunk in the rollout timing")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--gpu", action="store_true", help="measure the real 2B size on CUDA (random weights, bf16): "
+                   "the same as --measure cuda --measure-size 2b")
+    p.add_argument("--measure", metavar="DEVICE", help="measure steps, chunks, frames/s and MFU of every sampling "
+                   "preset on DEVICE (cuda: bf16; cpu: float32)")
+    p.add_argument("--measure-size", choices=sorted(MEASURE_SIZES), default="2b",
+                   help="model size measured by --measure (tiny: the test configuration)")
+    p.add_argument("--presets", help="comma-separated sampling presets to measure (default: all)")
+    p.add_argument("--peak-tflops", type=float, help="the device's peak for MFU (default: known GPUs' dense bf16)")
+    p.add_argument("--gpu-steps", type=int, default=35, help="UniPC steps per chunk in the computed table")
+    p.add_argument("--compile", action="store_true", help="--measure: also time the compiled DiT")
+    p.add_argument("--skip-computed", action="store_true", help="skip the 2B figures computed from its configuration")
+    p.add_argument("--skip-tiny", action="store_true", help="skip the tiny CPU timings")
+    p.add_argument("--json", default=str(Path(__file__).parent / "results" / "rollout.json"))
+    args = p.parse_args(argv)
     if args.gpu:
-        gpu = gpu_2b(args)
-        print(f"\nMeasured on {gpu['device']} (bf16, random weights):")
-        for key, value in gpu.items():
-            if isinstance(value, dict):
-                print(f"  {key}: median {value['median_ms'] / 1e3:.3f} s, best {value['best_ms'] / 1e3:.3f} s, "
-                      f"peak {value['peak_mib'] / 1024:.1f} GiB")
-            elif key.startswith(("vae_share", "frames_per_s", "compile_first")):
-                print(f"  {key}: {value:.3f}")
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
+        args.measure, args.measure_size = "cuda", "2b"
+    check_measure_args(args)  # before any work
+    device = torch.device(args.device)
+    rows = []
+    if not args.skip_tiny:
+        model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05),
+                                             build_tiny_vae(seed=0), ModelCard(name="tiny", chunk_frames=9),
+                                             device=device)
+        params = sum(q.numel() for q in model.transformer.parameters())
+        print(f"tiny DiT: {params / 1e3:.0f} k parameters; torch {torch.__version__}, {torch.get_num_threads()} "
+              f"threads, {device}; rollout = 2 chunks x {args.steps} steps, guidance w = 6")
+        for width, height in SIZES:
+            for chunk in CHUNKS:
+                rows.append(bench_case(model, width, height, chunk, args, device))
+                print(f"  done {width}x{height}, {chunk} frames", file=sys.stderr)
+        print_table(rows)
+    big = comp = None
+    if not args.skip_computed:
+        big, comp = expected_2b(), computed_2b(args.gpu_steps)
+        print_computed(big, comp)
+    measured = None
+    if args.measure:
+        measured = measure_real(args)
+        print_measured(measured)
+    from oscar_core._atomic import atomic_write_bytes
+
+    result = json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
                                            "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),
                                            "device": str(device)},
                                "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
-                               "tiny": rows, "expected_2b": big, "computed_2b": comp, "gpu_2b": gpu},
-                              indent=2) + "\n")
-    print(f"wrote {out}")
+                         "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, indent=2)
+    print(f"wrote {atomic_write_bytes(args.json, (result + chr(10)).encode())}")
     return 0
 
 

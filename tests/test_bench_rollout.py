@@ -1,0 +1,77 @@
+"""benchmarks/rollout.py --measure: the per-preset table a GPU user gets, exercised on the CPU at the tiny size.
+
+The FLOPs it reports are counted by running each chunk under ``torch.utils.flop_counter``; they must equal
+what the sampler's own evaluation count implies (``model_calls`` DiT evaluations of batch 1, the text
+projection once, the VAE's encodes and decode), and the derived columns must follow from the timed parts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from oscar_core.model.presets import SAMPLER_PRESETS
+from oscar_core.model.sampler import SamplerConfig, apply_preset, model_calls
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "rollout.py"
+
+
+def run(tmp_path, *args, timeout=600):
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OSCAR_CACHE": str(tmp_path / "cache")}
+    return subprocess.run([sys.executable, str(SCRIPT), "--skip-tiny", "--skip-computed", *args],
+                          capture_output=True, text=True, env=env, timeout=timeout)
+
+
+@pytest.mark.slow
+def test_measure_reports_every_preset_eager_and_compiled(tmp_path):
+    out = tmp_path / "rollout.json"
+    peak = 0.5  # TFLOP/s, given: the CPU has no known peak
+    proc = run(tmp_path, "--measure", "cpu", "--measure-size", "tiny", "--repeats", "1", "--compile",
+               "--peak-tflops", str(peak), "--json", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    m = json.loads(out.read_text())["measured"]
+    assert m["compiled"] is True and m["compile_first_call_s"] > 0
+    flops = m["flops"]
+    per_eval = flops["step_conditional"]
+    assert per_eval > 0 and flops["step_guided"] == 2 * per_eval  # batched guidance: one forward of batch 2
+    rows = {(r["preset"], r["variant"]): r for r in m["presets"]}
+    assert set(rows) == {(p, v) for p in SAMPLER_PRESETS for v in ("eager", "compiled")}
+    frames = m["frames"]
+    for (preset, variant), r in rows.items():
+        config = apply_preset(SamplerConfig(guidance=6.0, solver="unipc"), preset)
+        assert r["steps"] == config.steps and r["dit_evaluations"] == model_calls(config)
+        # counted by running the chunk == implied by the sampler's evaluation count
+        assert flops[f"chunk_{preset}"] == (flops["vae_per_chunk"] + flops["text_projection"]
+                                            + model_calls(config) * per_eval)
+        parts = r["seconds_parts"]
+        assert set(parts) == {"encode", "sample", "decode"} and min(parts.values()) > 0
+        assert sum(parts.values()) <= r["seconds_per_chunk"] + 1e-6  # one timed run: its parts fit in its wall
+        assert r["seconds_per_step"] * r["steps"] == pytest.approx(parts["sample"])
+        assert r["frames_per_s"] * r["seconds_per_chunk"] == pytest.approx(frames - 1)
+        assert r["vae_share"] == pytest.approx((parts["encode"] + parts["decode"]) / sum(parts.values()))
+        dit = flops[f"chunk_{preset}"] - flops["vae_per_chunk"]
+        assert r["mfu_sampling"] == pytest.approx(dit / (parts["sample"] * peak * 1e12))
+        assert r["mfu_chunk"] == pytest.approx(flops[f"chunk_{preset}"] / (r["seconds_per_chunk"] * peak * 1e12))
+    assert rows[("fast", "eager")]["tflop_per_chunk"] < rows[("paper", "eager")]["tflop_per_chunk"]
+    assert "MFU sampling" in proc.stdout and "compiled" in proc.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--measure", "cuda"], "needs a CUDA device"),
+    (["--measure", "tpu"], "--measure: expected"),
+    (["--measure", "cpu", "--presets", "paper,turbo"], "--presets: expected"),
+    (["--measure", "cpu", "--peak-tflops", "0"], "--peak-tflops: expected a positive number"),
+])
+def test_measure_refuses_bad_settings_before_work(tmp_path, args, message):
+    if args[:2] == ["--measure", "cuda"] and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    out = tmp_path / "rollout.json"
+    proc = run(tmp_path, *args, "--json", str(out), timeout=120)
+    assert proc.returncode != 0 and message in proc.stderr
+    assert not out.exists()
