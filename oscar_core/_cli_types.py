@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["count", "interval", "number"]
+__all__ = ["count", "default_device", "device", "interval", "number"]
 
 
 def count(minimum: int = 1):
@@ -62,3 +62,44 @@ def interval(text: str) -> tuple[float, float]:
     if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 <= lo <= hi <= 1.0):
         raise argparse.ArgumentTypeError(f"expected 0 <= LO <= HI <= 1, found {text!r}")
     return lo, hi
+
+
+def device(text: str) -> str:
+    """A torch device this machine has (``cpu``, ``cuda``, ``cuda:1``, ``mps``), returned as given.
+
+    ``--device cuda`` on a machine without CUDA otherwise fails deep inside loading the weights (a traceback
+    from safetensors or torch) after the output folder exists; this refuses it at the parser. torch is
+    imported only when the option is given.
+    """
+    import torch
+
+    try:
+        parsed = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a torch device such as cpu, cuda or cuda:1, found {text!r}") from None
+    if parsed.type == "cuda":
+        if not torch.cuda.is_available():
+            raise argparse.ArgumentTypeError(f"expected a device this machine has, found {text!r}: no CUDA device "
+                                             f"is available here (torch {torch.__version__}, "
+                                             "torch.cuda.is_available() is False)")
+        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+            raise argparse.ArgumentTypeError(f"expected a device this machine has, found {text!r}: it has "
+                                             f"{torch.cuda.device_count()} CUDA device(s), cuda:0 to "
+                                             f"cuda:{torch.cuda.device_count() - 1}")
+    elif parsed.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise argparse.ArgumentTypeError(f"expected a device this machine has, found {text!r}: MPS is not "
+                                             "available here")
+    elif parsed.type != "cpu":
+        raise argparse.ArgumentTypeError(f"expected cpu, cuda[:N] or mps, found {text!r}")
+    return text
+
+
+device.__name__ = "device"
+
+
+def default_device() -> str:
+    """``cuda`` when this machine has a CUDA device, else ``cpu`` (the default of the model-running commands)."""
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._cli_types import count, number
+from ._cli_types import count, device, number
 from .conditions import CONDITIONS
 from .errors import OscarError
 
@@ -54,7 +54,7 @@ def add_render_parser(sub) -> None:
     r.add_argument("--overlay", metavar="RGB_VIDEO", help="blend the skeleton over this video to check the calibration")
     r.add_argument("--alpha", type=number(0.0, 1.0), default=0.8, help="overlay opacity of the skeleton (default 0.8)")
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
-    r.add_argument("--device", default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)")
+    r.add_argument("--device", type=device, default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)")
     r.add_argument("--workers", type=count(1), default=1, help="processes rendering episodes in parallel (default 1)")
     r.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
                    help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)")

@@ -181,6 +181,47 @@ def test_cli_options_are_range_checked_by_the_parser(capsys, argv, expected):
     assert expected in capsys.readouterr().err
 
 
+DEVICE_COMMANDS = [["rollout"], ["encode-prompt"], ["eval", "run"], ["eval", "benchmark", "run"],
+                   ["eval", "benchmark", "table"], ["eval", "video"], ["render"], ["data", "dedup", "r"]]
+
+
+@pytest.mark.parametrize("command", DEVICE_COMMANDS, ids=" ".join)
+@pytest.mark.parametrize("value, expected", [
+    ("gpu0", "expected a torch device such as cpu, cuda or cuda:1, found 'gpu0'"),
+    ("cuda", "no CUDA device is available here"),
+    ("cuda:7", "no CUDA device is available here"),
+    ("meta", "expected cpu, cuda[:N] or mps, found 'meta'"),
+])
+def test_a_device_this_machine_lacks_is_refused_by_the_parser(capsys, command, value, expected):
+    """--device cuda without CUDA used to fail inside safetensors' loader, after the output folder existed."""
+    import torch
+
+    from oscar_core.cli import build_parser
+
+    if value.startswith("cuda") and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args([*command, "--device", value])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --device: expected" in err and expected in err
+
+
+def test_an_available_device_is_accepted_and_model_commands_default_to_cuda_when_present(monkeypatch):
+    import torch
+
+    from oscar_core._cli_types import default_device
+    from oscar_core.cli import build_parser
+
+    args = build_parser().parse_args(["eval", "run", "m.json", "--model", "m", "--out", "o", "--device", "cpu"])
+    assert args.device == "cpu"
+    assert build_parser().parse_args(["eval", "run", "m.json", "--model", "m", "--out", "o"]).device is None  # at run
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert default_device() == "cuda"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert default_device() == "cpu"
+
+
 # ------------------------------------------------------------------ sizes bounded by memory
 
 

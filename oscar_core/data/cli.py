@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .._cli_types import count, number
+from .._cli_types import count, device, number
 
 __all__ = ["add_data_parser"]
 
@@ -198,7 +198,7 @@ def add_data_parser(sub) -> None:
                    help="siglip: SigLIP picture embeddings find candidates (the paper; needs --siglip); trajectory: "
                         "the skeleton's motion does, no weights to download")
     p.add_argument("--siglip", help="SigLIP vision model: Hub id or local folder (with --embedder siglip)")
-    p.add_argument("--device", default="cpu", help="torch device for SigLIP")
+    p.add_argument("--device", type=device, default="cpu", help="torch device for SigLIP")
     p.add_argument("--cosine", type=number(-1.0, 1.0), default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
     p.add_argument("--rms-alpha", type=number(0.0), default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
     p.add_argument("--rms-floor", type=number(0.0), default=0.01, help="... or below this many metres (default 0.01)")

@@ -31,7 +31,7 @@ import json
 import os
 from pathlib import Path
 
-from .._cli_types import count, interval, number
+from .._cli_types import count, default_device, device, interval, number
 from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
 from ..model.compile_policy import add_compile_options
@@ -131,7 +131,7 @@ def cmd_eval_run(args) -> int:
     with run_log(args.out, "eval-run"):
         result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
                                 pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
-                                device=args.device, dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
+                                device=args.device or default_device(), dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
                                 compile=args.compile,
                                 plugin_paths=getattr(args, "plugin", None) or (),
                                 progress=not args.no_progress and progress_bars_enabled(),
@@ -189,7 +189,7 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--batch-cells", type=count(1), default=1, metavar="N",
                    help="roll out up to N cells in one batch (same frame count and size; each video equals its "
                         "one-at-a-time rollout up to float rounding; default 1)")
-    r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto",
                    help="DiT dtype (default auto: bfloat16 on CUDA, float32 on the CPU)")
     add_compile_options(r)

@@ -14,7 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-from .._cli_types import count, interval, number
+from .._cli_types import count, default_device, device, interval, number
 from .._log import run_log
 from ..model.presets import SAMPLER_PRESETS
 
@@ -62,7 +62,7 @@ def cmd_run(args) -> int:
     bench = load_benchmark_set(args.set)  # a bad set file fails before the model loads
     torch.set_num_threads(max(1, args.threads))
     dtype = getattr(torch, args.dtype) if args.dtype else None
-    model = oscar_zoo.load(args.model, device=args.device, dtype=dtype)
+    model = oscar_zoo.load(args.model, device=args.device or default_device(), dtype=dtype)
     sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
                                    guidance=args.guidance, guidance_form=args.guidance_form)
     with run_log(args.out, "benchmark-run"):
@@ -156,8 +156,9 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--prompt", choices=("clip", "empty"), default="clip",
                    help="text condition: the clip's stored prompt_embeds, else the empty prompt (clip, default); "
                         "or always the empty prompt")
-    r.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"), help="DiT dtype (default float32)")
+    r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
+    r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"),
+                   help="DiT dtype (default: bfloat16 on CUDA, else float32)")
     r.add_argument("--threads", type=count(1), default=1, help="torch CPU threads (default 1)")
     r.set_defaults(func=cmd_run)
 
@@ -175,7 +176,7 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
                         "(e.g. oscar-toy, oscar-2b; default none)")
     t.add_argument("--no-cached-networks", action="store_true",
                    help="do not use the networks of `oscar eval weights pull`")
-    t.add_argument("--device", default="cpu", help="torch device for the networks")
+    t.add_argument("--device", type=device, default="cpu", help="torch device for the networks (default cpu)")
     t.add_argument("--out", metavar="FILE", help="write the table as JSON here and as Markdown beside it (.md)")
     t.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
     t.set_defaults(func=cmd_table)

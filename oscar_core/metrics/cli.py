@@ -57,7 +57,7 @@ import argparse
 import json
 import sys
 
-from .._cli_types import count
+from .._cli_types import count, device
 from .._log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _write_json, collect_clips, collect_judge_videos, read_policy_results, \
@@ -214,7 +214,7 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                         "given, if it is in the local cache (default oscar-2b; none = skip)")
     v.add_argument("--no-cached-networks", action="store_true",
                    help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)")
-    v.add_argument("--device", default="cpu", help="torch device for the networks (cpu, cuda)")
+    v.add_argument("--device", type=device, default="cpu", help="torch device for the networks (cpu, cuda)")
     v.add_argument("--json", action="store_true", help="print JSON instead of a table")
     v.add_argument("--out", metavar="FILE", help="also write the JSON results here")
     v.set_defaults(func=cmd_eval_video)

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cli_types import count, interval, number
+from .._cli_types import count, default_device, device, interval, number
 from .presets import SAMPLER_PRESETS
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
@@ -106,7 +106,7 @@ def add_model_parsers(subparsers) -> None:
                    "(less memory) instead of one batched forward")
     r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
-    r.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
+    r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
     from .compile_policy import add_compile_options
 
@@ -154,7 +154,7 @@ def add_model_parsers(subparsers) -> None:
                    "diffusers pipeline folder (text_encoder/ + tokenizer/)")
     e.add_argument("--out", help="also write the embedding here (.safetensors, tensor 'prompt_embeds')")
     e.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache folder")
-    e.add_argument("--device", help="torch device (default: cuda when available, else cpu)")
+    e.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     e.add_argument("--dtype", choices=_DTYPES, help="encoder dtype (default: the checkpoint's)")
     e.add_argument("--offline", action="store_true", help="only the local Hub cache")
     e.add_argument("--json", action="store_true", help="machine-readable output")
@@ -222,12 +222,6 @@ def cmd_zoo_convert(args) -> int:
 # --------------------------------------------------------------------------- text
 
 
-def _default_device() -> str:
-    import torch
-
-    return "cuda" if torch.cuda.is_available() else "cpu"
-
-
 def _encoder_id_for(model: str | None) -> str:
     import oscar_zoo
 
@@ -259,7 +253,7 @@ def cmd_encode_prompt(args) -> int:
     embeds = cache.get(args.prompt)
     cached = embeds is not None
     if not cached:
-        encoder = _text_encoder(encoder_id, args.device or _default_device(), args.dtype, args.offline)
+        encoder = _text_encoder(encoder_id, args.device or default_device(), args.dtype, args.offline)
         cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder.encoder_id)
         embeds, cached = encoder.cached(args.prompt, args.prompt_cache)
     summary = {"prompt": args.prompt, "encoder_id": cache.encoder_id, "shape": list(embeds.shape),
@@ -387,7 +381,7 @@ def cmd_rollout(args) -> int:
     side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
     if side_path is not None:
         check_output(side_path)
-    device = args.device or _default_device()
+    device = args.device or default_device()
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
     t0 = time.perf_counter()
