@@ -71,27 +71,11 @@ def device(text: str) -> str:
     from safetensors or torch) after the output folder exists; this refuses it at the parser. torch is
     imported only when the option is given.
     """
-    import torch
+    from ._devices import device_problem
 
-    try:
-        parsed = torch.device(text)
-    except (RuntimeError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected a torch device such as cpu, cuda or cuda:1, found {text!r}") from None
-    if parsed.type == "cuda":
-        if not torch.cuda.is_available():
-            raise argparse.ArgumentTypeError(f"expected a device this machine has, found {text!r}: no CUDA device "
-                                             f"is available here (torch {torch.__version__}, "
-                                             "torch.cuda.is_available() is False)")
-        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
-            raise argparse.ArgumentTypeError(f"expected a device this machine has, found {text!r}: it has "
-                                             f"{torch.cuda.device_count()} CUDA device(s), cuda:0 to "
-                                             f"cuda:{torch.cuda.device_count() - 1}")
-    elif parsed.type == "mps":
-        if not torch.backends.mps.is_available():
-            raise argparse.ArgumentTypeError(f"expected a device this machine has, found {text!r}: MPS is not "
-                                             "available here")
-    elif parsed.type != "cpu":
-        raise argparse.ArgumentTypeError(f"expected cpu, cuda[:N] or mps, found {text!r}")
+    problem = device_problem(text)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
     return text
 
 
@@ -100,6 +84,6 @@ device.__name__ = "device"
 
 def default_device() -> str:
     """``cuda`` when this machine has a CUDA device, else ``cpu`` (the default of the model-running commands)."""
-    import torch
+    from ._devices import default_device as default
 
-    return "cuda" if torch.cuda.is_available() else "cpu"
+    return default()

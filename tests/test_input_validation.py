@@ -373,3 +373,24 @@ def test_an_allocation_failure_is_one_line(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err == ("error: out of memory: Unable to allocate 596. GiB for an array with shape (2, 200000, 200000) and "
                    "data type int64; a smaller --size, fewer frames or fewer workers need less\n")
+
+
+@pytest.mark.parametrize("device", ["cuda", "cuda:3", "gpu", "meta"])
+def test_the_python_api_refuses_a_device_this_machine_lacks_before_reading_weights(device, monkeypatch, tmp_path):
+    """oscar_zoo.load and OscarWorldModel.from_pretrained name the device; no download is attempted."""
+    import torch
+
+    import oscar_zoo
+    from oscar_core.model.world_model import OscarWorldModel
+
+    if device.startswith("cuda") and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+
+    def no_fetch(*a, **k):
+        raise AssertionError("fetched before the device was checked")
+
+    monkeypatch.setattr("oscar_zoo._load.fetch", no_fetch)
+    with pytest.raises(ModelInputError, match=f"device: expected .*found '{device}'"):
+        oscar_zoo.load("oscar-toy", device=device)
+    with pytest.raises(ModelInputError, match=f"device: expected .*found '{device}'"):
+        OscarWorldModel.from_pretrained(tmp_path / "missing", device=device)

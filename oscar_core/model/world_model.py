@@ -163,6 +163,11 @@ class OscarWorldModel:
         """
         from diffusers import AutoencoderKLWan
 
+        from .._devices import device_problem
+
+        problem = device_problem(device)
+        if problem is not None:  # before reading anything: safetensors would fail with a pin-memory traceback
+            raise ModelInputError(f"device: {problem}")
         folder = Path(folder)
         card = _read_card(folder)
         if verify:
