@@ -55,6 +55,21 @@ def test_break_even_follows_the_issue_numbers():
     assert 10 * 5.8 < cp.COMPILE_COST_S < 11 * 5.8
 
 
+def test_break_even_scales_with_the_dit_evaluations_of_a_preset():
+    from oscar_core.model.sampler import SamplerConfig, apply_preset, model_calls
+
+    fast = apply_preset(SamplerConfig(), "fast")
+    calls = model_calls(fast)  # 12 steps, guidance on part of the range: 17 evaluations, not 24
+    assert calls == 17
+    saving = 5.8 * calls / 70  # seconds saved per chunk: the measured 5.8 s per 70 evaluations
+    need = cp.break_even_chunks(fast.steps, calls)
+    assert (need - 1) * saving < cp.COMPILE_COST_S < need * saving and need == 45
+    assert cp.compile_decision("auto", "cuda", need - 1, fast.steps, calls)[0] is False
+    ok, why = cp.compile_decision("auto", "cuda", need, fast.steps, calls)
+    assert ok and "17 DiT evaluations" in why
+    assert cp.break_even_chunks(35, model_calls(apply_preset(SamplerConfig(), "paper"))) == cp.break_even_chunks(35)
+
+
 @pytest.mark.parametrize("mode, device, chunks, steps, expected", [
     ("auto", "cpu", 1000, 35, False),      # never on the CPU by default
     ("auto", "cuda", 1, 35, False),        # a one-chunk rollout stays eager
@@ -233,6 +248,7 @@ def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
     monkeypatch.setattr(transformer_module, "cast_model", lambda model, device=None, dtype=None: model)
     monkeypatch.setattr(world_model, "cast_model", lambda model, device=None, dtype=None: model)
     monkeypatch.setattr(world_model, "VideoVAE", lambda vae, device, dtype, offload: vae)
+    monkeypatch.setattr("oscar_core._devices.device_problem", lambda device: None)  # as if this machine had CUDA
     OscarWorldModel.from_pretrained(folder, device="cuda")
     assert asked == [("transformer", "cuda"), ("vae", "cuda")]
     asked.clear()

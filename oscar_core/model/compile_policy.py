@@ -9,7 +9,9 @@ costs about a minute, and each 35-step chunk then runs about 6 s faster. So:
   COMPILED_CHUNK_S) × steps / 35 > COMPILE_COST_S``, where ``chunks`` counts
   every chunk the process will sample (chunks per rollout × cells). With the
   numbers below that is 11 chunks or more at 35 steps (a one-chunk
-  ``oscar rollout`` stays eager), 32 or more at the ``fast`` preset's 12.
+  ``oscar rollout`` stays eager). The saving scales with the DiT
+  evaluations a chunk makes (``sampler.model_calls``: 70 at 35 guided steps),
+  so the ``fast`` preset (12 steps, 17 evaluations) needs 45 chunks.
 
 The numbers were measured on one H200 by issue 23 (81 frames, 512x288,
 35 UniPC steps, guidance w = 6, bf16): one chunk eager 17.6 s, compiled
@@ -73,14 +75,21 @@ def check_compile_mode(mode) -> str:
     return mode
 
 
-def break_even_chunks(steps: int = PAPER_STEPS) -> int:
-    """The fewest chunks (of ``steps`` denoising steps) whose saving exceeds :data:`COMPILE_COST_S`."""
-    saving = (EAGER_CHUNK_S - COMPILED_CHUNK_S) * steps / PAPER_STEPS
+def break_even_chunks(steps: int = PAPER_STEPS, evaluations: int | None = None) -> int:
+    """The fewest chunks whose saving exceeds :data:`COMPILE_COST_S`.
+
+    The saving per chunk scales with the DiT's work: ``evaluations`` DiT evaluations (batch items) per chunk,
+    ``oscar_core.model.sampler.model_calls``; None: ``2 × steps`` (guidance at every step, as measured).
+    """
+    evaluations = 2 * steps if evaluations is None else evaluations
+    saving = (EAGER_CHUNK_S - COMPILED_CHUNK_S) * evaluations / (2 * PAPER_STEPS)
     return math.floor(COMPILE_COST_S / saving) + 1
 
 
-def compile_decision(mode: str, device, chunks: int, steps: int = PAPER_STEPS) -> tuple[bool, str]:
-    """(compile?, why) for a job of ``chunks`` chunks of ``steps`` steps on ``device`` (module docstring)."""
+def compile_decision(mode: str, device, chunks: int, steps: int = PAPER_STEPS,
+                     evaluations: int | None = None) -> tuple[bool, str]:
+    """(compile?, why) for a job of ``chunks`` chunks of ``steps`` steps (``evaluations`` DiT evaluations each,
+    None: 2 × steps) on ``device`` (module docstring)."""
     check_compile_mode(mode)
     if mode == "never":
         return False, "compile=never"
@@ -88,11 +97,11 @@ def compile_decision(mode: str, device, chunks: int, steps: int = PAPER_STEPS) -
         return True, "compile=always"
     if not str(device).startswith("cuda"):
         return False, f"compile=auto: eager on {device} (compiling pays off on CUDA only)"
-    need = break_even_chunks(steps)
+    need = break_even_chunks(steps, evaluations)
+    work = f"{chunks} chunk(s) of {steps} steps" + (f" ({evaluations} DiT evaluations each)" if evaluations else "")
     if chunks >= need:
-        return True, f"compile=auto: {chunks} chunk(s) of {steps} steps >= {need}, where compiling pays for itself"
-    return False, (f"compile=auto: {chunks} chunk(s) of {steps} steps < {need}; eager is faster end to end "
-                   "(--compile always to force)")
+        return True, f"compile=auto: {work} >= {need}, where compiling pays for itself"
+    return False, f"compile=auto: {work} < {need}; eager is faster end to end (--compile always to force)"
 
 
 class _CompiledForward:

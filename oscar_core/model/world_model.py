@@ -309,6 +309,7 @@ class OscarWorldModel:
         """Compile the DiT before a rollout of ``frames`` frames when the compile policy says so (once per process)."""
         from .compile_policy import compile_decision, compile_transformer, is_compiled
         from .rollout import chunk_plan
+        from .sampler import model_calls
 
         if self.compile_mode == "never":
             self.compile_reason = "compile=never"
@@ -322,7 +323,8 @@ class OscarWorldModel:
             chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal))
         except (ModelInputError, TypeError, ValueError):
             return  # the rollout itself reports the bad input
-        ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps)
+        ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps,
+                                   model_calls(sampler))
         self.compile_reason = why
         _log.info("%s", why)
         if ok and not compile_transformer(self.transformer):
