@@ -70,6 +70,17 @@ def test_break_even_scales_with_the_dit_evaluations_of_a_preset():
     assert cp.break_even_chunks(35, model_calls(apply_preset(SamplerConfig(), "paper"))) == cp.break_even_chunks(35)
 
 
+def test_the_model_weighs_its_preset_when_deciding(monkeypatch):
+    """The rollout asks the rule with the sampler's own evaluation count and the chunks × cells it will sample."""
+    from oscar_core.model.sampler import SamplerConfig, apply_preset
+
+    asked = []
+    monkeypatch.setattr(cp, "compile_decision", lambda *a: asked.append(a) or (False, "no"))
+    model = _model().set_compile("auto", cells=3)
+    model._prepare_compile(17, 9, apply_preset(SamplerConfig(), "fast"))  # 17 frames in 9-frame chunks: 2 chunks
+    assert asked == [("auto", model.device, 2 * 3, 12, 17)]
+
+
 @pytest.mark.parametrize("mode, device, chunks, steps, expected", [
     ("auto", "cpu", 1000, 35, False),      # never on the CPU by default
     ("auto", "cuda", 1, 35, False),        # a one-chunk rollout stays eager
