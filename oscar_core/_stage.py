@@ -109,6 +109,12 @@ class Legacy:
     checked: list[str] = field(default_factory=list)
     unchecked: list[str] = field(default_factory=list)
 
+    def differ(self, name: str, old: Any, new: Any) -> None:
+        """Record that the shards hold ``old`` for part ``name`` where this run has ``new`` (once per name)."""
+        if not any(m.startswith(f"{name}: ") for m in self.mismatches):
+            text = [v if isinstance(v, str) else json.dumps(v) for v in (old, new)]
+            self.mismatches.append(f"{name}: {text[0]} -> {text[1]}")
+
 
 def check_stage(folder, parts: Mapping[str, Any], *, redo: str, legacy: Callable[[], Legacy] | None = None) -> None:
     """Refuse to add to a local output ``folder`` made under other ``parts``; else record them.

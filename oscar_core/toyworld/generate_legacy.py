@@ -13,13 +13,10 @@ factor (``supersample``) is recorded nowhere and cannot be checked.
 
 from __future__ import annotations
 
-import json
 import re
-from pathlib import Path
-from typing import Any
 
 from .._stage import Legacy
-from ..train.clips import CLIPSET_FILE, ClipSet
+from ..train.clips import finished_clipset
 from .episode import miss_rng
 
 __all__ = ["check_legacy_clipset"]
@@ -28,24 +25,14 @@ CHECKED = ("seed", "width", "height", "frames", "fps", "shard_size", "skeleton",
 UNCHECKED = ("supersample",)
 
 
-def _value(v: Any) -> str:
-    return v if isinstance(v, str) else json.dumps(v)
-
-
 def check_legacy_clipset(out, cfg) -> Legacy:
     """Compare the finished shards of clip set ``out`` with ``cfg`` (a ``GenerateConfig``); see the module
     docstring. An empty or new folder gives ``Legacy()`` (nothing to check)."""
-    root = Path(out)
-    if not (root / CLIPSET_FILE).is_file():
+    clips = finished_clipset(out)
+    if clips is None:
         return Legacy()
-    clips = ClipSet(root)
-    if not clips.records:
-        return Legacy()
-    found: dict[str, str] = {}  # the first difference of each setting, in CHECKED order below
-
-    def differ(name: str, old: Any, new: Any) -> None:
-        found.setdefault(name, f"{name}: {_value(old)} -> {_value(new)}")
-
+    found = Legacy(checked=list(CHECKED), unchecked=list(UNCHECKED))
+    differ = found.differ
     draws: list[tuple[float, bool]] = []  # (first draw of the miss generator, missed) of pick-and-place episodes
     for rec in clips.records:
         seed, episode = rec.meta.get("seed"), rec.meta.get("episode")
@@ -70,9 +57,10 @@ def check_legacy_clipset(out, cfg) -> Legacy:
         elif "missed" in world and world.get("kind") == "pick_place" and isinstance(seed, int) \
                 and isinstance(episode, int):
             draws.append((float(miss_rng(seed, rec.embodiment, episode).uniform()), bool(world["missed"])))
-    if "pick_miss" not in found and any(missed != (u < cfg.pick_miss) for u, missed in draws):
+    if not any(m.startswith("pick_miss:") for m in found.mismatches) \
+            and any(missed != (u < cfg.pick_miss) for u, missed in draws):
         lo = max((u for u, missed in draws if missed), default=0.0)
         hi = min((u for u, missed in draws if not missed), default=1.0)
         differ("pick_miss", f"a value in ({lo:.3f}, {hi:.3f}]", cfg.pick_miss)
-    shards = len(set(clips.shard_of.values()))
-    return Legacy(shards, [found[k] for k in CHECKED if k in found], list(CHECKED), list(UNCHECKED))
+    found.shards = len(set(clips.shard_of.values()))
+    return found

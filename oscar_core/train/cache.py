@@ -109,7 +109,8 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
 
     def legacy():  # a cache from before fingerprints: check what its shards recorded
         return check_legacy_cache(out, source, vae=vae, vae_name=vae_name, window=window, stride=stride, split=split,
-                                  condition=condition, registry=registry)
+                                  condition=condition, registry=registry,
+                                  starts_of=lambda n: window_starts(n, window, stride))
 
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it",
                        legacy=legacy)

@@ -12,14 +12,12 @@ of one clip again and comparing it with the stored latents.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
 from .._stage import Legacy
-from .clips import CLIPSET_FILE, ClipSet
+from .clips import ClipSet, finished_clipset
 
 __all__ = ["check_legacy_cache"]
 
@@ -29,11 +27,7 @@ CHECKED = ("window", "stride", "vae", "condition", "split", "source", "vae_weigh
 REENCODE_RTOL = 1e-3
 
 
-def _value(v: Any) -> str:
-    return v if isinstance(v, str) else json.dumps(v)
-
-
-def _old_split(old_ids: set[str], recs: list) -> Any:
+def _old_split(old_ids: set[str], recs: list) -> object:
     """The ``--split`` a shard holding ``old_ids`` of a source shard's records ``recs`` was made with, or ... if
     none."""
     if old_ids == {r.id for r in recs}:
@@ -45,24 +39,19 @@ def _old_split(old_ids: set[str], recs: list) -> Any:
 
 
 def check_legacy_cache(out, source: ClipSet, *, vae, vae_name: str, window: int, stride: int, split: str | None,
-                       condition: str, registry) -> Legacy:
+                       condition: str, registry, starts_of: Callable[[int], np.ndarray]) -> Legacy:
     """Compare the finished shards of cache ``out`` (from clip set ``source``) with this run; see the module
-    docstring. An empty or new folder gives ``Legacy()`` (nothing to check)."""
+    docstring. starts_of: the (N,) window starts this run gives a clip of so many frames
+    (:func:`~oscar_core.train.cache.window_starts`). An empty or new folder gives ``Legacy()`` (nothing to
+    check)."""
     import torch
     from safetensors import safe_open
 
-    from .cache import window_starts
-
-    root = Path(out)
-    if not (root / CLIPSET_FILE).is_file():
+    cache = finished_clipset(out)
+    if cache is None:
         return Legacy()
-    cache = ClipSet(root)
-    if not cache.records:
-        return Legacy()
-    found: dict[str, str] = {}
-
-    def differ(name: str, old: Any, new: Any) -> None:
-        found.setdefault(name, f"{name}: {_value(old)} -> {_value(new)}")
+    found = Legacy(checked=list(CHECKED))
+    differ = found.differ
 
     by_source_shard: dict[str, list] = {}
     for rec in source:
@@ -81,7 +70,7 @@ def check_legacy_cache(out, source: ClipSet, *, vae, vae_name: str, window: int,
                 differ("split", old, split)
     first = None  # (record, stored video latents) of the first cached clip: re-encoded below
     for rec in cache.records:
-        expected = window_starts(rec.n_frames, window, stride)
+        expected = starts_of(rec.n_frames)
         if "latents" not in rec.files:
             if len(expected):
                 differ("window", f"more than {rec.n_frames} (clip {rec.id} has no latents)", window)
@@ -101,7 +90,7 @@ def check_legacy_cache(out, source: ClipSet, *, vae, vae_name: str, window: int,
             differ("vae", meta.get("vae"), vae_name)
         if meta.get("condition", "skeleton") != condition:
             differ("condition", meta.get("condition", "skeleton"), condition)
-    if not found and first is not None:
+    if not found.mismatches and first is not None:
         rec, stored = first
         src_rec = next((r for r in source if r.id == rec.id), None)
         if src_rec is None:
@@ -115,5 +104,5 @@ def check_legacy_cache(out, source: ClipSet, *, vae, vae_name: str, window: int,
             if not gap <= REENCODE_RTOL * scale:
                 differ("vae_weights", f"other weights or source frames (clip {rec.id}, window 0 encodes to latents "
                        f"{gap / scale:.2g} of their scale away from the stored ones)", "this run's VAE and source")
-    shards = len(by_shard)
-    return Legacy(shards, [found[k] for k in CHECKED if k in found], list(CHECKED), [])
+    found.shards = len(by_shard)
+    return found
