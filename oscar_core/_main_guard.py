@@ -20,6 +20,9 @@ worker.
   is not inside an ``if __name__ == "__main__":`` block (read from the
   script's source with :mod:`ast`).
 
+A script read from standard input (``python - < script.py``) is refused
+too: the workers look for a file named ``<stdin>`` and die.
+
 Where it cannot tell (no script file: ``python -c``, a notebook, an embedding
 program; ``python -m pkg`` whose main module is ``pkg/__main__.py``, which
 workers never run again; an unreadable source) it lets the pool start.
@@ -130,6 +133,10 @@ def check_main_guard(what: str) -> None:
     spec_name = getattr(getattr(main, "__spec__", None), "name", None) or ""
     if main is None or not path or spec_name == "__main__" or spec_name.endswith(".__main__"):
         return  # no script, or one the workers never run again
+    if path.startswith("<") and path.endswith(">"):  # python - < script.py: workers look for a file named <stdin>
+        raise MainGuardError(f"{what}: expected the main script in a file, found {path} (a script read from "
+                             f"standard input); every worker process imports the main script again and cannot "
+                             f"find it. Run it from a file, or use workers=1.")
     frame = _module_frame(caller, globals_of=vars(main))
     if frame is None or Path(frame.f_code.co_filename).resolve() != Path(path).resolve():
         return  # not called while the script's top level runs (a thread, an exec'd string): nothing to re-run

@@ -91,6 +91,15 @@ def test_run_sharded_from_an_unguarded_script_fails_fast(tmp_path):
     assert proc.returncode == 0 and "processed 4" in proc.stdout, proc.stderr
 
 
+def test_a_script_read_from_standard_input_is_refused_before_the_workers_die(tmp_path):
+    """Workers look for a file named ``<stdin>``: even a guarded script cannot start a pool from there."""
+    text = RENDER.format(assets=str(ASSETS), call='if __name__ == "__main__":\n    main()')
+    proc = subprocess.run([sys.executable, "-", str(tmp_path)], input=text, check=False, capture_output=True,
+                          text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=240, cwd=tmp_path)
+    assert proc.returncode == 1 and "MainGuardError" in proc.stderr and "standard input" in proc.stderr, proc.stderr
+    assert "BrokenProcessPool" not in proc.stderr and not list(tmp_path.glob("*.mp4"))
+
+
 def test_a_worker_running_the_script_again_refuses_too(tmp_path):
     """The worker side: the script's top level executing as ``__mp_main__`` (how workers import it)."""
     path = tmp_path / "again.py"
