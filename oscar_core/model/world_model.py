@@ -222,8 +222,10 @@ class OscarWorldModel:
         (folder / MODEL_FILE).write_text(json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()},
                                                     indent=2) + "\n")
         write_manifest(folder)
-        if not (folder / "README.md").exists():  # a model card with the Hub's metadata block (model/hub_card.py);
-            from .hub_card import default_model_card  # documentation, outside the manifest like oscar-toy's README
+        if not (folder / "README.md").exists():
+            # a model card with the Hub's metadata block (model/hub_card.py); documentation, outside the manifest
+            # like oscar-toy's README
+            from .hub_card import default_model_card
 
             (folder / "README.md").write_text(default_model_card(card.to_dict()))
         return folder
