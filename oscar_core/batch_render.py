@@ -22,9 +22,10 @@ batches by default; ``--no-resume`` redoes everything) skips an episode whose
 output exists and whose record matches, and renders it again otherwise.
 Worker processes come from a fork server (never a plain fork after threads
 exist) and exit when the process that made the pool dies. As with spawn
-(macOS, Windows), each worker imports the calling script as ``__mp_main__``:
-a script calling ``render_many(workers > 1)`` keeps its top-level work under
-``if __name__ == "__main__":``.
+(macOS, Windows, CUDA FK), each worker imports the calling script again as
+``__mp_main__``: a script calling ``render_many(workers > 1)`` keeps its
+top-level work under ``if __name__ == "__main__":``; an unguarded call raises
+``MainGuardError`` naming the line before any work (``oscar_core._main_guard``).
 
 A manifest (``read_manifest``) is JSONL or CSV; see docs/formats.md.
 """
@@ -37,20 +38,20 @@ import json
 import os
 import time
 import warnings
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
 
 from . import _stage
 from .errors import InputFileError, OscarError, OutputPathError
 
 __all__ = [
+    "EpisodeResult",
     "EpisodeSpec",
     "RenderOptions",
-    "EpisodeResult",
+    "read_manifest",
     "render_episode",
     "render_many",
-    "read_manifest",
     "specs_from_folder",
     "summarise",
 ]
@@ -298,9 +299,10 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
     """Render every spec; returns one :class:`EpisodeResult` per spec, in input order.
 
     workers: processes (1: in this process, reusing ``registry`` if given).
-    Several workers start once each (forked after loading the plugins, on Linux) and
-    render many episodes each; each
-    encoder then uses one thread unless ``options.threads`` says otherwise.
+    Several workers start once each (from a fork server with the renderer's
+    modules imported; each loads the plugins once) and render many episodes
+    each; each encoder then uses one thread unless ``options.threads`` says
+    otherwise.
     progress: a progress bar on stderr (None: only when stderr is a terminal).
     on_result: called with each result as it completes (any order).
     Errors of one episode (bad input, unwritable output, a strict empty view)
@@ -310,10 +312,21 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
     resume: skip an episode whose output and record match its fingerprint
     (its result has ``skipped=True``) and write each rendered episode's
     record (without ``resume`` no record is read or written).
+
+    With workers > 1, a script must make this call under
+    ``if __name__ == "__main__":``: every worker imports the script again
+    (fork server and spawn), so a call at its top level would run once more
+    in each worker. Such a call raises
+    :class:`~oscar_core._main_guard.MainGuardError` (a RuntimeError naming
+    the script and the line) before anything is rendered.
     """
+    workers = max(1, int(workers))
+    if workers > 1:
+        from ._main_guard import check_main_guard
+
+        check_main_guard(f"render_many(workers={workers})")
     specs = list(specs)
     _prepare_outputs(specs)
-    workers = max(1, int(workers))
     if workers > 1 and options.threads is None:
         from dataclasses import replace
 

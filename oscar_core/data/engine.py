@@ -36,17 +36,31 @@ import hashlib
 import json
 import os
 import warnings
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from .. import _stage
 from .._log import get_logger
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 
-__all__ = ["ENGINES", "StageRun", "run_sharded", "run_shard", "read_stage", "stage_done", "write_stage_manifest",
-           "StageIncomplete", "StageRecomputed", "FINGERPRINT", "read_fingerprint", "stage_parts", "ids_hash",
-           "use_fingerprint"]
+__all__ = [
+    "ENGINES",
+    "FINGERPRINT",
+    "StageIncomplete",
+    "StageRecomputed",
+    "StageRun",
+    "ids_hash",
+    "read_fingerprint",
+    "read_stage",
+    "run_shard",
+    "run_sharded",
+    "stage_done",
+    "stage_parts",
+    "use_fingerprint",
+    "write_stage_manifest",
+]
 
 _log = get_logger(__name__)
 
@@ -248,7 +262,10 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     when every shard is done. parts: the stage's fingerprint parts
     (:func:`stage_parts`; the shard size and the input ids are added here):
     a stage recorded under other parts is computed again
-    (:func:`use_fingerprint`). Returns a :class:`StageRun`.
+    (:func:`use_fingerprint`). Returns a :class:`StageRun`. Worker processes
+    import the calling script again: a script calls this under
+    ``if __name__ == "__main__":`` (else ``MainGuardError`` before the pool
+    starts; ``oscar_core._main_guard``).
     """
     if engine not in ENGINES:
         raise ValueError(f"--engine: expected one of {list(ENGINES)}, found {engine!r}")
@@ -299,7 +316,9 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
             from .._interrupt import stop_pool
+            from .._main_guard import check_main_guard
 
+            check_main_guard(f"run_sharded(workers={n_workers})")  # a script's unguarded top level would run again
             with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_stage.worker_initializer,
                                      initargs=(os.getpid(), _worker_init)) as pool:
                 try:

@@ -3,7 +3,8 @@
 :func:`load_project_vae` finds a checkpoint through :func:`oscar_zoo.pull`
 (zoo name, Hub id or folder) — by default **only in the local cache**, so
 evaluating never starts a multi-GB download — builds its ``vae/``
-(``AutoencoderKLWan``, safetensors only) without the DiT, and returns the
+(``AutoencoderKLWan``, safetensors only, keys matched strictly by
+:func:`oscar_core.model.vae.load_vae_folder`) without the DiT, and returns the
 encoder :func:`~oscar_core.metrics.video.latent_l2` calls: (1, 3, T, H, W) in
 [-1, 1] with T = 4k+1 → normalised latents, exactly what the world model sees
 (:class:`oscar_core.model.vae.VideoVAE`).
@@ -23,14 +24,12 @@ DEFAULT_VAE_MODEL = "oscar-2b"
 def load_project_vae(spec: str = DEFAULT_VAE_MODEL, revision: str | None = None, *, device="cpu",
                      download: bool = False) -> Callable:
     """The VAE encoder of checkpoint ``spec`` (see the module docstring); raises if it is not available."""
-    from diffusers import AutoencoderKLWan
-
     import oscar_zoo
 
-    from ..model.vae import VideoVAE
+    from ..model.vae import VideoVAE, load_vae_folder
 
     folder = Path(spec) if Path(spec).is_dir() else oscar_zoo.pull(spec, revision, local_files_only=not download)
-    vae = AutoencoderKLWan.from_pretrained(str(folder / "vae"), use_safetensors=True)
+    vae = load_vae_folder(folder / "vae")  # strict, and no hint about `accelerate` (diffusers' from_pretrained logs one)
     wrapped = VideoVAE(vae, device=device)
 
     def encode(x):

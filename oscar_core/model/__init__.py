@@ -11,7 +11,7 @@ from .._lazy import lazy_exports
 _EXPORTS = {
     "OscarTransformer3DModel": "transformer",
     "resize_padding_mask": "_resize", "install_torchvision_free_resize": "_resize",
-    "VideoVAE": "vae", "check_frame_count": "vae",
+    "VideoVAE": "vae", "check_frame_count": "vae", "load_vae_folder": "vae",
     "PromptEmbeddingCache": "text", "empty_prompt_embeds": "text",
     "SamplerConfig": "sampler", "flow_sigmas": "sampler", "guided_velocity": "sampler", "sample_chunk": "sampler",
     "rollout": "rollout", "RolloutResult": "rollout", "chunk_plan": "rollout", "iter_rollout": "rollout",

@@ -26,11 +26,11 @@ from pathlib import Path
 
 from ._native import NATIVE_SUFFIXES, find_skeleton_key, infer_config, map_native_state, read_native_state, \
     read_overrides
-from ._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
 from ._files import MODEL_FILE
+from ._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
 from .errors import CheckpointLayoutError
 
-__all__ = ["LAYOUTS", "Layout", "detect_layout", "load_folder", "SCHEDULER_CONFIG"]
+__all__ = ["LAYOUTS", "SCHEDULER_CONFIG", "Layout", "detect_layout", "load_folder"]
 
 SCHEDULER_CONFIG = "scheduler/scheduler_config.json"
 _COMPONENT_DIRS = ("transformer/", "vae/", "text_encoder/", "tokenizer/", "scheduler/", "text/", "safety_checker/")
@@ -99,10 +99,9 @@ def list_folder(folder: Path) -> list[str]:
 
 
 def _vae(folder: Path):
-    from diffusers import AutoencoderKLWan
+    from .vae import load_vae_folder
 
-    return build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
-                        load_state_dict(folder / "vae"), folder / "vae")
+    return load_vae_folder(folder / "vae")
 
 
 def _transformer_from_state(config: dict, state: dict, source, report: list[str], origin: dict | None = None):

@@ -19,10 +19,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ._weights import cast_model
+from ._weights import build_strict, cast_model, load_state_dict, read_config
 from .errors import ModelInputError
 
-__all__ = ["VideoVAE", "check_frame_count"]
+__all__ = ["VideoVAE", "check_frame_count", "load_vae_folder"]
 
 
 def check_frame_count(frames: int, temporal: int = 4, what: str = "video") -> int:
@@ -32,6 +32,21 @@ def check_frame_count(frames: int, temporal: int = 4, what: str = "video") -> in
         raise ModelInputError(f"{what}: expected a frame count of the form {temporal}k+1 (1, 5, 9, ..., 81, ...), "
                               f"found {frames} (nearest valid: {lower} or {lower + temporal})")
     return (frames - 1) // temporal + 1
+
+
+def load_vae_folder(folder, device="cpu"):
+    """The ``AutoencoderKLWan`` of a diffusers ``vae/`` folder, built by oscar's strict loader.
+
+    config.json must name ``AutoencoderKLWan``; the safetensors weights must
+    match its tensors exactly (CheckpointLayoutError naming the folder and the
+    keys otherwise). device: where the weights are read to (a GPU skips the
+    host copy). Unlike diffusers' ``from_pretrained`` it needs no
+    ``accelerate`` and logs no hint about it. Returns the model in eval mode.
+    """
+    from diffusers import AutoencoderKLWan
+
+    return build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)),
+                        load_state_dict(folder, device=device), folder)
 
 
 class VideoVAE:

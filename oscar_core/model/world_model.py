@@ -28,18 +28,19 @@ from safetensors.torch import load_file, save_file
 
 from .._log import get_logger
 from ..conditions import CONDITIONS as VIDEO_CONDITIONS
-from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
-from ._weights import build_strict, cast_model, check_safetensors, load_state_dict, read_config
+from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from ._weights import cast_model, check_safetensors
 from .errors import CheckpointLayoutError, ModelInputError
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
 from .transformer import OscarTransformer3DModel
-from .vae import VideoVAE, check_frame_count
+from .vae import VideoVAE, check_frame_count, load_vae_folder
 
-__all__ = ["ModelCard", "OscarWorldModel", "MODEL_FILE", "FORMAT"]
+__all__ = ["FORMAT", "MODEL_FILE", "ModelCard", "OscarWorldModel"]
 
 FORMAT = "oscar-world-model"
+DEFAULT_SAMPLER = SamplerConfig()  # frozen: one shared default for the rollout methods
 _log = get_logger(__name__)
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 # video conditions (skeleton, mesh, capsules: oscar_core.conditions) travel in the skeleton stream
@@ -96,7 +97,7 @@ class ModelCard:
         return d
 
     @classmethod
-    def from_dict(cls, data: dict, source="<card>") -> "ModelCard":
+    def from_dict(cls, data: dict, source="<card>") -> ModelCard:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -129,7 +130,7 @@ class OscarWorldModel:
     @classmethod
     def from_modules(cls, transformer, vae, card: ModelCard | None = None, empty_prompt=None, *, device="cpu",
                      dtype: torch.dtype | None = None, vae_dtype: torch.dtype | None = None,
-                     offload_vae: bool = False, offload_text: bool = False) -> "OscarWorldModel":
+                     offload_vae: bool = False, offload_text: bool = False) -> OscarWorldModel:
         """Assemble from an OscarTransformer3DModel and an AutoencoderKLWan (moved to device/dtype).
 
         dtype None: bfloat16 on CUDA (the fast default), else the modules' own dtype.
@@ -155,14 +156,12 @@ class OscarWorldModel:
     @classmethod
     def from_pretrained(cls, folder, *, device="cpu", dtype: torch.dtype | None = None,
                         vae_dtype: torch.dtype | None = None, offload_vae: bool = False,
-                        offload_text: bool = False, verify: bool = True) -> "OscarWorldModel":
+                        offload_text: bool = False, verify: bool = True) -> OscarWorldModel:
         """Load a folder written by :meth:`save_pretrained` (safetensors only, keys matched strictly).
 
         verify: check every file against ``oscar_manifest.json`` (sha256) and
         the structure of every safetensors file before loading.
         """
-        from diffusers import AutoencoderKLWan
-
         from .._devices import device_problem
 
         problem = device_problem(device)
@@ -182,9 +181,7 @@ class OscarWorldModel:
         # on a GPU the weights are read straight onto it (no host copy); the VAE too unless it is offloaded
         gpu = torch.device(device).type == "cuda"
         transformer = transformer_cls.load_strict(folder / "transformer", device=device if gpu else None)
-        vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
-                           load_state_dict(folder / "vae", device=device if gpu and not offload_vae else "cpu"),
-                           folder / "vae")
+        vae = load_vae_folder(folder / "vae", device=device if gpu and not offload_vae else "cpu")
         empty = None
         if (folder / EMPTY_PROMPT_FILE).is_file():
             check_safetensors(folder / EMPTY_PROMPT_FILE)
@@ -205,14 +202,11 @@ class OscarWorldModel:
     @classmethod
     def from_cosmos_base(cls, folder, card: ModelCard | None = None, *, skeleton_channels: int | None = None,
                          device="cpu", dtype: torch.dtype | None = None, vae_dtype: torch.dtype | None = None,
-                         offload_vae: bool = False, offload_text: bool = False) -> "OscarWorldModel":
+                         offload_vae: bool = False, offload_text: bool = False) -> OscarWorldModel:
         """Start from a Cosmos-Predict2.5 diffusers folder (``transformer/`` + ``vae/``): base + zero PE_s."""
-        from diffusers import AutoencoderKLWan
-
         folder = Path(folder)
         transformer = OscarTransformer3DModel.from_cosmos_base(folder / "transformer", skeleton_channels)
-        vae = build_strict(AutoencoderKLWan, read_config(folder / "vae", ("AutoencoderKLWan",)),
-                           load_state_dict(folder / "vae"), folder / "vae")
+        vae = load_vae_folder(folder / "vae")
         return cls.from_modules(transformer, vae, card, None, device=device, dtype=dtype, vae_dtype=vae_dtype,
                                 offload_vae=offload_vae, offload_text=offload_text)
 
@@ -233,8 +227,10 @@ class OscarWorldModel:
         (folder / MODEL_FILE).write_text(json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()},
                                                     indent=2) + "\n")
         write_manifest(folder)
-        if not (folder / "README.md").exists():  # a model card with the Hub's metadata block (model/hub_card.py);
-            from .hub_card import default_model_card  # documentation, outside the manifest like oscar-toy's README
+        if not (folder / "README.md").exists():
+            # a model card with the Hub's metadata block (model/hub_card.py); documentation, outside the manifest
+            # like oscar-toy's README
+            from .hub_card import default_model_card
 
             (folder / "README.md").write_text(default_model_card(card.to_dict()))
         return folder
@@ -295,7 +291,7 @@ class OscarWorldModel:
         cfg = self.scheduler_config or {}
         return dict(cfg) if cfg.get("_class_name") == "UniPCMultistepScheduler" else None
 
-    def set_compile(self, mode: str = "auto", *, cells: int = 1) -> "OscarWorldModel":
+    def set_compile(self, mode: str = "auto", *, cells: int = 1) -> OscarWorldModel:
         """Set :attr:`compile_mode` and :attr:`compile_cells` (rollouts of this size the job runs); returns self."""
         from .compile_policy import check_compile_mode
 
@@ -337,7 +333,7 @@ class OscarWorldModel:
         self.vae.enable_slicing()
 
     def rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
-                chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
+                chunk_frames: int | None = None, sampler: SamplerConfig = DEFAULT_SAMPLER, seed: int = 0,
                 progress: bool = True, keep_chunks: bool = True, actions=None):
         """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default.
 
@@ -363,7 +359,7 @@ class OscarWorldModel:
                        num_frames=num_frames)
 
     def rollout_batch(self, first_frames, skeletons, prompt_embeds=None, *, chunk_frames: int | None = None,
-                      sampler: SamplerConfig = SamplerConfig(), seeds=None, progress: bool = False) -> list:
+                      sampler: SamplerConfig = DEFAULT_SAMPLER, seeds=None, progress: bool = False) -> list:
         """B rollouts in one batch (see :func:`oscar_core.model.rollout.rollout_batch`): B (T, H, W, 3) uint8 videos,
         each equal to :meth:`rollout` of its own inputs and seed up to float rounding.
 
@@ -390,7 +386,7 @@ class OscarWorldModel:
                              seeds=seeds, progress=progress, uncond_skeleton=self.card.unconditional_skeleton)
 
     def iter_rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
-                     chunk_frames: int | None = None, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
+                     chunk_frames: int | None = None, sampler: SamplerConfig = DEFAULT_SAMPLER, seed: int = 0,
                      progress: bool = True, result=None, actions=None):
         """Stream a rollout: yields each chunk's new uint8 frames (see :func:`oscar_core.model.rollout.iter_rollout`)."""
         from .rollout import iter_rollout

@@ -18,19 +18,17 @@ With ``pick_miss`` > 0 a fraction of the pick-and-place episodes miss the ball
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Callable
-
-import numpy as np
 
 from .. import _stage
 from .._log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode, miss_rng
+from .generate_legacy import check_legacy_clipset
 from .motion import ToyWorldError, check_supported
 
-__all__ = ["GenerateConfig", "generate_clipset", "clip_id", "split_of", "SOURCE"]
+__all__ = ["SOURCE", "GenerateConfig", "clip_id", "generate_clipset", "split_of"]
 
 SOURCE = "toyworld"
 
@@ -86,7 +84,8 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
     parts = {"stage": "toyworld-generate", "format": _stage.FORMAT_VERSION, "seed": cfg.seed, "width": cfg.width,
              "height": cfg.height, "frames": cfg.frames, "fps": cfg.fps, "shard_size": cfg.shard_size,
              "supersample": cfg.supersample, "skeleton": cfg.skeleton, "pick_miss": cfg.pick_miss}
-    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it",
+                       legacy=lambda: check_legacy_clipset(out, cfg))  # a set from before fingerprints
     writer = ClipSetWriter(out)
     writer.remove_stale()
     done = skipped = 0

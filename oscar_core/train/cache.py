@@ -17,9 +17,9 @@ run resumes where it stopped and nothing is written twice.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -88,6 +88,7 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     from ..conditions import check_condition
     from ..model.vae import check_frame_count
     from ..registry import Registry
+    from .cache_legacy import check_legacy_cache
     from .clips import Clip, ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")
@@ -103,8 +104,16 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
         cfg = json.dumps(dict(vae.vae.config), sort_keys=True, default=str)
         vae_name = "config-sha256:" + hashlib.sha256(cfg.encode()).hexdigest()[:16]
     parts = {"stage": "latent-cache", "format": _stage.FORMAT_VERSION, "source": str(source.root.resolve()),
-             "vae": vae_name, "vae_weights": _weights_digest(vae.vae), "window": window, "stride": stride, "split": split, "condition": condition}
-    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
+             "vae": vae_name, "vae_weights": _weights_digest(vae.vae), "window": window, "stride": stride,
+             "split": split, "condition": condition}
+
+    def legacy():  # a cache from before fingerprints: check what its shards recorded
+        return check_legacy_cache(out, source, vae=vae, vae_name=vae_name, window=window, stride=stride, split=split,
+                                  condition=condition, registry=registry,
+                                  starts_of=lambda n: window_starts(n, window, stride))
+
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it",
+                       legacy=legacy)
     writer = ClipSetWriter(out)
     writer.remove_stale()
     by_shard: dict[Path, list] = {}

@@ -35,9 +35,10 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -46,8 +47,17 @@ from .._atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tm
 from ..errors import OscarError
 
 __all__ = [
-    "CLIPSET_FILE", "CLIPSET_FORMAT", "SHARD_INDEX", "ClipFormatError", "ClipRecord", "Clip",
-    "ClipSet", "ClipSetWriter", "ShardWriter", "clip_openness",
+    "CLIPSET_FILE",
+    "CLIPSET_FORMAT",
+    "SHARD_INDEX",
+    "Clip",
+    "ClipFormatError",
+    "ClipRecord",
+    "ClipSet",
+    "ClipSetWriter",
+    "ShardWriter",
+    "clip_openness",
+    "finished_clipset",
 ]
 
 CLIPSET_FILE = "oscar_clips.json"
@@ -112,7 +122,7 @@ class ClipRecord:
         return a.reshape(self.n_frames, -1)
 
     @classmethod
-    def from_dict(cls, d: Any, where: str) -> "ClipRecord":
+    def from_dict(cls, d: Any, where: str) -> ClipRecord:
         """Validate one parsed ``clips.jsonl`` line (``where``: shard and line, for errors)."""
         if not isinstance(d, dict):
             raise ClipFormatError(where, None, "<record>", "a JSON object", type(d).__name__)
@@ -251,8 +261,8 @@ class ShardWriter:
             files["skeleton"] = f"{rec.id}/skeleton{ext}"
             write_video(self.tmp / files["skeleton"], sk, rec.fps, codec=self.video_codec)
         if clip.prompt_embeds is not None or clip.latents is not None:
-            from safetensors.torch import save_file
             import torch
+            from safetensors.torch import save_file
 
             if clip.prompt_embeds is not None:
                 pe = torch.as_tensor(clip.prompt_embeds)
@@ -283,7 +293,7 @@ class ShardWriter:
     def abort(self) -> None:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
-    def __enter__(self) -> "ShardWriter":
+    def __enter__(self) -> ShardWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -359,6 +369,14 @@ def _read_marker(path: Path) -> dict:
     if d.get("format_version") != FORMAT_VERSION:
         raise ClipFormatError(path, None, "format_version", str(FORMAT_VERSION), repr(d.get("format_version")))
     return d
+
+
+def finished_clipset(root) -> ClipSet | None:
+    """The clip set at ``root`` if it holds a finished shard, else None (no set there, or nothing finished yet)."""
+    if not (Path(root) / CLIPSET_FILE).is_file():
+        return None
+    clips = ClipSet(root)
+    return clips if clips.records else None
 
 
 class ClipSet:
