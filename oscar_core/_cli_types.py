@@ -71,6 +71,8 @@ def device(text: str) -> str:
     from safetensors or torch) after the output folder exists; this refuses it at the parser. torch is
     imported only when the option is given.
     """
+    if text == "cpu":  # argparse also converts string defaults: "cpu" must not import torch (a render needs none)
+        return text
     from ._devices import device_problem
 
     problem = device_problem(text)
