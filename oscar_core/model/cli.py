@@ -442,7 +442,9 @@ def cmd_rollout(args) -> int:
                "unconditional_skeleton": model.card.unconditional_skeleton,
                "guidance": {"w": args.guidance, "form": args.guidance_form}, "condition": model.card.condition,
                "compile": model.compile_reason, "dtype": str(next(model.transformer.parameters()).dtype),
-               "timings": {k: round(v, 3) for k, v in timings.items()}}
+               "device": str(device), "timings": {k: round(v, 3) for k, v in timings.items()}}
+    if str(device).startswith("cuda"):  # which GPU the timings were measured on
+        summary["device_name"] = torch.cuda.get_device_name(torch.device(device))
     if latent_action:
         summary["guidance"] = {"action_w": sampler.action_guidance, "form": args.guidance_form}
     if side_out is not None:
