@@ -362,6 +362,7 @@ def cmd_rollout(args) -> int:
     from ..trajectory import load_trajectory
     from ._image import read_first_frame
     from .sampler import sampler_from_options
+    from .world_model import OscarWorldModel  # noqa: F401 - diffusers' import (~3 s on a CPU) counts as import
 
     timings = {"startup": startup} if startup is not None else {}
     timings["import"] = time.perf_counter() - t_start
