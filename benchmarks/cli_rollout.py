@@ -57,7 +57,11 @@ def build_model(size: str, folder: Path, device: str) -> Path:
     import torch
 
     from oscar_core.model import ModelCard, OscarWorldModel
-    from oscar_core.model.tiny import COSMOS_2B_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae
+    from oscar_core.model.tiny import (
+        COSMOS_2B_TRANSFORMER_CONFIG,
+        build_tiny_transformer,
+        build_tiny_vae,
+    )
 
     if (folder / "oscar_model.json").is_file():
         return folder
@@ -97,10 +101,10 @@ def build_inputs(work: Path, model: str, embodiment: str, tokens: int) -> dict:
     """
     import cv2
     import numpy as np
+    import oscar_zoo
     import torch
     from safetensors.torch import save_file
 
-    import oscar_zoo
     from oscar_core.model.world_model import _read_card
     from oscar_core.registry import get_embodiment
     from oscar_core.trajectory import load_trajectory, save_trajectory
@@ -161,7 +165,7 @@ def run_row(cmd: list[str], cache: Path, label: str) -> dict:
     env.pop("TORCHINDUCTOR_CACHE_DIR", None)  # the compile cache follows $OSCAR_CACHE, as for a user
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode:
@@ -232,7 +236,7 @@ def machine(device: str) -> dict:
              "if torch.cuda.is_available(): d['gpu'] = torch.cuda.get_device_name()\nprint(json.dumps(d))")
     out = {"processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
            "python": platform.python_version()}
-    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=False)
     if proc.returncode == 0:
         out.update(json.loads(proc.stdout))
     if not device.startswith("cuda"):
