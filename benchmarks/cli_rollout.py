@@ -74,11 +74,16 @@ def build_model(size: str, folder: Path, device: str) -> Path:
 
         from oscar_core.model.transformer import OscarTransformer3DModel
 
-        dtype = torch.bfloat16 if device.startswith("cuda") else torch.float32
+        dtype = torch.bfloat16  # the released checkpoint's dtype (about 4 GB of DiT weights)
         torch.manual_seed(0)
-        with torch.device(device):  # random init on the device: minutes on a CPU, seconds on a GPU
-            transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).to(dtype).eval()
-            vae = AutoencoderKLWan().eval()
+        default = torch.get_default_dtype()
+        torch.set_default_dtype(dtype)  # initialised in bf16: no float32 copy of 2B parameters on the host
+        try:
+            with torch.device(device):  # random init on the device: a minute on a CPU, seconds on a GPU
+                transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).eval()
+                vae = AutoencoderKLWan().eval()
+        finally:
+            torch.set_default_dtype(default)
         card = ModelCard(name="bench-2b", chunk_frames=81, width=512, height=288, fps=15.0)
         model = OscarWorldModel.from_modules(transformer, vae, card, device=device, dtype=dtype)
     else:
@@ -94,10 +99,12 @@ def _text_dim(model_folder: Path) -> int:
     return int(cfg["text_embed_dim"])
 
 
-def build_inputs(work: Path, model: str, embodiment: str, tokens: int) -> dict:
+def build_inputs(work: Path, model: str, embodiment: str, tokens: int, chunk_frames: int | None = None,
+                 frame_size: tuple[int, int] | None = None) -> dict:
     """First frame, one-chunk trajectory, camera and prompt embedding for ``model`` (a name or folder).
 
-    Returns the paths and the chunk's frame count, width and height (the model card's).
+    Returns the paths and the chunk's frame count, width and height: the model card's unless ``chunk_frames``
+    or ``frame_size`` (width, height) are given (then the rollout is asked for them).
     """
     import cv2
     import numpy as np
@@ -116,7 +123,7 @@ def build_inputs(work: Path, model: str, embodiment: str, tokens: int) -> dict:
         raise BenchmarkError(f"--embodiment {embodiment}: expected an embodiment with a bundled example "
                              "trajectory and camera, found none")
     traj = load_trajectory(emb.example_trajectory)
-    frames = card.chunk_frames
+    frames = chunk_frames or card.chunk_frames
     if len(traj) < frames:
         raise BenchmarkError(f"{emb.example_trajectory}: expected at least one chunk of {frames} frames, "
                              f"found {len(traj)}")
@@ -125,11 +132,12 @@ def build_inputs(work: Path, model: str, embodiment: str, tokens: int) -> dict:
         traj = traj.replace(fps=card.fps)  # the model's frame rate: no resampling warning in the rollout
     camera = emb.load_camera(emb.example_camera)
     work.mkdir(parents=True, exist_ok=True)
-    inputs = {"model": str(folder), "frames": frames, "embodiment": embodiment,
+    inputs = {"model": str(folder), "frames": frames, "embodiment": embodiment, "chunk_frames": chunk_frames,
+              "frame_size": list(frame_size) if frame_size else None,
               "trajectory": str(save_trajectory(traj, work / "trajectory.npz")),
               "camera": str(emb.example_camera), "first_frame": str(work / "first.png"),
               "prompt_embeds": str(work / "prompt_embeds.safetensors")}
-    width, height = card.width or camera.intrinsics.width, card.height or camera.intrinsics.height
+    width, height = frame_size or (card.width or camera.intrinsics.width, card.height or camera.intrinsics.height)
     inputs["size"] = [width, height]
     img = np.random.default_rng(0).integers(0, 256, (camera.intrinsics.height, camera.intrinsics.width, 3),
                                             dtype=np.uint8)
@@ -152,10 +160,14 @@ def rollout_command(inputs: dict, out: Path, mode: str, device: str, steps: int 
            "--device", device, "--no-progress", "--json", "--offline"]
     if steps is not None:
         cmd += ["--steps", str(steps)]
+    if inputs.get("chunk_frames"):
+        cmd += ["--chunk-frames", str(inputs["chunk_frames"])]
+    if inputs.get("frame_size"):
+        cmd += ["--size", "{}x{}".format(*inputs["frame_size"])]
     return cmd + list(extra)
 
 
-def run_row(cmd: list[str], cache: Path, label: str) -> dict:
+def run_row(cmd: list[str], cache: Path, label: str, timeout: float | None = None) -> dict:
     """Run one rollout process with ``$OSCAR_CACHE`` = ``cache``; its wall and CPU seconds and its JSON.
 
     Raises BenchmarkError naming ``label``, the exit code and the end of stderr when the process fails or
@@ -165,7 +177,11 @@ def run_row(cmd: list[str], cache: Path, label: str) -> dict:
     env.pop("TORCHINDUCTOR_CACHE_DIR", None)  # the compile cache follows $OSCAR_CACHE, as for a user
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False, timeout=timeout)
+    except subprocess.TimeoutExpired as exc:
+        raise BenchmarkError(f"{label}: the rollout process ran past --timeout {timeout:g} s and was killed:\n"
+                             f"{' '.join(cmd)}\n{(exc.stderr or b'')[-3000:]!r}") from None
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode:
@@ -256,8 +272,11 @@ def main(argv=None) -> int:
     ap.add_argument("--compile-modes", action="store_true",
                     help="also --compile always (cold cache, then warm) and auto; default: never only")
     ap.add_argument("--steps", type=int, help="denoising steps (default: the CLI's)")
+    ap.add_argument("--chunk-frames", type=int, help="frames of the one chunk (default: the model's chunk_frames)")
+    ap.add_argument("--frame-size", metavar="WxH", help="rollout size (default: the model's training size)")
     ap.add_argument("--embodiment", default="toyarm", help="embodiment whose example trajectory is used")
     ap.add_argument("--tokens", type=int, default=None, help="prompt tokens (default 512 for 2b, else 8)")
+    ap.add_argument("--timeout", type=float, default=3600.0, help="seconds one rollout process may take (3600)")
     ap.add_argument("--work", help="folder for the model and inputs (default: a temporary one, removed after)")
     ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "cli_rollout.json"))
     ap.add_argument("--rollout-arg", action="append", default=[], metavar="ARG",
@@ -282,7 +301,8 @@ def _run(args, size: str | None, work: Path) -> int:
     t0 = time.perf_counter()
     model = str(build_model(size, work / f"model-{size}", args.device)) if size else args.model
     tokens = args.tokens or (512 if size == "2b" else 8)
-    inputs = build_inputs(work / "inputs", model, args.embodiment, tokens)
+    frame_size = tuple(int(v) for v in args.frame_size.lower().split("x")) if args.frame_size else None
+    inputs = build_inputs(work / "inputs", model, args.embodiment, tokens, args.chunk_frames, frame_size)
     setup_s = time.perf_counter() - t0
     shared = work / "cache-shared"
     rows = []
@@ -293,7 +313,7 @@ def _run(args, size: str | None, work: Path) -> int:
             out = work / "out" / f"{mode}-{cache_kind}-{k}.mkv"
             out.parent.mkdir(parents=True, exist_ok=True)
             cmd = rollout_command(inputs, out, mode, args.device, args.steps, tuple(args.rollout_arg))
-            run = run_row(cmd, cache, f"{label} (repeat {k + 1})")
+            run = run_row(cmd, cache, f"{label} (repeat {k + 1})", args.timeout)
             if run["frames"] != inputs["frames"] or run["chunks"] != 1:
                 raise BenchmarkError(f"{label}: expected one chunk of {inputs['frames']} frames, found "
                                      f"{run['frames']} frames in {run['chunks']} chunk(s)")

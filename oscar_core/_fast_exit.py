@@ -29,9 +29,15 @@ def exit_process(code: int | None) -> None:
         raise SystemExit(code)
     code = 0 if code is None else int(code)
     main = threading.main_thread()
-    for thread in threading.enumerate():  # what the interpreter's shutdown waits for before atexit
-        if thread is not main and not thread.daemon:
-            thread.join()
+    shutdown = getattr(threading, "_shutdown", None)
+    if shutdown is not None and threading.current_thread() is main:
+        # the interpreter's own first step: threading's exit hooks (they stop the workers of thread pools left
+        # open, e.g. concurrent.futures'), then a join of every non-daemon thread
+        shutdown()
+    else:
+        for thread in threading.enumerate():
+            if thread is not main and not thread.daemon and thread is not threading.current_thread():
+                thread.join()
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:

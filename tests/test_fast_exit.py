@@ -15,6 +15,9 @@ def late():
     time.sleep(0.3)
     (out / "thread").write_text("finished")
 threading.Thread(target=late).start()               # non-daemon: shutdown waits for it
+from concurrent.futures import ThreadPoolExecutor
+pool = ThreadPoolExecutor(2)                         # left open: its idle workers are stopped, not waited for
+pool.submit(time.sleep, 0.01).result()
 sys.stdout.write("unflushed stdout")                # no newline, block-buffered into a pipe
 sys.stderr.write("unflushed stderr")
 from oscar_core._fast_exit import exit_process
@@ -26,7 +29,8 @@ print("never reached")
 @pytest.mark.parametrize("full", ["", "1"])
 def test_exit_keeps_code_threads_atexit_and_output(tmp_path, full):
     env = {"PATH": "/usr/bin:/bin", "OSCAR_FULL_EXIT": full}
-    proc = subprocess.run([sys.executable, "-c", SNIPPET, str(tmp_path)], capture_output=True, text=True, env=env, check=False)
+    proc = subprocess.run([sys.executable, "-c", SNIPPET, str(tmp_path)], capture_output=True, text=True, env=env, check=False,
+                          timeout=60)
     assert proc.returncode == 3, proc.stderr
     assert proc.stdout == "unflushed stdout" and proc.stderr.startswith("unflushed stderr")
     assert (tmp_path / "thread").read_text() == "finished"
