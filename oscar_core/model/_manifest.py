@@ -74,7 +74,9 @@ def verify_files(folder, expected: dict[str, str | None], source: str | None = N
     for rel, digest in sorted(expected.items()):
         if digest is None:
             continue
-        found = sha256_file(folder / rel)
+        from ._verified import file_sha256
+
+        found = file_sha256(folder / rel)  # remembered while the file is unchanged (OSCAR_VERIFY=full: always read)
         if found != digest.lower():
             raise CheckpointIntegrityError(folder / rel, "sha256", digest.lower(), found,
                                            "the file is corrupted, partial or was changed; download it again "
