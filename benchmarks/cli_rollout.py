@@ -17,7 +17,9 @@ encode + sample + decode.
 
 Modes: ``never`` (eager) always; with ``--compile-modes`` also ``always`` with a cold compile cache (a fresh
 ``$OSCAR_CACHE`` per repeat), ``always`` with that cache warm (the same folder again) and ``auto`` (the
-library's choice). Inputs are built into ``--work`` (a temporary folder by default): a random-weights model
+library's choice). ``--baseline-env VAR=VALUE`` adds a ``never`` row run with those variables, alternating with
+the plain one repeat by repeat: ``OSCAR_FULL_EXIT=1`` and ``OSCAR_VERIFY=full`` give the interpreter's full
+shutdown and the hashing of every weight file on every load, as before they were cut. Inputs are built into ``--work`` (a temporary folder by default): a random-weights model
 (``--size tiny``: oscar_core.model.tiny; ``--size 2b``: the Cosmos-Predict2.5-2B DiT config and the default WAN
 2.1 VAE, in bf16 on the device) saved with ``OscarWorldModel.save_pretrained``, or ``--model NAME_OR_FOLDER``.
 
@@ -167,13 +169,13 @@ def rollout_command(inputs: dict, out: Path, mode: str, device: str, steps: int 
     return cmd + list(extra)
 
 
-def run_row(cmd: list[str], cache: Path, label: str, timeout: float | None = None) -> dict:
+def run_row(cmd: list[str], cache: Path, label: str, timeout: float | None = None, extra_env: dict | None = None) -> dict:
     """Run one rollout process with ``$OSCAR_CACHE`` = ``cache``; its wall and CPU seconds and its JSON.
 
     Raises BenchmarkError naming ``label``, the exit code and the end of stderr when the process fails or
     prints no JSON summary.
     """
-    env = {**os.environ, "OSCAR_CACHE": str(cache), "HF_HUB_OFFLINE": "1"}
+    env = {**os.environ, "OSCAR_CACHE": str(cache), "HF_HUB_OFFLINE": "1", **(extra_env or {})}
     env.pop("TORCHINDUCTOR_CACHE_DIR", None)  # the compile cache follows $OSCAR_CACHE, as for a user
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
@@ -207,13 +209,19 @@ def run_row(cmd: list[str], cache: Path, label: str, timeout: float | None = Non
             "device_name": summary.get("device_name")}
 
 
-def plan(compile_modes: bool) -> list[tuple[str, str, str]]:
-    """(row label, --compile value, cache kind) in run order: 'fresh' = a new $OSCAR_CACHE per repeat."""
-    rows = [("never", "never", "shared")]
+def plan(compile_modes: bool, baseline_env: dict | None = None) -> list[list[tuple[str, str, str, dict]]]:
+    """Groups of rows in run order, each row (label, --compile value, cache kind, extra environment); the rows of
+    a group alternate repeat by repeat (same conditions on a shared machine). Cache kind 'fresh': a new
+    $OSCAR_CACHE per repeat; 'warm': the one the last 'fresh' run filled. ``baseline_env``: a 'never' row run with those variables beside the plain one."""
+    never = [("never", "never", "shared", {})]
+    if baseline_env:
+        desc = " ".join(f"{k}={v}" for k, v in baseline_env.items())
+        never = [(f"never, {desc}", "never", "shared-baseline", dict(baseline_env))] + never
+    groups = [never]
     if compile_modes:
-        rows += [("always, cold cache", "always", "fresh"), ("always, warm cache", "always", "shared"),
-                 ("auto", "auto", "shared")]
-    return rows
+        groups += [[("always, cold cache", "always", "fresh", {})], [("always, warm cache", "always", "warm", {})],
+                   [("auto", "auto", "shared", {})]]
+    return groups
 
 
 def summarise(label: str, mode: str, runs: list[dict], frames: int) -> dict:
@@ -276,6 +284,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frame-size", metavar="WxH", help="rollout size (default: the model's training size)")
     ap.add_argument("--embodiment", default="toyarm", help="embodiment whose example trajectory is used")
     ap.add_argument("--tokens", type=int, default=None, help="prompt tokens (default 512 for 2b, else 8)")
+    ap.add_argument("--baseline-env", action="append", metavar="VAR=VALUE",
+                    help="also a 'never' row run with this variable set, alternating with the plain one (repeatable), "
+                         "e.g. OSCAR_FULL_EXIT=1 and OSCAR_VERIFY=full: the shutdown and hashing of before")
     ap.add_argument("--timeout", type=float, default=3600.0, help="seconds one rollout process may take (3600)")
     ap.add_argument("--work", help="folder for the model and inputs (default: a temporary one, removed after)")
     ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "cli_rollout.json"))
@@ -284,6 +295,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.repeats < 1:
         ap.error(f"--repeats: expected at least 1, found {args.repeats}")
+    for kv in args.baseline_env or ():
+        if "=" not in kv or not kv.split("=", 1)[0]:
+            ap.error(f"--baseline-env: expected VAR=VALUE, found {kv!r}")
     size = args.size or (None if args.model else "tiny")
     keep = args.work is not None
     work = Path(args.work) if keep else Path(tempfile.mkdtemp(prefix="oscar-cli-rollout-"))
@@ -304,21 +318,23 @@ def _run(args, size: str | None, work: Path) -> int:
     frame_size = tuple(int(v) for v in args.frame_size.lower().split("x")) if args.frame_size else None
     inputs = build_inputs(work / "inputs", model, args.embodiment, tokens, args.chunk_frames, frame_size)
     setup_s = time.perf_counter() - t0
-    shared = work / "cache-shared"
+    baseline = dict(kv.split("=", 1) for kv in args.baseline_env) if args.baseline_env else None
     rows = []
-    for label, mode, cache_kind in plan(args.compile_modes):
-        runs = []
+    for group in plan(args.compile_modes, baseline):
+        runs: dict[str, list] = {label: [] for label, *_ in group}
         for k in range(args.repeats):
-            cache = work / f"cache-cold-{k}" if cache_kind == "fresh" else shared
-            out = work / "out" / f"{mode}-{cache_kind}-{k}.mkv"
-            out.parent.mkdir(parents=True, exist_ok=True)
-            cmd = rollout_command(inputs, out, mode, args.device, args.steps, tuple(args.rollout_arg))
-            run = run_row(cmd, cache, f"{label} (repeat {k + 1})", args.timeout)
-            if run["frames"] != inputs["frames"] or run["chunks"] != 1:
-                raise BenchmarkError(f"{label}: expected one chunk of {inputs['frames']} frames, found "
-                                     f"{run['frames']} frames in {run['chunks']} chunk(s)")
-            runs.append(run)
-        rows.append(summarise(label, mode, runs, inputs["frames"]))
+            for label, mode, cache_kind, extra_env in group:
+                cache = work / {"fresh": f"cache-cold-{k}", "warm": f"cache-cold-{args.repeats - 1}"}.get(
+                    cache_kind, f"cache-{cache_kind}")  # warm: the cache the last cold run filled
+                out = work / "out" / f"{mode}-{cache_kind}-{k}.mkv"
+                out.parent.mkdir(parents=True, exist_ok=True)
+                cmd = rollout_command(inputs, out, mode, args.device, args.steps, tuple(args.rollout_arg))
+                run = run_row(cmd, cache, f"{label} (repeat {k + 1})", args.timeout, extra_env)
+                if run["frames"] != inputs["frames"] or run["chunks"] != 1:
+                    raise BenchmarkError(f"{label}: expected one chunk of {inputs['frames']} frames, found "
+                                         f"{run['frames']} frames in {run['chunks']} chunk(s)")
+                runs[label].append(run)
+        rows += [summarise(label, mode, runs[label], inputs["frames"]) for label, mode, *_ in group]
     info = machine(args.device)
     where = info.get("gpu") or f"{info['cpus']} CPUs ({info['processor']})"
     w, h = inputs["size"]

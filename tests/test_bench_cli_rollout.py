@@ -51,3 +51,12 @@ def test_a_failing_rollout_process_fails_the_benchmark(bench, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 1 and not out.exists()
     assert "never (repeat 1): the rollout process exited with 2" in err and "60x60" in err
+
+
+def test_the_plan_alternates_a_baseline_with_never_and_runs_cold_before_warm(bench):
+    groups = bench.plan(True, {"OSCAR_FULL_EXIT": "1"})
+    assert [[label for label, *_ in g] for g in groups] == [
+        ["never, OSCAR_FULL_EXIT=1", "never"], ["always, cold cache"], ["always, warm cache"], ["auto"]]
+    assert groups[0][0][3] == {"OSCAR_FULL_EXIT": "1"} and groups[0][1][3] == {}
+    assert groups[1][0][2] == "fresh" and groups[2][0][2] == "warm"  # warm: the cache the cold runs filled
+    assert [g[0][1] for g in bench.plan(False)] == ["never"]

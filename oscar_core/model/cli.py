@@ -362,7 +362,6 @@ def cmd_rollout(args) -> int:
     from ..trajectory import load_trajectory
     from ._image import read_first_frame
     from .sampler import sampler_from_options
-    from .world_model import OscarWorldModel  # noqa: F401 - diffusers' import (~3 s on a CPU) counts as import
 
     timings = {"startup": startup} if startup is not None else {}
     timings["import"] = time.perf_counter() - t_start
@@ -391,6 +390,10 @@ def cmd_rollout(args) -> int:
     device = args.device or _default_device()
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
+    t0 = time.perf_counter()
+    if _loads_without_network(args):  # online, diffusers' import waits until the Hub has answered (OSCAR_HUB_TIMEOUT)
+        from .world_model import OscarWorldModel  # noqa: F401 - diffusers (~3 s on a CPU): counted as import
+    timings["import"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     model = oscar_zoo.load(args.model, args.revision, device=device, dtype=dtype,
                            offload_vae=args.offload_vae, offload_text=args.offload_text,
@@ -459,6 +462,19 @@ def cmd_rollout(args) -> int:
         print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()) + f" ({model.compile_reason})",
               file=sys.stderr)
     return 0
+
+
+def _loads_without_network(args) -> bool:
+    """Whether ``--model`` loads from disk only: a folder, a model bundled with oscar, or ``--offline``."""
+    import oscar_zoo
+
+    if args.offline:
+        return True
+    try:
+        resolved = oscar_zoo.resolve(args.model, args.revision)
+    except oscar_zoo.UnknownModelError:
+        return False  # the load reports it
+    return resolved.folder is not None or bool(resolved.spec is not None and resolved.spec.bundled)
 
 
 def _seconds_since_process_start() -> float | None:
