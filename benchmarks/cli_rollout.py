@@ -243,12 +243,13 @@ def summarise(label: str, mode: str, runs: list[dict], frames: int) -> dict:
 # ----------------------------------------------------------------------------- the table
 def print_table(rows: list[dict], title: str) -> None:
     print(f"\n{title}")
-    head = (f"{'mode':<20} {'wall s med/best':>15} {'CPU s':>6} {'fixed s':>7}  "
+    wide = max(20, *(len(r["mode"]) for r in rows))
+    head = (f"{'mode':<{wide}} {'wall s med/best':>15} {'CPU s':>6} {'fixed s':>7}  "
             + " ".join(f"{k:>7}" for k in PARTS) + f" {'sample':>7} {'VAE':>6} {'fr/s wall':>9} {'fr/s sample':>11}")
     print(head)
     for r in rows:
         fs = r["frames_per_s_sample"]
-        print(f"{r['mode']:<20} {r['wall_s']:>7.2f}/{r['best_wall_s']:<7.2f} {r['cpu_s']:>6.1f} {r['fixed_s']:>7.2f}  "
+        print(f"{r['mode']:<{wide}} {r['wall_s']:>7.2f}/{r['best_wall_s']:<7.2f} {r['cpu_s']:>6.1f} {r['fixed_s']:>7.2f}  "
               + " ".join(f"{r['parts'][k]:>7.2f}" for k in PARTS)
               + f" {r['sample_s']:>7.2f} {r['vae_s']:>6.2f} {r['frames_per_s_wall']:>9.2f} "
               + (f"{fs:>11.2f}" if fs else f"{'-':>11}"))
