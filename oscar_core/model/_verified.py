@@ -22,11 +22,20 @@ import os
 from pathlib import Path
 
 from .._log import get_logger
-from ._manifest import sha256_file
 
-__all__ = ["file_sha256", "verified_dir"]
+__all__ = ["file_sha256", "sha256_file", "verified_dir"]
 
 _log = get_logger(__name__)
+_CHUNK = 8 * 1024 * 1024
+
+
+def sha256_file(path) -> str:
+    """Hex sha256 of a file's bytes (read in 8 MiB chunks; follows symlinks, e.g. the Hub cache's)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(_CHUNK), b""):
+            h.update(block)
+    return h.hexdigest()
 _FIELDS = ("st_size", "st_mtime_ns", "st_ctime_ns", "st_ino", "st_dev")
 
 
