@@ -11,7 +11,8 @@ process from outside (wall seconds from spawn to exit, and the CPU seconds it an
 ``resource.getrusage(RUSAGE_CHILDREN)``) and reads the CLI's own breakdown (``timings`` in its JSON):
 ``startup`` (interpreter start and the ``oscar`` command's imports), ``import`` (the rollout's imports),
 ``load`` (reading the weights onto the device), ``render`` (the condition video), ``text`` (the prompt
-embedding), ``encode`` / ``sample`` / ``decode`` (the model), ``write`` (what writing the videos added) and
+embedding), ``compile`` (torch.compile's set-up; the compile itself is in the first chunk's sample),
+``encode`` / ``sample`` / ``decode`` (the model), ``write`` (what writing the videos added) and
 ``exit`` (outside wall − the CLI's wall: tearing the process down). The **fixed cost** is everything but
 encode + sample + decode.
 
@@ -44,7 +45,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PARTS = ("startup", "import", "load", "render", "text", "write", "exit")
+PARTS = ("startup", "import", "load", "render", "text", "compile", "write", "exit")
 MODEL_PARTS = ("encode", "sample", "decode")
 SIZES = ("tiny", "2b")
 
@@ -195,7 +196,7 @@ def run_row(cmd: list[str], cache: Path, label: str, timeout: float | None = Non
         raise BenchmarkError(f"{label}: expected the rollout's JSON summary on stdout, found "
                              f"{proc.stdout[-500:]!r}") from None
     t = summary.get("timings", {})
-    missing = [k for k in ("import", "load", "render", "text", "write", "wall", *MODEL_PARTS) if k not in t]
+    missing = [k for k in ("import", "load", "render", "text", "compile", "write", "wall", *MODEL_PARTS) if k not in t]
     if missing:
         raise BenchmarkError(f"{label}: the rollout's JSON 'timings': expected {missing}, found {sorted(t)}")
     parts = {k: float(t.get(k, 0.0)) for k in PARTS if k != "exit"}
