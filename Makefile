@@ -35,6 +35,7 @@ test-install: install
 bench: install
 	$(PYTHON) benchmarks/render.py
 	$(PYTHON) benchmarks/rollout.py
+	$(PYTHON) benchmarks/cli_rollout.py --model oscar-toy
 	$(PYTHON) benchmarks/render_scale.py
 	$(PYTHON) benchmarks/train.py
 

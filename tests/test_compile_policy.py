@@ -197,6 +197,25 @@ def test_compile_cache_goes_to_oscar_cache_unless_set(monkeypatch, tmp_path):
     assert cp.default_compile_cache_dir() == tmp_path / "xdg" / "oscar" / "compile"
 
 
+def test_compile_cache_is_ours_after_torch_set_its_default(tmp_path):
+    """Importing diffusers makes torch set TORCHINDUCTOR_CACHE_DIR to its /tmp default: that is not a choice."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import oscar_core.model.world_model, os\n"  # diffusers' import asks torch for its cache folder
+            "from torch._inductor.runtime.cache_dir_utils import cache_dir, default_cache_dir\n"
+            "before = os.environ.get('TORCHINDUCTOR_CACHE_DIR')\n"
+            "from oscar_core.model.compile_policy import configure_compile_cache\n"
+            "print(before == os.path.abspath(default_cache_dir()), configure_compile_cache(), cache_dir())")
+    env = {k: v for k, v in os.environ.items() if k != "TORCHINDUCTOR_CACHE_DIR"}
+    env["OSCAR_CACHE"] = str(tmp_path / "oc")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=False)
+    assert proc.returncode == 0, proc.stderr
+    ours = str(tmp_path / "oc" / "compile")
+    assert proc.stdout.split() == ["True", ours, ours]
+
+
 # --------------------------------------------------------------------------- CLI options
 @pytest.mark.parametrize("argv, expected", [([], "auto"), (["--compile"], "always"), (["--compile", "never"], "never"),
                                             (["--no-compile"], "never"), (["--compile", "auto"], "auto")])

@@ -143,7 +143,7 @@ def test_rollout_reports_its_fixed_costs_and_compile_decision(capsys, tmp_path, 
     assert code == 0, err
     summary = json.loads(stdout)
     timings = summary["timings"]
-    parts = ("startup", "import", "load", "render", "text", "encode", "sample", "decode", "write")
+    parts = ("startup", "import", "load", "render", "text", "compile", "encode", "sample", "decode", "write")
     assert set(timings) == {*parts, "wall"}
     assert all(timings[k] >= 0 for k in parts) and timings["sample"] > 0 and timings["decode"] > 0
     assert sum(timings[k] for k in parts) <= timings["wall"] + 0.01  # each rounded to ms

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from oscar_core.errors import OscarError
-from oscar_core.model._manifest import MANIFEST_NAME, read_manifest, sha256_file
+from oscar_core.model._manifest import MANIFEST_NAME, read_manifest
+from oscar_core.model._verified import file_sha256
 from oscar_core.model._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, check_safetensors
 from oscar_core.model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from oscar_core.model.layouts import SCHEDULER_CONFIG, Layout, detect_layout, list_folder
@@ -303,7 +304,7 @@ def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, file
                 if rel.endswith(".safetensors"):
                     check_safetensors(root / rel)
                 continue
-            hashes[rel] = sha256_file(root / rel)
+            hashes[rel] = file_sha256(root / rel)  # remembered while unchanged (oscar_core.model._verified)
             for digest, origin in expected.get(rel, []):
                 if hashes[rel] != digest:
                     raise CheckpointIntegrityError(root / rel, "sha256", f"{digest} ({origin})", hashes[rel])

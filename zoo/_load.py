@@ -55,8 +55,11 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
     Safetensors only, never ``trust_remote_code``, never unpickles; sha256
     checked where known (table, user registry, the checkpoint's manifest);
     every weight file's structure checked (partial files are reported, not
-    loaded). Hashing reads every file once per load (~10 s for the 2B
-    model's ~4.5 GB); ``verify=False`` skips it for a cache you trust. A ``cosmos-base`` checkpoint loads as an OSCAR model whose
+    loaded). Each file is hashed once, and its digest is remembered with the
+    file's size, times, inode and device (``$OSCAR_CACHE/verified``): a later
+    load of an unchanged file does not read it again (``OSCAR_VERIFY=full``
+    always hashes; ~0.65 s per GB on a CPU core); ``verify=False`` skips the
+    check for a cache you trust. A ``cosmos-base`` checkpoint loads as an OSCAR model whose
     skeleton embedder is zero (the base model exactly).
     device, dtype: where and in which dtype the DiT runs (bf16 on GPUs);
     vae_dtype: the VAE's (default: dtype); offload_vae: keep the VAE on the

@@ -8,25 +8,15 @@ hashes in the zoo table or a user's registry are what vouch for a source.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
+from ._verified import file_sha256, sha256_file
 from .errors import CheckpointIntegrityError, CheckpointLayoutError
 
 __all__ = ["MANIFEST_NAME", "sha256_file", "write_manifest", "read_manifest", "verify_files"]
 
 MANIFEST_NAME = "oscar_manifest.json"
-_CHUNK = 8 * 1024 * 1024
-
-
-def sha256_file(path) -> str:
-    """Hex sha256 of a file's bytes (read in 8 MiB chunks; follows symlinks, e.g. the Hub cache's)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(_CHUNK), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _files(folder: Path) -> list[str]:
@@ -74,7 +64,7 @@ def verify_files(folder, expected: dict[str, str | None], source: str | None = N
     for rel, digest in sorted(expected.items()):
         if digest is None:
             continue
-        found = sha256_file(folder / rel)
+        found = file_sha256(folder / rel)  # remembered while the file is unchanged (OSCAR_VERIFY=full: always read)
         if found != digest.lower():
             raise CheckpointIntegrityError(folder / rel, "sha256", digest.lower(), found,
                                            "the file is corrupted, partial or was changed; download it again "

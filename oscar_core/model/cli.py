@@ -385,6 +385,10 @@ def cmd_rollout(args) -> int:
     dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
     report: list[str] = []
     t0 = time.perf_counter()
+    if _loads_without_network(args):  # online, diffusers' import waits until the Hub has answered (OSCAR_HUB_TIMEOUT)
+        from .world_model import OscarWorldModel  # noqa: F401 - diffusers (~3 s on a CPU): counted as import
+    timings["import"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
     model = oscar_zoo.load(args.model, args.revision, device=device, dtype=dtype,
                            offload_vae=args.offload_vae, offload_text=args.offload_text,
                            local_files_only=True if args.offline else None, native_file=args.native_file,
@@ -425,6 +429,10 @@ def cmd_rollout(args) -> int:
     chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=args.chunk_frames,
                                 sampler=sampler, seed=args.seed, progress=not args.no_progress, result=result,
                                 actions=actions)
+    # torch.compile's set-up when the policy compiles (mostly inductor's imports, ~1.5 s on a CPU; 0 eager); the
+    # compile itself runs inside the first chunk's sample
+    timings["compile"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
     streamed = time.perf_counter() - t0
     timings.update({k: result.timings.get(k, 0.0) for k in ("encode", "sample", "decode")})
@@ -436,7 +444,9 @@ def cmd_rollout(args) -> int:
                "unconditional_skeleton": model.card.unconditional_skeleton,
                "guidance": {"w": args.guidance, "form": args.guidance_form}, "condition": model.card.condition,
                "compile": model.compile_reason, "dtype": str(next(model.transformer.parameters()).dtype),
-               "timings": {k: round(v, 3) for k, v in timings.items()}}
+               "device": str(device), "timings": {k: round(v, 3) for k, v in timings.items()}}
+    if str(device).startswith("cuda"):  # which GPU the timings were measured on
+        summary["device_name"] = torch.cuda.get_device_name(torch.device(device))
     if latent_action:
         summary["guidance"] = {"action_w": sampler.action_guidance, "form": args.guidance_form}
     if side_out is not None:
@@ -450,6 +460,19 @@ def cmd_rollout(args) -> int:
         print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()) + f" ({model.compile_reason})",
               file=sys.stderr)
     return 0
+
+
+def _loads_without_network(args) -> bool:
+    """Whether ``--model`` loads from disk only: a folder, a model bundled with oscar, or ``--offline``."""
+    import oscar_zoo
+
+    if args.offline:
+        return True
+    try:
+        resolved = oscar_zoo.resolve(args.model, args.revision)
+    except oscar_zoo.UnknownModelError:
+        return False  # the load reports it
+    return resolved.folder is not None or bool(resolved.spec is not None and resolved.spec.bundled)
 
 
 def _seconds_since_process_start() -> float | None:

@@ -175,13 +175,26 @@ def configure_compile_cache() -> str:
     Inductor keeps its FX-graph, autotuning and Triton caches under ``$TORCHINDUCTOR_CACHE_DIR``, by default in
     ``/tmp/torchinductor_$USER`` (lost at reboot). An unset variable is set to :func:`default_compile_cache_dir`;
     a set one is left alone. The FX-graph cache itself is on by default in torch ≥ 2.4 and is left as configured.
+
+    torch sets the variable itself, to its ``/tmp`` default, the first time anything asks for the cache folder —
+    importing diffusers does — so a value equal to torch's default counts as unset (before this, the CLI's
+    compiles went to ``/tmp`` and ``$OSCAR_CACHE/compile`` stayed empty; benchmarks/cli_rollout.py found it).
     """
     chosen = os.environ.get("TORCHINDUCTOR_CACHE_DIR")
-    if chosen:
+    if chosen and os.path.abspath(chosen) != _torch_default_cache_dir():
         return chosen
     path = default_compile_cache_dir()
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(path)
     return str(path)
+
+
+def _torch_default_cache_dir() -> str | None:
+    """The folder inductor uses when ``TORCHINDUCTOR_CACHE_DIR`` is unset (``/tmp/torchinductor_$USER``)."""
+    try:
+        from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+    except ImportError:  # another torch layout: nothing to compare with
+        return None
+    return os.path.abspath(default_cache_dir())
 
 
 def add_compile_options(parser) -> None:
