@@ -379,8 +379,13 @@ def step_variant(size: str, device: str, checkpointing: str, compiled: bool, war
             step()
             times.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
-    saved = None if compiled else _saved_bytes(model, batch, items, config, dev, autocast)
     optimizer.zero_grad(set_to_none=True)
+    saved = None
+    if not compiled:
+        try:
+            saved = _saved_bytes(model, batch, items, config, dev, autocast)
+        except torch.cuda.OutOfMemoryError:  # after the measurement: the row stands without the count
+            saved = None
     # the variant's peak: the larger of the two windows, the second shifted by the level it started from
     peak = max(build_and_first.peak, steady.peak + steady.base - build_and_first.base)
     P = sum(p.numel() for p in model.parameters())
@@ -413,8 +418,12 @@ def step_variant(size: str, device: str, checkpointing: str, compiled: bool, war
 
 
 def _compare(rows: list[dict]) -> list[dict]:
-    """Each variant's first-step loss, gradient norm and per-parameter gradient norms against the first row's:
-    relative differences (per-parameter ones relative to the whole gradient's norm)."""
+    """Each variant's first-step loss, gradient norm and per-parameter gradient norms against the first measured
+    row's: relative differences (per-parameter ones relative to the whole gradient's norm). Rows that ran out of
+    device memory are left out."""
+    rows = [r for r in rows if not r.get("out_of_memory")]
+    if not rows:
+        return []
     ref = rows[0]
     out = []
     for r in rows:
@@ -455,23 +464,32 @@ def step_table(size: str, device: str, variants, warmup: int, repeats: int, tole
         if proc.returncode:
             raise RuntimeError(f"step table, variant {name}: failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
         rows.append(json.loads(out.read_text()))
-    dtype = rows[0]["dtype"]
+    measured = [r for r in rows if not r.get("out_of_memory")]
+    if not measured:
+        raise RuntimeError(f"step table: every variant ran out of {device} memory: "
+                           + "; ".join(f"{r['variant']}: {r['error']}" for r in rows))
+    dtype = measured[0]["dtype"]
     tol = STEP_TOLERANCE[dtype] if tolerance is None else tolerance
     checks = _compare(rows)
     bad = [c["variant"] for c in checks if not c["max_diff"] <= tol]
     return {"size": size, "device": device, "dtype": dtype, "tolerance": tol, "variants": rows, "agreement": checks,
-            "max_diff": max(c["max_diff"] for c in checks), "disagreeing": bad}
+            "max_diff": max(c["max_diff"] for c in checks), "disagreeing": bad,
+            "out_of_memory": [r["variant"] for r in rows if r.get("out_of_memory")]}
 
 
 def print_step_table(t: dict) -> None:
-    r0 = t["variants"][0]
+    r0 = next(r for r in t["variants"] if not r.get("out_of_memory"))
     print(f"\nTraining step, --step-size {t['size']} on {t['device']} ({t['dtype']}; {r0['params'] / 1e6:.2f} M "
           f"parameters, {r0['layers']} blocks, hidden {r0['hidden']}; micro-batch {r0['micro_batch']} x "
           f"{r0['tokens_per_clip']} tokens; MEASURED)")
     print(f"{'variant':<13} {'median ms':>9} {'best ms':>8} {'CPU s':>6} {'compile s':>9} {'peak MiB':>8} "
           f"{'(model)':>8} {'step MiB':>8} {'(model)':>8} {'saved MiB':>9} {'(model)':>8} {'max diff':>9}")
-    for r, c in zip(t["variants"], t["agreement"]):
-        m = r["modelled"]
+    agreement = {c["variant"]: c for c in t["agreement"]}
+    for r in t["variants"]:
+        if r.get("out_of_memory"):
+            print(f"{r['variant']:<13} out of {t['device']} memory ({r['error'][:90]})")
+            continue
+        c, m = agreement[r["variant"]], r["modelled"]
         comp = f"{r['compile_s']:.1f}" if r["compile_s"] is not None else "-"
         saved = f"{r['saved_activation_bytes'] / MIB:.1f}" if r["saved_activation_bytes"] is not None else "-"
         print(f"{r['variant']:<13} {1e3 * r['median_step_s']:>9.1f} {1e3 * r['best_step_s']:>8.1f} "
@@ -484,7 +502,7 @@ def print_step_table(t: dict) -> None:
           "the state kept between them, beside the model's total less 16P (weights, AdamW moments, EMA); saved MiB: "
           "non-parameter bytes autograd saves in one forward (counted, eager only; under full, the checkpointed "
           "blocks' insides are not saved) beside the model's activations; max diff: first-step loss and gradient "
-          f"norms against {t['variants'][0]['variant']} (relative; tolerance {t['tolerance']:.0e})")
+          f"norms against {r0['variant']} (relative; tolerance {t['tolerance']:.0e})")
 
 
 # --------------------------------------------------------------------------- report
@@ -572,7 +590,12 @@ def _step_main(args, ap) -> int:
         return 2
     if args.step_variant:  # a child: one variant, its row as JSON
         ckpt, compiled = args.step_variant.split(",")
-        row = step_variant(args.step_size, device, ckpt, bool(int(compiled)), args.step_warmup, args.step_repeats)
+        try:
+            row = step_variant(args.step_size, device, ckpt, bool(int(compiled)), args.step_warmup,
+                               args.step_repeats)
+        except torch.cuda.OutOfMemoryError as exc:  # a row that says so: the other variants still measure
+            row = {"variant": variant_name(ckpt, bool(int(compiled))), "out_of_memory": True,
+                   "error": str(exc).splitlines()[0]}
         return _write(row, args.json, quiet=True)
     names = {variant_name(c, k): (c, k) for c, k in STEP_VARIANTS}
     chosen = [v.strip() for v in args.step_variants.split(",") if v.strip()]
@@ -590,7 +613,7 @@ def _step_main(args, ap) -> int:
     if table["disagreeing"]:
         worst = {c["variant"]: c["max_diff"] for c in table["agreement"]}
         print("benchmarks/train.py: FAILED: first-step loss or gradients differ from "
-              f"{table['variants'][0]['variant']} beyond {table['tolerance']:.0e} in "
+              f"{table['agreement'][0]['variant']} beyond {table['tolerance']:.0e} in "
               + ", ".join(f"{v} ({worst[v]:.2e})" for v in table["disagreeing"]), file=sys.stderr)
         return 1
     return 0

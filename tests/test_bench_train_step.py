@@ -34,7 +34,7 @@ VARIANTS = ["none", "full", "none+compile", "full+compile"]
 def run(tmp_path, *args, timeout=900):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     return subprocess.run([sys.executable, str(SCRIPT), "--step-table", *args], capture_output=True, text=True,
-                          env=env, timeout=timeout)
+                          env=env, timeout=timeout, check=False)
 
 
 @pytest.mark.slow
@@ -102,3 +102,31 @@ def test_2b_refused_on_cpu(tmp_path):
 def test_unknown_variant_refused(tmp_path):
     proc = run(tmp_path, "--step-size", "tiny", "--step-variants", "none,half", timeout=120)
     assert proc.returncode == 2 and "--step-variants" in proc.stderr and "half" in proc.stderr
+
+
+def _bench_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_train", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_compare_leaves_out_of_memory_rows_and_measures_relative_differences():
+    bench = _bench_module()
+
+    def row(name, loss, grad, per):
+        return {"variant": name, "first_step_loss": loss, "first_step_grad_norm": grad,
+                "first_step_param_grad_norms": per}
+
+    rows = [{"variant": "none", "out_of_memory": True, "error": "CUDA out of memory"},
+            row("full", 2.0, 10.0, [6.0, 8.0]), row("full+compile", 2.002, 10.0, [6.0, 8.5])]
+    got = {c["variant"]: c for c in bench._compare(rows)}
+    assert set(got) == {"full", "full+compile"}  # the reference is the first measured row
+    assert got["full"]["max_diff"] == 0.0
+    c = got["full+compile"]
+    assert c["loss_rel_diff"] == pytest.approx(1e-3) and c["grad_norm_rel_diff"] == 0.0
+    assert c["param_grad_norm_max_diff"] == pytest.approx(0.05) and c["max_diff"] == pytest.approx(0.05)
+    # a parameter list of another length (a different model) can never agree
+    assert bench._compare([row("a", 1.0, 1.0, [1.0]), row("b", 1.0, 1.0, [1.0, 0.0])])[1]["max_diff"] == float("inf")
