@@ -48,7 +48,6 @@ import os
 import platform
 import statistics
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -64,49 +63,15 @@ from oscar_core.model import ModelCard, OscarTransformer3DModel, OscarWorldModel
 from oscar_core.model.sampler import guided_velocity  # noqa: E402
 from oscar_core.model.tiny import COSMOS_2B_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _peak_memory import PeakMemory  # (benchmarks/_peak_memory.py, shared with train.py)
+
 SIZES = ((128, 64), (256, 128))  # width x height in pixels
 CHUNKS = (9, 17)  # frames per chunk (4k+1)
 PATHS = (("batched", True), ("two-pass", False))
 
 
 # --------------------------------------------------------------------------- measuring
-
-
-def _rss() -> int:
-    with open("/proc/self/statm") as fh:
-        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
-class PeakMemory:
-    """Peak memory (bytes) above the starting level while the block runs."""
-
-    def __init__(self, device: torch.device):
-        self.device, self.peak, self._stop = device, 0, threading.Event()
-
-    def __enter__(self):
-        if self.device.type == "cuda":
-            torch.cuda.synchronize()
-            torch.cuda.reset_peak_memory_stats()
-            self.base = torch.cuda.memory_allocated()
-        else:
-            self.base = self.peak_abs = _rss()
-            self._thread = threading.Thread(target=self._sample, daemon=True)
-            self._thread.start()
-        return self
-
-    def _sample(self):
-        while not self._stop.is_set():
-            self.peak_abs = max(self.peak_abs, _rss())
-            time.sleep(0.001)
-
-    def __exit__(self, *exc):
-        if self.device.type == "cuda":
-            torch.cuda.synchronize()
-            self.peak = torch.cuda.max_memory_allocated() - self.base
-        else:
-            self._stop.set()
-            self._thread.join()
-            self.peak = max(self.peak_abs, _rss()) - self.base
 
 
 def measure(fn, repeats: int, device: torch.device, warmup: bool = True) -> dict:

@@ -1,6 +1,8 @@
 """Training speed (measured, tiny config, CPU) and the 2B recipe's memory (computed).
 
     python benchmarks/train.py [--steps 20] [--json benchmarks/results/train.json] [--skip-speed]
+    python benchmarks/train.py --step-table [--step-size toy|tiny] [--step-repeats 5]      (this CPU)
+    python benchmarks/train.py --step-table --step-size 2b --device cuda                   (a GPU user)
 
 Speed — measured on this machine, the tiny config (``oscar_core.model.tiny``)
 on a synthetic toy-arm clip set (``oscar_core.train.synthetic``), 32x32, 9-frame
@@ -36,6 +38,31 @@ SDPA's flash kernel, which saves O(tokens) — checked: no saved tensor
 grows as tokens²) and multiplied to 12,096 tokens and 28 blocks. With
 gradient checkpointing each block keeps only its input (the residual
 stream, fp32) plus one block's full activations while it is recomputed.
+
+Step table (``--step-table``, measured; only this section runs, JSON in
+``benchmarks/results/train_step.json``) — oscar's own training step
+(``oscar_core.train.loop``: ``build_transformer`` and ``prepare_for_training``
+with the config's policy, ``build_optimizer``, ``step_loss``, backward,
+``apply_update``) with one micro-batch of random data of the trainer's shapes
+(clean and skeleton latents of a window, a text embedding), for
+``activation_checkpointing`` none / full x ``model.compile`` false / true.
+Sizes: ``tiny`` (configs/train/tiny-cpu.yaml: the test), ``toy``
+(configs/train/toyworld.yaml: oscar-toy's model, 17 frames 64x64, micro-batch
+8), ``2b`` (configs/train/oscar-2b.yaml: Cosmos-Predict2.5-2B, 81 frames
+512x288, bf16 autocast; CUDA only). Each variant runs in a fresh process (a
+clean memory level, glibc told to return freed memory; a cold, private
+inductor cache) and reports: the first step's time (with the compile when
+compiled: its extra time is the compile cost), then median and best wall
+time and CPU seconds of ``--step-repeats`` steps after ``--step-warmup``;
+peak memory above the level before the variant (CUDA:
+``torch.cuda.max_memory_allocated``; CPU: the peak resident size sampled by
+a thread, ``benchmarks/_peak_memory.py``) and the peak during the timed
+steps above the state kept between them, each beside what
+``oscar_core.train.memory`` computes; for the eager variants the bytes
+autograd saves in one forward (a count). The variants' first-step losses,
+gradient norms and per-parameter gradient norms must agree with the first
+variant's (relative 1e-4 in float32, 5e-2 under bf16): if not, the JSON is
+written and the script exits 1 naming the variants.
 """
 
 from __future__ import annotations
@@ -45,6 +72,7 @@ import json
 import os
 import platform
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -182,7 +210,11 @@ def _saved_bytes_per_token() -> dict:
 def memory_table() -> dict:
     """The 2B recipe's memory per GPU from ``oscar_core.train.memory`` (the model ``activation_checkpointing: auto``
     uses), with the activation constant measured again here (a drift check of the library's constant)."""
-    from oscar_core.train.memory import ACT_BYTES_PER_TOKEN_PER_WIDTH, estimate_memory, tokens_per_clip
+    from oscar_core.train.memory import (
+        ACT_BYTES_PER_TOKEN_PER_WIDTH,
+        estimate_memory,
+        tokens_per_clip,
+    )
 
     total, block, layers = _param_counts()
     act = _saved_bytes_per_token()
@@ -207,16 +239,301 @@ def memory_table() -> dict:
             "quadratic_saved_tensor": act["quadratic_saved"], "rows": rows}
 
 
+# --------------------------------------------------------------------------- step table (measured)
+#: (activation_checkpointing, model.compile) of the step table, in the order they run; the first is the reference
+STEP_VARIANTS = (("none", False), ("full", False), ("none", True), ("full", True))
+#: size -> (config under configs/train/, the VAE's spatial compression, prompt tokens L of the text embedding)
+STEP_SIZES = {
+    "tiny": ("tiny-cpu.yaml", 8, 4),  # oscar_core.model.tiny, 9 frames 32x32 (the tiny VAE: 8x in space)
+    "toy": ("toyworld.yaml", 4, 1),  # oscar-toy's recipe, 17 frames 64x64 (the toy VAE: 4x in space; no prompt)
+    "2b": ("oscar-2b.yaml", 8, 512),  # Cosmos-Predict2.5-2B, 81 frames 512x288, bf16 autocast, 512 prompt tokens
+}
+#: first-step loss and gradients of every variant against the reference: largest relative difference allowed
+STEP_TOLERANCE = {"float32": 1e-4, "bfloat16": 5e-2}
+MIB = 2 ** 20
+
+
+def variant_name(checkpointing: str, compiled: bool) -> str:
+    return f"{checkpointing}{'+compile' if compiled else ''}"
+
+
+def step_config(size: str, checkpointing: str, compiled: bool):
+    """The TrainConfig of one step-table variant: the size's shipped config with random weights, the policy set."""
+    from oscar_core.train.config import load_config
+
+    name = STEP_SIZES[size][0]
+    # random weights (no model.init) and the new policy switch alone (the older gradient_checkpointing flag off)
+    return load_config(REPO / "configs" / "train" / name,
+                       {"model.init": None, "model.gradient_checkpointing": False, "model.compile": compiled,
+                        "activation_checkpointing": checkpointing})
+
+
+def step_batch(config, size: str, text_dim: int):
+    """One micro-batch of random data of the trainer's shapes and its plan items (fixed seed, every variant alike).
+
+    z0 and skeleton: (micro_batch, 16, T', H / s, W / s) with T' = (window − 1) / 4 + 1 latent frames and s the
+    VAE's spatial factor; text: (micro_batch, L, text_dim); σ and noise seeds as the planner would draw them."""
+    from oscar_core.train.data import Batch
+    from oscar_core.train.sampling import PlanItem
+
+    _, spatial, text_len = STEP_SIZES[size]
+    d, b = config.data, config.micro_batch
+    shape = (b, 16, (d.window - 1) // 4 + 1, d.height // spatial, d.width // spatial)
+    g = torch.Generator().manual_seed(0)
+    batch = Batch(z0=torch.randn(shape, generator=g), skeleton=torch.randn(shape, generator=g),
+                  text=torch.randn(b, text_len, text_dim, generator=g), actions=None)
+    sigmas = torch.rand(b, generator=g, dtype=torch.float64).tolist()
+    items = [PlanItem(clip=0, start=0, drop=False, sigma=s, noise_seed=1000 + i) for i, s in enumerate(sigmas)]
+    return batch, items
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def _saved_bytes(model, batch, items, config, device, autocast) -> int:
+    """Bytes of the distinct non-parameter storages autograd saves for backward in one forward (a count, exact).
+
+    Under ``full`` checkpointing a block's insides are saved by the checkpoint's own hooks, not these: the count is
+    what the step keeps besides the checkpointed blocks' inputs."""
+    from torch.autograd.graph import saved_tensors_hooks
+
+    from oscar_core.train.loop import step_loss
+
+    params = {p.untyped_storage().data_ptr() for p in model.parameters()}
+    seen: dict[int, int] = {}
+
+    def pack(t):
+        s = t.untyped_storage()
+        if s.data_ptr() not in params:
+            seen[s.data_ptr()] = max(seen.get(s.data_ptr(), 0), s.nbytes())
+        return t
+
+    with saved_tensors_hooks(pack, lambda t: t):
+        loss = step_loss(model, batch, items, config, device, autocast)
+    del loss
+    return sum(seen.values())
+
+
+def step_variant(size: str, device: str, checkpointing: str, compiled: bool, warmup: int, repeats: int) -> dict:
+    """Build oscar's training step for one variant and measure it (run in a fresh process: see :func:`step_table`).
+
+    The step is the trainer's (``oscar_core.train.loop``) with one micro-batch: zero the gradients,
+    ``step_loss`` (rectified-flow MSE), backward, ``apply_update`` (clip, AdamW, EMA). Times in seconds, memory
+    in bytes; ``first_*`` is step 0 (with the compile when compiled), then ``warmup`` steps, then ``repeats`` timed.
+    """
+    import sys as _sys
+
+    _sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _peak_memory import PeakMemory
+
+    from oscar_core.train.loop import (
+        apply_update,
+        autocast_for,
+        build_optimizer,
+        step_loss,
+    )
+    from oscar_core.train.memory import estimate_memory, tokens_per_clip
+    from oscar_core.train.models import build_transformer, prepare_for_training
+
+    dev = torch.device(device)
+    config = step_config(size, checkpointing, compiled)
+    # imports the build and the compile would do lazily, done before the memory window opens (their memory is the
+    # process's, not the step's): the model classes, the checkpoint machinery, dynamo and inductor
+    import importlib
+
+    for module in ("diffusers", "torch._dynamo", "torch._inductor.compile_fx", "torch.utils.checkpoint",
+                   "oscar_core.model.latent_action", "oscar_core.model.transformer"):
+        importlib.import_module(module)
+    if dev.type != "cuda" and config.model.dtype == "bfloat16":
+        raise SystemExit(f"--step-size {size}: its config trains under bf16 autocast, which is for CUDA; "
+                         "run it with --device cuda")
+    with PeakMemory(dev) as build_and_first:
+        model = build_transformer(config)
+        chosen, why = prepare_for_training(model, config, dev)
+        model.to(dev)
+        batch, items = step_batch(config, size, model.text_dim)
+        optimizer = build_optimizer(model, config)
+        ema = {n: p.detach().clone().float() for n, p in model.named_parameters()}
+        autocast = autocast_for(config, dev)
+
+        def step(probe: bool = False):
+            optimizer.zero_grad(set_to_none=True)
+            loss = step_loss(model, batch, items, config, dev, autocast)
+            loss.backward()
+            norms = [float(p.grad.norm()) for p in model.parameters() if p.grad is not None] if probe else None
+            grad_norm = apply_update(model, model, optimizer, ema, config)
+            _sync(dev)
+            return float(loss.detach()), grad_norm, norms
+
+        t0, c0 = time.perf_counter(), time.process_time()
+        loss0, grad_norm0, param_norms = step(probe=True)
+        first_s, first_cpu = time.perf_counter() - t0, time.process_time() - c0
+        for _ in range(warmup):
+            step()
+    times, cpus = [], []
+    with PeakMemory(dev) as steady:
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            step()
+            times.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
+    optimizer.zero_grad(set_to_none=True)
+    saved = None
+    if not compiled:
+        try:
+            saved = _saved_bytes(model, batch, items, config, dev, autocast)
+        except torch.cuda.OutOfMemoryError:  # after the measurement: the row stands without the count
+            saved = None
+    # the variant's peak: the larger of the two windows, the second shifted by the level it started from
+    peak = max(build_and_first.peak, steady.peak + steady.base - build_and_first.base)
+    P = sum(p.numel() for p in model.parameters())
+    blocks = list(model.transformer_blocks)
+    cfg = model.config
+    hidden = int(cfg.num_attention_heads) * int(cfg.attention_head_dim)
+    z = batch.z0.shape
+    tokens = z[2] * (z[3] // cfg.patch_size[1]) * (z[4] // cfg.patch_size[2])
+    est = estimate_memory(P, sum(p.numel() for p in blocks[0].parameters()), len(blocks), hidden, tokens,
+                          micro_batch=config.micro_batch, bf16_autocast=config.model.dtype == "bfloat16")
+    d = config.data
+    return {
+        "variant": variant_name(checkpointing, compiled), "activation_checkpointing": chosen, "why": why,
+        "compile": compiled, "dtype": config.model.dtype, "device": str(dev), "params": P, "layers": len(blocks),
+        "hidden": hidden, "micro_batch": config.micro_batch, "latent_shape": list(z), "tokens_per_clip": tokens,
+        # what oscar_core.train.memory.model_estimate counts for this config (it assumes the WAN VAE's 8x)
+        "library_tokens_per_clip": tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size)),
+        "first_step_loss": loss0, "first_step_grad_norm": grad_norm0, "first_step_param_grad_norms": param_norms,
+        "first_step_s": first_s, "first_step_cpu_s": first_cpu, "warmup": warmup, "repeats": repeats,
+        "step_s": times, "step_cpu_s": cpus, "median_step_s": statistics.median(times), "best_step_s": min(times),
+        "median_step_cpu_s": statistics.median(cpus),
+        "compile_s": max(first_s - statistics.median(times), 0.0) if compiled else None,
+        "peak_bytes": peak, "steady_peak_bytes": steady.peak, "persistent_bytes": steady.base - build_and_first.base,
+        "saved_activation_bytes": saved,
+        "modelled": {**est.as_dict(), "total": est.total(checkpointing),
+                     # the part of the total a step allocates and frees (all but weights, moments and EMA: 16P)
+                     "transient": est.total(checkpointing) - 16 * P,
+                     "activations": est.activations_full if checkpointing == "full" else est.activations_none},
+    }
+
+
+def _compare(rows: list[dict]) -> list[dict]:
+    """Each variant's first-step loss, gradient norm and per-parameter gradient norms against the first measured
+    row's: relative differences (per-parameter ones relative to the whole gradient's norm). Rows that ran out of
+    device memory are left out."""
+    rows = [r for r in rows if not r.get("out_of_memory")]
+    if not rows:
+        return []
+    ref = rows[0]
+    out = []
+    for r in rows:
+        loss = abs(r["first_step_loss"] - ref["first_step_loss"]) / abs(ref["first_step_loss"])
+        grad = abs(r["first_step_grad_norm"] - ref["first_step_grad_norm"]) / ref["first_step_grad_norm"]
+        a, b = r["first_step_param_grad_norms"], ref["first_step_param_grad_norms"]
+        if len(a) != len(b):
+            per = float("inf")
+        else:
+            per = max((abs(x - y) for x, y in zip(a, b)), default=0.0) / ref["first_step_grad_norm"]
+        out.append({"variant": r["variant"], "loss_rel_diff": loss, "grad_norm_rel_diff": grad,
+                    "param_grad_norm_max_diff": per, "max_diff": max(loss, grad, per)})
+    return out
+
+
+def step_table(size: str, device: str, variants, warmup: int, repeats: int, tolerance: float | None) -> dict:
+    """The four (or the chosen) variants, each in a fresh process of this script, their table and the check.
+
+    A fresh process per variant: its memory starts clean (with glibc told to give freed memory back, see
+    ``_peak_memory``), and its compile starts cold (an empty inductor cache of its own)."""
+    import subprocess as sp
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _peak_memory import MALLOC_ENV
+
+    rows = []
+    work = Path(tempfile.mkdtemp(prefix="oscar-step-table-"))
+    for ckpt, compiled in variants:
+        name = variant_name(ckpt, compiled)
+        out = work / f"{name}.json"
+        env = {**os.environ, **MALLOC_ENV, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
+               "TORCHINDUCTOR_CACHE_DIR": str(work / f"inductor-{name}")}
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--step-variant", f"{ckpt},{int(compiled)}",
+               "--step-size", size, "--device", device, "--step-warmup", str(warmup), "--step-repeats", str(repeats),
+               "--json", str(out)]
+        print(f"step table: {name} ...", flush=True)
+        proc = sp.run(cmd, capture_output=True, text=True, env=env, check=False)
+        if proc.returncode:
+            raise RuntimeError(f"step table, variant {name}: failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+        rows.append(json.loads(out.read_text()))
+    measured = [r for r in rows if not r.get("out_of_memory")]
+    if not measured:
+        raise RuntimeError(f"step table: every variant ran out of {device} memory: "
+                           + "; ".join(f"{r['variant']}: {r['error']}" for r in rows))
+    dtype = measured[0]["dtype"]
+    tol = STEP_TOLERANCE[dtype] if tolerance is None else tolerance
+    checks = _compare(rows)
+    bad = [c["variant"] for c in checks if not c["max_diff"] <= tol]
+    return {"size": size, "device": device, "dtype": dtype, "tolerance": tol, "variants": rows, "agreement": checks,
+            "max_diff": max(c["max_diff"] for c in checks), "disagreeing": bad,
+            "out_of_memory": [r["variant"] for r in rows if r.get("out_of_memory")]}
+
+
+def print_step_table(t: dict) -> None:
+    r0 = next(r for r in t["variants"] if not r.get("out_of_memory"))
+    print(f"\nTraining step, --step-size {t['size']} on {t['device']} ({t['dtype']}; {r0['params'] / 1e6:.2f} M "
+          f"parameters, {r0['layers']} blocks, hidden {r0['hidden']}; micro-batch {r0['micro_batch']} x "
+          f"{r0['tokens_per_clip']} tokens; MEASURED)")
+    print(f"{'variant':<13} {'median ms':>9} {'best ms':>8} {'CPU s':>6} {'compile s':>9} {'peak MiB':>8} "
+          f"{'(model)':>8} {'step MiB':>8} {'(model)':>8} {'saved MiB':>9} {'(model)':>8} {'max diff':>9}")
+    agreement = {c["variant"]: c for c in t["agreement"]}
+    for r in t["variants"]:
+        if r.get("out_of_memory"):
+            print(f"{r['variant']:<13} out of {t['device']} memory ({r['error'][:90]})")
+            continue
+        c, m = agreement[r["variant"]], r["modelled"]
+        comp = f"{r['compile_s']:.1f}" if r["compile_s"] is not None else "-"
+        saved = f"{r['saved_activation_bytes'] / MIB:.1f}" if r["saved_activation_bytes"] is not None else "-"
+        print(f"{r['variant']:<13} {1e3 * r['median_step_s']:>9.1f} {1e3 * r['best_step_s']:>8.1f} "
+              f"{r['median_step_cpu_s']:>6.2f} {comp:>9} {r['peak_bytes'] / MIB:>8.1f} {m['total'] / MIB:>8.1f} "
+              f"{r['steady_peak_bytes'] / MIB:>8.1f} {m['transient'] / MIB:>8.1f} {saved:>9} "
+              f"{m['activations'] / MIB:>8.1f} {c['max_diff']:>9.1e}")
+    print("median/best ms: wall per step after warm-up; CPU s: process CPU seconds per step (median); compile s: the "
+          "first step's extra time; peak MiB: above the level before the variant (the model built, first step and "
+          "compile included) beside oscar_core.train.memory's total; step MiB: peak during the timed steps above "
+          "the state kept between them, beside the model's total less 16P (weights, AdamW moments, EMA); saved MiB: "
+          "non-parameter bytes autograd saves in one forward (counted, eager only; under full, the checkpointed "
+          "blocks' insides are not saved) beside the model's activations; max diff: first-step loss and gradient "
+          f"norms against {r0['variant']} (relative; tolerance {t['tolerance']:.0e})")
+
+
 # --------------------------------------------------------------------------- report
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20, help="optimiser steps per speed run (default 20)")
-    ap.add_argument("--json", default=str(REPO / "benchmarks" / "results" / "train.json"))
+    ap.add_argument("--json", default=None, help="where the JSON goes (default benchmarks/results/train.json)")
     ap.add_argument("--skip-speed", action="store_true", help="only the computed memory table")
     ap.add_argument("--skip-memory", action="store_true", help="only the measured speed table")
     ap.add_argument("--repeats", type=int, default=3, help="alternating repeats of the on-the-fly pair (median)")
+    st = ap.add_argument_group("step table (--step-table: only this section; JSON default "
+                               "benchmarks/results/train_step.json)")
+    st.add_argument("--step-table", action="store_true", help="measure one training step for activation "
+                    "checkpointing none/full x model.compile false/true")
+    st.add_argument("--step-size", choices=sorted(STEP_SIZES), default="toy",
+                    help="tiny (the test), toy (oscar-toy's config, the default), 2b (CUDA only)")
+    st.add_argument("--device", default="cpu", help="cpu (default) or cuda")
+    st.add_argument("--step-warmup", type=int, default=1, help="untimed steps after the first (default 1)")
+    st.add_argument("--step-repeats", type=int, default=5, help="timed steps per variant (default 5)")
+    st.add_argument("--step-variants", default="none,full,none+compile,full+compile",
+                    help="comma list among none, full, none+compile, full+compile (the first is the reference)")
+    st.add_argument("--step-tolerance", type=float, default=None, help="largest relative first-step difference "
+                    f"against the reference (default {STEP_TOLERANCE['float32']:g} float32, "
+                    f"{STEP_TOLERANCE['bfloat16']:g} bf16)")
+    st.add_argument("--step-variant", default=None, help=argparse.SUPPRESS)  # internal: one variant, in a child
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
+    if args.step_table or args.step_variant:
+        return _step_main(args, ap)
+    if args.json is None:
+        args.json = str(REPO / "benchmarks" / "results" / "train.json")
     result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
               "torch": torch.__version__}
     if not args.skip_speed:
@@ -258,11 +575,57 @@ def main(argv=None) -> int:
     return _write(result, args.json)
 
 
-def _write(result: dict, path) -> int:
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"\nwrote {out}")
+def _step_main(args, ap) -> int:
+    """--step-table (the parent) or --step-variant (one variant, in a child process)."""
+    device = args.device
+    if device not in ("cpu", "cuda"):
+        ap.error(f"--device: expected cpu or cuda, found {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        print("benchmarks/train.py: --device cuda: CUDA is not available here (torch.cuda.is_available() is False); "
+              "run the GPU sizes on a machine with a GPU, or use --device cpu", file=sys.stderr)
+        return 2
+    if args.step_size == "2b" and device != "cuda":
+        print("benchmarks/train.py: --step-size 2b: the 2B recipe trains under bf16 autocast on a GPU "
+              "(81 frames 512x288); run it with --device cuda", file=sys.stderr)
+        return 2
+    if args.step_variant:  # a child: one variant, its row as JSON
+        ckpt, compiled = args.step_variant.split(",")
+        try:
+            row = step_variant(args.step_size, device, ckpt, bool(int(compiled)), args.step_warmup,
+                               args.step_repeats)
+        except torch.cuda.OutOfMemoryError as exc:  # a row that says so: the other variants still measure
+            row = {"variant": variant_name(ckpt, bool(int(compiled))), "out_of_memory": True,
+                   "error": str(exc).splitlines()[0]}
+        return _write(row, args.json, quiet=True)
+    names = {variant_name(c, k): (c, k) for c, k in STEP_VARIANTS}
+    chosen = [v.strip() for v in args.step_variants.split(",") if v.strip()]
+    unknown = [v for v in chosen if v not in names]
+    if unknown or not chosen:
+        ap.error(f"--step-variants: expected a comma list among {', '.join(names)}, found {args.step_variants!r}")
+    if args.step_repeats < 1 or args.step_warmup < 0:
+        ap.error("--step-repeats: expected >= 1 and --step-warmup >= 0")
+    table = step_table(args.step_size, device, [names[v] for v in chosen], args.step_warmup, args.step_repeats,
+                       args.step_tolerance)
+    result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+              "torch": torch.__version__, "step_table": table}
+    print_step_table(table)
+    _write(result, args.json or REPO / "benchmarks" / "results" / "train_step.json")
+    if table["disagreeing"]:
+        worst = {c["variant"]: c["max_diff"] for c in table["agreement"]}
+        print("benchmarks/train.py: FAILED: first-step loss or gradients differ from "
+              f"{table['agreement'][0]['variant']} beyond {table['tolerance']:.0e} in "
+              + ", ".join(f"{v} ({worst[v]:.2e})" for v in table["disagreeing"]), file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write(result: dict, path, quiet: bool = False) -> int:
+    from oscar_core._atomic import atomic_write_bytes
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    out = atomic_write_bytes(Path(path), (json.dumps(result, indent=2) + "\n").encode())
+    if not quiet:
+        print(f"\nwrote {out}")
     return 0
 
 

@@ -31,7 +31,17 @@ from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
 
-__all__ = ["train", "TrainResult", "lr_at", "step_loss", "METRICS_FILE", "CONFIG_FILE"]
+__all__ = [
+    "CONFIG_FILE",
+    "METRICS_FILE",
+    "TrainResult",
+    "apply_update",
+    "autocast_for",
+    "build_optimizer",
+    "lr_at",
+    "step_loss",
+    "train",
+]
 
 _log = get_logger(__name__)
 METRICS_FILE = "metrics.jsonl"
@@ -77,6 +87,31 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     with autocast or contextlib.nullcontext():
         pred = model(**kwargs)[0]
     return flow_loss(pred, inputs)
+
+
+def build_optimizer(wrapped, config: TrainConfig) -> torch.optim.AdamW:
+    """AdamW over ``wrapped``'s parameters with the config's ``optim`` section (the learning rate is set per step)."""
+    o = config.optim
+    return torch.optim.AdamW(wrapped.parameters(), lr=o.lr, betas=tuple(o.betas), eps=o.eps,
+                             weight_decay=o.weight_decay)
+
+
+def autocast_for(config: TrainConfig, device):
+    """The forward's autocast context (``model.dtype: bfloat16``) on ``device``, or None (float32)."""
+    device = torch.device(device)
+    return torch.autocast(device.type, dtype=torch.bfloat16) if config.model.dtype == "bfloat16" else None
+
+
+def apply_update(wrapped, model, optimizer, ema: dict, config: TrainConfig) -> float:
+    """The end of an optimiser step once the gradients are accumulated: clip their norm to ``optim.grad_clip``,
+    step AdamW, move the fp32 EMA (``ema``: name → tensor) towards the weights; returns the norm before clipping."""
+    o = config.optim
+    grad_norm = _grad_norm(wrapped, o.grad_clip)
+    optimizer.step()
+    with torch.no_grad():
+        for n, p in model.named_parameters():
+            ema[n].lerp_(p.detach().float(), 1.0 - o.ema_decay)
+    return grad_norm
 
 
 def _grad_norm(model, max_norm: float) -> float:
@@ -184,8 +219,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     model.to(info.device)
     wrapped = wrap_model(model, config.parallel, info)
     o = config.optim
-    optimizer = torch.optim.AdamW(wrapped.parameters(), lr=o.lr, betas=tuple(o.betas), eps=o.eps,
-                                  weight_decay=o.weight_decay)
+    optimizer = build_optimizer(wrapped, config)
     ema = {n: p.detach().clone().float() for n, p in model.named_parameters()}
     start = 0
     if ckpt is not None:
@@ -196,8 +230,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         if resume is None:
             save_config(config, run_dir / CONFIG_FILE)
         atomic_write_bytes(metrics_path, _read_metrics(metrics_path, start))
-    autocast = (torch.autocast(info.device.type, dtype=torch.bfloat16) if config.model.dtype == "bfloat16"
-                else None)
+    autocast = autocast_for(config, info.device)
 
     # ------------------------------------------------------------------ loop
     end = config.steps if stop_after is None else min(config.steps, stop_after)
@@ -245,11 +278,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                     loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
                     (loss / accum).backward()
                 loss_sum += float(loss.detach()) / accum
-            grad_norm = _grad_norm(wrapped, o.grad_clip)
-            optimizer.step()
-            with torch.no_grad():
-                for n, p in model.named_parameters():
-                    ema[n].lerp_(p.detach().float(), 1.0 - o.ema_decay)
+            grad_norm = apply_update(wrapped, model, optimizer, ema, config)
             loss_mean = all_reduce_mean(loss_sum, info)
             last_loss = loss_mean
             done = step + 1
