@@ -351,7 +351,7 @@ def step_variant(size: str, device: str, checkpointing: str, compiled: bool, war
                          "run it with --device cuda")
     with PeakMemory(dev) as build_and_first:
         model = build_transformer(config)
-        chosen, why = prepare_for_training(model, config, dev)
+        chosen, why = prepare_for_training(model, config, dev, compression=(4, STEP_SIZES[size][1]))
         model.to(dev)
         batch, items = step_batch(config, size, model.text_dim)
         optimizer = build_optimizer(model, config)
@@ -401,8 +401,9 @@ def step_variant(size: str, device: str, checkpointing: str, compiled: bool, war
         "variant": variant_name(checkpointing, compiled), "activation_checkpointing": chosen, "why": why,
         "compile": compiled, "dtype": config.model.dtype, "device": str(dev), "params": P, "layers": len(blocks),
         "hidden": hidden, "micro_batch": config.micro_batch, "latent_shape": list(z), "tokens_per_clip": tokens,
-        # what oscar_core.train.memory.model_estimate counts for this config (it assumes the WAN VAE's 8x)
-        "library_tokens_per_clip": tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size)),
+        # what oscar_core.train.memory.model_estimate counts for this config and VAE (must equal tokens_per_clip)
+        "library_tokens_per_clip": tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size), 4,
+                                                   STEP_SIZES[size][1]),
         "first_step_loss": loss0, "first_step_grad_norm": grad_norm0, "first_step_param_grad_norms": param_norms,
         "first_step_s": first_s, "first_step_cpu_s": first_cpu, "warmup": warmup, "repeats": repeats,
         "step_s": times, "step_cpu_s": cpus, "median_step_s": statistics.median(times), "best_step_s": min(times),

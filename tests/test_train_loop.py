@@ -380,3 +380,26 @@ def test_config_names_a_vae_folder_and_a_transformer_config(tmp_path):
     assert all(torch.equal(v, model.vae.vae.state_dict()[k]) for k, v in vae.state_dict().items())
     with pytest.raises(TrainConfigError, match="model.transformer"):
         train(tiny(clips, tmp_path / "bad", **{"model.transformer": str(tmp_path / "nope.json")}), progress=False)
+
+
+def test_the_memory_policy_counts_tokens_with_the_vaes_own_compression(tmp_path, monkeypatch):
+    """The toy VAE compresses 4x in space: activation_checkpointing auto must count 4x the tokens WAN's 8x gives."""
+    from oscar_core.train import loop
+
+    asked = []
+
+    def prepare(model, config, device, shards=1, compression=(4, 8)):
+        asked.append(compression)
+        raise KeyboardInterrupt  # stop before the first step: only the policy's inputs are under test
+
+    monkeypatch.setattr(loop, "prepare_for_training", prepare)
+    clips = write_toy_clipset(tmp_path / "clips", clips=1, frames=17, width=64, height=64)
+    cfg = tiny(clips, tmp_path / "run", **{"model.vae": str(REPO / "zoo" / "assets" / "oscar-toy" / "vae"),
+                                           "data.window": 17, "data.width": 64, "data.height": 64})
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, progress=False)
+    assert asked == [(4, 4)]
+    with pytest.raises(KeyboardInterrupt):
+        train(tiny(clips, tmp_path / "run2", **{"data.window": 17, "data.width": 64, "data.height": 64}),
+              progress=False)
+    assert asked[-1] == (4, 8)  # the tiny test VAE: WAN's factors

@@ -133,3 +133,13 @@ def test_compiled_step_equals_eager():
     torch.testing.assert_close(loss_b, loss_a, rtol=1e-4, atol=1e-6)
     for name in grads_a:
         torch.testing.assert_close(grads_b[name], grads_a[name], rtol=1e-3, atol=1e-5, msg=name)
+
+
+def test_the_estimate_counts_tokens_at_the_vaes_compression():
+    config = _config()
+    model = build_transformer(config)
+    wan, toy = memory.model_estimate(model, config), memory.model_estimate(model, config, compression=(4, 4))
+    d = config.data
+    assert memory.tokens_per_clip(d.window, d.width, d.height, (1, 2, 2), 4, 4) == \
+        4 * memory.tokens_per_clip(d.window, d.width, d.height, (1, 2, 2), 4, 8)
+    assert toy.activations_none == pytest.approx(4 * wan.activations_none)

@@ -214,7 +214,8 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     if config.parent_run and ckpt is None:
         load_weights(latest_checkpoint(config.parent_run), model, key="model")
     shards = info.world if config.parallel == "fsdp" else 1
-    checkpointing, why = prepare_for_training(model, config, info.device, shards)
+    compression = (int(getattr(vae, "temporal", 4)) if vae is not None else 4, data.spatial)
+    checkpointing, why = prepare_for_training(model, config, info.device, shards, compression)
     _log.info("%s%s", why, "; model.compile: every DiT block compiled" if config.model.compile else "")
     model.to(info.device)
     wrapped = wrap_model(model, config.parallel, info)

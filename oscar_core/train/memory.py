@@ -84,20 +84,24 @@ def free_device_memory(device) -> int | None:
     return int(torch.cuda.mem_get_info(device)[0])
 
 
-def model_estimate(model, config, shards: int = 1) -> MemoryEstimate:
-    """:func:`estimate_memory` of a built transformer under a TrainConfig (its window, size and dtype)."""
+def model_estimate(model, config, shards: int = 1, compression: tuple[int, int] = (4, 8)) -> MemoryEstimate:
+    """:func:`estimate_memory` of a built transformer under a TrainConfig (its window, size and dtype).
+
+    compression: the VAE's (temporal, spatial) compression, e.g. (4, 8) for WAN 2.1, (4, 4) for the toy world's.
+    """
     params = sum(p.numel() for p in model.parameters())
     blocks = list(model.transformer_blocks)
     block_params = sum(p.numel() for p in blocks[0].parameters()) if blocks else 0
     cfg = model.config
     hidden = int(cfg.num_attention_heads) * int(cfg.attention_head_dim)
     d = config.data
-    tokens = tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size))
+    tokens = tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size), *compression)
     return estimate_memory(params, block_params, len(blocks), hidden, tokens, micro_batch=config.micro_batch,
                            shards=shards, bf16_autocast=config.model.dtype == "bfloat16")
 
 
-def choose_checkpointing(config, model, device, shards: int = 1) -> tuple[str, str]:
+def choose_checkpointing(config, model, device, shards: int = 1,
+                         compression: tuple[int, int] = (4, 8)) -> tuple[str, str]:
     """("none" or "full", why) for ``config``'s activation-checkpointing policy on ``device``.
 
     ``model.gradient_checkpointing: true`` (the older switch) means ``full``. ``auto``: ``none`` on a non-CUDA
@@ -112,7 +116,7 @@ def choose_checkpointing(config, model, device, shards: int = 1) -> tuple[str, s
     free = free_device_memory(device)
     if free is None:
         return "none", f"activation_checkpointing: auto: none on {torch.device(device).type} (not a GPU)"
-    est = model_estimate(model, config, shards)
+    est = model_estimate(model, config, shards, compression)
     need, budget = est.total("none"), FREE_FRACTION * free
     gib = 1024 ** 3
     if need <= budget:

@@ -86,13 +86,15 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
     return model
 
 
-def prepare_for_training(model, config: TrainConfig, device, shards: int = 1) -> tuple[str, str]:
+def prepare_for_training(model, config: TrainConfig, device, shards: int = 1,
+                         compression: tuple[int, int] = (4, 8)) -> tuple[str, str]:
     """Apply the config's activation checkpointing (:func:`.memory.choose_checkpointing`) and ``model.compile``
     (``torch.compile`` of every transformer block, in place: parameter names and checkpoints stay the same) to a
-    built transformer, before it moves to ``device``; returns (checkpointing chosen, why)."""
+    built transformer, before it moves to ``device``; returns (checkpointing chosen, why). compression: the VAE's
+    (temporal, spatial) compression, which sets the tokens per clip the memory model counts."""
     from .memory import choose_checkpointing
 
-    policy, why = choose_checkpointing(config, model, device, shards)
+    policy, why = choose_checkpointing(config, model, device, shards, compression)
     if policy == "full":
         model.enable_gradient_checkpointing()
     elif model.gradient_checkpointing:
