@@ -56,4 +56,41 @@ def test_summary_and_command_line(tmp_path, capsys):
     assert 0 < s["p_rho_at_least_0_8"] <= 1 and s["spearman_ci95"][1] == pytest.approx(1.0)
     assert main([str(f) for f in folders]) == 0
     assert "Spearman +1.000" in capsys.readouterr().out
-    assert main([]) == 2
+    assert s["judged"] == [[18, 18]] * 3 and s["complete"] is True
+    with pytest.raises(SystemExit) as exit_:
+        main([])
+    assert exit_.value.code == 2
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0 and "rollout seed" in capsys.readouterr().out
+
+
+def test_a_partial_run_is_flagged_and_exits_1(tmp_path, capsys):
+    """A run that judged fewer cells than it holds must not print as a complete seed average."""
+    folders = []
+    for k in range(2):
+        f = tmp_path / f"run{k}"
+        f.mkdir()
+        rep = report(lambda s, j: int(s % 3 >= j))
+        if k == 1:
+            for cell in rep["cells"][:4]:
+                cell["wm_success"] = None  # not judged (an error, an interrupted run)
+        (f / "report.json").write_text(json.dumps(rep))
+        folders.append(str(f))
+    assert summarize_runs(folders, resamples=50)["judged"] == [[18, 18], [14, 18]]
+    assert main(folders + ["--resamples", "50"]) == 1
+    err = capsys.readouterr().err
+    assert "PARTIAL" in err and "14/18" in err
+
+
+@pytest.mark.parametrize("make, expected", [
+    (lambda root: root / "missing", "found no such folder"),
+    (lambda root: root, "found a folder without report.json"),
+    (lambda root: (root / "report.json").write_text("{not json") and root, "unreadable"),
+    (lambda root: (root / "report.json").write_text('{"cells": 3}') and root, "expected a list of judged cells"),
+])
+def test_bad_run_folders_are_named_before_any_work(tmp_path, capsys, make, expected):
+    folder = make(tmp_path)
+    assert main([str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and str(tmp_path) in err

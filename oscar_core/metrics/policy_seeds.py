@@ -15,15 +15,18 @@ P(ρ ≥ 0.8), Pearson r, MMRV and SISR_Δ.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from .._cli_types import count
+from ._common import MetricInputError
 from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
 
-__all__ = ["cell_rates", "session_bootstrap", "summarize_runs"]
+__all__ = ["cell_rates", "main", "read_reports", "session_bootstrap", "summarize_runs"]
 
 
 def cell_rates(reports: list[dict]) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
@@ -69,10 +72,40 @@ def session_bootstrap(real: np.ndarray, wm: np.ndarray, resamples: int = 2000, s
     return out
 
 
+def read_reports(folders) -> list[dict]:
+    """The ``report.json`` of each ``oscar eval run`` folder; a MetricInputError naming the folder and what is wrong
+    (no such folder, no report, unreadable JSON, no ``cells``) before anything is computed."""
+    reports = []
+    for folder in folders:
+        path = Path(folder) / "report.json"
+        if not path.is_file():
+            found = "no such folder" if not Path(folder).exists() else "a folder without report.json"
+            raise MetricInputError(str(folder), "report.json", "an `oscar eval run` output folder", found)
+        try:
+            report = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise MetricInputError(str(path), "JSON", "an `oscar eval run` report", f"unreadable ({exc})") from None
+        if not isinstance(report, dict) or not isinstance(report.get("cells"), list):
+            raise MetricInputError(str(path), "cells", "a list of judged cells", type(report.get("cells", None)
+                                                                                      if isinstance(report, dict)
+                                                                                      else report).__name__)
+        reports.append(report)
+    return reports
+
+
 def summarize_runs(folders, resamples: int = 2000, seed: int = 0) -> dict:
-    """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed)."""
-    reports = [json.loads((Path(f) / "report.json").read_text()) for f in folders]
-    sessions, policies, real, wm = cell_rates(reports)
+    """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed).
+
+    ``judged`` gives, per run, the cells with a world-model verdict out of its cells: a run with fewer is
+    partial, and its missing cells leave those cells' seed averages on fewer seeds (``complete`` is False).
+    """
+    reports = read_reports(folders)
+    try:
+        sessions, policies, real, wm = cell_rates(reports)
+    except (KeyError, ValueError) as exc:
+        raise MetricInputError(", ".join(map(str, folders)), "cells", "runs over the same manifest's cells",
+                               str(exc)) from None
+    judged = [[sum(c.get("wm_success") is not None for c in rep["cells"]), len(rep["cells"])] for rep in reports]
     r, w = np.nanmean(real, 0), np.nanmean(wm, 0)
     boot = session_bootstrap(real, wm, resamples, seed)
     ok = boot[np.isfinite(boot)]
@@ -81,23 +114,41 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0) -> dict:
             "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
             "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
             "pearson_r": pearson_r(r, w), "mmrv": mmrv_rank(r, w), "sisr_delta_pp": sisr_delta(r, w),
+            "judged": judged, "complete": all(j == n for j, n in judged),
             "resamples": resamples, "seed": seed}
 
 
 def main(argv=None) -> int:
-    args = sys.argv[1:] if argv is None else list(argv)
-    if not args:
-        print("usage: python -m oscar_core.metrics.policy_seeds RUN [RUN ...]  (oscar eval run folders, one per seed)",
-              file=sys.stderr)
+    parser = argparse.ArgumentParser(prog="python -m oscar_core.metrics.policy_seeds",
+                                     description="Policy evaluation averaged over rollout seeds: per-policy rates, "
+                                                 "Spearman rho with a session bootstrap, Pearson r, MMRV, SISR.")
+    parser.add_argument("runs", nargs="+", metavar="RUN", help="`oscar eval run` output folders, one per rollout "
+                        "seed, over the same manifest's cells")
+    parser.add_argument("--resamples", type=count(1), default=2000, help="session bootstrap resamples (2000)")
+    parser.add_argument("--seed", type=count(0), default=0, help="bootstrap seed (0)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    args = parser.parse_args(argv)
+    try:
+        s = summarize_runs(args.runs, args.resamples, args.seed)
+    except MetricInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
-    s = summarize_runs(args)
-    print(f"{len(s['runs'])} runs, {s['sessions']} sessions")
-    print("policy: real / world model: " + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in
-                                                      zip(s["policies"], s["real_success"], s["wm_success"])))
-    ci = s["spearman_ci95"]
-    print(f"Spearman {s['spearman_rho']:+.3f}" + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
-          + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
-          f"SISR {s['sisr_delta_pp']:.2f} pp")
+    if args.json:
+        print(json.dumps(s, indent=2))
+    else:
+        print(f"{len(s['runs'])} runs, {s['sessions']} sessions; judged cells per run: "
+              + ", ".join(f"{j}/{n}" for j, n in s["judged"]))
+        print("policy: real / world model: " + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in
+                                                          zip(s["policies"], s["real_success"], s["wm_success"])))
+        ci = s["spearman_ci95"]
+        print(f"Spearman {s['spearman_rho']:+.3f}" + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
+              + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
+              f"SISR {s['sisr_delta_pp']:.2f} pp")
+    if not s["complete"]:
+        print("warning: PARTIAL: some runs judged fewer cells than they hold (judged cells per run: "
+              + ", ".join(f"{j}/{n}" for j, n in s["judged"]) + "); those cells average fewer seeds",
+              file=sys.stderr)
+        return 1
     return 0
 
 
