@@ -338,6 +338,8 @@ def measure_real(args) -> dict:
     for p in presets:
         out["flops"][f"chunk_{p}"] = count_flops(chunk_fn(configs[p]))
     out["vae"] = measure(vae_work, args.repeats, device)
+    if args.vae_variants:
+        out["vae_variants"] = measure_vae_variants(vae, first, condition, args.repeats, device)
     variants = ["eager"] + (["compiled"] if args.compile else [])
     for variant in variants:
         if variant == "compiled":
@@ -371,6 +373,65 @@ def measure_real(args) -> dict:
     return out
 
 
+VAE_VARIANTS = ("eager", "channels_last", "tiling", "compiled")
+
+
+def _set_conv_format(module: torch.nn.Module, memory_format) -> None:
+    """Every 5-D parameter of ``module`` in ``memory_format`` (values unchanged)."""
+    for param in module.parameters():
+        if param.ndim == 5:
+            param.data = param.data.contiguous(memory_format=memory_format)
+
+
+def measure_vae_variants(vae, first: torch.Tensor, condition: torch.Tensor, repeats: int, device) -> list[dict]:
+    """The VAE's work per chunk (seed and condition encodes, one decode) under each of :data:`VAE_VARIANTS`.
+
+    channels_last: 5-D convolutions in ``torch.channels_last_3d``; tiling: diffusers' spatial tiling (engages
+    only above its 256-pixel tile); compiled: ``torch.compile`` of the encoder and decoder modules. Each row
+    gives seconds, its share against eager, and how far its decoded frames are from eager's (max |difference|
+    in [-1, 1] pixels and PSNR in dB; None when equal). A variant that fails is a row with its reason. The VAE
+    is put back as it was after each variant.
+    """
+    module = vae.vae
+
+    def work():
+        with torch.no_grad():
+            vae.encode(first)
+            return vae.decode(vae.encode(condition))
+
+    reference = work().float().cpu()
+    rows = []
+    for name in VAE_VARIANTS:
+        saved = (module.encoder, module.decoder)
+        try:
+            if name == "channels_last":  # the 5-D convolution weights (Module.to would refuse the 1-D biases)
+                _set_conv_format(module, torch.channels_last_3d)
+            elif name == "tiling":
+                module.enable_tiling()
+            elif name == "compiled":
+                module.encoder = torch.compile(module.encoder, dynamic=False)
+                module.decoder = torch.compile(module.decoder, dynamic=False)
+            t0 = time.perf_counter()
+            decoded = work().float().cpu()  # warm-up; for compiled, the compile itself
+            first_s = time.perf_counter() - t0
+            timing = measure(work, repeats, device, warmup=False)
+            diff = float((decoded - reference).abs().max())
+            mse = float(((decoded - reference) ** 2).mean())
+            rows.append({"variant": name, "seconds": timing["median_ms"] / 1e3, "first_call_s": first_s,
+                         "peak_mib": timing["peak_mib"], "max_abs_diff": diff,
+                         "psnr_db_vs_eager": None if mse == 0 else 10 * np.log10(4.0 / mse)})  # range 2: peak² = 4
+        except Exception as exc:  # noqa: BLE001 - a variant this machine cannot run is a row saying why
+            rows.append({"variant": name, "failed": f"{type(exc).__name__}: {str(exc).strip()[:300]}"})
+        finally:
+            module.encoder, module.decoder = saved
+            _set_conv_format(module, torch.contiguous_format)
+            module.disable_tiling()
+    eager = rows[0].get("seconds")
+    for row in rows:
+        row["vs_eager"] = row["seconds"] / eager if eager and "seconds" in row else None
+    return rows
+
+
 def print_measured(m: dict) -> None:
     peak = f"{m['peak_tflops']:g} TFLOP/s dense bf16 peak" if m["peak_tflops"] else "no known peak: MFU not given"
     print(f"\nMeasured on {m['device']} ({m['dtype']}, random weights, {m['size']}: {m['frames']}-frame "
@@ -379,6 +440,13 @@ def print_measured(m: dict) -> None:
         print(f"  one {key.replace('_', ' step, ')}: median {value['median_ms'] / 1e3:.4f} s, "
               f"peak {value['peak_mib'] / 1024:.2f} GiB")
     print(f"  VAE per chunk (2 encodes + decode): median {m['vae']['median_ms'] / 1e3:.3f} s")
+    for row in m.get("vae_variants") or ():
+        if "failed" in row:
+            print(f"  VAE {row['variant']}: failed ({row['failed']})")
+        else:
+            psnr = "identical" if row["psnr_db_vs_eager"] is None else f"{row['psnr_db_vs_eager']:.1f} dB vs eager"
+            print(f"  VAE {row['variant']}: {row['seconds']:.3f} s ({row['vs_eager']:.2f}x eager; first call "
+                  f"{row['first_call_s']:.1f} s; max |diff| {row['max_abs_diff']:.2e}, {psnr})")
     if "compile_first_call_s" in m:
         print(f"  compile (first compiled call): {m['compile_first_call_s']:.1f} s, compiled: {m['compiled']}")
     head = ("preset", "variant", "steps", "DiT evals", "TFLOP/chunk", "s/step", "s/chunk", "VAE share", "frames/s",
@@ -477,6 +545,8 @@ def main(argv=None) -> int:
     p.add_argument("--peak-tflops", type=float, help="the device's peak for MFU (default: known GPUs' dense bf16)")
     p.add_argument("--gpu-steps", type=int, default=35, help="UniPC steps per chunk in the computed table")
     p.add_argument("--compile", action="store_true", help="--measure: also time the compiled DiT")
+    p.add_argument("--vae-variants", action="store_true", help="--measure: also time the VAE's work per chunk "
+                   "with channels-last, tiling and torch.compile against eager (and how far each output moves)")
     p.add_argument("--skip-computed", action="store_true", help="skip the 2B figures computed from its configuration")
     p.add_argument("--skip-tiny", action="store_true", help="skip the tiny CPU timings")
     p.add_argument("--json", default=str(Path(__file__).parent / "results" / "rollout.json"))

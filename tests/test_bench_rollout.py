@@ -75,3 +75,36 @@ def test_measure_refuses_bad_settings_before_work(tmp_path, args, message):
     proc = run(tmp_path, *args, "--json", str(out), timeout=120)
     assert proc.returncode != 0 and message in proc.stderr
     assert not out.exists()
+
+
+def test_vae_variants_are_timed_compared_and_undone(monkeypatch):
+    """--vae-variants: each variant's output against eager, a failing one is a row with its reason, and the VAE is
+    left as it was (contiguous weights, no tiling). torch.compile is left out here (a minute of inductor)."""
+    import importlib.util
+
+    import numpy as np
+
+    from oscar_core.model.tiny import build_tiny_vae
+    from oscar_core.model.vae import VideoVAE
+
+    spec = importlib.util.spec_from_file_location("bench_rollout", SCRIPT)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    monkeypatch.setattr(bench, "VAE_VARIANTS", ("eager", "channels_last", "tiling"))
+    vae = VideoVAE(build_tiny_vae(seed=0))
+    rng = np.random.default_rng(0)
+    first = vae.to_pixels(rng.integers(0, 256, (1, 64, 64, 3), dtype=np.uint8))
+    condition = vae.to_pixels(rng.integers(0, 256, (5, 64, 64, 3), dtype=np.uint8))
+    rows = {r["variant"]: r for r in bench.measure_vae_variants(vae, first, condition, 1, torch.device("cpu"))}
+    assert rows["eager"]["max_abs_diff"] == 0 and rows["eager"]["vs_eager"] == 1.0
+    assert rows["channels_last"]["max_abs_diff"] < 1e-4 and rows["channels_last"]["seconds"] > 0
+    assert all(p.is_contiguous() for p in vae.vae.parameters()) and not vae.vae.use_tiling
+
+    def broken(*a, **k):
+        raise RuntimeError("tiling is not supported here")
+
+    monkeypatch.setattr(vae.vae, "enable_tiling", broken)
+    rows = {r["variant"]: r for r in bench.measure_vae_variants(vae, first, condition, 1, torch.device("cpu"))}
+    assert rows["tiling"] == {"variant": "tiling", "failed": "RuntimeError: tiling is not supported here",
+                              "vs_eager": None}
+    assert "seconds" in rows["channels_last"]
