@@ -4,7 +4,7 @@ PIP := $(PYTHON) -m pip
 STAMP := .make/installed
 OUT ?= demo_out
 
-.PHONY: install demo test test-fast test-install bench clean
+.PHONY: install demo test test-fast test-install bench bench-gpu clean
 
 install: $(STAMP)
 
@@ -38,6 +38,16 @@ bench: install
 	$(PYTHON) benchmarks/cli_rollout.py --model oscar-toy
 	$(PYTHON) benchmarks/render_scale.py
 	$(PYTHON) benchmarks/train.py
+
+# the GPU measurements (CUDA, random-weights 2B; no `install` prerequisite: it would put the pinned CPU torch in
+# place of this machine's CUDA build). Each line is one job of a few minutes on an H100/H200-class GPU.
+bench-gpu:
+	$(PYTHON) benchmarks/rollout.py --gpu --compile --vae-variants --skip-tiny --repeats 3 \
+		--json benchmarks/results/rollout_gpu.json
+	$(PYTHON) benchmarks/cli_rollout.py --size 2b --device cuda --compile-modes --repeats 1 \
+		--json benchmarks/results/cli_rollout_gpu.json
+	$(PYTHON) benchmarks/train.py --step-table --step-size 2b --device cuda --step-repeats 3 \
+		--json benchmarks/results/train_step_gpu.json
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results
