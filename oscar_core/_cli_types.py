@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["count", "default_device", "device", "interval", "number"]
+__all__ = ["count", "default_device", "device", "device_name", "interval", "number"]
 
 
 def count(minimum: int = 1):
@@ -82,6 +82,22 @@ def device(text: str) -> str:
 
 
 device.__name__ = "device"
+
+
+def device_name(text: str) -> str:
+    """A well-formed torch device name (``cpu``, ``cuda``, ``cuda:1``, ``mps``), not checked against this machine:
+    for devices that may live elsewhere (``oscar eval run --engine ray``'s workers on other machines)."""
+    if text == "cpu":
+        return text
+    from ._devices import device_syntax_problem
+
+    problem = device_syntax_problem(text)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return text
+
+
+device_name.__name__ = "device"
 
 
 def default_device() -> str:

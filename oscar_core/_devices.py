@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["default_device", "device_problem"]
+__all__ = ["default_device", "device_problem", "device_syntax_problem"]
 
 
 def default_device() -> str:
@@ -10,6 +10,21 @@ def default_device() -> str:
     import torch
 
     return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def device_syntax_problem(device) -> str | None:
+    """None when ``device`` names a torch device of a kind oscar runs on (cpu, cuda[:N], mps), else why not;
+    whether this machine has it is :func:`device_problem`'s question."""
+    import torch
+
+    text = str(device)
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError, TypeError):
+        return f"expected a torch device such as cpu, cuda or cuda:1, found {text!r}"
+    if parsed.type not in ("cpu", "cuda", "mps"):
+        return f"expected cpu, cuda[:N] or mps, found {text!r}"
+    return None
 
 
 def device_problem(device) -> str | None:
@@ -21,10 +36,10 @@ def device_problem(device) -> str | None:
     import torch
 
     text = str(device)
-    try:
-        parsed = torch.device(device)
-    except (RuntimeError, ValueError, TypeError):
-        return f"expected a torch device such as cpu, cuda or cuda:1, found {text!r}"
+    syntax = device_syntax_problem(device)
+    if syntax is not None:
+        return syntax
+    parsed = torch.device(device)
     if parsed.type == "cuda":
         if not torch.cuda.is_available():
             return (f"expected a device this machine has, found {text!r}: no CUDA device is available here "
@@ -33,9 +48,6 @@ def device_problem(device) -> str | None:
         if parsed.index is not None and parsed.index >= count:
             return (f"expected a device this machine has, found {text!r}: it has {count} CUDA device(s), "
                     f"cuda:0 to cuda:{count - 1}")
-    elif parsed.type == "mps":
-        if not torch.backends.mps.is_available():
-            return f"expected a device this machine has, found {text!r}: MPS is not available here"
-    elif parsed.type != "cpu":
-        return f"expected cpu, cuda[:N] or mps, found {text!r}"
+    elif parsed.type == "mps" and not torch.backends.mps.is_available():
+        return f"expected a device this machine has, found {text!r}: MPS is not available here"
     return None

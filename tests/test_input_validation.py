@@ -181,7 +181,7 @@ def test_cli_options_are_range_checked_by_the_parser(capsys, argv, expected):
     assert expected in capsys.readouterr().err
 
 
-DEVICE_COMMANDS = [["rollout"], ["encode-prompt"], ["eval", "run"], ["eval", "benchmark", "run"],
+DEVICE_COMMANDS = [["rollout"], ["encode-prompt"], ["eval", "benchmark", "run"],
                    ["eval", "benchmark", "table"], ["eval", "video"], ["render"], ["data", "dedup", "r"]]
 
 
@@ -205,6 +205,26 @@ def test_a_device_this_machine_lacks_is_refused_by_the_parser(capsys, command, v
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert "argument --device: expected" in err and expected in err
+
+
+def test_eval_run_checks_the_device_here_only_for_local_rollouts(tmp_path, capsys):
+    """--engine ray's workers may be other machines (a GPU cluster driven from a laptop): there --device is only
+    parsed; with the local engine a device this machine lacks is refused before the run folder exists."""
+    import torch
+
+    from oscar_core.cli import build_parser, main
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    base = ["eval", "run", str(tmp_path / "m.json"), "--model", "m", "--out", str(tmp_path / "out")]
+    assert build_parser().parse_args([*base, "--device", "cuda", "--engine", "ray"]).device == "cuda"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args([*base, "--device", "gpu0", "--engine", "ray"])
+    assert "expected a torch device such as cpu, cuda or cuda:1, found 'gpu0'" in capsys.readouterr().err
+    assert main([*base, "--device", "cuda:1"]) == 2
+    err = capsys.readouterr().err
+    assert "--device: field 'device': expected a device this machine has (with --engine local)" in err
+    assert "no CUDA device is available here" in err and not (tmp_path / "out").exists()
 
 
 def test_an_available_device_is_accepted_and_model_commands_default_to_cuda_when_present(monkeypatch):

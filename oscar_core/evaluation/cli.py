@@ -31,7 +31,7 @@ import json
 import os
 from pathlib import Path
 
-from .._cli_types import count, default_device, device, interval, number
+from .._cli_types import count, default_device, device_name, interval, number
 from .._log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
 from ..model.compile_policy import add_compile_options
@@ -109,6 +109,13 @@ def cmd_eval_run(args) -> int:
     from .loop import run_evaluation
     from .manifest import load_manifest
 
+    if args.engine != "ray" and args.device is not None:  # local rollouts: the device must be this machine's
+        from .._devices import device_problem
+
+        problem = device_problem(args.device)
+        if problem is not None:  # --engine ray's workers may run where this machine's devices do not matter
+            raise MetricInputError("--device", "device", "a device this machine has (with --engine local)",
+                                   problem.split("found ", 1)[-1])
     manifest = load_manifest(args.manifest)  # every row checked before anything else
     judge = pairwise = None
     if args.judge == "vlm":
@@ -189,7 +196,8 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--batch-cells", type=count(1), default=1, metavar="N",
                    help="roll out up to N cells in one batch (same frame count and size; each video equals its "
                         "one-at-a-time rollout up to float rounding; default 1)")
-    r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
+    r.add_argument("--device", type=device_name, help="torch device of the rollouts (default: cuda when available, "
+                   "else cpu); checked against this machine unless --engine ray (the workers' machines)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto",
                    help="DiT dtype (default auto: bfloat16 on CUDA, float32 on the CPU)")
     add_compile_options(r)
