@@ -6,7 +6,7 @@ costs about a minute, and each 35-step chunk then runs about 6 s faster. So:
 * ``never`` — eager; ``always`` — compile (on any device; the user asked);
 * ``auto`` (the default) — compile on CUDA only, and only when the job's
   expected saving beats the compile cost: ``chunks × (EAGER_CHUNK_S −
-  COMPILED_CHUNK_S) × steps / 35 > COMPILE_COST_S``, where ``chunks`` counts
+  COMPILED_CHUNK_S) × evaluations / 70 > COMPILE_COST_S``, where ``chunks`` counts
   every chunk the process will sample (chunks per rollout × cells). With the
   numbers below that is 11 chunks or more at 35 steps (a one-chunk
   ``oscar rollout`` stays eager). The saving scales with the DiT
