@@ -64,40 +64,33 @@ def interval(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def device(text: str) -> str:
-    """A torch device this machine has (``cpu``, ``cuda``, ``cuda:1``, ``mps``), returned as given.
+def _device_check(check: str):
+    """An argparse type returning a device name as given once ``oscar_core._devices.<check>`` finds no problem.
 
-    ``--device cuda`` on a machine without CUDA otherwise fails deep inside loading the weights (a traceback
-    from safetensors or torch) after the output folder exists; this refuses it at the parser. torch is
-    imported only when the option is given.
+    "cpu" passes without importing torch: argparse also converts string defaults, and a render needs no torch.
     """
-    if text == "cpu":  # argparse also converts string defaults: "cpu" must not import torch (a render needs none)
+    def parse(text: str) -> str:
+        if text == "cpu":
+            return text
+        from . import _devices
+
+        problem = getattr(_devices, check)(text)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(problem)
         return text
-    from ._devices import device_problem
 
-    problem = device_problem(text)
-    if problem is not None:
-        raise argparse.ArgumentTypeError(problem)
-    return text
+    parse.__name__ = "device"  # argparse names the type in its own messages
+    return parse
 
 
-device.__name__ = "device"
+#: A torch device this machine has (``cpu``, ``cuda``, ``cuda:1``, ``mps``), returned as given. ``--device cuda`` on
+#: a machine without CUDA otherwise fails deep inside loading the weights (a traceback from safetensors or torch)
+#: after the output folder exists; this refuses it at the parser. torch is imported only when the option is given.
+device = _device_check("device_problem")
 
-
-def device_name(text: str) -> str:
-    """A well-formed torch device name (``cpu``, ``cuda``, ``cuda:1``, ``mps``), not checked against this machine:
-    for devices that may live elsewhere (``oscar eval run --engine ray``'s workers on other machines)."""
-    if text == "cpu":
-        return text
-    from ._devices import device_syntax_problem
-
-    problem = device_syntax_problem(text)
-    if problem is not None:
-        raise argparse.ArgumentTypeError(problem)
-    return text
-
-
-device_name.__name__ = "device"
+#: A well-formed torch device name, not checked against this machine: for devices that may live elsewhere
+#: (``oscar eval run --engine ray``'s workers on other machines).
+device_name = _device_check("device_syntax_problem")
 
 
 def default_device() -> str:
