@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from ._devices import default_device  # re-exported: the model-running commands' default (imports torch only when called)
+
 __all__ = ["count", "default_device", "device", "device_name", "interval", "number"]
 
 
@@ -91,10 +93,3 @@ device = _device_check("device_problem")
 #: A well-formed torch device name, not checked against this machine: for devices that may live elsewhere
 #: (``oscar eval run --engine ray``'s workers on other machines).
 device_name = _device_check("device_syntax_problem")
-
-
-def default_device() -> str:
-    """``cuda`` when this machine has a CUDA device, else ``cpu`` (the default of the model-running commands)."""
-    from ._devices import default_device as default
-
-    return default()

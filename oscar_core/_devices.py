@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["default_device", "device_problem", "device_syntax_problem"]
+__all__ = ["check_device", "default_device", "device_problem", "device_syntax_problem"]
 
 
 def default_device() -> str:
@@ -51,3 +51,10 @@ def device_problem(device) -> str | None:
     elif parsed.type == "mps" and not torch.backends.mps.is_available():
         return f"expected a device this machine has, found {text!r}: MPS is not available here"
     return None
+
+
+def check_device(device, error: type[Exception]) -> None:
+    """Raise ``error("device: <why>")`` unless ``device`` is one this machine has (:func:`device_problem`)."""
+    problem = device_problem(device)
+    if problem is not None:
+        raise error(f"device: {problem}")

@@ -66,13 +66,11 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
     CPU between encode/decode calls; offload_text: keep the DiT's text
     projection on the CPU (see ``OscarWorldModel.from_modules``).
     """
-    from oscar_core._devices import device_problem
+    from oscar_core._devices import check_device
     from oscar_core.model.errors import ModelInputError
     from oscar_core.model.layouts import load_folder
 
-    problem = device_problem(device)
-    if problem is not None:  # before resolving or downloading anything
-        raise ModelInputError(f"device: {problem}")
+    check_device(device, ModelInputError)  # before resolving or downloading anything
     resolved = resolve(name_or_repo_or_path, revision)
     got = fetch(resolved, cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
                 force_download=force_download, token=token, verify=verify, native_file=native_file)

@@ -162,11 +162,9 @@ class OscarWorldModel:
         verify: check every file against ``oscar_manifest.json`` (sha256) and
         the structure of every safetensors file before loading.
         """
-        from .._devices import device_problem
+        from .._devices import check_device
 
-        problem = device_problem(device)
-        if problem is not None:  # before reading anything: safetensors would fail with a pin-memory traceback
-            raise ModelInputError(f"device: {problem}")
+        check_device(device, ModelInputError)  # before reading anything: safetensors would fail with a traceback
         folder = Path(folder)
         card = _read_card(folder)
         if verify:
