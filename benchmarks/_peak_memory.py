@@ -13,8 +13,6 @@ import os
 import threading
 import time
 
-import torch
-
 __all__ = ["MALLOC_ENV", "PeakMemory"]
 
 #: environment that makes glibc hand freed memory back at once (see the module docstring)
@@ -30,10 +28,13 @@ def _rss() -> int:
 class PeakMemory:
     """Peak memory (bytes, ``.peak``) above the starting level while the block runs."""
 
-    def __init__(self, device: torch.device):
+    def __init__(self, device):  # a torch.device; torch is imported by the caller (this module stays torch-free
+        # so that a benchmark can read MALLOC_ENV and re-execute itself before importing torch)
         self.device, self.peak, self._stop = device, 0, threading.Event()
 
     def __enter__(self):
+        import torch
+
         if self.device.type == "cuda":
             torch.cuda.synchronize()
             torch.cuda.reset_peak_memory_stats()
@@ -50,6 +51,8 @@ class PeakMemory:
             time.sleep(0.001)
 
     def __exit__(self, *exc):
+        import torch
+
         if self.device.type == "cuda":
             torch.cuda.synchronize()
             self.peak = torch.cuda.max_memory_allocated() - self.base

@@ -60,11 +60,7 @@ def build_model(size: str, folder: Path, device: str) -> Path:
     import torch
 
     from oscar_core.model import ModelCard, OscarWorldModel
-    from oscar_core.model.tiny import (
-        COSMOS_2B_TRANSFORMER_CONFIG,
-        build_tiny_transformer,
-        build_tiny_vae,
-    )
+    from oscar_core.model.tiny import build_random_2b, build_tiny_transformer, build_tiny_vae
 
     if (folder / "oscar_model.json").is_file():
         return folder
@@ -73,20 +69,8 @@ def build_model(size: str, folder: Path, device: str) -> Path:
         model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05),
                                              build_tiny_vae(seed=0), card)
     elif size == "2b":
-        from diffusers import AutoencoderKLWan
-
-        from oscar_core.model.transformer import OscarTransformer3DModel
-
         dtype = torch.bfloat16  # the released checkpoint's dtype (about 4 GB of DiT weights)
-        torch.manual_seed(0)
-        default = torch.get_default_dtype()
-        torch.set_default_dtype(dtype)  # initialised in bf16: no float32 copy of 2B parameters on the host
-        try:
-            with torch.device(device):  # random init on the device: a minute on a CPU, seconds on a GPU
-                transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).eval()
-                vae = AutoencoderKLWan().eval()
-        finally:
-            torch.set_default_dtype(default)
+        transformer, vae = build_random_2b(device, dtype)
         card = ModelCard(name="bench-2b", chunk_frames=81, width=512, height=288, fps=15.0)
         model = OscarWorldModel.from_modules(transformer, vae, card, device=device, dtype=dtype)
     else:

@@ -51,9 +51,12 @@ import sys
 import time
 from pathlib import Path
 
-if __name__ == "__main__" and "MALLOC_MMAP_THRESHOLD_" not in os.environ:
-    os.environ["MALLOC_MMAP_THRESHOLD_"] = "65536"
-    os.environ["MALLOC_TRIM_THRESHOLD_"] = "0"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _peak_memory import MALLOC_ENV, PeakMemory  # noqa: E402 (benchmarks/_peak_memory.py, shared with train.py)
+
+if __name__ == "__main__" and not all(k in os.environ for k in MALLOC_ENV):
+    for key, value in MALLOC_ENV.items():
+        os.environ.setdefault(key, value)
     os.execv(sys.executable, [sys.executable, *sys.argv])
 
 import numpy as np  # noqa: E402
@@ -63,8 +66,6 @@ from oscar_core.model import ModelCard, OscarTransformer3DModel, OscarWorldModel
 from oscar_core.model.sampler import guided_velocity  # noqa: E402
 from oscar_core.model.tiny import COSMOS_2B_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _peak_memory import PeakMemory  # (benchmarks/_peak_memory.py, shared with train.py)
 
 SIZES = ((128, 64), (256, 128))  # width x height in pixels
 CHUNKS = (9, 17)  # frames per chunk (4k+1)
@@ -213,15 +214,11 @@ def count_flops(fn) -> int:
 
 def build_measured(size: str, device: torch.device, dtype: torch.dtype):
     """(transformer, VideoVAE) with random weights: the 2B (WAN 2.1 VAE) or the tiny test configuration."""
-    from diffusers import AutoencoderKLWan
-
+    from oscar_core.model.tiny import build_random_2b
     from oscar_core.model.vae import VideoVAE
 
-    torch.manual_seed(0)
     if size == "2b":
-        with device:  # initialise on the device: no 8 GB detour through host memory
-            transformer = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).to(dtype).eval()
-            vae = AutoencoderKLWan().eval()  # diffusers' defaults are the WAN 2.1 VAE's configuration
+        transformer, vae = build_random_2b(device, dtype)  # initialised on the device in dtype: no host detour
     else:
         transformer = build_tiny_transformer(seed=0, skeleton_scale=0.05).to(device).eval()
         if dtype != torch.float32:

@@ -108,3 +108,16 @@ def test_vae_variants_are_timed_compared_and_undone(monkeypatch):
     assert rows["tiling"] == {"variant": "tiling", "failed": "RuntimeError: tiling is not supported here",
                               "vs_eager": None}
     assert "seconds" in rows["channels_last"]
+
+
+def test_the_random_2b_is_built_in_its_dtype_on_its_device():
+    """build_random_2b (the 2B rows of benchmarks/rollout.py and cli_rollout.py): on the meta device, no memory."""
+    from oscar_core.model.tiny import build_random_2b
+
+    before = torch.get_default_dtype()
+    transformer, vae = build_random_2b("meta", torch.bfloat16)
+    assert torch.get_default_dtype() == before  # restored
+    params = list(transformer.parameters()) + list(vae.parameters())
+    assert {p.device.type for p in params} == {"meta"} and {p.dtype for p in params} == {torch.bfloat16}
+    assert sum(p.numel() for p in transformer.parameters()) == 2_059_305_984  # benchmarks/rollout.py's count
+    assert not transformer.training and not vae.training
