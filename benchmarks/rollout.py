@@ -297,10 +297,7 @@ def measure_real(args) -> dict:
 
     steps = {"guided": step_fn(SamplerConfig(guidance=6.0)), "conditional": step_fn(SamplerConfig(guidance=None))}
 
-    def vae_work():  # what a chunk asks of the VAE: seed and condition encodes, one decode of a chunk's latent
-        with torch.no_grad():
-            vae.encode(first)
-            vae.decode(vae.encode(condition))
+    vae_work = vae_chunk_work(vae, first, condition)
 
     def sync():
         if device.type == "cuda":
@@ -380,6 +377,17 @@ def _set_conv_format(module: torch.nn.Module, memory_format) -> None:
             param.data = param.data.contiguous(memory_format=memory_format)
 
 
+def vae_chunk_work(vae, first: torch.Tensor, condition: torch.Tensor):
+    """What a chunk asks of the VAE, as a call: the seed frame's and the condition video's encodes, then one
+    decode of a chunk's latent; the call returns the decoded pixels (B, 3, T, H, W)."""
+    def work() -> torch.Tensor:
+        with torch.no_grad():
+            vae.encode(first)
+            return vae.decode(vae.encode(condition))
+
+    return work
+
+
 def measure_vae_variants(vae, first: torch.Tensor, condition: torch.Tensor, repeats: int, device) -> list[dict]:
     """The VAE's work per chunk (seed and condition encodes, one decode) under each of :data:`VAE_VARIANTS`.
 
@@ -390,12 +398,7 @@ def measure_vae_variants(vae, first: torch.Tensor, condition: torch.Tensor, repe
     is put back as it was after each variant.
     """
     module = vae.vae
-
-    def work():
-        with torch.no_grad():
-            vae.encode(first)
-            return vae.decode(vae.encode(condition))
-
+    work = vae_chunk_work(vae, first, condition)
     reference = work().float().cpu()
     rows = []
     for name in VAE_VARIANTS:
