@@ -94,7 +94,7 @@ def main(argv=None) -> int:
               f"{r['cpu_s']:>7.1f} {r['max_abs_diff_vs_eager']:>10}")
     result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(), "steps": args.steps,
               "rows": rows}
-    from oscar_core._atomic import atomic_write_bytes
+    from oscar_core._util.atomic import atomic_write_bytes
 
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     print(f"\nwrote {atomic_write_bytes(args.json, (json.dumps(result, indent=2) + chr(10)).encode())}")

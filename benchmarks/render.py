@@ -43,9 +43,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
-from oscar_core.camera import project  # noqa: E402
-from oscar_core.render import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
-from oscar_core.video import write_video  # noqa: E402
+from oscar_core.camera.pinhole import project  # noqa: E402
+from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
+from oscar_core.media.video import write_video  # noqa: E402
 
 SIZES = ((512, 288), (1280, 704))
 FRAMES = 81
@@ -66,7 +66,7 @@ def naive_render(emb, traj, cam, size):
 
     import yourdfpy
 
-    from oscar_core.urdf import expand_xacro
+    from oscar_core.kinematics.urdf import expand_xacro
 
     source = str(emb.urdf) if emb.urdf is not None else io.StringIO(expand_xacro(emb.xacro, emb.xacro_args, emb.packages))
     robot = yourdfpy.URDF.load(source, load_meshes=False, build_scene_graph=True,
@@ -147,7 +147,7 @@ MESH_CELLS = (None, 0.005, 0.008, 0.01)  # metres; None: the meshes as given
 
 
 def _mesh_fps(emb, traj, cam, style, repeats: int) -> tuple[float, float, np.ndarray]:
-    from oscar_core.mesh_render import render_mesh_video
+    from oscar_core.render.mesh import render_mesh_video
 
     render_mesh_video(emb, traj.time_slice(0, 1), cam, style=style)  # loads and simplifies the meshes once
     video = None
@@ -164,7 +164,7 @@ def _stream_peak_mb(emb, traj, cam) -> float:
     """Peak traced memory (MB) of streaming ``traj`` chunk by chunk, each chunk dropped as a writer would."""
     import tracemalloc
 
-    from oscar_core.mesh_render import iter_mesh_chunks
+    from oscar_core.render.mesh import iter_mesh_chunks
 
     tracemalloc.start()
     for _ in iter_mesh_chunks(emb, traj, cam, chunk_frames=16):
@@ -176,8 +176,8 @@ def _stream_peak_mb(emb, traj, cam) -> float:
 
 def bench_mesh(name: str, repeats: int, size=(512, 288)) -> list[dict]:
     """The mesh condition of ``name``'s example trajectory at ``size``, per simplification."""
-    from oscar_core.mesh_render import MeshStyle, mesh_geometry
-    from oscar_core.trajectory import Trajectory
+    from oscar_core.render.mesh import MeshStyle, mesh_geometry
+    from oscar_core.kinematics.trajectory import Trajectory
 
     emb = get_embodiment(name)
     traj = emb.check_trajectory(load_trajectory(emb.example_trajectory)).time_slice(0, FRAMES)
@@ -221,7 +221,7 @@ def print_mesh_table(rows: list[dict]) -> None:
 
 def bench_capsules(name: str, repeats: int, sizes=((512, 288), (64, 64))) -> list[dict]:
     """render_capsule_video of ``name``'s example trajectory, per size: microseconds per frame, frames/s."""
-    from oscar_core.capsule_body import body_reach, render_capsule_video
+    from oscar_core.render.capsules import body_reach, render_capsule_video
 
     emb = get_embodiment(name)
     traj, cam = load_trajectory(emb.example_trajectory), load_camera(emb.example_camera)

@@ -122,7 +122,7 @@ def bench_throughput(tmp: Path, n: int, naive_n: int, preset: str) -> dict:
         w, c = w + dw, c + dc
     out["naive_process_per_episode_eps"] = naive_n / w
     out["naive_cpu_s_per_episode"] = c / naive_n
-    from oscar_core.batch_render import RenderOptions, read_manifest, render_many
+    from oscar_core.render.batch import RenderOptions, read_manifest, render_many
 
     specs = read_manifest(manifest)
     opts = RenderOptions(preset=preset, threads=1)
@@ -137,7 +137,7 @@ def bench_throughput(tmp: Path, n: int, naive_n: int, preset: str) -> dict:
 
 def bench_presets(tmp: Path, repeats: int) -> list[dict]:
     from oscar_core import get_embodiment, load_trajectory, render_skeleton_video
-    from oscar_core.video import read_video, write_video
+    from oscar_core.media.video import read_video, write_video
 
     emb = get_embodiment("franka")
     traj = load_trajectory(emb.example_trajectory).time_slice(0, 81)
@@ -158,7 +158,7 @@ def bench_presets(tmp: Path, repeats: int) -> list[dict]:
     # the conversion alone, per frame
     import av
 
-    from oscar_core.video import rgb_to_yuv420p
+    from oscar_core.media.video import rgb_to_yuv420p
 
     for yuv, fn in (("opencv", lambda f: rgb_to_yuv420p(f)),
                     ("swscale", lambda f: av.VideoFrame.from_ndarray(f, format="rgb24").reformat(format="yuv420p"))):
@@ -205,7 +205,7 @@ def table(rows: list[dict], cols: list[tuple[str, str]]) -> str:
 
 
 def main(argv=None) -> int:
-    from oscar_core.video import DEFAULT_PRESET
+    from oscar_core.media.video import DEFAULT_PRESET
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--episodes", type=int, default=40, help="episodes for the throughput runs (default 40)")

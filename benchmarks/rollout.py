@@ -576,7 +576,7 @@ def main(argv=None) -> int:
     if args.measure:
         measured = measure_real(args)
         print_measured(measured)
-    from oscar_core._atomic import atomic_write_bytes
+    from oscar_core._util.atomic import atomic_write_bytes
 
     result = json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
                                            "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),

@@ -33,7 +33,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from oscar_core.registry import default_registry  # noqa: E402
+from oscar_core.plugin.registry import default_registry  # noqa: E402
 from oscar_core.toyworld.episode import episode_rng, make_episode, plan_episode, render_world  # noqa: E402
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset  # noqa: E402
 from oscar_core.toyworld.motion import sample_motion  # noqa: E402

@@ -621,7 +621,7 @@ def _step_main(args, ap) -> int:
 
 
 def _write(result: dict, path, quiet: bool = False) -> int:
-    from oscar_core._atomic import atomic_write_bytes
+    from oscar_core._util.atomic import atomic_write_bytes
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     out = atomic_write_bytes(Path(path), (json.dumps(result, indent=2) + "\n").encode())

@@ -6,31 +6,31 @@ The public API is re-exported here; submodules load on first use so that
 
 from __future__ import annotations
 
-from ._lazy import lazy_exports
+from ._util.lazy import lazy_exports
 
 __version__ = "0.1.0"
 
 _EXPORTS = {
     # plugin contract
-    "hookimpl": "hookspecs", "hookspec": "hookspecs",
-    "Embodiment": "embodiment", "Gripper": "embodiment", "CameraSpec": "embodiment",
-    "SkeletonFrames": "embodiment", "JointLimitWarning": "embodiment",
-    "DefaultPoseWarning": "embodiment",
-    "Skeleton": "skeleton",
-    "Registry": "registry", "default_registry": "registry", "get_embodiment": "registry",
+    "hookimpl": "plugin.hookspecs", "hookspec": "plugin.hookspecs",
+    "Embodiment": "plugin.embodiment", "Gripper": "plugin.embodiment", "CameraSpec": "plugin.embodiment",
+    "SkeletonFrames": "plugin.embodiment", "JointLimitWarning": "plugin.embodiment",
+    "DefaultPoseWarning": "plugin.embodiment",
+    "Skeleton": "plugin.skeleton",
+    "Registry": "plugin.registry", "default_registry": "plugin.registry", "get_embodiment": "plugin.registry",
     # kinematics
-    "KinematicTree": "urdf", "build_tree_from_urdf": "urdf", "build_tree_from_xacro": "urdf",
-    "ForwardKinematics": "kinematics",
+    "KinematicTree": "kinematics.urdf", "build_tree_from_urdf": "kinematics.urdf", "build_tree_from_xacro": "kinematics.urdf",
+    "ForwardKinematics": "kinematics.fk_torch",
     # trajectories and cameras
-    "Trajectory": "trajectory", "load_trajectory": "trajectory", "save_trajectory": "trajectory",
-    "interpolate_keyframes": "trajectory", "look_at": "camera",
-    "Camera": "camera", "Intrinsics": "camera", "load_camera": "camera", "save_camera": "camera", "project": "camera",
+    "Trajectory": "kinematics.trajectory", "load_trajectory": "kinematics.trajectory", "save_trajectory": "kinematics.trajectory",
+    "interpolate_keyframes": "kinematics.trajectory", "look_at": "camera.pinhole",
+    "Camera": "camera.pinhole", "Intrinsics": "camera.pinhole", "load_camera": "camera.pinhole", "save_camera": "camera.pinhole", "project": "camera.pinhole",
     # rendering and video
-    "SkeletonStyle": "render", "GripperMarks": "render", "rasterise": "render",
-    "render_skeleton_video": "pipeline", "overlay_skeleton": "pipeline",
-    "render_mesh_video": "mesh_render", "MeshStyle": "mesh_render", "VisualGeometry": "visual",
-    "LinkGeometry": "visual",
-    "write_video": "video", "read_video": "video",
+    "SkeletonStyle": "render.raster", "GripperMarks": "render.raster", "rasterise": "render.raster",
+    "render_skeleton_video": "render.skeleton_video", "overlay_skeleton": "render.skeleton_video",
+    "render_mesh_video": "render.mesh", "MeshStyle": "render.mesh", "VisualGeometry": "kinematics.visual",
+    "LinkGeometry": "kinematics.visual",
+    "write_video": "media.video", "read_video": "media.video",
     # errors
     "OscarError": "errors", "InputFileError": "errors", "CameraFileError": "errors", "KinematicsFileError": "errors",
     "TrajectoryError": "errors", "OutputPathError": "errors", "PluginError": "errors",

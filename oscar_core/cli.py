@@ -8,7 +8,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from ._log import cli_output
+from ._util.log import cli_output
 from .errors import OscarError
 
 EXAMPLES = """examples:
@@ -31,7 +31,7 @@ EXAMPLES = """examples:
 
 
 def _registry(args):
-    from .registry import Registry
+    from .plugin.registry import Registry
 
     return Registry(plugin_paths=args.plugin or ())
 
@@ -70,8 +70,8 @@ def cmd_embodiments(args) -> int:
 
 def cmd_demo(args) -> int:
     from .demo import run_demo
-    from .pipeline import parse_size
-    from .registry import Registry
+    from .render.skeleton_video import parse_size
+    from .plugin.registry import Registry
 
     run_demo(args.out, size=parse_size(args.size), registry=Registry(plugin_paths=args.plugin or ()),
              toy_model=None if args.no_toy_world else args.toy_model)
@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e.set_defaults(func=cmd_embodiments)
 
-    from .render_cli import add_render_parser
+    from .render.cli import add_render_parser
 
     add_render_parser(sub)
 
@@ -164,7 +164,7 @@ def _leaves(parser: argparse.ArgumentParser):
 
 
 def main(argv=None) -> int:
-    from ._interrupt import interrupted, noting_interrupts, report
+    from ._util.interrupt import interrupted, noting_interrupts, report
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -205,8 +205,8 @@ def main(argv=None) -> int:
 
 def run() -> None:
     """The ``oscar`` command's entry point: :func:`main` on ``sys.argv``, then the process ends without the
-    interpreter's module teardown (``oscar_core._fast_exit``; about 1 s after a rollout)."""
-    from ._fast_exit import exit_process
+    interpreter's module teardown (``oscar_core._util.fast_exit``; about 1 s after a rollout)."""
+    from ._util.fast_exit import exit_process
 
     exit_process(main())
 

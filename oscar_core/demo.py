@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_output, atomic_write_bytes
+from ._util.atomic import atomic_output, atomic_write_bytes
 from .errors import OscarError
-from .pipeline import render_skeleton_video
-from .registry import Registry
-from .trajectory import load_trajectory
-from .video import write_video
+from .render.skeleton_video import render_skeleton_video
+from .plugin.registry import Registry
+from .kinematics.trajectory import load_trajectory
+from .media.video import write_video
 
 __all__ = ["run_demo", "contact_sheet"]
 

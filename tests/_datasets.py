@@ -43,7 +43,7 @@ def render_rgb(traj, cam, *, seed: int = 0, pan: float = 0.0, size=SIZE) -> np.n
     """(T, H, W, 3) uint8: skeleton over a texture; the texture moves ``pan`` pixels/frame to the left."""
     from oscar_toyarm import ToyArm
 
-    from oscar_core.pipeline import render_skeleton_video
+    from oscar_core.render.skeleton_video import render_skeleton_video
 
     W, H = size
     skel = render_skeleton_video(ToyArm(), traj, cam, (W, H))
@@ -64,7 +64,7 @@ def write_episode(root: Path, name: str, traj=None, cam=None, *, seed: int = 0, 
                   video: str = "rgb.mkv") -> Path:
     """Write one npz-layout episode folder ``root/name``; returns it."""
     from oscar_core import save_camera, save_trajectory
-    from oscar_core.video import write_video
+    from oscar_core.media.video import write_video
 
     t0, c0 = base_parts()
     traj = t0 if traj is None else traj

@@ -19,7 +19,7 @@ import pytest
 
 from oscar_core import (Camera, CameraFileError, Intrinsics, Trajectory, TrajectoryError, get_embodiment,
                         load_camera, load_trajectory, render_skeleton_video)
-from oscar_core.pipeline import project_skeleton
+from oscar_core.render.skeleton_video import project_skeleton
 from oscar_embodiments import agibot_g1 as plugin
 from oscar_embodiments.agibot_g1 import HEAD_CAMERA_LINK, JOINTS, LEFT_ARM, RIGHT_ARM, AgiBotG1
 from oscar_embodiments.agibot_g1.adapters import (AGIBOT_WORLD_FPS, HEAD_IMAGE_SIZE, MountConsistencyWarning,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from oscar_core import get_embodiment, load_camera, load_trajectory, render_skeleton_video, save_trajectory
-from oscar_core.batch_render import (
+from oscar_core.render.batch import (
     EpisodeSpec,
     RenderOptions,
     read_manifest,
@@ -23,7 +23,7 @@ from oscar_core.batch_render import (
 )
 from oscar_core.cli import main
 from oscar_core.errors import InputFileError, OutputPathError
-from oscar_core.video import read_video
+from oscar_core.media.video import read_video
 
 REPO = Path(__file__).resolve().parents[1]
 ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
@@ -174,7 +174,7 @@ def test_batch_problems_stop_before_anything_is_rendered(tmp_path):
     ("missing/skel.mp4", "folder .*missing does not exist"),
 ])
 def test_bad_outputs_are_refused_before_any_rendering(tmp_path, capsys, monkeypatch, out, message):
-    import oscar_core.render_stream as rs
+    import oscar_core.render.skeleton_stream as rs
 
     def boom(*a, **k):
         raise AssertionError("rendering started")
@@ -188,7 +188,7 @@ def test_bad_outputs_are_refused_before_any_rendering(tmp_path, capsys, monkeypa
 
 
 def test_odd_h264_size_is_refused_before_rendering_and_png_is_an_explicit_choice(tmp_path, capsys, monkeypatch):
-    import oscar_core.render_stream as rs
+    import oscar_core.render.skeleton_stream as rs
 
     real = rs.iter_skeleton_chunks
     calls = []
@@ -248,7 +248,7 @@ def test_a_killed_render_leaves_no_output_and_the_next_run_clears_its_temporarie
 
 
 def test_a_live_writers_temporary_is_never_removed(tmp_path):
-    from oscar_core.video import VideoWriter, remove_stale_temporaries
+    from oscar_core.media.video import VideoWriter, remove_stale_temporaries
 
     target = tmp_path / "x.mkv"
     w = VideoWriter(target, 10)
@@ -320,7 +320,7 @@ def test_contact_sheet_names_rows_outside_the_frames():
 
 def test_demo_lists_plugins_it_skipped_and_why(tmp_path):
     from oscar_core.demo import run_demo
-    from oscar_core.registry import Registry
+    from oscar_core.plugin.registry import Registry
 
     bad = tmp_path / "broken_plugin.py"
     bad.write_text("raise ImportError('needs a library that is not installed')\n")

@@ -9,16 +9,16 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from oscar_core._stage import StageChanged
-from oscar_core.camera import Intrinsics
-from oscar_core.camera_projection import project_points_cv
+from oscar_core._util.stage import StageChanged
+from oscar_core.camera.pinhole import Intrinsics
+from oscar_core.camera.projection import project_points_cv
 from oscar_core.cli import main
 from oscar_core.evaluation import benchmark_rules as rules
 from oscar_core.evaluation.benchmark_run import run_benchmark
 from oscar_core.evaluation.benchmark_set import BenchmarkSetError, build_benchmark_set, load_benchmark_set
 from oscar_core.evaluation.benchmark_table import BenchmarkTableError, benchmark_table
 from oscar_core.model.sampler import SamplerConfig
-from oscar_core.registry import default_registry
+from oscar_core.plugin.registry import default_registry
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 from oscar_core.train.clips import ClipSet
 

@@ -1,4 +1,4 @@
-"""Tests for oscar_core.camera: projection vs cv2, conventions, resizing, files."""
+"""Tests for oscar_core.camera.pinhole: projection vs cv2, conventions, resizing, files."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from oscar_core.camera import (
+from oscar_core.camera.pinhole import (
     CONVENTION_ALIASES,
     CONVENTIONS,
     DIRECTIONS,
@@ -378,7 +378,7 @@ def test_atomic_save_into_missing_directory(tmp_path):
 
 
 def test_defaults_from_the_embodiment_spec_fill_omitted_keys(tmp_path):
-    from oscar_core.embodiment import CameraSpec
+    from oscar_core.plugin.embodiment import CameraSpec
 
     d = {"image_size": [640, 480], "intrinsics": {"fx": 500, "fy": 500, "cx": 320, "cy": 240},
          "extrinsic": {"matrix": np.eye(4).tolist()}}

@@ -1,4 +1,4 @@
-"""The ``capsules`` condition (oscar_core/capsule_body.py): capsules along the skeleton's edges and fingers.
+"""The ``capsules`` condition (oscar_core/render/capsules.py): capsules along the skeleton's edges and fingers.
 
 Checked against answers known in advance: every vertex lies on its capsule's surface (distance r from the
 segment), the finger gap follows the openness formula, the silhouette equals the toy world's own analytic
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import torch
 
-from oscar_core.capsule_body import (RADIUS_BASE, RADIUS_TIP, CapsuleStyle, body_reach, body_vertices, finger_axes,
+from oscar_core.render.capsules import (RADIUS_BASE, RADIUS_TIP, CapsuleStyle, body_reach, body_vertices, finger_axes,
                                      link_radii, render_capsule_video)
-from oscar_core.conditions import CONDITIONS, condition_video, video_condition_of
-from oscar_core.embodiment import SkeletonFrames
+from oscar_core.render.conditions import CONDITIONS, condition_video, video_condition_of
+from oscar_core.plugin.embodiment import SkeletonFrames
 from oscar_core.errors import PluginError
-from oscar_core.registry import Registry
+from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.episode import episode_rng, make_episode, render_world
 
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
@@ -135,8 +135,8 @@ def test_the_condition_is_known_by_name_everywhere(registry):
 
 
 def test_render_cli_draws_capsules_for_a_robot_without_meshes(tmp_path, registry):
-    from oscar_core.camera import save_camera
-    from oscar_core.trajectory import save_trajectory
+    from oscar_core.camera.pinhole import save_camera
+    from oscar_core.kinematics.trajectory import save_trajectory
 
     emb = registry.get("kuka")
     ep = make_episode(emb, episode_rng(0, "kuka", 3), 48, 48, 5)
@@ -147,7 +147,7 @@ def test_render_cli_draws_capsules_for_a_robot_without_meshes(tmp_path, registry
                         str(tmp_path / "t.npz"), "--camera", str(tmp_path / "c.json"), "--out", str(out),
                         "--condition", "capsules"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     got = read_video(out)
     np.testing.assert_array_equal(got, render_capsule_video(emb, ep.trajectory, ep.camera))
@@ -238,7 +238,7 @@ def test_a_latent_cache_rerun_with_another_condition_or_vae_is_refused(tmp_path)
     refused, naming what changed, instead of keeping the finished shards of the other kind."""
     from test_train_loop import tiny
 
-    from oscar_core._stage import StageChanged
+    from oscar_core._util.stage import StageChanged
     from oscar_core.train.cache import cache_latents
     from oscar_core.train.models import build_vae
     from oscar_core.train.synthetic import write_toy_clipset

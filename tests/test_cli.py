@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from oscar_core.cli import main
-from oscar_core.video import read_video, write_video
+from oscar_core.media.video import read_video, write_video
 
 REPO = Path(__file__).resolve().parents[1]
 ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
@@ -120,7 +120,7 @@ def test_demo_writes_videos_and_contact_sheet(tmp_path, capsys):
 def test_overlay_frames_are_fitted_like_the_calibration(tmp_path, capsys):
     """--size of another aspect ratio: the real frames are centre-cropped as the intrinsics are, not stretched."""
     from oscar_core import get_embodiment, load_camera, load_trajectory, overlay_skeleton, render_skeleton_video
-    from oscar_core.pipeline import fit_image
+    from oscar_core.render.skeleton_video import fit_image
 
     # a frame whose left and right thirds differ, so a stretch and a crop give different pixels
     rgb = np.zeros((81, 360, 640, 3), np.uint8)

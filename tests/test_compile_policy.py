@@ -278,7 +278,7 @@ def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
     monkeypatch.setattr(transformer_module, "cast_model", lambda model, device=None, dtype=None: model)
     monkeypatch.setattr(world_model, "cast_model", lambda model, device=None, dtype=None: model)
     monkeypatch.setattr(world_model, "VideoVAE", lambda vae, device, dtype, offload: vae)
-    monkeypatch.setattr("oscar_core._devices.device_problem", lambda device: None)  # as if this machine had CUDA
+    monkeypatch.setattr("oscar_core._util.devices.device_problem", lambda device: None)  # as if this machine had CUDA
     OscarWorldModel.from_pretrained(folder, device="cuda")
     assert asked == [("transformer", "cuda"), ("vae", "cuda")]
     asked.clear()

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from oscar_core import default_registry, load_camera, load_trajectory, render_skeleton_video
-from oscar_core.pipeline import project_skeleton
+from oscar_core.render.skeleton_video import project_skeleton
 
 REGISTRY = default_registry()
 NAMES = REGISTRY.names()

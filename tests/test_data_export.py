@@ -33,7 +33,7 @@ def run(tmp_path_factory):
 def test_export_writes_a_clip_set_the_trainer_reads(run):
     from oscar_toyarm import ToyArm
 
-    from oscar_core.pipeline import render_skeleton_video
+    from oscar_core.render.skeleton_video import render_skeleton_video
 
     root, r = run
     assert main(["data", "export", str(r), "--out", str(root / "clips"), "--render-skeleton", "--workers", "1",
@@ -47,7 +47,7 @@ def test_export_writes_a_clip_set_the_trainer_reads(run):
     clip = cs.load(rec)
     src = root / "src" / "ep0"
     from oscar_core import load_camera, load_trajectory
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     np.testing.assert_array_equal(clip.rgb, read_video(src / "rgb.mkv"))  # lossless both ways
     np.testing.assert_array_equal(clip.trajectory.q, load_trajectory(src / "trajectory.npz").q)

@@ -146,8 +146,8 @@ def test_h5_missing_field_is_rejected_through_a_plugin_reader(tmp_path):
     h5py = pytest.importorskip("h5py")
     plugin = tmp_path / "h5reader.py"
     plugin.write_text('''
-from oscar_core.hookspecs import hookimpl
-from oscar_core.reader import EpisodeError
+from oscar_core.plugin.hookspecs import hookimpl
+from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.npz import NpzReader
 
 

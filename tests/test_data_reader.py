@@ -5,10 +5,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from oscar_core.reader import EpisodeError, EpisodeRef, Reader, VideoSource
+from oscar_core.plugin.reader import EpisodeError, EpisodeRef, Reader, VideoSource
 from oscar_core.errors import PluginError
-from oscar_core.registry import Registry
-from oscar_core.video import write_video
+from oscar_core.plugin.registry import Registry
+from oscar_core.media.video import write_video
 
 
 def _plugin(tmp_path, body):
@@ -19,8 +19,8 @@ def _plugin(tmp_path, body):
 
 def test_reader_registers_through_the_hook(tmp_path):
     reg = _plugin(tmp_path, """
-        from oscar_core.hookspecs import hookimpl
-        from oscar_core.reader import Reader, EpisodeRef
+        from oscar_core.plugin.hookspecs import hookimpl
+        from oscar_core.plugin.reader import Reader, EpisodeRef
 
         class Mine(Reader):
             name = "mine"
@@ -42,8 +42,8 @@ def test_reader_registers_through_the_hook(tmp_path):
 
 def test_broken_reader_is_reported_and_others_load(tmp_path):
     reg = _plugin(tmp_path, """
-        from oscar_core.hookspecs import hookimpl
-        from oscar_core.reader import Reader
+        from oscar_core.plugin.hookspecs import hookimpl
+        from oscar_core.plugin.reader import Reader
 
         class NoLoad(Reader):
             name = "noload"

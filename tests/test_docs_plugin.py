@@ -77,7 +77,7 @@ def test_docs_plugin_walkthrough(tmp_path):
     table = listing["$ oscar embodiments"]
     row = [l for l in table.splitlines() if l.startswith("twolink")]
     assert row and "oscar-twolink 0.1.0" in row[0], table
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     video = read_video(work / "twolink.mp4")
     assert video.shape == (81, 384, 512, 3) and video.max() > 0

@@ -8,11 +8,11 @@ import numpy as np
 from oscar_core import get_embodiment, load_camera, load_trajectory
 from oscar_core.evaluation.rollout_engines import _roll_out, cell_inputs
 from oscar_core.evaluation.manifest import Cell
-from oscar_core.mesh_render import render_mesh_video
+from oscar_core.render.mesh import render_mesh_video
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
-from oscar_core.pipeline import render_skeleton_video
+from oscar_core.render.skeleton_video import render_skeleton_video
 
 ASSETS = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
 

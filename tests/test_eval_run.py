@@ -143,7 +143,7 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     assert report["counts"] == {"cells": 6, "rollouts_done": 6, "rollouts_reused": 0, "verdicts_done": 6,
                                 "verdicts_reused": 0, "verdicts_not_ok": 0}
     # every rollout is a lossless 5-frame 32x16 video
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     for c in report["cells"]:
         assert read_video(out / c["video"]).shape == (5, 16, 32, 3)
@@ -392,7 +392,7 @@ def test_all_tied_preferences_give_tied_ranks_not_float_noise(tmp_path, model_di
 @pytest.mark.slow
 def test_batched_cells_equal_one_at_a_time_and_resume(tmp_path, model_dir):
     from oscar_core.model import SamplerConfig
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     manifest = make_study(tmp_path / "study")
     model = oscar_zoo.load(str(model_dir))
@@ -417,7 +417,7 @@ def test_batched_cells_equal_one_at_a_time_and_resume(tmp_path, model_dir):
 def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
     pytest.importorskip("ray", reason='ray is not installed (pip install "oscar-wm[ray]")')
     from oscar_core.model import SamplerConfig
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     manifest = make_study(tmp_path / "study")
     judge = ProgrammaticJudge(lambda video, clip: {"binary": clip.info["wm"], "partial": 50, "reason": "ok"})

@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from _datasets import write_episode  # noqa: E402
 
-from oscar_core._interrupt import message, output_of  # noqa: E402
+from oscar_core._util.interrupt import message, output_of  # noqa: E402
 
 CLI = [sys.executable, "-m", "oscar_core.cli"]
 ENV = dict(os.environ, OMP_NUM_THREADS="1")
@@ -143,7 +143,7 @@ def test_ctrl_c_in_training_names_the_run_and_how_to_resume(tmp_path):
 def test_an_interrupt_torch_checkpointing_wrapped_is_still_an_interrupt():
     from torch.distributed.checkpoint.api import CheckpointException
 
-    from oscar_core._interrupt import Interrupted
+    from oscar_core._util.interrupt import Interrupted
     from oscar_core.train.cli import _resume_hint
 
     with pytest.raises(Interrupted) as err:
@@ -214,7 +214,7 @@ def test_ctrl_c_does_not_wait_for_busy_pool_threads():
 def test_an_error_a_library_made_of_the_interrupt_is_still_reported_as_one(monkeypatch, capsys):
     # torch's checkpoint writer turns a KeyboardInterrupt raised inside torch.save into a RuntimeError
     import oscar_core.cli as cli
-    from oscar_core._interrupt import interrupted, noting_interrupts
+    from oscar_core._util.interrupt import interrupted, noting_interrupts
 
     def swallowing(args):
         try:

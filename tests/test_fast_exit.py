@@ -1,4 +1,4 @@
-"""oscar_core._fast_exit: the `oscar` process ends without module teardown but keeps what shutdown must do."""
+"""oscar_core._util.fast_exit: the `oscar` process ends without module teardown but keeps what shutdown must do."""
 
 import json
 import subprocess
@@ -20,7 +20,7 @@ pool = ThreadPoolExecutor(2)                         # left open: its idle worke
 pool.submit(time.sleep, 0.01).result()
 sys.stdout.write("unflushed stdout")                # no newline, block-buffered into a pipe
 sys.stderr.write("unflushed stderr")
-from oscar_core._fast_exit import exit_process
+from oscar_core._util.fast_exit import exit_process
 exit_process(3)
 print("never reached")
 """

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from oscar_core import Registry, load_camera, load_trajectory
-from oscar_core.capsule_body import render_capsule_video
+from oscar_core.render.capsules import render_capsule_video
 from oscar_core.testing import compare_images
 
 TOL = 1.5

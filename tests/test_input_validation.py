@@ -230,7 +230,7 @@ def test_eval_run_checks_the_device_here_only_for_local_rollouts(tmp_path, capsy
 def test_an_available_device_is_accepted_and_model_commands_default_to_cuda_when_present(monkeypatch):
     import torch
 
-    from oscar_core._cli_types import default_device
+    from oscar_core._util.arg_types import default_device
     from oscar_core.cli import build_parser
 
     args = build_parser().parse_args(["eval", "run", "m.json", "--model", "m", "--out", "o", "--device", "cpu"])
@@ -246,7 +246,7 @@ def test_an_available_device_is_accepted_and_model_commands_default_to_cuda_when
 
 
 def test_an_array_larger_than_memory_is_refused_with_its_size():
-    from oscar_core._memory import ArraySizeError, check_fits
+    from oscar_core._util.memory import ArraySizeError, check_fits
 
     check_fits((16, 100, 100, 3), 1, "frames", "use a smaller --size", available=16 * 100 * 100 * 3)
     with pytest.raises(ArraySizeError) as err:
@@ -257,7 +257,7 @@ def test_an_array_larger_than_memory_is_refused_with_its_size():
 
 
 def test_render_of_a_huge_size_is_an_error_not_a_traceback(tmp_path, capsys, monkeypatch):
-    from oscar_core import _memory
+    from oscar_core._util import memory as _memory
     from oscar_core.cli import main
 
     monkeypatch.setattr(_memory, "available_bytes", lambda: 2 * 1024 ** 3)  # whatever this machine has
@@ -271,7 +271,7 @@ def test_render_of_a_huge_size_is_an_error_not_a_traceback(tmp_path, capsys, mon
 
 
 def test_available_memory_is_read_from_the_system():
-    from oscar_core._memory import available_bytes
+    from oscar_core._util.memory import available_bytes
 
     got = available_bytes()
     if sys.platform.startswith("linux"):
@@ -284,7 +284,7 @@ def test_available_memory_is_read_from_the_system():
 
 @pytest.fixture(scope="module")
 def toy_preds(tmp_path_factory):
-    from oscar_core.registry import default_registry
+    from oscar_core.plugin.registry import default_registry
     from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
     from oscar_core.train.clips import ClipSet
 
@@ -333,7 +333,7 @@ def test_toyworld_eval_common_clips_or_marked_rows(toy_preds):
 
 
 def test_rollout_and_export_refuse_a_size_beyond_memory_before_work(capsys, monkeypatch, tmp_path):
-    from oscar_core import _memory
+    from oscar_core._util import memory as _memory
     from oscar_core.data.run import run_export, run_ingest
 
     monkeypatch.setattr(_memory, "available_bytes", lambda: 1024 ** 3)
@@ -368,9 +368,9 @@ def test_filter_thresholds_are_checked(item, expected):
 
 
 def test_a_size_whose_one_frame_exceeds_memory_is_refused_by_every_command(monkeypatch, capsys):
-    from oscar_core import _memory
+    from oscar_core._util import memory as _memory
     from oscar_core.cli import main
-    from oscar_core.pipeline import parse_size
+    from oscar_core.render.skeleton_video import parse_size
 
     monkeypatch.setattr(_memory, "available_bytes", lambda: 1024 ** 3)
     assert parse_size("512x288") == (512, 288)

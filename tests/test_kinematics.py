@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from oscar_core.errors import KinematicsFileError
-from oscar_core.kinematics import ForwardKinematics
-from oscar_core.urdf import build_tree_from_urdf, build_tree_from_urdf_string, build_tree_from_xacro
+from oscar_core.kinematics.fk_torch import ForwardKinematics
+from oscar_core.kinematics.urdf import build_tree_from_urdf, build_tree_from_urdf_string, build_tree_from_xacro
 
 yourdfpy = pytest.importorskip("yourdfpy")
 

@@ -21,7 +21,7 @@ PACKAGES = {"oscar_core": ROOT / "oscar_core", "oscar_zoo": ROOT / "zoo", "oscar
 #: Bottom to top. A module belongs to the first layer with a matching pattern (fnmatch on the
 #: dotted name); it may import its own layer and the layers below, never one above.
 LAYERS: list[tuple[str, list[str]]] = [
-    ("cli", ["oscar_core.cli", "oscar_core.demo", "oscar_core.render_cli", "oscar_core.*.cli",
+    ("cli", ["oscar_core.cli", "oscar_core.demo", "oscar_core.render.cli", "oscar_core.*.cli",
              "oscar_core.*.cli_*", "oscar_core.train.__main__"]),
     ("toyworld", ["oscar_core.toyworld", "oscar_core.toyworld.*"]),
     ("evaluation", ["oscar_core.evaluation", "oscar_core.evaluation.*"]),
@@ -30,9 +30,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("metrics", ["oscar_core.metrics", "oscar_core.metrics.*"]),
     ("zoo", ["oscar_zoo", "oscar_zoo.*"]),
     ("model", ["oscar_core.model", "oscar_core.model.*"]),
-    ("render", ["oscar_core.render", "oscar_core.render_stream", "oscar_core.video", "oscar_core.pipeline",
-                "oscar_core.batch_render", "oscar_core.mesh_render", "oscar_core.mesh_raster", "oscar_core.capsule_body",
-                "oscar_core.conditions"]),
+    ("render", ["oscar_core.render", "oscar_core.render.*", "oscar_core.media", "oscar_core.media.*"]),
     ("embodiments", ["oscar_embodiments", "oscar_embodiments.*"]),
     ("foundation", ["oscar_core", "oscar_core.*"]),
 ][::-1]
@@ -174,7 +172,7 @@ def test_no_lower_layer_imports_a_higher_one(graph):
 
 
 def test_no_import_loops(graph):
-    # package __init__ files only name their exports as strings (oscar_core._lazy), so they take no part
+    # package __init__ files only name their exports as strings (oscar_core._util.lazy), so they take no part
     assert cycles(graph) == []
 
 
@@ -211,15 +209,15 @@ def test_the_checker_finds_an_upward_import_a_loop_and_a_cli_reaching_sideways(t
 
 
 def test_old_import_paths_keep_working():
-    from oscar_core.camera import Camera, load_camera, project
-    from oscar_core.camera_projection import project as project_moved
+    from oscar_core.camera.pinhole import Camera, load_camera, project
+    from oscar_core.camera.projection import project as project_moved
     from oscar_core.data.reader import EpisodeError, Reader
     from oscar_core.metrics.judge import ChatClient, JudgeClip, parse_success_answer, sample_frame_indices
     from oscar_core.metrics.judge_client import ChatClient as ChatClientMoved
     from oscar_core.metrics.policy import BradleyTerryWarning, fit_bradley_terry
     from oscar_core.metrics.video import fid, fvd, load_video
     from oscar_core.model.latent_action import LatentActionTransformer as Moved
-    from oscar_core.reader import Reader as ReaderMoved
+    from oscar_core.plugin.reader import Reader as ReaderMoved
     from oscar_core.train import LatentActionTransformer as LazyOld
     from oscar_core.train.latent_action import LatentActionTransformer
 

@@ -11,9 +11,9 @@ from dataclasses import replace
 
 import pytest
 
-from oscar_core._stage import StageChanged
+from oscar_core._util.stage import StageChanged
 from oscar_core.cli import main
-from oscar_core.registry import Registry
+from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.episode import miss_rng
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 from oscar_core.train.clips import ClipSet

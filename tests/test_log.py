@@ -1,4 +1,4 @@
-"""The one logging setup (oscar_core._log): logger tree, verbosity, progress bars, run log files, CLI flags."""
+"""The one logging setup (oscar_core._util.log): logger tree, verbosity, progress bars, run log files, CLI flags."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from oscar_core import _log
+from oscar_core._util import log as _log
 from oscar_core.cli import main
 
 

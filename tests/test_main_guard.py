@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from oscar_core._main_guard import MainGuardError, check_main_guard, guarded
+from oscar_core._util.main_guard import MainGuardError, check_main_guard, guarded
 
 ASSETS = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
 
@@ -24,7 +24,7 @@ RENDER = """
 from pathlib import Path
 import sys
 from oscar_core import load_trajectory, save_trajectory
-from oscar_core.batch_render import EpisodeSpec, RenderOptions, render_many
+from oscar_core.render.batch import EpisodeSpec, RenderOptions, render_many
 
 A = Path({assets!r})
 out = Path(sys.argv[1])
@@ -103,7 +103,7 @@ def test_a_script_read_from_standard_input_is_refused_before_the_workers_die(tmp
 def test_a_worker_running_the_script_again_refuses_too(tmp_path):
     """The worker side: the script's top level executing as ``__mp_main__`` (how workers import it)."""
     path = tmp_path / "again.py"
-    path.write_text("from oscar_core._main_guard import check_main_guard\n\ncheck_main_guard('pool(workers=2)')\n")
+    path.write_text("from oscar_core._util.main_guard import check_main_guard\n\ncheck_main_guard('pool(workers=2)')\n")
     with pytest.raises(MainGuardError, match=r"again\.py, line 3"):
         runpy.run_path(str(path), run_name="__mp_main__")
     runpy.run_path(str(path), run_name="not_a_worker")  # another module's top level: nothing to say

@@ -14,11 +14,11 @@ import pytest
 
 from oscar_core import (Camera, Embodiment, Gripper, Intrinsics, KinematicsFileError, PluginError, Skeleton,
                         Trajectory, look_at, project)
-from oscar_core.mesh_raster import rasterise_mesh
-from oscar_core.mesh_render import (MeshStyle, iter_mesh_chunks, link_palette, mesh_geometry, mesh_vertices,
+from oscar_core.render.mesh_raster import rasterise_mesh
+from oscar_core.render.mesh import (MeshStyle, iter_mesh_chunks, link_palette, mesh_geometry, mesh_vertices,
                                     render_mesh_video)
-from oscar_core.mesh_simplify import cluster_vertices
-from oscar_core.visual import LinkGeometry, VisualGeometry, box_mesh, capsule_mesh, cylinder_mesh, sphere_mesh
+from oscar_core.kinematics.mesh_simplify import cluster_vertices
+from oscar_core.kinematics.visual import LinkGeometry, VisualGeometry, box_mesh, capsule_mesh, cylinder_mesh, sphere_mesh
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples" / "oscar-toyarm"))
@@ -221,7 +221,7 @@ def test_triangles_reaching_behind_the_camera_are_cut_not_dropped(tmp_path):
 
 
 def test_clip_near_shares_cut_points_and_keeps_the_winding():
-    from oscar_core.mesh_raster import clip_near
+    from oscar_core.render.mesh_raster import clip_near
 
     # vertex 0 behind, 1 in front: cutting edge 0-1 from either end rounds differently for these numbers
     P = np.array([[0.2739233746429086, -0.4604265724722594, -0.9180529521276106],
@@ -336,9 +336,9 @@ def test_a_plugin_can_give_its_own_geometry(tmp_path):
 
 
 def test_cli_and_batch_render_the_mesh_condition(tmp_path):
-    from oscar_core.batch_render import read_manifest, render_many
+    from oscar_core.render.batch import read_manifest, render_many
     from oscar_core.cli import main
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     assets = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
     traj, cam = assets / "example_trajectory.npz", assets / "example_camera.json"

@@ -358,7 +358,7 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
 
 
 def test_success_judge_video_files_frame_folders_and_unreadable(server, tmp_path):
-    from oscar_core.video import write_video
+    from oscar_core.media.video import write_video
 
     frames = _video(1, frames=12, size=(32, 48))
     write_video(tmp_path / "a.mkv", frames, fps=10)

@@ -43,7 +43,7 @@ def test_pairing_uses_the_clips_both_rows_have():
 
 
 def test_toyworld_eval_paired_gives_row_minus_reference(tmp_path, capsys):
-    from oscar_core.registry import Registry
+    from oscar_core.plugin.registry import Registry
     from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
     from oscar_core.train.clips import ClipSet
 

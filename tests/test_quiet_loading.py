@@ -32,7 +32,7 @@ def _run(code: str, *args: str) -> subprocess.CompletedProcess:
 def test_loading_the_bundled_vae_is_quiet_and_real_warnings_still_show():
     proc = _run("""
         import warnings
-        from oscar_core._log import configure_cli, get_logger
+        from oscar_core._util.log import configure_cli, get_logger
         configure_cli()  # what the oscar command sets up
         from oscar_core.metrics.project_vae import load_project_vae
         encode = load_project_vae("oscar-toy")

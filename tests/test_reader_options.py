@@ -117,7 +117,7 @@ def test_a_broken_line_of_a_v21_episode_list_is_one_rejected_row(tmp_path):
     from test_reader_interndata_a1 import write_task
 
     from oscar_core.data.readers.interndata_a1 import InternDataA1Reader
-    from oscar_core.reader import EpisodeError
+    from oscar_core.plugin.reader import EpisodeError
 
     write_task(tmp_path, lengths=(9, 11, 10))
     ds = tmp_path / "articulation_tasks" / "franka" / "close_the_electriccooker"
@@ -136,7 +136,7 @@ def test_a_broken_line_of_a_v21_episode_list_is_one_rejected_row(tmp_path):
 
 
 def test_a_plugin_reader_taking_any_keyword_gets_its_options_unchecked_by_name():
-    from oscar_core.reader import Reader
+    from oscar_core.plugin.reader import Reader
 
     class Open(Reader):
         name = "open"

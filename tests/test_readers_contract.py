@@ -11,9 +11,9 @@ import pytest
 pytest.importorskip("h5py")
 pytest.importorskip("pyarrow")
 
-from oscar_core.reader import EpisodeError, EpisodeRef, Reader
+from oscar_core.plugin.reader import EpisodeError, EpisodeRef, Reader
 from oscar_core.data.readers import BUILTIN_READERS
-from oscar_core.registry import Registry
+from oscar_core.plugin.registry import Registry
 
 NAMES = ["agibot_world", "droid_raw", "egodex", "epic_vitra", "interndata_a1", "lerobot", "rh20t"]
 
@@ -30,7 +30,7 @@ def test_all_builtin_readers_register_through_the_entry_point():
 
 
 def test_listing_the_readers_imports_no_heavy_dependency():
-    code = ("import sys; from oscar_core.registry import Registry; r = Registry(); "
+    code = ("import sys; from oscar_core.plugin.registry import Registry; r = Registry(); "
             "[r.get_reader(n) for n in r.reader_names()]; "
             "print([m for m in ('h5py', 'pyarrow', 'av') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()

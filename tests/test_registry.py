@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from oscar_core import hookspecs
+from oscar_core.plugin import hookspecs
 from oscar_core.errors import PluginError
-from oscar_core.registry import Registry
+from oscar_core.plugin.registry import Registry
 
 REPO = Path(__file__).resolve().parents[1]
 TOYARM_URDF = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets" / "toyarm.urdf"

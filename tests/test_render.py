@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from oscar_core.render import GripperMarks, SkeletonStyle, rasterise
+from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise
 
 RED, GREEN, BLUE = (255, 0, 0), (0, 255, 0), (0, 0, 255)
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from oscar_core import get_embodiment, load_trajectory, render_skeleton_video
-from oscar_core.camera import Camera, Intrinsics, project
-from oscar_core.embodiment import SkeletonFrames
-from oscar_core.render_stream import (
+from oscar_core.camera.pinhole import Camera, Intrinsics, project
+from oscar_core.plugin.embodiment import SkeletonFrames
+from oscar_core.render.skeleton_stream import (
     EmptyViewError,
     EmptyViewWarning,
     RenderStats,
@@ -17,7 +17,7 @@ from oscar_core.render_stream import (
     guarded_project,
     iter_skeleton_chunks,
 )
-from oscar_core.trajectory import Trajectory
+from oscar_core.kinematics.trajectory import Trajectory
 
 
 def toyarm():
@@ -31,8 +31,8 @@ def toyarm():
 @pytest.mark.slow  # imports torch and pytorch-kinematics
 @pytest.mark.parametrize("name", ["toyarm", "franka", "kuka", "hsr", "agibot_g1"])
 def test_numpy_fk_matches_pytorch_kinematics(name):
-    from oscar_core.fk_numpy import NumpyForwardKinematics
-    from oscar_core.kinematics import ForwardKinematics
+    from oscar_core.kinematics.fk_numpy import NumpyForwardKinematics
+    from oscar_core.kinematics.fk_torch import ForwardKinematics
 
     tree = get_embodiment(name).tree
     lo, hi = tree.limits()
@@ -186,7 +186,7 @@ def test_format_frames():
 
 @pytest.mark.parametrize("H, W", [(36, 64), (54, 96)])  # H / 2 even, and odd (planes do not fill whole rows)
 def test_rgb_to_yuv420p_is_bt601_limited_range_with_averaged_chroma(H, W):
-    from oscar_core.video import rgb_to_yuv420p
+    from oscar_core.media.video import rgb_to_yuv420p
 
     rng = np.random.default_rng(1)
     frame = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
@@ -205,7 +205,7 @@ def test_rgb_to_yuv420p_is_bt601_limited_range_with_averaged_chroma(H, W):
 
 @pytest.mark.parametrize("yuv", ["opencv", "swscale"])
 def test_h264_of_a_skeleton_keeps_its_colours(tmp_path, yuv):
-    from oscar_core.video import read_video, write_video
+    from oscar_core.media.video import read_video, write_video
 
     emb, traj, cam = toyarm()
     video = render_skeleton_video(emb, traj.time_slice(0, 12), cam, (320, 180))

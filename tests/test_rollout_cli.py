@@ -13,7 +13,7 @@ from oscar_core.errors import OscarError
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.model.cli import add_model_parsers, side_by_side_path
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
-from oscar_core.video import read_video
+from oscar_core.media.video import read_video
 from oscar_zoo.testing import MockHub
 
 REPO = Path(__file__).resolve().parents[1]
@@ -118,7 +118,7 @@ def test_zoo_list_and_pull(capsys, tmp_path, model_dir, monkeypatch):
 
 def test_rollout_of_a_mesh_model_is_conditioned_on_the_mesh_video(capsys, tmp_path, first_frame):
     from oscar_core import get_embodiment, load_camera, load_trajectory
-    from oscar_core.mesh_render import render_mesh_video
+    from oscar_core.render.mesh import render_mesh_video
 
     model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
                                          ModelCard(name="tiny-mesh", chunk_frames=41, fps=15.0, condition="mesh"))
@@ -126,7 +126,7 @@ def test_rollout_of_a_mesh_model_is_conditioned_on_the_mesh_video(capsys, tmp_pa
     out = tmp_path / "video.mkv"
     code, _, err = run(capsys, *_args(folder, first_frame, out))
     assert code == 0, err
-    from oscar_core.pipeline import overlay_skeleton
+    from oscar_core.render.skeleton_video import overlay_skeleton
 
     side = read_video(side_by_side_path(out))  # right half: the condition video it was given, over the rollout
     mesh = render_mesh_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (64, 32))

@@ -18,8 +18,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from _datasets import base_parts, write_episode  # noqa: E402
 
-from oscar_core import _stage  # noqa: E402
-from oscar_core._atomic import atomic_output, sweep_dead_temporaries  # noqa: E402
+from oscar_core._util import stage as _stage  # noqa: E402
+from oscar_core._util.atomic import atomic_output, sweep_dead_temporaries  # noqa: E402
 from oscar_core.cli import main  # noqa: E402
 from oscar_core.data.engine import StageRecomputed, read_fingerprint, read_stage, run_sharded, stage_parts  # noqa: E402
 from oscar_core.data.run import StaleStage  # noqa: E402
@@ -238,7 +238,7 @@ def test_a_killed_writers_temporary_is_swept_by_the_next_write_and_a_live_ones_k
     folder.mkdir()
     _killed_writer(f"""
         import time
-        from oscar_core._atomic import atomic_output
+        from oscar_core._util.atomic import atomic_output
         with atomic_output({str(folder / 'x.json')!r}) as tmp:
             tmp.write_text("half")
             print("READY", flush=True)
@@ -257,7 +257,7 @@ def test_a_killed_render_and_a_killed_export_shard_are_swept_by_the_next_run(tmp
     vids.mkdir()
     _killed_writer(f"""
         import time
-        from oscar_core.video import VideoWriter
+        from oscar_core.media.video import VideoWriter
         import numpy as np
         w = VideoWriter({str(vids / 'a.mkv')!r}, 15, size=(32, 32))
         w.__enter__()
@@ -265,7 +265,7 @@ def test_a_killed_render_and_a_killed_export_shard_are_swept_by_the_next_run(tmp
         print("READY", flush=True)
         time.sleep(60)
         """, vids, lambda: any(".tmp" in p.name for p in vids.iterdir()))
-    from oscar_core.video import VideoWriter
+    from oscar_core.media.video import VideoWriter
 
     with VideoWriter(vids / "b.mkv", 15, size=(32, 32)) as w:  # another target in the same folder
         w.write(np.zeros((2, 32, 32, 3), np.uint8))
@@ -289,7 +289,7 @@ def test_a_killed_render_and_a_killed_export_shard_are_swept_by_the_next_run(tmp
 
 
 def test_pools_never_fork_this_process():
-    from oscar_core.batch_render import RenderOptions, _pool_context
+    from oscar_core.render.batch import RenderOptions, _pool_context
     from oscar_core.data.engine import _pool_context as data_context
 
     assert _pool_context([], RenderOptions()).get_start_method() in ("forkserver", "spawn")
@@ -302,7 +302,7 @@ def test_two_render_pools_in_one_process_after_threads_exist(tmp_path):
         import threading, time
         from pathlib import Path
         from oscar_core import load_trajectory, save_trajectory
-        from oscar_core.batch_render import EpisodeSpec, render_many
+        from oscar_core.render.batch import EpisodeSpec, render_many
         root, assets = Path({str(tmp_path)!r}), Path({str(ASSETS)!r})
         cam = assets / "example_camera.json"
         stop = threading.Event()
@@ -381,7 +381,7 @@ def test_workers_die_with_a_killed_parent(tmp_path):
 
 def test_render_many_resume_skips_unchanged_episodes_and_redoes_changed_ones(tmp_path):
     from oscar_core import load_trajectory, save_trajectory
-    from oscar_core.batch_render import EpisodeSpec, RenderOptions, record_path, render_many
+    from oscar_core.render.batch import EpisodeSpec, RenderOptions, record_path, render_many
 
     trajs = []
     for i in range(2):

@@ -7,8 +7,8 @@ import warnings
 
 import pytest
 
-from oscar_core import _threads
-from oscar_core._threads import ThreadOversubscriptionWarning, check_threads, default_threads, idle_cpus
+from oscar_core._util import threads as _threads
+from oscar_core._util.threads import ThreadOversubscriptionWarning, check_threads, default_threads, idle_cpus
 
 
 @pytest.fixture

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from oscar_core.cli import main
-from oscar_core.pipeline import project_skeleton
-from oscar_core.registry import Registry, default_registry
+from oscar_core.render.skeleton_video import project_skeleton
+from oscar_core.plugin.registry import Registry, default_registry
 from oscar_core.toyworld.episode import episode_rng, link_radii, make_episode, render_world
 from oscar_core.toyworld.evaluate import evaluate_clip, evaluate_conditions
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
@@ -162,7 +162,7 @@ def _segment_distance(px, a, b):
 def test_every_arm_pixel_lies_on_a_capsule_of_the_rendered_skeleton(name):
     emb = REG.get(name)
     ep = make_episode(emb, episode_rng(1, name, 0), 64, 48, 9, ss=1)
-    # the skeleton renderer's own projection (oscar_core.pipeline), not the toy renderer's
+    # the skeleton renderer's own projection (oscar_core.render.skeleton_video), not the toy renderer's
     proj = project_skeleton(emb, ep.trajectory, ep.camera)
     edges = emb.edge_index()
     radii = link_radii(len(edges), ep.motion.scale)

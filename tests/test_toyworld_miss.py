@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from oscar_core.camera import project
+from oscar_core.camera.pinhole import project
 from oscar_core.cli import main
-from oscar_core.registry import default_registry
+from oscar_core.plugin.registry import default_registry
 from oscar_core.toyworld.episode import episode_rng, make_episode, miss_rng
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 from oscar_core.toyworld.motion import (
@@ -176,8 +176,8 @@ def test_without_a_miss_generator_the_episode_stream_is_left_alone():
 def test_a_rerun_with_another_miss_fraction_is_refused_and_more_episodes_are_added(tmp_path):
     """toyworld generate fingerprints what every episode depends on: a changed --pick-miss into the same folder
     is refused (naming it) instead of mixing two kinds of episodes; more episodes only add shards."""
-    from oscar_core._stage import StageChanged
-    from oscar_core.registry import Registry
+    from oscar_core._util.stage import StageChanged
+    from oscar_core.plugin.registry import Registry
     from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 
     reg, out = Registry(), tmp_path / "set"

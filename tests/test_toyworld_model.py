@@ -10,8 +10,8 @@ import torch
 
 import oscar_zoo
 from oscar_core.model.sampler import SamplerConfig
-from oscar_core.pipeline import render_skeleton_video
-from oscar_core.registry import Registry
+from oscar_core.render.skeleton_video import render_skeleton_video
+from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.episode import episode_rng, make_episode
 from oscar_core.toyworld.evaluate import evaluate_clip
 
@@ -87,9 +87,9 @@ def test_cli_rollout_on_a_held_out_embodiment(tmp_path):
     """The issue's command: `oscar rollout --model oscar-toy --embodiment hsr ...`, offline, on an unseen body."""
     import cv2
 
-    from oscar_core.camera import save_camera
-    from oscar_core.trajectory import save_trajectory
-    from oscar_core.video import read_video
+    from oscar_core.camera.pinhole import save_camera
+    from oscar_core.kinematics.trajectory import save_trajectory
+    from oscar_core.media.video import read_video
 
     emb = REG.get("hsr")
     ep = make_episode(emb, episode_rng(1, "hsr", 9), 64, 64, 17)

@@ -7,7 +7,7 @@ import torch
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 from oscar_core.model.world_model import ModelCard, OscarWorldModel
-from oscar_core.registry import Registry
+from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.demo import side_by_side
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 from oscar_core.toyworld.rollouts import sampler_for_card, skeleton_partners, write_rollouts
@@ -88,7 +88,7 @@ def test_train_split_shuffles_across_clips_and_resume_keeps_written(tmp_path, cl
     s = write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3, sampler=FAST)
     assert (s["written"], s["kept"]) == (1, 2)
     # other settings into the same folder: refused, naming what changed, never "kept"
-    from oscar_core._stage import StageChanged
+    from oscar_core._util.stage import StageChanged
 
     with pytest.raises(StageChanged, match=r"seed: 0 -> 1.*use another --out"):
         write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3, sampler=FAST, seed=1)
@@ -127,7 +127,7 @@ def test_demo_adds_the_toy_world_row(tmp_path, model):
     summary = run_demo(tmp_path / "demo", size=(64, 48), names=["toyarm"], toy_model=str(folder), log=lambda m: None)
     assert (tmp_path / "demo" / "toyworld_rollout.mp4").is_file()
     assert summary["toy_world"]["episode"].startswith("franka-000009")
-    from oscar_core.video import read_video
+    from oscar_core.media.video import read_video
 
     v = read_video(tmp_path / "demo" / "toyworld_rollout.mp4")
     assert v.shape == (9, 64, 3 * 64 + 2 * 2, 3)  # three 32x32 panels scaled 2x, 2-pixel gaps

@@ -10,8 +10,8 @@ import torch
 from oscar_core.cli import main
 from oscar_core.model.tiny import build_tiny_vae
 from oscar_core.model.vae import VideoVAE
-from oscar_core.pipeline import render_skeleton_video
-from oscar_core.registry import Registry
+from oscar_core.render.skeleton_video import render_skeleton_video
+from oscar_core.plugin.registry import Registry
 from oscar_core.train.cache import cache_latents, window_starts
 from oscar_core.train.clips import ClipSet
 from oscar_core.train.config import config_from_dict

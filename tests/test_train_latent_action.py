@@ -50,7 +50,7 @@ def test_two_arms_fill_both_halves_and_rotation_deltas_are_local():
 
 def test_features_through_the_embodiment_fk():
     from oscar_core import load_trajectory
-    from oscar_core.registry import Registry
+    from oscar_core.plugin.registry import Registry
 
     emb = Registry().get("toyarm")
     traj = load_trajectory(emb.example_trajectory).time_slice(0, 9)

@@ -223,7 +223,7 @@ def test_on_the_fly_rendering_and_encoding(tmp_path):
     item = data.planner().plan(0, 1)[0]
     got = data.load_item(item, "skeleton")
     # the skeleton latent is the VAE's encoding of the skeleton rendered at the training size (crop 48x32 -> 32x32)
-    from oscar_core.pipeline import fit_image, render_skeleton_video
+    from oscar_core.render.skeleton_video import fit_image, render_skeleton_video
 
     clip = ClipSet(clips).load("toy-0", registry=data.registry)
     skel = render_skeleton_video(data.embodiment("toyarm"), clip.trajectory, clip.camera, (32, 32))
@@ -271,7 +271,7 @@ def test_unknown_embodiment_and_missing_field(tmp_path, clipset):
 
 
 def test_video_and_trajectory_lengths_must_agree(tmp_path, clipset):
-    from oscar_core.trajectory import load_trajectory, save_trajectory
+    from oscar_core.kinematics.trajectory import load_trajectory, save_trajectory
 
     bad = tmp_path / "bad"
     shutil.copytree(clipset, bad)
@@ -281,7 +281,7 @@ def test_video_and_trajectory_lengths_must_agree(tmp_path, clipset):
         TrainData(tiny(bad, tmp_path), None, 48)
     bad2 = tmp_path / "bad2"
     shutil.copytree(clipset, bad2)
-    from oscar_core.video import read_video, write_video
+    from oscar_core.media.video import read_video, write_video
 
     video = _shard(bad2) / "toy-1" / "rgb.mkv"
     write_video(video, read_video(video)[:11], 15.0)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from oscar_core.errors import OutputPathError
-from oscar_core.video import read_video, video_info, write_video
+from oscar_core.media.video import read_video, video_info, write_video
 
 
 def random_frames(T=6, H=37, W=53, seed=0):

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import quote
 
-from oscar_core._atomic import atomic_write_bytes
+from oscar_core._util.atomic import atomic_write_bytes
 from oscar_core.errors import OscarError
 from oscar_core.model.errors import CheckpointLayoutError
 

@@ -66,7 +66,7 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
     CPU between encode/decode calls; offload_text: keep the DiT's text
     projection on the CPU (see ``OscarWorldModel.from_modules``).
     """
-    from oscar_core._devices import check_device
+    from oscar_core._util.devices import check_device
     from oscar_core.model.errors import ModelInputError
     from oscar_core.model.layouts import load_folder
 

@@ -21,7 +21,7 @@ import os
 import re
 from pathlib import Path
 
-from oscar_core._atomic import atomic_write_bytes
+from oscar_core._util.atomic import atomic_write_bytes
 from oscar_core.model.errors import CheckpointLayoutError
 
 from ._table import CHECKPOINTS, KINDS, CheckpointSpec, FileSpec

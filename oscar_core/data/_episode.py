@@ -15,7 +15,7 @@ __all__ = ["registry", "load_row", "reason_of", "camera_at_video_size"]
 @functools.lru_cache(maxsize=4)
 def registry(plugin_paths: tuple[str, ...] = ()):
     """The embodiment + reader registry of this process (plugin files added by ``--plugin``)."""
-    from ..registry import Registry
+    from ..plugin.registry import Registry
 
     return Registry(plugin_paths=plugin_paths)
 

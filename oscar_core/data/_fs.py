@@ -7,7 +7,7 @@ temporary name beside the target, which is then moved onto it (a rename on
 local disks); readers only ever see complete files. The temporary's name
 carries the writer's pid, and on a local disk the first write of a process
 into a folder removes the temporaries of dead processes there
-(:func:`oscar_core._atomic.sweep_dead_temporaries`).
+(:func:`oscar_core._util.atomic.sweep_dead_temporaries`).
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def write_bytes_atomic(url: str, data: bytes) -> None:
     folder = posixpath.dirname(path)
     fs.makedirs(folder, exist_ok=True)
     if _is_local_fs(fs):
-        from .._atomic import sweep_once
+        from .._util.atomic import sweep_once
 
         sweep_once(folder)
     # the writer's pid in the name: the next writer into this folder sweeps it if this process dies first

@@ -1,7 +1,7 @@
-"""Optional dependencies of the data pipeline: the package-wide helper (:mod:`oscar_core._optional`)."""
+"""Optional dependencies of the data pipeline: the package-wide helper (:mod:`oscar_core._util.optional`)."""
 
 from __future__ import annotations
 
-from .._optional import require
+from .._util.optional import require
 
 __all__ = ["require"]

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from .._cli_types import count, device, number
+from .._util.arg_types import count, device, number
 
 __all__ = ["add_data_parser"]
 
@@ -41,10 +41,10 @@ def _kw(args) -> dict:
 
 
 def _run_log(run: str, stage: str):
-    """``RUN/logs/data-<stage>-<UTC>.log`` for a local run folder (``oscar_core._log.run_log``); nothing for a URL."""
+    """``RUN/logs/data-<stage>-<UTC>.log`` for a local run folder (``oscar_core._util.log.run_log``); nothing for a URL."""
     import contextlib
 
-    from .._log import run_log
+    from .._util.log import run_log
 
     if "://" in str(run) and not str(run).startswith("file://"):
         return contextlib.nullcontext()
@@ -112,7 +112,7 @@ def cmd_caption(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from ..pipeline import parse_size
+    from ..render.skeleton_video import parse_size
     from .run import run_export
 
     size = parse_size(args.size) if args.size else None

@@ -21,7 +21,7 @@ not recorded, and is done again on the next run.
 ``fingerprint.json`` (written before any shard, atomically) records what the
 stage's output depends on: the stage, its input (the previous stage's
 fingerprint and a hash of the episode ids), its effective settings, its model
-and a format version (:mod:`oscar_core._stage`). A re-run with other parts
+and a format version (:mod:`oscar_core._util.stage`). A re-run with other parts
 recomputes the stage — its plan, shards, completions and manifest are
 deleted first, and a warning names what changed — so a completion record
 always belongs to the settings in the fingerprint beside it. A stage folder
@@ -40,8 +40,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from .. import _stage
-from .._log import get_logger
+from .._util import stage as _stage
+from .._util.log import get_logger
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 
@@ -137,7 +137,7 @@ def _plan(rows: list[dict], shard_size: int) -> dict[str, list[str]]:
 
 
 def _worker_init() -> None:
-    from .._interrupt import worker_ignores_interrupt
+    from .._util.interrupt import worker_ignores_interrupt
 
     worker_ignores_interrupt()  # Ctrl-C: the parent stops the pool
     # one thread per worker process: the pool already uses every core
@@ -156,7 +156,7 @@ def _worker_init() -> None:
 
 
 # modules a worker needs: imported once by the fork server, inherited by every worker it forks
-_PRELOAD = ["numpy", "cv2", "torch", "av", "pyarrow", "oscar_core.registry", "oscar_core.pipeline",
+_PRELOAD = ["numpy", "cv2", "torch", "av", "pyarrow", "oscar_core.plugin.registry", "oscar_core.render.skeleton_video",
             "oscar_core.data.ingest", "oscar_core.data.filters", "oscar_core.data.dedup", "oscar_core.data.export",
             "oscar_core.data.caption"]
 
@@ -265,7 +265,7 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     (:func:`use_fingerprint`). Returns a :class:`StageRun`. Worker processes
     import the calling script again: a script calls this under
     ``if __name__ == "__main__":`` (else ``MainGuardError`` before the pool
-    starts; ``oscar_core._main_guard``).
+    starts; ``oscar_core._util.main_guard``).
     """
     if engine not in ENGINES:
         raise ValueError(f"--engine: expected one of {list(ENGINES)}, found {engine!r}")
@@ -295,10 +295,10 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     tasks = [(n, [by_id[i] for i in plan[n]]) for n in todo]
     results: list[tuple[str, int, bool]] = []
     if tasks:
-        from .._log import progress_bar
+        from .._util.log import progress_bar
 
         bar = progress_bar(total=len(tasks), desc=desc or stage_url, unit="shard", enabled=progress)
-        from .._threads import check_threads, default_threads
+        from .._util.threads import check_threads, default_threads
 
         if workers:
             check_threads(workers, "--workers")
@@ -315,8 +315,8 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         else:
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
-            from .._interrupt import stop_pool
-            from .._main_guard import check_main_guard
+            from .._util.interrupt import stop_pool
+            from .._util.main_guard import check_main_guard
 
             check_main_guard(f"run_sharded(workers={n_workers})")  # a script's unguarded top level would run again
             with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_stage.worker_initializer,

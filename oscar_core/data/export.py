@@ -7,7 +7,7 @@ export resumes shard by shard. Each clip is the whole episode: RGB frames
 (resized to ``size`` when given, the camera rescaled the same way), the
 trajectory, the camera, the open/close signal, the caption (or none) and the
 dataset's task text. The skeleton is rendered on the fly by the trainer by
-default; ``render_skeleton`` stores it (``oscar_core.pipeline.render_skeleton_video``).
+default; ``render_skeleton`` stores it (``oscar_core.render.skeleton_video.render_skeleton_video``).
 The clip set may be a local folder or an fsspec URL (``s3://…``; the trainer
 reads a local copy).
 Clip ids are the episode id with ``/`` and other characters outside
@@ -86,7 +86,7 @@ class ExportStage:
         return out
 
     def _clip(self, row: dict):
-        from ..pipeline import fit_image, render_skeleton_video
+        from ..render.skeleton_video import fit_image, render_skeleton_video
         from ..train.clips import Clip, ClipRecord, clip_openness
 
         ep, emb = load_row(row, self.plugin_paths)

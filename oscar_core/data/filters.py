@@ -191,7 +191,7 @@ class FilterStage:
         return [self.one(r) if is_alive(r) else r for r in rows]
 
     def measure(self, row: dict) -> dict[str, float]:
-        from ..pipeline import project_skeleton
+        from ..render.skeleton_video import project_skeleton
 
         cfg = self.config
         ep, emb = load_row(row, self.plugin_paths)

@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from .._log import get_logger
+from .._util.log import get_logger
 from ..metrics.report_html import browser_image, relative_url, render_page
 from . import _fs
 from .engine import read_stage

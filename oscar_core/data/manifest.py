@@ -32,7 +32,7 @@ import json
 from typing import Any, Iterable
 
 from ._optional import require
-from ..reader import EpisodeRef
+from ..plugin.reader import EpisodeRef
 
 __all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet",
            "table_from_parquet", "table_to_parquet", "is_alive",

@@ -24,7 +24,7 @@ import json
 import os
 from typing import Any
 
-from .. import _stage
+from .._util import stage as _stage
 from . import _fs
 from .engine import StageRun, read_fingerprint, read_stage, run_sharded, stage_parts, use_fingerprint
 from .manifest import rows_to_parquet
@@ -164,7 +164,7 @@ def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, 
     check_workers_see(out, kw.get("engine", "local"), kw.get("workers"))
     prev, rows = input_rows(run, "export")
     if size:  # refuse a --size no episode fits in memory at before any work (--size 100000x100000: 447 GiB)
-        from .._memory import check_fits
+        from .._util.memory import check_fits
         from .manifest import is_alive
 
         longest = max((int(r.get("length") or 0) for r in rows if is_alive(r)), default=0)
@@ -173,7 +173,7 @@ def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, 
     out = str(out)
     where = os.path.abspath(_fs.local_path(out)) if _fs.is_local(out) else out
     if _fs.is_local(out):
-        from .._atomic import sweep_dead_temporaries
+        from .._util.atomic import sweep_dead_temporaries
 
         sweep_dead_temporaries(where)  # shard folders of killed exports
     stage = ExportStage(out, tuple(size) if size else None, render_skeleton, video_codec, tuple(plugin_paths))

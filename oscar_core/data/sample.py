@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .._util.atomic import atomic_write_bytes
 from ._optional import require
 
 __all__ = ["write_sample_dataset", "EXPECTED", "VIDEO_KEY", "CAMERA"]
@@ -80,9 +80,9 @@ def write_sample_dataset(out, *, frames: int = 80, size: tuple[int, int] = (192,
     from oscar_embodiments.franka.adapters import from_droid
 
     from .. import load_camera
-    from ..pipeline import render_skeleton_video
-    from ..registry import Registry
-    from ..video import write_video
+    from ..render.skeleton_video import render_skeleton_video
+    from ..plugin.registry import Registry
+    from ..media.video import write_video
 
     out = Path(out)
     if out.exists() and any(out.iterdir()):

@@ -10,7 +10,7 @@ Names are re-exported flat; submodules load on first use (no torch at import).
 
 from __future__ import annotations
 
-from .._lazy import lazy_exports
+from .._util.lazy import lazy_exports
 
 _EXPORTS = {
     "Cell": "manifest", "Manifest": "manifest", "ManifestError": "manifest", "load_manifest": "manifest",

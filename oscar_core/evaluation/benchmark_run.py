@@ -20,7 +20,7 @@ frames generated), each written atomically; a clip whose record exists is
 skipped, so a killed run resumes. ``DIR/fingerprint.json`` holds the model's
 identity and card, the sampler, the seed, the prompt mode and the set's
 fingerprint: a run with other settings into the same ``DIR`` is refused
-(:class:`oscar_core._stage.StageChanged`, naming what changed).
+(:class:`oscar_core._util.stage.StageChanged`, naming what changed).
 
 Speed: frames/s = frames generated (``frames - 1``: the first frame is the
 input) / wall seconds of the rollout call (sampling, VAE encode and decode;
@@ -37,10 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _stage
-from .._atomic import atomic_write_bytes, sweep_dead_temporaries
-from .._log import get_logger, progress_bar
-from ..conditions import video_condition_of
+from .._util import stage as _stage
+from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
+from .._util.log import get_logger, progress_bar
+from ..render.conditions import video_condition_of
 
 __all__ = ["PROMPT_MODES", "rollout_clip", "run_benchmark", "read_timing"]
 
@@ -90,11 +90,11 @@ def run_benchmark(model, bench: dict, out, *, sampler, seed: int = 0, prompt: st
                   model_id: str | None = None) -> dict:
     """Roll ``model`` out on every clip of ``bench`` (a loaded set) into ``out``; see the module.
 
-    model_id: what names the weights (:func:`oscar_core._stage.model_identity`
+    model_id: what names the weights (:func:`oscar_core._util.stage.model_identity`
     of the spec loaded). Returns written / kept counts and the mean frames/s of
     the rollouts made now.
     """
-    from ..registry import Registry
+    from ..plugin.registry import Registry
     from ..train.clips import ClipSet
 
     if prompt not in PROMPT_MODES:

@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _stage
-from .._atomic import atomic_write_bytes
-from .._log import get_logger, progress_bar
+from .._util import stage as _stage
+from .._util.atomic import atomic_write_bytes
+from .._util.log import get_logger, progress_bar
 from ..errors import OscarError
 from . import benchmark_rules as rules
 
@@ -74,7 +74,7 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
     (None: every clip); text: ``prompt`` or ``hash`` (see the module). Returns
     the set (the JSON written).
     """
-    from ..registry import Registry
+    from ..plugin.registry import Registry
     from ..train.clips import ClipSet
 
     if total < 1 or frames < 2:

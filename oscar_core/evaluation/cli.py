@@ -31,8 +31,8 @@ import json
 import os
 from pathlib import Path
 
-from .._cli_types import count, default_device, device_name, interval, number
-from .._log import progress_bars_enabled, run_log
+from .._util.arg_types import count, default_device, device_name, interval, number
+from .._util.log import progress_bars_enabled, run_log
 from ..metrics._common import MetricInputError
 from ..model.compile_policy import add_compile_options
 from ..model.presets import SAMPLER_PRESETS
@@ -110,7 +110,7 @@ def cmd_eval_run(args) -> int:
     from .manifest import load_manifest
 
     if args.engine != "ray" and args.device is not None:  # local rollouts: the device must be this machine's
-        from .._devices import device_problem
+        from .._util.devices import device_problem
 
         problem = device_problem(args.device)
         if problem is not None:  # --engine ray's workers may run where this machine's devices do not matter

@@ -14,8 +14,8 @@ import argparse
 import json
 from pathlib import Path
 
-from .._cli_types import count, default_device, device, interval, number
-from .._log import run_log
+from .._util.arg_types import count, default_device, device, interval, number
+from .._util.log import run_log
 from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_benchmark_parser"]
@@ -30,7 +30,7 @@ EXAMPLES = """examples:
 
 
 def cmd_build(args) -> int:
-    from ..registry import Registry
+    from ..plugin.registry import Registry
     from .benchmark_set import build_benchmark_set
 
     data = build_benchmark_set(args.clipsets, args.out, args.total, frames=args.frames, clusters=args.clusters,
@@ -53,9 +53,9 @@ def cmd_run(args) -> int:
 
     import oscar_zoo
 
-    from .._stage import model_identity
+    from .._util.stage import model_identity
     from ..model.sampler import sampler_from_options
-    from ..registry import Registry
+    from ..plugin.registry import Registry
     from .benchmark_run import run_benchmark
     from .benchmark_set import load_benchmark_set
 
@@ -90,7 +90,7 @@ def _parse_rows(values) -> dict[str, str]:
 
 
 def cmd_table(args) -> int:
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
     from ..metrics.networks import resolve_networks
     from .benchmark_set import load_benchmark_set
     from .benchmark_table import benchmark_table, format_benchmark_table

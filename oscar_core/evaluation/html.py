@@ -23,7 +23,7 @@ import json
 from pathlib import Path
 
 from ..metrics.report_html import browser_video, relative_url, render_page
-from .._log import get_logger, progress_bar
+from .._util.log import get_logger, progress_bar
 from .manifest import Manifest
 
 __all__ = ["write_html_report", "media_path"]

@@ -46,9 +46,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _stage
-from .._atomic import atomic_write_bytes, sweep_dead_temporaries
-from .._log import get_logger, progress_bar
+from .._util import stage as _stage
+from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
+from .._util.log import get_logger, progress_bar
 from ..metrics._common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
@@ -131,7 +131,7 @@ class _LazyModel:
 
 def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
     from ..errors import OscarError
-    from ..registry import get_embodiment
+    from ..plugin.registry import get_embodiment
 
     for cell in manifest.cells:
         try:
@@ -225,7 +225,7 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
 
     def record(k: int, cell: Cell, key: str, frames: np.ndarray, fps: float, seconds: float, batch: int) -> None:
         """Write one rolled-out cell's video, then its record (the record last: a killed run redoes the cell)."""
-        from ..video import write_video
+        from ..media.video import write_video
 
         rpath, vpath = record_path(out, cell), video_path(out, cell)
         vpath.parent.mkdir(parents=True, exist_ok=True)

@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
-from .._log import get_logger
+from .._util.atomic import atomic_write_bytes
+from .._util.log import get_logger
 from ..metrics._common import MetricInputError, nan_to_none
 from .manifest import Manifest
 

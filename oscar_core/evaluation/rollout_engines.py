@@ -51,9 +51,9 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     condition video (the card's: skeleton, mesh or capsules; None for a latent-action model), ``actions``
     (T − 1, 14) for a latent-action model (else None), ``prompt`` (1, L, D) or None, ``fps``."""
     from ..model._image import read_first_frame
-    from ..pipeline import fit_image
-    from ..registry import get_embodiment
-    from ..trajectory import load_trajectory
+    from ..render.skeleton_video import fit_image
+    from ..plugin.registry import get_embodiment
+    from ..kinematics.trajectory import load_trajectory
 
     emb = get_embodiment(cell.embodiment, plugin_paths)
     traj = load_trajectory(cell.trajectory)
@@ -66,7 +66,7 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     if hasattr(model, "rollout_inputs"):  # an OscarWorldModel
         cond = model.rollout_inputs(traj, camera, emb, size, resize_mode="crop", camera_source=str(cell.camera))
     else:  # any model with rollout(first, skeleton, prompt, ...) (evaluation/loop.py): the card's condition video
-        from ..conditions import condition_video, video_condition_of
+        from ..render.conditions import condition_video, video_condition_of
 
         cond = {"skeleton": condition_video(video_condition_of(card.condition), emb, traj, camera, size,
                                             resize_mode="crop", camera_source=str(cell.camera))}
@@ -152,7 +152,7 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
                     log: Callable[[str], None], compile: str = "auto") -> None:
     """Roll the ``pending`` cells ((index, cell, rollout key), manifest order) out on ``workers`` Ray actors and
     call ``record(index, cell, key, frames, fps, seconds, batch)`` for each as its group comes back."""
-    from .._optional import require
+    from .._util.optional import require
 
     ray = require("ray", "ray")
     if not ray.is_initialized():

@@ -21,7 +21,7 @@ this package does not import torch.
 
 from __future__ import annotations
 
-from .._lazy import lazy_exports
+from .._util.lazy import lazy_exports
 
 _EXPORTS = {
     "MetricInputError": "_common",

@@ -146,7 +146,7 @@ def _flat(result, expected: int, what: str) -> np.ndarray:
 
 
 def load_video(path, *, max_frames: int | None = None) -> np.ndarray:
-    """Read a video file or PNG-frame folder (via ``oscar_core.video.read_video``, else PyAV / OpenCV),
+    """Read a video file or PNG-frame folder (via ``oscar_core.media.video.read_video``, else PyAV / OpenCV),
     or a ``.npy`` array, into a (T, H, W, 3) array; ``max_frames`` stops reading early."""
     p = Path(path)
     if not p.exists():
@@ -155,8 +155,8 @@ def load_video(path, *, max_frames: int | None = None) -> np.ndarray:
         arr = np.load(p, mmap_mode="r")
         return _as_array(np.array(arr[:max_frames] if max_frames else arr), str(p))  # copy: writable, in RAM
     try:
-        from ..video import read_video
-    except ImportError:  # oscar_core.video not available: PyAV / OpenCV directly
+        from ..media.video import read_video
+    except ImportError:  # oscar_core.media.video not available: PyAV / OpenCV directly
         read_video = _read_video_fallback
     try:
         video = read_video(p, max_frames=max_frames) if max_frames else read_video(p)

@@ -57,8 +57,8 @@ import argparse
 import json
 import sys
 
-from .._cli_types import count, device
-from .._log import progress_bars_enabled
+from .._util.arg_types import count, device
+from .._util.log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _write_json, collect_clips, collect_judge_videos, read_policy_results, \
     read_preferences, read_tasks

@@ -227,6 +227,6 @@ def read_tasks(path, videos) -> list:
 
 
 def _write_json(path, data) -> None:
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
 
     atomic_write_bytes(Path(path), (json.dumps(data, indent=2) + "\n").encode())

@@ -59,8 +59,8 @@ import os
 import sys
 from pathlib import Path
 
-from .._cli_types import count, number
-from .._log import progress_bars_enabled
+from .._util.arg_types import count, number
+from .._util.log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _write_json, collect_judge_videos, read_tasks
 
@@ -256,7 +256,7 @@ def cmd_eval_pairwise(args) -> int:
     if args.out:
         _write_json(args.out, data)
     if args.preferences_out:
-        from .._atomic import atomic_write_bytes
+        from .._util.atomic import atomic_write_bytes
 
         lines = [json.dumps({"a": v.a, "b": v.b, "winner": v.winner, "pair": v.pair}) for v in verdicts if v.ok]
         atomic_write_bytes(Path(args.preferences_out), "".join(line + "\n" for line in lines).encode())

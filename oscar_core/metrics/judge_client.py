@@ -404,6 +404,6 @@ def _cache_read(cache_dir: Path | None, key: str) -> dict | None:
 def _cache_write(cache_dir: Path | None, key: str, entry: dict) -> None:
     if cache_dir is None:
         return
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
 
     atomic_write_bytes(cache_dir / f"{key}.json", (json.dumps(entry, indent=1, ensure_ascii=False) + "\n").encode())

@@ -199,7 +199,7 @@ def save_figure(fig, path, *, extra_formats: Sequence[str] = ()) -> Path:
     Returns ``path``. PNGs are written at the figure's dpi without a tight
     bounding box, so they are exactly ``figsize × dpi`` pixels.
     """
-    from .._atomic import atomic_output
+    from .._util.atomic import atomic_output
 
     path = Path(path)
     targets = [(path, _format_of(path))]

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._cli_types import count
+from .._util.arg_types import count
 from ._common import MetricInputError
 from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
 

@@ -24,7 +24,7 @@ from urllib.parse import quote
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .._util.atomic import atomic_write_bytes
 
 __all__ = ["TEMPLATES", "render_page", "browser_video", "browser_image", "relative_url", "even_size"]
 
@@ -81,7 +81,7 @@ def browser_video(source, dest, *, fps: float | None = None, min_height: int = 1
     this are scaled up by an integer factor (nearest neighbour), so a 64 x 64
     toy clip is not a smudge in the browser's 2x layout. Returns ``dest``.
     """
-    from ..video import VideoWriter
+    from ..media.video import VideoWriter
 
     dest = Path(dest)
     if not isinstance(source, np.ndarray):

@@ -43,7 +43,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from .._atomic import atomic_write_bytes
+from .._util.atomic import atomic_write_bytes
 from ._common import MetricInputError
 
 __all__ = ["WeightFile", "WEIGHTS", "WeightHashError", "weights_cache_dir", "pull_weights", "weight_path",

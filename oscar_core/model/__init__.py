@@ -6,7 +6,7 @@ takes seconds; ``import oscar_core.model`` does not).
 
 from __future__ import annotations
 
-from .._lazy import lazy_exports
+from .._util.lazy import lazy_exports
 
 _EXPORTS = {
     "OscarTransformer3DModel": "transformer",

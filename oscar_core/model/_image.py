@@ -1,4 +1,4 @@
-"""Reading the first frame (fitting it to the rollout size: :func:`oscar_core.pipeline.fit_image`)."""
+"""Reading the first frame (fitting it to the rollout size: :func:`oscar_core.render.skeleton_video.fit_image`)."""
 
 from __future__ import annotations
 

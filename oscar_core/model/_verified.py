@@ -21,7 +21,7 @@ import json
 import os
 from pathlib import Path
 
-from .._log import get_logger
+from .._util.log import get_logger
 
 __all__ = ["file_sha256", "sha256_file", "verified_dir"]
 
@@ -71,7 +71,7 @@ def file_sha256(path) -> str:
     digest = sha256_file(real)
     if _identity(real) == before:  # unchanged while it was read: the digest belongs to this identity
         try:
-            from .._atomic import atomic_write_bytes
+            from .._util.atomic import atomic_write_bytes
 
             record.parent.mkdir(parents=True, exist_ok=True)
             atomic_write_bytes(record, json.dumps({"path": str(real), "identity": before, "sha256": digest}).encode())

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cli_types import count, default_device, device, interval, number
+from .._util.arg_types import count, default_device, device, interval, number
 from .presets import SAMPLER_PRESETS
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
@@ -261,7 +261,7 @@ def cmd_encode_prompt(args) -> int:
     if args.out:
         from safetensors.torch import save_file
 
-        from .._atomic import atomic_output
+        from .._util.atomic import atomic_output
 
         with atomic_output(args.out) as tmp:
             save_file({"prompt_embeds": embeds.contiguous()}, str(tmp),
@@ -324,7 +324,7 @@ def _prompt_embeds(args, model, device) -> tuple:
 
 
 def _rollout_size(args, card, camera) -> tuple[int, int]:
-    from ..pipeline import parse_size
+    from ..render.skeleton_video import parse_size
     from .errors import ModelInputError
 
     if args.size:
@@ -350,10 +350,10 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
-    from ..conditions import condition_video, video_condition_of
-    from ..pipeline import fit_image
-    from ..registry import get_embodiment
-    from ..trajectory import load_trajectory
+    from ..render.conditions import condition_video, video_condition_of
+    from ..render.skeleton_video import fit_image
+    from ..plugin.registry import get_embodiment
+    from ..kinematics.trajectory import load_trajectory
     from ._image import read_first_frame
     from .sampler import sampler_from_options
 
@@ -368,13 +368,13 @@ def cmd_rollout(args) -> int:
                                    batched_cfg=not args.two_pass_cfg, solver=args.solver,
                                    action_guidance=getattr(args, "action_guidance", None))
     # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
-    from ..pipeline import parse_size
-    from ..video import check_output
+    from ..render.skeleton_video import parse_size
+    from ..media.video import check_output
 
     size = parse_size(args.size) if args.size else None
     check_output(args.out, size=size)
     if size is not None:  # the skeleton video of the whole trajectory is held in memory
-        from .._memory import check_fits
+        from .._util.memory import check_fits
 
         check_fits((len(traj), size[1], size[0], 3), 1, "the skeleton video (T, H, W, 3) uint8 at --size",
                    "use a smaller --size")
@@ -497,8 +497,8 @@ def _write_streams(chunks, skeleton, out, side_path, fps):
 
     import numpy as np
 
-    from ..pipeline import overlay_skeleton
-    from ..video import write_video
+    from ..render.skeleton_video import overlay_skeleton
+    from ..media.video import write_video
 
     done = object()
     side_q: queue.Queue = queue.Queue(maxsize=4)

@@ -36,7 +36,7 @@ import os
 import weakref
 from pathlib import Path
 
-from .._log import get_logger
+from .._util.log import get_logger
 from .errors import ModelInputError
 
 __all__ = [

@@ -29,7 +29,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from .._atomic import atomic_output
+from .._util.atomic import atomic_output
 from .errors import CheckpointIntegrityError, ModelInputError
 
 __all__ = ["PromptEmbeddingCache", "empty_prompt_embeds", "prompt_key", "default_cache_dir", "check_prompt_embeds"]

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from .._log import get_logger
-from ..conditions import CONDITIONS as VIDEO_CONDITIONS
+from .._util.log import get_logger
+from ..render.conditions import CONDITIONS as VIDEO_CONDITIONS
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
 from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
 from ._weights import cast_model, check_safetensors
@@ -43,7 +43,7 @@ FORMAT = "oscar-world-model"
 DEFAULT_SAMPLER = SamplerConfig()  # frozen: one shared default for the rollout methods
 _log = get_logger(__name__)
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-# video conditions (skeleton, mesh, capsules: oscar_core.conditions) travel in the skeleton stream
+# video conditions (skeleton, mesh, capsules: oscar_core.render.conditions) travel in the skeleton stream
 CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 
 
@@ -162,7 +162,7 @@ class OscarWorldModel:
         verify: check every file against ``oscar_manifest.json`` (sha256) and
         the structure of every safetensors file before loading.
         """
-        from .._devices import check_device
+        from .._util.devices import check_device
 
         check_device(device, ModelInputError)  # before reading anything: safetensors would fail with a traceback
         folder = Path(folder)
@@ -433,7 +433,7 @@ class OscarWorldModel:
             from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
-        from ..conditions import condition_video, video_condition_of
+        from ..render.conditions import condition_video, video_condition_of
 
         if size is None and self.card.width and self.card.height:
             size = (self.card.width, self.card.height)
@@ -447,7 +447,7 @@ class OscarWorldModel:
         """Roll out along a trajectory, whatever the card's condition: skeleton rendered, or latent actions.
 
         first_frame: (H, W, 3) uint8 already at the rollout size; trajectory,
-        camera, embodiment: as :func:`oscar_core.pipeline.render_skeleton_video`
+        camera, embodiment: as :func:`oscar_core.render.skeleton_video.render_skeleton_video`
         takes them; size: (width, height) of the skeleton video (default: the
         first frame's). ``options``: :meth:`rollout`'s. Returns a RolloutResult.
         """

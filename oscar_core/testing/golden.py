@@ -40,7 +40,7 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
     """Write (H, W, 3) uint8 RGB as PNG, atomically."""
     import cv2
 
-    from .._atomic import atomic_output
+    from .._util.atomic import atomic_output
 
     path = Path(path)
     with atomic_output(path) as tmp:

@@ -14,7 +14,7 @@ Names are re-exported here flat; submodules load on first use. See docs/toyworld
 
 from __future__ import annotations
 
-from .._lazy import lazy_exports
+from .._util.lazy import lazy_exports
 
 _EXPORTS = {
     "ToyWorldError": "motion", "check_supported": "motion", "sample_motion": "motion", "carry_object": "motion",

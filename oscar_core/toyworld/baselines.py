@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
+from .._util.atomic import atomic_write_bytes
 
 __all__ = ["BASELINES", "write_baseline"]
 

@@ -38,7 +38,7 @@ def carry_rows(manifest, eval_out) -> list[dict]:
     """One row per manifest cell (module docstring); floor distances in ball radii, None where not found."""
     from ..evaluation.loop import video_path
     from ..evaluation.manifest import load_manifest
-    from ..video import read_video
+    from ..media.video import read_video
 
     m = load_manifest(manifest)
     pe = Path(manifest).parent / "policy_eval.json"
@@ -110,7 +110,7 @@ def add_carry_arguments(p) -> None:
 
 def cmd_carry(args) -> int:
     """``oscar toyworld carry``: print the per-policy table (and write rows + summary as JSON on request)."""
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
     from ..evaluation.manifest import load_manifest
 
     rows = carry_rows(args.manifest, args.eval_out)

@@ -11,8 +11,8 @@ import argparse
 import json
 from pathlib import Path
 
-from .._cli_types import count, interval, number
-from .._log import run_log
+from .._util.arg_types import count, interval, number
+from .._util.log import run_log
 from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
@@ -175,7 +175,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _registry(args):
-    from ..registry import Registry
+    from ..plugin.registry import Registry
 
     return Registry(plugin_paths=getattr(args, "plugin", None) or ())
 
@@ -183,7 +183,7 @@ def _registry(args):
 def cmd_generate(args) -> int:
     import torch
 
-    from ..pipeline import parse_size
+    from ..render.skeleton_video import parse_size
     from .generate import GenerateConfig, generate_clipset
 
     torch.set_num_threads(max(1, args.threads))
@@ -205,7 +205,7 @@ def cmd_generate(args) -> int:
 
 
 def cmd_train_vae(args) -> int:
-    from .._threads import check_threads, default_threads
+    from .._util.threads import check_threads, default_threads
     from .vae_train import VAETrainConfig, train_vae
 
     if args.threads is None:
@@ -247,7 +247,7 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
-    from .._stage import model_identity
+    from .._util.stage import model_identity
     from .rollouts import sampler_for_card, write_rollouts
 
     torch.set_num_threads(max(1, args.threads))
@@ -280,7 +280,7 @@ def cmd_package(args) -> int:
 
 def cmd_eval(args) -> int:
     from .evaluate import add_paired, evaluate_conditions, format_table, plot_table, parse_pred_args
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
 
     conditions = parse_pred_args(args.pred)
     if args.paired is not None and args.paired not in conditions:

@@ -21,8 +21,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from .. import _stage
-from .._log import get_logger, progress_bar
+from .._util import stage as _stage
+from .._util.log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode, miss_rng
 from .generate_legacy import check_legacy_clipset
@@ -65,12 +65,12 @@ _log = get_logger(__name__)
 def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str], None] | None = None) -> dict:
     """Generate (or resume) the clip set at ``out``; returns a summary with timings.
 
-    registry: an :class:`~oscar_core.registry.Registry` (plugins included).
-    A progress bar counts episodes (:func:`oscar_core._log.progress_bar`);
+    registry: an :class:`~oscar_core.plugin.registry.Registry` (plugins included).
+    A progress bar counts episodes (:func:`oscar_core._util.log.progress_bar`);
     each finished shard is logged at INFO and passed to ``progress`` if given.
     Unsupported embodiments are rejected before anything is written.
     """
-    from ..pipeline import render_skeleton_video
+    from ..render.skeleton_video import render_skeleton_video
 
     embs = [registry.get(n) for n in cfg.embodiments]
     for e in embs:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import re
 
-from .._stage import Legacy
+from .._util.stage import Legacy
 from ..train.clips import finished_clipset
 from .episode import miss_rng
 

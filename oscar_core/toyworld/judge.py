@@ -233,7 +233,7 @@ def agreement_with_real(manifest) -> dict:
     from types import SimpleNamespace
 
     from ..evaluation.manifest import load_manifest
-    from ..video import read_video
+    from ..media.video import read_video
 
     m = load_manifest(manifest)
     counts = {"tp": 0, "tn": 0, "fp": 0, "fn": 0}

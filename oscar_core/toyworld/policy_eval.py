@@ -39,12 +39,12 @@ from typing import Callable
 
 import numpy as np
 
-from .._cli_types import count, number
-from .._log import get_logger
-from ..camera import Camera, project
-from ..embodiment import Embodiment
-from ..trajectory import Trajectory
-from ..workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of
+from .._util.arg_types import count, number
+from .._util.log import get_logger
+from ..camera.pinhole import Camera, project
+from ..plugin.embodiment import Embodiment
+from ..kinematics.trajectory import Trajectory
+from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of
 from .motion import GRAB_RADII, Motion, ToyWorldError, carry_object, check_supported, min_jerk
 
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
@@ -298,11 +298,11 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
     Session ``i`` of embodiment ``e`` depends only on (seed, e, i); a session whose plan fails (no camera sees
     it all) is re-drawn with the next attempt number (recorded in the summary).
     """
-    from .._atomic import atomic_write_bytes
-    from ..camera import save_camera
-    from ..registry import Registry
-    from ..trajectory import save_trajectory
-    from ..video import write_video
+    from .._util.atomic import atomic_write_bytes
+    from ..camera.pinhole import save_camera
+    from ..plugin.registry import Registry
+    from ..kinematics.trajectory import save_trajectory
+    from ..media.video import write_video
     from .episode import render_world
 
     if sessions < 1:
@@ -400,8 +400,8 @@ def add_policy_eval_arguments(p) -> None:
 
 def cmd_policy_eval(args) -> int:
     """``oscar toyworld policy-eval``: write the manifest and print the true success rate per policy."""
-    from ..pipeline import parse_size
-    from ..registry import Registry
+    from ..render.skeleton_video import parse_size
+    from ..plugin.registry import Registry
 
     w, h = parse_size(args.size)
     names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())

@@ -24,7 +24,7 @@ layout ``oscar toyworld eval`` reads; a clip already written is skipped, so a
 killed run resumes. ``OUT/fingerprint.json`` records what the predictions
 depend on (model identity and card, condition, split and limit, the clips
 rolled out, sampler, seed, format version): a run with others into the same
-``OUT`` is refused (:class:`oscar_core._stage.StageChanged`, naming what
+``OUT`` is refused (:class:`oscar_core._util.stage.StageChanged`, naming what
 changed) instead of mixing predictions; use another ``--out``, or delete it
 to redo.
 """
@@ -39,9 +39,9 @@ from typing import Callable
 
 import numpy as np
 
-from .. import _stage
-from .._atomic import atomic_write_bytes, sweep_dead_temporaries
-from .._log import get_logger, progress_bar
+from .._util import stage as _stage
+from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
+from .._util.log import get_logger, progress_bar
 
 __all__ = ["CONDITIONS", "skeleton_partners", "write_rollouts", "sampler_for_card", "spread"]
 
@@ -97,14 +97,14 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
     embodiment is represented). sampler: a :class:`~oscar_core.model.sampler.SamplerConfig` (default: the
     library's, 35 UniPC steps, guidance 6 diffusers form); for ``zero`` its
     guidance is replaced by the unconditional branch. model_id: what names the
-    weights (``oscar_core._stage.model_identity`` of the spec loaded; None:
+    weights (``oscar_core._util.stage.model_identity`` of the spec loaded; None:
     the card alone). Returns a summary: clips written and kept, seconds per
     rollout. ``StageChanged`` when ``out`` holds predictions made under other
     settings (see the module docstring).
     """
     from ..evaluation.benchmark_run import rollout_clip
     from ..model.sampler import SamplerConfig
-    from ..registry import Registry
+    from ..plugin.registry import Registry
     from ..train.clips import ClipSet
 
     if condition not in CONDITIONS:

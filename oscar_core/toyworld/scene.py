@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import Camera, Intrinsics, look_at
+from ..camera.pinhole import Camera, Intrinsics, look_at
 from .raster import Light
 
 __all__ = ["OBJECT_RGB", "EE_RGB", "OBJECT_HUE", "EE_HUE", "LINK_HUES", "Scene", "sample_scene", "background",
@@ -141,9 +141,9 @@ def sample_camera(rng: np.random.Generator, points: np.ndarray, width: int, heig
     base) and an elevation of 20-60 degrees, field of view 45-65 degrees; the
     distance is the smallest of a few candidates that keeps every point at
     least ``margin_px`` inside the image. Returns an OpenCV camera-to-world
-    :class:`~oscar_core.camera.Camera` of ``width`` x ``height`` pixels.
+    :class:`~oscar_core.camera.pinhole.Camera` of ``width`` x ``height`` pixels.
     """
-    from ..camera import project
+    from ..camera.pinhole import project
 
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lo, hi = P.min(0), P.max(0)

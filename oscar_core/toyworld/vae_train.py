@@ -38,8 +38,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._atomic import atomic_write_bytes
-from .._log import get_logger, progress_bar
+from .._util.atomic import atomic_write_bytes
+from .._util.log import get_logger, progress_bar
 
 __all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", "vae_psnr", "load_toy_vae",
            "write_reconstructions", "chroma_ratio", "moving_pixels"]

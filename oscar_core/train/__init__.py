@@ -7,7 +7,7 @@ See docs/training.md.
 
 from __future__ import annotations
 
-from .._lazy import lazy_exports
+from .._util.lazy import lazy_exports
 
 _EXPORTS = {
     "ClipSet": "clips", "ClipSetWriter": "clips", "ClipRecord": "clips", "Clip": "clips",

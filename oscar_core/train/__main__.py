@@ -9,7 +9,7 @@ from .cli import build_train_parser
 
 
 def main(argv=None) -> int:
-    from .._interrupt import interrupted, noting_interrupts, report
+    from .._util.interrupt import interrupted, noting_interrupts, report
 
     args = build_train_parser().parse_args(argv)
     with noting_interrupts():

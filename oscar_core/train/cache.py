@@ -6,7 +6,7 @@ clips"): the normalised latents of both streams for windows of ``window``
 frames starting every ``stride`` frames, at the clip's own size. The condition
 stream is the skeleton (the clip's stored skeleton video, else rendered from
 trajectory + camera + embodiment) or another condition video of
-:mod:`oscar_core.conditions` (``condition="mesh"`` or ``"capsules"``, rendered),
+:mod:`oscar_core.render.conditions` (``condition="mesh"`` or ``"capsules"``, rendered),
 recorded in each file's metadata so the trainer uses it only for that condition. A clip shorter than the window gets no latents (the trainer then
 encodes it on the fly or skips it, as its config says).
 
@@ -76,7 +76,7 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     per VAE call (the toy VAE encodes 4x faster per clip at 16 than at 1;
     memory grows with it: 8 windows of 81 frames at 512x288 are ~1.2 GB of
     float32 pixels); condition: the condition video whose latents go in the
-    condition stream (:data:`oscar_core.conditions.CONDITIONS`). Returns a
+    condition stream (:data:`oscar_core.render.conditions.CONDITIONS`). Returns a
     :class:`CacheSummary`.
     """
     import hashlib
@@ -84,10 +84,10 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
 
     import torch
 
-    from .. import _stage
-    from ..conditions import check_condition
+    from .._util import stage as _stage
+    from ..render.conditions import check_condition
     from ..model.vae import check_frame_count
-    from ..registry import Registry
+    from ..plugin.registry import Registry
     from .cache_legacy import check_legacy_cache
     from .clips import Clip, ClipSet, ClipSetWriter
 

@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .._stage import Legacy
+from .._util.stage import Legacy
 from .clips import ClipSet, finished_clipset
 
 __all__ = ["check_legacy_cache"]

@@ -10,8 +10,8 @@ import contextlib
 import json
 import os
 
-from .._cli_types import count
-from ..conditions import CONDITIONS
+from .._util.arg_types import count
+from ..render.conditions import CONDITIONS
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
@@ -90,7 +90,7 @@ def cmd_train(args) -> int:
         return 0
     from .loop import train
 
-    from .._log import run_log
+    from .._util.log import run_log
 
     main_rank = int(os.environ.get("RANK", "0")) == 0
     if args.resume:
@@ -123,7 +123,7 @@ def cmd_train(args) -> int:
 @contextlib.contextmanager
 def _resume_hint(run_dir: str):
     """Ctrl-C in a training run: the saved checkpoints stay; the same command would refuse the used run folder."""
-    from .._interrupt import Interrupted, interrupted
+    from .._util.interrupt import Interrupted, interrupted
 
     try:
         yield

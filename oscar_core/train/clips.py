@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import _TMP_NAME as _TMP_WITH_PID
-from .._atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
+from .._util.atomic import _TMP_NAME as _TMP_WITH_PID
+from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
 from ..errors import OscarError
 
 __all__ = [
@@ -185,8 +185,8 @@ class ClipRecord:
 class Clip:
     """A clip's contents in memory.
 
-    rgb: (T, H, W, 3) uint8; trajectory: :class:`~oscar_core.trajectory.Trajectory`
-    of T frames; camera: :class:`~oscar_core.camera.Camera`; skeleton: (T, H, W, 3)
+    rgb: (T, H, W, 3) uint8; trajectory: :class:`~oscar_core.kinematics.trajectory.Trajectory`
+    of T frames; camera: :class:`~oscar_core.camera.pinhole.Camera`; skeleton: (T, H, W, 3)
     uint8 or None; prompt_embeds: (L, D) tensor or None; latents: dict with
     ``video``, ``skeleton`` (N, C, t, h, w), ``starts`` (N,) tensors and
     ``window``/``vae``/``width``/``height`` metadata, or None.
@@ -230,9 +230,9 @@ class ShardWriter:
 
     def add(self, clip: Clip) -> ClipRecord:
         """Write a clip's files and return its record (``files`` filled in)."""
-        from ..camera import save_camera
-        from ..trajectory import save_trajectory
-        from ..video import write_video
+        from ..camera.pinhole import save_camera
+        from ..kinematics.trajectory import save_trajectory
+        from ..media.video import write_video
 
         rec = clip.record
         if any(r.id == rec.id for r in self.records):
@@ -435,7 +435,7 @@ class ClipSet:
     def read_trajectory(self, rec: ClipRecord):
         """Check that every file of a clip exists and return its trajectory, which must have ``n_frames`` frames."""
         from ..errors import InputFileError
-        from ..trajectory import load_trajectory
+        from ..kinematics.trajectory import load_trajectory
 
         shard = self.shard_of[rec.id]
         for role, rel in rec.files.items():
@@ -454,18 +454,18 @@ class ClipSet:
         from its trajectory and camera through ``registry``'s embodiment."""
         if clip.skeleton is not None:
             return clip.skeleton
-        from ..pipeline import render_skeleton_video
+        from ..render.skeleton_video import render_skeleton_video
 
         return render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
                                      camera_source=str(self.path(rec, "camera")))
 
     def condition_video(self, rec: ClipRecord, clip: Clip, registry, condition: str = "skeleton") -> np.ndarray:
-        """(T, H, W, 3) uint8 condition video ``condition`` (:mod:`oscar_core.conditions`) of a loaded ``clip``:
+        """(T, H, W, 3) uint8 condition video ``condition`` (:mod:`oscar_core.render.conditions`) of a loaded ``clip``:
         for the skeleton :meth:`skeleton_video` (its stored one, else rendered), for another condition rendered
         at the clip's size from its trajectory and camera through ``registry``'s embodiment."""
         if condition == "skeleton":
             return self.skeleton_video(rec, clip, registry)
-        from ..conditions import condition_video
+        from ..render.conditions import condition_video
 
         return condition_video(condition, registry.get(rec.embodiment), clip.trajectory, clip.camera,
                                (rec.width, rec.height), camera_source=str(self.path(rec, "camera")))
@@ -480,9 +480,9 @@ class ClipSet:
         read the camera with the embodiment's defaults (None: plain camera file).
         Returns a :class:`Clip` whose arrays cover the window only.
         """
-        from ..camera import load_camera
+        from ..camera.pinhole import load_camera
         from ..errors import InputFileError
-        from ..video import read_video
+        from ..media.video import read_video
 
         if isinstance(rec, str):
             rec = self.record(rec)

@@ -27,13 +27,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..conditions import CONDITIONS as _VIDEO_CONDITIONS
+from ..render.conditions import CONDITIONS as _VIDEO_CONDITIONS
 from ..errors import OscarError
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
-VIDEO_CONDITIONS = _VIDEO_CONDITIONS  # conditions given as a video through the VAE and PE_s (oscar_core.conditions)
+VIDEO_CONDITIONS = _VIDEO_CONDITIONS  # conditions given as a video through the VAE and PE_s (oscar_core.render.conditions)
 CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 CHECKPOINTING = ("none", "full", "auto")
@@ -389,6 +389,6 @@ def save_config(config: TrainConfig, path) -> Path:
     """Write the resolved config as YAML (atomically)."""
     import yaml
 
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
 
     return atomic_write_bytes(path, yaml.safe_dump(config_to_dict(config), sort_keys=False).encode())

@@ -35,7 +35,7 @@ def read_curves(metrics_jsonl) -> dict[str, list[float]]:
 def plot_training_curves(run_dir, out=None) -> Path | None:
     """Write the three-panel PNG for ``run_dir`` to ``out`` (default ``RUN_DIR/curves.png``); None when there is
     nothing to plot yet. Raises ImportError naming the extra when matplotlib is missing."""
-    from .._atomic import atomic_write_bytes
+    from .._util.atomic import atomic_write_bytes
     from ..metrics.plots import _new_figure
 
     run_dir = Path(run_dir)

@@ -61,7 +61,7 @@ class TrainData:
     """
 
     def __init__(self, config: TrainConfig, vae=None, text_dim: int = 1024, registry=None):
-        from ..registry import Registry
+        from ..plugin.registry import Registry
 
         self.config, self.vae, self.text_dim = config, vae, int(text_dim)
         self.registry = registry if registry is not None else Registry()
@@ -131,7 +131,7 @@ class TrainData:
             return f.get_tensor("starts").numpy().astype(np.int64), meta.get("condition", "skeleton")
 
     def _check_files(self, cs: ClipSet, rec: ClipRecord) -> None:
-        from ..video import video_info
+        from ..media.video import video_info
 
         shard = cs.shard_of[rec.id]
         cs.read_trajectory(rec)  # every file present, the trajectory n_frames long
@@ -197,7 +197,7 @@ class TrainData:
 
     def load_item(self, item: PlanItem, condition: str) -> dict:
         """Tensors of one plan item: z0 (C, T', h, w), skeleton (C_s, T', h, w) or None, text (L, D), actions."""
-        from ..pipeline import fit_image, render_skeleton_video
+        from ..render.skeleton_video import fit_image, render_skeleton_video
 
         u = self.clips[item.clip]
         rec, cs = u.record, u.clipset
@@ -229,7 +229,7 @@ class TrainData:
                                                  resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
                 out["skeleton"] = self._encode(skel, "on-the-fly encoding")
         if want_skeleton and not stored:
-            from ..conditions import condition_video
+            from ..render.conditions import condition_video
 
             video = condition_video(condition, self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
                                     resize_mode="crop", camera_source=str(cs.path(rec, "camera")))

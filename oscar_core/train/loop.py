@@ -20,8 +20,8 @@ from pathlib import Path
 
 import torch
 
-from .._atomic import atomic_write_bytes
-from .._log import get_logger, progress_bar
+from .._util.atomic import atomic_write_bytes
+from .._util.log import get_logger, progress_bar
 from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
 from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData

@@ -16,7 +16,7 @@ from __future__ import annotations
 import secrets
 from pathlib import Path
 
-from .._atomic import atomic_write_bytes
+from .._util.atomic import atomic_write_bytes
 from .tensorboard import SCALARS
 
 __all__ = ["WANDB_MODES", "RUN_ID_FILE", "require_wandb", "WandbLog"]

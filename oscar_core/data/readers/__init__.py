@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from importlib import import_module
 
-from ...hookspecs import hookimpl
+from ...plugin.hookspecs import hookimpl
 
 # one line per built-in reader: "module:Class"
 BUILTIN_READERS: list[str] = [

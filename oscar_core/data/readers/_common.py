@@ -15,7 +15,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ...errors import InputFileError
-from ...reader import EpisodeError, VideoSource
+from ...plugin.reader import EpisodeError, VideoSource
 
 __all__ = ["require", "local_root", "episode_errors", "probe_video", "video_header", "read_json", "finite"]
 

@@ -35,7 +35,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ...reader import EpisodeError
+from ...plugin.reader import EpisodeError
 from ._common import require
 
 __all__ = ["LeRobotLayout", "EpisodeRow", "unreadable_table"]

@@ -25,7 +25,7 @@ AgiBot World ships; the robot's skeleton is drawn from it).
 Known defect — ``action/effector/position`` longer (or shorter) than the
 states in some tasks: the action rows cannot be matched to state frames
 without a shared clock, so such an episode is **rejected** with an
-:class:`~oscar_core.reader.EpisodeError` naming both lengths (field
+:class:`~oscar_core.plugin.reader.EpisodeError` naming both lengths (field
 ``action/effector/position``), and the run counts it.
 """
 
@@ -34,7 +34,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Iterator
 
-from ...reader import Episode, EpisodeError, EpisodeRef, Reader
+from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video, read_json, require
 
 __all__ = ["AgiBotWorldReader"]

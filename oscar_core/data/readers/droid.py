@@ -33,7 +33,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Iterator
 
-from ...reader import Episode, EpisodeError, EpisodeRef, Reader
+from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video, read_json, require
 
 __all__ = ["DroidRawReader"]

@@ -26,7 +26,7 @@ with the dataset's intrinsics by :func:`~oscar_embodiments.mano.convert.egocentr
 
 Points whose confidence is below ``min_confidence`` (default 0: keep all)
 become NaN (a missing point). A NaN/inf stored in a transform is a broken
-episode (:class:`~oscar_core.reader.EpisodeError`).
+episode (:class:`~oscar_core.plugin.reader.EpisodeError`).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from typing import Iterator
 import numpy as np
 
 from ...errors import InputFileError
-from ...reader import Episode, EpisodeError, EpisodeRef, Reader
+from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video, require, video_header
 
 __all__ = ["EgoDexReader", "EGODEX_JOINTS", "egodex_joint_names"]

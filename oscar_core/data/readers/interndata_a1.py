@@ -27,7 +27,7 @@ import json
 from pathlib import Path
 from typing import Iterator
 
-from ...reader import Episode, EpisodeError, EpisodeRef, Reader
+from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video
 from ._lerobot import LeRobotLayout, unreadable_table
 

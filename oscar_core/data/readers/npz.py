@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import posixpath
 
-from ...reader import Episode, EpisodeError, EpisodeRef, Reader, VideoSource
+from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader, VideoSource
 
 __all__ = ["NpzReader"]
 
@@ -60,8 +60,8 @@ class NpzReader(Reader):
         from pathlib import Path
 
         from ...errors import OscarError
-        from ...registry import default_registry
-        from ...trajectory import load_trajectory
+        from ...plugin.registry import default_registry
+        from ...kinematics.trajectory import load_trajectory
         from .. import _fs
 
         reg = registry or default_registry()

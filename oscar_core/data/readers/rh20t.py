@@ -39,7 +39,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ...reader import Episode, EpisodeError, EpisodeRef, Reader
+from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, local_root, probe_video, read_json, video_header
 from ._npy import NpyPickleError, load_npy
 

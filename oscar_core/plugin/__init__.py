@@ -1,0 +1,1 @@
+"""The plugin contract: hook specs, the embodiment and reader contracts, the skeleton spec, the registry."""
