@@ -251,7 +251,7 @@ def check_measure_args(args) -> None:
         raise SystemExit(f"--measure: expected a cuda or cpu device, found {args.measure!r}")
 
 
-def measure_real(args) -> dict:
+def measure_real(args, checkpoint=lambda out: None) -> dict:
     """Measured: seconds per denoising step and per chunk, frames/s and MFU of every sampling preset.
 
     The model has random weights (speed does not depend on them). Per variant (eager; compiled through
@@ -259,6 +259,9 @@ def measure_real(args) -> dict:
     2) and one conditional-only step (batch 1); per preset a whole chunk (seed and condition encodes,
     the preset's UniPC steps at w = 6, decode). FLOPs are counted once per preset on the eager model
     (``torch.utils.flop_counter``); MFU = counted FLOPs / (seconds x the device's dense bf16 peak).
+
+    ``checkpoint(out)`` is called with the results so far after each variant and after the VAE variants, so a
+    run stopped by a time limit keeps what it measured.
     """
     from oscar_core.model.compile_policy import compile_transformer
     from oscar_core.model.presets import SAMPLER_PRESETS
@@ -572,18 +575,22 @@ def main(argv=None) -> int:
     if not args.skip_computed:
         big, comp = expected_2b(), computed_2b(args.gpu_steps)
         print_computed(big, comp)
-    measured = None
-    if args.measure:
-        measured = measure_real(args)
-        print_measured(measured)
     from oscar_core._util.atomic import atomic_write_bytes
 
-    result = json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
-                                           "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),
-                                           "device": str(device)},
-                               "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
-                         "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, indent=2)
-    print(f"wrote {atomic_write_bytes(args.json, (result + chr(10)).encode())}")
+    def write(measured, complete: bool) -> Path:
+        result = json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
+                                         "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),
+                                         "device": str(device)},
+                             "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
+                             "complete": complete,
+                             "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, indent=2)
+        return atomic_write_bytes(args.json, (result + chr(10)).encode())
+
+    measured = None
+    if args.measure:
+        measured = measure_real(args, checkpoint=lambda partial: write(partial, complete=False))
+        print_measured(measured)
+    print(f"wrote {write(measured, complete=True)}")
     return 0
 
 
