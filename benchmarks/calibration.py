@@ -14,8 +14,8 @@ estimated, the focal length error (%) and principal point error (px): median and
 maximum over the seeds. The naive way, in the same run: RANSAC PnP alone (OpenCV's
 ``solvePnPRansac`` with its own refinement on its inliers), no least squares over all frames.
 
-``score``: toy-world episodes (:mod:`oscar_core.toyworld`) of toyarm, franka and kuka
-with their true cameras; the score of the true camera and of cameras moved by 2, 5,
+``score``: toy-world episodes (:mod:`oscar_core.toyworld`, seed 0, 160x120, 24 frames)
+of toyarm, franka and kuka with their true cameras; the score of the true camera and of cameras moved by 2, 5,
 10 cm along each of the camera's axes and turned by 2, 5 degrees about each axis
 (:func:`oscar_core.calibration.score.perturb_camera`). Reports the mean score per
 perturbation and the fraction of episodes where the true camera scores higher.
@@ -116,14 +116,18 @@ def print_pnp(res: dict) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("part", choices=("pnp",))
+    ap.add_argument("part", choices=("pnp", "score"))
     ap.add_argument("--seeds", type=int, default=10, help="pnp: synthetic problems per embodiment")
     ap.add_argument("--episodes", type=int, default=6, help="score: toy-world episodes per embodiment")
     ap.add_argument("--json", help="output JSON (default benchmarks/results/calibration_<part>.json)")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    res = bench_pnp(args.seeds)
-    print_pnp(res)
+    if args.part == "pnp":
+        res = bench_pnp(args.seeds)
+        print_pnp(res)
+    else:
+        res = bench_score(args.episodes)
+        print_score(res)
     res["meta"] = {"command": f"python benchmarks/calibration.py {args.part}", "seeds": args.seeds,
                    "episodes": args.episodes, "machine": platform.platform(), "cpus": os.cpu_count(),
                    "wall_s": time.perf_counter() - t0}
@@ -131,6 +135,67 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=1))
     print(f"wrote {out} ({res['meta']['wall_s']:.0f} s)")
+
+
+SHIFTS_CM = (2, 5, 10)
+TURNS_DEG = (2, 5)
+AXES = "xyz"
+TOY_SIZE, TOY_FRAMES = (160, 120), 24
+
+
+def perturbations():
+    """(label, shift metres, rotation degrees) of every wrong camera scored, in the camera's OpenCV axes."""
+    out = []
+    for d in SHIFTS_CM:
+        for k, axis in enumerate(AXES):
+            shift = np.zeros(3)
+            shift[k] = d / 100
+            out.append((f"{d} cm along {axis}", shift, np.zeros(3)))
+    for a in TURNS_DEG:
+        for k, axis in enumerate(AXES):
+            turn = np.zeros(3)
+            turn[k] = a
+            out.append((f"{a} deg about {axis}", np.zeros(3), turn))
+    return out
+
+
+def bench_score(episodes: int) -> dict:
+    from oscar_core.calibration.score import calibration_score, perturb_camera
+    from oscar_core.toyworld.episode import episode_rng, make_episode
+
+    reg = default_registry()
+    runs = []
+    for name in ("toyarm", "franka", "kuka"):
+        emb = reg.get(name)
+        for i in range(episodes):
+            ep = make_episode(emb, episode_rng(0, name, i), *TOY_SIZE, TOY_FRAMES, 10.0)
+            t0 = time.perf_counter()
+            true = calibration_score(ep.rgb, emb, ep.trajectory, ep.camera).score
+            seconds = time.perf_counter() - t0
+            row = {"embodiment": name, "episode": i, "true": true, "seconds": seconds, "perturbed": {}}
+            for label, shift, turn in perturbations():
+                row["perturbed"][label] = calibration_score(ep.rgb, emb, ep.trajectory,
+                                                            perturb_camera(ep.camera, shift, turn)).score
+            runs.append(row)
+            print(f"  {name} episode {i}: true {true:.3f}", flush=True)
+    rows = [{"camera": "true", "mean": float(np.mean([r["true"] for r in runs])),
+             "min": float(np.min([r["true"] for r in runs])), "true_higher": None}]
+    for label, _, _ in perturbations():
+        v = np.array([r["perturbed"][label] for r in runs])
+        t = np.array([r["true"] for r in runs])
+        rows.append({"camera": label, "mean": float(v.mean()), "max": float(v.max()),
+                     "true_higher": float((t > v).mean()), "margin_min": float((t - v).min())})
+    return {"rows": rows, "runs": runs, "episodes": len(runs),
+            "seconds_per_score": float(np.median([r["seconds"] for r in runs]))}
+
+
+def print_score(res: dict) -> None:
+    print(f"{'camera':<18}{'mean score':>11}{'true higher':>13}{'min margin':>12}")
+    for r in res["rows"]:
+        higher = "" if r["true_higher"] is None else f"{100 * r['true_higher']:.0f} %"
+        margin = "" if r["true_higher"] is None else f"{r['margin_min']:+.3f}"
+        print(f"{r['camera']:<18}{r['mean']:>11.3f}{higher:>13}{margin:>12}")
+    print(f"{res['episodes']} episodes, {res['seconds_per_score']:.2f} s per score")
 
 
 if __name__ == "__main__":

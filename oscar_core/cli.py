@@ -154,10 +154,12 @@ def _add_output_flags(parser: argparse.ArgumentParser, default) -> None:
 
 
 def _leaves(parser: argparse.ArgumentParser):
-    """Every sub-command parser that has no sub-commands of its own."""
+    """Every sub-command parser that runs a command: those with no sub-commands of their own, and those that
+    run one without a sub-command (``oscar calibrate``, beside ``oscar calibrate score``)."""
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if not subs:
+    if not subs or parser.get_default("func") is not None:  # a command of its own as well as sub-commands
         yield parser
+    if not subs:
         return
     seen = set()
     for action in subs:
