@@ -73,22 +73,16 @@ centimetres or degrees scores lower. docs/calibration.md.
 """
 
 
-def _intrinsics(path, size):
+def _intrinsics(path):
     """Intrinsics from a camera JSON file, with or without an extrinsic."""
-    from pathlib import Path
-
-    from ..camera.pinhole import Camera, load_camera
+    from .._util.json_file import read_json
+    from ..camera.pinhole import Camera
     from ..errors import CameraFileError
 
-    text = Path(path).read_text(encoding="utf-8")
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise CameraFileError(path, "<document>", "valid JSON", f"{e.msg} at line {e.lineno}, column {e.colno}") from None
-    if isinstance(doc, dict) and "extrinsic" not in doc:
-        return Camera.from_dict({**doc, "extrinsic": {"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}},
-                                str(path)).intrinsics
-    return load_camera(path).intrinsics
+    doc = read_json(path, CameraFileError)
+    if isinstance(doc, dict) and "extrinsic" not in doc:  # the extrinsic is not used: any rigid transform will do
+        doc = {**doc, "extrinsic": {"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}}
+    return Camera.from_dict(doc, str(path)).intrinsics
 
 
 def cmd_calibrate(args) -> int:
@@ -114,7 +108,7 @@ def cmd_calibrate(args) -> int:
     emb = Registry(plugin_paths=args.plugin or ()).get(args.embodiment)
     traj = load_trajectory(args.trajectory)
     points = load_points(args.points)
-    intr = None if args.estimate_intrinsics else _intrinsics(args.intrinsics, size)
+    intr = None if args.estimate_intrinsics else _intrinsics(args.intrinsics)
     kwargs = {} if args.threshold is None else {"threshold_px": args.threshold}
     result = calibrate(emb, traj, points, size, intr, seed=args.seed, **kwargs)
     save_camera(result.camera, args.out)

@@ -126,13 +126,9 @@ def parse_points(doc, source: str = "<points>") -> PixelPoints:
 def load_points(path: str | os.PathLike) -> PixelPoints:
     """Read a points file (format: module docstring). Raises :class:`PointsFileError` for bad content
     (invalid JSON: line and column), OSError if the file cannot be read."""
-    path = Path(path)
-    text = path.read_text(encoding="utf-8")
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise PointsFileError(path, "<document>", "valid JSON", f"{e.msg} at line {e.lineno}, column {e.colno}") from None
-    return parse_points(doc, str(path))
+    from .._util.json_file import read_json
+
+    return parse_points(read_json(path, PointsFileError), str(Path(path)))
 
 
 def save_points(points: PixelPoints, path: str | os.PathLike) -> Path:
