@@ -297,9 +297,10 @@ def _camera(params: np.ndarray, intr: Intrinsics | None, size, fit_intr: bool, e
     return Camera(intr, pose, convention="opencv", direction="camera_to_world", embodiment=embodiment)
 
 
-def _rows(key: str, labels, residual: np.ndarray, inlier: np.ndarray) -> list[dict]:
+def _rows(key: str, labels, residual: np.ndarray, inlier: np.ndarray, order=None) -> list[dict]:
+    """One row per distinct label (in ``order``, else sorted): {key: label, points, outliers, mean_px, max_px}."""
     out = []
-    for label in sorted(set(labels), key=lambda x: (isinstance(x, str), x)):
+    for label in (sorted(set(labels)) if order is None else [x for x in order if x in set(labels)]):
         sel = np.array([lb == label for lb in labels])
         r = residual[sel]
         out.append({key: label, "points": int(sel.sum()), "outliers": int((~inlier[sel]).sum()),
@@ -351,7 +352,7 @@ def calibrate(embodiment, traj, pixels: PixelPoints, size: tuple[int, int], intr
     outliers.sort(key=lambda r: -r["residual_px"])
     result = CalibrationResult(camera, residual, inlier, float(threshold_px), rms,
                                _rows("frame", corr.frame.tolist(), residual, inlier),
-                               _rows("point", names, residual, inlier), outliers, fit_intr, rounds)
+                               _rows("point", names, residual, inlier, corr.names), outliers, fit_intr, rounds)
     _log.info("calibrated from %d correspondences: %d inliers, rms %.3g px, %d outliers", len(corr),
               int(inlier.sum()), rms, len(outliers))
     return result

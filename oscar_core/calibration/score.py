@@ -127,7 +127,7 @@ def moving(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
 class _Frames:
     """A video as (n_frames, read(indices)): an array, a file / PNG folder, or a reader's VideoSource."""
 
-    def __init__(self, video):
+    def __init__(self, video, max_frames: int):
         if isinstance(video, np.ndarray):
             if video.ndim != 4 or video.shape[-1] != 3:
                 raise ValueError(f"video: expected frames of shape (T, H, W, 3), found {video.shape}")
@@ -138,7 +138,7 @@ class _Frames:
         else:
             from ..media.video import read_video
 
-            frames = read_video(video)
+            frames = read_video(video, max_frames=max_frames)  # the frames the trajectory covers, no more
             self.n_frames, self.source, self._read = len(frames), str(video), lambda idx: frames[idx]
 
     def read(self, idx: np.ndarray) -> np.ndarray:
@@ -157,8 +157,8 @@ def calibration_score(video, embodiment, traj, camera: Camera, config: ScoreConf
 
     from ..calibration.pnp import skeleton_points
 
-    frames = _Frames(video)
     traj = embodiment.check_trajectory(traj)
+    frames = _Frames(video, len(traj))
     embodiment.check_camera(camera, camera_source)
     camera.check_frames(len(traj), camera_source)
     T, cfg = len(traj), config
