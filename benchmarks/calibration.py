@@ -3,20 +3,21 @@
     python benchmarks/calibration.py pnp   [--seeds 10] [--json benchmarks/results/calibration_pnp.json]
     python benchmarks/calibration.py score [--episodes 6] [--json benchmarks/results/calibration_score.json]
 
-``pnp``: for franka and kuka, ``--seeds`` synthetic problems each: a random smooth
-trajectory (49 frames through 5 random configurations inside the joint limits), a
-640x480 camera (fx = fy = 600 px) looking at the workspace from 1.6-2.0 m at a random
-azimuth and elevation (:func:`oscar_core.calibration.synthetic.problem`), every 4th frame observed with 80 % of its visible skeleton
-points, Gaussian pixel noise sigma = 0.5, 1, 2 px per axis and the outlier threshold
-max(4, 4 sigma) px. It recovers the camera with the intrinsics known and estimated and
+``pnp``: for franka and kuka, ``--seeds`` synthetic problems each
+(:func:`oscar_core.calibration.synthetic.problem`): a random smooth trajectory (49 frames
+through 5 random configurations inside the joint limits), a 640x480 camera (fx = fy =
+600 px) looking at the workspace from 1.6-2.0 m at a random azimuth and elevation, every
+4th frame observed with 80 % of its visible skeleton points, Gaussian pixel noise
+sigma = 0.5, 1, 2 px per axis and the outlier threshold max(4, 4 sigma) px. It recovers the camera with the intrinsics known and estimated and
 reports the rotation error (degrees), the optical-centre error (mm) and, when
 estimated, the focal length error (%) and principal point error (px): median and
 maximum over the seeds. The naive way, in the same run: RANSAC PnP alone (OpenCV's
 ``solvePnPRansac`` with its own refinement on its inliers), no least squares over all frames.
 
 ``score``: toy-world episodes (:mod:`oscar_core.toyworld`, seed 0, 160x120, 24 frames)
-of toyarm, franka and kuka with their true cameras; the score of the true camera and of cameras moved by 2, 5,
-10 cm along each of the camera's axes and turned by 2, 5 degrees about each axis
+of toyarm, franka and kuka with their true cameras; the score of the true camera and of
+cameras moved by 2, 5, 10 cm along each of the camera's axes and turned by 2, 5 degrees
+about each axis
 (:func:`oscar_core.calibration.score.perturb_camera`). Reports the mean score per
 perturbation and the fraction of episodes where the true camera scores higher.
 
