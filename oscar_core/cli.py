@@ -18,6 +18,7 @@ EXAMPLES = """examples:
   oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json --out check.mp4 --overlay rgb.mp4
   oscar render ... --out skel.mkv          (lossless FFV1, for training data)
   oscar render ... --out frames/           (lossless PNG frames)
+  oscar calibrate --embodiment franka --trajectory traj.npz --points points.json --size 1280x720 --estimate-intrinsics --out cam.json
   oscar demo --out demo_out
   oscar zoo list
   oscar rollout --model oscar-2b --embodiment franka --first-frame img.png --trajectory traj.npz --camera cam.json --out rollout.mp4
@@ -94,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .render.cli import add_render_parser
 
     add_render_parser(sub)
+    from .calibration.cli import add_calibrate_parser
+
+    add_calibrate_parser(sub)
 
     d = sub.add_parser("demo", help="render every embodiment's bundled example and roll the toy world model out "
                                     "(MP4s + contact sheet)")
@@ -150,10 +154,12 @@ def _add_output_flags(parser: argparse.ArgumentParser, default) -> None:
 
 
 def _leaves(parser: argparse.ArgumentParser):
-    """Every sub-command parser that has no sub-commands of its own."""
+    """Every sub-command parser that runs a command: those with no sub-commands of their own, and those that
+    run one without a sub-command (``oscar calibrate``, beside ``oscar calibrate score``)."""
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    if not subs:
+    if not subs or parser.get_default("func") is not None:  # a command of its own as well as sub-commands
         yield parser
+    if not subs:
         return
     seen = set()
     for action in subs:

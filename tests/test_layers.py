@@ -30,6 +30,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("metrics", ["oscar_core.metrics", "oscar_core.metrics.*"]),
     ("zoo", ["oscar_zoo", "oscar_zoo.*"]),
     ("model", ["oscar_core.model", "oscar_core.model.*"]),
+    ("calibration", ["oscar_core.calibration", "oscar_core.calibration.*"]),
     ("render", ["oscar_core.render", "oscar_core.render.*", "oscar_core.media", "oscar_core.media.*"]),
     ("embodiments", ["oscar_embodiments", "oscar_embodiments.*"]),
     ("foundation", ["oscar_core", "oscar_core.*"]),

@@ -461,13 +461,9 @@ def load_camera(path: str | os.PathLike, defaults: Any = None) -> Camera:
     Raises CameraFileError for bad content (invalid JSON reports line and column);
     OSError (e.g. FileNotFoundError) if the file cannot be read.
     """
-    path = Path(path)
-    text = path.read_text(encoding="utf-8")
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise CameraFileError(path, "<document>", "valid JSON", f"{e.msg} at line {e.lineno}, column {e.colno}") from None
-    return _parse_camera(d, str(path), defaults)
+    from oscar_core._util.json_file import read_json
+
+    return _parse_camera(read_json(path, CameraFileError), str(Path(path)), defaults)
 
 
 def save_camera(camera: Camera, path: str | os.PathLike) -> None:

@@ -181,12 +181,14 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_ingest)
 
-    p = ds.add_parser("filter", help="length, static camera, meaningful action, visible skeleton, joint spikes",
+    p = ds.add_parser("filter", help="length, static camera, meaningful action, visible skeleton, joint spikes "
+                                     "(and, when asked, the calibration score)",
                       epilog=EXAMPLE, formatter_class=fmt)
     p.add_argument("run", help="run folder")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override a threshold (FilterConfig field: min_length, max_camera_motion, min_action, "
-                        "min_visible, max_joint_speed, max_point_speed, …); repeatable")
+                        "min_visible, max_joint_speed, max_point_speed, min_calibration_score (0: off), …); "
+                        "repeatable")
     _common(p)
     p.set_defaults(func=cmd_filter)
 

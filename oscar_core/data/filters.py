@@ -27,6 +27,11 @@ Measurements (all on the episode's own trajectory, camera and video):
   joints); ``spike_point`` — largest skeleton-point speed, m/s. A teleoperated
   arm stays far below the defaults (Franka's joint limit is 2.6 rad/s, its
   hand's ~1.7 m/s); a one-frame glitch of 1 rad at 15 fps reads 15 rad/s.
+* ``calibration_score`` — how well the robot rendered through the episode's
+  camera lines up with its video, in [0, 1]
+  (:func:`oscar_core.calibration.score.calibration_score`, docs/calibration.md).
+  Off by default (``min_calibration_score`` 0: not measured, NaN); it renders
+  the capsule body of up to 128 frames per episode.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ from ._episode import EPISODE_ERRORS, camera_at_video_size, load_row, reason_of
 __all__ = ["FilterConfig", "FilterStage", "FILTERS", "measure_camera_motion", "measure_action", "measure_visible",
            "measure_spikes", "decide"]
 
-FILTERS = ("length", "camera_motion", "action", "visible", "spike_joint", "spike_point")
+FILTERS = ("length", "camera_motion", "action", "visible", "spike_joint", "spike_point", "calibration_score")
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,7 @@ class FilterConfig:
     motion_width: int = 160              # pixels; frames are resized to this width for the flow
     motion_mask_px: int = 6              # pixels (at motion_width) the skeleton mask is thickened by
     min_texture: float = 8.0             # grey-level gradient a pixel needs to count as background texture
+    min_calibration_score: float = 0.0   # least calibration score (0-1, docs/calibration.md); 0: off, not measured
 
     @classmethod
     def from_overrides(cls, items: list[str] | None) -> "FilterConfig":
@@ -170,6 +176,8 @@ def decide(m: dict[str, float], cfg: FilterConfig) -> tuple[str, float, str] | N
         ("visible", m["visible"] < cfg.min_visible, "<", cfg.min_visible),
         ("spike_joint", m["spike_joint"] > cfg.max_joint_speed, ">", cfg.max_joint_speed),
         ("spike_point", m["spike_point"] > cfg.max_point_speed, ">", cfg.max_point_speed),
+        ("calibration_score", m.get("calibration_score", math.nan) < cfg.min_calibration_score, "<",
+         cfg.min_calibration_score),
     ]
     for name, failed, op, thr in checks:
         if failed:  # NaN compares False: an unmeasurable value passes
@@ -209,6 +217,11 @@ class FilterStage:
             m["camera_motion"] = measure_camera_motion(ep.video, proj.uv, proj.usable, emb.edge_index(), cfg)
         else:
             m["camera_motion"] = float("nan")  # not measured: already rejected by length, or no video
+        m["calibration_score"] = float("nan")  # not measured: off, already rejected by length, or no video
+        if cfg.min_calibration_score > 0 and m["length"] >= cfg.min_length and ep.video is not None:
+            from ..calibration.score import calibration_score
+
+            m["calibration_score"] = calibration_score(ep.video, emb, traj, cam).score
         return m
 
     def one(self, row: dict) -> dict:

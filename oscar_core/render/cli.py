@@ -6,7 +6,6 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 from .._util.arg_types import count, device, number
 from .conditions import CONDITIONS
@@ -157,36 +156,16 @@ def cmd_render(args) -> int:
 
 def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
-    import numpy as np
-
     from .batch import _registry
-    from .conditions import chunk_renderer
-    from .skeleton_video import fit_image, overlay_skeleton
+    from .overlay import write_overlay
     from ..kinematics.trajectory import load_trajectory
-    from ..media.video import DEFAULT_PRESET, VideoWriter, check_output, read_video, video_info
 
-    check_output(spec.out, format=spec.format)
     emb = _registry(tuple(args.plugin or ())).get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)
     cam = emb.load_camera(spec.camera)
-    size = spec.size
-    info = video_info(args.overlay)
-    if size is None:
-        size = (info["width"], info["height"])
-    rgb = read_video(args.overlay, max_frames=len(traj))
-    if len(rgb) < len(traj):
-        raise OscarError(f"{args.overlay}: expected at least {len(traj)} frames (the trajectory's length), found {len(rgb)}")
-    fps = spec.fps or traj.fps
-    with VideoWriter(spec.out, fps, format=spec.format, preset=args.preset or DEFAULT_PRESET, crf=args.crf,
-                     yuv=args.yuv, size=tuple(size)) as writer:
-        t = 0
-        for chunk in chunk_renderer(args.condition)(emb, traj, cam, tuple(size), resize_mode=spec.resize,
-                                                    device=args.device, camera_source=str(spec.camera),
-                                                    strict=args.strict):
-            H, W = chunk.shape[1:3]
-            # the real frames are fitted to the output size exactly as the calibration was (--resize)
-            real = np.stack([fit_image(f, W, H, spec.resize) for f in rgb[t:t + len(chunk)]])
-            writer.write(overlay_skeleton(chunk, real, alpha=args.alpha))
-            t += len(chunk)
-    print(f"wrote {Path(writer.path)}: {writer.frames} frames, {size[0]}x{size[1]}, {fps:g} fps")
+    path, frames, size, fps = write_overlay(emb, traj, cam, args.overlay, spec.out, condition=args.condition,
+                                            size=spec.size, resize_mode=spec.resize, alpha=args.alpha, fps=spec.fps,
+                                            format=spec.format, preset=args.preset, crf=args.crf, yuv=args.yuv,
+                                            device=args.device, camera_source=str(spec.camera), strict=args.strict)
+    print(f"wrote {path}: {frames} frames, {size[0]}x{size[1]}, {fps:g} fps")
     return 0
