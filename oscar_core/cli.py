@@ -166,8 +166,11 @@ def _leaves(parser: argparse.ArgumentParser):
 def main(argv=None) -> int:
     from ._util.interrupt import interrupted, noting_interrupts, report
 
+    from ._util.provenance import set_command
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    set_command(sys.argv[1:] if argv is None else argv)  # what the report pages name as their command
     warnings.simplefilter("default")
     with noting_interrupts():
         try:
