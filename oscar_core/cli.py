@@ -120,6 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_toyworld_parser(sub)
     for leaf in _leaves(p):
         _add_output_flags(leaf, argparse.SUPPRESS)
+    from ._util.cli_examples import own_examples
+
+    own_examples(p)  # a sub-command's --help shows its own examples, not its group's
     return p
 
 
