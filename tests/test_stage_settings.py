@@ -589,3 +589,43 @@ def test_ray_engine_records_cells_that_finish_out_of_order_under_their_own_names
         va, vb = read_video(tmp_path / "local" / a["video"]), read_video(tmp_path / "ray" / b["video"])
         assert va.shape == vb.shape and np.abs(va.astype(int) - vb.astype(int)).max() <= 1, a["cell"]
     assert [c["frames"] for c in ray_run.report["cells"]] == [41, 5, 5, 5, 5, 5]
+
+
+# ---------------------------------------------------------------------------------------------- data ingest
+
+#: What ingest's fingerprint holds; each is changed alone below, except where the reason says why not.
+INGEST_PARTS = {"input.source": "tested", "input.reader": "no second reader reads the npz layout",
+                "input.listing": "tested in test_stage_resume (the dataset grew)", "settings.plugin_paths": "tested",
+                "input.ids": "the episodes of the listing (changes with it)", "input.shard_size": "tested",
+                "settings.reader_options": "the npz reader takes no options"}
+
+
+def test_ingest_fingerprint_holds_what_the_tests_name(data_run):
+    from oscar_core.data.engine import read_fingerprint
+
+    parts = read_fingerprint(str(data_run / "ingest"))["parts"]
+    assert {f"{k}.{v}" for k in ("input", "settings") for v in parts[k]} == set(INGEST_PARTS)
+
+
+@pytest.mark.parametrize("key", [k for k, why in INGEST_PARTS.items() if why == "tested"])
+def test_ingest_recomputes_for_each_changed_setting(data_run, key, tmp_path):
+    from oscar_core.data.engine import StageRecomputed
+    from oscar_core.data.run import run_ingest
+
+    run = tmp_path / "run"
+    shutil.copytree(data_run, run)
+    src = str(data_run.parent / "src")
+    assert run_ingest(src, "npz", str(run), workers=1, progress=False).skipped  # the same: resumed
+    kw = {}
+    if key == "input.source":  # the same episodes in another folder
+        shutil.copytree(data_run.parent / "src", tmp_path / "src2")
+        src = str(tmp_path / "src2")
+    elif key == "input.shard_size":
+        kw = {"shard_size": 7}
+    else:
+        plugin = tmp_path / "noop_plugin.py"
+        plugin.write_text("# a plugin file that registers nothing\n")
+        kw = {"plugin_paths": (str(plugin),)}
+    with pytest.warns(StageRecomputed, match=rf"{key.split('.')[-1]}: "):
+        res = run_ingest(src, "npz", str(run), workers=1, progress=False, **kw)
+    assert res.processed and not res.skipped
