@@ -124,6 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_toyworld_parser(sub)
     for leaf in _leaves(p):
         _add_output_flags(leaf, argparse.SUPPRESS)
+    from ._util.cli_examples import own_examples
+
+    own_examples(p)  # a sub-command's --help shows its own examples, not its group's
     return p
 
 
@@ -172,8 +175,11 @@ def _leaves(parser: argparse.ArgumentParser):
 def main(argv=None) -> int:
     from ._util.interrupt import interrupted, noting_interrupts, report
 
+    from ._util.provenance import set_command
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    set_command(sys.argv[1:] if argv is None else argv)  # what the report pages name as their command
     warnings.simplefilter("default")
     with noting_interrupts():
         try:

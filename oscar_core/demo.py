@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -18,23 +19,33 @@ from .media.video import write_video
 __all__ = ["run_demo", "contact_sheet"]
 
 
-def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4, labels: list[str] | None = None) -> np.ndarray:
+def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4, labels: list[str] | None = None,
+                  panels: list[Sequence[str] | None] | None = None) -> np.ndarray:
     """One PNG-ready image: per row, ``columns`` evenly spaced frames of a (T, H, W, 3) video.
 
     Rows of different sizes are placed on a grid of the largest frame size.
     labels: one name per row (the embodiment), written in a band left of the
-    row's frames; the frames themselves are copied untouched (no text in them).
+    row's frames, centred on them; panels: per row None, or the names of the
+    equal-width videos its frames hold side by side (e.g. rollout | ground
+    truth | skeleton), written under each frame. Text goes only on the sheet:
+    the frames themselves are copied untouched (no text in them).
     """
+    import cv2
+
     H = max(r.shape[1] for r in rows)
     W = max(r.shape[2] for r in rows)
+    font_scale = max(0.4, H / 288 * 0.7)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    panels = list(panels) if panels is not None else [None] * len(rows)
+    if len(panels) != len(rows):
+        raise ValueError(f"contact_sheet: expected {len(rows)} panel lists (one per row), found {len(panels)}")
+    caption_h = cv2.getTextSize("Ag", font, font_scale * 0.8, 1)[0][1] + 2 * gap
+    H = max([H] + [r.shape[1] + caption_h for r, p in zip(rows, panels) if p])
     band = 0
     if labels is not None:
-        import cv2
-
         if len(labels) != len(rows):
             raise ValueError(f"contact_sheet: expected {len(rows)} labels (one per row), found {len(labels)}")
-        font_scale = max(0.4, H / 288 * 0.7)
-        band = max(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, font_scale, 1)[0][0] for t in labels) + 2 * gap
+        band = max(cv2.getTextSize(t, font, font_scale, 1)[0][0] for t in labels) + 2 * gap
     sheet = np.full((len(rows) * (H + gap) + gap, band + columns * (W + gap) + gap, 3), 40, np.uint8)
     for i, video in enumerate(rows):
         picks = np.linspace(0, len(video) - 1, columns).round().astype(int)
@@ -43,9 +54,14 @@ def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4, labels
             f = video[t]
             x = band + gap + j * (W + gap)
             sheet[y:y + f.shape[0], x:x + f.shape[1]] = f
+            for k, name in enumerate(panels[i] or ()):  # centred under panel k of the frame
+                (tw, th), _ = cv2.getTextSize(name, font, font_scale * 0.8, 1)
+                cx = x + int((k + 0.5) * f.shape[1] / len(panels[i]))
+                cv2.putText(sheet, name, (cx - tw // 2, y + f.shape[0] + gap + th), font, font_scale * 0.8,
+                            (230, 230, 230), 1, cv2.LINE_AA)
         if labels is not None:
-            (tw, th), _ = cv2.getTextSize(labels[i], cv2.FONT_HERSHEY_SIMPLEX, font_scale, 1)
-            cv2.putText(sheet, labels[i], (gap, y + (H + th) // 2), cv2.FONT_HERSHEY_SIMPLEX, font_scale,
+            (tw, th), _ = cv2.getTextSize(labels[i], font, font_scale, 1)
+            cv2.putText(sheet, labels[i], (gap, y + (video.shape[1] + th) // 2), font, font_scale,
                         (230, 230, 230), 1, cv2.LINE_AA)
     return sheet
 
@@ -58,7 +74,11 @@ def _write_png(path: Path, image: np.ndarray) -> None:
             raise OSError(f"could not encode {path}")
 
 
-def _toy_world_row(out_dir: Path, toy_model, registry, rows, labels, summary, log) -> None:
+#: The videos side by side in the toy world's row (``toyworld.demo.side_by_side``'s order).
+TOY_PANELS = ("rollout", "ground truth", "skeleton")
+
+
+def _toy_world_row(out_dir: Path, toy_model, registry, rows, labels, panels, summary, log) -> None:
     """Add the toy world's rollout (rollout | ground truth | skeleton) as a video and a contact-sheet row."""
     from .toyworld.demo import toy_rollout_demo
 
@@ -70,6 +90,7 @@ def _toy_world_row(out_dir: Path, toy_model, registry, rows, labels, summary, lo
         return
     rows.append(video)
     labels.append("oscar-toy")
+    panels.append(TOY_PANELS)
     summary["toy_world"] = info
     log(f"toy world: {info['model']} rolled out on held-out episode {info['episode']} in {info['rollout_seconds']:.1f} s "
         f"(PSNR {info['psnr_db']:.1f} dB) -> {info['path']} (rollout | ground truth | skeleton)")
@@ -88,7 +109,7 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
     registry = registry or Registry()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows, labels, summary = [], [], {"size": list(size), "videos": [], "skipped": []}
+    rows, labels, panels, summary = [], [], [], {"size": list(size), "videos": [], "skipped": []}
     for failure in registry.failures:
         summary["skipped"].append({"plugin": failure.plugin, "distribution": failure.distribution,
                                    "reason": failure.error})
@@ -112,15 +133,16 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
         path = write_video(out_dir / f"{name}.mp4", video, traj.fps)
         rows.append(video)
         labels.append(name)
+        panels.append(None)
         summary["videos"].append({"embodiment": name, "path": str(path), "frames": len(video),
                                   "render_seconds": round(t_render, 4)})
         log(f"{name}: {len(video)} frames -> {path} (rendered in {t_render * 1000:.0f} ms)")
     if not rows:
         raise RuntimeError(f"no embodiment with a bundled example; registered: {registry.names()}")
     if toy_model:
-        _toy_world_row(out_dir, toy_model, registry, rows, labels, summary, log)
+        _toy_world_row(out_dir, toy_model, registry, rows, labels, panels, summary, log)
     sheet_path = out_dir / "contact_sheet.png"
-    _write_png(sheet_path, contact_sheet(rows, labels=labels))
+    _write_png(sheet_path, contact_sheet(rows, labels=labels, panels=panels))
     summary["contact_sheet"] = str(sheet_path)
     atomic_write_bytes(out_dir / "summary.json", json.dumps(summary, indent=2).encode())
     log(f"contact sheet -> {sheet_path}")

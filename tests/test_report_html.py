@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import shlex
 import shutil
+import time
 
 import pytest
 
@@ -37,10 +41,14 @@ def eval_report(tmp_path_factory):
     mdir = oscar_zoo.export(model, root / "tiny")
     manifest = make_study(root / "study")
     out = root / "out"
-    code = main(["eval", "run", str(manifest), "--model", str(mdir), "--out", str(out), "--judge",
-                 str(manifest.parent / "judge_fns.py:judge"), "--pairwise", "--steps", "1", "--no-progress",
-                 "--json"])
+    argv = ["eval", "run", str(manifest), "--model", str(mdir), "--out", str(out), "--judge",
+            str(manifest.parent / "judge_fns.py:judge"), "--pairwise", "--steps", "1", "--no-progress"]
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(argv)
     assert code == 0
+    (root / "stdout.txt").write_text(printed.getvalue())
+    (root / "command.txt").write_text(shlex.join(["oscar", *argv]))
     return out
 
 
@@ -79,16 +87,107 @@ def test_eval_run_report_plays_and_matches_report_json(eval_report, tmp_path, mo
     keep_screenshot(check, "report-eval-run.png")
 
 
+def _check_provenance(check, command: str):
+    """The page says when it was made (today, UTC), by which command and which oscar version."""
+    import oscar_core
+
+    made = {t["data"]["field"]: t["text"] for t in check.texts["made"]}
+    assert made["command"] == command
+    assert made["version"] == oscar_core.__version__
+    assert made["date"][:10] == time.strftime("%Y-%m-%d", time.gmtime())
+
+
+def test_eval_run_prints_the_page_and_the_page_says_what_made_it_and_defines_its_metrics(eval_report, tmp_path):
+    printed = (eval_report.parent / "stdout.txt").read_text()
+    assert f"open {eval_report / 'report.html'} in a browser" in printed
+    check = open_page(eval_report / "report.html", tmp_path / "eval.png",
+                      select={"made": "#provenance [data-field]", "defs": "#definitions dd"})
+    _check_provenance(check, (eval_report.parent / "command.txt").read_text())
+    defs = {d["data"]["define"]: d["text"] for d in check.texts["defs"]}
+    assert set(defs) == {"mmrv", "mmrv_simpler", "sisr_delta_pp"}
+    # the definitions of oscar_core.metrics.policy: rank distance / success-rate gap of a misordered pair, mean |gap|
+    assert "largest distance in real rank" in defs["mmrv"] and "averaged over the 3 policies" in defs["mmrv"]
+    assert "at most 1.667 here" in defs["mmrv"]  # mmrv_rank_max(3) = (max(0, 2) + max(1, 1) + max(2, 0)) / 3
+    assert "real success rates in place of their rank distance" in defs["mmrv_simpler"]
+    assert "|real success rate − world-model success rate|, in percentage points" in defs["sisr_delta_pp"]
+
+
+def test_a_bradley_terry_fit_at_the_bound_shows_no_board(eval_report, tmp_path):
+    """Preferences that are ties but for one: the fit's tie parameter goes to the optimiser's bound; the page says
+    so and shows neither Elo nor ν."""
+    from oscar_core.evaluation import load_manifest
+    from oscar_core.evaluation.html import write_html_report
+    from oscar_core.metrics.bradley_terry import fit_bradley_terry
+
+    prefs = [("good", "mid", "tie")] * 40 + [("good", "mid", "a")] + [("mid", "bad", "tie")] * 40
+    bt = fit_bradley_terry(prefs)
+    assert bt.degenerate and "optimiser's bound" in bt.degenerate
+    folder = tmp_path / "copy"
+    shutil.copytree(eval_report, folder)
+    report = report_json(folder)
+    report["bradley_terry"] = {**bt.to_dict(), "warnings": [], "partial": None}
+    write_html_report(folder, report, load_manifest(report["manifest"]), [], progress=False)
+    check = open_page(folder / "report.html", tmp_path / "bt.png",
+                      select={"note": "#bt-degenerate", "board": "#board"})
+    assert check.texts["board"] == []
+    (note,) = check.texts["note"]
+    assert "the tie parameter reached the optimiser's bound" in note["text"] and "not shown" in note["text"]
+    html = (folder / "report.html").read_text()
+    assert f"{bt.tie_nu:.4f}" not in html and "Elo</th>" in html  # the per-policy column stays, as n/a
+
+
+def test_missing_truncated_and_dropped_videos_are_named_on_their_cards(eval_report, tmp_path):
+    """Checked when the page is written: a deleted rollout, a rollout cut to 2 of its frames and an unreadable real
+    video each say so on their card."""
+    import dataclasses
+
+    import numpy as np
+
+    from oscar_core.evaluation import load_manifest
+    from oscar_core.evaluation.html import write_html_report
+    from oscar_core.media.video import read_video, write_video
+
+    folder = tmp_path / "copy"
+    shutil.copytree(eval_report, folder)
+    report = report_json(folder)
+    cells = {c["cell"]: c for c in report["cells"]}
+    gone, cut = folder / cells["s2/bad"]["video"], folder / cells["s2/good"]["video"]
+    gone.unlink()
+    frames = read_video(cut)
+    write_video(cut, frames[:2], 15.0)
+    assert cells["s2/good"]["frames"] == len(frames) > 2
+    manifest = load_manifest(report["manifest"])
+    junk = tmp_path / "real.mkv"
+    junk.write_bytes(b"cut short")
+    manifest = dataclasses.replace(manifest, cells=tuple(
+        dataclasses.replace(c, real_video=junk) if c.id == "s1/good" else c for c in manifest.cells))
+    write_html_report(folder, report, manifest, [], progress=False)
+    check = open_page(folder / "report.html", tmp_path / "cards.png",
+                      select={"problems": ".item .media-problem", "items": ".item"})
+    problems = {p["data"]["problem"] + " " + p["text"] for p in check.texts["problems"]}
+    assert len(problems) == 3, problems
+    assert any(t.startswith("rollout rollout video: missing:") and gone.name in t for t in problems)
+    assert any(f"truncated: {cut} holds 2 of the {len(frames)} frames" in t for t in problems)
+    assert any(t.startswith("real real video dropped: unreadable") for t in problems)
+    items = {i["data"]["cell"]: i["text"] for i in check.texts["items"]}
+    assert "missing" in items["s2/bad"] and "truncated" in items["s2/good"] and "dropped" in items["s1/good"]
+    assert not [p for p in check.problems if "s2/bad" in p]  # no <video> was left pointing at the missing file
+
+
 def test_a_broken_video_path_fails_the_check(eval_report, tmp_path):
     broken = tmp_path / "copy"
     shutil.copytree(eval_report, broken)
     media = sorted((broken / "media" / "rollouts").rglob("*.mp4"))
     media[0].unlink()  # a missing file
     media[1].write_bytes(b"not a video")  # a file the browser cannot decode
-    check = open_page(broken / "report.html", tmp_path / "broken.png")
+    check = open_page(broken / "report.html", tmp_path / "broken.png", select={"errors": ".video-error"})
     bad = [v for v in check.videos if v["error"] or not v["played"]]
     assert len(bad) == 2 and len(check.problems) >= 2
     assert any(media[0].name in p for p in check.problems)
+    # the page itself says so, on the cards of the two videos the browser could not play
+    errors = [e["text"] for e in check.texts["errors"]]
+    assert len(errors) == 2 and all(e.startswith("cannot play media/rollouts/") for e in errors)
+    assert any(media[0].name in e for e in errors) and any(media[1].name in e for e in errors)
 
 
 def test_the_report_references_media_relatively_and_has_no_network(eval_report):
@@ -115,9 +214,24 @@ def toy_report(tmp_path_factory):
     for r in cs:
         np.save(root / "same" / f"{r.id}.npy", cs.load(r, skeleton=False).rgb)
     assert main(["toyworld", "baseline", str(root / "clips"), "--split", "all", "--out", str(root / "ff")]) == 0
-    assert main(["toyworld", "eval", "--gt", str(root / "clips"), "--pred", f"true={root / 'same'}",
-                 "--pred", f"first_frame={root / 'ff'}", "--out", str(root / "table.json"),
-                 "--plot", str(root / "table.png")]) == 0
+    # a world model's rollouts: the page names the model they came from
+    import oscar_zoo
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+
+    import torch
+
+    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
+                                         ModelCard(name="tiny-toy", chunk_frames=9, fps=10.0),
+                                         empty_prompt=torch.zeros(1, 1, 48))
+    mdir = oscar_zoo.export(model, root / "tiny-toy")
+    assert main(["toyworld", "rollout", str(root / "clips"), "--model", str(mdir), "--split", "all",
+                 "--steps", "1", "--out", str(root / "wm")]) == 0
+    argv = ["toyworld", "eval", "--gt", str(root / "clips"), "--pred", f"true={root / 'same'}",
+            "--pred", f"first_frame={root / 'ff'}", "--pred", f"tiny={root / 'wm'}", "--out", str(root / "table.json"),
+            "--plot", str(root / "table.png")]
+    assert main(argv) == 0
+    (root / "command.txt").write_text(shlex.join(["oscar", *argv]))
     return root
 
 
@@ -128,7 +242,7 @@ def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
                               "items": ".item"}, screenshot_at="#clips")
     assert check.problems == []
     n_clips = len(check.texts["items"])
-    assert n_clips == 4 and len(check.videos) == n_clips * 3  # truth + 2 conditions per clip
+    assert n_clips == 4 and len(check.videos) == n_clips * 4  # truth + 3 conditions per clip
     specs = {"clips": "d", "psnr_db": ".2f", "ssim": ".3f", "motion_iou": ".3f", "ee_error_px": ".2f",
              "object_error_px": ".2f", "moved_object_error_px": ".2f"}
     tds = check.texts["row"]
@@ -139,6 +253,18 @@ def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
         assert td["text"] == _fmt(table["rows"][names[k // len(specs)]][f], specs[f])
     assert "100.00" in [t["text"] for t in check.texts["fig"]]  # the truth against itself, per clip
     keep_screenshot(check, "report-toyworld-eval.png")
+
+
+def test_toyworld_eval_page_names_its_model_and_what_made_it(toy_report, tmp_path):
+    from oscar_core._util.stage import model_identity
+
+    check = open_page(toy_report / "table.html", tmp_path / "toy.png",
+                      select={"made": "#provenance [data-field]", "model": "#model", "by": "#rows td[data-made-by]"})
+    _check_provenance(check, (toy_report / "command.txt").read_text())
+    assert check.texts["model"][0]["text"] == "model tiny-toy"
+    by = {t["data"]["madeBy"]: t["text"] for t in check.texts["by"]}
+    assert by["tiny"] == f"tiny-toy ({model_identity(toy_report / 'tiny-toy')}), true skeleton"
+    assert by["true"] == by["first_frame"] == "no model recorded (not written by oscar toyworld rollout)"
 
 
 @pytest.fixture(scope="module")
@@ -175,6 +301,11 @@ def test_data_stats_page_shows_the_funnel_of_stats_json_with_thumbnails(data_run
     assert sorted(i["data"]["column"] for i in check.texts["items"]) == sorted([*stats["columns"], "kept", "kept"])
     assert len(check.images) == 4 and all(i["width"] > 0 for i in check.images)
     keep_screenshot(check, "report-data-stats.png")
+
+
+def test_data_stats_page_says_what_made_it(data_run, tmp_path):
+    check = open_page(data_run / "stats.html", tmp_path / "stats.png", select={"made": "#provenance [data-field]"})
+    _check_provenance(check, shlex.join(["oscar", "data", "stats", str(data_run)]))
 
 
 def test_a_missing_thumbnail_fails_the_check(data_run, tmp_path):

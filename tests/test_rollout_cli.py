@@ -153,3 +153,20 @@ def test_rollout_reports_its_fixed_costs_and_compile_decision(capsys, tmp_path, 
     code, stdout, _ = run(capsys, *_args(model_dir, first_frame, tmp_path / "w.mkv", "--json", "--no-side-by-side",
                                          "--no-compile"))
     assert code == 0 and json.loads(stdout)["compile"] == "compile=never"
+
+
+def test_a_video_first_frame_rolls_out_as_its_frame_0(capsys, tmp_path, model_dir, first_frame):
+    """--first-frame takes a video: the rollout from a lossless video whose frame 0 is the image equals the rollout
+    from the image itself (same seed); the later frames of the video play no part."""
+    img = cv2.imread(str(first_frame))[..., ::-1]
+    frames = np.stack([img, 255 - img, img // 2])
+    from oscar_core.media.video import write_video
+
+    write_video(tmp_path / "episode.mkv", frames, 15.0)
+    outs = []
+    for name, src in (("from_image", first_frame), ("from_video", tmp_path / "episode.mkv")):
+        out = tmp_path / f"{name}.mkv"
+        code, _, err = run(capsys, *_args(model_dir, src, out, "--no-side-by-side"))
+        assert code == 0, err
+        outs.append(read_video(out))
+    np.testing.assert_array_equal(outs[0], outs[1])

@@ -150,6 +150,7 @@ def cmd_eval_run(args) -> int:
     else:
         print(Path(result.paths["summary"]).read_text())
         print(f"wrote {result.paths['report']}, {result.paths['summary']}")
+        print(f"open {result.paths['html']} in a browser: the rankings, and every rollout beside the real outcome")
     bad = report["counts"]["verdicts_not_ok"]
     return 0 if bad == 0 else 1
 

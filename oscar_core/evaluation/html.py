@@ -39,10 +39,43 @@ def media_path(out: Path, video: str, kind: str) -> Path:
     return Path(out) / "media" / kind / rel.with_suffix(".mp4")
 
 
+def _mmrv_max(report: dict) -> float | None:
+    """The largest rank-form MMRV for the compared policies (shown beside its definition), None without a comparison."""
+    from ..metrics.policy import mmrv_rank_max
+
+    comp = report.get("comparison")
+    return mmrv_rank_max(len(comp["policies"])) if comp else None
+
+
 def _verdict(cell: dict) -> str:
     if cell["wm_success"] is None:
         return "none"
     return "success" if cell["wm_success"] else "failure"
+
+
+def _media(source, dest: Path, page_dir: Path, *, expected: int | None = None,
+           fps: float | None = None) -> tuple[str | None, str | None]:
+    """The browser copy of video ``source`` and what is wrong with it: ``(url or None, problem or None)``.
+
+    A missing or unreadable file, or one without frames, gives no url and says why; a video with fewer
+    frames than ``expected`` (a truncated file) keeps its url and says how many frames it holds.
+    """
+    from ..media.video import video_info
+
+    src = Path(source)
+    if not src.exists():
+        return None, f"missing: {src} does not exist"
+    try:
+        copy = browser_video(src, dest, fps=fps)
+        n = int(video_info(copy)["frames"])
+    except (OSError, ValueError) as exc:  # MetricInputError is a ValueError
+        return None, f"unreadable: {exc}"
+    if n == 0:
+        return None, f"{src} holds no frames"
+    url = relative_url(copy, page_dir)
+    if expected is not None and n < expected:
+        return url, f"truncated: {src} holds {n} of the {expected} frames the rollout made"
+    return url, None
 
 
 def write_html_report(out, report: dict, manifest: Manifest, records: list[dict], *, plots=(), sheets=None,
@@ -50,8 +83,11 @@ def write_html_report(out, report: dict, manifest: Manifest, records: list[dict]
     """Write ``out/report.html`` (and its browser media) for ``report`` (:func:`~.report.build_report`).
 
     plots: paths of PNG/SVG plots to show; sheets: ``{session: path}`` of the
-    contact sheets. A real video that cannot be read is left out of its card
-    with a warning (the rollout still shows). Returns the page's path.
+    contact sheets. A rollout or real video that is missing, unreadable or
+    truncated is checked here and named on its card (and in a warning); a
+    real video that cannot be read is dropped from its card, which says so.
+    The page's script also names on its card any video the browser then fails
+    to play. Returns the page's path.
     """
     out = Path(out)
     cells_by_id = {c.id: c for c in manifest.cells}
@@ -59,21 +95,20 @@ def write_html_report(out, report: dict, manifest: Manifest, records: list[dict]
     sessions: dict[str, dict] = {}
     bar = progress_bar(report["cells"], desc="report.html: videos", unit="cell", enabled=progress)
     for cell in bar:
-        src = out / cell["video"]
-        rollout = browser_video(src, media_path(out, cell["video"], "rollouts"), fps=fps_by_cell.get(cell["cell"]))
-        real_url = None
+        rollout_url, rollout_problem = _media(out / cell["video"], media_path(out, cell["video"], "rollouts"), out,
+                                              expected=cell.get("frames"), fps=fps_by_cell.get(cell["cell"]))
+        if rollout_problem:
+            _log.warning("report.html: cell %s: rollout video %s: %s", cell["cell"], cell["video"], rollout_problem)
+        real_url = real_problem = None
         mcell = cells_by_id.get(cell["cell"])
         if mcell is not None and mcell.real_video is not None:
-            try:
-                real = browser_video(mcell.real_video, media_path(out, cell["video"], "real"))
-                real_url = relative_url(real, out)
-            except (OSError, ValueError) as exc:  # MetricInputError is a ValueError
-                _log.warning("report.html: cell %s: cannot read the real video %s: %s", cell["cell"],
-                             mcell.real_video, exc)
+            real_url, real_problem = _media(mcell.real_video, media_path(out, cell["video"], "real"), out)
+            if real_problem:
+                _log.warning("report.html: cell %s: real video %s: %s", cell["cell"], mcell.real_video, real_problem)
         s = sessions.setdefault(cell["session"], {"name": cell["session"], "task": cell.get("task"), "cells": [],
                                                   "pairs": [], "sheet_url": None})
-        s["cells"].append({**cell, "verdict": _verdict(cell), "rollout_url": relative_url(rollout, out),
-                           "real_url": real_url})
+        s["cells"].append({**cell, "verdict": _verdict(cell), "rollout_url": rollout_url,
+                           "rollout_problem": rollout_problem, "real_url": real_url, "real_problem": real_problem})
     session_of = {c["cell"]: c["session"] for c in report["cells"]}
     for p in report["pairs"]:
         s = sessions.get(session_of.get(p["clip_a"]))
@@ -90,6 +125,6 @@ def write_html_report(out, report: dict, manifest: Manifest, records: list[dict]
     return render_page(out / "report.html", "eval_run.html.j2", generator="eval run",
                        title=f"oscar eval run — {report['model']}", report=report, judge_text=judge_text,
                        sessions=list(sessions.values()), policy_names=[p["policy"] for p in report["policies"]],
-                       n_cells=len(report["cells"]),
+                       n_cells=len(report["cells"]), mmrv_max=_mmrv_max(report),
                        plots=[{"name": Path(p).stem, "url": relative_url(p, out)} for p in plots
                               if Path(p).suffix.lower() in (".png", ".svg")])

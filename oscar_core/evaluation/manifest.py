@@ -15,8 +15,8 @@ task, rolled out once per policy)::
 
 ``policies`` lists every policy (its order is the report's order); every cell
 names one of them. A cell has ``session``, ``policy``, ``task`` (the
-instruction a rater reads), ``embodiment``, ``first_frame`` (PNG/JPEG taken by
-``camera``), ``trajectory`` (``.npz``, docs/formats.md), ``camera``
+instruction a rater reads), ``embodiment``, ``first_frame`` (PNG/JPEG, or a video
+whose frame 0 is used, taken by ``camera``), ``trajectory`` (``.npz``, docs/formats.md), ``camera``
 (calibration ``.json``), and optionally ``real_success`` (0/1, the real
 outcome where known), ``real_video`` (the real episode, for the contact
 sheets), ``prompt_embeds`` (a ``.safetensors`` text embedding; default: the

@@ -48,8 +48,13 @@ def _num(value, spec: str = ".3f") -> str:
 
 
 def render_page(path, template: str, **context) -> Path:
-    """Render ``templates/<template>`` with ``context`` into ``path`` (atomically); returns the path."""
-    html = _environment().get_template(template).render(**context)
+    """Render ``templates/<template>`` with ``context`` into ``path`` (atomically); returns the path.
+
+    Every page also gets ``made`` (:func:`oscar_core._util.provenance.provenance`: date, command, oscar
+    version), which the base template shows at the top."""
+    from .._util.provenance import provenance
+
+    html = _environment().get_template(template).render(**{"made": provenance(), **context})
     path = Path(path)
     atomic_write_bytes(path, html.encode("utf-8"))
     return path

@@ -67,7 +67,8 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--model", required=True, help="zoo name, Hub id owner/name, or folder (see `oscar zoo list`)")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
     r.add_argument("--embodiment", required=True, help="embodiment name (see `oscar embodiments`)")
-    r.add_argument("--first-frame", required=True, help="first RGB frame (PNG/JPEG) taken by --camera")
+    r.add_argument("--first-frame", required=True, help="first RGB frame taken by --camera: an image (PNG/JPEG) "
+                   "or a video (MP4/MKV/...: its frame 0)")
     r.add_argument("--trajectory", required=True, help="trajectory .npz (docs/formats.md)")
     r.add_argument("--camera", required=True, help="camera calibration .json (docs/formats.md)")
     r.add_argument("--out", required=True, help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)")

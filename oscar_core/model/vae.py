@@ -100,7 +100,11 @@ class VideoVAE:
         if a.dtype != np.uint8 or a.ndim not in (4, 5) or a.shape[-1] != 3:
             raise ModelInputError(f"frames: expected (T, H, W, 3) or (B, T, H, W, 3) uint8 RGB, "
                                   f"found {a.dtype} {a.shape}")
-        t = torch.from_numpy(np.ascontiguousarray(a))
+        if not (a.flags.writeable and a.flags.c_contiguous):
+            # torch.from_numpy warns on a read-only array (a frame of a memory map, np.broadcast_to, a view
+            # marked read-only): one contiguous, writable copy of the uint8 frames (the float copy follows anyway)
+            a = np.array(a, order="C")
+        t = torch.from_numpy(a)
         if t.ndim == 4:
             t = t.unsqueeze(0)
         return t.permute(0, 4, 1, 2, 3).float().div(127.5).sub(1.0)

@@ -152,6 +152,8 @@ class Embodiment:
     license: ClassVar[str] = ""  # SPDX identifier of the kinematic description
     datasets: ClassVar[tuple[str, ...]] = ()
     urdf: ClassVar[Path | str | None] = None
+    # the URDF XML itself (a one-file plugin needs no asset file); parsed like a file, errors name the plugin
+    urdf_text: ClassVar[str | None] = None
     xacro: ClassVar[Path | str | None] = None
     xacro_args: ClassVar[Mapping[str, str]] = {}
     packages: ClassVar[Mapping[str, Path | str]] = {}
@@ -174,9 +176,12 @@ class Embodiment:
         if not isinstance(name, str) or not name or set(name) - NAME_CHARS:
             out.append(f"name: expected a lowercase identifier (a-z 0-9 _ -), found {name!r}")
         if cls.uses_kinematic_tree():
-            if (cls.urdf is None) == (cls.xacro is None):
-                out.append("urdf/xacro: expected exactly one kinematic description, found "
-                           + ("both" if cls.urdf is not None else "neither"))
+            given = [k for k in ("urdf", "urdf_text", "xacro") if getattr(cls, k) is not None]
+            if len(given) != 1:
+                out.append("urdf/urdf_text/xacro: expected exactly one kinematic description, found "
+                           + (" and ".join(given) if given else "none"))
+            if cls.urdf_text is not None and not isinstance(cls.urdf_text, str):
+                out.append(f"urdf_text: expected the URDF XML as a str, found {type(cls.urdf_text).__name__}")
         if not isinstance(cls.skeleton, Skeleton):
             out.append(f"skeleton: expected a Skeleton, found {type(cls.skeleton).__name__}")
         else:
@@ -249,11 +254,18 @@ class Embodiment:
     @functools.cached_property
     def tree(self):
         """The :class:`~oscar_core.kinematics.urdf.KinematicTree` (parsed once)."""
-        from ..kinematics.urdf import build_tree_from_urdf, build_tree_from_xacro
+        from ..kinematics.urdf import build_tree_from_urdf, build_tree_from_urdf_string, build_tree_from_xacro
 
         if self.urdf is not None:
             return build_tree_from_urdf(self.urdf)
+        if self.urdf_text is not None:
+            return build_tree_from_urdf_string(self.urdf_text, self.urdf_text_source())
         return build_tree_from_xacro(self.xacro, self.xacro_args, self.packages)
+
+    @classmethod
+    def urdf_text_source(cls) -> str:
+        """How errors name an embodiment's ``urdf_text``: ``<urdf_text of embodiment 'NAME' (module.Class)>``."""
+        return f"<urdf_text of embodiment {cls.name!r} ({cls.__module__}.{cls.__qualname__})>"
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -344,6 +356,12 @@ class Embodiment:
                               "(no URDF); override Embodiment.visual_geometry to give triangles per link")
         if self.urdf is not None:
             geo = read_urdf_visuals(self.urdf, self.packages)
+        elif self.urdf_text is not None:  # relative mesh names: beside the plugin's module file
+            import sys
+
+            module = sys.modules.get(type(self).__module__)
+            base = Path(module.__file__).parent if getattr(module, "__file__", None) else Path.cwd()
+            geo = read_urdf_visuals(self.urdf_text, self.packages, source=self.urdf_text_source(), base_dir=base)
         else:
             from ..kinematics.urdf import expand_xacro
 

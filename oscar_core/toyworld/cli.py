@@ -1,4 +1,4 @@
-"""The ``oscar toyworld`` sub-commands: ``generate``, ``train-vae``, ``reconstruct``, ``baseline`` and ``eval``.
+"""The ``oscar toyworld`` sub-commands: ``example``, ``generate``, ``train-vae``, ``reconstruct``, ``baseline`` and ``eval``.
 
 Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code). Heavy imports happen inside the
@@ -15,9 +15,10 @@ from .._util.arg_types import count, interval, number
 from .._util.log import run_log
 from ..model.presets import SAMPLER_PRESETS
 
-__all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
+__all__ = ["add_toyworld_parser", "cmd_example", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
 EXAMPLES = """examples:
+  oscar toyworld example --out toy_example     (first_frame.png, trajectory.npz, camera.json for oscar rollout)
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 400 --size 64x64 --frames 17 \\
       --seed 0 --out clipsets/toyworld
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 400 --pick-miss 0.3 --seed 0 \\
@@ -61,6 +62,20 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--threads", type=count(1), default=1, help="torch threads for forward kinematics (default 1)")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
+
+    x = sub.add_parser("example", help="write a first frame, trajectory and camera of one toy-world episode: "
+                                       "the inputs of `oscar rollout --model oscar-toy`",
+                       epilog=EXAMPLES, formatter_class=fmt)
+    x.add_argument("--out", required=True, help="folder for first_frame.png, trajectory.npz and camera.json")
+    x.add_argument("--embodiment", default="toyarm", help="embodiment name (default toyarm; plugins included)")
+    x.add_argument("--seed", type=count(0), default=0,
+                   help="seed: the example is held-out episode 9 of `toyworld generate --seed SEED` (default 0)")
+    x.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels (default 64x64, oscar-toy's)")
+    x.add_argument("--frames", type=count(2), default=17, help="frames of the trajectory (default 17: one oscar-toy "
+                                                              "chunk)")
+    x.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectory (default 10)")
+    x.add_argument("--json", action="store_true", help="print the summary as JSON")
+    x.set_defaults(func=cmd_example)
 
     v = sub.add_parser("train-vae", help="train the toy world's AutoencoderKLWan on a clip set",
                        epilog=EXAMPLES, formatter_class=fmt)
@@ -178,6 +193,24 @@ def _registry(args):
     from ..plugin.registry import Registry
 
     return Registry(plugin_paths=getattr(args, "plugin", None) or ())
+
+
+def cmd_example(args) -> int:
+    from ..render.skeleton_video import parse_size
+    from .example import write_example
+
+    w, h = parse_size(args.size)
+    summary = write_example(args.out, args.embodiment, seed=args.seed, width=w, height=h, frames=args.frames,
+                            fps=args.fps, registry=_registry(args))
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(f"{args.out}: {summary['episode']}, {args.frames} frames at {w}x{h}, {args.fps:g} fps: "
+          + ", ".join(Path(f).name for f in summary["files"]))
+    print(f"  oscar rollout --model oscar-toy --embodiment {summary['embodiment']} "
+          f"--first-frame {summary['files'][0]} --trajectory {summary['files'][1]} --camera {summary['files'][2]} "
+          f"--out toy_rollout.mp4")
+    return 0
 
 
 def cmd_generate(args) -> int:

@@ -48,7 +48,7 @@ from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to
 from .motion import GRAB_RADII, Motion, ToyWorldError, carry_object, check_supported, min_jerk
 
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
-           "plan_session", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
+           "plan_session", "policy_eval_refusal", "CANDIDATE_ROUNDS", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
            "add_policy_eval_arguments", "cmd_policy_eval"]
 
 _log = get_logger(__name__)
@@ -144,14 +144,99 @@ def _reach(emb: Embodiment, q: np.ndarray, ee: np.ndarray, ok: np.ndarray, targe
     return cur[int(np.argmin(cost))]
 
 
+#: Candidate configurations are drawn in rounds of ``n_candidates`` until a pick and a place exist, at most this many.
+CANDIDATE_ROUNDS = 8
+
+
+@dataclass
+class _Candidates:
+    """Sampled configurations and which of them can pick, place and lift (see :func:`_candidates`).
+
+    q: (N, J) radians; pts: (N, K, 3), ee: (N, 3) metres; lo, hi: (J,) joint limits; scale: reach, metres;
+    radius: the ball's, metres; floor: the lowest a skeleton point may go, metres; above, grasp, high, usable:
+    boolean mask (N,) / indices of the floor poses, the high poses and the floor poses with a place far enough.
+    """
+
+    q: np.ndarray
+    pts: np.ndarray
+    ee: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    scale: float
+    radius: float
+    floor: float
+    above: np.ndarray
+    grasp: np.ndarray
+    high: np.ndarray
+    usable: np.ndarray
+
+
+def _candidates(emb: Embodiment, rng: np.random.Generator, n_candidates: int,
+                rounds: int = CANDIDATE_ROUNDS) -> _Candidates:
+    """Draw ``n_candidates`` configurations uniformly inside the joint limits (forward kinematics only), and
+    another ``n_candidates`` while no floor pose has a place :data:`PLACE_MIN_RADII` ball radii away or no high
+    pose exists, at most ``rounds`` times. A floor pose puts the end-effector 2 ± 0.6 ball radii above the floor
+    and at least a quarter of the reach from the base; a high pose lifts it a quarter of the reach above that.
+    A plan whose first round suffices draws exactly what it drew before rounds existed."""
+    lo, hi = joint_limits(emb)
+    J = len(lo)
+    qs, ps, es = [], [], []
+    for _ in range(max(1, rounds)):
+        q1 = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
+        p1, e1 = open_fk(emb, q1)
+        qs.append(q1), ps.append(p1), es.append(e1)
+        q, pts, ee = (np.concatenate(a) for a in (qs, ps, es))
+        base = pts[:, 0].mean(0)
+        scale = reach_of(pts, ee)
+        R = 0.09 * scale  # as sample_motion: a ball about 7 pixels across at 64 x 64
+        floor = -0.02 * scale
+        above = (pts[..., 2].min(1) >= floor) & (ee[:, 2] >= R)
+        grasp = np.flatnonzero(above & (np.abs(ee[:, 2] - 2 * R) <= 0.6 * R)
+                               & (np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale))
+        high = np.flatnonzero(above & (ee[:, 2] >= 2 * R + 0.25 * scale))
+        far = np.linalg.norm(ee[grasp, None, :2] - ee[None, grasp, :2], axis=-1) >= PLACE_MIN_RADII * R
+        usable = grasp[far.any(1)]
+        if len(usable) and len(high):
+            break
+    return _Candidates(q, pts, ee, lo, hi, scale, R, floor, above, grasp, high, usable)
+
+
+def policy_eval_refusal(emb: Embodiment, n_candidates: int = 768) -> str | None:
+    """Why ``emb`` cannot do the toy world's pick-and-place, or None when it can: checked before anything is
+    written, on :data:`CANDIDATE_ROUNDS` x ``n_candidates`` configurations of a fixed generator (what one session
+    may draw). The reasons: not a kinematic-tree embodiment, no gripper, no floor pose, no lifted pose, or floor
+    poses that never lie :data:`PLACE_MIN_RADII` ball radii apart (the arm reaches too small a patch of floor
+    around its base, which the toy world never moves)."""
+    try:
+        check_supported(emb)
+    except ToyWorldError as exc:
+        return str(exc).removeprefix("toyworld: ")
+    if not len(emb.grippers):
+        return f"embodiment {emb.name!r} has no gripper to pick with"
+    rounds = CANDIDATE_ROUNDS
+    c = _candidates(emb, np.random.default_rng(0), n_candidates * rounds, rounds=1)
+    if len(c.grasp) < 2 or len(c.high) < 1:
+        return (f"embodiment {emb.name!r}: expected poses that reach the floor and lift well above it, found "
+                f"{len(c.grasp)} floor and {len(c.high)} high poses in {len(c.q)} sampled configurations")
+    if len(c.usable) == 0:
+        xy = c.ee[c.grasp, :2]
+        span = float(np.linalg.norm(xy[:, None] - xy[None], axis=-1).max())
+        return (f"embodiment {emb.name!r}: its end-effector reaches the floor over a patch {span:.2f} m across "
+                f"(its base stays still in the toy world), and a pick-and-place needs a place "
+                f"{PLACE_MIN_RADII:g} ball radii = {PLACE_MIN_RADII * c.radius:.2f} m from the ball "
+                f"({len(c.q)} sampled configurations)")
+    return None
+
+
 def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
                  fps: float = 10.0, policies=POLICIES, policy_rngs: dict | None = None,
-                 n_candidates: int = 768) -> Session:
+                 n_candidates: int = 768, rounds: int = CANDIDATE_ROUNDS) -> Session:
     """Plan one session and every policy's episode in it (no rendering).
 
     rng: the session's generator (scene, ball, poses, timing, camera);
     policy_rngs: ``{policy name: generator}`` for the aiming errors (default:
-    drawn from ``rng``). Raises :class:`ToyWorldError` when the robot cannot
+    drawn from ``rng``); n_candidates, rounds: configurations sampled per round,
+    at most that many rounds (:func:`_candidates`). Raises :class:`ToyWorldError` when the robot cannot
     do the task (no gripper, fewer than 9 frames, no reachable place far
     enough from the ball), ``ValueError`` when no camera sees it all.
     """
@@ -162,27 +247,15 @@ def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: 
         raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r} has no gripper to pick with")
     if frames < 9:
         raise ToyWorldError(f"toyworld policy-eval: --frames: expected at least 9 frames, found {frames}")
-    lo, hi = joint_limits(emb)
-    J = len(lo)
-    q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
-    pts, ee = open_fk(emb, q)
-    base = pts[:, 0].mean(0)
-    scale = reach_of(pts, ee)
-    R = 0.09 * scale  # as sample_motion: a ball about 7 pixels across at 64 x 64
-    floor = -0.02 * scale
-    above = (pts[..., 2].min(1) >= floor) & (ee[:, 2] >= R)
-    grasp = np.flatnonzero(above & (np.abs(ee[:, 2] - 2 * R) <= 0.6 * R)
-                           & (np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale))
-    high = np.flatnonzero(above & (ee[:, 2] >= 2 * R + 0.25 * scale))
+    c = _candidates(emb, rng, n_candidates, rounds)
+    q, pts, ee, above, grasp, high, usable = c.q, c.pts, c.ee, c.above, c.grasp, c.high, c.usable
+    lo, hi, scale, R, floor = c.lo, c.hi, c.scale, c.radius, c.floor
     if len(grasp) < 2 or len(high) < 1:
         raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r}: expected poses that reach the floor and "
                             f"lift well above it, found {len(grasp)} floor and {len(high)} high poses")
-    # the ball: under a floor pose that has another floor pose (the place) far enough away
-    far = np.linalg.norm(ee[grasp, None, :2] - ee[None, grasp, :2], axis=-1) >= PLACE_MIN_RADII * R
-    usable = grasp[far.any(1)]
     if len(usable) == 0:
         raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r}: expected two floor poses at least "
-                            f"{PLACE_MIN_RADII} ball radii apart, found none")
+                            f"{PLACE_MIN_RADII} ball radii apart, found none in {len(q)} sampled configurations")
     g = int(rng.choice(usable))
     ball = np.array([ee[g, 0], ee[g, 1], R])
     places = grasp[np.linalg.norm(ee[grasp, :2] - ball[:2], axis=1) >= PLACE_MIN_RADII * R]
@@ -315,10 +388,10 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
         raise ValueError(f"toyworld policy-eval: policies: expected unique names, found {names}")
     registry = registry or Registry()
     embs = [registry.get(n) for n in embodiments]
-    for e in embs:
-        check_supported(e)
-        if not len(e.grippers):
-            raise ToyWorldError(f"toyworld policy-eval: embodiment {e.name!r} has no gripper to pick with")
+    for e in embs:  # every body is checked before anything is written
+        why = policy_eval_refusal(e)
+        if why is not None:
+            raise ToyWorldError(f"toyworld policy-eval: {why}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cells, rows = [], []
