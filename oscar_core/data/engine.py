@@ -345,7 +345,7 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
 
 
 def _run_ray(fn, tasks, stage_url, n_workers) -> list[tuple[str, int, bool]]:
-    from ._optional import require
+    from .._util.optional import require
 
     ray = require("ray", "ray")
     if not ray.is_initialized():

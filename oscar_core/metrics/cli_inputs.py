@@ -73,13 +73,6 @@ def collect_clips(pred, gt, *, embodiment: str | None = None) -> list:
     return clips
 
 
-def _load_network(spec: str | None, what: str):
-    """Kept for old callers: :func:`oscar_core.metrics.networks.load_network`."""
-    from .networks import load_network
-
-    return load_network(spec, what)
-
-
 def _read_json(path: Path):
     if not path.is_file():
         raise MetricInputError(path, "file", "an existing JSON file", "no such file")

@@ -62,7 +62,9 @@ __all__ = [
 
 CLIPSET_FILE = "oscar_clips.json"
 CLIPSET_FORMAT = "oscar-clips"
-FORMAT_VERSION = 1
+#: 2: a clip set written by a resumable stage (toyworld generate, the latent cache) has its fingerprint.json
+#: (oscar_core._util.stage); a set of format 1 may lack it, and is refused by name rather than guessed at
+FORMAT_VERSION = 2
 SHARD_INDEX = "clips.jsonl"
 REQUIRED_FILES = ("rgb", "trajectory", "camera")
 OPTIONAL_FILES = ("skeleton", "prompt_embeds", "latents")
@@ -367,7 +369,9 @@ def _read_marker(path: Path) -> dict:
     if not isinstance(d, dict) or d.get("format") != CLIPSET_FORMAT:
         raise ClipFormatError(path, None, "format", repr(CLIPSET_FORMAT), repr(d.get("format") if isinstance(d, dict) else d))
     if d.get("format_version") != FORMAT_VERSION:
-        raise ClipFormatError(path, None, "format_version", str(FORMAT_VERSION), repr(d.get("format_version")))
+        raise ClipFormatError(path, None, "format_version",
+                              f"{FORMAT_VERSION} (a set of another format is made again with the command that made it)",
+                              repr(d.get("format_version")))
     return d
 
 
