@@ -214,7 +214,7 @@ PUBLIC_PATHS = {"oscar_core.camera": None, "oscar_core.trajectory": "oscar_core.
                 "oscar_core.hookspecs": "oscar_core.plugin.hookspecs"}
 CAMERA_NAMES = {"CONVENTIONS", "CONVENTION_ALIASES", "DIRECTIONS", "Intrinsics", "Camera", "Projection",
                 "canonical_convention", "as_rigid_transform", "as_rigid_transforms", "look_at", "convention_to_opencv",
-                "project", "project_points_cv", "load_camera", "save_camera"}
+                "project", "project_points_cv", "load_camera", "save_camera", "camera_from_dict", "camera_to_dict"}
 
 
 @pytest.mark.parametrize("path", sorted(PUBLIC_PATHS))

@@ -38,7 +38,7 @@ import os
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 from .._util import stage as _stage
 from .._util.log import get_logger
@@ -47,6 +47,7 @@ from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, ta
 
 __all__ = [
     "ENGINES",
+    "EngineName",
     "FINGERPRINT",
     "StageIncomplete",
     "StageRecomputed",
@@ -64,7 +65,9 @@ __all__ = [
 
 _log = get_logger(__name__)
 
-ENGINES = ("local", "ray")
+#: where a stage runs: a local process pool, or Ray tasks
+EngineName = Literal["local", "ray"]
+ENGINES: tuple[str, ...] = get_args(EngineName)
 MANIFEST = "manifest.parquet"
 FINGERPRINT = "fingerprint.json"
 
@@ -242,7 +245,7 @@ class _RayShardTask:
         return {"name": name, "n": n, "done": done}
 
 
-def check_workers_see(url: str, engine: str, workers: int | None) -> None:
+def check_workers_see(url: str, engine: EngineName, workers: int | None) -> None:
     """ValueError when worker processes (``--workers`` > 1 or Ray) would write ``url`` on a filesystem only this
     process sees (``memory://``): their output would be lost."""
     if (engine == "ray" or (workers or os.cpu_count() or 1) > 1) and _fs.process_local(url):
@@ -250,7 +253,7 @@ def check_workers_see(url: str, engine: str, workers: int | None) -> None:
                          f"--engine local with it, found --engine {engine} --workers {workers or os.cpu_count()}")
 
 
-def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: str = "local",
+def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: EngineName = "local",
                 workers: int | None = None, progress: bool = True, desc: str = "",
                 parts: Mapping[str, Any] | None = None) -> StageRun:
     """Map ``fn`` over ``rows`` in shards into ``stage_url``; skip shards already completed.

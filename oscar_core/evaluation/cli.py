@@ -33,7 +33,7 @@ from pathlib import Path
 
 from .._util.arg_types import count, default_device, device_name, interval, number
 from .._util.log import progress_bars_enabled, run_log
-from ..metrics._common import MetricInputError
+from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
 from ..model.presets import SAMPLER_PRESETS
 

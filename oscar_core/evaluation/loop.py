@@ -49,7 +49,7 @@ import numpy as np
 from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
-from ..metrics._common import MetricInputError
+from ..metrics.common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
 __all__ = ["RECORD_VERSION", "EvaluationResult", "run_evaluation", "model_identity", "rollout_key",

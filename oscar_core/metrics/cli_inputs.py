@@ -10,7 +10,7 @@ import glob
 import json
 from pathlib import Path
 
-from ._common import MetricInputError, finite_float
+from .common import MetricInputError, finite_float
 
 
 __all__ = [

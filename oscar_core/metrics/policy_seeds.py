@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util.arg_types import count
-from ._common import MetricInputError
+from .common import MetricInputError
 from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
 
 __all__ = ["cell_rates", "main", "read_reports", "session_bootstrap", "summarize_runs"]

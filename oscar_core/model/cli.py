@@ -15,6 +15,7 @@ from pathlib import Path
 
 from .._util.arg_types import count, default_device, device, interval, number
 from .presets import SAMPLER_PRESETS
+from ..render.conditions import takes_actions
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
            "side_by_side_path"]
@@ -287,7 +288,7 @@ def _prompt_embeds(args, model, device) -> tuple:
     if args.prompt_embeds:
         from safetensors.torch import load_file
 
-        from ._weights import check_safetensors
+        from .weights import check_safetensors
 
         check_safetensors(args.prompt_embeds)
         tensors = load_file(args.prompt_embeds)
@@ -354,7 +355,7 @@ def cmd_rollout(args) -> int:
     from ..render.skeleton_video import fit_image
     from ..plugin.registry import get_embodiment
     from ..kinematics.trajectory import load_trajectory
-    from ._image import read_first_frame
+    from .image import read_first_frame
     from .sampler import sampler_from_options
 
     timings = {"startup": startup} if startup is not None else {}
@@ -421,7 +422,7 @@ def cmd_rollout(args) -> int:
 
     fps = args.fps or traj.fps
     result = RolloutResult(frames=np.empty(0, np.uint8))
-    latent_action = model.card.condition == "latent_action"
+    latent_action = takes_actions(model.card.condition)
     t0 = time.perf_counter()
     actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
     timings["render"] += time.perf_counter() - t0

@@ -27,10 +27,11 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from .._util.log import get_logger
-from ..render.conditions import CONDITIONS as VIDEO_CONDITIONS
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
+from ..render.conditions import ConditionName, takes_actions
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
-from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
-from ._weights import cast_model, check_safetensors
+from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from .weights import cast_model, check_safetensors
 from .errors import CheckpointLayoutError, ModelInputError
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
@@ -43,8 +44,6 @@ FORMAT = "oscar-world-model"
 DEFAULT_SAMPLER = SamplerConfig()  # frozen: one shared default for the rollout methods
 _log = get_logger(__name__)
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-# video conditions (skeleton, mesh, capsules: oscar_core.render.conditions) travel in the skeleton stream
-CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 
 
 @dataclass(frozen=True)
@@ -80,7 +79,7 @@ class ModelCard:
     base: str | None = None
     license: str | None = None
     unconditional_skeleton: str = "zero_latent"
-    condition: str = "skeleton"
+    condition: ConditionName = "skeleton"
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
@@ -172,7 +171,7 @@ class OscarWorldModel:
             if manifest is not None:
                 verify_files(folder, {p: m.get("sha256") for p, m in manifest.items()}, source=folder)
         transformer_cls = OscarTransformer3DModel
-        if card.condition == "latent_action":
+        if takes_actions(card.condition):
             from .latent_action import LatentActionTransformer
 
             transformer_cls = LatentActionTransformer
@@ -366,7 +365,7 @@ class OscarWorldModel:
         """
         from .rollout import rollout_batch
 
-        if self.card.condition == "latent_action":
+        if takes_actions(self.card.condition):
             raise ModelInputError("rollout_batch: latent-action models roll out one at a time (rollout)")
         if isinstance(prompt_embeds, (list, tuple)):
             embeds = [self.prompt_embeds(e) for e in prompt_embeds]
@@ -399,7 +398,7 @@ class OscarWorldModel:
 
     def _rollout_actions(self, skeleton, actions, chunk: int):
         """(actions padded to the chunk plan or None, frame count or None); checks the input fits the card."""
-        if self.card.condition != "latent_action":
+        if not takes_actions(self.card.condition):
             if actions is not None:
                 raise ModelInputError(f"rollout: model {self.card.name or ''} is conditioned on "
                                       f"{self.card.condition!r}: expected a skeleton video, found actions")
@@ -429,7 +428,7 @@ class OscarWorldModel:
         pixels (None: the card's size, else the camera's); actions: (T − 1, 14)
         float64 ``latent_actions(embodiment, trajectory)`` (latent-action models).
         """
-        if self.card.condition == "latent_action":
+        if takes_actions(self.card.condition):
             from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}

@@ -41,7 +41,7 @@ import numpy as np
 
 from .._util.arg_types import count, number
 from .._util.log import get_logger
-from ..camera.pinhole import Camera, project
+from ..camera import Camera, project
 from ..plugin.embodiment import Embodiment
 from ..kinematics.trajectory import Trajectory
 from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of
@@ -299,7 +299,7 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
     it all) is re-drawn with the next attempt number (recorded in the summary).
     """
     from .._util.atomic import atomic_write_bytes
-    from ..camera.pinhole import save_camera
+    from ..camera import save_camera
     from ..plugin.registry import Registry
     from ..kinematics.trajectory import save_trajectory
     from ..media.video import write_video

@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util.atomic import _TMP_NAME as _TMP_WITH_PID
+from .._util.atomic import TMP_NAME as _TMP_WITH_PID
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
 from ..errors import OscarError
 
@@ -232,7 +232,7 @@ class ShardWriter:
 
     def add(self, clip: Clip) -> ClipRecord:
         """Write a clip's files and return its record (``files`` filled in)."""
-        from ..camera.pinhole import save_camera
+        from ..camera import save_camera
         from ..kinematics.trajectory import save_trajectory
         from ..media.video import write_video
 
@@ -484,7 +484,7 @@ class ClipSet:
         read the camera with the embodiment's defaults (None: plain camera file).
         Returns a :class:`Clip` whose arrays cover the window only.
         """
-        from ..camera.pinhole import load_camera
+        from ..camera import load_camera
         from ..errors import InputFileError
         from ..media.video import read_video
 

@@ -27,14 +27,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..render.conditions import CONDITIONS as _VIDEO_CONDITIONS
+from ..render.conditions import CONDITIONS as VIDEO_CONDITIONS  # given as a video through the VAE and PE_s
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
 from ..errors import OscarError
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
-VIDEO_CONDITIONS = _VIDEO_CONDITIONS  # conditions given as a video through the VAE and PE_s (oscar_core.render.conditions)
-CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 CHECKPOINTING = ("none", "full", "auto")
 LATENT_MODES = ("auto", "cached", "on_the_fly")

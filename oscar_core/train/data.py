@@ -26,6 +26,7 @@ import torch
 from .clips import ClipFormatError, ClipRecord, ClipSet
 from .config import VIDEO_CONDITIONS, TrainConfig
 from .sampling import PlanItem, StepPlanner
+from ..render.conditions import takes_actions
 
 __all__ = ["TrainData", "Batch", "UsableClip"]
 
@@ -208,7 +209,7 @@ class TrainData:
         stored = condition == (u.cached_condition if self.cached else "skeleton")
         out: dict = {"skeleton": None, "actions": None}
         need_traj = ((want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files)))
-                     or condition == "latent_action")
+                     or takes_actions(condition))
         clip = cs.load(rec, start=item.start, frames=self.window, video=not self.cached,
                        skeleton=want_skeleton and stored and not self.cached, registry=self.registry if need_traj else None)
         if self.cached:
@@ -245,7 +246,7 @@ class TrainData:
             out["text"] = pe
         else:
             out["text"] = torch.zeros(1, self.text_dim)
-        if condition == "latent_action":
+        if takes_actions(condition):
             from ..model.latent_action import latent_actions
 
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
@@ -258,7 +259,7 @@ class TrainData:
         text = torch.stack([torch.cat([x["text"], x["text"].new_zeros(L - x["text"].shape[0], self.text_dim)])
                             for x in loaded])
         skel = torch.stack([x["skeleton"] for x in loaded]) if condition in VIDEO_CONDITIONS else None
-        acts = torch.stack([x["actions"] for x in loaded]) if condition == "latent_action" else None
+        acts = torch.stack([x["actions"] for x in loaded]) if takes_actions(condition) else None
         return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts)
 
     def summary(self) -> dict:

@@ -30,6 +30,7 @@ from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
+from ..render.conditions import takes_actions
 
 __all__ = [
     "CONFIG_FILE",
@@ -82,7 +83,7 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
                   return_dict=False)
     if config.condition in VIDEO_CONDITIONS:
         kwargs["skeleton_latents"] = batch.skeleton.to(device)
-    elif config.condition == "latent_action":
+    elif takes_actions(config.condition):
         kwargs["actions"] = batch.actions.to(device)
     with autocast or contextlib.nullcontext():
         pred = model(**kwargs)[0]
