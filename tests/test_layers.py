@@ -39,6 +39,8 @@ LAYERS: list[tuple[str, list[str]]] = [
 ALLOWED_UPWARD: dict[tuple[str, str], str] = {
     ("oscar_core.model.text_encoder", "oscar_zoo._fetch"):
         "TextEncoder.from_hub (public API) downloads through the zoo's verified Hub fetcher",
+    ("oscar_core.model.rollout_files", "oscar_zoo"):
+        "run_rollout (the Python twin of oscar rollout) loads its model by zoo name, Hub id or folder",
 }
 
 

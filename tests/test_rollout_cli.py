@@ -76,6 +76,25 @@ def test_rollout_writes_video_and_side_by_side(capsys, tmp_path, model_dir, firs
     np.testing.assert_array_equal(side[:, :, :64], video)  # left half: the rollout itself (lossless .mkv)
 
 
+def test_the_python_function_writes_what_the_command_writes(capsys, tmp_path, model_dir, first_frame):
+    """oscar rollout is RolloutRequest -> run_rollout -> print: the same frames and the same summary."""
+    from oscar_core.model import RolloutRequest, run_rollout
+
+    code, stdout, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "cli.mkv", "--json", "--seed", "2"))
+    assert code == 0, err
+    seen = []
+    result = run_rollout(RolloutRequest(model=str(model_dir), embodiment="toyarm", first_frame=str(first_frame),
+                                        trajectory=str(TRAJ), camera=str(CAM), out=str(tmp_path / "api.mkv"),
+                                        size="64x32", steps=1, seed=2, progress=False), notify=seen.append)
+    np.testing.assert_array_equal(read_video(result.out), read_video(tmp_path / "cli.mkv"))
+    assert result.side_by_side == side_by_side_path(tmp_path / "api.mkv") and result.side_by_side.is_file()
+    cli = json.loads(stdout)
+    for key in ("rollout", "side_by_side", "timings"):
+        cli.pop(key), result.summary.pop(key)
+    assert result.summary == cli
+    assert any(m.startswith("text: ") for m in seen) and set(result.timings) >= {"load", "sample", "wall"}
+
+
 def test_first_frame_size_must_match_the_camera(capsys, tmp_path, model_dir):
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.zeros((100, 200, 3), np.uint8))
