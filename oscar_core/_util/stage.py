@@ -30,12 +30,15 @@ import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Literal
 
 from ..errors import OscarError
 
-__all__ = ["FORMAT_VERSION", "StageChanged", "changes", "check_stage", "fingerprint", "model_identity",
+__all__ = ["FORMAT_VERSION", "EngineName", "StageChanged", "changes", "check_stage", "fingerprint", "model_identity",
            "pool_context", "watch_parent", "worker_initializer"]
+
+#: where a stage's work runs: a local process pool (or this process), or Ray tasks / actors
+EngineName = Literal["local", "ray"]
 
 FORMAT_VERSION = 1  # bump when a stage's stored output changes meaning; every stage then recomputes
 

@@ -38,9 +38,10 @@ import os
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal, get_args
+from typing import Any, get_args
 
 from .._util import stage as _stage
+from .._util.stage import EngineName
 from .._util.log import get_logger
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
@@ -65,8 +66,6 @@ __all__ = [
 
 _log = get_logger(__name__)
 
-#: where a stage runs: a local process pool, or Ray tasks
-EngineName = Literal["local", "ray"]
 ENGINES: tuple[str, ...] = get_args(EngineName)
 MANIFEST = "manifest.parquet"
 FINGERPRINT = "fingerprint.json"
