@@ -172,3 +172,21 @@ def test_rollout_reports_its_fixed_costs_and_compile_decision(capsys, tmp_path, 
     code, stdout, _ = run(capsys, *_args(model_dir, first_frame, tmp_path / "w.mkv", "--json", "--no-side-by-side",
                                          "--no-compile"))
     assert code == 0 and json.loads(stdout)["compile"] == "compile=never"
+
+
+def test_rollout_uses_the_card_sampler_unless_a_flag_says_otherwise(capsys, tmp_path, first_frame):
+    card = ModelCard(name="tiny-card", chunk_frames=41, fps=15.0, sampler={"steps": 1, "guidance": 2.0})
+    folder = oscar_zoo.export(OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
+                                                           card), tmp_path / "m")
+    args = [a for a in _args(folder, first_frame, tmp_path / "v.mkv", "--json") if a not in ("--steps", "1")]
+    code, stdout, err = run(capsys, *args)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["steps"] == 1 and summary["guidance"] == {"w": 2.0, "form": "diffusers"}
+    assert ("sampler: steps 1 (model card), guidance 2 (model card), guidance form diffusers (library default), "
+            "preset none (library default)") in err
+    code, stdout, err = run(capsys, *args, "--guidance", "0.5", "--guidance-form", "standard")
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["guidance"] == {"w": 0.5, "form": "standard"} and summary["sampler_sources"]["guidance"] == "given"
+    assert "guidance 0.5 (flag), guidance form standard (flag)" in err

@@ -53,7 +53,7 @@ from .._util.log import get_logger, progress_bar
 from ..metrics.common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
-__all__ = ["RECORD_VERSION", "EvaluationResult", "EvaluationSettings", "run_evaluation", "model_identity", "rollout_key",
+__all__ = ["RECORD_VERSION", "EvaluationResult", "EvaluationSettings", "run_evaluation", "card_sampler_of", "model_identity", "rollout_key",
            "record_path", "video_path"]
 
 RECORD_VERSION = 1
@@ -149,7 +149,8 @@ class EvaluationSettings:
 
     model_spec: zoo name, Hub id or folder to load (``oscar_zoo.load(model_spec, revision, device=device,
     dtype=dtype)``) when a rollout is needed and no model object is given; dtype None: bfloat16 on CUDA, else
-    the checkpoint's. sampler: :class:`~oscar_core.model.SamplerConfig` (None: the paper's). chunk_frames: frames
+    the checkpoint's. sampler: :class:`~oscar_core.model.SamplerConfig` (None: the model card's recommended
+    settings over the library's defaults, :func:`~oscar_core.model.sampler.resolve_sampler`). chunk_frames: frames
     per chunk (None: the model's). batch_cells: roll out up to this many cells in one batch (cells in manifest
     order that share a frame count, size and prompt shape; each cell's video equals its one-at-a-time rollout up
     to float rounding, and its record is written as soon as its batch finishes; latent-action models roll out one
@@ -234,10 +235,19 @@ def run_evaluation(manifest, out, *, model=None, judge=None, pairwise_judge=None
     return _report(run, records, verdicts, pair_verdicts, judge, pairwise_judge, user_log=log)
 
 
+def card_sampler_of(spec: str, revision: str | None = None) -> dict | None:
+    """The sampler settings model ``spec``'s card recommends (``ModelCard.sampler``), read from its folder (bundled,
+    local, or pulled into the Hub cache) without loading weights; None for a folder without an OSCAR card."""
+    import oscar_zoo
+
+    from ..model.world_model import MODEL_FILE, read_card
+
+    folder = Path(oscar_zoo.pull(spec, revision))
+    return read_card(folder).sampler if (folder / MODEL_FILE).is_file() else None
+
+
 def _start(manifest, out, model, settings: EvaluationSettings, log) -> _Run:
     """Load and check the manifest, sweep temporaries of killed runs, and set up the (lazy) model."""
-    from ..model.sampler import SamplerConfig
-
     log = log or _log.info
     manifest = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
     _check_embodiments(manifest, settings.plugin_paths)
@@ -249,7 +259,16 @@ def _start(manifest, out, model, settings: EvaluationSettings, log) -> _Run:
     spec, revision = settings.model_spec, settings.revision
     if model is None and spec is None:
         raise MetricInputError("model", "model", "a world model or a model spec (zoo name, Hub id or folder)", "none")
-    sampler = settings.sampler or SamplerConfig()
+    if settings.sampler is not None:
+        sampler = settings.sampler
+    else:  # the card's recommended settings over the library's defaults
+        from ..model.sampler import resolve_sampler
+
+        card_sampler = (getattr(getattr(model, "card", None), "sampler", None) if model is not None
+                        else card_sampler_of(spec, revision))
+        choice = resolve_sampler(card_sampler)
+        log(f"sampler: {choice.describe()}")
+        sampler = choice.config
     model_id = model_identity(spec, revision) if spec is not None else f"object:{type(model).__name__}"
 
     def load():

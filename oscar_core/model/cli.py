@@ -81,19 +81,21 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how camera and first frame are fitted to --size (default: centre crop)")
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35, or "
+                   "the preset's)")
     r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget: paper (35 steps, guidance at every "
-                   "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md)")
+                   "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md); default: "
+                   "the model card's, else none")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch")
     r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
                    "(default: the checkpoint's scheduler, else unipc)")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
-                   "--guidance-form diffusers or 1 with standard = conditional branch only)")
-    r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
-                   help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
-                   "standard: v_u + w(v_c - v_u)")
+    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6, the "
+                   "paper's; 0 with --guidance-form diffusers or 1 with standard = conditional branch only)")
+    r.add_argument("--guidance-form", choices=("diffusers", "standard"),
+                   help="diffusers (Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); standard: v_u + "
+                   "w(v_c - v_u) (default: the model card's, else diffusers)")
     r.add_argument("--action-guidance", type=number(0.0), help="latent-action models: guidance w over the actions "
                    "(unconditional branch: no action tokens; default: none, the conditional branch only)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
@@ -281,7 +283,7 @@ def cmd_rollout(args) -> int:
         compile=args.compile, vae_tiling=args.vae_tiling, vae_slicing=args.vae_slicing,
         offload_vae=args.offload_vae, offload_text=args.offload_text, offline=args.offline,
         progress=not args.no_progress, plugin_paths=tuple(getattr(args, "plugin", None) or ()))
-    result = run_rollout(request, notify=lambda line: print(line, file=sys.stderr), startup=startup)
+    result = run_rollout(request, notify=lambda line: print(line, file=sys.stderr), startup=startup, given="flag")
     summary = result.summary
     if args.json:
         print(json.dumps(summary, indent=2))

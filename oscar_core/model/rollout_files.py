@@ -48,8 +48,9 @@ class RolloutRequest:
     first_frame: RGB image (PNG/JPEG) taken by ``camera``; trajectory: ``.npz``; camera: calibration ``.json``;
     out: ``.mp4`` (H.264), ``.mkv`` (lossless) or ``folder/`` (PNGs). side_by_side: the side-by-side video
     (None: :func:`side_by_side_path`; ``no_side_by_side``: none). size: ``"WIDTHxHEIGHT"``, multiples of 16 (None:
-    the model's, else the camera's). Sampler: ``steps`` (None: 35, or the preset's), ``preset``,
-    ``guidance_interval`` (lo, hi), ``solver``, ``shift``, ``guidance`` w, ``guidance_form``,
+    the model's, else the camera's). Sampler: ``steps``, ``guidance`` w, ``guidance_form`` and ``preset``
+    (None: the model card's recommendation, else the library's 35 steps, guidance 6, diffusers form, no preset:
+    :func:`~oscar_core.model.sampler.resolve_sampler`), ``guidance_interval`` (lo, hi), ``solver``, ``shift``,
     ``action_guidance`` (latent-action models), ``two_pass_cfg``. fps: output frame rate (None: the
     trajectory's). device / dtype: None chooses (CUDA when available; bfloat16 on CUDA, else float32).
     plugin_paths: plugin files or folders to load besides the installed ones.
@@ -77,8 +78,8 @@ class RolloutRequest:
     guidance_interval: tuple[float, float] | None = None
     solver: str | None = None
     shift: float = 5.0
-    guidance: float = 6.0
-    guidance_form: Literal["diffusers", "standard"] = "diffusers"
+    guidance: float | None = None
+    guidance_form: Literal["diffusers", "standard"] | None = None
     action_guidance: float | None = None
     two_pass_cfg: bool = False
     seed: int = 0
@@ -113,15 +114,16 @@ def _notify_log(message: str) -> None:
 
 
 def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None = None,
-                startup: float | None = None) -> RolloutFilesResult:
+                startup: float | None = None, given: str = "request") -> RolloutFilesResult:
     """Roll ``request.model`` out along ``request.trajectory`` from ``request.first_frame`` and write the videos.
 
     Steps: read the inputs (embodiment, trajectory, camera, first frame) and the sampler options, check the
     outputs and the memory the condition video needs, load the model (``oscar_zoo.load``), render the card's
     condition video at the rollout size, embed the prompt, roll out chunk by chunk while writing ``out`` (and
     the side-by-side: rollout | condition over rollout) as chunks arrive. notify: called with each message a
-    person should see (default: logged). startup: seconds the process spent before this call (counted in the
-    summary's timings). Raises an :class:`~oscar_core.errors.OscarError` naming the file or option for bad
+    person should see (default: logged), among them the sampler settings used and where each came from
+    (``given``: what to call the request's own values, e.g. "flag"; the model card; the library default).
+    startup: seconds the process spent before this call (counted in the summary's timings). Raises an :class:`~oscar_core.errors.OscarError` naming the file or option for bad
     input, before any weights load.
     """
     t_start = time.perf_counter()
@@ -137,7 +139,7 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     from ..render.conditions import condition_video, takes_actions, video_condition_of
     from ..render.skeleton_video import fit_image
     from .image import read_first_frame
-    from .sampler import sampler_from_options
+    from .sampler import resolve_sampler
 
     r = request
     timings = {"startup": startup} if startup is not None else {}
@@ -146,10 +148,10 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     traj = load_trajectory(r.trajectory)
     camera = emb.load_camera(r.camera)
     first = read_first_frame(r.first_frame, camera, r.camera)
-    sampler = sampler_from_options(steps=r.steps, preset=r.preset, guidance_interval=r.guidance_interval,
-                                   shift=r.shift, guidance=r.guidance, guidance_form=r.guidance_form,
-                                   batched_cfg=not r.two_pass_cfg, solver=r.solver,
-                                   action_guidance=r.action_guidance)
+    sampler_options = dict(steps=r.steps, preset=r.preset, guidance_interval=r.guidance_interval, shift=r.shift,
+                           guidance=r.guidance, guidance_form=r.guidance_form, batched_cfg=not r.two_pass_cfg,
+                           solver=r.solver, action_guidance=r.action_guidance)
+    resolve_sampler(None, **sampler_options)  # the given options checked before any weights load
     # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
     from ..media.video import check_output
     from ..render.skeleton_video import parse_size
@@ -183,6 +185,9 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
         model.enable_vae_tiling()
     if r.vae_slicing:
         model.enable_vae_slicing()
+    choice = resolve_sampler(model.card.sampler, **sampler_options)
+    sampler = choice.config
+    say(f"sampler: {choice.describe(given)}")
     width, height = rollout_size(r, model.card, camera)
     # the card's condition video (the skeleton, or the mesh / capsules for a model trained on those)
     t0 = time.perf_counter()
@@ -221,15 +226,16 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     timings["wall"] = time.perf_counter() - t_start + (startup or 0.0)
     summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
                "chunks": len(result.starts), "model": r.model, "seed": r.seed, "text": text_source,
-               "sampler": model.sampler_for(sampler).resolved_solver, "steps": r.steps,
+               "sampler": model.sampler_for(sampler).resolved_solver, "steps": sampler.steps,
                "unconditional_skeleton": model.card.unconditional_skeleton,
-               "guidance": {"w": r.guidance, "form": r.guidance_form}, "condition": model.card.condition,
+               "guidance": {"w": sampler.guidance, "form": sampler.guidance_form}, "preset": choice.preset,
+               "sampler_sources": dict(choice.sources), "condition": model.card.condition,
                "compile": model.compile_reason, "dtype": str(next(model.transformer.parameters()).dtype),
                "device": str(device), "timings": {k: round(v, 3) for k, v in timings.items()}}
     if str(device).startswith("cuda"):  # which GPU the timings were measured on
         summary["device_name"] = torch.cuda.get_device_name(torch.device(device))
     if latent_action:
-        summary["guidance"] = {"action_w": sampler.action_guidance, "form": r.guidance_form}
+        summary["guidance"] = {"action_w": sampler.action_guidance, "form": sampler.guidance_form}
     if side_out is not None:
         summary["side_by_side"] = str(side_out)
     return RolloutFilesResult(Path(str(out)), None if side_out is None else Path(str(side_out)), summary, timings)

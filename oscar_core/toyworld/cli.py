@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from .._util.arg_types import count, interval, number
@@ -115,7 +116,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--limit", type=count(1), help="at most this many clips")
     o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
     o.add_argument("--guidance", type=number(0.0), default=None, help="guidance w (default: the model card's, else 6)")
-    o.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
+    o.add_argument("--guidance-form", choices=("diffusers", "standard"), default=None,
                    help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)")
     o.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0; the same for every condition)")
     o.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
@@ -245,12 +246,16 @@ def cmd_rollout(args) -> int:
     import oscar_zoo
 
     from .._util.stage import model_identity
-    from .rollouts import sampler_for_card, write_rollouts
+    from ..model.sampler import resolve_sampler
+    from .rollouts import write_rollouts
 
     torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
-    sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form,
-                               guidance_interval=args.guidance_interval, preset=args.preset)
+    choice = resolve_sampler(model.card.sampler, steps=args.steps, guidance=args.guidance,
+                             guidance_form=args.guidance_form, guidance_interval=args.guidance_interval,
+                             preset=args.preset)
+    sampler = choice.config
+    print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, f"toyworld-rollout-{args.condition}"):
         summary = write_rollouts(model, args.clips, args.out, args.condition,
                                  split=None if args.split == "all" else args.split, limit=args.limit,
