@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..render.conditions import CONDITIONS as VIDEO_CONDITIONS  # given as a video through the VAE and PE_s
 from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
 from ..errors import OscarError
 

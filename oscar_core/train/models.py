@@ -7,8 +7,8 @@ from pathlib import Path
 
 import torch
 
-from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError
-from ..render.conditions import takes_actions
+from .config import TrainConfig, TrainConfigError
+from ..render.conditions import is_video_condition, takes_actions
 
 __all__ = ["build_transformer", "build_vae", "transformer_config", "prepare_for_training"]
 
@@ -61,7 +61,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
                         mlp[2].bias.zero_()
         else:  # "default": the condition layers draw nn.Linear's own init, seeded after the rest of the model
             torch.manual_seed(m.seed + 1)
-            if config.condition in VIDEO_CONDITIONS:
+            if is_video_condition(config.condition):
                 model.skeleton_embed.proj.reset_parameters()
             else:  # PE_s stays zero (and frozen, below) in a model that never sees a skeleton
                 with torch.no_grad():
@@ -80,7 +80,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
             raise TrainConfigError(source, "model.init", f"weights matching the transformer config ({init})",
                                    f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}")
         # the keys the base lacks (PE_s, the action MLPs) keep their constructor init: zero outputs
-    if config.condition not in VIDEO_CONDITIONS:
+    if not is_video_condition(config.condition):
         # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
         model.skeleton_embed.requires_grad_(False)
     model.train()
