@@ -39,7 +39,7 @@ for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from oscar_core.calibration.synthetic import SIZE, problem  # noqa: E402
-from oscar_core.camera.pinhole import Camera  # noqa: E402
+from oscar_core.camera import Camera  # noqa: E402
 from oscar_core.plugin.registry import default_registry  # noqa: E402
 
 SIGMAS = (0.5, 1.0, 2.0)

@@ -99,12 +99,12 @@ def build_inputs(work: Path, model: str, embodiment: str, tokens: int, chunk_fra
     import torch
     from safetensors.torch import save_file
 
-    from oscar_core.model.world_model import _read_card
+    from oscar_core.model.world_model import read_card
     from oscar_core.plugin.registry import get_embodiment
     from oscar_core.kinematics.trajectory import load_trajectory, save_trajectory
 
     folder = Path(oscar_zoo.pull(model, local_files_only=True))  # a folder, a bundled or a cached model
-    card = _read_card(folder)
+    card = read_card(folder)
     emb = get_embodiment(embodiment)
     if emb.example_trajectory is None or emb.example_camera is None:
         raise BenchmarkError(f"--embodiment {embodiment}: expected an embodiment with a bundled example "

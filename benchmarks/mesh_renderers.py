@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 
 from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
 from oscar_core.render.mesh_raster import shade_faces  # noqa: E402
-from oscar_core.render.mesh import MeshStyle, _prepare, _vertices_cv, render_mesh_video  # noqa: E402
+from oscar_core.render.mesh import MESH, MeshStyle, render_mesh_video, vertices_cv  # noqa: E402
 
 SIZE = (512, 288)
 NEAR, FAR = 0.05, 10.0  # metres: the GL depth range (linear depth)
@@ -62,7 +62,7 @@ in vec3 vc; out vec4 o; void main() { o = vec4(vc, 1.0); }""")
 
     def render(self, job, T: int) -> np.ndarray:
         W, H = SIZE
-        _, Pc, uv, _ = _vertices_cv(job, 0, T)
+        _, Pc, uv, _ = vertices_cv(job, 0, T)
         out = np.empty((T, H, W, 3), np.uint8)
         faces = job.mesh.faces
         for i in range(T):
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     rows, gl_note = [], None
     for cell in args.cells:
         style = MeshStyle(simplify=cell or None)
-        job = _prepare(emb, traj, cam, None, style, "crop", "cpu", "<camera>")
+        job = MESH.prepare(emb, traj, cam, None, style=style, resize_mode="crop", device="cpu", camera_source="<camera>")
         T = len(traj)
         render_mesh_video(emb, traj.time_slice(0, 1), cam, style=style)
         t_np, ours = best_time(lambda: render_mesh_video(emb, traj, cam, style=style), args.repeats)

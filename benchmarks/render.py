@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
-from oscar_core.camera.pinhole import project  # noqa: E402
+from oscar_core.camera import project  # noqa: E402
 from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
 from oscar_core.media.video import write_video  # noqa: E402
 

@@ -262,9 +262,9 @@ def step_config(size: str, checkpointing: str, compiled: bool):
     from oscar_core.train.config import load_config
 
     name = STEP_SIZES[size][0]
-    # random weights (no model.init) and the new policy switch alone (the older gradient_checkpointing flag off)
+    # random weights (no model.init) and the checkpointing policy of the variant
     return load_config(REPO / "configs" / "train" / name,
-                       {"model.init": None, "model.gradient_checkpointing": False, "model.compile": compiled,
+                       {"model.init": None, "model.compile": compiled,
                         "activation_checkpointing": checkpointing})
 
 

@@ -23,8 +23,8 @@ _EXPORTS = {
     "ForwardKinematics": "kinematics.fk_torch",
     # trajectories and cameras
     "Trajectory": "kinematics.trajectory", "load_trajectory": "kinematics.trajectory", "save_trajectory": "kinematics.trajectory",
-    "interpolate_keyframes": "kinematics.trajectory", "look_at": "camera.pinhole",
-    "Camera": "camera.pinhole", "Intrinsics": "camera.pinhole", "load_camera": "camera.pinhole", "save_camera": "camera.pinhole", "project": "camera.pinhole",
+    "interpolate_keyframes": "kinematics.trajectory", "look_at": "camera",
+    "Camera": "camera", "Intrinsics": "camera", "load_camera": "camera", "save_camera": "camera", "project": "camera",
     # rendering and video
     "SkeletonStyle": "render.raster", "GripperMarks": "render.raster", "rasterise": "render.raster",
     "render_skeleton_video": "render.skeleton_video", "overlay_skeleton": "render.skeleton_video",

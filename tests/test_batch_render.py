@@ -179,7 +179,7 @@ def test_bad_outputs_are_refused_before_any_rendering(tmp_path, capsys, monkeypa
     def boom(*a, **k):
         raise AssertionError("rendering started")
 
-    monkeypatch.setattr(rs, "iter_skeleton_chunks", boom)
+    monkeypatch.setattr(rs.SKELETON, "iter_chunks", boom)
     (tmp_path / "afile").write_text("")
     code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
                        "--out", tmp_path / out)
@@ -190,9 +190,9 @@ def test_bad_outputs_are_refused_before_any_rendering(tmp_path, capsys, monkeypa
 def test_odd_h264_size_is_refused_before_rendering_and_png_is_an_explicit_choice(tmp_path, capsys, monkeypatch):
     import oscar_core.render.skeleton_stream as rs
 
-    real = rs.iter_skeleton_chunks
+    real = rs.SKELETON.iter_chunks
     calls = []
-    monkeypatch.setattr(rs, "iter_skeleton_chunks", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(rs.SKELETON, "iter_chunks", lambda *a, **k: calls.append(1) or real(*a, **k))
     code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
                        "--out", tmp_path / "odd.mp4", "--size", "65x37")
     assert code == 2 and "even width and height, found 65x37" in err and calls == []

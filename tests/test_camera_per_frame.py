@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from oscar_core import (JointLimitWarning, get_embodiment, load_camera, load_trajectory, look_at,
                         render_skeleton_video)
-from oscar_core.camera.pinhole import CONVENTIONS, DIRECTIONS, Camera, Intrinsics, convention_to_opencv, project, save_camera
+from oscar_core.camera import CONVENTIONS, DIRECTIONS, Camera, Intrinsics, convention_to_opencv, project, save_camera
 from oscar_core.errors import CameraFileError
 
 T = 6
@@ -197,7 +197,7 @@ def test_link_mounted_per_frame_render_agibot():
 
 def test_batch_paths_equal_the_frame_by_frame_ones():
     """The one-pass parser and checker of long per-frame lists give what the per-frame code gives."""
-    from oscar_core.camera.pinhole import as_rigid_transform, as_rigid_transforms
+    from oscar_core.camera import as_rigid_transform, as_rigid_transforms
     from oscar_core.camera.extrinsics import _parse_one_extrinsic, _per_frame_fast
 
     rng = np.random.default_rng(11)

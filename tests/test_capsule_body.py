@@ -135,7 +135,7 @@ def test_the_condition_is_known_by_name_everywhere(registry):
 
 
 def test_render_cli_draws_capsules_for_a_robot_without_meshes(tmp_path, registry):
-    from oscar_core.camera.pinhole import save_camera
+    from oscar_core.camera import save_camera
     from oscar_core.kinematics.trajectory import save_trajectory
 
     emb = registry.get("kuka")

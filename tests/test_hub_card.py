@@ -55,7 +55,7 @@ def test_the_toy_packager_writes_the_block():
 def test_an_exported_model_folder_has_a_card_with_the_block(tmp_path):
     import oscar_zoo
     from oscar_core.model import ModelCard, OscarWorldModel
-    from oscar_core.model._manifest import read_manifest
+    from oscar_core.model.manifest import read_manifest
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
     model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),

@@ -32,7 +32,7 @@ def _cfg(**sections):
 
 
 @pytest.mark.parametrize("fields, name, expected, found", [
-    (dict(model={"gradient_checkpointing": "nope"}), "model.gradient_checkpointing", "true or false", "str 'nope'"),
+    (dict(model={"compile": "nope"}), "model.compile", "true or false", "str 'nope'"),
     (dict(export="yes"), "export", "true or false", "str 'yes'"),
     (dict(log={"tensorboard": 1}), "log.tensorboard", "true or false", "int 1"),
     (dict(optim={"warmup_steps": 2.5}), "optim.warmup_steps", "an integer", "float 2.5"),
@@ -53,17 +53,32 @@ def test_config_fields_are_type_checked(fields, name, expected, found):
     assert str(err.value) == f"c.yaml: field '{name}': expected {expected}, found {found}"
 
 
+@pytest.mark.parametrize("value", [True, False])
+def test_a_renamed_key_is_refused_naming_the_key_to_write_instead(tmp_path, value):
+    p = tmp_path / "c.yaml"
+    p.write_text(f"data: {{clips: [x]}}\nmodel: {{gradient_checkpointing: {str(value).lower()}}}\n")
+    with pytest.raises(TrainConfigError) as err:
+        load_config(p)
+    assert str(err.value) == (f"{p}: field 'model.gradient_checkpointing': expected the top-level key "
+                              "activation_checkpointing instead (full for true, auto or none for false), found "
+                              f"model.gradient_checkpointing: {value!r}")
+    p.write_text("data: {clips: [x]}\n")  # the same through --set
+    with pytest.raises(TrainConfigError, match="'model.gradient_checkpointing': expected the top-level key "
+                                               "activation_checkpointing instead"):
+        load_config(p, {"model.gradient_checkpointing": value})
+
+
 def test_config_values_of_the_right_type_pass_and_yaml_exponents_are_numbers(tmp_path):
     cfg = config_from_dict(_cfg(data={"clips": ["a"], "sources": ["droid"]}, optim={"lr": "1e-4", "warmup_steps": 3},
-                                model={"gradient_checkpointing": True}, steps=7))
+                                model={"compile": True}, steps=7))
     assert cfg.optim.lr == 1e-4 and isinstance(cfg.optim.lr, float)  # PyYAML reads 1e-4 as a string
-    assert (cfg.data.sources, cfg.optim.warmup_steps, cfg.model.gradient_checkpointing, cfg.steps) == (
+    assert (cfg.data.sources, cfg.optim.warmup_steps, cfg.model.compile, cfg.steps) == (
         ["droid"], 3, True, 7)
     assert config_from_dict(_cfg(optim={"lr": 1})).optim.lr == 1.0  # an integer where a number is asked is fine
     assert config_from_dict(_cfg(data={"clips": ["a"], "sources": None})).data.sources is None
     p = tmp_path / "c.yaml"
-    p.write_text("data: {clips: [x]}\nmodel: {gradient_checkpointing: nope}\n")
-    with pytest.raises(TrainConfigError, match=r"c.yaml: field 'model.gradient_checkpointing': expected true or "
+    p.write_text("data: {clips: [x]}\nmodel: {compile: nope}\n")
+    with pytest.raises(TrainConfigError, match=r"c.yaml: field 'model.compile': expected true or "
                                                r"false, found str 'nope'"):
         load_config(p)
     p.write_text("data: {clips: [x]}\n")

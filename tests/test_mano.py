@@ -4,7 +4,7 @@ import sys
 
 import numpy as np
 
-from oscar_core.camera.pinhole import look_at
+from oscar_core.camera import look_at
 import pytest
 
 from oscar_core import (Camera, Intrinsics, Trajectory, get_embodiment, load_camera, load_trajectory,

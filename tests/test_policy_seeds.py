@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from oscar_core.metrics.policy_seeds import cell_rates, main, session_bootstrap, summarize_runs
+from oscar_core.metrics.cli_policy_seeds import main
+from oscar_core.metrics.policy_seeds import cell_rates, session_bootstrap, summarize_runs
 
 POLICIES = ("a", "b", "c")
 
@@ -94,3 +95,16 @@ def test_bad_run_folders_are_named_before_any_work(tmp_path, capsys, make, expec
     assert main([str(folder)]) == 2
     err = capsys.readouterr().err
     assert expected in err and str(tmp_path) in err
+
+
+def test_the_module_command_still_runs_as_documented(tmp_path):
+    """``python -m oscar_core.metrics.policy_seeds`` is the command (its parsing and printing in cli_policy_seeds)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "oscar_core.metrics.policy_seeds", str(tmp_path / "nope")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stderr.startswith(f"error: {tmp_path / 'nope'}: field 'report.json'")
+    usage = subprocess.run([sys.executable, "-m", "oscar_core.metrics.policy_seeds", "--help"],
+                           capture_output=True, text=True, timeout=120)
+    assert usage.returncode == 0 and usage.stdout.startswith("usage: python -m oscar_core.metrics.policy_seeds")

@@ -76,6 +76,25 @@ def test_rollout_writes_video_and_side_by_side(capsys, tmp_path, model_dir, firs
     np.testing.assert_array_equal(side[:, :, :64], video)  # left half: the rollout itself (lossless .mkv)
 
 
+def test_the_python_function_writes_what_the_command_writes(capsys, tmp_path, model_dir, first_frame):
+    """oscar rollout is RolloutRequest -> run_rollout -> print: the same frames and the same summary."""
+    from oscar_core.model import RolloutRequest, run_rollout
+
+    code, stdout, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "cli.mkv", "--json", "--seed", "2"))
+    assert code == 0, err
+    seen = []
+    result = run_rollout(RolloutRequest(model=str(model_dir), embodiment="toyarm", first_frame=str(first_frame),
+                                        trajectory=str(TRAJ), camera=str(CAM), out=str(tmp_path / "api.mkv"),
+                                        size="64x32", steps=1, seed=2, progress=False), notify=seen.append)
+    np.testing.assert_array_equal(read_video(result.out), read_video(tmp_path / "cli.mkv"))
+    assert result.side_by_side == side_by_side_path(tmp_path / "api.mkv") and result.side_by_side.is_file()
+    cli = json.loads(stdout)
+    for key in ("rollout", "side_by_side", "timings"):
+        cli.pop(key), result.summary.pop(key)
+    assert result.summary == cli
+    assert any(m.startswith("text: ") for m in seen) and set(result.timings) >= {"load", "sample", "wall"}
+
+
 def test_first_frame_size_must_match_the_camera(capsys, tmp_path, model_dir):
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.zeros((100, 200, 3), np.uint8))
@@ -170,3 +189,21 @@ def test_a_video_first_frame_rolls_out_as_its_frame_0(capsys, tmp_path, model_di
         assert code == 0, err
         outs.append(read_video(out))
     np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def test_rollout_uses_the_card_sampler_unless_a_flag_says_otherwise(capsys, tmp_path, first_frame):
+    card = ModelCard(name="tiny-card", chunk_frames=41, fps=15.0, sampler={"steps": 1, "guidance": 2.0})
+    folder = oscar_zoo.export(OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
+                                                           card), tmp_path / "m")
+    args = [a for a in _args(folder, first_frame, tmp_path / "v.mkv", "--json") if a not in ("--steps", "1")]
+    code, stdout, err = run(capsys, *args)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["steps"] == 1 and summary["guidance"] == {"w": 2.0, "form": "diffusers"}
+    assert ("sampler: steps 1 (model card), guidance 2 (model card), guidance form diffusers (library default), "
+            "preset none (library default)") in err
+    code, stdout, err = run(capsys, *args, "--guidance", "0.5", "--guidance-form", "standard")
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["guidance"] == {"w": 0.5, "form": "standard"} and summary["sampler_sources"]["guidance"] == "given"
+    assert "guidance 0.5 (flag), guidance form standard (flag)" in err

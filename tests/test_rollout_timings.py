@@ -2,7 +2,7 @@
 
 import argparse
 
-from oscar_core.model.cli import _loads_without_network
+from oscar_core.model.rollout_files import _loads_without_network
 
 
 def _args(model, offline=False):

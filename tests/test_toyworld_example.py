@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
-from oscar_core.camera.pinhole import load_camera
+from oscar_core.camera import load_camera
 from oscar_core.cli import main
 from oscar_core.errors import InputFileError
 from oscar_core.kinematics.trajectory import load_trajectory
 from oscar_core.media.video import read_video, write_video
-from oscar_core.model._image import read_first_frame, read_image
+from oscar_core.model.image import read_first_frame, read_image
 from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.motion import ToyWorldError
 from oscar_core.toyworld.policy_eval import plan_session, policy_eval_refusal, session_rng, write_policy_eval
@@ -123,7 +123,7 @@ def test_bad_first_frames_name_the_file_and_what_was_expected(tmp_path):
 
 
 def test_a_video_first_frame_is_checked_against_the_camera(tmp_path):
-    from oscar_core.camera.pinhole import Camera, Intrinsics
+    from oscar_core.camera import Camera, Intrinsics
 
     write_video(tmp_path / "clip.mkv", _frames(), 10.0)
     cam = Camera(Intrinsics(50.0, 50.0, 32.0, 24.0, 64, 48), np.eye(4))

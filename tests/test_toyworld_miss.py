@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from oscar_core.camera.pinhole import project
+from oscar_core.camera import project
 from oscar_core.cli import main
 from oscar_core.plugin.registry import default_registry
 from oscar_core.toyworld.episode import episode_rng, make_episode, miss_rng

@@ -87,7 +87,7 @@ def test_cli_rollout_on_a_held_out_embodiment(tmp_path):
     """The issue's command: `oscar rollout --model oscar-toy --embodiment hsr ...`, offline, on an unseen body."""
     import cv2
 
-    from oscar_core.camera.pinhole import save_camera
+    from oscar_core.camera import save_camera
     from oscar_core.kinematics.trajectory import save_trajectory
     from oscar_core.media.video import read_video
 

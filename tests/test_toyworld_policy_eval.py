@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import oscar_zoo
-from oscar_core.camera.pinhole import project
+from oscar_core.camera import project
 from oscar_core.cli import main as oscar_main
 from oscar_core.evaluation import load_manifest
 from oscar_core.plugin.registry import Registry

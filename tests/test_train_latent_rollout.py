@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import oscar_zoo
-from oscar_core.camera.pinhole import load_camera
+from oscar_core.camera import load_camera
 from oscar_core.errors import OscarError
 from oscar_core.model.errors import ModelInputError
 from oscar_core.model.sampler import SamplerConfig

@@ -79,8 +79,6 @@ def test_auto_chooses_by_free_memory(monkeypatch):
     policy, why = memory.choose_checkpointing(config, model, "cuda")
     assert policy == "full" and "auto: full" in why
     assert prepare_for_training(model, config, "cuda:0")[0] == "full" and model.gradient_checkpointing
-    legacy = _config(model={"gradient_checkpointing": True})
-    assert memory.choose_checkpointing(legacy, model, "cpu") == ("full", "model.gradient_checkpointing: true")
 
 
 def test_memory_model_adds_up():
@@ -99,8 +97,6 @@ def test_memory_model_adds_up():
 
 @pytest.mark.parametrize("override, field, found", [
     ({"activation_checkpointing": "some"}, "activation_checkpointing", "'some'"),
-    ({"activation_checkpointing": "none", "model": {"gradient_checkpointing": True}}, "activation_checkpointing",
-     "'none'"),
     ({"model": {"compile": "yes"}}, "model.compile", "str 'yes'"),
 ])
 def test_bad_settings_are_clear_errors(override, field, found):

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import oscar_zoo
-from oscar_core.camera.pinhole import load_camera
+from oscar_core.camera import load_camera
 from oscar_core.render.mesh import render_mesh_video
 from oscar_core.render.skeleton_video import render_skeleton_video
 from oscar_core.plugin.registry import Registry

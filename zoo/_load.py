@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from oscar_core.model._files import MODEL_FILE
-from oscar_core.model._manifest import read_manifest
+from oscar_core.model.manifest import read_manifest
 
 from ._fetch import fetch, is_offline, resolve
 from ._registry import register

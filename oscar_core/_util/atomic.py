@@ -26,7 +26,7 @@ __all__ = ["atomic_output", "atomic_write_bytes", "tmp_prefix", "pid_alive", "sw
            "sweep_once"]
 
 # .<name>.<pid>.<random>.tmp<anything>: name may itself hold dots; the pid is the last all-digit part before it
-_TMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.(?P<rand>[A-Za-z0-9_-]+)\.tmp(?P<suffix>.*)$")
+TMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.(?P<rand>[A-Za-z0-9_-]+)\.tmp(?P<suffix>.*)$")
 _SWEPT: set[tuple[int, str]] = set()
 
 
@@ -63,7 +63,7 @@ def sweep_dead_temporaries(folder: str | Path, *, target: str | None = None) -> 
     except (FileNotFoundError, NotADirectoryError):
         return removed
     for p in entries:
-        m = _TMP_NAME.match(p.name)
+        m = TMP_NAME.match(p.name)
         if m is None or (target is not None and m["name"] != target):
             continue
         pid = int(m["pid"])

@@ -29,14 +29,16 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
 
 from ..errors import OscarError
 
-__all__ = ["FORMAT_VERSION", "Legacy", "StageChanged", "changes", "check_stage", "fingerprint", "model_identity",
+__all__ = ["FORMAT_VERSION", "EngineName", "StageChanged", "changes", "check_stage", "fingerprint", "model_identity",
            "pool_context", "watch_parent", "worker_initializer"]
+
+#: where a stage's work runs: a local process pool (or this process), or Ray tasks / actors
+EngineName = Literal["local", "ray"]
 
 FORMAT_VERSION = 1  # bump when a stage's stored output changes meaning; every stage then recomputes
 
@@ -94,41 +96,13 @@ def model_identity(spec, revision: str | None = None) -> str:
     return f"{spec}@{revision or 'pinned'}"
 
 
-@dataclass
-class Legacy:
-    """What a stage found in an output folder written before it kept a fingerprint (:func:`check_stage`'s
-    ``legacy``).
-
-    shards: finished shards found (0: nothing to check); mismatches: one sentence per setting the shards
-    recorded differently from this run (``"width: 64 -> 32"``); checked / unchecked: names of the parts the
-    shards' own records could / could not be compared with.
-    """
-
-    shards: int = 0
-    mismatches: list[str] = field(default_factory=list)
-    checked: list[str] = field(default_factory=list)
-    unchecked: list[str] = field(default_factory=list)
-
-    def differ(self, name: str, old: Any, new: Any) -> None:
-        """Record that the shards hold ``old`` for part ``name`` where this run has ``new`` (once per name)."""
-        if not any(m.startswith(f"{name}: ") for m in self.mismatches):
-            text = [v if isinstance(v, str) else json.dumps(v) for v in (old, new)]
-            self.mismatches.append(f"{name}: {text[0]} -> {text[1]}")
-
-
-def check_stage(folder, parts: Mapping[str, Any], *, redo: str, legacy: Callable[[], Legacy] | None = None) -> None:
+def check_stage(folder, parts: Mapping[str, Any], *, redo: str) -> None:
     """Refuse to add to a local output ``folder`` made under other ``parts``; else record them.
 
     ``folder/fingerprint.json`` holds the parts of the run that wrote the
     folder. Absent (a new folder), it is written; equal, nothing happens;
     different, :class:`StageChanged` names every change and ``redo`` (the
     option or step that redoes the stage, e.g. "use another --out").
-
-    legacy: for a folder without ``fingerprint.json`` that may hold shards of
-    an older oscar, a function comparing what those shards recorded with this
-    run (:class:`Legacy`). A mismatch raises :class:`StageChanged` as a changed
-    fingerprint does; parts it cannot compare are named in one warning; then
-    this run's parts are recorded.
     """
     from pathlib import Path
 
@@ -146,23 +120,6 @@ def check_stage(folder, parts: Mapping[str, Any], *, redo: str, legacy: Callable
         what = changes(old.get("parts") if isinstance(old, dict) else None, parts)
         raise StageChanged(f"{folder}: expected output of the same inputs and settings as this run, found one made "
                            f"under others ({'; '.join(what)}); {redo}")
-    found = legacy() if legacy is not None else None
-    if found is not None and found.shards:
-        if found.mismatches:
-            raise StageChanged(f"{folder}: expected output of the same inputs and settings as this run, found "
-                               f"{found.shards} shard(s) made before fingerprints existed under others "
-                               f"({'; '.join(found.mismatches)}); {redo}")
-        from .log import get_logger
-
-        log = get_logger(__name__)
-        if found.unchecked:
-            log.warning("%s: %d shard(s) made before fingerprints existed; their records agree with this run on "
-                        "%s, but cannot show %s: they are taken as this run's; if they were made otherwise, %s",
-                        folder, found.shards, ", ".join(found.checked) or "nothing", ", ".join(found.unchecked),
-                        redo)
-        else:
-            log.info("%s: %d shard(s) made before fingerprints existed agree with this run on %s", folder,
-                     found.shards, ", ".join(found.checked))
     Path(folder).mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, json.dumps({"fingerprint": new, "parts": _canonical(parts)}, indent=1).encode())
 

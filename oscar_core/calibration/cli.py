@@ -76,17 +76,17 @@ centimetres or degrees scores lower. docs/calibration.md.
 def _intrinsics(path):
     """Intrinsics from a camera JSON file, with or without an extrinsic."""
     from .._util.json_file import read_json
-    from ..camera.pinhole import Camera
+    from ..camera import camera_from_dict
     from ..errors import CameraFileError
 
     doc = read_json(path, CameraFileError)
     if isinstance(doc, dict) and "extrinsic" not in doc:  # the extrinsic is not used: any rigid transform will do
         doc = {**doc, "extrinsic": {"matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}}
-    return Camera.from_dict(doc, str(path)).intrinsics
+    return camera_from_dict(doc, str(path)).intrinsics
 
 
 def cmd_calibrate(args) -> int:
-    from ..camera.pinhole import save_camera
+    from ..camera import save_camera
     from ..kinematics.trajectory import load_trajectory
     from ..media.video import check_output
     from ..plugin.registry import Registry

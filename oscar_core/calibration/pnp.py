@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera.pinhole import Camera, Intrinsics, project
+from ..camera import Camera, Intrinsics, camera_to_dict, project
 from .._util.log import get_logger
 from .points import PixelPoints, PointsFileError
 
@@ -101,7 +101,7 @@ class CalibrationResult:
 
     def to_dict(self) -> dict:
         """A JSON-ready report (the camera in the camera file format)."""
-        return {"camera": self.camera.to_dict(), "correspondences": int(len(self.residual_px)),
+        return {"camera": camera_to_dict(self.camera), "correspondences": int(len(self.residual_px)),
                 "inliers": int(self.inlier.sum()), "threshold_px": self.threshold_px, "rms_px": self.rms_px,
                 "median_px": float(np.median(self.residual_px)), "estimated_intrinsics": self.estimated_intrinsics,
                 "rounds": self.rounds, "outliers": self.outliers, "per_frame": self.per_frame,

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..camera.pinhole import Camera
+from ..camera import Camera
 from ..errors import OscarError
 from .._util.log import get_logger
 
@@ -106,7 +106,7 @@ def body_video(embodiment, traj, camera: Camera, size: tuple[int, int]) -> tuple
     black, thin): capsules for kinematic trees (thin False), else the skeleton (thin True)."""
     import warnings
 
-    from ..render.skeleton_stream import EmptyViewWarning
+    from ..render.renderer import EmptyViewWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", EmptyViewWarning)  # a camera that sees no robot scores 0; no warning

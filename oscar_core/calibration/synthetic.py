@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera.pinhole import Camera, Intrinsics, look_at, project
+from ..camera import Camera, Intrinsics, look_at, project
 from ..kinematics.trajectory import Trajectory, interpolate_keyframes
 from ..kinematics.workspace import joint_limits, openness_to_signal
 from .pnp import skeleton_points

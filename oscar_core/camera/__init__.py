@@ -1,6 +1,32 @@
-"""Cameras: conventions and rigid transforms (``geometry``), reading extrinsics (``extrinsics``), projection
-(``projection``), and the :class:`Camera` with its file format (``pinhole``). ``from oscar_core.camera import
-Camera`` is the public import path."""
+"""Cameras: calibration files, conventions, projection (the public import path of the camera modules).
 
-from .pinhole import *  # noqa: F403
-from .pinhole import __all__  # noqa: F401
+The modules form one line, each importing only those before it: geometry ← extrinsics, intrinsics ← projection ←
+pinhole (:class:`Camera`) ← file (the camera JSON file). Units and conventions: :mod:`oscar_core.camera.pinhole`.
+"""
+
+from .file import camera_from_dict, camera_to_dict, load_camera, save_camera
+from .geometry import (CONVENTION_ALIASES, CONVENTIONS, DIRECTIONS, as_rigid_transform, as_rigid_transforms,
+                       canonical_convention, convention_to_opencv, look_at)
+from .intrinsics import Intrinsics
+from .pinhole import Camera
+from .projection import Projection, project, project_points_cv
+
+__all__ = [
+    "CONVENTIONS",
+    "CONVENTION_ALIASES",
+    "DIRECTIONS",
+    "Intrinsics",
+    "Camera",
+    "Projection",
+    "canonical_convention",
+    "as_rigid_transform",
+    "as_rigid_transforms",
+    "look_at",
+    "convention_to_opencv",
+    "project",
+    "project_points_cv",
+    "load_camera",
+    "save_camera",
+    "camera_from_dict",
+    "camera_to_dict",
+]

@@ -1,5 +1,5 @@
 """Reading a camera file's fields: numbers, vectors, matrices, and the ``extrinsic`` in its three forms,
-static or per frame (the file format is in :mod:`oscar_core.camera.pinhole`'s docstring). Errors are
+static or per frame (the file format is in :mod:`oscar_core.camera.file`'s docstring). Errors are
 :class:`~oscar_core.errors.CameraFileError` naming the file, the field, what was expected and found.
 """
 
@@ -12,36 +12,35 @@ from typing import Any, Mapping
 import numpy as np
 
 from oscar_core.errors import CameraFileError
-from .geometry import _ORTHONORMAL_TOL, _is_number, _rigid_problem, \
+from .geometry import ORTHONORMAL_TOL, is_number, rigid_problem, \
     rotation_from_quat_xyzw, rotation_from_rpy
 
 __all__ = []
 
 # --------------------------------------------------------------------------- file parsing
 
-_TOP_KEYS = ("image_size", "intrinsics", "distortion", "extrinsic", "convention", "direction", "mount", "embodiment")
 _EXTRINSIC_FORMS = ("matrix", "xyz_rpy", "xyz_quat_xyzw")
 
 
-def _short(x: Any, limit: int = 120) -> str:
+def short_repr(x: Any, limit: int = 120) -> str:
     s = json.dumps(x) if isinstance(x, (dict, list, str, int, float, bool, type(None))) else repr(x)
     return s if len(s) <= limit else s[: limit - 3] + "..."
 
 
-def _number(src: str, fieldname: str, v: Any) -> float:
-    if not _is_number(v) or not math.isfinite(v):
-        raise CameraFileError(src, fieldname, "a finite number", _short(v))
+def read_number(src: str, fieldname: str, v: Any) -> float:
+    if not is_number(v) or not math.isfinite(v):
+        raise CameraFileError(src, fieldname, "a finite number", short_repr(v))
     return float(v)
 
 
-def _vector(src: str, fieldname: str, v: Any, n: int, what: str) -> list[float]:
+def read_vector(src: str, fieldname: str, v: Any, n: int, what: str) -> list[float]:
     if not isinstance(v, (list, tuple)) or len(v) != n:
-        found = f"a list of length {len(v)}" if isinstance(v, (list, tuple)) else _short(v)
+        found = f"a list of length {len(v)}" if isinstance(v, (list, tuple)) else short_repr(v)
         raise CameraFileError(src, fieldname, f"a list of {n} numbers {what}", found)
-    return [_number(src, f"{fieldname}[{k}]", x) for k, x in enumerate(v)]
+    return [read_number(src, f"{fieldname}[{k}]", x) for k, x in enumerate(v)]
 
 
-def _matrix(src: str, fieldname: str, v: Any, rows: int, cols: int) -> np.ndarray:
+def read_matrix(src: str, fieldname: str, v: Any, rows: int, cols: int) -> np.ndarray:
     ok = isinstance(v, (list, tuple)) and len(v) == rows and all(
         isinstance(r, (list, tuple)) and len(r) == cols for r in v
     )
@@ -49,9 +48,9 @@ def _matrix(src: str, fieldname: str, v: Any, rows: int, cols: int) -> np.ndarra
         try:
             found = f"shape {np.asarray(v, dtype=object).shape}"
         except Exception:  # ragged nesting
-            found = _short(v)
+            found = short_repr(v)
         raise CameraFileError(src, fieldname, f"a {rows}x{cols} nested list of numbers", found)
-    return np.array([[_number(src, f"{fieldname}[{r}][{c}]", x) for c, x in enumerate(row)] for r, row in enumerate(v)])
+    return np.array([[read_number(src, f"{fieldname}[{r}][{c}]", x) for c, x in enumerate(row)] for r, row in enumerate(v)])
 
 
 def _per_frame(form: str, value: Any) -> bool:
@@ -65,10 +64,10 @@ def _per_frame(form: str, value: Any) -> bool:
     return True
 
 
-def _parse_extrinsic(v: Any, src: str) -> np.ndarray:
+def read_extrinsic(v: Any, src: str) -> np.ndarray:
     """(4, 4), or (T, 4, 4) when the form holds one value per frame."""
     if not isinstance(v, Mapping) or len(v) != 1 or next(iter(v)) not in _EXTRINSIC_FORMS:
-        found = f"keys {sorted(v)}" if isinstance(v, Mapping) else _short(v)
+        found = f"keys {sorted(v)}" if isinstance(v, Mapping) else short_repr(v)
         raise CameraFileError(src, "extrinsic", f"an object with exactly one of the keys {list(_EXTRINSIC_FORMS)}", found)
     form, value = next(iter(v.items()))
     if _per_frame(form, value):
@@ -97,7 +96,7 @@ def _per_frame_fast(form: str, value: Any) -> np.ndarray | None:
             return None
         R = A[:, :3, :3]
         dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
-        ok = (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12) & (dev <= _ORTHONORMAL_TOL) & (np.linalg.det(R) >= 0)
+        ok = (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12) & (dev <= ORTHONORMAL_TOL) & (np.linalg.det(R) >= 0)
         return A if ok.all() else None
     if A.ndim != 2 or A.shape[1] != width:
         return None
@@ -125,17 +124,17 @@ def _per_frame_fast(form: str, value: Any) -> np.ndarray | None:
 
 def _parse_one_extrinsic(form: str, value: Any, fname: str, src: str) -> np.ndarray:
     if form == "matrix":
-        M = _matrix(src, fname, value, 4, 4)
-        problem = _rigid_problem(M)
+        M = read_matrix(src, fname, value, 4, 4)
+        problem = rigid_problem(M)
         if problem is not None:
             raise CameraFileError(src, fname, *problem)
         return M
     M = np.eye(4)
     if form == "xyz_rpy":
-        x, y, z, roll, pitch, yaw = _vector(src, fname, value, 6, "[x, y, z, roll, pitch, yaw] (metres, radians)")
+        x, y, z, roll, pitch, yaw = read_vector(src, fname, value, 6, "[x, y, z, roll, pitch, yaw] (metres, radians)")
         M[:3, :3] = rotation_from_rpy(roll, pitch, yaw)
     else:
-        x, y, z, qx, qy, qz, qw = _vector(src, fname, value, 7, "[x, y, z, qx, qy, qz, qw] (metres)")
+        x, y, z, qx, qy, qz, qw = read_vector(src, fname, value, 7, "[x, y, z, qx, qy, qz, qw] (metres)")
         n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         if abs(n - 1.0) > 1e-3:
             raise CameraFileError(src, fname, "a unit quaternion (norm within 1e-3 of 1)", f"norm {n:.6g}")

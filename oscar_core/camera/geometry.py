@@ -1,7 +1,7 @@
 """Camera-frame conventions and rigid transforms: the geometry every camera file and projection uses.
 
 Units: metres and radians. Conventions (``CONVENTIONS``) and the meaning of ``direction`` are in
-:mod:`oscar_core.camera.pinhole`'s docstring.
+:mod:`oscar_core.camera.pinhole`'s docstring (the camera file: :mod:`oscar_core.camera.file`).
 """
 
 from __future__ import annotations
@@ -45,9 +45,9 @@ _CONV_TO_CV_ROT = {
     "ros_body": np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]),
 }
 
-_VALID_CONVENTION_NAMES = tuple(CONVENTIONS) + tuple(CONVENTION_ALIASES)
-_DISTORTION_LENGTHS = (0, 4, 5, 8, 12)
-_ORTHONORMAL_TOL = 1e-4  # float32-stored calibrations (RH20T, InternData) deviate by ~1e-5
+CONVENTION_NAMES = tuple(CONVENTIONS) + tuple(CONVENTION_ALIASES)
+DISTORTION_LENGTHS = (0, 4, 5, 8, 12)
+ORTHONORMAL_TOL = 1e-4  # float32-stored calibrations (RH20T, InternData) deviate by ~1e-5
 
 
 def canonical_convention(name: str) -> str:
@@ -61,7 +61,7 @@ def canonical_convention(name: str) -> str:
         if name in CONVENTION_ALIASES:
             return CONVENTION_ALIASES[name]
     raise ValueError(
-        f"unknown camera convention {name!r}; valid names: {', '.join(_VALID_CONVENTION_NAMES)}"
+        f"unknown camera convention {name!r}; valid names: {', '.join(CONVENTION_NAMES)}"
     )
 
 
@@ -79,18 +79,18 @@ def convention_to_opencv(name: str) -> np.ndarray:
 # --------------------------------------------------------------------------- helpers
 
 
-def _as_float_array(x: Any) -> np.ndarray:
+def as_float_array(x: Any) -> np.ndarray:
     """numpy float64 view/copy of an array-like or torch tensor."""
     if hasattr(x, "detach"):  # torch.Tensor, without importing torch
         x = x.detach().cpu()
     return np.asarray(x, dtype=np.float64)
 
 
-def _is_number(x: Any) -> bool:
+def is_number(x: Any) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
-def _is_int(x: Any) -> bool:
+def is_int(x: Any) -> bool:
     if isinstance(x, (bool, np.bool_)):
         return False
     if isinstance(x, (int, np.integer)):
@@ -98,7 +98,7 @@ def _is_int(x: Any) -> bool:
     return isinstance(x, (float, np.floating)) and math.isfinite(x) and float(x).is_integer()
 
 
-def _rigid_inverse(T: np.ndarray) -> np.ndarray:
+def rigid_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of rigid transforms, (..., 4, 4) -> (..., 4, 4)."""
     R = T[..., :3, :3]
     t = T[..., :3, 3]
@@ -110,7 +110,7 @@ def _rigid_inverse(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rigid_problem(M: np.ndarray, tol: float = _ORTHONORMAL_TOL) -> tuple[str, str] | None:
+def rigid_problem(M: np.ndarray, tol: float = ORTHONORMAL_TOL) -> tuple[str, str] | None:
     """Why ``M`` is not a valid rigid 4x4 transform, as (expected, found), or None."""
     if M.shape != (4, 4):
         return "a 4x4 rigid transform", f"shape {M.shape}"
@@ -132,11 +132,11 @@ def _rigid_problem(M: np.ndarray, tol: float = _ORTHONORMAL_TOL) -> tuple[str, s
 
 
 def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsic",
-                        tol: float = _ORTHONORMAL_TOL) -> np.ndarray:
+                        tol: float = ORTHONORMAL_TOL) -> np.ndarray:
     """Like :func:`as_rigid_transform` for one (4, 4) or a stack (T, 4, 4), T >= 1,
     checking each; an error names the first bad frame as ``field[t]``."""
     try:
-        A = _as_float_array(M)
+        A = as_float_array(M)
     except (TypeError, ValueError) as e:
         raise CameraFileError(source, field, "a 4x4 or Tx4x4 numeric array", str(e)) from None
     if A.ndim == 3 and A.shape[1:] == (4, 4) and A.shape[0] >= 1:
@@ -161,16 +161,16 @@ def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsi
 
 
 def as_rigid_transform(M: Any, source: str = "<matrix>", field: str = "extrinsic",
-                       tol: float = _ORTHONORMAL_TOL) -> np.ndarray:
+                       tol: float = ORTHONORMAL_TOL) -> np.ndarray:
     """A checked (4, 4) rigid transform: finite, last row [0, 0, 0, 1], rotation
     within ``tol`` of orthonormal (then replaced by the nearest rotation) and
     proper. Raises :class:`CameraFileError` naming ``source`` and ``field``.
     For dataset adapters whose calibrations are stored in low precision."""
     try:
-        M = _as_float_array(M).copy()
+        M = as_float_array(M).copy()
     except (TypeError, ValueError) as e:
         raise CameraFileError(source, field, "a 4x4 numeric matrix", str(e)) from None
-    problem = _rigid_problem(M, tol)
+    problem = rigid_problem(M, tol)
     if problem is not None:
         raise CameraFileError(source, field, *problem)
     M[:3, :3] = _nearest_rotation(M[:3, :3])

@@ -1,4 +1,4 @@
-"""Projection of 3D points through a :class:`~oscar_core.camera.pinhole.Camera`: pinhole plus OpenCV distortion.
+"""Projection of 3D points through a camera: pinhole plus OpenCV distortion.
 
 Units: metres in, pixels out (pixel centres at integer coordinates, see :mod:`oscar_core.camera.pinhole`).
 """
@@ -6,16 +6,25 @@ Units: metres in, pixels out (pixel centres at integer coordinates, see :mod:`os
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from .geometry import _as_float_array
+from .geometry import as_float_array
+from .intrinsics import Intrinsics
 
-if TYPE_CHECKING:
-    from .pinhole import Camera, Intrinsics
+__all__ = ["Projection", "Projector", "project", "project_points_cv"]
 
-__all__ = ["Projection", "project", "project_points_cv"]
+
+class Projector(Protocol):
+    """What :func:`project` needs of a camera (:class:`~oscar_core.camera.pinhole.Camera` is one)."""
+
+    intrinsics: Intrinsics
+
+    @property
+    def num_frames(self) -> int | None: ...
+
+    def world_to_cv(self, mount_pose: Any = None) -> np.ndarray: ...
 
 # --------------------------------------------------------------------------- projection
 
@@ -50,7 +59,7 @@ def project_points_cv(points_cv: Any, intrinsics: Intrinsics, near: float = 1e-6
     with uv (..., 2) pixels. Uses OpenCV's model: rational radial k1..k6,
     tangential p1, p2, thin prism s1..s4.
     """
-    P = _as_float_array(points_cv)
+    P = as_float_array(points_cv)
     if P.shape[-1:] != (3,):
         raise ValueError(f"project_points_cv: points must have shape (..., 3), found {P.shape}")
     i = intrinsics
@@ -83,7 +92,7 @@ def project_points_cv(points_cv: Any, intrinsics: Intrinsics, near: float = 1e-6
     return Projection(uv=uv, depth=z.copy(), in_front=in_front, in_image=in_image)
 
 
-def project(points: Any, camera: Camera, mount_pose: Any = None, near: float = 1e-6) -> Projection:
+def project(points: Any, camera: Projector, mount_pose: Any = None, near: float = 1e-6) -> Projection:
     """Project world points (metres) into ``camera``'s image.
 
     Static camera: ``points`` (..., 3) in the world / robot base frame.
@@ -94,7 +103,7 @@ def project(points: Any, camera: Camera, mount_pose: Any = None, near: float = 1
     (T, ..., 3), frame t projected through extrinsic t (and mount pose t).
     Returns a Projection (uv (..., 2) pixels, depth (...,) metres).
     """
-    P = _as_float_array(points)
+    P = as_float_array(points)
     if P.shape[-1:] != (3,):
         raise ValueError(f"project: points must have shape (..., 3), found {P.shape}")
     M = camera.world_to_cv(mount_pose)

@@ -38,15 +38,17 @@ import os
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, get_args
 
 from .._util import stage as _stage
+from .._util.stage import EngineName
 from .._util.log import get_logger
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 
 __all__ = [
     "ENGINES",
+    "EngineName",
     "FINGERPRINT",
     "StageIncomplete",
     "StageRecomputed",
@@ -64,7 +66,7 @@ __all__ = [
 
 _log = get_logger(__name__)
 
-ENGINES = ("local", "ray")
+ENGINES: tuple[str, ...] = get_args(EngineName)
 MANIFEST = "manifest.parquet"
 FINGERPRINT = "fingerprint.json"
 
@@ -242,7 +244,7 @@ class _RayShardTask:
         return {"name": name, "n": n, "done": done}
 
 
-def check_workers_see(url: str, engine: str, workers: int | None) -> None:
+def check_workers_see(url: str, engine: EngineName, workers: int | None) -> None:
     """ValueError when worker processes (``--workers`` > 1 or Ray) would write ``url`` on a filesystem only this
     process sees (``memory://``): their output would be lost."""
     if (engine == "ray" or (workers or os.cpu_count() or 1) > 1) and _fs.process_local(url):
@@ -250,7 +252,7 @@ def check_workers_see(url: str, engine: str, workers: int | None) -> None:
                          f"--engine local with it, found --engine {engine} --workers {workers or os.cpu_count()}")
 
 
-def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: str = "local",
+def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: EngineName = "local",
                 workers: int | None = None, progress: bool = True, desc: str = "",
                 parts: Mapping[str, Any] | None = None) -> StageRun:
     """Map ``fn`` over ``rows`` in shards into ``stage_url``; skip shards already completed.
@@ -345,7 +347,7 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
 
 
 def _run_ray(fn, tasks, stage_url, n_workers) -> list[tuple[str, int, bool]]:
-    from ._optional import require
+    from .._util.optional import require
 
     ray = require("ray", "ray")
     if not ray.is_initialized():

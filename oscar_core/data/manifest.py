@@ -31,7 +31,7 @@ import io
 import json
 from typing import Any, Iterable
 
-from ._optional import require
+from .._util.optional import require
 from ..plugin.reader import EpisodeRef
 
 __all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet",

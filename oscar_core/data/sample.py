@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util.atomic import atomic_write_bytes
-from ._optional import require
+from .._util.optional import require
 
 __all__ = ["write_sample_dataset", "EXPECTED", "VIDEO_KEY", "CAMERA"]
 

@@ -44,7 +44,7 @@ def end_effector_pixels(embodiment, trajectory, camera) -> tuple[np.ndarray, np.
     ``ee_points`` rule). ``camera`` must already be sized to the clip's frames;
     a camera mounted on a link moves with it (the renderer's projection).
     """
-    from ..camera.projection import project
+    from ..camera import project
     from ..kinematics.workspace import end_effector
 
     fr = embodiment.frames(trajectory, mount_link=camera.mount_link)

@@ -41,6 +41,7 @@ from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
 from ..render.conditions import video_condition_of
+from ..render.conditions import takes_actions
 
 __all__ = ["PROMPT_MODES", "rollout_clip", "run_benchmark", "read_timing"]
 
@@ -65,7 +66,7 @@ def rollout_clip(model, clipset, rec, frames: int, *, sampler, seed: int = 0, re
         embeds = clip.prompt_embeds.reshape(1, *clip.prompt_embeds.shape[-2:])
     options = dict(sampler=sampler, seed=seed, progress=False, keep_chunks=False)
     t0 = time.perf_counter()
-    if model.card.condition == "latent_action":
+    if takes_actions(model.card.condition):
         acts = model.rollout_inputs(clip.trajectory, clip.camera, emb)["actions"][:frames - 1]
         video = model.rollout(first, None, embeds, actions=acts, **options)
     else:  # the card's condition video: the stored skeleton, or the mesh / capsules rendered

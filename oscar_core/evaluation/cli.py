@@ -29,11 +29,12 @@ import importlib
 import importlib.util
 import json
 import os
+import sys
 from pathlib import Path
 
 from .._util.arg_types import count, default_device, device_name, interval, number
 from .._util.log import progress_bars_enabled, run_log
-from ..metrics._common import MetricInputError
+from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
 from ..model.presets import SAMPLER_PRESETS
 
@@ -105,8 +106,8 @@ def _vlm_kwargs(args) -> dict:
 def cmd_eval_run(args) -> int:
     import torch
 
-    from ..model.sampler import sampler_from_options
-    from .loop import run_evaluation
+    from ..model.sampler import resolve_sampler
+    from .loop import card_sampler_of, run_evaluation
     from .manifest import load_manifest
 
     if args.engine != "ray" and args.device is not None:  # local rollouts: the device must be this machine's
@@ -133,8 +134,12 @@ def cmd_eval_run(args) -> int:
             pairwise = judge
     elif args.pairwise:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
-    sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
-                                   shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form)
+    options = dict(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval, shift=args.shift,
+                   guidance=args.guidance, guidance_form=args.guidance_form, defaults={"guidance_form": "standard"})
+    resolve_sampler(None, **options)  # the flags checked before the model is looked up
+    choice = resolve_sampler(card_sampler_of(args.model, args.revision), **options)
+    sampler = choice.config
+    print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "eval-run"):
         result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
                                 pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
@@ -186,8 +191,9 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6)")
-    r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard")
+    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
+    r.add_argument("--guidance-form", choices=("standard", "diffusers"),
+                   help="default: the model card's, else standard")
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
     r.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="where rollouts run: this process (default), or Ray actors (a running cluster via "

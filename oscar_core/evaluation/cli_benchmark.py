@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from .._util.arg_types import count, default_device, device, interval, number
@@ -54,7 +55,7 @@ def cmd_run(args) -> int:
     import oscar_zoo
 
     from .._util.stage import model_identity
-    from ..model.sampler import sampler_from_options
+    from ..model.sampler import resolve_sampler
     from ..plugin.registry import Registry
     from .benchmark_run import run_benchmark
     from .benchmark_set import load_benchmark_set
@@ -63,8 +64,11 @@ def cmd_run(args) -> int:
     torch.set_num_threads(max(1, args.threads))
     dtype = getattr(torch, args.dtype) if args.dtype else None
     model = oscar_zoo.load(args.model, device=args.device or default_device(), dtype=dtype)
-    sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
-                                   guidance=args.guidance, guidance_form=args.guidance_form)
+    choice = resolve_sampler(model.card.sampler, steps=args.steps, preset=args.preset,
+                             guidance_interval=args.guidance_interval, guidance=args.guidance,
+                             guidance_form=args.guidance_form, defaults={"guidance_form": "standard"})
+    sampler = choice.config
+    print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "benchmark-run"):
         s = run_benchmark(model, bench, args.out, sampler=sampler, seed=args.seed, prompt=args.prompt,
                           registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
@@ -149,9 +153,10 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget preset")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]")
-    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6)")
-    r.add_argument("--guidance-form", choices=("standard", "diffusers"), default="standard",
-                   help="v_u + w(v_c - v_u) (standard, default) or v_c + w(v_c - v_u) (diffusers)")
+    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
+    r.add_argument("--guidance-form", choices=("standard", "diffusers"),
+                   help="v_u + w(v_c - v_u) (standard) or v_c + w(v_c - v_u) (diffusers); default: the model "
+                   "card's, else standard")
     r.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0)")
     r.add_argument("--prompt", choices=("clip", "empty"), default="clip",
                    help="text condition: the clip's stored prompt_embeds, else the empty prompt (clip, default); "

@@ -47,12 +47,13 @@ from pathlib import Path
 import numpy as np
 
 from .._util import stage as _stage
+from .._util.stage import EngineName
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
-from ..metrics._common import MetricInputError
+from ..metrics.common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
-__all__ = ["RECORD_VERSION", "EvaluationResult", "run_evaluation", "model_identity", "rollout_key",
+__all__ = ["RECORD_VERSION", "EvaluationResult", "EvaluationSettings", "run_evaluation", "card_sampler_of", "model_identity", "rollout_key",
            "record_path", "video_path"]
 
 RECORD_VERSION = 1
@@ -142,78 +143,159 @@ def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
                                    f"{cell.embodiment!r}: {exc}") from None
 
 
-def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, revision: str | None = None,
-                   judge=None, pairwise_judge=None, sampler=None, chunk_frames: int | None = None,
-                   device="cpu", dtype=None, plugin_paths=(), progress: bool = False,
-                   plot_formats=("png",), log: Callable[[str], None] | None = None,
-                   batch_cells: int = 1, engine: str = "local", workers: int = 1,
-                   compile: str | None = None) -> EvaluationResult:
-    """Run the loop of the module docstring and write the report folder ``out``.
+@dataclass(frozen=True)
+class EvaluationSettings:
+    """How :func:`run_evaluation` rolls out, judges and reports (every field has the command's default).
 
-    manifest: a path or a loaded :class:`Manifest`. model: a loaded world model,
-    or None to load ``model_spec`` (zoo name, Hub id or folder) with
-    ``oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)`` when a
-    rollout is needed. judge: success judge (``judge_many``) or None (no
-    world-model success rates); pairwise_judge: ``compare_many`` or None.
-    sampler: :class:`~oscar_core.model.SamplerConfig` (default: the paper's).
-    batch_cells: roll out up to this many cells in one batch (cells in manifest order that share a frame count,
-    size and prompt shape; each cell's video equals its one-at-a-time rollout up to float rounding, and its
-    record is written as soon as its batch finishes). Latent-action models roll out one at a time.
-    engine: ``local`` (this process) or ``ray``: ``workers`` Ray actors (one GPU each on CUDA), each loading the
-    model once from ``model_spec`` and rolling out groups of cells; this process writes every video and record,
-    so the run folder, the resume rule and the report are the local run's.
-    compile: ``auto``, ``always`` or ``never`` (:mod:`oscar_core.model.compile_policy`), weighed over every
-    pending cell (a worker's share on Ray); None: a given model's own ``compile_mode``, ``auto`` for a loaded one.
-    dtype None: bfloat16 on CUDA, else the checkpoint's.
+    model_spec: zoo name, Hub id or folder to load (``oscar_zoo.load(model_spec, revision, device=device,
+    dtype=dtype)``) when a rollout is needed and no model object is given; dtype None: bfloat16 on CUDA, else
+    the checkpoint's. sampler: :class:`~oscar_core.model.SamplerConfig` (None: the model card's recommended
+    settings over the library's defaults, :func:`~oscar_core.model.sampler.resolve_sampler`). chunk_frames: frames
+    per chunk (None: the model's). batch_cells: roll out up to this many cells in one batch (cells in manifest
+    order that share a frame count, size and prompt shape; each cell's video equals its one-at-a-time rollout up
+    to float rounding, and its record is written as soon as its batch finishes; latent-action models roll out one
+    at a time). engine: ``local`` (this process) or ``ray``: ``workers`` Ray actors (one GPU each on CUDA), each
+    loading the model once from ``model_spec`` and rolling out groups of cells; this process writes every video
+    and record, so the run folder, the resume rule and the report are the local run's. compile: ``auto``,
+    ``always`` or ``never`` (:mod:`oscar_core.model.compile_policy`), weighed over every pending cell (a worker's
+    share on Ray); None: a given model's own ``compile_mode``, ``auto`` for a loaded one. plot_formats: the
+    report's figure formats; progress: progress bars.
     """
-    for name, value in (("batch_cells", batch_cells), ("workers", workers)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise MetricInputError(name, "value", "an integer >= 1", repr(value))
-    if compile is not None:
-        from ..model.compile_policy import check_compile_mode
 
-        check_compile_mode(compile)
-    if engine not in ("local", "ray"):
-        raise MetricInputError("engine", "value", '"local" or "ray"', repr(engine))
-    if engine == "ray" and model_spec is None:
-        raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
-                               f"a model object ({type(model).__name__})")
-    from ..model.sampler import SamplerConfig
+    model_spec: str | None = None
+    revision: str | None = None
+    sampler: object = None
+    chunk_frames: int | None = None
+    device: object = "cpu"
+    dtype: object = None
+    plugin_paths: tuple = ()
+    progress: bool = False
+    plot_formats: tuple = ("png",)
+    batch_cells: int = 1
+    engine: EngineName = "local"
+    workers: int = 1
+    compile: str | None = None
 
-    user_log, log = log, log or _log.info
+    def check(self, model=None) -> None:
+        """Raise :class:`MetricInputError` naming the first bad setting (before any work)."""
+        for name in ("batch_cells", "workers"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise MetricInputError(name, "value", "an integer >= 1", repr(value))
+        if self.compile is not None:
+            from ..model.compile_policy import check_compile_mode
+
+            check_compile_mode(self.compile)
+        if self.engine not in ("local", "ray"):
+            raise MetricInputError("engine", "value", '"local" or "ray"', repr(self.engine))
+        if self.engine == "ray" and self.model_spec is None:
+            raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
+                                   f"a model object ({type(model).__name__})")
+
+
+@dataclass
+class _Run:
+    """One evaluation in progress: its inputs, settings and what the phases have found so far."""
+
+    manifest: Manifest
+    out: Path
+    settings: EvaluationSettings
+    log: Callable[[str], None]
+    model: _LazyModel
+    model_id: str
+    sampler: object
+    counts: dict
+
+    @property
+    def model_name(self) -> str:
+        return self.settings.model_spec if self.settings.model_spec is not None else self.model_id
+
+
+def run_evaluation(manifest, out, *, model=None, judge=None, pairwise_judge=None,
+                   settings: EvaluationSettings | None = None, log: Callable[[str], None] | None = None,
+                   **fields) -> EvaluationResult:
+    """Run the loop of the module docstring and write the report folder ``out``: rollouts, success verdicts,
+    pairwise preferences, then metrics and the report, one phase each.
+
+    manifest: a path or a loaded :class:`Manifest`. model: a loaded world model, or None to load
+    ``settings.model_spec`` when a rollout is needed. judge: success judge (``judge_many``) or None (no
+    world-model success rates); pairwise_judge: ``compare_many`` or None. settings: an
+    :class:`EvaluationSettings`, or its fields as keywords (``model_spec=..., batch_cells=4``). log: called with
+    each progress message (default: the logger at INFO).
+    """
+    if settings is None:
+        settings = EvaluationSettings(**fields)
+    elif fields:
+        settings = dataclasses.replace(settings, **fields)
+    settings.check(model)
+    run = _start(manifest, out, model, settings, log)
+    records = _rollouts(run)
+    clips, verdicts = _success_verdicts(run, records, judge)
+    pair_verdicts = _pairwise_preferences(run, clips, verdicts, judge, pairwise_judge)
+    return _report(run, records, verdicts, pair_verdicts, judge, pairwise_judge, user_log=log)
+
+
+def card_sampler_of(spec: str, revision: str | None = None) -> dict | None:
+    """The sampler settings model ``spec``'s card recommends (``ModelCard.sampler``), read from its folder (bundled,
+    local, or pulled into the Hub cache) without loading weights; None for a folder without an OSCAR card."""
+    import oscar_zoo
+
+    from ..model.world_model import MODEL_FILE, read_card
+
+    folder = Path(oscar_zoo.pull(spec, revision))
+    return read_card(folder).sampler if (folder / MODEL_FILE).is_file() else None
+
+
+def _start(manifest, out, model, settings: EvaluationSettings, log) -> _Run:
+    """Load and check the manifest, sweep temporaries of killed runs, and set up the (lazy) model."""
+    log = log or _log.info
     manifest = manifest if isinstance(manifest, Manifest) else load_manifest(manifest)
-    _check_embodiments(manifest, plugin_paths)
+    _check_embodiments(manifest, settings.plugin_paths)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     # temporaries of killed runs (videos, cell records, report files), even when every cell is then reused
     for folder in (out, *sorted((out / "cells").glob("*")), *sorted((out / "rollouts").glob("*"))):
         sweep_dead_temporaries(folder)
-    if model is None and model_spec is None:
+    spec, revision = settings.model_spec, settings.revision
+    if model is None and spec is None:
         raise MetricInputError("model", "model", "a world model or a model spec (zoo name, Hub id or folder)", "none")
-    sampler = sampler or SamplerConfig()
-    sampler_fields = dataclasses.asdict(sampler)
-    model_id = model_identity(model_spec, revision) if model_spec is not None else f"object:{type(model).__name__}"
+    if settings.sampler is not None:
+        sampler = settings.sampler
+    else:  # the card's recommended settings over the library's defaults
+        from ..model.sampler import resolve_sampler
+
+        card_sampler = (getattr(getattr(model, "card", None), "sampler", None) if model is not None
+                        else card_sampler_of(spec, revision))
+        choice = resolve_sampler(card_sampler)
+        log(f"sampler: {choice.describe()}")
+        sampler = choice.config
+    model_id = model_identity(spec, revision) if spec is not None else f"object:{type(model).__name__}"
 
     def load():
         import oscar_zoo
 
-        log(f"loading world model {model_spec}")
-        return oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)
+        log(f"loading world model {spec}")
+        return oscar_zoo.load(spec, revision, device=settings.device, dtype=settings.dtype)
 
-    lazy = _LazyModel(model, load)
-    size = manifest.size
     counts = {"cells": len(manifest.cells), "rollouts_done": 0, "rollouts_reused": 0, "verdicts_done": 0,
               "verdicts_reused": 0, "verdicts_not_ok": 0}
-    done: dict[int, dict] = {}
+    return _Run(manifest, out, settings, log, _LazyModel(model, load), model_id, sampler, counts)
 
-    # 1. rollouts -------------------------------------------------------------------------------
+
+def _rollouts(run: _Run) -> list[dict]:
+    """Phase 1: every cell's rollout, reused when its record and video match, else rolled out and recorded.
+    Returns the records in manifest order."""
+    manifest, out, st, log, counts = run.manifest, run.out, run.settings, run.log, run.counts
+    sampler_fields = dataclasses.asdict(run.sampler)
+    size = manifest.size
+    done: dict[int, dict] = {}
     # a bar over the cells: rate and ETA of the whole evaluation (reused cells count at once)
-    bar = progress_bar(total=len(manifest.cells), desc="eval run: rollouts", unit="cell", enabled=progress)
+    bar = progress_bar(total=len(manifest.cells), desc="eval run: rollouts", unit="cell", enabled=st.progress)
     pending = []  # (index, cell, key) of the cells without a valid rollout
     for k, cell in enumerate(manifest.cells):
         rpath, vpath = record_path(out, cell), video_path(out, cell)
-        key = rollout_key(cell, model_id=model_id, sampler=sampler_fields, chunk_frames=chunk_frames, size=size,
-                          fps=None)
+        key = rollout_key(cell, model_id=run.model_id, sampler=sampler_fields, chunk_frames=st.chunk_frames,
+                          size=size, fps=None)
         rec = _read_record(rpath)
         if (rec is not None and rec.get("rollout_key") == key and vpath.is_file()
                 and rec.get("video_sha256") == file_digest(vpath)):
@@ -231,7 +313,7 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
         vpath.parent.mkdir(parents=True, exist_ok=True)
         write_video(vpath, frames, fps)
         rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
-               "row": cell.row, "rollout_key": key, "model": model_spec if model_spec is not None else model_id,
+               "row": cell.row, "rollout_key": key, "model": run.model_name,
                "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
                "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])],
                "fps": fps, "seconds": round(seconds, 3), "verdict": None, "batch": batch,
@@ -243,78 +325,93 @@ def run_evaluation(manifest, out, *, model=None, model_spec: str | None = None, 
         log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
             f"{rec['seconds']:.1f} s" + (f" (batch of {batch})" if batch > 1 else ""))
 
-    options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, plugin_paths=tuple(plugin_paths),
-                   batch_cells=batch_cells)
-    if pending and engine == "ray":
+    options = dict(size=size, sampler=run.sampler, chunk_frames=st.chunk_frames, plugin_paths=tuple(st.plugin_paths),
+                   batch_cells=st.batch_cells)
+    if pending and st.engine == "ray":
         from .rollout_engines import roll_out_on_ray
 
-        roll_out_on_ray(pending, record, model_spec=model_spec, revision=revision, device=device, dtype=dtype,
-                        workers=workers, log=log, compile=compile or "auto", **options)
+        roll_out_on_ray(pending, record, model_spec=st.model_spec, revision=st.revision, device=st.device,
+                        dtype=st.dtype, workers=st.workers, log=log, compile=st.compile or "auto", **options)
     elif pending:
         from .rollout_engines import roll_out_cells
 
         at = {id(c): (k, key) for k, c, key in pending}
-        loaded = lazy.get()
+        loaded = run.model.get()
         if hasattr(loaded, "set_compile"):  # compile once for the whole job, weighed over its pending cells
-            loaded.set_compile(compile or getattr(loaded, "compile_mode", "auto"), cells=len(pending))
-        for group, videos in roll_out_cells(loaded, [c for _, c, _ in pending], progress=progress, **options):
+            loaded.set_compile(st.compile or getattr(loaded, "compile_mode", "auto"), cells=len(pending))
+        for group, videos in roll_out_cells(loaded, [c for _, c, _ in pending], progress=st.progress, **options):
             for (cell, seconds), (frames, fps) in zip(group, videos):
                 k, key = at[id(cell)]
                 record(k, cell, key, frames, fps, seconds, len(group))
     bar.close()
-    records = [done[k] for k in range(len(manifest.cells))]
+    return [done[k] for k in range(len(manifest.cells))]
 
-    # 2. success verdicts ------------------------------------------------------------------------
-    from ..metrics.judge import JudgeClip, SuccessVerdict, pairs_by_session, success_by_policy
 
+def _success_verdicts(run: _Run, records: list[dict], judge) -> tuple[list, list]:
+    """Phase 2: (the cells as judge clips, one success verdict or None per cell); an ``ok`` verdict stored in a
+    cell's record by the same judge is reused, fresh ``ok`` verdicts are stored."""
+    from ..metrics.judge import JudgeClip, SuccessVerdict
+
+    manifest, out, counts = run.manifest, run.out, run.counts
     clips = [JudgeClip(name=c.id, video=out / r["video"], instruction=c.task, policy=c.policy, session=c.session,
                        info=c.info) for c, r in zip(manifest.cells, records)]
     verdicts: list[SuccessVerdict | None] = [None] * len(clips)
-    if judge is not None:
-        jid = _judge_id(judge)
-        todo = []
-        for k, rec in enumerate(records):
-            stored = rec.get("verdict")
-            if isinstance(stored, dict) and stored.get("judge_id") == jid and stored.get("status") == "ok":
-                v = dict(stored["verdict"])
-                v["attempt_errors"] = tuple(v.get("attempt_errors") or ())
-                verdicts[k] = SuccessVerdict(**v)
-                counts["verdicts_reused"] += 1
+    if judge is None:
+        return clips, verdicts
+    jid = _judge_id(judge)
+    todo = []
+    for k, rec in enumerate(records):
+        stored = rec.get("verdict")
+        if isinstance(stored, dict) and stored.get("judge_id") == jid and stored.get("status") == "ok":
+            v = dict(stored["verdict"])
+            v["attempt_errors"] = tuple(v.get("attempt_errors") or ())
+            verdicts[k] = SuccessVerdict(**v)
+            counts["verdicts_reused"] += 1
+        else:
+            todo.append(k)
+    if todo:
+        run.log(f"judging {len(todo)} rollouts")
+        fresh = judge.judge_many([clips[k] for k in todo], progress=run.settings.progress)
+        for k, v in zip(todo, fresh):
+            verdicts[k] = v
+            counts["verdicts_done"] += 1
+            if v.ok:
+                records[k]["verdict"] = {"judge_id": jid, "status": "ok", "verdict": v.to_dict()}
+                _write_json(record_path(out, manifest.cells[k]), records[k])
             else:
-                todo.append(k)
-        if todo:
-            log(f"judging {len(todo)} rollouts")
-            fresh = judge.judge_many([clips[k] for k in todo], progress=progress)
-            for k, v in zip(todo, fresh):
-                verdicts[k] = v
-                counts["verdicts_done"] += 1
-                if v.ok:
-                    records[k]["verdict"] = {"judge_id": jid, "status": "ok", "verdict": v.to_dict()}
-                    _write_json(record_path(out, manifest.cells[k]), records[k])
-                else:
-                    counts["verdicts_not_ok"] += 1
-        counts["verdicts_not_ok"] = sum(1 for v in verdicts if v is not None and not v.ok)
+                counts["verdicts_not_ok"] += 1
+    counts["verdicts_not_ok"] = sum(1 for v in verdicts if v is not None and not v.ok)
+    return clips, verdicts
 
-    # 3. pairwise preferences ----------------------------------------------------------------------
-    pair_verdicts = []
-    if pairwise_judge is not None:
-        pairs = pairs_by_session(clips)
-        if pairs:
-            log(f"comparing {len(pairs)} pairs")
-            kwargs = {}
-            if getattr(pairwise_judge, "kind", None) == "programmatic" and judge is pairwise_judge:
-                kwargs["verdicts"] = [v for v in verdicts if v is not None]
-            pair_verdicts = pairwise_judge.compare_many(pairs, progress=progress, **kwargs)
 
-    # 4. metrics and report ------------------------------------------------------------------------
+def _pairwise_preferences(run: _Run, clips: list, verdicts: list, judge, pairwise_judge) -> list:
+    """Phase 3: the pairwise judge's verdicts on every pair of cells within a session ([] without one)."""
+    from ..metrics.judge import pairs_by_session
+
+    if pairwise_judge is None:
+        return []
+    pairs = pairs_by_session(clips)
+    if not pairs:
+        return []
+    run.log(f"comparing {len(pairs)} pairs")
+    kwargs = {}
+    if getattr(pairwise_judge, "kind", None) == "programmatic" and judge is pairwise_judge:
+        kwargs["verdicts"] = [v for v in verdicts if v is not None]
+    return pairwise_judge.compare_many(pairs, progress=run.settings.progress, **kwargs)
+
+
+def _report(run: _Run, records, verdicts, pair_verdicts, judge, pairwise_judge, user_log) -> EvaluationResult:
+    """Phase 4: the metrics and the report folder."""
+    from ..metrics.judge import success_by_policy
     from .report import build_report, write_report
 
     wm = success_by_policy([v for v in verdicts if v is not None]) if judge is not None else {}
-    report = build_report(manifest, records, verdicts, pair_verdicts, wm, counts=counts,
-                          model=model_spec if model_spec is not None else model_id,
+    report = build_report(run.manifest, records, verdicts, pair_verdicts, wm, counts=run.counts,
+                          model=run.model_name,
                           judge=judge.describe() if judge is not None and hasattr(judge, "describe") else None,
                           pairwise_judge=(pairwise_judge.describe() if pairwise_judge is not None
                                           and hasattr(pairwise_judge, "describe") else None),
-                          sampler=sampler_fields)
-    paths = write_report(out, report, manifest, records, plot_formats=plot_formats, log=user_log)
-    return EvaluationResult(out=out, records=records, counts=counts, report=report, paths=paths)
+                          sampler=dataclasses.asdict(run.sampler))
+    paths = write_report(run.out, report, run.manifest, records, plot_formats=run.settings.plot_formats,
+                         log=user_log)
+    return EvaluationResult(out=run.out, records=records, counts=run.counts, report=report, paths=paths)

@@ -42,7 +42,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..metrics._common import MetricInputError, finite_float
+from ..metrics.common import MetricInputError, finite_float
 
 __all__ = ["FORMAT", "Cell", "Manifest", "ManifestError", "load_manifest", "file_digest"]
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger
-from ..metrics._common import MetricInputError, nan_to_none
+from ..metrics.common import MetricInputError, nan_to_none
 from .manifest import Manifest
 
 __all__ = ["SHEET_FRAMES", "SHEET_HEIGHT", "build_report", "write_report", "contact_sheet", "format_summary"]

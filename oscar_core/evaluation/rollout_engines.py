@@ -22,8 +22,9 @@ from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 
-from ..metrics._common import MetricInputError
+from ..metrics.common import MetricInputError
 from .manifest import Cell
+from ..render.conditions import takes_actions
 
 __all__ = ["cell_inputs", "cell_prompt", "roll_out_cells", "roll_out_on_ray"]
 
@@ -34,7 +35,7 @@ def cell_prompt(cell: Cell):
         return None
     from safetensors.torch import load_file
 
-    from ..model._weights import check_safetensors
+    from ..model.weights import check_safetensors
 
     check_safetensors(cell.prompt_embeds)
     tensors = load_file(str(cell.prompt_embeds))
@@ -50,7 +51,7 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
     condition video (the card's: skeleton, mesh or capsules; None for a latent-action model), ``actions``
     (T − 1, 14) for a latent-action model (else None), ``prompt`` (1, L, D) or None, ``fps``."""
-    from ..model._image import read_first_frame
+    from ..model.image import read_first_frame
     from ..render.skeleton_video import fit_image
     from ..plugin.registry import get_embodiment
     from ..kinematics.trajectory import load_trajectory
@@ -103,7 +104,7 @@ def roll_out_cells(model, cells: Sequence[Cell], *, size, sampler, chunk_frames,
     A group is consecutive cells with one :func:`_batch_key`, at most ``batch_cells`` of them (one for a
     latent-action model); frames are (T, H, W, 3) uint8.
     """
-    per_batch = batch_cells if model.card.condition != "latent_action" else 1
+    per_batch = batch_cells if not takes_actions(model.card.condition) else 1
     group: list[Cell] = []
     inputs: list[dict] = []
 

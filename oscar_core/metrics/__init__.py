@@ -24,7 +24,7 @@ from __future__ import annotations
 from .._util.lazy import lazy_exports
 
 _EXPORTS = {
-    "MetricInputError": "_common",
+    "MetricInputError": "common",
     # policy evaluation
     "mmrv_simpler": "policy", "mmrv_rank": "policy", "mmrv_rank_max": "policy", "spearman_rho": "policy", "pearson_r": "policy",
     "sisr_delta": "policy", "average_ranks": "policy", "success_rates": "policy",

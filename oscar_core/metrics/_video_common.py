@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = ["DEFAULT_FRAMES", "load_torchscript", "load_video"]
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._common import MetricInputError, nan_to_none
+from .common import MetricInputError, nan_to_none
 
 __all__ = [
     "Preference", "parse_preference", "BradleyTerryResult", "BradleyTerryWarning", "fit_bradley_terry",

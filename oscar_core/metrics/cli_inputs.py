@@ -10,7 +10,7 @@ import glob
 import json
 from pathlib import Path
 
-from ._common import MetricInputError, finite_float
+from .common import MetricInputError, finite_float
 
 
 __all__ = [
@@ -71,13 +71,6 @@ def collect_clips(pred, gt, *, embodiment: str | None = None) -> list:
         tag = embodiment if embodiment is not None else (name.split("/")[0] if "/" in name else None)
         clips.append(Clip(name, pc[name], gc[name], tag))
     return clips
-
-
-def _load_network(spec: str | None, what: str):
-    """Kept for old callers: :func:`oscar_core.metrics.networks.load_network`."""
-    from .networks import load_network
-
-    return load_network(spec, what)
 
 
 def _read_json(path: Path):

@@ -61,7 +61,7 @@ from pathlib import Path
 
 from .._util.arg_types import count, number
 from .._util.log import progress_bars_enabled
-from ._common import MetricInputError
+from .common import MetricInputError
 from .cli_inputs import _write_json, collect_judge_videos, read_tasks
 
 

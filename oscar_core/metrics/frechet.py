@@ -11,7 +11,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from ._common import MetricInputError
+from .common import MetricInputError
 from ._video_common import DEFAULT_FRAMES, _callable, _frames, _torch, _unit
 
 __all__ = [

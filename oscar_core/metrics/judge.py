@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import MetricInputError
+from .common import MetricInputError
 from .judge_client import (CACHE_VERSION, ENV_API_KEY, ENV_BASE_URL, ENV_MODEL, ChatClient, JudgeEndpointUnreachable,
                            JudgeRequestError, _cache_read, _cache_write, _key)
 from .judge_frames import DEFAULT_MAX_SIDE, _content_hash, _encode_image, _fit, _image_part, _load_frames, \

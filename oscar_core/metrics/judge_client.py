@@ -48,7 +48,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from ..errors import OscarError
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = ["ENV_BASE_URL", "ENV_MODEL", "ENV_API_KEY", "CACHE_VERSION", "JudgeRequestError", "JudgeEndpointUnreachable",
            "ChatClient"]

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = ["DEFAULT_MAX_SIDE", "sample_frame_indices"]
 

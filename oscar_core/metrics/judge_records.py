@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = [
     "JudgeClip", "JudgePair", "SuccessVerdict", "PairwiseVerdict", "pairs_by_session", "success_by_policy",

@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = ["LPIPS", "alexnet_features", "vgg16_features", "TAPS", "CHANNELS", "load_pth_state_dict"]
 

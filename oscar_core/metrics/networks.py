@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = ["load_network", "resolve_networks"]
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import MetricInputError, align_policy_values
+from .common import MetricInputError, align_policy_values
 
 __all__ = [
     "success_scatter_figure",
@@ -61,7 +61,7 @@ def _matplotlib():
     return Figure, FigureCanvasAgg
 
 
-def _new_figure(figsize, dpi):
+def new_figure(figsize, dpi):
     Figure, FigureCanvasAgg = _matplotlib()
     fig = Figure(figsize=figsize, dpi=dpi)
     FigureCanvasAgg(fig)
@@ -90,7 +90,7 @@ def success_scatter_figure(real, wm, *, names=None, title: str | None = None, fi
         for n, v in zip(order, vals):
             if not 0.0 <= v <= 1.0:
                 raise MetricInputError(side, n, "a success rate in [0, 1]", v)
-    fig = _new_figure(figsize, dpi)
+    fig = new_figure(figsize, dpi)
     ax = fig.add_subplot(1, 1, 1)
     ax.plot([0.0, 1.0], [0.0, 1.0], linestyle="--", color="0.6", linewidth=1.0, zorder=1, gid="identity",
             label="y = x")
@@ -154,7 +154,7 @@ def rank_slope_figure(real_score, wm_score, *, names=None, labels: Sequence[str]
                                       wm_name="wm_score", min_policies=1)
     rr, wr = descending_ranks(r), descending_ranks(w)
     n = len(order)
-    fig = _new_figure(figsize, dpi)
+    fig = new_figure(figsize, dpi)
     ax = fig.add_subplot(1, 1, 1)
     colors = [f"C{k % 10}" for k in range(n)]
 

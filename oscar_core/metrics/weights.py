@@ -44,7 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._util.atomic import atomic_write_bytes
-from ._common import MetricInputError
+from .common import MetricInputError
 
 __all__ = ["WeightFile", "WEIGHTS", "WeightHashError", "weights_cache_dir", "pull_weights", "weight_path",
            "cached_networks", "LOCK_NAME", "GROUPS"]

@@ -20,6 +20,7 @@ _EXPORTS = {
     "detect_layout": "layouts", "load_folder": "layouts", "LAYOUTS": "layouts",
     "LatentActionTransformer": "latent_action", "latent_actions": "latent_action",
     "OscarWorldModel": "world_model", "ModelCard": "world_model",
+    "RolloutRequest": "rollout_files", "RolloutFilesResult": "rollout_files", "run_rollout": "rollout_files",
     "ModelInputError": "errors", "CheckpointError": "errors", "CheckpointLayoutError": "errors",
     "CheckpointIntegrityError": "errors",
 }

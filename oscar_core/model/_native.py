@@ -110,7 +110,7 @@ def read_native_state(path) -> dict[str, torch.Tensor]:
     if path.suffix == ".safetensors":
         from safetensors.torch import load_file
 
-        from ._weights import check_safetensors
+        from .weights import check_safetensors
 
         check_safetensors(path)
         return load_file(str(path), device="cpu")

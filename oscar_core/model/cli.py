@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from .._util.arg_types import count, default_device, device, interval, number
 from .presets import SAMPLER_PRESETS
+from .rollout_files import RolloutRequest, side_by_side_path, text_encoder
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
            "side_by_side_path"]
@@ -53,12 +53,6 @@ keyed by prompt and encoder revision; `oscar rollout --prompt` reads it there.
 _DTYPES = ("float32", "bfloat16", "float16")
 
 
-def side_by_side_path(out) -> Path:
-    """Default side-by-side path: ``video.mp4`` → ``video_side.mp4`` (a folder ``frames/`` → ``frames_side/``)."""
-    out = Path(out)
-    return out.with_name(f"{out.stem}_side{out.suffix}") if out.suffix else out.with_name(f"{out.name}_side")
-
-
 def add_model_parsers(subparsers) -> None:
     """Add ``rollout`` and ``zoo {list,pull}`` to an ``argparse`` sub-parser set."""
     fmt = argparse.RawDescriptionHelpFormatter
@@ -88,19 +82,21 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
                    help="how camera and first frame are fitted to --size (default: centre crop)")
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
+    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35, or "
+                   "the preset's)")
     r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget: paper (35 steps, guidance at every "
-                   "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md)")
+                   "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md); default: "
+                   "the model card's, else none")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
                    help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch")
     r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
                    "(default: the checkpoint's scheduler, else unipc)")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), default=6.0, help="skeleton guidance w (default 6, the paper's; 0 with "
-                   "--guidance-form diffusers or 1 with standard = conditional branch only)")
-    r.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
-                   help="diffusers (default; Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); "
-                   "standard: v_u + w(v_c - v_u)")
+    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6, the "
+                   "paper's; 0 with --guidance-form diffusers or 1 with standard = conditional branch only)")
+    r.add_argument("--guidance-form", choices=("diffusers", "standard"),
+                   help="diffusers (Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); standard: v_u + "
+                   "w(v_c - v_u) (default: the model card's, else diffusers)")
     r.add_argument("--action-guidance", type=number(0.0), help="latent-action models: guidance w over the actions "
                    "(unconditional branch: no action tokens; default: none, the conditional branch only)")
     r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
@@ -237,15 +233,6 @@ def _encoder_id_for(model: str | None) -> str:
     return oscar_zoo.COSMOS_TEXT_ENCODER_ID
 
 
-def _text_encoder(encoder_id: str, device, dtype, offline: bool):
-    import torch
-
-    from .text_encoder import TextEncoder
-
-    dt = getattr(torch, dtype) if dtype else None
-    return TextEncoder.from_hub(encoder_id, device=device, dtype=dt, local_files_only=True if offline else None)
-
-
 def cmd_encode_prompt(args) -> int:
     from .text import PromptEmbeddingCache
 
@@ -254,7 +241,7 @@ def cmd_encode_prompt(args) -> int:
     embeds = cache.get(args.prompt)
     cached = embeds is not None
     if not cached:
-        encoder = _text_encoder(encoder_id, args.device or default_device(), args.dtype, args.offline)
+        encoder = text_encoder(encoder_id, args.device or default_device(), args.dtype, args.offline)
         cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder.encoder_id)
         embeds, cached = encoder.cached(args.prompt, args.prompt_cache)
     summary = {"prompt": args.prompt, "encoder_id": cache.encoder_id, "shape": list(embeds.shape),
@@ -279,201 +266,36 @@ def cmd_encode_prompt(args) -> int:
 # --------------------------------------------------------------------------- rollout
 
 
-def _prompt_embeds(args, model, device) -> tuple:
-    """(embedding or None, where it came from) for ``oscar rollout`` — never a silent zero embedding."""
-    import torch
-
-    from .text import PromptEmbeddingCache
-
-    if args.prompt_embeds:
-        from safetensors.torch import load_file
-
-        from ._weights import check_safetensors
-
-        check_safetensors(args.prompt_embeds)
-        tensors = load_file(args.prompt_embeds)
-        if "prompt_embeds" in tensors:
-            return tensors["prompt_embeds"], f"--prompt-embeds {args.prompt_embeds}"
-        if len(tensors) == 1:
-            return next(iter(tensors.values())), f"--prompt-embeds {args.prompt_embeds}"
-        from ..errors import InputFileError
-
-        raise InputFileError(args.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
-    encoder = args.text_encoder or model.card.text_encoder_id
-    if args.prompt is None:
-        if model.empty_prompt is not None:
-            return None, "empty-prompt embedding stored in the checkpoint (no --prompt)"
-        if not encoder:
-            return None, ("ZERO text embedding: no --prompt and the checkpoint names no text encoder "
-                          "(text_encoder_id) and ships no empty-prompt embedding")
-    prompt = "" if args.prompt is None else args.prompt
-    what = "empty-prompt embedding (no --prompt)" if args.prompt is None else f"prompt {prompt!r}"
-    cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder or "unknown-encoder")
-    found = cache.get(prompt)
-    if found is not None:
-        return found.to(torch.float32), f"{what}, cached ({cache.path(prompt)})"
-    if not encoder:
-        from .errors import ModelInputError
-
-        raise ModelInputError(
-            f"{cache.root}: prompt {prompt!r}: expected a cached embedding made by encoder 'unknown-encoder' "
-            f"({cache.path(prompt).name}), found none, and the checkpoint names no text encoder; pass "
-            "--text-encoder ID_OR_FOLDER, or --prompt-embeds FILE")
-    text = _text_encoder(encoder, device, None, args.offline)
-    embeds, _ = text.cached(prompt, args.prompt_cache)
-    return embeds.to(torch.float32), f"{what}, computed with {text.encoder_id} and cached"
-
-
-def _rollout_size(args, card, camera) -> tuple[int, int]:
-    from ..render.skeleton_video import parse_size
-    from .errors import ModelInputError
-
-    if args.size:
-        size, origin = parse_size(args.size), "--size"
-    elif card.width and card.height:
-        size, origin = (card.width, card.height), "the model's training size"
-    else:
-        size, origin = (camera.intrinsics.width, camera.intrinsics.height), f"the camera's image size ({args.camera})"
-    if size[0] % 16 or size[1] % 16:
-        raise ModelInputError(f"rollout size: expected width and height divisible by 16 (VAE x DiT patch), found "
-                              f"{size[0]}x{size[1]} from {origin}; pass --size, e.g. "
-                              f"{size[0] // 16 * 16}x{size[1] // 16 * 16}")
-    return size
-
-
 def cmd_rollout(args) -> int:
-    import time
-
-    t_start = time.perf_counter()
+    """``oscar rollout``: the options as a :class:`~oscar_core.model.rollout_files.RolloutRequest`, then
+    :func:`~oscar_core.model.rollout_files.run_rollout`, then the summary."""
     startup = _seconds_since_process_start()
-    import numpy as np
-    import torch
+    from .rollout_files import run_rollout
 
-    import oscar_zoo
-
-    from ..render.conditions import condition_video, video_condition_of
-    from ..render.skeleton_video import fit_image
-    from ..plugin.registry import get_embodiment
-    from ..kinematics.trajectory import load_trajectory
-    from ._image import read_first_frame
-    from .sampler import sampler_from_options
-
-    timings = {"startup": startup} if startup is not None else {}
-    timings["import"] = time.perf_counter() - t_start
-    emb = get_embodiment(args.embodiment, getattr(args, "plugin", None) or ())
-    traj = load_trajectory(args.trajectory)
-    camera = emb.load_camera(args.camera)
-    first = read_first_frame(args.first_frame, camera, args.camera)
-    sampler = sampler_from_options(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval,
-                                   shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form,
-                                   batched_cfg=not args.two_pass_cfg, solver=args.solver,
-                                   action_guidance=getattr(args, "action_guidance", None))
-    # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
-    from ..render.skeleton_video import parse_size
-    from ..media.video import check_output
-
-    size = parse_size(args.size) if args.size else None
-    check_output(args.out, size=size)
-    if size is not None:  # the skeleton video of the whole trajectory is held in memory
-        from .._util.memory import check_fits
-
-        check_fits((len(traj), size[1], size[0], 3), 1, "the skeleton video (T, H, W, 3) uint8 at --size",
-                   "use a smaller --size")
-    side_path = None if args.no_side_by_side else (args.side_by_side or side_by_side_path(args.out))
-    if side_path is not None:
-        check_output(side_path)
-    device = args.device or default_device()
-    dtype = getattr(torch, args.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
-    report: list[str] = []
-    t0 = time.perf_counter()
-    if _loads_without_network(args):  # online, diffusers' import waits until the Hub has answered (OSCAR_HUB_TIMEOUT)
-        from .world_model import OscarWorldModel  # noqa: F401 - diffusers (~3 s on a CPU): counted as import
-    timings["import"] += time.perf_counter() - t0
-    t0 = time.perf_counter()
-    model = oscar_zoo.load(args.model, args.revision, device=device, dtype=dtype,
-                           offload_vae=args.offload_vae, offload_text=args.offload_text,
-                           local_files_only=True if args.offline else None, native_file=args.native_file,
-                           report=report)
-    timings["load"] = time.perf_counter() - t0
-    for line in report:
-        print(line, file=sys.stderr)
-    model.set_compile(args.compile)
-    if args.vae_tiling:
-        model.enable_vae_tiling()
-    if args.vae_slicing:
-        model.enable_vae_slicing()
-    width, height = _rollout_size(args, model.card, camera)
-    # the card's condition video (the skeleton, or the mesh / capsules for a model trained on those)
-    t0 = time.perf_counter()
-    skeleton = condition_video(video_condition_of(model.card.condition), emb, traj, camera,
-                               (width, height), resize_mode=args.resize, camera_source=args.camera)
-    first = fit_image(first, width, height, args.resize)
-    timings["render"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    prompt, text_source = _prompt_embeds(args, model, device)
-    timings["text"] = time.perf_counter() - t0
-    print(f"text: {text_source}", file=sys.stderr)
-    if prompt is None and model.empty_prompt is None:
-        prompt = torch.zeros(1, 1, model.transformer.text_dim)
-    if model.card.fps and abs(model.card.fps - traj.fps) > 1e-6:
-        print(f"warning: {args.trajectory} is at {traj.fps:g} fps but the model was trained at {model.card.fps:g} fps; "
-              "resample the trajectory for faithful motion speed", file=sys.stderr)
-    from .rollout import RolloutResult
-
-    fps = args.fps or traj.fps
-    result = RolloutResult(frames=np.empty(0, np.uint8))
-    latent_action = model.card.condition == "latent_action"
-    t0 = time.perf_counter()
-    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
-    timings["render"] += time.perf_counter() - t0
-    t0 = time.perf_counter()
-    chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=args.chunk_frames,
-                                sampler=sampler, seed=args.seed, progress=not args.no_progress, result=result,
-                                actions=actions)
-    # torch.compile's set-up when the policy compiles (mostly inductor's imports, ~1.5 s on a CPU; 0 eager); the
-    # compile itself runs inside the first chunk's sample
-    timings["compile"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out, side_out, count = _write_streams(chunks, skeleton, args.out, side_path, fps)
-    streamed = time.perf_counter() - t0
-    timings.update({k: result.timings.get(k, 0.0) for k in ("encode", "sample", "decode")})
-    timings["write"] = max(streamed - sum(result.timings.values()), 0.0)  # what streaming added beyond the model
-    timings["wall"] = time.perf_counter() - t_start + (startup or 0.0)
-    summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
-               "chunks": len(result.starts), "model": args.model, "seed": args.seed, "text": text_source,
-               "sampler": model.sampler_for(sampler).resolved_solver, "steps": args.steps,
-               "unconditional_skeleton": model.card.unconditional_skeleton,
-               "guidance": {"w": args.guidance, "form": args.guidance_form}, "condition": model.card.condition,
-               "compile": model.compile_reason, "dtype": str(next(model.transformer.parameters()).dtype),
-               "device": str(device), "timings": {k: round(v, 3) for k, v in timings.items()}}
-    if str(device).startswith("cuda"):  # which GPU the timings were measured on
-        summary["device_name"] = torch.cuda.get_device_name(torch.device(device))
-    if latent_action:
-        summary["guidance"] = {"action_w": sampler.action_guidance, "form": args.guidance_form}
-    if side_out is not None:
-        summary["side_by_side"] = str(side_out)
+    request = RolloutRequest(
+        model=args.model, embodiment=args.embodiment, first_frame=args.first_frame, trajectory=args.trajectory,
+        camera=args.camera, out=args.out, revision=args.revision, side_by_side=args.side_by_side,
+        no_side_by_side=args.no_side_by_side, prompt=args.prompt, prompt_embeds=args.prompt_embeds,
+        prompt_cache=args.prompt_cache, text_encoder=args.text_encoder, native_file=args.native_file,
+        size=args.size, resize=args.resize, chunk_frames=args.chunk_frames, steps=args.steps, preset=args.preset,
+        guidance_interval=args.guidance_interval, solver=args.solver, shift=args.shift, guidance=args.guidance,
+        guidance_form=args.guidance_form, action_guidance=getattr(args, "action_guidance", None),
+        two_pass_cfg=args.two_pass_cfg, seed=args.seed, fps=args.fps, device=args.device, dtype=args.dtype,
+        compile=args.compile, vae_tiling=args.vae_tiling, vae_slicing=args.vae_slicing,
+        offload_vae=args.offload_vae, offload_text=args.offload_text, offline=args.offline,
+        progress=not args.no_progress, plugin_paths=tuple(getattr(args, "plugin", None) or ()))
+    result = run_rollout(request, notify=lambda line: print(line, file=sys.stderr), startup=startup, given="flag")
+    summary = result.summary
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
+        width, height = summary["size"]
         extra = f" and {summary['side_by_side']}" if "side_by_side" in summary else ""
-        print(f"wrote {out}{extra}: {summary['frames']} frames, {width}x{height}, {fps:g} fps, "
-              f"{summary['chunks']} chunk(s)")
-        print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()) + f" ({model.compile_reason})",
-              file=sys.stderr)
+        print(f"wrote {summary['rollout']}{extra}: {summary['frames']} frames, {width}x{height}, "
+              f"{summary['fps']:g} fps, {summary['chunks']} chunk(s)")
+        print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items())
+              + f" ({summary['compile']})", file=sys.stderr)
     return 0
-
-
-def _loads_without_network(args) -> bool:
-    """Whether ``--model`` loads from disk only: a folder, a model bundled with oscar, or ``--offline``."""
-    import oscar_zoo
-
-    if args.offline:
-        return True
-    try:
-        resolved = oscar_zoo.resolve(args.model, args.revision)
-    except oscar_zoo.UnknownModelError:
-        return False  # the load reports it
-    return resolved.folder is not None or bool(resolved.spec is not None and resolved.spec.bundled)
 
 
 def _seconds_since_process_start() -> float | None:
@@ -491,59 +313,3 @@ def _seconds_since_process_start() -> float | None:
         return None
 
 
-def _write_streams(chunks, skeleton, out, side_path, fps):
-    """Write the rollout (and its side-by-side) while chunks arrive; returns (out, side or None, frames)."""
-    import queue
-    import threading
-
-    import numpy as np
-
-    from ..render.skeleton_video import overlay_skeleton
-    from ..media.video import write_video
-
-    done = object()
-    side_q: queue.Queue = queue.Queue(maxsize=4)
-    state = {"count": 0, "error": None, "side": None}
-
-    def frames():
-        state["started"] = True
-        try:
-            for block in chunks:
-                start = state["count"]
-                state["count"] += len(block)
-                if side_path is not None:
-                    skel = skeleton[start:start + len(block)]
-                    side_q.put(np.concatenate([block, overlay_skeleton(skel, block)], axis=2))
-                yield from block
-        finally:
-            side_q.put(done)
-
-    def side_frames():
-        while (item := side_q.get()) is not done:
-            yield from item
-        state["side_done"] = True
-
-    def write_side():
-        try:
-            state["side"] = write_video(side_path, side_frames(), fps)
-        except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
-            state["error"] = exc
-            while not state.get("side_done") and side_q.get() is not done:  # keep the producer from blocking
-                pass
-
-    thread = None
-    if side_path is not None:
-        thread = threading.Thread(target=write_side, name="oscar-side-by-side", daemon=True)
-        thread.start()
-    gen = frames()
-    try:
-        written = write_video(out, gen, fps)
-    finally:
-        gen.close()
-        if not state.get("started"):
-            side_q.put(done)
-        if thread is not None:
-            thread.join()
-    if state["error"] is not None:
-        raise state["error"]
-    return written, state["side"], state["count"]

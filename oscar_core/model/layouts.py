@@ -27,7 +27,7 @@ from pathlib import Path
 from ._native import NATIVE_SUFFIXES, find_skeleton_key, infer_config, map_native_state, read_native_state, \
     read_overrides
 from ._files import MODEL_FILE
-from ._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
+from .weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
 from .errors import CheckpointLayoutError
 
 __all__ = ["LAYOUTS", "SCHEDULER_CONFIG", "Layout", "detect_layout", "load_folder"]

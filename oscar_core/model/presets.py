@@ -8,9 +8,14 @@ weight) stay the model's or the user's. ``paper``: the paper's 35 UniPC steps, g
 
 from __future__ import annotations
 
-__all__ = ["SAMPLER_PRESETS"]
+from typing import Literal
 
-SAMPLER_PRESETS: dict[str, dict] = {
+__all__ = ["SAMPLER_PRESETS", "PresetName"]
+
+#: the names of the sampler presets
+PresetName = Literal["paper", "fast"]
+
+SAMPLER_PRESETS: dict[PresetName, dict] = {
     "paper": {"steps": 35, "guidance_interval": None},
     "fast": {"steps": 12, "guidance_interval": (0.0, 0.8)},
 }

@@ -21,7 +21,8 @@ The unconditional guidance branch sees ``uncond_skeleton``: ``"zero_latent"``
 (zeros) or ``"black_video"`` (the VAE latent of an all-black skeleton video of
 the chunk's frame count, encoded once per chunk size and reused).
 
-A latent-action model (``ModelCard.condition == "latent_action"``) is rolled
+A latent-action model (a card condition that takes actions,
+:func:`oscar_core.render.conditions.takes_actions`) is rolled
 out from ``actions`` instead of a skeleton video: per-transition features
 (N, 14), row i the transition from frame i to i + 1, at least as many as the
 padded chunk plan needs (``num_frames`` T gives the video's length); chunk c

@@ -39,7 +39,7 @@ COSMOS_2B_TRANSFORMER_CONFIG = dict(
 )
 
 
-def _randomise(model: torch.nn.Module, seed: int, scale: float) -> None:
+def randomise(model: torch.nn.Module, seed: int, scale: float) -> None:
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for name, p in model.named_parameters():
@@ -56,7 +56,7 @@ def build_tiny_transformer(seed: int = 0, skeleton_scale: float | None = None, *
     from .transformer import OscarTransformer3DModel
 
     model = OscarTransformer3DModel(**{**TINY_TRANSFORMER_CONFIG, **overrides})
-    _randomise(model, seed, 0.05)
+    randomise(model, seed, 0.05)
     with torch.no_grad():
         w = model.skeleton_embed.proj.weight
         if skeleton_scale is None:

@@ -33,7 +33,7 @@ from diffusers.models.modeling_outputs import Transformer2DModelOutput
 from diffusers.models.transformers.transformer_cosmos import CosmosPatchEmbed, CosmosTransformer3DModel
 
 from ._resize import resize_padding_mask
-from ._weights import build_strict, cast_model, load_state_dict, read_config
+from .weights import build_strict, cast_model, load_state_dict, read_config
 from .errors import CheckpointLayoutError, ModelInputError
 
 __all__ = ["OscarTransformer3DModel", "SKELETON_EMBED_KEY"]

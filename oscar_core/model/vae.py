@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ._weights import build_strict, cast_model, load_state_dict, read_config
+from .weights import build_strict, cast_model, load_state_dict, read_config
 from .errors import ModelInputError
 
 __all__ = ["VideoVAE", "check_frame_count", "load_vae_folder"]

@@ -27,24 +27,22 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from .._util.log import get_logger
-from ..render.conditions import CONDITIONS as VIDEO_CONDITIONS
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
+from ..render.conditions import ConditionName, takes_actions
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
-from ._manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
-from ._weights import cast_model, check_safetensors
+from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from .weights import cast_model, check_safetensors
 from .errors import CheckpointLayoutError, ModelInputError
-from .sampler import SamplerConfig
+from .sampler import SamplerConfig, check_card_sampler, resolve_sampler
 from .text import check_prompt_embeds, empty_prompt_embeds
 from .transformer import OscarTransformer3DModel
 from .vae import VideoVAE, check_frame_count, load_vae_folder
 
-__all__ = ["FORMAT", "MODEL_FILE", "ModelCard", "OscarWorldModel"]
+__all__ = ["FORMAT", "MODEL_FILE", "ModelCard", "OscarWorldModel", "read_card"]
 
 FORMAT = "oscar-world-model"
-DEFAULT_SAMPLER = SamplerConfig()  # frozen: one shared default for the rollout methods
 _log = get_logger(__name__)
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-# video conditions (skeleton, mesh, capsules: oscar_core.render.conditions) travel in the skeleton stream
-CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 
 
 @dataclass(frozen=True)
@@ -68,6 +66,10 @@ class ModelCard:
     baseline: a ``LatentActionTransformer`` fed (chunk_frames − 1, 14)
     end-effector actions per chunk) or ``"none"`` (text and first frame
     only; its PE_s is zero, so a skeleton fed to it changes nothing).
+    sampler: the sampler settings the model is meant to be rolled out with (a mapping of
+    :data:`~oscar_core.model.sampler.CARD_SAMPLER_KEYS`: steps, guidance, guidance_form, preset); every
+    entry point uses them where its caller gives none (:func:`~oscar_core.model.sampler.resolve_sampler`);
+    None: the library's defaults.
     """
 
     name: str | None = None
@@ -80,7 +82,8 @@ class ModelCard:
     base: str | None = None
     license: str | None = None
     unconditional_skeleton: str = "zero_latent"
-    condition: str = "skeleton"
+    condition: ConditionName = "skeleton"
+    sampler: dict | None = None
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
@@ -90,6 +93,7 @@ class ModelCard:
         if self.condition not in CONDITIONS:
             raise ModelInputError(f"model card condition: expected one of {CONDITIONS}, found {self.condition!r}")
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
+        object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -166,13 +170,13 @@ class OscarWorldModel:
 
         check_device(device, ModelInputError)  # before reading anything: safetensors would fail with a traceback
         folder = Path(folder)
-        card = _read_card(folder)
+        card = read_card(folder)
         if verify:
             manifest = read_manifest(folder)
             if manifest is not None:
                 verify_files(folder, {p: m.get("sha256") for p, m in manifest.items()}, source=folder)
         transformer_cls = OscarTransformer3DModel
-        if card.condition == "latent_action":
+        if takes_actions(card.condition):
             from .latent_action import LatentActionTransformer
 
             transformer_cls = LatentActionTransformer
@@ -272,6 +276,14 @@ class OscarWorldModel:
                       "saw in training; run `oscar encode-prompt \"\" --model NAME` once", stacklevel=3)
         return empty_prompt_embeds(dim), "ZERO text embedding (no empty-prompt embedding available)"
 
+    def recommended_sampler(self, **given) -> SamplerConfig:
+        """The sampler of a rollout given no ``sampler``: :func:`~oscar_core.model.sampler.resolve_sampler` of the
+        card's recommended settings (``card.sampler``) under ``given`` options, logged at INFO with where each
+        setting came from."""
+        choice = resolve_sampler(self.card.sampler, **given)
+        _log.info("sampler of %s: %s", self.card.name or "the model", choice.describe("argument"))
+        return choice.config
+
     def sampler_for(self, sampler: SamplerConfig) -> SamplerConfig:
         """``sampler`` with the checkpoint's choices filled in: solver (and UniPC config) from its scheduler."""
         from dataclasses import replace
@@ -331,7 +343,7 @@ class OscarWorldModel:
         self.vae.enable_slicing()
 
     def rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
-                chunk_frames: int | None = None, sampler: SamplerConfig = DEFAULT_SAMPLER, seed: int = 0,
+                chunk_frames: int | None = None, sampler: SamplerConfig | None = None, seed: int = 0,
                 progress: bool = True, keep_chunks: bool = True, actions=None):
         """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default.
 
@@ -341,6 +353,7 @@ class OscarWorldModel:
         """
         from .rollout import rollout
 
+        sampler = self.recommended_sampler() if sampler is None else sampler
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
@@ -357,7 +370,7 @@ class OscarWorldModel:
                        num_frames=num_frames)
 
     def rollout_batch(self, first_frames, skeletons, prompt_embeds=None, *, chunk_frames: int | None = None,
-                      sampler: SamplerConfig = DEFAULT_SAMPLER, seeds=None, progress: bool = False) -> list:
+                      sampler: SamplerConfig | None = None, seeds=None, progress: bool = False) -> list:
         """B rollouts in one batch (see :func:`oscar_core.model.rollout.rollout_batch`): B (T, H, W, 3) uint8 videos,
         each equal to :meth:`rollout` of its own inputs and seed up to float rounding.
 
@@ -366,7 +379,8 @@ class OscarWorldModel:
         """
         from .rollout import rollout_batch
 
-        if self.card.condition == "latent_action":
+        sampler = self.recommended_sampler() if sampler is None else sampler
+        if takes_actions(self.card.condition):
             raise ModelInputError("rollout_batch: latent-action models roll out one at a time (rollout)")
         if isinstance(prompt_embeds, (list, tuple)):
             embeds = [self.prompt_embeds(e) for e in prompt_embeds]
@@ -384,11 +398,12 @@ class OscarWorldModel:
                              seeds=seeds, progress=progress, uncond_skeleton=self.card.unconditional_skeleton)
 
     def iter_rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
-                     chunk_frames: int | None = None, sampler: SamplerConfig = DEFAULT_SAMPLER, seed: int = 0,
+                     chunk_frames: int | None = None, sampler: SamplerConfig | None = None, seed: int = 0,
                      progress: bool = True, result=None, actions=None):
         """Stream a rollout: yields each chunk's new uint8 frames (see :func:`oscar_core.model.rollout.iter_rollout`)."""
         from .rollout import iter_rollout
 
+        sampler = self.recommended_sampler() if sampler is None else sampler
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
@@ -399,7 +414,7 @@ class OscarWorldModel:
 
     def _rollout_actions(self, skeleton, actions, chunk: int):
         """(actions padded to the chunk plan or None, frame count or None); checks the input fits the card."""
-        if self.card.condition != "latent_action":
+        if not takes_actions(self.card.condition):
             if actions is not None:
                 raise ModelInputError(f"rollout: model {self.card.name or ''} is conditioned on "
                                       f"{self.card.condition!r}: expected a skeleton video, found actions")
@@ -429,7 +444,7 @@ class OscarWorldModel:
         pixels (None: the card's size, else the camera's); actions: (T − 1, 14)
         float64 ``latent_actions(embodiment, trajectory)`` (latent-action models).
         """
-        if self.card.condition == "latent_action":
+        if takes_actions(self.card.condition):
             from .latent_action import latent_actions
 
             return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
@@ -456,7 +471,8 @@ class OscarWorldModel:
         return self.rollout(first_frame, inputs["skeleton"], prompt_embeds, actions=inputs.get("actions"), **options)
 
 
-def _read_card(folder: Path) -> ModelCard:
+def read_card(folder: Path) -> ModelCard:
+    """The :class:`ModelCard` of an OSCAR model folder (its ``oscar_model.json``), without loading weights."""
     path = folder / MODEL_FILE
     if not path.is_file():
         found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"

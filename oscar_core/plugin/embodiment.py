@@ -505,7 +505,7 @@ class Embodiment:
     def load_camera(self, path):
         """Read a camera JSON file; ``convention``/``direction`` default to this
         embodiment's :class:`CameraSpec` when the file omits them."""
-        from ..camera.pinhole import load_camera
+        from ..camera import load_camera
 
         return load_camera(path, defaults=self.camera)
 

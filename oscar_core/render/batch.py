@@ -154,7 +154,7 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
     the result, not printed. Returns an :class:`EpisodeResult` with ``ok=True``.
     """
     from .conditions import check_condition, chunk_renderer
-    from .skeleton_stream import DEFAULT_CHUNK_FRAMES, RenderStats
+    from .renderer import DEFAULT_CHUNK_FRAMES, RenderStats
     from ..kinematics.trajectory import load_trajectory
     from ..media.video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output
 

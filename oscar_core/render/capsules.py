@@ -23,15 +23,15 @@ from typing import Iterator
 
 import numpy as np
 
-from ..camera.pinhole import Camera
+from ..camera import Camera
 from .mesh import draw_frames, link_palette, record_empty
-from .skeleton_stream import (DEFAULT_CHUNK_FRAMES, RenderStats, _project_cv, _to_camera, format_frames,
-                            render_whole, stream_chunks)
+from .guarded_projection import project_cv, to_camera
+from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 from ..kinematics.visual import capsule_mesh
 from ..kinematics.workspace import joint_limits, open_fk, reach_of
 
-__all__ = ["RADIUS_BASE", "RADIUS_TIP", "CapsuleStyle", "link_radii", "body_reach", "finger_axes",
-           "body_vertices", "iter_capsule_chunks", "render_capsule_video"]
+__all__ = ["CAPSULES", "CapsuleRenderer", "CapsuleJob", "RADIUS_BASE", "RADIUS_TIP", "CapsuleStyle", "link_radii",
+           "body_reach", "finger_axes", "body_vertices", "iter_capsule_chunks", "render_capsule_video"]
 
 #: capsule radius at the first skeleton edge, as a fraction of the robot's reach
 RADIUS_BASE = 0.07
@@ -172,7 +172,9 @@ def body_vertices(frames, edges: np.ndarray, reach: float, style: CapsuleStyle |
 
 
 @dataclass(frozen=True)
-class _Job:
+class CapsuleJob:
+    """A prepared capsule render: the checked trajectory, the sized camera, the style, the reach, the colours."""
+
     embodiment: object
     traj: object
     camera: Camera
@@ -183,55 +185,62 @@ class _Job:
     device: str
 
 
-def _prepare(embodiment, traj, camera: Camera, size, style, resize_mode, device, camera_source) -> _Job:
-    from ..errors import PluginError
-
-    if not embodiment.uses_kinematic_tree():
-        raise PluginError(f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
-                          "the capsule body needs a skeleton from FK")
-    if len(embodiment.edges) == 0:
-        raise PluginError(f"embodiment {embodiment.name!r} has no skeleton edges: the capsule body has nothing to draw")
-    style = style or CapsuleStyle()
-    traj = embodiment.check_trajectory(traj)
-    embodiment.check_camera(camera, camera_source)
-    camera.check_frames(len(traj), camera_source)
-    if size is not None and (size[0], size[1]) != (camera.intrinsics.width, camera.intrinsics.height):
-        camera = camera.resized(size[0], size[1], mode=resize_mode)
-    edges = embodiment.edge_index()
-    palette = link_palette(len(edges) + len(embodiment.grippers))
-    reach = float(style.reach) if style.reach is not None else body_reach(embodiment)
-    _, _, tri = _unit_capsule(int(style.segments))
-    n_parts = len(edges) + (len(embodiment.grippers) if style.fingers else 0)
-    parts = np.concatenate([np.full(len(tri) * (1 if k < len(edges) else 2), k) for k in range(n_parts)])
-    return _Job(embodiment, traj, camera, style, reach, edges, np.ascontiguousarray(palette[parts]), str(device))
-
-
-def _vertices_cv(job: _Job, start: int, stop: int):
+def _vertices_cv(job: CapsuleJob, start: int, stop: int):
     cam = job.camera.time_slice(start, stop)
     sub = job.traj.time_slice(start, stop)
     fr = job.embodiment.frames(sub, job.device, mount_link=cam.mount_link)
     world, faces, _ = body_vertices(fr, job.edges, job.reach, job.style)
     M = cam.world_to_cv(fr.mount_pose if cam.mount_link else None)
-    Pc = _to_camera(world, M)
-    uv, folded = _project_cv(Pc, cam.intrinsics)
+    Pc = to_camera(world, M)
+    uv, folded = project_cv(Pc, cam.intrinsics)
     return cam, Pc, uv, folded, faces
 
 
-def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
-    cam, Pc, uv, folded, faces = _vertices_cv(job, start, stop)
-    intr = cam.intrinsics
-    if out is None:
-        out = np.zeros((stop - start, intr.height, intr.width, 3), np.uint8)
-    else:
-        out[...] = 0
-    draw_frames(Pc, uv, folded, faces, job.face_rgb, intr, job.style.ambient, True, out)
-    record_empty(out, start, stats)
-    return out
+class CapsuleRenderer(ChunkedRenderer):
+    """Shaded capsules along the skeleton's edges, two fingers per gripper, on black."""
+
+    name = "capsules"
+    sees_nothing_of = "of the robot's capsule body"
+    video_chunk_frames = 64
+
+    def prepare(self, embodiment, traj, camera: Camera, size, *, style: CapsuleStyle | None, resize_mode: str,
+                device, camera_source: str) -> CapsuleJob:
+        """Also raises :class:`~oscar_core.errors.PluginError` for an embodiment without a kinematic tree or
+        without skeleton edges."""
+        from ..errors import PluginError
+
+        if not embodiment.uses_kinematic_tree():
+            raise PluginError(f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
+                              "the capsule body needs a skeleton from FK")
+        if len(embodiment.edges) == 0:
+            raise PluginError(f"embodiment {embodiment.name!r} has no skeleton edges: the capsule body has nothing "
+                              "to draw")
+        style = style or CapsuleStyle()
+        traj, camera = prepare_view(embodiment, traj, camera, size, resize_mode, camera_source)
+        edges = embodiment.edge_index()
+        palette = link_palette(len(edges) + len(embodiment.grippers))
+        reach = float(style.reach) if style.reach is not None else body_reach(embodiment)
+        _, _, tri = _unit_capsule(int(style.segments))
+        n_parts = len(edges) + (len(embodiment.grippers) if style.fingers else 0)
+        parts = np.concatenate([np.full(len(tri) * (1 if k < len(edges) else 2), k) for k in range(n_parts)])
+        return CapsuleJob(embodiment, traj, camera, style, reach, edges, np.ascontiguousarray(palette[parts]),
+                          str(device))
+
+    def render_range(self, job: CapsuleJob, start: int, stop: int, out: np.ndarray | None,
+                     stats: RenderStats | None) -> np.ndarray:
+        cam, Pc, uv, folded, faces = _vertices_cv(job, start, stop)
+        intr = cam.intrinsics
+        if out is None:
+            out = np.zeros((stop - start, intr.height, intr.width, 3), np.uint8)
+        else:
+            out[...] = 0
+        draw_frames(Pc, uv, folded, faces, job.face_rgb, intr, job.style.ambient, True, out)
+        record_empty(out, start, stats)
+        return out
 
 
-def _empty_message(source: str, empty: list[int], total: int) -> str:
-    return (f"{source}: the camera sees nothing of the robot's capsule body in {len(empty)} of {total} frames: "
-            f"{format_frames(empty)}")
+#: the capsule-body renderer (:class:`CapsuleRenderer`)
+CAPSULES = CapsuleRenderer()
 
 
 def iter_capsule_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
@@ -242,11 +251,8 @@ def iter_capsule_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] 
 
     Arguments as :func:`oscar_core.render.skeleton_stream.iter_skeleton_chunks`; ``style`` is a :class:`CapsuleStyle`.
     """
-    if chunk_frames < 1:
-        raise ValueError(f"chunk_frames: expected a positive number of frames, found {chunk_frames}")
-    job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    yield from stream_chunks(len(job.traj), lambda start, stop, st: _render_range(job, start, stop, None, st),
-                             chunk_frames, strict, stats, lambda empty, T: _empty_message(camera_source, empty, T))
+    return CAPSULES.iter_chunks(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
+                                camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)
 
 
 def render_capsule_video(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
@@ -258,8 +264,6 @@ def render_capsule_video(embodiment, traj, camera: Camera, size: tuple[int, int]
     The counterpart of :func:`oscar_core.render.skeleton_video.render_skeleton_video` (same arguments; ``style`` is a
     :class:`CapsuleStyle`).
     """
-    job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    intr = job.camera.intrinsics
-    return render_whole(len(job.traj), intr.height, intr.width,
-                        lambda start, stop, out, st: _render_range(job, start, stop, out, st), chunk_frames, strict,
-                        stats, lambda empty, T: _empty_message(camera_source, empty, T))
+    return CAPSULES.render_video(embodiment, traj, camera, size, style=style, resize_mode=resize_mode,
+                                 device=device, camera_source=camera_source, chunk_frames=chunk_frames,
+                                 strict=strict, stats=stats)

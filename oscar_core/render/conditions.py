@@ -1,4 +1,8 @@
-"""The condition videos oscar can render, by name: ``skeleton`` (the paper's), ``mesh`` and ``capsules``.
+"""The conditions a world model can take, by name, in one registry: adding a condition touches this file only.
+
+Video conditions are drawn by a :class:`~oscar_core.render.renderer.ConditionRenderer` and go through the VAE
+and the DiT's PE_s in the same way (the model's "skeleton" stream carries whichever condition video its card
+names):
 
 - ``skeleton``: the paper's 2D kinematic skeleton (:mod:`oscar_core.render.skeleton_stream`);
 - ``mesh``: each link's URDF visual geometry (:mod:`oscar_core.render.mesh`);
@@ -6,47 +10,85 @@
   (:mod:`oscar_core.render.capsules`): a mesh condition for any kinematic tree, with or without visual
   geometry, and the toy world's own robot body.
 
-Every consumer of a condition video (``oscar render``, the batch renderer, the
-trainer, rollouts and ``oscar eval run``) picks its renderer here, so a new
-condition is added in one place. All go through the VAE and the DiT's PE_s in
-the same way (the model's "skeleton" stream carries whichever condition video
-its card names).
+The others are no video: ``latent_action`` (the paper's latent-action baseline: per-frame actions from the
+trajectory, :mod:`oscar_core.model.latent_action`) and ``none`` (image and text only).
+
+Every consumer of a condition (``oscar render``, the batch renderer, the trainer, rollouts, ``oscar eval run``,
+the model card) looks it up here.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+import importlib
+from dataclasses import dataclass
+from typing import Callable, Literal
 
 from ..errors import OscarError
 
-__all__ = ["CONDITIONS", "DEFAULT_CONDITION", "check_condition", "chunk_renderer", "video_renderer",
-           "condition_video", "video_condition_of"]
+__all__ = ["ConditionName", "VideoConditionName", "Condition", "REGISTRY", "CONDITIONS", "MODEL_CONDITIONS",
+           "DEFAULT_CONDITION", "condition", "takes_actions", "is_video_condition", "check_condition",
+           "chunk_renderer", "video_renderer", "renderer", "condition_video", "video_condition_of"]
 
-CONDITIONS = ("skeleton", "mesh", "capsules")
-
-
-def _renderers(name: str) -> tuple[Callable, Callable]:
-    """(streaming renderer, whole-video renderer) of a checked condition name (imported on first use)."""
-    if name == "mesh":
-        from .mesh import iter_mesh_chunks, render_mesh_video
-
-        return iter_mesh_chunks, render_mesh_video
-    if name == "capsules":
-        from .capsules import iter_capsule_chunks, render_capsule_video
-
-        return iter_capsule_chunks, render_capsule_video
-    from .skeleton_video import render_skeleton_video
-    from .skeleton_stream import iter_skeleton_chunks
-
-    return iter_skeleton_chunks, render_skeleton_video
+#: every condition a model card or a training config may name
+ConditionName = Literal["skeleton", "mesh", "capsules", "latent_action", "none"]
+#: the conditions given as a video
+VideoConditionName = Literal["skeleton", "mesh", "capsules"]
 
 
+@dataclass(frozen=True)
+class Condition:
+    """One condition. renderer: ``"module:NAME"`` of its :class:`~oscar_core.render.renderer.ConditionRenderer`
+    (imported on first use), None for a condition that is no video; actions: the model is conditioned on
+    per-frame actions computed from the trajectory instead of a video."""
+
+    name: str
+    renderer: str | None = None
+    actions: bool = False
+
+    @property
+    def is_video(self) -> bool:
+        return self.renderer is not None
+
+
+REGISTRY: dict[str, Condition] = {c.name: c for c in (
+    Condition("skeleton", "oscar_core.render.skeleton_stream:SKELETON"),
+    Condition("mesh", "oscar_core.render.mesh:MESH"),
+    Condition("capsules", "oscar_core.render.capsules:CAPSULES"),
+    Condition("latent_action", actions=True),
+    Condition("none"),
+)}
+
+#: the video conditions (``oscar render --condition``, the latent cache, the batch renderer), in registry order
+CONDITIONS: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if c.is_video)
+#: every condition a model may be trained with
+MODEL_CONDITIONS: tuple[str, ...] = tuple(REGISTRY)
 DEFAULT_CONDITION = "skeleton"
 
 
+
+def condition(name: str, source: str = "condition") -> Condition:
+    """The registry entry of ``name``; an :class:`OscarError` naming ``source`` and the choices if there is none."""
+    try:
+        return REGISTRY[name]
+    except (KeyError, TypeError):
+        raise OscarError(f"{source}: expected one of {', '.join(MODEL_CONDITIONS)}, found {name!r}") from None
+
+
+def takes_actions(name: str) -> bool:
+    """Whether a model of condition ``name`` is conditioned on per-frame actions (``latent_action``) rather than
+    a condition video."""
+    return condition(name).actions
+
+
+def is_video_condition(name: str) -> bool:
+    """Whether ``name`` is a condition given as a video (rendered, through the VAE and PE_s)."""
+    entry = REGISTRY.get(name)
+    return entry is not None and entry.is_video
+
+
 def check_condition(name, source: str = "condition") -> str:
-    """``name`` if it is a known condition, else an :class:`OscarError` naming ``source`` and the choices."""
-    if name not in CONDITIONS:
+    """``name`` if it is a video condition, else an :class:`OscarError` naming ``source`` and the choices."""
+    if not is_video_condition(name):
         raise OscarError(f"{source}: expected one of {', '.join(CONDITIONS)}, found {name!r}")
     return name
 
@@ -54,19 +96,25 @@ def check_condition(name, source: str = "condition") -> str:
 def video_condition_of(card_condition: str) -> str:
     """The condition video a model whose card says ``card_condition`` is rolled out with: that condition
     when it is a video condition, else the skeleton (models without a video condition ignore it)."""
-    return card_condition if card_condition in CONDITIONS else DEFAULT_CONDITION
+    return card_condition if is_video_condition(card_condition) else DEFAULT_CONDITION
+
+
+def renderer(name: str):
+    """The :class:`~oscar_core.render.renderer.ConditionRenderer` of video condition ``name``."""
+    module, attr = REGISTRY[check_condition(name)].renderer.split(":")
+    return getattr(importlib.import_module(module), attr)
 
 
 def chunk_renderer(name: str) -> Callable:
     """The streaming renderer of condition ``name``: ``f(embodiment, traj, camera, size, *, resize_mode,
     device, camera_source, chunk_frames, strict, stats)`` yielding (n, H, W, 3) uint8 chunks."""
-    return _renderers(check_condition(name))[0]
+    return renderer(name).iter_chunks
 
 
 def video_renderer(name: str) -> Callable:
     """The whole-video renderer of condition ``name``:
     ``f(embodiment, traj, camera, size, ...)`` → (T, H, W, 3) uint8."""
-    return _renderers(check_condition(name))[1]
+    return renderer(name).render_video
 
 
 def condition_video(name: str, embodiment, trajectory, camera, size, *, resize_mode: str = "crop",

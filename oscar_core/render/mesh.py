@@ -4,7 +4,7 @@ FK gives every link's pose (the same FK as the skeleton's); the link's
 triangles (its URDF ``<visual>`` geometry, or what the plugin's
 :meth:`~oscar_core.plugin.embodiment.Embodiment.visual_geometry` returns) are moved
 there, projected by exactly the function the skeleton uses
-(:func:`oscar_core.camera.pinhole.project_points_cv`: the same intrinsics, distortion
+(:func:`oscar_core.camera.projection.project_points_cv`: the same intrinsics, distortion
 and convention), shaded flat with a fixed colour per link and a headlight
 (:func:`oscar_core.render.mesh_raster.shade_faces`) and drawn with a z-buffer on the same
 black canvas (:func:`oscar_core.render.mesh_raster.rasterise_mesh`). The gripper state
@@ -24,15 +24,15 @@ from typing import Iterator
 
 import numpy as np
 
-from ..camera.pinhole import Camera
+from ..camera import Camera
 from ..errors import PluginError
 from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
-from .skeleton_stream import (DEFAULT_CHUNK_FRAMES, RenderStats, _project_cv, _to_camera, format_frames,
-                            render_whole, stream_chunks)
+from .guarded_projection import project_cv, to_camera
+from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 from ..kinematics.visual import VisualGeometry
 
-__all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "mesh_vertices", "iter_mesh_chunks",
-           "render_mesh_video"]
+__all__ = ["MESH", "MeshRenderer", "MeshJob", "MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry",
+           "mesh_vertices", "iter_mesh_chunks", "render_mesh_video"]
 
 #: default vertex-clustering cell, metres (docs/mesh-condition.md: silhouette IoU against the full meshes)
 DEFAULT_SIMPLIFY = 0.008
@@ -120,27 +120,15 @@ def _pack(geo: VisualGeometry) -> _Mesh:
 
 
 @dataclass(frozen=True)
-class _Job:
+class MeshJob:
+    """A prepared mesh render: the checked trajectory, the sized camera, the style and the packed link meshes."""
+
     embodiment: object
     traj: object
     camera: Camera
     style: MeshStyle
     device: str
     mesh: _Mesh
-
-
-def _prepare(embodiment, traj, camera: Camera, size, style, resize_mode, device, camera_source) -> _Job:
-    if not embodiment.uses_kinematic_tree():
-        raise PluginError(f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
-                          "the mesh condition needs link poses and visual geometry, which it does not have")
-    style = style or MeshStyle()
-    mesh = _pack(mesh_geometry(embodiment, style.simplify))
-    traj = embodiment.check_trajectory(traj)
-    embodiment.check_camera(camera, camera_source)
-    camera.check_frames(len(traj), camera_source)
-    if size is not None and (size[0], size[1]) != (camera.intrinsics.width, camera.intrinsics.height):
-        camera = camera.resized(size[0], size[1], mode=resize_mode)
-    return _Job(embodiment, traj, camera, style, str(device), mesh)
 
 
 def _world_vertices(mesh: _Mesh, poses: np.ndarray) -> np.ndarray:
@@ -154,7 +142,7 @@ def _world_vertices(mesh: _Mesh, poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def _vertices_cv(job: _Job, start: int, stop: int):
+def vertices_cv(job: MeshJob, start: int, stop: int):
     """Frames start:stop → (camera slice, (n, V, 3) camera-frame vertices, (n, V, 2) pixels, (n, V) folded)."""
     cam = job.camera.time_slice(start, stop)
     sub = job.traj.time_slice(start, stop)
@@ -164,9 +152,9 @@ def _vertices_cv(job: _Job, start: int, stop: int):
     # the FK the skeleton's frames() uses (NumPy on the CPU, the plugin's own fk otherwise)
     poses = emb._link_poses(emb.full_configuration(sub), sub.base_pose, links, job.device)
     M = cam.world_to_cv(poses[:, -1] if mount else None)
-    Pc = _to_camera(_world_vertices(job.mesh, poses[:, :len(job.mesh.links)]), M)
+    Pc = to_camera(_world_vertices(job.mesh, poses[:, :len(job.mesh.links)]), M)
     # the skeleton's projection; folded: beyond the lens model's valid radius
-    uv, folded = _project_cv(Pc, cam.intrinsics)
+    uv, folded = project_cv(Pc, cam.intrinsics)
     return cam, Pc, uv, folded
 
 
@@ -178,8 +166,9 @@ def mesh_vertices(embodiment, traj, camera: Camera, size: tuple[int, int] | None
     Vertices are those of :func:`mesh_geometry` (``style.simplify``), links in
     its order. The renderer draws exactly these positions.
     """
-    job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    _, Pc, uv, _ = _vertices_cv(job, 0, len(job.traj))
+    job = MESH.prepare(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
+                       camera_source=camera_source)
+    _, Pc, uv, _ = vertices_cv(job, 0, len(job.traj))
     return uv, Pc[..., 2]
 
 
@@ -198,7 +187,7 @@ def draw_frames(Pc: np.ndarray, uv: np.ndarray, folded: np.ndarray, faces: np.nd
         P, f, src, uv_i, ok = Pc[i], faces, None, uv[i], ~folded[i]
         if not (P[:, 2] > CLIP_Z).all():  # some geometry at or behind the near plane: cut the triangles there
             P, f, src = clip_near(P, f)
-            extra, extra_folded = _project_cv(P[len(Pc[i]):], intr)
+            extra, extra_folded = project_cv(P[len(Pc[i]):], intr)
             uv_i = np.concatenate([uv_i, extra])
             ok = np.concatenate([ok, ~extra_folded])
 
@@ -219,21 +208,40 @@ def record_empty(out: np.ndarray, start: int, stats: RenderStats | None) -> None
         stats.empty_frames.extend((start + np.flatnonzero(~seen)).tolist())
 
 
-def _render_range(job: _Job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
-    cam, Pc, uv, folded = _vertices_cv(job, start, stop)
-    intr = cam.intrinsics
-    if out is None:
-        out = np.zeros((stop - start, intr.height, intr.width, 3), np.uint8)
-    else:
-        out[...] = 0
-    draw_frames(Pc, uv, folded, job.mesh.faces, job.mesh.face_rgb, intr, job.style.ambient, job.style.cull_back, out)
-    record_empty(out, start, stats)
-    return out
+class MeshRenderer(ChunkedRenderer):
+    """Each link's visual geometry, flat-shaded with a colour per link, on black."""
+
+    name = "mesh"
+    sees_nothing_of = "of the robot's geometry"
+    video_chunk_frames = 64
+
+    def prepare(self, embodiment, traj, camera: Camera, size, *, style: MeshStyle | None, resize_mode: str, device,
+                camera_source: str) -> MeshJob:
+        """Also raises :class:`PluginError` for an embodiment without a kinematic tree."""
+        if not embodiment.uses_kinematic_tree():
+            raise PluginError(f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
+                              "the mesh condition needs link poses and visual geometry, which it does not have")
+        style = style or MeshStyle()
+        mesh = _pack(mesh_geometry(embodiment, style.simplify))
+        traj, camera = prepare_view(embodiment, traj, camera, size, resize_mode, camera_source)
+        return MeshJob(embodiment, traj, camera, style, str(device), mesh)
+
+    def render_range(self, job: MeshJob, start: int, stop: int, out: np.ndarray | None,
+                     stats: RenderStats | None) -> np.ndarray:
+        cam, Pc, uv, folded = vertices_cv(job, start, stop)
+        intr = cam.intrinsics
+        if out is None:
+            out = np.zeros((stop - start, intr.height, intr.width, 3), np.uint8)
+        else:
+            out[...] = 0
+        draw_frames(Pc, uv, folded, job.mesh.faces, job.mesh.face_rgb, intr, job.style.ambient, job.style.cull_back,
+                    out)
+        record_empty(out, start, stats)
+        return out
 
 
-def _empty_message(source: str, empty: list[int], total: int) -> str:
-    return (f"{source}: the camera sees nothing of the robot's geometry in {len(empty)} of {total} frames: "
-            f"{format_frames(empty)}")
+#: the mesh renderer (:class:`MeshRenderer`)
+MESH = MeshRenderer()
 
 
 def iter_mesh_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
@@ -244,13 +252,11 @@ def iter_mesh_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | N
 
     Arguments as :func:`oscar_core.render.skeleton_stream.iter_skeleton_chunks`; ``style`` is a
     :class:`MeshStyle`. Frames where no triangle lands in the image give one
-    :class:`EmptyViewWarning` at the end (``strict``: :class:`EmptyViewError` at once).
+    :class:`~oscar_core.render.renderer.EmptyViewWarning` at the end (``strict``:
+    :class:`~oscar_core.render.renderer.EmptyViewError` at once).
     """
-    if chunk_frames < 1:
-        raise ValueError(f"chunk_frames: expected a positive number of frames, found {chunk_frames}")
-    job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    yield from stream_chunks(len(job.traj), lambda start, stop, st: _render_range(job, start, stop, None, st),
-                             chunk_frames, strict, stats, lambda empty, T: _empty_message(camera_source, empty, T))
+    return MESH.iter_chunks(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
+                            camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)
 
 
 def render_mesh_video(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
@@ -264,8 +270,5 @@ def render_mesh_video(embodiment, traj, camera: Camera, size: tuple[int, int] | 
     :func:`iter_mesh_chunks`. Raises :class:`PluginError` for an embodiment
     without visual geometry.
     """
-    job = _prepare(embodiment, traj, camera, size, style, resize_mode, device, camera_source)
-    intr = job.camera.intrinsics
-    return render_whole(len(job.traj), intr.height, intr.width,
-                        lambda start, stop, out, st: _render_range(job, start, stop, out, st), chunk_frames, strict,
-                        stats, lambda empty, T: _empty_message(camera_source, empty, T))
+    return MESH.render_video(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
+                             camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)

@@ -1,6 +1,6 @@
 """A vectorised NumPy z-buffer triangle rasteriser (the mesh condition's renderer).
 
-Pixel centres are at integer coordinates, as :func:`oscar_core.camera.pinhole.project`
+Pixel centres are at integer coordinates, as :func:`oscar_core.camera.projection.project`
 puts them. A pixel is covered by a triangle when its centre is inside or on an
 edge. Each edge function is evaluated with the edge's endpoints in a canonical
 order (lexicographic in (u, v)), so two triangles sharing an edge compute the

@@ -146,7 +146,7 @@ def _unit_polygon(n: int) -> np.ndarray:
 # ------------------------------------------------------------------------ geometry
 
 
-def _clip_segments(p0: np.ndarray, p1: np.ndarray, lo: float | np.ndarray, hi: np.ndarray):
+def clip_segments(p0: np.ndarray, p1: np.ndarray, lo: float | np.ndarray, hi: np.ndarray):
     """Liang–Barsky clip of segments p0->p1 (..., 2) to the box [lo, hi] (float64).
 
     Returns (ok, c0, c1): ok (...) bool, clipped endpoints (..., 2).  Works for
@@ -297,7 +297,7 @@ def rasterise(
             seg_ok = seg_ok & np.isfinite(p0).all(-1) & np.isfinite(p1).all(-1)
         p0 = np.where(seg_ok[..., None], p0, 0.0)
         p1 = np.where(seg_ok[..., None], p1, 0.0)
-        clip_ok, c0, c1 = _clip_segments(p0, p1, lo - margin, hi + margin)
+        clip_ok, c0, c1 = clip_segments(p0, p1, lo - margin, hi + margin)
         seg_ok &= clip_ok
         idx = [np.flatnonzero(r).tolist() for r in seg_ok]
         if thin:

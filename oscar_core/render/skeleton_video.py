@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera.pinhole import Camera, project
+from ..camera import Camera, project
 from ..plugin.embodiment import Embodiment
 from .raster import GripperMarks, SkeletonStyle, rasterise
 from ..kinematics.trajectory import Trajectory

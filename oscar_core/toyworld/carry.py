@@ -26,7 +26,7 @@ import numpy as np
 from .judge import _to_floor, ball_moved, ball_reading
 from .locate import EE_TARGET, OBJECT_TARGET, locate
 
-__all__ = ["add_carry_arguments", "carry_rows", "carry_summary", "cmd_carry"]
+__all__ = ["carry_rows", "carry_summary", "carry_table"]
 
 
 def _mean(xs) -> float | None:
@@ -102,27 +102,10 @@ def carry_summary(rows: list[dict], policies) -> dict:
     return out
 
 
-def add_carry_arguments(p) -> None:
-    p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
-    p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
-    p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file")
-
-
-def cmd_carry(args) -> int:
-    """``oscar toyworld carry``: print the per-policy table (and write rows + summary as JSON on request)."""
-    from .._util.atomic import atomic_write_bytes
+def carry_table(manifest, eval_out) -> dict:
+    """``{"summary": {policy: carry_summary row}, "rows": carry_rows(...)}`` of a policy-eval ``manifest`` and the
+    ``oscar eval run`` folder ``eval_out`` (what ``oscar toyworld carry`` prints and writes)."""
     from ..evaluation.manifest import load_manifest
 
-    rows = carry_rows(args.manifest, args.eval_out)
-    summary = carry_summary(rows, load_manifest(args.manifest).policies)
-    f = (lambda x: "n/a" if x is None else f"{x:.2f}")
-    print("| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
-          "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for p, s in summary.items():
-        print(f"| {p} | {s['cells']} | {f(s['real_sr'])} | {f(s['wm_sr'])} | {s['grabbed']} | "
-              f"{f(s['left_if_grabbed'])} / {f(s['left_if_missed'])} | {f(s['success_if_grabbed'])} / "
-              f"{f(s['success_if_missed'])} | {f(s['blob_to_place'])} | {f(s['blob_to_ee_end'])} |")
-    if args.json:
-        atomic_write_bytes(Path(args.json), (json.dumps({"summary": summary, "rows": rows}, indent=1) + "\n").encode())
-    return 0
+    rows = carry_rows(manifest, eval_out)
+    return {"summary": carry_summary(rows, load_manifest(manifest).policies), "rows": rows}

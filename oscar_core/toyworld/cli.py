@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from .._util.arg_types import count, interval, number
 from .._util.log import run_log
 from ..model.presets import SAMPLER_PRESETS
 
-__all__ = ["add_toyworld_parser", "cmd_example", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
+__all__ = ["add_toyworld_parser", "cmd_example", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline",
+           "cmd_eval", "cmd_policy_eval", "cmd_carry"]
 
 EXAMPLES = """examples:
   oscar toyworld example --out toy_example     (first_frame.png, trajectory.npz, camera.json for oscar rollout)
@@ -129,7 +131,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--limit", type=count(1), help="at most this many clips")
     o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
     o.add_argument("--guidance", type=number(0.0), default=None, help="guidance w (default: the model card's, else 6)")
-    o.add_argument("--guidance-form", choices=("diffusers", "standard"), default="diffusers",
+    o.add_argument("--guidance-form", choices=("diffusers", "standard"), default=None,
                    help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)")
     o.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0; the same for every condition)")
     o.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
@@ -152,16 +154,12 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     k.set_defaults(func=cmd_package)
     pe = sub.add_parser("policy-eval", help="scripted pick-and-place policies: write an `oscar eval run` manifest "
                                             "with their real outcomes", epilog=EXAMPLES, formatter_class=fmt)
-    from .policy_eval import add_policy_eval_arguments, cmd_policy_eval
-
-    add_policy_eval_arguments(pe)
+    _add_policy_eval_arguments(pe)
     pe.set_defaults(func=cmd_policy_eval)
     cy = sub.add_parser("carry", help="where the generated ball goes: per-cell judge internals of an `oscar eval "
                                       "run` on a policy-eval manifest, per policy against the real grab",
                         epilog=EXAMPLES, formatter_class=fmt)
-    from .carry import add_carry_arguments, cmd_carry
-
-    add_carry_arguments(cy)
+    _add_carry_arguments(cy)
     cy.set_defaults(func=cmd_carry)
 
     e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
@@ -281,12 +279,16 @@ def cmd_rollout(args) -> int:
     import oscar_zoo
 
     from .._util.stage import model_identity
-    from .rollouts import sampler_for_card, write_rollouts
+    from ..model.sampler import resolve_sampler
+    from .rollouts import write_rollouts
 
     torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
-    sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form,
-                               guidance_interval=args.guidance_interval, preset=args.preset)
+    choice = resolve_sampler(model.card.sampler, steps=args.steps, guidance=args.guidance,
+                             guidance_form=args.guidance_form, guidance_interval=args.guidance_interval,
+                             preset=args.preset)
+    sampler = choice.config
+    print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, f"toyworld-rollout-{args.condition}"):
         summary = write_rollouts(model, args.clips, args.out, args.condition,
                                  split=None if args.split == "all" else args.split, limit=args.limit,
@@ -333,4 +335,70 @@ def cmd_eval(args) -> int:
     print(json.dumps(table, indent=2) if args.json else format_table(table))
     if html and not args.no_html and not args.json:
         print(f"wrote {html}")
+    return 0
+
+
+def _add_policy_eval_arguments(p) -> None:
+    """The options of ``oscar toyworld policy-eval`` (on the argparse parser ``p``)."""
+    p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
+    p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
+    p.add_argument("--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
+    p.add_argument("--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders")
+    p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
+    p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
+    p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
+    p.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor of the real renders (default 2)")
+    p.add_argument("--json", action="store_true", help="print the summary (without per-episode rows) as JSON")
+
+
+def cmd_policy_eval(args) -> int:
+    """``oscar toyworld policy-eval``: write the manifest (:func:`~oscar_core.toyworld.policy_eval.write_policy_eval`)
+    and print the true success rate per policy."""
+    from ..plugin.registry import Registry
+    from ..render.skeleton_video import parse_size
+    from .policy_eval import SUCCESS_RADII, write_policy_eval
+
+    w, h = parse_size(args.size)
+    names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
+    if not names:
+        raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
+    summary = write_policy_eval(args.out, names, args.sessions, seed=args.seed, width=w, height=h,
+                                frames=args.frames, fps=args.fps, supersample=args.supersample,
+                                registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()))
+    if args.json:
+        print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
+        return 0
+    print(f"{args.out}/manifest.json: {len(summary['rows'])} cells, {args.sessions} sessions x "
+          f"{len(names)} embodiments; true success rate per policy (ball grabbed and moved >= "
+          f"{SUCCESS_RADII:g} ball radii):")
+    for p, v in summary["policies"].items():
+        per = ", ".join(f"{e} {r:.2f}" for e, r in v["by_embodiment"].items())
+        print(f"  {p:<8} aim sigma {v['aim_sigma_radii']:.2f} R: {v['success_rate']:.2f}  ({per})")
+    return 0
+
+
+def _add_carry_arguments(p) -> None:
+    p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
+    p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
+    p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file")
+
+
+def cmd_carry(args) -> int:
+    """``oscar toyworld carry``: print the per-policy table of :func:`~oscar_core.toyworld.carry.carry_table` (and
+    write its rows and summary as JSON on request)."""
+    from .._util.atomic import atomic_write_bytes
+    from .carry import carry_table
+
+    table = carry_table(args.manifest, args.eval_out)
+    summary, rows = table["summary"], table["rows"]
+    f = (lambda x: "n/a" if x is None else f"{x:.2f}")
+    print("| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
+          "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for p, s in summary.items():
+        print(f"| {p} | {s['cells']} | {f(s['real_sr'])} | {f(s['wm_sr'])} | {s['grabbed']} | "
+              f"{f(s['left_if_grabbed'])} / {f(s['left_if_missed'])} | {f(s['success_if_grabbed'])} / "
+              f"{f(s['success_if_missed'])} | {f(s['blob_to_place'])} | {f(s['blob_to_ee_end'])} |")
+    if args.json:
+        atomic_write_bytes(Path(args.json), (json.dumps({"summary": summary, "rows": rows}, indent=1) + "\n").encode())
     return 0

@@ -1,7 +1,7 @@
 """One toy-world episode: motion + scene + camera → RGB frames and the ground truth the evaluator needs.
 
 The RGB renderer uses the same forward kinematics (``Embodiment.frames``) and
-projection (:func:`oscar_core.camera.pinhole.project`) as the skeleton renderer: every
+projection (:func:`oscar_core.camera.projection.project`) as the skeleton renderer: every
 skeleton edge is a shaded capsule between the same projected points, so the
 skeleton video is an exact abstraction of the RGB video.
 """
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera.pinhole import Camera, project
+from ..camera import Camera, project
 from ..render.capsules import link_radii  # the capsule body's radii: the mesh condition of this world
 from ..plugin.embodiment import Embodiment
 from ..kinematics.trajectory import Trajectory

@@ -271,12 +271,12 @@ def format_table(table: dict) -> str:
 
 def plot_table(table: dict, path) -> Path:
     """A PNG with one bar chart per metric, one bar per condition (needs matplotlib: ``oscar-wm[plots]``)."""
-    from ..metrics.plots import _new_figure, save_figure
+    from ..metrics.plots import new_figure, save_figure
 
     names = list(table["rows"])
     labels = {"psnr_db": "PSNR (dB) ↑", "ssim": "SSIM ↑", "motion_iou": "motion IoU ↑", "ee_error_px": "end-effector error (px) ↓",
               "object_error_px": "object error (px) ↓", "moved_object_error_px": "moved-object error (px) ↓"}
-    fig = _new_figure((3.2 * len(METRICS), 3.2), 100)
+    fig = new_figure((3.2 * len(METRICS), 3.2), 100)
     for i, m in enumerate(METRICS):
         ax = fig.add_subplot(1, len(METRICS), i + 1)
         vals = [table["rows"][n].get(m, float("nan")) for n in names]

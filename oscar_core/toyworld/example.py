@@ -36,7 +36,7 @@ def write_example(out, embodiment: str = "toyarm", *, seed: int = 0, width: int 
     (:class:`~oscar_core.errors.OutputPathError`). Each file is written atomically.
     """
     from .._util.atomic import atomic_write_bytes
-    from ..camera.pinhole import save_camera
+    from ..camera import save_camera
     from ..kinematics.trajectory import save_trajectory
     from ..plugin.registry import Registry
     from .episode import episode_rng, plan_episode, render_world

@@ -25,7 +25,6 @@ from .._util import stage as _stage
 from .._util.log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode, miss_rng
-from .generate_legacy import check_legacy_clipset
 from .motion import ToyWorldError, check_supported
 
 __all__ = ["SOURCE", "GenerateConfig", "clip_id", "generate_clipset", "split_of"]
@@ -84,9 +83,8 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
     parts = {"stage": "toyworld-generate", "format": _stage.FORMAT_VERSION, "seed": cfg.seed, "width": cfg.width,
              "height": cfg.height, "frames": cfg.frames, "fps": cfg.fps, "shard_size": cfg.shard_size,
              "supersample": cfg.supersample, "skeleton": cfg.skeleton, "pick_miss": cfg.pick_miss}
-    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it",
-                       legacy=lambda: check_legacy_clipset(out, cfg))  # a set from before fingerprints
-    writer = ClipSetWriter(out)
+    writer = ClipSetWriter(out)  # first: a set of another format is refused before anything is recorded
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer.remove_stale()
     done = skipped = 0
     t0 = time.perf_counter()

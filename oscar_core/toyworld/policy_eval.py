@@ -39,17 +39,16 @@ from typing import Callable
 
 import numpy as np
 
-from .._util.arg_types import count, number
 from .._util.log import get_logger
-from ..camera.pinhole import Camera, project
+from ..camera import Camera, project
 from ..plugin.embodiment import Embodiment
 from ..kinematics.trajectory import Trajectory
 from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of
 from .motion import GRAB_RADII, Motion, ToyWorldError, carry_object, check_supported, min_jerk
 
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
-           "plan_session", "policy_eval_refusal", "CANDIDATE_ROUNDS", "policy_motion", "session_rng", "floor_homography", "write_policy_eval", "TASK",
-           "add_policy_eval_arguments", "cmd_policy_eval"]
+           "plan_session", "policy_eval_refusal", "CANDIDATE_ROUNDS", "policy_motion", "session_rng",
+           "floor_homography", "write_policy_eval", "TASK"]
 
 _log = get_logger(__name__)
 
@@ -372,7 +371,7 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
     it all) is re-drawn with the next attempt number (recorded in the summary).
     """
     from .._util.atomic import atomic_write_bytes
-    from ..camera.pinhole import save_camera
+    from ..camera import save_camera
     from ..plugin.registry import Registry
     from ..kinematics.trajectory import save_trajectory
     from ..media.video import write_video
@@ -439,8 +438,7 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
                              "displacement_radii": round(ep.displacement, 3),
                              "aim_error_radii": [round(float(v), 3) for v in ep.aim_error],
                              "grasp_error_radii": [round(float(v), 3) for v in ep.grasp_error]})
-            if progress:
-                progress(f"{name}: " + ", ".join(f"{ep.policy.name} {ep.success}" for ep in s.episodes))
+            (progress or _log.info)(f"{name}: " + ", ".join(f"{ep.policy.name} {ep.success}" for ep in s.episodes))
     manifest = {"format": "oscar-eval-manifest", "policies": names,
                 "description": (f"toy-world pick-and-place, {sessions} sessions x {len(embs)} embodiments "
                                 f"({','.join(e.name for e in embs)}), seed {seed}; oscar toyworld policy-eval"),
@@ -456,41 +454,3 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
             e.name: float(np.mean([r["real_success"] for r in mine if r["embodiment"] == e.name])) for e in embs}
     atomic_write_bytes(out / "policy_eval.json", (json.dumps(summary, indent=1) + "\n").encode())
     return summary
-
-
-def add_policy_eval_arguments(p) -> None:
-    """The options of ``oscar toyworld policy-eval`` (on the argparse parser ``p``)."""
-    p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
-    p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
-    p.add_argument("--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
-    p.add_argument("--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders")
-    p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
-    p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
-    p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
-    p.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor of the real renders (default 2)")
-    p.add_argument("--json", action="store_true", help="print the summary (without per-episode rows) as JSON")
-
-
-def cmd_policy_eval(args) -> int:
-    """``oscar toyworld policy-eval``: write the manifest and print the true success rate per policy."""
-    from ..render.skeleton_video import parse_size
-    from ..plugin.registry import Registry
-
-    w, h = parse_size(args.size)
-    names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
-    if not names:
-        raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
-    summary = write_policy_eval(args.out, names, args.sessions, seed=args.seed, width=w, height=h,
-                                frames=args.frames, fps=args.fps, supersample=args.supersample,
-                                registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
-                                progress=_log.info)
-    if args.json:
-        print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
-        return 0
-    print(f"{args.out}/manifest.json: {len(summary['rows'])} cells, {args.sessions} sessions x "
-          f"{len(names)} embodiments; true success rate per policy (ball grabbed and moved >= "
-          f"{SUCCESS_RADII:g} ball radii):")
-    for p, v in summary["policies"].items():
-        per = ", ".join(f"{e} {r:.2f}" for e, r in v["by_embodiment"].items())
-        print(f"  {p:<8} aim sigma {v['aim_sigma_radii']:.2f} R: {v['success_rate']:.2f}  ({per})")
-    return 0

@@ -74,18 +74,15 @@ _log = get_logger(__name__)
 
 
 def sampler_for_card(card, steps: int | None = None, guidance: float | None = None,
-                     guidance_form: str = "diffusers", guidance_interval: tuple[float, float] | None = None,
+                     guidance_form: str | None = None, guidance_interval: tuple[float, float] | None = None,
                      preset: str | None = None):
-    """A ``SamplerConfig``: the given steps / guidance / interval, else the library's defaults (35 steps,
-    guidance 6 at every step). A ``preset`` sets steps and interval first; explicit ``steps`` /
-    ``guidance_interval`` override it."""
-    from dataclasses import replace
+    """A ``SamplerConfig``: the given steps / guidance / form / preset, else the card's recommended ones
+    (``card.sampler``), else the library's defaults (35 steps, guidance 6 in the diffusers form at every step);
+    :func:`oscar_core.model.sampler.resolve_sampler`."""
+    from ..model.sampler import resolve_sampler
 
-    from ..model.sampler import SamplerConfig, apply_preset
-
-    d = apply_preset(SamplerConfig(guidance_form=guidance_form), preset)
-    return replace(d, steps=steps or d.steps, guidance=d.guidance if guidance is None else guidance,
-                   guidance_interval=guidance_interval if guidance_interval is not None else d.guidance_interval)
+    return resolve_sampler(getattr(card, "sampler", None), steps=steps, guidance=guidance,
+                           guidance_form=guidance_form, guidance_interval=guidance_interval, preset=preset).config
 
 
 def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera.pinhole import Camera, Intrinsics, look_at
+from ..camera import Camera, Intrinsics, look_at
 from .raster import Light
 
 __all__ = ["OBJECT_RGB", "EE_RGB", "OBJECT_HUE", "EE_HUE", "LINK_HUES", "Scene", "sample_scene", "background",
@@ -143,7 +143,7 @@ def sample_camera(rng: np.random.Generator, points: np.ndarray, width: int, heig
     least ``margin_px`` inside the image. Returns an OpenCV camera-to-world
     :class:`~oscar_core.camera.pinhole.Camera` of ``width`` x ``height`` pixels.
     """
-    from ..camera.pinhole import project
+    from ..camera import project
 
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lo, hi = P.min(0), P.max(0)

@@ -291,7 +291,7 @@ def load_toy_vae(folder):
     """The trained ``AutoencoderKLWan`` from ``FOLDER/vae`` (or ``FOLDER`` itself), loaded strictly from safetensors."""
     from diffusers import AutoencoderKLWan
 
-    from ..model._weights import build_strict, load_state_dict, read_config
+    from ..model.weights import build_strict, load_state_dict, read_config
 
     folder = Path(folder)
     if (folder / "vae").is_dir():

@@ -16,7 +16,6 @@ _EXPORTS = {
     "train": "loop", "TrainResult": "loop", "export_run": "export",
     "sample_sigmas": "flow", "flow_inputs": "flow", "flow_loss": "flow",
     "StepPlanner": "sampling", "mixing_weights": "sampling", "window_prior": "sampling",
-    "LatentActionTransformer": "latent_action", "latent_actions": "latent_action",  # moved to model/; old path kept
     "write_toy_clipset": "synthetic",
 }
 

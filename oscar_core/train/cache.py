@@ -88,7 +88,6 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     from ..render.conditions import check_condition
     from ..model.vae import check_frame_count
     from ..plugin.registry import Registry
-    from .cache_legacy import check_legacy_cache
     from .clips import Clip, ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")
@@ -106,15 +105,8 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     parts = {"stage": "latent-cache", "format": _stage.FORMAT_VERSION, "source": str(source.root.resolve()),
              "vae": vae_name, "vae_weights": _weights_digest(vae.vae), "window": window, "stride": stride,
              "split": split, "condition": condition}
-
-    def legacy():  # a cache from before fingerprints: check what its shards recorded
-        return check_legacy_cache(out, source, vae=vae, vae_name=vae_name, window=window, stride=stride, split=split,
-                                  condition=condition, registry=registry,
-                                  starts_of=lambda n: window_starts(n, window, stride))
-
-    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it",
-                       legacy=legacy)
-    writer = ClipSetWriter(out)
+    writer = ClipSetWriter(out)  # first: a cache of another format is refused before anything is recorded
+    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer.remove_stale()
     by_shard: dict[Path, list] = {}
     for rec in source:

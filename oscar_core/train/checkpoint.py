@@ -36,7 +36,7 @@ from pathlib import Path
 import torch
 import torch.distributed.checkpoint as dcp
 
-from ..model._manifest import sha256_file
+from ..model.manifest import sha256_file
 from ..model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from .parallel import DistInfo, barrier
 

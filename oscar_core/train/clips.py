@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util.atomic import _TMP_NAME as _TMP_WITH_PID
+from .._util.atomic import TMP_NAME as _TMP_WITH_PID
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
 from ..errors import OscarError
 
@@ -62,7 +62,9 @@ __all__ = [
 
 CLIPSET_FILE = "oscar_clips.json"
 CLIPSET_FORMAT = "oscar-clips"
-FORMAT_VERSION = 1
+#: 2: a clip set written by a resumable stage (toyworld generate, the latent cache) has its fingerprint.json
+#: (oscar_core._util.stage); a set of format 1 may lack it, and is refused by name rather than guessed at
+FORMAT_VERSION = 2
 SHARD_INDEX = "clips.jsonl"
 REQUIRED_FILES = ("rgb", "trajectory", "camera")
 OPTIONAL_FILES = ("skeleton", "prompt_embeds", "latents")
@@ -230,7 +232,7 @@ class ShardWriter:
 
     def add(self, clip: Clip) -> ClipRecord:
         """Write a clip's files and return its record (``files`` filled in)."""
-        from ..camera.pinhole import save_camera
+        from ..camera import save_camera
         from ..kinematics.trajectory import save_trajectory
         from ..media.video import write_video
 
@@ -367,7 +369,9 @@ def _read_marker(path: Path) -> dict:
     if not isinstance(d, dict) or d.get("format") != CLIPSET_FORMAT:
         raise ClipFormatError(path, None, "format", repr(CLIPSET_FORMAT), repr(d.get("format") if isinstance(d, dict) else d))
     if d.get("format_version") != FORMAT_VERSION:
-        raise ClipFormatError(path, None, "format_version", str(FORMAT_VERSION), repr(d.get("format_version")))
+        raise ClipFormatError(path, None, "format_version",
+                              f"{FORMAT_VERSION} (a set of another format is made again with the command that made it)",
+                              repr(d.get("format_version")))
     return d
 
 
@@ -480,7 +484,7 @@ class ClipSet:
         read the camera with the embodiment's defaults (None: plain camera file).
         Returns a :class:`Clip` whose arrays cover the window only.
         """
-        from ..camera.pinhole import load_camera
+        from ..camera import load_camera
         from ..errors import InputFileError
         from ..media.video import read_video
 

@@ -27,14 +27,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..render.conditions import CONDITIONS as _VIDEO_CONDITIONS
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
 from ..errors import OscarError
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
 
-VIDEO_CONDITIONS = _VIDEO_CONDITIONS  # conditions given as a video through the VAE and PE_s (oscar_core.render.conditions)
-CONDITIONS = (*VIDEO_CONDITIONS, "latent_action", "none")
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 CHECKPOINTING = ("none", "full", "auto")
 LATENT_MODES = ("auto", "cached", "on_the_fly")
@@ -74,9 +72,6 @@ class ModelSection:
     # is no base to preserve, and a zero PE_s grew ~9x slower than the video embedder in the toy world). With a
     # base (init set), the new layers are always zero.
     condition_init: str = "zero"
-    # gradient checkpointing of every DiT block (the paper's recipe on GPU; slower, saves activation memory); the
-    # older switch: true means activation_checkpointing: full
-    gradient_checkpointing: bool = False
     # torch.compile every DiT block (ours: faster steps on a GPU after a compile of about a minute; the weights,
     # checkpoints and their keys are the same); docs/training.md
     compile: bool = False
@@ -219,9 +214,6 @@ class TrainConfig:
             bad("parallel", f"one of {PARALLEL_MODES}", self.parallel)
         if self.activation_checkpointing not in CHECKPOINTING:
             bad("activation_checkpointing", f"one of {CHECKPOINTING}", self.activation_checkpointing)
-        if self.model.gradient_checkpointing and self.activation_checkpointing == "none":
-            bad("activation_checkpointing", "'full' or 'auto' with model.gradient_checkpointing: true (or set that "
-                "to false)", self.activation_checkpointing)
         for name in ("steps", "batch_size", "micro_batch", "log_every", "save_every", "keep_last"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
@@ -286,11 +278,18 @@ _SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "o
              "log": LogSection}
 
 
+#: keys this loader no longer reads, by section prefix: what to write instead (the error's "expected")
+_RENAMED = {"model.": {"gradient_checkpointing": "the top-level key activation_checkpointing instead (full for true, "
+                                                  "auto or none for false)"}}
+
+
 def _build(cls, data: Any, source: str, prefix: str):
     if not isinstance(data, dict):
         raise TrainConfigError(source, prefix or "<root>", "a mapping", type(data).__name__)
     names = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
+    for key in sorted(set(data) & set(_RENAMED.get(prefix, {}))):
+        raise TrainConfigError(source, f"{prefix}{key}", _RENAMED[prefix][key], f"{prefix}{key}: {data[key]!r}")
     unknown = sorted(set(data) - set(names))
     if unknown:
         raise TrainConfigError(source, f"{prefix}{unknown[0]}", f"one of {sorted(names)}", "an unknown key")

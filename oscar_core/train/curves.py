@@ -36,13 +36,13 @@ def plot_training_curves(run_dir, out=None) -> Path | None:
     """Write the three-panel PNG for ``run_dir`` to ``out`` (default ``RUN_DIR/curves.png``); None when there is
     nothing to plot yet. Raises ImportError naming the extra when matplotlib is missing."""
     from .._util.atomic import atomic_write_bytes
-    from ..metrics.plots import _new_figure
+    from ..metrics.plots import new_figure
 
     run_dir = Path(run_dir)
     c = read_curves(run_dir / "metrics.jsonl")
     if not c["step"]:
         return None
-    fig = _new_figure((10.5, 3.0), 100)
+    fig = new_figure((10.5, 3.0), 100)
     for i, (key, label, log) in enumerate((("loss", "loss", True), ("grad_norm", "gradient norm (before clipping)",
                                                                    True), ("lr", "learning rate", False))):
         ax = fig.add_subplot(1, 3, i + 1)

@@ -24,8 +24,9 @@ import numpy as np
 import torch
 
 from .clips import ClipFormatError, ClipRecord, ClipSet
-from .config import VIDEO_CONDITIONS, TrainConfig
+from .config import TrainConfig
 from .sampling import PlanItem, StepPlanner
+from ..render.conditions import is_video_condition, takes_actions
 
 __all__ = ["TrainData", "Batch", "UsableClip"]
 
@@ -164,7 +165,7 @@ class TrainData:
         c, d, f = self.config, self.config.data, self.config.flow
         clips = [(u.record.source, u.record.n_frames, u.record.openness_array, u.starts) for u in self.clips]
         return StepPlanner(clips, self.window, seed=c.seed, temperature=d.mixing_temperature, ramp=d.prior_ramp,
-                           uniform=d.prior_uniform, dropout=d.skeleton_dropout if c.condition in VIDEO_CONDITIONS else 0.0,
+                           uniform=d.prior_uniform, dropout=d.skeleton_dropout if is_video_condition(c.condition) else 0.0,
                            shift=f.shift, logit_mean=f.logit_mean, logit_std=f.logit_std)
 
     # ------------------------------------------------------------------ loading
@@ -202,13 +203,13 @@ class TrainData:
         u = self.clips[item.clip]
         rec, cs = u.record, u.clipset
         w, h = self.size
-        want_skeleton = condition in VIDEO_CONDITIONS and not item.drop
+        want_skeleton = is_video_condition(condition) and not item.drop
         # stored skeleton videos are skeletons, and cached condition latents encode the condition they record:
         # another condition video (mesh, capsules) is rendered and encoded here
         stored = condition == (u.cached_condition if self.cached else "skeleton")
         out: dict = {"skeleton": None, "actions": None}
         need_traj = ((want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files)))
-                     or condition == "latent_action")
+                     or takes_actions(condition))
         clip = cs.load(rec, start=item.start, frames=self.window, video=not self.cached,
                        skeleton=want_skeleton and stored and not self.cached, registry=self.registry if need_traj else None)
         if self.cached:
@@ -234,7 +235,7 @@ class TrainData:
             video = condition_video(condition, self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
                                     resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
             out["skeleton"] = self._encode(video, f"the {condition} condition video")
-        if condition in VIDEO_CONDITIONS and item.drop:
+        if is_video_condition(condition) and item.drop:
             out["skeleton"] = (self.black_latent() if self.config.data.unconditional_skeleton == "black_video"
                                else torch.zeros_like(out["z0"]))
         if clip.prompt_embeds is not None:
@@ -245,7 +246,7 @@ class TrainData:
             out["text"] = pe
         else:
             out["text"] = torch.zeros(1, self.text_dim)
-        if condition == "latent_action":
+        if takes_actions(condition):
             from ..model.latent_action import latent_actions
 
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
@@ -257,8 +258,8 @@ class TrainData:
         L = max(x["text"].shape[0] for x in loaded)
         text = torch.stack([torch.cat([x["text"], x["text"].new_zeros(L - x["text"].shape[0], self.text_dim)])
                             for x in loaded])
-        skel = torch.stack([x["skeleton"] for x in loaded]) if condition in VIDEO_CONDITIONS else None
-        acts = torch.stack([x["actions"] for x in loaded]) if condition == "latent_action" else None
+        skel = torch.stack([x["skeleton"] for x in loaded]) if is_video_condition(condition) else None
+        acts = torch.stack([x["actions"] for x in loaded]) if takes_actions(condition) else None
         return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts)
 
     def summary(self) -> dict:

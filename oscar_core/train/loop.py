@@ -23,13 +23,14 @@ import torch
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
 from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
-from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError, load_config, save_config
+from .config import TrainConfig, TrainConfigError, load_config, save_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
+from ..render.conditions import is_video_condition, takes_actions
 
 __all__ = [
     "CONFIG_FILE",
@@ -80,9 +81,9 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     kwargs = dict(hidden_states=inputs.x, timestep=inputs.timestep, encoder_hidden_states=batch.text.to(device),
                   condition_mask=inputs.condition_mask, padding_mask=torch.zeros(1, 1, h, w, device=device),
                   return_dict=False)
-    if config.condition in VIDEO_CONDITIONS:
+    if is_video_condition(config.condition):
         kwargs["skeleton_latents"] = batch.skeleton.to(device)
-    elif config.condition == "latent_action":
+    elif takes_actions(config.condition):
         kwargs["actions"] = batch.actions.to(device)
     with autocast or contextlib.nullcontext():
         pred = model(**kwargs)[0]

@@ -104,13 +104,10 @@ def choose_checkpointing(config, model, device, shards: int = 1,
                          compression: tuple[int, int] = (4, 8)) -> tuple[str, str]:
     """("none" or "full", why) for ``config``'s activation-checkpointing policy on ``device``.
 
-    ``model.gradient_checkpointing: true`` (the older switch) means ``full``. ``auto``: ``none`` on a non-CUDA
-    device, else ``none`` when :func:`model_estimate`'s step without checkpointing fits in 90 % of
+    ``auto``: ``none`` on a non-CUDA device, else ``none`` when :func:`model_estimate`'s step without checkpointing fits in 90 % of
     :func:`free_device_memory` (measured now, before the model moves there), else ``full``.
     """
     policy = config.activation_checkpointing
-    if config.model.gradient_checkpointing:
-        return "full", "model.gradient_checkpointing: true"
     if policy in ("none", "full"):
         return policy, f"activation_checkpointing: {policy}"
     free = free_device_memory(device)

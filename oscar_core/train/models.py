@@ -7,7 +7,8 @@ from pathlib import Path
 
 import torch
 
-from .config import VIDEO_CONDITIONS, TrainConfig, TrainConfigError
+from .config import TrainConfig, TrainConfigError
+from ..render.conditions import is_video_condition, takes_actions
 
 __all__ = ["build_transformer", "build_vae", "transformer_config", "prepare_for_training"]
 
@@ -34,14 +35,14 @@ def transformer_config(spec, source: str = "<config>") -> dict:
 
 def build_transformer(config: TrainConfig, source: str = "<config>"):
     """The DiT to train, its weights initialised as ``model.init`` says (float32, train mode)."""
-    from ..model.tiny import _randomise
+    from ..model.tiny import randomise
     from ..model.transformer import OscarTransformer3DModel
     from ..model.latent_action import LatentActionTransformer
 
     m = config.model
     args = transformer_config(m.transformer, source)
     cls = OscarTransformer3DModel
-    if config.condition == "latent_action":
+    if takes_actions(config.condition):
         cls = LatentActionTransformer
         args.update(action_frames=config.data.window - 1, action_dim=14)
     init = m.init
@@ -50,7 +51,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
         model = cls(**args)
         if m.transformer == "tiny":
             # the tiny preset's weights, as oscar_core.model.tiny draws them (diffusers zero-inits some layers)
-            _randomise(model, m.seed, 0.05)
+            randomise(model, m.seed, 0.05)
         if m.condition_init == "zero":
             with torch.no_grad():
                 model.skeleton_embed.proj.weight.zero_()
@@ -60,7 +61,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
                         mlp[2].bias.zero_()
         else:  # "default": the condition layers draw nn.Linear's own init, seeded after the rest of the model
             torch.manual_seed(m.seed + 1)
-            if config.condition in VIDEO_CONDITIONS:
+            if is_video_condition(config.condition):
                 model.skeleton_embed.proj.reset_parameters()
             else:  # PE_s stays zero (and frozen, below) in a model that never sees a skeleton
                 with torch.no_grad():
@@ -79,7 +80,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
             raise TrainConfigError(source, "model.init", f"weights matching the transformer config ({init})",
                                    f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}")
         # the keys the base lacks (PE_s, the action MLPs) keep their constructor init: zero outputs
-    if config.condition not in VIDEO_CONDITIONS:
+    if not is_video_condition(config.condition):
         # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
         model.skeleton_embed.requires_grad_(False)
     model.train()
@@ -107,7 +108,7 @@ def prepare_for_training(model, config: TrainConfig, device, shards: int = 1,
 
 def _base_weights(init: str, source: str) -> dict:
     """State dict named by ``model.init``: ``cosmos_base:FOLDER``, an OSCAR model folder or a transformer folder."""
-    from ..model._weights import load_state_dict
+    from ..model.weights import load_state_dict
 
     if init.startswith("cosmos_base:"):
         folder = Path(init.split(":", 1)[1])
@@ -130,7 +131,7 @@ def build_vae(config: TrainConfig, device="cpu", source: str = "<config>"):
         return VideoVAE(build_tiny_vae(config.model.seed), device=device)
     from diffusers import AutoencoderKLWan
 
-    from ..model._weights import build_strict, load_state_dict, read_config
+    from ..model.weights import build_strict, load_state_dict, read_config
 
     folder = Path(spec)
     if (folder / "vae").is_dir():

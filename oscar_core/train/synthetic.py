@@ -32,7 +32,7 @@ def write_toy_clipset(root, clips: int = 4, frames: int = 33, width: int = 64, h
     ``latents_vae="random"`` stores seeded N(0, 1) latents of the right shape
     instead (16 channels; fast, for tests of the loop that need no VAE).
     """
-    from ..camera.pinhole import load_camera
+    from ..camera import load_camera
     from ..render.skeleton_video import render_skeleton_video
     from ..plugin.registry import Registry
     from ..kinematics.trajectory import load_trajectory

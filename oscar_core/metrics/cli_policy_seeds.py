@@ -1,0 +1,56 @@
+"""``python -m oscar_core.metrics.policy_seeds RUN [RUN ...]``: parse, summarise
+(:func:`~oscar_core.metrics.policy_seeds.summarize_runs`), print (the per-policy rates, Spearman ρ with its
+session interval, P(ρ ≥ 0.8), Pearson r, MMRV and SISR_Δ).
+
+Exit codes: 0, 1 when some run judged fewer cells than it holds (PARTIAL), 2 for bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from .._util.arg_types import count
+from .common import MetricInputError
+from .policy_seeds import summarize_runs
+
+__all__ = ["main"]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m oscar_core.metrics.policy_seeds",
+                                     description="Policy evaluation averaged over rollout seeds: per-policy rates, "
+                                                 "Spearman rho with a session bootstrap, Pearson r, MMRV, SISR.")
+    parser.add_argument("runs", nargs="+", metavar="RUN", help="`oscar eval run` output folders, one per rollout "
+                        "seed, over the same manifest's cells")
+    parser.add_argument("--resamples", type=count(1), default=2000, help="session bootstrap resamples (2000)")
+    parser.add_argument("--seed", type=count(0), default=0, help="bootstrap seed (0)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    args = parser.parse_args(argv)
+    try:
+        s = summarize_runs(args.runs, args.resamples, args.seed)
+    except MetricInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(s, indent=2))
+    else:
+        print(f"{len(s['runs'])} runs, {s['sessions']} sessions; judged cells per run: "
+              + ", ".join(f"{j}/{n}" for j, n in s["judged"]))
+        print("policy: real / world model: " + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in
+                                                          zip(s["policies"], s["real_success"], s["wm_success"])))
+        ci = s["spearman_ci95"]
+        print(f"Spearman {s['spearman_rho']:+.3f}" + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
+              + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
+              f"SISR {s['sisr_delta_pp']:.2f} pp")
+    if not s["complete"]:
+        print("warning: PARTIAL: some runs judged fewer cells than they hold (judged cells per run: "
+              + ", ".join(f"{j}/{n}" for j, n in s["judged"]) + "); those cells average fewer seeds",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
