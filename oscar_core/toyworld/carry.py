@@ -25,6 +25,7 @@ import numpy as np
 
 from .judge import _to_floor, ball_moved, ball_reading
 from .locate import EE_TARGET, OBJECT_TARGET, locate
+from .._util.outputs import output_option
 
 __all__ = ["add_carry_arguments", "carry_rows", "carry_summary", "cmd_carry"]
 
@@ -105,7 +106,7 @@ def carry_summary(rows: list[dict], policies) -> dict:
 def add_carry_arguments(p) -> None:
     p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
     p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
-    p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file")
+    output_option(p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file"), "file")
 
 
 def cmd_carry(args) -> int:

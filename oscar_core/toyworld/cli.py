@@ -12,8 +12,10 @@ import json
 from pathlib import Path
 
 from .._util.arg_types import count, interval, number
-from .._util.log import run_log
+from .._util.log import log_result, run_log
 from ..model.presets import SAMPLER_PRESETS
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 
 __all__ = ["add_toyworld_parser", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline", "cmd_eval"]
 
@@ -51,29 +53,27 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
     g.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate written to the clips (default 10)")
     g.add_argument("--seed", type=count(0), default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
-    g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)")
+    output_option(g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)"), "folder")
     g.add_argument("--shard-size", type=count(1), default=50, help="episodes per shard (default 50)")
     g.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor (default 2)")
     g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
     g.add_argument("--pick-miss", type=number(0.0, 1.0), default=0.0, metavar="F",
                    help="fraction in [0, 1] of pick-and-place episodes whose ball lies out of the gripper's reach "
                         "(it closes beside the ball, lifts, and the ball stays); default 0 (sets as before)")
-    g.add_argument("--threads", type=count(1), default=1, help="torch threads for forward kinematics (default 1)")
+    threads_option(g, "torch threads for forward kinematics")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
 
     v = sub.add_parser("train-vae", help="train the toy world's AutoencoderKLWan on a clip set",
                        epilog=EXAMPLES, formatter_class=fmt)
     v.add_argument("clips", help="clip set written by `oscar toyworld generate`")
-    v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)")
+    output_option(v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)"), "folder")
     from .vae_train import VAETrainConfig
 
     d = VAETrainConfig()
     for name in ("steps", "stop_at", "batch", "window", "seed", "base_dim", "eval_every", "eval_clips"):
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
-    v.add_argument("--threads", type=int, default=None,
-                   help="torch threads (default: the cores idle now, at least 1; more than that warns: on a busy "
-                        "machine they run slower, not faster)")
+    threads_option(v, "torch threads")
     for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
@@ -88,17 +88,17 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                        epilog=EXAMPLES, formatter_class=fmt)
     r.add_argument("clips", help="clip set")
     r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
-    r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions")
+    output_option(r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions"), "folder")
     r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     r.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
-    r.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
+    threads_option(r, "torch threads")
     r.set_defaults(func=cmd_reconstruct)
 
     b = sub.add_parser("baseline", help="write model-free reference predictions (first frame repeated)",
                        epilog=EXAMPLES, formatter_class=fmt)
     b.add_argument("clips", help="clip set")
     b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
-    b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
+    output_option(b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions"), "folder")
     b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     b.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
     b.set_defaults(func=cmd_baseline)
@@ -109,7 +109,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--model", required=True, help="zoo name (oscar-toy) or model folder")
     o.add_argument("--condition", default="true", choices=("true", "shuffled", "zero"),
                    help="the skeleton the model sees (default true)")
-    o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)")
+    output_option(o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
     o.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     o.add_argument("--limit", type=count(1), help="at most this many clips")
     o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
@@ -123,14 +123,14 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--preset", choices=sorted(SAMPLER_PRESETS),
                    help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
                         "sets the steps and the guidance interval")
-    o.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
+    threads_option(o, "torch threads")
     o.set_defaults(func=cmd_rollout)
 
     k = sub.add_parser("package", help="turn an exported toy-world run into a shippable model folder (card, "
                                        "zero prompt, README model card, sha256 of every file)",
                        epilog=EXAMPLES, formatter_class=fmt)
     k.add_argument("export", help="the exported run (RUN_DIR/export)")
-    k.add_argument("--out", required=True, help="the model folder to write (replaced atomically)")
+    output_option(k.add_argument("--out", required=True, help="the model folder to write (replaced atomically)"), "folder")
     k.add_argument("--name", default="oscar-toy", help="model name in the card (default oscar-toy)")
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
@@ -163,10 +163,10 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                         "clips all of them have, each scores every row over its own clips and marks the table")
     e.add_argument("--paired", metavar="NAME", help="also give every other row minus row NAME per metric over the "
                    "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)")
-    e.add_argument("--out", help="write the table as JSON here")
-    e.add_argument("--plot", help="write a PNG bar chart of the table here")
-    e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
-                                  "default: beside --out as <name>.html, media in <name>_media/")
+    output_option(e.add_argument("--out", help="write the table as JSON here"), "file")
+    output_option(e.add_argument("--plot", help="write a PNG bar chart of the table here"), "file")
+    output_option(e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
+                                  "default: beside --out as <name>.html, media in <name>_media/"), "file")
     e.add_argument("--no-html", action="store_true", help="no page")
     e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -181,12 +181,9 @@ def _registry(args):
 
 
 def cmd_generate(args) -> int:
-    import torch
-
     from ..render.skeleton_video import parse_size
     from .generate import GenerateConfig, generate_clipset
 
-    torch.set_num_threads(max(1, args.threads))
     w, h = parse_size(args.size)
     names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
     if not names:
@@ -195,6 +192,7 @@ def cmd_generate(args) -> int:
                          args.supersample, not args.no_skeleton, args.pick_miss)
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))
+        log_result(f"{summary['episodes_written']} episodes written, {summary['episodes_skipped']} kept")
     if args.json:
         print(json.dumps(summary))
     else:
@@ -205,13 +203,8 @@ def cmd_generate(args) -> int:
 
 
 def cmd_train_vae(args) -> int:
-    from .._util.threads import check_threads, default_threads
     from .vae_train import VAETrainConfig, train_vae
 
-    if args.threads is None:
-        args.threads = default_threads()
-    else:
-        check_threads(args.threads, "toyworld train-vae --threads")
     cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr,
                          kl=args.kl, chroma=args.chroma, foreground=args.foreground, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
@@ -220,6 +213,7 @@ def cmd_train_vae(args) -> int:
                          sample_posterior=args.sample_posterior)
     with run_log(args.out, "toyworld-train-vae"):
         card = train_vae(args.clips, args.out, cfg)
+        log_result(f"held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps")
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")
     return 0
@@ -243,14 +237,11 @@ def cmd_baseline(args) -> int:
 
 
 def cmd_rollout(args) -> int:
-    import torch
-
     import oscar_zoo
 
     from .._util.stage import model_identity
     from .rollouts import sampler_for_card, write_rollouts
 
-    torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
     sampler = sampler_for_card(model.card, steps=args.steps, guidance=args.guidance, guidance_form=args.guidance_form,
                                guidance_interval=args.guidance_interval, preset=args.preset)
@@ -259,6 +250,7 @@ def cmd_rollout(args) -> int:
                                  split=None if args.split == "all" else args.split, limit=args.limit,
                                  sampler=sampler, seed=args.seed, registry=_registry(args),
                                  model_id=model_identity(args.model))
+        log_result(f"{summary['written']} rollouts written, {summary['kept']} kept")
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")

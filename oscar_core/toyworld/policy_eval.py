@@ -41,6 +41,7 @@ import numpy as np
 
 from .._util.arg_types import count, number
 from .._util.log import get_logger
+from .._util.outputs import output_option
 from ..camera.pinhole import Camera, project
 from ..plugin.embodiment import Embodiment
 from ..kinematics.trajectory import Trajectory
@@ -390,7 +391,8 @@ def add_policy_eval_arguments(p) -> None:
     p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
     p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
     p.add_argument("--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
-    p.add_argument("--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders")
+    output_option(p.add_argument("--out", required=True,
+                                 help="folder for manifest.json, policy_eval.json and the session folders"), "folder")
     p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
     p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
     p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
