@@ -84,6 +84,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from oscar_core._util.atomic import atomic_write_bytes
+from oscar_core._util.inputs import read_text_file
 from oscar_core.errors import CameraFileError
 from .extrinsics import _TOP_KEYS, _matrix, _number, _parse_extrinsic, _short
 from .geometry import (_DISTORTION_LENGTHS, _VALID_CONVENTION_NAMES, CONVENTION_ALIASES, CONVENTIONS,
@@ -458,11 +459,11 @@ def load_camera(path: str | os.PathLike, defaults: Any = None) -> Camera:
     embodiment's ``CameraSpec``) used when the file omits those keys; without
     it they default to ``"opencv"`` and ``"camera_to_world"``.
 
-    Raises CameraFileError for bad content (invalid JSON reports line and column);
-    OSError (e.g. FileNotFoundError) if the file cannot be read.
+    Raises CameraFileError for a file that is missing, unreadable or not text
+    (naming what it holds) and for bad content (invalid JSON reports line and column).
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    text = read_text_file(path, "camera calibration JSON (utf-8 text; docs/formats.md)", error=CameraFileError)
     try:
         d = json.loads(text)
     except json.JSONDecodeError as e:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.inputs import describe_content
 from ..errors import InputFileError
 
 __all__ = ["read_image", "read_first_frame"]
@@ -17,10 +18,10 @@ def read_image(path) -> np.ndarray:
 
     path = Path(path)
     if not path.is_file():
-        raise InputFileError(path, "image", "an existing image file (PNG, JPEG)", "no such file")
+        raise InputFileError(path, "image", "an existing image file (PNG, JPEG)", describe_content(path))
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:
-        raise InputFileError(path, "image", "a readable image file (PNG, JPEG)", "a file OpenCV cannot decode")
+        raise InputFileError(path, "image", "an image file OpenCV decodes (PNG, JPEG)", describe_content(path))
     return np.ascontiguousarray(bgr[:, :, ::-1])
 
 
