@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     table = []
     for mode in MODES:
         rows = [x for x in runs if x["mode"] == mode]
-        table.append({"mode": mode, "threads": sorted({x["threads"] for x in rows}),
+        table.append({"mode": mode, "threads": sorted({x["threads"] for x in rows}, key=str),
                       "wall_s": statistics.median(x["wall_s"] for x in rows),
                       "cpu_s": statistics.median(x["cpu_s"] for x in rows)})
     best = min(t["wall_s"] for t in table)

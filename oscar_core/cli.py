@@ -8,7 +8,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from ._util.log import cli_output
+from ._util.log import cli_output, set_command_line
 from .errors import OscarError
 from ._util.outputs import check_writable, output_kind, output_option
 
@@ -196,6 +196,7 @@ def main(argv=None) -> int:
     passive_openmp()  # before anything loads torch (and its OpenMP runtime)
     parser = build_parser()
     args = parser.parse_args(argv)
+    set_command_line(["oscar", *(sys.argv[1:] if argv is None else argv)])  # the first line of run logs
     warnings.simplefilter("default")
     with noting_interrupts():
         try:

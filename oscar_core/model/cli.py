@@ -110,6 +110,7 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     threads_option(r)
+    r.set_defaults(_resumes=False)  # one video, written whole: Ctrl-C keeps nothing and a rerun starts over
     r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
     from .compile_policy import add_compile_options
 

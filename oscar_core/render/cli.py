@@ -59,6 +59,8 @@ def add_render_parser(sub) -> None:
     r.add_argument("--device", type=device, default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)")
     r.add_argument("--workers", type=count(1), default=1, help="processes rendering episodes in parallel (default 1)")
     threads_option(r, "torch CPU threads per process (forward kinematics, meshes)")
+    # only a batch (--manifest / --trajectories) with --resume keeps finished episodes for the same command
+    r.set_defaults(_resumes=lambda a: bool(a.manifest or a.trajectories) and a.resume)
     r.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
                    help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)")
     r.add_argument("--crf", type=count(0), default=18, help="x264 quality, lower is better (default 18)")
