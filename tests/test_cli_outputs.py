@@ -128,5 +128,6 @@ def test_check_writable_kinds(tmp_path):
         check_writable(tmp_path / "f.json", "folder")
     with pytest.raises(OutputPathError, match="it is a folder, expected a file"):
         check_writable(tmp_path, "file")
+    assert check_writable(tmp_path, "any") == tmp_path and check_writable(tmp_path / "f.json", "any")  # either
     assert check_writable("s3://bucket/run", "folder") is None  # URLs: the writer's own check
     assert not any(p.name.startswith(".oscar-write-check") for p in tmp_path.iterdir())  # the probe is removed

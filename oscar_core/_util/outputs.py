@@ -23,7 +23,7 @@ from ..errors import OutputPathError
 
 __all__ = ["OUTPUT_KINDS", "output_option", "output_kind", "check_writable"]
 
-OUTPUT_KINDS = ("file", "folder", "any")  # any: a file, or a folder when the name ends in "/"
+OUTPUT_KINDS = ("file", "folder", "any")  # any: a file or a folder (the command's own check tells them apart)
 _ATTR = "oscar_output"
 
 
@@ -55,7 +55,7 @@ def _probe(folder: Path) -> str | None:
 
 
 def check_writable(path, kind: str = "file") -> Path | None:
-    """Raise :class:`OutputPathError` unless ``path`` can be written as a ``kind`` ("file", "folder", "any").
+    """Raise :class:`OutputPathError` unless ``path`` can be written as a ``kind`` ("file", "folder", "any": either).
 
     A missing path is fine when the nearest existing folder above it is a
     folder this process can create files in (missing folders between are
@@ -67,8 +67,6 @@ def check_writable(path, kind: str = "file") -> Path | None:
     if "://" in raw:
         return None
     p = Path(raw)
-    if kind == "any":
-        kind = "folder" if raw.endswith(("/", os.sep)) else "file"
     if p.exists():
         if kind == "folder" and not p.is_dir():
             raise OutputPathError(p, "it is a file, expected a folder")
