@@ -85,8 +85,8 @@ def main(argv=None) -> int:
                 shutil.rmtree(out, ignore_errors=True)
                 flags = [] if mode == "auto" else ["--threads", mode]
                 load = os.getloadavg()[0]
-                wall, cpu, err = _cli(["-v", "toyworld", "rollout", str(clips), "--model", "oscar-toy", "--out", str(out),
-                                       "--split", "all", "--limit", str(a.clips), *flags], env)
+                wall, cpu, err = _cli(["-v", "toyworld", "rollout", str(clips), "--model", "oscar-toy", "--out",
+                                       str(out), "--split", "all", "--limit", str(a.clips), *flags], env)
                 m = re.search(r"torch threads: (\d+)", err)
                 runs.append({"mode": mode, "repeat": r, "threads": int(m.group(1)) if m else None, "wall_s": wall,
                              "cpu_s": cpu, "load_1min_at_start": load})

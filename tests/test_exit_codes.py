@@ -270,4 +270,5 @@ def test_the_line_is_true_about_what_was_kept(tmp_path, capsys):
     assert "starts over" in line(manifest + ["--no-resume"])
     run = tmp_path / "run"
     (run / "ingest").mkdir(parents=True)
-    assert line(["data", "filter", str(run)]) == f"interrupted; finished work is kept in {run}; run the same command to resume"
+    assert line(["data", "filter", str(run)]) == (f"interrupted; finished work is kept in {run}; "
+                                                  "run the same command to resume")

@@ -97,7 +97,7 @@ def test_first_frame_that_is_not_an_image_says_what_it_is(files):
     with pytest.raises(InputFileError, match=r"traj.npz: field 'image': expected an image file OpenCV decodes "
                                              r"\(PNG, JPEG\), found a zip archive"):
         read_image(files / "traj.npz")
-    with pytest.raises(InputFileError, match=r"folder: field 'image': expected an existing image file .*found a folder"):
+    with pytest.raises(InputFileError, match=r"folder: field 'image': expected an existing image .*found a folder"):
         read_image(files / "folder")
     (files / "cam.json").write_text(json.dumps({"not": "an image"}))
     with pytest.raises(InputFileError, match="found JSON text"):

@@ -55,7 +55,8 @@ def _run_log(run: str, stage: str):
 def _report(run, what: str) -> None:
     from .._util.log import log_result
 
-    log_result(f"{len(run.processed)} shards done now, {len(run.skipped)} already done, {len(run.incomplete)} unfinished")
+    log_result(f"{len(run.processed)} shards done now, {len(run.skipped)} already done, "
+               f"{len(run.incomplete)} unfinished")
     print(f"{what}: {len(run.processed)} shards done now, {len(run.skipped)} already done"
           + (f", {len(run.incomplete)} unfinished (run again)" if run.incomplete else ""))
     if run.rows:
@@ -239,7 +240,8 @@ def add_data_parser(sub) -> None:
                       epilog=EXAMPLE, formatter_class=fmt)
     output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--json", action="store_true", help="print JSON (always written to RUN/stats.json)")
-    output_option(p.add_argument("--plot", metavar="PATH", help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])"), "file")
+    output_option(p.add_argument("--plot", metavar="PATH",
+                                 help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])"), "file")
     p.add_argument("--no-html", action="store_true", help="do not write RUN/stats.html (the funnel with thumbnails "
                                                          "of rejected episodes per reason)")
     p.set_defaults(func=cmd_stats)

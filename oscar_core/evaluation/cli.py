@@ -169,7 +169,8 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("manifest", help="manifest JSON (docs/evaluation.md)")
     r.add_argument("--model", required=True, help="world model: zoo name, Hub id owner/name, or folder")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
-    output_option(r.add_argument("--out", required=True, help="report folder (created; re-running resumes in it)"), "folder")
+    output_option(r.add_argument("--out", required=True,
+                                 help="report folder (created; re-running resumes in it)"), "folder")
     r.add_argument("--judge", default="none", help="vlm, none, module:attr or file.py:attr (default none)")
     r.add_argument("--pairwise", action="store_true", help="pairwise preferences within sessions + Bradley-Terry")
     r.add_argument("--both-orders", action="store_true", help="VLM pairwise: ask A/B and B/A, reconcile")

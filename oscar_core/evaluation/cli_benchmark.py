@@ -146,7 +146,8 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
                       formatter_class=fmt)
     r.add_argument("set", help="set file written by `oscar eval benchmark build`")
     r.add_argument("--model", required=True, help="world model: zoo name (oscar-toy), Hub id or folder")
-    output_option(r.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
+    output_option(r.add_argument("--out", required=True,
+                                 help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
     r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
     r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget preset")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
@@ -179,7 +180,8 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     t.add_argument("--no-cached-networks", action="store_true",
                    help="do not use the networks of `oscar eval weights pull`")
     t.add_argument("--device", type=device, default="cpu", help="torch device for the networks (default cpu)")
-    output_option(t.add_argument("--out", metavar="FILE", help="write the table as JSON here and as Markdown beside it (.md)"), "file")
+    output_option(t.add_argument("--out", metavar="FILE",
+                                 help="write the table as JSON here and as Markdown beside it (.md)"), "file")
     t.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
     t.set_defaults(func=cmd_table)
     return b

@@ -228,7 +228,8 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
     p.add_argument("--preferences", metavar="JSONL", help="world-model pairwise preferences (Bradley-Terry)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     output_option(p.add_argument("--out", metavar="FILE", help="also write the JSON results here"), "file")
-    output_option(p.add_argument("--plot", metavar="DIR", help="write success_scatter.png and rank_slope.png to DIR (created)"), "folder")
+    output_option(p.add_argument("--plot", metavar="DIR",
+                                 help="write success_scatter.png and rank_slope.png to DIR (created)"), "folder")
     p.add_argument("--plot-format", default="png", metavar="FMTS",
                    help="comma-separated plot formats: png, pdf, svg (default png)")
     p.set_defaults(func=cmd_eval_policies)
@@ -238,7 +239,8 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                                    "binary success, partial progress 0-100 and a reason per clip.",
                        epilog=JUDGE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(j, DEFAULT_JUDGE_FRAMES)
-    output_option(j.add_argument("--wm-out", metavar="FILE", help="write per-policy success rates for `eval policies --wm`"), "file")
+    output_option(j.add_argument("--wm-out", metavar="FILE",
+                                 help="write per-policy success rates for `eval policies --wm`"), "file")
     j.add_argument("--prompt", default="paper", help="paper (the paper's prompt, word for word; default), oscar "
                                                      "(a more detailed one), or a text file with an {instruction} "
                                                      "template")

@@ -72,7 +72,8 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--first-frame", required=True, help="first RGB frame (PNG/JPEG) taken by --camera")
     r.add_argument("--trajectory", required=True, help="trajectory .npz (docs/formats.md)")
     r.add_argument("--camera", required=True, help="camera calibration .json (docs/formats.md)")
-    output_option(r.add_argument("--out", required=True, help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)"), "any")
+    output_option(r.add_argument("--out", required=True,
+                                 help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)"), "any")
     r.add_argument("--side-by-side", help="side-by-side video path (default: OUT_side.mp4)")
     r.add_argument("--no-side-by-side", action="store_true", help="do not write the side-by-side video")
     text = r.add_mutually_exclusive_group()
@@ -80,7 +81,8 @@ def add_model_parsers(subparsers) -> None:
                       "read from the prompt cache (--prompt-cache)")
     text.add_argument("--prompt-embeds", metavar="FILE", help="precomputed prompt embedding (.safetensors, tensor "
                       "'prompt_embeds' of shape (1, L, D))")
-    output_option(r.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds "
+    output_option(r.add_argument("--prompt-cache", metavar="DIR",
+                                 help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds "
                    "or ~/.cache/oscar/prompt_embeds)"), "folder")
     r.add_argument("--text-encoder", metavar="ID_OR_FOLDER", help="text encoder for --prompt (default: the "
                    "checkpoint's text_encoder_id)")
@@ -156,7 +158,8 @@ def add_model_parsers(subparsers) -> None:
     e.add_argument("--model", help="zoo name / Hub id whose text_encoder_id to use (default: cosmos-predict2.5-2b's)")
     e.add_argument("--encoder", metavar="ID_OR_FOLDER", help="text encoder: 'owner/name@revision:text_encoder' or a "
                    "diffusers pipeline folder (text_encoder/ + tokenizer/)")
-    output_option(e.add_argument("--out", help="also write the embedding here (.safetensors, tensor 'prompt_embeds')"), "file")
+    output_option(e.add_argument("--out",
+                                 help="also write the embedding here (.safetensors, tensor 'prompt_embeds')"), "file")
     output_option(e.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache folder"), "folder")
     e.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     e.add_argument("--dtype", choices=_DTYPES, help="encoder dtype (default: the checkpoint's)")

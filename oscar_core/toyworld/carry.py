@@ -106,7 +106,8 @@ def carry_summary(rows: list[dict], policies) -> dict:
 def add_carry_arguments(p) -> None:
     p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
     p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
-    output_option(p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file"), "file")
+    output_option(p.add_argument("--json", default=None,
+                                 help="also write every row and the summary to this JSON file"), "file")
 
 
 def cmd_carry(args) -> int:

@@ -53,7 +53,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
     g.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate written to the clips (default 10)")
     g.add_argument("--seed", type=count(0), default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
-    output_option(g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)"), "folder")
+    output_option(g.add_argument("--out", required=True,
+                                 help="clip-set folder (re-running resumes: finished shards are kept)"), "folder")
     g.add_argument("--shard-size", type=count(1), default=50, help="episodes per shard (default 50)")
     g.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor (default 2)")
     g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
@@ -109,7 +110,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--model", required=True, help="zoo name (oscar-toy) or model folder")
     o.add_argument("--condition", default="true", choices=("true", "shuffled", "zero"),
                    help="the skeleton the model sees (default true)")
-    output_option(o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
+    output_option(o.add_argument("--out", required=True,
+                                 help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
     o.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     o.add_argument("--limit", type=count(1), help="at most this many clips")
     o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
@@ -130,7 +132,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                                        "zero prompt, README model card, sha256 of every file)",
                        epilog=EXAMPLES, formatter_class=fmt)
     k.add_argument("export", help="the exported run (RUN_DIR/export)")
-    output_option(k.add_argument("--out", required=True, help="the model folder to write (replaced atomically)"), "folder")
+    output_option(k.add_argument("--out", required=True,
+                                 help="the model folder to write (replaced atomically)"), "folder")
     k.add_argument("--name", default="oscar-toy", help="model name in the card (default oscar-toy)")
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
@@ -165,7 +168,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                    "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)")
     output_option(e.add_argument("--out", help="write the table as JSON here"), "file")
     output_option(e.add_argument("--plot", help="write a PNG bar chart of the table here"), "file")
-    output_option(e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
+    output_option(e.add_argument("--html",
+                                 help="write the page (table, plot, clips under each condition beside the truth) here; "
                                   "default: beside --out as <name>.html, media in <name>_media/"), "file")
     e.add_argument("--no-html", action="store_true", help="no page")
     e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")

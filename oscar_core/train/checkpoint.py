@@ -40,8 +40,8 @@ from ..model._manifest import sha256_file
 from ..model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from .parallel import DistInfo, barrier
 
-__all__ = ["CHECKPOINT_INDEX", "checkpoint_dir", "checkpoint_step", "list_checkpoints", "latest_checkpoint", "save_checkpoint",
-           "load_checkpoint", "load_weights", "verify_checkpoint"]
+__all__ = ["CHECKPOINT_INDEX", "checkpoint_dir", "checkpoint_step", "list_checkpoints", "latest_checkpoint",
+           "save_checkpoint", "load_checkpoint", "load_weights", "verify_checkpoint"]
 
 CHECKPOINT_INDEX = "oscar_checkpoint.json"
 _STEP = re.compile(r"^step-(\d{8})$")

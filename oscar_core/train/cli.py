@@ -44,7 +44,8 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--condition", choices=CONDITIONS, default="skeleton",
                    help="with --cache-latents: the condition video cached beside the video (default skeleton; "
                         "mesh or capsules for a model trained on those)")
-    output_option(p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
+    output_option(p.add_argument("--out",
+                                 help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
                                  "the new clip set"), "folder")
     p.add_argument("--step", type=count(0), help="with --export: the checkpoint's step (default: the latest)")
     p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")

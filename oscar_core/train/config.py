@@ -421,8 +421,9 @@ def check_resume_overrides(overrides: dict) -> None:
     """Refuse a ``--set`` with ``--resume`` that would change the run rather than extend it, naming the field."""
     for key in overrides:
         if key not in RESUME_OVERRIDES:
-            raise TrainConfigError(OVERRIDE_SOURCE, key, f"with --resume only {', '.join(RESUME_OVERRIDES)} (they extend "
-                                   "the run; any other field would change what its checkpoints were trained with)",
+            raise TrainConfigError(OVERRIDE_SOURCE, key, f"with --resume only {', '.join(RESUME_OVERRIDES)} (they "
+                                   "extend the run; any other field would change what its checkpoints were trained "
+                                   "with)",
                                    "a change of the run's config")
 
 

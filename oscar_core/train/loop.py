@@ -22,9 +22,10 @@ import torch
 
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
-from .checkpoint import checkpoint_step, latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
-from .config import (OVERRIDE_SOURCE, VIDEO_CONDITIONS, TrainConfig, TrainConfigError, check_resume_overrides, load_config,
-                     save_config)
+from .checkpoint import (checkpoint_step, latest_checkpoint, list_checkpoints, load_checkpoint, load_weights,
+                         save_checkpoint)
+from .config import (OVERRIDE_SOURCE, VIDEO_CONDITIONS, TrainConfig, TrainConfigError, check_resume_overrides,
+                     load_config, save_config)
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
