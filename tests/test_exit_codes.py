@@ -174,7 +174,10 @@ def test_ctrl_c_in_a_batch_render_stops_its_workers_and_exits_130(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
                             start_new_session=True)
     deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None and not list(out.glob("*.mp4")):
+    def finished():  # episodes renamed into place (not a writer's .<name>.<pid>.<rand>.tmp.mp4)
+        return [p for p in out.glob("*.mp4") if not p.name.startswith(".")]
+
+    while time.time() < deadline and proc.poll() is None and not finished():
         time.sleep(0.02)
     assert proc.poll() is None, "the batch finished before it could be interrupted"
     os.killpg(proc.pid, signal.SIGINT)
