@@ -6,10 +6,10 @@ import argparse
 import json
 import sys
 import warnings
-from pathlib import Path
 
-from ._util.log import cli_output
+from ._util.log import cli_output, set_command_line
 from .errors import OscarError
+from ._util.outputs import check_writable, output_kind, output_option
 
 EXAMPLES = """examples:
   oscar embodiments
@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demo", help="render every embodiment's bundled example and roll the toy world model out "
                                     "(MP4s + contact sheet)")
-    d.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
+    output_option(d.add_argument("--out", default="demo_out", help="output folder (default demo_out)"), "folder")
     d.add_argument("--size", default="512x288", help="output WIDTHxHEIGHT (default 512x288)")
     d.add_argument("--toy-model", default="oscar-toy", help="toy-world model rolled out on a held-out episode "
                                                              "(default oscar-toy, bundled)")
@@ -124,10 +124,22 @@ def build_parser() -> argparse.ArgumentParser:
     add_toyworld_parser(sub)
     for leaf in _leaves(p):
         _add_output_flags(leaf, argparse.SUPPRESS)
+        leaf.set_defaults(_outputs=tuple((a.dest, output_kind(a)) for a in leaf._actions if output_kind(a)),
+                          _threads=any(getattr(a, "oscar_threads", False) for a in leaf._actions))
     from ._util.cli_examples import own_examples
 
     own_examples(p)  # a sub-command's --help shows its own examples, not its group's
     return p
+
+
+def check_outputs(args) -> None:
+    """Check every output option of the parsed command (:func:`oscar_core._util.outputs.output_option`) can be
+    written; raises :class:`~oscar_core.errors.OutputPathError` (one line, exit 2) before any work."""
+    for dest, kind in getattr(args, "_outputs", ()):
+        value = getattr(args, dest, None)
+        for path in value if isinstance(value, list) else [value]:
+            if path is not None:
+                check_writable(path, kind)
 
 
 def _add_output_flags(parser: argparse.ArgumentParser, default) -> None:
@@ -172,18 +184,36 @@ def _leaves(parser: argparse.ArgumentParser):
                 yield from _leaves(child)
 
 
+def apply_threads(args) -> None:
+    """``--threads`` of a command that runs torch: the choice of :func:`oscar_core._util.threads.choose_threads`
+    applied to torch (``args.threads`` becomes the count); a count above the idle cores warns."""
+    if not getattr(args, "_threads", False):
+        return
+    from ._util.threads import check_threads, use_threads
+
+    if args.threads is not None:
+        check_threads(args.threads, "--threads")
+    # render runs torch only for a CUDA device or meshes: the count goes to OMP_NUM_THREADS, torch stays unloaded
+    args.threads = use_threads(args.threads, import_torch=args.command != "render")
+
+
 def main(argv=None) -> int:
     from ._util.interrupt import interrupted, noting_interrupts, report
+    from ._util.threads import passive_openmp
 
     from ._util.provenance import set_command
 
+    passive_openmp()  # before anything loads torch (and its OpenMP runtime)
     parser = build_parser()
     args = parser.parse_args(argv)
     set_command(sys.argv[1:] if argv is None else argv)  # what the report pages name as their command
+    set_command_line(["oscar", *(sys.argv[1:] if argv is None else argv)])  # the first line of run logs
     warnings.simplefilter("default")
     with noting_interrupts():
         try:
+            check_outputs(args)
             with cli_output(args.verbose, args.quiet, progress=not args.no_progress):
+                apply_threads(args)
                 code = args.func(args)
             sys.stdout.flush()
             return code

@@ -102,8 +102,63 @@ def test_build_quotas_counts_and_determinism(clips, tmp_path):
     assert {g: q["quota"] for g, q in a["quotas"].items()} == {"franka/toyworld": 3, "toyarm/toyworld": 2}
     assert a["counts"] == {"candidates": 8, "forward_window": 0, "dedup": 0, "quota": 3, "chosen": 5}
     assert load_benchmark_set(tmp_path / "a.json")["fingerprint"] == a["fingerprint"]
-    short = build_benchmark_set([clips], tmp_path / "s.json", 5, frames=6, split=None, registry=REG)
-    assert short["counts"]["forward_window"] == 8 and "5 frames < horizon 6" in short["dropped"][0]["reason"]
+    with pytest.raises(BenchmarkSetError, match=r"found no clip to choose \(8 candidates: 8 dropped by the forward "
+                                                 r"window \(horizon 6 frames"):
+        build_benchmark_set([clips], tmp_path / "s.json", 5, frames=6, split=None, registry=REG)
+    assert not (tmp_path / "s.json").exists()  # an empty set is never written
+
+
+def test_a_set_smaller_than_total_warns_naming_the_shortfall(clips, tmp_path, caplog):
+    with caplog.at_level("WARNING", logger="oscar"):
+        data = build_benchmark_set([clips], tmp_path / "s.json", 400, frames=5, split=None, registry=REG)
+    assert data["counts"]["chosen"] == 8
+    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [
+        f"benchmark set {tmp_path / 's.json'}: 8 clips, 392 short of --total 400 (8 candidates: 0 dropped by the "
+        "forward window (horizon 5 frames, margin 0.0), 0 as near-duplicates)"]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="oscar"):
+        build_benchmark_set([clips], tmp_path / "f.json", 8, frames=5, split=None, registry=REG)
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]  # a full set: no warning
+
+
+def test_cli_refuses_an_empty_set_and_running_one(clips, tmp_path, capsys):
+    code = main(["eval", "benchmark", "build", str(clips), "--out", str(tmp_path / "s.json"), "--total", "4",
+                 "--frames", "99", "--split", "all"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and "no clip to choose" in err and "Traceback" not in err
+    # a set file with no clips (an older build wrote them) is refused by run and table before any work
+    build_benchmark_set([clips], tmp_path / "one.json", 1, frames=5, split=None, registry=REG)
+    d = json.loads((tmp_path / "one.json").read_text())
+    d["clips"], d["counts"]["chosen"] = [], 0
+    from oscar_core._util import stage
+
+    parts = {k: d[k] for k in ("format", "format_version", "settings", "clipsets")}
+    parts["clips"] = []
+    d["fingerprint"] = stage.fingerprint(parts)
+    (tmp_path / "empty.json").write_text(json.dumps(d))
+    code = main(["eval", "benchmark", "run", str(tmp_path / "empty.json"), "--model", "oscar-toy", "--out",
+                 str(tmp_path / "ro")])
+    err = capsys.readouterr().err
+    assert code == 2 and "field 'clips': expected at least one clip, found an empty set" in err
+    assert not (tmp_path / "ro").exists()
+
+
+def test_dedup_feature_blocks_weigh_the_same_when_few_caption_columns_vary():
+    """The caption block's total variance equals the motion column's (1), however many caption columns are
+    constant: 13 varying of 256, as toy captions give."""
+    rng = np.random.default_rng(0)
+    text = np.zeros((20, 256))
+    text[:, :13] = rng.normal(size=(20, 13)) * rng.uniform(0.01, 5.0, 13)
+    motion = rng.uniform(0.0, 0.3, 20)
+    x = rules.dedup_features(text, motion)
+    assert x[:, :-1].var(axis=0).sum() == pytest.approx(1.0, rel=1e-12)
+    assert x[:, -1].var() == pytest.approx(1.0, rel=1e-12)
+    assert not x[:, 13:-1].any()  # constant columns carry nothing
+    # every column varies: the block is still worth 1 in all
+    full = rules.dedup_features(rng.normal(size=(20, 256)), motion)
+    assert full[:, :-1].var(axis=0).sum() == pytest.approx(1.0, rel=1e-12)
+    # nothing varies: zeros, no division by zero
+    assert not rules.dedup_features(np.ones((5, 8)), np.ones(5)).any()
 
 
 def test_a_clip_whose_end_effector_leaves_the_frame_is_dropped(clips, tmp_path):

@@ -2,6 +2,7 @@
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -287,3 +288,29 @@ def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
     asked.clear()
     OscarWorldModel.from_pretrained(folder, device="cpu")
     assert asked == [("transformer", "cpu"), ("vae", "cpu")]
+
+
+def test_the_decision_is_said_once_per_job_not_once_per_cell(caplog):
+    """`oscar eval run` rolls many cells out with one model: the compile=auto line is logged once."""
+    from oscar_core.model.sampler import SamplerConfig
+
+    model = _model().set_compile("auto", cells=4)
+    with caplog.at_level("INFO", logger="oscar"):
+        for _ in range(4):
+            model._prepare_compile(17, 9, SamplerConfig(steps=2))
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("compile=auto")]
+    assert len(said) == 1 and "eager on cpu" in said[0], said
+
+
+def test_a_rollout_draws_bars_only_on_a_terminal(clip, monkeypatch, capsys):
+    """`oscar rollout 2> log` must not fill the log with tqdm lines: progress=True is only a wish."""
+    from oscar_core.model.sampler import SamplerConfig
+
+    first, skel = clip
+    model = _model()
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False, raising=False)
+    model.rollout(first, skel[:9], sampler=SamplerConfig(steps=2), progress=True)
+    assert "%|" not in capsys.readouterr().err
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    model.rollout(first, skel[:9], sampler=SamplerConfig(steps=2), progress=True)
+    assert "%|" in capsys.readouterr().err  # the same call on a terminal does draw

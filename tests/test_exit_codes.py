@@ -174,7 +174,10 @@ def test_ctrl_c_in_a_batch_render_stops_its_workers_and_exits_130(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
                             start_new_session=True)
     deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None and not list(out.glob("*.mp4")):
+    def finished():  # episodes renamed into place (not a writer's .<name>.<pid>.<rand>.tmp.mp4)
+        return [p for p in out.glob("*.mp4") if not p.name.startswith(".")]
+
+    while time.time() < deadline and proc.poll() is None and not finished():
         time.sleep(0.02)
     assert proc.poll() is None, "the batch finished before it could be interrupted"
     os.killpg(proc.pid, signal.SIGINT)
@@ -237,3 +240,38 @@ def test_an_error_a_library_made_of_the_interrupt_is_still_reported_as_one(monke
         cli.main(["embodiments"])
     with noting_interrupts():
         assert not interrupted()
+
+
+def test_the_line_is_true_about_what_was_kept(tmp_path, capsys):
+    """One video (rollout, a single render) keeps nothing and starts over; a stage or a batch says "kept" only
+    when its output holds something."""
+    from oscar_core._util.interrupt import report
+    from oscar_core.cli import build_parser
+
+    p = build_parser()
+    out = tmp_path / "long.mp4"
+
+    def line(argv):
+        assert report(KeyboardInterrupt(), p.parse_args(argv)) == 130
+        return capsys.readouterr().err.strip()
+
+    rollout = ["rollout", "--model", "oscar-toy", "--embodiment", "toyarm", "--first-frame", "f.png", "--trajectory",
+               "t.npz", "--camera", "c.json", "--out", str(out)]
+    assert line(rollout) == f"interrupted; nothing was written to {out}; running the command again starts over"
+    out.write_bytes(b"an older video")  # an older result is not work this run kept
+    assert line(rollout) == f"interrupted; nothing was written to {out}; running the command again starts over"
+    render = ["render", "--embodiment", "toyarm", "--trajectory", "t.npz", "--camera", "c.json", "--out", str(out)]
+    assert "running the command again starts over" in line(render)
+    batch = tmp_path / "batch"
+    manifest = ["render", "--manifest", "m.jsonl", "--out", str(batch) + "/"]
+    assert line(manifest) == f"interrupted before any work finished; nothing was written to {batch}/"
+    (batch / "logs").mkdir(parents=True)
+    (batch / ".ep0.mp4.123.abc.tmp.mp4").write_bytes(b"")  # a log and a temporary are not finished work
+    assert line(manifest) == f"interrupted before any work finished; nothing was written to {batch}/"
+    (batch / "ep0.mp4").write_bytes(b"video")
+    assert line(manifest) == f"interrupted; finished work is kept in {batch}/; run the same command to resume"
+    assert "starts over" in line(manifest + ["--no-resume"])
+    run = tmp_path / "run"
+    (run / "ingest").mkdir(parents=True)
+    assert line(["data", "filter", str(run)]) == (f"interrupted; finished work is kept in {run}; "
+                                                  "run the same command to resume")

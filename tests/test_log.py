@@ -78,16 +78,19 @@ def test_progress_bars_only_on_a_terminal_and_when_enabled(monkeypatch):
 
 def test_run_log_is_timestamped_made_lazily_and_ends_with_the_error(tmp_path):
     log = _log.get_logger("oscar_core.test")
-    with _log.run_log(tmp_path / "quiet", "job"):
-        log.debug("below INFO: not in the file")
-    assert not (tmp_path / "quiet").exists()  # nothing logged: no folder
+    with pytest.raises(ValueError):
+        with _log.run_log(tmp_path / "quiet", "job"):
+            log.debug("below INFO: not in the file")
+            raise ValueError("rejected before it logged anything")
+    assert not (tmp_path / "quiet").exists()  # rejected before logging: no folder
     with pytest.raises(RuntimeError):
-        with _log.run_log(tmp_path / "run", "job") as path:
+        with _log.run_log(tmp_path / "run", "job", command="oscar job --x 1") as path:
             log.info("step %d", 1)
             raise RuntimeError("disk full")
     lines = path.read_text().splitlines()
     assert path.parent == tmp_path / "run" / "logs" and re.fullmatch(r"job-\d{8}T\d{6}Z\.log", path.name)
-    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d INFO oscar\.test: step 1", lines[0])
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d INFO oscar: command: oscar job --x 1", lines[0])
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d INFO oscar\.test: step 1", lines[1])
     assert lines[-1].endswith("ERROR oscar: stopped by RuntimeError: disk full")
     log.info("after the run")  # the handler is gone
     assert "after the run" not in path.read_text()
@@ -134,3 +137,37 @@ def test_every_command_takes_the_same_output_flags():
     args = parser.parse_args(["render", "--embodiment", "toyarm", "--trajectory", "t.npz", "--camera", "c.json",
                               "--out", "o.mp4"])
     assert args.progress is None and args.no_progress is False
+
+
+def test_a_finished_job_logs_its_command_line_first_and_its_result_last(tmp_path, monkeypatch):
+    log = _log.get_logger("oscar_core.test")
+    monkeypatch.setattr(sys, "argv", ["/usr/bin/oscar", "data", "ingest", "my src", "--out", "r"])
+    monkeypatch.setattr(_log, "_COMMAND", None)  # no command named by main(): sys.argv
+    with _log.run_log(tmp_path / "a", "job") as path:
+        log.info("working")
+        _log.log_result("3 shards written")
+    lines = path.read_text().splitlines()
+    assert lines[0].endswith("INFO oscar: command: oscar data ingest 'my src' --out r")  # a shell takes it back
+    assert lines[1].endswith("INFO oscar.test: working")
+    assert re.search(r"INFO oscar: result: 3 shards written \(\d+\.\d s\)$", lines[2]) and len(lines) == 3
+    with _log.run_log(tmp_path / "b", "job", command="oscar quiet") as path:
+        pass  # a job that logged nothing still leaves its command and result
+    lines = path.read_text().splitlines()
+    assert lines[0].endswith("command: oscar quiet") and re.search(r"result: finished \(\d+\.\d s\)$", lines[1])
+    _log.log_result("no run log open: ignored")
+
+
+def test_cli_run_logs_hold_the_command_and_the_result(tmp_path):
+    assert _generate(tmp_path / "a") == 0
+    text = next((tmp_path / "a" / "logs").glob("toyworld-generate-*.log")).read_text().splitlines()
+    assert "command: " in text[0] and "toyworld generate --embodiments toyarm" in text[0]
+    assert re.search(r"result: 2 episodes written, 0 kept \(\d+\.\d s\)$", text[-1])
+
+
+def test_quiet_draws_no_progress_bars_even_on_a_terminal(monkeypatch):
+    monkeypatch.setattr(sys, "stderr", _TTY())
+    assert _log.progress_bars_enabled()  # stderr is a terminal here (the fixture)
+    with _log.cli_output(quiet=1):  # the command's set-up, undone after (the oscar logger left as found)
+        assert not _log.progress_bars_enabled() and _log.progress_bar(range(3)).disable
+    with _log.cli_output():
+        assert _log.progress_bars_enabled()

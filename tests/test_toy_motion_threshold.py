@@ -46,3 +46,20 @@ def test_motion_iou_moves_across_the_threshold():
     assert motion_iou(at, gt) == pytest.approx(1 / 2)
     assert motion_iou(above, gt) == 1.0
     assert motion_iou(at, gt, threshold=23.9) == 1.0
+
+
+def test_exact_threshold_changes_with_sums_not_divisible_by_3_do_not_count():
+    """RGB sums that are not multiples of 3: a float32 mean rounds and once counted these exact 24-level changes."""
+    pairs = [((62, 48, 41), (87, 67, 69)), ((170, 132, 57), (197, 155, 79)), ((96, 50, 174), (126, 67, 199)),
+             ((123, 125, 72), (152, 147, 93))]
+    v = np.zeros((2, 1, len(pairs), 3), np.uint8)
+    for i, (a, b) in enumerate(pairs):
+        assert sum(a) % 3 and sum(b) - sum(a) == 3 * 24  # mean up by exactly 24 levels
+        v[0, 0, i], v[1, 0, i] = a, b
+    assert not motion_mask(v).any()
+    v[1, 0, :, 0] += 1  # one level more in one channel: the mean is up by 24 1/3 > 24
+    assert motion_mask(v).all()
+    # the same frames as float32 (the extra level taken back off): an exact 24-level change again, not counted
+    back = v.astype(np.float32)
+    back[1, 0, :, 0] -= 1
+    assert not motion_mask(back).any()

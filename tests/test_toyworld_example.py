@@ -86,7 +86,7 @@ def test_example_refuses_bad_input_before_writing(tmp_path, capsys):
     assert "reads its skeleton from keypoints" in capsys.readouterr().err and not (tmp_path / "m").exists()
     (tmp_path / "f").write_text("x")
     assert main(["toyworld", "example", "--out", str(tmp_path / "f")]) == 2
-    assert f"{tmp_path / 'f'}: cannot write output: expected a folder, found a file" in capsys.readouterr().err
+    assert f"{tmp_path / 'f'}: cannot write output: it is a file, expected a folder" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ --first-frame: an image or a video's frame 0
@@ -114,7 +114,7 @@ def test_bad_first_frames_name_the_file_and_what_was_expected(tmp_path):
                                              r"JPEG\) or video .* found a file that does not decode as a video"):
         read_image(tmp_path / "junk.mp4")
     (tmp_path / "junk.png").write_bytes(b"not an image")
-    with pytest.raises(InputFileError, match="junk.png: field 'image': .* found a file OpenCV cannot decode"):
+    with pytest.raises(InputFileError, match="junk.png: field 'image': .* found text"):
         read_image(tmp_path / "junk.png")
     with pytest.raises(InputFileError, match="field 'image': expected a file: .* found a folder"):
         read_image(tmp_path)

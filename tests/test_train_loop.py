@@ -400,3 +400,54 @@ def test_the_memory_policy_counts_tokens_with_the_vaes_own_compression(tmp_path,
         train(tiny(clips, tmp_path / "run2", **{"data.window": 17, "data.width": 64, "data.height": 64}),
               progress=False)
     assert asked[-1] == (4, 8)  # the tiny test VAE: WAN's factors
+
+
+@pytest.mark.slow
+def test_resume_with_more_steps_extends_the_run_bitwise(tmp_path, clipset):
+    """`oscar train --resume RUN --set steps=4` on a finished 2-step run gives the weights of a straight 4-step run."""
+    from oscar_core.cli import main
+
+    straight = tiny(clipset, tmp_path / "straight", steps=4)
+    train(straight, progress=False)
+    short = tiny(clipset, tmp_path / "short", steps=2)
+    assert train(short, progress=False).step == 2
+    assert main(["train", "--resume", str(short.run_dir), "--set", "steps=4", "--set", "save_every=1",
+                 "--no-progress"]) == 0
+    for key in ("model", "ema"):
+        a, b = weights(straight.run_dir, key), weights(short.run_dir, key)
+        assert all(torch.equal(a[k], b[k]) for k in a), key
+    saved = load_config(Path(short.run_dir) / "config.yaml")
+    assert (saved.steps, saved.save_every) == (4, 1)  # the next --resume continues from the extended config
+    assert [p.name for p in list_checkpoints(short.run_dir)][-2:] == ["step-00000003", "step-00000004"]
+    steps = [json.loads(l)["step"] for l in (Path(short.run_dir) / "metrics.jsonl").read_text().splitlines()]
+    assert steps == [0, 1, 2, 3, 4]
+
+
+def test_resume_overrides_other_than_extending_ones_are_refused_naming_the_field(tmp_path, clipset, capsys):
+    from oscar_core.cli import main
+
+    cfg = tiny(clipset, tmp_path / "run", steps=2)
+    train(cfg, progress=False, stop_after=2)
+    before = (Path(cfg.run_dir) / "config.yaml").read_text()
+    assert main(["train", "--resume", str(cfg.run_dir), "--set", "optim.lr=0.5"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --set: field 'optim.lr': expected with --resume only steps, save_every, log_every, "
+                          "keep_last") and err.count("\n") == 1
+    assert main(["train", "--resume", str(cfg.run_dir), "--set", "steps=1"]) == 2  # fewer than done: refused
+    assert "field 'steps': expected at least the latest checkpoint's step 2, found 1" in capsys.readouterr().err
+    assert (Path(cfg.run_dir) / "config.yaml").read_text() == before  # nothing changed by a refused resume
+
+
+def test_a_bad_set_value_blames_set_not_the_yaml_file(tmp_path, capsys):
+    from oscar_core.cli import main
+
+    config = str(REPO / "configs" / "train" / "tiny-cpu.yaml")
+    for value, found in [("steps=abc", "expected an integer, found str 'abc'"),
+                         ("optim.lr=nope", "expected a number, found str 'nope'"),
+                         ("steps=0", "expected a positive integer, found 0")]:
+        assert main(["train", config, "--set", value, "--set", f"run_dir={tmp_path / 'r'}"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: --set: field '{value.split('=')[0]}'") and found in err, err
+        assert "tiny-cpu.yaml" not in err
+    assert main(["train", config, "--set", "nosuch=1"]) == 2
+    assert capsys.readouterr().err.startswith("error: --set: field 'nosuch'")

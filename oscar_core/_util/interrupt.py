@@ -7,7 +7,10 @@ Instead workers ignore SIGINT (:func:`worker_ignores_interrupt`, called from a
 pool's initializer) and the parent, which gets the ``KeyboardInterrupt``, stops
 them (:func:`stop_pool`) and leaves the message to the CLI (:func:`message`).
 Finished work is already on disk (completion records, atomic renames), so the
-same command resumes.
+same command resumes. The line says so only when it is true: a command whose
+parser sets ``_resumes=False`` (one video: ``oscar rollout``, a single
+``oscar render``; or a function of the parsed arguments) starts over when run
+again, and an output that holds nothing yet has nothing kept.
 """
 
 from __future__ import annotations
@@ -113,7 +116,7 @@ def report(exc: KeyboardInterrupt, args=None) -> int:
     if isinstance(exc, Interrupted):
         line = message(exc.where, exc.resume)
     else:
-        line = message(output_of(args) if args is not None else None)
+        line = _line_for(args)
     print(line, file=sys.stderr)
 
     def busy():
@@ -127,6 +130,40 @@ def report(exc: KeyboardInterrupt, args=None) -> int:
         sys.stderr.flush()
         os._exit(EXIT_INTERRUPTED)
     return EXIT_INTERRUPTED
+
+
+def _resumes(args) -> bool:
+    """Whether running the parsed command again resumes it (the parser's ``_resumes``: a bool or a function of
+    the arguments; default True: the stages, whose finished shards and cells are kept)."""
+    r = getattr(args, "_resumes", True)
+    return bool(r(args)) if callable(r) else bool(r)
+
+
+def holds_work(where: str) -> bool:
+    """Whether the output ``where`` holds anything a rerun could keep: a file, or a folder with an entry other
+    than ``logs/`` and writers' ``.*.tmp*`` temporaries (a URL is trusted to)."""
+    import os
+    from pathlib import Path
+
+    if "://" in where:
+        return True
+    p = Path(where)
+    if p.is_file():
+        return True
+    if not p.is_dir():
+        return False
+    return any(e != "logs" and not (e.startswith(".") and ".tmp" in e) for e in os.listdir(p))
+
+
+def _line_for(args) -> str:
+    where = output_of(args) if args is not None else None
+    if where is None:
+        return message(None)
+    if not _resumes(args):
+        return f"interrupted; nothing was written to {where}; running the command again starts over"
+    if not holds_work(where):
+        return f"interrupted before any work finished; nothing was written to {where}"
+    return message(where)
 
 
 def output_of(args) -> str | None:

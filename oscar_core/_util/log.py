@@ -17,11 +17,13 @@ Verbosity, set once:
 Progress bars (:func:`progress_bar`, tqdm on stderr) are shown only when
 stderr is a terminal and bars are enabled: ``--no-progress`` on any command,
 :func:`disable_progress_bars` in code, or ``$OSCAR_DISABLE_PROGRESS_BARS=1``
-(as huggingface_hub's ``HF_HUB_DISABLE_PROGRESS_BARS``) turn them off.
+(as huggingface_hub's ``HF_HUB_DISABLE_PROGRESS_BARS``) turn them off, and so
+does ``-q`` (a quiet command draws no bars).
 
 Long jobs keep a plain log beside their results with :func:`run_log`:
 ``RUN_DIR/logs/<job>-<UTC time>.log``, one timestamped line per record at
-INFO and above whatever the console shows.
+INFO and above whatever the console shows; its first line is the command
+line, its last the result (:func:`log_result`) or the error that ended it.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from pathlib import Path
 
 __all__ = ["ROOT", "ENV_VERBOSITY", "ENV_DISABLE_PROGRESS", "get_logger", "set_verbosity", "get_verbosity",
            "verbosity_from_env", "configure_cli", "cli_output", "progress_bar", "progress_bars_enabled", "enable_progress_bars",
-           "disable_progress_bars", "run_log"]
+           "disable_progress_bars", "run_log", "log_result", "command_line", "set_command_line"]
 
 ROOT = "oscar"
 ENV_VERBOSITY = "OSCAR_VERBOSITY"
@@ -162,7 +164,7 @@ def configure_cli(verbose: int = 0, quiet: int = 0, *, progress: bool = True) ->
     root.addHandler(handler)
     root.propagate = False  # the command owns stderr; no double lines through the root logger
     set_verbosity(level)
-    if not progress:
+    if not progress or quiet:  # -q: warnings and results only, no bars
         disable_progress_bars()
     else:
         global _progress_enabled
@@ -230,22 +232,63 @@ def progress_bar(iterable: Iterable | None = None, *, total: int | None = None, 
 
 
 class _RunLogHandler(logging.FileHandler):
-    """The plain log file of one run (:func:`run_log`); folder and file are made at the first record."""
+    """The plain log file of one run (:func:`run_log`); folder and file are made at the first record, which
+    is preceded by the command line."""
+
+    command: str = ""
+    result: str | None = None
 
     def _open(self):
         Path(self.baseFilename).parent.mkdir(parents=True, exist_ok=True)
-        return super()._open()
+        stream = super()._open()
+        stream.write(self.format(self._record(logging.INFO, "command: %s", self.command)) + self.terminator)
+        return stream
+
+    @staticmethod
+    def _record(level: int, msg: str, *args) -> logging.LogRecord:
+        return logging.LogRecord(ROOT, level, __file__, 0, msg, args, None)
+
+
+_RUN_LOGS: list[_RunLogHandler] = []  # the open run logs, innermost last
+
+
+_COMMAND: list[str] | None = None  # the command being run (set_command_line), else sys.argv
+
+
+def set_command_line(argv: list[str] | None) -> None:
+    """Name the command this process runs now (``["oscar", "train", ...]``; None: ``sys.argv``) for run logs."""
+    global _COMMAND
+    _COMMAND = None if argv is None else list(argv)
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    """A command line as a shell would take it back (``oscar train x.yaml --set steps=30``); default: the one
+    :func:`set_command_line` named, else this process's ``sys.argv``."""
+    import shlex
+
+    argv = list((_COMMAND or sys.argv) if argv is None else argv)
+    if argv:
+        argv[0] = Path(argv[0]).name
+    return " ".join(shlex.quote(a) for a in argv)
+
+
+def log_result(text: str) -> None:
+    """Set the final line of the innermost open :func:`run_log` (``result: <text>``); nothing without one."""
+    if _RUN_LOGS:
+        _RUN_LOGS[-1].result = text
 
 
 @contextlib.contextmanager
-def run_log(folder, job: str, *, level: int = logging.INFO) -> Iterator[Path]:
+def run_log(folder, job: str, *, level: int = logging.INFO, command: str | None = None) -> Iterator[Path]:
     """Copy every oscar log record at ``level`` and above to ``folder/logs/<job>-<UTC>.log`` while inside.
 
     The file is plain text, one ``<ISO time> <LEVEL> <logger>: <message>``
     line per record, appended as it happens (a killed job keeps what it
     logged); it and its folder are created at the first record, so a job
-    rejected before it logs anything leaves nothing behind. An exception that
-    ends the job is its last line. Yields the file's path.
+    rejected before it logs anything leaves nothing behind. The first line is
+    ``command: <command>`` (default: this process's :func:`command_line`); the
+    last is ``result: …`` (:func:`log_result`, else ``finished``) with the
+    wall seconds, or the exception that ended the job. Yields the file's path.
     """
     logs = Path(folder) / "logs"
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
@@ -259,17 +302,23 @@ def run_log(folder, job: str, *, level: int = logging.INFO) -> Iterator[Path]:
     formatter.converter = time.gmtime
     handler.setFormatter(formatter)
     handler.setLevel(level)
+    handler.command = command_line() if command is None else command
     root = _root()
     root.addHandler(handler)
+    _RUN_LOGS.append(handler)
     _apply()
+    t0 = time.perf_counter()
     try:
         yield path
     except BaseException as exc:
         if handler.stream is not None:  # the job had started logging: say in its log why it stopped
-            handler.emit(logging.LogRecord(ROOT, logging.ERROR, __file__, 0, "stopped by %s: %s",
-                                           (type(exc).__name__, exc), None))
+            handler.emit(handler._record(logging.ERROR, "stopped by %s: %s", type(exc).__name__, exc))
         raise
+    else:  # a finished job always leaves its log: the command line and the result
+        handler.emit(handler._record(logging.INFO, "result: %s (%.1f s)", handler.result or "finished",
+                                     time.perf_counter() - t0))
     finally:
+        _RUN_LOGS.remove(handler)
         root.removeHandler(handler)
         handler.close()
         _apply()

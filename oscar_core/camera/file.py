@@ -192,12 +192,13 @@ def load_camera(path: str | os.PathLike, defaults: Any = None) -> Camera:
     embodiment's ``CameraSpec``) used when the file omits those keys; without
     it they default to ``"opencv"`` and ``"camera_to_world"``.
 
-    Raises CameraFileError for bad content (invalid JSON reports line and column);
-    OSError (e.g. FileNotFoundError) if the file cannot be read.
+    Raises CameraFileError for a file that is missing, unreadable or not text
+    (naming what it holds) and for bad content (invalid JSON reports line and column).
     """
     from .._util.json_file import read_json
 
-    return _parse_camera(read_json(path, CameraFileError), str(Path(path)), defaults)
+    doc = read_json(path, CameraFileError, "camera calibration JSON (utf-8 text; docs/formats.md)")
+    return _parse_camera(doc, str(Path(path)), defaults)
 
 
 def save_camera(camera: Camera, path: str | os.PathLike) -> None:

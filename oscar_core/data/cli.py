@@ -7,6 +7,7 @@ import json
 import sys
 
 from .._util.arg_types import count, device, number
+from .._util.outputs import output_option
 
 __all__ = ["add_data_parser"]
 
@@ -52,6 +53,10 @@ def _run_log(run: str, stage: str):
 
 
 def _report(run, what: str) -> None:
+    from .._util.log import log_result
+
+    log_result(f"{len(run.processed)} shards done now, {len(run.skipped)} already done, "
+               f"{len(run.incomplete)} unfinished")
     print(f"{what}: {len(run.processed)} shards done now, {len(run.skipped)} already done"
           + (f", {len(run.incomplete)} unfinished (run again)" if run.incomplete else ""))
     if run.rows:
@@ -68,7 +73,7 @@ def cmd_ingest(args) -> int:
     options = parse_reader_options(args.reader_option)
     with _run_log(args.out, "ingest"):
         res = run_ingest(args.source, args.reader, args.out, reader_options=options, **_kw(args))
-    _report(res, "ingest")
+        _report(res, "ingest")
     return 0
 
 
@@ -78,7 +83,7 @@ def cmd_filter(args) -> int:
 
     with _run_log(args.run, "filter"):
         res = run_filter(args.run, FilterConfig.from_overrides(args.set), **_kw(args))
-    _report(res, "filter")
+        _report(res, "filter")
     return 0
 
 
@@ -93,7 +98,7 @@ def cmd_dedup(args) -> int:
     cfg = DedupConfig(cosine=args.cosine, rms_alpha=args.rms_alpha, rms_floor=args.rms_floor, nprobe=args.nprobe)
     with _run_log(args.run, "dedup"):
         res, summary = run_dedup(args.run, embedder, cfg, **_kw(args))
-    _report(res, "dedup")
+        _report(res, "dedup")
     print("dedup: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
     return 0
 
@@ -107,7 +112,7 @@ def cmd_caption(args) -> int:
                         api_key_env=args.api_key_env)
     with _run_log(args.run, "caption"):
         res = run_caption(args.run, cfg, **_kw(args))
-    _report(res, "caption")
+        _report(res, "caption")
     return 0 if not res.incomplete else 3
 
 
@@ -119,7 +124,7 @@ def cmd_export(args) -> int:
     with _run_log(args.run, "export"):
         res = run_export(args.run, args.out, size=size, render_skeleton=args.render_skeleton, video_codec=args.codec,
                          **_kw(args))
-    _report(res, "export")
+        _report(res, "export")
     return 0
 
 
@@ -164,7 +169,7 @@ def add_data_parser(sub) -> None:
 
     p = ds.add_parser("sample-dataset", help="write a small LeRobot v3.0 dataset (7 episodes, one shared MP4) to try "
                                              "the pipeline offline", epilog=EXAMPLE, formatter_class=fmt)
-    p.add_argument("out", help="a new folder")
+    output_option(p.add_argument("out", help="a new folder"), "folder")
     p.add_argument("--frames", type=int, default=80, help="frames per episode (default 80)")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the summary (with each episode's expected fate) as JSON")
@@ -177,14 +182,14 @@ def add_data_parser(sub) -> None:
     p.add_argument("--reader-option", action="append", metavar="NAME=VALUE",
                    help="a reader's constructor option (docs/datasets.md), e.g. intrinsics=cam.json for DROID from "
                         "the Hub; VALUE is YAML or a .json/.yaml file; repeatable")
-    p.add_argument("--out", required=True, help="run folder or fsspec URL")
+    output_option(p.add_argument("--out", required=True, help="run folder or fsspec URL"), "folder")
     _common(p)
     p.set_defaults(func=cmd_ingest)
 
     p = ds.add_parser("filter", help="length, static camera, meaningful action, visible skeleton, joint spikes "
                                      "(and, when asked, the calibration score)",
                       epilog=EXAMPLE, formatter_class=fmt)
-    p.add_argument("run", help="run folder")
+    output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override a threshold (FilterConfig field: min_length, max_camera_motion, min_action, "
                         "min_visible, max_joint_speed, max_point_speed, min_calibration_score (0: off), …); "
@@ -195,7 +200,7 @@ def add_data_parser(sub) -> None:
     p = ds.add_parser("dedup", help="SigLIP (or motion) candidates (cosine > 0.95) verified by trajectory RMS, one kept "
                                     "per group",
                       epilog=EXAMPLE, formatter_class=fmt)
-    p.add_argument("run", help="run folder")
+    output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--embedder", choices=("siglip", "trajectory"), default="siglip",
                    help="siglip: SigLIP picture embeddings find candidates (the paper; needs --siglip); trajectory: "
                         "the skeleton's motion does, no weights to download")
@@ -210,7 +215,7 @@ def add_data_parser(sub) -> None:
 
     p = ds.add_parser("caption", help="captions from an OpenAI-compatible VLM endpoint (cached, retried, budgeted)",
                       epilog=EXAMPLE, formatter_class=fmt)
-    p.add_argument("run", help="run folder")
+    output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--endpoint", required=True, help="base URL, e.g. http://localhost:8000/v1")
     p.add_argument("--model", required=True, help="model name the endpoint serves")
     p.add_argument("--budget", type=count(0), default=None, help="at most this many episodes sent this run")
@@ -224,8 +229,8 @@ def add_data_parser(sub) -> None:
 
     p = ds.add_parser("export", help="live episodes as training clips (docs/formats.md, Training clips)",
                       epilog=EXAMPLE, formatter_class=fmt)
-    p.add_argument("run", help="run folder")
-    p.add_argument("--out", required=True, help="clip set folder or fsspec URL")
+    output_option(p.add_argument("run", help="run folder"), "folder")
+    output_option(p.add_argument("--out", required=True, help="clip set folder or fsspec URL"), "folder")
     p.add_argument("--size", help="WIDTHxHEIGHT to resize to (default: the video's)")
     p.add_argument("--render-skeleton", action="store_true", help="store the skeleton video (default: the trainer "
                                                                   "renders it on the fly)")
@@ -235,9 +240,10 @@ def add_data_parser(sub) -> None:
 
     p = ds.add_parser("stats", help="the paper's Table 1 for a run: public vs kept, rejections per filter",
                       epilog=EXAMPLE, formatter_class=fmt)
-    p.add_argument("run", help="run folder")
+    output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--json", action="store_true", help="print JSON (always written to RUN/stats.json)")
-    p.add_argument("--plot", metavar="PATH", help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])")
+    output_option(p.add_argument("--plot", metavar="PATH",
+                                 help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])"), "file")
     p.add_argument("--no-html", action="store_true", help="do not write RUN/stats.html (the funnel with thumbnails "
                                                          "of rejected episodes per reason)")
     p.set_defaults(func=cmd_stats)

@@ -117,15 +117,19 @@ def dedup_features(text: np.ndarray, motion: np.ndarray) -> np.ndarray:
     """(N, D + 1) features for k-means: standardised text (N, D) and motion (N,) blocks, each weighing as much.
 
     Every column is standardised (zero mean, unit deviation; a constant
-    column becomes zeros), then the text block is divided by sqrt(D), so the
-    D text columns together count as much as the single motion column
-    (otherwise a 256-wide embedding would drown the motion).
+    column becomes zeros), then the text block is divided by sqrt(V), V the
+    number of its columns that vary: the text block's total variance (the sum
+    over its columns) is then 1, the motion column's. Dividing by sqrt(D)
+    instead would let the constant columns of a short caption vocabulary
+    shrink the text block (13 varying of 256 toy-caption columns: 0.05).
+    A block with no varying column stays zeros.
     """
     text = np.asarray(text, dtype=np.float64).reshape(len(motion), -1)
     x = np.concatenate([text, np.asarray(motion, dtype=np.float64).reshape(-1, 1)], axis=1)
     sd = x.std(axis=0)
-    x = (x - x.mean(axis=0)) / np.where(sd > 1e-12, sd, 1.0)
-    x[:, :-1] /= math.sqrt(max(text.shape[1], 1))
+    varies = sd > 1e-12
+    x = (x - x.mean(axis=0)) / np.where(varies, sd, 1.0)
+    x[:, :-1] /= math.sqrt(max(int(varies[:-1].sum()), 1))
     return x
 
 

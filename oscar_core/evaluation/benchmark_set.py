@@ -38,7 +38,8 @@ import numpy as np
 from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
-from ..errors import OscarError
+from .._util.inputs import read_text_file
+from ..errors import InputFileError, OscarError
 from . import benchmark_rules as rules
 
 __all__ = ["SET_FORMAT", "BenchmarkSetError", "build_benchmark_set", "load_benchmark_set", "TEXT_MODES"]
@@ -156,6 +157,14 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
         chosen += [members[i] for i in keep]
     counts = {"candidates": len(recs), **{rule: sum(1 for d in dropped if d["rule"] == rule)
                                           for rule in ("forward_window", "dedup", "quota")}, "chosen": len(chosen)}
+    why = (f"{counts['candidates']} candidates: {counts['forward_window']} dropped by the forward window (horizon "
+           f"{frames} frames, margin {margin}), {counts['dedup']} as near-duplicates")
+    if not chosen:
+        raise BenchmarkSetError(f"{out}: expected a set of --total {total} clips, found no clip to choose ({why}); "
+                                "a shorter --frames or another --split may leave some")
+    if len(chosen) < total:
+        _log.warning("benchmark set %s: %d clips, %d short of --total %d (%s)", out, len(chosen), total - len(chosen),
+                     total, why)
     settings = {"frames": frames, "total": total, "clusters": clusters, "seed": seed, "split": split,
                 "margin": margin, "text": text, "feature": "caption embedding + end-effector path / image diagonal"}
     clips = [{"clipset": str(owner[r.id].root.resolve()), "id": r.id, "embodiment": r.embodiment,
@@ -178,7 +187,9 @@ def load_benchmark_set(path) -> dict:
     if not path.is_file():
         raise BenchmarkSetError(f"{path}: expected a benchmark set file (oscar eval benchmark build), found no file")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_text_file(path, "a benchmark set file (JSON written by oscar eval benchmark build)"))
+    except InputFileError as exc:
+        raise BenchmarkSetError(str(exc)) from None
     except ValueError as exc:
         raise BenchmarkSetError(f"{path}: expected JSON, found invalid JSON ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != SET_FORMAT:
@@ -187,6 +198,9 @@ def load_benchmark_set(path) -> dict:
     for key in ("settings", "clipsets", "clips", "fingerprint"):
         if key not in data:
             raise BenchmarkSetError(f"{path}: field {key!r}: expected present, found missing")
+    if not data["clips"]:
+        raise BenchmarkSetError(f"{path}: field 'clips': expected at least one clip, found an empty set (build it "
+                                "again with a shorter --frames or more clips)")
     parts = {"format": SET_FORMAT, "format_version": data.get("format_version"), "settings": data["settings"],
              "clipsets": data["clipsets"], "clips": [[c["clipset"], c["id"]] for c in data["clips"]]}
     if _stage.fingerprint(parts) != data["fingerprint"]:

@@ -33,10 +33,12 @@ import sys
 from pathlib import Path
 
 from .._util.arg_types import count, default_device, device_name, interval, number
-from .._util.log import progress_bars_enabled, run_log
+from .._util.log import log_result, progress_bars_enabled, run_log
 from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
 from ..model.presets import SAMPLER_PRESETS
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
 
@@ -149,6 +151,7 @@ def cmd_eval_run(args) -> int:
                                 progress=not args.no_progress and progress_bars_enabled(),
                                 plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
                                 batch_cells=args.batch_cells, engine=args.engine, workers=args.workers)
+        log_result(f"wrote {result.paths['report']}; verdicts not ok: {result.report['counts']['verdicts_not_ok']}")
     report = result.report
     if args.json:
         print(json.dumps({**report, "files": result.paths}, indent=2))
@@ -172,7 +175,8 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("manifest", help="manifest JSON (docs/evaluation.md)")
     r.add_argument("--model", required=True, help="world model: zoo name, Hub id owner/name, or folder")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
-    r.add_argument("--out", required=True, help="report folder (created; re-running resumes in it)")
+    output_option(r.add_argument("--out", required=True,
+                                 help="report folder (created; re-running resumes in it)"), "folder")
     r.add_argument("--judge", default="none", help="vlm, none, module:attr or file.py:attr (default none)")
     r.add_argument("--pairwise", action="store_true", help="pairwise preferences within sessions + Bradley-Terry")
     r.add_argument("--both-orders", action="store_true", help="VLM pairwise: ask A/B and B/A, reconcile")
@@ -203,6 +207,7 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--batch-cells", type=count(1), default=1, metavar="N",
                    help="roll out up to N cells in one batch (same frame count and size; each video equals its "
                         "one-at-a-time rollout up to float rounding; default 1)")
+    threads_option(r, "torch CPU threads of the local rollouts")
     r.add_argument("--device", type=device_name, help="torch device of the rollouts (default: cuda when available, "
                    "else cpu); checked against this machine unless --engine ray (the workers' machines)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto",

@@ -16,8 +16,10 @@ import sys
 from pathlib import Path
 
 from .._util.arg_types import count, default_device, device, interval, number
-from .._util.log import run_log
+from .._util.log import log_result, run_log
 from ..model.presets import SAMPLER_PRESETS
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 
 __all__ = ["add_benchmark_parser"]
 
@@ -61,7 +63,6 @@ def cmd_run(args) -> int:
     from .benchmark_set import load_benchmark_set
 
     bench = load_benchmark_set(args.set)  # a bad set file fails before the model loads
-    torch.set_num_threads(max(1, args.threads))
     dtype = getattr(torch, args.dtype) if args.dtype else None
     model = oscar_zoo.load(args.model, device=args.device or default_device(), dtype=dtype)
     choice = resolve_sampler(model.card.sampler, steps=args.steps, preset=args.preset,
@@ -73,6 +74,7 @@ def cmd_run(args) -> int:
         s = run_benchmark(model, bench, args.out, sampler=sampler, seed=args.seed, prompt=args.prompt,
                           registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
                           model_id=model_identity(args.model))
+        log_result(f"{s['written']} rollouts written, {s['kept']} kept, {s['clips']} in the set")
     speed = f", {s['frames_per_s']:.2f} frames/s" if s["frames_per_s"] else ""
     print(f"{args.out}: {s['written']} rollouts written, {s['kept']} kept from an earlier run, "
           f"{s['clips']} in the set{speed}")
@@ -127,7 +129,7 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     g = bs.add_parser("build", help="choose the evaluation clips by the paper's rules", epilog=EXAMPLES,
                       formatter_class=fmt)
     g.add_argument("clipsets", nargs="+", help="clip sets to draw from (clip ids unique across them)")
-    g.add_argument("--out", required=True, help="the set file to write (JSON)")
+    output_option(g.add_argument("--out", required=True, help="the set file to write (JSON)"), "file")
     g.add_argument("--total", type=count(1), required=True, help="clips in the set (the paper: 200)")
     g.add_argument("--frames", type=count(2), default=49, help="evaluation horizon in frames (default 49, the "
                                                                "paper's; the toy world's clips have 17)")
@@ -148,7 +150,8 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
                       formatter_class=fmt)
     r.add_argument("set", help="set file written by `oscar eval benchmark build`")
     r.add_argument("--model", required=True, help="world model: zoo name (oscar-toy), Hub id or folder")
-    r.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)")
+    output_option(r.add_argument("--out", required=True,
+                                 help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
     r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
     r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget preset")
     r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
@@ -164,7 +167,7 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("float32", "bfloat16", "float16"),
                    help="DiT dtype (default: bfloat16 on CUDA, else float32)")
-    r.add_argument("--threads", type=count(1), default=1, help="torch CPU threads (default 1)")
+    threads_option(r)
     r.set_defaults(func=cmd_run)
 
     t = bs.add_parser("table", help="the paper's table over a set: one row per model", epilog=EXAMPLES,
@@ -182,7 +185,8 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     t.add_argument("--no-cached-networks", action="store_true",
                    help="do not use the networks of `oscar eval weights pull`")
     t.add_argument("--device", type=device, default="cpu", help="torch device for the networks (default cpu)")
-    t.add_argument("--out", metavar="FILE", help="write the table as JSON here and as Markdown beside it (.md)")
+    output_option(t.add_argument("--out", metavar="FILE",
+                                 help="write the table as JSON here and as Markdown beside it (.md)"), "file")
     t.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
     t.set_defaults(func=cmd_table)
     return b

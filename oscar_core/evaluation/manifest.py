@@ -42,6 +42,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .._util.inputs import read_text_file
 from ..metrics.common import MetricInputError, finite_float
 
 __all__ = ["FORMAT", "Cell", "Manifest", "ManifestError", "load_manifest", "file_digest"]
@@ -141,13 +142,12 @@ def _size(value, source: str) -> tuple[int, int]:
 def load_manifest(path) -> Manifest:
     """Read and check a manifest (rules in the module docstring); raises :class:`ManifestError`."""
     path = Path(path).resolve()
-    if not path.is_file():
-        raise ManifestError(path, "file", "an existing manifest JSON file", "no such file")
+    text = read_text_file(path, "an evaluation manifest JSON file (utf-8 text; docs/evaluation.md)",
+                          error=ManifestError, field="file")
     try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        where = f"line {exc.lineno}" if isinstance(exc, json.JSONDecodeError) else "text"
-        raise ManifestError(path, where, "valid JSON", str(exc)) from None
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ManifestError(path, f"line {exc.lineno}", "valid JSON", str(exc)) from None
     if not isinstance(data, dict):
         raise ManifestError(path, "top level", "a JSON object with 'policies' and 'cells'", type(data).__name__)
     extra = sorted(k for k in data if k not in TOP_KEYS)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util.atomic import atomic_output
+from .._util.inputs import describe_content
 from ..errors import TrajectoryError
 
 __all__ = ["Trajectory", "load_trajectory", "save_trajectory", "interpolate_keyframes", "TRAJECTORY_FIELDS"]
@@ -183,9 +184,9 @@ def load_trajectory(path) -> Trajectory:
     path = Path(path)
     src = str(path)
     if not path.is_file():
-        raise TrajectoryError(src, "<file>", "an existing .npz file", "no such file")
+        raise TrajectoryError(src, "<file>", "an existing .npz file", describe_content(path))
     if not zipfile.is_zipfile(path):
-        raise TrajectoryError(src, "<file>", "a NumPy .npz archive (np.savez)", "a file that is not a zip archive")
+        raise TrajectoryError(src, "<file>", "a NumPy .npz archive (np.savez)", describe_content(path))
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

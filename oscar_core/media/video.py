@@ -18,6 +18,7 @@ from typing import Iterable
 import numpy as np
 
 from .._util.atomic import sweep_dead_temporaries, sweep_once, tmp_prefix
+from .._util.log import progress_bars_enabled
 from ..errors import OutputPathError
 from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
@@ -210,7 +211,7 @@ class VideoWriter:
                 self.tmp = Path(tmp)
         except OSError as exc:
             raise OutputPathError(self.path, exc.strerror or str(exc)) from None
-        if progress:
+        if progress and progress_bars_enabled():
             from tqdm import tqdm
 
             self._bar = tqdm(total=total, desc=f"writing {self.path.name}", unit="frame")

@@ -58,6 +58,7 @@ import json
 import sys
 
 from .._util.arg_types import count, device
+from .._util.outputs import output_option
 from .._util.log import progress_bars_enabled
 from .common import MetricInputError
 from .cli_inputs import _write_json, collect_clips, collect_judge_videos, read_policy_results, \
@@ -216,7 +217,7 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                    help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)")
     v.add_argument("--device", type=device, default="cpu", help="torch device for the networks (cpu, cuda)")
     v.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    v.add_argument("--out", metavar="FILE", help="also write the JSON results here")
+    output_option(v.add_argument("--out", metavar="FILE", help="also write the JSON results here"), "file")
     v.set_defaults(func=cmd_eval_video)
 
     p = sub.add_parser("policies", help="MMRV, Spearman rho, Pearson r, SISR_delta, Bradley-Terry",
@@ -226,8 +227,9 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
     p.add_argument("--wm", required=True, metavar="JSON", help="world-model results per policy")
     p.add_argument("--preferences", metavar="JSONL", help="world-model pairwise preferences (Bradley-Terry)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
-    p.add_argument("--out", metavar="FILE", help="also write the JSON results here")
-    p.add_argument("--plot", metavar="DIR", help="write success_scatter.png and rank_slope.png to DIR (created)")
+    output_option(p.add_argument("--out", metavar="FILE", help="also write the JSON results here"), "file")
+    output_option(p.add_argument("--plot", metavar="DIR",
+                                 help="write success_scatter.png and rank_slope.png to DIR (created)"), "folder")
     p.add_argument("--plot-format", default="png", metavar="FMTS",
                    help="comma-separated plot formats: png, pdf, svg (default png)")
     p.set_defaults(func=cmd_eval_policies)
@@ -237,7 +239,8 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                                    "binary success, partial progress 0-100 and a reason per clip.",
                        epilog=JUDGE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_judge_args(j, DEFAULT_JUDGE_FRAMES)
-    j.add_argument("--wm-out", metavar="FILE", help="write per-policy success rates for `eval policies --wm`")
+    output_option(j.add_argument("--wm-out", metavar="FILE",
+                                 help="write per-policy success rates for `eval policies --wm`"), "file")
     j.add_argument("--prompt", default="paper", help="paper (the paper's prompt, word for word; default), oscar "
                                                      "(a more detailed one), or a text file with an {instruction} "
                                                      "template")
@@ -253,8 +256,8 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                     help="ask every pair in both orders; disagreeing orders count as a tie (position bias)")
     pw.add_argument("--layout", choices=("sets", "side_by_side"), default="sets",
                     help="all frames of A then all of B (sets, default), or A|B side by side per time step")
-    pw.add_argument("--preferences-out", metavar="JSONL",
-                    help="write the valid verdicts as preferences for `eval policies --preferences`")
+    output_option(pw.add_argument("--preferences-out", metavar="JSONL",
+                    help="write the valid verdicts as preferences for `eval policies --preferences`"), "file")
     pw.set_defaults(func=cmd_eval_pairwise)
 
     for add_command in extra_commands:
@@ -270,8 +273,8 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     wp.add_argument("names", nargs="*", help="i3d, inception, lpips-alex, lpips-vgg, alexnet, vgg16 "
                                              "(default: i3d inception lpips-alex alexnet; 'all' for every file)")
-    wp.add_argument("--cache", metavar="DIR", help="cache folder (default $OSCAR_WEIGHTS_CACHE or "
-                                                   "~/.cache/oscar/weights)")
+    output_option(wp.add_argument("--cache", metavar="DIR", help="cache folder (default $OSCAR_WEIGHTS_CACHE or "
+                                                   "~/.cache/oscar/weights)"), "folder")
     wp.add_argument("--force", action="store_true", help="download again even if cached")
     wp.add_argument("--json", action="store_true", help="machine-readable output")
     wp.set_defaults(func=cmd_eval_weights_pull)

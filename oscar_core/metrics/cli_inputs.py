@@ -10,6 +10,7 @@ import glob
 import json
 from pathlib import Path
 
+from .._util.inputs import read_text_file
 from .common import MetricInputError, finite_float
 
 
@@ -74,10 +75,9 @@ def collect_clips(pred, gt, *, embodiment: str | None = None) -> list:
 
 
 def _read_json(path: Path):
-    if not path.is_file():
-        raise MetricInputError(path, "file", "an existing JSON file", "no such file")
+    text = read_text_file(path, "a JSON file (utf-8 text)", error=MetricInputError, field="file")
     try:
-        return json.loads(path.read_text())
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise MetricInputError(path, f"line {exc.lineno}", "valid JSON", exc.msg) from exc
 
@@ -115,10 +115,9 @@ def read_preferences(path) -> list:
     from .policy import parse_preference
 
     path = Path(path)
-    if not path.is_file():
-        raise MetricInputError(path, "file", "an existing JSON-lines file", "no such file")
+    text = read_text_file(path, "a JSON-lines file (utf-8 text)", error=MetricInputError, field="file")
     prefs = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         try:

@@ -58,6 +58,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from .._util.outputs import output_option
 
 from .._util.arg_types import count, number
 from .._util.log import progress_bars_enabled
@@ -315,7 +316,8 @@ def _add_judge_args(p, default_frames: int) -> None:
     p.add_argument("--max-attempts", type=count(1), default=5,
                    help="requests per item at most, retrying 429/5xx/timeouts (default 5)")
     p.add_argument("--backoff", type=number(0.0), default=1.0, help="first retry delay in seconds, doubled each time")
-    p.add_argument("--cache", metavar="DIR", help="answer cache folder (default ~/.cache/oscar/judge)")
+    output_option(p.add_argument("--cache", metavar="DIR",
+                                 help="answer cache folder (default ~/.cache/oscar/judge)"), "folder")
     p.add_argument("--no-cache", action="store_true", help="neither read nor write the cache")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
-    p.add_argument("--out", metavar="FILE", help="write the JSON results here")
+    output_option(p.add_argument("--out", metavar="FILE", help="write the JSON results here"), "file")

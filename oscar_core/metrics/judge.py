@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.log import progress_bars_enabled
 from .common import MetricInputError
 from .judge_client import (CACHE_VERSION, ENV_API_KEY, ENV_BASE_URL, ENV_MODEL, ChatClient, JudgeEndpointUnreachable,
                            JudgeRequestError, _cache_read, _cache_write, _key)
@@ -79,7 +80,7 @@ __all__ = [
 # the judges
 # --------------------------------------------------------------------------- #
 def _progress(n: int, enabled: bool, desc: str):
-    if not enabled:
+    if not (enabled and progress_bars_enabled()):
         return None
     from tqdm import tqdm
 

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._util.log import progress_bars_enabled
 from .common import MetricInputError, nan_to_none
 from ._video_common import DEFAULT_FRAMES, _callable, _flat, _pair, _to_tensor_nchw, _torch, _unit, load_torchscript, \
     load_video
@@ -353,7 +354,7 @@ def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRA
         raise MetricInputError("clips", "clips", "at least 2 clips for FVD (a covariance needs 2 samples)",
                                f"{len(clips)}")
     iterator = clips
-    if progress:
+    if progress and progress_bars_enabled():
         from tqdm import tqdm
 
         iterator = tqdm(clips, desc="eval video", unit="clip")

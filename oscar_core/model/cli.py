@@ -14,6 +14,8 @@ import sys
 
 from .._util.arg_types import count, default_device, device, interval, number
 from .presets import SAMPLER_PRESETS
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 from .rollout_files import RolloutRequest, side_by_side_path, text_encoder
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
@@ -65,7 +67,8 @@ def add_model_parsers(subparsers) -> None:
                    "or a video (MP4/MKV/...: its frame 0)")
     r.add_argument("--trajectory", required=True, help="trajectory .npz (docs/formats.md)")
     r.add_argument("--camera", required=True, help="camera calibration .json (docs/formats.md)")
-    r.add_argument("--out", required=True, help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)")
+    output_option(r.add_argument("--out", required=True,
+                                 help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)"), "any")
     r.add_argument("--side-by-side", help="side-by-side video path (default: OUT_side.mp4)")
     r.add_argument("--no-side-by-side", action="store_true", help="do not write the side-by-side video")
     text = r.add_mutually_exclusive_group()
@@ -73,8 +76,9 @@ def add_model_parsers(subparsers) -> None:
                       "read from the prompt cache (--prompt-cache)")
     text.add_argument("--prompt-embeds", metavar="FILE", help="precomputed prompt embedding (.safetensors, tensor "
                       "'prompt_embeds' of shape (1, L, D))")
-    r.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds "
-                   "or ~/.cache/oscar/prompt_embeds)")
+    output_option(r.add_argument("--prompt-cache", metavar="DIR",
+                                 help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds "
+                   "or ~/.cache/oscar/prompt_embeds)"), "folder")
     r.add_argument("--text-encoder", metavar="ID_OR_FOLDER", help="text encoder for --prompt (default: the "
                    "checkpoint's text_encoder_id)")
     r.add_argument("--native-file", help="which native Cosmos checkpoint file, when a folder/repo holds several")
@@ -104,6 +108,8 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
+    threads_option(r)
+    r.set_defaults(_resumes=False)  # one video, written whole: Ctrl-C keeps nothing and a rerun starts over
     r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
     from .compile_policy import add_compile_options
 
@@ -136,7 +142,7 @@ def add_model_parsers(subparsers) -> None:
     zc = zsub.add_parser("convert", help="write any checkpoint layout (oscar, diffusers, native Cosmos) as oscar's "
                          "(safetensors)", epilog=ZOO_EXAMPLES, formatter_class=fmt)
     zc.add_argument("src", help="zoo name, Hub id owner/name, or folder, in any supported layout")
-    zc.add_argument("dst", help="output folder (oscar layout)")
+    output_option(zc.add_argument("dst", help="output folder (oscar layout)"), "folder")
     zc.add_argument("--revision", help="Hub revision")
     zc.add_argument("--native-file", help="which native Cosmos checkpoint file, when SRC holds several")
     zc.add_argument("--offline", action="store_true", help="only the local cache")
@@ -149,8 +155,9 @@ def add_model_parsers(subparsers) -> None:
     e.add_argument("--model", help="zoo name / Hub id whose text_encoder_id to use (default: cosmos-predict2.5-2b's)")
     e.add_argument("--encoder", metavar="ID_OR_FOLDER", help="text encoder: 'owner/name@revision:text_encoder' or a "
                    "diffusers pipeline folder (text_encoder/ + tokenizer/)")
-    e.add_argument("--out", help="also write the embedding here (.safetensors, tensor 'prompt_embeds')")
-    e.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache folder")
+    output_option(e.add_argument("--out",
+                                 help="also write the embedding here (.safetensors, tensor 'prompt_embeds')"), "file")
+    output_option(e.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache folder"), "folder")
     e.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     e.add_argument("--dtype", choices=_DTYPES, help="encoder dtype (default: the checkpoint's)")
     e.add_argument("--offline", action="store_true", help="only the local Hub cache")

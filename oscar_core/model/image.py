@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.inputs import describe_content
 from ..errors import InputFileError
 
 __all__ = ["VIDEO_SUFFIXES", "read_image", "read_first_frame"]
@@ -28,12 +29,12 @@ def read_image(path) -> np.ndarray:
     if path.is_dir():
         raise InputFileError(path, "image", f"a file: an {_EXPECTED}", "a folder")
     if not path.is_file():
-        raise InputFileError(path, "image", f"an existing {_EXPECTED}", "no such file")
+        raise InputFileError(path, "image", f"an existing {_EXPECTED}", describe_content(path))
     if path.suffix.lower() in VIDEO_SUFFIXES:
         return _video_frame0(path)
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:
-        raise InputFileError(path, "image", f"a readable {_EXPECTED}", "a file OpenCV cannot decode as an image")
+        raise InputFileError(path, "image", f"a readable {_EXPECTED}", describe_content(path))
     return np.ascontiguousarray(bgr[:, :, ::-1])
 
 

@@ -41,6 +41,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .._util.log import progress_bars_enabled
 from .errors import ModelInputError
 from .sampler import SamplerConfig, sample_chunk
 from .vae import VideoVAE, check_frame_count
@@ -226,6 +227,7 @@ def _chunks(transformer, vae: VideoVAE, firsts: list, skels: list | None, acts, 
     seed_pixels = torch.cat([VideoVAE.to_pixels(f[None]) for f in firsts])  # (B, 3, 1, H, W)
     height, width = firsts[0].shape[:2]
     emitted = 0
+    progress = progress and progress_bars_enabled()  # a bar only on a terminal, never with -q / --no-progress
     outer = tqdm(total=len(starts), desc="rollout chunks", unit="chunk", disable=not progress)
     try:
         for index, start in enumerate(starts):

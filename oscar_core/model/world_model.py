@@ -331,8 +331,9 @@ class OscarWorldModel:
             return  # the rollout itself reports the bad input
         ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps,
                                    model_calls(sampler))
+        if why != self.compile_reason:  # said once per job: every cell of `oscar eval run` weighs the same
+            _log.info("%s", why)
         self.compile_reason = why
-        _log.info("%s", why)
         if ok and not compile_transformer(self.transformer):
             self.compile_reason = f"{why}; compiling failed, eager"
 

@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from .._util import stage as _stage
+from .._util.inputs import read_text_file
 from ..errors import InputFileError, OscarError, OutputPathError
 
 __all__ = [
@@ -508,9 +509,7 @@ def read_manifest(path) -> list[EpisodeSpec]:
     """
     path = Path(path)
     source = str(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such manifest file")
-    text = path.read_text(encoding="utf-8")
+    text = read_text_file(path, "a render manifest (.jsonl or .csv, utf-8 text; docs/formats.md)")
     base = path.parent
     specs = []
     suffix = path.suffix.lower()

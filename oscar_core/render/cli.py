@@ -10,6 +10,8 @@ import time
 from .._util.arg_types import count, device, number
 from .conditions import CONDITIONS
 from ..errors import OscarError
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 
 EPILOG = """examples:
   oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json --out skel.mp4 --size 512x288
@@ -37,8 +39,8 @@ def add_render_parser(sub) -> None:
     r.add_argument("--embodiment", help="embodiment name (see `oscar embodiments`)")
     r.add_argument("--trajectory", help="trajectory .npz (docs/formats.md)")
     r.add_argument("--camera", help="camera calibration .json (docs/formats.md)")
-    r.add_argument("--out", help="output: .mp4 (H.264), .mkv (lossless FFV1) or a folder/ (PNG frames); "
-                                 "with --trajectories, the output folder")
+    output_option(r.add_argument("--out", help="output: .mp4 (H.264), .mkv (lossless FFV1) or a folder/ (PNG frames); "
+                                 "with --trajectories, the output folder"), "any")
     r.add_argument("--manifest", help="render every episode of this .jsonl/.csv manifest (docs/formats.md)")
     r.add_argument("--trajectories", metavar="DIR", help="render every DIR/*.npz (cameras beside them) into --out")
     r.add_argument("--format", choices=("mp4", "mkv", "png"),
@@ -55,6 +57,9 @@ def add_render_parser(sub) -> None:
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", type=device, default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)")
     r.add_argument("--workers", type=count(1), default=1, help="processes rendering episodes in parallel (default 1)")
+    threads_option(r, "torch CPU threads per process (forward kinematics, meshes)")
+    # only a batch (--manifest / --trajectories) with --resume keeps finished episodes for the same command
+    r.set_defaults(_resumes=lambda a: bool(a.manifest or a.trajectories) and a.resume)
     r.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
                    help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)")
     r.add_argument("--crf", type=count(0), default=18, help="x264 quality, lower is better (default 18)")

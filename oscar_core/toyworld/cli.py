@@ -13,11 +13,15 @@ import sys
 from pathlib import Path
 
 from .._util.arg_types import count, interval, number
-from .._util.log import run_log
+from .._util.log import get_logger, log_result, run_log
 from ..model.presets import SAMPLER_PRESETS
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 
 __all__ = ["add_toyworld_parser", "cmd_example", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline",
            "cmd_eval", "cmd_policy_eval", "cmd_carry"]
+
+_log = get_logger(__name__)
 
 EXAMPLES = """examples:
   oscar toyworld example --out toy_example     (first_frame.png, trajectory.npz, camera.json for oscar rollout)
@@ -54,21 +58,23 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
     g.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate written to the clips (default 10)")
     g.add_argument("--seed", type=count(0), default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
-    g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)")
+    output_option(g.add_argument("--out", required=True,
+                                 help="clip-set folder (re-running resumes: finished shards are kept)"), "folder")
     g.add_argument("--shard-size", type=count(1), default=50, help="episodes per shard (default 50)")
     g.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor (default 2)")
     g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
     g.add_argument("--pick-miss", type=number(0.0, 1.0), default=0.0, metavar="F",
                    help="fraction in [0, 1] of pick-and-place episodes whose ball lies out of the gripper's reach "
                         "(it closes beside the ball, lifts, and the ball stays); default 0 (sets as before)")
-    g.add_argument("--threads", type=count(1), default=1, help="torch threads for forward kinematics (default 1)")
+    threads_option(g, "torch threads for forward kinematics")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
 
     x = sub.add_parser("example", help="write a first frame, trajectory and camera of one toy-world episode: "
                                        "the inputs of `oscar rollout --model oscar-toy`",
                        epilog=EXAMPLES, formatter_class=fmt)
-    x.add_argument("--out", required=True, help="folder for first_frame.png, trajectory.npz and camera.json")
+    output_option(x.add_argument("--out", required=True,
+                                 help="folder for first_frame.png, trajectory.npz and camera.json"), "folder")
     x.add_argument("--embodiment", default="toyarm", help="embodiment name (default toyarm; plugins included)")
     x.add_argument("--seed", type=count(0), default=0,
                    help="seed: the example is held-out episode 9 of `toyworld generate --seed SEED` (default 0)")
@@ -82,15 +88,13 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     v = sub.add_parser("train-vae", help="train the toy world's AutoencoderKLWan on a clip set",
                        epilog=EXAMPLES, formatter_class=fmt)
     v.add_argument("clips", help="clip set written by `oscar toyworld generate`")
-    v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)")
+    output_option(v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)"), "folder")
     from .vae_train import VAETrainConfig
 
     d = VAETrainConfig()
     for name in ("steps", "stop_at", "batch", "window", "seed", "base_dim", "eval_every", "eval_clips"):
         v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
-    v.add_argument("--threads", type=int, default=None,
-                   help="torch threads (default: the cores idle now, at least 1; more than that warns: on a busy "
-                        "machine they run slower, not faster)")
+    threads_option(v, "torch threads")
     for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
         v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
@@ -105,17 +109,17 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                        epilog=EXAMPLES, formatter_class=fmt)
     r.add_argument("clips", help="clip set")
     r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
-    r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions")
+    output_option(r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions"), "folder")
     r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     r.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
-    r.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
+    threads_option(r, "torch threads")
     r.set_defaults(func=cmd_reconstruct)
 
     b = sub.add_parser("baseline", help="write model-free reference predictions (first frame repeated)",
                        epilog=EXAMPLES, formatter_class=fmt)
     b.add_argument("clips", help="clip set")
     b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
-    b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions")
+    output_option(b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions"), "folder")
     b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     b.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
     b.set_defaults(func=cmd_baseline)
@@ -126,7 +130,8 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--model", required=True, help="zoo name (oscar-toy) or model folder")
     o.add_argument("--condition", default="true", choices=("true", "shuffled", "zero"),
                    help="the skeleton the model sees (default true)")
-    o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)")
+    output_option(o.add_argument("--out", required=True,
+                                 help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
     o.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
     o.add_argument("--limit", type=count(1), help="at most this many clips")
     o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
@@ -140,14 +145,15 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     o.add_argument("--preset", choices=sorted(SAMPLER_PRESETS),
                    help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
                         "sets the steps and the guidance interval")
-    o.add_argument("--threads", type=count(1), default=1, help="torch threads (default 1)")
+    threads_option(o, "torch threads")
     o.set_defaults(func=cmd_rollout)
 
     k = sub.add_parser("package", help="turn an exported toy-world run into a shippable model folder (card, "
                                        "zero prompt, README model card, sha256 of every file)",
                        epilog=EXAMPLES, formatter_class=fmt)
     k.add_argument("export", help="the exported run (RUN_DIR/export)")
-    k.add_argument("--out", required=True, help="the model folder to write (replaced atomically)")
+    output_option(k.add_argument("--out", required=True,
+                                 help="the model folder to write (replaced atomically)"), "folder")
     k.add_argument("--name", default="oscar-toy", help="model name in the card (default oscar-toy)")
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
@@ -176,10 +182,11 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                         "clips all of them have, each scores every row over its own clips and marks the table")
     e.add_argument("--paired", metavar="NAME", help="also give every other row minus row NAME per metric over the "
                    "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)")
-    e.add_argument("--out", help="write the table as JSON here")
-    e.add_argument("--plot", help="write a PNG bar chart of the table here")
-    e.add_argument("--html", help="write the page (table, plot, clips under each condition beside the truth) here; "
-                                  "default: beside --out as <name>.html, media in <name>_media/")
+    output_option(e.add_argument("--out", help="write the table as JSON here"), "file")
+    output_option(e.add_argument("--plot", help="write a PNG bar chart of the table here"), "file")
+    output_option(e.add_argument("--html",
+                                 help="write the page (table, plot, clips under each condition beside the truth) here; "
+                                  "default: beside --out as <name>.html, media in <name>_media/"), "file")
     e.add_argument("--no-html", action="store_true", help="no page")
     e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -212,12 +219,9 @@ def cmd_example(args) -> int:
 
 
 def cmd_generate(args) -> int:
-    import torch
-
     from ..render.skeleton_video import parse_size
     from .generate import GenerateConfig, generate_clipset
 
-    torch.set_num_threads(max(1, args.threads))
     w, h = parse_size(args.size)
     names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
     if not names:
@@ -226,6 +230,7 @@ def cmd_generate(args) -> int:
                          args.supersample, not args.no_skeleton, args.pick_miss)
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))
+        log_result(f"{summary['episodes_written']} episodes written, {summary['episodes_skipped']} kept")
     if args.json:
         print(json.dumps(summary))
     else:
@@ -236,13 +241,8 @@ def cmd_generate(args) -> int:
 
 
 def cmd_train_vae(args) -> int:
-    from .._util.threads import check_threads, default_threads
     from .vae_train import VAETrainConfig, train_vae
 
-    if args.threads is None:
-        args.threads = default_threads()
-    else:
-        check_threads(args.threads, "toyworld train-vae --threads")
     cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr,
                          kl=args.kl, chroma=args.chroma, foreground=args.foreground, seed=args.seed,
                          threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
@@ -251,6 +251,7 @@ def cmd_train_vae(args) -> int:
                          sample_posterior=args.sample_posterior)
     with run_log(args.out, "toyworld-train-vae"):
         card = train_vae(args.clips, args.out, cfg)
+        log_result(f"held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps")
     print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
           f"{card['wall_s']:.0f} s")
     return 0
@@ -274,15 +275,12 @@ def cmd_baseline(args) -> int:
 
 
 def cmd_rollout(args) -> int:
-    import torch
-
     import oscar_zoo
 
     from .._util.stage import model_identity
     from ..model.sampler import resolve_sampler
     from .rollouts import write_rollouts
 
-    torch.set_num_threads(max(1, args.threads))
     model = oscar_zoo.load(args.model)
     choice = resolve_sampler(model.card.sampler, steps=args.steps, guidance=args.guidance,
                              guidance_form=args.guidance_form, guidance_interval=args.guidance_interval,
@@ -294,6 +292,7 @@ def cmd_rollout(args) -> int:
                                  split=None if args.split == "all" else args.split, limit=args.limit,
                                  sampler=sampler, seed=args.seed, registry=_registry(args),
                                  model_id=model_identity(args.model))
+        log_result(f"{summary['written']} rollouts written, {summary['kept']} kept")
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
     print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
           f"an earlier run{per}")
@@ -343,7 +342,8 @@ def _add_policy_eval_arguments(p) -> None:
     p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
     p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
     p.add_argument("--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
-    p.add_argument("--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders")
+    output_option(p.add_argument("--out", required=True,
+                                 help="folder for manifest.json, policy_eval.json and the session folders"), "folder")
     p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
     p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
     p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
@@ -364,7 +364,8 @@ def cmd_policy_eval(args) -> int:
         raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
     summary = write_policy_eval(args.out, names, args.sessions, seed=args.seed, width=w, height=h,
                                 frames=args.frames, fps=args.fps, supersample=args.supersample,
-                                registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()))
+                                registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
+                                progress=_log.info)
     if args.json:
         print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
         return 0
@@ -380,7 +381,8 @@ def cmd_policy_eval(args) -> int:
 def _add_carry_arguments(p) -> None:
     p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
     p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
-    p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file")
+    output_option(p.add_argument("--json", default=None,
+                                 help="also write every row and the summary to this JSON file"), "file")
 
 
 def cmd_carry(args) -> int:

@@ -63,9 +63,15 @@ def moved_object_error(pred: np.ndarray, gt: np.ndarray, min_shift: float = MOVE
 
 
 def motion_mask(video: np.ndarray, threshold: float = MOTION_THRESHOLD) -> np.ndarray:
-    """(T − 1, H, W) bool: pixels whose grey level (mean of RGB) changed from frame 0 by more than ``threshold``."""
-    g = np.asarray(video, dtype=np.float32).mean(-1)
-    return np.abs(g[1:] - g[:1]) > threshold
+    """(T − 1, H, W) bool: pixels whose grey level (mean of RGB) changed from frame 0 by more than ``threshold``.
+
+    video: (T, H, W, 3), uint8 (or any integer type) or float, 0-255. The rule is applied exactly, as
+    |ΔR + ΔG + ΔB| > 3 · threshold: in integers for integer frames, in float64 otherwise (a float32 mean
+    rounds, and would count some changes of exactly ``threshold`` levels whose sums are not multiples of 3).
+    """
+    v = np.asarray(video)
+    s = v.astype(np.int64 if np.issubdtype(v.dtype, np.integer) else np.float64).sum(-1)
+    return np.abs(s[1:] - s[:1]) > 3 * threshold
 
 
 def motion_iou(pred: np.ndarray, gt: np.ndarray, threshold: float = MOTION_THRESHOLD) -> float:

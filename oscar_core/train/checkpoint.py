@@ -40,8 +40,8 @@ from ..model.manifest import sha256_file
 from ..model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from .parallel import DistInfo, barrier
 
-__all__ = ["CHECKPOINT_INDEX", "checkpoint_dir", "list_checkpoints", "latest_checkpoint", "save_checkpoint",
-           "load_checkpoint", "load_weights", "verify_checkpoint"]
+__all__ = ["CHECKPOINT_INDEX", "checkpoint_dir", "checkpoint_step", "list_checkpoints", "latest_checkpoint",
+           "save_checkpoint", "load_checkpoint", "load_weights", "verify_checkpoint"]
 
 CHECKPOINT_INDEX = "oscar_checkpoint.json"
 _STEP = re.compile(r"^step-(\d{8})$")
@@ -51,13 +51,18 @@ def checkpoint_dir(run_dir, step: int) -> Path:
     return Path(run_dir) / "checkpoints" / f"step-{step:08d}"
 
 
+def checkpoint_step(path) -> int:
+    """The optimiser steps done when the checkpoint folder ``path`` (``step-NNNNNNNN``) was saved."""
+    return int(_STEP.match(Path(path).name).group(1))
+
+
 def list_checkpoints(run_dir) -> list[Path]:
     """Finished checkpoints of a run (those with an index), oldest first."""
     root = Path(run_dir) / "checkpoints"
     if not root.is_dir():
         return []
     found = [p for p in root.iterdir() if p.is_dir() and _STEP.match(p.name) and (p / CHECKPOINT_INDEX).is_file()]
-    return sorted(found, key=lambda p: int(_STEP.match(p.name).group(1)))
+    return sorted(found, key=checkpoint_step)
 
 
 def latest_checkpoint(run_dir) -> Path:

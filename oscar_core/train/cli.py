@@ -12,6 +12,8 @@ import os
 
 from .._util.arg_types import count
 from ..render.conditions import CONDITIONS
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
@@ -27,12 +29,6 @@ EXAMPLES = """examples:
 """
 
 
-def _parse_value(text: str):
-    import yaml
-
-    return yaml.safe_load(text)
-
-
 def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", nargs="?", help="training config (YAML; see configs/train/ and docs/training.md)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its latest checkpoint")
@@ -42,18 +38,20 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vae", help="with --cache-latents: an AutoencoderKLWan folder or an OSCAR model folder")
     p.add_argument("--window", type=count(1), help="with --cache-latents: frames per window (4k+1)")
     p.add_argument("--stride", type=count(1), help="with --cache-latents: frames between window starts (default: window)")
-    p.add_argument("--threads", type=count(1), help="with --cache-latents: torch threads (default: torch's)")
+    threads_option(p)
     p.add_argument("--split", help="with --cache-latents: copy only clips whose meta.split is this (e.g. train)")
     p.add_argument("--batch", type=count(1), default=8, help="with --cache-latents: windows per VAE call (default 8)")
     p.add_argument("--condition", choices=CONDITIONS, default="skeleton",
                    help="with --cache-latents: the condition video cached beside the video (default skeleton; "
                         "mesh or capsules for a model trained on those)")
-    p.add_argument("--out", help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
-                                 "the new clip set")
+    output_option(p.add_argument("--out",
+                                 help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
+                                 "the new clip set"), "folder")
     p.add_argument("--step", type=count(0), help="with --export: the checkpoint's step (default: the latest)")
     p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable)")
+                   help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable); with "
+                        "--resume only steps, save_every, log_every and keep_last (train a run further)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (metrics still go to metrics.jsonl)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_train)
@@ -74,7 +72,7 @@ def build_train_parser() -> argparse.ArgumentParser:
 
 
 def cmd_train(args) -> int:
-    from .config import TrainConfigError, load_config
+    from .config import TrainConfigError, check_resume_overrides, load_config, parse_overrides
 
     modes = [bool(args.config), bool(args.resume), bool(args.export), bool(args.cache_latents)]
     if sum(modes) != 1:
@@ -90,34 +88,36 @@ def cmd_train(args) -> int:
         return 0
     from .loop import train
 
-    from .._util.log import run_log
+    from .._util.log import log_result, run_log
+    from .._util.outputs import check_writable
 
     main_rank = int(os.environ.get("RANK", "0")) == 0
+    overrides = parse_overrides(args.set)
     if args.resume:
-        if args.set:
-            raise TrainConfigError("<command line>", "--set", "no overrides with --resume (the run's config.yaml rules)",
-                                   args.set)
+        check_resume_overrides(overrides)
+        check_writable(args.resume, "folder")
         log = run_log(args.resume, "train") if main_rank else contextlib.nullcontext()
         with _resume_hint(args.resume), log:
-            result = train(resume=args.resume, progress=not args.no_progress)
+            result = train(resume=args.resume, progress=not args.no_progress, overrides=overrides)
+            log_result(_result_line(result))
     else:
-        overrides = {}
-        for item in args.set:
-            if "=" not in item:
-                raise TrainConfigError("<command line>", "--set", "KEY=VALUE", repr(item))
-            k, v = item.split("=", 1)
-            overrides[k.strip()] = _parse_value(v)
         config = load_config(args.config, overrides)
+        check_writable(config.run_dir, "folder")
         log = run_log(config.run_dir, "train") if main_rank else contextlib.nullcontext()
         with _resume_hint(config.run_dir), log:
             result = train(config, progress=not args.no_progress, source=args.config)
+            log_result(_result_line(result))
     summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
                "export": str(result.export) if result.export else None}
     if int(os.environ.get("RANK", "0")) == 0:
-        loss = "no steps left to run" if result.last_loss is None else f"loss {result.last_loss:.4f}"
-        print(json.dumps(summary) if args.json else f"trained {summary['run_dir']} to step {summary['step']} ({loss})"
-              + (f"; exported to {summary['export']}" if summary["export"] else ""))
+        print(json.dumps(summary) if args.json else _result_line(result))
     return 0
+
+
+def _result_line(result) -> str:
+    loss = "no steps left to run" if result.last_loss is None else f"loss {result.last_loss:.4f}"
+    return (f"trained {result.run_dir} to step {result.step} ({loss})"
+            + (f"; exported to {result.export}" if result.export else ""))
 
 
 @contextlib.contextmanager
@@ -154,10 +154,6 @@ def _cache_latents(args) -> int:
     for flag in ("vae", "window", "out"):
         if getattr(args, flag) is None:
             raise TrainConfigError("<command line>", f"--{flag}", "given with --cache-latents", "missing")
-    if args.threads:
-        import torch
-
-        torch.set_num_threads(args.threads)
     config = TrainConfig()
     config.model.vae = args.vae
     vae = build_vae(config, source="--vae")

@@ -28,10 +28,12 @@ from pathlib import Path
 from typing import Any
 
 from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
+from .._util.inputs import read_text_file
 from ..errors import OscarError
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
-           "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
+           "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES",
+           "RESUME_OVERRIDES", "parse_overrides", "check_resume_overrides"]
 
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 CHECKPOINTING = ("none", "full", "auto")
@@ -369,19 +371,59 @@ def load_config(path, overrides: dict | None = None) -> TrainConfig:
 
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise TrainConfigError(path, "<file>", "a YAML file", "no such file") from None
+        data = yaml.safe_load(read_text_file(path, "a training config (YAML, utf-8 text)", error=TrainConfigError))
     except yaml.YAMLError as exc:
         raise TrainConfigError(path, "<file>", "valid YAML", str(exc).splitlines()[0]) from None
     data = data or {}
-    for dotted, value in (overrides or {}).items():
+    overrides = dict(overrides or {})
+    for dotted, value in overrides.items():
         node = data
         *parents, last = dotted.split(".")
         for p in parents:
             node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise TrainConfigError(OVERRIDE_SOURCE, dotted, f"a field inside the section {p!r}",
+                                       f"{p} is not a section")
         node[last] = value
-    return config_from_dict(data, str(path))
+    try:
+        return config_from_dict(data, str(path))
+    except TrainConfigError as exc:  # a bad value that came from --set is blamed on --set, not on the file
+        key = exc.field.split("[", 1)[0]
+        if key in overrides or any(key.startswith(k + ".") for k in overrides):
+            raise TrainConfigError(OVERRIDE_SOURCE, exc.field, exc.expected, exc.found) from None
+        raise
+
+
+OVERRIDE_SOURCE = "--set"
+# the fields `oscar train --resume RUN --set ...` may change: they extend a run or change how often it logs and saves,
+# never what a step computes (lr_at, the data plan and the noise do not depend on them)
+RESUME_OVERRIDES = ("steps", "save_every", "log_every", "keep_last")
+
+
+def parse_overrides(items) -> dict:
+    """``["optim.lr=1e-4", "steps=30"]`` → ``{"optim.lr": 1e-4, "steps": 30}`` (values read as YAML)."""
+    import yaml
+
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise TrainConfigError("<command line>", OVERRIDE_SOURCE, "KEY=VALUE", repr(item))
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = yaml.safe_load(v)
+        except yaml.YAMLError as exc:
+            raise TrainConfigError(OVERRIDE_SOURCE, k.strip(), "a YAML value", str(exc).splitlines()[0]) from None
+    return out
+
+
+def check_resume_overrides(overrides: dict) -> None:
+    """Refuse a ``--set`` with ``--resume`` that would change the run rather than extend it, naming the field."""
+    for key in overrides:
+        if key not in RESUME_OVERRIDES:
+            raise TrainConfigError(OVERRIDE_SOURCE, key, f"with --resume only {', '.join(RESUME_OVERRIDES)} (they "
+                                   "extend the run; any other field would change what its checkpoints were trained "
+                                   "with)",
+                                   "a change of the run's config")
 
 
 def save_config(config: TrainConfig, path) -> Path:

@@ -22,8 +22,10 @@ import torch
 
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
-from .checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_weights, save_checkpoint
-from .config import TrainConfig, TrainConfigError, load_config, save_config
+from .checkpoint import (checkpoint_step, latest_checkpoint, list_checkpoints, load_checkpoint, load_weights,
+                         save_checkpoint)
+from .config import (OVERRIDE_SOURCE, TrainConfig, TrainConfigError, check_resume_overrides,
+                     load_config, save_config)
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
@@ -139,17 +141,20 @@ def _read_metrics(path: Path, upto: int) -> bytes:
 
 def train(config: TrainConfig | str | Path | None = None, *, resume=None, progress: bool = True,
           stop_after: int | None = None, registry=None, export: bool | None = None,
-          source: str = "<config>") -> TrainResult:
+          source: str = "<config>", overrides: dict | None = None) -> TrainResult:
     """Train a run; with ``resume`` (a run folder) continue it from its latest checkpoint.
 
     config: a TrainConfig or a YAML path (ignored when resuming: the run's
     ``config.yaml`` is used). stop_after: stop after this many optimiser steps
     in total (a simulated interruption, after saving a checkpoint; tests).
-    export: override ``config.export``. Every process of a torchrun launch calls this.
+    overrides: with ``resume``, new values of fields in
+    :data:`~oscar_core.train.config.RESUME_OVERRIDES` (``{"steps": 30}`` trains
+    the run further); they are written to the run's ``config.yaml``; any other
+    field is refused. export: override ``config.export``. Every process of a torchrun launch calls this.
     """
     info = init_distributed()
     try:
-        result, config = _train(config, resume, progress, stop_after, registry, source, info)
+        result, config = _train(config, resume, progress, stop_after, registry, source, info, overrides)
     finally:
         close_distributed(info)
     if info.main:
@@ -175,7 +180,7 @@ def _write_curves(run_dir: Path) -> None:
         _log.info("training curves: %s", path)
 
 
-def _train(config, resume, progress, stop_after, registry, source, info: DistInfo):
+def _train(config, resume, progress, stop_after, registry, source, info: DistInfo, overrides=None):
 
     # ------------------------------------------------------------------ build
     ckpt = None
@@ -183,8 +188,15 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         run_dir = Path(resume)
         if not (run_dir / CONFIG_FILE).is_file():
             raise TrainConfigError(run_dir, CONFIG_FILE, "a run folder written by `oscar train`", "no config.yaml")
-        config = load_config(run_dir / CONFIG_FILE)
+        check_resume_overrides(overrides or {})
+        config = load_config(run_dir / CONFIG_FILE, overrides)
         ckpt = latest_checkpoint(run_dir)
+        done = checkpoint_step(ckpt)
+        if config.steps < done:
+            raise TrainConfigError(OVERRIDE_SOURCE if "steps" in (overrides or {}) else run_dir / CONFIG_FILE, "steps",
+                                   f"at least the latest checkpoint's step {done}", config.steps)
+    elif overrides:
+        raise TrainConfigError(OVERRIDE_SOURCE, "overrides", "only with resume (pass them to load_config)", overrides)
     elif not isinstance(config, TrainConfig):
         source = str(config)
         config = load_config(config)
@@ -229,7 +241,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     metrics_path = run_dir / METRICS_FILE
     if info.main:
         run_dir.mkdir(parents=True, exist_ok=True)
-        if resume is None:
+        if resume is None or overrides:
             save_config(config, run_dir / CONFIG_FILE)
         atomic_write_bytes(metrics_path, _read_metrics(metrics_path, start))
     autocast = autocast_for(config, info.device)
