@@ -8,7 +8,7 @@ STAMP := $(VENV)/.oscar-installed
 OUT ?= demo_out
 EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray
 
-.PHONY: install venv demo test test-fast test-install bench bench-gpu clean
+.PHONY: install venv demo test test-fast test-install lint bench bench-gpu clean
 
 install: $(STAMP)
 
@@ -39,6 +39,10 @@ test-fast: install
 # a real install into a fresh virtual environment (downloads dependencies)
 test-install: install
 	$(PYTHON) -m pytest -q -m install
+
+# ruff's lint (settings in pyproject.toml)
+lint: install
+	$(PYTHON) -m ruff check .
 
 bench: install
 	$(PYTHON) benchmarks/render.py

@@ -95,13 +95,13 @@ def build_inputs(work: Path, model: str, embodiment: str, tokens: int, chunk_fra
     """
     import cv2
     import numpy as np
-    import oscar_zoo
     import torch
     from safetensors.torch import save_file
 
+    import oscar_zoo
+    from oscar_core.kinematics.trajectory import load_trajectory, save_trajectory
     from oscar_core.model.world_model import _read_card
     from oscar_core.plugin.registry import get_embodiment
-    from oscar_core.kinematics.trajectory import load_trajectory, save_trajectory
 
     folder = Path(oscar_zoo.pull(model, local_files_only=True))  # a folder, a bundled or a cached model
     card = _read_card(folder)

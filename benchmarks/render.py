@@ -44,8 +44,8 @@ import torch  # noqa: E402
 
 from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
 from oscar_core.camera.pinhole import project  # noqa: E402
-from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
 from oscar_core.media.video import write_video  # noqa: E402
+from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
 
 SIZES = ((512, 288), (1280, 704))
 FRAMES = 81
@@ -176,8 +176,8 @@ def _stream_peak_mb(emb, traj, cam) -> float:
 
 def bench_mesh(name: str, repeats: int, size=(512, 288)) -> list[dict]:
     """The mesh condition of ``name``'s example trajectory at ``size``, per simplification."""
-    from oscar_core.render.mesh import MeshStyle, mesh_geometry
     from oscar_core.kinematics.trajectory import Trajectory
+    from oscar_core.render.mesh import MeshStyle, mesh_geometry
 
     emb = get_embodiment(name)
     traj = emb.check_trajectory(load_trajectory(emb.example_trajectory)).time_slice(0, FRAMES)

@@ -6,7 +6,6 @@ import argparse
 import json
 import sys
 import warnings
-from pathlib import Path
 
 from ._util.log import cli_output
 from .errors import OscarError
@@ -70,8 +69,8 @@ def cmd_embodiments(args) -> int:
 
 def cmd_demo(args) -> int:
     from .demo import run_demo
-    from .render.skeleton_video import parse_size
     from .plugin.registry import Registry
+    from .render.skeleton_video import parse_size
 
     run_demo(args.out, size=parse_size(args.size), registry=Registry(plugin_paths=args.plugin or ()),
              toy_model=None if args.no_toy_world else args.toy_model)

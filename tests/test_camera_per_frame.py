@@ -10,9 +10,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from oscar_core import (JointLimitWarning, get_embodiment, load_camera, load_trajectory, look_at,
-                        render_skeleton_video)
-from oscar_core.camera.pinhole import CONVENTIONS, DIRECTIONS, Camera, Intrinsics, convention_to_opencv, project, save_camera
+from oscar_core import JointLimitWarning, get_embodiment, load_camera, load_trajectory, look_at, render_skeleton_video
+from oscar_core.camera.pinhole import (
+    CONVENTIONS,
+    DIRECTIONS,
+    Camera,
+    Intrinsics,
+    convention_to_opencv,
+    project,
+    save_camera,
+)
 from oscar_core.errors import CameraFileError
 
 T = 6
@@ -197,8 +204,8 @@ def test_link_mounted_per_frame_render_agibot():
 
 def test_batch_paths_equal_the_frame_by_frame_ones():
     """The one-pass parser and checker of long per-frame lists give what the per-frame code gives."""
-    from oscar_core.camera.pinhole import as_rigid_transform, as_rigid_transforms
     from oscar_core.camera.extrinsics import _parse_one_extrinsic, _per_frame_fast
+    from oscar_core.camera.pinhole import as_rigid_transform, as_rigid_transforms
 
     rng = np.random.default_rng(11)
     rot = Rotation.random(50, random_state=rng)

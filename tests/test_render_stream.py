@@ -7,6 +7,7 @@ import pytest
 
 from oscar_core import get_embodiment, load_trajectory, render_skeleton_video
 from oscar_core.camera.pinhole import Camera, Intrinsics, project
+from oscar_core.kinematics.trajectory import Trajectory
 from oscar_core.plugin.embodiment import SkeletonFrames
 from oscar_core.render.skeleton_stream import (
     EmptyViewError,
@@ -17,7 +18,6 @@ from oscar_core.render.skeleton_stream import (
     guarded_project,
     iter_skeleton_chunks,
 )
-from oscar_core.kinematics.trajectory import Trajectory
 
 
 def toyarm():

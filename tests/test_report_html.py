@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 import shutil
-
-import pytest
-
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).parent))
 from _browser import keep_screenshot, open_page, report_json, require_browser
+
 from oscar_core.cli import main
 
 pytestmark = pytest.mark.slow
@@ -189,9 +189,8 @@ def test_the_filters_keep_only_the_chosen_cells(eval_report):
     """Choosing a verdict, a policy or a session hides every other cell (and sessions left empty)."""
     import tempfile
 
-    from playwright.sync_api import sync_playwright
-
     from _browser import FLAGS
+    from playwright.sync_api import sync_playwright
 
     report = report_json(eval_report)
     exe = require_browser()

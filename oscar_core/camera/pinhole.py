@@ -77,19 +77,33 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from oscar_core._util.atomic import atomic_write_bytes
 from oscar_core.errors import CameraFileError
+
 from .extrinsics import _TOP_KEYS, _matrix, _number, _parse_extrinsic, _short
-from .geometry import (_DISTORTION_LENGTHS, _VALID_CONVENTION_NAMES, CONVENTION_ALIASES, CONVENTIONS,
-                              DIRECTIONS, _as_float_array, _is_int, _is_number, _rigid_inverse,
-                              as_rigid_transform, as_rigid_transforms, canonical_convention,
-                              convention_to_opencv, look_at)
+from .geometry import (
+    _DISTORTION_LENGTHS,
+    _VALID_CONVENTION_NAMES,
+    CONVENTION_ALIASES,
+    CONVENTIONS,
+    DIRECTIONS,
+    _as_float_array,
+    _is_int,
+    _is_number,
+    _rigid_inverse,
+    as_rigid_transform,
+    as_rigid_transforms,
+    canonical_convention,
+    convention_to_opencv,
+    look_at,
+)
 from .projection import Projection, project, project_points_cv
 
 __all__ = [
@@ -171,7 +185,7 @@ class Intrinsics:
         """Camera matrix K, shape (3, 3), pixels."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def crop(self, x0: float, y0: float, w: int, h: int) -> "Intrinsics":
+    def crop(self, x0: float, y0: float, w: int, h: int) -> Intrinsics:
         """Intrinsics of the sub-image of size (w, h) whose top-left pixel is (x0, y0).
 
         A point at pixel (u, v) in this image is at (u - x0, v - y0) in the crop.
@@ -179,7 +193,7 @@ class Intrinsics:
         """
         return replace(self, cx=self.cx - x0, cy=self.cy - y0, width=w, height=h)
 
-    def _scaled(self, sx: float, sy: float, width: int, height: int) -> "Intrinsics":
+    def _scaled(self, sx: float, sy: float, width: int, height: int) -> Intrinsics:
         # Pixel centres at integer coordinates: scaling by s maps c -> (c + 0.5) * s - 0.5.
         return replace(
             self,
@@ -191,7 +205,7 @@ class Intrinsics:
             height=height,
         )
 
-    def resized(self, width: int, height: int, mode: str = "crop") -> "Intrinsics":
+    def resized(self, width: int, height: int, mode: str = "crop") -> Intrinsics:
         """Intrinsics for an output image of ``width`` x ``height`` pixels.
 
         mode "crop": centre-crop the source image to the target aspect ratio (the
@@ -303,7 +317,7 @@ class Camera:
             raise CameraFileError(source, "extrinsic", f"{int(num_frames)} per-frame extrinsics, one per trajectory frame",
                                   f"{n} extrinsics")
 
-    def time_slice(self, start: int | None = None, stop: int | None = None) -> "Camera":
+    def time_slice(self, start: int | None = None, stop: int | None = None) -> Camera:
         """The camera for frames ``start:stop`` (as ``Trajectory.time_slice``); itself when it has one extrinsic."""
         if self.num_frames is None:
             return self
@@ -340,7 +354,7 @@ class Camera:
                              f"{P.shape[0]} frames, shape {P.shape}")
         return self._cv_from_ref @ _rigid_inverse(P)
 
-    def resized(self, width: int, height: int, mode: str = "crop") -> "Camera":
+    def resized(self, width: int, height: int, mode: str = "crop") -> Camera:
         """Camera with intrinsics resized for a ``width`` x ``height`` image (see Intrinsics.resized)."""
         return replace(self, intrinsics=self.intrinsics.resized(width, height, mode))
 
@@ -359,7 +373,7 @@ class Camera:
         }
 
     @classmethod
-    def from_dict(cls, d: Mapping, source: str = "<dict>", defaults: Any = None) -> "Camera":
+    def from_dict(cls, d: Mapping, source: str = "<dict>", defaults: Any = None) -> Camera:
         """Build a Camera from a dict in the camera file format.
 
         ``source`` names the file (or object) in error messages. ``defaults``

@@ -62,7 +62,7 @@ class FilterConfig:
     min_texture: float = 8.0             # grey-level gradient a pixel needs to count as background texture
 
     @classmethod
-    def from_overrides(cls, items: list[str] | None) -> "FilterConfig":
+    def from_overrides(cls, items: list[str] | None) -> FilterConfig:
         """Defaults with ``name=value`` overrides; ValueError naming the field on a bad name or value."""
         kinds = {f.name: f.type for f in fields(cls)}
         values: dict[str, Any] = {}

@@ -29,10 +29,11 @@ from __future__ import annotations
 
 import io
 import json
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
-from ._optional import require
 from ..plugin.reader import EpisodeRef
+from ._optional import require
 
 __all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet",
            "table_from_parquet", "table_to_parquet", "is_alive",

@@ -3,5 +3,5 @@
 This module keeps the old import path working.
 """
 
-from ..plugin.reader import *  # noqa: F401,F403
+from ..plugin.reader import *  # noqa: F403
 from ..plugin.reader import __all__  # noqa: F401

@@ -60,10 +60,15 @@ import sys
 from .._util.arg_types import count, device
 from .._util.log import progress_bars_enabled
 from ._common import MetricInputError
-from .cli_inputs import _write_json, collect_clips, collect_judge_videos, read_policy_results, \
-    read_preferences, read_tasks
+from .cli_inputs import (
+    _write_json,
+    collect_clips,
+    collect_judge_videos,
+    read_policy_results,
+    read_preferences,
+    read_tasks,
+)
 from .cli_judge import JUDGE_EXAMPLES, PAIRWISE_EXAMPLES, _add_judge_args, cmd_eval_judge, cmd_eval_pairwise
-
 
 __all__ = [
     "add_eval_parser", "cmd_eval_video", "cmd_eval_policies", "cmd_eval_judge", "cmd_eval_pairwise",

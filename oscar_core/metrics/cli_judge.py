@@ -64,7 +64,6 @@ from .._util.log import progress_bars_enabled
 from ._common import MetricInputError
 from .cli_inputs import _write_json, collect_judge_videos, read_tasks
 
-
 __all__ = ["cmd_eval_judge", "cmd_eval_pairwise", "JUDGE_EXAMPLES", "PAIRWISE_EXAMPLES"]
 
 JUDGE_EXAMPLES = """examples:

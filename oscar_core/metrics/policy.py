@@ -58,8 +58,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._common import MetricInputError, align_policy_values, nan_to_none
-from .bradley_terry import (ELO_SCALE, ELO_SHIFT, BradleyTerryResult, BradleyTerryWarning, Preference,
-                            fit_bradley_terry, parse_preference)
+from .bradley_terry import (
+    ELO_SCALE,
+    ELO_SHIFT,
+    BradleyTerryResult,
+    BradleyTerryWarning,
+    Preference,
+    fit_bradley_terry,
+    parse_preference,
+)
 
 __all__ = [
     "mmrv_simpler",

@@ -187,7 +187,6 @@ def cmd_zoo_list(args) -> int:
 
 def cmd_zoo_pull(args) -> int:
     import oscar_zoo
-
     from oscar_zoo._hub import lock_path
 
     folder = oscar_zoo.pull(args.name, args.revision, force_download=args.force,
@@ -350,10 +349,10 @@ def cmd_rollout(args) -> int:
 
     import oscar_zoo
 
+    from ..kinematics.trajectory import load_trajectory
+    from ..plugin.registry import get_embodiment
     from ..render.conditions import condition_video, video_condition_of
     from ..render.skeleton_video import fit_image
-    from ..plugin.registry import get_embodiment
-    from ..kinematics.trajectory import load_trajectory
     from ._image import read_first_frame
     from .sampler import sampler_from_options
 
@@ -368,8 +367,8 @@ def cmd_rollout(args) -> int:
                                    batched_cfg=not args.two_pass_cfg, solver=args.solver,
                                    action_guidance=getattr(args, "action_guidance", None))
     # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
-    from ..render.skeleton_video import parse_size
     from ..media.video import check_output
+    from ..render.skeleton_video import parse_size
 
     size = parse_size(args.size) if args.size else None
     check_output(args.out, size=size)
@@ -497,8 +496,8 @@ def _write_streams(chunks, skeleton, out, side_path, fps):
 
     import numpy as np
 
-    from ..render.skeleton_video import overlay_skeleton
     from ..media.video import write_video
+    from ..render.skeleton_video import overlay_skeleton
 
     done = object()
     side_q: queue.Queue = queue.Queue(maxsize=4)

@@ -24,9 +24,15 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ._native import NATIVE_SUFFIXES, find_skeleton_key, infer_config, map_native_state, read_native_state, \
-    read_overrides
 from ._files import MODEL_FILE
+from ._native import (
+    NATIVE_SUFFIXES,
+    find_skeleton_key,
+    infer_config,
+    map_native_state,
+    read_native_state,
+    read_overrides,
+)
 from ._weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
 from .errors import CheckpointLayoutError
 

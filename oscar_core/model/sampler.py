@@ -66,8 +66,8 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 
@@ -157,7 +157,7 @@ def _finite(x) -> bool:
 
 
 
-def apply_preset(config: "SamplerConfig", name: str | None) -> "SamplerConfig":
+def apply_preset(config: SamplerConfig, name: str | None) -> SamplerConfig:
     """``config`` with the fields of preset ``name`` (None: unchanged); an unknown name is an error."""
     if name is None:
         return config
@@ -169,7 +169,7 @@ def apply_preset(config: "SamplerConfig", name: str | None) -> "SamplerConfig":
 
 
 def sampler_from_options(*, steps: int | None = None, preset: str | None = None,
-                         guidance_interval: tuple[float, float] | None = None, **fields) -> "SamplerConfig":
+                         guidance_interval: tuple[float, float] | None = None, **fields) -> SamplerConfig:
     """The CLI's sampler: ``fields`` (guidance, shift, ...), then ``preset``'s steps and interval, then the
     explicit ``steps`` / ``guidance_interval`` (None: the preset's, else the defaults: 35 steps, every step)."""
     from dataclasses import replace
@@ -179,7 +179,7 @@ def sampler_from_options(*, steps: int | None = None, preset: str | None = None,
                    guidance_interval=config.guidance_interval if guidance_interval is None else guidance_interval)
 
 
-def step_sigmas(config: "SamplerConfig") -> list[float]:
+def step_sigmas(config: SamplerConfig) -> list[float]:
     """The noise level σ of each model evaluation of one chunk, in order (what the guidance interval sees)."""
     if config.resolved_solver == "euler":
         return [float(x) for x in flow_sigmas(config.steps, config.shift)[:-1]]
@@ -188,13 +188,13 @@ def step_sigmas(config: "SamplerConfig") -> list[float]:
     return [float(x) for x in sched.sigmas[:-1]]
 
 
-def guided_at(config: "SamplerConfig", sigma: float) -> bool:
+def guided_at(config: SamplerConfig, sigma: float) -> bool:
     """Whether the step at noise level ``sigma`` applies guidance (inside ``guidance_interval``)."""
     iv = config.guidance_interval
     return iv is None or iv[0] <= sigma <= iv[1]
 
 
-def model_calls(config: "SamplerConfig") -> int:
+def model_calls(config: SamplerConfig) -> int:
     """DiT evaluations (batch items) one chunk costs: per step, 2 where both branches run, else 1."""
     both = len(branches(config)) == 2
     return sum(2 if both and guided_at(config, s) else 1 for s in step_sigmas(config))

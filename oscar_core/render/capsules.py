@@ -18,17 +18,24 @@ chunks of frames, each frame rasterised on its own.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
 from ..camera.pinhole import Camera
-from .mesh import draw_frames, link_palette, record_empty
-from .skeleton_stream import (DEFAULT_CHUNK_FRAMES, RenderStats, _project_cv, _to_camera, format_frames,
-                            render_whole, stream_chunks)
 from ..kinematics.visual import capsule_mesh
 from ..kinematics.workspace import joint_limits, open_fk, reach_of
+from .mesh import draw_frames, link_palette, record_empty
+from .skeleton_stream import (
+    DEFAULT_CHUNK_FRAMES,
+    RenderStats,
+    _project_cv,
+    _to_camera,
+    format_frames,
+    render_whole,
+    stream_chunks,
+)
 
 __all__ = ["RADIUS_BASE", "RADIUS_TIP", "CapsuleStyle", "link_radii", "body_reach", "finger_axes",
            "body_vertices", "iter_capsule_chunks", "render_capsule_video"]

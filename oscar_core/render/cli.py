@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 
 from .._util.arg_types import count, device, number
-from .conditions import CONDITIONS
 from ..errors import OscarError
+from .conditions import CONDITIONS
 
 EPILOG = """examples:
   oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json --out skel.mp4 --size 512x288
@@ -159,11 +159,11 @@ def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
     import numpy as np
 
+    from ..kinematics.trajectory import load_trajectory
+    from ..media.video import DEFAULT_PRESET, VideoWriter, check_output, read_video, video_info
     from .batch import _registry
     from .conditions import chunk_renderer
     from .skeleton_video import fit_image, overlay_skeleton
-    from ..kinematics.trajectory import load_trajectory
-    from ..media.video import DEFAULT_PRESET, VideoWriter, check_output, read_video, video_info
 
     check_output(spec.out, format=spec.format)
     emb = _registry(tuple(args.plugin or ())).get(spec.embodiment)

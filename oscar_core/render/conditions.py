@@ -15,7 +15,7 @@ its card names).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from ..errors import OscarError
 
@@ -35,8 +35,8 @@ def _renderers(name: str) -> tuple[Callable, Callable]:
         from .capsules import iter_capsule_chunks, render_capsule_video
 
         return iter_capsule_chunks, render_capsule_video
-    from .skeleton_video import render_skeleton_video
     from .skeleton_stream import iter_skeleton_chunks
+    from .skeleton_video import render_skeleton_video
 
     return iter_skeleton_chunks, render_skeleton_video
 

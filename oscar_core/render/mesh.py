@@ -19,17 +19,24 @@ The choice of this renderer and its measurements: docs/mesh-condition.md.
 from __future__ import annotations
 
 import colorsys
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
 from ..camera.pinhole import Camera
 from ..errors import PluginError
-from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
-from .skeleton_stream import (DEFAULT_CHUNK_FRAMES, RenderStats, _project_cv, _to_camera, format_frames,
-                            render_whole, stream_chunks)
 from ..kinematics.visual import VisualGeometry
+from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
+from .skeleton_stream import (
+    DEFAULT_CHUNK_FRAMES,
+    RenderStats,
+    _project_cv,
+    _to_camera,
+    format_frames,
+    render_whole,
+    stream_chunks,
+)
 
 __all__ = ["MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry", "mesh_vertices", "iter_mesh_chunks",
            "render_mesh_video"]

@@ -115,7 +115,10 @@ def cmd_carry(args) -> int:
 
     rows = carry_rows(args.manifest, args.eval_out)
     summary = carry_summary(rows, load_manifest(args.manifest).policies)
-    f = (lambda x: "n/a" if x is None else f"{x:.2f}")
+
+    def f(x):
+        return "n/a" if x is None else f"{x:.2f}"
+
     print("| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
           "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |")
     print("|---|---|---|---|---|---|---|---|---|")

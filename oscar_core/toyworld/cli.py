@@ -279,8 +279,8 @@ def cmd_package(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from .evaluate import add_paired, evaluate_conditions, format_table, plot_table, parse_pred_args
     from .._util.atomic import atomic_write_bytes
+    from .evaluate import add_paired, evaluate_conditions, format_table, parse_pred_args, plot_table
 
     conditions = parse_pred_args(args.pred)
     if args.paired is not None and args.paired not in conditions:

@@ -88,9 +88,8 @@ def cmd_train(args) -> int:
         out = export_run(args.export, args.out, step=args.step, weights=args.weights)
         print(json.dumps({"export": str(out)}) if args.json else f"exported {args.export} to {out}")
         return 0
-    from .loop import train
-
     from .._util.log import run_log
+    from .loop import train
 
     main_rank = int(os.environ.get("RANK", "0")) == 0
     if args.resume:

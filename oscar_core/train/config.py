@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..render.conditions import CONDITIONS as _VIDEO_CONDITIONS
 from ..errors import OscarError
+from ..render.conditions import CONDITIONS as _VIDEO_CONDITIONS
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES"]
@@ -208,7 +208,7 @@ class TrainConfig:
     optim: OptimSection = field(default_factory=OptimSection)
     log: LogSection = field(default_factory=LogSection)
 
-    def validate(self, source: str = "<config>") -> "TrainConfig":
+    def validate(self, source: str = "<config>") -> TrainConfig:
         """Raise :class:`TrainConfigError` naming the first bad field."""
         def bad(name, expected, found):
             raise TrainConfigError(source, name, expected, repr(found))

@@ -3,5 +3,5 @@
 This module keeps the old import path working.
 """
 
-from ..model.latent_action import *  # noqa: F401,F403
+from ..model.latent_action import *  # noqa: F403
 from ..model.latent_action import __all__  # noqa: F401

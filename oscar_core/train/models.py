@@ -34,9 +34,9 @@ def transformer_config(spec, source: str = "<config>") -> dict:
 
 def build_transformer(config: TrainConfig, source: str = "<config>"):
     """The DiT to train, its weights initialised as ``model.init`` says (float32, train mode)."""
+    from ..model.latent_action import LatentActionTransformer
     from ..model.tiny import _randomise
     from ..model.transformer import OscarTransformer3DModel
-    from ..model.latent_action import LatentActionTransformer
 
     m = config.model
     args = transformer_config(m.transformer, source)
