@@ -40,9 +40,10 @@ test-fast: install
 test-install: install
 	$(PYTHON) -m pytest -q -m install
 
-# ruff's lint (settings in pyproject.toml)
+# ruff's lint (settings in pyproject.toml) and the type check of the public API (mypy on tests/typing/public_api.py)
 lint: install
 	$(PYTHON) -m ruff check .
+	$(PYTHON) -m mypy
 
 bench: install
 	$(PYTHON) benchmarks/render.py
