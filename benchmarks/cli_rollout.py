@@ -332,8 +332,11 @@ def _run(args, size: str | None, work: Path) -> int:
               "frames": inputs["frames"], "width": w, "height": h, "embodiment": args.embodiment,
               "env": {k: os.environ[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ},
               "setup_s": setup_s, "rows": rows}
+    from _provenance import with_provenance
+
     from oscar_core._util.atomic import atomic_write_bytes
 
+    result = with_provenance(result, gpu=info.get("gpu"))
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     print(f"\nwrote {atomic_write_bytes(args.json, (json.dumps(result, indent=2) + chr(10)).encode())}")
     return 0

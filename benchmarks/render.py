@@ -278,8 +278,10 @@ def main(argv=None) -> int:
     meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
             "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    out.write_text(json.dumps({"meta": meta, "rows": rows, "mesh_rows": mesh_rows, "capsule_rows": capsule_rows},
-                              indent=2))
+    from _provenance import with_provenance
+
+    out.write_text(json.dumps(with_provenance({"meta": meta, "rows": rows, "mesh_rows": mesh_rows,
+                                               "capsule_rows": capsule_rows}), indent=2))
     print(f"wrote {out}")
     return 0
 

@@ -575,13 +575,16 @@ def main(argv=None) -> int:
     if args.measure:
         measured = measure_real(args)
         print_measured(measured)
+    from _provenance import with_provenance
+
     from oscar_core._util.atomic import atomic_write_bytes
 
-    result = json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
+    result = json.dumps(with_provenance({"machine": {"python": platform.python_version(), "torch": torch.__version__,
                                            "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),
                                            "device": str(device)},
                                "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
-                         "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, indent=2)
+                         "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured},
+                                        device=str(device)), indent=2)
     print(f"wrote {atomic_write_bytes(args.json, (result + chr(10)).encode())}")
     return 0
 
