@@ -1,7 +1,7 @@
 """Where and when a benchmark ran: the ``provenance`` block every benchmarks/*.py JSON carries.
 
 ``docs/benchmarks.md`` (written by ``benchmarks/make_docs.py`` from ``benchmarks/measured/*.json``) shows it above
-each table: the UTC date, the commit measured (``+dirty`` when tracked files differed from it), the machine and the
+each table: the UTC date, the commit measured (``+dirty`` when its code differed from it), the machine and the
 command line.
 """
 
@@ -26,12 +26,17 @@ def _git(*args: str) -> str | None:
     return proc.stdout.strip() if proc.returncode == 0 else None
 
 
+#: what a measurement depends on: a change elsewhere (docs, tests) does not make the checkout differ from its commit
+CODE = ("oscar_core", "zoo", "embodiments", "examples", "benchmarks", "configs", "pyproject.toml", "requirements-ci.txt")
+
+
 def commit() -> str:
-    """The checkout's commit (12 hex digits), ``+dirty`` if tracked files differ from it; ``unknown`` outside git."""
+    """The checkout's commit (12 hex digits), ``+dirty`` if tracked files of :data:`CODE` differ from it;
+    ``unknown`` outside git."""
     head = _git("rev-parse", "--short=12", "HEAD")
     if head is None:
         return "unknown"
-    return head + ("+dirty" if _git("status", "--porcelain", "--untracked-files=no") else "")
+    return head + ("+dirty" if _git("status", "--porcelain", "--untracked-files=no", "--", *CODE) else "")
 
 
 def machine(device: str | None = None, gpu: str | None = None) -> dict:
