@@ -332,6 +332,7 @@ def _run(args, size: str | None, work: Path) -> int:
               "frames": inputs["frames"], "width": w, "height": h, "embodiment": args.embodiment,
               "env": {k: os.environ[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ},
               "setup_s": setup_s, "rows": rows}
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
     from _provenance import with_provenance
 
     from oscar_core._util.atomic import atomic_write_bytes

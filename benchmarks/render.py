@@ -278,6 +278,7 @@ def main(argv=None) -> int:
     meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
             "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
     from _provenance import with_provenance
 
     out.write_text(json.dumps(with_provenance({"meta": meta, "rows": rows, "mesh_rows": mesh_rows,

@@ -622,6 +622,7 @@ def _step_main(args, ap) -> int:
 
 def _write(result: dict, path, quiet: bool = False, device: str | None = None) -> int:
     """Write ``result`` as JSON; a top-level result (not ``quiet``: a child's row is) gets the provenance block."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
     from _provenance import with_provenance
 
     from oscar_core._util.atomic import atomic_write_bytes
