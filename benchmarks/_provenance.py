@@ -40,8 +40,8 @@ def commit() -> str:
 
 
 def machine(device: str | None = None, gpu: str | None = None) -> dict:
-    """The processor, CPU count, 1-minute load average at the start, Python and (if imported) torch version; the
-    GPU's name when ``gpu`` is given or ``device`` is CUDA and torch is imported."""
+    """The processor, CPU count, 1-minute load average (when the result is written), Python and (if imported) torch
+    version; the GPU's name when ``gpu`` is given or ``device`` is CUDA and torch is imported."""
     out = {"processor": platform.processor() or platform.machine(), "system": platform.system(),
            "cpus": os.cpu_count(), "load_average": round(os.getloadavg()[0], 2),
            "python": platform.python_version()}
