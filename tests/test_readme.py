@@ -64,7 +64,8 @@ def test_the_install_line_and_the_extras_table_name_every_extra():
 
 def test_the_readme_says_nothing_about_the_projects_history():
     assert HISTORY.findall(README.read_text()) == []
-    for page in ["index.md", "benchmarks.md", "rendering.md", "cli.md", "architecture.md"]:
+    for page in ["index.md", "benchmarks.md", "rendering.md", "cli.md", "architecture.md", *(
+            f"studies/{p.name}" for p in (DOCS / "studies").glob("*.md"))]:
         assert HISTORY.findall((DOCS / page).read_text()) == [], page
 
 
