@@ -1,23 +1,31 @@
-# oscar — the two set-up commands are `make demo` and `make test`.
-PYTHON ?= python3
+# oscar — the two set-up commands are `make demo` and `make test`. Both create the project's virtual environment
+# (.venv/, gitignored) on first use and install into it; nothing is installed into the system's python3.
+BASE_PYTHON ?= python3
+VENV ?= .venv
+PYTHON := $(VENV)/bin/python
 PIP := $(PYTHON) -m pip
-STAMP := .make/installed
+STAMP := $(VENV)/.oscar-installed
 OUT ?= demo_out
+EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray
 
-.PHONY: install demo test test-fast test-install bench bench-gpu clean
+.PHONY: install venv demo test test-fast test-install lint bench bench-gpu clean
 
 install: $(STAMP)
 
-# torch is pinned here (the CPU build installs from local disk in seconds);
-# the package metadata accepts a range.
-$(STAMP): pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.txt
-	$(PIP) install -r requirements-ci.txt
-	@# the distribution was called "oscar" before it became "oscar-wm": remove that old install (only if it is ours)
-	@# and the metadata folder its editable install left in the checkout (found on sys.path when run from here)
+venv: $(PYTHON)
+
+$(PYTHON):
+	@$(BASE_PYTHON) -c "import sys; sys.exit(0 if sys.version_info >= (3, 10) else 'oscar needs Python >= 3.10, found ' + sys.version.split()[0] + ' at ' + sys.executable)"
+	$(BASE_PYTHON) -m venv $(VENV) || { rm -rf $(VENV); echo "error: '$(BASE_PYTHON) -m venv' failed; on Debian/Ubuntu install python3-venv" >&2; exit 2; }
+
+# torch is pinned here (the CPU build installs from local disk in seconds); the package metadata accepts a range.
+$(STAMP): $(PYTHON) pyproject.toml examples/oscar-toyarm/pyproject.toml requirements-ci.txt
+	$(PIP) install -q -r requirements-ci.txt
+	@# a metadata folder of a distribution named "oscar" in the checkout sits on sys.path when run from here and
+	@# would register the built-in plugins a second time
 	rm -rf oscar.egg-info
-	@$(PYTHON) -c "import importlib.metadata as m, sys; sys.exit('Skeleton-conditioned' not in (m.metadata('oscar')['Summary'] or ''))" 2>/dev/null && $(PIP) uninstall -y -q oscar || true
-	$(PIP) install -e ".[dev,mano,mesh,data,judge,text,tensorboard,ray]" -e examples/oscar-toyarm
-	@mkdir -p .make && touch $(STAMP)
+	$(PIP) install -q -e ".[$(EXTRAS)]" -e examples/oscar-toyarm
+	@touch $(STAMP)
 
 demo: install
 	$(PYTHON) -m oscar_core.cli demo --out $(OUT)
@@ -32,6 +40,11 @@ test-fast: install
 test-install: install
 	$(PYTHON) -m pytest -q -m install
 
+# ruff's lint (settings in pyproject.toml) and the type check of the public API (mypy on tests/typing/public_api.py)
+lint: install
+	$(PYTHON) -m ruff check .
+	$(PYTHON) -m mypy
+
 bench: install
 	$(PYTHON) benchmarks/render.py
 	$(PYTHON) benchmarks/rollout.py
@@ -39,14 +52,15 @@ bench: install
 	$(PYTHON) benchmarks/render_scale.py
 	$(PYTHON) benchmarks/train.py
 
-# the GPU measurements (CUDA, random-weights 2B; no `install` prerequisite: it would put the pinned CPU torch in
-# place of this machine's CUDA build). Each line is one job of a few minutes on an H100/H200-class GPU.
+# the GPU measurements (CUDA, random-weights 2B) run in the machine's own python3 (BASE_PYTHON) with its CUDA build
+# of torch, not in .venv/ (whose torch is the pinned CPU build); oscar must be installed there. Each line is one job
+# of a few minutes on an H100/H200-class GPU.
 bench-gpu:
-	$(PYTHON) benchmarks/rollout.py --gpu --compile --vae-variants --skip-tiny --repeats 3 \
+	$(BASE_PYTHON) benchmarks/rollout.py --gpu --compile --vae-variants --skip-tiny --repeats 3 \
 		--json benchmarks/results/rollout_gpu.json
-	$(PYTHON) benchmarks/cli_rollout.py --size 2b --device cuda --compile-modes --repeats 1 \
+	$(BASE_PYTHON) benchmarks/cli_rollout.py --size 2b --device cuda --compile-modes --repeats 1 \
 		--json benchmarks/results/cli_rollout_gpu.json
-	$(PYTHON) benchmarks/train.py --step-table --step-size 2b --device cuda --step-repeats 3 \
+	$(BASE_PYTHON) benchmarks/train.py --step-table --step-size 2b --device cuda --step-repeats 3 \
 		--json benchmarks/results/train_step_gpu.json
 
 clean:

@@ -95,13 +95,13 @@ def build_inputs(work: Path, model: str, embodiment: str, tokens: int, chunk_fra
     """
     import cv2
     import numpy as np
-    import oscar_zoo
     import torch
     from safetensors.torch import save_file
 
+    import oscar_zoo
+    from oscar_core.kinematics.trajectory import load_trajectory, save_trajectory
     from oscar_core.model.world_model import read_card
     from oscar_core.plugin.registry import get_embodiment
-    from oscar_core.kinematics.trajectory import load_trajectory, save_trajectory
 
     folder = Path(oscar_zoo.pull(model, local_files_only=True))  # a folder, a bundled or a cached model
     card = read_card(folder)
@@ -332,8 +332,12 @@ def _run(args, size: str | None, work: Path) -> int:
               "frames": inputs["frames"], "width": w, "height": h, "embodiment": args.embodiment,
               "env": {k: os.environ[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS") if k in os.environ},
               "setup_s": setup_s, "rows": rows}
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
+    from _provenance import with_provenance
+
     from oscar_core._util.atomic import atomic_write_bytes
 
+    result = with_provenance(result, gpu=info.get("gpu"))
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     print(f"\nwrote {atomic_write_bytes(args.json, (json.dumps(result, indent=2) + chr(10)).encode())}")
     return 0

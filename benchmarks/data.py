@@ -39,16 +39,18 @@ sys.path.insert(0, str(REPO / "tests"))
 
 def _table(head, rows):
     widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(head)]
-    line = lambda cells: "  ".join(str(c).rjust(w) for c, w in zip(cells, widths))
+
+    def line(cells):
+        return "  ".join(str(c).rjust(w) for c, w in zip(cells, widths))
+
     return "\n".join([line(head), "  ".join("-" * w for w in widths), *map(line, rows)])
 
 
 def bench_stages(n: int, workers: int) -> list[dict]:
-    import numpy as np
     import torch
     import transformers
-
     from _datasets import write_episode
+
     from oscar_core.data.dedup import SiglipEmbedder
     from oscar_core.data.run import run_dedup, run_export, run_filter, run_ingest
 

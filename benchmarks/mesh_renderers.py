@@ -28,8 +28,8 @@ os.environ.setdefault("LP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
-from oscar_core.render.mesh_raster import shade_faces  # noqa: E402
 from oscar_core.render.mesh import MESH, MeshStyle, render_mesh_video, vertices_cv  # noqa: E402
+from oscar_core.render.mesh_raster import shade_faces  # noqa: E402
 
 SIZE = (512, 288)
 NEAR, FAR = 0.05, 10.0  # metres: the GL depth range (linear depth)

@@ -52,8 +52,8 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
 
     import pyarrow.parquet as pq
-
     import test_reader_lerobot as fixture
+
     from oscar_core.data.readers._common import probe_video
     from oscar_core.data.readers.lerobot import LeRobotReader
 

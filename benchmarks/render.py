@@ -44,8 +44,8 @@ import torch  # noqa: E402
 
 from oscar_core import get_embodiment, load_camera, load_trajectory  # noqa: E402
 from oscar_core.camera import project  # noqa: E402
-from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
 from oscar_core.media.video import write_video  # noqa: E402
+from oscar_core.render.raster import GripperMarks, SkeletonStyle, rasterise  # noqa: E402
 
 SIZES = ((512, 288), (1280, 704))
 FRAMES = 81
@@ -176,8 +176,8 @@ def _stream_peak_mb(emb, traj, cam) -> float:
 
 def bench_mesh(name: str, repeats: int, size=(512, 288)) -> list[dict]:
     """The mesh condition of ``name``'s example trajectory at ``size``, per simplification."""
-    from oscar_core.render.mesh import MeshStyle, mesh_geometry
     from oscar_core.kinematics.trajectory import Trajectory
+    from oscar_core.render.mesh import MeshStyle, mesh_geometry
 
     emb = get_embodiment(name)
     traj = emb.check_trajectory(load_trajectory(emb.example_trajectory)).time_slice(0, FRAMES)
@@ -278,8 +278,11 @@ def main(argv=None) -> int:
     meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
             "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
             "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    out.write_text(json.dumps({"meta": meta, "rows": rows, "mesh_rows": mesh_rows, "capsule_rows": capsule_rows},
-                              indent=2))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
+    from _provenance import with_provenance
+
+    out.write_text(json.dumps(with_provenance({"meta": meta, "rows": rows, "mesh_rows": mesh_rows,
+                                               "capsule_rows": capsule_rows}), indent=2))
     print(f"wrote {out}")
     return 0
 

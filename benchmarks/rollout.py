@@ -52,20 +52,19 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _peak_memory import MALLOC_ENV, PeakMemory  # noqa: E402 (benchmarks/_peak_memory.py, shared with train.py)
+from _peak_memory import MALLOC_ENV, PeakMemory
 
 if __name__ == "__main__" and not all(k in os.environ for k in MALLOC_ENV):
     for key, value in MALLOC_ENV.items():
         os.environ.setdefault(key, value)
     os.execv(sys.executable, [sys.executable, *sys.argv])
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
-from oscar_core.model import ModelCard, OscarTransformer3DModel, OscarWorldModel, SamplerConfig  # noqa: E402
-from oscar_core.model.sampler import guided_velocity  # noqa: E402
-from oscar_core.model.tiny import COSMOS_2B_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae  # noqa: E402
-
+from oscar_core.model import ModelCard, OscarTransformer3DModel, OscarWorldModel, SamplerConfig
+from oscar_core.model.sampler import guided_velocity
+from oscar_core.model.tiny import COSMOS_2B_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae
 
 SIZES = ((128, 64), (256, 128))  # width x height in pixels
 CHUNKS = (9, 17)  # frames per chunk (4k+1)
@@ -243,7 +242,7 @@ def check_measure_args(args) -> None:
     try:
         device = torch.device(args.measure)
     except RuntimeError as exc:
-        raise SystemExit(f"--measure: expected a torch device (cuda, cuda:1, cpu), found {args.measure!r}: {exc}")
+        raise SystemExit(f"--measure: expected a torch device (cuda, cuda:1, cpu), found {args.measure!r}: {exc}") from None
     if device.type == "cuda" and not torch.cuda.is_available():
         raise SystemExit(f"--gpu / --measure {args.measure} needs a CUDA device (torch.cuda.is_available() is False "
                          "here)")
@@ -575,15 +574,18 @@ def main(argv=None) -> int:
     if not args.skip_computed:
         big, comp = expected_2b(), computed_2b(args.gpu_steps)
         print_computed(big, comp)
+    from _provenance import with_provenance
+
     from oscar_core._util.atomic import atomic_write_bytes
 
     def write(measured, complete: bool) -> Path:
-        result = json.dumps({"machine": {"python": platform.python_version(), "torch": torch.__version__,
-                                         "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),
-                                         "device": str(device)},
-                             "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
-                             "complete": complete,
-                             "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, indent=2)
+        result = json.dumps(with_provenance({
+            "machine": {"python": platform.python_version(), "torch": torch.__version__,
+                        "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(), "device": str(device)},
+            "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
+            "complete": complete,
+            "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, device=str(device)),
+            indent=2)
         return atomic_write_bytes(args.json, (result + chr(10)).encode())
 
     measured = None

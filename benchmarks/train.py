@@ -610,7 +610,7 @@ def _step_main(args, ap) -> int:
     result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
               "torch": torch.__version__, "step_table": table}
     print_step_table(table)
-    _write(result, args.json or REPO / "benchmarks" / "results" / "train_step.json")
+    _write(result, args.json or REPO / "benchmarks" / "results" / "train_step.json", device=device)
     if table["disagreeing"]:
         worst = {c["variant"]: c["max_diff"] for c in table["agreement"]}
         print("benchmarks/train.py: FAILED: first-step loss or gradients differ from "
@@ -620,11 +620,16 @@ def _step_main(args, ap) -> int:
     return 0
 
 
-def _write(result: dict, path, quiet: bool = False) -> int:
+def _write(result: dict, path, quiet: bool = False, device: str | None = None) -> int:
+    """Write ``result`` as JSON; a top-level result (not ``quiet``: a child's row is) gets the provenance block."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
+    from _provenance import with_provenance
+
     from oscar_core._util.atomic import atomic_write_bytes
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    out = atomic_write_bytes(Path(path), (json.dumps(result, indent=2) + "\n").encode())
+    data = result if quiet else with_provenance(result, device)
+    out = atomic_write_bytes(Path(path), (json.dumps(data, indent=2) + "\n").encode())
     if not quiet:
         print(f"\nwrote {out}")
     return 0

@@ -6,6 +6,8 @@ The public API is re-exported here; submodules load on first use so that
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from ._util.lazy import lazy_exports
 
 __version__ = "0.1.0"
@@ -35,6 +37,80 @@ _EXPORTS = {
     "OscarError": "errors", "InputFileError": "errors", "CameraFileError": "errors", "KinematicsFileError": "errors",
     "TrajectoryError": "errors", "OutputPathError": "errors", "PluginError": "errors",
 }
+
+if TYPE_CHECKING:  # the same names, imported eagerly for type checkers only (tests/test_public_api.py keeps them in step)
+    from .camera import (
+        Camera as Camera,
+        Intrinsics as Intrinsics,
+        load_camera as load_camera,
+        look_at as look_at,
+        project as project,
+        save_camera as save_camera,
+    )
+    from .errors import (
+        CameraFileError as CameraFileError,
+        InputFileError as InputFileError,
+        KinematicsFileError as KinematicsFileError,
+        OscarError as OscarError,
+        OutputPathError as OutputPathError,
+        PluginError as PluginError,
+        TrajectoryError as TrajectoryError,
+    )
+    from .kinematics.fk_torch import (
+        ForwardKinematics as ForwardKinematics,
+    )
+    from .kinematics.trajectory import (
+        Trajectory as Trajectory,
+        interpolate_keyframes as interpolate_keyframes,
+        load_trajectory as load_trajectory,
+        save_trajectory as save_trajectory,
+    )
+    from .kinematics.urdf import (
+        KinematicTree as KinematicTree,
+        build_tree_from_urdf as build_tree_from_urdf,
+        build_tree_from_xacro as build_tree_from_xacro,
+    )
+    from .kinematics.visual import (
+        LinkGeometry as LinkGeometry,
+        VisualGeometry as VisualGeometry,
+    )
+    from .media.video import (
+        read_video as read_video,
+        write_video as write_video,
+    )
+    from .plugin.embodiment import (
+        CameraSpec as CameraSpec,
+        DefaultPoseWarning as DefaultPoseWarning,
+        Embodiment as Embodiment,
+        Gripper as Gripper,
+        JointLimitWarning as JointLimitWarning,
+        SkeletonFrames as SkeletonFrames,
+    )
+    from .plugin.hookspecs import (
+        hookimpl as hookimpl,
+        hookspec as hookspec,
+    )
+    from .plugin.registry import (
+        Registry as Registry,
+        default_registry as default_registry,
+        get_embodiment as get_embodiment,
+    )
+    from .plugin.skeleton import (
+        Skeleton as Skeleton,
+    )
+    from .render.mesh import (
+        MeshStyle as MeshStyle,
+        render_mesh_video as render_mesh_video,
+    )
+    from .render.raster import (
+        GripperMarks as GripperMarks,
+        SkeletonStyle as SkeletonStyle,
+        rasterise as rasterise,
+    )
+    from .render.skeleton_video import (
+        overlay_skeleton as overlay_skeleton,
+        render_skeleton_video as render_skeleton_video,
+    )
 
 _names, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = _names + ["__version__"]

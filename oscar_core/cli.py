@@ -8,8 +8,8 @@ import sys
 import warnings
 
 from ._util.log import cli_output, set_command_line
-from .errors import OscarError
 from ._util.outputs import check_writable, output_kind, output_option
+from .errors import OscarError
 
 EXAMPLES = """examples:
   oscar embodiments
@@ -71,8 +71,8 @@ def cmd_embodiments(args) -> int:
 
 def cmd_demo(args) -> int:
     from .demo import run_demo
-    from .render.skeleton_video import parse_size
     from .plugin.registry import Registry
+    from .render.skeleton_video import parse_size
 
     run_demo(args.out, size=parse_size(args.size), registry=Registry(plugin_paths=args.plugin or ()),
              toy_model=None if args.no_toy_world else args.toy_model)
@@ -199,9 +199,8 @@ def apply_threads(args) -> None:
 
 def main(argv=None) -> int:
     from ._util.interrupt import interrupted, noting_interrupts, report
-    from ._util.threads import passive_openmp
-
     from ._util.provenance import set_command
+    from ._util.threads import passive_openmp
 
     passive_openmp()  # before anything loads torch (and its OpenMP runtime)
     parser = build_parser()

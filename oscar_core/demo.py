@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from ._util.atomic import atomic_output, atomic_write_bytes
 from .errors import OscarError
-from .render.skeleton_video import render_skeleton_video
-from .plugin.registry import Registry
 from .kinematics.trajectory import load_trajectory
 from .media.video import write_video
+from .plugin.registry import Registry
+from .render.skeleton_video import render_skeleton_video
 
 __all__ = ["run_demo", "contact_sheet"]
 

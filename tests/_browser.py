@@ -139,7 +139,6 @@ def keep_screenshot(check: PageCheck, name: str) -> None:
     if os.environ.get("OSCAR_UPDATE_SCREENSHOTS") != "1":
         return
     import cv2
-
     from PIL import Image
 
     img = cv2.imread(str(check.screenshot))

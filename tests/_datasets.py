@@ -41,9 +41,8 @@ def texture(seed: int, h: int, w: int) -> np.ndarray:
 
 def render_rgb(traj, cam, *, seed: int = 0, pan: float = 0.0, size=SIZE) -> np.ndarray:
     """(T, H, W, 3) uint8: skeleton over a texture; the texture moves ``pan`` pixels/frame to the left."""
-    from oscar_toyarm import ToyArm
-
     from oscar_core.render.skeleton_video import render_skeleton_video
+    from oscar_toyarm import ToyArm
 
     W, H = size
     skel = render_skeleton_video(ToyArm(), traj, cam, (W, H))

@@ -17,13 +17,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oscar_core import (Camera, CameraFileError, Intrinsics, Trajectory, TrajectoryError, get_embodiment,
-                        load_camera, load_trajectory, render_skeleton_video)
+from oscar_core import (
+    Camera,
+    CameraFileError,
+    Intrinsics,
+    Trajectory,
+    TrajectoryError,
+    get_embodiment,
+    load_camera,
+    load_trajectory,
+    render_skeleton_video,
+)
 from oscar_core.render.skeleton_video import project_skeleton
 from oscar_embodiments import agibot_g1 as plugin
 from oscar_embodiments.agibot_g1 import HEAD_CAMERA_LINK, JOINTS, LEFT_ARM, RIGHT_ARM, AgiBotG1
-from oscar_embodiments.agibot_g1.adapters import (AGIBOT_WORLD_FPS, HEAD_IMAGE_SIZE, MountConsistencyWarning,
-                                                  from_agibot_world, load_agibot_world_episode)
+from oscar_embodiments.agibot_g1.adapters import (
+    AGIBOT_WORLD_FPS,
+    HEAD_IMAGE_SIZE,
+    MountConsistencyWarning,
+    from_agibot_world,
+    load_agibot_world_episode,
+)
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "agibot_g1" / "G1_omnipicker.urdf"
 READY_L = [1.872, -0.959, -2.46, -1.45, 1.913, 1.476, 0.028]

@@ -2,7 +2,6 @@
 kill-safety, start-up imports, and the small CLI fixes (joint order, quiet pipes, demo sheet)."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -13,17 +12,16 @@ import numpy as np
 import pytest
 
 from oscar_core import get_embodiment, load_camera, load_trajectory, render_skeleton_video, save_trajectory
+from oscar_core.cli import main
+from oscar_core.errors import InputFileError, OutputPathError
+from oscar_core.media.video import read_video
 from oscar_core.render.batch import (
     EpisodeSpec,
-    RenderOptions,
     read_manifest,
     render_episode,
     render_many,
     specs_from_folder,
 )
-from oscar_core.cli import main
-from oscar_core.errors import InputFileError, OutputPathError
-from oscar_core.media.video import read_video
 
 REPO = Path(__file__).resolve().parents[1]
 ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"

@@ -43,7 +43,7 @@ def test_measure_reports_every_preset_eager_and_compiled(tmp_path):
     rows = {(r["preset"], r["variant"]): r for r in m["presets"]}
     assert set(rows) == {(p, v) for p in SAMPLER_PRESETS for v in ("eager", "compiled")}
     frames = m["frames"]
-    for (preset, variant), r in rows.items():
+    for (preset, _variant), r in rows.items():
         config = apply_preset(SamplerConfig(guidance=6.0, solver="unipc"), preset)
         assert r["steps"] == config.steps and r["dit_evaluations"] == model_calls(config)
         # counted by running the chunk == implied by the sampler's evaluation count

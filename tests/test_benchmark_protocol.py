@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from oscar_core._util.stage import StageChanged
-from oscar_core.camera import Intrinsics
-from oscar_core.camera import project_points_cv
+from oscar_core.camera import Intrinsics, project_points_cv
 from oscar_core.cli import main
 from oscar_core.evaluation import benchmark_rules as rules
 from oscar_core.evaluation.benchmark_run import run_benchmark

@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-from oscar_core import Camera, Intrinsics, Skeleton, get_embodiment, load_camera, save_camera, save_trajectory
+from oscar_core import Camera, Intrinsics, Skeleton, get_embodiment, load_camera, save_trajectory
 from oscar_core.calibration.pnp import calibrate, position_error_mm, rotation_error_deg
 from oscar_core.calibration.points import PixelPoints, PointsFileError, load_points, save_points
 from oscar_core.calibration.synthetic import SIZE, observe, problem

@@ -152,7 +152,6 @@ def test_data_filter_rejects_a_wrong_calibration(tmp_path):
 
 def test_perturb_camera_moves_and_turns_in_the_cameras_own_axes():
     from oscar_core.calibration.pnp import position_error_mm, rotation_error_deg
-
     from oscar_core.calibration.synthetic import problem
 
     _, cam, _ = problem(get_embodiment("kuka"), 0)

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from oscar_core import (JointLimitWarning, get_embodiment, load_camera, load_trajectory, look_at,
-                        render_skeleton_video)
+from oscar_core import JointLimitWarning, get_embodiment, load_camera, load_trajectory, look_at, render_skeleton_video
 from oscar_core.camera import CONVENTIONS, DIRECTIONS, Camera, Intrinsics, convention_to_opencv, project, save_camera
 from oscar_core.errors import CameraFileError
 

@@ -13,12 +13,20 @@ import numpy as np
 import pytest
 import torch
 
-from oscar_core.render.capsules import (RADIUS_BASE, RADIUS_TIP, CapsuleStyle, body_reach, body_vertices, finger_axes,
-                                     link_radii, render_capsule_video)
-from oscar_core.render.conditions import CONDITIONS, condition_video, video_condition_of
-from oscar_core.plugin.embodiment import SkeletonFrames
 from oscar_core.errors import PluginError
+from oscar_core.plugin.embodiment import SkeletonFrames
 from oscar_core.plugin.registry import Registry
+from oscar_core.render.capsules import (
+    RADIUS_BASE,
+    RADIUS_TIP,
+    CapsuleStyle,
+    body_reach,
+    body_vertices,
+    finger_axes,
+    link_radii,
+    render_capsule_video,
+)
+from oscar_core.render.conditions import CONDITIONS, condition_video, video_condition_of
 from oscar_core.toyworld.episode import episode_rng, make_episode, render_world
 
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
@@ -194,9 +202,9 @@ def test_a_capsules_model_exports_its_condition_and_rolls_out_through_the_clis(t
     hand it the capsule video of each clip."""
     import json
 
-    import oscar_zoo
     from test_train_loop import tiny
 
+    import oscar_zoo
     from oscar_core.cli import main
     from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
     from oscar_core.train.cache import cache_latents

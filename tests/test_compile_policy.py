@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from oscar_core.model import ModelCard, ModelInputError, OscarWorldModel, SamplerConfig
-from oscar_core.model import compile_policy as cp
+from oscar_core.model import ModelCard, ModelInputError, OscarWorldModel, SamplerConfig, compile_policy as cp
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
 H, W = 32, 64
@@ -265,8 +264,7 @@ def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
     CPU, and an offloaded VAE is read to the CPU. The reads themselves are redirected to the CPU (no GPU here)."""
     import safetensors.torch
 
-    from oscar_core.model import transformer as transformer_module
-    from oscar_core.model import world_model
+    from oscar_core.model import transformer as transformer_module, world_model
 
     folder = _model().save_pretrained(tmp_path / "m")
     original, asked = safetensors.torch.load_file, []

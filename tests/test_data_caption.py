@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import base_parts, write_episode  # noqa: E402
+from _datasets import base_parts, write_episode
 
-from oscar_core.data.caption import SYSTEM_PROMPT, CaptionConfig, frame_indices  # noqa: E402
-from oscar_core.data.engine import StageIncomplete, read_stage  # noqa: E402
-from oscar_core.data.manifest import rows_from_parquet  # noqa: E402
-from oscar_core.data.run import run_caption, run_ingest  # noqa: E402
+from oscar_core.data.caption import SYSTEM_PROMPT, CaptionConfig, frame_indices
+from oscar_core.data.engine import StageIncomplete, read_stage
+from oscar_core.data.manifest import rows_from_parquet
+from oscar_core.data.run import run_caption, run_ingest
 
 pytest.importorskip("openai")
 

@@ -8,11 +8,21 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import base_parts, write_episode  # noqa: E402
+from _datasets import base_parts, write_episode
 
-from oscar_core.data.dedup import (DedupConfig, SiglipEmbedder, UnionFind, adaptive_threshold,  # noqa: E402
-                                   brute_force_pairs, candidate_pairs, dedup_rows, motion_scale, pca_projection,
-                                   resample_points, trajectory_rms)
+from oscar_core.data.dedup import (
+    DedupConfig,
+    SiglipEmbedder,
+    UnionFind,
+    adaptive_threshold,
+    brute_force_pairs,
+    candidate_pairs,
+    dedup_rows,
+    motion_scale,
+    pca_projection,
+    resample_points,
+    trajectory_rms,
+)
 
 transformers = pytest.importorskip("transformers")
 pytest.importorskip("faiss")

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import write_episode  # noqa: E402
+from _datasets import write_episode
 
-from oscar_core.data import _fs  # noqa: E402
-from oscar_core.data.engine import StageIncomplete, read_stage, run_sharded  # noqa: E402
-from oscar_core.data.run import run_filter, run_ingest  # noqa: E402
+from oscar_core.data import _fs
+from oscar_core.data.engine import StageIncomplete, read_stage, run_sharded
+from oscar_core.data.run import run_filter, run_ingest
 
 
 class Double:

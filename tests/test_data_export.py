@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import SIZE, base_parts, write_episode  # noqa: E402
+from _datasets import SIZE, base_parts, write_episode
 
-from oscar_core.cli import main  # noqa: E402
-from oscar_core.data.engine import read_stage  # noqa: E402
-from oscar_core.data.export import clip_id  # noqa: E402
-from oscar_core.train.clips import ClipSet  # noqa: E402
+from oscar_core.cli import main
+from oscar_core.data.engine import read_stage
+from oscar_core.data.export import clip_id
+from oscar_core.train.clips import ClipSet
 
 
 @pytest.fixture(scope="module")
@@ -31,9 +31,8 @@ def run(tmp_path_factory):
 
 
 def test_export_writes_a_clip_set_the_trainer_reads(run):
-    from oscar_toyarm import ToyArm
-
     from oscar_core.render.skeleton_video import render_skeleton_video
+    from oscar_toyarm import ToyArm
 
     root, r = run
     assert main(["data", "export", str(r), "--out", str(root / "clips"), "--render-skeleton", "--workers", "1",

@@ -9,13 +9,12 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import SIZE, base_parts, write_episode  # noqa: E402
+from _datasets import SIZE, base_parts, write_episode
 
-from oscar_core.data.engine import read_stage  # noqa: E402
-from oscar_core.data.filters import (FilterConfig, decide, measure_action, measure_spikes,  # noqa: E402
-                                     measure_visible)
-from oscar_core.data.run import run_filter, run_ingest  # noqa: E402
-from oscar_core.data.stats import compute_stats, format_table  # noqa: E402
+from oscar_core.data.engine import read_stage
+from oscar_core.data.filters import FilterConfig, decide, measure_action, measure_spikes, measure_visible
+from oscar_core.data.run import run_filter, run_ingest
+from oscar_core.data.stats import compute_stats, format_table
 
 
 def build_source(root: Path) -> Path:

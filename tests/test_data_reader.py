@@ -5,10 +5,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from oscar_core.plugin.reader import EpisodeError, EpisodeRef, Reader, VideoSource
 from oscar_core.errors import PluginError
-from oscar_core.plugin.registry import Registry
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError, EpisodeRef, Reader, VideoSource
+from oscar_core.plugin.registry import Registry
 
 
 def _plugin(tmp_path, body):

@@ -9,11 +9,11 @@ import pytest
 
 pytest.importorskip("pyarrow")
 
-from oscar_core.cli import main  # noqa: E402
-from oscar_core.data.dedup import trajectory_embedding  # noqa: E402
-from oscar_core.data.engine import read_stage  # noqa: E402
-from oscar_core.data.stats import column_of  # noqa: E402
-from oscar_core.train.clips import ClipSet  # noqa: E402
+from oscar_core.cli import main
+from oscar_core.data.dedup import trajectory_embedding
+from oscar_core.data.engine import read_stage
+from oscar_core.data.stats import column_of
+from oscar_core.train.clips import ClipSet
 
 
 @pytest.mark.slow

@@ -5,8 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from oscar_core import (Camera, DefaultPoseWarning, JointLimitWarning, Trajectory,
-                        get_embodiment, render_skeleton_video)
+from oscar_core import Camera, DefaultPoseWarning, JointLimitWarning, Trajectory, get_embodiment, render_skeleton_video
 from oscar_core.errors import PluginError, TrajectoryError
 
 

@@ -7,10 +7,10 @@ depends on ``oscar`` fails here rather than sending a user to the other project.
 """
 
 import re
-import tomllib
 from pathlib import Path
 
 import pytest
+import tomllib
 
 REPO = Path(__file__).resolve().parents[1]
 DIST = "oscar-wm"

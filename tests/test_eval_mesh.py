@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 
 from oscar_core import get_embodiment, load_camera, load_trajectory
-from oscar_core.evaluation.rollout_engines import _roll_out, cell_inputs
 from oscar_core.evaluation.manifest import Cell
-from oscar_core.render.mesh import render_mesh_video
+from oscar_core.evaluation.rollout_engines import _roll_out, cell_inputs
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+from oscar_core.render.mesh import render_mesh_video
 from oscar_core.render.skeleton_video import render_skeleton_video
 
 ASSETS = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
@@ -31,8 +31,8 @@ def test_a_cell_of_a_mesh_model_is_conditioned_on_the_mesh(tmp_path):
         model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
                                              ModelCard(name="m", chunk_frames=9, fps=15.0, condition=condition))
 
-        def spy(first_frame, skeleton, *args, _rollout=model.rollout, **kwargs):
-            seen[condition] = skeleton
+        def spy(first_frame, skeleton, *args, _rollout=model.rollout, _condition=condition, **kwargs):
+            seen[_condition] = skeleton
             return _rollout(first_frame, skeleton, *args, **kwargs)
 
         model.rollout = spy

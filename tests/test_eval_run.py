@@ -391,8 +391,8 @@ def test_all_tied_preferences_give_tied_ranks_not_float_noise(tmp_path, model_di
 
 @pytest.mark.slow
 def test_batched_cells_equal_one_at_a_time_and_resume(tmp_path, model_dir):
-    from oscar_core.model import SamplerConfig
     from oscar_core.media.video import read_video
+    from oscar_core.model import SamplerConfig
 
     manifest = make_study(tmp_path / "study")
     model = oscar_zoo.load(str(model_dir))
@@ -416,8 +416,8 @@ def test_batched_cells_equal_one_at_a_time_and_resume(tmp_path, model_dir):
 @pytest.mark.slow
 def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
     pytest.importorskip("ray", reason='ray is not installed (pip install "oscar-wm[ray]")')
-    from oscar_core.model import SamplerConfig
     from oscar_core.media.video import read_video
+    from oscar_core.model import SamplerConfig
 
     manifest = make_study(tmp_path / "study")
     judge = ProgrammaticJudge(lambda video, clip: {"binary": clip.info["wm"], "partial": 50, "reason": "ok"})

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import write_episode  # noqa: E402
+from _datasets import write_episode
 
-from oscar_core._util.interrupt import message, output_of  # noqa: E402
+from oscar_core._util.interrupt import message, output_of
 
 CLI = [sys.executable, "-m", "oscar_core.cli"]
 ENV = dict(os.environ, OMP_NUM_THREADS="1")

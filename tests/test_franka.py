@@ -10,8 +10,16 @@ import importlib.metadata
 import numpy as np
 import pytest
 
-from oscar_core import (Camera, CameraFileError, Intrinsics, PluginError, Trajectory, TrajectoryError, project,
-                        render_skeleton_video)
+from oscar_core import (
+    Camera,
+    CameraFileError,
+    Intrinsics,
+    PluginError,
+    Trajectory,
+    TrajectoryError,
+    project,
+    render_skeleton_video,
+)
 from oscar_embodiments import franka as franka_plugin
 from oscar_embodiments.franka import JOINT_NAMES, Franka, panda_urdf_path
 from oscar_embodiments.franka.adapters import from_droid, from_interndata, from_rh20t, rh20t_base_to_camera

@@ -12,8 +12,13 @@ import pytest
 from oscar_core import Trajectory, get_embodiment, load_camera, load_trajectory, render_skeleton_video
 from oscar_embodiments.franka import JOINT_NAMES
 from oscar_embodiments.franka.adapters import from_droid
-from oscar_embodiments.franka.robotiq import (COUPLING_LENGTH, FLANGE, ROBOTIQ_CLOSED, FrankaRobotiq,
-                                              build_franka_robotiq_tree)
+from oscar_embodiments.franka.robotiq import (
+    COUPLING_LENGTH,
+    FLANGE,
+    ROBOTIQ_CLOSED,
+    FrankaRobotiq,
+    build_franka_robotiq_tree,
+)
 
 READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
 PAD_THICKNESS = 0.00635  # m, <box size="0.022 0.00635 0.0375"/> of the description's finger pad

@@ -11,7 +11,7 @@ as for the mesh goldens (the same rasteriser, no anti-aliasing); a joint moved b
 import numpy as np
 import pytest
 
-from oscar_core import Registry, load_camera, load_trajectory
+from oscar_core import Registry, load_trajectory
 from oscar_core.render.capsules import render_capsule_video
 from oscar_core.testing import compare_images
 

@@ -5,7 +5,6 @@ Regenerate (then look at the PNGs before committing) with
 Tolerance as for the other embodiments: RMS 1.5 on 0-255.
 """
 
-import numpy as np
 import pytest
 
 from oscar_core import get_embodiment, load_camera, load_trajectory, render_skeleton_video

@@ -16,8 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oscar_core import (Camera, CameraFileError, Intrinsics, Trajectory, TrajectoryError, get_embodiment,
-                        load_camera, load_trajectory, render_skeleton_video)
+from oscar_core import (
+    Camera,
+    CameraFileError,
+    Intrinsics,
+    Trajectory,
+    TrajectoryError,
+    get_embodiment,
+    load_camera,
+    load_trajectory,
+    render_skeleton_video,
+)
 from oscar_embodiments import hsr as plugin
 from oscar_embodiments.hsr import HAND_RANGE, HEAD_CAMERA_LINK, HSR, JOINTS, base_pose_from_xy_yaw
 from oscar_embodiments.hsr.adapters import AIROA_MOMA_FPS, AIROA_MOMA_STATE_NAMES, HEAD_INTRINSICS, from_airoa_moma

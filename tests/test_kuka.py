@@ -21,8 +21,16 @@ import importlib.metadata
 import numpy as np
 import pytest
 
-from oscar_core import (Camera, CameraFileError, Intrinsics, KinematicsFileError, Trajectory, TrajectoryError,
-                        project, render_skeleton_video)
+from oscar_core import (
+    Camera,
+    CameraFileError,
+    Intrinsics,
+    KinematicsFileError,
+    Trajectory,
+    TrajectoryError,
+    project,
+    render_skeleton_video,
+)
 from oscar_embodiments import kuka as kuka_plugin
 from oscar_embodiments.kuka import ASSETS, JOINT_NAMES, KukaIiwa14
 from oscar_embodiments.kuka.adapters import from_rh20t, rh20t_base_to_camera

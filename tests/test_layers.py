@@ -1,16 +1,20 @@
-"""The house rules of docs/architecture.md: imports go down the layers, never up, and never in a loop.
+"""The house rules of docs/architecture.md: imports go down the floors, never up, and never in a loop; the
+top level of oscar_core holds only the modules named here.
 
-Every ``import`` in oscar_core, oscar_zoo and oscar_embodiments is read from the
-source (including imports inside functions, which are real dependencies even when
-deferred; only imports under ``if TYPE_CHECKING:`` are left out), resolved to the
-module it names, and checked against the layer table below. The checker is tested
-on a made-up package too, so a broken checker cannot pass silently.
+The floors are read from the folders: every package folder of oscar_core (and the two sibling import packages
+oscar_zoo and oscar_embodiments) belongs to exactly one floor of ``FLOORS``, and a module's floor is its folder's.
+Two rules name modules instead of folders: a module called ``cli``, ``cli_*`` or ``__main__`` in any folder is on
+the top floor (argument parsing and printing), and the few modules at oscar_core's top level are listed one by one
+(``TOP_LEVEL``) -- a new top-level module or a new folder with no floor fails the test.
+
+Every ``import`` is read from the source (including imports inside functions, which are real dependencies even when
+deferred; only imports under ``if TYPE_CHECKING:`` are left out) and resolved to the module it names. The checker is
+tested on a made-up package too, so a broken checker cannot pass silently.
 """
 
 from __future__ import annotations
 
 import ast
-import fnmatch
 from pathlib import Path
 
 import pytest
@@ -18,23 +22,32 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = {"oscar_core": ROOT / "oscar_core", "oscar_zoo": ROOT / "zoo", "oscar_embodiments": ROOT / "embodiments"}
 
-#: Bottom to top. A module belongs to the first layer with a matching pattern (fnmatch on the
-#: dotted name); it may import its own layer and the layers below, never one above.
-LAYERS: list[tuple[str, list[str]]] = [
-    ("cli", ["oscar_core.cli", "oscar_core.demo", "oscar_core.render.cli", "oscar_core.*.cli",
-             "oscar_core.*.cli_*", "oscar_core.train.__main__"]),
-    ("toyworld", ["oscar_core.toyworld", "oscar_core.toyworld.*"]),
-    ("evaluation", ["oscar_core.evaluation", "oscar_core.evaluation.*"]),
-    ("data", ["oscar_core.data", "oscar_core.data.*"]),
-    ("train", ["oscar_core.train", "oscar_core.train.*"]),
-    ("metrics", ["oscar_core.metrics", "oscar_core.metrics.*"]),
-    ("zoo", ["oscar_zoo", "oscar_zoo.*"]),
-    ("model", ["oscar_core.model", "oscar_core.model.*"]),
-    ("calibration", ["oscar_core.calibration", "oscar_core.calibration.*"]),
-    ("render", ["oscar_core.render", "oscar_core.render.*", "oscar_core.media", "oscar_core.media.*"]),
-    ("embodiments", ["oscar_embodiments", "oscar_embodiments.*"]),
-    ("foundation", ["oscar_core", "oscar_core.*"]),
-][::-1]
+#: Bottom to top; each floor names its folders (packages of oscar_core, or a sibling import package) and the
+#: top-level modules of oscar_core that sit on it. A module may import its own floor and the floors below.
+FLOORS: list[tuple[str, tuple[str, ...]]] = [
+    ("base", ("_util", "errors", "__init__")),  # helpers, error types; the flat API imports its names lazily
+    ("camera", ("camera",)),
+    ("kinematics", ("kinematics",)),
+    ("plugin", ("plugin", "embodiment", "hookspecs", "trajectory", "urdf")),  # the contract + its public paths
+    ("embodiments", ("oscar_embodiments",)),
+    ("media", ("media",)),
+    ("render", ("render",)),
+    ("calibration", ("calibration",)),  # cameras from 2D-3D points, and how well a camera fits a video
+    ("model", ("model",)),
+    ("zoo", ("oscar_zoo",)),
+    ("metrics", ("metrics",)),
+    ("train", ("train",)),
+    ("data", ("data",)),
+    ("evaluation", ("evaluation",)),
+    ("toyworld", ("toyworld",)),
+    ("cli", ("cli", "demo", "testing")),  # + every cli / cli_* / __main__ module of any folder
+]
+
+#: The only modules allowed at oscar_core's top level (everything else lives in a folder of ``FLOORS``).
+TOP_LEVEL = {"__init__", "cli", "demo", "errors", "embodiment", "trajectory", "urdf", "hookspecs"}
+
+#: Folders of oscar_core that hold no Python (package data).
+DATA_FOLDERS = {"templates", "__pycache__"}
 
 #: Upward imports kept on purpose, each with its reason. Keep this list short.
 ALLOWED_UPWARD: dict[tuple[str, str], str] = {
@@ -45,12 +58,47 @@ ALLOWED_UPWARD: dict[tuple[str, str], str] = {
 }
 
 
-def layer_of(module: str, layers=LAYERS) -> int:
-    """Index of ``module``'s layer in ``layers`` (0 = bottom); KeyError if no pattern matches."""
-    for index in range(len(layers) - 1, -1, -1):  # most specific (top) first: 'oscar_core.*.cli' before 'oscar_core.*'
-        if any(fnmatch.fnmatchcase(module, pattern) for pattern in layers[index][1]):
+def is_cli(module: str) -> bool:
+    """A command-line module: ``cli``, ``cli_*`` or ``__main__`` (these sit on the top floor wherever they are)."""
+    last = module.rsplit(".", 1)[-1]
+    return last in ("cli", "__main__") or last.startswith("cli_")
+
+
+def unit_of(module: str, root: str = "oscar_core") -> str:
+    """The name a floor lists for ``module``: its folder under ``root`` (``oscar_core.render.raster`` -> ``render``),
+    its own name at ``root``'s top level (``oscar_core.errors`` -> ``errors``; ``oscar_core`` -> ``__init__``), or
+    its import package when outside ``root`` (``oscar_zoo._hub`` -> ``oscar_zoo``)."""
+    parts = module.split(".")
+    if parts[0] != root:
+        return parts[0]
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def layer_of(module: str, floors=FLOORS, root: str = "oscar_core") -> int:
+    """Index of ``module``'s floor in ``floors`` (0 = bottom); KeyError if its folder is on no floor."""
+    if is_cli(module):
+        return len(floors) - 1
+    unit = unit_of(module, root)
+    for index, (_, units) in enumerate(floors):
+        if unit in units:
             return index
-    raise KeyError(f"{module}: in no layer of the table")
+    raise KeyError(f"{module}: its folder or name {unit!r} is on no floor of FLOORS")
+
+
+def top_level_strays(folder: Path, floors=FLOORS, allowed=TOP_LEVEL, data_folders=DATA_FOLDERS) -> list[str]:
+    """Entries of the package ``folder``'s top level that break the layout: a module outside ``allowed``, a folder
+    with Python in it that is on no floor, a folder named on a floor that is a module, or a non-package folder."""
+    on_floors = {unit for _, units in floors for unit in units}
+    bad = []
+    for entry in sorted(folder.iterdir()):
+        if entry.is_file() and entry.suffix == ".py" and entry.stem not in allowed:
+            bad.append(f"{entry.name}: a module at the top level outside the allowed set {sorted(allowed)}")
+        elif entry.is_dir() and entry.name not in data_folders:
+            if entry.name not in on_floors:
+                bad.append(f"{entry.name}/: a folder on no floor (add it to FLOORS, or move its modules into one)")
+            elif not (entry / "__init__.py").is_file():
+                bad.append(f"{entry.name}/: a folder on a floor without an __init__.py")
+    return bad
 
 
 def module_files(packages: dict[str, Path]) -> dict[str, Path]:
@@ -109,13 +157,13 @@ def import_graph(packages: dict[str, Path]) -> dict[str, set[str]]:
     return graph
 
 
-def upward_imports(graph, layers=LAYERS, allowed=ALLOWED_UPWARD) -> list[str]:
+def upward_imports(graph, floors=FLOORS, allowed=ALLOWED_UPWARD, root: str = "oscar_core") -> list[str]:
     bad = []
     for module, targets in sorted(graph.items()):
         for target in sorted(targets):
-            if layer_of(target, layers) > layer_of(module, layers) and (module, target) not in allowed:
-                bad.append(f"{module} ({layers[layer_of(module, layers)][0]}) imports {target} "
-                           f"({layers[layer_of(target, layers)][0]})")
+            low, high = layer_of(module, floors, root), layer_of(target, floors, root)
+            if high > low and (module, target) not in allowed:
+                bad.append(f"{module} ({floors[low][0]}) imports {target} ({floors[high][0]})")
     return bad
 
 
@@ -151,13 +199,13 @@ def cycles(graph) -> list[list[str]]:
     return out
 
 
-def sub_cli_imports(graph) -> list[str]:
-    """A package's CLI module importing another package's CLI module (only oscar_core.cli assembles them)."""
-    def is_cli(m):
-        return m != "oscar_core.cli" and (m.endswith(".cli") or ".cli_" in m)
+def sub_cli_imports(graph, top: str = "oscar_core.cli") -> list[str]:
+    """A package's CLI module importing another package's CLI module (only ``top`` assembles them)."""
+    def sub_cli(m):
+        return m != top and is_cli(m)
 
-    return [f"{m} imports {t}" for m, ts in sorted(graph.items()) if is_cli(m) for t in sorted(ts)
-            if is_cli(t) and t.rsplit(".", 1)[0] != m.rsplit(".", 1)[0]]
+    return [f"{m} imports {t}" for m, ts in sorted(graph.items()) if sub_cli(m) for t in sorted(ts)
+            if sub_cli(t) and t.rsplit(".", 1)[0] != m.rsplit(".", 1)[0]]
 
 
 @pytest.fixture(scope="module")
@@ -165,9 +213,25 @@ def graph():
     return import_graph(PACKAGES)
 
 
-def test_every_module_is_in_a_layer(graph):
+def test_every_module_is_on_a_floor(graph):
     for module in graph:
         layer_of(module)
+
+
+def test_the_top_level_holds_only_the_allowed_modules_and_floor_folders():
+    assert top_level_strays(PACKAGES["oscar_core"]) == []
+
+
+def test_the_architecture_page_draws_every_floor():
+    diagram = (ROOT / "docs" / "architecture.md").read_text().split("```")[1]
+    drawn = [line.split()[0] for line in diagram.splitlines() if line[:1] == " " and line.split()[0].isidentifier()]
+    assert drawn == [name for name, _ in FLOORS][::-1]
+
+
+def test_every_floor_names_something_that_exists():
+    # a stale entry would let a new module of that name in unnoticed
+    units = {unit_of(module) for module in module_files(PACKAGES)}
+    assert {unit for _, names in FLOORS for unit in names} <= units
 
 
 def test_no_lower_layer_imports_a_higher_one(graph):
@@ -190,25 +254,57 @@ def test_allowed_upward_imports_still_exist(graph):
         assert target in graph[module], f"{module} no longer imports {target}: drop it from ALLOWED_UPWARD"
 
 
+def make_package(root: Path, files: dict[str, str]) -> Path:
+    for rel, text in files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_text(text)
+    return root
+
+
 def test_the_checker_finds_an_upward_import_a_loop_and_a_cli_reaching_sideways(tmp_path):
-    pkg = tmp_path / "pkg"
-    for rel, text in {
-        "__init__.py": "",
-        "low.py": "def f():\n    from .high import g\n",          # upward, and deferred inside a function
-        "high.py": "from . import low\n",                             # closes a loop low -> high -> low
-        "a/__init__.py": "", "a/cli.py": "from ..b.cli import x\n",   # one sub-CLI importing another
-        "b/__init__.py": "", "b/cli.py": "import pkg.low\nif TYPE_CHECKING:\n    from .. import high\n",
-    }.items():
-        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
-        (pkg / rel).write_text(text)
-    layers = [("low", ["pkg.low", "pkg", "pkg.a", "pkg.b"]), ("high", ["pkg.high"]), ("cli", ["pkg.*.cli"])]
+    pkg = make_package(tmp_path / "pkg", {
+        "__init__.py": "", "cli.py": "from .high import cli\n",
+        "low/__init__.py": "", "low/a.py": "def f():\n    from ..high.b import g\n",  # upward, deferred in a function
+        "high/__init__.py": "", "high/b.py": "from ..low import a\n",              # closes a loop a -> b -> a
+        "high/cli.py": "from ..side.cli import x\n",                                # one sub-CLI importing another
+        "side/__init__.py": "", "side/cli.py": "import pkg.low.a\nif TYPE_CHECKING:\n    from ..high import b\n",
+    })
+    floors = [("low", ("low", "__init__")), ("high", ("high", "side")), ("cli", ("cli",))]
     g = import_graph({"pkg": pkg})
-    assert g["pkg.low"] == {"pkg.high"} and g["pkg.b.cli"] == {"pkg.low"}
-    assert upward_imports(g, layers, {}) == ["pkg.low (low) imports pkg.high (high)"]
-    assert upward_imports(g, layers, {("pkg.low", "pkg.high"): "reason"}) == []
-    assert cycles(g) == [["pkg.high", "pkg.low"]]
-    assert [s.replace("pkg.", "") for s in sub_cli_imports({"pkg.a.cli": {"pkg.b.cli"}, "pkg.b.cli": set()})] \
-        == ["a.cli imports b.cli"]
+    assert g["pkg.low.a"] == {"pkg.high.b"} and g["pkg.side.cli"] == {"pkg.low.a"}
+    # the floor comes from the folder; a cli module is on the top floor whatever its folder
+    assert [layer_of(m, floors, "pkg") for m in ("pkg", "pkg.low.a", "pkg.side", "pkg.high.cli", "pkg.cli")] \
+        == [0, 0, 1, 2, 2]
+    assert upward_imports(g, floors, {}, "pkg") == ["pkg.low.a (low) imports pkg.high.b (high)"]
+    assert upward_imports(g, floors, {("pkg.low.a", "pkg.high.b"): "reason"}, "pkg") == []
+    # the same import is allowed once both folders share a floor: the rule is the folders' order, nothing else
+    assert upward_imports(g, [("all", ("low", "high", "side", "__init__")), ("cli", ("cli",))], {}, "pkg") == []
+    assert cycles(g) == [["pkg.high.b", "pkg.low.a"]]
+    assert sub_cli_imports(g, top="pkg.cli") == ["pkg.high.cli imports pkg.side.cli"]
+
+
+def test_the_checker_finds_a_stray_top_level_module_and_a_folder_on_no_floor(tmp_path):
+    pkg = make_package(tmp_path / "pkg", {
+        "__init__.py": "", "errors.py": "", "cli.py": "",
+        "low/__init__.py": "", "low/a.py": "",
+        "helpers.py": "",                                 # a new top-level module
+        "extra/__init__.py": "", "extra/m.py": "",        # a new folder that no floor names
+        "loose/m.py": "",                                 # a floor's folder that is not a package
+        "templates/page.html.j2": "",                     # package data: allowed
+    })
+    floors = [("low", ("low", "loose", "errors", "__init__")), ("cli", ("cli",))]
+    allowed = {"__init__", "errors", "cli"}
+    assert top_level_strays(pkg, floors, allowed, {"templates"}) == [
+        "extra/: a folder on no floor (add it to FLOORS, or move its modules into one)",
+        "helpers.py: a module at the top level outside the allowed set ['__init__', 'cli', 'errors']",
+        "loose/: a folder on a floor without an __init__.py",
+    ]
+    assert top_level_strays(pkg, floors + [("extra", ("extra",))], allowed | {"helpers"}, {"templates", "loose"}) \
+        == []
+    with pytest.raises(KeyError, match="'extra' is on no floor"):
+        layer_of("pkg.extra.m", floors, "pkg")
+    with pytest.raises(KeyError, match="'helpers' is on no floor"):
+        layer_of("pkg.helpers", floors, "pkg")
 
 
 #: the import paths that plugins and the docs use, with the module that holds their names

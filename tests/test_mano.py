@@ -3,20 +3,42 @@
 import sys
 
 import numpy as np
-
-from oscar_core.camera import look_at
 import pytest
 
-from oscar_core import (Camera, Intrinsics, Trajectory, get_embodiment, load_camera, load_trajectory,
-                        render_skeleton_video, save_trajectory)
+from oscar_core import (
+    Camera,
+    Intrinsics,
+    Trajectory,
+    get_embodiment,
+    load_camera,
+    load_trajectory,
+    render_skeleton_video,
+    save_trajectory,
+)
+from oscar_core.camera import look_at
 from oscar_core.errors import TrajectoryError
 from oscar_core.render.skeleton_video import project_skeleton
-from oscar_embodiments.mano import (SMPLX_MISSING, Mano, egocentric_camera, hand_openness, to_camera_frame,
-                                    trajectory_from_keypoints, trajectory_from_mano)
+from oscar_embodiments.mano import (
+    SMPLX_MISSING,
+    Mano,
+    egocentric_camera,
+    hand_openness,
+    to_camera_frame,
+    trajectory_from_keypoints,
+    trajectory_from_mano,
+)
 from oscar_embodiments.mano.flexion import R_FIST, hold_missing
 from oscar_embodiments.mano.synthetic import hand_keypoints, place, rotation
-from oscar_embodiments.mano.topology import (COLORS, EDGES, FINGERTIP_VERTICES, GROUPS, KEYPOINT_NAMES,
-                                             MANO_JOINT_NAMES, MANO_TO_KEYPOINTS, POINT_NAMES)
+from oscar_embodiments.mano.topology import (
+    COLORS,
+    EDGES,
+    FINGERTIP_VERTICES,
+    GROUPS,
+    KEYPOINT_NAMES,
+    MANO_JOINT_NAMES,
+    MANO_TO_KEYPOINTS,
+    POINT_NAMES,
+)
 
 SIZE = (256, 144)
 

@@ -8,7 +8,6 @@ named ``chumpy.ch.Ch`` that exists in ``sys.modules`` only while pickling.
 """
 
 import contextlib
-import io
 import os
 import pickle
 import sys
@@ -182,8 +181,11 @@ def test_protocol_0_pickles_load_too():
 smplx = pytest.importorskip("smplx")
 
 
-def expected_keypoints(model, R=np.eye(3), transl=np.zeros(3)):
-    """Keypoints of the rest pose rotated by R about the wrist joint (independent of smplx)."""
+def expected_keypoints(model, R=None, transl=None):
+    """Keypoints of the rest pose rotated by R (default: identity) about the wrist joint, then shifted by transl
+    (independent of smplx)."""
+    R = np.eye(3) if R is None else R
+    transl = np.zeros(3) if transl is None else transl
     joints = model["J_regressor"] @ model["v_template"]
     pts = np.array([joints[s] if isinstance(s, int) else model["v_template"][TIPS[["thumb", "index", "middle", "ring", "pinky"].index(s)]]
                     for s in KEYPOINT_SOURCES])

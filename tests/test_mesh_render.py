@@ -12,13 +12,35 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oscar_core import (Camera, Embodiment, Gripper, Intrinsics, KinematicsFileError, PluginError, Skeleton,
-                        Trajectory, look_at, project)
-from oscar_core.render.mesh_raster import rasterise_mesh
-from oscar_core.render.mesh import (MeshStyle, iter_mesh_chunks, link_palette, mesh_geometry, mesh_vertices,
-                                    render_mesh_video)
+from oscar_core import (
+    Camera,
+    Embodiment,
+    Intrinsics,
+    KinematicsFileError,
+    PluginError,
+    Skeleton,
+    Trajectory,
+    look_at,
+    project,
+)
 from oscar_core.kinematics.mesh_simplify import cluster_vertices
-from oscar_core.kinematics.visual import LinkGeometry, VisualGeometry, box_mesh, capsule_mesh, cylinder_mesh, sphere_mesh
+from oscar_core.kinematics.visual import (
+    LinkGeometry,
+    VisualGeometry,
+    box_mesh,
+    capsule_mesh,
+    cylinder_mesh,
+    sphere_mesh,
+)
+from oscar_core.render.mesh import (
+    MeshStyle,
+    iter_mesh_chunks,
+    link_palette,
+    mesh_geometry,
+    mesh_vertices,
+    render_mesh_video,
+)
+from oscar_core.render.mesh_raster import rasterise_mesh
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "examples" / "oscar-toyarm"))
@@ -336,9 +358,9 @@ def test_a_plugin_can_give_its_own_geometry(tmp_path):
 
 
 def test_cli_and_batch_render_the_mesh_condition(tmp_path):
-    from oscar_core.render.batch import read_manifest, render_many
     from oscar_core.cli import main
     from oscar_core.media.video import read_video
+    from oscar_core.render.batch import read_manifest, render_many
 
     assets = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
     traj, cam = assets / "example_trajectory.npz", assets / "example_camera.json"

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from oscar_core.metrics import (  # noqa: E402
+from oscar_core.metrics import (
     MetricInputError,
     add_eval_parser,
     compare_policies,

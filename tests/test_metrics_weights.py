@@ -16,8 +16,15 @@ import torch.nn.functional as F
 from oscar_core.cli import main as oscar_main
 from oscar_core.metrics import lpips as lpips_metric
 from oscar_core.metrics.lpips_net import LPIPS, alexnet_features, vgg16_features
-from oscar_core.metrics.weights import (LOCK_NAME, WEIGHTS, WeightFile, WeightHashError, cached_networks,
-                                        pull_weights, weight_path)
+from oscar_core.metrics.weights import (
+    LOCK_NAME,
+    WEIGHTS,
+    WeightFile,
+    WeightHashError,
+    cached_networks,
+    pull_weights,
+    weight_path,
+)
 
 # torchvision's parameter names and shapes (torchvision/models/alexnet.py, vgg.py cfg "D"): a second source
 TV_ALEXNET = {"features.0.weight": (64, 3, 11, 11), "features.0.bias": (64,), "features.3.weight": (192, 64, 5, 5),

@@ -9,8 +9,8 @@ from diffusers.models.transformers import transformer_cosmos
 
 from oscar_core.model import CheckpointLayoutError, ModelInputError, OscarTransformer3DModel
 from oscar_core.model._resize import _SHIM
-from oscar_core.model.weights import meta_tensors
 from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG, build_tiny_transformer
+from oscar_core.model.weights import meta_tensors
 
 B, T, H, W = 2, 3, 4, 8
 

@@ -5,8 +5,16 @@ import pytest
 import torch
 from safetensors import safe_open
 
-from oscar_core.model import (CheckpointIntegrityError, ModelCard, ModelInputError, OscarWorldModel,
-                              PromptEmbeddingCache, VideoVAE, check_frame_count, empty_prompt_embeds)
+from oscar_core.model import (
+    CheckpointIntegrityError,
+    ModelCard,
+    ModelInputError,
+    OscarWorldModel,
+    PromptEmbeddingCache,
+    VideoVAE,
+    check_frame_count,
+    empty_prompt_embeds,
+)
 from oscar_core.model.text import prompt_key
 from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae
 

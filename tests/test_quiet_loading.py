@@ -67,10 +67,10 @@ def test_eval_video_with_the_toy_vae_prints_no_hint(tmp_path):
 
 def test_the_strict_loader_matches_diffusers_own(one_thread):
     """A second implementation: diffusers' ``from_pretrained`` gives the same weights and the same latents."""
-    import oscar_zoo
     import torch
     from diffusers import AutoencoderKLWan
 
+    import oscar_zoo
     from oscar_core.metrics.project_vae import load_project_vae
     from oscar_core.model.vae import VideoVAE, load_vae_folder
 
@@ -90,7 +90,6 @@ def test_the_strict_loader_refuses_a_broken_folder(tmp_path, bad):
     import shutil
 
     import oscar_zoo
-
     from oscar_core.model.errors import CheckpointLayoutError
     from oscar_core.model.vae import load_vae_folder
 

@@ -7,10 +7,10 @@ import pytest
 
 h5py = pytest.importorskip("h5py")
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.agibot_world import AgiBotWorldReader
 from oscar_core.kinematics.trajectory import Trajectory
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 from oscar_embodiments.agibot_g1 import HEAD_CAMERA_LINK, JOINTS, AgiBotG1
 
 T = 12

@@ -9,9 +9,9 @@ h5py = pytest.importorskip("h5py")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.droid import DroidRawReader
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 
 T = 9
 EXT1, EXT2, WRIST = "24259877", "26405488", "13062452"

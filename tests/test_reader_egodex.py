@@ -7,9 +7,9 @@ h5py = pytest.importorskip("h5py")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.egodex import EGODEX_JOINTS, EgoDexReader
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 from oscar_embodiments.mano.synthetic import hand_keypoints
 
 T = 10

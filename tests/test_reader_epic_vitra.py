@@ -5,9 +5,9 @@ import os
 import numpy as np
 import pytest
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.epic_vitra import EpicVitraReader, parse_episode_name
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 from oscar_embodiments.mano.synthetic import hand_keypoints
 
 T, FIRST, FPS = 8, 10, 25

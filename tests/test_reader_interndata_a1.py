@@ -10,9 +10,9 @@ pq = pytest.importorskip("pyarrow.parquet")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.interndata_a1 import InternDataA1Reader
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 
 FPS = 30
 POSE = [0.9, 0.1, 0.7, 0.3, -0.6, 0.65, -0.3]  # x, y, z, qw, qx, qy, qz (normalised below)

@@ -10,9 +10,9 @@ pq = pytest.importorskip("pyarrow.parquet")
 
 from scipy.spatial.transform import Rotation
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.lerobot import LeRobotReader
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 
 FPS = 15.0
 LENGTHS = (8, 10)  # two episodes sharing one data file and one MP4 per camera

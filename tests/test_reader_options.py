@@ -10,15 +10,15 @@ import pytest
 pytest.importorskip("pyarrow")
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_reader_lerobot import K, write_droid_v3  # noqa: E402
+from test_reader_lerobot import K, write_droid_v3
 
-from oscar_core.cli import main  # noqa: E402
-from oscar_core.data._episode import load_row  # noqa: E402
-from oscar_core.data.engine import read_stage  # noqa: E402
-from oscar_core.data.reader_options import ReaderOptionError, check_reader_options, parse_reader_options  # noqa: E402
-from oscar_core.data.readers.droid import DroidRawReader  # noqa: E402
-from oscar_core.data.readers.egodex import EgoDexReader  # noqa: E402
-from oscar_core.data.readers.lerobot import LeRobotReader  # noqa: E402
+from oscar_core.cli import main
+from oscar_core.data._episode import load_row
+from oscar_core.data.engine import read_stage
+from oscar_core.data.reader_options import ReaderOptionError, check_reader_options, parse_reader_options
+from oscar_core.data.readers.droid import DroidRawReader
+from oscar_core.data.readers.egodex import EgoDexReader
+from oscar_core.data.readers.lerobot import LeRobotReader
 
 
 def _ingest(capsys, *argv):
@@ -51,7 +51,7 @@ def test_droid_from_the_hub_ingests_with_intrinsics_from_the_command_line(tmp_pa
 def test_a_yaml_value_works_as_well_as_a_file(tmp_path, capsys):
     root = write_droid_v3(tmp_path / "droid")
     rc, out, err = _ingest(capsys, root, "--reader", "lerobot", "--reader-option",
-                           "intrinsics={exterior_1_left: [%g, %g, %g, %g]}" % K, "--out", tmp_path / "run")
+                           "intrinsics={exterior_1_left: [" + ", ".join(f"{k:g}" for k in K) + "]}", "--out", tmp_path / "run")
     assert rc == 0 and "2 of 2 episodes live" in out, err
 
 

@@ -4,12 +4,11 @@ import json
 
 import numpy as np
 import pytest
-
 from scipy.spatial.transform import Rotation
 
-from oscar_core.plugin.reader import EpisodeError
 from oscar_core.data.readers.rh20t import CONFIGS, RH20TReader, calib_tcp_quaternion
 from oscar_core.media.video import write_video
+from oscar_core.plugin.reader import EpisodeError
 
 T = 8
 CALIB_T = 1629432000000

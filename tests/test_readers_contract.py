@@ -5,14 +5,13 @@ import pickle
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 pytest.importorskip("h5py")
 pytest.importorskip("pyarrow")
 
-from oscar_core.plugin.reader import EpisodeError, EpisodeRef, Reader
 from oscar_core.data.readers import BUILTIN_READERS
+from oscar_core.plugin.reader import EpisodeError, EpisodeRef, Reader
 from oscar_core.plugin.registry import Registry
 
 NAMES = ["agibot_world", "droid_raw", "egodex", "epic_vitra", "interndata_a1", "lerobot", "rh20t"]
@@ -46,6 +45,7 @@ def _fixtures(tmp_path):
     import test_reader_interndata_a1 as idata
     import test_reader_lerobot as lr
     import test_reader_rh20t as rh
+
     from oscar_embodiments.agibot_g1 import AgiBotG1
 
     lr.write_droid_v3(tmp_path / "lerobot")

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from oscar_core.plugin import hookspecs
 from oscar_core.errors import PluginError
+from oscar_core.plugin import hookspecs
 from oscar_core.plugin.registry import Registry
 
 REPO = Path(__file__).resolve().parents[1]

@@ -7,11 +7,11 @@ import pytest
 
 from oscar_core import get_embodiment, load_trajectory, render_skeleton_video
 from oscar_core.camera import Camera, Intrinsics, project
+from oscar_core.kinematics.trajectory import Trajectory
 from oscar_core.plugin.embodiment import SkeletonFrames
 from oscar_core.render.guarded_projection import distortion_valid_radius, guarded_project
 from oscar_core.render.renderer import EmptyViewError, EmptyViewWarning, RenderStats, format_frames
 from oscar_core.render.skeleton_stream import iter_skeleton_chunks
-from oscar_core.kinematics.trajectory import Trajectory
 
 
 def toyarm():

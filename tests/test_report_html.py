@@ -7,15 +7,15 @@ import io
 import json
 import shlex
 import shutil
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
-import sys
-from pathlib import Path
-
 sys.path.insert(0, str(Path(__file__).parent))
 from _browser import keep_screenshot, open_page, report_json, require_browser
+
 from oscar_core.cli import main
 
 pytestmark = pytest.mark.slow
@@ -141,8 +141,6 @@ def test_missing_truncated_and_dropped_videos_are_named_on_their_cards(eval_repo
     video each say so on their card."""
     import dataclasses
 
-    import numpy as np
-
     from oscar_core.evaluation import load_manifest
     from oscar_core.evaluation.html import write_html_report
     from oscar_core.media.video import read_video, write_video
@@ -215,11 +213,11 @@ def toy_report(tmp_path_factory):
         np.save(root / "same" / f"{r.id}.npy", cs.load(r, skeleton=False).rgb)
     assert main(["toyworld", "baseline", str(root / "clips"), "--split", "all", "--out", str(root / "ff")]) == 0
     # a world model's rollouts: the page names the model they came from
+    import torch
+
     import oscar_zoo
     from oscar_core.model import ModelCard, OscarWorldModel
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
-
-    import torch
 
     model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
                                          ModelCard(name="tiny-toy", chunk_frames=9, fps=10.0),
@@ -320,9 +318,8 @@ def test_the_filters_keep_only_the_chosen_cells(eval_report):
     """Choosing a verdict, a policy or a session hides every other cell (and sessions left empty)."""
     import tempfile
 
-    from playwright.sync_api import sync_playwright
-
     from _browser import FLAGS
+    from playwright.sync_api import sync_playwright
 
     report = report_json(eval_report)
     exe = require_browser()

@@ -4,8 +4,16 @@ import numpy as np
 import pytest
 import torch
 
-from oscar_core.model import (ModelCard, ModelInputError, OscarWorldModel, SamplerConfig, chunk_plan, flow_sigmas,
-                              guided_velocity, sample_chunk)
+from oscar_core.model import (
+    ModelCard,
+    ModelInputError,
+    OscarWorldModel,
+    SamplerConfig,
+    chunk_plan,
+    flow_sigmas,
+    guided_velocity,
+    sample_chunk,
+)
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
 H, W = 32, 64

@@ -10,10 +10,10 @@ import pytest
 
 import oscar_zoo
 from oscar_core.errors import OscarError
+from oscar_core.media.video import read_video
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.model.cli import add_model_parsers, side_by_side_path
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
-from oscar_core.media.video import read_video
 from oscar_zoo.testing import MockHub
 
 REPO = Path(__file__).resolve().parents[1]

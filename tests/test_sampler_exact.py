@@ -5,8 +5,14 @@ import numpy as np
 import pytest
 import torch
 
-from oscar_core.model import ModelCard, OscarWorldModel, SamplerConfig, flow_sigmas, sample_chunk
-from oscar_core.model import sampler as sampler_mod
+from oscar_core.model import (
+    ModelCard,
+    OscarWorldModel,
+    SamplerConfig,
+    flow_sigmas,
+    sample_chunk,
+    sampler as sampler_mod,
+)
 from oscar_core.model.rollout import iter_rollout, rollout
 from oscar_core.model.sampler import branches, integrate, unipc_scheduler
 

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _datasets import base_parts, write_episode  # noqa: E402
+from _datasets import base_parts, write_episode
 
-from oscar_core._util import stage as _stage  # noqa: E402
-from oscar_core._util.atomic import atomic_output, sweep_dead_temporaries  # noqa: E402
-from oscar_core.cli import main  # noqa: E402
-from oscar_core.data.engine import StageRecomputed, read_fingerprint, read_stage, run_sharded, stage_parts  # noqa: E402
-from oscar_core.data.run import StaleStage  # noqa: E402
-from oscar_core.train.clips import ClipSet  # noqa: E402
+from oscar_core._util import stage as _stage
+from oscar_core._util.atomic import atomic_output, sweep_dead_temporaries
+from oscar_core.cli import main
+from oscar_core.data.engine import StageRecomputed, read_fingerprint, read_stage, run_sharded, stage_parts
+from oscar_core.data.run import StaleStage
+from oscar_core.train.clips import ClipSet
 
 REPO = Path(__file__).resolve().parents[1]
 ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
@@ -289,8 +289,8 @@ def test_a_killed_render_and_a_killed_export_shard_are_swept_by_the_next_run(tmp
 
 
 def test_pools_never_fork_this_process():
-    from oscar_core.render.batch import RenderOptions, _pool_context
     from oscar_core.data.engine import _pool_context as data_context
+    from oscar_core.render.batch import RenderOptions, _pool_context
 
     assert _pool_context([], RenderOptions()).get_start_method() in ("forkserver", "spawn")
     assert data_context().get_start_method() in ("forkserver", "spawn")

@@ -12,18 +12,16 @@ cells that finish out of order).
 """
 
 import dataclasses
-import os
 import shutil
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from oscar_core._util import stage as _stage  # noqa: E402
-from oscar_core._util.stage import StageChanged  # noqa: E402
+from oscar_core._util import stage as _stage
+from oscar_core._util.stage import StageChanged
 
 REPO = Path(__file__).resolve().parents[1]
 ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
@@ -559,13 +557,14 @@ def test_ray_engine_records_cells_that_finish_out_of_order_under_their_own_names
     """Two Ray workers, one cell each at a time: the first cell is ten chunks long, the others one, so the others
     come back first. Every cell's record and video must still be its own (equal to the in-process run's)."""
     pytest.importorskip("ray", reason='ray is not installed (pip install "oscar-wm[ray]")')
+    from test_eval_run import make_study
+
     import oscar_zoo
     from oscar_core.evaluation.loop import run_evaluation
     from oscar_core.media.video import read_video
     from oscar_core.metrics import ProgrammaticJudge
     from oscar_core.model import ModelCard, OscarWorldModel, SamplerConfig
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
-    from test_eval_run import make_study
 
     model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
                                          ModelCard(name="tiny", chunk_frames=5, fps=15.0))

@@ -9,9 +9,14 @@ import torch
 
 pytest.importorskip("transformers")
 
-from oscar_core.model.text import PromptEmbeddingCache  # noqa: E402
-from oscar_core.model.text_encoder import (SYSTEM_PROMPT, TextEncoder, encode_prompts,  # noqa: E402
-                                           parse_encoder_id, require_transformers)
+from oscar_core.model.text import PromptEmbeddingCache
+from oscar_core.model.text_encoder import (
+    SYSTEM_PROMPT,
+    TextEncoder,
+    encode_prompts,
+    parse_encoder_id,
+    require_transformers,
+)
 
 LAYERS, HIDDEN = 3, 16  # embedding width 48 = the tiny DiT's text dimension
 PROMPTS = ["put the red cup in the sink", "", "wave"]

@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 import shutil
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from oscar_core.cli import main
-from oscar_core.render.skeleton_video import project_skeleton
 from oscar_core.plugin.registry import Registry, default_registry
+from oscar_core.render.skeleton_video import project_skeleton
 from oscar_core.toyworld.episode import episode_rng, link_radii, make_episode, render_world
 from oscar_core.toyworld.evaluate import evaluate_clip, evaluate_conditions
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
@@ -56,7 +55,10 @@ def test_generate_is_deterministic_and_resumes_by_shard(tmp_path):
     generate_clipset(cfg, tmp_path / "a", REG)
     s = generate_clipset(cfg, tmp_path / "b", REG)
     assert s["episodes_written"] == 3
-    index = lambda root: sorted((p.relative_to(root).as_posix(), p.read_text()) for p in root.glob("shard-*/clips.jsonl"))
+
+    def index(root):
+        return sorted((p.relative_to(root).as_posix(), p.read_text()) for p in root.glob("shard-*/clips.jsonl"))
+
     assert index(tmp_path / "a") == index(tmp_path / "b")
     # kill one shard (and leave a stale temporary folder): a re-run rebuilds just that shard, identically
     shutil.rmtree(tmp_path / "b" / "shard-toyarm-000001")

@@ -2,14 +2,12 @@
 the toy world's own episode; `--first-frame` takes a video; `toyworld policy-eval` runs on every body the toy world
 accepts or refuses it before writing anything."""
 
-import json
 import os
 import shlex
 import subprocess
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 

@@ -10,8 +10,8 @@ import torch
 
 import oscar_zoo
 from oscar_core.model.sampler import SamplerConfig
-from oscar_core.render.skeleton_video import render_skeleton_video
 from oscar_core.plugin.registry import Registry
+from oscar_core.render.skeleton_video import render_skeleton_video
 from oscar_core.toyworld.episode import episode_rng, make_episode
 from oscar_core.toyworld.evaluate import evaluate_clip
 

@@ -13,12 +13,19 @@ import oscar_zoo
 from oscar_core.camera import project
 from oscar_core.cli import main as oscar_main
 from oscar_core.evaluation import load_manifest
+from oscar_core.media.video import read_video
 from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.carry import carry_rows, carry_summary
 from oscar_core.toyworld.judge import agreement_with_real, ball_moved, ball_reading
-from oscar_core.toyworld.policy_eval import (PLACE_MIN_RADII, SUCCESS_RADII, Policy, floor_homography, plan_session, session_rng,
-                                             write_policy_eval)
-from oscar_core.media.video import read_video
+from oscar_core.toyworld.policy_eval import (
+    PLACE_MIN_RADII,
+    SUCCESS_RADII,
+    Policy,
+    floor_homography,
+    plan_session,
+    session_rng,
+    write_policy_eval,
+)
 
 # an expert aims within 0.3 ball radii (the grab distance is 2.2); "never" aims 50 radii away
 SURE = (Policy("expert", 0.3), Policy("never", 50.0))

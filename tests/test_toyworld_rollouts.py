@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import torch
 
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
@@ -12,7 +11,6 @@ from oscar_core.toyworld.demo import side_by_side
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 from oscar_core.toyworld.rollouts import sampler_for_card, skeleton_partners, write_rollouts
 from oscar_core.train.clips import ClipRecord, ClipSet
-
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -10,14 +10,13 @@ import torch
 from oscar_core.cli import main
 from oscar_core.model.tiny import build_tiny_vae
 from oscar_core.model.vae import VideoVAE
-from oscar_core.render.skeleton_video import render_skeleton_video
 from oscar_core.plugin.registry import Registry
+from oscar_core.render.skeleton_video import render_skeleton_video
 from oscar_core.train.cache import cache_latents, window_starts
 from oscar_core.train.clips import ClipSet
 from oscar_core.train.config import config_from_dict
 from oscar_core.train.data import TrainData
 from oscar_core.train.synthetic import write_toy_clipset
-
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -1,7 +1,6 @@
 """The training-clip format: write a shard, read it back, and reject every kind of bad clip by name."""
 
 import json
-import shutil
 import sys
 from pathlib import Path
 
@@ -10,8 +9,16 @@ import pytest
 import torch
 
 from oscar_core import load_camera, load_trajectory
-from oscar_core.train.clips import (CLIPSET_FILE, SHARD_INDEX, Clip, ClipFormatError, ClipRecord, ClipSet,
-                                    ClipSetWriter, clip_openness)
+from oscar_core.train.clips import (
+    CLIPSET_FILE,
+    SHARD_INDEX,
+    Clip,
+    ClipFormatError,
+    ClipRecord,
+    ClipSet,
+    ClipSetWriter,
+    clip_openness,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"

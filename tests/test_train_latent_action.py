@@ -6,8 +6,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from oscar_core.model.errors import ModelInputError
-from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG
 from oscar_core.model.latent_action import LatentActionTransformer, actions_from_poses, latent_actions
+from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG
 
 
 def pose(R, p):

@@ -12,17 +12,17 @@ import torch
 import oscar_zoo
 from oscar_core.camera import load_camera
 from oscar_core.errors import OscarError
+from oscar_core.kinematics.trajectory import load_trajectory
 from oscar_core.model.errors import ModelInputError
+from oscar_core.model.latent_action import ACTION_DIM, LatentActionTransformer, hold_actions, latent_actions
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.world_model import MODEL_FILE, ModelCard
 from oscar_core.plugin.registry import Registry
-from oscar_core.model.latent_action import ACTION_DIM, LatentActionTransformer, hold_actions, latent_actions
 from oscar_core.train.loop import train
 from oscar_core.train.synthetic import write_toy_clipset
-from oscar_core.kinematics.trajectory import load_trajectory
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_train_loop import tiny  # noqa: E402
+from test_train_loop import tiny
 
 REPO = Path(__file__).resolve().parents[1]
 STEPS = SamplerConfig(steps=2)  # action_guidance None: the conditional branch alone
@@ -198,8 +198,8 @@ def test_a_skeleton_model_refuses_actions(tmp_path):
 def test_oscar_rollout_cli_rolls_a_latent_action_model_out(tmp_path, capsys, exported):
     import cv2
 
-    from oscar_core.model.cli import add_model_parsers
     from oscar_core.media.video import read_video
+    from oscar_core.model.cli import add_model_parsers
 
     assets = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
     first = tmp_path / "first.png"

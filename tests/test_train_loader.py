@@ -16,8 +16,7 @@ from oscar_core.train.sampling import StepPlanner
 from oscar_core.train.synthetic import write_toy_clipset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_train_loop import tiny, weights  # noqa: E402
-
+from test_train_loop import tiny, weights
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -10,18 +10,18 @@ import torch
 
 import oscar_zoo
 from oscar_core.camera import load_camera
+from oscar_core.kinematics.trajectory import load_trajectory
+from oscar_core.plugin.registry import Registry
 from oscar_core.render.mesh import render_mesh_video
 from oscar_core.render.skeleton_video import render_skeleton_video
-from oscar_core.plugin.registry import Registry
 from oscar_core.train.clips import ClipSet
 from oscar_core.train.data import TrainData
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_vae
 from oscar_core.train.synthetic import write_toy_clipset
-from oscar_core.kinematics.trajectory import load_trajectory
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_train_loop import tiny  # noqa: E402
+from test_train_loop import tiny
 
 pytestmark = [pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
               pytest.mark.usefixtures("one_thread")]  # tests/conftest.py

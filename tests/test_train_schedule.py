@@ -1,7 +1,6 @@
 """The learning-rate warm-up and the EMA, checked against their definitions on a tiny run: the first step trains at
 lr / warmup (not 0), and the EMA after each step is decay * EMA + (1 - decay) * weights, from the initial weights."""
 
-from pathlib import Path
 
 import pytest
 import torch

@@ -12,7 +12,7 @@ from oscar_core.train.loop import train
 from oscar_core.train.synthetic import write_toy_clipset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_train_loop import tiny  # noqa: E402
+from test_train_loop import tiny
 
 
 @pytest.fixture(scope="module")

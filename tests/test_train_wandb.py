@@ -16,7 +16,7 @@ from oscar_core.train.loop import train
 from oscar_core.train.synthetic import write_toy_clipset
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_train_loop import tiny  # noqa: E402
+from test_train_loop import tiny
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_metrics_go_to_one_wandb_run_that_resume_continues(tmp_path, clipset, mo
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     rows = [r for r in rows if "loss" in r]
     assert [step for step, _ in fake.logs] == [r["step"] for r in rows] == [1, 2, 3, 4]
-    for (step, values), r in zip(fake.logs, rows):
+    for (_step, values), r in zip(fake.logs, rows):
         assert values["train/loss"] == pytest.approx(r["loss"]) and values["train/lr"] == pytest.approx(r["lr"])
         assert values["train/grad_norm"] == pytest.approx(r["grad_norm"])
     first, second = fake.inits

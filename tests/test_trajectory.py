@@ -1,7 +1,6 @@
 """Trajectory files and their validation against an embodiment."""
 
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np

@@ -3,9 +3,9 @@
 import hashlib
 import os
 
-import oscar_zoo
 import pytest
 
+import oscar_zoo
 from oscar_core.model import ModelCard, OscarWorldModel, _verified
 from oscar_core.model.errors import CheckpointIntegrityError
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae

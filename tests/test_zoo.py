@@ -13,10 +13,9 @@ import torch
 from diffusers import CosmosTransformer3DModel
 
 import oscar_zoo
-from oscar_core.model import (CheckpointIntegrityError, CheckpointLayoutError, ModelCard, OscarWorldModel,
-                              SamplerConfig)
-from oscar_core.model.weights import meta_tensors
+from oscar_core.model import CheckpointIntegrityError, CheckpointLayoutError, ModelCard, OscarWorldModel, SamplerConfig
 from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG, build_tiny_transformer, build_tiny_vae
+from oscar_core.model.weights import meta_tensors
 from oscar_zoo import UnknownModelError
 from oscar_zoo.testing import MockHub
 

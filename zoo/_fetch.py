@@ -23,14 +23,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from oscar_core.errors import OscarError
-from oscar_core.model.manifest import MANIFEST_NAME, read_manifest
+from oscar_core.model._files import EMPTY_PROMPT_FILE, MODEL_FILE
 from oscar_core.model._verified import file_sha256
-from oscar_core.model.weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, check_safetensors
 from oscar_core.model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from oscar_core.model.layouts import SCHEDULER_CONFIG, Layout, detect_layout, list_folder
-from oscar_core.model._files import EMPTY_PROMPT_FILE, MODEL_FILE
+from oscar_core.model.manifest import MANIFEST_NAME, read_manifest
+from oscar_core.model.weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, check_safetensors
 
-from ._hub import (HubUnreachableError, Lock, cached_commit, probe, read_lock, snapshot_folder, write_lock)
+from ._hub import HubUnreachableError, Lock, cached_commit, probe, read_lock, snapshot_folder, write_lock
 from ._registry import user_models
 from ._table import CHECKPOINTS, CheckpointSpec
 

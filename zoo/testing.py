@@ -83,7 +83,7 @@ class MockHub:
         host, port = self._server.server_address[:2]
         return f"http://{host}:{port}"
 
-    def start(self) -> "MockHub":
+    def start(self) -> MockHub:
         hub = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -111,7 +111,7 @@ class MockHub:
             self._server.server_close()
             self._server = None
 
-    def __enter__(self) -> "MockHub":
+    def __enter__(self) -> MockHub:
         return self.start()
 
     def __exit__(self, *exc) -> None:

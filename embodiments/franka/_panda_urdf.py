@@ -17,7 +17,7 @@ URDF_DISTRIBUTION = "example-robot-data"
 URDF_SUFFIX = "panda_description/urdf/panda.urdf"
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def panda_urdf_path() -> Path:
     """Absolute path of ``panda_description/urdf/panda.urdf`` inside the installed
     ``example-robot-data`` distribution (it has no Python module to import).

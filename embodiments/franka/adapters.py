@@ -14,7 +14,8 @@ Sources of each layout are cited in the docstrings and in ``README.md``.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

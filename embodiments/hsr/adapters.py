@@ -19,7 +19,8 @@ description (see :data:`HEAD_INTRINSICS`). Sources: ``README.md``.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

@@ -11,7 +11,8 @@ the docstrings and ``README.md``.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

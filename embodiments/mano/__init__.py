@@ -23,8 +23,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from oscar_core import CameraSpec, Embodiment, Gripper, Skeleton, SkeletonFrames, TrajectoryError, hookimpl
 
 from .convert import egocentric_camera, gripper_signal, to_camera_frame, trajectory_from_keypoints

@@ -19,8 +19,8 @@ import functools
 import importlib
 import importlib.util
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 

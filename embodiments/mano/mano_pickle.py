@@ -196,7 +196,7 @@ def loads_mano_pickle(data: bytes, source: str = "<MANO model>") -> dict:
                              f"{exc.what}, which was refused (nothing from the file was imported or run)") from None
     except MANOModelError:
         raise
-    except Exception as exc:  # truncated or corrupt data, wrong argument types for an allowed callable
+    except Exception as exc:  # noqa: BLE001 - truncated or corrupt data, wrong argument types for an allowed callable
         raise MANOModelError(source, "<file>", "a MANO model pickle", f"{type(exc).__name__}: {exc}") from None
     if not isinstance(raw, dict):
         raise MANOModelError(source, "<file>", "a pickled dict of model arrays", type(raw).__name__)

@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import Camera, Intrinsics, camera_to_dict, project
 from .._util.log import get_logger
+from ..camera import Camera, Intrinsics, camera_to_dict, project
 from .points import PixelPoints, PointsFileError
 
 __all__ = ["MIN_CORRESPONDENCES", "DISTINCT_MM", "COLLINEAR_RATIO", "FOV_SWEEP_DEG", "MAX_ROUNDS", "Correspondences",
@@ -330,7 +330,7 @@ def calibrate(embodiment, traj, pixels: PixelPoints, size: tuple[int, int], intr
     fixed = None if fit_intr else np.array([intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy])
     params, inlier = _initial(corr, (W, H), intrinsics, threshold_px, seed)
     rounds = 0
-    for rounds in range(1, MAX_ROUNDS + 1):
+    for rounds in range(1, MAX_ROUNDS + 1):  # noqa: B007 (the count of rounds run is reported)
         if inlier.sum() < MIN_CORRESPONDENCES:
             raise PointsFileError(corr.source, "points", f"at least {MIN_CORRESPONDENCES} points within "
                                   f"{threshold_px:g} px of the fitted camera", f"{int(inlier.sum())} of {len(corr)}")

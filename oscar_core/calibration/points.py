@@ -113,7 +113,7 @@ def parse_points(doc, source: str = "<points>") -> PixelPoints:
                 raise PointsFileError(source, f"{where}.{k}", "a finite number of pixels", _short(x))
         key = (f, e["point"])
         if key in seen:
-            raise PointsFileError(source, where, f"one entry per (frame, point)",
+            raise PointsFileError(source, where, "one entry per (frame, point)",
                                   f"a second entry for frame {f}, point {e['point']!r} (first: points[{seen[key]}])")
         seen[key] = i
         frames.append(f)

@@ -42,9 +42,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .._util.log import get_logger
 from ..camera import Camera
 from ..errors import OscarError
-from .._util.log import get_logger
 
 __all__ = ["ScoreConfig", "CalibrationScore", "calibration_score", "motion_iou", "moving", "body_video", "perturb_camera"]
 

@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from oscar_core.errors import CameraFileError
-from .geometry import ORTHONORMAL_TOL, is_number, rigid_problem, \
-    rotation_from_quat_xyzw, rotation_from_rpy
+
+from .geometry import ORTHONORMAL_TOL, is_number, rigid_problem, rotation_from_quat_xyzw, rotation_from_rpy
 
 __all__ = []
 
@@ -47,7 +48,7 @@ def read_matrix(src: str, fieldname: str, v: Any, rows: int, cols: int) -> np.nd
     if not ok:
         try:
             found = f"shape {np.asarray(v, dtype=object).shape}"
-        except Exception:  # ragged nesting
+        except Exception:  # noqa: BLE001 (numpy refuses ragged nesting in several ways; only a shape is wanted)
             found = short_repr(v)
         raise CameraFileError(src, fieldname, f"a {rows}x{cols} nested list of numbers", found)
     return np.array([[read_number(src, f"{fieldname}[{r}][{c}]", x) for c, x in enumerate(row)] for r, row in enumerate(v)])

@@ -62,13 +62,15 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from oscar_core._util.atomic import atomic_write_bytes
 from oscar_core.errors import CameraFileError
+
 from .extrinsics import read_extrinsic, read_matrix, read_number, short_repr
 from .geometry import CONVENTION_NAMES, DIRECTIONS, is_int
 from .intrinsics import Intrinsics

@@ -7,8 +7,9 @@ Units: metres and radians. Conventions (``CONVENTIONS``) and the meaning of ``di
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from oscar_core.errors import CameraFileError
+
 from .geometry import DISTORTION_LENGTHS, is_int, is_number
 
 __all__ = ["Intrinsics"]
@@ -73,7 +74,7 @@ class Intrinsics:
         """Camera matrix K, shape (3, 3), pixels."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def crop(self, x0: float, y0: float, w: int, h: int) -> "Intrinsics":
+    def crop(self, x0: float, y0: float, w: int, h: int) -> Intrinsics:
         """Intrinsics of the sub-image of size (w, h) whose top-left pixel is (x0, y0).
 
         A point at pixel (u, v) in this image is at (u - x0, v - y0) in the crop.
@@ -81,7 +82,7 @@ class Intrinsics:
         """
         return replace(self, cx=self.cx - x0, cy=self.cy - y0, width=w, height=h)
 
-    def _scaled(self, sx: float, sy: float, width: int, height: int) -> "Intrinsics":
+    def _scaled(self, sx: float, sy: float, width: int, height: int) -> Intrinsics:
         # Pixel centres at integer coordinates: scaling by s maps c -> (c + 0.5) * s - 0.5.
         return replace(
             self,
@@ -93,7 +94,7 @@ class Intrinsics:
             height=height,
         )
 
-    def resized(self, width: int, height: int, mode: str = "crop") -> "Intrinsics":
+    def resized(self, width: int, height: int, mode: str = "crop") -> Intrinsics:
         """Intrinsics for an output image of ``width`` x ``height`` pixels.
 
         mode "crop": centre-crop the source image to the target aspect ratio (the

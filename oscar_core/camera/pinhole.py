@@ -28,8 +28,16 @@ from typing import Any
 import numpy as np
 
 from oscar_core.errors import CameraFileError
-from .geometry import (CONVENTION_NAMES, DIRECTIONS, as_float_array, as_rigid_transforms, canonical_convention,
-                       convention_to_opencv, rigid_inverse)
+
+from .geometry import (
+    CONVENTION_NAMES,
+    DIRECTIONS,
+    as_float_array,
+    as_rigid_transforms,
+    canonical_convention,
+    convention_to_opencv,
+    rigid_inverse,
+)
 from .intrinsics import Intrinsics
 
 __all__ = ["Camera"]
@@ -114,7 +122,7 @@ class Camera:
             raise CameraFileError(source, "extrinsic", f"{int(num_frames)} per-frame extrinsics, one per trajectory frame",
                                   f"{n} extrinsics")
 
-    def time_slice(self, start: int | None = None, stop: int | None = None) -> "Camera":
+    def time_slice(self, start: int | None = None, stop: int | None = None) -> Camera:
         """The camera for frames ``start:stop`` (as ``Trajectory.time_slice``); itself when it has one extrinsic."""
         if self.num_frames is None:
             return self
@@ -151,6 +159,6 @@ class Camera:
                              f"{P.shape[0]} frames, shape {P.shape}")
         return self._cv_from_ref @ rigid_inverse(P)
 
-    def resized(self, width: int, height: int, mode: str = "crop") -> "Camera":
+    def resized(self, width: int, height: int, mode: str = "crop") -> Camera:
         """Camera with intrinsics resized for a ``width`` x ``height`` image (see Intrinsics.resized)."""
         return replace(self, intrinsics=self.intrinsics.resized(width, height, mode))

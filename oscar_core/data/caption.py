@@ -38,11 +38,11 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from .._util.optional import require
 from ..errors import OscarError
 from . import _fs
 from ._caption_prompt import SYSTEM_PROMPT
 from ._episode import EPISODE_ERRORS, load_row, reason_of
-from .._util.optional import require
 from .manifest import is_alive
 
 CACHE_FORMAT = 2  # 2: the key also holds jpeg_quality and max_tokens (1 had neither: such entries are not reused)

@@ -38,9 +38,9 @@ from typing import Any
 
 import numpy as np
 
+from .._util.optional import require
 from ..errors import OscarError
 from ._episode import EPISODE_ERRORS, load_row, reason_of
-from .._util.optional import require
 
 __all__ = ["DedupConfig", "ModelLoadError", "SiglipEmbedder", "TrajectoryEmbedder", "trajectory_embedding", "EmbedStage", "resample_points", "candidate_pairs", "pca_projection", "brute_force_pairs",
            "trajectory_rms", "motion_scale", "adaptive_threshold", "UnionFind", "dedup_rows"]

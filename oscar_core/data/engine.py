@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 from typing import Any, get_args
 
 from .._util import stage as _stage
-from .._util.stage import EngineName
 from .._util.log import get_logger
+from .._util.stage import EngineName
 from . import _fs
 from .manifest import rows_from_parquet, rows_to_parquet, table_from_parquet, table_to_parquet
 

@@ -68,7 +68,7 @@ class FilterConfig:
     min_calibration_score: float = 0.0   # least calibration score (0-1, docs/calibration.md); 0: off, not measured
 
     @classmethod
-    def from_overrides(cls, items: list[str] | None) -> "FilterConfig":
+    def from_overrides(cls, items: list[str] | None) -> FilterConfig:
         """Defaults with ``name=value`` overrides; ValueError naming the field on a bad name or value."""
         kinds = {f.name: f.type for f in fields(cls)}
         values: dict[str, Any] = {}

@@ -29,7 +29,8 @@ from __future__ import annotations
 
 import io
 import json
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 from .._util.optional import require
 from ..plugin.reader import EpisodeRef

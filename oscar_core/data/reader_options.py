@@ -97,7 +97,7 @@ def _typed(hint, value, where: str):
         if value is None:
             return None
         rest = [a for a in args if a is not type(None)]
-        hint = rest[0] if len(rest) == 1 else typing.Union[tuple(rest)]
+        hint = rest[0] if len(rest) == 1 else typing.Union[tuple(rest)]  # noqa: UP007 - built from a tuple at run time
         args = typing.get_args(hint)
     origin = typing.get_origin(hint) or hint
 

@@ -80,9 +80,9 @@ def write_sample_dataset(out, *, frames: int = 80, size: tuple[int, int] = (192,
     from oscar_embodiments.franka.adapters import from_droid
 
     from .. import load_camera
-    from ..render.skeleton_video import render_skeleton_video
-    from ..plugin.registry import Registry
     from ..media.video import write_video
+    from ..plugin.registry import Registry
+    from ..render.skeleton_video import render_skeleton_video
 
     out = Path(out)
     if out.exists() and any(out.iterdir()):

@@ -72,7 +72,10 @@ def format_table(stats: dict[str, Any]) -> str:
     body = [[g["source"], g["embodiment"], str(g["public"]), *[str(g["rejected"].get(c, 0)) for c in stats["columns"]],
              str(g["kept"])] for g in [*stats["rows"], stats["total"]]]
     widths = [max(len(h), *(len(b[i]) for b in body)) for i, h in enumerate(head)]
-    line = lambda cells: "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+
+    def line(cells):
+        return "  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+
     out = [line(head), "  ".join("-" * w for w in widths)]
     out += [line(b) for b in body[:-1]]
     out += ["  ".join("-" * w for w in widths), line(body[-1])]

@@ -25,7 +25,7 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-from typing import Hashable, Mapping
+from collections.abc import Hashable, Mapping
 
 import numpy as np
 

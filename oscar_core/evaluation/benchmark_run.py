@@ -40,8 +40,7 @@ import numpy as np
 from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
-from ..render.conditions import video_condition_of
-from ..render.conditions import takes_actions
+from ..render.conditions import takes_actions, video_condition_of
 
 __all__ = ["PROMPT_MODES", "rollout_clip", "run_benchmark", "read_timing"]
 

@@ -37,8 +37,8 @@ import numpy as np
 
 from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes
-from .._util.log import get_logger, progress_bar
 from .._util.inputs import read_text_file
+from .._util.log import get_logger, progress_bar
 from ..errors import InputFileError, OscarError
 from . import benchmark_rules as rules
 

@@ -34,11 +34,11 @@ from pathlib import Path
 
 from .._util.arg_types import count, default_device, device_name, interval, number
 from .._util.log import log_result, progress_bars_enabled, run_log
+from .._util.outputs import output_option
+from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
 from ..model.presets import SAMPLER_PRESETS
-from .._util.outputs import output_option
-from .._util.threads import threads_option
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
 

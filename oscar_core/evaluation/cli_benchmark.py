@@ -17,9 +17,9 @@ from pathlib import Path
 
 from .._util.arg_types import count, default_device, device, interval, number
 from .._util.log import log_result, run_log
-from ..model.presets import SAMPLER_PRESETS
 from .._util.outputs import output_option
 from .._util.threads import threads_option
+from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_benchmark_parser"]
 

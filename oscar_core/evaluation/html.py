@@ -22,8 +22,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..metrics.report_html import browser_video, relative_url, render_page
 from .._util.log import get_logger, progress_bar
+from ..metrics.report_html import browser_video, relative_url, render_page
 from .manifest import Manifest
 
 __all__ = ["write_html_report", "media_path"]

@@ -47,9 +47,9 @@ from pathlib import Path
 import numpy as np
 
 from .._util import stage as _stage
-from .._util.stage import EngineName
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
+from .._util.stage import EngineName
 from ..metrics.common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 

@@ -23,8 +23,8 @@ from collections.abc import Callable, Iterator, Sequence
 import numpy as np
 
 from ..metrics.common import MetricInputError
-from .manifest import Cell
 from ..render.conditions import takes_actions
+from .manifest import Cell
 
 __all__ = ["cell_inputs", "cell_prompt", "roll_out_cells", "roll_out_on_ray"]
 
@@ -51,10 +51,10 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
     condition video (the card's: skeleton, mesh or capsules; None for a latent-action model), ``actions``
     (T − 1, 14) for a latent-action model (else None), ``prompt`` (1, L, D) or None, ``fps``."""
-    from ..model.image import read_first_frame
-    from ..render.skeleton_video import fit_image
-    from ..plugin.registry import get_embodiment
     from ..kinematics.trajectory import load_trajectory
+    from ..model.image import read_first_frame
+    from ..plugin.registry import get_embodiment
+    from ..render.skeleton_video import fit_image
 
     emb = get_embodiment(cell.embodiment, plugin_paths)
     traj = load_trajectory(cell.trajectory)

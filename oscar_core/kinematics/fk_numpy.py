@@ -10,7 +10,7 @@ agree to ~1e-12 m (tests/test_render_stream.py).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

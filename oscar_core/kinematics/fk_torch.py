@@ -8,7 +8,6 @@ source joints before the chain is evaluated.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
 from .urdf import KinematicTree
@@ -19,14 +18,13 @@ __all__ = ["ForwardKinematics", "build_chain_from_tree"]
 def build_chain_from_tree(tree: KinematicTree, dtype=torch.float64, device="cpu"):
     """A ``pytorch_kinematics.Chain`` for ``tree`` with float64 static offsets."""
     import pytorch_kinematics as pk
-    from pytorch_kinematics import frame as pkf
-    from pytorch_kinematics import transforms as pkt
+    from pytorch_kinematics import frame as pkf, transforms as pkt
 
     children: dict[str, list] = {}
     for j in tree.joints:
         children.setdefault(j.parent, []).append(j)
 
-    def make_frame(link: str, joint) -> "pkf.Frame":
+    def make_frame(link: str, joint) -> pkf.Frame:
         f = pkf.Frame(link)
         if joint is None:
             f.joint = pkf.Joint(dtype=torch.float64)
@@ -62,9 +60,13 @@ class ForwardKinematics:
         for name in chain_names:
             j = tree.joint(name)
             if j.mimic is None:
-                src.append(index[name]); mult.append(1.0); off.append(0.0)
+                src.append(index[name])
+                mult.append(1.0)
+                off.append(0.0)
             else:
-                src.append(index[j.mimic[0]]); mult.append(j.mimic[1]); off.append(j.mimic[2])
+                src.append(index[j.mimic[0]])
+                mult.append(j.mimic[1])
+                off.append(j.mimic[2])
         self._src = torch.tensor(src, dtype=torch.long, device=self.device)
         self._mult = torch.tensor(mult, dtype=dtype, device=self.device)
         self._off = torch.tensor(off, dtype=dtype, device=self.device)

@@ -149,10 +149,10 @@ class Trajectory:
     def num_frames(self) -> int:
         return self.q.shape[0]
 
-    def replace(self, **changes) -> "Trajectory":
+    def replace(self, **changes) -> Trajectory:
         return dataclasses.replace(self, **changes)
 
-    def time_slice(self, start: int | None = None, stop: int | None = None) -> "Trajectory":
+    def time_slice(self, start: int | None = None, stop: int | None = None) -> Trajectory:
         """Frames ``start:stop`` of every per-frame field (q, gripper, base pose, timestamps, keypoints)."""
         sl = slice(start, stop)
         per_frame = ("q", "gripper", "base_pose", "timestamps", "keypoints")

@@ -15,9 +15,9 @@ import contextlib
 import sys
 import threading
 import types
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 from lxml import etree
@@ -307,7 +307,7 @@ def expand_xacro(path, args: Mapping[str, str] | None = None, packages: Mapping[
             doc = xacro.process_file(str(path), mappings={str(k): str(v) for k, v in (args or {}).items()})
     except InputFileError:
         raise
-    except Exception as exc:  # xacro raises its own XacroException and XML errors
+    except Exception as exc:  # noqa: BLE001 - xacro raises its own XacroException and XML errors
         raise KinematicsFileError(str(path), "<xacro>", "a xacro file that expands", f"{type(exc).__name__}: {exc}") from None
     return doc.toxml()
 

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 from urllib.parse import unquote, urlparse
 
 import numpy as np
@@ -84,7 +84,7 @@ class VisualGeometry:
     def face_count(self) -> int:
         return int(sum(len(g.faces) for g in self.links))
 
-    def simplified(self, cell: float) -> "VisualGeometry":
+    def simplified(self, cell: float) -> VisualGeometry:
         """Every link's mesh vertex-clustered on a grid of ``cell`` metres (see :mod:`oscar_core.kinematics.mesh_simplify`)."""
         from .mesh_simplify import cluster_vertices
 

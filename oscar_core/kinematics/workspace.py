@@ -7,10 +7,14 @@ forward-window check. Units: radians / metres for joints, metres in the world.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from ..plugin.embodiment import Embodiment
 from .trajectory import Trajectory
+
+if TYPE_CHECKING:  # annotations only: the plugin contract is the floor above kinematics
+    from ..plugin.embodiment import Embodiment
 
 __all__ = ["joint_limits", "openness_to_signal", "end_effector", "ee_points", "open_fk", "reach_of"]
 

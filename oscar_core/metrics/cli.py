@@ -58,13 +58,18 @@ import json
 import sys
 
 from .._util.arg_types import count, device
-from .._util.outputs import output_option
 from .._util.log import progress_bars_enabled
-from .common import MetricInputError
-from .cli_inputs import _write_json, collect_clips, collect_judge_videos, read_policy_results, \
-    read_preferences, read_tasks
+from .._util.outputs import output_option
+from .cli_inputs import (
+    _write_json,
+    collect_clips,
+    collect_judge_videos,
+    read_policy_results,
+    read_preferences,
+    read_tasks,
+)
 from .cli_judge import JUDGE_EXAMPLES, PAIRWISE_EXAMPLES, _add_judge_args, cmd_eval_judge, cmd_eval_pairwise
-
+from .common import MetricInputError
 
 __all__ = [
     "add_eval_parser", "cmd_eval_video", "cmd_eval_policies", "cmd_eval_judge", "cmd_eval_pairwise",

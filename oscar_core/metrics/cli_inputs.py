@@ -13,7 +13,6 @@ from pathlib import Path
 from .._util.inputs import read_text_file
 from .common import MetricInputError, finite_float
 
-
 __all__ = [
     "VIDEO_EXTS", "FRAME_EXTS", "collect_clips", "read_policy_results", "read_preferences",
     "collect_judge_videos", "read_tasks"

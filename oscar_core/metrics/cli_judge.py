@@ -58,13 +58,12 @@ import json
 import os
 import sys
 from pathlib import Path
-from .._util.outputs import output_option
 
 from .._util.arg_types import count, number
 from .._util.log import progress_bars_enabled
-from .common import MetricInputError
+from .._util.outputs import output_option
 from .cli_inputs import _write_json, collect_judge_videos, read_tasks
-
+from .common import MetricInputError
 
 __all__ = ["cmd_eval_judge", "cmd_eval_pairwise", "JUDGE_EXAMPLES", "PAIRWISE_EXAMPLES"]
 

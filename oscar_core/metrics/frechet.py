@@ -11,8 +11,8 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from .common import MetricInputError
 from ._video_common import DEFAULT_FRAMES, _callable, _frames, _torch, _unit
+from .common import MetricInputError
 
 __all__ = [
     "I3D_CALL_KWARGS", "I3D_PREPROCESSED_KWARGS", "INCEPTION_CALL_KWARGS", "feature_statistics",

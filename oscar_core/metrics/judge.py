@@ -32,16 +32,54 @@ import numpy as np
 
 from .._util.log import progress_bars_enabled
 from .common import MetricInputError
-from .judge_client import (CACHE_VERSION, ENV_API_KEY, ENV_BASE_URL, ENV_MODEL, ChatClient, JudgeEndpointUnreachable,
-                           JudgeRequestError, _cache_read, _cache_write, _key)
-from .judge_frames import DEFAULT_MAX_SIDE, _content_hash, _encode_image, _fit, _image_part, _load_frames, \
-    _side_by_side, sample_frame_indices
-from .judge_prompts import (DEFAULT_JUDGE_FRAMES, DEFAULT_PAIRWISE_FRAMES, PAIRWISE_SETS_LABELS,
-                            PAIRWISE_SIDE_BY_SIDE_NOTE, PAIRWISE_SYSTEM_PROMPT, PAIRWISE_USER_PROMPT,
-                            PAPER_SUCCESS_PROMPT, SUCCESS_PROMPTS, SUCCESS_SYSTEM_PROMPT, SUCCESS_USER_PROMPT,
-                            MalformedAnswer, parse_pairwise_answer, parse_success_answer)
-from .judge_records import (JudgeClip, JudgePair, PairwiseVerdict, SuccessVerdict, _check_clip, _check_unique,
-                            pairs_by_session, preferences_from_verdicts, success_by_policy)
+from .judge_client import (
+    CACHE_VERSION,
+    ENV_API_KEY,
+    ENV_BASE_URL,
+    ENV_MODEL,
+    ChatClient,
+    JudgeEndpointUnreachable,
+    JudgeRequestError,
+    _cache_read,
+    _cache_write,
+    _key,
+)
+from .judge_frames import (
+    DEFAULT_MAX_SIDE,
+    _content_hash,
+    _encode_image,
+    _fit,
+    _image_part,
+    _load_frames,
+    _side_by_side,
+    sample_frame_indices,
+)
+from .judge_prompts import (
+    DEFAULT_JUDGE_FRAMES,
+    DEFAULT_PAIRWISE_FRAMES,
+    PAIRWISE_SETS_LABELS,
+    PAIRWISE_SIDE_BY_SIDE_NOTE,
+    PAIRWISE_SYSTEM_PROMPT,
+    PAIRWISE_USER_PROMPT,
+    PAPER_SUCCESS_PROMPT,
+    SUCCESS_PROMPTS,
+    SUCCESS_SYSTEM_PROMPT,
+    SUCCESS_USER_PROMPT,
+    MalformedAnswer,
+    parse_pairwise_answer,
+    parse_success_answer,
+)
+from .judge_records import (
+    JudgeClip,
+    JudgePair,
+    PairwiseVerdict,
+    SuccessVerdict,
+    _check_clip,
+    _check_unique,
+    pairs_by_session,
+    preferences_from_verdicts,
+    success_by_policy,
+)
 
 __all__ = [
     "ENV_BASE_URL",

@@ -97,7 +97,7 @@ class LPIPS(nn.Module):
             p.requires_grad_(False)
 
     @classmethod
-    def from_files(cls, net: str, trunk, linear) -> "LPIPS":
+    def from_files(cls, net: str, trunk, linear) -> LPIPS:
         model = cls(net)
         model.load_trunk(load_pth_state_dict(trunk), source=str(trunk))
         model.load_linear(load_pth_state_dict(linear), source=str(linear))

@@ -57,9 +57,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bradley_terry import (
+    ELO_SCALE,
+    ELO_SHIFT,
+    BradleyTerryResult,
+    BradleyTerryWarning,
+    Preference,
+    fit_bradley_terry,
+    parse_preference,
+)
 from .common import MetricInputError, align_policy_values, nan_to_none
-from .bradley_terry import (ELO_SCALE, ELO_SHIFT, BradleyTerryResult, BradleyTerryWarning, Preference,
-                            fit_bradley_terry, parse_preference)
 
 __all__ = [
     "mmrv_simpler",

@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from .common import MetricInputError
-from .judge import (JudgeClip, JudgePair, PairwiseVerdict, SuccessVerdict, _check_clip, _check_unique, _load_frames)
+from .judge import JudgeClip, JudgePair, PairwiseVerdict, SuccessVerdict, _check_clip, _check_unique, _load_frames
 
 __all__ = ["ProgrammaticJudge", "check_verdict_fields"]
 

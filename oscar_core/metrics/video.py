@@ -44,11 +44,30 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util.log import progress_bars_enabled
+from ._video_common import (
+    DEFAULT_FRAMES,
+    _callable,
+    _flat,
+    _pair,
+    _to_tensor_nchw,
+    _torch,
+    _unit,
+    load_torchscript,
+    load_video,
+)
 from .common import MetricInputError, nan_to_none
-from ._video_common import DEFAULT_FRAMES, _callable, _flat, _pair, _to_tensor_nchw, _torch, _unit, load_torchscript, \
-    load_video
-from .frechet import (I3D_CALL_KWARGS, I3D_PREPROCESSED_KWARGS, INCEPTION_CALL_KWARGS, feature_statistics, fid,
-                      frame_features, frechet_distance, frechet_distance_from_features, fvd, video_features)
+from .frechet import (
+    I3D_CALL_KWARGS,
+    I3D_PREPROCESSED_KWARGS,
+    INCEPTION_CALL_KWARGS,
+    feature_statistics,
+    fid,
+    frame_features,
+    frechet_distance,
+    frechet_distance_from_features,
+    fvd,
+    video_features,
+)
 
 __all__ = [
     "DEFAULT_FRAMES",

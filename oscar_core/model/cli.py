@@ -13,9 +13,9 @@ import json
 import sys
 
 from .._util.arg_types import count, default_device, device, interval, number
-from .presets import SAMPLER_PRESETS
 from .._util.outputs import output_option
 from .._util.threads import threads_option
+from .presets import SAMPLER_PRESETS
 from .rollout_files import RolloutRequest, side_by_side_path, text_encoder
 
 __all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
@@ -191,7 +191,6 @@ def cmd_zoo_list(args) -> int:
 
 def cmd_zoo_pull(args) -> int:
     import oscar_zoo
-
     from oscar_zoo._hub import lock_path
 
     folder = oscar_zoo.pull(args.name, args.revision, force_download=args.force,

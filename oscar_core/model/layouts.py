@@ -24,11 +24,17 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ._native import NATIVE_SUFFIXES, find_skeleton_key, infer_config, map_native_state, read_native_state, \
-    read_overrides
 from ._files import MODEL_FILE
-from .weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
+from ._native import (
+    NATIVE_SUFFIXES,
+    find_skeleton_key,
+    infer_config,
+    map_native_state,
+    read_native_state,
+    read_overrides,
+)
 from .errors import CheckpointLayoutError
+from .weights import CONFIG_NAME, INDEX_NAME, WEIGHTS_NAME, build_strict, load_state_dict, read_config
 
 __all__ = ["LAYOUTS", "SCHEDULER_CONFIG", "Layout", "detect_layout", "load_folder"]
 

@@ -335,8 +335,8 @@ def _write_streams(chunks, skeleton, out, side_path, fps):
 
     import numpy as np
 
-    from ..render.skeleton_video import overlay_skeleton
     from ..media.video import write_video
+    from ..render.skeleton_video import overlay_skeleton
 
     done = object()
     side_q: queue.Queue = queue.Queue(maxsize=4)

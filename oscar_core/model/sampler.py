@@ -66,9 +66,8 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 
@@ -159,7 +158,7 @@ def _finite(x) -> bool:
 
 
 
-def apply_preset(config: "SamplerConfig", name: str | None) -> "SamplerConfig":
+def apply_preset(config: SamplerConfig, name: str | None) -> SamplerConfig:
     """``config`` with the fields of preset ``name`` (None: unchanged); an unknown name is an error."""
     if name is None:
         return config
@@ -170,7 +169,7 @@ def apply_preset(config: "SamplerConfig", name: str | None) -> "SamplerConfig":
     return replace(config, **SAMPLER_PRESETS[name])
 
 
-def step_sigmas(config: "SamplerConfig") -> list[float]:
+def step_sigmas(config: SamplerConfig) -> list[float]:
     """The noise level σ of each model evaluation of one chunk, in order (what the guidance interval sees)."""
     if config.resolved_solver == "euler":
         return [float(x) for x in flow_sigmas(config.steps, config.shift)[:-1]]
@@ -179,13 +178,13 @@ def step_sigmas(config: "SamplerConfig") -> list[float]:
     return [float(x) for x in sched.sigmas[:-1]]
 
 
-def guided_at(config: "SamplerConfig", sigma: float) -> bool:
+def guided_at(config: SamplerConfig, sigma: float) -> bool:
     """Whether the step at noise level ``sigma`` applies guidance (inside ``guidance_interval``)."""
     iv = config.guidance_interval
     return iv is None or iv[0] <= sigma <= iv[1]
 
 
-def model_calls(config: "SamplerConfig") -> int:
+def model_calls(config: SamplerConfig) -> int:
     """DiT evaluations (batch items) one chunk costs: per step, 2 where both branches run, else 1."""
     both = len(branches(config)) == 2
     return sum(2 if both and guided_at(config, s) else 1 for s in step_sigmas(config))

@@ -47,7 +47,7 @@ def default_cache_dir() -> Path:
 
 def prompt_key(prompt: str, encoder_id: str) -> str:
     """Hex sha256 of ``encoder_id + "\\n" + prompt`` (the cache file's name)."""
-    return hashlib.sha256(f"{encoder_id}\n{prompt}".encode("utf-8")).hexdigest()
+    return hashlib.sha256(f"{encoder_id}\n{prompt}".encode()).hexdigest()
 
 
 def check_prompt_embeds(embeds: torch.Tensor, dim: int, source: str = "prompt_embeds") -> torch.Tensor:

@@ -116,7 +116,7 @@ class TextEncoder:
 
     @classmethod
     def from_folder(cls, folder, *, encoder_id: str | None = None, subfolder: str = "text_encoder",
-                    device="cpu", dtype: torch.dtype | None = None) -> "TextEncoder":
+                    device="cpu", dtype: torch.dtype | None = None) -> TextEncoder:
         """Load ``folder/text_encoder`` (safetensors only) and ``folder/tokenizer`` (a diffusers pipeline folder)."""
         transformers = require_transformers()
         folder = Path(folder)
@@ -139,7 +139,7 @@ class TextEncoder:
 
     @classmethod
     def from_hub(cls, encoder_id: str, *, cache_dir=None, endpoint=None, local_files_only: bool | None = None,
-                 token=None, device="cpu", dtype: torch.dtype | None = None) -> "TextEncoder":
+                 token=None, device="cpu", dtype: torch.dtype | None = None) -> TextEncoder:
         """Download ``text_encoder/`` and ``tokenizer/`` of ``encoder_id``'s repo (safetensors, JSON, text only)."""
         require_transformers()
         from oscar_zoo._fetch import hub_snapshot

@@ -42,7 +42,7 @@ COSMOS_2B_TRANSFORMER_CONFIG = dict(
 def randomise(model: torch.nn.Module, seed: int, scale: float) -> None:
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
-        for name, p in model.named_parameters():
+        for p in model.parameters():
             p.copy_(torch.randn(p.shape, generator=g) * scale)
 
 

@@ -33,8 +33,8 @@ from diffusers.models.modeling_outputs import Transformer2DModelOutput
 from diffusers.models.transformers.transformer_cosmos import CosmosPatchEmbed, CosmosTransformer3DModel
 
 from ._resize import resize_padding_mask
-from .weights import build_strict, cast_model, load_state_dict, read_config
 from .errors import CheckpointLayoutError, ModelInputError
+from .weights import build_strict, cast_model, load_state_dict, read_config
 
 __all__ = ["OscarTransformer3DModel", "SKELETON_EMBED_KEY"]
 
@@ -100,7 +100,7 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def load_strict(cls, folder, device=None, dtype: torch.dtype | None = None) -> "OscarTransformer3DModel":
+    def load_strict(cls, folder, device=None, dtype: torch.dtype | None = None) -> OscarTransformer3DModel:
         """Load an OSCAR transformer folder (config.json + safetensors); every key must match, PE_s included."""
         config = read_config(folder, (cls.__name__,))
         model = build_strict(cls, config, load_state_dict(folder, device=device or "cpu"), folder)
@@ -108,7 +108,7 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
 
     @classmethod
     def from_cosmos_base(cls, base, skeleton_channels: int | None = None, device=None,
-                         dtype: torch.dtype | None = None) -> "OscarTransformer3DModel":
+                         dtype: torch.dtype | None = None) -> OscarTransformer3DModel:
         """Start fine-tuning from base Cosmos weights: the base loaded strictly plus a zero PE_s.
 
         base: a folder written by ``CosmosTransformer3DModel.save_pretrained``

@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .weights import build_strict, cast_model, load_state_dict, read_config
 from .errors import ModelInputError
+from .weights import build_strict, cast_model, load_state_dict, read_config
 
 __all__ = ["VideoVAE", "check_frame_count", "load_vae_folder"]
 

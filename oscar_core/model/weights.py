@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import struct
 from pathlib import Path
-
 from typing import TYPE_CHECKING
 
 from .errors import CheckpointIntegrityError, CheckpointLayoutError

@@ -27,16 +27,15 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from .._util.log import get_logger
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
-from ..render.conditions import ConditionName, takes_actions
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, takes_actions
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
-from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
-from .weights import cast_model, check_safetensors
 from .errors import CheckpointLayoutError, ModelInputError
+from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
 from .sampler import SamplerConfig, check_card_sampler, resolve_sampler
 from .text import check_prompt_embeds, empty_prompt_embeds
 from .transformer import OscarTransformer3DModel
 from .vae import VideoVAE, check_frame_count, load_vae_folder
+from .weights import cast_model, check_safetensors
 
 __all__ = ["FORMAT", "MODEL_FILE", "ModelCard", "OscarWorldModel", "read_card"]
 

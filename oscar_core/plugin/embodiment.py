@@ -19,15 +19,16 @@ from __future__ import annotations
 
 import functools
 import warnings
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar, Mapping, Sequence
+from typing import ClassVar
 
 import numpy as np
 
 from ..errors import CameraFileError, PluginError, TrajectoryError
-from .skeleton import Skeleton, collapse_tree_edges
 from ..kinematics.trajectory import Trajectory
+from .skeleton import Skeleton, collapse_tree_edges
 
 __all__ = ["Embodiment", "Gripper", "CameraSpec", "SkeletonFrames", "JointLimitWarning", "DefaultPoseWarning"]
 

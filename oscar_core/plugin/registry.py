@@ -26,15 +26,15 @@ import importlib.util
 import os
 import sys
 import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import pluggy
 
+from ..errors import PluginError
 from . import hookspecs
 from .embodiment import Embodiment
-from ..errors import PluginError
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -199,7 +199,7 @@ class Registry:
         for impl in [i for i in getattr(self.pm.hook, hook).get_hookimpls() if i.plugin is module]:
             try:
                 returned = impl.function()
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001 - a broken plugin is reported; the others keep working
                 self._fail(plugin, who, f"{hook} raised {type(exc).__name__}: {exc}")
                 continue
             if returned is None:

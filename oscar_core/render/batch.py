@@ -154,10 +154,10 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
     rendering. Warnings (joint limits, an empty view) are caught and returned in
     the result, not printed. Returns an :class:`EpisodeResult` with ``ok=True``.
     """
-    from .conditions import check_condition, chunk_renderer
-    from .renderer import DEFAULT_CHUNK_FRAMES, RenderStats
     from ..kinematics.trajectory import load_trajectory
     from ..media.video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output
+    from .conditions import check_condition, chunk_renderer
+    from .renderer import DEFAULT_CHUNK_FRAMES, RenderStats
 
     t0 = time.perf_counter()
     check_output(spec.out, format=spec.format)  # suffix and folder, before reading anything

@@ -18,17 +18,17 @@ chunks of frames, each frame rasterised on its own.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
 from ..camera import Camera
-from .mesh import draw_frames, link_palette, record_empty
-from .guarded_projection import project_cv, to_camera
-from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 from ..kinematics.visual import capsule_mesh
 from ..kinematics.workspace import joint_limits, open_fk, reach_of
+from .guarded_projection import project_cv, to_camera
+from .mesh import draw_frames, link_palette, record_empty
+from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 
 __all__ = ["CAPSULES", "CapsuleRenderer", "CapsuleJob", "RADIUS_BASE", "RADIUS_TIP", "CapsuleStyle", "link_radii",
            "body_reach", "finger_axes", "body_vertices", "iter_capsule_chunks", "render_capsule_video"]

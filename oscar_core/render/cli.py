@@ -8,10 +8,10 @@ import sys
 import time
 
 from .._util.arg_types import count, device, number
-from .conditions import CONDITIONS
-from ..errors import OscarError
 from .._util.outputs import output_option
 from .._util.threads import threads_option
+from ..errors import OscarError
+from .conditions import CONDITIONS
 
 EPILOG = """examples:
   oscar render --embodiment toyarm --trajectory traj.npz --camera cam.json --out skel.mp4 --size 512x288
@@ -161,9 +161,9 @@ def cmd_render(args) -> int:
 
 def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
+    from ..kinematics.trajectory import load_trajectory
     from .batch import _registry
     from .overlay import write_overlay
-    from ..kinematics.trajectory import load_trajectory
 
     emb = _registry(tuple(args.plugin or ())).get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)

@@ -20,8 +20,9 @@ the model card) looks it up here.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Literal
+from typing import Literal
 
 from ..errors import OscarError
 

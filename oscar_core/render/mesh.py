@@ -19,17 +19,17 @@ The choice of this renderer and its measurements: docs/mesh-condition.md.
 from __future__ import annotations
 
 import colorsys
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
 from ..camera import Camera
 from ..errors import PluginError
-from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
-from .guarded_projection import project_cv, to_camera
-from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 from ..kinematics.visual import VisualGeometry
+from .guarded_projection import project_cv, to_camera
+from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
+from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 
 __all__ = ["MESH", "MeshRenderer", "MeshJob", "MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry",
            "mesh_vertices", "iter_mesh_chunks", "render_mesh_video"]

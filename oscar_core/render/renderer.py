@@ -20,8 +20,9 @@ Images are (n, H, W, 3) uint8 RGB; sizes are (width, height) pixels.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 

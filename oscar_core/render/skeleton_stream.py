@@ -19,8 +19,8 @@ needs at the image's edges (:mod:`oscar_core.render.guarded_projection`):
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera, project
-from ..plugin.embodiment import Embodiment
-from .raster import GripperMarks, SkeletonStyle, rasterise
 from ..kinematics.trajectory import Trajectory
+from ..plugin.embodiment import Embodiment
+from .raster import GripperMarks, SkeletonStyle
 
 __all__ = ["render_skeleton_video", "overlay_skeleton", "fit_image", "parse_size", "SkeletonProjection", "project_skeleton"]
 

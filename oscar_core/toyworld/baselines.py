@@ -23,8 +23,8 @@ def write_baseline(clipset, out, kind: str = "first_frame", split: str | None = 
                    limit: int | None = None) -> list[str]:
     """Write the ``kind`` prediction of each clip (of ``split``; at most ``limit``, every k-th) as
     ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8)."""
-    from .rollouts import spread
     from ..train.clips import ClipSet
+    from .rollouts import spread
 
     if kind not in BASELINES:
         raise ValueError(f"baseline: expected one of {BASELINES}, found {kind!r}")

@@ -14,9 +14,9 @@ from pathlib import Path
 
 from .._util.arg_types import count, interval, number
 from .._util.log import get_logger, log_result, run_log
-from ..model.presets import SAMPLER_PRESETS
 from .._util.outputs import output_option
 from .._util.threads import threads_option
+from ..model.presets import SAMPLER_PRESETS
 
 __all__ = ["add_toyworld_parser", "cmd_example", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline",
            "cmd_eval", "cmd_policy_eval", "cmd_carry"]
@@ -313,8 +313,8 @@ def cmd_package(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from .evaluate import add_paired, evaluate_conditions, format_table, plot_table, parse_pred_args
     from .._util.atomic import atomic_write_bytes
+    from .evaluate import add_paired, evaluate_conditions, format_table, parse_pred_args, plot_table
 
     conditions = parse_pred_args(args.pred)
     if args.paired is not None and args.paired not in conditions:
@@ -393,7 +393,9 @@ def cmd_carry(args) -> int:
 
     table = carry_table(args.manifest, args.eval_out)
     summary, rows = table["summary"], table["rows"]
-    f = (lambda x: "n/a" if x is None else f"{x:.2f}")
+    def f(x) -> str:
+        return "n/a" if x is None else f"{x:.2f}"
+
     print("| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
           "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -44,10 +44,10 @@ def toy_rollout_demo(out_dir, model="oscar-toy", registry=None, steps: int | Non
 
     import oscar_zoo
 
-    from ..metrics import psnr
-    from ..render.skeleton_video import render_skeleton_video
-    from ..plugin.registry import Registry
     from ..media.video import write_video
+    from ..metrics import psnr
+    from ..plugin.registry import Registry
+    from ..render.skeleton_video import render_skeleton_video
     from .episode import episode_rng, make_episode
     from .rollouts import sampler_for_card
 

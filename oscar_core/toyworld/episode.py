@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import Camera, project
-from ..render.capsules import link_radii  # the capsule body's radii: the mesh condition of this world
-from ..plugin.embodiment import Embodiment
 from ..kinematics.trajectory import Trajectory
+from ..plugin.embodiment import Embodiment
+from ..render.capsules import link_radii  # the capsule body's radii: the mesh condition of this world
 from .motion import Motion, check_supported, sample_motion
 from .raster import Canvas
 from .scene import EE_RGB, OBJECT_RGB, Scene, background, sample_camera, sample_scene

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..metrics.report_html import browser_video, relative_url, render_page
 from .._util.log import progress_bar
+from ..metrics.report_html import browser_video, relative_url, render_page
 
 __all__ = ["write_eval_html", "made_by", "MAX_CLIPS"]
 

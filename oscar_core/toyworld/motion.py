@@ -28,10 +28,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..plugin.embodiment import Embodiment
 from ..errors import OscarError
 from ..kinematics.trajectory import Trajectory
-from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of  # noqa: F401 (re-exported)
+from ..kinematics.workspace import (
+    ee_points,
+    joint_limits,
+    open_fk,
+    openness_to_signal,
+    reach_of,
+)
+from ..plugin.embodiment import Embodiment
 
 __all__ = ["ToyWorldError", "check_supported", "joint_limits", "Motion", "sample_motion", "carry_object",
            "min_jerk", "openness_to_signal", "ee_points", "miss_start", "GRAB_RADII", "MISS_NEAR_RADII",

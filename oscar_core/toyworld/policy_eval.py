@@ -33,17 +33,17 @@ from __future__ import annotations
 
 import json
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from .._util.log import get_logger
 from ..camera import Camera, project
-from ..plugin.embodiment import Embodiment
 from ..kinematics.trajectory import Trajectory
 from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to_signal, reach_of
+from ..plugin.embodiment import Embodiment
 from .motion import GRAB_RADII, Motion, ToyWorldError, carry_object, check_supported, min_jerk
 
 __all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
@@ -372,9 +372,9 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
     """
     from .._util.atomic import atomic_write_bytes
     from ..camera import save_camera
-    from ..plugin.registry import Registry
     from ..kinematics.trajectory import save_trajectory
     from ..media.video import write_video
+    from ..plugin.registry import Registry
     from .episode import render_world
 
     if sessions < 1:

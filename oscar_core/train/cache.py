@@ -85,9 +85,9 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     import torch
 
     from .._util import stage as _stage
-    from ..render.conditions import check_condition
     from ..model.vae import check_frame_count
     from ..plugin.registry import Registry
+    from ..render.conditions import check_condition
     from .clips import Clip, ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")

@@ -36,8 +36,8 @@ from pathlib import Path
 import torch
 import torch.distributed.checkpoint as dcp
 
-from ..model.manifest import sha256_file
 from ..model.errors import CheckpointIntegrityError, CheckpointLayoutError
+from ..model.manifest import sha256_file
 from .parallel import DistInfo, barrier
 
 __all__ = ["CHECKPOINT_INDEX", "checkpoint_dir", "checkpoint_step", "list_checkpoints", "latest_checkpoint",

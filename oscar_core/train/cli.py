@@ -11,9 +11,9 @@ import json
 import os
 
 from .._util.arg_types import count
-from ..render.conditions import CONDITIONS
 from .._util.outputs import output_option
 from .._util.threads import threads_option
+from ..render.conditions import CONDITIONS
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
 
@@ -86,10 +86,9 @@ def cmd_train(args) -> int:
         out = export_run(args.export, args.out, step=args.step, weights=args.weights)
         print(json.dumps({"export": str(out)}) if args.json else f"exported {args.export} to {out}")
         return 0
-    from .loop import train
-
     from .._util.log import log_result, run_log
     from .._util.outputs import check_writable
+    from .loop import train
 
     main_rank = int(os.environ.get("RANK", "0")) == 0
     overrides = parse_overrides(args.set)

@@ -42,8 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from .._util.atomic import TMP_NAME as _TMP_WITH_PID
-from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
+from .._util.atomic import TMP_NAME as _TMP_WITH_PID, atomic_write_bytes, sweep_dead_temporaries, sweep_once, tmp_prefix
 from ..errors import OscarError
 
 __all__ = [

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
 from .._util.inputs import read_text_file
 from ..errors import OscarError
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
 
 __all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
            "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES",
@@ -205,7 +205,7 @@ class TrainConfig:
     optim: OptimSection = field(default_factory=OptimSection)
     log: LogSection = field(default_factory=LogSection)
 
-    def validate(self, source: str = "<config>") -> "TrainConfig":
+    def validate(self, source: str = "<config>") -> TrainConfig:
         """Raise :class:`TrainConfigError` naming the first bad field."""
         def bad(name, expected, found):
             raise TrainConfigError(source, name, expected, repr(found))

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..render.conditions import is_video_condition, takes_actions
 from .clips import ClipFormatError, ClipRecord, ClipSet
 from .config import TrainConfig
 from .sampling import PlanItem, StepPlanner
-from ..render.conditions import is_video_condition, takes_actions
 
 __all__ = ["TrainData", "Batch", "UsableClip"]
 

@@ -18,8 +18,8 @@ what overlaps is reading, decoding, rendering and the training step.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Callable, Iterator
 
 from .data import Batch, TrainData
 from .sampling import PlanItem

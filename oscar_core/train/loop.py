@@ -22,17 +22,22 @@ import torch
 
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
-from .checkpoint import (checkpoint_step, latest_checkpoint, list_checkpoints, load_checkpoint, load_weights,
-                         save_checkpoint)
-from .config import (OVERRIDE_SOURCE, TrainConfig, TrainConfigError, check_resume_overrides,
-                     load_config, save_config)
+from ..render.conditions import is_video_condition, takes_actions
+from .checkpoint import (
+    checkpoint_step,
+    latest_checkpoint,
+    list_checkpoints,
+    load_checkpoint,
+    load_weights,
+    save_checkpoint,
+)
+from .config import OVERRIDE_SOURCE, TrainConfig, TrainConfigError, check_resume_overrides, load_config, save_config
 from .data import Batch, TrainData
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
 from .sampling import PlanItem, StepPlanner
-from ..render.conditions import is_video_condition, takes_actions
 
 __all__ = [
     "CONFIG_FILE",

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import torch
 
-from .config import TrainConfig, TrainConfigError
 from ..render.conditions import is_video_condition, takes_actions
+from .config import TrainConfig, TrainConfigError
 
 __all__ = ["build_transformer", "build_vae", "transformer_config", "prepare_for_training"]
 
@@ -35,9 +35,9 @@ def transformer_config(spec, source: str = "<config>") -> dict:
 
 def build_transformer(config: TrainConfig, source: str = "<config>"):
     """The DiT to train, its weights initialised as ``model.init`` says (float32, train mode)."""
+    from ..model.latent_action import LatentActionTransformer
     from ..model.tiny import randomise
     from ..model.transformer import OscarTransformer3DModel
-    from ..model.latent_action import LatentActionTransformer
 
     m = config.model
     args = transformer_config(m.transformer, source)

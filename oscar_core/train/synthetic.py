@@ -33,9 +33,9 @@ def write_toy_clipset(root, clips: int = 4, frames: int = 33, width: int = 64, h
     instead (16 channels; fast, for tests of the loop that need no VAE).
     """
     from ..camera import load_camera
-    from ..render.skeleton_video import render_skeleton_video
-    from ..plugin.registry import Registry
     from ..kinematics.trajectory import load_trajectory
+    from ..plugin.registry import Registry
+    from ..render.skeleton_video import render_skeleton_video
 
     emb = Registry().get("toyarm")
     full = load_trajectory(emb.example_trajectory)

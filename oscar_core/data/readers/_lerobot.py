@@ -29,9 +29,9 @@ v2.1: ``meta/episodes.jsonl``
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
 
 import numpy as np
 
@@ -207,7 +207,7 @@ class LeRobotLayout:
             raise EpisodeError(episode_id, path, "<file>", "the episode's parquet file", "no such file")
         try:
             names = pq.read_schema(path).names
-        except Exception as e:  # pyarrow raises ArrowInvalid / OSError for a broken file
+        except Exception as e:  # noqa: BLE001 - pyarrow raises ArrowInvalid / OSError for a broken file
             raise EpisodeError(episode_id, path, "<file>", "a parquet file", f"{type(e).__name__}: {e}") from None
         for c in columns:
             if c not in names:
@@ -216,7 +216,7 @@ class LeRobotLayout:
         filters = [("episode_index", "=", int(index))] if "episode_index" in names else None
         try:
             table = pq.read_table(path, columns=read, filters=filters)
-        except Exception as e:
+        except Exception as e:  # noqa: BLE001 - as above: named as a broken parquet file
             raise EpisodeError(episode_id, path, "<file>", "a parquet file", f"{type(e).__name__}: {e}") from None
         if table.num_rows == 0 or (length is not None and table.num_rows != int(length)):
             raise EpisodeError(episode_id, path, "episode_index",
@@ -232,6 +232,6 @@ class LeRobotLayout:
                 a = np.asarray(col, dtype=np.float64)
             except (TypeError, ValueError):
                 raise EpisodeError(episode_id, path, c, "numbers (one row of equal length per frame)",
-                                   f"ragged or non-numeric cells") from None
+                                   "ragged or non-numeric cells") from None
             out[c] = a if order is None else a[order]
         return out

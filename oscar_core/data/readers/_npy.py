@@ -88,7 +88,7 @@ def load_npy(path: str | Path) -> Any:
         raise NpyPickleError(path, "pickle global", "only numpy arrays, dicts, lists and numbers "
                              "(oscar_core.data.readers._npy.ALLOWED_GLOBALS)",
                              f"{e.what}, which was refused (nothing from the file was imported or run)") from None
-    except Exception as e:  # truncated or corrupt file
+    except Exception as e:  # noqa: BLE001 - truncated or corrupt file
         raise NpyPickleError(path, "<file>", "a readable .npy file", f"{type(e).__name__}: {e}") from None
     if isinstance(obj, np.ndarray) and obj.dtype.hasobject and obj.shape == ():
         return obj.item()

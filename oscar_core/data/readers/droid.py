@@ -30,8 +30,9 @@ Images are 1280x720 (ZED HD720) unless ``image_size=`` says otherwise.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video, read_json, require

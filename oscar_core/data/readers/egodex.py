@@ -31,8 +31,8 @@ episode (:class:`~oscar_core.plugin.reader.EpisodeError`).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 

@@ -35,8 +35,9 @@ kept frame is a broken episode. Camera: egocentric, the VITRA intrinsics.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 

@@ -35,8 +35,9 @@ The dataset's profile is recognised from ``meta/info.json`` features:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from ...plugin.reader import Episode, EpisodeError, EpisodeRef, Reader
 from ._common import episode_errors, finite, local_root, probe_video

@@ -60,8 +60,8 @@ class NpzReader(Reader):
         from pathlib import Path
 
         from ...errors import OscarError
-        from ...plugin.registry import default_registry
         from ...kinematics.trajectory import load_trajectory
+        from ...plugin.registry import default_registry
         from .. import _fs
 
         reg = registry or default_registry()

@@ -34,8 +34,9 @@ Human-demonstration folders (``..._human``) are skipped.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
