@@ -69,9 +69,26 @@ class EndEffectorIK:
         T[:, :3, 3] = T[:, :3, 3] + T[:, :3, :3] @ self.offset
         return T[0] if q.ndim == 1 else T
 
-    def solve(self, q0, position, rotvec=None) -> IKResult:
+    def solve(self, q0, position, rotvec=None, restarts: int = 4) -> IKResult:
         """Arm joints near ``q0`` (J,) that put the end-effector at ``position`` (3,) metres (and rotation
-        ``rotvec`` (3,) if given), within the joint limits; the residual is whatever is left after the solve."""
+        ``rotvec`` (3,) if given), within the joint limits; the residual is whatever is left after the solve.
+
+        A solve from ``q0`` that ends more than 1 mm (or 1 mrad) away — a local minimum against the limits —
+        is repeated from ``restarts`` fixed configurations (a generator of seed 0, uniform in the limits) and
+        the one with the smallest residual is kept (the arm may then jump in joint space)."""
+        best = self._solve(q0, position, rotvec)
+        if best.position_error <= 1e-3 and best.rotation_error <= 1e-3:
+            return best
+        rng = np.random.default_rng(0)
+        for _ in range(restarts):
+            res = self._solve(self.lo + rng.uniform(0, 1, len(self.lo)) * (self.hi - self.lo), position, rotvec)
+            if res.position_error + res.rotation_error < best.position_error + best.rotation_error:
+                best = res
+            if best.position_error <= 1e-3 and best.rotation_error <= 1e-3:
+                break
+        return best
+
+    def _solve(self, q0, position, rotvec=None) -> IKResult:
         q = np.clip(np.asarray(q0, dtype=np.float64).copy(), self.lo, self.hi)
         target_p = np.asarray(position, dtype=np.float64)
         target_R = Rotation.from_rotvec(rotvec).as_matrix() if rotvec is not None else None
