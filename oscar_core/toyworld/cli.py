@@ -141,6 +141,15 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
 
     add_policy_eval_arguments(pe)
     pe.set_defaults(func=cmd_policy_eval)
+    cl = sub.add_parser("closed-loop-sessions", help="toy sessions and image-based policies: write an `oscar eval "
+                                                      "closed-loop` manifest", epilog=EXAMPLES, formatter_class=fmt)
+    cl.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
+    cl.add_argument("--sessions", type=count(1), required=True, help="sessions per embodiment")
+    cl.add_argument("--seed", type=count(0), default=0, help="session i of embodiment e depends on (seed, e, i) only")
+    cl.add_argument("--horizon", type=count(2), default=49, help="frames per episode, the first included (default 49)")
+    cl.add_argument("--policies", help="comma-separated toy policies (default: exact,noisy,late,never_closes,random)")
+    cl.add_argument("--out", required=True, help="folder for manifest.json and the session folders")
+    cl.set_defaults(func=cmd_closed_loop_sessions)
     cy = sub.add_parser("carry", help="where the generated ball goes: per-cell judge internals of an `oscar eval "
                                       "run` on a policy-eval manifest, per policy against the real grab",
                         epilog=EXAMPLES, formatter_class=fmt)
@@ -300,4 +309,22 @@ def cmd_eval(args) -> int:
     print(json.dumps(table, indent=2) if args.json else format_table(table))
     if html and not args.no_html and not args.json:
         print(f"wrote {html}")
+    return 0
+
+
+def cmd_closed_loop_sessions(args) -> int:
+    """``oscar toyworld closed-loop-sessions``: write toy sessions and a closed-loop manifest."""
+    from ..plugin.registry import Registry
+    from .closed_loop import write_closed_loop_sessions
+    from .image_policies import POLICIES
+
+    names = [n.strip() for n in args.embodiments.split(",") if n.strip()]
+    pols = [p.strip() for p in args.policies.split(",") if p.strip()] if args.policies else None
+    bad = [p for p in pols or () if p not in POLICIES]
+    if not names or bad:
+        raise ValueError(f"--embodiments/--policies: expected embodiment names and toy policies among "
+                         f"{list(POLICIES)}, found {names} / {bad}")
+    path = write_closed_loop_sessions(args.out, names, args.sessions, seed=args.seed, horizon=args.horizon,
+                                      policies=pols, registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()))
+    print(f"wrote {path}: {args.sessions} sessions x {len(names)} embodiments")
     return 0
