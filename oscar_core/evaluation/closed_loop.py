@@ -457,6 +457,8 @@ def _run_and_write(out: Path, s: Session, spec: PolicySpec, emb, parts: dict, ke
                        replan_every=K, timeout_s=timeout)
     seconds = time.perf_counter() - t0
     fault = run.fault
+    if fault is not None:  # a timed-out call may still run, a remote connection may be broken: load it afresh
+        policies.pop(spec.name, None)
     rel = folder.relative_to(out)
     _write_json(folder / "calls.json", {"policy": spec.name, "session": s.session, "calls": run.calls})
     latencies = [c["latency_s"] for c in run.calls if "latency_s" in c]

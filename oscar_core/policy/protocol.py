@@ -295,13 +295,18 @@ def _import(spec: str):
 
 
 def load_policy(source: str):
-    """A policy object from ``module:attr``, ``path/to/file.py:attr`` or an ``oscar.policies`` entry-point name.
+    """A policy object from ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry-point name, or
+    ``ws://host:port`` (a :class:`~oscar_core.policy.remote.WebsocketPolicy`, connected here).
 
     A class is instantiated with no arguments; an object with ``infer`` is returned as it is; a function is
     wrapped. Raises :class:`PolicySpecError` naming ``source`` when nothing usable is found.
     """
+    if source.startswith(("ws://", "wss://")):
+        from .remote import WebsocketPolicy
+
+        return WebsocketPolicy(source)
     try:
-        if ":" in source and not source.startswith(("ws://", "wss://")):
+        if ":" in source:
             obj = _import(source)
         else:
             found = [ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == source]
