@@ -130,7 +130,7 @@ def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
     assert proc.returncode == 0, proc.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["counts"]["done"] == 4 and report["ranked_by"] == "success_rate"
-    sim = run_closed_loop(m, tmp_path / "sim", simulator=toy_simulator, fps=10.0, chunk_frames=9)
+    run_closed_loop(m, tmp_path / "sim", simulator=toy_simulator, fps=10.0, chunk_frames=9)  # the real frames
     later = 0
     for cell in report["cells"]:
         video = read_video(out / cell["video"])

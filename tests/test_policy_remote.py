@@ -41,7 +41,7 @@ class DiesOnSecondCall(FailsOnSecondCall):
 
 
 def _serve(target: str):
-    proc = subprocess.Popen([sys.executable, "-m", "oscar_core.policy.remote", target, "--port", "0"],
+    proc = subprocess.Popen([sys.executable, "-m", "oscar_core.policy.serve", target, "--port", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stdout.readline()
     if not line.startswith("listening on "):

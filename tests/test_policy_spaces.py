@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from oscar_core.plugin.registry import get_embodiment
 from oscar_core.policy.ik import EndEffectorIK
 from oscar_core.policy.protocol import (DROID_KEYS, PolicyFault, PolicySpec, PolicySpecError, absurd_bounds,
-                                        call_policy, check_answer, load_policy)
+                                        call_policy, check_answer)
+from oscar_core.policy.loading import load_policy
 from oscar_core.policy.spaces import ActionAdapter, resample
 
 

@@ -52,7 +52,8 @@ from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
 from ..metrics._common import MetricInputError
-from ..policy.protocol import PolicyFault, PolicySpec, call_policy, check_answer, load_policy
+from ..policy.loading import load_policy
+from ..policy.protocol import PolicyFault, PolicySpec, call_policy, check_answer
 from ..policy.spaces import ActionAdapter, resample
 from .closed_loop_report import VIEWS
 from .closed_loop_manifest import ClosedLoopManifest, Session, load_closed_loop_manifest

@@ -11,22 +11,16 @@ and H at least the number of actions executed; every value finite and not absurd
 :func:`absurd_bounds`). Any problem raises :class:`PolicyFault` with a one-line reason, which ends that episode
 only.
 
-:func:`load_policy` finds a policy by ``module:attr``, ``path/to/file.py:attr`` or the name of an
-``oscar.policies`` entry point; a class is instantiated with no arguments, a plain function ``obs -> dict`` is
-wrapped so it has ``infer``.
+:func:`oscar_core.policy.loading.load_policy` finds a policy by its source.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
-import importlib
-import importlib.metadata
-import importlib.util
 import threading
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Literal, Protocol, get_args, runtime_checkable
 
 import numpy as np
@@ -35,7 +29,7 @@ from ..errors import OscarError
 
 __all__ = ["ActionSpaceName", "GripperMode", "ACTION_SPACES", "GRIPPER_MODES", "DROID_KEYS", "OBS_FIELDS",
            "ENTRY_POINT_GROUP", "Policy", "PolicySpec", "PolicyFault", "PolicySpecError", "action_width",
-           "check_answer", "call_policy", "load_policy", "absurd_bounds"]
+           "check_answer", "call_policy", "absurd_bounds"]
 
 #: Action spaces a policy may declare (:mod:`oscar_core.policy.spaces`).
 ActionSpaceName = Literal["joint_position", "joint_velocity", "joint_delta", "ee_pose", "ee_delta",
@@ -268,60 +262,3 @@ def call_policy(policy, obs: dict, timeout_s: float) -> tuple[Any, float]:
         text = str(exc).strip().splitlines()
         raise PolicyFault(f"infer raised {type(exc).__name__}: {text[0][:300] if text else ''}") from None
     return answer, time.perf_counter() - t0
-
-
-class _FunctionPolicy:
-    """A plain function ``obs -> {"actions": ...}`` made into a policy."""
-
-    def __init__(self, fn):
-        self.fn = fn
-
-    def infer(self, obs: dict) -> dict:
-        return self.fn(obs)
-
-
-def _import(spec: str):
-    target, _, attr = spec.rpartition(":")
-    if target.endswith(".py"):
-        path = Path(target)
-        if not path.is_file():
-            raise PolicySpecError(spec, "policy", "an existing Python file", "no such file")
-        mod_spec = importlib.util.spec_from_file_location(f"oscar_user_policy_{path.stem}", path)
-        module = importlib.util.module_from_spec(mod_spec)
-        mod_spec.loader.exec_module(module)
-    else:
-        module = importlib.import_module(target)
-    return getattr(module, attr)
-
-
-def load_policy(source: str):
-    """A policy object from ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry-point name, or
-    ``ws://host:port`` (a :class:`~oscar_core.policy.remote.WebsocketPolicy`, connected here).
-
-    A class is instantiated with no arguments; an object with ``infer`` is returned as it is; a function is
-    wrapped. Raises :class:`PolicySpecError` naming ``source`` when nothing usable is found.
-    """
-    if source.startswith(("ws://", "wss://")):
-        from .remote import WebsocketPolicy
-
-        return WebsocketPolicy(source)
-    try:
-        if ":" in source:
-            obj = _import(source)
-        else:
-            found = [ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == source]
-            if not found:
-                names = sorted(ep.name for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
-                raise PolicySpecError(source, "policy", f"module:attr, file.py:attr or an {ENTRY_POINT_GROUP} entry "
-                                      f"point (installed: {names or 'none'})", "none of these")
-            obj = found[0].load()
-    except (ImportError, AttributeError) as exc:
-        raise PolicySpecError(source, "policy", "an importable module:attr", f"{type(exc).__name__}: {exc}") from None
-    if isinstance(obj, type):
-        obj = obj()
-    if hasattr(obj, "infer"):
-        return obj
-    if callable(obj):
-        return _FunctionPolicy(obj)
-    raise PolicySpecError(source, "policy", "an object with infer(obs), a class of one, or a function",
-                          type(obj).__name__)

@@ -10,6 +10,7 @@ served by openpi's ``serve_policy.py`` answers :class:`WebsocketPolicy`, and a p
   (scalars as ``{b"__npgeneric__": True, b"data": value, b"dtype": ...}``);
 * a *text* message from the server is an error (its traceback); the server then closes the connection.
 
+A policy is served by ``python -m oscar_core.policy.serve module:attr --port 8000``.
 openpi's protocol has no ``reset`` message: :meth:`WebsocketPolicy.reset` opens a fresh connection, so each
 episode starts with a server-side handler of its own. Needs ``msgpack`` and ``websockets``
 (``pip install "oscar-wm[policy]"``); openpi-client itself is not needed (it pins numpy < 2).
@@ -17,16 +18,14 @@ episode starts with a server-side handler of its own. Needs ``msgpack`` and ``we
 
 from __future__ import annotations
 
-import argparse
 import functools
-import sys
 import traceback
 
 import numpy as np
 
 from .._util.optional import require
 
-__all__ = ["pack", "unpack", "WebsocketPolicy", "serve_policy", "main"]
+__all__ = ["pack", "unpack", "WebsocketPolicy", "serve_policy"]
 
 
 def _pack_array(obj):
@@ -87,7 +86,8 @@ class WebsocketPolicy:
         self.metadata = unpack(self._ws.recv())
 
     def reset(self) -> None:
-        """A fresh connection (openpi's protocol has no reset message)."""
+        """A fresh connection (A policy is served by ``python -m oscar_core.policy.serve module:attr --port 8000``.
+openpi's protocol has no reset message)."""
         self._connect()
 
     def infer(self, obs: dict) -> dict:
@@ -132,28 +132,3 @@ def serve_policy(policy_factory, host: str = "127.0.0.1", port: int = 8000, meta
         if ready is not None:
             ready(server.socket.getsockname()[1])
         server.serve_forever()
-
-
-def main(argv=None) -> int:
-    """``python -m oscar_core.policy.remote module:attr [--host H] [--port P]``: serve a policy; prints
-    ``listening on ws://H:P`` once ready (port 0: a free port)."""
-    from .protocol import load_policy
-
-    p = argparse.ArgumentParser(prog="python -m oscar_core.policy.remote",
-                                description="serve a policy (module:attr, file.py:attr or an oscar.policies entry "
-                                            "point) over openpi's websocket protocol")
-    p.add_argument("policy")
-    p.add_argument("--host", default="127.0.0.1")
-    p.add_argument("--port", type=int, default=8000)
-    args = p.parse_args(argv)
-    load_policy(args.policy)  # fail before listening when the policy cannot be loaded
-
-    def ready(port: int) -> None:
-        print(f"listening on ws://{args.host}:{port}", flush=True)
-
-    serve_policy(lambda: load_policy(args.policy), args.host, args.port, {"policy": args.policy}, ready=ready)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
