@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..policy.protocol import PolicySpec, PolicySpecError
-from .manifest import _NAME, ManifestError, _size
+from .manifest import _NAME, ManifestError, _size, resolve_paths
 
 __all__ = ["FORMAT", "Session", "ClosedLoopManifest", "load_closed_loop_manifest"]
 
@@ -146,18 +146,7 @@ def _session(path: Path, k: int, raw, defaults: dict) -> Session:
     for key in ("info", "extras"):
         if not isinstance(merged.get(key, {}), dict):
             raise ManifestError(row, key, "an object", type(merged[key]).__name__)
-    paths = {}
-    for key in PATH_KEYS:
-        v = merged.get(key)
-        if v is None:
-            paths[key] = None
-            continue
-        if not isinstance(v, str) or not v:
-            raise ManifestError(row, key, "a file path (relative to the manifest's folder)", repr(v))
-        p = (path.parent / v).resolve()
-        if not p.is_file():
-            raise ManifestError(row, key, f"an existing file ({v} relative to {path.parent})", "no such file")
-        paths[key] = p
+    paths = resolve_paths(path, row, merged, PATH_KEYS)
     return Session(session=merged["session"], task=merged["task"].strip(), embodiment=merged["embodiment"],
                    first_frame=paths["first_frame"], camera=paths["camera"], initial_state=paths["initial_state"],
                    horizon=horizon, row=k, prompt_embeds=paths["prompt_embeds"], seed=seed,
