@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import subprocess
@@ -40,14 +41,20 @@ class DiesOnSecondCall(FailsOnSecondCall):
 '''
 
 
+@contextlib.contextmanager
 def _serve(target: str):
+    """A real server process for ``target`` on a free loopback port; yields its ws:// address."""
     proc = subprocess.Popen([sys.executable, "-m", "oscar_core.policy.serve", target, "--port", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stdout.readline()
     if not line.startswith("listening on "):
         proc.kill()
         raise AssertionError(f"server did not start: {line!r} {proc.stderr.read()}")
-    return proc, line.split()[-1]
+    try:
+        yield line.split()[-1]
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def test_openpi_array_encoding_round_trips():
@@ -69,13 +76,9 @@ def sessions(tmp_path_factory) -> Path:
 
 def test_served_policy_gives_the_same_cells_as_in_process(sessions, tmp_path):
     local = run_closed_loop(sessions, tmp_path / "local", simulator=toy_simulator, fps=10.0, chunk_frames=17)
-    server, uri = _serve("oscar_core.toyworld.image_policies:ExactPolicy")
-    try:
+    with _serve("oscar_core.toyworld.image_policies:ExactPolicy") as uri:
         remote = run_closed_loop(sessions, tmp_path / "remote", simulator=toy_simulator, fps=10.0, chunk_frames=17,
                                  policy_sources={"exact": uri})
-    finally:
-        server.kill()
-        server.wait()
     assert remote.counts["failed"] == 0 and local.counts["failed"] == 0
     for a, b in zip(local.records, remote.records):
         assert a["outcome"] == b["outcome"]
@@ -93,22 +96,14 @@ def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path):
     data["policies"][0]["action_space"] = "joint_position"
     m = sessions.parent / "joint.json"
     m.write_text(json.dumps(data))
-    server, uri = _serve(f"{tmp_path / 'failing.py'}:FailsOnSecondCall")
-    try:
+    with _serve(f"{tmp_path / 'failing.py'}:FailsOnSecondCall") as uri:
         res = run_closed_loop(m, tmp_path / "err", simulator=toy_simulator, fps=10.0, chunk_frames=17,
                               policy_sources={"exact": uri})
-    finally:
-        server.kill()
-        server.wait()
     assert [r["reason"] for r in res.records] == ["infer raised RuntimeError: policy server error: "
                                                   "ValueError: weights not found"] * 2
-    server, uri = _serve(f"{tmp_path / 'failing.py'}:DiesOnSecondCall")
-    try:
+    with _serve(f"{tmp_path / 'failing.py'}:DiesOnSecondCall") as uri:
         res = run_closed_loop(m, tmp_path / "died", simulator=toy_simulator, fps=10.0, chunk_frames=17,
                               policy_sources={"exact": uri})
-    finally:
-        server.kill()
-        server.wait()
     first, second = (r["reason"] for r in res.records)
     assert first.startswith("infer raised ConnectionClosed"), first  # the connection dropped mid-episode
     assert second.startswith("cannot load ws://"), second  # nobody listens any more
