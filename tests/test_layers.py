@@ -30,6 +30,7 @@ FLOORS: list[tuple[str, tuple[str, ...]]] = [
     ("kinematics", ("kinematics",)),
     ("plugin", ("plugin", "embodiment", "hookspecs", "trajectory", "urdf")),  # the contract + its public paths
     ("embodiments", ("oscar_embodiments",)),
+    ("policy", ("policy",)),  # the policy protocol, action spaces and IK, remote policies
     ("media", ("media",)),
     ("render", ("render",)),
     ("calibration", ("calibration",)),  # cameras from 2D-3D points, and how well a camera fits a video

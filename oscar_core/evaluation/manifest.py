@@ -122,6 +122,24 @@ def file_digest(path: Path) -> str:
     return h.hexdigest()
 
 
+def resolve_paths(path: Path, row: str, merged: Mapping, keys) -> dict:
+    """``{key: absolute path or None}`` of the path fields ``keys`` of one row, relative to the manifest ``path``'s
+    folder; :class:`ManifestError` naming ``row`` and the field for a non-string or a missing file."""
+    paths = {}
+    for key in keys:
+        v = merged.get(key)
+        if v is None:
+            paths[key] = None
+            continue
+        if not isinstance(v, str) or not v:
+            raise ManifestError(row, key, "a file path (relative to the manifest's folder)", repr(v))
+        p = (path.parent / v).resolve()
+        if not p.exists():
+            raise ManifestError(row, key, f"an existing file ({v} relative to {path.parent})", "no such file")
+        paths[key] = p
+    return paths
+
+
 def _row_name(path: Path, k: int, raw) -> str:
     if isinstance(raw, Mapping):
         return f"{path}: cells[{k}] (session {raw.get('session')!r}, policy {raw.get('policy')!r})"
@@ -218,18 +236,7 @@ def _cell(path: Path, k: int, raw, defaults: dict, policies: list, seen: dict, t
         raise ManifestError(row, "task", f"the session's task {tasks[session][0]!r} (as in cells[{tasks[session][1]}])",
                             repr(task))
     tasks.setdefault(session, (task, k))
-    paths = {}
-    for key in PATH_KEYS:
-        v = merged.get(key)
-        if v is None:
-            paths[key] = None
-            continue
-        if not isinstance(v, str) or not v:
-            raise ManifestError(row, key, "a file path (relative to the manifest's folder)", repr(v))
-        p = (path.parent / v).resolve()
-        if not p.exists():
-            raise ManifestError(row, key, f"an existing file ({v} relative to {path.parent})", "no such file")
-        paths[key] = p
+    paths = resolve_paths(path, row, merged, PATH_KEYS)
     real = merged.get("real_success")
     if real is not None and (isinstance(real, bool) or real not in (0, 1)):
         raise ManifestError(row, "real_success", "0, 1 or null (unknown)", repr(real))

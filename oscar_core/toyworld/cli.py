@@ -162,6 +162,16 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
                                             "with their real outcomes", epilog=EXAMPLES, formatter_class=fmt)
     _add_policy_eval_arguments(pe)
     pe.set_defaults(func=cmd_policy_eval)
+    cl = sub.add_parser("closed-loop-sessions", help="toy sessions and image-based policies: write an `oscar eval "
+                                                      "closed-loop` manifest", epilog=EXAMPLES, formatter_class=fmt)
+    cl.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
+    cl.add_argument("--sessions", type=count(1), required=True, help="sessions per embodiment")
+    cl.add_argument("--seed", type=count(0), default=0, help="session i of embodiment e depends on (seed, e, i) only")
+    cl.add_argument("--horizon", type=count(2), default=49, help="frames per episode, the first included (default 49)")
+    cl.add_argument("--policies", help="comma-separated toy policies (default: exact,noisy,late,never_closes,random)")
+    output_option(cl.add_argument("--out", required=True, help="folder for manifest.json and the session folders"),
+                  "folder")
+    cl.set_defaults(func=cmd_closed_loop_sessions)
     cy = sub.add_parser("carry", help="where the generated ball goes: per-cell judge internals of an `oscar eval "
                                       "run` on a policy-eval manifest, per policy against the real grab",
                         epilog=EXAMPLES, formatter_class=fmt)
@@ -393,6 +403,7 @@ def cmd_carry(args) -> int:
 
     table = carry_table(args.manifest, args.eval_out)
     summary, rows = table["summary"], table["rows"]
+
     def f(x) -> str:
         return "n/a" if x is None else f"{x:.2f}"
 
@@ -405,4 +416,22 @@ def cmd_carry(args) -> int:
               f"{f(s['success_if_missed'])} | {f(s['blob_to_place'])} | {f(s['blob_to_ee_end'])} |")
     if args.json:
         atomic_write_bytes(Path(args.json), (json.dumps({"summary": summary, "rows": rows}, indent=1) + "\n").encode())
+    return 0
+
+
+def cmd_closed_loop_sessions(args) -> int:
+    """``oscar toyworld closed-loop-sessions``: write toy sessions and a closed-loop manifest."""
+    from ..plugin.registry import Registry
+    from .closed_loop import write_closed_loop_sessions
+    from .image_policies import POLICIES
+
+    names = [n.strip() for n in args.embodiments.split(",") if n.strip()]
+    pols = [p.strip() for p in args.policies.split(",") if p.strip()] if args.policies else None
+    bad = [p for p in pols or () if p not in POLICIES]
+    if not names or bad:
+        raise ValueError(f"--embodiments/--policies: expected embodiment names and toy policies among "
+                         f"{list(POLICIES)}, found {names} / {bad}")
+    path = write_closed_loop_sessions(args.out, names, args.sessions, seed=args.seed, horizon=args.horizon,
+                                      policies=pols, registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()))
+    print(f"wrote {path}: {args.sessions} sessions x {len(names)} embodiments")
     return 0

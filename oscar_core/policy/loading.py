@@ -1,0 +1,74 @@
+"""Where a policy comes from: ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry point, or
+``ws://host:port`` (openpi's websocket protocol, :class:`~oscar_core.policy.remote.WebsocketPolicy`).
+
+A class is instantiated with no arguments, an object with ``infer`` is used as it is, a plain function
+``obs -> dict`` is wrapped so it has ``infer``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import importlib.util
+from pathlib import Path
+
+from .protocol import ENTRY_POINT_GROUP, PolicySpecError
+
+__all__ = ["load_policy"]
+
+
+class _FunctionPolicy:
+    """A plain function ``obs -> {"actions": ...}`` made into a policy."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def infer(self, obs: dict) -> dict:
+        return self.fn(obs)
+
+
+def _import(spec: str):
+    target, _, attr = spec.rpartition(":")
+    if target.endswith(".py"):
+        path = Path(target)
+        if not path.is_file():
+            raise PolicySpecError(spec, "policy", "an existing Python file", "no such file")
+        mod_spec = importlib.util.spec_from_file_location(f"oscar_user_policy_{path.stem}", path)
+        module = importlib.util.module_from_spec(mod_spec)
+        mod_spec.loader.exec_module(module)
+    else:
+        module = importlib.import_module(target)
+    return getattr(module, attr)
+
+
+def load_policy(source: str):
+    """A policy object from ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry-point name, or
+    ``ws://host:port`` (a :class:`~oscar_core.policy.remote.WebsocketPolicy`, connected here).
+
+    A class is instantiated with no arguments; an object with ``infer`` is returned as it is; a function is
+    wrapped. Raises :class:`PolicySpecError` naming ``source`` when nothing usable is found.
+    """
+    if source.startswith(("ws://", "wss://")):
+        from .remote import WebsocketPolicy
+
+        return WebsocketPolicy(source)
+    try:
+        if ":" in source:
+            obj = _import(source)
+        else:
+            found = [ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == source]
+            if not found:
+                names = sorted(ep.name for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
+                raise PolicySpecError(source, "policy", f"module:attr, file.py:attr or an {ENTRY_POINT_GROUP} entry "
+                                      f"point (installed: {names or 'none'})", "none of these")
+            obj = found[0].load()
+    except (ImportError, AttributeError) as exc:
+        raise PolicySpecError(source, "policy", "an importable module:attr", f"{type(exc).__name__}: {exc}") from None
+    if isinstance(obj, type):
+        obj = obj()
+    if hasattr(obj, "infer"):
+        return obj
+    if callable(obj):
+        return _FunctionPolicy(obj)
+    raise PolicySpecError(source, "policy", "an object with infer(obs), a class of one, or a function",
+                          type(obj).__name__)

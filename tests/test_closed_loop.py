@@ -1,0 +1,227 @@
+"""Closed-loop evaluation on the toy world: the world model and the toy simulator, good and bad policies, resume."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from oscar_core.evaluation.closed_loop import run_closed_loop
+from oscar_core.kinematics.trajectory import load_trajectory
+from oscar_core.kinematics.workspace import joint_limits
+from oscar_core.media.video import read_video
+from oscar_core.plugin.registry import get_embodiment
+from oscar_core.toyworld.closed_loop import toy_simulator, write_closed_loop_sessions
+
+OSCAR = [sys.executable, "-m", "oscar_core.cli"]
+
+BAD_POLICIES = '''
+import time
+import numpy as np
+
+class Line:
+    """Constant joint velocities: the joint path must be exactly q0 + v t."""
+    def infer(self, obs):
+        return {"actions": np.tile([0.2, -0.1, 0.15, 0.05, 0.0], (8, 1))}
+
+class NaN:
+    def infer(self, obs):
+        a = np.zeros((8, 5)); a[3, 1] = np.nan
+        return {"actions": a}
+
+class WrongShape:
+    def infer(self, obs):
+        return {"actions": np.zeros((8, 3))}
+
+class Raises:
+    def __init__(self):
+        self.calls = 0
+    def reset(self):
+        self.calls = 0
+    def infer(self, obs):
+        self.calls += 1
+        if self.calls > 1:
+            raise RuntimeError("lost the gripper")
+        return {"actions": np.zeros((8, 5))}
+
+class Slow:
+    def infer(self, obs):
+        time.sleep(float(__import__("os").environ.get("SLOW_POLICY_S", "5")))
+        return {"actions": np.zeros((8, 5))}
+'''
+
+
+def _joint_spec(name: str, attr: str, folder: Path) -> dict:
+    return {"name": name, "policy": f"{folder / 'bad_policies.py'}:{attr}", "action_space": "joint_velocity",
+            "control_hz": 10.0, "image_size": [64, 64], "actions_per_call": 8, "gripper": "position"}
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory) -> Path:
+    """Two toyarm sessions, the exact and the never-closing toy policies (manifest.json)."""
+    root = tmp_path_factory.mktemp("closed_loop")
+    path = write_closed_loop_sessions(root / "sessions", ["toyarm"], 2, seed=3, horizon=49,
+                                      policies=["exact", "never_closes"])
+    (root / "bad_policies.py").write_text(BAD_POLICIES)
+    return path
+
+
+def _variant(manifest: Path, name: str, *, horizon: int | None = None, policies: list | None = None) -> Path:
+    data = json.loads(manifest.read_text())
+    if horizon is not None:
+        data["defaults"]["horizon"] = horizon
+    if policies is not None:
+        data["policies"] = policies
+    out = manifest.parent / f"{name}.json"
+    out.write_text(json.dumps(data))
+    return out
+
+
+def _sha(a: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()
+
+
+def test_simulator_gives_ground_truth_and_ranks(toy, tmp_path):
+    res = run_closed_loop(toy, tmp_path / "sim", simulator=toy_simulator, fps=10.0, chunk_frames=17)
+    rows = {r["policy"]: r for r in res.report["policies"]}
+    assert res.counts == {"cells": 4, "done": 4, "reused": 0, "failed": 0, "retried": 0}
+    assert rows["exact"]["sim_success_rate"] == 1.0 and rows["never_closes"]["sim_success_rate"] == 0.0
+    assert res.report["ranking"] == ["exact", "never_closes"] and res.report["ranked_by"] == "sim_success_rate"
+    assert "black" in res.report["views"]["wrist_image"]
+    for rec in res.records:
+        assert rec["frames"] == 49 and rec["calls"] == 6  # 48 new frames at 10 fps, 8 actions per call at 10 Hz
+        assert rec["outcome"]["grabbed"] == (rec["policy"] == "exact")
+
+
+def test_velocity_commands_integrate_through_the_loop(toy, tmp_path):
+    """The integrated joint path is q0 + v t at every frame: one action dropped or integrated twice shifts it."""
+    folder = toy.parent.parent
+    m = _variant(toy, "line", horizon=33, policies=[_joint_spec("line", "Line", folder)])
+    res = run_closed_loop(m, tmp_path / "line", simulator=toy_simulator, fps=10.0, chunk_frames=17)
+    v = np.array([0.2, -0.1, 0.15, 0.05])
+    lo, hi = joint_limits(get_embodiment("toyarm"), shrink=0.0)
+    for rec in res.records:
+        traj = load_trajectory(tmp_path / "line" / rec["trajectory"])
+        q0 = load_trajectory(toy.parent / rec["session"] / "state.npz").q[0]
+        t = np.arange(33)[:, None] / 10.0
+        free = q0 + v * t
+        np.testing.assert_allclose(traj.q, np.clip(free, lo, hi), atol=1e-9)  # a monotone path: clip = stop
+        at_policy_rate = q0 + v * np.arange(1, 33)[:, None] / 10.0  # the 32 executed actions' targets
+        assert rec["clipped_actions"] == int(((at_policy_rate < lo) | (at_policy_rate > hi)).any(1).sum())
+        calls = json.loads((tmp_path / "line" / rec["dir"] / "calls.json").read_text())["calls"]
+        assert [c["frame"] for c in calls] == [0, 0, 16, 16]  # two calls per 16-frame chunk, each on the latest frame
+
+
+def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
+    """Every image a policy was sent is the generated frame at its call (hashes), never the simulator's."""
+    m = _variant(toy, "short", horizon=17)
+    out = tmp_path / "wm"
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--model", "oscar-toy", "--out", str(out), "--steps", "2",
+                   "--chunk-frames", "9", "--judge", "oscar_core.toyworld.judge:ball_moved", "--no-progress"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["counts"]["done"] == 4 and report["ranked_by"] == "success_rate"
+    run_closed_loop(m, tmp_path / "sim", simulator=toy_simulator, fps=10.0, chunk_frames=9)  # the real frames
+    later = 0
+    for cell in report["cells"]:
+        video = read_video(out / cell["video"])
+        assert len(video) == 17 and cell["success"] in (0, 1)
+        cond = read_video(out / cell["dir"] / "condition.mkv")
+        assert cond.shape == video.shape
+        calls = json.loads((out / cell["dir"] / "calls.json").read_text())["calls"]
+        sim_video = read_video(tmp_path / "sim" / cell["dir"] / "video.mkv")
+        for c in calls:
+            assert c["image_sha256"] == _sha(video[c["frame"]]), (cell["dir"], c["frame"])
+            if c["frame"] > 0:
+                later += 1
+                assert c["image_sha256"] != _sha(sim_video[c["frame"]])  # the generated frame, not the real one
+        traj = load_trajectory(out / cell["dir"] / "trajectory.npz")
+        assert traj.q.shape == (17, 4) and traj.fps == 10.0
+    assert later >= 4  # calls on generated frames exist (8 frames per chunk, 8 actions per call)
+
+
+def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
+    folder = toy.parent.parent
+    specs = [_joint_spec("line", "Line", folder), _joint_spec("nan", "NaN", folder),
+             _joint_spec("shape", "WrongShape", folder), _joint_spec("raises", "Raises", folder),
+             _joint_spec("slow", "Slow", folder), _joint_spec("missing", "NoSuchClass", folder)]
+    m = _variant(toy, "bad", horizon=33, policies=specs)
+    out = tmp_path / "bad"
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--policy-timeout", "0.5",
+                   "--no-progress", "--json"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 1, proc.stderr
+    report = json.loads(proc.stdout[proc.stdout.index("{"):])
+    reasons = {(c["session"], c["policy"]): c["reason"] for c in report["cells"]}
+    for s in ("toyarm-0000", "toyarm-0001"):
+        assert reasons[(s, "line")] is None
+        assert "finite values, found nan at row 3, column 1" in reasons[(s, "nan")]
+        assert "shape (H, 5), found (8, 3)" in reasons[(s, "shape")]
+        assert reasons[(s, "raises")] == "infer raised RuntimeError: lost the gripper"
+        assert "within 0.5 s" in reasons[(s, "slow")]
+        assert "cannot load" in reasons[(s, "missing")] and "NoSuchClass" in reasons[(s, "missing")]
+    assert report["counts"]["failed"] == 10
+    assert not list(out.rglob("*.tmp*"))
+    for name in ("nan", "raises"):  # a failed cell keeps its calls and reason, and no video
+        rec = json.loads((out / "cells" / "toyarm-0000" / name / "record.json").read_text())
+        assert rec["status"] == "failed" and "video" not in rec
+    # a re-run reuses failed cells; --retry-failed redoes exactly them
+    again = subprocess.run(cmd, capture_output=True, text=True)
+    counts = json.loads(again.stdout[again.stdout.index("{"):])["counts"]
+    assert again.returncode == 1 and counts["done"] == 0 and counts["reused"] == 12
+    retry = subprocess.run(cmd + ["--retry-failed"], capture_output=True, text=True)
+    counts = json.loads(retry.stdout[retry.stdout.index("{"):])["counts"]
+    assert counts["done"] == 10 and counts["retried"] == 10 and counts["reused"] == 2
+
+
+def test_kill_and_resume_and_fingerprint(toy, tmp_path):
+    folder = toy.parent.parent
+    m = _variant(toy, "slowish", horizon=33, policies=[_joint_spec("a", "Slow", folder), _joint_spec("b", "Slow", folder)])
+    out = tmp_path / "resume"
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--no-progress"]
+    env = {**os.environ, "SLOW_POLICY_S": "0.3"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    first = out / "cells" / "toyarm-0000" / "a" / "record.json"
+    deadline = time.time() + 120
+    while not first.exists() and time.time() < deadline:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert first.exists()
+    before = first.read_bytes()
+    done = subprocess.run(cmd + ["--json"], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    counts = json.loads(done.stdout[done.stdout.index("{"):])["counts"]
+    assert counts["reused"] >= 1 and counts["reused"] + counts["done"] == 4
+    assert first.read_bytes() == before  # the finished cell was not redone
+    assert not list(out.rglob("*.tmp*")) and not list(out.rglob(".*.tmp*"))
+    # a changed setting is noticed: every cell redone
+    changed = subprocess.run(cmd + ["--json", "--replan-every", "4"], env=env, capture_output=True, text=True)
+    counts = json.loads(changed.stdout[changed.stdout.index("{"):])["counts"]
+    assert counts["done"] == 4 and counts["reused"] == 0
+
+
+def test_manifest_errors_name_the_field(toy, tmp_path):
+    data = json.loads(toy.read_text())
+    data["sessions"][1]["horizon"] = 1
+    bad = toy.parent / "bad_fields.json"  # beside the session folders its paths name
+    bad.write_text(json.dumps(data))
+    proc = subprocess.run(OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "sessions[1] ('toyarm-0001'): field 'horizon': expected an integer >= 2" in proc.stderr
+    data = json.loads(toy.read_text())
+    data["policies"][0]["action_space"] = "torque"
+    bad.write_text(json.dumps(data))
+    proc = subprocess.run(OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "action_space" in proc.stderr and "'torque'" in proc.stderr
