@@ -55,13 +55,16 @@ bench: install
 # the GPU measurements (CUDA, random-weights 2B) run in the machine's own python3 (BASE_PYTHON) with its CUDA build
 # of torch, not in .venv/ (whose torch is the pinned CPU build); oscar must be installed there. Each line is one job
 # of a few minutes on an H100/H200-class GPU.
+# measured on one H100: the eager table alone (--presets fast,paper --repeats 1) took about 100 s; the whole
+# target takes well over 10 minutes, so each line writes its JSON as it goes (benchmarks/measured/ feeds
+# docs/benchmarks.md through benchmarks/make_docs.py)
 bench-gpu:
 	$(BASE_PYTHON) benchmarks/rollout.py --gpu --compile --vae-variants --skip-tiny --repeats 3 \
-		--json benchmarks/results/rollout_gpu.json
+		--json benchmarks/measured/rollout_gpu.json
 	$(BASE_PYTHON) benchmarks/cli_rollout.py --size 2b --device cuda --compile-modes --repeats 1 \
-		--json benchmarks/results/cli_rollout_gpu.json
+		--json benchmarks/measured/cli_rollout_gpu.json
 	$(BASE_PYTHON) benchmarks/train.py --step-table --step-size 2b --device cuda --step-repeats 3 \
-		--json benchmarks/results/train_step_gpu.json
+		--json benchmarks/measured/train_step_gpu.json
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results
