@@ -25,8 +25,6 @@ Registered under ``oscar eval`` by :func:`add_run_parser`; the loop itself is
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
 import json
 import os
 import sys
@@ -53,20 +51,14 @@ RUN_EXAMPLES = """examples:
 
 
 def _import_attr(spec: str):
-    target, _, attr = spec.rpartition(":")
-    if not target or not attr:
-        raise MetricInputError(spec, "--judge", "vlm, none, module:attr or path/to/file.py:attr", repr(spec))
+    from .._util.user_code import import_attr
+
     try:
-        if target.endswith(".py"):
-            path = Path(target)
-            if not path.is_file():
-                raise MetricInputError(target, "--judge", "an existing Python file", "no such file")
-            mod_spec = importlib.util.spec_from_file_location(f"oscar_user_judge_{path.stem}", path)
-            module = importlib.util.module_from_spec(mod_spec)
-            mod_spec.loader.exec_module(module)
-        else:
-            module = importlib.import_module(target)
-        return getattr(module, attr)
+        return import_attr(spec, "judge")
+    except ValueError:
+        raise MetricInputError(spec, "--judge", "vlm, none, module:attr or path/to/file.py:attr", repr(spec)) from None
+    except FileNotFoundError as exc:
+        raise MetricInputError(str(exc), "--judge", "an existing Python file", "no such file") from None
     except (ImportError, AttributeError) as exc:
         raise MetricInputError(spec, "--judge", "an importable module:attr", f"{type(exc).__name__}: {exc}") from None
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import importlib.util
-from pathlib import Path
 
+from .._util.user_code import import_attr
 from .protocol import ENTRY_POINT_GROUP, PolicySpecError
 
 __all__ = ["load_policy"]
@@ -27,20 +27,6 @@ class _FunctionPolicy:
         return self.fn(obs)
 
 
-def _import(spec: str):
-    target, _, attr = spec.rpartition(":")
-    if target.endswith(".py"):
-        path = Path(target)
-        if not path.is_file():
-            raise PolicySpecError(spec, "policy", "an existing Python file", "no such file")
-        mod_spec = importlib.util.spec_from_file_location(f"oscar_user_policy_{path.stem}", path)
-        module = importlib.util.module_from_spec(mod_spec)
-        mod_spec.loader.exec_module(module)
-    else:
-        module = importlib.import_module(target)
-    return getattr(module, attr)
-
-
 def load_policy(source: str):
     """A policy object from ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry-point name, or
     ``ws://host:port`` (a :class:`~oscar_core.policy.remote.WebsocketPolicy`, connected here).
@@ -54,7 +40,7 @@ def load_policy(source: str):
         return WebsocketPolicy(source)
     try:
         if ":" in source:
-            obj = _import(source)
+            obj = import_attr(source, "policy")
         else:
             found = [ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == source]
             if not found:
@@ -62,6 +48,10 @@ def load_policy(source: str):
                 raise PolicySpecError(source, "policy", f"module:attr, file.py:attr or an {ENTRY_POINT_GROUP} entry "
                                       f"point (installed: {names or 'none'})", "none of these")
             obj = found[0].load()
+    except FileNotFoundError:
+        raise PolicySpecError(source, "policy", "an existing Python file", "no such file") from None
+    except ValueError as exc:
+        raise PolicySpecError(source, "policy", "module:attr or path/to/file.py:attr", str(exc)) from None
     except (ImportError, AttributeError) as exc:
         raise PolicySpecError(source, "policy", "an importable module:attr", f"{type(exc).__name__}: {exc}") from None
     if isinstance(obj, type):
