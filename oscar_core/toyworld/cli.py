@@ -40,6 +40,8 @@ EXAMPLES = """examples:
   oscar toyworld package runs/toyworld/export --out my-toy --table table.json
   oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
   oscar toyworld carry toy_policies/manifest.json toy_eval/ --json toy_eval/carry.json
+  oscar toyworld closed-loop-sessions --embodiments toyarm,franka,kuka --sessions 10 --out toy_cl
+      (then: oscar eval closed-loop toy_cl/manifest.json --model oscar-toy --out cl_wm/)
 """
 
 
