@@ -163,7 +163,12 @@ def test_same_seed_same_video(model, clip):
     assert not np.array_equal(a, c)
 
 
-def test_progress_bars_per_chunk_and_step(model, clip, capsys):
+def test_progress_bars_per_chunk_and_step(model, clip, capsys, monkeypatch):
+    import oscar_core.model.rollout as rollout_module
+
+    model.rollout(clip[0], clip[1][:17], sampler=SamplerConfig(steps=2), progress=True)
+    assert "rollout chunks" not in capsys.readouterr().err  # stderr is no terminal here: no bars
+    monkeypatch.setattr(rollout_module, "progress_bars_enabled", lambda: True)  # as on a terminal
     model.rollout(clip[0], clip[1][:17], sampler=SamplerConfig(steps=2), progress=True)
     err = capsys.readouterr().err
     assert "rollout chunks" in err and "chunk 2/2" in err
