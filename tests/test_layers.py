@@ -340,3 +340,12 @@ def test_every_name_of_the_flat_api_imports():
         namespace: dict = {}
         exec(f"from oscar_core import {name}", namespace)  # the spelling users write
         assert namespace[name] is getattr(oscar_core, name)
+
+
+def test_every_package_is_in_the_distribution():
+    # an installed oscar (pip install, not an editable checkout) holds only the packages pyproject lists
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "oscar_core").rglob("__init__.py")}
+    assert found - listed == set()
