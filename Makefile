@@ -40,8 +40,9 @@ test-fast: install
 test-install: install
 	$(PYTHON) -m pytest -q -m install
 
-# ruff's lint (settings in pyproject.toml) and the type check of the public API (mypy on tests/typing/public_api.py)
+# ruff's format check and lint (settings in pyproject.toml) and the type check of the public API (mypy on tests/typing/public_api.py)
 lint: install
+	$(PYTHON) -m ruff format --check .
 	$(PYTHON) -m ruff check .
 	$(PYTHON) -m mypy
 

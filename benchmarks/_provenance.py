@@ -27,7 +27,16 @@ def _git(*args: str) -> str | None:
 
 
 #: what a measurement depends on: a change elsewhere (docs, tests) does not make the checkout differ from its commit
-CODE = ("oscar_core", "zoo", "embodiments", "examples", "benchmarks", "configs", "pyproject.toml", "requirements-ci.txt")
+CODE = (
+    "oscar_core",
+    "zoo",
+    "embodiments",
+    "examples",
+    "benchmarks",
+    "configs",
+    "pyproject.toml",
+    "requirements-ci.txt",
+)
 
 
 def commit() -> str:
@@ -42,9 +51,13 @@ def commit() -> str:
 def machine(device: str | None = None, gpu: str | None = None) -> dict:
     """The processor, CPU count, 1-minute load average (when the result is written), Python and (if imported) torch
     version; the GPU's name when ``gpu`` is given or ``device`` is CUDA and torch is imported."""
-    out = {"processor": platform.processor() or platform.machine(), "system": platform.system(),
-           "cpus": os.cpu_count(), "load_average": round(os.getloadavg()[0], 2),
-           "python": platform.python_version()}
+    out = {
+        "processor": platform.processor() or platform.machine(),
+        "system": platform.system(),
+        "cpus": os.cpu_count(),
+        "load_average": round(os.getloadavg()[0], 2),
+        "python": platform.python_version(),
+    }
     torch = sys.modules.get("torch")
     if torch is not None:
         out["torch"] = torch.__version__

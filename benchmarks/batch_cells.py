@@ -42,8 +42,9 @@ def main() -> int:
     card = model.card
     rng = np.random.default_rng(0)
     firsts = [rng.integers(0, 255, (card.height, card.width, 3), dtype=np.uint8) for _ in range(args.cells)]
-    videos = [rng.integers(0, 255, (card.chunk_frames, card.height, card.width, 3), dtype=np.uint8)
-              for _ in range(args.cells)]
+    videos = [
+        rng.integers(0, 255, (card.chunk_frames, card.height, card.width, 3), dtype=np.uint8) for _ in range(args.cells)
+    ]
     seeds = list(range(args.cells))
     sampler = SamplerConfig(steps=20, guidance=3.0)
 
@@ -52,27 +53,52 @@ def main() -> int:
         out = fn()
         return out, time.perf_counter() - t0, time.process_time() - c0
 
-    alone, wall1, cpu1 = timed(lambda: [model.rollout(f, v, sampler=sampler, seed=s, progress=False).frames
-                                        for f, v, s in zip(firsts, videos, seeds)])
-    rows = [{"batch": 1, "wall_s_per_cell": wall1 / args.cells, "cpu_s_per_cell": cpu1 / args.cells,
-             "max_uint8_diff": 0}]
+    alone, wall1, cpu1 = timed(
+        lambda: [
+            model.rollout(f, v, sampler=sampler, seed=s, progress=False).frames
+            for f, v, s in zip(firsts, videos, seeds)
+        ]
+    )
+    rows = [
+        {"batch": 1, "wall_s_per_cell": wall1 / args.cells, "cpu_s_per_cell": cpu1 / args.cells, "max_uint8_diff": 0}
+    ]
     for b in sorted({2, 4, args.cells}):
+
         def run(b=b):
             out = []
             for i in range(0, args.cells, b):
-                out += model.rollout_batch(firsts[i:i + b], videos[i:i + b], sampler=sampler, seeds=seeds[i:i + b])
+                out += model.rollout_batch(
+                    firsts[i : i + b], videos[i : i + b], sampler=sampler, seeds=seeds[i : i + b]
+                )
             return out
+
         batched, wall, cpu = timed(run)
         diff = max(int(np.abs(a.astype(int) - c.astype(int)).max()) for a, c in zip(alone, batched))
-        rows.append({"batch": b, "wall_s_per_cell": wall / args.cells, "cpu_s_per_cell": cpu / args.cells,
-                     "max_uint8_diff": diff})
+        rows.append(
+            {
+                "batch": b,
+                "wall_s_per_cell": wall / args.cells,
+                "cpu_s_per_cell": cpu / args.cells,
+                "max_uint8_diff": diff,
+            }
+        )
     print(f"{'batch':>5s} {'wall s/cell':>12s} {'cpu s/cell':>11s} {'speed-up':>9s} {'max diff':>9s}")
     for r in rows:
-        print(f"{r['batch']:5d} {r['wall_s_per_cell']:12.2f} {r['cpu_s_per_cell']:11.2f} "
-              f"{rows[0]['wall_s_per_cell'] / r['wall_s_per_cell']:8.2f}x {r['max_uint8_diff']:9d}")
-    out = {"machine": platform.platform(), "python": sys.version.split()[0], "torch": torch.__version__,
-           "threads": args.threads, "cells": args.cells, "model": "oscar-toy", "steps": 20, "guidance": 3.0,
-           "rows": rows}
+        print(
+            f"{r['batch']:5d} {r['wall_s_per_cell']:12.2f} {r['cpu_s_per_cell']:11.2f} "
+            f"{rows[0]['wall_s_per_cell'] / r['wall_s_per_cell']:8.2f}x {r['max_uint8_diff']:9d}"
+        )
+    out = {
+        "machine": platform.platform(),
+        "python": sys.version.split()[0],
+        "torch": torch.__version__,
+        "threads": args.threads,
+        "cells": args.cells,
+        "model": "oscar-toy",
+        "steps": 20,
+        "guidance": 3.0,
+        "rows": rows,
+    }
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     print(f"wrote {args.json}")

@@ -58,9 +58,15 @@ def ransac_only(emb, traj, points, intr, threshold):
 
     corr = build_correspondences(emb, traj, points, SIZE)
     cv2.setRNGSeed(0)
-    ok, rvec, tvec, _ = cv2.solvePnPRansac(corr.xyz.reshape(-1, 1, 3), corr.uv.reshape(-1, 1, 2), intr.matrix(),
-                                           np.zeros(0), iterationsCount=2000, reprojectionError=threshold,
-                                           confidence=0.999)
+    ok, rvec, tvec, _ = cv2.solvePnPRansac(
+        corr.xyz.reshape(-1, 1, 3),
+        corr.uv.reshape(-1, 1, 2),
+        intr.matrix(),
+        np.zeros(0),
+        iterationsCount=2000,
+        reprojectionError=threshold,
+        confidence=0.999,
+    )
     R, _ = cv2.Rodrigues(rvec)
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R.T, -R.T @ tvec.ravel()
@@ -86,12 +92,20 @@ def bench_pnp(seeds: int) -> dict:
                         intr = cam.intrinsics if method == "known intrinsics" else None
                         got = calibrate(emb, traj, pts, SIZE, intr, threshold_px=thr).camera
                     i, t = got.intrinsics, cam.intrinsics
-                    runs.append({"embodiment": name, "seed": seed, "sigma": sigma, "method": method,
-                                 "points": len(pts), "seconds": time.perf_counter() - t0,
-                                 "rotation_deg": rotation_error_deg(got, cam),
-                                 "position_mm": position_error_mm(got, cam),
-                                 "focal_pct": 100 * max(abs(i.fx - t.fx), abs(i.fy - t.fy)) / t.fx,
-                                 "principal_px": float(np.hypot(i.cx - t.cx, i.cy - t.cy))})
+                    runs.append(
+                        {
+                            "embodiment": name,
+                            "seed": seed,
+                            "sigma": sigma,
+                            "method": method,
+                            "points": len(pts),
+                            "seconds": time.perf_counter() - t0,
+                            "rotation_deg": rotation_error_deg(got, cam),
+                            "position_mm": position_error_mm(got, cam),
+                            "focal_pct": 100 * max(abs(i.fx - t.fx), abs(i.fy - t.fy)) / t.fx,
+                            "principal_px": float(np.hypot(i.cx - t.cx, i.cy - t.cy)),
+                        }
+                    )
     rows = []
     for method in ("ransac only", "known intrinsics", "estimated intrinsics"):
         for sigma in SIGMAS:
@@ -106,13 +120,17 @@ def bench_pnp(seeds: int) -> dict:
 
 
 def print_pnp(res: dict) -> None:
-    print(f"{'method':<22}{'sigma px':>9}{'rot deg med/max':>18}{'pos mm med/max':>17}{'f % med/max':>14}"
-          f"{'c px med/max':>15}{'s':>7}")
+    print(
+        f"{'method':<22}{'sigma px':>9}{'rot deg med/max':>18}{'pos mm med/max':>17}{'f % med/max':>14}"
+        f"{'c px med/max':>15}{'s':>7}"
+    )
     for r in res["rows"]:
-        print(f"{r['method']:<22}{r['sigma']:>9g}{r['rotation_deg_median']:>10.3f}/{r['rotation_deg_max']:<7.3f}"
-              f"{r['position_mm_median']:>9.1f}/{r['position_mm_max']:<7.1f}{r['focal_pct_median']:>7.2f}/"
-              f"{r['focal_pct_max']:<6.2f}{r['principal_px_median']:>7.1f}/{r['principal_px_max']:<7.1f}"
-              f"{r['seconds_median']:>7.3f}")
+        print(
+            f"{r['method']:<22}{r['sigma']:>9g}{r['rotation_deg_median']:>10.3f}/{r['rotation_deg_max']:<7.3f}"
+            f"{r['position_mm_median']:>9.1f}/{r['position_mm_max']:<7.1f}{r['focal_pct_median']:>7.2f}/"
+            f"{r['focal_pct_max']:<6.2f}{r['principal_px_median']:>7.1f}/{r['principal_px_max']:<7.1f}"
+            f"{r['seconds_median']:>7.3f}"
+        )
 
 
 def main() -> None:
@@ -129,9 +147,14 @@ def main() -> None:
     else:
         res = bench_score(args.episodes)
         print_score(res)
-    res["meta"] = {"command": f"python benchmarks/calibration.py {args.part}", "seeds": args.seeds,
-                   "episodes": args.episodes, "machine": platform.platform(), "cpus": os.cpu_count(),
-                   "wall_s": time.perf_counter() - t0}
+    res["meta"] = {
+        "command": f"python benchmarks/calibration.py {args.part}",
+        "seeds": args.seeds,
+        "episodes": args.episodes,
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "wall_s": time.perf_counter() - t0,
+    }
     out = Path(args.json or Path(__file__).parent / "results" / f"calibration_{args.part}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=1))
@@ -175,19 +198,37 @@ def bench_score(episodes: int) -> dict:
             seconds = time.perf_counter() - t0
             row = {"embodiment": name, "episode": i, "true": true, "seconds": seconds, "perturbed": {}}
             for label, shift, turn in perturbations():
-                row["perturbed"][label] = calibration_score(ep.rgb, emb, ep.trajectory,
-                                                            perturb_camera(ep.camera, shift, turn)).score
+                row["perturbed"][label] = calibration_score(
+                    ep.rgb, emb, ep.trajectory, perturb_camera(ep.camera, shift, turn)
+                ).score
             runs.append(row)
             print(f"  {name} episode {i}: true {true:.3f}", flush=True)
-    rows = [{"camera": "true", "mean": float(np.mean([r["true"] for r in runs])),
-             "min": float(np.min([r["true"] for r in runs])), "true_higher": None}]
+    rows = [
+        {
+            "camera": "true",
+            "mean": float(np.mean([r["true"] for r in runs])),
+            "min": float(np.min([r["true"] for r in runs])),
+            "true_higher": None,
+        }
+    ]
     for label, _, _ in perturbations():
         v = np.array([r["perturbed"][label] for r in runs])
         t = np.array([r["true"] for r in runs])
-        rows.append({"camera": label, "mean": float(v.mean()), "max": float(v.max()),
-                     "true_higher": float((t > v).mean()), "margin_min": float((t - v).min())})
-    return {"rows": rows, "runs": runs, "episodes": len(runs),
-            "seconds_per_score": float(np.median([r["seconds"] for r in runs]))}
+        rows.append(
+            {
+                "camera": label,
+                "mean": float(v.mean()),
+                "max": float(v.max()),
+                "true_higher": float((t > v).mean()),
+                "margin_min": float((t - v).min()),
+            }
+        )
+    return {
+        "rows": rows,
+        "runs": runs,
+        "episodes": len(runs),
+        "seconds_per_score": float(np.median([r["seconds"] for r in runs])),
+    }
 
 
 def print_score(res: dict) -> None:

@@ -57,8 +57,13 @@ def _run(mode: str, steps: int, cache: Path, frames_out: Path) -> dict:
     env = {**os.environ, "OSCAR_CACHE": str(cache), "OMP_NUM_THREADS": "1"}
     env.pop("TORCHINDUCTOR_CACHE_DIR", None)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", _CHILD, mode, str(steps), str(frames_out)], capture_output=True,
-                          text=True, env=env, cwd=REPO)
+    proc = subprocess.run(
+        [sys.executable, "-c", _CHILD, mode, str(steps), str(frames_out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO,
+    )
     if proc.returncode:
         raise RuntimeError(f"{mode}: the child process failed:\n{proc.stderr[-3000:]}")
     row = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -75,8 +80,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="oscar-compile-cache-"))
     cache = work / "oscar-cache"
-    plan = [("eager", "never"), ("compile, cold cache", "always"), ("compile, warm cache", "always"),
-            ("compile, warm cache (again)", "always")]
+    plan = [
+        ("eager", "never"),
+        ("compile, cold cache", "always"),
+        ("compile, warm cache", "always"),
+        ("compile, warm cache (again)", "always"),
+    ]
     rows = []
     for k, (name, mode) in enumerate(plan):
         row = _run(mode, args.steps, cache, work / f"frames{k}.npy")
@@ -86,14 +95,22 @@ def main(argv=None) -> int:
     for k, row in enumerate(rows):
         got = np.load(work / f"frames{k}.npy")
         row["max_abs_diff_vs_eager"] = int(np.abs(got.astype(int) - eager.astype(int)).max())
-    print(f"\noscar-toy, one 17-frame 64x64 chunk, {args.steps} steps, fresh process per row (measured; "
-          f"{os.cpu_count()} CPUs, one torch thread)")
+    print(
+        f"\noscar-toy, one 17-frame 64x64 chunk, {args.steps} steps, fresh process per row (measured; "
+        f"{os.cpu_count()} CPUs, one torch thread)"
+    )
     print(f"{'run':<28} {'rollout s':>9} {'sampling s':>10} {'process s':>9} {'CPU s':>7} {'max |diff|':>10}")
     for r in rows:
-        print(f"{r['run']:<28} {r['wall_s']:>9.1f} {r['sample_s']:>10.1f} {r['process_wall_s']:>9.1f} "
-              f"{r['cpu_s']:>7.1f} {r['max_abs_diff_vs_eager']:>10}")
-    result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(), "steps": args.steps,
-              "rows": rows}
+        print(
+            f"{r['run']:<28} {r['wall_s']:>9.1f} {r['sample_s']:>10.1f} {r['process_wall_s']:>9.1f} "
+            f"{r['cpu_s']:>7.1f} {r['max_abs_diff_vs_eager']:>10}"
+        )
+    result = {
+        "machine": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(),
+        "steps": args.steps,
+        "rows": rows,
+    }
     from oscar_core._util.atomic import atomic_write_bytes
 
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)

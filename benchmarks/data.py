@@ -58,10 +58,14 @@ def bench_stages(n: int, workers: int) -> list[dict]:
     for i in range(n):
         write_episode(tmp / "src", f"ep{i:04d}", seed=i)
     torch.manual_seed(0)
-    cfg = transformers.SiglipVisionConfig(hidden_size=32, intermediate_size=37, num_hidden_layers=2,
-                                          num_attention_heads=2, image_size=32, patch_size=8)
+    cfg = transformers.SiglipVisionConfig(
+        hidden_size=32, intermediate_size=37, num_hidden_layers=2, num_attention_heads=2, image_size=32, patch_size=8
+    )
     transformers.SiglipVisionModel(cfg).save_pretrained(tmp / "siglip")
-    engines = {"in-process (naive)": dict(engine="local", workers=1), f"local pool x{workers}": dict(engine="local", workers=workers)}
+    engines = {
+        "in-process (naive)": dict(engine="local", workers=1),
+        f"local pool x{workers}": dict(engine="local", workers=workers),
+    }
     try:
         import ray  # noqa: F401
 
@@ -75,16 +79,24 @@ def bench_stages(n: int, workers: int) -> list[dict]:
         steps = {
             "ingest": lambda: run_ingest(str(tmp / "src"), "npz", run, shard_size=shard, progress=False, **kw),
             "filter": lambda: run_filter(run, shard_size=shard, progress=False, **kw),
-            "dedup (tiny SigLIP)": lambda: run_dedup(run, SiglipEmbedder(str(tmp / "siglip")), shard_size=shard,
-                                                     progress=False, **kw),
+            "dedup (tiny SigLIP)": lambda: run_dedup(
+                run, SiglipEmbedder(str(tmp / "siglip")), shard_size=shard, progress=False, **kw
+            ),
             "export": lambda: run_export(run, str(tmp / f"clips-{label[:5]}"), shard_size=shard, progress=False, **kw),
         }
         for stage, fn in steps.items():
             t = time.perf_counter()
             fn()
             dt = time.perf_counter() - t
-            results.append({"engine": label, "stage": stage, "episodes": n, "seconds": round(dt, 2),
-                            "episodes_per_s": round(n / dt, 2)})
+            results.append(
+                {
+                    "engine": label,
+                    "stage": stage,
+                    "episodes": n,
+                    "seconds": round(dt, 2),
+                    "episodes_per_s": round(n / dt, 2),
+                }
+            )
             print(f"{label:22s} {stage:20s} {n / dt:7.2f} episodes/s", flush=True)
     shutil.rmtree(tmp, ignore_errors=True)
     return results
@@ -108,8 +120,11 @@ def synth(n: int, d: int = 768, per: int = 4, unrelated: float = 0.5, spread: fl
         g = np.arange(s, e) < grouped
         rows[g] = centres[rng.integers(0, len(centres), int(g.sum()))]
         rows /= np.linalg.norm(rows, axis=1, keepdims=True)
-        rows += (rng.uniform(0, spread, (e - s, 1)).astype(np.float32)
-                 * rng.standard_normal((e - s, d), dtype=np.float32) / np.sqrt(d))
+        rows += (
+            rng.uniform(0, spread, (e - s, 1)).astype(np.float32)
+            * rng.standard_normal((e - s, d), dtype=np.float32)
+            / np.sqrt(d)
+        )
         x[s:e] = rows / np.linalg.norm(rows, axis=1, keepdims=True)
     return x
 
@@ -124,14 +139,23 @@ def dedup_one(n: int, brute: bool, brute_queries: int = 0) -> dict:
     cfg = DedupConfig()
     phases: dict[str, float] = {}
     t, c = time.perf_counter(), time.process_time()
-    pairs = candidate_pairs(x, cfg.cosine, nlist=cfg.nlist, nprobe=cfg.nprobe, reduce_dim=cfg.reduce_dim,
-                            timings=phases)
+    pairs = candidate_pairs(
+        x, cfg.cosine, nlist=cfg.nlist, nprobe=cfg.nprobe, reduce_dim=cfg.reduce_dim, timings=phases
+    )
     dt, cpu = time.perf_counter() - t, time.process_time() - c
-    out = {"n": n, "dim": x.shape[1], "method": f"blocked IVF (PCA {cfg.reduce_dim}, 4·sqrt(N) lists, nprobe "
-           f"{cfg.nprobe}) + exact re-check", "seconds": round(dt, 2),
-           "cpu_seconds": round(cpu, 2), "load_avg_1min": round(os.getloadavg()[0], 2), "phases_s": {k: round(v, 2) for k, v in phases.items()}, "pairs": int(len(pairs)),
-           "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
-           "embeddings_mb": round(x.nbytes / 2**20), "rss_after_synth_mb": round(base)}
+    out = {
+        "n": n,
+        "dim": x.shape[1],
+        "method": f"blocked IVF (PCA {cfg.reduce_dim}, 4·sqrt(N) lists, nprobe {cfg.nprobe}) + exact re-check",
+        "seconds": round(dt, 2),
+        "cpu_seconds": round(cpu, 2),
+        "load_avg_1min": round(os.getloadavg()[0], 2),
+        "phases_s": {k: round(v, 2) for k, v in phases.items()},
+        "pairs": int(len(pairs)),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+        "embeddings_mb": round(x.nbytes / 2**20),
+        "rss_after_synth_mb": round(base),
+    }
     if brute:
         t, c = time.perf_counter(), time.process_time()
         ref = _exact_pairs(x, cfg.cosine)  # faiss IndexFlatIP range search: every pair, exact
@@ -178,8 +202,12 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--sizes", default="10000,100000")
     ap.add_argument("--brute-max", type=int, default=10000, help="run the brute-force scan up to this size")
-    ap.add_argument("--brute-queries", type=int, default=1000,
-                    help="above --brute-max: the exact pairs of this many random rows (estimated recall)")
+    ap.add_argument(
+        "--brute-queries",
+        type=int,
+        default=1000,
+        help="above --brute-max: the exact pairs of this many random rows (estimated recall)",
+    )
     ap.add_argument("--json", help="write results here")
     args = ap.parse_args(argv)
     meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version()}
@@ -190,23 +218,54 @@ def main(argv=None) -> int:
     if args.part == "stages":
         res = bench_stages(args.episodes, args.workers)
         print()
-        print(_table(["engine", "stage", "episodes", "seconds", "episodes/s"],
-                     [[r["engine"], r["stage"], r["episodes"], r["seconds"], r["episodes_per_s"]] for r in res]))
+        print(
+            _table(
+                ["engine", "stage", "episodes", "seconds", "episodes/s"],
+                [[r["engine"], r["stage"], r["episodes"], r["seconds"], r["episodes_per_s"]] for r in res],
+            )
+        )
     else:
         res = []
         for n in [int(s) for s in args.sizes.split(",")]:
-            p = subprocess.run([sys.executable, __file__, "dedup-one", "--sizes", str(n), "--brute-max",
-                                str(args.brute_max), "--brute-queries", str(args.brute_queries)],
-                               capture_output=True, text=True, check=True)
+            p = subprocess.run(
+                [
+                    sys.executable,
+                    __file__,
+                    "dedup-one",
+                    "--sizes",
+                    str(n),
+                    "--brute-max",
+                    str(args.brute_max),
+                    "--brute-queries",
+                    str(args.brute_queries),
+                ],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
             r = json.loads(p.stdout.strip().splitlines()[-1])
             res.append(r)
             print(json.dumps(r), flush=True)
         print()
-        print(_table(["n", "seconds", "CPU s", "phases s", "pairs", "peak RSS MB", "brute s", "brute CPU s", "recall"],
-                     [[r["n"], r["seconds"], r.get("cpu_seconds", "-"),
-                       " ".join(f"{k} {v}" for k, v in r["phases_s"].items()), r["pairs"], r["peak_rss_mb"],
-                       r.get("brute_seconds", "-"), r.get("brute_cpu_seconds", "-"), r.get("recall", "-")]
-                      for r in res]))
+        print(
+            _table(
+                ["n", "seconds", "CPU s", "phases s", "pairs", "peak RSS MB", "brute s", "brute CPU s", "recall"],
+                [
+                    [
+                        r["n"],
+                        r["seconds"],
+                        r.get("cpu_seconds", "-"),
+                        " ".join(f"{k} {v}" for k, v in r["phases_s"].items()),
+                        r["pairs"],
+                        r["peak_rss_mb"],
+                        r.get("brute_seconds", "-"),
+                        r.get("brute_cpu_seconds", "-"),
+                        r.get("recall", "-"),
+                    ]
+                    for r in res
+                ],
+            )
+        )
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps({"meta": meta, "results": res}, indent=2))

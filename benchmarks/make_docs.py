@@ -23,30 +23,47 @@ PAGE = REPO / "docs" / "benchmarks.md"
 
 #: file stem (without ``_gpu``) -> (title, the script, what it measures). Unknown stems get a plain title.
 ABOUT: dict[str, tuple[str, str, str]] = {
-    "render": ("Skeleton rendering", "benchmarks/render.py",
-               "Per-frame cost of each stage of a skeleton video (FK, projection, rasterisation, H.264) on one CPU "
-               "thread for 81-frame example trajectories, against the naive way in the same run (yourdfpy FK, "
-               "`cv2.projectPoints` and drawing per frame). Microseconds (`_us`) and frames per second (`_fps`)."),
-    "render_scale": ("Rendering at dataset scale", "benchmarks/render_scale.py",
-                     "Everything run as a user would, in subprocesses, with wall time beside CPU time (user + "
-                     "system, children included): start-up of `oscar` commands, episodes/s of `oscar render "
-                     "--manifest` with 1 and 2 workers against one process per episode and the Python API in one "
-                     "process, and the x264 presets (CPU seconds, size, PSNR against the rendered frames)."),
-    "rollout": ("World-model rollout", "benchmarks/rollout.py",
-                "The tiny CPU configuration's denoising step and whole rollout (`tiny`: batched classifier-free "
-                "guidance against two passes, in the same run); the 2B model's size, tokens and FLOPs computed from "
-                "its configuration (`expected_2b`, `computed_2b`: computed, not measured); with `--gpu` or "
-                "`--measure`, each sampling preset measured on the device (`measured`)."),
-    "cli_rollout": ("One `oscar rollout` end to end", "benchmarks/cli_rollout.py",
-                    "The real command in a fresh process rolling out one chunk, timed from outside; `fixed_s` = "
-                    "wall − encode − sample − decode (imports, loading, writing)."),
-    "train": ("Training", "benchmarks/train.py",
-              "Steps/s of the tiny config on the CPU (cached latents with 1 and 2 processes, and the naive way: "
-              "VAE encode and skeleton render in the loop), and the 2B model's training memory per GPU under FSDP2 "
-              "(`memory`: computed from its configuration, not measured)."),
-    "train_step": ("Training step", "benchmarks/train.py --step-table",
-                   "One training step's time and peak memory under activation checkpointing none/full and "
-                   "compile."),
+    "render": (
+        "Skeleton rendering",
+        "benchmarks/render.py",
+        "Per-frame cost of each stage of a skeleton video (FK, projection, rasterisation, H.264) on one CPU "
+        "thread for 81-frame example trajectories, against the naive way in the same run (yourdfpy FK, "
+        "`cv2.projectPoints` and drawing per frame). Microseconds (`_us`) and frames per second (`_fps`).",
+    ),
+    "render_scale": (
+        "Rendering at dataset scale",
+        "benchmarks/render_scale.py",
+        "Everything run as a user would, in subprocesses, with wall time beside CPU time (user + "
+        "system, children included): start-up of `oscar` commands, episodes/s of `oscar render "
+        "--manifest` with 1 and 2 workers against one process per episode and the Python API in one "
+        "process, and the x264 presets (CPU seconds, size, PSNR against the rendered frames).",
+    ),
+    "rollout": (
+        "World-model rollout",
+        "benchmarks/rollout.py",
+        "The tiny CPU configuration's denoising step and whole rollout (`tiny`: batched classifier-free "
+        "guidance against two passes, in the same run); the 2B model's size, tokens and FLOPs computed from "
+        "its configuration (`expected_2b`, `computed_2b`: computed, not measured); with `--gpu` or "
+        "`--measure`, each sampling preset measured on the device (`measured`).",
+    ),
+    "cli_rollout": (
+        "One `oscar rollout` end to end",
+        "benchmarks/cli_rollout.py",
+        "The real command in a fresh process rolling out one chunk, timed from outside; `fixed_s` = "
+        "wall − encode − sample − decode (imports, loading, writing).",
+    ),
+    "train": (
+        "Training",
+        "benchmarks/train.py",
+        "Steps/s of the tiny config on the CPU (cached latents with 1 and 2 processes, and the naive way: "
+        "VAE encode and skeleton render in the loop), and the 2B model's training memory per GPU under FSDP2 "
+        "(`memory`: computed from its configuration, not measured).",
+    ),
+    "train_step": (
+        "Training step",
+        "benchmarks/train.py --step-table",
+        "One training step's time and peak memory under activation checkpointing none/full and compile.",
+    ),
 }
 
 
@@ -70,8 +87,11 @@ def empty(value) -> bool:
 
 
 def is_scalar(value) -> bool:
-    return value is None or isinstance(value, (str, int, float, bool)) or (
-        isinstance(value, (list, tuple)) and all(isinstance(v, (str, int, float, bool)) for v in value))
+    return (
+        value is None
+        or isinstance(value, (str, int, float, bool))
+        or (isinstance(value, (list, tuple)) and all(isinstance(v, (str, int, float, bool)) for v in value))
+    )
 
 
 def flatten(record: dict, prefix: str = "") -> dict:
@@ -125,9 +145,12 @@ def provenance_lines(prov: dict | None) -> list[str]:
         return ["*Provenance: not recorded in this file.*", ""]
     m = prov.get("machine") or {}
     where = ", ".join(f"{k} {fmt(v)}" for k, v in m.items())
-    return [f"- **date** {prov.get('date', '?')} · **commit** `{prov.get('commit', '?')}`",
-            f"- **machine** {where}",
-            f"- **command** `{prov.get('command', '?')}`", ""]
+    return [
+        f"- **date** {prov.get('date', '?')} · **commit** `{prov.get('commit', '?')}`",
+        f"- **machine** {where}",
+        f"- **command** `{prov.get('command', '?')}`",
+        "",
+    ]
 
 
 def render_file(path: Path) -> list[str]:
@@ -136,13 +159,20 @@ def render_file(path: Path) -> list[str]:
     key = stem[:-4] if stem.endswith("_gpu") else stem
     title, script, about = ABOUT.get(key, (stem.replace("_", " ").capitalize(), "", ""))
     gpu = " (GPU)" if stem.endswith("_gpu") else ""
-    out = [f"## {title}{gpu}", "", f"From `benchmarks/measured/{path.name}`" + (f", written by `{script}`." if script
-                                                                                else "."), ""]
+    out = [
+        f"## {title}{gpu}",
+        "",
+        f"From `benchmarks/measured/{path.name}`" + (f", written by `{script}`." if script else "."),
+        "",
+    ]
     if about:
         out += [about, ""]
     out += provenance_lines(data.get("provenance") if isinstance(data, dict) else None)
-    body = {k: v for k, v in data.items() if k != "provenance" and not empty(v)} if isinstance(data, dict) \
+    body = (
+        {k: v for k, v in data.items() if k != "provenance" and not empty(v)}
+        if isinstance(data, dict)
         else {"results": data}
+    )
     scalars = {k: v for k, v in body.items() if is_scalar(v)}
     if scalars:
         out += ["| field | value |", "|---|---|", *[f"| {k} | {fmt(v)} |" for k, v in scalars.items()], ""]
@@ -154,13 +184,18 @@ def render_file(path: Path) -> list[str]:
 
 def render_page(folder: Path = MEASURED) -> str:
     files = sorted(folder.glob("*.json"), key=lambda p: (p.stem.endswith("_gpu"), p.stem))
-    lines = ["# Benchmarks", "",
-             "<!-- generated by benchmarks/make_docs.py from benchmarks/measured/*.json: do not edit by hand -->", "",
-             "What each benchmark in `benchmarks/` measured, with where and when. Re-measure with the command shown "
-             "under each section, writing its JSON into `benchmarks/measured/`, then run "
-             "`python benchmarks/make_docs.py` (a test fails while this page and the JSON disagree). Timings on a "
-             "shared machine swing between runs; compare numbers within one run (each section's machine "
-             "line has the 1-minute load average when the result was written).", ""]
+    lines = [
+        "# Benchmarks",
+        "",
+        "<!-- generated by benchmarks/make_docs.py from benchmarks/measured/*.json: do not edit by hand -->",
+        "",
+        "What each benchmark in `benchmarks/` measured, with where and when. Re-measure with the command shown "
+        "under each section, writing its JSON into `benchmarks/measured/`, then run "
+        "`python benchmarks/make_docs.py` (a test fails while this page and the JSON disagree). Timings on a "
+        "shared machine swing between runs; compare numbers within one run (each section's machine "
+        "line has the 1-minute load average when the result was written).",
+        "",
+    ]
     lines += ["| section | file | date | commit |", "|---|---|---|---|"]
     for f in files:
         prov = (json.loads(f.read_text()) or {}).get("provenance") or {}

@@ -48,7 +48,8 @@ class GLRenderer:
 in vec3 p; in vec3 c; out vec3 vc; uniform vec2 size;
 void main() { vc = c; gl_Position = vec4(p.x / size.x * 2.0 - 1.0, 1.0 - p.y / size.y * 2.0, p.z, 1.0); }""",
             fragment_shader="""#version 330
-in vec3 vc; out vec4 o; void main() { o = vec4(vc, 1.0); }""")
+in vec3 vc; out vec4 o; void main() { o = vec4(vc, 1.0); }""",
+        )
         self.prog["size"].value = SIZE
         self.fbo = self.ctx.simple_framebuffer(SIZE, components=3)
         self.fbo.use()
@@ -99,13 +100,22 @@ def main(argv=None) -> int:
     rows, gl_note = [], None
     for cell in args.cells:
         style = MeshStyle(simplify=cell or None)
-        job = MESH.prepare(emb, traj, cam, None, style=style, resize_mode="crop", device="cpu", camera_source="<camera>")
+        job = MESH.prepare(
+            emb, traj, cam, None, style=style, resize_mode="crop", device="cpu", camera_source="<camera>"
+        )
         T = len(traj)
         render_mesh_video(emb, traj.time_slice(0, 1), cam, style=style)
         t_np, ours = best_time(lambda: render_mesh_video(emb, traj, cam, style=style), args.repeats)
-        row = {"embodiment": "franka", "size": f"{SIZE[0]}x{SIZE[1]}", "simplify_m": cell or None,
-               "triangles": len(job.mesh.faces), "numpy_fps": T / t_np, "gl_fps": None, "gl_renderer": None,
-               "silhouette_iou": None}
+        row = {
+            "embodiment": "franka",
+            "size": f"{SIZE[0]}x{SIZE[1]}",
+            "simplify_m": cell or None,
+            "triangles": len(job.mesh.faces),
+            "numpy_fps": T / t_np,
+            "gl_fps": None,
+            "gl_renderer": None,
+            "silhouette_iou": None,
+        }
         try:
             gl = GLRenderer(len(job.mesh.faces))
         except Exception as exc:  # noqa: BLE001 - no moderngl, or no EGL: say so and go on
@@ -116,7 +126,9 @@ def main(argv=None) -> int:
             a, b = ours.any(-1), theirs.any(-1)
             row.update(gl_fps=T / t_gl, gl_renderer=gl.name, silhouette_iou=float((a & b).sum() / (a | b).sum()))
         rows.append(row)
-    print(f"franka mesh condition at {SIZE[0]}x{SIZE[1]}, {args.frames} frames, one thread each (best of {args.repeats})")
+    print(
+        f"franka mesh condition at {SIZE[0]}x{SIZE[1]}, {args.frames} frames, one thread each (best of {args.repeats})"
+    )
     print(f"{'simplify_m':>10}  {'triangles':>9}  {'numpy_fps':>9}  {'gl_fps':>7}  {'silhouette_iou':>14}")
     for r in rows:
         gl_fps = "-" if r["gl_fps"] is None else f"{r['gl_fps']:.0f}"

@@ -68,16 +68,20 @@ def main(argv=None) -> dict:
     fixture._frames = frames
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        root = fixture.write_droid_v3(Path(tmp) / "droid", cameras=("exterior_1_left",),
-                                      lengths=(args.frames,) * args.episodes)
+        root = fixture.write_droid_v3(
+            Path(tmp) / "droid", cameras=("exterior_1_left",), lengths=(args.frames,) * args.episodes
+        )
         build = time.perf_counter() - t0
         reader = LeRobotReader(intrinsics={"exterior_1_left": (260.0, 260.0, 160.0, 90.0)})
         refs = list(reader.list_episodes(str(root)))
         mid = refs[len(refs) // 2]
         data = mid.paths["data"]
         idx = mid.meta["episode_index"]
-        cols = ["observation.state.joint_position", "observation.state.gripper_position",
-                "camera_extrinsics.exterior_1_left"]
+        cols = [
+            "observation.state.joint_position",
+            "observation.state.gripper_position",
+            "camera_extrinsics.exterior_1_left",
+        ]
 
         def rows_filtered():
             pq.read_table(data, columns=cols + ["episode_index"], filters=[("episode_index", "=", idx)])
@@ -106,22 +110,40 @@ def main(argv=None) -> dict:
         }
     n = args.episodes
     table = [
-        ("list_episodes (whole dataset)", results["list_episodes_s"], f"{n / results['list_episodes_s']:.0f} episodes/s"),
+        (
+            "list_episodes (whole dataset)",
+            results["list_episodes_s"],
+            f"{n / results['list_episodes_s']:.0f} episodes/s",
+        ),
         ("state rows: row filter (reader)", results["rows_filtered_s"], ""),
-        ("state rows: whole file + mask (naive)", results["rows_whole_file_s"],
-         f"{results['rows_whole_file_s'] / results['rows_filtered_s']:.1f}x slower"),
+        (
+            "state rows: whole file + mask (naive)",
+            results["rows_whole_file_s"],
+            f"{results['rows_whole_file_s'] / results['rows_filtered_s']:.1f}x slower",
+        ),
         ("video check: demux packets (reader)", results["video_demux_s"], ""),
-        ("video check: decode frames (naive)", results["video_decode_s"],
-         f"{results['video_decode_s'] / results['video_demux_s']:.1f}x slower"),
+        (
+            "video check: decode frames (naive)",
+            results["video_decode_s"],
+            f"{results['video_decode_s'] / results['video_demux_s']:.1f}x slower",
+        ),
         ("load_episode end to end", results["load_episode_s"], f"{1 / results['load_episode_s']:.1f} episodes/s"),
     ]
-    print(f"LeRobot v3.0 DROID: {n} episodes x {args.frames} frames in one shared parquet + 320x180 MP4 "
-          f"(built in {build:.1f} s); median of {args.repeats}")
+    print(
+        f"LeRobot v3.0 DROID: {n} episodes x {args.frames} frames in one shared parquet + 320x180 MP4 "
+        f"(built in {build:.1f} s); median of {args.repeats}"
+    )
     print(f"{'step':42s} {'ms':>9s}  note")
     for name, sec, note in table:
         print(f"{name:42s} {sec * 1e3:9.2f}  {note}")
-    out = {"episodes": n, "frames": args.frames, "repeats": args.repeats, "python": platform.python_version(),
-           "machine": platform.machine(), **results}
+    out = {
+        "episodes": n,
+        "frames": args.frames,
+        "repeats": args.repeats,
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        **results,
+    }
     path = Path(args.json)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2))

@@ -68,9 +68,16 @@ def naive_render(emb, traj, cam, size):
 
     from oscar_core.kinematics.urdf import expand_xacro
 
-    source = str(emb.urdf) if emb.urdf is not None else io.StringIO(expand_xacro(emb.xacro, emb.xacro_args, emb.packages))
-    robot = yourdfpy.URDF.load(source, load_meshes=False, build_scene_graph=True,
-                               load_collision_meshes=False, build_collision_scene_graph=False)
+    source = (
+        str(emb.urdf) if emb.urdf is not None else io.StringIO(expand_xacro(emb.xacro, emb.xacro_args, emb.packages))
+    )
+    robot = yourdfpy.URDF.load(
+        source,
+        load_meshes=False,
+        build_scene_graph=True,
+        load_collision_meshes=False,
+        build_collision_scene_graph=False,
+    )
     q_full = emb.full_configuration(traj)
     links = list(emb.skeleton.links)
     offsets = emb.skeleton.point_offsets()
@@ -84,7 +91,9 @@ def naive_render(emb, traj, cam, size):
     frames = []
     for t in range(len(traj)):
         robot.update_cfg(q_full[t])
-        pts = np.array([(robot.get_transform(l, robot.base_link) @ np.append(o, 1.0))[:3] for l, o in zip(links, offsets)])
+        pts = np.array(
+            [(robot.get_transform(l, robot.base_link) @ np.append(o, 1.0))[:3] for l, o in zip(links, offsets)]
+        )
         mount = None if cam.mount_link is None else robot.get_transform(cam.mount_link, robot.base_link)
         T_cv_world = cam.world_to_cv(mount)
         rvec, _ = cv2.Rodrigues(T_cv_world[:3, :3])
@@ -92,8 +101,14 @@ def naive_render(emb, traj, cam, size):
         uv = uv.reshape(-1, 2)
         img = np.zeros((H, W, 3), np.uint8)
         for e, (a, b) in enumerate(edges):
-            cv2.line(img, tuple(int(round(v)) for v in uv[a]), tuple(int(round(v)) for v in uv[b]),
-                     tuple(int(c) for c in ec[e]), thick, cv2.LINE_AA)
+            cv2.line(
+                img,
+                tuple(int(round(v)) for v in uv[a]),
+                tuple(int(round(v)) for v in uv[b]),
+                tuple(int(c) for c in ec[e]),
+                thick,
+                cv2.LINE_AA,
+            )
         for k in range(len(links)):
             cv2.circle(img, tuple(int(round(v)) for v in uv[k]), rad, tuple(int(c) for c in pc[k]), -1, cv2.LINE_AA)
         frames.append(img)
@@ -123,23 +138,40 @@ def bench_embodiment(name: str, repeats: int) -> list[dict]:
         pc, ec = emb.colors()
         edges = emb.edge_index()
         style = SkeletonStyle()
-        raster = lambda: rasterise(p.uv, p.in_front, edges, size, edge_colors=ec, point_colors=pc, grippers=marks, style=style)  # noqa: E731
+
+        def raster():
+            return rasterise(
+                p.uv, p.in_front, edges, size, edge_colors=ec, point_colors=pc, grippers=marks, style=style
+            )
+
         ras_s, ras_m = best_and_median(raster, repeats)
         video = raster()
         with tempfile.TemporaryDirectory() as tmp:
-            enc_s, enc_m = best_and_median(lambda: write_video(Path(tmp) / "b.mp4", video, traj.fps, threads=1), max(2, repeats // 2))
+            enc_s, enc_m = best_and_median(
+                lambda: write_video(Path(tmp) / "b.mp4", video, traj.fps, threads=1), max(2, repeats // 2)
+            )
             mp4_kb = (Path(tmp) / "b.mp4").stat().st_size / 1024
         naive_s, naive_m = best_and_median(lambda: naive_render(emb, traj, cam, size), max(2, repeats // 3))
         pipeline = fk_s + proj_s + ras_s
-        rows.append({
-            "embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": T, "points": len(emb.skeleton.links),
-            "fk_us": fk_s / T * 1e6, "project_us": proj_s / T * 1e6, "raster_us": ras_s / T * 1e6,
-            "encode_us": enc_s / T * 1e6,
-            "pipeline_fps": T / pipeline, "pipeline_with_h264_fps": T / (pipeline + enc_s),
-            "naive_us": naive_s / T * 1e6, "naive_fps": T / naive_s, "speedup_vs_naive": naive_s / pipeline,
-            "mp4_kb": mp4_kb,
-            "median_pipeline_fps": T / (fk_m + proj_m + ras_m),
-        })
+        rows.append(
+            {
+                "embodiment": name,
+                "size": f"{size[0]}x{size[1]}",
+                "frames": T,
+                "points": len(emb.skeleton.links),
+                "fk_us": fk_s / T * 1e6,
+                "project_us": proj_s / T * 1e6,
+                "raster_us": ras_s / T * 1e6,
+                "encode_us": enc_s / T * 1e6,
+                "pipeline_fps": T / pipeline,
+                "pipeline_with_h264_fps": T / (pipeline + enc_s),
+                "naive_us": naive_s / T * 1e6,
+                "naive_fps": T / naive_s,
+                "speedup_vs_naive": naive_s / pipeline,
+                "mp4_kb": mp4_kb,
+                "median_pipeline_fps": T / (fk_m + proj_m + ras_m),
+            }
+        )
     return rows
 
 
@@ -171,7 +203,7 @@ def _stream_peak_mb(emb, traj, cam) -> float:
         pass
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    return peak / 2 ** 20
+    return peak / 2**20
 
 
 def bench_mesh(name: str, repeats: int, size=(512, 288)) -> list[dict]:
@@ -191,32 +223,60 @@ def bench_mesh(name: str, repeats: int, size=(512, 288)) -> list[dict]:
             full = sil
         inter, union = (sil & full).sum((1, 2)), (sil | full).sum((1, 2))
         iou = inter / np.maximum(union, 1)
-        rows.append({"embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": len(traj),
-                     "simplify_m": cell, "cull_back": cull, "triangles": mesh_geometry(emb, cell).face_count,
-                     "fps": fps, "median_fps": median_fps, "us_per_frame": 1e6 / fps,
-                     "silhouette_iou_mean": float(iou.mean()), "silhouette_iou_min": float(iou.min()),
-                     "silhouette_pixels_differing": float((sil != full).sum((1, 2)).mean()),
-                     "silhouette_pixels": float(full.sum((1, 2)).mean())})
-    long = Trajectory(traj.joint_names, np.concatenate([traj.q] * 5), traj.fps, np.concatenate([traj.gripper] * 5),
-                      traj.gripper_names)
-    rows[-1]["stream_peak_mb"] = {len(traj): _stream_peak_mb(emb, traj, cam), len(long): _stream_peak_mb(emb, long, cam)}
+        rows.append(
+            {
+                "embodiment": name,
+                "size": f"{size[0]}x{size[1]}",
+                "frames": len(traj),
+                "simplify_m": cell,
+                "cull_back": cull,
+                "triangles": mesh_geometry(emb, cell).face_count,
+                "fps": fps,
+                "median_fps": median_fps,
+                "us_per_frame": 1e6 / fps,
+                "silhouette_iou_mean": float(iou.mean()),
+                "silhouette_iou_min": float(iou.min()),
+                "silhouette_pixels_differing": float((sil != full).sum((1, 2)).mean()),
+                "silhouette_pixels": float(full.sum((1, 2)).mean()),
+            }
+        )
+    long = Trajectory(
+        traj.joint_names, np.concatenate([traj.q] * 5), traj.fps, np.concatenate([traj.gripper] * 5), traj.gripper_names
+    )
+    rows[-1]["stream_peak_mb"] = {
+        len(traj): _stream_peak_mb(emb, traj, cam),
+        len(long): _stream_peak_mb(emb, long, cam),
+    }
     return rows
 
 
 def print_mesh_table(rows: list[dict]) -> None:
-    cols = [("embodiment", "{}"), ("size", "{}"), ("simplify_m", "{}"), ("cull_back", "{}"), ("triangles", "{}"),
-            ("us_per_frame", "{:.0f}"), ("fps", "{:.0f}"), ("median_fps", "{:.0f}"), ("silhouette_iou_mean", "{:.4f}"),
-            ("silhouette_iou_min", "{:.4f}")]
+    cols = [
+        ("embodiment", "{}"),
+        ("size", "{}"),
+        ("simplify_m", "{}"),
+        ("cull_back", "{}"),
+        ("triangles", "{}"),
+        ("us_per_frame", "{:.0f}"),
+        ("fps", "{:.0f}"),
+        ("median_fps", "{:.0f}"),
+        ("silhouette_iou_mean", "{:.4f}"),
+        ("silhouette_iou_min", "{:.4f}"),
+    ]
     table = [[c for c, _ in cols]] + [[f.format(r[c]) for c, f in cols] for r in rows]
     widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
-    print(f"mesh condition, {FRAMES}-frame trajectories, one CPU thread (best of repeats); "
-          "IoU of the silhouette against the full meshes")
+    print(
+        f"mesh condition, {FRAMES}-frame trajectories, one CPU thread (best of repeats); "
+        "IoU of the silhouette against the full meshes"
+    )
     for row in table:
         print("  ".join(v.rjust(w) for v, w in zip(row, widths)))
     for r in rows:
         if "stream_peak_mb" in r:
-            print(f"{r['embodiment']}: streamed peak traced memory (MB) by trajectory length: "
-                  + ", ".join(f"{n} frames {mb:.1f}" for n, mb in r["stream_peak_mb"].items()))
+            print(
+                f"{r['embodiment']}: streamed peak traced memory (MB) by trajectory length: "
+                + ", ".join(f"{n} frames {mb:.1f}" for n, mb in r["stream_peak_mb"].items())
+            )
 
 
 def bench_capsules(name: str, repeats: int, sizes=((512, 288), (64, 64))) -> list[dict]:
@@ -229,8 +289,17 @@ def bench_capsules(name: str, repeats: int, sizes=((512, 288), (64, 64))) -> lis
     rows = []
     for size in sizes:
         best, median = best_and_median(lambda: render_capsule_video(emb, traj, cam, size), repeats)
-        rows.append({"embodiment": name, "size": f"{size[0]}x{size[1]}", "frames": len(traj), "edges": len(emb.edges),
-                     "us_per_frame": best / len(traj) * 1e6, "fps": len(traj) / best, "median_fps": len(traj) / median})
+        rows.append(
+            {
+                "embodiment": name,
+                "size": f"{size[0]}x{size[1]}",
+                "frames": len(traj),
+                "edges": len(emb.edges),
+                "us_per_frame": best / len(traj) * 1e6,
+                "fps": len(traj) / best,
+                "median_fps": len(traj) / median,
+            }
+        )
     return rows
 
 
@@ -239,12 +308,20 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--embodiments", nargs="*", help="default: every registered embodiment with a bundled example")
     ap.add_argument("--json", default=str(Path(__file__).parent / "results" / "render.json"))
-    ap.add_argument("--mesh-embodiments", nargs="*", default=["franka", "toyarm"],
-                    help="embodiments whose mesh condition is timed (default: franka toyarm)")
+    ap.add_argument(
+        "--mesh-embodiments",
+        nargs="*",
+        default=["franka", "toyarm"],
+        help="embodiments whose mesh condition is timed (default: franka toyarm)",
+    )
     ap.add_argument("--skip-skeleton", action="store_true", help="time the mesh condition only")
     ap.add_argument("--skip-mesh", action="store_true", help="time the skeleton only")
-    ap.add_argument("--capsule-embodiments", nargs="*", default=["toyarm", "franka", "kuka", "hsr", "agibot_g1"],
-                    help="embodiments whose capsules condition is timed")
+    ap.add_argument(
+        "--capsule-embodiments",
+        nargs="*",
+        default=["toyarm", "franka", "kuka", "hsr", "agibot_g1"],
+        help="embodiments whose capsules condition is timed",
+    )
     ap.add_argument("--skip-capsules", action="store_true", help="leave the capsules condition out")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
@@ -252,12 +329,23 @@ def main(argv=None) -> int:
     from oscar_core import default_registry
 
     reg = default_registry()
-    names = args.embodiments or [n for n in reg.names()
-                                 if reg.get(n).example_trajectory is not None and reg.get(n).uses_kinematic_tree()]
+    names = args.embodiments or [
+        n for n in reg.names() if reg.get(n).example_trajectory is not None and reg.get(n).uses_kinematic_tree()
+    ]
     rows = [] if args.skip_skeleton else [r for n in names for r in bench_embodiment(n, args.repeats)]
-    cols = [("embodiment", "{}"), ("size", "{}"), ("points", "{}"), ("fk_us", "{:.1f}"), ("project_us", "{:.1f}"),
-            ("raster_us", "{:.1f}"), ("encode_us", "{:.0f}"), ("pipeline_fps", "{:.0f}"),
-            ("pipeline_with_h264_fps", "{:.0f}"), ("naive_fps", "{:.0f}"), ("speedup_vs_naive", "{:.1f}x")]
+    cols = [
+        ("embodiment", "{}"),
+        ("size", "{}"),
+        ("points", "{}"),
+        ("fk_us", "{:.1f}"),
+        ("project_us", "{:.1f}"),
+        ("raster_us", "{:.1f}"),
+        ("encode_us", "{:.0f}"),
+        ("pipeline_fps", "{:.0f}"),
+        ("pipeline_with_h264_fps", "{:.0f}"),
+        ("naive_fps", "{:.0f}"),
+        ("speedup_vs_naive", "{:.1f}x"),
+    ]
     table = [[c for c, _ in cols]] + [[f.format(r[c]) for c, f in cols] for r in rows]
     widths = [max(len(row[i]) for row in table) for i in range(len(cols))]
     print(f"per-frame costs in microseconds, {FRAMES}-frame trajectories, one CPU thread (best of repeats)")
@@ -266,23 +354,36 @@ def main(argv=None) -> int:
     mesh_rows = [] if args.skip_mesh else [r for n in args.mesh_embodiments for r in bench_mesh(n, args.repeats)]
     if mesh_rows:
         print_mesh_table(mesh_rows)
-    capsule_rows = [] if args.skip_capsules else [r for n in args.capsule_embodiments
-                                                  for r in bench_capsules(n, args.repeats)]
+    capsule_rows = (
+        [] if args.skip_capsules else [r for n in args.capsule_embodiments for r in bench_capsules(n, args.repeats)]
+    )
     if capsule_rows:
         print(f"capsules condition, example trajectories, one CPU thread (best of {args.repeats}; median beside it)")
         for r in capsule_rows:
-            print(f"  {r['embodiment']:>10s} {r['size']:>8s} {r['edges']:>3d} edges  {r['us_per_frame']:8.0f} us/frame  "
-                  f"{r['fps']:6.0f} fps  (median {r['median_fps']:.0f})")
+            print(
+                f"  {r['embodiment']:>10s} {r['size']:>8s} {r['edges']:>3d} edges  {r['us_per_frame']:8.0f} us/frame  "
+                f"{r['fps']:6.0f} fps  (median {r['median_fps']:.0f})"
+            )
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"python": sys.version.split()[0], "torch": torch.__version__, "opencv": cv2.__version__,
-            "machine": platform.machine(), "cpu_count": os.cpu_count(), "threads": 1,
-            "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    meta = {
+        "python": sys.version.split()[0],
+        "torch": torch.__version__,
+        "opencv": cv2.__version__,
+        "machine": platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "threads": 1,
+        "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    }
     sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
     from _provenance import with_provenance
 
-    out.write_text(json.dumps(with_provenance({"meta": meta, "rows": rows, "mesh_rows": mesh_rows,
-                                               "capsule_rows": capsule_rows}), indent=2))
+    out.write_text(
+        json.dumps(
+            with_provenance({"meta": meta, "rows": rows, "mesh_rows": mesh_rows, "capsule_rows": capsule_rows}),
+            indent=2,
+        )
+    )
     print(f"wrote {out}")
     return 0
 

@@ -62,9 +62,11 @@ def wall(cmd: list[str], repeats: int = 3) -> dict:
 
 def child_peak_rss_mb(cmd: list[str]) -> tuple[float, float]:
     """(peak RSS MB, wall seconds) of ``cmd`` run in a fresh process via a small launcher."""
-    launcher = ("import resource, subprocess, sys, time\n"
-                "t0 = time.perf_counter(); subprocess.run(sys.argv[1:], check=True, stdout=subprocess.DEVNULL)\n"
-                "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, time.perf_counter() - t0)")
+    launcher = (
+        "import resource, subprocess, sys, time\n"
+        "t0 = time.perf_counter(); subprocess.run(sys.argv[1:], check=True, stdout=subprocess.DEVNULL)\n"
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, time.perf_counter() - t0)"
+    )
     out = subprocess.run([PY, "-c", launcher, *cmd], check=True, capture_output=True, text=True).stdout.split()
     return int(out[0]) / 1024.0, float(out[1])  # ru_maxrss is KiB on Linux
 
@@ -79,8 +81,15 @@ def make_episodes(tmp: Path, n: int, frames: int = 81) -> tuple[Path, list[dict]
         start = i % (len(full) - frames + 1)
         path = tmp / f"ep{i:04d}.npz"
         save_trajectory(full.time_slice(start, start + frames), path)
-        rows.append({"embodiment": "franka", "trajectory": str(path), "camera": str(emb.example_camera),
-                     "out": str(tmp / "out" / f"ep{i:04d}.mp4"), "size": "512x288"})
+        rows.append(
+            {
+                "embodiment": "franka",
+                "trajectory": str(path),
+                "camera": str(emb.example_camera),
+                "out": str(tmp / "out" / f"ep{i:04d}.mp4"),
+                "size": "512x288",
+            }
+        )
     manifest = tmp / "episodes.jsonl"
     manifest.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
     return manifest, rows
@@ -92,8 +101,19 @@ def bench_startup(tmp: Path) -> dict:
     emb = get_embodiment("franka")
     one = tmp / "one.npz"
     save_trajectory(load_trajectory(emb.example_trajectory).time_slice(0, 1), one)
-    render = OSCAR + ["render", "--embodiment", "franka", "--trajectory", str(one), "--camera",
-                      str(emb.example_camera), "--size", "512x288", "--out", str(tmp / "one.mp4")]
+    render = OSCAR + [
+        "render",
+        "--embodiment",
+        "franka",
+        "--trajectory",
+        str(one),
+        "--camera",
+        str(emb.example_camera),
+        "--size",
+        "512x288",
+        "--out",
+        str(tmp / "one.mp4"),
+    ]
     return {
         "python_c_pass_s": wall([PY, "-c", "pass"]),
         "import_torch_s": wall([PY, "-c", "import torch"]),
@@ -107,18 +127,38 @@ def bench_throughput(tmp: Path, n: int, naive_n: int, preset: str) -> dict:
     manifest, rows = make_episodes(tmp, n)
     out = {"episodes": n, "frames": 81, "size": "512x288", "preset": preset}
     for workers in (1, 2):  # the first run also writes the resume records; the second renders every episode again
-        w, c = run_timed(OSCAR + ["render", "--manifest", str(manifest), "--workers", str(workers), "--preset", preset,
-                                  "--no-progress"] + (["--no-resume"] if workers > 1 else []))
+        w, c = run_timed(
+            OSCAR
+            + ["render", "--manifest", str(manifest), "--workers", str(workers), "--preset", preset, "--no-progress"]
+            + (["--no-resume"] if workers > 1 else [])
+        )
         out[f"workers_{workers}_eps"] = n / w
         out[f"workers_{workers}_cpu_s_per_episode"] = c / n
     # the same command again with nothing changed: every episode's inputs hashed, its record read, nothing rendered
-    w, c = run_timed(OSCAR + ["render", "--manifest", str(manifest), "--workers", "2", "--preset", preset,
-                              "--no-progress"])
+    w, c = run_timed(
+        OSCAR + ["render", "--manifest", str(manifest), "--workers", "2", "--preset", preset, "--no-progress"]
+    )
     out["rerun_unchanged_wall_s"], out["rerun_unchanged_cpu_s"] = w, c
     w = c = 0.0
     for r in rows[:naive_n]:
-        dw, dc = run_timed(OSCAR + ["render", "--embodiment", r["embodiment"], "--trajectory", r["trajectory"],
-                                    "--camera", r["camera"], "--size", r["size"], "--out", r["out"], "--preset", preset])
+        dw, dc = run_timed(
+            OSCAR
+            + [
+                "render",
+                "--embodiment",
+                r["embodiment"],
+                "--trajectory",
+                r["trajectory"],
+                "--camera",
+                r["camera"],
+                "--size",
+                r["size"],
+                "--out",
+                r["out"],
+                "--preset",
+                preset,
+            ]
+        )
         w, c = w + dw, c + dc
     out["naive_process_per_episode_eps"] = naive_n / w
     out["naive_cpu_s_per_episode"] = c / naive_n
@@ -153,15 +193,24 @@ def bench_presets(tmp: Path, repeats: int) -> list[dict]:
                 times.append(time.process_time() - t0)
             back = read_video(path).astype(np.float64)
             mse = float(np.mean((back - video) ** 2))
-            rows.append({"preset": preset, "yuv": yuv, "encode_s": min(times), "kb": path.stat().st_size / 1024,
-                         "psnr_db": 10 * np.log10(255 ** 2 / mse)})
+            rows.append(
+                {
+                    "preset": preset,
+                    "yuv": yuv,
+                    "encode_s": min(times),
+                    "kb": path.stat().st_size / 1024,
+                    "psnr_db": 10 * np.log10(255**2 / mse),
+                }
+            )
     # the conversion alone, per frame
     import av
 
     from oscar_core.media.video import rgb_to_yuv420p
 
-    for yuv, fn in (("opencv", lambda f: rgb_to_yuv420p(f)),
-                    ("swscale", lambda f: av.VideoFrame.from_ndarray(f, format="rgb24").reformat(format="yuv420p"))):
+    for yuv, fn in (
+        ("opencv", lambda f: rgb_to_yuv420p(f)),
+        ("swscale", lambda f: av.VideoFrame.from_ndarray(f, format="rgb24").reformat(format="yuv420p")),
+    ):
         t0 = time.process_time()
         for f in video:
             fn(f)
@@ -179,20 +228,34 @@ def bench_memory(tmp: Path, long_frames: int) -> dict:
     reps = -(-long_frames // len(base))
     out = {"size": "1280x704"}
     for frames in (long_frames // 10, long_frames):
-        traj = base.replace(q=np.tile(base.q, (reps, 1))[:frames], gripper=np.tile(base.gripper, (reps, 1))[:frames],
-                            timestamps=None)
+        traj = base.replace(
+            q=np.tile(base.q, (reps, 1))[:frames], gripper=np.tile(base.gripper, (reps, 1))[:frames], timestamps=None
+        )
         path = tmp / f"long{frames}.npz"
         save_trajectory(traj, path)
-        cmd = OSCAR + ["render", "--embodiment", "franka", "--trajectory", str(path), "--camera",
-                       str(emb.example_camera), "--size", "1280x704", "--out", str(tmp / f"long{frames}.mp4")]
+        cmd = OSCAR + [
+            "render",
+            "--embodiment",
+            "franka",
+            "--trajectory",
+            str(path),
+            "--camera",
+            str(emb.example_camera),
+            "--size",
+            "1280x704",
+            "--out",
+            str(tmp / f"long{frames}.mp4"),
+        ]
         mb, s = child_peak_rss_mb(cmd)
         out[f"streamed_{frames}_peak_mb"], out[f"streamed_{frames}_s"] = mb, s
     frames = long_frames // 10
-    whole = ("import sys\nfrom oscar_core import get_embodiment, load_trajectory, render_skeleton_video, write_video\n"
-             "e = get_embodiment('franka')\n"
-             f"v = render_skeleton_video(e, load_trajectory({str(tmp / f'long{frames}.npz')!r}), "
-             "e.load_camera(e.example_camera), (1280, 704))\n"
-             f"write_video({str(tmp / 'whole.mp4')!r}, v, 15)\n")
+    whole = (
+        "import sys\nfrom oscar_core import get_embodiment, load_trajectory, render_skeleton_video, write_video\n"
+        "e = get_embodiment('franka')\n"
+        f"v = render_skeleton_video(e, load_trajectory({str(tmp / f'long{frames}.npz')!r}), "
+        "e.load_camera(e.example_camera), (1280, 704))\n"
+        f"write_video({str(tmp / 'whole.mp4')!r}, v, 15)\n"
+    )
     mb, s = child_peak_rss_mb([PY, "-c", whole])
     out[f"whole_array_{frames}_peak_mb"], out[f"whole_array_{frames}_s"] = mb, s
     return out
@@ -211,33 +274,81 @@ def main(argv=None) -> int:
     ap.add_argument("--episodes", type=int, default=40, help="episodes for the throughput runs (default 40)")
     ap.add_argument("--naive-episodes", type=int, default=8, help="episodes for the process-per-episode run")
     ap.add_argument("--long-frames", type=int, default=8100, help="frames of the peak-memory render (default 8100)")
-    ap.add_argument("--preset", default=DEFAULT_PRESET, help=f"x264 preset for the throughput runs (default {DEFAULT_PRESET})")
+    ap.add_argument(
+        "--preset", default=DEFAULT_PRESET, help=f"x264 preset for the throughput runs (default {DEFAULT_PRESET})"
+    )
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--skip", nargs="*", default=(), choices=("startup", "throughput", "presets", "memory"))
     ap.add_argument("--json", default=str(HERE / "results" / "render_scale.json"))
     args = ap.parse_args(argv)
-    result = {"meta": {"python": sys.version.split()[0], "machine": platform.machine(), "cpu_count": os.cpu_count(),
-                       "load_average_start": os.getloadavg(), "time": time.strftime("%Y-%m-%dT%H:%M:%S")}}
+    result = {
+        "meta": {
+            "python": sys.version.split()[0],
+            "machine": platform.machine(),
+            "cpu_count": os.cpu_count(),
+            "load_average_start": os.getloadavg(),
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        }
+    }
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         if "startup" not in args.skip:
             s = result["startup"] = bench_startup(tmp)
             print("start-up: wall and CPU (user + system) seconds, median of 3")
-            print(table([{"command": k, **v} for k, v in s.items()],
-                        [("command", "{}"), ("wall_s", "{:.2f}"), ("cpu_s", "{:.2f}")]))
+            print(
+                table(
+                    [{"command": k, **v} for k, v in s.items()],
+                    [("command", "{}"), ("wall_s", "{:.2f}"), ("cpu_s", "{:.2f}")],
+                )
+            )
         if "throughput" not in args.skip:
             t = result["throughput"] = bench_throughput(tmp, args.episodes, args.naive_episodes, args.preset)
             print(f"\nepisodes/s, {t['episodes']} x 81-frame 512x288 H.264 (preset {t['preset']})")
-            print(table([t], [(k, "{:.2f}") for k in ("workers_1_eps", "workers_2_eps",
-                                                      "naive_process_per_episode_eps", "in_process_api_eps")]))
-            print(table([t], [(k, "{:.3f}") for k in ("workers_1_cpu_s_per_episode", "workers_2_cpu_s_per_episode",
-                                                      "naive_cpu_s_per_episode", "in_process_api_cpu_s_per_episode")]))
+            print(
+                table(
+                    [t],
+                    [
+                        (k, "{:.2f}")
+                        for k in (
+                            "workers_1_eps",
+                            "workers_2_eps",
+                            "naive_process_per_episode_eps",
+                            "in_process_api_eps",
+                        )
+                    ],
+                )
+            )
+            print(
+                table(
+                    [t],
+                    [
+                        (k, "{:.3f}")
+                        for k in (
+                            "workers_1_cpu_s_per_episode",
+                            "workers_2_cpu_s_per_episode",
+                            "naive_cpu_s_per_episode",
+                            "in_process_api_cpu_s_per_episode",
+                        )
+                    ],
+                )
+            )
             print(table([t], [(k, "{:.2f}") for k in ("rerun_unchanged_wall_s", "rerun_unchanged_cpu_s")]))
         if "presets" not in args.skip:
             p = result["presets"] = bench_presets(tmp, args.repeats)
             print("\nencoder presets, one 81-frame 512x288 franka episode, one thread: CPU seconds (best of repeats)")
-            print(table(p, [("preset", "{}"), ("yuv", "{}"), ("encode_s", "{:.3f}"), ("convert_ms_per_frame", "{:.2f}"),
-                            ("kb", "{:.0f}"), ("psnr_db", "{:.2f}")]))
+            print(
+                table(
+                    p,
+                    [
+                        ("preset", "{}"),
+                        ("yuv", "{}"),
+                        ("encode_s", "{:.3f}"),
+                        ("convert_ms_per_frame", "{:.2f}"),
+                        ("kb", "{:.0f}"),
+                        ("psnr_db", "{:.2f}"),
+                    ],
+                )
+            )
         if "memory" not in args.skip:
             m = result["memory"] = bench_memory(tmp, args.long_frames)
             print("\npeak RSS (MB) and wall seconds, franka at 1280x704, H.264")
@@ -249,8 +360,10 @@ def main(argv=None) -> int:
     from _provenance import with_provenance
 
     out.write_text(json.dumps(with_provenance(result), indent=2))
-    print(f"\nload average {result['meta']['load_average_start'][0]:.1f} -> {result['meta']['load_average_end'][0]:.1f}; "
-          f"wrote {out}")
+    print(
+        f"\nload average {result['meta']['load_average_start'][0]:.1f} -> {result['meta']['load_average_end'][0]:.1f}; "
+        f"wrote {out}"
+    )
     return 0
 
 

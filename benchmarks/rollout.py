@@ -86,8 +86,7 @@ def measure(fn, repeats: int, device: torch.device, warmup: bool = True) -> dict
                 torch.cuda.synchronize()
             times.append(time.perf_counter() - t0)
         peaks.append(mem.peak)
-    return {"median_ms": 1e3 * statistics.median(times), "best_ms": 1e3 * min(times),
-            "peak_mib": max(peaks) / 2**20}
+    return {"median_ms": 1e3 * statistics.median(times), "best_ms": 1e3 * min(times), "peak_mib": max(peaks) / 2**20}
 
 
 # --------------------------------------------------------------------------- cases
@@ -117,8 +116,9 @@ def bench_case(model: OscarWorldModel, width: int, height: int, chunk: int, args
                 guided_velocity(transformer, x, timestep, text, skel, mask, padding, config)
 
         def roll():
-            model.rollout(first, skeleton, text, chunk_frames=chunk, sampler=config, seed=0, progress=False,
-                          keep_chunks=False)
+            model.rollout(
+                first, skeleton, text, chunk_frames=chunk, sampler=config, seed=0, progress=False, keep_chunks=False
+            )
 
         row[f"step_{name}"] = measure(step, args.repeats, device)
         row[f"rollout_{name}"] = measure(roll, max(1, args.repeats // 2), device)
@@ -133,12 +133,16 @@ UTILISATIONS = (0.2, 0.3, 0.4, 0.5, 1.0)
 
 def _dit_inputs(batch, frames, width, height, device, dtype):
     t, h, w = (frames - 1) // 4 + 1, height // 8, width // 8
-    return dict(hidden_states=torch.zeros(batch, 16, t, h, w, device=device, dtype=dtype),
-                timestep=torch.full((batch, 1, t, 1, 1), 0.5, device=device),
-                encoder_hidden_states=torch.zeros(batch, 512, 1024, device=device, dtype=dtype),
-                condition_mask=torch.zeros(batch, 1, t, h, w, device=device, dtype=dtype), padding_mask=None,
-                skeleton_latents=torch.zeros(batch, 16, t, h, w, device=device, dtype=dtype), return_dict=False,
-                text_projected=True)
+    return dict(
+        hidden_states=torch.zeros(batch, 16, t, h, w, device=device, dtype=dtype),
+        timestep=torch.full((batch, 1, t, 1, 1), 0.5, device=device),
+        encoder_hidden_states=torch.zeros(batch, 512, 1024, device=device, dtype=dtype),
+        condition_mask=torch.zeros(batch, 1, t, h, w, device=device, dtype=dtype),
+        padding_mask=None,
+        skeleton_latents=torch.zeros(batch, 16, t, h, w, device=device, dtype=dtype),
+        return_dict=False,
+        text_projected=True,
+    )
 
 
 def computed_2b(steps: int = 35, frames: int = 81, width: int = 512, height: int = 288) -> dict:
@@ -177,16 +181,29 @@ def computed_2b(steps: int = 35, frames: int = 81, width: int = 512, height: int
     for name in SAMPLER_PRESETS:  # one DiT evaluation of batch 1 is half a guided step
         config = apply_preset(SamplerConfig(guidance=6.0, solver="unipc"), name)
         flops = model_calls(config) * step / 2 + text + encode + encode_seed + decode
-        presets[name] = {"steps": config.steps, "dit_evaluations": model_calls(config), "tflop_per_chunk": flops / 1e12,
-                         "h100_frames_per_s": {str(u): new_frames * H100_BF16_TFLOPS * 1e12 * u / flops
-                                               for u in UTILISATIONS}}
-    return {"steps": steps, "frames": frames, "size": f"{width}x{height}", "tflop_per_guided_step": step / 1e12,
-            "tflop_text_projection": text / 1e12, "tflop_vae_encode_chunk": encode / 1e12,
-            "tflop_vae_encode_seed": encode_seed / 1e12, "tflop_vae_decode_chunk": decode / 1e12,
-            "tflop_per_chunk": chunk / 1e12, "new_frames_per_chunk": new_frames,
-            "h100_bf16_tflops": H100_BF16_TFLOPS, "h100": table, "paper_fps_gh200": PAPER_FPS_GH200,
-            "paper_fps_implied_utilisation": PAPER_FPS_GH200 * chunk / new_frames / (H100_BF16_TFLOPS * 1e12),
-            "presets": presets}
+        presets[name] = {
+            "steps": config.steps,
+            "dit_evaluations": model_calls(config),
+            "tflop_per_chunk": flops / 1e12,
+            "h100_frames_per_s": {str(u): new_frames * H100_BF16_TFLOPS * 1e12 * u / flops for u in UTILISATIONS},
+        }
+    return {
+        "steps": steps,
+        "frames": frames,
+        "size": f"{width}x{height}",
+        "tflop_per_guided_step": step / 1e12,
+        "tflop_text_projection": text / 1e12,
+        "tflop_vae_encode_chunk": encode / 1e12,
+        "tflop_vae_encode_seed": encode_seed / 1e12,
+        "tflop_vae_decode_chunk": decode / 1e12,
+        "tflop_per_chunk": chunk / 1e12,
+        "new_frames_per_chunk": new_frames,
+        "h100_bf16_tflops": H100_BF16_TFLOPS,
+        "h100": table,
+        "paper_fps_gh200": PAPER_FPS_GH200,
+        "paper_fps_implied_utilisation": PAPER_FPS_GH200 * chunk / new_frames / (H100_BF16_TFLOPS * 1e12),
+        "presets": presets,
+    }
 
 
 #: dense bf16 tensor-core peak (TFLOP/s) by device name, first match wins; ``--peak-tflops`` overrides
@@ -233,8 +250,9 @@ def check_measure_args(args) -> None:
     if args.presets is not None:
         unknown = [p for p in args.presets.split(",") if p not in SAMPLER_PRESETS]
         if unknown or not args.presets:
-            raise SystemExit(f"--presets: expected comma-separated names from {sorted(SAMPLER_PRESETS)}, "
-                             f"found {args.presets!r}")
+            raise SystemExit(
+                f"--presets: expected comma-separated names from {sorted(SAMPLER_PRESETS)}, found {args.presets!r}"
+            )
     if args.peak_tflops is not None and not args.peak_tflops > 0:
         raise SystemExit(f"--peak-tflops: expected a positive number, found {args.peak_tflops}")
     if not args.measure:
@@ -242,10 +260,13 @@ def check_measure_args(args) -> None:
     try:
         device = torch.device(args.measure)
     except RuntimeError as exc:
-        raise SystemExit(f"--measure: expected a torch device (cuda, cuda:1, cpu), found {args.measure!r}: {exc}") from None
+        raise SystemExit(
+            f"--measure: expected a torch device (cuda, cuda:1, cpu), found {args.measure!r}: {exc}"
+        ) from None
     if device.type == "cuda" and not torch.cuda.is_available():
-        raise SystemExit(f"--gpu / --measure {args.measure} needs a CUDA device (torch.cuda.is_available() is False "
-                         "here)")
+        raise SystemExit(
+            f"--gpu / --measure {args.measure} needs a CUDA device (torch.cuda.is_available() is False here)"
+        )
     if device.type not in ("cuda", "cpu"):
         raise SystemExit(f"--measure: expected a cuda or cpu device, found {args.measure!r}")
 
@@ -295,6 +316,7 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
         def step():
             with torch.no_grad():
                 guided_velocity(transformer, x, timestep, projected, skeleton, mask, None, config, text_projected=True)
+
         return step
 
     steps = {"guided": step_fn(SamplerConfig(guidance=6.0)), "conditional": step_fn(SamplerConfig(guidance=None))}
@@ -307,6 +329,7 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
 
     def chunk_fn(config, parts: dict | None = None):
         """One chunk; with ``parts``, the seconds of its encodes, sampling and decode are added to it."""
+
         def chunk():
             marks = [time.perf_counter()]
             with torch.no_grad():
@@ -322,11 +345,24 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
             if parts is not None:
                 for key, a, b in zip(("encode", "sample", "decode"), marks, marks[1:]):
                     parts.setdefault(key, []).append(b - a)
+
         return chunk
 
-    out = {"device": name, "dtype": str(dtype).replace("torch.", ""), "size": args.measure_size,
-           "frames": frames, "width": width, "height": height, "latent_tokens": t * (h // 2) * (w // 2),
-           "guidance": 6.0, "peak_tflops": peak, "flops": {}, "vae": {}, "steps": {}, "presets": []}
+    out = {
+        "device": name,
+        "dtype": str(dtype).replace("torch.", ""),
+        "size": args.measure_size,
+        "frames": frames,
+        "width": width,
+        "height": height,
+        "latent_tokens": t * (h // 2) * (w // 2),
+        "guidance": 6.0,
+        "peak_tflops": peak,
+        "flops": {},
+        "vae": {},
+        "steps": {},
+        "presets": [],
+    }
     out["flops"]["step_" + "guided"] = count_flops(steps["guided"])
     out["flops"]["step_conditional"] = count_flops(steps["conditional"])
     out["flops"]["vae_per_chunk"] = count_flops(vae_work)
@@ -356,15 +392,22 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
             part_s = {key: statistics.median(v) for key, v in parts.items()}  # the same runs, split
             sample_s = part_s["sample"]
             dit_flops = out["flops"][f"chunk_{p}"] - out["flops"]["vae_per_chunk"]  # + the text projection, once
-            row = {"preset": p, "variant": variant, "steps": config.steps,
-                   "guidance_interval": list(config.guidance_interval) if config.guidance_interval else None,
-                   "dit_evaluations": model_calls(config), "tflop_per_chunk": out["flops"][f"chunk_{p}"] / 1e12,
-                   "chunk": chunk, "seconds_per_chunk": chunk_s, "seconds_parts": part_s,
-                   "seconds_per_step": sample_s / config.steps,
-                   "vae_share": (part_s["encode"] + part_s["decode"]) / sum(part_s.values()),
-                   "frames_per_s": (frames - 1) / chunk_s,
-                   "mfu_sampling": dit_flops / (sample_s * peak * 1e12) if peak else None,
-                   "mfu_chunk": out["flops"][f"chunk_{p}"] / (chunk_s * peak * 1e12) if peak else None}
+            row = {
+                "preset": p,
+                "variant": variant,
+                "steps": config.steps,
+                "guidance_interval": list(config.guidance_interval) if config.guidance_interval else None,
+                "dit_evaluations": model_calls(config),
+                "tflop_per_chunk": out["flops"][f"chunk_{p}"] / 1e12,
+                "chunk": chunk,
+                "seconds_per_chunk": chunk_s,
+                "seconds_parts": part_s,
+                "seconds_per_step": sample_s / config.steps,
+                "vae_share": (part_s["encode"] + part_s["decode"]) / sum(part_s.values()),
+                "frames_per_s": (frames - 1) / chunk_s,
+                "mfu_sampling": dit_flops / (sample_s * peak * 1e12) if peak else None,
+                "mfu_chunk": out["flops"][f"chunk_{p}"] / (chunk_s * peak * 1e12) if peak else None,
+            }
             out["presets"].append(row)
     return out
 
@@ -382,6 +425,7 @@ def _set_conv_format(module: torch.nn.Module, memory_format) -> None:
 def vae_chunk_work(vae, first: torch.Tensor, condition: torch.Tensor):
     """What a chunk asks of the VAE, as a call: the seed frame's and the condition video's encodes, then one
     decode of a chunk's latent; the call returns the decoded pixels (B, 3, T, H, W)."""
+
     def work() -> torch.Tensor:
         with torch.no_grad():
             vae.encode(first)
@@ -419,9 +463,16 @@ def measure_vae_variants(vae, first: torch.Tensor, condition: torch.Tensor, repe
             timing = measure(work, repeats, device, warmup=False)
             diff = float((decoded - reference).abs().max())
             mse = float(((decoded - reference) ** 2).mean())
-            rows.append({"variant": name, "seconds": timing["median_ms"] / 1e3, "first_call_s": first_s,
-                         "peak_mib": timing["peak_mib"], "max_abs_diff": diff,
-                         "psnr_db_vs_eager": None if mse == 0 else 10 * np.log10(4.0 / mse)})  # range 2: peak² = 4
+            rows.append(
+                {
+                    "variant": name,
+                    "seconds": timing["median_ms"] / 1e3,
+                    "first_call_s": first_s,
+                    "peak_mib": timing["peak_mib"],
+                    "max_abs_diff": diff,
+                    "psnr_db_vs_eager": None if mse == 0 else 10 * np.log10(4.0 / mse),
+                }
+            )  # range 2: peak² = 4
         except Exception as exc:  # noqa: BLE001 - a variant this machine cannot run is a row saying why
             rows.append({"variant": name, "failed": f"{type(exc).__name__}: {str(exc).strip()[:300]}"})
         finally:
@@ -436,29 +487,57 @@ def measure_vae_variants(vae, first: torch.Tensor, condition: torch.Tensor, repe
 
 def print_measured(m: dict) -> None:
     peak = f"{m['peak_tflops']:g} TFLOP/s dense bf16 peak" if m["peak_tflops"] else "no known peak: MFU not given"
-    print(f"\nMeasured on {m['device']} ({m['dtype']}, random weights, {m['size']}: {m['frames']}-frame "
-          f"{m['width']}x{m['height']} chunk, w = {m['guidance']:g}; {peak}):")
+    print(
+        f"\nMeasured on {m['device']} ({m['dtype']}, random weights, {m['size']}: {m['frames']}-frame "
+        f"{m['width']}x{m['height']} chunk, w = {m['guidance']:g}; {peak}):"
+    )
     for key, value in m["steps"].items():
-        print(f"  one {key.replace('_', ' step, ')}: median {value['median_ms'] / 1e3:.4f} s, "
-              f"peak {value['peak_mib'] / 1024:.2f} GiB")
+        print(
+            f"  one {key.replace('_', ' step, ')}: median {value['median_ms'] / 1e3:.4f} s, "
+            f"peak {value['peak_mib'] / 1024:.2f} GiB"
+        )
     print(f"  VAE per chunk (2 encodes + decode): median {m['vae']['median_ms'] / 1e3:.3f} s")
     for row in m.get("vae_variants") or ():
         if "failed" in row:
             print(f"  VAE {row['variant']}: failed ({row['failed']})")
         else:
             psnr = "identical" if row["psnr_db_vs_eager"] is None else f"{row['psnr_db_vs_eager']:.1f} dB vs eager"
-            print(f"  VAE {row['variant']}: {row['seconds']:.3f} s ({row['vs_eager']:.2f}x eager; first call "
-                  f"{row['first_call_s']:.1f} s; max |diff| {row['max_abs_diff']:.2e}, {psnr})")
+            print(
+                f"  VAE {row['variant']}: {row['seconds']:.3f} s ({row['vs_eager']:.2f}x eager; first call "
+                f"{row['first_call_s']:.1f} s; max |diff| {row['max_abs_diff']:.2e}, {psnr})"
+            )
     if "compile_first_call_s" in m:
         print(f"  compile (first compiled call): {m['compile_first_call_s']:.1f} s, compiled: {m['compiled']}")
-    head = ("preset", "variant", "steps", "DiT evals", "TFLOP/chunk", "s/step", "s/chunk", "VAE share", "frames/s",
-            "MFU sampling", "MFU chunk")
+    head = (
+        "preset",
+        "variant",
+        "steps",
+        "DiT evals",
+        "TFLOP/chunk",
+        "s/step",
+        "s/chunk",
+        "VAE share",
+        "frames/s",
+        "MFU sampling",
+        "MFU chunk",
+    )
     lines = [head]
     for r in m["presets"]:
         mfu = [f"{v:.1%}" if v is not None else "-" for v in (r["mfu_sampling"], r["mfu_chunk"])]
-        lines.append((r["preset"], r["variant"], str(r["steps"]), str(r["dit_evaluations"]),
-                      f"{r['tflop_per_chunk']:.4g}", f"{r['seconds_per_step']:.4f}", f"{r['seconds_per_chunk']:.3f}",
-                      f"{r['vae_share']:.1%}", f"{r['frames_per_s']:.2f}", *mfu))
+        lines.append(
+            (
+                r["preset"],
+                r["variant"],
+                str(r["steps"]),
+                str(r["dit_evaluations"]),
+                f"{r['tflop_per_chunk']:.4g}",
+                f"{r['seconds_per_step']:.4f}",
+                f"{r['seconds_per_chunk']:.3f}",
+                f"{r['vae_share']:.1%}",
+                f"{r['frames_per_s']:.2f}",
+                *mfu,
+            )
+        )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
     for line in lines:
         print("  " + "  ".join(c.rjust(wd) for c, wd in zip(line, widths)))
@@ -479,12 +558,25 @@ def expected_2b() -> dict:
         return ((frames - 1) // 4 + 1) // p_t * (height // 8 // p_h) * (width // 8 // p_w)
 
     return {
-        "config": {k: COSMOS_2B_TRANSFORMER_CONFIG[k] for k in ("num_layers", "num_attention_heads", "attention_head_dim",
-                                                                "in_channels", "crossattn_proj_in_channels")},
-        "parameters": total, "parameters_blocks": blocks, "parameters_text_projection": text_proj,
-        "parameters_pe_s": pe_s, "weights_bf16_gib": total * 2 / 2**30,
-        "latent_tokens_per_chunk": {"81 frames 512x288 (paper)": tokens(81, 512, 288),
-                                    "93 frames 1280x704 (Cosmos default)": tokens(93, 1280, 704)},
+        "config": {
+            k: COSMOS_2B_TRANSFORMER_CONFIG[k]
+            for k in (
+                "num_layers",
+                "num_attention_heads",
+                "attention_head_dim",
+                "in_channels",
+                "crossattn_proj_in_channels",
+            )
+        },
+        "parameters": total,
+        "parameters_blocks": blocks,
+        "parameters_text_projection": text_proj,
+        "parameters_pe_s": pe_s,
+        "weights_bf16_gib": total * 2 / 2**30,
+        "latent_tokens_per_chunk": {
+            "81 frames 512x288 (paper)": tokens(81, 512, 288),
+            "93 frames 1280x704 (Cosmos default)": tokens(93, 1280, 704),
+        },
         "text_tokens": 512,
     }
 
@@ -493,38 +585,63 @@ def expected_2b() -> dict:
 
 
 def print_table(rows: list[dict]) -> None:
-    head = ("size", "chunk", "tokens", "step batched", "step 2-pass", "ratio", "peak b/2p MiB",
-            "rollout batched", "rollout 2-pass", "ratio")
+    head = (
+        "size",
+        "chunk",
+        "tokens",
+        "step batched",
+        "step 2-pass",
+        "ratio",
+        "peak b/2p MiB",
+        "rollout batched",
+        "rollout 2-pass",
+        "ratio",
+    )
     lines = [head]
     for r in rows:
         sb, s2, rb, r2 = r["step_batched"], r["step_two-pass"], r["rollout_batched"], r["rollout_two-pass"]
-        lines.append((r["size"], str(r["chunk_frames"]), str(r["latent_tokens"]),
-                      f"{sb['median_ms']:.1f} ms", f"{s2['median_ms']:.1f} ms", f"{s2['median_ms'] / sb['median_ms']:.2f}x",
-                      f"{sb['peak_mib']:.1f}/{s2['peak_mib']:.1f}",
-                      f"{rb['median_ms'] / 1e3:.2f} s", f"{r2['median_ms'] / 1e3:.2f} s",
-                      f"{r2['median_ms'] / rb['median_ms']:.2f}x"))
+        lines.append(
+            (
+                r["size"],
+                str(r["chunk_frames"]),
+                str(r["latent_tokens"]),
+                f"{sb['median_ms']:.1f} ms",
+                f"{s2['median_ms']:.1f} ms",
+                f"{s2['median_ms'] / sb['median_ms']:.2f}x",
+                f"{sb['peak_mib']:.1f}/{s2['peak_mib']:.1f}",
+                f"{rb['median_ms'] / 1e3:.2f} s",
+                f"{r2['median_ms'] / 1e3:.2f} s",
+                f"{r2['median_ms'] / rb['median_ms']:.2f}x",
+            )
+        )
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
     for line in lines:
         print("  ".join(c.rjust(w) for c, w in zip(line, widths)))
 
 
 def print_computed(big: dict, comp: dict) -> None:
-    print(f"\n2B model (from its config): {big['parameters'] / 1e9:.3f} B parameters "
-          f"({big['parameters_blocks'] / 1e9:.3f} B in the 28 blocks, {big['parameters_text_projection'] / 1e6:.1f} M "
-          f"text projection, {big['parameters_pe_s']:,} PE_s), {big['weights_bf16_gib']:.2f} GiB of bf16 weights")
+    print(
+        f"\n2B model (from its config): {big['parameters'] / 1e9:.3f} B parameters "
+        f"({big['parameters_blocks'] / 1e9:.3f} B in the 28 blocks, {big['parameters_text_projection'] / 1e6:.1f} M "
+        f"text projection, {big['parameters_pe_s']:,} PE_s), {big['weights_bf16_gib']:.2f} GiB of bf16 weights"
+    )
     for what, n in big["latent_tokens_per_chunk"].items():
         print(f"  latent tokens per chunk, {what}: {n:,} (x2 with batched guidance)")
-    print(f"\nComputed (FLOPs counted on the meta device, not measured): one guided step (batch 2, "
-          f"{big['latent_tokens_per_chunk']['81 frames 512x288 (paper)']:,} tokens each) = "
-          f"{comp['tflop_per_guided_step']:.1f} TFLOP; an 81-frame 512x288 chunk with {comp['steps']} steps = "
-          f"{comp['tflop_per_chunk']:.0f} TFLOP (VAE encode {comp['tflop_vae_encode_chunk']:.1f} + decode "
-          f"{comp['tflop_vae_decode_chunk']:.1f}, text projection {comp['tflop_text_projection']:.2f})")
+    print(
+        f"\nComputed (FLOPs counted on the meta device, not measured): one guided step (batch 2, "
+        f"{big['latent_tokens_per_chunk']['81 frames 512x288 (paper)']:,} tokens each) = "
+        f"{comp['tflop_per_guided_step']:.1f} TFLOP; an 81-frame 512x288 chunk with {comp['steps']} steps = "
+        f"{comp['tflop_per_chunk']:.0f} TFLOP (VAE encode {comp['tflop_vae_encode_chunk']:.1f} + decode "
+        f"{comp['tflop_vae_decode_chunk']:.1f}, text projection {comp['tflop_text_projection']:.2f})"
+    )
     print(f"  one H100 ({H100_BF16_TFLOPS:g} TFLOP/s dense bf16), {comp['new_frames_per_chunk']} new frames per chunk:")
     print("  utilisation  s/chunk  frames/s")
     for row in comp["h100"]:
         print(f"  {row['utilisation']:>10.0%}  {row['seconds_per_chunk']:7.2f}  {row['frames_per_second']:8.2f}")
-    print(f"  paper: {PAPER_FPS_GH200} frames/s on a GH200 = {comp['paper_fps_implied_utilisation']:.1%} utilisation "
-          f"at these FLOPs")
+    print(
+        f"  paper: {PAPER_FPS_GH200} frames/s on a GH200 = {comp['paper_fps_implied_utilisation']:.1%} utilisation "
+        f"at these FLOPs"
+    )
     print("  per sampling preset (w = 6), frames/s on one H100 at each utilisation:")
     print("  preset  steps  DiT evals  TFLOP/chunk  " + "  ".join(f"{float(u):>5.0%}" for u in UTILISATIONS))
     for name, row in comp["presets"].items():
@@ -537,18 +654,32 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--steps", type=int, default=4, help="denoising steps per chunk in the rollout timing")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--gpu", action="store_true", help="measure the real 2B size on CUDA (random weights, bf16): "
-                   "the same as --measure cuda --measure-size 2b")
-    p.add_argument("--measure", metavar="DEVICE", help="measure steps, chunks, frames/s and MFU of every sampling "
-                   "preset on DEVICE (cuda: bf16; cpu: float32)")
-    p.add_argument("--measure-size", choices=sorted(MEASURE_SIZES), default="2b",
-                   help="model size measured by --measure (tiny: the test configuration)")
+    p.add_argument(
+        "--gpu",
+        action="store_true",
+        help="measure the real 2B size on CUDA (random weights, bf16): the same as --measure cuda --measure-size 2b",
+    )
+    p.add_argument(
+        "--measure",
+        metavar="DEVICE",
+        help="measure steps, chunks, frames/s and MFU of every sampling preset on DEVICE (cuda: bf16; cpu: float32)",
+    )
+    p.add_argument(
+        "--measure-size",
+        choices=sorted(MEASURE_SIZES),
+        default="2b",
+        help="model size measured by --measure (tiny: the test configuration)",
+    )
     p.add_argument("--presets", help="comma-separated sampling presets to measure (default: all)")
     p.add_argument("--peak-tflops", type=float, help="the device's peak for MFU (default: known GPUs' dense bf16)")
     p.add_argument("--gpu-steps", type=int, default=35, help="UniPC steps per chunk in the computed table")
     p.add_argument("--compile", action="store_true", help="--measure: also time the compiled DiT")
-    p.add_argument("--vae-variants", action="store_true", help="--measure: also time the VAE's work per chunk "
-                   "with channels-last, tiling and torch.compile against eager (and how far each output moves)")
+    p.add_argument(
+        "--vae-variants",
+        action="store_true",
+        help="--measure: also time the VAE's work per chunk "
+        "with channels-last, tiling and torch.compile against eager (and how far each output moves)",
+    )
     p.add_argument("--skip-computed", action="store_true", help="skip the 2B figures computed from its configuration")
     p.add_argument("--skip-tiny", action="store_true", help="skip the tiny CPU timings")
     p.add_argument("--json", default=str(Path(__file__).parent / "results" / "rollout.json"))
@@ -559,12 +690,17 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     rows = []
     if not args.skip_tiny:
-        model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05),
-                                             build_tiny_vae(seed=0), ModelCard(name="tiny", chunk_frames=9),
-                                             device=device)
+        model = OscarWorldModel.from_modules(
+            build_tiny_transformer(seed=0, skeleton_scale=0.05),
+            build_tiny_vae(seed=0),
+            ModelCard(name="tiny", chunk_frames=9),
+            device=device,
+        )
         params = sum(q.numel() for q in model.transformer.parameters())
-        print(f"tiny DiT: {params / 1e3:.0f} k parameters; torch {torch.__version__}, {torch.get_num_threads()} "
-              f"threads, {device}; rollout = 2 chunks x {args.steps} steps, guidance w = 6")
+        print(
+            f"tiny DiT: {params / 1e3:.0f} k parameters; torch {torch.__version__}, {torch.get_num_threads()} "
+            f"threads, {device}; rollout = 2 chunks x {args.steps} steps, guidance w = 6"
+        )
         for width, height in SIZES:
             for chunk in CHUNKS:
                 rows.append(bench_case(model, width, height, chunk, args, device))
@@ -579,13 +715,27 @@ def main(argv=None) -> int:
     from oscar_core._util.atomic import atomic_write_bytes
 
     def write(measured, complete: bool) -> Path:
-        result = json.dumps(with_provenance({
-            "machine": {"python": platform.python_version(), "torch": torch.__version__,
-                        "threads": torch.get_num_threads(), "cpu_count": os.cpu_count(), "device": str(device)},
-            "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
-            "complete": complete,
-            "tiny": rows, "expected_2b": big, "computed_2b": comp, "measured": measured}, device=str(device)),
-            indent=2)
+        result = json.dumps(
+            with_provenance(
+                {
+                    "machine": {
+                        "python": platform.python_version(),
+                        "torch": torch.__version__,
+                        "threads": torch.get_num_threads(),
+                        "cpu_count": os.cpu_count(),
+                        "device": str(device),
+                    },
+                    "settings": {"repeats": args.repeats, "steps": args.steps, "guidance": 6.0},
+                    "complete": complete,
+                    "tiny": rows,
+                    "expected_2b": big,
+                    "computed_2b": comp,
+                    "measured": measured,
+                },
+                device=str(device),
+            ),
+            indent=2,
+        )
         return atomic_write_bytes(args.json, (result + chr(10)).encode())
 
     measured = None

@@ -37,9 +37,16 @@ import numpy as np  # noqa: E402
 
 #: name -> (steps, guidance interval or None); "s35" is the reference (the paper's 35 steps, guidance everywhere)
 PRESETS = {
-    "s35": (35, None), "s20": (20, None), "s12": (12, None), "s8": (8, None),
-    "s12_iv": (12, (0.3, 1.0)), "s12_iv_mid": (12, (0.3, 0.9)), "s12_iv_low": (12, (0.0, 0.8)),
-    "s12_iv_high": (12, (0.8, 1.0)), "s8_iv": (8, (0.3, 1.0)), "s8_iv_mid": (8, (0.3, 0.9)),
+    "s35": (35, None),
+    "s20": (20, None),
+    "s12": (12, None),
+    "s8": (8, None),
+    "s12_iv": (12, (0.3, 1.0)),
+    "s12_iv_mid": (12, (0.3, 0.9)),
+    "s12_iv_low": (12, (0.0, 0.8)),
+    "s12_iv_high": (12, (0.8, 1.0)),
+    "s8_iv": (8, (0.3, 1.0)),
+    "s8_iv_mid": (8, (0.3, 0.9)),
     "s35_cond": (35, "cond"),
 }
 REFERENCE = "s35"
@@ -52,9 +59,28 @@ CHUNK_FRAMES = 81
 
 def command(clips: str, preds: Path, name: str) -> list[str]:
     steps, iv = PRESETS[name]
-    cmd = [sys.executable, "-m", "oscar_core.cli", "toyworld", "rollout", clips, "--model", "oscar-toy",
-           "--condition", "true", "--limit", "45", "--threads", "1", "--steps", str(steps),
-           "--guidance", "0" if iv == "cond" else str(GUIDANCE), "--out", str(preds / name)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "oscar_core.cli",
+        "toyworld",
+        "rollout",
+        clips,
+        "--model",
+        "oscar-toy",
+        "--condition",
+        "true",
+        "--limit",
+        "45",
+        "--threads",
+        "1",
+        "--steps",
+        str(steps),
+        "--guidance",
+        "0" if iv == "cond" else str(GUIDANCE),
+        "--out",
+        str(preds / name),
+    ]
     if isinstance(iv, tuple):
         cmd += ["--guidance-interval", f"{iv[0]},{iv[1]}"]
     return cmd
@@ -104,39 +130,77 @@ def main() -> int:
         ps = np.array([per[i]["psnr_db"] for i in ids])
         d_iou = iou - np.array([ref[i]["motion_iou"] for i in ids])
         d_ps = ps - np.array([ref[i]["psnr_db"] for i in ids])
-        to_ref = [float(np.mean(np.minimum(psnr(load_video(find_prediction(preds / name, i)),
-                                                load_video(find_prediction(preds / REFERENCE, i)), n_frames=None),
-                                           100.0))) for i in ids]
+        to_ref = [
+            float(
+                np.mean(
+                    np.minimum(
+                        psnr(
+                            load_video(find_prediction(preds / name, i)),
+                            load_video(find_prediction(preds / REFERENCE, i)),
+                            n_frames=None,
+                        ),
+                        100.0,
+                    )
+                )
+            )
+            for i in ids
+        ]
         calls = model_calls(config_of(name))
         tflop = calls * TFLOP_PER_ITEM
-        rows.append({"preset": name, "steps": PRESETS[name][0],
-                     "guidance": "none (conditional branch)" if PRESETS[name][1] == "cond" else
-                     ("every step" if PRESETS[name][1] is None else f"sigma in {list(PRESETS[name][1])}"),
-                     "clips": len(ids), "motion_iou": float(iou.mean()), "d_motion_iou": float(d_iou.mean()),
-                     "d_motion_iou_ci95": paired_interval(d_iou, rng), "psnr_db": float(ps.mean()),
-                     "d_psnr_db": float(d_ps.mean()), "d_psnr_ci95": paired_interval(d_ps, rng),
-                     "psnr_to_reference_db": float(np.mean(to_ref)), "model_calls_per_chunk": calls,
-                     "tflop_per_chunk_2b_computed": tflop,
-                     "h200_frames_per_s_computed": CHUNK_FRAMES / (tflop / GPU_TFLOPS + VAE_S)})
-    head = (f"{'preset':11s} {'steps':>5s} {'guidance':>22s} {'IoU':>6s} {'dIoU [95% CI]':>24s} {'PSNR':>6s} "
-            f"{'dPSNR [95% CI]':>24s} {'to ref':>7s} {'calls':>5s} {'TFLOP':>6s} {'fps*':>5s}")
+        rows.append(
+            {
+                "preset": name,
+                "steps": PRESETS[name][0],
+                "guidance": "none (conditional branch)"
+                if PRESETS[name][1] == "cond"
+                else ("every step" if PRESETS[name][1] is None else f"sigma in {list(PRESETS[name][1])}"),
+                "clips": len(ids),
+                "motion_iou": float(iou.mean()),
+                "d_motion_iou": float(d_iou.mean()),
+                "d_motion_iou_ci95": paired_interval(d_iou, rng),
+                "psnr_db": float(ps.mean()),
+                "d_psnr_db": float(d_ps.mean()),
+                "d_psnr_ci95": paired_interval(d_ps, rng),
+                "psnr_to_reference_db": float(np.mean(to_ref)),
+                "model_calls_per_chunk": calls,
+                "tflop_per_chunk_2b_computed": tflop,
+                "h200_frames_per_s_computed": CHUNK_FRAMES / (tflop / GPU_TFLOPS + VAE_S),
+            }
+        )
+    head = (
+        f"{'preset':11s} {'steps':>5s} {'guidance':>22s} {'IoU':>6s} {'dIoU [95% CI]':>24s} {'PSNR':>6s} "
+        f"{'dPSNR [95% CI]':>24s} {'to ref':>7s} {'calls':>5s} {'TFLOP':>6s} {'fps*':>5s}"
+    )
     print(head)
     for r in rows:
         ci, cp = r["d_motion_iou_ci95"], r["d_psnr_ci95"]
-        print(f"{r['preset']:11s} {r['steps']:5d} {r['guidance']:>22s} {r['motion_iou']:6.3f} "
-              f"{r['d_motion_iou']:+7.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}] {r['psnr_db']:6.2f} "
-              f"{r['d_psnr_db']:+6.2f} [{cp[0]:+.2f}, {cp[1]:+.2f}]   {r['psnr_to_reference_db']:7.2f} "
-              f"{r['model_calls_per_chunk']:5d} {r['tflop_per_chunk_2b_computed']:6.0f} "
-              f"{r['h200_frames_per_s_computed']:5.1f}")
-    print("* frames/s of the 2B on one H200: computed from the FLOPs (576 TFLOP/s compiled + 2.1 s VAE per "
-          "81-frame chunk), not measured")
+        print(
+            f"{r['preset']:11s} {r['steps']:5d} {r['guidance']:>22s} {r['motion_iou']:6.3f} "
+            f"{r['d_motion_iou']:+7.3f} [{ci[0]:+.3f}, {ci[1]:+.3f}] {r['psnr_db']:6.2f} "
+            f"{r['d_psnr_db']:+6.2f} [{cp[0]:+.2f}, {cp[1]:+.2f}]   {r['psnr_to_reference_db']:7.2f} "
+            f"{r['model_calls_per_chunk']:5d} {r['tflop_per_chunk_2b_computed']:6.0f} "
+            f"{r['h200_frames_per_s_computed']:5.1f}"
+        )
+    print(
+        "* frames/s of the 2B on one H200: computed from the FLOPs (576 TFLOP/s compiled + 2.1 s VAE per "
+        "81-frame chunk), not measured"
+    )
     floor = None
     if (preds / "shuffled20").is_dir():  # the skeleton-following floor: another clip's skeleton, 20 steps
         shuffled = evaluate_conditions(args.clips, {"shuffled": str(preds / "shuffled20")}, split="heldout")
         floor = float(np.mean([shuffled["clips"]["shuffled"][i]["motion_iou"] for i in ids]))
-        print(f"floor: a shuffled skeleton (20 steps, guidance everywhere) scores motion IoU {floor:.3f} on these clips")
-    out = {"machine": platform.platform(), "python": sys.version.split()[0], "clips": args.clips,
-           "reference": REFERENCE, "guidance": GUIDANCE, "rows": rows, "shuffled_skeleton_motion_iou": floor}
+        print(
+            f"floor: a shuffled skeleton (20 steps, guidance everywhere) scores motion IoU {floor:.3f} on these clips"
+        )
+    out = {
+        "machine": platform.platform(),
+        "python": sys.version.split()[0],
+        "clips": args.clips,
+        "reference": REFERENCE,
+        "guidance": GUIDANCE,
+        "rows": rows,
+        "shuffled_skeleton_motion_iou": floor,
+    }
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
     print(f"wrote {args.json}")

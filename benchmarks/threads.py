@@ -47,8 +47,9 @@ def _cli(args: list[str], env: dict) -> tuple[float, float, str]:
     """Run ``python -m oscar_core.cli ARGS``; (wall s, CPU s, stderr). Raises with its stderr when it fails."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "oscar_core.cli", *args], capture_output=True, text=True, env=env,
-                          cwd=REPO)
+    proc = subprocess.run(
+        [sys.executable, "-m", "oscar_core.cli", *args], capture_output=True, text=True, env=env, cwd=REPO
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
@@ -71,8 +72,26 @@ def main(argv=None) -> int:
     env = {k: v for k, v in os.environ.items() if k not in ("OSCAR_NUM_THREADS", "OMP_NUM_THREADS")}
     clips = work / "clips"
     if not clips.is_dir():
-        _cli(["-q", "toyworld", "generate", "--embodiments", "toyarm", "--episodes", str(a.clips), "--size", "64x64",
-              "--frames", "17", "--out", str(clips), "--threads", "1"], env)
+        _cli(
+            [
+                "-q",
+                "toyworld",
+                "generate",
+                "--embodiments",
+                "toyarm",
+                "--episodes",
+                str(a.clips),
+                "--size",
+                "64x64",
+                "--frames",
+                "17",
+                "--out",
+                str(clips),
+                "--threads",
+                "1",
+            ],
+            env,
+        )
     load_before = os.getloadavg()
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # `kill` ends the busy processes too (finally below)
     busy = [_busy() for _ in range(a.busy)]
@@ -85,13 +104,40 @@ def main(argv=None) -> int:
                 shutil.rmtree(out, ignore_errors=True)
                 flags = [] if mode == "auto" else ["--threads", mode]
                 load = os.getloadavg()[0]
-                wall, cpu, err = _cli(["-v", "toyworld", "rollout", str(clips), "--model", "oscar-toy", "--out",
-                                       str(out), "--split", "all", "--limit", str(a.clips), *flags], env)
+                wall, cpu, err = _cli(
+                    [
+                        "-v",
+                        "toyworld",
+                        "rollout",
+                        str(clips),
+                        "--model",
+                        "oscar-toy",
+                        "--out",
+                        str(out),
+                        "--split",
+                        "all",
+                        "--limit",
+                        str(a.clips),
+                        *flags,
+                    ],
+                    env,
+                )
                 m = re.search(r"torch threads: (\d+)", err)
-                runs.append({"mode": mode, "repeat": r, "threads": int(m.group(1)) if m else None, "wall_s": wall,
-                             "cpu_s": cpu, "load_1min_at_start": load})
-                print(f"  {mode:>4} (threads {runs[-1]['threads']}): {wall:6.1f} s wall, {cpu:6.1f} CPU-s, "
-                      f"load {load:.1f}", file=sys.stderr)
+                runs.append(
+                    {
+                        "mode": mode,
+                        "repeat": r,
+                        "threads": int(m.group(1)) if m else None,
+                        "wall_s": wall,
+                        "cpu_s": cpu,
+                        "load_1min_at_start": load,
+                    }
+                )
+                print(
+                    f"  {mode:>4} (threads {runs[-1]['threads']}): {wall:6.1f} s wall, {cpu:6.1f} CPU-s, "
+                    f"load {load:.1f}",
+                    file=sys.stderr,
+                )
     finally:
         for b in busy:
             b.kill()
@@ -99,26 +145,47 @@ def main(argv=None) -> int:
     table = []
     for mode in MODES:
         rows = [x for x in runs if x["mode"] == mode]
-        table.append({"mode": mode, "threads": sorted({x["threads"] for x in rows}, key=str),
-                      "wall_s": statistics.median(x["wall_s"] for x in rows),
-                      "cpu_s": statistics.median(x["cpu_s"] for x in rows)})
+        table.append(
+            {
+                "mode": mode,
+                "threads": sorted({x["threads"] for x in rows}, key=str),
+                "wall_s": statistics.median(x["wall_s"] for x in rows),
+                "cpu_s": statistics.median(x["cpu_s"] for x in rows),
+            }
+        )
     best = min(t["wall_s"] for t in table)
     for t in table:
         t["wall_vs_best"] = t["wall_s"] / best
-    print(f"oscar-toy rollout of {a.clips} clips beside {a.busy} busy processes on {os.cpu_count()} CPUs "
-          f"(median of {a.repeats})")
+    print(
+        f"oscar-toy rollout of {a.clips} clips beside {a.busy} busy processes on {os.cpu_count()} CPUs "
+        f"(median of {a.repeats})"
+    )
     print(f"{'mode':>6}  {'threads':>8}  {'wall s':>7}  {'CPU s':>7}  {'wall/best':>9}")
     for t in table:
-        print(f"{t['mode']:>6}  {','.join(map(str, t['threads'])):>8}  {t['wall_s']:7.1f}  {t['cpu_s']:7.1f}  "
-              f"{t['wall_vs_best']:9.2f}")
+        print(
+            f"{t['mode']:>6}  {','.join(map(str, t['threads'])):>8}  {t['wall_s']:7.1f}  {t['cpu_s']:7.1f}  "
+            f"{t['wall_vs_best']:9.2f}"
+        )
     auto = next(t for t in table if t["mode"] == "auto")
     print(f"automatic within 10 % of the best: {'yes' if auto['wall_vs_best'] <= 1.10 else 'no'}")
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps({"machine": {"cpus": os.cpu_count(), "processor": platform.processor(),
-                                             "load_before": load_before, "load_after": os.getloadavg()},
-                                 "settings": {"busy": a.busy, "settle_s": a.settle, "repeats": a.repeats,
-                                              "clips": a.clips},
-                                 "runs": runs, "table": table}, indent=1) + "\n")
+    a.out.write_text(
+        json.dumps(
+            {
+                "machine": {
+                    "cpus": os.cpu_count(),
+                    "processor": platform.processor(),
+                    "load_before": load_before,
+                    "load_after": os.getloadavg(),
+                },
+                "settings": {"busy": a.busy, "settle_s": a.settle, "repeats": a.repeats, "clips": a.clips},
+                "runs": runs,
+                "table": table,
+            },
+            indent=1,
+        )
+        + "\n"
+    )
     print(f"wrote {a.out}")
     return 0
 

@@ -72,6 +72,7 @@ def main() -> int:
 
     fast = per_episode(lambda e, i: make_episode(e, episode_rng(0, e.name, i), 64, 64, 17))
     rows.append(("episode (bounding-box raster)", fast))
+
     # naive raster: same episodes, every primitive over the whole image
     def naive(e, i):
         motion, scene, camera = plan_episode(e, episode_rng(0, e.name, i), 64, 64, 17)
@@ -99,8 +100,14 @@ def main() -> int:
     print(f"bounding-box raster vs naive: {fast / slow:.1f}x; 1 thread vs all cores (motion): {m1 / md:.1f}x")
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "episodes_per_embodiment": n,
-            "size": "64x64", "frames": 17, "torch_default_threads": default_threads}
+    meta = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "episodes_per_embodiment": n,
+        "size": "64x64",
+        "frames": 17,
+        "torch_default_threads": default_threads,
+    }
     out.write_text(json.dumps({"meta": meta, "rows": [{"name": a, "episodes_per_s": b} for a, b in rows]}, indent=2))
     print(f"wrote {out}")
     return 0

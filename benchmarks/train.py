@@ -82,7 +82,7 @@ from pathlib import Path
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
-GIB = 1024 ** 3
+GIB = 1024**3
 
 
 # --------------------------------------------------------------------------- speed
@@ -95,18 +95,39 @@ def _port() -> int:
 def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size: int = 32, workers: int = 0) -> dict:
     import yaml
 
-    cfg = {"run_dir": str(work / name), "steps": steps, "batch_size": 4, "micro_batch": 1, "save_every": steps,
-           "log_every": 1, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-           "data": {"clips": [str(clips)], "window": 9, "width": size, "height": size, "workers": workers},
-           "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0}}
+    cfg = {
+        "run_dir": str(work / name),
+        "steps": steps,
+        "batch_size": 4,
+        "micro_batch": 1,
+        "save_every": steps,
+        "log_every": 1,
+        "export": False,
+        "model": {"transformer": "tiny", "vae": "tiny"},
+        "data": {"clips": [str(clips)], "window": 9, "width": size, "height": size, "workers": workers},
+        "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0},
+    }
     path = work / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     if nproc == 1:
         cmd = [sys.executable, "-m", "oscar_core.train", str(path), "--no-progress"]
     else:
-        cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", str(nproc), "--master-addr",
-               "127.0.0.1", "--master-port", str(_port()), "-m", "oscar_core.train", str(path), "--no-progress"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--nproc-per-node",
+            str(nproc),
+            "--master-addr",
+            "127.0.0.1",
+            "--master-port",
+            str(_port()),
+            "-m",
+            "oscar_core.train",
+            str(path),
+            "--no-progress",
+        ]
     t0 = time.perf_counter()
     out = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
@@ -116,19 +137,26 @@ def _speed_run(work: Path, name: str, clips: Path, steps: int, nproc: int, size:
     rows = [r for r in rows if "loss" in r]
     first, last = rows[0], rows[-1]
     rate = (last["step"] - first["step"]) / (last["elapsed_s"] - first["elapsed_s"])
-    return {"run": name, "processes": nproc, "workers": workers, "steps": steps, "steps_per_s": rate, "wall_s": wall,
-            "final_loss": last["loss"]}
+    return {
+        "run": name,
+        "processes": nproc,
+        "workers": workers,
+        "steps": steps,
+        "steps_per_s": rate,
+        "wall_s": wall,
+        "final_loss": last["loss"],
+    }
 
 
 def speed(steps: int, repeats: int = 3) -> list[dict]:
     from oscar_core.train.synthetic import write_toy_clipset
 
     work = Path(tempfile.mkdtemp(prefix="oscar-train-bench-"))
-    cached = write_toy_clipset(work / "cached", clips=4, frames=13, width=32, height=32, latents_vae="random",
-                               latents_window=9, prompt_dim=48)
+    cached = write_toy_clipset(
+        work / "cached", clips=4, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
+    )
     raw = write_toy_clipset(work / "raw", clips=4, frames=13, width=32, height=32, prompt_dim=48)
-    rows = [_speed_run(work, "cached-1proc", cached, steps, 1),
-            _speed_run(work, "cached-2proc-ddp", cached, steps, 2)]
+    rows = [_speed_run(work, "cached-1proc", cached, steps, 1), _speed_run(work, "cached-2proc-ddp", cached, steps, 2)]
     pair: dict[int, list[dict]] = {0: [], 2: []}
     for r in range(repeats):
         for workers in (0, 2):
@@ -190,11 +218,18 @@ def _saved_bytes_per_token() -> dict:
 
         hook = block.register_forward_pre_hook(grab)
         with torch.no_grad():
-            model(hidden_states=x[:, :16], timestep=torch.full((1, 1, frames, 1, 1), 0.5),
-                  encoder_hidden_states=torch.randn(1, 8, 64), condition_mask=x[:, 16:], return_dict=False)
+            model(
+                hidden_states=x[:, :16],
+                timestep=torch.full((1, 1, frames, 1, 1), 0.5),
+                encoder_hidden_states=torch.randn(1, 8, 64),
+                condition_mask=x[:, 16:],
+                return_dict=False,
+            )
         hook.remove()
-        args = [a.detach().requires_grad_(a.is_floating_point()) if isinstance(a, torch.Tensor) else a
-                for a in captured["args"]]
+        args = [
+            a.detach().requires_grad_(a.is_floating_point()) if isinstance(a, torch.Tensor) else a
+            for a in captured["args"]
+        ]
         with saved_tensors_hooks(pack, lambda t: t), torch.autocast("cpu", dtype=torch.bfloat16):
             out = block(*args)
         out.float().sum().backward()
@@ -203,8 +238,13 @@ def _saved_bytes_per_token() -> dict:
         points.append((n, sum(seen.values()), param_bytes))
     (n0, b0, _), (n1, b1, _) = points[0], points[-1]
     per_token = (b1 - b0) / (n1 - n0)
-    return {"per_token_bytes": per_token, "hidden": D, "points": points, "quadratic_saved": quadratic,
-            "residual_bytes_per_token": 4 * D}
+    return {
+        "per_token_bytes": per_token,
+        "hidden": D,
+        "points": points,
+        "quadratic_saved": quadratic,
+        "residual_bytes_per_token": 4 * D,
+    }
 
 
 def memory_table() -> dict:
@@ -224,19 +264,30 @@ def memory_table() -> dict:
     for n in (1, 2, 4, 8):
         est = estimate_memory(total, block, layers, hidden, tokens, shards=n)
         fused = estimate_memory(total, block, layers, hidden, tokens, shards=n, fused_adamw=True)
-        rows.append({"gpus": n, **{f"{k}_gib": v / GIB for k, v in est.as_dict().items()},
-                     "total_ckpt_fused_adamw_gib": fused.total("full") / GIB,
-                     # the older figures, without autocast's weight copies and AdamW's temporaries
-                     "old_total_ckpt_gib": (est.state + est.gathered + est.activations_full) / GIB,
-                     "old_total_no_ckpt_gib": (est.state + est.gathered + est.activations_none) / GIB})
+        rows.append(
+            {
+                "gpus": n,
+                **{f"{k}_gib": v / GIB for k, v in est.as_dict().items()},
+                "total_ckpt_fused_adamw_gib": fused.total("full") / GIB,
+                # the older figures, without autocast's weight copies and AdamW's temporaries
+                "old_total_ckpt_gib": (est.state + est.gathered + est.activations_full) / GIB,
+                "old_total_no_ckpt_gib": (est.state + est.gathered + est.activations_none) / GIB,
+            }
+        )
     measured = act["per_token_bytes"] / hidden
-    return {"params": total, "block_params": block, "layers": layers, "tokens_per_clip": tokens,
-            "activation_bytes_per_token_per_block": act["per_token_bytes"],
-            "library_bytes_per_token_per_width": ACT_BYTES_PER_TOKEN_PER_WIDTH,
-            "measured_bytes_per_token_per_width": measured,
-            "activations_no_ckpt_gib": rows[0]["activations_none_gib"],
-            "activations_ckpt_gib": rows[0]["activations_full_gib"],
-            "quadratic_saved_tensor": act["quadratic_saved"], "rows": rows}
+    return {
+        "params": total,
+        "block_params": block,
+        "layers": layers,
+        "tokens_per_clip": tokens,
+        "activation_bytes_per_token_per_block": act["per_token_bytes"],
+        "library_bytes_per_token_per_width": ACT_BYTES_PER_TOKEN_PER_WIDTH,
+        "measured_bytes_per_token_per_width": measured,
+        "activations_no_ckpt_gib": rows[0]["activations_none_gib"],
+        "activations_ckpt_gib": rows[0]["activations_full_gib"],
+        "quadratic_saved_tensor": act["quadratic_saved"],
+        "rows": rows,
+    }
 
 
 # --------------------------------------------------------------------------- step table (measured)
@@ -250,7 +301,7 @@ STEP_SIZES = {
 }
 #: first-step loss and gradients of every variant against the reference: largest relative difference allowed
 STEP_TOLERANCE = {"float32": 1e-4, "bfloat16": 5e-2}
-MIB = 2 ** 20
+MIB = 2**20
 
 
 def variant_name(checkpointing: str, compiled: bool) -> str:
@@ -263,9 +314,10 @@ def step_config(size: str, checkpointing: str, compiled: bool):
 
     name = STEP_SIZES[size][0]
     # random weights (no model.init) and the checkpointing policy of the variant
-    return load_config(REPO / "configs" / "train" / name,
-                       {"model.init": None, "model.compile": compiled,
-                        "activation_checkpointing": checkpointing})
+    return load_config(
+        REPO / "configs" / "train" / name,
+        {"model.init": None, "model.compile": compiled, "activation_checkpointing": checkpointing},
+    )
 
 
 def step_batch(config, size: str, text_dim: int):
@@ -280,8 +332,12 @@ def step_batch(config, size: str, text_dim: int):
     d, b = config.data, config.micro_batch
     shape = (b, 16, (d.window - 1) // 4 + 1, d.height // spatial, d.width // spatial)
     g = torch.Generator().manual_seed(0)
-    batch = Batch(z0=torch.randn(shape, generator=g), skeleton=torch.randn(shape, generator=g),
-                  text=torch.randn(b, text_len, text_dim, generator=g), actions=None)
+    batch = Batch(
+        z0=torch.randn(shape, generator=g),
+        skeleton=torch.randn(shape, generator=g),
+        text=torch.randn(b, text_len, text_dim, generator=g),
+        actions=None,
+    )
     sigmas = torch.rand(b, generator=g, dtype=torch.float64).tolist()
     items = [PlanItem(clip=0, start=0, drop=False, sigma=s, noise_seed=1000 + i) for i, s in enumerate(sigmas)]
     return batch, items
@@ -343,12 +399,19 @@ def step_variant(size: str, device: str, checkpointing: str, compiled: bool, war
     # process's, not the step's): the model classes, the checkpoint machinery, dynamo and inductor
     import importlib
 
-    for module in ("diffusers", "torch._dynamo", "torch._inductor.compile_fx", "torch.utils.checkpoint",
-                   "oscar_core.model.latent_action", "oscar_core.model.transformer"):
+    for module in (
+        "diffusers",
+        "torch._dynamo",
+        "torch._inductor.compile_fx",
+        "torch.utils.checkpoint",
+        "oscar_core.model.latent_action",
+        "oscar_core.model.transformer",
+    ):
         importlib.import_module(module)
     if dev.type != "cuda" and config.model.dtype == "bfloat16":
-        raise SystemExit(f"--step-size {size}: its config trains under bf16 autocast, which is for CUDA; "
-                         "run it with --device cuda")
+        raise SystemExit(
+            f"--step-size {size}: its config trains under bf16 autocast, which is for CUDA; run it with --device cuda"
+        )
     with PeakMemory(dev) as build_and_first:
         model = build_transformer(config)
         chosen, why = prepare_for_training(model, config, dev, compression=(4, STEP_SIZES[size][1]))
@@ -394,27 +457,57 @@ def step_variant(size: str, device: str, checkpointing: str, compiled: bool, war
     hidden = int(cfg.num_attention_heads) * int(cfg.attention_head_dim)
     z = batch.z0.shape
     tokens = z[2] * (z[3] // cfg.patch_size[1]) * (z[4] // cfg.patch_size[2])
-    est = estimate_memory(P, sum(p.numel() for p in blocks[0].parameters()), len(blocks), hidden, tokens,
-                          micro_batch=config.micro_batch, bf16_autocast=config.model.dtype == "bfloat16")
+    est = estimate_memory(
+        P,
+        sum(p.numel() for p in blocks[0].parameters()),
+        len(blocks),
+        hidden,
+        tokens,
+        micro_batch=config.micro_batch,
+        bf16_autocast=config.model.dtype == "bfloat16",
+    )
     d = config.data
     return {
-        "variant": variant_name(checkpointing, compiled), "activation_checkpointing": chosen, "why": why,
-        "compile": compiled, "dtype": config.model.dtype, "device": str(dev), "params": P, "layers": len(blocks),
-        "hidden": hidden, "micro_batch": config.micro_batch, "latent_shape": list(z), "tokens_per_clip": tokens,
+        "variant": variant_name(checkpointing, compiled),
+        "activation_checkpointing": chosen,
+        "why": why,
+        "compile": compiled,
+        "dtype": config.model.dtype,
+        "device": str(dev),
+        "params": P,
+        "layers": len(blocks),
+        "hidden": hidden,
+        "micro_batch": config.micro_batch,
+        "latent_shape": list(z),
+        "tokens_per_clip": tokens,
         # what oscar_core.train.memory.model_estimate counts for this config and VAE (must equal tokens_per_clip)
-        "library_tokens_per_clip": tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size), 4,
-                                                   STEP_SIZES[size][1]),
-        "first_step_loss": loss0, "first_step_grad_norm": grad_norm0, "first_step_param_grad_norms": param_norms,
-        "first_step_s": first_s, "first_step_cpu_s": first_cpu, "warmup": warmup, "repeats": repeats,
-        "step_s": times, "step_cpu_s": cpus, "median_step_s": statistics.median(times), "best_step_s": min(times),
+        "library_tokens_per_clip": tokens_per_clip(
+            d.window, d.width, d.height, tuple(cfg.patch_size), 4, STEP_SIZES[size][1]
+        ),
+        "first_step_loss": loss0,
+        "first_step_grad_norm": grad_norm0,
+        "first_step_param_grad_norms": param_norms,
+        "first_step_s": first_s,
+        "first_step_cpu_s": first_cpu,
+        "warmup": warmup,
+        "repeats": repeats,
+        "step_s": times,
+        "step_cpu_s": cpus,
+        "median_step_s": statistics.median(times),
+        "best_step_s": min(times),
         "median_step_cpu_s": statistics.median(cpus),
         "compile_s": max(first_s - statistics.median(times), 0.0) if compiled else None,
-        "peak_bytes": peak, "steady_peak_bytes": steady.peak, "persistent_bytes": steady.base - build_and_first.base,
+        "peak_bytes": peak,
+        "steady_peak_bytes": steady.peak,
+        "persistent_bytes": steady.base - build_and_first.base,
         "saved_activation_bytes": saved,
-        "modelled": {**est.as_dict(), "total": est.total(checkpointing),
-                     # the part of the total a step allocates and frees (all but weights, moments and EMA: 16P)
-                     "transient": est.total(checkpointing) - 16 * P,
-                     "activations": est.activations_full if checkpointing == "full" else est.activations_none},
+        "modelled": {
+            **est.as_dict(),
+            "total": est.total(checkpointing),
+            # the part of the total a step allocates and frees (all but weights, moments and EMA: 16P)
+            "transient": est.total(checkpointing) - 16 * P,
+            "activations": est.activations_full if checkpointing == "full" else est.activations_none,
+        },
     }
 
 
@@ -435,8 +528,15 @@ def _compare(rows: list[dict]) -> list[dict]:
             per = float("inf")
         else:
             per = max((abs(x - y) for x, y in zip(a, b)), default=0.0) / ref["first_step_grad_norm"]
-        out.append({"variant": r["variant"], "loss_rel_diff": loss, "grad_norm_rel_diff": grad,
-                    "param_grad_norm_max_diff": per, "max_diff": max(loss, grad, per)})
+        out.append(
+            {
+                "variant": r["variant"],
+                "loss_rel_diff": loss,
+                "grad_norm_rel_diff": grad,
+                "param_grad_norm_max_diff": per,
+                "max_diff": max(loss, grad, per),
+            }
+        )
     return out
 
 
@@ -455,11 +555,28 @@ def step_table(size: str, device: str, variants, warmup: int, repeats: int, tole
     for ckpt, compiled in variants:
         name = variant_name(ckpt, compiled)
         out = work / f"{name}.json"
-        env = {**os.environ, **MALLOC_ENV, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
-               "TORCHINDUCTOR_CACHE_DIR": str(work / f"inductor-{name}")}
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--step-variant", f"{ckpt},{int(compiled)}",
-               "--step-size", size, "--device", device, "--step-warmup", str(warmup), "--step-repeats", str(repeats),
-               "--json", str(out)]
+        env = {
+            **os.environ,
+            **MALLOC_ENV,
+            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
+            "TORCHINDUCTOR_CACHE_DIR": str(work / f"inductor-{name}"),
+        }
+        cmd = [
+            sys.executable,
+            str(Path(__file__).resolve()),
+            "--step-variant",
+            f"{ckpt},{int(compiled)}",
+            "--step-size",
+            size,
+            "--device",
+            device,
+            "--step-warmup",
+            str(warmup),
+            "--step-repeats",
+            str(repeats),
+            "--json",
+            str(out),
+        ]
         print(f"step table: {name} ...", flush=True)
         proc = sp.run(cmd, capture_output=True, text=True, env=env, check=False)
         if proc.returncode:
@@ -467,24 +584,38 @@ def step_table(size: str, device: str, variants, warmup: int, repeats: int, tole
         rows.append(json.loads(out.read_text()))
     measured = [r for r in rows if not r.get("out_of_memory")]
     if not measured:
-        raise RuntimeError(f"step table: every variant ran out of {device} memory: "
-                           + "; ".join(f"{r['variant']}: {r['error']}" for r in rows))
+        raise RuntimeError(
+            f"step table: every variant ran out of {device} memory: "
+            + "; ".join(f"{r['variant']}: {r['error']}" for r in rows)
+        )
     dtype = measured[0]["dtype"]
     tol = STEP_TOLERANCE[dtype] if tolerance is None else tolerance
     checks = _compare(rows)
     bad = [c["variant"] for c in checks if not c["max_diff"] <= tol]
-    return {"size": size, "device": device, "dtype": dtype, "tolerance": tol, "variants": rows, "agreement": checks,
-            "max_diff": max(c["max_diff"] for c in checks), "disagreeing": bad,
-            "out_of_memory": [r["variant"] for r in rows if r.get("out_of_memory")]}
+    return {
+        "size": size,
+        "device": device,
+        "dtype": dtype,
+        "tolerance": tol,
+        "variants": rows,
+        "agreement": checks,
+        "max_diff": max(c["max_diff"] for c in checks),
+        "disagreeing": bad,
+        "out_of_memory": [r["variant"] for r in rows if r.get("out_of_memory")],
+    }
 
 
 def print_step_table(t: dict) -> None:
     r0 = next(r for r in t["variants"] if not r.get("out_of_memory"))
-    print(f"\nTraining step, --step-size {t['size']} on {t['device']} ({t['dtype']}; {r0['params'] / 1e6:.2f} M "
-          f"parameters, {r0['layers']} blocks, hidden {r0['hidden']}; micro-batch {r0['micro_batch']} x "
-          f"{r0['tokens_per_clip']} tokens; MEASURED)")
-    print(f"{'variant':<13} {'median ms':>9} {'best ms':>8} {'CPU s':>6} {'compile s':>9} {'peak MiB':>8} "
-          f"{'(model)':>8} {'step MiB':>8} {'(model)':>8} {'saved MiB':>9} {'(model)':>8} {'max diff':>9}")
+    print(
+        f"\nTraining step, --step-size {t['size']} on {t['device']} ({t['dtype']}; {r0['params'] / 1e6:.2f} M "
+        f"parameters, {r0['layers']} blocks, hidden {r0['hidden']}; micro-batch {r0['micro_batch']} x "
+        f"{r0['tokens_per_clip']} tokens; MEASURED)"
+    )
+    print(
+        f"{'variant':<13} {'median ms':>9} {'best ms':>8} {'CPU s':>6} {'compile s':>9} {'peak MiB':>8} "
+        f"{'(model)':>8} {'step MiB':>8} {'(model)':>8} {'saved MiB':>9} {'(model)':>8} {'max diff':>9}"
+    )
     agreement = {c["variant"]: c for c in t["agreement"]}
     for r in t["variants"]:
         if r.get("out_of_memory"):
@@ -493,17 +624,21 @@ def print_step_table(t: dict) -> None:
         c, m = agreement[r["variant"]], r["modelled"]
         comp = f"{r['compile_s']:.1f}" if r["compile_s"] is not None else "-"
         saved = f"{r['saved_activation_bytes'] / MIB:.1f}" if r["saved_activation_bytes"] is not None else "-"
-        print(f"{r['variant']:<13} {1e3 * r['median_step_s']:>9.1f} {1e3 * r['best_step_s']:>8.1f} "
-              f"{r['median_step_cpu_s']:>6.2f} {comp:>9} {r['peak_bytes'] / MIB:>8.1f} {m['total'] / MIB:>8.1f} "
-              f"{r['steady_peak_bytes'] / MIB:>8.1f} {m['transient'] / MIB:>8.1f} {saved:>9} "
-              f"{m['activations'] / MIB:>8.1f} {c['max_diff']:>9.1e}")
-    print("median/best ms: wall per step after warm-up; CPU s: process CPU seconds per step (median); compile s: the "
-          "first step's extra time; peak MiB: above the level before the variant (the model built, first step and "
-          "compile included) beside oscar_core.train.memory's total; step MiB: peak during the timed steps above "
-          "the state kept between them, beside the model's total less 16P (weights, AdamW moments, EMA); saved MiB: "
-          "non-parameter bytes autograd saves in one forward (counted, eager only; under full, the checkpointed "
-          "blocks' insides are not saved) beside the model's activations; max diff: first-step loss and gradient "
-          f"norms against {r0['variant']} (relative; tolerance {t['tolerance']:.0e})")
+        print(
+            f"{r['variant']:<13} {1e3 * r['median_step_s']:>9.1f} {1e3 * r['best_step_s']:>8.1f} "
+            f"{r['median_step_cpu_s']:>6.2f} {comp:>9} {r['peak_bytes'] / MIB:>8.1f} {m['total'] / MIB:>8.1f} "
+            f"{r['steady_peak_bytes'] / MIB:>8.1f} {m['transient'] / MIB:>8.1f} {saved:>9} "
+            f"{m['activations'] / MIB:>8.1f} {c['max_diff']:>9.1e}"
+        )
+    print(
+        "median/best ms: wall per step after warm-up; CPU s: process CPU seconds per step (median); compile s: the "
+        "first step's extra time; peak MiB: above the level before the variant (the model built, first step and "
+        "compile included) beside oscar_core.train.memory's total; step MiB: peak during the timed steps above "
+        "the state kept between them, beside the model's total less 16P (weights, AdamW moments, EMA); saved MiB: "
+        "non-parameter bytes autograd saves in one forward (counted, eager only; under full, the checkpointed "
+        "blocks' insides are not saved) beside the model's activations; max diff: first-step loss and gradient "
+        f"norms against {r0['variant']} (relative; tolerance {t['tolerance']:.0e})"
+    )
 
 
 # --------------------------------------------------------------------------- report
@@ -514,20 +649,36 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-speed", action="store_true", help="only the computed memory table")
     ap.add_argument("--skip-memory", action="store_true", help="only the measured speed table")
     ap.add_argument("--repeats", type=int, default=3, help="alternating repeats of the on-the-fly pair (median)")
-    st = ap.add_argument_group("step table (--step-table: only this section; JSON default "
-                               "benchmarks/results/train_step.json)")
-    st.add_argument("--step-table", action="store_true", help="measure one training step for activation "
-                    "checkpointing none/full x model.compile false/true")
-    st.add_argument("--step-size", choices=sorted(STEP_SIZES), default="toy",
-                    help="tiny (the test), toy (oscar-toy's config, the default), 2b (CUDA only)")
+    st = ap.add_argument_group(
+        "step table (--step-table: only this section; JSON default benchmarks/results/train_step.json)"
+    )
+    st.add_argument(
+        "--step-table",
+        action="store_true",
+        help="measure one training step for activation checkpointing none/full x model.compile false/true",
+    )
+    st.add_argument(
+        "--step-size",
+        choices=sorted(STEP_SIZES),
+        default="toy",
+        help="tiny (the test), toy (oscar-toy's config, the default), 2b (CUDA only)",
+    )
     st.add_argument("--device", default="cpu", help="cpu (default) or cuda")
     st.add_argument("--step-warmup", type=int, default=1, help="untimed steps after the first (default 1)")
     st.add_argument("--step-repeats", type=int, default=5, help="timed steps per variant (default 5)")
-    st.add_argument("--step-variants", default="none,full,none+compile,full+compile",
-                    help="comma list among none, full, none+compile, full+compile (the first is the reference)")
-    st.add_argument("--step-tolerance", type=float, default=None, help="largest relative first-step difference "
-                    f"against the reference (default {STEP_TOLERANCE['float32']:g} float32, "
-                    f"{STEP_TOLERANCE['bfloat16']:g} bf16)")
+    st.add_argument(
+        "--step-variants",
+        default="none,full,none+compile,full+compile",
+        help="comma list among none, full, none+compile, full+compile (the first is the reference)",
+    )
+    st.add_argument(
+        "--step-tolerance",
+        type=float,
+        default=None,
+        help="largest relative first-step difference "
+        f"against the reference (default {STEP_TOLERANCE['float32']:g} float32, "
+        f"{STEP_TOLERANCE['bfloat16']:g} bf16)",
+    )
     st.add_argument("--step-variant", default=None, help=argparse.SUPPRESS)  # internal: one variant, in a child
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
@@ -535,8 +686,7 @@ def main(argv=None) -> int:
         return _step_main(args, ap)
     if args.json is None:
         args.json = str(REPO / "benchmarks" / "results" / "train.json")
-    result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-              "torch": torch.__version__}
+    result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(), "torch": torch.__version__}
     if not args.skip_speed:
         runs = speed(args.steps, args.repeats)
         result["speed"] = runs
@@ -544,35 +694,53 @@ def main(argv=None) -> int:
         print("\nTiny config, CPU, global batch 4 (measured; one thread per process)")
         print(f"{'run':<20} {'procs':>5} {'steps/s':>8} {'vs 1 proc cached':>17} {'final loss':>10}")
         for r in runs:
-            print(f"{r['run']:<20} {r['processes']:>5} {r['steps_per_s']:>8.2f} {r['steps_per_s'] / base:>16.2f}x "
-                  f"{r['final_loss']:>10.4f}" + (f"  (median of {', '.join(f'{v:.2f}' for v in r['repeats_steps_per_s'])})"
-                                                 if "repeats_steps_per_s" in r else ""))
+            print(
+                f"{r['run']:<20} {r['processes']:>5} {r['steps_per_s']:>8.2f} {r['steps_per_s'] / base:>16.2f}x "
+                f"{r['final_loss']:>10.4f}"
+                + (
+                    f"  (median of {', '.join(f'{v:.2f}' for v in r['repeats_steps_per_s'])})"
+                    if "repeats_steps_per_s" in r
+                    else ""
+                )
+            )
     if args.skip_memory:
         return _write(result, args.json)
     mem = memory_table()
     result["memory"] = mem
-    print("\nOSCAR-2B training memory per GPU, FSDP2, AdamW + EMA, bf16 autocast (COMPUTED, not measured: no GPU "
-          "here; oscar_core.train.memory)")
-    print(f"parameters {mem['params'] / 1e9:.3f} B; {mem['tokens_per_clip']} tokens per 81-frame 512x288 clip; "
-          f"{mem['activation_bytes_per_token_per_block']:.0f} saved bytes/token/block measured now "
-          f"({mem['measured_bytes_per_token_per_width']:.1f} per unit of width; the library uses "
-          f"{mem['library_bytes_per_token_per_width']:.1f})")
+    print(
+        "\nOSCAR-2B training memory per GPU, FSDP2, AdamW + EMA, bf16 autocast (COMPUTED, not measured: no GPU "
+        "here; oscar_core.train.memory)"
+    )
+    print(
+        f"parameters {mem['params'] / 1e9:.3f} B; {mem['tokens_per_clip']} tokens per 81-frame 512x288 clip; "
+        f"{mem['activation_bytes_per_token_per_block']:.0f} saved bytes/token/block measured now "
+        f"({mem['measured_bytes_per_token_per_width']:.1f} per unit of width; the library uses "
+        f"{mem['library_bytes_per_token_per_width']:.1f})"
+    )
     drift = abs(mem["measured_bytes_per_token_per_width"] / mem["library_bytes_per_token_per_width"] - 1)
     if drift > 0.05:
         print(f"WARNING: the measured activation constant differs from oscar_core.train.memory's by {drift:.0%}")
-    print(f"activations per clip: {mem['activations_no_ckpt_gib']:.1f} GiB without checkpointing, "
-          f"{mem['activations_ckpt_gib']:.1f} GiB with (a tokens x tokens saved tensor: "
-          f"{'yes' if mem['quadratic_saved_tensor'] else 'none'})")
-    print(f"{'GPUs':>4} {'state':>6} {'bf16 w':>6} {'AdamW tmp':>9} {'gather':>6} {'total none':>10} "
-          f"{'total full':>10} {'full+fused':>10} {'old full':>8}  fits 80 GB (full / none)")
+    print(
+        f"activations per clip: {mem['activations_no_ckpt_gib']:.1f} GiB without checkpointing, "
+        f"{mem['activations_ckpt_gib']:.1f} GiB with (a tokens x tokens saved tensor: "
+        f"{'yes' if mem['quadratic_saved_tensor'] else 'none'})"
+    )
+    print(
+        f"{'GPUs':>4} {'state':>6} {'bf16 w':>6} {'AdamW tmp':>9} {'gather':>6} {'total none':>10} "
+        f"{'total full':>10} {'full+fused':>10} {'old full':>8}  fits 80 GB (full / none)"
+    )
     for r in mem["rows"]:
         fits = lambda g: "yes" if g * GIB < 80e9 * 0.95 else "no"  # noqa: E731 - 5 % for the allocator and CUDA
-        print(f"{r['gpus']:>4} {r['state_gib']:>6.1f} {r['autocast_weights_gib']:>6.1f} "
-              f"{r['optimizer_temporaries_gib']:>9.1f} {r['gathered_gib']:>6.2f} {r['total_none_gib']:>10.1f} "
-              f"{r['total_full_gib']:>10.1f} {r['total_ckpt_fused_adamw_gib']:>10.1f} {r['old_total_ckpt_gib']:>8.1f}  "
-              f"{fits(r['total_full_gib'])} / {fits(r['total_none_gib'])}")
-    print("GiB per GPU; bf16 w: autocast's cached bf16 weight copies (whole model, an upper bound under FSDP); "
-          "AdamW tmp: the foreach step's fp32 temporary (0 with fused=True); old full: the table before these two")
+        print(
+            f"{r['gpus']:>4} {r['state_gib']:>6.1f} {r['autocast_weights_gib']:>6.1f} "
+            f"{r['optimizer_temporaries_gib']:>9.1f} {r['gathered_gib']:>6.2f} {r['total_none_gib']:>10.1f} "
+            f"{r['total_full_gib']:>10.1f} {r['total_ckpt_fused_adamw_gib']:>10.1f} {r['old_total_ckpt_gib']:>8.1f}  "
+            f"{fits(r['total_full_gib'])} / {fits(r['total_none_gib'])}"
+        )
+    print(
+        "GiB per GPU; bf16 w: autocast's cached bf16 weight copies (whole model, an upper bound under FSDP); "
+        "AdamW tmp: the foreach step's fp32 temporary (0 with fused=True); old full: the table before these two"
+    )
     return _write(result, args.json)
 
 
@@ -582,21 +750,29 @@ def _step_main(args, ap) -> int:
     if device not in ("cpu", "cuda"):
         ap.error(f"--device: expected cpu or cuda, found {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
-        print("benchmarks/train.py: --device cuda: CUDA is not available here (torch.cuda.is_available() is False); "
-              "run the GPU sizes on a machine with a GPU, or use --device cpu", file=sys.stderr)
+        print(
+            "benchmarks/train.py: --device cuda: CUDA is not available here (torch.cuda.is_available() is False); "
+            "run the GPU sizes on a machine with a GPU, or use --device cpu",
+            file=sys.stderr,
+        )
         return 2
     if args.step_size == "2b" and device != "cuda":
-        print("benchmarks/train.py: --step-size 2b: the 2B recipe trains under bf16 autocast on a GPU "
-              "(81 frames 512x288); run it with --device cuda", file=sys.stderr)
+        print(
+            "benchmarks/train.py: --step-size 2b: the 2B recipe trains under bf16 autocast on a GPU "
+            "(81 frames 512x288); run it with --device cuda",
+            file=sys.stderr,
+        )
         return 2
     if args.step_variant:  # a child: one variant, its row as JSON
         ckpt, compiled = args.step_variant.split(",")
         try:
-            row = step_variant(args.step_size, device, ckpt, bool(int(compiled)), args.step_warmup,
-                               args.step_repeats)
+            row = step_variant(args.step_size, device, ckpt, bool(int(compiled)), args.step_warmup, args.step_repeats)
         except torch.cuda.OutOfMemoryError as exc:  # a row that says so: the other variants still measure
-            row = {"variant": variant_name(ckpt, bool(int(compiled))), "out_of_memory": True,
-                   "error": str(exc).splitlines()[0]}
+            row = {
+                "variant": variant_name(ckpt, bool(int(compiled))),
+                "out_of_memory": True,
+                "error": str(exc).splitlines()[0],
+            }
         return _write(row, args.json, quiet=True)
     names = {variant_name(c, k): (c, k) for c, k in STEP_VARIANTS}
     chosen = [v.strip() for v in args.step_variants.split(",") if v.strip()]
@@ -605,17 +781,25 @@ def _step_main(args, ap) -> int:
         ap.error(f"--step-variants: expected a comma list among {', '.join(names)}, found {args.step_variants!r}")
     if args.step_repeats < 1 or args.step_warmup < 0:
         ap.error("--step-repeats: expected >= 1 and --step-warmup >= 0")
-    table = step_table(args.step_size, device, [names[v] for v in chosen], args.step_warmup, args.step_repeats,
-                       args.step_tolerance)
-    result = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-              "torch": torch.__version__, "step_table": table}
+    table = step_table(
+        args.step_size, device, [names[v] for v in chosen], args.step_warmup, args.step_repeats, args.step_tolerance
+    )
+    result = {
+        "machine": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(),
+        "torch": torch.__version__,
+        "step_table": table,
+    }
     print_step_table(table)
     _write(result, args.json or REPO / "benchmarks" / "results" / "train_step.json", device=device)
     if table["disagreeing"]:
         worst = {c["variant"]: c["max_diff"] for c in table["agreement"]}
-        print("benchmarks/train.py: FAILED: first-step loss or gradients differ from "
-              f"{table['agreement'][0]['variant']} beyond {table['tolerance']:.0e} in "
-              + ", ".join(f"{v} ({worst[v]:.2e})" for v in table["disagreeing"]), file=sys.stderr)
+        print(
+            "benchmarks/train.py: FAILED: first-step loss or gradients differ from "
+            f"{table['agreement'][0]['variant']} beyond {table['tolerance']:.0e} in "
+            + ", ".join(f"{v} ({worst[v]:.2e})" for v in table["disagreeing"]),
+            file=sys.stderr,
+        )
         return 1
     return 0
 

@@ -22,15 +22,23 @@ from pathlib import Path
 WAYS = {
     "oscar zoo list": [sys.executable, "-m", "oscar_core.cli", "zoo", "list"],
     "naive: torch + diffusers imported first": [
-        sys.executable, "-c", "import torch, diffusers, sys; from oscar_core.cli import main; sys.exit(main(['zoo', 'list']))"],
+        sys.executable,
+        "-c",
+        "import torch, diffusers, sys; from oscar_core.cli import main; sys.exit(main(['zoo', 'list']))",
+    ],
 }
 
 
 def _one(cmd) -> tuple[float, float]:
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                   env={**os.environ, "OMP_NUM_THREADS": "1"})
+    subprocess.run(
+        cmd,
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -45,9 +53,16 @@ def main() -> int:
     for _ in range(args.repeats):
         for name, cmd in WAYS.items():
             runs[name].append(_one(cmd))
-    rows = [{"way": name, "repeats": args.repeats, "wall_s_median": statistics.median(w for w, _ in r),
-             "cpu_s_median": statistics.median(c for _, c in r), "wall_s_max": max(w for w, _ in r)}
-            for name, r in runs.items()]
+    rows = [
+        {
+            "way": name,
+            "repeats": args.repeats,
+            "wall_s_median": statistics.median(w for w, _ in r),
+            "cpu_s_median": statistics.median(c for _, c in r),
+            "wall_s_max": max(w for w, _ in r),
+        }
+        for name, r in runs.items()
+    ]
     print(f"{'way':<42} {'wall s (median)':>16} {'wall s (max)':>13} {'CPU s (median)':>15}")
     for r in rows:
         print(f"{r['way']:<42} {r['wall_s_median']:>16.3f} {r['wall_s_max']:>13.3f} {r['cpu_s_median']:>15.3f}")

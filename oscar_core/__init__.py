@@ -14,31 +14,59 @@ __version__ = "0.1.0"
 
 _EXPORTS = {
     # plugin contract
-    "hookimpl": "plugin.hookspecs", "hookspec": "plugin.hookspecs",
-    "Embodiment": "plugin.embodiment", "Gripper": "plugin.embodiment", "CameraSpec": "plugin.embodiment",
-    "SkeletonFrames": "plugin.embodiment", "JointLimitWarning": "plugin.embodiment",
+    "hookimpl": "plugin.hookspecs",
+    "hookspec": "plugin.hookspecs",
+    "Embodiment": "plugin.embodiment",
+    "Gripper": "plugin.embodiment",
+    "CameraSpec": "plugin.embodiment",
+    "SkeletonFrames": "plugin.embodiment",
+    "JointLimitWarning": "plugin.embodiment",
     "DefaultPoseWarning": "plugin.embodiment",
     "Skeleton": "plugin.skeleton",
-    "Registry": "plugin.registry", "default_registry": "plugin.registry", "get_embodiment": "plugin.registry",
+    "Registry": "plugin.registry",
+    "default_registry": "plugin.registry",
+    "get_embodiment": "plugin.registry",
     # kinematics
-    "KinematicTree": "kinematics.urdf", "build_tree_from_urdf": "kinematics.urdf", "build_tree_from_xacro": "kinematics.urdf",
+    "KinematicTree": "kinematics.urdf",
+    "build_tree_from_urdf": "kinematics.urdf",
+    "build_tree_from_xacro": "kinematics.urdf",
     "ForwardKinematics": "kinematics.fk_torch",
     # trajectories and cameras
-    "Trajectory": "kinematics.trajectory", "load_trajectory": "kinematics.trajectory", "save_trajectory": "kinematics.trajectory",
-    "interpolate_keyframes": "kinematics.trajectory", "look_at": "camera",
-    "Camera": "camera", "Intrinsics": "camera", "load_camera": "camera", "save_camera": "camera", "project": "camera",
+    "Trajectory": "kinematics.trajectory",
+    "load_trajectory": "kinematics.trajectory",
+    "save_trajectory": "kinematics.trajectory",
+    "interpolate_keyframes": "kinematics.trajectory",
+    "look_at": "camera",
+    "Camera": "camera",
+    "Intrinsics": "camera",
+    "load_camera": "camera",
+    "save_camera": "camera",
+    "project": "camera",
     # rendering and video
-    "SkeletonStyle": "render.raster", "GripperMarks": "render.raster", "rasterise": "render.raster",
-    "render_skeleton_video": "render.skeleton_video", "overlay_skeleton": "render.skeleton_video",
-    "render_mesh_video": "render.mesh", "MeshStyle": "render.mesh", "VisualGeometry": "kinematics.visual",
+    "SkeletonStyle": "render.raster",
+    "GripperMarks": "render.raster",
+    "rasterise": "render.raster",
+    "render_skeleton_video": "render.skeleton_video",
+    "overlay_skeleton": "render.skeleton_video",
+    "render_mesh_video": "render.mesh",
+    "MeshStyle": "render.mesh",
+    "VisualGeometry": "kinematics.visual",
     "LinkGeometry": "kinematics.visual",
-    "write_video": "media.video", "read_video": "media.video",
+    "write_video": "media.video",
+    "read_video": "media.video",
     # errors
-    "OscarError": "errors", "InputFileError": "errors", "CameraFileError": "errors", "KinematicsFileError": "errors",
-    "TrajectoryError": "errors", "OutputPathError": "errors", "PluginError": "errors",
+    "OscarError": "errors",
+    "InputFileError": "errors",
+    "CameraFileError": "errors",
+    "KinematicsFileError": "errors",
+    "TrajectoryError": "errors",
+    "OutputPathError": "errors",
+    "PluginError": "errors",
 }
 
-if TYPE_CHECKING:  # the same names, imported eagerly for type checkers only (tests/test_public_api.py keeps them in step)
+if (
+    TYPE_CHECKING
+):  # the same names, imported eagerly for type checkers only (tests/test_public_api.py keeps them in step)
     from .camera import (
         Camera as Camera,
         Intrinsics as Intrinsics,

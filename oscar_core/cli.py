@@ -55,9 +55,17 @@ def cmd_embodiments(args) -> int:
         print(json.dumps({"embodiments": rows, "failures": failures}, indent=2))
         return 0
     header = ("name", "joints", "grippers", "datasets", "license", "distribution")
-    table = [header] + [(r["name"], str(r.get("joints", "?")), ",".join(r.get("grippers", [])) or "-",
-                         ",".join(r.get("datasets", [])) or "-", r.get("license") or "-",
-                         f"{r['distribution']} {r['version']}".strip()) for r in rows]
+    table = [header] + [
+        (
+            r["name"],
+            str(r.get("joints", "?")),
+            ",".join(r.get("grippers", [])) or "-",
+            ",".join(r.get("datasets", [])) or "-",
+            r.get("license") or "-",
+            f"{r['distribution']} {r['version']}".strip(),
+        )
+        for r in rows
+    ]
     widths = [max(len(row[i]) for row in table) for i in range(len(header))]
     for row in table:
         print("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip())
@@ -74,21 +82,37 @@ def cmd_demo(args) -> int:
     from .plugin.registry import Registry
     from .render.skeleton_video import parse_size
 
-    run_demo(args.out, size=parse_size(args.size), registry=Registry(plugin_paths=args.plugin or ()),
-             toy_model=None if args.no_toy_world else args.toy_model)
+    run_demo(
+        args.out,
+        size=parse_size(args.size),
+        registry=Registry(plugin_paths=args.plugin or ()),
+        toy_model=None if args.no_toy_world else args.toy_model,
+    )
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="oscar", description="Skeleton videos for any robot body, and the OSCAR world model.",
-                                epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--plugin", action="append", metavar="PATH",
-                   help="load a one-file plugin (.py) or a folder of them; repeatable (also: OSCAR_PLUGINS)")
+    p = argparse.ArgumentParser(
+        prog="oscar",
+        description="Skeleton videos for any robot body, and the OSCAR world model.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--plugin",
+        action="append",
+        metavar="PATH",
+        help="load a one-file plugin (.py) or a folder of them; repeatable (also: OSCAR_PLUGINS)",
+    )
     _add_output_flags(p, None)
     sub = p.add_subparsers(dest="command", required=True)
 
-    e = sub.add_parser("embodiments", help="list installed embodiments",
-                       epilog="example: oscar embodiments --json", formatter_class=argparse.RawDescriptionHelpFormatter)
+    e = sub.add_parser(
+        "embodiments",
+        help="list installed embodiments",
+        epilog="example: oscar embodiments --json",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e.set_defaults(func=cmd_embodiments)
 
@@ -99,12 +123,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_calibrate_parser(sub)
 
-    d = sub.add_parser("demo", help="render every embodiment's bundled example and roll the toy world model out "
-                                    "(MP4s + contact sheet)")
+    d = sub.add_parser(
+        "demo", help="render every embodiment's bundled example and roll the toy world model out (MP4s + contact sheet)"
+    )
     output_option(d.add_argument("--out", default="demo_out", help="output folder (default demo_out)"), "folder")
     d.add_argument("--size", default="512x288", help="output WIDTHxHEIGHT (default 512x288)")
-    d.add_argument("--toy-model", default="oscar-toy", help="toy-world model rolled out on a held-out episode "
-                                                             "(default oscar-toy, bundled)")
+    d.add_argument(
+        "--toy-model",
+        default="oscar-toy",
+        help="toy-world model rolled out on a held-out episode (default oscar-toy, bundled)",
+    )
     d.add_argument("--no-toy-world", action="store_true", help="skip the toy-world rollout")
     d.set_defaults(func=cmd_demo)
 
@@ -125,8 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_toyworld_parser(sub)
     for leaf in _leaves(p):
         _add_output_flags(leaf, argparse.SUPPRESS)
-        leaf.set_defaults(_outputs=tuple((a.dest, output_kind(a)) for a in leaf._actions if output_kind(a)),
-                          _threads=any(getattr(a, "oscar_threads", False) for a in leaf._actions))
+        leaf.set_defaults(
+            _outputs=tuple((a.dest, output_kind(a)) for a in leaf._actions if output_kind(a)),
+            _threads=any(getattr(a, "oscar_threads", False) for a in leaf._actions),
+        )
     from ._util.cli_examples import own_examples
 
     own_examples(p)  # a sub-command's --help shows its own examples, not its group's
@@ -155,18 +185,32 @@ def _add_output_flags(parser: argparse.ArgumentParser, default) -> None:
     """
     have = {opt for a in parser._actions for opt in a.option_strings}
     if "-v" not in have:
-        parser.add_argument("-v", "--verbose", action="count", default=0 if default is None else default,
-                            help="more output: debug lines (logging level DEBUG)")
+        parser.add_argument(
+            "-v",
+            "--verbose",
+            action="count",
+            default=0 if default is None else default,
+            help="more output: debug lines (logging level DEBUG)",
+        )
     if "-q" not in have:
-        parser.add_argument("-q", "--quiet", action="count", default=0 if default is None else default,
-                            help="less output: -q warnings and results only, -qq errors and results only")
+        parser.add_argument(
+            "-q",
+            "--quiet",
+            action="count",
+            default=0 if default is None else default,
+            help="less output: -q warnings and results only, -qq errors and results only",
+        )
     if "--no-progress" in have:
         for a in parser._actions:  # `render` has its own --progress/--no-progress (dest "progress"): left alone
             if "--no-progress" in a.option_strings and a.dest == "no_progress":
                 a.default = argparse.SUPPRESS
     else:
-        parser.add_argument("--no-progress", action="store_true", default=False if default is None else default,
-                            help="no progress bars (they are also off when stderr is not a terminal)")
+        parser.add_argument(
+            "--no-progress",
+            action="store_true",
+            default=False if default is None else default,
+            help="no progress bars (they are also off when stderr is not a terminal)",
+        )
 
 
 def _leaves(parser: argparse.ArgumentParser):
@@ -227,8 +271,10 @@ def main(argv=None) -> int:
         except MemoryError as exc:
             # numpy says "Unable to allocate 596. GiB for an array with shape …": one line, not a traceback
             detail = str(exc) or "an allocation failed"
-            print(f"error: out of memory: {detail}; a smaller --size, fewer frames or fewer workers need less",
-                  file=sys.stderr)
+            print(
+                f"error: out of memory: {detail}; a smaller --size, fewer frames or fewer workers need less",
+                file=sys.stderr,
+            )
             return 2
         except BrokenPipeError:
             # the reader went away (`oscar ... | head`): stop quietly; point stdout at

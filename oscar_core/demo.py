@@ -19,8 +19,13 @@ from .render.skeleton_video import render_skeleton_video
 __all__ = ["run_demo", "contact_sheet"]
 
 
-def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4, labels: list[str] | None = None,
-                  panels: list[Sequence[str] | None] | None = None) -> np.ndarray:
+def contact_sheet(
+    rows: list[np.ndarray],
+    columns: int = 4,
+    gap: int = 4,
+    labels: list[str] | None = None,
+    panels: list[Sequence[str] | None] | None = None,
+) -> np.ndarray:
     """One PNG-ready image: per row, ``columns`` evenly spaced frames of a (T, H, W, 3) video.
 
     Rows of different sizes are placed on a grid of the largest frame size.
@@ -53,16 +58,32 @@ def contact_sheet(rows: list[np.ndarray], columns: int = 4, gap: int = 4, labels
         for j, t in enumerate(picks):
             f = video[t]
             x = band + gap + j * (W + gap)
-            sheet[y:y + f.shape[0], x:x + f.shape[1]] = f
+            sheet[y : y + f.shape[0], x : x + f.shape[1]] = f
             for k, name in enumerate(panels[i] or ()):  # centred under panel k of the frame
                 (tw, th), _ = cv2.getTextSize(name, font, font_scale * 0.8, 1)
                 cx = x + int((k + 0.5) * f.shape[1] / len(panels[i]))
-                cv2.putText(sheet, name, (cx - tw // 2, y + f.shape[0] + gap + th), font, font_scale * 0.8,
-                            (230, 230, 230), 1, cv2.LINE_AA)
+                cv2.putText(
+                    sheet,
+                    name,
+                    (cx - tw // 2, y + f.shape[0] + gap + th),
+                    font,
+                    font_scale * 0.8,
+                    (230, 230, 230),
+                    1,
+                    cv2.LINE_AA,
+                )
         if labels is not None:
             (tw, th), _ = cv2.getTextSize(labels[i], font, font_scale, 1)
-            cv2.putText(sheet, labels[i], (gap, y + (video.shape[1] + th) // 2), font, font_scale,
-                        (230, 230, 230), 1, cv2.LINE_AA)
+            cv2.putText(
+                sheet,
+                labels[i],
+                (gap, y + (video.shape[1] + th) // 2),
+                font,
+                font_scale,
+                (230, 230, 230),
+                1,
+                cv2.LINE_AA,
+            )
     return sheet
 
 
@@ -92,12 +113,20 @@ def _toy_world_row(out_dir: Path, toy_model, registry, rows, labels, panels, sum
     labels.append("oscar-toy")
     panels.append(TOY_PANELS)
     summary["toy_world"] = info
-    log(f"toy world: {info['model']} rolled out on held-out episode {info['episode']} in {info['rollout_seconds']:.1f} s "
-        f"(PSNR {info['psnr_db']:.1f} dB) -> {info['path']} (rollout | ground truth | skeleton)")
+    log(
+        f"toy world: {info['model']} rolled out on held-out episode {info['episode']} in {info['rollout_seconds']:.1f} s "
+        f"(PSNR {info['psnr_db']:.1f} dB) -> {info['path']} (rollout | ground truth | skeleton)"
+    )
 
 
-def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: Registry | None = None,
-             names: list[str] | None = None, log=print, toy_model: str | None = "oscar-toy") -> dict:
+def run_demo(
+    out_dir: str | Path,
+    size: tuple[int, int] = (512, 288),
+    registry: Registry | None = None,
+    names: list[str] | None = None,
+    log=print,
+    toy_model: str | None = "oscar-toy",
+) -> dict:
     """Render each embodiment's bundled example to ``out_dir/<name>.mp4`` plus ``contact_sheet.png``.
 
     toy_model: also roll this toy-world model (zoo name or folder) out on a
@@ -111,8 +140,9 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, labels, panels, summary = [], [], [], {"size": list(size), "videos": [], "skipped": []}
     for failure in registry.failures:
-        summary["skipped"].append({"plugin": failure.plugin, "distribution": failure.distribution,
-                                   "reason": failure.error})
+        summary["skipped"].append(
+            {"plugin": failure.plugin, "distribution": failure.distribution, "reason": failure.error}
+        )
         log(f"skipped plugin {failure.plugin} ({failure.distribution}): {failure.error}")
     for name in names or registry.names():
         try:
@@ -134,8 +164,9 @@ def run_demo(out_dir: str | Path, size: tuple[int, int] = (512, 288), registry: 
         rows.append(video)
         labels.append(name)
         panels.append(None)
-        summary["videos"].append({"embodiment": name, "path": str(path), "frames": len(video),
-                                  "render_seconds": round(t_render, 4)})
+        summary["videos"].append(
+            {"embodiment": name, "path": str(path), "frames": len(video), "render_seconds": round(t_render, 4)}
+        )
         log(f"{name}: {len(video)} frames -> {path} (rendered in {t_render * 1000:.0f} ms)")
     if not rows:
         raise RuntimeError(f"no embodiment with a bundled example; registered: {registry.names()}")

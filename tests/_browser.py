@@ -18,8 +18,16 @@ from pathlib import Path
 import pytest
 
 #: The flags of every launch: headless, no sandbox (containers), nothing that phones home.
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 #: Where the screenshots of the docs live (written only with OSCAR_UPDATE_SCREENSHOTS=1; a person looks first).
 DOCS_IMAGES = Path(__file__).resolve().parents[1] / "docs" / "images"
 
@@ -91,8 +99,9 @@ class PageCheck:
     screenshot: Path | None = None
 
 
-def open_page(html: Path, screenshot: Path, *, select: dict[str, str] | None = None,
-              screenshot_at: str | None = None) -> PageCheck:
+def open_page(
+    html: Path, screenshot: Path, *, select: dict[str, str] | None = None, screenshot_at: str | None = None
+) -> PageCheck:
     """Load ``html`` from disk, play every video, collect problems and texts, save a screenshot.
 
     select: ``{name: css selector}``; ``texts[name]`` is the list of
@@ -105,8 +114,9 @@ def open_page(html: Path, screenshot: Path, *, select: dict[str, str] | None = N
     exe = require_browser()
     check = PageCheck()
     with tempfile.TemporaryDirectory(prefix="oscar-chromium-") as profile, sync_playwright() as p:
-        ctx = p.chromium.launch_persistent_context(profile, executable_path=exe, headless=True, args=FLAGS,
-                                                   viewport={"width": 1280, "height": 900})
+        ctx = p.chromium.launch_persistent_context(
+            profile, executable_path=exe, headless=True, args=FLAGS, viewport={"width": 1280, "height": 900}
+        )
         try:
             page = ctx.new_page()
             page.on("console", lambda m: m.type == "error" and check.problems.append(f"console: {m.text}"))
@@ -121,7 +131,8 @@ def open_page(html: Path, screenshot: Path, *, select: dict[str, str] | None = N
             check.problems += [f"image {i['src']}: not loaded" for i in check.images if not i["ok"]]
             for name, css in (select or {}).items():
                 check.texts[name] = page.eval_on_selector_all(
-                    css, "els => els.map(e => ({text: e.textContent.trim(), data: Object.assign({}, e.dataset)}))")
+                    css, "els => els.map(e => ({text: e.textContent.trim(), data: Object.assign({}, e.dataset)}))"
+                )
             if screenshot_at:
                 page.eval_on_selector(screenshot_at, "e => e.scrollIntoView({block: 'start'})")
             else:

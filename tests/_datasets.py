@@ -52,15 +52,26 @@ def render_rgb(traj, cam, *, seed: int = 0, pan: float = 0.0, size=SIZE) -> np.n
     out = np.empty_like(skel)
     for t in range(T):
         x0 = int(round(pan * t)) if pan >= 0 else margin + int(round(pan * t)) - 2
-        frame = bg[:, x0:x0 + W]
+        frame = bg[:, x0 : x0 + W]
         drawn = skel[t].max(axis=-1, keepdims=True) > 0
         out[t] = np.where(drawn, skel[t], frame)
     return out
 
 
-def write_episode(root: Path, name: str, traj=None, cam=None, *, seed: int = 0, pan: float = 0.0, size=SIZE,
-                  task: str | None = "move the arm", source: str | None = None, rgb: np.ndarray | None = None,
-                  video: str = "rgb.mkv") -> Path:
+def write_episode(
+    root: Path,
+    name: str,
+    traj=None,
+    cam=None,
+    *,
+    seed: int = 0,
+    pan: float = 0.0,
+    size=SIZE,
+    task: str | None = "move the arm",
+    source: str | None = None,
+    rgb: np.ndarray | None = None,
+    video: str = "rgb.mkv",
+) -> Path:
     """Write one npz-layout episode folder ``root/name``; returns it."""
     from oscar_core import save_camera, save_trajectory
     from oscar_core.media.video import write_video

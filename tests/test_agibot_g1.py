@@ -62,8 +62,9 @@ def reference():
     yourdfpy = pytest.importorskip("yourdfpy")
     if not REFERENCE.is_file():
         pytest.skip(f"reference URDF not available at {REFERENCE}")
-    return yourdfpy.URDF.load(str(REFERENCE), load_meshes=False, build_collision_scene_graph=False,
-                              load_collision_meshes=False)
+    return yourdfpy.URDF.load(
+        str(REFERENCE), load_meshes=False, build_collision_scene_graph=False, load_collision_meshes=False
+    )
 
 
 def test_fk_matches_the_reference_on_random_configurations(g1, reference):
@@ -131,7 +132,9 @@ def test_skeleton_leaves_out_only_coincident_links(g1):
 @pytest.mark.parametrize("side", [0, 1])
 def test_gripper_signal_closes_the_fingers(g1, side):
     """0 = open: finger joint at pi/4 and the fingers far apart; 1 = closed: joint at 0."""
-    tips = [("gripper_l_outer_link1", "gripper_l_inner_link1"), ("gripper_r_outer_link1", "gripper_r_inner_link1")][side]
+    tips = [("gripper_l_outer_link1", "gripper_l_inner_link1"), ("gripper_r_outer_link1", "gripper_r_inner_link1")][
+        side
+    ]
     k = [g1.skeleton.links.index(t) for t in tips]
     gaps = {}
     for signal in (0.0, 0.5, 1.0):
@@ -187,20 +190,41 @@ def synthetic_record(g1, T=20, seed=0, camera_in_link=HEAD_IN_LINK):
     traj = Trajectory(JOINTS, q, 30, gripper=grip)
     link = g1.fk(g1.full_configuration(g1.check_trajectory(traj)), links=[HEAD_CAMERA_LINK]).numpy()[:, 0]
     cam_to_base = link @ camera_in_link
-    return q, grip, {
-        "timestamp": 1_734_000_000_000_000_000 + np.arange(T, dtype=np.int64) * 33_333_333,
-        "state": {
-            "joint": {"position": q[:, 4:].astype(np.float32)},  # nested, as an h5py.File reads
-            "waist": {"position": q[:, [1, 0]]},  # pitch, lift
-            "head": {"position": q[:, [2, 3]]},  # yaw, pitch
+    return (
+        q,
+        grip,
+        {
+            "timestamp": 1_734_000_000_000_000_000 + np.arange(T, dtype=np.int64) * 33_333_333,
+            "state": {
+                "joint": {"position": q[:, 4:].astype(np.float32)},  # nested, as an h5py.File reads
+                "waist": {"position": q[:, [1, 0]]},  # pitch, lift
+                "head": {"position": q[:, [2, 3]]},  # yaw, pitch
+            },
+            "action/effector/position": grip,  # flat keys work too
+            "head_intrinsic_params": {
+                "intrinsic": {
+                    "fx": 390.1,
+                    "fy": 389.7,
+                    "ppx": 321.2,
+                    "ppy": 243.8,
+                    "k1": -0.05,
+                    "k2": 0.01,
+                    "k3": 0.0,
+                    "p1": 0.001,
+                    "p2": -0.001,
+                }
+            },
+            "head_extrinsic_params_aligned": [
+                {
+                    "extrinsic": {
+                        "rotation_matrix": np.round(C[:3, :3], 7).tolist(),
+                        "translation_vector": C[:3, 3].tolist(),
+                    }
+                }
+                for C in cam_to_base
+            ],
         },
-        "action/effector/position": grip,  # flat keys work too
-        "head_intrinsic_params": {"intrinsic": {"fx": 390.1, "fy": 389.7, "ppx": 321.2, "ppy": 243.8,
-                                                "k1": -0.05, "k2": 0.01, "k3": 0.0, "p1": 0.001, "p2": -0.001}},
-        "head_extrinsic_params_aligned": [
-            {"extrinsic": {"rotation_matrix": np.round(C[:3, :3], 7).tolist(), "translation_vector": C[:3, 3].tolist()}}
-            for C in cam_to_base],
-    }
+    )
 
 
 def test_agibot_world_layout(g1):
@@ -248,8 +272,20 @@ def test_agibot_world_per_frame_head_camera_is_the_stored_poses(g1):
     """The default camera keeps every stored pose; where they follow the head rigidly it
     projects as the head-link camera does, and where they do not it follows the record."""
     _, _, record = synthetic_record(g1, T=12)
-    poses = np.stack([np.block([[np.array(e["extrinsic"]["rotation_matrix"]), np.array(e["extrinsic"]["translation_vector"])[:, None]],
-                                [np.zeros((1, 3)), np.ones((1, 1))]]) for e in record["head_extrinsic_params_aligned"]])
+    poses = np.stack(
+        [
+            np.block(
+                [
+                    [
+                        np.array(e["extrinsic"]["rotation_matrix"]),
+                        np.array(e["extrinsic"]["translation_vector"])[:, None],
+                    ],
+                    [np.zeros((1, 3)), np.ones((1, 1))],
+                ]
+            )
+            for e in record["head_extrinsic_params_aligned"]
+        ]
+    )
     traj, cam = from_agibot_world(record)
     assert cam.mount_link is None and cam.num_frames == 12 and cam.embodiment == "agibot_g1"
     assert np.abs(cam.extrinsic - poses).max() < 1e-6  # re-orthonormalised 7-digit rotations
@@ -278,14 +314,21 @@ def test_agibot_world_extrinsics_that_ignore_the_head_joints_warn(g1):
         from_agibot_world(record, head_camera="head_link")
 
 
-@pytest.mark.parametrize("change, field, words", [
-    (lambda r: r["state"].pop("waist"), "state/waist/position", "missing"),
-    (lambda r: r["state"]["joint"].update(position=np.zeros((20, 7))), "state/joint/position", "shape (N, 14)"),
-    (lambda r: r["state"]["head"].update(position=np.zeros((19, 2))), "state/head/position", "19 frames"),
-    (lambda r: r.update({"action/effector/position": np.full((20, 2), 80.0)}), "action/effector/position", "35 .. 120"),
-    (lambda r: r["state"]["joint"]["position"].__setitem__((3, 2), np.nan), "state/joint/position", "non-finite"),
-    (lambda r: r.update(timestamp=np.arange(5)), "timestamp", "20 timestamps"),
-])
+@pytest.mark.parametrize(
+    "change, field, words",
+    [
+        (lambda r: r["state"].pop("waist"), "state/waist/position", "missing"),
+        (lambda r: r["state"]["joint"].update(position=np.zeros((20, 7))), "state/joint/position", "shape (N, 14)"),
+        (lambda r: r["state"]["head"].update(position=np.zeros((19, 2))), "state/head/position", "19 frames"),
+        (
+            lambda r: r.update({"action/effector/position": np.full((20, 2), 80.0)}),
+            "action/effector/position",
+            "35 .. 120",
+        ),
+        (lambda r: r["state"]["joint"]["position"].__setitem__((3, 2), np.nan), "state/joint/position", "non-finite"),
+        (lambda r: r.update(timestamp=np.arange(5)), "timestamp", "20 timestamps"),
+    ],
+)
 def test_agibot_world_bad_proprioception(g1, change, field, words):
     _, _, record = synthetic_record(g1)
     change(record)
@@ -294,17 +337,24 @@ def test_agibot_world_bad_proprioception(g1, change, field, words):
     assert err.value.field == field and words in str(err.value)
 
 
-@pytest.mark.parametrize("change, field", [
-    (lambda r: r.pop("head_intrinsic_params"), "head_intrinsic_params"),
-    (lambda r: r["head_intrinsic_params"]["intrinsic"].pop("ppy"), "head_intrinsic_params.intrinsic"),
-    (lambda r: r["head_intrinsic_params"]["intrinsic"].update(fx=-3.0), "head_intrinsic_params.intrinsic.fx"),
-    (lambda r: r.pop("head_extrinsic_params_aligned"), "head_extrinsic_params_aligned"),
-    (lambda r: r["head_extrinsic_params_aligned"][2]["extrinsic"].update(rotation_matrix=np.eye(3) * 2),
-     "head_extrinsic_params_aligned[2].rotation_matrix"),
-    (lambda r: r["head_extrinsic_params_aligned"][1]["extrinsic"].pop("translation_vector"),
-     "head_extrinsic_params_aligned[1]"),
-    (lambda r: r.update(image_size=(0, 480)), "image_size"),
-])
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        (lambda r: r.pop("head_intrinsic_params"), "head_intrinsic_params"),
+        (lambda r: r["head_intrinsic_params"]["intrinsic"].pop("ppy"), "head_intrinsic_params.intrinsic"),
+        (lambda r: r["head_intrinsic_params"]["intrinsic"].update(fx=-3.0), "head_intrinsic_params.intrinsic.fx"),
+        (lambda r: r.pop("head_extrinsic_params_aligned"), "head_extrinsic_params_aligned"),
+        (
+            lambda r: r["head_extrinsic_params_aligned"][2]["extrinsic"].update(rotation_matrix=np.eye(3) * 2),
+            "head_extrinsic_params_aligned[2].rotation_matrix",
+        ),
+        (
+            lambda r: r["head_extrinsic_params_aligned"][1]["extrinsic"].pop("translation_vector"),
+            "head_extrinsic_params_aligned[1]",
+        ),
+        (lambda r: r.update(image_size=(0, 480)), "image_size"),
+    ],
+)
 def test_agibot_world_bad_camera(g1, change, field):
     _, _, record = synthetic_record(g1)
     change(record)
@@ -317,10 +367,13 @@ def test_load_agibot_world_episode_reads_the_dataset_folders(g1, tmp_path, monke
     import json
 
     _, _, record = synthetic_record(g1, T=4)
-    arrays = {"state/joint/position": record["state"]["joint"]["position"],
-              "state/waist/position": record["state"]["waist"]["position"],
-              "state/head/position": record["state"]["head"]["position"],
-              "action/effector/position": record["action/effector/position"], "timestamp": record["timestamp"]}
+    arrays = {
+        "state/joint/position": record["state"]["joint"]["position"],
+        "state/waist/position": record["state"]["waist"]["position"],
+        "state/head/position": record["state"]["head"]["position"],
+        "action/effector/position": record["action/effector/position"],
+        "timestamp": record["timestamp"],
+    }
 
     class File(dict):  # stands in for h5py.File (only "in", [] and the context manager are used)
         def __init__(self, path, mode):
@@ -367,7 +420,9 @@ def test_camera_for_another_mount_or_embodiment_is_refused(g1):
     intr = Intrinsics(380.0, 380.0, 319.5, 239.5, 640, 480)
     g1.check_camera(Camera(intr, np.eye(4)))  # a static outside camera fits any embodiment
     other_link = Camera(intr, np.eye(4), mount_link="head_link1")
-    with pytest.raises(CameraFileError, match="static .mount: null. or mount link 'head_link2' for embodiment 'agibot_g1'") as err:
+    with pytest.raises(
+        CameraFileError, match="static .mount: null. or mount link 'head_link2' for embodiment 'agibot_g1'"
+    ) as err:
         render_skeleton_video(g1, ready(), other_link, camera_source="cam.json")
     assert err.value.path == "cam.json" and err.value.found == "mount link 'head_link1'"
     other_robot = Camera(intr, np.eye(4), mount_link="head_link2", embodiment="hsr")

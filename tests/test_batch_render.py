@@ -53,25 +53,39 @@ def write_jsonl(path, rows):
 
 
 def test_jsonl_and_csv_manifests_give_the_same_specs_with_paths_relative_to_the_manifest(tmp_path):
-    rows = [{"embodiment": "toyarm", "trajectory": "a.npz", "camera": "cam.json", "out": "out/a.mp4", "size": "64x36"},
-            {"embodiment": "toyarm", "trajectory": "/abs/b.npz", "camera": "cam.json", "out": "out/b/", "fps": 5}]
+    rows = [
+        {"embodiment": "toyarm", "trajectory": "a.npz", "camera": "cam.json", "out": "out/a.mp4", "size": "64x36"},
+        {"embodiment": "toyarm", "trajectory": "/abs/b.npz", "camera": "cam.json", "out": "out/b/", "fps": 5},
+    ]
     j = read_manifest(write_jsonl(tmp_path / "m.jsonl", rows))
-    (tmp_path / "m.csv").write_text("embodiment,trajectory,camera,out,size,fps\n"
-                                    "toyarm,a.npz,cam.json,out/a.mp4,64x36,\n"
-                                    "toyarm,/abs/b.npz,cam.json,out/b/,,5\n")
+    (tmp_path / "m.csv").write_text(
+        "embodiment,trajectory,camera,out,size,fps\n"
+        "toyarm,a.npz,cam.json,out/a.mp4,64x36,\n"
+        "toyarm,/abs/b.npz,cam.json,out/b/,,5\n"
+    )
     c = read_manifest(tmp_path / "m.csv")
     assert j == c
-    assert j[0] == EpisodeSpec("toyarm", str(tmp_path / "a.npz"), str(tmp_path / "cam.json"),
-                               str(tmp_path / "out" / "a.mp4"), (64, 36), None)
+    assert j[0] == EpisodeSpec(
+        "toyarm", str(tmp_path / "a.npz"), str(tmp_path / "cam.json"), str(tmp_path / "out" / "a.mp4"), (64, 36), None
+    )
     assert j[1].trajectory == "/abs/b.npz" and j[1].out == str(tmp_path / "out" / "b") + "/" and j[1].fps == 5.0
 
 
-@pytest.mark.parametrize("row, field", [
-    ({"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json"}, "line 2.out"),
-    ({"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json", "out": "a.mp4", "szie": "4x4"}, "line 2.szie"),
-    ({"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json", "out": "a.mp4", "size": "big"}, "line 2.size"),
-    ({"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json", "out": "a.mp4", "fps": -1}, "line 2.fps"),
-])
+@pytest.mark.parametrize(
+    "row, field",
+    [
+        ({"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json"}, "line 2.out"),
+        (
+            {"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json", "out": "a.mp4", "szie": "4x4"},
+            "line 2.szie",
+        ),
+        (
+            {"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json", "out": "a.mp4", "size": "big"},
+            "line 2.size",
+        ),
+        ({"embodiment": "toyarm", "trajectory": "a.npz", "camera": "c.json", "out": "a.mp4", "fps": -1}, "line 2.fps"),
+    ],
+)
 def test_manifest_errors_name_the_file_line_and_field(tmp_path, row, field):
     path = tmp_path / "m.jsonl"
     path.write_text("# episodes\n" + json.dumps(row) + "\n")
@@ -90,7 +104,9 @@ def test_folder_of_trajectories_takes_each_camera_beside_it_or_the_shared_one(tm
     (d / "b.json").write_bytes(CAM.read_bytes())
     specs = specs_from_folder(d, "toyarm", tmp_path / "out", suffix=".mkv")
     assert [(Path(s.trajectory).name, Path(s.camera).name, Path(s.out).name) for s in specs] == [
-        ("a.npz", "camera.json", "a.mkv"), ("b.npz", "b.json", "b.mkv")]
+        ("a.npz", "camera.json", "a.mkv"),
+        ("b.npz", "b.json", "b.mkv"),
+    ]
 
 
 # ------------------------------------------------------------------ the batch engine
@@ -98,10 +114,12 @@ def test_folder_of_trajectories_takes_each_camera_beside_it_or_the_shared_one(tm
 
 def test_render_many_collects_errors_and_renders_the_rest(tmp_path):
     a, b = short_traj(tmp_path, "a.npz"), short_traj(tmp_path, "b.npz", start=30)
-    specs = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "out" / "a.mkv"), (96, 54)),
-             EpisodeSpec("toyarm", str(tmp_path / "missing.npz"), str(CAM), str(tmp_path / "out" / "m.mkv"), (96, 54)),
-             EpisodeSpec("nobody", str(a), str(CAM), str(tmp_path / "out" / "n.mkv"), (96, 54)),
-             EpisodeSpec("toyarm", str(b), str(CAM), str(tmp_path / "out" / "b.mkv"), (96, 54))]
+    specs = [
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "out" / "a.mkv"), (96, 54)),
+        EpisodeSpec("toyarm", str(tmp_path / "missing.npz"), str(CAM), str(tmp_path / "out" / "m.mkv"), (96, 54)),
+        EpisodeSpec("nobody", str(a), str(CAM), str(tmp_path / "out" / "n.mkv"), (96, 54)),
+        EpisodeSpec("toyarm", str(b), str(CAM), str(tmp_path / "out" / "b.mkv"), (96, 54)),
+    ]
     seen = []
     results = render_many(specs, on_result=seen.append)
     assert [r.ok for r in results] == [True, False, False, True] and len(seen) == 4
@@ -137,25 +155,45 @@ def test_trajectories_folder_through_the_cli(tmp_path, capsys):
     d = tmp_path / "trajs"
     d.mkdir()
     short_traj(d, "x.npz", T=3)
-    code, out, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectories", d, "--camera", CAM,
-                         "--out", tmp_path / "vids", "--size", "64x36", "--format", "png")
+    code, out, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectories",
+        d,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "vids",
+        "--size",
+        "64x36",
+        "--format",
+        "png",
+    )
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "vids" / "x").iterdir()) == [f"frame_{i:06d}.png" for i in range(3)]
 
 
 def test_batch_problems_stop_before_anything_is_rendered(tmp_path):
     a = short_traj(tmp_path, "a.npz")
-    same = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x.mp4")),
-            EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x.mp4"))]
+    same = [
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x.mp4")),
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x.mp4")),
+    ]
     with pytest.raises(OutputPathError, match="episode 1 writes the same output as episode 0"):
         render_many(same)
     (tmp_path / "afile").write_text("")
-    under = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "new" / "ok.mp4")),
-             EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "afile" / "sub" / "x.mp4"))]
+    under = [
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "new" / "ok.mp4")),
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "afile" / "sub" / "x.mp4")),
+    ]
     with pytest.raises(OutputPathError, match="afile is a file, not a folder"):
         render_many(under)
-    suffixless = [EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "new" / "ok.mp4")),
-                  EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x"))]
+    suffixless = [
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "new" / "ok.mp4")),
+        EpisodeSpec("toyarm", str(a), str(CAM), str(tmp_path / "x")),
+    ]
     with pytest.raises(OutputPathError, match="no suffix"):
         render_many(suffixless)
     assert not (tmp_path / "new").exists()  # nothing rendered, no folder made
@@ -164,13 +202,16 @@ def test_batch_problems_stop_before_anything_is_rendered(tmp_path):
 # ------------------------------------------------------------------ output checks
 
 
-@pytest.mark.parametrize("out, message", [
-    ("skel", "no suffix.*trailing /, --format png"),
-    ("skel.avi", "unsupported suffix '.avi'"),
-    ("afile/skel.mp4", "afile is a file, not a folder"),
-    ("afile/deeper/skel.mp4", "afile is a file, not a folder"),
-    ("missing/skel.mp4", "folder .*missing does not exist"),
-])
+@pytest.mark.parametrize(
+    "out, message",
+    [
+        ("skel", "no suffix.*trailing /, --format png"),
+        ("skel.avi", "unsupported suffix '.avi'"),
+        ("afile/skel.mp4", "afile is a file, not a folder"),
+        ("afile/deeper/skel.mp4", "afile is a file, not a folder"),
+        ("missing/skel.mp4", "folder .*missing does not exist"),
+    ],
+)
 def test_bad_outputs_are_refused_before_any_rendering(tmp_path, capsys, monkeypatch, out, message):
     import oscar_core.render.skeleton_stream as rs
 
@@ -179,8 +220,9 @@ def test_bad_outputs_are_refused_before_any_rendering(tmp_path, capsys, monkeypa
 
     monkeypatch.setattr(rs.SKELETON, "iter_chunks", boom)
     (tmp_path / "afile").write_text("")
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", tmp_path / out)
+    code, _, err = run(
+        capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM, "--out", tmp_path / out
+    )
     assert code == 2 and "rendering started" not in err
     assert __import__("re").search(message, err), err
 
@@ -191,11 +233,37 @@ def test_odd_h264_size_is_refused_before_rendering_and_png_is_an_explicit_choice
     real = rs.SKELETON.iter_chunks
     calls = []
     monkeypatch.setattr(rs.SKELETON, "iter_chunks", lambda *a, **k: calls.append(1) or real(*a, **k))
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", tmp_path / "odd.mp4", "--size", "65x37")
+    code, _, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "odd.mp4",
+        "--size",
+        "65x37",
+    )
     assert code == 2 and "even width and height, found 65x37" in err and calls == []
-    code, out, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", short_traj(tmp_path, "s.npz", T=2),
-                         "--camera", CAM, "--out", tmp_path / "frames", "--format", "png", "--size", "65x37")
+    code, out, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        short_traj(tmp_path, "s.npz", T=2),
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "frames",
+        "--format",
+        "png",
+        "--size",
+        "65x37",
+    )
     assert code == 0, err
     assert len(list((tmp_path / "frames").glob("*.png"))) == 2 and calls == [1]
 
@@ -226,8 +294,20 @@ def test_a_killed_render_leaves_no_output_and_the_next_run_clears_its_temporarie
     long = traj.replace(q=np.tile(traj.q, (60, 1)), gripper=np.tile(traj.gripper, (60, 1)), timestamps=None)
     save_trajectory(long, tmp_path / "long.npz")
     target = tmp_path / out.rstrip("/")
-    cmd = [sys.executable, "-m", "oscar_core.cli", "render", "--embodiment", "toyarm", "--camera", str(CAM),
-           "--size", "320x180", "--out", f"{tmp_path}/{out}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "oscar_core.cli",
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--camera",
+        str(CAM),
+        "--size",
+        "320x180",
+        "--out",
+        f"{tmp_path}/{out}",
+    ]
     proc = subprocess.Popen(cmd + ["--trajectory", str(tmp_path / "long.npz")], stderr=subprocess.PIPE)
     deadline = time.time() + 60
     while time.time() < deadline and proc.poll() is None and not [p for p in tmp_path.iterdir() if ".tmp" in p.name]:
@@ -250,7 +330,7 @@ def test_a_live_writers_temporary_is_never_removed(tmp_path):
 
     target = tmp_path / "x.mkv"
     w = VideoWriter(target, 10)
-    dead = tmp_path / f".x.mkv.{2 ** 22 + 12345}.abc.tmp.mkv"  # a pid that is not running
+    dead = tmp_path / f".x.mkv.{2**22 + 12345}.abc.tmp.mkv"  # a pid that is not running
     dead.write_bytes(b"")
     assert remove_stale_temporaries(target) == [dead]
     assert w.tmp.exists()  # ours (same pid) stays
@@ -263,9 +343,12 @@ def test_a_live_writers_temporary_is_never_removed(tmp_path):
 
 
 def imported_by(code: str) -> set[str]:
-    probe = ("import sys, io, contextlib\n" + code +
-             "\nprint(' '.join(m for m in ('torch', 'matplotlib', 'pytorch_kinematics', 'scipy', 'av', 'cv2') "
-             "if m in sys.modules))")
+    probe = (
+        "import sys, io, contextlib\n"
+        + code
+        + "\nprint(' '.join(m for m in ('torch', 'matplotlib', 'pytorch_kinematics', 'scipy', 'av', 'cv2') "
+        "if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     return set(out.split())
 
@@ -276,8 +359,21 @@ def test_help_and_listing_import_no_heavy_libraries_and_a_render_no_torch(tmp_pa
     head = "from oscar_core.cli import main\n"
     assert imported_by(head + quiet.format("['--help']")) == set()
     assert imported_by(head + quiet.format("['embodiments', '--json']")) == set()
-    render = quiet.format(repr(["render", "--embodiment", "toyarm", "--trajectory", str(short_traj(tmp_path, "one.npz", T=1)),
-                                "--camera", str(CAM), "--out", str(tmp_path / "one.mp4")]))
+    render = quiet.format(
+        repr(
+            [
+                "render",
+                "--embodiment",
+                "toyarm",
+                "--trajectory",
+                str(short_traj(tmp_path, "one.npz", T=1)),
+                "--camera",
+                str(CAM),
+                "--out",
+                str(tmp_path / "one.mp4"),
+            ]
+        )
+    )
     assert imported_by(head + render) == {"av", "cv2"}
     assert (tmp_path / "one.mp4").exists()
 
@@ -294,8 +390,11 @@ def test_embodiments_json_gives_each_joint_order(capsys):
 
 
 def test_piping_into_a_closed_reader_exits_quietly():
-    proc = subprocess.Popen([sys.executable, "-m", "oscar_core.cli", "embodiments", "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "oscar_core.cli", "embodiments", "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     proc.stdout.close()  # like `| head` that has already gone
     err = proc.stderr.read().decode()
     proc.wait()
@@ -323,8 +422,13 @@ def test_demo_lists_plugins_it_skipped_and_why(tmp_path):
     bad = tmp_path / "broken_plugin.py"
     bad.write_text("raise ImportError('needs a library that is not installed')\n")
     lines = []
-    summary = run_demo(tmp_path / "demo", size=(64, 36), registry=Registry(plugin_paths=[bad], warn=False),
-                       names=["toyarm"], log=lines.append)
+    summary = run_demo(
+        tmp_path / "demo",
+        size=(64, 36),
+        registry=Registry(plugin_paths=[bad], warn=False),
+        names=["toyarm"],
+        log=lines.append,
+    )
     assert any("skipped plugin" in line and "not installed" in line for line in lines), lines
     assert any("not installed" in s["reason"] for s in summary["skipped"])
 
@@ -333,8 +437,10 @@ def test_an_existing_frame_folder_fails_its_episode_only(tmp_path):
     a = short_traj(tmp_path, "a.npz", T=2)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "keep.txt").write_text("mine")
-    specs = [EpisodeSpec("toyarm", str(a), str(CAM), f"{tmp_path}/full/", (64, 36)),
-             EpisodeSpec("toyarm", str(a), str(CAM), f"{tmp_path}/fresh/", (64, 36))]
+    specs = [
+        EpisodeSpec("toyarm", str(a), str(CAM), f"{tmp_path}/full/", (64, 36)),
+        EpisodeSpec("toyarm", str(a), str(CAM), f"{tmp_path}/fresh/", (64, 36)),
+    ]
     r = render_many(specs)
     assert [x.ok for x in r] == [False, True] and "not an empty folder" in r[0].error
     assert [p.name for p in (tmp_path / "full").iterdir()] == ["keep.txt"]

@@ -19,8 +19,9 @@ def bench():
 
 def test_tiny_never_one_repeat_on_cpu(bench, tmp_path, capsys):
     out = tmp_path / "result.json"
-    code = bench.main(["--size", "tiny", "--repeats", "1", "--device", "cpu", "--work", str(tmp_path / "work"),
-                       "--json", str(out)])
+    code = bench.main(
+        ["--size", "tiny", "--repeats", "1", "--device", "cpu", "--work", str(tmp_path / "work"), "--json", str(out)]
+    )
     table = capsys.readouterr().out
     assert code == 0
     result = json.loads(out.read_text())
@@ -46,8 +47,19 @@ def test_tiny_never_one_repeat_on_cpu(bench, tmp_path, capsys):
 
 def test_a_failing_rollout_process_fails_the_benchmark(bench, tmp_path, capsys):
     out = tmp_path / "result.json"
-    code = bench.main(["--size", "tiny", "--repeats", "1", "--json", str(out), "--work", str(tmp_path / "work"),
-                       "--rollout-arg=--size=60x60"])  # not a multiple of 16: the CLI refuses it, exit 2
+    code = bench.main(
+        [
+            "--size",
+            "tiny",
+            "--repeats",
+            "1",
+            "--json",
+            str(out),
+            "--work",
+            str(tmp_path / "work"),
+            "--rollout-arg=--size=60x60",
+        ]
+    )  # not a multiple of 16: the CLI refuses it, exit 2
     err = capsys.readouterr().err
     assert code == 1 and not out.exists()
     assert "never (repeat 1): the rollout process exited with 2" in err and "60x60" in err
@@ -56,7 +68,11 @@ def test_a_failing_rollout_process_fails_the_benchmark(bench, tmp_path, capsys):
 def test_the_plan_alternates_a_baseline_with_never_and_runs_cold_before_warm(bench):
     groups = bench.plan(True, {"OSCAR_FULL_EXIT": "1"})
     assert [[label for label, *_ in g] for g in groups] == [
-        ["never, OSCAR_FULL_EXIT=1", "never"], ["always, cold cache"], ["always, warm cache"], ["auto"]]
+        ["never, OSCAR_FULL_EXIT=1", "never"],
+        ["always, cold cache"],
+        ["always, warm cache"],
+        ["auto"],
+    ]
     assert groups[0][0][3] == {"OSCAR_FULL_EXIT": "1"} and groups[0][1][3] == {}
     assert groups[1][0][2] == "fresh" and groups[2][0][2] == "warm"  # warm: the cache the cold runs filled
     assert [g[0][1] for g in bench.plan(False)] == ["never"]

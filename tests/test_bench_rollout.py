@@ -24,16 +24,33 @@ SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "rollout.py"
 
 def run(tmp_path, *args, timeout=600):
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OSCAR_CACHE": str(tmp_path / "cache")}
-    return subprocess.run([sys.executable, str(SCRIPT), "--skip-tiny", "--skip-computed", *args],
-                          capture_output=True, text=True, env=env, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), "--skip-tiny", "--skip-computed", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
 
 
 @pytest.mark.slow
 def test_measure_reports_every_preset_eager_and_compiled(tmp_path):
     out = tmp_path / "rollout.json"
     peak = 0.5  # TFLOP/s, given: the CPU has no known peak
-    proc = run(tmp_path, "--measure", "cpu", "--measure-size", "tiny", "--repeats", "1", "--compile",
-               "--peak-tflops", str(peak), "--json", str(out))
+    proc = run(
+        tmp_path,
+        "--measure",
+        "cpu",
+        "--measure-size",
+        "tiny",
+        "--repeats",
+        "1",
+        "--compile",
+        "--peak-tflops",
+        str(peak),
+        "--json",
+        str(out),
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     m = json.loads(out.read_text())["measured"]
     assert m["compiled"] is True and m["compile_first_call_s"] > 0
@@ -47,8 +64,9 @@ def test_measure_reports_every_preset_eager_and_compiled(tmp_path):
         config = apply_preset(SamplerConfig(guidance=6.0, solver="unipc"), preset)
         assert r["steps"] == config.steps and r["dit_evaluations"] == model_calls(config)
         # counted by running the chunk == implied by the sampler's evaluation count
-        assert flops[f"chunk_{preset}"] == (flops["vae_per_chunk"] + flops["text_projection"]
-                                            + model_calls(config) * per_eval)
+        assert flops[f"chunk_{preset}"] == (
+            flops["vae_per_chunk"] + flops["text_projection"] + model_calls(config) * per_eval
+        )
         parts = r["seconds_parts"]
         assert set(parts) == {"encode", "sample", "decode"} and min(parts.values()) > 0
         assert sum(parts.values()) <= r["seconds_per_chunk"] + 1e-6  # one timed run: its parts fit in its wall
@@ -62,12 +80,15 @@ def test_measure_reports_every_preset_eager_and_compiled(tmp_path):
     assert "MFU sampling" in proc.stdout and "compiled" in proc.stdout
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--measure", "cuda"], "needs a CUDA device"),
-    (["--measure", "tpu"], "--measure: expected"),
-    (["--measure", "cpu", "--presets", "paper,turbo"], "--presets: expected"),
-    (["--measure", "cpu", "--peak-tflops", "0"], "--peak-tflops: expected a positive number"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--measure", "cuda"], "needs a CUDA device"),
+        (["--measure", "tpu"], "--measure: expected"),
+        (["--measure", "cpu", "--presets", "paper,turbo"], "--presets: expected"),
+        (["--measure", "cpu", "--peak-tflops", "0"], "--peak-tflops: expected a positive number"),
+    ],
+)
 def test_measure_refuses_bad_settings_before_work(tmp_path, args, message):
     if args[:2] == ["--measure", "cuda"] and torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
@@ -105,8 +126,11 @@ def test_vae_variants_are_timed_compared_and_undone(monkeypatch):
 
     monkeypatch.setattr(vae.vae, "enable_tiling", broken)
     rows = {r["variant"]: r for r in bench.measure_vae_variants(vae, first, condition, 1, torch.device("cpu"))}
-    assert rows["tiling"] == {"variant": "tiling", "failed": "RuntimeError: tiling is not supported here",
-                              "vs_eager": None}
+    assert rows["tiling"] == {
+        "variant": "tiling",
+        "failed": "RuntimeError: tiling is not supported here",
+        "vs_eager": None,
+    }
     assert "seconds" in rows["channels_last"]
 
 

@@ -33,8 +33,14 @@ VARIANTS = ["none", "full", "none+compile", "full+compile"]
 
 def run(tmp_path, *args, timeout=900):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    return subprocess.run([sys.executable, str(SCRIPT), "--step-table", *args], capture_output=True, text=True,
-                          env=env, timeout=timeout, check=False)
+    return subprocess.run(
+        [sys.executable, str(SCRIPT), "--step-table", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+        check=False,
+    )
 
 
 @pytest.mark.slow
@@ -78,8 +84,19 @@ def test_step_table_tiny_cpu(tmp_path):
 def test_step_table_disagreement_exits_nonzero_naming_variants(tmp_path):
     # a negative tolerance: every variant "disagrees" (eager only, so no compile: quick)
     out = tmp_path / "step.json"
-    proc = run(tmp_path, "--step-size", "tiny", "--step-variants", "none,full", "--step-repeats", "1",
-               "--step-tolerance", "-1", "--json", str(out))
+    proc = run(
+        tmp_path,
+        "--step-size",
+        "tiny",
+        "--step-variants",
+        "none,full",
+        "--step-repeats",
+        "1",
+        "--step-tolerance",
+        "-1",
+        "--json",
+        str(out),
+    )
     assert proc.returncode == 1
     assert "FAILED" in proc.stderr and "none (" in proc.stderr and "full (" in proc.stderr
     t = json.loads(out.read_text())["step_table"]  # the measurements are written all the same
@@ -117,11 +134,18 @@ def test_compare_leaves_out_of_memory_rows_and_measures_relative_differences():
     bench = _bench_module()
 
     def row(name, loss, grad, per):
-        return {"variant": name, "first_step_loss": loss, "first_step_grad_norm": grad,
-                "first_step_param_grad_norms": per}
+        return {
+            "variant": name,
+            "first_step_loss": loss,
+            "first_step_grad_norm": grad,
+            "first_step_param_grad_norms": per,
+        }
 
-    rows = [{"variant": "none", "out_of_memory": True, "error": "CUDA out of memory"},
-            row("full", 2.0, 10.0, [6.0, 8.0]), row("full+compile", 2.002, 10.0, [6.0, 8.5])]
+    rows = [
+        {"variant": "none", "out_of_memory": True, "error": "CUDA out of memory"},
+        row("full", 2.0, 10.0, [6.0, 8.0]),
+        row("full+compile", 2.002, 10.0, [6.0, 8.5]),
+    ]
     got = {c["variant"]: c for c in bench._compare(rows)}
     assert set(got) == {"full", "full+compile"}  # the reference is the first measured row
     assert got["full"]["max_diff"] == 0.0

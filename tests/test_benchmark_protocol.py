@@ -101,8 +101,11 @@ def test_build_quotas_counts_and_determinism(clips, tmp_path):
     assert {g: q["quota"] for g, q in a["quotas"].items()} == {"franka/toyworld": 3, "toyarm/toyworld": 2}
     assert a["counts"] == {"candidates": 8, "forward_window": 0, "dedup": 0, "quota": 3, "chosen": 5}
     assert load_benchmark_set(tmp_path / "a.json")["fingerprint"] == a["fingerprint"]
-    with pytest.raises(BenchmarkSetError, match=r"found no clip to choose \(8 candidates: 8 dropped by the forward "
-                                                 r"window \(horizon 6 frames"):
+    with pytest.raises(
+        BenchmarkSetError,
+        match=r"found no clip to choose \(8 candidates: 8 dropped by the forward "
+        r"window \(horizon 6 frames",
+    ):
         build_benchmark_set([clips], tmp_path / "s.json", 5, frames=6, split=None, registry=REG)
     assert not (tmp_path / "s.json").exists()  # an empty set is never written
 
@@ -113,7 +116,8 @@ def test_a_set_smaller_than_total_warns_naming_the_shortfall(clips, tmp_path, ca
     assert data["counts"]["chosen"] == 8
     assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [
         f"benchmark set {tmp_path / 's.json'}: 8 clips, 392 short of --total 400 (8 candidates: 0 dropped by the "
-        "forward window (horizon 5 frames, margin 0.0), 0 as near-duplicates)"]
+        "forward window (horizon 5 frames, margin 0.0), 0 as near-duplicates)"
+    ]
     caplog.clear()
     with caplog.at_level("WARNING", logger="oscar"):
         build_benchmark_set([clips], tmp_path / "f.json", 8, frames=5, split=None, registry=REG)
@@ -121,8 +125,22 @@ def test_a_set_smaller_than_total_warns_naming_the_shortfall(clips, tmp_path, ca
 
 
 def test_cli_refuses_an_empty_set_and_running_one(clips, tmp_path, capsys):
-    code = main(["eval", "benchmark", "build", str(clips), "--out", str(tmp_path / "s.json"), "--total", "4",
-                 "--frames", "99", "--split", "all"])
+    code = main(
+        [
+            "eval",
+            "benchmark",
+            "build",
+            str(clips),
+            "--out",
+            str(tmp_path / "s.json"),
+            "--total",
+            "4",
+            "--frames",
+            "99",
+            "--split",
+            "all",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and "no clip to choose" in err and "Traceback" not in err
     # a set file with no clips (an older build wrote them) is refused by run and table before any work
@@ -135,8 +153,18 @@ def test_cli_refuses_an_empty_set_and_running_one(clips, tmp_path, capsys):
     parts["clips"] = []
     d["fingerprint"] = stage.fingerprint(parts)
     (tmp_path / "empty.json").write_text(json.dumps(d))
-    code = main(["eval", "benchmark", "run", str(tmp_path / "empty.json"), "--model", "oscar-toy", "--out",
-                 str(tmp_path / "ro")])
+    code = main(
+        [
+            "eval",
+            "benchmark",
+            "run",
+            str(tmp_path / "empty.json"),
+            "--model",
+            "oscar-toy",
+            "--out",
+            str(tmp_path / "ro"),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "field 'clips': expected at least one clip, found an empty set" in err
     assert not (tmp_path / "ro").exists()
@@ -186,8 +214,7 @@ def test_exact_duplicates_keep_one_per_group(clips, tmp_path):
     ids = [c["id"] for c in data["clips"]]
     assert len(ids) == 8 and data["counts"]["dedup"] == 8
     assert len({i.removesuffix("-dup") for i in ids}) == 8  # one of every original/copy pair
-    with_clusters = build_benchmark_set([dup], tmp_path / "k.json", 4, frames=5, split=None, clusters=4,
-                                        registry=REG)
+    with_clusters = build_benchmark_set([dup], tmp_path / "k.json", 4, frames=5, split=None, clusters=4, registry=REG)
     assert with_clusters["counts"]["dedup"] == 8 and with_clusters["counts"]["quota"] == 4
     assert len({c["id"].removesuffix("-dup") for c in with_clusters["clips"]}) == 4
 
@@ -266,19 +293,64 @@ def test_cli_end_to_end_with_the_bundled_toy_model(tmp_path, capsys, monkeypatch
     monkeypatch.setenv("HF_ENDPOINT", "http://127.0.0.1:9")
     monkeypatch.setenv("OSCAR_WEIGHTS_CACHE", str(tmp_path / "no-weights"))
     root = tmp_path / "clips"
-    generate_clipset(GenerateConfig(("toyarm", "kuka"), episodes=1, width=64, height=64, frames=17, seed=5), root,
-                     REG)
-    assert main(["-q", "eval", "benchmark", "build", str(root), "--out", str(tmp_path / "s.json"), "--total", "2",
-                 "--frames", "17", "--split", "all"]) == 0
-    run = ["-q", "eval", "benchmark", "run", str(tmp_path / "s.json"), "--model", "oscar-toy", "--out",
-           str(tmp_path / "toy"), "--steps", "2", "--guidance", "3"]
+    generate_clipset(GenerateConfig(("toyarm", "kuka"), episodes=1, width=64, height=64, frames=17, seed=5), root, REG)
+    assert (
+        main(
+            [
+                "-q",
+                "eval",
+                "benchmark",
+                "build",
+                str(root),
+                "--out",
+                str(tmp_path / "s.json"),
+                "--total",
+                "2",
+                "--frames",
+                "17",
+                "--split",
+                "all",
+            ]
+        )
+        == 0
+    )
+    run = [
+        "-q",
+        "eval",
+        "benchmark",
+        "run",
+        str(tmp_path / "s.json"),
+        "--model",
+        "oscar-toy",
+        "--out",
+        str(tmp_path / "toy"),
+        "--steps",
+        "2",
+        "--guidance",
+        "3",
+    ]
     assert main(run) == 0
     assert "2 rollouts written" in capsys.readouterr().out
     assert main(run) == 0 and "0 rollouts written, 2 kept" in capsys.readouterr().out
     assert main(run[:-1] + ["4"]) == 2  # other guidance into the same folder: refused
     assert "guidance: 3.0 -> 4.0" in capsys.readouterr().err
-    assert main(["-q", "eval", "benchmark", "table", "--set", str(tmp_path / "s.json"), "--pred",
-                 f"toy={tmp_path / 'toy'}", "--out", str(tmp_path / "table.json")]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "eval",
+                "benchmark",
+                "table",
+                "--set",
+                str(tmp_path / "s.json"),
+                "--pred",
+                f"toy={tmp_path / 'toy'}",
+                "--out",
+                str(tmp_path / "table.json"),
+            ]
+        )
+        == 0
+    )
     table = json.loads((tmp_path / "table.json").read_text())
     row = table["rows"]["toy"]["mean_over_embodiments"]
     assert 5.0 < row["psnr"] < 100.0 and 0.0 < row["ssim"] < 1.0 and row["frames_per_s"] > 0

@@ -17,8 +17,9 @@ def make_docs():
 
 
 def test_the_page_is_what_the_committed_json_gives():
-    assert (ROOT / "docs" / "benchmarks.md").read_text() == make_docs().render_page(), \
+    assert (ROOT / "docs" / "benchmarks.md").read_text() == make_docs().render_page(), (
         "docs/benchmarks.md is out of date: run python benchmarks/make_docs.py"
+    )
 
 
 def test_every_committed_measurement_carries_date_commit_and_machine():
@@ -30,13 +31,27 @@ def test_every_committed_measurement_carries_date_commit_and_machine():
 
 
 def test_the_generator_renders_records_nested_values_gpu_files_and_missing_provenance(tmp_path):
-    prov = {"date": "2026-01-02T03:04:05+00:00", "commit": "0123456789ab", "command": "python benchmarks/rollout.py",
-            "machine": {"processor": "x86_64", "cpus": 2, "load_average": 3.5}}
-    (tmp_path / "rollout.json").write_text(json.dumps({
-        "provenance": prov, "settings": {"repeats": 3, "steps": 4},
-        "tiny": [{"size": "128x64", "step_ms": 6.123456, "batched": True}, {"size": "256x128", "step_ms": 33.0}]}))
-    (tmp_path / "rollout_gpu.json").write_text(json.dumps({"measured": {"device": "NVIDIA H100", "rows": [
-        {"preset": "fast", "seconds_per_chunk": 1.25}]}}))
+    prov = {
+        "date": "2026-01-02T03:04:05+00:00",
+        "commit": "0123456789ab",
+        "command": "python benchmarks/rollout.py",
+        "machine": {"processor": "x86_64", "cpus": 2, "load_average": 3.5},
+    }
+    (tmp_path / "rollout.json").write_text(
+        json.dumps(
+            {
+                "provenance": prov,
+                "settings": {"repeats": 3, "steps": 4},
+                "tiny": [
+                    {"size": "128x64", "step_ms": 6.123456, "batched": True},
+                    {"size": "256x128", "step_ms": 33.0},
+                ],
+            }
+        )
+    )
+    (tmp_path / "rollout_gpu.json").write_text(
+        json.dumps({"measured": {"device": "NVIDIA H100", "rows": [{"preset": "fast", "seconds_per_chunk": 1.25}]}})
+    )
     page = make_docs().render_page(tmp_path)
     assert page.index("## World-model rollout\n") < page.index("## World-model rollout (GPU)\n")
     assert "- **date** 2026-01-02T03:04:05+00:00 · **commit** `0123456789ab`" in page

@@ -37,8 +37,7 @@ def test_known_intrinsics_recover_the_pose(emb, sigma):
     # benchmark (30 seeds per embodiment), worst: 0.19 / 0.41 / 0.62 degrees, 6.2 / 14.0 / 22.8 mm at sigma 0.5 / 1 / 2
     for seed in SEEDS:
         traj, cam, pts = problem(emb, seed, sigma)
-        res = calibrate(emb, traj, pts, SIZE, cam.intrinsics,
-                        threshold_px=threshold_for(sigma))
+        res = calibrate(emb, traj, pts, SIZE, cam.intrinsics, threshold_px=threshold_for(sigma))
         assert rotation_error_deg(res.camera, cam) < 0.6 * sigma, seed
         assert position_error_mm(res.camera, cam) < 25.0 * sigma, seed
         assert res.camera.intrinsics == cam.intrinsics and res.camera.embodiment == emb.name
@@ -51,8 +50,7 @@ def test_estimated_intrinsics_are_recovered(emb, sigma):
     # principal point 8.7 / 21 / 54 px at sigma 0.5 / 1 / 2
     for seed in SEEDS:
         traj, cam, pts = problem(emb, seed, sigma)
-        res = calibrate(emb, traj, pts, SIZE, None,
-                        threshold_px=threshold_for(sigma))
+        res = calibrate(emb, traj, pts, SIZE, None, threshold_px=threshold_for(sigma))
         got, true = res.camera.intrinsics, cam.intrinsics
         assert res.estimated_intrinsics and (got.width, got.height) == SIZE
         assert rotation_error_deg(res.camera, cam) < 3.0 * sigma, seed
@@ -125,12 +123,21 @@ def test_fewer_than_six_distinct_correspondences(franka_problem):
 
 def test_a_robot_that_did_not_move_with_too_few_points_per_frame(franka_problem):
     emb, traj, cam, _ = franka_problem
-    still = Trajectory(traj.joint_names, np.repeat(traj.q[:1], 20, axis=0), traj.fps, np.repeat(traj.gripper[:1], 20, 0),
-                       traj.gripper_names)
+    still = Trajectory(
+        traj.joint_names,
+        np.repeat(traj.q[:1], 20, axis=0),
+        traj.fps,
+        np.repeat(traj.gripper[:1], 20, 0),
+        traj.gripper_names,
+    )
     pts = observe(emb, still, cam, np.random.default_rng(1), 0.5)
     keep = np.isin(np.array(pts.name), emb.skeleton.links[:4])  # 4 points on each of 20 frames: 80 entries
-    msg = _refused(emb, still, PixelPoints(pts.frame[keep], tuple(np.array(pts.name)[keep]), pts.uv[keep], None, "p.json"),
-                   cam.intrinsics)
+    msg = _refused(
+        emb,
+        still,
+        PixelPoints(pts.frame[keep], tuple(np.array(pts.name)[keep]), pts.uv[keep], None, "p.json"),
+        cam.intrinsics,
+    )
     assert "a robot that did not move" in msg and "at most 4 points on one frame" in msg
     assert "points on frames where the robot has moved, or at least 6 points on one frame" in msg
     # all its points on one still frame are enough
@@ -140,10 +147,16 @@ def test_a_robot_that_did_not_move_with_too_few_points_per_frame(franka_problem)
 def test_collinear_points(tmp_path):
     # a robot of two sliders along x: every skeleton point lies on the x axis, whatever the joints
     urdf = tmp_path / "rail.urdf"
-    joint = ('<joint name="{n}" type="prismatic"><parent link="{p}"/><child link="{c}"/><origin xyz="0.2 0 0"/>'
-             '<axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" effort="1" velocity="1"/></joint>')
-    urdf.write_text('<robot name="rail"><link name="base"/><link name="a"/><link name="b"/>'
-                    + joint.format(n="j1", p="base", c="a") + joint.format(n="j2", p="a", c="b") + "</robot>")
+    joint = (
+        '<joint name="{n}" type="prismatic"><parent link="{p}"/><child link="{c}"/><origin xyz="0.2 0 0"/>'
+        '<axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" effort="1" velocity="1"/></joint>'
+    )
+    urdf.write_text(
+        '<robot name="rail"><link name="base"/><link name="a"/><link name="b"/>'
+        + joint.format(n="j1", p="base", c="a")
+        + joint.format(n="j2", p="a", c="b")
+        + "</robot>"
+    )
 
     class Rail(Embodiment):
         name = "rail"
@@ -209,15 +222,21 @@ def test_frames_beyond_the_trajectory(franka_problem):
     assert f"field 'points[0].frame': expected a frame index below {len(traj)}" in msg
 
 
-@pytest.mark.parametrize("doc, field, found", [
-    ([], "<document>", "list"),
-    ({"pts": []}, "pts", "unknown keys ['pts']"),
-    ({"points": [{"frame": 0, "point": "a", "u": 1}]}, "points[0]", "missing ['v']"),
-    ({"points": [{"frame": -1, "point": "a", "u": 1, "v": 2}]}, "points[0].frame", "-1"),
-    ({"points": [{"frame": 0, "point": "a", "u": float("nan"), "v": 2}]}, "points[0].u", "NaN"),
-    ({"points": [{"frame": 0, "point": "a", "u": 1, "v": 2}, {"frame": 0, "point": "a", "u": 3, "v": 4}]},
-     "points[1]", "a second entry for frame 0, point 'a' (first: points[0])"),
-])
+@pytest.mark.parametrize(
+    "doc, field, found",
+    [
+        ([], "<document>", "list"),
+        ({"pts": []}, "pts", "unknown keys ['pts']"),
+        ({"points": [{"frame": 0, "point": "a", "u": 1}]}, "points[0]", "missing ['v']"),
+        ({"points": [{"frame": -1, "point": "a", "u": 1, "v": 2}]}, "points[0].frame", "-1"),
+        ({"points": [{"frame": 0, "point": "a", "u": float("nan"), "v": 2}]}, "points[0].u", "NaN"),
+        (
+            {"points": [{"frame": 0, "point": "a", "u": 1, "v": 2}, {"frame": 0, "point": "a", "u": 3, "v": 4}]},
+            "points[1]",
+            "a second entry for frame 0, point 'a' (first: points[0])",
+        ),
+    ],
+)
 def test_points_file_errors_name_the_field(tmp_path, doc, field, found):
     path = tmp_path / "p.json"
     path.write_text(json.dumps(doc))
@@ -244,8 +263,9 @@ def _inputs(tmp_path, emb_name="kuka", seed=1):
     save_trajectory(traj, tmp_path / "traj.npz")
     save_points(pts, tmp_path / "points.json")
     i = cam.intrinsics
-    (tmp_path / "intr.json").write_text(json.dumps({"image_size": [i.width, i.height],
-                                                    "intrinsics": {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy}}))
+    (tmp_path / "intr.json").write_text(
+        json.dumps({"image_size": [i.width, i.height], "intrinsics": {"fx": i.fx, "fy": i.fy, "cx": i.cx, "cy": i.cy}})
+    )
     return emb, traj, cam
 
 
@@ -255,10 +275,33 @@ def test_cli_writes_the_camera_and_an_overlay(tmp_path, capsys):
     emb, traj, cam = _inputs(tmp_path)
     rgb = np.full((len(traj), SIZE[1], SIZE[0], 3), 40, np.uint8)
     write_video(tmp_path / "rgb.mkv", rgb, traj.fps)
-    base = ["calibrate", "--embodiment", "kuka", "--trajectory", str(tmp_path / "traj.npz"),
-            "--points", str(tmp_path / "points.json"), "--size", "640x480"]
-    assert main(base + ["--intrinsics", str(tmp_path / "intr.json"), "--out", str(tmp_path / "cam.json"),
-                        "--video", str(tmp_path / "rgb.mkv"), "--overlay", str(tmp_path / "check.mkv")]) == 0
+    base = [
+        "calibrate",
+        "--embodiment",
+        "kuka",
+        "--trajectory",
+        str(tmp_path / "traj.npz"),
+        "--points",
+        str(tmp_path / "points.json"),
+        "--size",
+        "640x480",
+    ]
+    assert (
+        main(
+            base
+            + [
+                "--intrinsics",
+                str(tmp_path / "intr.json"),
+                "--out",
+                str(tmp_path / "cam.json"),
+                "--video",
+                str(tmp_path / "rgb.mkv"),
+                "--overlay",
+                str(tmp_path / "check.mkv"),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert out.startswith(f"wrote {tmp_path / 'cam.json'}:") and "lbr_iiwa_link_4" in out
     got = load_camera(tmp_path / "cam.json")
@@ -276,19 +319,30 @@ def test_cli_writes_the_camera_and_an_overlay(tmp_path, capsys):
     assert abs(load_camera(tmp_path / "cam2.json").intrinsics.fx - 600) < 30
 
 
-@pytest.mark.parametrize("change, expect", [
-    ({"--points": "missing.json"}, "missing.json"),
-    ({"--size": "640x"}, "--size: expected WIDTHxHEIGHT"),
-    ({"--embodiment": "franka"}, "points.json: field 'embodiment': expected 'franka', found 'kuka'"),
-    ({"--intrinsics": "points.json"}, "points.json: field 'points': expected only the keys"),
-    ({"--video": "rgb.mkv"}, "--video and --overlay go together"),
-])
+@pytest.mark.parametrize(
+    "change, expect",
+    [
+        ({"--points": "missing.json"}, "missing.json"),
+        ({"--size": "640x"}, "--size: expected WIDTHxHEIGHT"),
+        ({"--embodiment": "franka"}, "points.json: field 'embodiment': expected 'franka', found 'kuka'"),
+        ({"--intrinsics": "points.json"}, "points.json: field 'points': expected only the keys"),
+        ({"--video": "rgb.mkv"}, "--video and --overlay go together"),
+    ],
+)
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, change, expect):
     _inputs(tmp_path)
-    args = {"--embodiment": "kuka", "--trajectory": "traj.npz", "--points": "points.json", "--size": "640x480",
-            "--intrinsics": "intr.json", "--out": "cam.json", **change}
-    argv = ["calibrate"] + [x for k, v in args.items() for x in (k, v if k in ("--embodiment", "--size")
-                                                               else str(tmp_path / v))]
+    args = {
+        "--embodiment": "kuka",
+        "--trajectory": "traj.npz",
+        "--points": "points.json",
+        "--size": "640x480",
+        "--intrinsics": "intr.json",
+        "--out": "cam.json",
+        **change,
+    }
+    argv = ["calibrate"] + [
+        x for k, v in args.items() for x in (k, v if k in ("--embodiment", "--size") else str(tmp_path / v))
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and expect in err

@@ -23,9 +23,11 @@ from oscar_core.toyworld.episode import episode_rng, make_episode
 
 SIZE, FRAMES = (160, 120), 24
 
-WRONG = ([(f"{d} cm along {a}", np.eye(3)[k] * d / 100, np.zeros(3)) for d in (2, 5, 10) for k, a in enumerate("xy")]
-         + [("10 cm along z", np.array([0, 0, 0.1]), np.zeros(3))]
-         + [(f"{d} deg about {a}", np.zeros(3), np.eye(3)[k] * d) for d in (2, 5) for k, a in enumerate("xyz")])
+WRONG = (
+    [(f"{d} cm along {a}", np.eye(3)[k] * d / 100, np.zeros(3)) for d in (2, 5, 10) for k, a in enumerate("xy")]
+    + [("10 cm along z", np.array([0, 0, 0.1]), np.zeros(3))]
+    + [(f"{d} deg about {a}", np.zeros(3), np.eye(3)[k] * d) for d in (2, 5) for k, a in enumerate("xyz")]
+)
 
 
 @pytest.fixture(scope="module", params=["toyarm", "franka", "kuka"])
@@ -102,8 +104,18 @@ def test_cli_score(tmp_path, capsys):
     write_video(tmp_path / "rgb.mkv", ep.rgb, 10.0)
     save_trajectory(ep.trajectory, tmp_path / "traj.npz")
     save_camera(ep.camera, tmp_path / "cam.json")
-    args = ["calibrate", "score", "--video", str(tmp_path / "rgb.mkv"), "--trajectory", str(tmp_path / "traj.npz"),
-            "--camera", str(tmp_path / "cam.json"), "--embodiment", "toyarm"]
+    args = [
+        "calibrate",
+        "score",
+        "--video",
+        str(tmp_path / "rgb.mkv"),
+        "--trajectory",
+        str(tmp_path / "traj.npz"),
+        "--camera",
+        str(tmp_path / "cam.json"),
+        "--embodiment",
+        "toyarm",
+    ]
     assert main(args + ["--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     direct = calibration_score(ep.rgb, emb, ep.trajectory, ep.camera)
@@ -132,12 +144,15 @@ def test_data_filter_rejects_a_wrong_calibration(tmp_path):
     write_episode(src, "wrong", ep.trajectory, perturb_camera(ep.camera, (0.1, 0, 0)), rgb=ep.rgb, size=SIZE)
     out = str(tmp_path / "run")
     run_ingest(str(src), "npz", out, workers=1, progress=False)
-    run_filter(out, FilterConfig(min_length=10, max_point_speed=100, min_calibration_score=0.5), workers=1, progress=False)
+    run_filter(
+        out, FilterConfig(min_length=10, max_point_speed=100, min_calibration_score=0.5), workers=1, progress=False
+    )
     rows = {r["id"].split("/")[1]: r for r in read_stage(str(Path(out) / "filter"))}
     right, wrong = rows["right"], rows["wrong"]
     assert right["filter_status"] == "ok", right["filter_reason"]
     assert right["filter_calibration_score"] == pytest.approx(
-        calibration_score(ep.rgb, emb, ep.trajectory, ep.camera).score, abs=0.05)  # after the video's compression
+        calibration_score(ep.rgb, emb, ep.trajectory, ep.camera).score, abs=0.05
+    )  # after the video's compression
     assert wrong["filter_status"] == "rejected" and wrong["filter_reason"].startswith("calibration_score: ")
     assert wrong["filter_value"] < 0.5
     # off by default: not measured
@@ -147,7 +162,6 @@ def test_data_filter_rejects_a_wrong_calibration(tmp_path):
         run_filter(out, FilterConfig(min_length=10, max_point_speed=100), workers=1, progress=False)
     rows = {r["id"].split("/")[1]: r for r in read_stage(str(Path(out) / "filter"))}
     assert np.isnan(rows["wrong"]["filter_calibration_score"]) and rows["wrong"]["filter_status"] == "ok"
-
 
 
 def test_perturb_camera_moves_and_turns_in_the_cameras_own_axes():

@@ -52,9 +52,13 @@ def random_intrinsics(rng: np.random.Generator, n_dist: int) -> Intrinsics:
     }
     dist = tuple(rng.uniform(-1, 1, n_dist) * np.array(mild[n_dist])) if n_dist else ()
     return Intrinsics(
-        fx=rng.uniform(300, 900), fy=rng.uniform(300, 900),
-        cx=W / 2 + rng.uniform(-20, 20), cy=H / 2 + rng.uniform(-20, 20),
-        width=W, height=H, distortion=dist,
+        fx=rng.uniform(300, 900),
+        fy=rng.uniform(300, 900),
+        cx=W / 2 + rng.uniform(-20, 20),
+        cy=H / 2 + rng.uniform(-20, 20),
+        width=W,
+        height=H,
+        distortion=dist,
     )
 
 
@@ -124,11 +128,18 @@ def test_moving_camera_matches_hand_composition():
     T_link_cv = random_pose(rng)
     T_world_link = np.stack([random_pose(rng) for _ in range(T)])
     pts_cv = points_in_view(rng, T * K).reshape(T, K, 3)
-    pts_world = np.einsum("tij,tkj->tki", T_world_link[:, :3, :3], np.einsum("ij,tkj->tki", T_link_cv[:3, :3], pts_cv)
-                          + T_link_cv[:3, 3]) + T_world_link[:, None, :3, 3]
+    pts_world = (
+        np.einsum(
+            "tij,tkj->tki",
+            T_world_link[:, :3, :3],
+            np.einsum("ij,tkj->tki", T_link_cv[:3, :3], pts_cv) + T_link_cv[:3, 3],
+        )
+        + T_world_link[:, None, :3, 3]
+    )
     for convention, direction in itertools.product(CONVENTIONS, DIRECTIONS):
-        cam = Camera(intr, user_extrinsic(T_link_cv, convention, direction), convention, direction,
-                     mount_link="head_link")
+        cam = Camera(
+            intr, user_extrinsic(T_link_cv, convention, direction), convention, direction, mount_link="head_link"
+        )
         proj = project(pts_world, cam, mount_pose=T_world_link)
         assert proj.uv.shape == (T, K, 2)
         for t in range(0, T, 10):
@@ -157,8 +168,14 @@ def test_mount_pose_misuse_raises():
 
 @pytest.mark.parametrize("convention", ALL_CONVENTIONS)
 def test_point_straight_ahead_hits_principal_point(convention):
-    forward = {"opencv": [0, 0, 1], "ros_optical": [0, 0, 1], "opengl": [0, 0, -1], "blender": [0, 0, -1],
-               "ros_body": [1, 0, 0], "ros": [1, 0, 0]}[convention]
+    forward = {
+        "opencv": [0, 0, 1],
+        "ros_optical": [0, 0, 1],
+        "opengl": [0, 0, -1],
+        "blender": [0, 0, -1],
+        "ros_body": [1, 0, 0],
+        "ros": [1, 0, 0],
+    }[convention]
     intr = Intrinsics(600, 610, 333.0, 244.0, 640, 480, (0.1, -0.05, 0.01, 0.002, 0.01))
     T_world_cam = random_pose(np.random.default_rng(11))  # camera pose in its own convention
     point = transform(T_world_cam, np.array(forward, dtype=float))
@@ -184,8 +201,9 @@ def test_convention_matrices_and_unknown_name():
 
 def test_behind_and_nan_points_no_warnings():
     intr = Intrinsics(500, 500, 320, 240, 640, 480, (0.1, 0.01, 0.0, 0.0, 0.01, 0.02, 0.0, 0.0))
-    pts = np.array([[0, 0, -1.0], [0.1, 0.1, 0.0], [np.nan, 0, 1], [0, 0, np.nan], [np.inf, 0, 1],
-                    [0, 0, 1e-9], [0, 0, 2.0]])
+    pts = np.array(
+        [[0, 0, -1.0], [0.1, 0.1, 0.0], [np.nan, 0, 1], [0, 0, np.nan], [np.inf, 0, 1], [0, 0, 1e-9], [0, 0, 2.0]]
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         proj = project(pts, Camera(intr, np.eye(4)))
@@ -303,11 +321,15 @@ def test_json_round_trip_and_extrinsic_forms(tmp_path):
     save_camera(cam, out)
     assert load_camera(out) == cam
     assert camera_from_dict(camera_to_dict(cam)) == cam
-    assert sorted(os.listdir(tmp_path)) == sorted(["cam.json", "xyz_quat_xyzw.json", "matrix.json", "k.json",
-                                                   "saved.json"])
+    assert sorted(os.listdir(tmp_path)) == sorted(
+        ["cam.json", "xyz_quat_xyzw.json", "matrix.json", "k.json", "saved.json"]
+    )
 
-    minimal = {"image_size": [64, 48], "intrinsics": {"fx": 1, "fy": 1, "cx": 0, "cy": 0},
-               "extrinsic": {"matrix": np.eye(4).tolist()}}
+    minimal = {
+        "image_size": [64, 48],
+        "intrinsics": {"fx": 1, "fy": 1, "cx": 0, "cy": 0},
+        "extrinsic": {"matrix": np.eye(4).tolist()},
+    }
     m = camera_from_dict(minimal)
     assert (m.convention, m.direction, m.mount_link, m.intrinsics.distortion) == ("opencv", "camera_to_world", None, ())
 
@@ -382,8 +404,11 @@ def test_atomic_save_into_missing_directory(tmp_path):
 def test_defaults_from_the_embodiment_spec_fill_omitted_keys(tmp_path):
     from oscar_core.plugin.embodiment import CameraSpec
 
-    d = {"image_size": [640, 480], "intrinsics": {"fx": 500, "fy": 500, "cx": 320, "cy": 240},
-         "extrinsic": {"matrix": np.eye(4).tolist()}}
+    d = {
+        "image_size": [640, 480],
+        "intrinsics": {"fx": 500, "fy": 500, "cx": 320, "cy": 240},
+        "extrinsic": {"matrix": np.eye(4).tolist()},
+    }
     p = tmp_path / "cam.json"
     p.write_text(json.dumps(d))
     spec = CameraSpec(convention="opengl", direction="world_to_camera")

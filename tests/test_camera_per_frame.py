@@ -70,8 +70,9 @@ def test_link_mounted_per_frame_offset_matches_cv2_frame_by_frame(direction):
     intr = intrinsics(4)
     link = np.stack([random_pose(rng) for _ in range(T)])  # T_world_link per frame (from FK)
     offset = np.stack([random_pose(rng) for _ in range(T)])  # T_link_cv per frame (the camera file)
-    cam = Camera(intr, np.stack([user_extrinsic(E, "opencv", direction) for E in offset]), "opencv", direction,
-                 mount_link="head")
+    cam = Camera(
+        intr, np.stack([user_extrinsic(E, "opencv", direction) for E in offset]), "opencv", direction, mount_link="head"
+    )
     pts = np.stack([points_before(link[t] @ offset[t], rng) for t in range(T)])
     proj = project(pts, cam, mount_pose=link)
     for t in range(T):
@@ -82,8 +83,11 @@ def test_link_mounted_per_frame_offset_matches_cv2_frame_by_frame(direction):
 
 
 def base(extrinsic) -> dict:
-    return {"image_size": [640, 480], "intrinsics": {"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5},
-            "extrinsic": extrinsic}
+    return {
+        "image_size": [640, 480],
+        "intrinsics": {"fx": 600.0, "fy": 600.0, "cx": 319.5, "cy": 239.5},
+        "extrinsic": extrinsic,
+    }
 
 
 def test_file_forms_per_frame_agree(tmp_path):
@@ -142,7 +146,10 @@ def test_time_slice_and_frame_check():
     with pytest.raises(CameraFileError) as e:
         cam.check_frames(T + 1, "cam.json")
     assert (e.value.field, e.value.expected, e.value.found) == (
-        "extrinsic", f"{T + 1} per-frame extrinsics, one per trajectory frame", f"{T} extrinsics")
+        "extrinsic",
+        f"{T + 1} per-frame extrinsics, one per trajectory frame",
+        f"{T} extrinsics",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -154,8 +161,9 @@ def franka_example():
 
 def test_render_per_frame_equals_one_static_render_per_frame(franka_example):
     emb, traj, cam = franka_example
-    orbit = np.stack([look_at([1.6 * np.cos(a), 1.6 * np.sin(a), 0.9], [0.3, 0.0, 0.35])
-                      for a in np.linspace(-0.9, 0.9, len(traj))])
+    orbit = np.stack(
+        [look_at([1.6 * np.cos(a), 1.6 * np.sin(a), 0.9], [0.3, 0.0, 0.35]) for a in np.linspace(-0.9, 0.9, len(traj))]
+    )
     moving = Camera(cam.intrinsics, orbit)
     video = render_skeleton_video(emb, traj, moving)
     assert video.shape[0] == len(traj)
@@ -174,7 +182,9 @@ def test_render_refuses_a_frame_count_mismatch(franka_example):
     with pytest.raises(CameraFileError) as e:
         render_skeleton_video(emb, traj, moving, camera_source="head_cam.json")
     msg = str(e.value)
-    assert "head_cam.json" in msg and f"{len(traj)} per-frame extrinsics" in msg and f"{len(traj) + 3} extrinsics" in msg
+    assert (
+        "head_cam.json" in msg and f"{len(traj)} per-frame extrinsics" in msg and f"{len(traj) + 3} extrinsics" in msg
+    )
 
 
 def test_link_mounted_per_frame_render_agibot():
@@ -204,8 +214,11 @@ def test_batch_paths_equal_the_frame_by_frame_ones():
     xyz = rng.uniform(-1, 1, (50, 3))
     mats = np.tile(np.eye(4), (50, 1, 1))
     mats[:, :3, :3], mats[:, :3, 3] = rot.as_matrix(), xyz
-    for form, value in {"matrix": mats.tolist(), "xyz_rpy": np.column_stack([xyz, rot.as_euler("xyz")]).tolist(),
-                        "xyz_quat_xyzw": np.column_stack([xyz, rot.as_quat() * 1.0005]).tolist()}.items():
+    for form, value in {
+        "matrix": mats.tolist(),
+        "xyz_rpy": np.column_stack([xyz, rot.as_euler("xyz")]).tolist(),
+        "xyz_quat_xyzw": np.column_stack([xyz, rot.as_quat() * 1.0005]).tolist(),
+    }.items():
         fast = _per_frame_fast(form, value)
         slow = np.stack([_parse_one_extrinsic(form, v, form, "<t>") for v in value])
         assert fast is not None and np.abs(fast - slow).max() < 1e-14, form
@@ -228,8 +241,14 @@ def test_keypoint_embodiment_world_points_with_a_per_frame_camera():
 
     T_, rng = 5, np.random.default_rng(5)
     poses = np.stack([look_at(rng.uniform(-0.1, 0.1, 3) + [0.0, -0.1, 0.0], [0.0, 0.0, 0.45]) for _ in range(T_)])
-    kp = np.stack([np.stack([hand_keypoints(0.2 * t, side="left") + [-0.08, 0, 0.45],
-                             hand_keypoints(0.2 * t) + [0.08, 0, 0.45]]) for t in range(T_)])  # world frame
+    kp = np.stack(
+        [
+            np.stack(
+                [hand_keypoints(0.2 * t, side="left") + [-0.08, 0, 0.45], hand_keypoints(0.2 * t) + [0.08, 0, 0.45]]
+            )
+            for t in range(T_)
+        ]
+    )  # world frame
     grip = np.full((T_, 2), 0.5)
     intr = Intrinsics(200.0, 200.0, 95.5, 71.5, 192, 144)
     world = trajectory_from_keypoints(kp, 30.0, gripper=grip)
@@ -258,8 +277,17 @@ def test_training_clip_window_slices_a_per_frame_camera(tmp_path):
     rgb = rng.integers(0, 255, (10, 24, 32, 3), dtype=np.uint8)
 
     def rec(clip_id):
-        return ClipRecord(id=clip_id, source="test", embodiment="toyarm", n_frames=10, fps=float(traj.fps), width=32,
-                          height=24, openness=tuple((1.0,) for _ in range(10)), files={})
+        return ClipRecord(
+            id=clip_id,
+            source="test",
+            embodiment="toyarm",
+            n_frames=10,
+            fps=float(traj.fps),
+            width=32,
+            height=24,
+            openness=tuple((1.0,) for _ in range(10)),
+            files={},
+        )
 
     w = ClipSetWriter(tmp_path)
     with w.shard("shard-000000") as s:

@@ -56,14 +56,14 @@ def test_every_vertex_lies_on_its_capsule_surface():
     world, faces, part = body_vertices(fr, edges, 1.0, CapsuleStyle(segments=8))
     radii = link_radii(2, 1.0)
     n = world.shape[1] // 2
-    assert (part[:len(faces) // 2] == 0).all() and (part[len(faces) // 2:] == 1).all()
+    assert (part[: len(faces) // 2] == 0).all() and (part[len(faces) // 2 :] == 1).all()
     for t in range(T):
         for e, (i, j) in enumerate(edges):
-            v = world[t, e * n:(e + 1) * n]
+            v = world[t, e * n : (e + 1) * n]
             np.testing.assert_allclose(_segment_distance(v, pts[t, i], pts[t, j]), radii[e], rtol=0, atol=1e-9)
     # closed and wound outward: the signed volume of each capsule is positive
     v = world[0, :n]
-    f = faces[:len(faces) // 2]
+    f = faces[: len(faces) // 2]
     vol = np.einsum("fi,fi->f", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6
     L = np.linalg.norm(pts[0, 1] - pts[0, 0])
     exact = np.pi * radii[0] ** 2 * L + 4 / 3 * np.pi * radii[0] ** 3
@@ -82,7 +82,7 @@ def test_the_finger_gap_follows_the_openness():
     np.testing.assert_allclose(axis, [[1.0, 0, 0]] * T)  # from the last skeleton point to the indicator
     n = world.shape[1] // 4  # two edges, two fingers, same capsule each
     for t in range(T):
-        a, b = world[t, 2 * n:3 * n].mean(0), world[t, 3 * n:].mean(0)  # finger centres
+        a, b = world[t, 2 * n : 3 * n].mean(0), world[t, 3 * n :].mean(0)  # finger centres
         gap = np.linalg.norm(a - b)
         assert gap == pytest.approx(2 * r_tip * (0.5 + 1.5 * openness[t, 0]), abs=1e-9)
     assert set(part.tolist()) == {0, 1, 2}  # both fingers are the gripper's part
@@ -104,8 +104,9 @@ def test_the_silhouette_is_the_toy_worlds_own_capsules(registry, name):
     judged = world.label < E  # pixels where the ball or the marker is in front say nothing about the links
 
     def iou(reach):
-        ours = render_capsule_video(emb, ep.trajectory, ep.camera,
-                                    style=CapsuleStyle(reach=reach, fingers=False, segments=16)).any(-1)
+        ours = render_capsule_video(
+            emb, ep.trajectory, ep.camera, style=CapsuleStyle(reach=reach, fingers=False, segments=16)
+        ).any(-1)
         return (truth & ours & judged).sum() / ((truth | ours) & judged).sum()
 
     same = iou(ep.motion.scale)
@@ -151,9 +152,26 @@ def test_render_cli_draws_capsules_for_a_robot_without_meshes(tmp_path, registry
     save_trajectory(ep.trajectory, tmp_path / "t.npz")
     save_camera(ep.camera, tmp_path / "c.json")
     out = tmp_path / "caps.mkv"
-    r = subprocess.run([sys.executable, "-m", "oscar_core.cli", "render", "--embodiment", "kuka", "--trajectory",
-                        str(tmp_path / "t.npz"), "--camera", str(tmp_path / "c.json"), "--out", str(out),
-                        "--condition", "capsules"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "oscar_core.cli",
+            "render",
+            "--embodiment",
+            "kuka",
+            "--trajectory",
+            str(tmp_path / "t.npz"),
+            "--camera",
+            str(tmp_path / "c.json"),
+            "--out",
+            str(out),
+            "--condition",
+            "capsules",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     from oscar_core.media.video import read_video
 
@@ -185,15 +203,22 @@ def test_a_capsule_cache_holds_capsule_latents_and_a_capsule_run_uses_them(tmp_p
     assert ClipSet(tmp_path / "skel").load(rec.id, registry=reg).latents["condition"] == "skeleton"
     # a capsule run reads the capsule latents from the cache; on the skeleton cache it renders and encodes them
     for cached in ("caps", "skel"):
-        cfg = tiny(tmp_path / cached, tmp_path / f"run-{cached}", steps=1, batch_size=1, condition="capsules",
-                   **{"data.skeleton_dropout": 0.0})
+        cfg = tiny(
+            tmp_path / cached,
+            tmp_path / f"run-{cached}",
+            steps=1,
+            batch_size=1,
+            condition="capsules",
+            **{"data.skeleton_dropout": 0.0},
+        )
         data = TrainData(cfg, vae, 48)
         item = data.planner().plan(0, 1)[0]
         got = data.load_item(item, "capsules")["skeleton"]
         r = data.clips[item.clip].record
         c = ClipSet(tmp_path / cached).load(r.id, start=item.start, frames=9, registry=reg)
-        want = vae.encode(vae.to_pixels(render_capsule_video(reg.get(r.embodiment), c.trajectory, c.camera,
-                                                             (32, 32))))[0]
+        want = vae.encode(vae.to_pixels(render_capsule_video(reg.get(r.embodiment), c.trajectory, c.camera, (32, 32))))[
+            0
+        ]
         assert torch.allclose(got, want, atol=1e-5), cached
 
 
@@ -229,15 +254,47 @@ def test_a_capsules_model_exports_its_condition_and_rolls_out_through_the_clis(t
     got = model.rollout_inputs(clip.trajectory, clip.camera, reg.get("toyarm"), (32, 32))["skeleton"]
     np.testing.assert_array_equal(got, want)
     out = tmp_path / "preds"
-    assert main(["toyworld", "rollout", str(clips), "--model", str(result.export), "--steps", "1", "--out", str(out)]) == 0
+    assert (
+        main(["toyworld", "rollout", str(clips), "--model", str(result.export), "--steps", "1", "--out", str(out)]) == 0
+    )
     video = np.load(out / f"{rec.id}.npy")
     assert video.shape == (9, 32, 32, 3)
     fp = json.loads((out / "fingerprint.json").read_text())
     assert "capsules" in json.dumps(fp)
-    assert main(["eval", "benchmark", "build", str(clips), "--out", str(tmp_path / "b.json"), "--total", "1",
-                 "--frames", "9"]) == 0
-    assert main(["eval", "benchmark", "run", str(tmp_path / "b.json"), "--model", str(result.export), "--steps", "1",
-                 "--out", str(tmp_path / "bp")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "benchmark",
+                "build",
+                str(clips),
+                "--out",
+                str(tmp_path / "b.json"),
+                "--total",
+                "1",
+                "--frames",
+                "9",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "eval",
+                "benchmark",
+                "run",
+                str(tmp_path / "b.json"),
+                "--model",
+                str(result.export),
+                "--steps",
+                "1",
+                "--out",
+                str(tmp_path / "bp"),
+            ]
+        )
+        == 0
+    )
     assert len(list((tmp_path / "bp").glob("*.npy"))) == 1
 
 

@@ -50,15 +50,23 @@ def test_an_argument_overrides_the_card(monkeypatch):
     assert (used.steps, used.guidance) == (2, 6.0)  # a sampler given is used as it is
     choice = resolve_sampler(model.card.sampler, steps=5)
     assert (choice.config.steps, choice.config.guidance) == (5, 3.0)
-    assert choice.sources == {"steps": "given", "guidance": "model card", "guidance_form": "model card",
-                              "preset": "model card"}
-    assert choice.describe("flag") == ("steps 5 (flag), guidance 3 (model card), guidance form diffusers "
-                                       "(model card), preset none (model card)")
+    assert choice.sources == {
+        "steps": "given",
+        "guidance": "model card",
+        "guidance_form": "model card",
+        "preset": "model card",
+    }
+    assert choice.describe("flag") == (
+        "steps 5 (flag), guidance 3 (model card), guidance form diffusers (model card), preset none (model card)"
+    )
 
 
 def test_a_card_without_settings_falls_back_to_the_library_default(monkeypatch):
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5, width=32, height=32))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, width=32, height=32),
+    )
     assert model.card.sampler is None
     used = _captured_sampler(model, monkeypatch)
     assert used == model.sampler_for(SamplerConfig())  # 35 steps, guidance 6, diffusers form, every step
@@ -74,17 +82,25 @@ def test_presets_and_steps_by_level():
     assert resolve_sampler({"steps": 20}, preset="fast").config.steps == 12
     assert resolve_sampler({"preset": "fast"}, steps=7).config.steps == 7
     assert resolve_sampler(None, defaults={"guidance_form": "standard"}).config.guidance_form == "standard"
-    assert resolve_sampler({"guidance_form": "diffusers"}, defaults={"guidance_form": "standard"}).config \
-        .guidance_form == "diffusers"
+    assert (
+        resolve_sampler({"guidance_form": "diffusers"}, defaults={"guidance_form": "standard"}).config.guidance_form
+        == "diffusers"
+    )
 
 
-@pytest.mark.parametrize(("sampler", "message"), [
-    ({"steps": 0}, "model card sampler.steps: expected an integer >= 1, found 0"),
-    ({"guidance": -1}, "model card sampler.guidance: expected a finite number >= 0, found -1"),
-    ({"guidance_form": "odd"}, "model card sampler.guidance_form: expected one of"),
-    ({"preset": "slow"}, "model card sampler.preset: expected one of ['fast', 'paper'] or null, found 'slow'"),
-    ({"shift": 3}, "model card sampler: expected keys among steps, guidance, guidance_form, preset, found ['shift']"),
-])
+@pytest.mark.parametrize(
+    ("sampler", "message"),
+    [
+        ({"steps": 0}, "model card sampler.steps: expected an integer >= 1, found 0"),
+        ({"guidance": -1}, "model card sampler.guidance: expected a finite number >= 0, found -1"),
+        ({"guidance_form": "odd"}, "model card sampler.guidance_form: expected one of"),
+        ({"preset": "slow"}, "model card sampler.preset: expected one of ['fast', 'paper'] or null, found 'slow'"),
+        (
+            {"shift": 3},
+            "model card sampler: expected keys among steps, guidance, guidance_form, preset, found ['shift']",
+        ),
+    ],
+)
 def test_a_bad_card_setting_is_refused_naming_the_key(sampler, message):
     with pytest.raises(ModelInputError, match=message.replace("[", r"\[").replace("]", r"\]")):
         ModelCard(sampler=sampler)

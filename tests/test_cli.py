@@ -34,21 +34,57 @@ def test_embodiments_table_and_json(capsys):
 
 
 def test_render_mp4_lossless_and_png(tmp_path, capsys):
-    code, out, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                         "--out", tmp_path / "skel.mp4", "--size", "512x288")
+    code, out, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "skel.mp4",
+        "--size",
+        "512x288",
+    )
     assert code == 0, err
     video = read_video(tmp_path / "skel.mp4")
     assert video.shape == (81, 288, 512, 3)
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", tmp_path / "skel.mkv", "--size", "320x180")
+    code, _, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "skel.mkv",
+        "--size",
+        "320x180",
+    )
     assert code == 0, err
     lossless = read_video(tmp_path / "skel.mkv")
     from oscar_core import get_embodiment, load_camera, load_trajectory, render_skeleton_video
 
     direct = render_skeleton_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (320, 180))
     np.testing.assert_array_equal(lossless, direct)
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", str(tmp_path / "frames") + "/", "--size", "320x180")
+    code, _, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        str(tmp_path / "frames") + "/",
+        "--size",
+        "320x180",
+    )
     assert code == 0, err
     np.testing.assert_array_equal(read_video(tmp_path / "frames"), direct)
 
@@ -57,8 +93,20 @@ def test_overlay_blends_over_real_video(tmp_path, capsys):
     rng = np.random.default_rng(0)
     rgb = np.broadcast_to(rng.integers(40, 200, (1, 360, 640, 3), dtype=np.uint8), (81, 360, 640, 3))
     write_video(tmp_path / "rgb.mkv", rgb, 15)
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", tmp_path / "check.mkv", "--overlay", tmp_path / "rgb.mkv")
+    code, _, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "check.mkv",
+        "--overlay",
+        tmp_path / "rgb.mkv",
+    )
     assert code == 0, err
     out = read_video(tmp_path / "check.mkv")
     assert out.shape == (81, 360, 640, 3)
@@ -68,12 +116,26 @@ def test_overlay_blends_over_real_video(tmp_path, capsys):
 
 def test_overlay_too_short(tmp_path, capsys):
     write_video(tmp_path / "short.mkv", np.zeros((10, 360, 640, 3), np.uint8), 15)
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", tmp_path / "x.mp4", "--overlay", tmp_path / "short.mkv")
+    code, _, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "x.mp4",
+        "--overlay",
+        tmp_path / "short.mkv",
+    )
     assert code == 2 and "short.mkv" in err and "at least 81 frames" in err
 
 
-@pytest.mark.parametrize("case", ["no_intrinsics", "unwritable", "unknown_embodiment", "bad_size", "wrong_embodiment_camera"])
+@pytest.mark.parametrize(
+    "case", ["no_intrinsics", "unwritable", "unknown_embodiment", "bad_size", "wrong_embodiment_camera"]
+)
 def test_bad_input_is_a_clear_error(tmp_path, capsys, case):
     cam = json.loads(CAM.read_text())
     out = tmp_path / "out.mp4"
@@ -127,8 +189,22 @@ def test_overlay_frames_are_fitted_like_the_calibration(tmp_path, capsys):
     rgb[:, :, :213] = (200, 40, 40)
     rgb[:, :, 427:] = (40, 40, 200)
     write_video(tmp_path / "rgb.mkv", rgb, 15)
-    code, _, err = run(capsys, "render", "--embodiment", "toyarm", "--trajectory", TRAJ, "--camera", CAM,
-                       "--out", tmp_path / "check.mkv", "--overlay", tmp_path / "rgb.mkv", "--size", "320x240")
+    code, _, err = run(
+        capsys,
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        tmp_path / "check.mkv",
+        "--overlay",
+        tmp_path / "rgb.mkv",
+        "--size",
+        "320x240",
+    )
     assert code == 0, err
     skeleton = render_skeleton_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (320, 240))
     fitted = np.stack([fit_image(f, 320, 240, "crop") for f in rgb])

@@ -37,8 +37,9 @@ def _leaves(parser, path=()):
 
 
 def _looks_like_output(action) -> bool:
-    return any(o in OUTPUT_NAMES or o.endswith("-out") for o in action.option_strings) or \
-        (not action.option_strings and action.dest in ("out", "dst"))
+    return any(o in OUTPUT_NAMES or o.endswith("-out") for o in action.option_strings) or (
+        not action.option_strings and action.dest in ("out", "dst")
+    )
 
 
 def _argv(path, parser, target_action, target: str) -> list[str]:
@@ -62,18 +63,32 @@ CASES = [(path, parser, a) for path, parser in _leaves(build_parser()) for a in 
 
 
 def test_every_option_named_like_an_output_is_checked():
-    unmarked = [f"oscar {' '.join(path)} {a.option_strings or a.dest}" for path, parser in _leaves(build_parser())
-                for a in parser._actions if _looks_like_output(a) and not output_kind(a)]
+    unmarked = [
+        f"oscar {' '.join(path)} {a.option_strings or a.dest}"
+        for path, parser in _leaves(build_parser())
+        for a in parser._actions
+        if _looks_like_output(a) and not output_kind(a)
+    ]
     assert unmarked == []
     assert len(CASES) >= 30  # every writer of the CLI (render, eval, data, train, toyworld, zoo, demo, ...)
     covered = {path for path, _, _ in CASES}
-    for must in [("eval", "run"), ("data", "ingest"), ("train",), ("render",), ("rollout",), ("demo",),
-                 ("eval", "benchmark", "build"), ("toyworld", "eval"), ("data", "filter")]:
+    for must in [
+        ("eval", "run"),
+        ("data", "ingest"),
+        ("train",),
+        ("render",),
+        ("rollout",),
+        ("demo",),
+        ("eval", "benchmark", "build"),
+        ("toyworld", "eval"),
+        ("data", "filter"),
+    ]:
         assert must in covered, must
 
 
-@pytest.mark.parametrize("path,parser,action", CASES,
-                         ids=[f"{' '.join(p)}:{(a.option_strings or [a.dest])[0]}" for p, _, a in CASES])
+@pytest.mark.parametrize(
+    "path,parser,action", CASES, ids=[f"{' '.join(p)}:{(a.option_strings or [a.dest])[0]}" for p, _, a in CASES]
+)
 def test_an_unwritable_output_is_one_line_and_exit_2(path, parser, action, tmp_path, capsys):
     (tmp_path / "afile").write_text("a regular file, not a folder")
     target = str(tmp_path / "afile" / "out") + ("/" if output_kind(action) == "folder" else "")
@@ -86,10 +101,14 @@ def test_an_unwritable_output_is_one_line_and_exit_2(path, parser, action, tmp_p
 
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="no /proc (a read-only file system) here")
-@pytest.mark.parametrize("argv", [["eval", "run", "m.json", "--model", "oscar-toy", "--out", "/proc/oscar-ev"],
-                                  ["data", "ingest", "src", "--reader", "npz", "--out", "/proc/oscar-run"],
-                                  ["toyworld", "generate", "--embodiments", "toyarm", "--episodes", "1", "--out",
-                                   "/proc/oscar-clips"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["eval", "run", "m.json", "--model", "oscar-toy", "--out", "/proc/oscar-ev"],
+        ["data", "ingest", "src", "--reader", "npz", "--out", "/proc/oscar-run"],
+        ["toyworld", "generate", "--embodiments", "toyarm", "--episodes", "1", "--out", "/proc/oscar-clips"],
+    ],
+)
 def test_a_folder_that_refuses_writes_is_caught_even_for_root(argv, capsys):
     """/proc refuses new files to every user: the check creates a file for real, it does not read mode bits."""
     assert main(argv) == 2

@@ -16,8 +16,10 @@ from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 from oscar_core.train.clips import CLIPSET_FILE, FORMAT_VERSION, ClipFormatError, ClipSet
 
 BASE = GenerateConfig(("toyarm",), 2, width=32, height=32, frames=9, shard_size=2)
-EXPECTED = (f"field 'format_version': expected {FORMAT_VERSION} (a set of another format is made again with the "
-            "command that made it), found 1")
+EXPECTED = (
+    f"field 'format_version': expected {FORMAT_VERSION} (a set of another format is made again with the "
+    "command that made it), found 1"
+)
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +55,23 @@ def test_generate_into_an_old_set_is_refused_naming_the_version_found_and_expect
 
 
 def test_the_command_exits_2_naming_the_field(old_set, capsys):
-    args = ["toyworld", "generate", "--embodiments", "toyarm", "--episodes", "2", "--size", "32x32", "--frames", "9",
-            "--shard-size", "2", "--out", str(old_set), "--no-progress"]
+    args = [
+        "toyworld",
+        "generate",
+        "--embodiments",
+        "toyarm",
+        "--episodes",
+        "2",
+        "--size",
+        "32x32",
+        "--frames",
+        "9",
+        "--shard-size",
+        "2",
+        "--out",
+        str(old_set),
+        "--no-progress",
+    ]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert EXPECTED in err and "Traceback" not in err

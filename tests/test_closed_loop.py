@@ -60,16 +60,24 @@ class Slow:
 
 
 def _joint_spec(name: str, attr: str, folder: Path) -> dict:
-    return {"name": name, "policy": f"{folder / 'bad_policies.py'}:{attr}", "action_space": "joint_velocity",
-            "control_hz": 10.0, "image_size": [64, 64], "actions_per_call": 8, "gripper": "position"}
+    return {
+        "name": name,
+        "policy": f"{folder / 'bad_policies.py'}:{attr}",
+        "action_space": "joint_velocity",
+        "control_hz": 10.0,
+        "image_size": [64, 64],
+        "actions_per_call": 8,
+        "gripper": "position",
+    }
 
 
 @pytest.fixture(scope="module")
 def toy(tmp_path_factory) -> Path:
     """Two toyarm sessions, the exact and the never-closing toy policies (manifest.json)."""
     root = tmp_path_factory.mktemp("closed_loop")
-    path = write_closed_loop_sessions(root / "sessions", ["toyarm"], 2, seed=3, horizon=49,
-                                      policies=["exact", "never_closes"])
+    path = write_closed_loop_sessions(
+        root / "sessions", ["toyarm"], 2, seed=3, horizon=49, policies=["exact", "never_closes"]
+    )
     (root / "bad_policies.py").write_text(BAD_POLICIES)
     return path
 
@@ -124,8 +132,22 @@ def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
     """Every image a policy was sent is the generated frame at its call (hashes), never the simulator's."""
     m = _variant(toy, "short", horizon=17)
     out = tmp_path / "wm"
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--model", "oscar-toy", "--out", str(out), "--steps", "2",
-                   "--chunk-frames", "9", "--judge", "oscar_core.toyworld.judge:ball_moved", "--no-progress"]
+    cmd = OSCAR + [
+        "eval",
+        "closed-loop",
+        str(m),
+        "--model",
+        "oscar-toy",
+        "--out",
+        str(out),
+        "--steps",
+        "2",
+        "--chunk-frames",
+        "9",
+        "--judge",
+        "oscar_core.toyworld.judge:ball_moved",
+        "--no-progress",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr
     report = json.loads((out / "report.json").read_text())
@@ -151,16 +173,32 @@ def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
 
 def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
     folder = toy.parent.parent
-    specs = [_joint_spec("line", "Line", folder), _joint_spec("nan", "NaN", folder),
-             _joint_spec("shape", "WrongShape", folder), _joint_spec("raises", "Raises", folder),
-             _joint_spec("slow", "Slow", folder), _joint_spec("missing", "NoSuchClass", folder)]
+    specs = [
+        _joint_spec("line", "Line", folder),
+        _joint_spec("nan", "NaN", folder),
+        _joint_spec("shape", "WrongShape", folder),
+        _joint_spec("raises", "Raises", folder),
+        _joint_spec("slow", "Slow", folder),
+        _joint_spec("missing", "NoSuchClass", folder),
+    ]
     m = _variant(toy, "bad", horizon=33, policies=specs)
     out = tmp_path / "bad"
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--policy-timeout", "0.5",
-                   "--no-progress", "--json"]
+    cmd = OSCAR + [
+        "eval",
+        "closed-loop",
+        str(m),
+        "--simulator",
+        "toy",
+        "--out",
+        str(out),
+        "--policy-timeout",
+        "0.5",
+        "--no-progress",
+        "--json",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode == 1, proc.stderr
-    report = json.loads(proc.stdout[proc.stdout.index("{"):])
+    report = json.loads(proc.stdout[proc.stdout.index("{") :])
     reasons = {(c["session"], c["policy"]): c["reason"] for c in report["cells"]}
     for s in ("toyarm-0000", "toyarm-0001"):
         assert reasons[(s, "line")] is None
@@ -176,16 +214,18 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
         assert rec["status"] == "failed" and "video" not in rec
     # a re-run reuses failed cells; --retry-failed redoes exactly them
     again = subprocess.run(cmd, capture_output=True, text=True)
-    counts = json.loads(again.stdout[again.stdout.index("{"):])["counts"]
+    counts = json.loads(again.stdout[again.stdout.index("{") :])["counts"]
     assert again.returncode == 1 and counts["done"] == 0 and counts["reused"] == 12
     retry = subprocess.run(cmd + ["--retry-failed"], capture_output=True, text=True)
-    counts = json.loads(retry.stdout[retry.stdout.index("{"):])["counts"]
+    counts = json.loads(retry.stdout[retry.stdout.index("{") :])["counts"]
     assert counts["done"] == 10 and counts["retried"] == 10 and counts["reused"] == 2
 
 
 def test_kill_and_resume_and_fingerprint(toy, tmp_path):
     folder = toy.parent.parent
-    m = _variant(toy, "slowish", horizon=33, policies=[_joint_spec("a", "Slow", folder), _joint_spec("b", "Slow", folder)])
+    m = _variant(
+        toy, "slowish", horizon=33, policies=[_joint_spec("a", "Slow", folder), _joint_spec("b", "Slow", folder)]
+    )
     out = tmp_path / "resume"
     cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--no-progress"]
     env = {**os.environ, "SLOW_POLICY_S": "0.3"}
@@ -200,13 +240,13 @@ def test_kill_and_resume_and_fingerprint(toy, tmp_path):
     before = first.read_bytes()
     done = subprocess.run(cmd + ["--json"], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    counts = json.loads(done.stdout[done.stdout.index("{"):])["counts"]
+    counts = json.loads(done.stdout[done.stdout.index("{") :])["counts"]
     assert counts["reused"] >= 1 and counts["reused"] + counts["done"] == 4
     assert first.read_bytes() == before  # the finished cell was not redone
     assert not list(out.rglob("*.tmp*")) and not list(out.rglob(".*.tmp*"))
     # a changed setting is noticed: every cell redone
     changed = subprocess.run(cmd + ["--json", "--replan-every", "4"], env=env, capture_output=True, text=True)
-    counts = json.loads(changed.stdout[changed.stdout.index("{"):])["counts"]
+    counts = json.loads(changed.stdout[changed.stdout.index("{") :])["counts"]
     assert counts["done"] == 4 and counts["reused"] == 0
 
 
@@ -215,13 +255,19 @@ def test_manifest_errors_name_the_field(toy, tmp_path):
     data["sessions"][1]["horizon"] = 1
     bad = toy.parent / "bad_fields.json"  # beside the session folders its paths name
     bad.write_text(json.dumps(data))
-    proc = subprocess.run(OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     assert "sessions[1] ('toyarm-0001'): field 'horizon': expected an integer >= 2" in proc.stderr
     data = json.loads(toy.read_text())
     data["policies"][0]["action_space"] = "torque"
     bad.write_text(json.dumps(data))
-    proc = subprocess.run(OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2 and "action_space" in proc.stderr and "'torque'" in proc.stderr

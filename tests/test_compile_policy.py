@@ -17,9 +17,12 @@ SAMPLER = SamplerConfig(steps=2)
 
 
 def _model(**card):
-    return OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny", chunk_frames=9, **card),
-                                        empty_prompt=torch.randn(1, 4, 48, generator=torch.Generator().manual_seed(0)))
+    return OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=9, **card),
+        empty_prompt=torch.randn(1, 4, 48, generator=torch.Generator().manual_seed(0)),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +43,10 @@ class CountingCompile:
         if self.fail_at_wrap:
             raise RuntimeError("Dynamo is not supported on this Python")
         if self.fail_at_call:
+
             def broken(*args, **kw):
                 raise RuntimeError("InductorError: CppCompileError: no C++ compiler\nlong log ...")
+
             return broken
         return fn
 
@@ -81,16 +86,19 @@ def test_the_model_weighs_its_preset_when_deciding(monkeypatch):
     assert asked == [("auto", model.device, 2 * 3, 12, 17)]
 
 
-@pytest.mark.parametrize("mode, device, chunks, steps, expected", [
-    ("auto", "cpu", 1000, 35, False),      # never on the CPU by default
-    ("auto", "cuda", 1, 35, False),        # a one-chunk rollout stays eager
-    ("auto", "cuda", 10, 35, False),
-    ("auto", "cuda:0", 11, 35, True),
-    ("auto", "cuda", 20, 12, False),       # the fast preset saves less per chunk
-    ("auto", "cuda", 32, 12, True),
-    ("always", "cpu", 1, 35, True),
-    ("never", "cuda", 1000, 35, False),
-])
+@pytest.mark.parametrize(
+    "mode, device, chunks, steps, expected",
+    [
+        ("auto", "cpu", 1000, 35, False),  # never on the CPU by default
+        ("auto", "cuda", 1, 35, False),  # a one-chunk rollout stays eager
+        ("auto", "cuda", 10, 35, False),
+        ("auto", "cuda:0", 11, 35, True),
+        ("auto", "cuda", 20, 12, False),  # the fast preset saves less per chunk
+        ("auto", "cuda", 32, 12, True),
+        ("always", "cpu", 1, 35, True),
+        ("never", "cuda", 1000, 35, False),
+    ],
+)
 def test_compile_decision(mode, device, chunks, steps, expected):
     ok, why = cp.compile_decision(mode, device, chunks, steps)
     assert ok is expected and mode in why
@@ -164,7 +172,9 @@ def test_a_failing_compiler_warns_once_and_runs_eager(monkeypatch, clip, caplog,
         got = model.rollout(first, skel, sampler=SAMPLER, progress=False).frames
         again = model.rollout(first, skel, sampler=SAMPLER, progress=False).frames
     warnings = [r for r in caplog.records if "torch.compile of the DiT failed" in r.getMessage()]
-    assert len(warnings) == 1 and ("CppCompileError" if where == "call" else "not supported") in warnings[0].getMessage()
+    assert (
+        len(warnings) == 1 and ("CppCompileError" if where == "call" else "not supported") in warnings[0].getMessage()
+    )
     assert fake.calls == 1 and not cp.is_compiled(model.transformer)
     assert "forward" not in model.transformer.__dict__  # the plain module again
     np.testing.assert_array_equal(got, eager)
@@ -176,8 +186,11 @@ def test_an_input_error_is_not_swallowed_by_the_fallback(monkeypatch):
     model = _model()
     cp.compile_transformer(model.transformer)
     with pytest.raises(Exception) as info:  # the eager forward's own error about the bad input
-        model.transformer(hidden_states=torch.zeros(1, 3, 1, 4, 8), timestep=torch.zeros(1),
-                          encoder_hidden_states=torch.zeros(1, 2, 48))
+        model.transformer(
+            hidden_states=torch.zeros(1, 3, 1, 4, 8),
+            timestep=torch.zeros(1),
+            encoder_hidden_states=torch.zeros(1, 2, 48),
+        )
     assert "CppCompileError" not in str(info.value)
 
 
@@ -203,11 +216,13 @@ def test_compile_cache_is_ours_after_torch_set_its_default(tmp_path):
     import subprocess
     import sys
 
-    code = ("import oscar_core.model.world_model, os\n"  # diffusers' import asks torch for its cache folder
-            "from torch._inductor.runtime.cache_dir_utils import cache_dir, default_cache_dir\n"
-            "before = os.environ.get('TORCHINDUCTOR_CACHE_DIR')\n"
-            "from oscar_core.model.compile_policy import configure_compile_cache\n"
-            "print(before == os.path.abspath(default_cache_dir()), configure_compile_cache(), cache_dir())")
+    code = (
+        "import oscar_core.model.world_model, os\n"  # diffusers' import asks torch for its cache folder
+        "from torch._inductor.runtime.cache_dir_utils import cache_dir, default_cache_dir\n"
+        "before = os.environ.get('TORCHINDUCTOR_CACHE_DIR')\n"
+        "from oscar_core.model.compile_policy import configure_compile_cache\n"
+        "print(before == os.path.abspath(default_cache_dir()), configure_compile_cache(), cache_dir())"
+    )
     env = {k: v for k, v in os.environ.items() if k != "TORCHINDUCTOR_CACHE_DIR"}
     env["OSCAR_CACHE"] = str(tmp_path / "oc")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=False)
@@ -217,8 +232,16 @@ def test_compile_cache_is_ours_after_torch_set_its_default(tmp_path):
 
 
 # --------------------------------------------------------------------------- CLI options
-@pytest.mark.parametrize("argv, expected", [([], "auto"), (["--compile"], "always"), (["--compile", "never"], "never"),
-                                            (["--no-compile"], "never"), (["--compile", "auto"], "auto")])
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        ([], "auto"),
+        (["--compile"], "always"),
+        (["--compile", "never"], "never"),
+        (["--no-compile"], "never"),
+        (["--compile", "auto"], "auto"),
+    ],
+)
 def test_compile_options(argv, expected):
     parser = argparse.ArgumentParser()
     cp.add_compile_options(parser)

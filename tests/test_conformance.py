@@ -99,8 +99,10 @@ def test_gripper_indicator_changes_when_only_openness_changes(emb):
         if not (marks.visible[0, k] and 0 <= u < 256 and 0 <= v < 144):
             continue
         ys, xs = np.mgrid[:144, :256]
-        near = (xs - u) ** 2 + (ys - v) ** 2 <= 12 ** 2
-        assert np.any(renders[0][near] != renders[1][near]), f"indicator of gripper {emb.grippers[k].name} did not change"
+        near = (xs - u) ** 2 + (ys - v) ** 2 <= 12**2
+        assert np.any(renders[0][near] != renders[1][near]), (
+            f"indicator of gripper {emb.grippers[k].name} did not change"
+        )
         return
     pytest.skip("no gripper indicator inside the example camera's first frame")
 

@@ -43,10 +43,20 @@ class MockVLM:
                     self.wfile.write(b'{"error": {"message": "overloaded"}}')
                     return
                 images = [p for p in body["messages"][1]["content"] if p["type"] == "image_url"]
-                answer = {"id": "c1", "object": "chat.completion", "created": 0, "model": body["model"],
-                          "choices": [{"index": 0, "finish_reason": "stop",
-                                       "message": {"role": "assistant", "content": f"a robot arm, {len(images)} frames"}}],
-                          "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2}}
+                answer = {
+                    "id": "c1",
+                    "object": "chat.completion",
+                    "created": 0,
+                    "model": body["model"],
+                    "choices": [
+                        {
+                            "index": 0,
+                            "finish_reason": "stop",
+                            "message": {"role": "assistant", "content": f"a robot arm, {len(images)} frames"},
+                        }
+                    ],
+                    "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2},
+                }
                 data = json.dumps(answer).encode()
                 self.send_response(200)
                 self.send_header("Content-Type", "application/json")
@@ -102,8 +112,9 @@ def test_caption_retries_caches_and_keeps_to_its_budget(tmp_path, ingested, vlm)
     assert SYSTEM_PROMPT.startswith("You are a video captioning specialist") and "80-100 words" in SYSTEM_PROMPT
     with pytest.raises(StageIncomplete):
         read_stage(str(run / "caption"))
-    second = run_caption(str(run), CaptionConfig(base_url=vlm.url, model="qwen3-vl"), workers=1, shard_size=1,
-                         progress=False)
+    second = run_caption(
+        str(run), CaptionConfig(base_url=vlm.url, model="qwen3-vl"), workers=1, shard_size=1, progress=False
+    )
     assert len(vlm.requests) == 5 and not second.incomplete  # only the two deferred ones were asked
     rows = {r["id"]: r for r in read_stage(str(run / "caption"))}
     assert rows["droid/d"]["caption"] == "a robot arm, 4 frames"  # 30 frames at 2 fps: 0, 7.5, 15, 22.5
@@ -120,11 +131,13 @@ def test_endpoint_failure_is_recorded_and_retried_next_run(tmp_path, ingested, v
     run = tmp_path / "run"
     shutil.copytree(ingested, run)
     vlm.always_fail = True
-    res = run_caption(str(run), CaptionConfig(base_url=vlm.url, model="m", max_retries=1), workers=1, shard_size=4,
-                      progress=False)
+    res = run_caption(
+        str(run), CaptionConfig(base_url=vlm.url, model="m", max_retries=1), workers=1, shard_size=4, progress=False
+    )
     assert res.incomplete == ["part-000000"] and len(vlm.requests) == 8  # 4 episodes x (1 + 1 retry)
     rows = rows_from_parquet((run / "caption" / "shards" / "part-000000.parquet").read_bytes())
     assert {r["caption_status"] for r in rows} == {"failed"} and "500" in rows[0]["caption_reason"]
     vlm.always_fail = False
-    assert not run_caption(str(run), CaptionConfig(base_url=vlm.url, model="m"), workers=1, shard_size=4,
-                           progress=False).incomplete
+    assert not run_caption(
+        str(run), CaptionConfig(base_url=vlm.url, model="m"), workers=1, shard_size=4, progress=False
+    ).incomplete

@@ -33,8 +33,9 @@ def tiny_siglip(tmp_path_factory):
     import torch
 
     torch.manual_seed(0)
-    cfg = transformers.SiglipVisionConfig(hidden_size=32, intermediate_size=37, num_hidden_layers=2,
-                                          num_attention_heads=2, image_size=32, patch_size=8)
+    cfg = transformers.SiglipVisionConfig(
+        hidden_size=32, intermediate_size=37, num_hidden_layers=2, num_attention_heads=2, image_size=32, patch_size=8
+    )
     path = tmp_path_factory.mktemp("siglip") / "tiny-siglip"
     transformers.SiglipVisionModel(cfg).save_pretrained(path)
     return str(path)
@@ -45,7 +46,9 @@ def clustered(n, d=64, per=8, spread=0.4, seed=0):
     rng = np.random.default_rng(seed)
     centres = rng.standard_normal((n // per, d))
     centres /= np.linalg.norm(centres, axis=1, keepdims=True)
-    x = centres[rng.integers(0, len(centres), n)] + rng.uniform(0, spread, (n, 1)) * rng.standard_normal((n, d)) / np.sqrt(d)
+    x = centres[rng.integers(0, len(centres), n)] + rng.uniform(0, spread, (n, 1)) * rng.standard_normal(
+        (n, d)
+    ) / np.sqrt(d)
     return (x / np.linalg.norm(x, axis=1, keepdims=True)).astype(np.float32)
 
 
@@ -116,8 +119,14 @@ def test_rms_scale_and_threshold_closed_forms():
 
 
 def _row(i, emb, traj, length=81, embodiment="toyarm"):
-    return {"id": f"s/{i}", "embodiment": embodiment, "length": length, "dedup_status": "ok",
-            "dedup_embedding": emb.tolist(), "dedup_traj": traj.ravel().tolist()}
+    return {
+        "id": f"s/{i}",
+        "embodiment": embodiment,
+        "length": length,
+        "dedup_status": "ok",
+        "dedup_embedding": emb.tolist(),
+        "dedup_traj": traj.ravel().tolist(),
+    }
 
 
 def test_groups_keep_the_longest_then_smallest_id_in_any_order():
@@ -125,9 +134,13 @@ def test_groups_keep_the_longest_then_smallest_id_in_any_order():
     e = rng.standard_normal(8).astype(np.float32)
     e /= np.linalg.norm(e)
     t = rng.standard_normal((64, 2, 3))
-    rows = [_row("c", e, t, 81), _row("a", e, t + 1e-4, 81), _row("b", e, t, 90),
-            _row("d", e, t + 5.0),  # same scene, another motion
-            _row("e", e, t, embodiment="franka")]  # same numbers, another body
+    rows = [
+        _row("c", e, t, 81),
+        _row("a", e, t + 1e-4, 81),
+        _row("b", e, t, 90),
+        _row("d", e, t + 5.0),  # same scene, another motion
+        _row("e", e, t, embodiment="franka"),
+    ]  # same numbers, another body
     for order in (rows, rows[::-1]):
         out, summary = dedup_rows(order, DedupConfig())
         by = {r["id"]: r for r in out}
@@ -167,5 +180,7 @@ def test_same_scene_same_motion_one_kept_different_motion_both_kept(tmp_path, ti
     rows = {r["id"]: r for r in read_stage(str(tmp_path / "run" / "dedup"))}
     assert summary["candidates"] == 3  # all three look alike: only the trajectories tell c apart
     assert rows["src/a"]["dedup_status"] == "ok" and rows["src/c"]["dedup_status"] == "ok"
-    assert rows["src/b"]["dedup_status"] == "rejected" and rows["src/b"]["dedup_reason"].startswith("duplicate: of src/a")
+    assert rows["src/b"]["dedup_status"] == "rejected" and rows["src/b"]["dedup_reason"].startswith(
+        "duplicate: of src/a"
+    )
     assert rows["src/b"]["dedup_value"] < 0.01

@@ -35,10 +35,10 @@ class Double:
         return [dict(r, y=2 * r["x"]) for r in rows]
 
 
-
 def _rows(rows: list[dict]) -> list[dict]:
     """Manifest rows with NaN (a value not measured, e.g. a filter that is off) as a marker equal to itself."""
     return [{k: "<nan>" if isinstance(v, float) and math.isnan(v) else v for k, v in r.items()} for r in rows]
+
 
 def rows(n):
     return [{"id": f"e{i:03d}", "x": i} for i in range(n)]
@@ -109,8 +109,19 @@ def test_killed_stage_resumes_without_redoing_or_duplicating(tmp_path):
     ref_run = str(tmp_path / "ref")
     run_ingest(src, "npz", ref_run, workers=1, shard_size=5, progress=False)
     run_filter(ref_run, workers=1, shard_size=1, progress=False)
-    cmd = [sys.executable, "-m", "oscar_core.cli", "data", "filter", run, "--workers", "1", "--shard-size", "1",
-           "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "oscar_core.cli",
+        "data",
+        "filter",
+        run,
+        "--workers",
+        "1",
+        "--shard-size",
+        "1",
+        "--no-progress",
+    ]
     done = tmp_path / "run" / "filter" / "completions"
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
@@ -128,8 +139,9 @@ def test_killed_stage_resumes_without_redoing_or_duplicating(tmp_path):
     assert res.skipped == [n[:-5] for n in finished]  # finished shards are not redone ...
     assert set(res.processed) == {f"part-{i:06d}" for i in range(10)} - set(res.skipped)
     for name in finished:  # ... nor rewritten
-        assert (tmp_path / "run" / "filter" / "shards" / name.replace(".json", ".parquet")).stat().st_mtime_ns == stamps[
-            name.replace(".json", ".parquet")]
+        assert (
+            tmp_path / "run" / "filter" / "shards" / name.replace(".json", ".parquet")
+        ).stat().st_mtime_ns == stamps[name.replace(".json", ".parquet")]
     got = read_stage(str(tmp_path / "run" / "filter"))
     assert [r["id"] for r in got] == sorted({r["id"] for r in got})  # each episode exactly once
     assert _rows(got) == _rows(read_stage(str(tmp_path / "ref" / "filter")))
@@ -150,7 +162,7 @@ def test_process_pool_and_ray_give_the_in_process_manifest(tmp_path):
     if "ray" in manifests:
         assert _rows(manifests["ray"]) == _rows(manifests["inline"])
     else:
-        pytest.skip("ray is not installed (pip install \"oscar-wm[ray]\"): pool checked, ray skipped")
+        pytest.skip('ray is not installed (pip install "oscar-wm[ray]"): pool checked, ray skipped')
 
 
 def _has_ray():
@@ -219,15 +231,21 @@ def test_memory_run_ingest_filter_resume_and_export(tmp_path):
 
 
 def test_unknown_protocol_and_missing_filesystem_package_are_named():
-    with pytest.raises(ValueError, match=r"nosuchfs://bucket/run: expected a local path or an fsspec URL, found the "
-                                         r"unknown protocol 'nosuchfs'"):
+    with pytest.raises(
+        ValueError,
+        match=r"nosuchfs://bucket/run: expected a local path or an fsspec URL, found the "
+        r"unknown protocol 'nosuchfs'",
+    ):
         _fs.exists("nosuchfs://bucket/run")
     from fsspec.registry import known_implementations
 
     missing = next(p for p in ("gcs", "s3", "az", "oci", "webhdfs") if _missing(known_implementations[p]["class"]))
     package = known_implementations[missing]["class"].split(".")[0]
-    with pytest.raises(ImportError, match=rf"{missing}://b/run/plan.json: the {missing}:// filesystem needs the Python package "
-                                          rf"'{package}' \(pip install {package}\)"):
+    with pytest.raises(
+        ImportError,
+        match=rf"{missing}://b/run/plan.json: the {missing}:// filesystem needs the Python package "
+        rf"'{package}' \(pip install {package}\)",
+    ):
         run_sharded(Double(), rows(2), f"{missing}://b/run", workers=1, progress=False)
 
 

@@ -35,8 +35,22 @@ def test_export_writes_a_clip_set_the_trainer_reads(run):
     from oscar_toyarm import ToyArm
 
     root, r = run
-    assert main(["data", "export", str(r), "--out", str(root / "clips"), "--render-skeleton", "--workers", "1",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "data",
+                "export",
+                str(r),
+                "--out",
+                str(root / "clips"),
+                "--render-skeleton",
+                "--workers",
+                "1",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     cs = ClipSet(root / "clips")
     recs = sorted(cs, key=lambda c: c.id)
     assert [c.meta["episode"] for c in recs] == ["src/ep0", "src/ep1"]  # the short one was filtered out
@@ -62,8 +76,23 @@ def test_export_resized_skeleton_on_the_fly(run, tmp_path):
 
     r2 = tmp_path / "run"
     shutil.copytree(r, r2, ignore=shutil.ignore_patterns("export"))
-    assert main(["data", "export", str(r2), "--out", str(tmp_path / "clips"), "--size", "64x36", "--workers", "1",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "data",
+                "export",
+                str(r2),
+                "--out",
+                str(tmp_path / "clips"),
+                "--size",
+                "64x36",
+                "--workers",
+                "1",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     rec = next(iter(ClipSet(tmp_path / "clips")))
     assert (rec.width, rec.height) == (64, 36) and "skeleton" not in rec.files
     clip = ClipSet(tmp_path / "clips").load(rec)

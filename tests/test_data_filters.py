@@ -30,11 +30,20 @@ def build_source(root: Path) -> Path:
     write_episode(src, "spike", traj.replace(q=spike_q), seed=5)
     # the camera looks away: principal point moved so the arm sits off the right edge of the image
     off = cam.resized(*SIZE)
-    off_cam = type(off)(intrinsics=type(off.intrinsics)(fx=off.intrinsics.fx, fy=off.intrinsics.fy,
-                                                        cx=off.intrinsics.cx + 1.5 * SIZE[0], cy=off.intrinsics.cy,
-                                                        width=SIZE[0], height=SIZE[1]),
-                        extrinsic=off.extrinsic, convention=off.convention, direction=off.direction,
-                        embodiment=off.embodiment)
+    off_cam = type(off)(
+        intrinsics=type(off.intrinsics)(
+            fx=off.intrinsics.fx,
+            fy=off.intrinsics.fy,
+            cx=off.intrinsics.cx + 1.5 * SIZE[0],
+            cy=off.intrinsics.cy,
+            width=SIZE[0],
+            height=SIZE[1],
+        ),
+        extrinsic=off.extrinsic,
+        convention=off.convention,
+        direction=off.direction,
+        embodiment=off.embodiment,
+    )
     write_episode(src, "offframe", traj, off_cam, seed=6)
     # bad input
     bad = write_episode(src, "truncated", seed=7, video="rgb.mp4")
@@ -82,8 +91,9 @@ def test_moving_camera_is_rejected_and_measured_in_diagonals_per_second(run):
     assert r["filter_value"] == pytest.approx(expected, rel=0.1)
 
 
-@pytest.mark.parametrize("name, reason", [("still", "action"), ("short", "length"), ("spike", "spike_joint"),
-                                          ("offframe", "visible")])
+@pytest.mark.parametrize(
+    "name, reason", [("still", "action"), ("short", "length"), ("spike", "spike_joint"), ("offframe", "visible")]
+)
 def test_each_filter_rejects_its_case(run, name, reason):
     r = run[1][name]
     assert r["filter_status"] == "rejected" and r["filter_reason"].split(":")[0] == reason, r["filter_reason"]
@@ -95,8 +105,9 @@ def test_spike_value_is_the_injected_jump(run):
     assert run[1]["spike"]["filter_spike_joint"] == pytest.approx(18.0, abs=1.5)
 
 
-@pytest.mark.parametrize("name, field", [("truncated", "rgb.mp4"), ("nan", "finite values"),
-                                         ("nocamera", "camera"), ("mismatch", "gripper")])
+@pytest.mark.parametrize(
+    "name, field", [("truncated", "rgb.mp4"), ("nan", "finite values"), ("nocamera", "camera"), ("mismatch", "gripper")]
+)
 def test_bad_input_is_rejected_with_its_reason_and_the_run_goes_on(run, name, field):
     r = run[1][name]
     assert r["ingest_status"] == "rejected" and r["ingest_reason"].startswith("unreadable: ")
@@ -109,8 +120,14 @@ def test_stats_count_every_rejection_once(run):
     st = compute_stats(out)
     total = st["total"]
     assert total["public"] == len(rows) == 10 and total["kept"] == 1
-    assert total["rejected"] == {"ingest:unreadable": 4, "filter:camera_motion": 1, "filter:action": 1,
-                                 "filter:length": 1, "filter:spike_joint": 1, "filter:visible": 1}
+    assert total["rejected"] == {
+        "ingest:unreadable": 4,
+        "filter:camera_motion": 1,
+        "filter:action": 1,
+        "filter:length": 1,
+        "filter:spike_joint": 1,
+        "filter:visible": 1,
+    }
     table = format_table(st)
     assert "ingest:unreadable" in table and table.splitlines()[-2].split()[-1] == "1"
 

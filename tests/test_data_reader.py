@@ -18,7 +18,9 @@ def _plugin(tmp_path, body):
 
 
 def test_reader_registers_through_the_hook(tmp_path):
-    reg = _plugin(tmp_path, """
+    reg = _plugin(
+        tmp_path,
+        """
         from oscar_core.plugin.hookspecs import hookimpl
         from oscar_core.plugin.reader import Reader, EpisodeRef
 
@@ -32,7 +34,8 @@ def test_reader_registers_through_the_hook(tmp_path):
         @hookimpl
         def oscar_register_readers():
             return [Mine]
-    """)
+    """,
+    )
     assert reg.reader_names() == ["mine"] and not reg.failures
     refs = list(reg.get_reader("mine").list_episodes("/x"))
     assert refs[0].episode_id == "mine/0"
@@ -41,7 +44,9 @@ def test_reader_registers_through_the_hook(tmp_path):
 
 
 def test_broken_reader_is_reported_and_others_load(tmp_path):
-    reg = _plugin(tmp_path, """
+    reg = _plugin(
+        tmp_path,
+        """
         from oscar_core.plugin.hookspecs import hookimpl
         from oscar_core.plugin.reader import Reader
 
@@ -53,7 +58,8 @@ def test_broken_reader_is_reported_and_others_load(tmp_path):
         @hookimpl
         def oscar_register_readers():
             return [NoLoad, int]
-    """)
+    """,
+    )
     assert reg.reader_names() == []
     errors = " | ".join(f.error for f in reg.failures)
     assert "does not implement `load_episode`" in errors and "expected a Reader subclass" in errors
@@ -78,8 +84,13 @@ def test_video_source_reads_a_time_range_of_a_shared_file(tmp_path):
 
 def test_episode_error_names_everything():
     err = EpisodeError("agibot/327/648642", "/d/proprio_stats.h5", "state/joint/position", "(N, 14)", "(N, 12)")
-    assert str(err) == ("episode 'agibot/327/648642': /d/proprio_stats.h5: field 'state/joint/position': "
-                        "expected (N, 14), found (N, 12)")
+    assert str(err) == (
+        "episode 'agibot/327/648642': /d/proprio_stats.h5: field 'state/joint/position': "
+        "expected (N, 14), found (N, 12)"
+    )
     assert isinstance(EpisodeRef("a", "b", "c", "d", {}).meta, dict)
-    assert Reader.class_problems() == ["declares no `name`", "does not implement `list_episodes`",
-                                       "does not implement `load_episode`"]
+    assert Reader.class_problems() == [
+        "declares no `name`",
+        "does not implement `list_episodes`",
+        "does not implement `load_episode`",
+    ]

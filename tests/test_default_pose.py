@@ -76,12 +76,15 @@ def test_missing_joints_without_a_default_are_an_error_naming_them(toy):
         toy.check_trajectory(drop(full_traj(toy), {j0}))  # no default pose at all
 
 
-@pytest.mark.parametrize("pose, problem", [
-    ({"shoulder_pan": float("nan")}, "expected a finite number"),
-    ({"shoulder_pan": "0"}, "expected a finite number"),
-    ({"shoulder_pan": True}, "expected a finite number"),
-    ([("shoulder_pan", 0.0)], "expected a mapping"),
-])
+@pytest.mark.parametrize(
+    "pose, problem",
+    [
+        ({"shoulder_pan": float("nan")}, "expected a finite number"),
+        ({"shoulder_pan": "0"}, "expected a finite number"),
+        ({"shoulder_pan": True}, "expected a finite number"),
+        ([("shoulder_pan", 0.0)], "expected a mapping"),
+    ],
+)
 def test_bad_default_pose_breaks_the_contract_at_class_level(pose, problem):
     cls = toyarm_class(pose)
     assert any(problem in p for p in cls.class_problems()), cls.class_problems()
@@ -95,9 +98,11 @@ def test_default_pose_names_and_limits_are_checked_against_the_urdf(toy):
     upper = hi[list(toy.tree.joint_names).index(j)]
     driven = toy.grippers[0].joint
     assert driven is not None  # the toy arm's gripper drives a finger joint
-    for pose, problem in (({"no_such_joint": 0.0}, "expected a joint of the trajectory order"),
-                          ({driven: 0.0}, "expected a joint of the trajectory order"),
-                          ({j: upper + 0.5}, "within the joint's limits")):
+    for pose, problem in (
+        ({"no_such_joint": 0.0}, "expected a joint of the trajectory order"),
+        ({driven: 0.0}, "expected a joint of the trajectory order"),
+        ({j: upper + 0.5}, "within the joint's limits"),
+    ):
         with pytest.raises(PluginError) as e:
             toyarm_class(pose)()
         assert problem in str(e.value) and "default_pose" in str(e.value)

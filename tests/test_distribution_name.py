@@ -62,10 +62,15 @@ def test_the_plugin_guide_declares_oscar_wm():
 
 
 def test_the_guard_catches_the_old_spellings():
-    for line in ('pip install "oscar[mano]"', "pip install 'oscar[dev]'", r'match=r"pip install \"oscar\[plots\]\""',
-                 'dependencies = ["oscar[mano]>=0.1"]'):
+    for line in (
+        'pip install "oscar[mano]"',
+        "pip install 'oscar[dev]'",
+        r'match=r"pip install \"oscar\[plots\]\""',
+        'dependencies = ["oscar[mano]>=0.1"]',
+    ):
         assert WRONG_EXTRA.search(line), line
     for line in ('pip install "oscar-wm[mano]"', "x = my_oscar[0]", "self.oscar[k]"):
         assert not WRONG_EXTRA.search(line), line
-    assert [requirement_name(d) for d in ("oscar", "oscar>=0.1", "oscar_wm >= 0.1", "oscar-wm[mano]; python_version>'3'")] == \
-        ["oscar", "oscar", "oscar-wm", "oscar-wm"]
+    assert [
+        requirement_name(d) for d in ("oscar", "oscar>=0.1", "oscar_wm >= 0.1", "oscar-wm[mano]; python_version>'3'")
+    ] == ["oscar", "oscar", "oscar-wm", "oscar-wm"]

@@ -43,11 +43,16 @@ def test_docs_plugin_walkthrough(tmp_path):
     # may run in: add the running interpreter's site-packages (their .pth files too: editable installs)
     import sysconfig
 
-    site_dir = subprocess.run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                              capture_output=True, text=True, check=True).stdout.strip()
+    site_dir = subprocess.run(
+        [py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
     parents = sorted({sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]})
     Path(site_dir, "_tests_parent_env.pth").write_text(
-        "".join(f"import site; site.addsitedir({d!r})\n" for d in parents))
+        "".join(f"import site; site.addsitedir({d!r})\n" for d in parents)
+    )
     work = tmp_path / "work"
     work.mkdir()
     outputs = []
@@ -65,7 +70,11 @@ def test_docs_plugin_walkthrough(tmp_path):
             cmd = line[2:].strip()
             cmd = re.sub(r"^oscar\b", f"{py} -m oscar_core.cli", cmd)
             cmd = re.sub(r"^python\b", py, cmd)
-            cmd = re.sub(r"^pip install\b", f"{sys.executable} -m pip --python {py} install --no-deps --no-build-isolation -q", cmd)
+            cmd = re.sub(
+                r"^pip install\b",
+                f"{sys.executable} -m pip --python {py} install --no-deps --no-build-isolation -q",
+                cmd,
+            )
             proc = subprocess.run(cmd, shell=True, cwd=work, capture_output=True, text=True, timeout=300)
             assert proc.returncode == 0, f"`{line}` failed:\n{proc.stdout}\n{proc.stderr}"
             outputs.append((line, proc.stdout))

@@ -28,8 +28,11 @@ def test_a_cell_of_a_mesh_model_is_conditioned_on_the_mesh(tmp_path):
     cell = Cell("s", "p", "task", "toyarm", first, traj_path, ASSETS / "example_camera.json", 0)
     seen = {}
     for condition in ("mesh", "skeleton"):
-        model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                             ModelCard(name="m", chunk_frames=9, fps=15.0, condition=condition))
+        model = OscarWorldModel.from_modules(
+            build_tiny_transformer(seed=0),
+            build_tiny_vae(seed=0),
+            ModelCard(name="m", chunk_frames=9, fps=15.0, condition=condition),
+        )
 
         def spy(first_frame, skeleton, *args, _rollout=model.rollout, _condition=condition, **kwargs):
             seen[_condition] = skeleton
@@ -37,8 +40,9 @@ def test_a_cell_of_a_mesh_model_is_conditioned_on_the_mesh(tmp_path):
 
         model.rollout = spy
         inputs = cell_inputs(model, cell, (64, 32), plugin_paths=())
-        (frames,) = _roll_out(model, [inputs], sampler=SamplerConfig(steps=1), chunk_frames=9, seeds=[cell.seed],
-                              progress=False)
+        (frames,) = _roll_out(
+            model, [inputs], sampler=SamplerConfig(steps=1), chunk_frames=9, seeds=[cell.seed], progress=False
+        )
         assert frames.shape == (9, 32, 64, 3)
     emb, cam = get_embodiment("toyarm"), load_camera(ASSETS / "example_camera.json")
     np.testing.assert_array_equal(seen["mesh"], render_mesh_video(emb, traj, cam, (64, 32)))

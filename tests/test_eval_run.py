@@ -27,7 +27,7 @@ POLICIES = ["good", "mid", "bad"]
 REAL = {("s1", "good"): 1, ("s1", "mid"): 1, ("s1", "bad"): 0, ("s2", "good"): 1, ("s2", "mid"): 0, ("s2", "bad"): 0}
 WM = {("s1", "good"): 1, ("s1", "mid"): 0, ("s1", "bad"): 1, ("s2", "good"): 1, ("s2", "mid"): 0, ("s2", "bad"): 0}
 
-JUDGE_SOURCE = '''
+JUDGE_SOURCE = """
 import os
 
 def judge(video, clip):
@@ -39,7 +39,7 @@ def judge(video, clip):
             f.write(clip.name + "\\n")
     ok = clip.info["wm"]
     return {"binary": ok, "partial": 100 if ok else 10 * len(video) % 100, "reason": f"{len(video)} frames"}
-'''
+"""
 
 
 @pytest.fixture(autouse=True)
@@ -51,8 +51,11 @@ def isolated(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def model_dir(tmp_path_factory):
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5, fps=15.0))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, fps=15.0),
+    )
     return oscar_zoo.export(model, tmp_path_factory.mktemp("m") / "tiny")
 
 
@@ -67,17 +70,37 @@ def make_study(root: Path, frames: int = 5) -> Path:
         cv2.imwrite(str(root / f"{session}_first.png"), img)
         for p, policy in enumerate(POLICIES):
             off = 8 * p + 20 * s
-            np.savez(root / f"{session}_{policy}.npz", joint_names=src["joint_names"], q=src["q"][off:off + frames],
-                     fps=src["fps"], gripper=src["gripper"][off:off + frames], gripper_names=src["gripper_names"])
-            cells.append({"session": session, "policy": policy, "first_frame": f"{session}_first.png",
-                          "trajectory": f"{session}_{policy}.npz", "real_success": REAL[(session, policy)],
-                          "info": {"wm": WM[(session, policy)]}})
+            np.savez(
+                root / f"{session}_{policy}.npz",
+                joint_names=src["joint_names"],
+                q=src["q"][off : off + frames],
+                fps=src["fps"],
+                gripper=src["gripper"][off : off + frames],
+                gripper_names=src["gripper_names"],
+            )
+            cells.append(
+                {
+                    "session": session,
+                    "policy": policy,
+                    "first_frame": f"{session}_first.png",
+                    "trajectory": f"{session}_{policy}.npz",
+                    "real_success": REAL[(session, policy)],
+                    "info": {"wm": WM[(session, policy)]},
+                }
+            )
     np.save(root / "real_s1_good.npy", np.full((frames, 18, 32, 3), 200, np.uint8))
     cells[0]["real_video"] = "real_s1_good.npy"
-    manifest = {"format": "oscar-eval-manifest", "policies": POLICIES,
-                "defaults": {"embodiment": "toyarm", "camera": "camera.json", "size": "32x16",
-                             "task": "put the block in the bin"},
-                "cells": cells}
+    manifest = {
+        "format": "oscar-eval-manifest",
+        "policies": POLICIES,
+        "defaults": {
+            "embodiment": "toyarm",
+            "camera": "camera.json",
+            "size": "32x16",
+            "task": "put the block in the bin",
+        },
+        "cells": cells,
+    }
     (root / "manifest.json").write_text(json.dumps(manifest, indent=1))
     (root / "judge_fns.py").write_text(JUDGE_SOURCE)
     return root / "manifest.json"
@@ -101,12 +124,21 @@ class MockChat:
                 body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
                 mock.bodies.append(body)
                 pairwise = body["messages"][0]["role"] == "system"
-                answer = ('{"winner": "A", "reason": "r"}' if pairwise else
-                          '{"binary": 1, "partial": 100, "reason": "done"}')
-                data = json.dumps({"id": "x", "object": "chat.completion", "created": 0, "model": body["model"],
-                                   "choices": [{"index": 0, "finish_reason": "stop",
-                                                "message": {"role": "assistant", "content": answer}}],
-                                   "usage": {"prompt_tokens": 10, "completion_tokens": 2, "total_tokens": 12}})
+                answer = (
+                    '{"winner": "A", "reason": "r"}' if pairwise else '{"binary": 1, "partial": 100, "reason": "done"}'
+                )
+                data = json.dumps(
+                    {
+                        "id": "x",
+                        "object": "chat.completion",
+                        "created": 0,
+                        "model": body["model"],
+                        "choices": [
+                            {"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": answer}}
+                        ],
+                        "usage": {"prompt_tokens": 10, "completion_tokens": 2, "total_tokens": 12},
+                    }
+                )
                 self.send_response(200)
                 self.send_header("Content-Type", "application/json")
                 self.send_header("Content-Length", str(len(data)))
@@ -135,13 +167,33 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     out = tmp_path / "out"
     log = tmp_path / "judge.log"
     monkeypatch.setenv("OSCAR_TEST_JUDGE_LOG", str(log))
-    code = _cli("eval", "run", manifest, "--model", model_dir, "--out", out, "--judge",
-                manifest.parent / "judge_fns.py:judge", "--pairwise", "--steps", "1", "--no-progress", "--json")
+    code = _cli(
+        "eval",
+        "run",
+        manifest,
+        "--model",
+        model_dir,
+        "--out",
+        out,
+        "--judge",
+        manifest.parent / "judge_fns.py:judge",
+        "--pairwise",
+        "--steps",
+        "1",
+        "--no-progress",
+        "--json",
+    )
     stdout = capsys.readouterr().out
     assert code == 0
     report = json.loads(stdout)
-    assert report["counts"] == {"cells": 6, "rollouts_done": 6, "rollouts_reused": 0, "verdicts_done": 6,
-                                "verdicts_reused": 0, "verdicts_not_ok": 0}
+    assert report["counts"] == {
+        "cells": 6,
+        "rollouts_done": 6,
+        "rollouts_reused": 0,
+        "verdicts_done": 6,
+        "verdicts_reused": 0,
+        "verdicts_not_ok": 0,
+    }
     # every rollout is a lossless 5-frame 32x16 video
     from oscar_core.media.video import read_video
 
@@ -174,8 +226,14 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     assert "No ranking: the tie parameter reached" in summary and "No Bradley-Terry ranking" in summary
     assert "| policy | Elo |" not in summary and "PARTIAL" not in summary
     # the report folder
-    for name in ("report.json", "summary.md", "plots/success_scatter.png", "plots/rank_slope.png",
-                 "contact_sheets/s1.png", "contact_sheets/s2.png"):
+    for name in (
+        "report.json",
+        "summary.md",
+        "plots/success_scatter.png",
+        "plots/rank_slope.png",
+        "contact_sheets/s1.png",
+        "contact_sheets/s2.png",
+    ):
         assert (out / name).is_file(), name
     sheet = cv2.imread(str(out / "contact_sheets" / "s1.png"))
     # 3 policies + the real band of s1/good: 4 bands of 96 px, 1 bar of 4 px inside the first policy, 2 of 8 between
@@ -183,17 +241,52 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     assert "| good | 2 | 1.000 | 1.000 |" in (out / "summary.md").read_text()
     assert len(log.read_text().split()) == 6
     # a second run reuses everything: no rollout, no judge call
-    code = _cli("eval", "run", manifest, "--model", model_dir, "--out", out, "--judge",
-                manifest.parent / "judge_fns.py:judge", "--pairwise", "--steps", "1", "--no-progress", "--json")
+    code = _cli(
+        "eval",
+        "run",
+        manifest,
+        "--model",
+        model_dir,
+        "--out",
+        out,
+        "--judge",
+        manifest.parent / "judge_fns.py:judge",
+        "--pairwise",
+        "--steps",
+        "1",
+        "--no-progress",
+        "--json",
+    )
     again = json.loads(capsys.readouterr().out)
     assert code == 0 and again["counts"]["rollouts_reused"] == 6 and again["counts"]["verdicts_reused"] == 6
     assert again["comparison"] == report["comparison"]
     assert len(log.read_text().split()) == 6  # the pairwise stage reuses the stored verdicts
     # the same rollouts judged by a VLM behind a loopback OpenAI-compatible server, one budget for the run
     with MockChat() as chat:
-        code = _cli("eval", "run", manifest, "--model", model_dir, "--out", out, "--judge", "vlm", "--pairwise",
-                    "--judge-base-url", chat.url, "--judge-model", "mock-vlm", "--max-requests", "8",
-                    "--judge-extra-body", '{"reasoning_effort": "high"}', "--steps", "1", "--no-progress", "--json")
+        code = _cli(
+            "eval",
+            "run",
+            manifest,
+            "--model",
+            model_dir,
+            "--out",
+            out,
+            "--judge",
+            "vlm",
+            "--pairwise",
+            "--judge-base-url",
+            chat.url,
+            "--judge-model",
+            "mock-vlm",
+            "--max-requests",
+            "8",
+            "--judge-extra-body",
+            '{"reasoning_effort": "high"}',
+            "--steps",
+            "1",
+            "--no-progress",
+            "--json",
+        )
     vlm = json.loads(capsys.readouterr().out)
     assert all(b["reasoning_effort"] == "high" for b in chat.bodies)  # extra request fields reach the judge
     assert code == 0 and vlm["counts"]["rollouts_reused"] == 6 and vlm["counts"]["verdicts_done"] == 6
@@ -209,8 +302,12 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
     # the judged pairs says it is partial, and a missing ranking is said where the ranking is shown
     bt, comp = vlm["bradley_terry"], vlm["comparison"]
     if bt is not None:
-        assert bt["partial"] == {"judged": 2, "total": 6, "what": "pairs",
-                                 "not_judged": {"not sent (request budget spent)": 4}}
+        assert bt["partial"] == {
+            "judged": 2,
+            "total": 6,
+            "what": "pairs",
+            "not_judged": {"not sent (request budget spent)": 4},
+        }
     if bt is not None and bt["degenerate"] is None:
         assert comp["ranked_by"]["wm"] == "bradley_terry_elo" and comp["wm_ranking_fallback"] is None
     else:
@@ -220,13 +317,35 @@ def test_loop_end_to_end_report_and_known_metrics(tmp_path, model_dir, monkeypat
         assert comp["wm_ranking_fallback"].startswith(f"no Bradley-Terry ranking: {why}")
     # a budget that leaves cells unjudged: every figure from the judged subset says so
     with MockChat() as chat:
-        code = _cli("eval", "run", manifest, "--model", model_dir, "--out", tmp_path / "out2", "--judge", "vlm",
-                    "--judge-base-url", chat.url, "--judge-model", "mock-vlm", "--max-requests", "4",
-                    "--steps", "1", "--no-progress", "--json")
+        code = _cli(
+            "eval",
+            "run",
+            manifest,
+            "--model",
+            model_dir,
+            "--out",
+            tmp_path / "out2",
+            "--judge",
+            "vlm",
+            "--judge-base-url",
+            chat.url,
+            "--judge-model",
+            "mock-vlm",
+            "--max-requests",
+            "4",
+            "--steps",
+            "1",
+            "--no-progress",
+            "--json",
+        )
     part = json.loads(capsys.readouterr().out)
     assert code == 1 and len(chat.bodies) == 4
-    assert part["comparison"]["partial"] == {"judged": 4, "total": 6, "what": "cells",
-                                             "not_judged": {"not sent (request budget spent)": 2}}
+    assert part["comparison"]["partial"] == {
+        "judged": 4,
+        "total": 6,
+        "what": "cells",
+        "not_judged": {"not sent (request budget spent)": 2},
+    }
     summary = (tmp_path / "out2" / "summary.md").read_text()
     assert "**PARTIAL: 4 of 6 cells judged (2 not sent (request budget spent))**" in summary
     assert "| metric | value (partial) |" in summary
@@ -252,8 +371,23 @@ def test_resume_after_kill_redoes_no_finished_cell(tmp_path, model_dir):
     manifest = make_study(tmp_path / "study")
     _edit(manifest, lambda d: d.update(cells=d["cells"][:3]))  # session s1 only: 3 cells keep the test short
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "oscar_core.cli", "eval", "run", str(manifest), "--model", str(model_dir), "--out",
-           str(out), "--judge", f"{manifest.parent / 'judge_fns.py'}:judge", "--steps", "1", "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "oscar_core.cli",
+        "eval",
+        "run",
+        str(manifest),
+        "--model",
+        str(model_dir),
+        "--out",
+        str(out),
+        "--judge",
+        f"{manifest.parent / 'judge_fns.py'}:judge",
+        "--steps",
+        "1",
+        "--no-progress",
+    ]
     env = {**os.environ, "OSCAR_TEST_JUDGE_LOG": str(tmp_path / "judge.log")}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     records = lambda: sorted((out / "cells").rglob("*.json")) if (out / "cells").is_dir() else []  # noqa: E731
@@ -287,19 +421,38 @@ def _edit(manifest: Path, fn):
     manifest.write_text(json.dumps(data))
 
 
-@pytest.mark.parametrize("edit, row, field, found", [
-    (lambda d: d["cells"][2].update(first_frame="nope.png"), "cells[2] (session 's1', policy 'bad')", "first_frame",
-     "no such file"),
-    (lambda d: d["cells"][4].update(policy="random"), "cells[4] (session 's2', policy 'random')", "policy",
-     "'random'"),
-    (lambda d: d["cells"].append(dict(d["cells"][1])), "cells[6] (session 's1', policy 'mid')", "session/policy",
-     "a duplicate of cells[1]"),
-    (lambda d: d["cells"][4].update(task="other"), "cells[4] (session 's2', policy 'mid')", "task", "'other'"),
-    (lambda d: d["cells"][5].update(real_success=2), "cells[5] (session 's2', policy 'bad')", "real_success", "2"),
-    (lambda d: d["cells"][0].update(trajectroy="x.npz"), "cells[0] (session 's1', policy 'good')", "keys",
-     "unknown keys ['trajectroy']"),
-    (lambda d: d["cells"][1].pop("trajectory"), "cells[1] (session 's1', policy 'mid')", "trajectory", "none"),
-])
+@pytest.mark.parametrize(
+    "edit, row, field, found",
+    [
+        (
+            lambda d: d["cells"][2].update(first_frame="nope.png"),
+            "cells[2] (session 's1', policy 'bad')",
+            "first_frame",
+            "no such file",
+        ),
+        (
+            lambda d: d["cells"][4].update(policy="random"),
+            "cells[4] (session 's2', policy 'random')",
+            "policy",
+            "'random'",
+        ),
+        (
+            lambda d: d["cells"].append(dict(d["cells"][1])),
+            "cells[6] (session 's1', policy 'mid')",
+            "session/policy",
+            "a duplicate of cells[1]",
+        ),
+        (lambda d: d["cells"][4].update(task="other"), "cells[4] (session 's2', policy 'mid')", "task", "'other'"),
+        (lambda d: d["cells"][5].update(real_success=2), "cells[5] (session 's2', policy 'bad')", "real_success", "2"),
+        (
+            lambda d: d["cells"][0].update(trajectroy="x.npz"),
+            "cells[0] (session 's1', policy 'good')",
+            "keys",
+            "unknown keys ['trajectroy']",
+        ),
+        (lambda d: d["cells"][1].pop("trajectory"), "cells[1] (session 's1', policy 'mid')", "trajectory", "none"),
+    ],
+)
 def test_bad_manifests_name_the_row(tmp_path, edit, row, field, found, model_dir, capsys):
     manifest = make_study(tmp_path / "study")
     _edit(manifest, edit)
@@ -317,7 +470,9 @@ def test_bad_manifests_name_the_row(tmp_path, edit, row, field, found, model_dir
 def test_unknown_embodiment_and_python_api(tmp_path, model_dir):
     manifest = make_study(tmp_path / "study")
     _edit(manifest, lambda d: d["cells"][1].update(embodiment="octopus"))
-    with pytest.raises(ManifestError.__mro__[1], match=r"cells\[1\] \(session 's1', policy 'mid'\): field 'embodiment'"):
+    with pytest.raises(
+        ManifestError.__mro__[1], match=r"cells\[1\] \(session 's1', policy 'mid'\): field 'embodiment'"
+    ):
         run_evaluation(manifest, tmp_path / "out", model_spec=str(model_dir))
     # Python API with a loaded model object and a judge that fails on one clip: the run finishes, the failure is
     # reported per cell and not stored, so the next run asks again
@@ -334,16 +489,32 @@ def test_unknown_embodiment_and_python_api(tmp_path, model_dir):
 
     from oscar_core.model import SamplerConfig
 
-    res = run_evaluation(manifest, tmp_path / "out2", model=model, judge=ProgrammaticJudge(flaky),
-                         sampler=SamplerConfig(steps=1), log=lambda m: None)
+    res = run_evaluation(
+        manifest,
+        tmp_path / "out2",
+        model=model,
+        judge=ProgrammaticJudge(flaky),
+        sampler=SamplerConfig(steps=1),
+        log=lambda m: None,
+    )
     assert res.counts["verdicts_not_ok"] == 1 and res.report["comparison"] is None  # "bad" has no verdict left
     assert res.report["comparison_error"] == "no valid world-model verdict for policies ['bad']"
     bad = [c for c in res.report["cells"] if c["status"] != "ok"]
-    assert [(c["cell"], c["status"], c["error"]) for c in bad] == [("s1/bad", "error", "RuntimeError: object not found")]
+    assert [(c["cell"], c["status"], c["error"]) for c in bad] == [
+        ("s1/bad", "error", "RuntimeError: object not found")
+    ]
     assert res.report["policies"][2]["not_judged"] == 1
-    res = run_evaluation(manifest, tmp_path / "out2", model=model, judge=ProgrammaticJudge(flaky),
-                         sampler=SamplerConfig(steps=1), log=lambda m: None)
-    assert res.counts["verdicts_reused"] == 2 and res.counts["verdicts_done"] == 1 and res.counts["verdicts_not_ok"] == 0
+    res = run_evaluation(
+        manifest,
+        tmp_path / "out2",
+        model=model,
+        judge=ProgrammaticJudge(flaky),
+        sampler=SamplerConfig(steps=1),
+        log=lambda m: None,
+    )
+    assert (
+        res.counts["verdicts_reused"] == 2 and res.counts["verdicts_done"] == 1 and res.counts["verdicts_not_ok"] == 0
+    )
     assert res.counts["rollouts_reused"] == 3 and res.report["comparison"] is not None
 
 
@@ -356,8 +527,16 @@ def test_eval_video_latent_l2_uses_the_project_vae(tmp_path, model_dir, capsys):
     pred, gt = rng.integers(0, 256, (5, 32, 32, 3), dtype=np.uint8), rng.integers(0, 256, (5, 32, 32, 3), np.uint8)
     np.save(tmp_path / "pred.npy", pred)
     np.save(tmp_path / "gt.npy", gt)
-    args = ["eval", "video", tmp_path / "pred.npy", tmp_path / "gt.npy", "--frames", "0", "--json",
-            "--no-cached-networks"]
+    args = [
+        "eval",
+        "video",
+        tmp_path / "pred.npy",
+        tmp_path / "gt.npy",
+        "--frames",
+        "0",
+        "--json",
+        "--no-cached-networks",
+    ]
     assert _cli(*args, "--vae-model", model_dir) == 0
     data = json.loads(capsys.readouterr().out)
     # the same number straight from the model's own VAE: mean squared difference of the normalised latents
@@ -370,7 +549,9 @@ def test_eval_video_latent_l2_uses_the_project_vae(tmp_path, model_dir, capsys):
     # the default checkpoint is not in this (empty) cache: skipped and said so, nothing downloaded
     assert _cli(*args) == 0
     data = json.loads(capsys.readouterr().out)
-    assert "latent_l2" not in data["aggregate"] and data["notes"]["latent_l2"].startswith("skipped: the VAE of 'oscar-2b'")
+    assert "latent_l2" not in data["aggregate"] and data["notes"]["latent_l2"].startswith(
+        "skipped: the VAE of 'oscar-2b'"
+    )
 
 
 def test_all_tied_preferences_give_tied_ranks_not_float_noise(tmp_path, model_dir):
@@ -380,8 +561,15 @@ def test_all_tied_preferences_give_tied_ranks_not_float_noise(tmp_path, model_di
     never = ProgrammaticJudge(lambda video, clip: {"binary": 0, "partial": 0, "reason": "no"})
     from oscar_core.model import SamplerConfig
 
-    res = run_evaluation(manifest, tmp_path / "out", model=oscar_zoo.load(str(model_dir)), judge=never,
-                         pairwise_judge=never, sampler=SamplerConfig(steps=1), log=lambda m: None)
+    res = run_evaluation(
+        manifest,
+        tmp_path / "out",
+        model=oscar_zoo.load(str(model_dir)),
+        judge=never,
+        pairwise_judge=never,
+        sampler=SamplerConfig(steps=1),
+        log=lambda m: None,
+    )
     comp = res.report["comparison"]
     assert res.report["bradley_terry"]["degenerate"].startswith("every comparison is a tie")
     assert [p["bt_elo"] for p in res.report["policies"]] == [None, None, None]  # no numbers for a degenerate fit
@@ -404,8 +592,11 @@ def test_batched_cells_equal_one_at_a_time_and_resume(tmp_path, model_dir):
         a = read_video(tmp_path / "one" / c["video"]).astype(int)
         b = read_video(tmp_path / "many" / recs[c["cell"]]["video"]).astype(int)
         assert a.shape == b.shape and np.abs(a - b).max() <= 1  # lossless videos: float rounding only
-    batches = sorted(json.loads(p.read_text())["batch"] for p in (tmp_path / "many").rglob("*.json")
-                     if p.parent.name != "judge_cache" and '"batch"' in p.read_text())
+    batches = sorted(
+        json.loads(p.read_text())["batch"]
+        for p in (tmp_path / "many").rglob("*.json")
+        if p.parent.name != "judge_cache" and '"batch"' in p.read_text()
+    )
     assert batches == [2, 2, 4, 4, 4, 4]  # 6 cells in manifest order: a batch of 4, then of 2
     again = run_evaluation(manifest, tmp_path / "many", batch_cells=4, **kwargs)
     assert again.report["counts"]["rollouts_reused"] == 6 and again.report["counts"]["rollouts_done"] == 0
@@ -421,8 +612,9 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
 
     manifest = make_study(tmp_path / "study")
     judge = ProgrammaticJudge(lambda video, clip: {"binary": clip.info["wm"], "partial": 50, "reason": "ok"})
-    kwargs = dict(model_spec=str(model_dir), sampler=SamplerConfig(steps=2), judge=judge, batch_cells=2,
-                  log=lambda m: None)
+    kwargs = dict(
+        model_spec=str(model_dir), sampler=SamplerConfig(steps=2), judge=judge, batch_cells=2, log=lambda m: None
+    )
     local = run_evaluation(manifest, tmp_path / "local", **kwargs)
     ray_run = run_evaluation(manifest, tmp_path / "ray", engine="ray", workers=2, **kwargs)
     assert ray_run.report["counts"] == local.report["counts"]
@@ -435,17 +627,27 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, model_dir):
     assert again.report["counts"]["rollouts_reused"] == 6 and again.report["counts"]["rollouts_done"] == 0
     # more workers than the cluster can place: as many as it has free CPUs, said so (never a wait forever)
     messages = []
-    wide = run_evaluation(manifest, tmp_path / "wide", engine="ray", workers=64,
-                          **{**kwargs, "log": messages.append})
+    wide = run_evaluation(manifest, tmp_path / "wide", engine="ray", workers=64, **{**kwargs, "log": messages.append})
     assert wide.report["counts"]["rollouts_done"] == 6
     assert any("free CPU(s): starting" in m and "instead of 64" in m for m in messages), messages
     # a worker whose model cannot load fails the run with one error naming the model, not a hang or Ray's wrapper
     with pytest.raises(MetricInputError, match=r"a worker that loads .*no-such-model"):
-        run_evaluation(manifest, tmp_path / "broken", engine="ray", workers=1,
-                       **{**kwargs, "model_spec": str(tmp_path / "no-such-model")})
+        run_evaluation(
+            manifest,
+            tmp_path / "broken",
+            engine="ray",
+            workers=1,
+            **{**kwargs, "model_spec": str(tmp_path / "no-such-model")},
+        )
     with pytest.raises(MetricInputError, match="a model spec"):
-        run_evaluation(manifest, tmp_path / "obj", engine="ray", model=oscar_zoo.load(str(model_dir)),
-                       sampler=SamplerConfig(steps=2), log=lambda m: None)
+        run_evaluation(
+            manifest,
+            tmp_path / "obj",
+            engine="ray",
+            model=oscar_zoo.load(str(model_dir)),
+            sampler=SamplerConfig(steps=2),
+            log=lambda m: None,
+        )
 
 
 def test_eval_run_compiles_once_for_all_cells_weighed_over_the_job(tmp_path, model_dir, monkeypatch):
@@ -458,8 +660,9 @@ def test_eval_run_compiles_once_for_all_cells_weighed_over_the_job(tmp_path, mod
     monkeypatch.setattr(torch, "compile", lambda fn, **kw: calls.append(kw) or fn)
     manifest = make_study(tmp_path / "study")
     model = oscar_zoo.load(str(model_dir))
-    res = run_evaluation(manifest, tmp_path / "out", model=model, sampler=SamplerConfig(steps=1), log=lambda m: None,
-                         compile="always")
+    res = run_evaluation(
+        manifest, tmp_path / "out", model=model, sampler=SamplerConfig(steps=1), log=lambda m: None, compile="always"
+    )
     assert res.report["counts"]["rollouts_done"] == 6 and len(calls) == 1 and model.compile_cells == 6
     monkeypatch.setattr(OscarWorldModel, "device", property(lambda self: torch.device("cuda")))
     fresh = oscar_zoo.load(str(model_dir))
@@ -474,7 +677,9 @@ def test_function_judge_version_comes_from_its_attribute(tmp_path):
     from oscar_core.evaluation.cli import load_judge
 
     src = tmp_path / "judges.py"
-    src.write_text("def plain(video, clip):\n    return 1, 100, 'ok'\n\n"
-                   "def versioned(video, clip):\n    return 1, 100, 'ok'\n\nversioned.version = 7\n")
+    src.write_text(
+        "def plain(video, clip):\n    return 1, 100, 'ok'\n\n"
+        "def versioned(video, clip):\n    return 1, 100, 'ok'\n\nversioned.version = 7\n"
+    )
     assert load_judge(f"{src}:plain").describe()["version"] == "1"
     assert load_judge(f"{src}:versioned").describe()["version"] == "7"

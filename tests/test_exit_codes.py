@@ -33,8 +33,24 @@ def test_a_stage_run_repeatedly_exits_0_every_time(tmp_path):
     src = _source(tmp_path, 3)
     codes, aborts = [], []
     for k in range(12):
-        proc = subprocess.run(CLI + ["data", "ingest", str(src), "--reader", "npz", "--out", str(tmp_path / f"r{k}"),
-                                     "--workers", "1", "--no-progress"], capture_output=True, text=True, env=ENV)
+        proc = subprocess.run(
+            CLI
+            + [
+                "data",
+                "ingest",
+                str(src),
+                "--reader",
+                "npz",
+                "--out",
+                str(tmp_path / f"r{k}"),
+                "--workers",
+                "1",
+                "--no-progress",
+            ],
+            capture_output=True,
+            text=True,
+            env=ENV,
+        )
         codes.append(proc.returncode)
         if "terminate called" in proc.stderr:
             aborts.append(proc.stderr.strip().splitlines()[-1])
@@ -65,13 +81,18 @@ def _group(pgid):
 def test_ctrl_c_prints_one_line_stops_the_workers_and_exits_130(tmp_path):
     src = _source(tmp_path, 8)
     run = tmp_path / "run"
-    subprocess.run(CLI + ["data", "ingest", str(src), "--reader", "npz", "--out", str(run), "--workers", "1",
-                          "--no-progress"], check=True, capture_output=True, env=ENV)
+    subprocess.run(
+        CLI + ["data", "ingest", str(src), "--reader", "npz", "--out", str(run), "--workers", "1", "--no-progress"],
+        check=True,
+        capture_output=True,
+        env=ENV,
+    )
     cmd = CLI + ["data", "filter", str(run), "--workers", "2", "--shard-size", "1", "--no-progress"]
     done = run / "filter" / "completions"
     # a session of its own: Ctrl-C in a terminal signals the whole foreground group, workers included
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, start_new_session=True
+    )
     deadline = time.time() + 300
     while time.time() < deadline and proc.poll() is None and not list(done.glob("*.json")):
         time.sleep(0.02)
@@ -101,7 +122,8 @@ def test_the_line_names_the_commands_output():
     assert output_of(p.parse_args(["embodiments"])) is None
     assert message(None) == "interrupted; finished work is kept; run the same command to resume"
     assert message("runs/a", "`oscar train --resume runs/a`") == (
-        "interrupted; finished work is kept in runs/a; run `oscar train --resume runs/a` to resume")
+        "interrupted; finished work is kept in runs/a; run `oscar train --resume runs/a` to resume"
+    )
 
 
 @pytest.mark.slow
@@ -112,30 +134,63 @@ def test_ctrl_c_in_training_names_the_run_and_how_to_resume(tmp_path):
 
     from oscar_core.train.synthetic import write_toy_clipset
 
-    clips = write_toy_clipset(tmp_path / "clips", clips=2, frames=13, width=32, height=32, latents_vae="random",
-                              latents_window=9, prompt_dim=48)
+    clips = write_toy_clipset(
+        tmp_path / "clips",
+        clips=2,
+        frames=13,
+        width=32,
+        height=32,
+        latents_vae="random",
+        latents_window=9,
+        prompt_dim=48,
+    )
     run = tmp_path / "run"
-    cfg = {"run_dir": str(run), "steps": 60, "batch_size": 1, "micro_batch": 1, "save_every": 1, "keep_last": 2,
-           "log_every": 1, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-           "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32}}
+    cfg = {
+        "run_dir": str(run),
+        "steps": 60,
+        "batch_size": 1,
+        "micro_batch": 1,
+        "save_every": 1,
+        "keep_last": 2,
+        "log_every": 1,
+        "export": False,
+        "model": {"transformer": "tiny", "vae": "tiny"},
+        "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32},
+    }
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.Popen(CLI + ["train", str(path), "--no-progress"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=ENV, start_new_session=True)
+    proc = subprocess.Popen(
+        CLI + ["train", str(path), "--no-progress"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        start_new_session=True,
+    )
     metrics = run / "metrics.jsonl"
     deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None and (
-            not metrics.is_file() or metrics.read_text().count('"loss"') < 2):
+    while (
+        time.time() < deadline
+        and proc.poll() is None
+        and (not metrics.is_file() or metrics.read_text().count('"loss"') < 2)
+    ):
         time.sleep(0.05)
     assert proc.poll() is None, "the run finished before it could be interrupted"
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err[-3000:]
-    assert _interrupt_line(err) == (f"interrupted; finished work is kept in {run} (its saved checkpoints); "
-                                    f"run `oscar train --resume {run}` to resume")
+    assert _interrupt_line(err) == (
+        f"interrupted; finished work is kept in {run} (its saved checkpoints); "
+        f"run `oscar train --resume {run}` to resume"
+    )
     steps = [json.loads(x)["step"] for x in metrics.read_text().splitlines() if '"loss"' in x]
-    again = subprocess.run(CLI + ["train", "--resume", str(run), "--no-progress", "--json"], capture_output=True,
-                           text=True, env=ENV, timeout=600)
+    again = subprocess.run(
+        CLI + ["train", "--resume", str(run), "--no-progress", "--json"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=600,
+    )
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads(again.stdout)["step"] == 60 and steps and steps[-1] < 60
 
@@ -169,11 +224,25 @@ def test_ctrl_c_in_a_batch_render_stops_its_workers_and_exits_130(tmp_path):
         shutil.copy(assets / "example_trajectory.npz", trajs / f"ep{i:02d}.npz")
         shutil.copy(assets / "example_camera.json", trajs / f"ep{i:02d}.json")
     out = tmp_path / "out"
-    cmd = CLI + ["render", "--embodiment", "toyarm", "--trajectories", str(trajs), "--out", f"{out}/",
-                 "--workers", "2", "--size", "640x360", "--no-progress"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
-                            start_new_session=True)
+    cmd = CLI + [
+        "render",
+        "--embodiment",
+        "toyarm",
+        "--trajectories",
+        str(trajs),
+        "--out",
+        f"{out}/",
+        "--workers",
+        "2",
+        "--size",
+        "640x360",
+        "--no-progress",
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, start_new_session=True
+    )
     deadline = time.time() + 300
+
     def finished():  # episodes renamed into place (not a writer's .<name>.<pid>.<rand>.tmp.mp4)
         return [p for p in out.glob("*.mp4") if not p.name.startswith(".")]
 
@@ -255,8 +324,21 @@ def test_the_line_is_true_about_what_was_kept(tmp_path, capsys):
         assert report(KeyboardInterrupt(), p.parse_args(argv)) == 130
         return capsys.readouterr().err.strip()
 
-    rollout = ["rollout", "--model", "oscar-toy", "--embodiment", "toyarm", "--first-frame", "f.png", "--trajectory",
-               "t.npz", "--camera", "c.json", "--out", str(out)]
+    rollout = [
+        "rollout",
+        "--model",
+        "oscar-toy",
+        "--embodiment",
+        "toyarm",
+        "--first-frame",
+        "f.png",
+        "--trajectory",
+        "t.npz",
+        "--camera",
+        "c.json",
+        "--out",
+        str(out),
+    ]
     assert line(rollout) == f"interrupted; nothing was written to {out}; running the command again starts over"
     out.write_bytes(b"an older video")  # an older result is not work this run kept
     assert line(rollout) == f"interrupted; nothing was written to {out}; running the command again starts over"
@@ -273,5 +355,6 @@ def test_the_line_is_true_about_what_was_kept(tmp_path, capsys):
     assert "starts over" in line(manifest + ["--no-resume"])
     run = tmp_path / "run"
     (run / "ingest").mkdir(parents=True)
-    assert line(["data", "filter", str(run)]) == (f"interrupted; finished work is kept in {run}; "
-                                                  "run the same command to resume")
+    assert line(["data", "filter", str(run)]) == (
+        f"interrupted; finished work is kept in {run}; run the same command to resume"
+    )

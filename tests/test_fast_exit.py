@@ -29,8 +29,9 @@ print("never reached")
 @pytest.mark.parametrize("full", ["", "1"])
 def test_exit_keeps_code_threads_atexit_and_output(tmp_path, full):
     env = {"PATH": "/usr/bin:/bin", "OSCAR_FULL_EXIT": full}
-    proc = subprocess.run([sys.executable, "-c", SNIPPET, str(tmp_path)], capture_output=True, text=True, env=env, check=False,
-                          timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-c", SNIPPET, str(tmp_path)], capture_output=True, text=True, env=env, check=False, timeout=60
+    )
     assert proc.returncode == 3, proc.stderr
     assert proc.stdout == "unflushed stdout" and proc.stderr.startswith("unflushed stderr")
     assert (tmp_path / "thread").read_text() == "finished"
@@ -38,11 +39,28 @@ def test_exit_keeps_code_threads_atexit_and_output(tmp_path, full):
 
 
 def test_the_command_line_exits_with_the_commands_code(tmp_path):
-    ok = subprocess.run([sys.executable, "-m", "oscar_core.cli", "embodiments", "--json"], capture_output=True, check=False,
-                        text=True)
+    ok = subprocess.run(
+        [sys.executable, "-m", "oscar_core.cli", "embodiments", "--json"], capture_output=True, check=False, text=True
+    )
     assert ok.returncode == 0, ok.stderr
     assert "toyarm" in {e["name"] for e in json.loads(ok.stdout)["embodiments"]}  # the whole JSON came out
-    bad = subprocess.run([sys.executable, "-m", "oscar_core.cli", "render", "--embodiment", "toyarm",
-                          "--trajectory", str(tmp_path / "missing.npz"), "--camera", str(tmp_path / "c.json"),
-                          "--out", str(tmp_path / "v.mp4")], capture_output=True, text=True, check=False)
+    bad = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "oscar_core.cli",
+            "render",
+            "--embodiment",
+            "toyarm",
+            "--trajectory",
+            str(tmp_path / "missing.npz"),
+            "--camera",
+            str(tmp_path / "c.json"),
+            "--out",
+            str(tmp_path / "v.mp4"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert bad.returncode == 2 and "missing.npz" in bad.stderr

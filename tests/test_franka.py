@@ -120,11 +120,13 @@ def droid_record(T=4, serial="24259877_left", rng=None):
     pos = np.linspace(0.0, 1.0, T)
     ext = np.array([0.9, -0.6, 0.7, -2.2, 0.1, 0.9])  # [x, y, z, roll, pitch, yaw]
     K = np.array([[522.0, 0.0, 640.5], [0.0, 521.0, 355.0], [0.0, 0.0, 1.0]])
-    record = {"observation": {
-        "robot_state": {"joint_positions": q, "gripper_position": pos},
-        "camera_extrinsics": {serial: np.tile(ext, (T, 1))},
-        "camera_intrinsics": {serial: np.tile(K, (T, 1, 1))},
-    }}
+    record = {
+        "observation": {
+            "robot_state": {"joint_positions": q, "gripper_position": pos},
+            "camera_extrinsics": {serial: np.tile(ext, (T, 1))},
+            "camera_intrinsics": {serial: np.tile(K, (T, 1, 1))},
+        }
+    }
     return record, q, pos, ext, K
 
 
@@ -162,8 +164,9 @@ def test_droid_camera_projects_like_opencv():
 def test_droid_rlds_layout_with_explicit_calibration(franka):
     record, q, pos, ext, K = droid_record()
     rlds = {"observation/joint_position": q, "observation/gripper_position": pos[:, None]}
-    traj, cam = from_droid(rlds, "24259877_left", extrinsic=ext, intrinsics=(522.0, 521.0, 640.5, 355.0),
-                           embodiment="franka")
+    traj, cam = from_droid(
+        rlds, "24259877_left", extrinsic=ext, intrinsics=(522.0, 521.0, 640.5, 355.0), embodiment="franka"
+    )
     ref_traj, ref_cam = from_droid(record, "24259877_left", embodiment="franka")
     assert np.allclose(traj.q, ref_traj.q) and np.allclose(traj.gripper, ref_traj.gripper)
     assert cam == ref_cam
@@ -188,12 +191,16 @@ def test_droid_bad_input():
         from_droid(record, "1234_left")
 
     record, *_ = droid_record()
-    record["observation"]["robot_state"]["joint_positions"] = record["observation"]["robot_state"]["joint_positions"][:, :6]
+    record["observation"]["robot_state"]["joint_positions"] = record["observation"]["robot_state"]["joint_positions"][
+        :, :6
+    ]
     with pytest.raises(TrajectoryError, match=r"joint_positions.*shape \(T, 7\).*found shape \(4, 6\)"):
         from_droid(record, "24259877_left")
 
     record, *_ = droid_record()
-    record["observation"]["robot_state"]["joint_positions"] = np.degrees(record["observation"]["robot_state"]["joint_positions"])
+    record["observation"]["robot_state"]["joint_positions"] = np.degrees(
+        record["observation"]["robot_state"]["joint_positions"]
+    )
     with pytest.raises(TrajectoryError, match=r"radians.*degrees\?"):
         from_droid(record, "24259877_left")
 
@@ -209,11 +216,14 @@ def rh20t_record(T=6):
     ts = 1631270000000 + 100 * np.arange(T)  # 10 fps, milliseconds
     lo, hi = Franka().tree.limits()
     q = rng.uniform(lo[:7] + 0.1, hi[:7] - 0.1, size=(T, 7))
-    joint = {SERIAL: {int(t): np.concatenate([q[i], rng.normal(size=7)]) for i, t in enumerate(ts)}}  # angles + velocities
+    joint = {
+        SERIAL: {int(t): np.concatenate([q[i], rng.normal(size=7)]) for i, t in enumerate(ts)}
+    }  # angles + velocities
     gts = ts[::2] + 30  # gripper sampled at other times
     widths = np.linspace(80.0, 10.0, len(gts))
-    gripper = {SERIAL: {int(t): {"gripper_info": [w, 0.0, 0.0], "gripper_command": [w, 0.0, 0.0]}
-                        for t, w in zip(gts, widths)}}
+    gripper = {
+        SERIAL: {int(t): {"gripper_info": [w, 0.0, 0.0], "gripper_command": [w, 0.0, 0.0]} for t, w in zip(gts, widths)}
+    }
     K = np.array([[910.0, 0.0, 640.0, 0.0], [0.0, 909.0, 362.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
     E = np.linalg.inv(rigid(rng))
     return joint, gripper, {SERIAL: K}, {SERIAL: E[None]}, q, ts, gts, widths
@@ -237,8 +247,10 @@ def test_rh20t_cfg5_layout(franka):
 def test_rh20t_base_to_camera_recovers_the_base_aligned_extrinsic():
     rng = np.random.default_rng(3)
     T_cam_base, T_world_base, T_base_tcp, tc_mat = (rigid(rng) for _ in range(4))
-    E = {SERIAL: (T_cam_base @ np.linalg.inv(T_world_base))[None],  # marker (world) -> camera
-         IN_HAND: (tc_mat @ np.linalg.inv(T_base_tcp) @ np.linalg.inv(T_world_base))[None]}
+    E = {
+        SERIAL: (T_cam_base @ np.linalg.inv(T_world_base))[None],  # marker (world) -> camera
+        IN_HAND: (tc_mat @ np.linalg.inv(T_base_tcp) @ np.linalg.inv(T_world_base))[None],
+    }
     wxyz = Rotation.from_matrix(T_base_tcp[:3, :3]).as_quat(scalar_first=True)
     calib_tcp = np.concatenate([T_base_tcp[:3, 3], wxyz])
     got = rh20t_base_to_camera(E, SERIAL, IN_HAND, tc_mat, calib_tcp)
@@ -275,8 +287,13 @@ def interndata_frames(T=5, as_cells=False):
     wxyz = Rotation.from_matrix(T_base_cam[:3, :3]).as_quat(scalar_first=True)
     pose = np.tile(np.concatenate([T_base_cam[:3, 3], wxyz]), (T, 1)).astype(np.float32)
     intr = np.tile([[615.0, 615.0, 320.0, 240.0]], (T, 1)).astype(np.float32)
-    cols = {"states.joint.position": q, "states.gripper.position": width, "head_camera_intrinsics": intr,
-            "head_camera_to_robot_extrinsics": pose, "timestamp": (np.arange(T) / 30).astype(np.float32)}
+    cols = {
+        "states.joint.position": q,
+        "states.gripper.position": width,
+        "head_camera_intrinsics": intr,
+        "head_camera_to_robot_extrinsics": pose,
+        "timestamp": (np.arange(T) / 30).astype(np.float32),
+    }
     if as_cells:  # what a pandas / pyarrow list column gives: one array per row
         cols = {k: list(v) for k, v in cols.items()}
     return cols, q, width, T_base_cam

@@ -30,9 +30,12 @@ def robotiq():
 
 
 def pads(emb, q, signal):
-    t = emb.check_trajectory(Trajectory(JOINT_NAMES, np.atleast_2d(q), 10, gripper=np.array(signal, float).reshape(-1, 1)))
-    P = emb.fk(emb.full_configuration(t), links=["robotiq_base", "left_inner_finger_pad", "right_inner_finger_pad",
-                                                  FLANGE]).numpy()
+    t = emb.check_trajectory(
+        Trajectory(JOINT_NAMES, np.atleast_2d(q), 10, gripper=np.array(signal, float).reshape(-1, 1))
+    )
+    P = emb.fk(
+        emb.full_configuration(t), links=["robotiq_base", "left_inner_finger_pad", "right_inner_finger_pad", FLANGE]
+    ).numpy()
     return P
 
 
@@ -41,9 +44,11 @@ def test_is_registered_with_the_arm_joints_and_one_driven_finger(robotiq):
     assert robotiq.joint_names == JOINT_NAMES  # trajectories are the franka's
     assert robotiq.tree.joint_names == JOINT_NAMES + ("finger_joint",)
     mimics = {j.name: j.mimic for j in robotiq.tree.joints if j.mimic}
-    assert mimics == {"right_outer_knuckle_joint": ("finger_joint", 1.0, 0.0),
-                      "left_inner_finger_joint": ("finger_joint", -1.0, 0.0),
-                      "right_inner_finger_joint": ("finger_joint", -1.0, 0.0)}
+    assert mimics == {
+        "right_outer_knuckle_joint": ("finger_joint", 1.0, 0.0),
+        "left_inner_finger_joint": ("finger_joint", -1.0, 0.0),
+        "right_inner_finger_joint": ("finger_joint", -1.0, 0.0),
+    }
     # no Franka Hand left below the flange
     assert not [l for l in robotiq.tree.links if "hand" in l or l.startswith("panda_") and "finger" in l]
 
@@ -98,11 +103,13 @@ def test_tree_is_rebuilt_with_another_coupling():
 def test_droid_episode_renders_with_the_robotiq(robotiq):
     T = 6
     pos = np.linspace(0, 1, T)
-    record = {"observation": {
-        "robot_state": {"joint_positions": np.tile(READY, (T, 1)), "gripper_position": pos},
-        "camera_extrinsics": {"cam_left": np.tile([1.05, -1.5, 0.85, -2.0, 0.0, 0.5], (T, 1))},
-        "camera_intrinsics": {"cam_left": np.array([[700.0, 0, 639.5], [0, 700.0, 359.5], [0, 0, 1]])},
-    }}
+    record = {
+        "observation": {
+            "robot_state": {"joint_positions": np.tile(READY, (T, 1)), "gripper_position": pos},
+            "camera_extrinsics": {"cam_left": np.tile([1.05, -1.5, 0.85, -2.0, 0.0, 0.5], (T, 1))},
+            "camera_intrinsics": {"cam_left": np.array([[700.0, 0, 639.5], [0, 700.0, 359.5], [0, 0, 1]])},
+        }
+    }
     traj, cam = from_droid(record, "cam_left")
     assert cam.embodiment == "franka_robotiq"
     video = render_skeleton_video(robotiq, traj, cam, (256, 144), camera_source="droid")

@@ -57,8 +57,11 @@ def test_plugin_fixture_regenerates_only_on_request(pytester):
     pytester.makepyfile(test_sq=PLUGIN_TEST.format(value=180))
     changed = pytester.runpytest("--oscar-golden-results", "out")
     changed.assert_outcomes(failed=1)
-    assert sorted(p.name for p in (pytester.path / "out").iterdir()) == ["square-actual.png", "square-diff.png",
-                                                                         "square-expected.png"]
+    assert sorted(p.name for p in (pytester.path / "out").iterdir()) == [
+        "square-actual.png",
+        "square-diff.png",
+        "square-expected.png",
+    ]
 
 
 def test_default_results_folder_is_under_the_rootdir(pytester):
@@ -74,10 +77,12 @@ def test_default_results_folder_is_under_the_rootdir(pytester):
 @pytest.mark.parametrize("how", ["-p", "conftest"])
 def test_plugin_loaded_twice_is_harmless(pytester, how):
     """Entry point plus ``-p module`` (or ``pytest_plugins``) must not be a duplicate registration."""
-    pytester.makepyfile(test_fx="""
+    pytester.makepyfile(
+        test_fx="""
 def test_fixture(golden, request):
     assert golden.folder == request.path.parent / "golden" and golden.regenerate
-""")
+"""
+    )
     if how == "conftest":
         pytester.makeconftest('pytest_plugins = ["oscar_core.testing.pytest_plugin"]')
         args = []
@@ -90,7 +95,9 @@ def test_plugin_import_is_light():
     import subprocess
     import sys
 
-    code = ("import sys, oscar_core.testing.pytest_plugin; "
-            "print(sorted(m for m in ('numpy', 'cv2', 'torch', 'av') if m in sys.modules))")
+    code = (
+        "import sys, oscar_core.testing.pytest_plugin; "
+        "print(sorted(m for m in ('numpy', 'cv2', 'torch', 'av') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

@@ -24,8 +24,6 @@ CONFIGS = {
 }
 
 
-
-
 @pytest.fixture(scope="module")
 def franka():
     return Franka()
@@ -37,8 +35,10 @@ def cameras(franka):
         # the bundled example camera (DROID-like, 1280x720, resized to 512x288)
         "example": load_camera(franka.example_camera),
         # a wide-angle camera with radial distortion on the other side of the robot
-        "side_distorted": Camera(Intrinsics(360.0, 360.0, 255.5, 143.5, 512, 288, distortion=(-0.15, 0.04, 0.001, -0.001)),
-                                 look_at((0.45, 1.35, 0.75), (0.25, 0.0, 0.38))),
+        "side_distorted": Camera(
+            Intrinsics(360.0, 360.0, 255.5, 143.5, 512, 288, distortion=(-0.15, 0.04, 0.001, -0.001)),
+            look_at((0.45, 1.35, 0.75), (0.25, 0.0, 0.38)),
+        ),
     }
 
 

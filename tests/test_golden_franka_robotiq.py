@@ -32,8 +32,10 @@ def robotiq():
 def cameras(robotiq):
     return {
         "example": load_camera(robotiq.example_camera),
-        "side_distorted": Camera(Intrinsics(360.0, 360.0, 255.5, 143.5, 512, 288, distortion=(-0.15, 0.04, 0.001, -0.001)),
-                                 look_at((0.45, 1.35, 0.75), (0.25, 0.0, 0.38))),
+        "side_distorted": Camera(
+            Intrinsics(360.0, 360.0, 255.5, 143.5, 512, 288, distortion=(-0.15, 0.04, 0.001, -0.001)),
+            look_at((0.45, 1.35, 0.75), (0.25, 0.0, 0.38)),
+        ),
     }
 
 

@@ -30,8 +30,6 @@ CONFIGS = {
 }
 
 
-
-
 EXTERNAL = Camera(Intrinsics(330.0, 330.0, 191.5, 143.5, 384, 288), look_at((1.7, -1.1, 1.3), (0.25, 0.0, 0.75)))
 
 
@@ -42,8 +40,9 @@ def hsr():
 
 def trajectory(config):
     q, hand, (x, y, yaw) = CONFIGS[config]
-    return Trajectory(JOINTS, np.array([q]), fps=10, gripper=np.array([[hand]]),
-                      base_pose=base_pose_from_xy_yaw(x, y, yaw))
+    return Trajectory(
+        JOINTS, np.array([q]), fps=10, gripper=np.array([[hand]]), base_pose=base_pose_from_xy_yaw(x, y, yaw)
+    )
 
 
 def render_one(hsr, config, camera_name):

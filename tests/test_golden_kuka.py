@@ -24,8 +24,6 @@ CONFIGS = {
 }
 
 
-
-
 @pytest.fixture(scope="module")
 def kuka():
     return KukaIiwa14()
@@ -37,8 +35,10 @@ def cameras(kuka):
         # the bundled example camera (RH20T-like: base -> camera, 1280x720, resized to 512x288)
         "example": load_camera(kuka.example_camera),
         # a wide-angle camera with radial distortion, on the robot's left
-        "side_distorted": Camera(Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
-                                 look_at((0.25, 1.55, 0.95), (0.1, 0.0, 0.6))),
+        "side_distorted": Camera(
+            Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
+            look_at((0.25, 1.55, 0.95), (0.1, 0.0, 0.6)),
+        ),
     }
 
 

@@ -31,7 +31,7 @@ def test_mano_golden(golden, rendered, name):
 def test_golden_tolerance_detects_a_small_change(rendered):
     mano, traj, cam, video = rendered
     t = FRAMES["closing"]
-    kp = traj.keypoints[t:t + 1].copy()
+    kp = traj.keypoints[t : t + 1].copy()
     kp[:, 21:] += [0.004, 0.0, 0.0]  # the right hand 4 mm to the side
-    one = traj.replace(q=traj.q[t:t + 1], gripper=traj.gripper[t:t + 1], keypoints=kp)
+    one = traj.replace(q=traj.q[t : t + 1], gripper=traj.gripper[t : t + 1], keypoints=kp)
     assert compare_images(render_skeleton_video(mano, one, cam, (512, 288))[0], video[t]) > TOL

@@ -30,8 +30,12 @@ CASES = {
     "toyarm_reach_half_open_front": ("toyarm", [0.7, 0.9, 1.3, 0.7], 0.04, "toy_front"),
     "toyarm_home_open_side": ("toyarm", [0.0, 0.0, 0.0, 0.0], 0.08, "toy_side_distorted"),
     "franka_ready_open_example": ("franka", [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785], 0.08, "franka_example"),
-    "franka_reach_closed_example": ("franka", [-0.019, 0.401, -0.155, -2.187, 0.113, 2.580, 0.785], 0.0,
-                                    "franka_example"),
+    "franka_reach_closed_example": (
+        "franka",
+        [-0.019, 0.401, -0.155, -2.187, 0.113, 2.580, 0.785],
+        0.0,
+        "franka_example",
+    ),
     # so101 joint order: wrist_roll, wrist_flex, elbow_flex, shoulder_lift, shoulder_pan
     "so101_reach_open_front": ("so101", [0.3, -0.4, 0.6, 0.6, 0.2], 1.0, "so101_front"),
 }
@@ -46,14 +50,17 @@ def embodiments():
 @pytest.fixture(scope="module")
 def cameras(embodiments):
     return {
-        "toy_front": Camera(Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360),
-                            look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4))),
-        "toy_side_distorted": Camera(Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288,
-                                                distortion=(-0.12, 0.03, 0.001, -0.001)),
-                                     look_at((-0.15, 0.95, 0.55), (0.15, 0.0, 0.4))),
+        "toy_front": Camera(
+            Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360), look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4))
+        ),
+        "toy_side_distorted": Camera(
+            Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
+            look_at((-0.15, 0.95, 0.55), (0.15, 0.0, 0.4)),
+        ),
         "franka_example": load_camera(embodiments["franka"].example_camera),
-        "so101_front": Camera(Intrinsics(330.0, 330.0, 255.5, 143.5, 512, 288),
-                              look_at((0.5, -0.5, 0.4), (0.12, 0.0, 0.05))),
+        "so101_front": Camera(
+            Intrinsics(330.0, 330.0, 255.5, 143.5, 512, 288), look_at((0.5, -0.5, 0.4), (0.12, 0.0, 0.05))
+        ),
     }
 
 

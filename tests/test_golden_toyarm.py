@@ -29,13 +29,13 @@ CONFIGS = {
 }
 
 
-
-
 CAMERAS = {
     "front": Camera(Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360), look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4))),
     # a wide-angle side camera with radial distortion
-    "side_distorted": Camera(Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
-                             look_at((-0.15, 0.95, 0.55), (0.15, 0.0, 0.4))),
+    "side_distorted": Camera(
+        Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
+        look_at((-0.15, 0.95, 0.55), (0.15, 0.0, 0.4)),
+    ),
 }
 
 

@@ -52,8 +52,9 @@ def reference():
     yourdfpy = pytest.importorskip("yourdfpy")
     if not REFERENCE.is_file():
         pytest.skip(f"reference URDF not available at {REFERENCE}")
-    return yourdfpy.URDF.load(str(REFERENCE), load_meshes=False, build_collision_scene_graph=False,
-                              load_collision_meshes=False)
+    return yourdfpy.URDF.load(
+        str(REFERENCE), load_meshes=False, build_collision_scene_graph=False, load_collision_meshes=False
+    )
 
 
 def test_fk_matches_the_reference_on_random_configurations(hsr, reference):
@@ -101,7 +102,12 @@ def test_registered_through_the_entry_point_with_a_xacro(hsr):
     assert emb.license == "BSD-3-Clause-Clear"
     assert hsr.joint_names == JOINTS
     assert [j.name for j in hsr.tree.joints if j.mimic] == [
-        "torso_lift_joint", "hand_l_proximal_joint", "hand_l_distal_joint", "hand_r_proximal_joint", "hand_r_distal_joint"]
+        "torso_lift_joint",
+        "hand_l_proximal_joint",
+        "hand_l_distal_joint",
+        "hand_r_proximal_joint",
+        "hand_r_distal_joint",
+    ]
 
 
 def test_base_pose_from_xy_yaw():
@@ -153,9 +159,12 @@ def test_head_camera_looks_along_the_head(hsr):
     for tilt in (-1.0, 0.0, 0.4):
         q = np.array([REACH])
         q[0, JOINTS.index("head_tilt_joint")] = tilt
-        frames = hsr.frames(hsr.check_trajectory(Trajectory(JOINTS, q, 10, gripper=[[1.0]])), mount_link=HEAD_CAMERA_LINK)
-        tilt_link = hsr.fk(hsr.full_configuration(Trajectory(JOINTS, q, 10, gripper=[[1.0]])),
-                           links=["head_tilt_link"]).numpy()[0, 0]
+        frames = hsr.frames(
+            hsr.check_trajectory(Trajectory(JOINTS, q, 10, gripper=[[1.0]])), mount_link=HEAD_CAMERA_LINK
+        )
+        tilt_link = hsr.fk(
+            hsr.full_configuration(Trajectory(JOINTS, q, 10, gripper=[[1.0]])), links=["head_tilt_link"]
+        ).numpy()[0, 0]
         assert np.allclose(frames.mount_pose[0, :3, 2], tilt_link[:3, 0])
         assert frames.mount_pose[0, 2, 2] == pytest.approx(math.sin(tilt), abs=1e-9)  # + tilt looks up
 
@@ -173,8 +182,10 @@ def lerobot_rows(T=6, seed=0):
 
 def test_airoa_moma_8_wide_layout(hsr):
     q, hand, state = lerobot_rows()
-    record = {"observation.state": [row.astype(np.float32).tolist() for row in state],  # parquet list cells
-              "timestamp": np.arange(len(q)) * 0.1}
+    record = {
+        "observation.state": [row.astype(np.float32).tolist() for row in state],  # parquet list cells
+        "timestamp": np.arange(len(q)) * 0.1,
+    }
     traj, cam = from_airoa_moma(record, source="episode_000012")
     assert traj.joint_names == JOINTS and traj.gripper_names == ("hand",)
     assert np.allclose(traj.q, q, atol=1e-6) and np.allclose(traj.gripper[:, 0], hand, atol=1e-6)
@@ -187,13 +198,21 @@ def test_airoa_moma_8_wide_layout(hsr):
 
 def test_airoa_moma_padded_layout_named_by_info_json(hsr):
     q, hand, state8 = lerobot_rows()
-    names = list(AIROA_MOMA_STATE_NAMES[:5]) + ["zero_5", "hand_motor_joint"] + [f"zero_{k}" for k in range(7, 11)] \
-        + ["head_pan_joint", "head_tilt_joint"] + [f"zero_{k}" for k in range(13, 32)]
+    names = (
+        list(AIROA_MOMA_STATE_NAMES[:5])
+        + ["zero_5", "hand_motor_joint"]
+        + [f"zero_{k}" for k in range(7, 11)]
+        + ["head_pan_joint", "head_tilt_joint"]
+        + [f"zero_{k}" for k in range(13, 32)]
+    )
     state = np.zeros((len(q), 32))
     for j, name in enumerate(AIROA_MOMA_STATE_NAMES):
         state[:, names.index(name)] = state8[:, j]
-    info = {"fps": 10, "robot_type": "hsr", "features": {"observation.state": {"dtype": "float32", "shape": [32],
-                                                                               "names": names}}}
+    info = {
+        "fps": 10,
+        "robot_type": "hsr",
+        "features": {"observation.state": {"dtype": "float32", "shape": [32], "names": names}},
+    }
     xy_yaw = np.stack([np.linspace(0, 0.3, len(q)), np.zeros(len(q)), np.linspace(0, 0.2, len(q))], axis=1)
     traj, _ = from_airoa_moma({"observation.state": state, "info": info, "base_pose": xy_yaw})
     assert np.allclose(traj.q, q) and np.allclose(traj.gripper[:, 0], hand)
@@ -206,8 +225,12 @@ def test_airoa_moma_padded_layout_named_by_info_json(hsr):
 
 def test_airoa_moma_camera_info(hsr):
     _, _, state = lerobot_rows(T=2)
-    info = {"width": 640, "height": 480, "K": [537.0, 0.0, 320.5, 0.0, 536.5, 243.1, 0.0, 0.0, 1.0],
-            "D": [0.02, -0.05, 0.0, 0.001, 0.0]}
+    info = {
+        "width": 640,
+        "height": 480,
+        "K": [537.0, 0.0, 320.5, 0.0, 536.5, 243.1, 0.0, 0.0, 1.0],
+        "D": [0.02, -0.05, 0.0, 0.001, 0.0],
+    }
     _, cam = from_airoa_moma({"observation.state": state, "camera_info": info})
     i = cam.intrinsics
     assert (i.fx, i.fy, i.cx, i.cy, i.width, i.height) == (537.0, 536.5, 320.5, 243.1, 640, 480)
@@ -217,15 +240,18 @@ def test_airoa_moma_camera_info(hsr):
     assert err.value.field == "camera_info.K" and err.value.path == "ep7"
 
 
-@pytest.mark.parametrize("record, field, words", [
-    ({}, "observation.state", "missing"),
-    ({"observation.state": np.zeros((4, 9))}, "names", "8-wide layout"),
-    ({"observation.state": np.zeros((4, 3)), "names": ["a", "b", "c"]}, "observation.state names", "missing"),
-    ({"observation.state": np.zeros((4, 8)), "names": list(AIROA_MOMA_STATE_NAMES)[:7]}, "names", "8 names"),
-    ({"observation.state": np.full((4, 8), np.nan)}, "observation.state", "non-finite"),
-    ({"observation.state": np.zeros((4, 8)), "base_pose": np.zeros((4, 2))}, "base_pose", "shape (4, 3)"),
-    ({"observation.state": np.zeros((4, 8)), "timestamp": np.zeros(3)}, "timestamp", "4 timestamps"),
-])
+@pytest.mark.parametrize(
+    "record, field, words",
+    [
+        ({}, "observation.state", "missing"),
+        ({"observation.state": np.zeros((4, 9))}, "names", "8-wide layout"),
+        ({"observation.state": np.zeros((4, 3)), "names": ["a", "b", "c"]}, "observation.state names", "missing"),
+        ({"observation.state": np.zeros((4, 8)), "names": list(AIROA_MOMA_STATE_NAMES)[:7]}, "names", "8 names"),
+        ({"observation.state": np.full((4, 8), np.nan)}, "observation.state", "non-finite"),
+        ({"observation.state": np.zeros((4, 8)), "base_pose": np.zeros((4, 2))}, "base_pose", "shape (4, 3)"),
+        ({"observation.state": np.zeros((4, 8)), "timestamp": np.zeros(3)}, "timestamp", "4 timestamps"),
+    ],
+)
 def test_airoa_moma_bad_input(record, field, words):
     with pytest.raises(TrajectoryError, match="ep3") as err:
         from_airoa_moma(record, source="ep3")
@@ -253,7 +279,9 @@ def test_camera_for_another_mount_or_embodiment_is_refused(hsr):
     intr = Intrinsics(554.0, 554.0, 319.5, 239.5, 640, 480)
     hsr.check_camera(Camera(intr, np.eye(4)))  # a static outside camera fits any embodiment
     with pytest.raises(CameraFileError, match="mount link 'head_rgbd_sensor_link' for embodiment 'hsr'") as err:
-        render_skeleton_video(hsr, reach(), Camera(intr, np.eye(4), mount_link="head_tilt_link"), camera_source="tilt.json")
+        render_skeleton_video(
+            hsr, reach(), Camera(intr, np.eye(4), mount_link="head_tilt_link"), camera_source="tilt.json"
+        )
     assert err.value.path == "tilt.json" and err.value.found == "mount link 'head_tilt_link'"
     with pytest.raises(CameraFileError, match="expected 'hsr', found 'agibot_g1'"):
         hsr.check_camera(Camera(intr, np.eye(4), mount_link=HEAD_CAMERA_LINK, embodiment="agibot_g1"))

@@ -15,7 +15,7 @@ BUNDLED = Path(__file__).resolve().parents[1] / "zoo" / "assets" / "oscar-toy"
 def front_matter(markdown: str) -> tuple[dict, str]:
     assert markdown.startswith("---\n"), markdown[:40]
     end = markdown.index("\n---\n", 4)
-    return yaml.safe_load(markdown[4:end]), markdown[end + 5:]
+    return yaml.safe_load(markdown[4:end]), markdown[end + 5 :]
 
 
 def test_the_bundled_model_card_has_the_hub_block_of_its_own_card():
@@ -29,8 +29,13 @@ def test_the_bundled_model_card_has_the_hub_block_of_its_own_card():
 
 
 def test_a_fine_tune_names_its_base_repo_and_other_licences_are_spelled_out():
-    meta = hub_metadata({"license": "NVIDIA Open Model License", "base": "nvidia/Cosmos-Predict2.5-2B@diffusers/base",
-                         "embodiments": ["franka"]})
+    meta = hub_metadata(
+        {
+            "license": "NVIDIA Open Model License",
+            "base": "nvidia/Cosmos-Predict2.5-2B@diffusers/base",
+            "embodiments": ["franka"],
+        }
+    )
     assert meta["base_model"] == "nvidia/Cosmos-Predict2.5-2B"
     assert meta["license"] == "other" and meta["license_name"] == "nvidia-open-model-license"
     assert meta["license_link"].startswith("https://www.nvidia.com/")
@@ -58,9 +63,11 @@ def test_an_exported_model_folder_has_a_card_with_the_block(tmp_path):
     from oscar_core.model.manifest import read_manifest
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny-ft", embodiments=("franka",), license="MIT",
-                                                   base="nvidia/Cosmos-Predict2.5-2B@main"))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny-ft", embodiments=("franka",), license="MIT", base="nvidia/Cosmos-Predict2.5-2B@main"),
+    )
     folder = oscar_zoo.export(model, tmp_path / "m")
     meta, body = front_matter((folder / "README.md").read_text())
     assert meta["license"] == "mit" and meta["base_model"] == "nvidia/Cosmos-Predict2.5-2B"

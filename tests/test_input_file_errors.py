@@ -43,8 +43,13 @@ def test_describe_content_names_what_a_file_holds(files):
 
 
 def test_read_text_file_errors_name_file_format_and_finding(files):
-    for name, found in [("traj.npz", "a zip archive"), ("img.png", "a PNG image"), ("folder", "a folder"),
-                        ("missing", "no such file"), ("late.json", "byte 0xff at position 101 is not utf-8")]:
+    for name, found in [
+        ("traj.npz", "a zip archive"),
+        ("img.png", "a PNG image"),
+        ("folder", "a folder"),
+        ("missing", "no such file"),
+        ("late.json", "byte 0xff at position 101 is not utf-8"),
+    ]:
         with pytest.raises(InputFileError) as e:
             read_text_file(files / name, "camera calibration JSON")
         msg = str(e.value)
@@ -59,34 +64,100 @@ def _one_line(capsys, argv):
     return err
 
 
-@pytest.mark.parametrize("argv_of, needle", [
-    # --camera traj.npz (render and rollout): the utf-8 codec error
-    (lambda f: ["render", "--embodiment", "franka", "--trajectory", str(FRANKA / "example_trajectory.npz"),
-                "--camera", str(f / "traj.npz"), "--out", str(f / "o.mp4")],
-     "traj.npz: field '<file>': expected camera calibration JSON (utf-8 text; docs/formats.md), found a zip archive"),
-    (lambda f: ["render", "--embodiment", "franka", "--trajectory", str(FRANKA / "example_trajectory.npz"),
-                "--camera", str(f / "latin1.json"), "--out", str(f / "o.mp4")],
-     "latin1.json: field '<file>': expected camera calibration JSON (utf-8 text; docs/formats.md), found binary data"),
-    # a trajectory that is a camera file, or an image
-    (lambda f: ["render", "--embodiment", "franka", "--trajectory", str(FRANKA / "example_camera.json"),
-                "--camera", str(FRANKA / "example_camera.json"), "--out", str(f / "o.mp4")],
-     "example_camera.json: field '<file>': expected a NumPy .npz archive (np.savez), found JSON text"),
-    (lambda f: ["render", "--embodiment", "franka", "--trajectory", str(f / "img.png"),
-                "--camera", str(FRANKA / "example_camera.json"), "--out", str(f / "o.mp4")],
-     "img.png: field '<file>': expected a NumPy .npz archive (np.savez), found a PNG image"),
-    # a render manifest, an evaluation manifest and a training config that are binary
-    (lambda f: ["render", "--manifest", str(f / "traj.npz")],
-     "traj.npz: field '<file>': expected a render manifest (.jsonl or .csv, utf-8 text; docs/formats.md), found a zip"),
-    (lambda f: ["eval", "run", str(f / "img.png"), "--model", "oscar-toy", "--out", str(f / "ev")],
-     "img.png: field 'file': expected an evaluation manifest JSON file (utf-8 text; docs/evaluation.md), found a PNG"),
-    (lambda f: ["train", str(f / "traj.npz")],
-     "traj.npz: field '<file>': expected a training config (YAML, utf-8 text), found a zip archive"),
-    (lambda f: ["eval", "benchmark", "run", str(f / "latin1.json"), "--model", "oscar-toy", "--out", str(f / "b")],
-     "latin1.json: field '<file>': expected a benchmark set file (JSON written by oscar eval benchmark build), "
-     "found binary data"),
-    (lambda f: ["eval", "policies", "--real", str(f / "traj.npz"), "--wm", str(f / "traj.npz")],
-     "traj.npz: field 'file': expected a JSON file (utf-8 text), found a zip archive"),
-])
+@pytest.mark.parametrize(
+    "argv_of, needle",
+    [
+        # --camera traj.npz (render and rollout): the utf-8 codec error
+        (
+            lambda f: [
+                "render",
+                "--embodiment",
+                "franka",
+                "--trajectory",
+                str(FRANKA / "example_trajectory.npz"),
+                "--camera",
+                str(f / "traj.npz"),
+                "--out",
+                str(f / "o.mp4"),
+            ],
+            "traj.npz: field '<file>': expected camera calibration JSON (utf-8 text; docs/formats.md), found a zip archive",
+        ),
+        (
+            lambda f: [
+                "render",
+                "--embodiment",
+                "franka",
+                "--trajectory",
+                str(FRANKA / "example_trajectory.npz"),
+                "--camera",
+                str(f / "latin1.json"),
+                "--out",
+                str(f / "o.mp4"),
+            ],
+            "latin1.json: field '<file>': expected camera calibration JSON (utf-8 text; docs/formats.md), found binary data",
+        ),
+        # a trajectory that is a camera file, or an image
+        (
+            lambda f: [
+                "render",
+                "--embodiment",
+                "franka",
+                "--trajectory",
+                str(FRANKA / "example_camera.json"),
+                "--camera",
+                str(FRANKA / "example_camera.json"),
+                "--out",
+                str(f / "o.mp4"),
+            ],
+            "example_camera.json: field '<file>': expected a NumPy .npz archive (np.savez), found JSON text",
+        ),
+        (
+            lambda f: [
+                "render",
+                "--embodiment",
+                "franka",
+                "--trajectory",
+                str(f / "img.png"),
+                "--camera",
+                str(FRANKA / "example_camera.json"),
+                "--out",
+                str(f / "o.mp4"),
+            ],
+            "img.png: field '<file>': expected a NumPy .npz archive (np.savez), found a PNG image",
+        ),
+        # a render manifest, an evaluation manifest and a training config that are binary
+        (
+            lambda f: ["render", "--manifest", str(f / "traj.npz")],
+            "traj.npz: field '<file>': expected a render manifest (.jsonl or .csv, utf-8 text; docs/formats.md), found a zip",
+        ),
+        (
+            lambda f: ["eval", "run", str(f / "img.png"), "--model", "oscar-toy", "--out", str(f / "ev")],
+            "img.png: field 'file': expected an evaluation manifest JSON file (utf-8 text; docs/evaluation.md), found a PNG",
+        ),
+        (
+            lambda f: ["train", str(f / "traj.npz")],
+            "traj.npz: field '<file>': expected a training config (YAML, utf-8 text), found a zip archive",
+        ),
+        (
+            lambda f: [
+                "eval",
+                "benchmark",
+                "run",
+                str(f / "latin1.json"),
+                "--model",
+                "oscar-toy",
+                "--out",
+                str(f / "b"),
+            ],
+            "latin1.json: field '<file>': expected a benchmark set file (JSON written by oscar eval benchmark build), "
+            "found binary data",
+        ),
+        (
+            lambda f: ["eval", "policies", "--real", str(f / "traj.npz"), "--wm", str(f / "traj.npz")],
+            "traj.npz: field 'file': expected a JSON file (utf-8 text), found a zip archive",
+        ),
+    ],
+)
 def test_cli_file_arguments(files, capsys, argv_of, needle):
     assert needle in _one_line(capsys, argv_of(files))
 
@@ -94,8 +165,11 @@ def test_cli_file_arguments(files, capsys, argv_of, needle):
 def test_first_frame_that_is_not_an_image_says_what_it_is(files):
     from oscar_core.model.image import read_image
 
-    with pytest.raises(InputFileError, match=r"traj.npz: field 'image': expected a readable image \(PNG, JPEG\) or "
-                                             r"video .*, found a zip archive"):
+    with pytest.raises(
+        InputFileError,
+        match=r"traj.npz: field 'image': expected a readable image \(PNG, JPEG\) or "
+        r"video .*, found a zip archive",
+    ):
         read_image(files / "traj.npz")
     with pytest.raises(InputFileError, match=r"folder: field 'image': expected a file: an image .*found a folder"):
         read_image(files / "folder")

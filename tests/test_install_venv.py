@@ -63,19 +63,23 @@ def test_fresh_venv_install_with_mano_extra(tmp_path):
     assert {"franka", "kuka", "agibot_g1", "hsr", "mano"} <= rendered, out
     # the bundled oscar-toy checkpoint is in the wheel (package data) and rolls out from it, offline
     assert summary["toy_world"]["model"] == "oscar-toy" and (tmp_path / "demo" / "toyworld_rollout.mp4").is_file(), out
-    probe = ("import json, smplx, oscar_core; from oscar_core import get_embodiment; "
-             "import oscar_embodiments.mano.mano_model as m; m.require_smplx(); "
-             "print(json.dumps({'where': oscar_core.__file__, 'mano': get_embodiment('mano').info()['mano_parameters']}))")
+    probe = (
+        "import json, smplx, oscar_core; from oscar_core import get_embodiment; "
+        "import oscar_embodiments.mano.mano_model as m; m.require_smplx(); "
+        "print(json.dumps({'where': oscar_core.__file__, 'mano': get_embodiment('mano').info()['mano_parameters']}))"
+    )
     info = json.loads(run([py, "-c", probe], tmp_path).strip().splitlines()[-1])
     assert str(REPO) not in info["where"] and "available" in info["mano"]
     run([py, "-m", "pip", "uninstall", "-y", "-q", "smplx"], tmp_path)
-    check = ("import numpy as np\n"
-             "from oscar_embodiments.mano import SMPLX_MISSING, trajectory_from_mano\n"
-             "try:\n"
-             "    trajectory_from_mano({'right': {'global_orient': np.zeros((1, 3)), 'hand_pose': np.zeros((1, 45))}}, 30.0, '/nowhere')\n"
-             "except ImportError as exc:\n"
-             "    assert str(exc) == SMPLX_MISSING, exc\n"
-             "    print('MESSAGE', exc)\n")
+    check = (
+        "import numpy as np\n"
+        "from oscar_embodiments.mano import SMPLX_MISSING, trajectory_from_mano\n"
+        "try:\n"
+        "    trajectory_from_mano({'right': {'global_orient': np.zeros((1, 3)), 'hand_pose': np.zeros((1, 45))}}, 30.0, '/nowhere')\n"
+        "except ImportError as exc:\n"
+        "    assert str(exc) == SMPLX_MISSING, exc\n"
+        "    print('MESSAGE', exc)\n"
+    )
     msg = run([py, "-c", check], tmp_path)
     assert 'pip install "oscar-wm[mano]"' in msg
 

@@ -21,8 +21,14 @@ SHARED_PRIVATE_PACKAGES = {"_util"}
 ALLOWED_PRIVATE: dict[tuple[str, str], str] = {}
 
 #: the camera modules bottom to top; a module may import only those before it (the same step: neither)
-CAMERA_CHAIN: list[tuple[str, ...]] = [("geometry",), ("extrinsics", "intrinsics"), ("projection",), ("pinhole",),
-                                       ("file",), ("__init__",)]
+CAMERA_CHAIN: list[tuple[str, ...]] = [
+    ("geometry",),
+    ("extrinsics", "intrinsics"),
+    ("projection",),
+    ("pinhole",),
+    ("file",),
+    ("__init__",),
+]
 
 
 def _module_name(root: Path, path: Path) -> str:
@@ -43,7 +49,7 @@ def imports(root: Path) -> list[tuple[str, str, str]]:
                 out += [(mod, a.name, "") for a in node.names if a.name.split(".")[0] == top]
             elif isinstance(node, ast.ImportFrom):
                 if node.level:
-                    base = package.split(".")[:len(package.split(".")) - (node.level - 1)]
+                    base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
                     target = ".".join(base + ([node.module] if node.module else []))
                 else:
                     target = node.module or ""
@@ -80,8 +86,8 @@ def chain_violations(found: list[tuple[str, str, str]], package: str, chain: lis
     for mod, target, name in found:
         if _package(mod) != package or not target.startswith(package):
             continue
-        src = mod[len(package) + 1:] or "__init__"
-        dst = target[len(package) + 1:]
+        src = mod[len(package) + 1 :] or "__init__"
+        dst = target[len(package) + 1 :]
         if not dst and name in step:  # from . import geometry
             dst, name = name, ""
         dst = dst or "__init__"
@@ -107,22 +113,27 @@ def test_the_camera_modules_form_one_line():
 def test_the_checkers_find_what_they_must(tmp_path):
     pkg = tmp_path / "pkg"
     for rel, text in {
-        "__init__.py": "", "a/__init__.py": "", "b/__init__.py": "", "_util/__init__.py": "",
+        "__init__.py": "",
+        "a/__init__.py": "",
+        "b/__init__.py": "",
+        "_util/__init__.py": "",
         "_util/h.py": "x = 1\n",
         "a/low.py": "_secret = 1\nshared = 2\n",
         "a/_private.py": "y = 1\n",
         "a/high.py": "from typing import TYPE_CHECKING\nfrom .low import _secret\nif TYPE_CHECKING:\n"
-                     "    from . import top\n",
+        "    from . import top\n",
         "a/top.py": "from .high import x\n",
         "b/user.py": "from ..a.low import _secret, shared\nfrom ..a import _private\nimport pkg.a._private\n"
-                     "from .._util.h import x\nfrom pkg.a.low import shared as _alias\n",
+        "from .._util.h import x\nfrom pkg.a.low import shared as _alias\n",
     }.items():
         (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
         (pkg / rel).write_text(text)
     found = imports(pkg)
-    assert private_crossings(found) == ["pkg.b.user imports pkg.a._private",
-                                        "pkg.b.user imports pkg.a._private",
-                                        "pkg.b.user imports pkg.a.low._secret"]
+    assert private_crossings(found) == [
+        "pkg.b.user imports pkg.a._private",
+        "pkg.b.user imports pkg.a._private",
+        "pkg.b.user imports pkg.a.low._secret",
+    ]
     chain = [("low",), ("high",), ("top",), ("__init__",)]
     assert chain_violations(found, "pkg.a", chain) == [
         "pkg.a.high imports pkg.a (not below it)",  # the TYPE_CHECKING import of top counts (from . import top)

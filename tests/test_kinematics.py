@@ -38,7 +38,9 @@ def random_tree_urdf(seed: int, n_links: int = 14) -> str:
             body += '<limit lower="-2" upper="2" effort="1" velocity="1"/>'
         if jtype != "fixed" and movable and rng.random() < 0.25:
             src = movable[int(rng.integers(0, len(movable)))]
-            body += f'<mimic joint="{src}" multiplier="{rng.uniform(-2, 2):.4f}" offset="{rng.uniform(-0.3, 0.3):.4f}"/>'
+            body += (
+                f'<mimic joint="{src}" multiplier="{rng.uniform(-2, 2):.4f}" offset="{rng.uniform(-0.3, 0.3):.4f}"/>'
+            )
         else:
             if jtype != "fixed":
                 movable.append(f"j{i}")
@@ -49,8 +51,13 @@ def random_tree_urdf(seed: int, n_links: int = 14) -> str:
 
 def yourdfpy_poses(urdf_path: Path, tree, q: np.ndarray) -> np.ndarray:
     """(T, L, 4, 4) poses of all links from yourdfpy, with mimic joints resolved by yourdfpy."""
-    robot = yourdfpy.URDF.load(str(urdf_path), load_meshes=False, build_scene_graph=True,
-                               load_collision_meshes=False, build_collision_scene_graph=False)
+    robot = yourdfpy.URDF.load(
+        str(urdf_path),
+        load_meshes=False,
+        build_scene_graph=True,
+        load_collision_meshes=False,
+        build_collision_scene_graph=False,
+    )
     assert tuple(robot.actuated_joint_names) == tree.joint_names
     out = np.empty((len(q), len(tree.links), 4, 4))
     for t in range(len(q)):
@@ -140,21 +147,42 @@ def test_fk_output_shape_and_dtype():
 
 # ---- bad descriptions --------------------------------------------------------
 
-@pytest.mark.parametrize("xml, field, fragment", [
-    ("<robot><link name='a'/>", "<xml>", "well-formed"),
-    ("<notarobot/>", "<root element>", "<robot>"),
-    ("<robot><link name='a'/><link name='b'/><joint name='j' type='floating'><parent link='a'/><child link='b'/></joint></robot>",
-     "joint[j].type", "floating"),
-    ("<robot><link name='a'/><link name='b'/><joint name='j' type='revolute'><parent link='a'/><child link='b'/></joint></robot>",
-     "joint[j].limit", "<limit>"),
-    ("<robot><link name='a'/><joint name='j' type='fixed'><parent link='a'/><child link='zz'/></joint></robot>",
-     "joint[j].child", "'zz'"),
-    ("<robot><link name='a'/><link name='b'/><joint name='j' type='continuous'><parent link='a'/><child link='b'/>"
-     "<origin xyz='0 0'/></joint></robot>", "joint[j].origin.xyz", "'0 0'"),
-    ("<robot><link name='a'/><link name='b'/><joint name='j' type='continuous'><parent link='a'/><child link='b'/>"
-     "<mimic joint='nope'/></joint></robot>", "joint[j].mimic.joint", "'nope'"),
-    ("<robot><link name='a'/><link name='b'/></robot>", "robot", "roots"),
-])
+
+@pytest.mark.parametrize(
+    "xml, field, fragment",
+    [
+        ("<robot><link name='a'/>", "<xml>", "well-formed"),
+        ("<notarobot/>", "<root element>", "<robot>"),
+        (
+            "<robot><link name='a'/><link name='b'/><joint name='j' type='floating'><parent link='a'/><child link='b'/></joint></robot>",
+            "joint[j].type",
+            "floating",
+        ),
+        (
+            "<robot><link name='a'/><link name='b'/><joint name='j' type='revolute'><parent link='a'/><child link='b'/></joint></robot>",
+            "joint[j].limit",
+            "<limit>",
+        ),
+        (
+            "<robot><link name='a'/><joint name='j' type='fixed'><parent link='a'/><child link='zz'/></joint></robot>",
+            "joint[j].child",
+            "'zz'",
+        ),
+        (
+            "<robot><link name='a'/><link name='b'/><joint name='j' type='continuous'><parent link='a'/><child link='b'/>"
+            "<origin xyz='0 0'/></joint></robot>",
+            "joint[j].origin.xyz",
+            "'0 0'",
+        ),
+        (
+            "<robot><link name='a'/><link name='b'/><joint name='j' type='continuous'><parent link='a'/><child link='b'/>"
+            "<mimic joint='nope'/></joint></robot>",
+            "joint[j].mimic.joint",
+            "'nope'",
+        ),
+        ("<robot><link name='a'/><link name='b'/></robot>", "robot", "roots"),
+    ],
+)
 def test_bad_urdf_names_file_and_field(xml, field, fragment):
     with pytest.raises(KinematicsFileError) as info:
         build_tree_from_urdf_string(xml, source="bad.urdf")
@@ -169,6 +197,7 @@ def test_missing_urdf_file(tmp_path):
 
 
 # ---- xacro ---------------------------------------------------------------------
+
 
 def test_xacro_with_find_and_args_without_ros(tmp_path):
     share = tmp_path / "share" / "toy_description"
@@ -197,6 +226,7 @@ def test_xacro_with_find_and_args_without_ros(tmp_path):
     assert tree.joint_names == ("upper_joint", "lower_joint")
     assert tree.joint("lower_joint").origin[2, 3] == pytest.approx(0.45)
     import sys
+
     assert "ament_index_python" not in sys.modules  # the stand-in is removed afterwards
     with pytest.raises(KinematicsFileError, match=r"robot.urdf.xacro.*\$\(find toy_description\)"):
         build_tree_from_xacro(top, packages={})
@@ -212,9 +242,11 @@ def test_xacro_missing_file_and_broken_macro(tmp_path):
 
 
 def test_axes_are_normalised_as_the_urdf_spec_asks():
-    xml = ("<robot name='n'><link name='a'/><link name='b'/><joint name='slide' type='prismatic'>"
-           "<parent link='a'/><child link='b'/><axis xyz='0 0 2'/><limit lower='0' upper='1' effort='1' velocity='1'/>"
-           "</joint></robot>")
+    xml = (
+        "<robot name='n'><link name='a'/><link name='b'/><joint name='slide' type='prismatic'>"
+        "<parent link='a'/><child link='b'/><axis xyz='0 0 2'/><limit lower='0' upper='1' effort='1' velocity='1'/>"
+        "</joint></robot>"
+    )
     tree = build_tree_from_urdf_string(xml)
     P = ForwardKinematics(tree)(np.array([[0.25]]), ["b"]).numpy()
     assert P[0, 0, 2, 3] == pytest.approx(0.25)

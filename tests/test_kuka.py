@@ -62,8 +62,9 @@ def oracle():
         pytest.skip("rtb-data is not installed (pip install 'oscar-wm[dev]')")
     path = next((dist.locate_file(f) for f in dist.files or () if f.as_posix().endswith(ORACLE_SUFFIX)), None)
     assert path is not None, f"rtb-data {dist.version} has no {ORACLE_SUFFIX}"
-    return yourdfpy.URDF.load(str(path), load_meshes=False, build_collision_scene_graph=False,
-                              load_collision_meshes=False)
+    return yourdfpy.URDF.load(
+        str(path), load_meshes=False, build_collision_scene_graph=False, load_collision_meshes=False
+    )
 
 
 def oracle_poses(urdf, Q):
@@ -212,8 +213,10 @@ def test_rh20t_cfg7_layout(kuka):
 def test_rh20t_base_to_camera_recovers_the_base_aligned_extrinsic():
     rng = np.random.default_rng(6)
     T_cam_base, T_world_base, T_base_tcp, tc_mat = (rigid(rng) for _ in range(4))
-    E = {SERIAL: T_cam_base @ np.linalg.inv(T_world_base),
-         IN_HAND: tc_mat @ np.linalg.inv(T_base_tcp) @ np.linalg.inv(T_world_base)}
+    E = {
+        SERIAL: T_cam_base @ np.linalg.inv(T_world_base),
+        IN_HAND: tc_mat @ np.linalg.inv(T_base_tcp) @ np.linalg.inv(T_world_base),
+    }
     R = T_base_tcp[:3, :3]  # rotation -> (w, x, y, z), R is proper and not a half turn here
     w = np.sqrt(1 + np.trace(R)) / 2
     xyz = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (4 * w)
@@ -251,7 +254,9 @@ def test_wrong_joint_count_or_names_are_refused(kuka):
     with pytest.raises(TrajectoryError, match=r"the 7 joints of 'kuka'.*lbr_iiwa_joint_1.*unknown \['panda_joint1'"):
         render_skeleton_video(kuka, Trajectory(panda, np.zeros((2, 7)), fps=10, gripper=np.zeros((2, 1))), CAM)
     with pytest.raises(TrajectoryError, match=r"missing \['lbr_iiwa_joint_7'\]"):
-        render_skeleton_video(kuka, Trajectory(JOINT_NAMES[:6], np.zeros((2, 6)), fps=10, gripper=np.zeros((2, 1))), CAM)
+        render_skeleton_video(
+            kuka, Trajectory(JOINT_NAMES[:6], np.zeros((2, 6)), fps=10, gripper=np.zeros((2, 1))), CAM
+        )
 
 
 def test_gripper_outside_its_range_is_refused(kuka):

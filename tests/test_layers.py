@@ -52,10 +52,14 @@ DATA_FOLDERS = {"templates", "__pycache__"}
 
 #: Upward imports kept on purpose, each with its reason. Keep this list short.
 ALLOWED_UPWARD: dict[tuple[str, str], str] = {
-    ("oscar_core.model.text_encoder", "oscar_zoo._fetch"):
-        "TextEncoder.from_hub (public API) downloads through the zoo's verified Hub fetcher",
-    ("oscar_core.model.rollout_files", "oscar_zoo"):
-        "run_rollout (the Python twin of oscar rollout) loads its model by zoo name, Hub id or folder",
+    (
+        "oscar_core.model.text_encoder",
+        "oscar_zoo._fetch",
+    ): "TextEncoder.from_hub (public API) downloads through the zoo's verified Hub fetcher",
+    (
+        "oscar_core.model.rollout_files",
+        "oscar_zoo",
+    ): "run_rollout (the Python twin of oscar rollout) loads its model by zoo name, Hub id or folder",
 }
 
 
@@ -202,11 +206,17 @@ def cycles(graph) -> list[list[str]]:
 
 def sub_cli_imports(graph, top: str = "oscar_core.cli") -> list[str]:
     """A package's CLI module importing another package's CLI module (only ``top`` assembles them)."""
+
     def sub_cli(m):
         return m != top and is_cli(m)
 
-    return [f"{m} imports {t}" for m, ts in sorted(graph.items()) if sub_cli(m) for t in sorted(ts)
-            if sub_cli(t) and t.rsplit(".", 1)[0] != m.rsplit(".", 1)[0]]
+    return [
+        f"{m} imports {t}"
+        for m, ts in sorted(graph.items())
+        if sub_cli(m)
+        for t in sorted(ts)
+        if sub_cli(t) and t.rsplit(".", 1)[0] != m.rsplit(".", 1)[0]
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -263,19 +273,31 @@ def make_package(root: Path, files: dict[str, str]) -> Path:
 
 
 def test_the_checker_finds_an_upward_import_a_loop_and_a_cli_reaching_sideways(tmp_path):
-    pkg = make_package(tmp_path / "pkg", {
-        "__init__.py": "", "cli.py": "from .high import cli\n",
-        "low/__init__.py": "", "low/a.py": "def f():\n    from ..high.b import g\n",  # upward, deferred in a function
-        "high/__init__.py": "", "high/b.py": "from ..low import a\n",              # closes a loop a -> b -> a
-        "high/cli.py": "from ..side.cli import x\n",                                # one sub-CLI importing another
-        "side/__init__.py": "", "side/cli.py": "import pkg.low.a\nif TYPE_CHECKING:\n    from ..high import b\n",
-    })
+    pkg = make_package(
+        tmp_path / "pkg",
+        {
+            "__init__.py": "",
+            "cli.py": "from .high import cli\n",
+            "low/__init__.py": "",
+            "low/a.py": "def f():\n    from ..high.b import g\n",  # upward, deferred in a function
+            "high/__init__.py": "",
+            "high/b.py": "from ..low import a\n",  # closes a loop a -> b -> a
+            "high/cli.py": "from ..side.cli import x\n",  # one sub-CLI importing another
+            "side/__init__.py": "",
+            "side/cli.py": "import pkg.low.a\nif TYPE_CHECKING:\n    from ..high import b\n",
+        },
+    )
     floors = [("low", ("low", "__init__")), ("high", ("high", "side")), ("cli", ("cli",))]
     g = import_graph({"pkg": pkg})
     assert g["pkg.low.a"] == {"pkg.high.b"} and g["pkg.side.cli"] == {"pkg.low.a"}
     # the floor comes from the folder; a cli module is on the top floor whatever its folder
-    assert [layer_of(m, floors, "pkg") for m in ("pkg", "pkg.low.a", "pkg.side", "pkg.high.cli", "pkg.cli")] \
-        == [0, 0, 1, 2, 2]
+    assert [layer_of(m, floors, "pkg") for m in ("pkg", "pkg.low.a", "pkg.side", "pkg.high.cli", "pkg.cli")] == [
+        0,
+        0,
+        1,
+        2,
+        2,
+    ]
     assert upward_imports(g, floors, {}, "pkg") == ["pkg.low.a (low) imports pkg.high.b (high)"]
     assert upward_imports(g, floors, {("pkg.low.a", "pkg.high.b"): "reason"}, "pkg") == []
     # the same import is allowed once both folders share a floor: the rule is the folders' order, nothing else
@@ -285,14 +307,21 @@ def test_the_checker_finds_an_upward_import_a_loop_and_a_cli_reaching_sideways(t
 
 
 def test_the_checker_finds_a_stray_top_level_module_and_a_folder_on_no_floor(tmp_path):
-    pkg = make_package(tmp_path / "pkg", {
-        "__init__.py": "", "errors.py": "", "cli.py": "",
-        "low/__init__.py": "", "low/a.py": "",
-        "helpers.py": "",                                 # a new top-level module
-        "extra/__init__.py": "", "extra/m.py": "",        # a new folder that no floor names
-        "loose/m.py": "",                                 # a floor's folder that is not a package
-        "templates/page.html.j2": "",                     # package data: allowed
-    })
+    pkg = make_package(
+        tmp_path / "pkg",
+        {
+            "__init__.py": "",
+            "errors.py": "",
+            "cli.py": "",
+            "low/__init__.py": "",
+            "low/a.py": "",
+            "helpers.py": "",  # a new top-level module
+            "extra/__init__.py": "",
+            "extra/m.py": "",  # a new folder that no floor names
+            "loose/m.py": "",  # a floor's folder that is not a package
+            "templates/page.html.j2": "",  # package data: allowed
+        },
+    )
     floors = [("low", ("low", "loose", "errors", "__init__")), ("cli", ("cli",))]
     allowed = {"__init__", "errors", "cli"}
     assert top_level_strays(pkg, floors, allowed, {"templates"}) == [
@@ -300,8 +329,7 @@ def test_the_checker_finds_a_stray_top_level_module_and_a_folder_on_no_floor(tmp
         "helpers.py: a module at the top level outside the allowed set ['__init__', 'cli', 'errors']",
         "loose/: a folder on a floor without an __init__.py",
     ]
-    assert top_level_strays(pkg, floors + [("extra", ("extra",))], allowed | {"helpers"}, {"templates", "loose"}) \
-        == []
+    assert top_level_strays(pkg, floors + [("extra", ("extra",))], allowed | {"helpers"}, {"templates", "loose"}) == []
     with pytest.raises(KeyError, match="'extra' is on no floor"):
         layer_of("pkg.extra.m", floors, "pkg")
     with pytest.raises(KeyError, match="'helpers' is on no floor"):
@@ -309,12 +337,32 @@ def test_the_checker_finds_a_stray_top_level_module_and_a_folder_on_no_floor(tmp
 
 
 #: the import paths that plugins and the docs use, with the module that holds their names
-PUBLIC_PATHS = {"oscar_core.camera": None, "oscar_core.trajectory": "oscar_core.kinematics.trajectory",
-                "oscar_core.urdf": "oscar_core.kinematics.urdf", "oscar_core.embodiment": "oscar_core.plugin.embodiment",
-                "oscar_core.hookspecs": "oscar_core.plugin.hookspecs"}
-CAMERA_NAMES = {"CONVENTIONS", "CONVENTION_ALIASES", "DIRECTIONS", "Intrinsics", "Camera", "Projection",
-                "canonical_convention", "as_rigid_transform", "as_rigid_transforms", "look_at", "convention_to_opencv",
-                "project", "project_points_cv", "load_camera", "save_camera", "camera_from_dict", "camera_to_dict"}
+PUBLIC_PATHS = {
+    "oscar_core.camera": None,
+    "oscar_core.trajectory": "oscar_core.kinematics.trajectory",
+    "oscar_core.urdf": "oscar_core.kinematics.urdf",
+    "oscar_core.embodiment": "oscar_core.plugin.embodiment",
+    "oscar_core.hookspecs": "oscar_core.plugin.hookspecs",
+}
+CAMERA_NAMES = {
+    "CONVENTIONS",
+    "CONVENTION_ALIASES",
+    "DIRECTIONS",
+    "Intrinsics",
+    "Camera",
+    "Projection",
+    "canonical_convention",
+    "as_rigid_transform",
+    "as_rigid_transforms",
+    "look_at",
+    "convention_to_opencv",
+    "project",
+    "project_points_cv",
+    "load_camera",
+    "save_camera",
+    "camera_from_dict",
+    "camera_to_dict",
+}
 
 
 @pytest.mark.parametrize("path", sorted(PUBLIC_PATHS))

@@ -98,8 +98,25 @@ def test_run_log_is_timestamped_made_lazily_and_ends_with_the_error(tmp_path):
 
 
 def _generate(tmp_path, *flags):
-    return main([*flags, "toyworld", "generate", "--embodiments", "toyarm", "--episodes", "2", "--size", "16x16",
-                 "--frames", "5", "--shard-size", "1", "--out", str(tmp_path)])
+    return main(
+        [
+            *flags,
+            "toyworld",
+            "generate",
+            "--embodiments",
+            "toyarm",
+            "--episodes",
+            "2",
+            "--size",
+            "16x16",
+            "--frames",
+            "5",
+            "--shard-size",
+            "1",
+            "--out",
+            str(tmp_path),
+        ]
+    )
 
 
 def test_cli_flags_control_the_console_and_the_job_keeps_a_log(tmp_path, capsys):
@@ -114,8 +131,23 @@ def test_cli_flags_control_the_console_and_the_job_keeps_a_log(tmp_path, capsys)
     assert "shard-" not in cap.err and "episodes written" in cap.out
     logs = list((tmp_path / "b" / "logs").glob("*.log"))
     assert "shard-toyarm-000001" in logs[0].read_text()  # -q quiets the console, not the log file
-    assert main(["toyworld", "generate", "--embodiments", "toyarm", "--episodes", "1", "--out", str(tmp_path / "c"),
-                 "-v", "-q"]) == 2
+    assert (
+        main(
+            [
+                "toyworld",
+                "generate",
+                "--embodiments",
+                "toyarm",
+                "--episodes",
+                "1",
+                "--out",
+                str(tmp_path / "c"),
+                "-v",
+                "-q",
+            ]
+        )
+        == 2
+    )
     assert "found both" in capsys.readouterr().err
     assert logging.getLogger("oscar").handlers == [] and logging.getLogger("oscar").propagate  # main cleans up
 
@@ -134,8 +166,9 @@ def test_every_command_takes_the_same_output_flags():
     args = parser.parse_args(["toyworld", "baseline", "clips", "--out", "x", "--no-progress"])
     assert args.no_progress and args.quiet == 0
     # a command with its own --progress/--no-progress pair keeps its default
-    args = parser.parse_args(["render", "--embodiment", "toyarm", "--trajectory", "t.npz", "--camera", "c.json",
-                              "--out", "o.mp4"])
+    args = parser.parse_args(
+        ["render", "--embodiment", "toyarm", "--trajectory", "t.npz", "--camera", "c.json", "--out", "o.mp4"]
+    )
     assert args.progress is None and args.no_progress is False
 
 

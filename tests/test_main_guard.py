@@ -50,8 +50,15 @@ def _script(tmp_path, text: str) -> subprocess.CompletedProcess:
     path = tmp_path / "user_script.py"
     path.write_text(textwrap.dedent(text))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    return subprocess.run([sys.executable, str(path), str(tmp_path)], check=False, capture_output=True, text=True,
-                          env=env, timeout=240, cwd=tmp_path)
+    return subprocess.run(
+        [sys.executable, str(path), str(tmp_path)],
+        check=False,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=240,
+        cwd=tmp_path,
+    )
 
 
 def test_render_many_from_an_unguarded_script_fails_fast_naming_the_line(tmp_path):
@@ -85,8 +92,9 @@ def test_run_sharded_from_an_unguarded_script_fails_fast(tmp_path):
     assert proc.returncode == 1 and "MainGuardError: run_sharded(workers=2)" in proc.stderr, proc.stderr
     assert not (tmp_path / "stage" / "completions").exists() or not list((tmp_path / "stage" / "completions").iterdir())
     body = text.split("rows = ")[1]
-    guarded_text = text.split("rows = ")[0] + 'if __name__ == "__main__":\n        rows = ' + body.replace(
-        "\n    ", "\n        ")
+    guarded_text = (
+        text.split("rows = ")[0] + 'if __name__ == "__main__":\n        rows = ' + body.replace("\n    ", "\n        ")
+    )
     proc = _script(tmp_path, guarded_text)
     assert proc.returncode == 0 and "processed 4" in proc.stdout, proc.stderr
 
@@ -94,8 +102,16 @@ def test_run_sharded_from_an_unguarded_script_fails_fast(tmp_path):
 def test_a_script_read_from_standard_input_is_refused_before_the_workers_die(tmp_path):
     """Workers look for a file named ``<stdin>``: even a guarded script cannot start a pool from there."""
     text = RENDER.format(assets=str(ASSETS), call='if __name__ == "__main__":\n    main()')
-    proc = subprocess.run([sys.executable, "-", str(tmp_path)], input=text, check=False, capture_output=True,
-                          text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=240, cwd=tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-", str(tmp_path)],
+        input=text,
+        check=False,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        timeout=240,
+        cwd=tmp_path,
+    )
     assert proc.returncode == 1 and "MainGuardError" in proc.stderr and "standard input" in proc.stderr, proc.stderr
     assert "BrokenProcessPool" not in proc.stderr and not list(tmp_path.glob("*.mp4"))
 
@@ -113,20 +129,26 @@ def test_no_script_nothing_to_check():
     check_main_guard("pool(workers=2)")  # under pytest: the runner's main module is guarded or a package
 
 
-@pytest.mark.parametrize(("source", "line", "expected"), [
-    ("x = 1\ncall()\n", 2, False),
-    ('if __name__ == "__main__":\n    call()\n', 2, True),
-    ("if '__main__' == __name__:\n    call()\n", 2, True),
-    ('if __name__ == "__main__" and ok:\n    call()\n', 2, True),
-    ('if __name__ != "__main__":\n    pass\nelse:\n    call()\n', 4, True),
-    ('if __name__ != "__main__":\n    call()\n', 2, False),
-    ('if __name__ == "__main__":\n    pass\nelse:\n    call()\n', 4, False),
-    ('if __name__ == "__main__":\n    with ctx:\n        for i in x:\n            call()\n', 4, True),
-    ('with ctx:\n    if __name__ == "__main__":\n        try:\n            call()\n        finally:\n            pass\n', 4,
-     True),
-    ("with ctx:\n    call(\n        1,\n    )\n", 3, False),
-    ("if ready:\n    call()\n", 2, False),
-    ("def f(\n", 1, None),
-])
+@pytest.mark.parametrize(
+    ("source", "line", "expected"),
+    [
+        ("x = 1\ncall()\n", 2, False),
+        ('if __name__ == "__main__":\n    call()\n', 2, True),
+        ("if '__main__' == __name__:\n    call()\n", 2, True),
+        ('if __name__ == "__main__" and ok:\n    call()\n', 2, True),
+        ('if __name__ != "__main__":\n    pass\nelse:\n    call()\n', 4, True),
+        ('if __name__ != "__main__":\n    call()\n', 2, False),
+        ('if __name__ == "__main__":\n    pass\nelse:\n    call()\n', 4, False),
+        ('if __name__ == "__main__":\n    with ctx:\n        for i in x:\n            call()\n', 4, True),
+        (
+            'with ctx:\n    if __name__ == "__main__":\n        try:\n            call()\n        finally:\n            pass\n',
+            4,
+            True,
+        ),
+        ("with ctx:\n    call(\n        1,\n    )\n", 3, False),
+        ("if ready:\n    call()\n", 2, False),
+        ("def f(\n", 1, None),
+    ],
+)
 def test_guard_detection_from_source(source, line, expected):
     assert guarded(source, line) is expected

@@ -22,8 +22,14 @@ pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is no
 def dry_run(target: str, venv: Path) -> list[str]:
     # a clean environment: under `make test` this make is a sub-make, which would print its directory and inherit flags
     env = {k: v for k, v in os.environ.items() if k not in ("MAKELEVEL", "MAKEFLAGS", "MFLAGS")}
-    proc = subprocess.run(["make", "--no-print-directory", "-n", target, f"VENV={venv}"], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        ["make", "--no-print-directory", "-n", target, f"VENV={venv}"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     return [line for line in proc.stdout.splitlines() if line.strip() and not line.startswith("#")]
 
@@ -36,7 +42,11 @@ def outside_the_venv(lines: list[str], venv: Path) -> list[str]:
         first = line.split()[0]
         if "pip" in line and not line.startswith(py):
             bad.append(line)
-        elif first.startswith(("python", "/usr/bin/python")) and " -m venv " not in line and "sys.version_info" not in line:
+        elif (
+            first.startswith(("python", "/usr/bin/python"))
+            and " -m venv " not in line
+            and "sys.version_info" not in line
+        ):
             bad.append(line)
     return bad
 
@@ -53,8 +63,9 @@ def test_set_up_commands_create_and_use_the_project_venv(tmp_path, target):
 
 def test_the_check_notices_an_install_into_the_system_python(tmp_path):
     venv = tmp_path / "venv"
-    assert outside_the_venv(["python3 -m pip install -e .", f"{venv}/bin/python -m pip install x",
-                             "python3 -m pytest -q"], venv) == ["python3 -m pip install -e .", "python3 -m pytest -q"]
+    assert outside_the_venv(
+        ["python3 -m pip install -e .", f"{venv}/bin/python -m pip install x", "python3 -m pytest -q"], venv
+    ) == ["python3 -m pip install -e .", "python3 -m pytest -q"]
 
 
 def test_ci_calls_the_readmes_commands():

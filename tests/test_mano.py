@@ -143,8 +143,13 @@ def test_robot_embodiments_refuse_keypoints():
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm"))
     from oscar_toyarm import ToyArm
 
-    traj = Trajectory(("base_yaw", "shoulder", "elbow", "wrist_pitch"), np.zeros((2, 4)), 10,
-                      gripper=np.full((2, 1), 0.04), keypoints=np.zeros((2, 8, 3)))
+    traj = Trajectory(
+        ("base_yaw", "shoulder", "elbow", "wrist_pitch"),
+        np.zeros((2, 4)),
+        10,
+        gripper=np.full((2, 1), 0.04),
+        keypoints=np.zeros((2, 8, 3)),
+    )
     with pytest.raises(TrajectoryError, match="keypoints.*computes its points from joint positions"):
         ToyArm().check_trajectory(traj)
 
@@ -163,8 +168,6 @@ def test_single_hand_input_and_errors():
 # ---- cameras ----------------------------------------------------------------------------
 
 
-
-
 def test_world_keypoints_with_moving_camera_match_a_static_world_camera(mano):
     """Per-frame camera poses folded into the keypoints render exactly like the same
     world points seen through a camera file with that extrinsic."""
@@ -178,8 +181,13 @@ def test_world_keypoints_with_moving_camera_match_a_static_world_camera(mano):
     ego = render_skeleton_video(mano, converted, egocentric_camera(200.0, 200.0, 127.5, 71.5, 256, 144))
     assert ego.reshape(T, -1).max(1).min() > 0
     for t in range(T):
-        static = render_skeleton_video(mano, converted.replace(q=converted.q[t:t + 1], gripper=converted.gripper[t:t + 1],
-                                                               keypoints=world[t:t + 1]), Camera(intr, poses[t]))
+        static = render_skeleton_video(
+            mano,
+            converted.replace(
+                q=converted.q[t : t + 1], gripper=converted.gripper[t : t + 1], keypoints=world[t : t + 1]
+            ),
+            Camera(intr, poses[t]),
+        )
         np.testing.assert_array_equal(static[0], ego[t])
 
 
@@ -199,8 +207,7 @@ def test_mounted_camera_is_refused(mano, example):
     traj, cam = example
     mounted = Camera(cam.intrinsics, np.eye(4), mount_link="head")
     with pytest.raises(Exception, match="mount"):
-        render_skeleton_video(mano, traj.time_slice(0, 1),
-                              mounted)
+        render_skeleton_video(mano, traj.time_slice(0, 1), mounted)
 
 
 # ---- rendering, missing hands -------------------------------------------------------------
@@ -240,8 +247,8 @@ def test_indicator_follows_openness_on_a_single_frame(mano, example):
     for k in range(2):
         u, v = marks.uv[0, k]
         assert marks.visible[0, k] and 0 <= u < SIZE[0] and 0 <= v < SIZE[1]
-        ys, xs = np.mgrid[:SIZE[1], :SIZE[0]]
-        near = (xs - u) ** 2 + (ys - v) ** 2 <= 12 ** 2
+        ys, xs = np.mgrid[: SIZE[1], : SIZE[0]]
+        near = (xs - u) ** 2 + (ys - v) ** 2 <= 12**2
         assert np.any(renders[0][near] != renders[1][near])
 
 

@@ -32,10 +32,12 @@ pytestmark = pytest.mark.slow
 
 
 def test_wheel_metadata_declares_the_mano_extra(tmp_path):
-    code = ("import sys; from setuptools import build_meta; "
-            "print(build_meta.prepare_metadata_for_build_wheel(sys.argv[1]))")
-    run = subprocess.run([sys.executable, "-c", code, str(tmp_path)], cwd=REPO, capture_output=True, text=True,
-                         timeout=120)
+    code = (
+        "import sys; from setuptools import build_meta; print(build_meta.prepare_metadata_for_build_wheel(sys.argv[1]))"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     dist_info = run.stdout.strip().splitlines()[-1]
     metadata = (tmp_path / dist_info / "METADATA").read_text()

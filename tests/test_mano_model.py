@@ -37,8 +37,14 @@ def fake_chumpy():
             self.x = np.asarray(x, dtype=np.float64)
 
         def __getstate__(self):  # what chumpy's Ch pickles: its __dict__ minus weakref caches
-            return {"x": self.x, "_dirty_vars": set(), "_itr": None, "_depends_on_deps": {},
-                    "_make_dense": False, "_make_sparse": False}
+            return {
+                "x": self.x,
+                "_dirty_vars": set(),
+                "_itr": None,
+                "_depends_on_deps": {},
+                "_make_dense": False,
+                "_make_sparse": False,
+            }
 
     class Select(Ch):  # a derived expression: no stored value
         def __getstate__(self):
@@ -131,11 +137,14 @@ def test_pickle_with_os_system_is_refused(tmp_path):
     assert not marker.exists()
 
 
-@pytest.mark.parametrize("payload", [
-    (eval, ("1 + 1",)),
-    (__import__, ("os",)),
-    (__import__("subprocess").Popen, (["true"],)),
-])
+@pytest.mark.parametrize(
+    "payload",
+    [
+        (eval, ("1 + 1",)),
+        (__import__, ("os",)),
+        (__import__("subprocess").Popen, (["true"],)),
+    ],
+)
 def test_other_callables_are_refused(payload):
     class Bad:
         def __reduce__(self):
@@ -187,8 +196,14 @@ def expected_keypoints(model, R=None, transl=None):
     R = np.eye(3) if R is None else R
     transl = np.zeros(3) if transl is None else transl
     joints = model["J_regressor"] @ model["v_template"]
-    pts = np.array([joints[s] if isinstance(s, int) else model["v_template"][TIPS[["thumb", "index", "middle", "ring", "pinky"].index(s)]]
-                    for s in KEYPOINT_SOURCES])
+    pts = np.array(
+        [
+            joints[s]
+            if isinstance(s, int)
+            else model["v_template"][TIPS[["thumb", "index", "middle", "ring", "pinky"].index(s)]]
+            for s in KEYPOINT_SOURCES
+        ]
+    )
     return (pts - joints[0]) @ R.T + joints[0] + transl
 
 
@@ -215,8 +230,12 @@ def test_global_orientation_translation_and_left_hand(model_dir, monkeypatch):
     from oscar_embodiments.mano import mano_keypoints
 
     aa, t = np.array([0.3, -0.5, 0.9]), np.array([0.1, -0.2, 0.4])
-    hand = {"global_orient": np.array([aa]), "hand_pose": np.zeros((1, 45)), "transl": np.array([t]),
-            "betas": np.zeros(10)}
+    hand = {
+        "global_orient": np.array([aa]),
+        "hand_pose": np.zeros((1, 45)),
+        "transl": np.array([t]),
+        "betas": np.zeros(10),
+    }
     monkeypatch.setenv("OSCAR_MANO_DIR", str(model_dir))  # found through the environment variable
     kp = mano_keypoints({"left": hand, "right": hand}, flat_hand_mean=True)
     R = axis_angle(aa)
@@ -232,15 +251,22 @@ def test_pca_pose_matches_smplx_own_pca_layer(model_dir):
 
     rng = np.random.default_rng(5)
     T, n = 4, 6
-    hand = {"global_orient": rng.normal(scale=0.5, size=(T, 3)), "hand_pose": rng.normal(size=(T, n)),
-            "betas": rng.normal(size=(T, 10)), "transl": rng.normal(scale=0.1, size=(T, 3))}
+    hand = {
+        "global_orient": rng.normal(scale=0.5, size=(T, 3)),
+        "hand_pose": rng.normal(size=(T, n)),
+        "betas": rng.normal(size=(T, 10)),
+        "transl": rng.normal(scale=0.1, size=(T, 3)),
+    }
     ours = mano_keypoints({"right": hand}, model_dir)[:, 1]  # flat_hand_mean=False: the mean pose is added
     model = load_mano_pickle(model_dir / "MANO_RIGHT.pkl")
     layer = smplx.MANO(str(model_dir), data_struct=Struct(**model), use_pca=True, num_pca_comps=n, dtype=torch.float64)
     with torch.no_grad():
         out = layer(**{k: torch.from_numpy(v) for k, v in hand.items()})
     ref = torch.cat([out.joints, out.vertices[:, TIPS]], dim=1).numpy()
-    order = [s if isinstance(s, int) else 16 + ["thumb", "index", "middle", "ring", "pinky"].index(s) for s in KEYPOINT_SOURCES]
+    order = [
+        s if isinstance(s, int) else 16 + ["thumb", "index", "middle", "ring", "pinky"].index(s)
+        for s in KEYPOINT_SOURCES
+    ]
     np.testing.assert_allclose(ours, ref[:, order], atol=1e-9)
     assert not np.allclose(ours[0], ours[1])
 
@@ -250,8 +276,12 @@ def test_invalid_frames_are_missing_and_trajectory_renders(model_dir):
     from oscar_embodiments.mano import Mano, egocentric_camera, trajectory_from_mano
 
     T = 3
-    hand = {"global_orient": np.tile([np.pi, 0, 0], (T, 1)), "hand_pose": np.zeros((T, 45)),
-            "transl": np.tile([0.0, 0.0, 0.3], (T, 1)), "valid": [True, False, True]}
+    hand = {
+        "global_orient": np.tile([np.pi, 0, 0], (T, 1)),
+        "hand_pose": np.zeros((T, 45)),
+        "transl": np.tile([0.0, 0.0, 0.3], (T, 1)),
+        "valid": [True, False, True],
+    }
     hand["hand_pose"][2] = np.nan  # non-finite input: missing too
     traj = trajectory_from_mano({"right": hand}, 30.0, model_dir)
     kp = traj.keypoints.reshape(T, 2, 21, 3)

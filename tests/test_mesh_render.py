@@ -64,14 +64,18 @@ def make_embodiment(tmp_path, links_xml: str, joints_xml: str, links: tuple[str,
 
 
 def slider(name, parent, child, xyz="0 0 0"):
-    return (f'<joint name="{name}" type="prismatic"><parent link="{parent}"/><child link="{child}"/>'
-            f'<origin xyz="{xyz}" rpy="0 0 0"/><axis xyz="1 0 0"/>'
-            '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>')
+    return (
+        f'<joint name="{name}" type="prismatic"><parent link="{parent}"/><child link="{child}"/>'
+        f'<origin xyz="{xyz}" rpy="0 0 0"/><axis xyz="1 0 0"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+    )
 
 
 def box_link(name, size, xyz="0 0 0"):
-    return (f'<link name="{name}"><visual><origin xyz="{xyz}" rpy="0 0 0"/>'
-            f'<geometry><box size="{size}"/></geometry></visual></link>')
+    return (
+        f'<link name="{name}"><visual><origin xyz="{xyz}" rpy="0 0 0"/>'
+        f'<geometry><box size="{size}"/></geometry></visual></link>'
+    )
 
 
 # camera 2 m above the origin looking straight down (OpenCV: x right = world x, y down = world -y)
@@ -81,12 +85,15 @@ DOWN = Camera(Intrinsics(200.0, 200.0, 63.5, 47.5, 128, 96), look_at((0.0, 0.0, 
 # ------------------------------------------------------------------------------ geometry
 
 
-@pytest.mark.parametrize("make,volume", [
-    (lambda: box_mesh((0.1, 0.2, 0.3)), 0.1 * 0.2 * 0.3),
-    (lambda: cylinder_mesh(0.05, 0.2), np.pi * 0.05 ** 2 * 0.2),
-    (lambda: sphere_mesh(0.1), 4 / 3 * np.pi * 0.1 ** 3),
-    (lambda: capsule_mesh(0.05, 0.2), np.pi * 0.05 ** 2 * 0.2 + 4 / 3 * np.pi * 0.05 ** 3),
-])
+@pytest.mark.parametrize(
+    "make,volume",
+    [
+        (lambda: box_mesh((0.1, 0.2, 0.3)), 0.1 * 0.2 * 0.3),
+        (lambda: cylinder_mesh(0.05, 0.2), np.pi * 0.05**2 * 0.2),
+        (lambda: sphere_mesh(0.1), 4 / 3 * np.pi * 0.1**3),
+        (lambda: capsule_mesh(0.05, 0.2), np.pi * 0.05**2 * 0.2 + 4 / 3 * np.pi * 0.05**3),
+    ],
+)
 def test_primitives_are_closed_outward_and_the_right_size(make, volume):
     v, f = make()
     # closed and consistently wound: every directed edge appears once, and its reverse once
@@ -113,8 +120,10 @@ def test_vertex_clustering_reduces_and_bounds_the_error():
 def test_urdf_visual_origin_and_mesh_scale(tmp_path):
     stl = tmp_path / "tri.obj"
     stl.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    urdf = ('<link name="a"><visual><origin xyz="0 0 1" rpy="0 0 1.5707963267948966"/>'
-            '<geometry><mesh filename="tri.obj" scale="2 2 2"/></geometry></visual></link>')
+    urdf = (
+        '<link name="a"><visual><origin xyz="0 0 1" rpy="0 0 1.5707963267948966"/>'
+        '<geometry><mesh filename="tri.obj" scale="2 2 2"/></geometry></visual></link>'
+    )
     Emb = make_embodiment(tmp_path, urdf, "", ("a",), name="tri")
     geo = Emb().visual_geometry()
     (g,) = geo.links
@@ -178,8 +187,11 @@ def test_depth_is_per_pixel_for_crossing_triangles():
 
 
 def test_a_link_behind_another_is_hidden(tmp_path):
-    links = box_link("base", "0.05 0.05 0.05") + box_link("near", "0.2 0.2 0.02", "0 0 0.5") + \
-        box_link("far", "1.0 1.0 0.02", "0 0 -0.5")
+    links = (
+        box_link("base", "0.05 0.05 0.05")
+        + box_link("near", "0.2 0.2 0.02", "0 0 0.5")
+        + box_link("far", "1.0 1.0 0.02", "0 0 -0.5")
+    )
     joints = slider("j_near", "base", "near") + slider("j_far", "base", "far")
     emb = make_embodiment(tmp_path, links, joints, ("base", "near", "far"))()
     order = mesh_geometry(emb, None).link_names
@@ -198,8 +210,7 @@ def test_a_link_behind_another_is_hidden(tmp_path):
     j = list(emb.joint_names).index("j_near")
     q = np.zeros((1, 2))
     q[0, j] = 0.8
-    img = render_mesh_video(emb, Trajectory(emb.joint_names, q, fps=10, gripper=np.zeros((1, 0))), DOWN,
-                            style=FULL)[0]
+    img = render_mesh_video(emb, Trajectory(emb.joint_names, q, fps=10, gripper=np.zeros((1, 0))), DOWN, style=FULL)[0]
     assert which(img[47, 63]) == "base"
     assert which(img[47, 63 + 10]) == "far"
 
@@ -246,35 +257,53 @@ def test_clip_near_shares_cut_points_and_keeps_the_winding():
     from oscar_core.render.mesh_raster import clip_near
 
     # vertex 0 behind, 1 in front: cutting edge 0-1 from either end rounds differently for these numbers
-    P = np.array([[0.2739233746429086, -0.4604265724722594, -0.9180529521276106],
-                  [-0.9669447289429418, 0.6265404784005448, 1.0255111545554434],
-                  [0.3, 0.8, 0.5], [-0.6, -0.7, -0.2]])
+    P = np.array(
+        [
+            [0.2739233746429086, -0.4604265724722594, -0.9180529521276106],
+            [-0.9669447289429418, 0.6265404784005448, 1.0255111545554434],
+            [0.3, 0.8, 0.5],
+            [-0.6, -0.7, -0.2],
+        ]
+    )
     faces = np.array([[0, 1, 2], [1, 0, 3], [1, 2, 3]])  # edge 0-1 shared (crossing), in both directions
     Q, f, src = clip_near(P, faces, z=0.1)
     assert (Q[f][..., 2] >= 0.1 - 1e-15).all()
-    cuts = Q[len(P):]
+    cuts = Q[len(P) :]
     on_01 = [c for c in cuts if np.allclose(np.cross(c - P[0], P[1] - P[0]), 0, atol=1e-12)]
     assert len(on_01) >= 2 and all(np.array_equal(on_01[0], c) for c in on_01)  # bitwise the same point
+
     # each piece faces the way its face did
     def normal(V, t):
         return np.cross(V[t[1]] - V[t[0]], V[t[2]] - V[t[0]])
+
     for t, k in zip(f, src):
         assert normal(Q, t) @ normal(P, faces[k]) > 0
 
 
 def test_mesh_vertices_agree_with_camera_project():
     emb = ToyArm()
-    cam = Camera(Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
-                 look_at((-0.15, 0.95, 0.55), (0.15, 0.0, 0.4)))
-    traj = Trajectory(("base_yaw", "shoulder", "elbow", "wrist_pitch"), np.array([[0.7, 0.9, 1.3, 0.7]] * 2),
-                      fps=10, gripper=np.array([[0.04], [0.06]]))
+    cam = Camera(
+        Intrinsics(300.0, 300.0, 255.5, 143.5, 512, 288, distortion=(-0.12, 0.03, 0.001, -0.001)),
+        look_at((-0.15, 0.95, 0.55), (0.15, 0.0, 0.4)),
+    )
+    traj = Trajectory(
+        ("base_yaw", "shoulder", "elbow", "wrist_pitch"),
+        np.array([[0.7, 0.9, 1.3, 0.7]] * 2),
+        fps=10,
+        gripper=np.array([[0.04], [0.06]]),
+    )
     uv, depth = mesh_vertices(emb, traj, cam, style=FULL)
     # independently: torch FK of each link, its triangles moved there, camera.project
     geo = mesh_geometry(emb, None)
     q = emb.full_configuration(emb.check_trajectory(traj))
     poses = emb.fk(q, links=list(geo.link_names)).numpy()
-    world = np.concatenate([g.vertices @ poses[:, i, :3, :3].transpose(0, 2, 1) + poses[:, i, None, :3, 3]
-                            for i, g in enumerate(geo.links)], axis=1)
+    world = np.concatenate(
+        [
+            g.vertices @ poses[:, i, :3, :3].transpose(0, 2, 1) + poses[:, i, None, :3, 3]
+            for i, g in enumerate(geo.links)
+        ],
+        axis=1,
+    )
     ref = project(world, cam)
     np.testing.assert_allclose(uv, ref.uv, atol=1e-9)
     np.testing.assert_allclose(depth, ref.depth, atol=1e-12)
@@ -296,8 +325,12 @@ def test_a_frame_alone_equals_the_same_frame_in_a_video():
 def test_back_face_culling_changes_nothing_on_closed_meshes():
     emb = ToyArm()
     cam = Camera(Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360), look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4)))
-    traj = Trajectory(("base_yaw", "shoulder", "elbow", "wrist_pitch"), np.array([[0.7, 0.9, 1.3, 0.7]]), fps=10,
-                      gripper=np.array([[0.04]]))
+    traj = Trajectory(
+        ("base_yaw", "shoulder", "elbow", "wrist_pitch"),
+        np.array([[0.7, 0.9, 1.3, 0.7]]),
+        fps=10,
+        gripper=np.array([[0.04]]),
+    )
     culled = render_mesh_video(emb, traj, cam, (320, 180), style=MeshStyle(cull_back=True))[0]
     both = render_mesh_video(emb, traj, cam, (320, 180), style=MeshStyle(cull_back=False))[0]
     differ = (culled != both).any(-1).sum()
@@ -308,8 +341,12 @@ def test_the_gripper_state_shows_through_the_fingers():
     emb = ToyArm()
     cam = Camera(Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360), look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4)))
     q = np.zeros((2, 4))
-    video = render_mesh_video(emb, Trajectory(("base_yaw", "shoulder", "elbow", "wrist_pitch"), q, fps=10,
-                                              gripper=np.array([[0.0], [0.08]])), cam, (320, 180))
+    video = render_mesh_video(
+        emb,
+        Trajectory(("base_yaw", "shoulder", "elbow", "wrist_pitch"), q, fps=10, gripper=np.array([[0.0], [0.08]])),
+        cam,
+        (320, 180),
+    )
     diff = (video[0] != video[1]).any(-1)
     ys, xs = np.nonzero(diff)
     assert diff.sum() > 20 and ys.max() < 60  # only the fingers, at the top of the image, changed
@@ -327,8 +364,10 @@ def test_a_plugin_without_geometry_says_so(tmp_path):
 
 
 def test_a_missing_mesh_file_is_named(tmp_path):
-    urdf = ('<link name="a"><visual><geometry><mesh filename="package://nowhere/meshes/gone.stl"/>'
-            '</geometry></visual></link>')
+    urdf = (
+        '<link name="a"><visual><geometry><mesh filename="package://nowhere/meshes/gone.stl"/>'
+        "</geometry></visual></link>"
+    )
     emb = make_embodiment(tmp_path, urdf, "", ("a",), name="gone")()
     with pytest.raises(KinematicsFileError, match=r"link\[a\]\.visual\[0\]\.geometry\.mesh\.filename.*gone\.stl"):
         emb.visual_geometry()
@@ -374,8 +413,19 @@ def test_cli_and_batch_render_the_mesh_condition(tmp_path):
     expect = render_mesh_video(get_embodiment("toyarm"), load_trajectory(traj), load_camera(cam), (128, 72))
     np.testing.assert_array_equal(mesh, expect)
     manifest = tmp_path / "m.jsonl"
-    manifest.write_text(json.dumps({"embodiment": "toyarm", "trajectory": str(traj), "camera": str(cam),
-                                    "out": str(tmp_path / "b") + "/", "size": "128x72", "condition": "mesh"}) + "\n")
+    manifest.write_text(
+        json.dumps(
+            {
+                "embodiment": "toyarm",
+                "trajectory": str(traj),
+                "camera": str(cam),
+                "out": str(tmp_path / "b") + "/",
+                "size": "128x72",
+                "condition": "mesh",
+            }
+        )
+        + "\n"
+    )
     (result,) = render_many(read_manifest(manifest))
     assert result.ok, result.error
     np.testing.assert_array_equal(read_video(tmp_path / "b"), expect)

@@ -37,8 +37,9 @@ def test_eval_video_folders_with_embodiment_subfolders(tmp_path, capsys):
         for root, arr in (("pred", pred), ("gt", gt)):
             (tmp_path / root / name).parent.mkdir(parents=True, exist_ok=True)
             np.save(tmp_path / root / f"{name}.npy", arr)
-    code, out, _ = run(capsys, "video", tmp_path / "pred", tmp_path / "gt", "--frames", 5, "--json",
-                       "--out", tmp_path / "res.json")
+    code, out, _ = run(
+        capsys, "video", tmp_path / "pred", tmp_path / "gt", "--frames", 5, "--json", "--out", tmp_path / "res.json"
+    )
     assert code == 0
     data = json.loads(out)
     assert data == json.loads((tmp_path / "res.json").read_text())
@@ -72,8 +73,19 @@ def test_eval_video_single_mkv_pair_with_networks(tmp_path, capsys, monkeypatch)
     torch.jit.script(L1()).save(str(tmp_path / "l1.pt"))
     (tmp_path / "my_vae.py").write_text("def encoder():\n    return lambda x: x[:, :, :, ::2, ::2]\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    code, out, _ = run(capsys, "video", tmp_path / "pred.mkv", tmp_path / "gt.mkv", "--frames", 0, "--json",
-                       "--lpips", tmp_path / "l1.pt", "--vae", "my_vae:encoder")
+    code, out, _ = run(
+        capsys,
+        "video",
+        tmp_path / "pred.mkv",
+        tmp_path / "gt.mkv",
+        "--frames",
+        0,
+        "--json",
+        "--lpips",
+        tmp_path / "l1.pt",
+        "--vae",
+        "my_vae:encoder",
+    )
     assert code == 0
     row = json.loads(out)["clips"][0]
     assert row["name"] == "pred" and row["frames"] == 4 and row["embodiment"] is None
@@ -98,17 +110,26 @@ def test_eval_video_errors(tmp_path, capsys):
 
 
 def _policy_files(tmp_path, prefs=True):
-    real = {"pi0_fast": {"success_rate": 0.6, "score": 1650}, "pg_flow": {"success_rate": 0.5, "score": 1560},
-            "pg_bin": {"episodes": [1, 0, 0, 0, 0], "score": 1400}}
+    real = {
+        "pi0_fast": {"success_rate": 0.6, "score": 1650},
+        "pg_flow": {"success_rate": 0.5, "score": 1560},
+        "pg_bin": {"episodes": [1, 0, 0, 0, 0], "score": 1400},
+    }
     wm = {"pi0_fast": 0.55, "pg_flow": {"success_rate": 0.3}, "pg_bin": 0.25}
     (tmp_path / "real.json").write_text(json.dumps(real))
     (tmp_path / "wm.json").write_text(json.dumps(wm))
+
     def pref(a, b, winner):
         return {"a": a, "b": b, "winner": winner}
 
-    lines = ([pref("pi0_fast", "pg_flow", "a")] * 3 + [pref("pg_flow", "pi0_fast", "a")]
-             + [pref("pg_flow", "pg_bin", "a")] * 3 + [pref("pg_bin", "pg_flow", "tie")]
-             + [pref("pg_bin", "pi0_fast", "b")] * 2 + [pref("pg_bin", "pi0_fast", "a")])
+    lines = (
+        [pref("pi0_fast", "pg_flow", "a")] * 3
+        + [pref("pg_flow", "pi0_fast", "a")]
+        + [pref("pg_flow", "pg_bin", "a")] * 3
+        + [pref("pg_bin", "pg_flow", "tie")]
+        + [pref("pg_bin", "pi0_fast", "b")] * 2
+        + [pref("pg_bin", "pi0_fast", "a")]
+    )
     (tmp_path / "prefs.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n\n")
     return real, wm, lines
 
@@ -120,8 +141,19 @@ def test_eval_policies_json_and_table(tmp_path, capsys):
     data = json.loads(out)
     assert data["ranked_by"] == {"real": "score", "wm": "success_rate"}
     assert data["metrics"]["sisr_delta_pp"] == pytest.approx(100 * (0.05 + 0.2 + 0.05) / 3)
-    code, out, _ = run(capsys, "policies", "--real", tmp_path / "real.json", "--wm", tmp_path / "wm.json",
-                       "--preferences", tmp_path / "prefs.jsonl", "--json", "--out", tmp_path / "out.json")
+    code, out, _ = run(
+        capsys,
+        "policies",
+        "--real",
+        tmp_path / "real.json",
+        "--wm",
+        tmp_path / "wm.json",
+        "--preferences",
+        tmp_path / "prefs.jsonl",
+        "--json",
+        "--out",
+        tmp_path / "out.json",
+    )
     data = json.loads(out)
     assert data == json.loads((tmp_path / "out.json").read_text())
     assert data["ranked_by"]["wm"] == "bradley_terry_elo"
@@ -129,8 +161,16 @@ def test_eval_policies_json_and_table(tmp_path, capsys):
     assert [b["policy"] for b in data["bradley_terry"]["board"]] == bt.ranking()
     real_elo = {k: v["score"] for k, v in real.items()}
     assert data["metrics"]["spearman_rho"] == pytest.approx(spearman_rho(real_elo, bt.scores("elo")))
-    code, out, _ = run(capsys, "policies", "--real", tmp_path / "real.json", "--wm", tmp_path / "wm.json",
-                       "--preferences", tmp_path / "prefs.jsonl")
+    code, out, _ = run(
+        capsys,
+        "policies",
+        "--real",
+        tmp_path / "real.json",
+        "--wm",
+        tmp_path / "wm.json",
+        "--preferences",
+        tmp_path / "prefs.jsonl",
+    )
     assert "Bradley-Terry" in out and "MMRV" in out and "wm=bradley_terry_elo" in out
 
 
@@ -139,8 +179,16 @@ def test_eval_policies_errors(tmp_path, capsys):
     with open(tmp_path / "prefs.jsonl", "a") as f:
         f.write(json.dumps({"a": "pi0_fast", "b": "octo", "winner": "a"}) + "\n")
     with pytest.raises(MetricInputError, match=r"prefs.jsonl:13: field 'b': expected one of the policies .* 'octo'"):
-        run(capsys, "policies", "--real", tmp_path / "real.json", "--wm", tmp_path / "wm.json",
-            "--preferences", tmp_path / "prefs.jsonl")
+        run(
+            capsys,
+            "policies",
+            "--real",
+            tmp_path / "real.json",
+            "--wm",
+            tmp_path / "wm.json",
+            "--preferences",
+            tmp_path / "prefs.jsonl",
+        )
     (tmp_path / "wm.json").write_text(json.dumps({"pi0_fast": 0.5, "pg_flow": 0.5}))
     with pytest.raises(MetricInputError, match=r"missing \['pg_bin'\]"):
         run(capsys, "policies", "--real", tmp_path / "real.json", "--wm", tmp_path / "wm.json")

@@ -148,11 +148,17 @@ def server():
                 payload = content.encode()
                 code = 200
             elif code == 200:
-                payload = json.dumps({"id": "x", "object": "chat.completion", "model": body["model"],
-                                      "choices": [{"index": 0, "finish_reason": "stop",
-                                                   "message": {"role": "assistant", "content": content}}],
-                                      "usage": {"prompt_tokens": 1000, "completion_tokens": 20,
-                                                "total_tokens": 1020}}).encode()
+                payload = json.dumps(
+                    {
+                        "id": "x",
+                        "object": "chat.completion",
+                        "model": body["model"],
+                        "choices": [
+                            {"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": content}}
+                        ],
+                        "usage": {"prompt_tokens": 1000, "completion_tokens": 20, "total_tokens": 1020},
+                    }
+                ).encode()
             else:  # like some servers, echo the key in the error (the client must mask it)
                 auth = self.headers.get("Authorization")
                 payload = json.dumps({"error": {"message": f"mock {code}, key {auth}"}}).encode()
@@ -194,8 +200,15 @@ def _video(seed, frames=40, size=(24, 32), value=None):
 
 
 def _judge(server, tmp_path, **kw):
-    opts = dict(base_url=server.url, model=MODEL, timeout=0.4, max_attempts=3, backoff=0.01, concurrency=4,
-                cache_dir=tmp_path / "cache")
+    opts = dict(
+        base_url=server.url,
+        model=MODEL,
+        timeout=0.4,
+        max_attempts=3,
+        backoff=0.01,
+        concurrency=4,
+        cache_dir=tmp_path / "cache",
+    )
     opts.update(kw)
     return SuccessJudge(**opts)
 
@@ -203,37 +216,46 @@ def _judge(server, tmp_path, **kw):
 # --------------------------------------------------------------------------- #
 # strict parsing
 # --------------------------------------------------------------------------- #
-@pytest.mark.parametrize("text, expected", [
-    (VALID, {"binary": 1, "partial": 100, "reason": "The cup is in the bowl."}),
-    ('  {"partial": 0, "reason": "nothing", "binary": 0}\n', {"binary": 0, "partial": 0, "reason": "nothing"}),
-    ('```json\n{"binary": 0, "partial": 55, "reason": "half"}\n```', {"binary": 0, "partial": 55, "reason": "half"}),
-    ('```\n{"binary": 1, "partial": 90, "reason": "ok"}\n```', {"binary": 1, "partial": 90, "reason": "ok"}),
-])
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        (VALID, {"binary": 1, "partial": 100, "reason": "The cup is in the bowl."}),
+        ('  {"partial": 0, "reason": "nothing", "binary": 0}\n', {"binary": 0, "partial": 0, "reason": "nothing"}),
+        (
+            '```json\n{"binary": 0, "partial": 55, "reason": "half"}\n```',
+            {"binary": 0, "partial": 55, "reason": "half"},
+        ),
+        ('```\n{"binary": 1, "partial": 90, "reason": "ok"}\n```', {"binary": 1, "partial": 90, "reason": "ok"}),
+    ],
+)
 def test_parse_success_answer_accepts_exact_objects(text, expected):
     assert parse_success_answer(text) == expected
 
 
-@pytest.mark.parametrize("text, message", [
-    ("", "empty"),
-    ("Success!", "one JSON object"),
-    ('Here it is: {"binary": 1, "partial": 100, "reason": "x"}', "one JSON object"),
-    ('{"binary": 1, "partial": 100, "reason": "x"} Hope that helps.', "not one valid JSON object"),
-    ('```json\n{"binary": 1, "partial": 100, "reason": "x"}\n``` extra', "one JSON object"),
-    ('[{"binary": 1, "partial": 100, "reason": "x"}]', "one JSON object"),
-    ('{"binary": 1, "partial": 100}', "missing ['reason']"),
-    ('{"binary": 1, "partial": 100, "reason": "x", "confidence": 0.9}', "extra ['confidence']"),
-    ('{"binary": true, "partial": 100, "reason": "x"}', "'binary'"),
-    ('{"binary": "1", "partial": 100, "reason": "x"}', "'binary'"),
-    ('{"binary": 2, "partial": 100, "reason": "x"}', "'binary'"),
-    ('{"binary": 1, "partial": 100.0, "reason": "x"}', "'partial'"),
-    ('{"binary": 1, "partial": 101, "reason": "x"}', "'partial'"),
-    ('{"binary": 1, "partial": -1, "reason": "x"}', "'partial'"),
-    ('{"binary": 1, "partial": "80", "reason": "x"}', "'partial'"),
-    ('{"binary": 1, "partial": NaN, "reason": "x"}', "NaN"),
-    ('{"binary": 1, "partial": 100, "reason": "  "}', "'reason'"),
-    ('{"binary": 1, "partial": 100, "reason": null}', "'reason'"),
-    ('{"binary": 1, "binary": 0, "partial": 100, "reason": "x"}', "duplicate"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("", "empty"),
+        ("Success!", "one JSON object"),
+        ('Here it is: {"binary": 1, "partial": 100, "reason": "x"}', "one JSON object"),
+        ('{"binary": 1, "partial": 100, "reason": "x"} Hope that helps.', "not one valid JSON object"),
+        ('```json\n{"binary": 1, "partial": 100, "reason": "x"}\n``` extra', "one JSON object"),
+        ('[{"binary": 1, "partial": 100, "reason": "x"}]', "one JSON object"),
+        ('{"binary": 1, "partial": 100}', "missing ['reason']"),
+        ('{"binary": 1, "partial": 100, "reason": "x", "confidence": 0.9}', "extra ['confidence']"),
+        ('{"binary": true, "partial": 100, "reason": "x"}', "'binary'"),
+        ('{"binary": "1", "partial": 100, "reason": "x"}', "'binary'"),
+        ('{"binary": 2, "partial": 100, "reason": "x"}', "'binary'"),
+        ('{"binary": 1, "partial": 100.0, "reason": "x"}', "'partial'"),
+        ('{"binary": 1, "partial": 101, "reason": "x"}', "'partial'"),
+        ('{"binary": 1, "partial": -1, "reason": "x"}', "'partial'"),
+        ('{"binary": 1, "partial": "80", "reason": "x"}', "'partial'"),
+        ('{"binary": 1, "partial": NaN, "reason": "x"}', "NaN"),
+        ('{"binary": 1, "partial": 100, "reason": "  "}', "'reason'"),
+        ('{"binary": 1, "partial": 100, "reason": null}', "'reason'"),
+        ('{"binary": 1, "binary": 0, "partial": 100, "reason": "x"}', "duplicate"),
+    ],
+)
 def test_parse_success_answer_rejects_everything_else(text, message):
     with pytest.raises(MalformedAnswer, match=re.escape(message)):
         parse_success_answer(text)
@@ -242,8 +264,14 @@ def test_parse_success_answer_rejects_everything_else(text, message):
 def test_parse_pairwise_answer():
     assert parse_pairwise_answer('{"winner": "A", "reason": "r"}') == {"winner": "A", "reason": "r"}
     assert parse_pairwise_answer('```json\n{"reason": "r", "winner": "tie"}\n```')["winner"] == "tie"
-    for bad in ('{"winner": "a", "reason": "r"}', '{"winner": "Tie", "reason": "r"}', '{"winner": "A"}',
-                '{"winner": 1, "reason": "r"}', '{"winner": "A", "reason": "r", "score": 3}', "A"):
+    for bad in (
+        '{"winner": "a", "reason": "r"}',
+        '{"winner": "Tie", "reason": "r"}',
+        '{"winner": "A"}',
+        '{"winner": 1, "reason": "r"}',
+        '{"winner": "A", "reason": "r", "score": 3}',
+        "A",
+    ):
         with pytest.raises(MalformedAnswer):
             parse_pairwise_answer(bad)
 
@@ -265,8 +293,16 @@ def test_sample_frame_indices():
 # --------------------------------------------------------------------------- #
 def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path):
     kinds = ["valid", "fenced", "malformed", "flaky", "ratelimit", "slow-once", "slow-always", "shape", "badrequest"]
-    clips = [JudgeClip(f"s{k}/{kind}", _video(k, size=(90, 160)), f"{kind}: put the cup in the bowl",
-                       policy=f"p{k % 3}", session=f"s{k}") for k, kind in enumerate(kinds)]
+    clips = [
+        JudgeClip(
+            f"s{k}/{kind}",
+            _video(k, size=(90, 160)),
+            f"{kind}: put the cup in the bowl",
+            policy=f"p{k % 3}",
+            session=f"s{k}",
+        )
+        for k, kind in enumerate(kinds)
+    ]
     clips.append(JudgeClip("short", _video(99, frames=5), "valid but short clip", policy="p0"))
     judge = _judge(server, tmp_path, max_side=64, api_key="sk-secret-123")
     t0 = time.monotonic()
@@ -276,8 +312,14 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
     by = {v.clip.split("/")[-1]: v for v in verdicts}
 
     ok = by["valid"]
-    assert (ok.status, ok.binary, ok.partial, ok.reason, ok.attempts, ok.cached) == \
-        ("ok", 1, 100, "The cup is in the bowl.", 1, False)
+    assert (ok.status, ok.binary, ok.partial, ok.reason, ok.attempts, ok.cached) == (
+        "ok",
+        1,
+        100,
+        "The cup is in the bowl.",
+        1,
+        False,
+    )
     assert (ok.frames_total, ok.frames_sent, ok.model) == (40, 32, MODEL)
     assert (by["fenced"].status, by["fenced"].binary, by["fenced"].partial) == ("ok", 0, 40)
     mal = by["malformed"]
@@ -327,11 +369,19 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
     # rerun: ok and malformed come from the cache (no request); failures are asked again
     before = server.count
     again = _judge(server, tmp_path, max_side=64, max_attempts=1).judge_many(clips)
-    assert [(v.status, v.binary, v.partial) for v in again if v.status != "error"] == \
-        [(v.status, v.binary, v.partial) for v in verdicts if v.status != "error"]
+    assert [(v.status, v.binary, v.partial) for v in again if v.status != "error"] == [
+        (v.status, v.binary, v.partial) for v in verdicts if v.status != "error"
+    ]
     cached = [v for v in again if v.cached]
-    assert {v.clip.split("/")[-1] for v in cached} == {"valid", "fenced", "malformed", "flaky", "ratelimit",
-                                                       "slow-once", "short"}
+    assert {v.clip.split("/")[-1] for v in cached} == {
+        "valid",
+        "fenced",
+        "malformed",
+        "flaky",
+        "ratelimit",
+        "slow-once",
+        "short",
+    }
     assert all(v.attempts == 0 and v.frames_sent == w.frames_sent for v, w in zip(again, verdicts) if v.cached)
     assert server.count - before == 3  # slow-always, shape, badrequest: one attempt each
     files = sorted((tmp_path / "cache").glob("*.json"))
@@ -340,10 +390,13 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
 
     # the key covers model, prompt settings and content: any change misses the cache
     valid = [clips[0]]
-    for kw, clip in (({"n_frames": 16}, valid[0]), ({"model": "other-model"}, valid[0]),
-                     ({"max_side": 48}, valid[0]),
-                     ({}, JudgeClip(valid[0].name, valid[0].video, valid[0].instruction + " now", "p0")),
-                     ({}, JudgeClip(valid[0].name, _video(123, size=(90, 160)), valid[0].instruction, "p0"))):
+    for kw, clip in (
+        ({"n_frames": 16}, valid[0]),
+        ({"model": "other-model"}, valid[0]),
+        ({"max_side": 48}, valid[0]),
+        ({}, JudgeClip(valid[0].name, valid[0].video, valid[0].instruction + " now", "p0")),
+        ({}, JudgeClip(valid[0].name, _video(123, size=(90, 160)), valid[0].instruction, "p0")),
+    ):
         opts = {"max_side": 64, **kw}
         v = _judge(server, tmp_path, **opts).judge(clip)
         assert not v.cached and v.attempts == 1, kw
@@ -352,8 +405,13 @@ def test_success_judge_statuses_retries_request_body_and_cache(server, tmp_path)
 
     summary = success_by_policy(verdicts)
     assert summary["p0"]["episodes"] == [1, 1, 1] and summary["p0"]["not_judged"] == 1  # short: ok
-    assert summary["p1"] == {"success_rate": 0.5, "episodes": [0, 1], "mean_partial": 70.0, "judged": 2,
-                             "not_judged": 1}  # fenced (0, 40), ratelimit (1, 100), shape (error: left out)
+    assert summary["p1"] == {
+        "success_rate": 0.5,
+        "episodes": [0, 1],
+        "mean_partial": 70.0,
+        "judged": 2,
+        "not_judged": 1,
+    }  # fenced (0, 40), ratelimit (1, 100), shape (error: left out)
     assert summary["p2"]["episodes"] == [1] and summary["p2"]["not_judged"] == 2
 
 
@@ -365,9 +423,12 @@ def test_success_judge_video_files_frame_folders_and_unreadable(server, tmp_path
     write_video(tmp_path / "b", frames[:3], fps=10, format="png")
     (tmp_path / "broken.mp4").write_bytes(b"this is not a video")
     np.save(tmp_path / "c.npy", frames.astype(np.float32) / 255.0)
-    clips = [JudgeClip("a", tmp_path / "a.mkv", "valid a"), JudgeClip("b", tmp_path / "b", "valid b"),
-             JudgeClip("broken", str(tmp_path / "broken.mp4"), "valid broken"),
-             JudgeClip("c", tmp_path / "c.npy", "valid c")]
+    clips = [
+        JudgeClip("a", tmp_path / "a.mkv", "valid a"),
+        JudgeClip("b", tmp_path / "b", "valid b"),
+        JudgeClip("broken", str(tmp_path / "broken.mp4"), "valid broken"),
+        JudgeClip("c", tmp_path / "c.npy", "valid c"),
+    ]
     verdicts = _judge(server, tmp_path, image_format="png", n_frames=8).judge_many(clips)
     assert [v.status for v in verdicts] == ["ok", "ok", "error", "ok"]
     assert [(v.frames_total, v.frames_sent) for v in verdicts if v.ok] == [(12, 8), (3, 3), (12, 8)]
@@ -406,8 +467,14 @@ def test_bad_input_is_reported_before_any_request(server, tmp_path, monkeypatch)
         SuccessJudge(base_url=server.url)
     with pytest.raises(MetricInputError, match="http"):
         SuccessJudge(base_url="127.0.0.1:8000", model=MODEL)
-    for kw in ({"n_frames": 0}, {"concurrency": 0}, {"image_format": "gif"}, {"max_attempts": 0},
-               {"timeout": 0}, {"max_side": 4}):
+    for kw in (
+        {"n_frames": 0},
+        {"concurrency": 0},
+        {"image_format": "gif"},
+        {"max_attempts": 0},
+        {"timeout": 0},
+        {"max_side": 4},
+    ):
         with pytest.raises(MetricInputError):
             _judge(server, tmp_path, **kw)
     # endpoint from the environment (and the base URL may already end in /chat/completions)
@@ -423,7 +490,9 @@ def test_sampling_fields_and_unreachable_server(server, tmp_path):
     body = server.bodies[-1]
     assert (body["temperature"], body["max_completion_tokens"], body["reasoning_effort"]) == (0.0, 64, "high")
     assert "max_tokens" not in body  # OpenAI's newer models reject max_tokens; older servers: token_field
-    assert _judge(server, tmp_path, max_tokens=64, token_field="max_tokens").judge(JudgeClip("y", _video(1), "valid y")).ok
+    assert (
+        _judge(server, tmp_path, max_tokens=64, token_field="max_tokens").judge(JudgeClip("y", _video(1), "valid y")).ok
+    )
     assert server.bodies[-1]["max_tokens"] == 64 and "max_completion_tokens" not in server.bodies[-1]
     # nothing listens on this port: connection errors are retried, then the whole run stops (it never answered;
     # test_an_endpoint_that_refuses_every_connection_stops_the_run); after answers they stay per-clip errors
@@ -443,17 +512,23 @@ BRIGHTNESS = {"best": 220, "good": 160, "fair": 100, "poor": 40}
 
 
 def _session_clips(session, instruction, size=(24, 32)):
-    return [JudgeClip(f"{session}/{p}", _video(0, frames=20, size=size, value=v), instruction, policy=p,
-                      session=session) for p, v in BRIGHTNESS.items()]
+    return [
+        JudgeClip(f"{session}/{p}", _video(0, frames=20, size=size, value=v), instruction, policy=p, session=session)
+        for p, v in BRIGHTNESS.items()
+    ]
 
 
 def test_pairwise_randomised_order_maps_back_and_feeds_bradley_terry(server, tmp_path):
-    clips = (_session_clips("s1", "stack the blocks") + _session_clips("s2", "open the drawer")
-             + _session_clips("s3", "stack the blocks, prefer darker"))
+    clips = (
+        _session_clips("s1", "stack the blocks")
+        + _session_clips("s2", "open the drawer")
+        + _session_clips("s3", "stack the blocks, prefer darker")
+    )
     pairs = pairs_by_session(clips)
     assert len(pairs) == 3 * 6 and all(p.a.session == p.b.session for p in pairs)
-    judge = PairwiseJudge(base_url=server.url, model=MODEL, seed=7, n_frames=4, timeout=2, backoff=0.01,
-                          cache_dir=tmp_path / "cache")
+    judge = PairwiseJudge(
+        base_url=server.url, model=MODEL, seed=7, n_frames=4, timeout=2, backoff=0.01, cache_dir=tmp_path / "cache"
+    )
     verdicts = judge.compare_many(pairs)
     assert all(v.ok for v in verdicts)
     swapped = [v.swapped for v in verdicts]
@@ -493,8 +568,7 @@ def test_pairwise_side_by_side_ties_and_malformed(server, tmp_path):
     a = JudgeClip("s/a", _video(0, frames=10, size=(30, 40), value=120), "compare", policy="a", session="s")
     b = JudgeClip("s/b", _video(0, frames=6, size=(60, 80), value=120), "compare", policy="b", session="s")
     c = JudgeClip("s/c", _video(0, frames=6, size=(30, 40), value=250), "compare", policy="c", session="s")
-    judge = PairwiseJudge(base_url=server.url, model=MODEL, layout="side_by_side", n_frames=8, timeout=2,
-                          concurrency=1)
+    judge = PairwiseJudge(base_url=server.url, model=MODEL, layout="side_by_side", n_frames=8, timeout=2, concurrency=1)
     verdicts = judge.compare_many(pairs_by_session([a, b, c]))
     assert [v.pair for v in verdicts] == ["s/a vs s/b", "s/a vs s/c", "s/b vs s/c"]
     assert verdicts[0].winner == "tie" and verdicts[0].winner_policy is None
@@ -514,15 +588,24 @@ def test_pairwise_side_by_side_ties_and_malformed(server, tmp_path):
 def test_pairs_by_session_rules():
     s1 = _session_clips("s1", "task one")
     assert len(pairs_by_session(s1[:3])) == 3
-    loose = [JudgeClip("x", _video(0), "same task", policy="p"), JudgeClip("y", _video(0), "same task", policy="q"),
-             JudgeClip("z", _video(0), "other task", policy="r")]
+    loose = [
+        JudgeClip("x", _video(0), "same task", policy="p"),
+        JudgeClip("y", _video(0), "same task", policy="q"),
+        JudgeClip("z", _video(0), "other task", policy="r"),
+    ]
     assert [(p.a.name, p.b.name) for p in pairs_by_session(loose)] == [("x", "y")]  # grouped by instruction
-    same_policy = [JudgeClip("e1", _video(0), "t", policy="p", session="s"),
-                   JudgeClip("e2", _video(0), "t", policy="p", session="s")]
+    same_policy = [
+        JudgeClip("e1", _video(0), "t", policy="p", session="s"),
+        JudgeClip("e2", _video(0), "t", policy="p", session="s"),
+    ]
     assert pairs_by_session(same_policy) == []
     with pytest.raises(MetricInputError, match="same instruction"):
-        pairs_by_session([JudgeClip("a", _video(0), "t1", policy="p", session="s"),
-                          JudgeClip("b", _video(0), "t2", policy="q", session="s")])
+        pairs_by_session(
+            [
+                JudgeClip("a", _video(0), "t1", policy="p", session="s"),
+                JudgeClip("b", _video(0), "t2", policy="q", session="s"),
+            ]
+        )
     with pytest.raises(MetricInputError, match="a policy other than"):
         PairwiseJudge(base_url="http://127.0.0.1:9/v1", model=MODEL).compare_many([JudgePair(*same_policy)])
 
@@ -547,18 +630,50 @@ def test_cli_judge_and_pairwise_feed_eval_policies(server, tmp_path, capsys):
             np.save(root / session / f"{p}.npy", _video(0, frames=12, value=v))
     (root / "s2" / "poor.npy").unlink()
     np.save(root / "s2" / "oddball.npy", _video(0, frames=12, value=40))
-    tasks = {"s1": "valid: stack the blocks", "s2": {"instruction": "valid: open the drawer"},
-             "s2/oddball": {"policy": "poor"}, "unused/folder": "ignored"}
+    tasks = {
+        "s1": "valid: stack the blocks",
+        "s2": {"instruction": "valid: open the drawer"},
+        "s2/oddball": {"policy": "poor"},
+        "unused/folder": "ignored",
+    }
     (tmp_path / "tasks.json").write_text(json.dumps(tasks))
-    common = ["--tasks", tmp_path / "tasks.json", "--base-url", server.url, "--model", MODEL, "--timeout", 2,
-              "--cache", tmp_path / "cache"]
-    code, out, err = run(capsys, "judge", "--videos", root, *common, "--frames", 6, "--out", tmp_path / "j.json",
-                         "--wm-out", tmp_path / "wm.json")
+    common = [
+        "--tasks",
+        tmp_path / "tasks.json",
+        "--base-url",
+        server.url,
+        "--model",
+        MODEL,
+        "--timeout",
+        2,
+        "--cache",
+        tmp_path / "cache",
+    ]
+    code, out, err = run(
+        capsys,
+        "judge",
+        "--videos",
+        root,
+        *common,
+        "--frames",
+        6,
+        "--out",
+        tmp_path / "j.json",
+        "--wm-out",
+        tmp_path / "wm.json",
+    )
     assert code == 0, out + err
     data = json.loads((tmp_path / "j.json").read_text())
-    assert data["summary"] == {"total": 8, "ok": 8, "malformed": 0, "error": 0, "cached": 0, "requests": 8,
-                               "retries": 0, "usage": {"prompt_tokens": 8000, "completion_tokens": 160,
-                                                       "total_tokens": 8160}}  # summed from the responses
+    assert data["summary"] == {
+        "total": 8,
+        "ok": 8,
+        "malformed": 0,
+        "error": 0,
+        "cached": 0,
+        "requests": 8,
+        "retries": 0,
+        "usage": {"prompt_tokens": 8000, "completion_tokens": 160, "total_tokens": 8160},
+    }  # summed from the responses
     assert data["clips"][0]["usage"] == {"prompt_tokens": 1000, "completion_tokens": 20, "total_tokens": 1020}
     rows = {c["clip"]: c for c in data["clips"]}
     assert rows["s2/oddball"]["policy"] == "poor" and rows["s2/oddball"]["session"] == "s2"
@@ -571,8 +686,21 @@ def test_cli_judge_and_pairwise_feed_eval_policies(server, tmp_path, capsys):
     code, out, _ = run(capsys, "judge", "--videos", f"{root}/*/*.npy", *common, "--frames", 6, "--json")
     assert code == 0 and json.loads(out)["summary"]["cached"] == 8 and server.count == 8
 
-    code, out, err = run(capsys, "pairwise", "--videos", root, *common, "--frames", 3, "--seed", 1,
-                         "--out", tmp_path / "pw.json", "--preferences-out", tmp_path / "prefs.jsonl")
+    code, out, err = run(
+        capsys,
+        "pairwise",
+        "--videos",
+        root,
+        *common,
+        "--frames",
+        3,
+        "--seed",
+        1,
+        "--out",
+        tmp_path / "pw.json",
+        "--preferences-out",
+        tmp_path / "prefs.jsonl",
+    )
     pw = json.loads((tmp_path / "pw.json").read_text())
     assert len(pw["pairs"]) == 12 and pw["summary"]["ok"] == 12
     assert code == 0 and "best" in out
@@ -585,8 +713,17 @@ def test_cli_judge_and_pairwise_feed_eval_policies(server, tmp_path, capsys):
     (tmp_path / "real.json").write_text(json.dumps(real))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BradleyTerryWarning)
-        code, out, _ = run(capsys, "policies", "--real", tmp_path / "real.json", "--wm", tmp_path / "wm.json",
-                           "--preferences", tmp_path / "prefs.jsonl", "--json")
+        code, out, _ = run(
+            capsys,
+            "policies",
+            "--real",
+            tmp_path / "real.json",
+            "--wm",
+            tmp_path / "wm.json",
+            "--preferences",
+            tmp_path / "prefs.jsonl",
+            "--json",
+        )
     result = json.loads(out)
     assert code == 0 and result["metrics"]["spearman_rho"] == pytest.approx(1.0)
     assert result["ranked_by"]["wm"] == "bradley_terry_elo"
@@ -599,8 +736,23 @@ def test_cli_judge_reports_problems_and_bad_tasks(server, tmp_path, capsys):
         np.save(root / f"{name}.npy", _video(1, frames=4))
     tasks = tmp_path / "tasks.json"
     tasks.write_text(json.dumps({"a": "valid a", "b": "malformed b", "c": "shape c"}))
-    code, out, _ = run(capsys, "judge", "--videos", root, "--tasks", tasks, "--base-url", server.url,
-                       "--model", MODEL, "--no-cache", "--max-attempts", 1, "--out", tmp_path / "o.json")
+    code, out, _ = run(
+        capsys,
+        "judge",
+        "--videos",
+        root,
+        "--tasks",
+        tasks,
+        "--base-url",
+        server.url,
+        "--model",
+        MODEL,
+        "--no-cache",
+        "--max-attempts",
+        1,
+        "--out",
+        tmp_path / "o.json",
+    )
     assert code == 1
     assert re.search(r"malformed +b: malformed answer", out) and "[raw: The robot clearly" in out
     assert re.search(r"error +c: .*not an OpenAI chat completion", out)
@@ -608,10 +760,12 @@ def test_cli_judge_reports_problems_and_bad_tasks(server, tmp_path, capsys):
     assert len(json.loads((tmp_path / "o.json").read_text())["clips"]) == 3
     assert not (tmp_path / "cache").exists()
 
-    for bad, match in (({"a": "valid", "b": "valid"}, r"none for \['c'\]"),
-                       ({"a": "", "b": "x", "c": "x"}, "field 'a': expected a non-empty task instruction"),
-                       ({"a": {"instruction": "x", "polcy": "p"}, "b": "x", "c": "x"}, r"extra keys \['polcy'\]"),
-                       ([1, 2], "top level")):
+    for bad, match in (
+        ({"a": "valid", "b": "valid"}, r"none for \['c'\]"),
+        ({"a": "", "b": "x", "c": "x"}, "field 'a': expected a non-empty task instruction"),
+        ({"a": {"instruction": "x", "polcy": "p"}, "b": "x", "c": "x"}, r"extra keys \['polcy'\]"),
+        ([1, 2], "top level"),
+    ):
         tasks.write_text(json.dumps(bad))
         with pytest.raises(MetricInputError, match=match):
             run(capsys, "judge", "--videos", root, "--tasks", tasks, "--base-url", server.url, "--model", MODEL)
@@ -622,13 +776,37 @@ def test_cli_judge_reports_problems_and_bad_tasks(server, tmp_path, capsys):
     with pytest.raises(MetricInputError, match="a .json file"):
         run(capsys, "judge", "--videos", tasks, "--tasks", tasks, "--base-url", server.url)
     tasks.write_text(json.dumps({"a": "valid one video"}))
-    code, out, _ = run(capsys, "judge", "--videos", root / "a.npy", "--tasks", tasks, "--base-url", server.url,
-                       "--model", MODEL, "--no-cache", "--json")
+    code, out, _ = run(
+        capsys,
+        "judge",
+        "--videos",
+        root / "a.npy",
+        "--tasks",
+        tasks,
+        "--base-url",
+        server.url,
+        "--model",
+        MODEL,
+        "--no-cache",
+        "--json",
+    )
     assert code == 0 and [c["clip"] for c in json.loads(out)["clips"]] == ["a"]
     with pytest.raises(MetricInputError, match="--extra-body"):
         tasks.write_text(json.dumps({"r": "valid"}))
-        run(capsys, "judge", "--videos", root, "--tasks", tasks, "--base-url", server.url, "--model", MODEL,
-            "--extra-body", "[1]")
+        run(
+            capsys,
+            "judge",
+            "--videos",
+            root,
+            "--tasks",
+            tasks,
+            "--base-url",
+            server.url,
+            "--model",
+            MODEL,
+            "--extra-body",
+            "[1]",
+        )
     assert server.count == 4
 
 
@@ -681,13 +859,40 @@ def test_retry_after_budget_and_dry_run(server, tmp_path, capsys):
     np.save(root / "pg.npy", _video(2, frames=40, size=(288, 512)))
     (tmp_path / "tasks.json").write_text(json.dumps({"s1": "valid: put the cup in the bowl"}))
     before = server.count
-    code, out, err = run(capsys, "judge", "--videos", tmp_path / "videos", "--tasks", tmp_path / "tasks.json",
-                         "--base-url", server.url, "--model", MODEL, "--cache", tmp_path / "c2", "--dry-run")
+    code, out, err = run(
+        capsys,
+        "judge",
+        "--videos",
+        tmp_path / "videos",
+        "--tasks",
+        tmp_path / "tasks.json",
+        "--base-url",
+        server.url,
+        "--model",
+        MODEL,
+        "--cache",
+        tmp_path / "c2",
+        "--dry-run",
+    )
     assert code == 0 and server.count == before, err
     assert "s1/pi0: 1 request to" in out and "32 images 512x288" in out and "nothing was sent" in out
     assert "| Task: valid: put the cup in the bowl" in out and "| Frames in temporal order:" in out
-    code, out, _ = run(capsys, "judge", "--videos", tmp_path / "videos", "--tasks", tmp_path / "tasks.json",
-                       "--base-url", server.url, "--model", MODEL, "--cache", tmp_path / "c2", "--dry-run", "--json")
+    code, out, _ = run(
+        capsys,
+        "judge",
+        "--videos",
+        tmp_path / "videos",
+        "--tasks",
+        tmp_path / "tasks.json",
+        "--base-url",
+        server.url,
+        "--model",
+        MODEL,
+        "--cache",
+        tmp_path / "c2",
+        "--dry-run",
+        "--json",
+    )
     plan = json.loads(out)
     assert [r["images"] for r in plan["requests"]] == [32, 32] and server.count == before
 
@@ -697,9 +902,14 @@ def test_prompt_options(server, tmp_path):
     assert _judge(server, tmp_path, prompt="oscar", cache_dir=None).judge(clip).ok
     system, user = server.bodies[-1]["messages"]
     assert system == {"role": "system", "content": SUCCESS_SYSTEM_PROMPT}
-    assert user["content"][0]["text"] == "Instruction: valid x\n\nThe 3 frames of the attempt follow, in temporal order."
-    assert _judge(server, tmp_path, prompt="Rate this.\nTask: {instruction} ({n_frames} frames)\n",
-                  cache_dir=None).judge(clip).ok
+    assert (
+        user["content"][0]["text"] == "Instruction: valid x\n\nThe 3 frames of the attempt follow, in temporal order."
+    )
+    assert (
+        _judge(server, tmp_path, prompt="Rate this.\nTask: {instruction} ({n_frames} frames)\n", cache_dir=None)
+        .judge(clip)
+        .ok
+    )
     (user,) = server.bodies[-1]["messages"]
     assert user["content"][0]["text"] == "Rate this.\nTask: valid x (3 frames)\n"
     with pytest.raises(MetricInputError, match="prompt"):
@@ -754,11 +964,13 @@ def test_an_endpoint_that_refuses_every_connection_stops_the_run(tmp_path):
     from oscar_core.metrics import JudgeEndpointUnreachable
 
     clips = [JudgeClip(f"s0/p{k}", _video(k, frames=4), "put the cup in the bowl") for k in range(6)]
-    judge = SuccessJudge(base_url=_refusing_url(), model=MODEL, max_attempts=3, backoff=0.0, concurrency=2,
-                         cache_dir=tmp_path / "cache")
+    judge = SuccessJudge(
+        base_url=_refusing_url(), model=MODEL, max_attempts=3, backoff=0.0, concurrency=2, cache_dir=tmp_path / "cache"
+    )
     t0 = time.monotonic()
-    with pytest.raises(JudgeEndpointUnreachable,
-                       match=r"refused all 3 connections and never answered.*--judge-base-url"):
+    with pytest.raises(
+        JudgeEndpointUnreachable, match=r"refused all 3 connections and never answered.*--judge-base-url"
+    ):
         judge.judge_many(clips)
     assert time.monotonic() - t0 < 10
     # it stops: no clip beyond the first few tried, and every later request fails at once without a connection
@@ -787,7 +999,22 @@ def test_eval_judge_exits_non_zero_naming_the_unreachable_endpoint(tmp_path, cap
     np.save(root / "p0.npy", _video(0, frames=4))
     (tmp_path / "tasks.json").write_text(json.dumps({"s1": "put the cup in the bowl"}))
     url = _refusing_url()
-    code = main(["eval", "judge", "--videos", str(tmp_path / "rollouts"), "--tasks", str(tmp_path / "tasks.json"),
-                 "--base-url", url, "--model", MODEL, "--backoff", "0", "--no-cache"])
+    code = main(
+        [
+            "eval",
+            "judge",
+            "--videos",
+            str(tmp_path / "rollouts"),
+            "--tasks",
+            str(tmp_path / "tasks.json"),
+            "--base-url",
+            url,
+            "--model",
+            MODEL,
+            "--backoff",
+            "0",
+            "--no-cache",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and f"the judge endpoint {url}/chat/completions refused all 5 connections" in err

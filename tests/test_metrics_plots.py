@@ -69,7 +69,11 @@ def test_success_scatter_labels_never_overlap_and_stay_inside():
     boxes = {n: by_gid(fig, f"label:{n}").get_window_extent(renderer) for n in real}
     for a in real:
         assert np.allclose(by_gid(fig, f"label:{a}").xy, (real[a], wm[a]))  # still pointing at its own point
-        assert inside.x0 <= boxes[a].x0 and boxes[a].x1 <= inside.x1 and inside.y0 <= boxes[a].y0 <= boxes[a].y1 <= inside.y1
+        assert (
+            inside.x0 <= boxes[a].x0
+            and boxes[a].x1 <= inside.x1
+            and inside.y0 <= boxes[a].y0 <= boxes[a].y1 <= inside.y1
+        )
         for b in real:
             assert a == b or not boxes[a].overlaps(boxes[b]), (a, b)
 
@@ -92,8 +96,7 @@ def test_rank_slope_plots_both_rankings_with_ties():
 
 
 def test_files_are_written_atomically_with_the_expected_size(tmp_path):
-    out = plot_success_scatter(REAL, WM, tmp_path / "scatter.png", extra_formats=("pdf",), dpi=100,
-                               figsize=(4, 3))
+    out = plot_success_scatter(REAL, WM, tmp_path / "scatter.png", extra_formats=("pdf",), dpi=100, figsize=(4, 3))
     assert out == tmp_path / "scatter.png"
     assert png_size(out) == (400, 300)
     assert (tmp_path / "scatter.pdf").read_bytes()[:5] == b"%PDF-"
@@ -119,9 +122,10 @@ def test_files_are_written_atomically_with_the_expected_size(tmp_path):
 def test_plot_comparison_and_bad_input(tmp_path):
     comparison = compare_policies(REAL, WM)
     written = plot_comparison(comparison, tmp_path / "figs", formats=("png", "pdf"))
-    assert written == {"success_scatter": [tmp_path / "figs" / "success_scatter.png",
-                                           tmp_path / "figs" / "success_scatter.pdf"],
-                       "rank_slope": [tmp_path / "figs" / "rank_slope.png", tmp_path / "figs" / "rank_slope.pdf"]}
+    assert written == {
+        "success_scatter": [tmp_path / "figs" / "success_scatter.png", tmp_path / "figs" / "success_scatter.pdf"],
+        "rank_slope": [tmp_path / "figs" / "rank_slope.png", tmp_path / "figs" / "rank_slope.pdf"],
+    }
     assert png_size(written["success_scatter"][0]) == (720, 720)
     assert all(p.stat().st_size > 1000 for paths in written.values() for p in paths)
     with pytest.raises(MetricInputError, match="suffix"):
@@ -145,19 +149,57 @@ def test_cli_eval_policies_plot(tmp_path, capsys):
     (tmp_path / "wm.json").write_text(json.dumps({p: {"success_rate": v} for p, v in WM.items()}))
     parser = argparse.ArgumentParser(prog="oscar")
     add_eval_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["eval", "policies", "--real", str(tmp_path / "real.json"), "--wm",
-                              str(tmp_path / "wm.json"), "--plot", str(tmp_path / "figs"), "--plot-format",
-                              "png,pdf", "--json"])
+    args = parser.parse_args(
+        [
+            "eval",
+            "policies",
+            "--real",
+            str(tmp_path / "real.json"),
+            "--wm",
+            str(tmp_path / "wm.json"),
+            "--plot",
+            str(tmp_path / "figs"),
+            "--plot-format",
+            "png,pdf",
+            "--json",
+        ]
+    )
     assert args.func(args) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["plots"]["success_scatter"] == [str(tmp_path / "figs" / f"success_scatter.{f}") for f in ("png", "pdf")]
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
-        "rank_slope.pdf", "rank_slope.png", "success_scatter.pdf", "success_scatter.png"]
-    args = parser.parse_args(["eval", "policies", "--real", str(tmp_path / "real.json"), "--wm",
-                              str(tmp_path / "wm.json"), "--plot", str(tmp_path / "f2")])
+        "rank_slope.pdf",
+        "rank_slope.png",
+        "success_scatter.pdf",
+        "success_scatter.png",
+    ]
+    args = parser.parse_args(
+        [
+            "eval",
+            "policies",
+            "--real",
+            str(tmp_path / "real.json"),
+            "--wm",
+            str(tmp_path / "wm.json"),
+            "--plot",
+            str(tmp_path / "f2"),
+        ]
+    )
     assert args.func(args) == 0
     assert "wrote " + str(tmp_path / "f2" / "rank_slope.png") in capsys.readouterr().out
-    args = parser.parse_args(["eval", "policies", "--real", str(tmp_path / "real.json"), "--wm",
-                              str(tmp_path / "wm.json"), "--plot", str(tmp_path / "f3"), "--plot-format", "bmp"])
+    args = parser.parse_args(
+        [
+            "eval",
+            "policies",
+            "--real",
+            str(tmp_path / "real.json"),
+            "--wm",
+            str(tmp_path / "wm.json"),
+            "--plot",
+            str(tmp_path / "f3"),
+            "--plot-format",
+            "bmp",
+        ]
+    )
     with pytest.raises(MetricInputError, match="--plot-format"):
         args.func(args)

@@ -160,15 +160,18 @@ def test_compare_policies_report_and_json():
 # --------------------------------------------------------------------------- #
 # errors
 # --------------------------------------------------------------------------- #
-@pytest.mark.parametrize("real, wm, kwargs, words", [
-    ([0.5], [0.5], {}, ["at least 2 policies", "found 1"]),
-    ([0.5, 0.2], [0.5, 0.2, 0.1], {}, ["wm", "length", "2 values", "3 values"]),
-    ({"a": 0.1, "b": 0.2}, {"a": 0.1, "c": 0.2}, {}, ["policy names", "missing ['b']", "extra ['c']"]),
-    ({"a": 0.1, "b": 0.2}, [0.1, 0.2], {}, ["wm", "type", "mapping"]),
-    ([0.1, float("nan")], [0.1, 0.2], {}, ["real", "[1]", "finite"]),
-    ([0.1, 0.2], [0.1, 0.2], {"names": ["x"]}, ["names", "2 names", "found 1"]),
-    ([0.1, "high"], [0.1, 0.2], {}, ["real", "a number", "'high'"]),
-])
+@pytest.mark.parametrize(
+    "real, wm, kwargs, words",
+    [
+        ([0.5], [0.5], {}, ["at least 2 policies", "found 1"]),
+        ([0.5, 0.2], [0.5, 0.2, 0.1], {}, ["wm", "length", "2 values", "3 values"]),
+        ({"a": 0.1, "b": 0.2}, {"a": 0.1, "c": 0.2}, {}, ["policy names", "missing ['b']", "extra ['c']"]),
+        ({"a": 0.1, "b": 0.2}, [0.1, 0.2], {}, ["wm", "type", "mapping"]),
+        ([0.1, float("nan")], [0.1, 0.2], {}, ["real", "[1]", "finite"]),
+        ([0.1, 0.2], [0.1, 0.2], {"names": ["x"]}, ["names", "2 names", "found 1"]),
+        ([0.1, "high"], [0.1, 0.2], {}, ["real", "a number", "'high'"]),
+    ],
+)
 def test_rank_fidelity_errors(real, wm, kwargs, words):
     with pytest.raises(MetricInputError) as exc:
         spearman_rho(real, wm, **kwargs)
@@ -280,16 +283,19 @@ def test_bt_reference_policy_choice_does_not_matter():
     assert [s1[n] for n in names] == pytest.approx([s2[n] for n in names], abs=1e-6)
     assert dict(zip(r1.policies, r1.std))["c"] == pytest.approx(dict(zip(r2.policies, r2.std))["c"], rel=1e-5)
     # default order: first appearance in column a, then column b (RoboArena's pd.unique(concat([i, j])))
-    assert fit_bradley_terry([("x", "y", "a"), ("z", "x", "b"), ("y", "z", "tie"), ("w", "z", "a"),
-                              ("z", "w", "a"), ("y", "x", "a")]).policies == ("x", "z", "y", "w")
+    assert fit_bradley_terry(
+        [("x", "y", "a"), ("z", "x", "b"), ("y", "z", "tie"), ("w", "z", "a"), ("z", "w", "a"), ("y", "x", "a")]
+    ).policies == ("x", "z", "y", "w")
 
 
 def test_bt_recovers_known_strengths():
     rng = np.random.default_rng(5)
     names = ["pi0_flow", "pi0_fast", "pg_flow", "pg_fast", "pg_bin"]
     truth = np.array([1.0, 0.5, 0.0, -0.5, -1.0])
-    prefs = [{"a": a, "b": b, "winner": {2: "a", 0: "b", 1: "tie"}[y], "session": k}
-             for k, (a, b, y) in enumerate(_sample_prefs(truth, 0.3, 2000, rng, names))]
+    prefs = [
+        {"a": a, "b": b, "winner": {2: "a", 0: "b", 1: "tie"}[y], "session": k}
+        for k, (a, b, y) in enumerate(_sample_prefs(truth, 0.3, 2000, rng, names))
+    ]
     res = fit_bradley_terry(prefs)
     assert res.ranking() == names
     est = np.array([res.scores("theta")[n] for n in names])
@@ -308,16 +314,22 @@ def test_bt_warns_when_a_policy_never_loses():
     assert res.ranking()[0] == "A"
 
 
-@pytest.mark.parametrize("prefs, kwargs, words", [
-    ([("A", "B", "a"), ("A", "Q", "b")], {"policies": ["A", "B"]},
-     ["preferences[1]", "field 'b'", "one of the policies ['A', 'B']", "'Q'"]),
-    ([("A", "A", "a")], {}, ["preferences[0]", "field 'b'", "a policy other than a='A'"]),
-    ([("A", "B", "left")], {}, ["preferences[0]", "field 'winner'", "'left'"]),
-    ([{"a": "A", "b": "B"}], {}, ["preferences[0]", "field 'winner'", "no such key"]),
-    ([("A", "B", "a")], {"policies": ["A", "B", "C"]}, ["no comparisons for ['C']"]),
-    ([("A", "B", "a"), ("C", "D", "tie")], {}, ["2 separate groups", "['A', 'B']", "['C', 'D']"]),
-    ([], {}, ["at least 2 policies", "0 policies"]),
-])
+@pytest.mark.parametrize(
+    "prefs, kwargs, words",
+    [
+        (
+            [("A", "B", "a"), ("A", "Q", "b")],
+            {"policies": ["A", "B"]},
+            ["preferences[1]", "field 'b'", "one of the policies ['A', 'B']", "'Q'"],
+        ),
+        ([("A", "A", "a")], {}, ["preferences[0]", "field 'b'", "a policy other than a='A'"]),
+        ([("A", "B", "left")], {}, ["preferences[0]", "field 'winner'", "'left'"]),
+        ([{"a": "A", "b": "B"}], {}, ["preferences[0]", "field 'winner'", "no such key"]),
+        ([("A", "B", "a")], {"policies": ["A", "B", "C"]}, ["no comparisons for ['C']"]),
+        ([("A", "B", "a"), ("C", "D", "tie")], {}, ["2 separate groups", "['A', 'B']", "['C', 'D']"]),
+        ([], {}, ["at least 2 policies", "0 policies"]),
+    ],
+)
 def test_bt_errors(prefs, kwargs, words):
     with pytest.raises(MetricInputError) as exc:
         fit_bradley_terry(prefs, **kwargs)
@@ -368,16 +380,21 @@ def test_degenerate_fits_say_no_ranking_instead_of_numbers():
 
     all_ties = fit_bradley_terry([("a", "b", "tie"), ("b", "c", "tie"), ("a", "c", "tie")] * 3)
     assert all_ties.degenerate.startswith("every comparison is a tie")
-    assert all_ties.format_table().startswith("no ranking: every comparison is a tie") and "1500" not in \
-        all_ties.format_table()
+    assert (
+        all_ties.format_table().startswith("no ranking: every comparison is a tie")
+        and "1500" not in all_ties.format_table()
+    )
     assert all_ties.ranking_scores() is None and all_ties.to_dict()["degenerate"] == all_ties.degenerate
     scores, label, fallback = world_model_ranking(all_ties)
     assert (scores, label) == (None, "success_rate")
-    assert fallback == (f"no Bradley-Terry ranking: {all_ties.degenerate}; "
-                        "the world model is ranked by its success rates")
+    assert fallback == (
+        f"no Bradley-Terry ranking: {all_ties.degenerate}; the world model is ranked by its success rates"
+    )
     # mostly ties, one decision: nu runs to its bound (the likelihood's maximum is at infinity)
-    mostly = fit_bradley_terry([("a", "b", "a"), ("a", "b", "tie"), ("b", "c", "tie"), ("c", "a", "tie")] * 2
-                               + [("b", "c", "b"), ("a", "c", "tie")])
+    mostly = fit_bradley_terry(
+        [("a", "b", "a"), ("a", "b", "tie"), ("b", "c", "tie"), ("c", "a", "tie")] * 2
+        + [("b", "c", "b"), ("a", "c", "tie")]
+    )
     assert mostly.tie_nu == pytest.approx(np.exp(PHI_BOUND)) and "optimiser's bound" in mostly.degenerate
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BradleyTerryWarning)
@@ -387,17 +404,37 @@ def test_degenerate_fits_say_no_ranking_instead_of_numbers():
     assert "leave the order of the groups" in star.degenerate and "['m']" in star.degenerate
     assert chain.degenerate is None and chain.ranking() == ["g", "b", "m"]  # a strict order is a ranking
     assert world_model_ranking(None, "no valid pairwise verdicts")[2].startswith(
-        "no Bradley-Terry ranking: no valid pairwise verdicts;")
+        "no Bradley-Terry ranking: no valid pairwise verdicts;"
+    )
 
 
 def test_ranking_scores_tie_float_noise_but_keep_real_gaps():
     from oscar_core.metrics.bradley_terry import ELO_TIE_DECIMALS, BradleyTerryResult, world_model_ranking
 
-    bt = fit_bradley_terry([("a", "b", "a"), ("a", "b", "a"), ("b", "a", "a"), ("a", "c", "a"), ("a", "c", "a"),
-                            ("c", "a", "a"), ("b", "c", "tie"), ("b", "c", "a"), ("c", "b", "a")])
+    bt = fit_bradley_terry(
+        [
+            ("a", "b", "a"),
+            ("a", "b", "a"),
+            ("b", "a", "a"),
+            ("a", "c", "a"),
+            ("a", "c", "a"),
+            ("c", "a", "a"),
+            ("b", "c", "tie"),
+            ("b", "c", "a"),
+            ("c", "b", "a"),
+        ]
+    )
     assert bt.degenerate is None
-    noisy = BradleyTerryResult(bt.policies, bt.theta + np.array([0.0, 3e-11, -3e-11]), bt.std, bt.tie_nu,
-                               bt.n_comparisons, bt.log_likelihood, bt.iterations, bt.converged)
+    noisy = BradleyTerryResult(
+        bt.policies,
+        bt.theta + np.array([0.0, 3e-11, -3e-11]),
+        bt.std,
+        bt.tie_nu,
+        bt.n_comparisons,
+        bt.log_likelihood,
+        bt.iterations,
+        bt.converged,
+    )
     scores, label, fallback = world_model_ranking(noisy)
     assert label == "bradley_terry_elo" and fallback is None
     assert scores["b"] == scores["c"]  # b and c are symmetric: equal up to noise -> tied ranks
@@ -413,12 +450,21 @@ def test_eval_policies_on_an_all_tie_board_states_the_fallback(tmp_path, capsys)
 
     (tmp_path / "real.json").write_text(json.dumps({"a": 0.9, "b": 0.5, "c": 0.2}))
     (tmp_path / "wm.json").write_text(json.dumps({"a": 0.8, "b": 0.6, "c": 0.2}))
-    (tmp_path / "p.jsonl").write_text("\n".join(json.dumps({"a": x, "b": y, "winner": "tie"})
-                                                for x, y in [("a", "b"), ("b", "c"), ("a", "c")] * 4))
+    (tmp_path / "p.jsonl").write_text(
+        "\n".join(json.dumps({"a": x, "b": y, "winner": "tie"}) for x, y in [("a", "b"), ("b", "c"), ("a", "c")] * 4)
+    )
     parser = argparse.ArgumentParser(prog="oscar")
     add_eval_parser(parser.add_subparsers(dest="command", required=True))
-    argv = ["eval", "policies", "--real", str(tmp_path / "real.json"), "--wm", str(tmp_path / "wm.json"),
-            "--preferences", str(tmp_path / "p.jsonl")]
+    argv = [
+        "eval",
+        "policies",
+        "--real",
+        str(tmp_path / "real.json"),
+        "--wm",
+        str(tmp_path / "wm.json"),
+        "--preferences",
+        str(tmp_path / "p.jsonl"),
+    ]
     args = parser.parse_args(argv)
     assert args.func(args) == 0
     out = capsys.readouterr().out

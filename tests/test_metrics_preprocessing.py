@@ -53,13 +53,18 @@ def _reference(video: np.ndarray, r: int) -> np.ndarray:
     for k in range(t):
         for c in range(3):
             resized = _bilinear(video[k, :, :, c].astype(np.float64) / 255.0, out_h, out_w)
-            out[c, k] = resized[top:top + r, left:left + r]
+            out[c, k] = resized[top : top + r, left : left + r]
     return out * 2.0 - 1.0
 
 
-@pytest.mark.parametrize("shape, r", [((3, 12, 21, 3), 8),    # wide, downscaled: crop columns in the middle
-                                      ((2, 19, 10, 3), 8),    # tall: crop rows in the middle
-                                      ((2, 6, 9, 3), 12)])    # upscaled
+@pytest.mark.parametrize(
+    "shape, r",
+    [
+        ((3, 12, 21, 3), 8),  # wide, downscaled: crop columns in the middle
+        ((2, 19, 10, 3), 8),  # tall: crop rows in the middle
+        ((2, 6, 9, 3), 12),
+    ],
+)  # upscaled
 def test_fvd_resolution_path_is_a_bilinear_resize_and_a_centre_crop(shape, r):
     rng = np.random.default_rng(sum(shape) + r)
     video = rng.integers(0, 256, shape, dtype=np.uint8)
@@ -72,8 +77,9 @@ def test_fvd_resolution_path_is_a_bilinear_resize_and_a_centre_crop(shape, r):
     # the checks that can tell: a top-left crop or a nearest-neighbour resize is far from this
     t, h, w, _ = shape
     scale = r / min(h, w)
-    nearest = video[:, np.minimum((np.arange(r) / scale).astype(int), h - 1)][:, :, np.minimum(
-        (np.arange(r) / scale).astype(int), w - 1)]
+    nearest = video[:, np.minimum((np.arange(r) / scale).astype(int), h - 1)][
+        :, :, np.minimum((np.arange(r) / scale).astype(int), w - 1)
+    ]
     assert np.abs(got - (nearest.transpose(3, 0, 1, 2) / 255.0 * 2 - 1)).max() > 0.05
 
 

@@ -50,8 +50,15 @@ def test_psnr_ssim_match_scikit_image():
         p, s = psnr(pred, gt, n_frames=None), ssim(pred, gt, n_frames=None)
         for t in range(len(gt)):
             assert p[t] == pytest.approx(skm.peak_signal_noise_ratio(gt[t], pred[t], data_range=255), abs=1e-10)
-            ref = skm.structural_similarity(gt[t], pred[t], data_range=255, channel_axis=-1, gaussian_weights=True,
-                                            sigma=1.5, use_sample_covariance=False)
+            ref = skm.structural_similarity(
+                gt[t],
+                pred[t],
+                data_range=255,
+                channel_axis=-1,
+                gaussian_weights=True,
+                sigma=1.5,
+                use_sample_covariance=False,
+            )
             assert s[t] == pytest.approx(ref, abs=1e-10)
     # float frames in [0, 1] with data range 1 give the same numbers as their uint8 originals
     pred, gt = _videos(3)
@@ -90,13 +97,16 @@ def test_first_49_frames_by_default():
         psnr(pred[:20], gt)
 
 
-@pytest.mark.parametrize("pred, gt, words", [
-    (np.zeros((2, 12, 12, 3), np.uint8), np.zeros((2, 12, 14, 3), np.uint8), ["frame size", "14x12", "12x12"]),
-    (np.zeros((2, 12, 12), np.uint8), np.zeros((2, 12, 12, 3), np.uint8), ["pred", "(T, H, W, 3)", "(2, 12, 12)"]),
-    (np.full((2, 12, 12, 3), 2.0), np.zeros((2, 12, 12, 3)), ["pred", "values", "[0, 1]", "[2, 2]"]),
-    (np.zeros((2, 12, 12, 3), np.int32), np.zeros((2, 12, 12, 3), np.uint8), ["dtype", "int32"]),
-    (np.zeros((3, 12, 12, 3), np.uint8), np.zeros((2, 12, 12, 3), np.uint8), ["frames", "n_frames=None"]),
-])
+@pytest.mark.parametrize(
+    "pred, gt, words",
+    [
+        (np.zeros((2, 12, 12, 3), np.uint8), np.zeros((2, 12, 14, 3), np.uint8), ["frame size", "14x12", "12x12"]),
+        (np.zeros((2, 12, 12), np.uint8), np.zeros((2, 12, 12, 3), np.uint8), ["pred", "(T, H, W, 3)", "(2, 12, 12)"]),
+        (np.full((2, 12, 12, 3), 2.0), np.zeros((2, 12, 12, 3)), ["pred", "values", "[0, 1]", "[2, 2]"]),
+        (np.zeros((2, 12, 12, 3), np.int32), np.zeros((2, 12, 12, 3), np.uint8), ["dtype", "int32"]),
+        (np.zeros((3, 12, 12, 3), np.uint8), np.zeros((2, 12, 12, 3), np.uint8), ["frames", "n_frames=None"]),
+    ],
+)
 def test_video_input_errors(pred, gt, words):
     with pytest.raises(MetricInputError) as exc:
         psnr(pred, gt, n_frames=None)
@@ -137,7 +147,7 @@ def test_feature_statistics_and_sampled_gaussians():
     n = 20000
     m, s = np.array([1.0, -0.5]), np.array([2.0, 0.5])
     x, y = rng.normal(size=(n, 2)), rng.normal(size=(n, 2)) * s + m
-    expected = np.sum(m ** 2) + np.sum((1 - s) ** 2)
+    expected = np.sum(m**2) + np.sum((1 - s) ** 2)
     assert frechet_distance_from_features(x, y) == pytest.approx(expected, abs=0.05)
     with pytest.raises(MetricInputError, match="at least 2 samples"):
         feature_statistics(f[:1])
@@ -289,8 +299,14 @@ def test_evaluate_videos_per_clip_aggregate_and_embodiments(tmp_path):
             clips.append(Clip(f"clip{k}", tmp_path / "p0.npy", tmp_path / "g0.npy", emb))
         else:
             clips.append(Clip(f"clip{k}", pred, gt, emb))
-    rep = evaluate_videos(clips, n_frames=5, lpips_net=TinyLPIPS().eval(), vae=lambda x: x[:, :, :, ::4, ::4],
-                          fvd_extractor=lambda x: x.float().mean(dim=(2, 3, 4)), fid_extractor=lambda x: x.float().mean((2, 3)))
+    rep = evaluate_videos(
+        clips,
+        n_frames=5,
+        lpips_net=TinyLPIPS().eval(),
+        vae=lambda x: x[:, :, :, ::4, ::4],
+        fvd_extractor=lambda x: x.float().mean(dim=(2, 3, 4)),
+        fid_extractor=lambda x: x.float().mean((2, 3)),
+    )
     assert [c["name"] for c in rep.clips] == [f"clip{k}" for k in range(5)]
     pred1, gt1 = clips[1].pred, clips[1].gt
     row = rep.clips[1]
@@ -303,11 +319,19 @@ def test_evaluate_videos_per_clip_aggregate_and_embodiments(tmp_path):
     kuka = np.mean([c["ssim"] for c in rep.clips if c["embodiment"] == "kuka"])
     assert rep.per_embodiment["kuka"]["ssim"] == pytest.approx(kuka)
     assert rep.mean_over_embodiments["ssim"] == pytest.approx(
-        (rep.per_embodiment["kuka"]["ssim"] + rep.per_embodiment["franka"]["ssim"]) / 2)
+        (rep.per_embodiment["kuka"]["ssim"] + rep.per_embodiment["franka"]["ssim"]) / 2
+    )
     assert rep.aggregate["fvd"] >= 0 and rep.aggregate["fid"] >= 0
     data = json.loads(json.dumps(rep.to_dict()))
-    assert data["n_frames"] == 5 and set(data["aggregate"]) == {"psnr", "ssim", "lpips", "tlpips", "latent_l2",
-                                                                "fvd", "fid"}
+    assert data["n_frames"] == 5 and set(data["aggregate"]) == {
+        "psnr",
+        "ssim",
+        "lpips",
+        "tlpips",
+        "latent_l2",
+        "fvd",
+        "fid",
+    }
     table = rep.format_table()
     assert "[mean] kuka (3)" in table and "FVD" in table
     with pytest.raises(MetricInputError, match="duplicates"):
@@ -370,8 +394,11 @@ def test_fvd_and_fid_preprocessing_match_the_reference_code(tmp_path):
     cropped = fvd(pred, gt, i3d_path, n_frames=None, resolution=224)
     assert abs(cropped - ref) > 0.1 * ref
     seen = []
-    video_features(pred[:2] + [pred[2][:, :, :48]], lambda x: seen.append((x.dtype, tuple(x.shape))) or
-                   torch.zeros(len(x), 2), n_frames=4)
+    video_features(
+        pred[:2] + [pred[2][:, :, :48]],
+        lambda x: seen.append((x.dtype, tuple(x.shape))) or torch.zeros(len(x), 2),
+        n_frames=4,
+    )
     assert seen == [(torch.uint8, (2, 3, 4, 36, 96)), (torch.uint8, (1, 3, 4, 36, 48))]  # sizes batched apart
     # StyleGAN2-ADA FID: uint8 (B, 3, H, W) frames at their own size; the detector resizes to 299x299
     inc_path = tmp_path / "inception.pt"

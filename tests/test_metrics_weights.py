@@ -27,16 +27,44 @@ from oscar_core.metrics.weights import (
 )
 
 # torchvision's parameter names and shapes (torchvision/models/alexnet.py, vgg.py cfg "D"): a second source
-TV_ALEXNET = {"features.0.weight": (64, 3, 11, 11), "features.0.bias": (64,), "features.3.weight": (192, 64, 5, 5),
-              "features.3.bias": (192,), "features.6.weight": (384, 192, 3, 3), "features.6.bias": (384,),
-              "features.8.weight": (256, 384, 3, 3), "features.8.bias": (256,), "features.10.weight": (256, 256, 3, 3),
-              "features.10.bias": (256,), "classifier.1.weight": (4096, 9216), "classifier.1.bias": (4096,),
-              "classifier.4.weight": (4096, 4096), "classifier.4.bias": (4096,), "classifier.6.weight": (1000, 4096),
-              "classifier.6.bias": (1000,)}
-_VGG_CONVS = [(0, 3, 64), (2, 64, 64), (5, 64, 128), (7, 128, 128), (10, 128, 256), (12, 256, 256), (14, 256, 256),
-              (17, 256, 512), (19, 512, 512), (21, 512, 512), (24, 512, 512), (26, 512, 512), (28, 512, 512)]
-TV_VGG16_FEATURES = {k: v for i, cin, cout in _VGG_CONVS
-                     for k, v in ((f"features.{i}.weight", (cout, cin, 3, 3)), (f"features.{i}.bias", (cout,)))}
+TV_ALEXNET = {
+    "features.0.weight": (64, 3, 11, 11),
+    "features.0.bias": (64,),
+    "features.3.weight": (192, 64, 5, 5),
+    "features.3.bias": (192,),
+    "features.6.weight": (384, 192, 3, 3),
+    "features.6.bias": (384,),
+    "features.8.weight": (256, 384, 3, 3),
+    "features.8.bias": (256,),
+    "features.10.weight": (256, 256, 3, 3),
+    "features.10.bias": (256,),
+    "classifier.1.weight": (4096, 9216),
+    "classifier.1.bias": (4096,),
+    "classifier.4.weight": (4096, 4096),
+    "classifier.4.bias": (4096,),
+    "classifier.6.weight": (1000, 4096),
+    "classifier.6.bias": (1000,),
+}
+_VGG_CONVS = [
+    (0, 3, 64),
+    (2, 64, 64),
+    (5, 64, 128),
+    (7, 128, 128),
+    (10, 128, 256),
+    (12, 256, 256),
+    (14, 256, 256),
+    (17, 256, 512),
+    (19, 512, 512),
+    (21, 512, 512),
+    (24, 512, 512),
+    (26, 512, 512),
+    (28, 512, 512),
+]
+TV_VGG16_FEATURES = {
+    k: v
+    for i, cin, cout in _VGG_CONVS
+    for k, v in ((f"features.{i}.weight", (cout, cin, 3, 3)), (f"features.{i}.bias", (cout,)))
+}
 
 
 def _features_state(shapes, seed=0):
@@ -56,8 +84,9 @@ def _pth(state) -> bytes:
 
 
 def test_trunks_have_torchvision_names_and_shapes():
-    assert {f"features.{k}": tuple(v.shape) for k, v in alexnet_features().state_dict().items()} == \
-        {k: v for k, v in TV_ALEXNET.items() if k.startswith("features.")}
+    assert {f"features.{k}": tuple(v.shape) for k, v in alexnet_features().state_dict().items()} == {
+        k: v for k, v in TV_ALEXNET.items() if k.startswith("features.")
+    }
     assert {f"features.{k}": tuple(v.shape) for k, v in vgg16_features().state_dict().items()} == TV_VGG16_FEATURES
     model = LPIPS("alex")
     state = _features_state(TV_ALEXNET)
@@ -152,15 +181,27 @@ class TinyI3D(torch.nn.Module):
 def served(tmp_path):
     ts = io.BytesIO()
     torch.jit.save(torch.jit.script(TinyI3D()), ts)
-    files = {"/i3d.pt": ts.getvalue(), "/lin.pth": _pth(_lin_state((64, 192, 384, 256, 256))),
-             "/alexnet-owt.pth": _pth(_features_state(TV_ALEXNET))}
+    files = {
+        "/i3d.pt": ts.getvalue(),
+        "/lin.pth": _pth(_lin_state((64, 192, 384, 256, 256))),
+        "/alexnet-owt.pth": _pth(_features_state(TV_ALEXNET)),
+    }
     srv = Server(files)
     sha = {k: hashlib.sha256(v).hexdigest() for k, v in files.items()}
-    table = {"i3d": WeightFile("i3d", srv.url + "/i3d.pt", "i3d_torchscript.pt", "torchscript", "test"),
-             "lpips-alex": WeightFile("lpips-alex", srv.url + "/lin.pth", "lin.pth", "state_dict", "test",
-                                      sha256=sha["/lin.pth"]),
-             "alexnet": WeightFile("alexnet", srv.url + "/alexnet-owt.pth", "alexnet.pth", "state_dict", "test",
-                                   sha256_prefix=sha["/alexnet-owt.pth"][:8])}
+    table = {
+        "i3d": WeightFile("i3d", srv.url + "/i3d.pt", "i3d_torchscript.pt", "torchscript", "test"),
+        "lpips-alex": WeightFile(
+            "lpips-alex", srv.url + "/lin.pth", "lin.pth", "state_dict", "test", sha256=sha["/lin.pth"]
+        ),
+        "alexnet": WeightFile(
+            "alexnet",
+            srv.url + "/alexnet-owt.pth",
+            "alexnet.pth",
+            "state_dict",
+            "test",
+            sha256_prefix=sha["/alexnet-owt.pth"][:8],
+        ),
+    }
     yield srv, table, sha, tmp_path / "cache"
     srv.close()
 
@@ -169,8 +210,10 @@ def test_pull_verifies_caches_and_records_first_use(served):
     srv, table, sha, cache = served
     res = pull_weights(["i3d", "lpips-alex", "alexnet"], cache_dir=cache, table=table)
     assert {k: (v["status"], v["check"]) for k, v in res.items()} == {
-        "i3d": ("downloaded", "trust on first use"), "lpips-alex": ("downloaded", "pinned sha256"),
-        "alexnet": ("downloaded", "trust on first use")}  # a prefix pin is checked, then the full hash recorded
+        "i3d": ("downloaded", "trust on first use"),
+        "lpips-alex": ("downloaded", "pinned sha256"),
+        "alexnet": ("downloaded", "trust on first use"),
+    }  # a prefix pin is checked, then the full hash recorded
     lock = json.loads((cache / LOCK_NAME).read_text())
     assert lock["i3d"]["sha256"] == sha["/i3d.pt"] and lock["alexnet"]["sha256"] == sha["/alexnet-owt.pth"]
     assert "lpips-alex" not in lock  # fully pinned: nothing to record

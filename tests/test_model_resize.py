@@ -32,8 +32,15 @@ def _oracle(mask: np.ndarray, size) -> np.ndarray:
 
 
 # pixel size -> latent size (÷8) for the resolutions oscar uses, plus odd and upscaling cases
-SIZES = [((704, 1280), (88, 160)), ((288, 512), (36, 64)), ((480, 640), (60, 80)), ((32, 64), (4, 8)),
-         ((37, 23), (8, 5)), ((5, 7), (10, 14)), ((6, 4), (9, 11))]
+SIZES = [
+    ((704, 1280), (88, 160)),
+    ((288, 512), (36, 64)),
+    ((480, 640), (60, 80)),
+    ((32, 64), (4, 8)),
+    ((37, 23), (8, 5)),
+    ((5, 7), (10, 14)),
+    ((6, 4), (9, 11)),
+]
 
 
 @pytest.mark.parametrize("src,dst", SIZES)

@@ -71,7 +71,7 @@ def test_skeleton_tokens_are_summed_before_the_blocks(no_torchvision_base):
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("skeleton_embed.")}
     per_channel = 4  # p_t * p_h * p_w = 1 * 2 * 2, channel-major in the patch embedder's input
     wv, ws = state["patch_embed.proj.weight"], model.skeleton_embed.proj.weight.detach()
-    state["patch_embed.proj.weight"] = torch.cat([wv[:, :16 * per_channel], ws, wv[:, 16 * per_channel:]], dim=1)
+    state["patch_embed.proj.weight"] = torch.cat([wv[:, : 16 * per_channel], ws, wv[:, 16 * per_channel :]], dim=1)
     base.load_state_dict(state)
     with torch.no_grad():
         ours = model(**kwargs, skeleton_latents=skel).sample
@@ -108,7 +108,9 @@ def test_from_cosmos_base_reads_sharded_weights(tmp_path):
     base.save_pretrained(tmp_path / "t", max_shard_size="200KB")
     assert (tmp_path / "t" / "diffusion_pytorch_model.safetensors.index.json").is_file()
     model = OscarTransformer3DModel.from_cosmos_base(tmp_path / "t")
-    assert meta_tensors(model) == [] and all(torch.equal(model.state_dict()[k], v) for k, v in base.state_dict().items())
+    assert meta_tensors(model) == [] and all(
+        torch.equal(model.state_dict()[k], v) for k, v in base.state_dict().items()
+    )
 
 
 def test_from_cosmos_base_in_memory_and_dtype():
@@ -146,7 +148,10 @@ def test_save_pretrained_and_from_pretrained_roundtrip(tmp_path):
     model = build_tiny_transformer(seed=12, skeleton_scale=0.1)
     model.save_pretrained(tmp_path / "m")
     assert (tmp_path / "m" / "diffusion_pytorch_model.safetensors").is_file()
-    for loaded in (OscarTransformer3DModel.from_pretrained(tmp_path / "m"), OscarTransformer3DModel.load_strict(tmp_path / "m")):
+    for loaded in (
+        OscarTransformer3DModel.from_pretrained(tmp_path / "m"),
+        OscarTransformer3DModel.load_strict(tmp_path / "m"),
+    ):
         assert all(torch.equal(loaded.state_dict()[k], v) for k, v in model.state_dict().items())
         assert loaded.config.skeleton_channels is None and loaded.skeleton_in_channels == 16
 

@@ -89,7 +89,9 @@ def test_prompt_cache_detects_a_swapped_file(tmp_path):
 
 
 def test_empty_prompt_fallback_shapes_and_sequence_length_invariance():
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=2), build_tiny_vae(seed=2), ModelCard(chunk_frames=5))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=2), build_tiny_vae(seed=2), ModelCard(chunk_frames=5)
+    )
     zero = model.prompt_embeds()
     assert zero.shape == (1, 1, TEXT_DIM) and torch.count_nonzero(zero) == 0
     assert torch.equal(zero, empty_prompt_embeds(TEXT_DIM))

@@ -57,8 +57,26 @@ def test_toyworld_eval_paired_gives_row_minus_reference(tmp_path, capsys):
         np.save(same / f"{r.id}.npy", rgb)
         np.save(still / f"{r.id}.npy", np.repeat(rgb[:1], len(rgb), axis=0))
     out = tmp_path / "t.json"
-    assert main(["toyworld", "eval", "--gt", str(root), "--pred", f"truth={same}", "--pred", f"still={still}",
-                 "--paired", "truth", "--out", str(out), "--no-html"]) == 0
+    assert (
+        main(
+            [
+                "toyworld",
+                "eval",
+                "--gt",
+                str(root),
+                "--pred",
+                f"truth={same}",
+                "--pred",
+                f"still={still}",
+                "--paired",
+                "truth",
+                "--out",
+                str(out),
+                "--no-html",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "minus 'truth'" in printed and "| still |" in printed
     t = json.loads(out.read_text())

@@ -15,7 +15,7 @@ from oscar_core.plugin.registry import Registry
 REPO = Path(__file__).resolve().parents[1]
 TOYARM_URDF = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets" / "toyarm.urdf"
 
-PLUGIN = '''
+PLUGIN = """
 from oscar_core import Embodiment, Gripper, Skeleton, hookimpl
 
 URDF = {urdf!r}
@@ -35,7 +35,7 @@ class TextArm(Embodiment):
 @hookimpl
 def oscar_register_embodiments():
     return [TextArm]
-'''
+"""
 
 
 def _plugin(tmp_path, urdf: str, extra: str = "") -> Registry:
@@ -58,8 +58,11 @@ def test_a_one_file_plugin_gives_its_urdf_as_text_and_moves_like_the_file(tmp_pa
 def test_a_broken_urdf_text_is_named_by_its_plugin(tmp_path):
     bad = TOYARM_URDF.read_text().replace('type="revolute"', 'type="screw"', 1)
     reg = _plugin(tmp_path, bad)
-    with pytest.raises((KinematicsFileError, PluginError), match=r"<urdf_text of embodiment 'textarm' "
-                                                                  r"\(.*TextArm\)>: field 'joint\[.*\]\.type'"):
+    with pytest.raises(
+        (KinematicsFileError, PluginError),
+        match=r"<urdf_text of embodiment 'textarm' "
+        r"\(.*TextArm\)>: field 'joint\[.*\]\.type'",
+    ):
         reg.get("textarm")
     reg = _plugin(tmp_path, "<robot name='x'><link name='a'/>")
     with pytest.raises((KinematicsFileError, PluginError), match=r"<urdf_text of embodiment 'textarm'.*well-formed"):
@@ -69,8 +72,7 @@ def test_a_broken_urdf_text_is_named_by_its_plugin(tmp_path):
 def test_urdf_and_urdf_text_together_break_the_contract(tmp_path):
     reg = _plugin(tmp_path, TOYARM_URDF.read_text(), extra=f"\n    urdf = {str(TOYARM_URDF)!r}")
     assert "textarm" not in reg.names()
-    assert any("expected exactly one kinematic description, found urdf and urdf_text" in f.error
-               for f in reg.failures)
+    assert any("expected exactly one kinematic description, found urdf and urdf_text" in f.error for f in reg.failures)
 
 
 # ------------------------------------------------------------------ --help: a sub-command's own examples
@@ -92,8 +94,11 @@ def test_every_sub_commands_help_shows_only_its_own_examples():
 
     checked = 0
     for leaf in _leaves(build_parser()):
-        commands = [example_command(line) for line in (leaf.epilog or "").splitlines()
-                    if line.startswith("  ") and not line.startswith("    ")]
+        commands = [
+            example_command(line)
+            for line in (leaf.epilog or "").splitlines()
+            if line.startswith("  ") and not line.startswith("    ")
+        ]
         commands = [c for c in commands if c]
         for c in commands:
             assert c == leaf.prog or c.startswith(leaf.prog + " "), (leaf.prog, c)
@@ -161,9 +166,12 @@ def test_a_read_only_frame_goes_through_the_rollout_api_without_a_warning():
         warnings.simplefilter("error")
         px = VideoVAE.to_pixels(np.broadcast_to(first, (5, 16, 32, 3)))  # a read-only view
     assert px.shape == (1, 3, 5, 16, 32) and float(px[0, :, 0].max()) <= 1.0
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5, fps=10.0),
-                                         empty_prompt=torch.zeros(1, 1, 48))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, fps=10.0),
+        empty_prompt=torch.zeros(1, 1, 48),
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         a = model.rollout(ro_first, ro_skel, sampler=SamplerConfig(steps=1), progress=False).frames
@@ -187,15 +195,15 @@ def test_a_short_row_is_labelled_beside_its_frames_and_its_panels_named_under_th
     band = sheet.shape[1] - 2 * (90 + 4) - 4
     H = (sheet.shape[0] - 4) // 2 - 4  # the grid height (frames + captions of the short row fit in it)
     y = 4 + H + 4  # the short row's top
-    text = (sheet[y:y + H, :band] > 100).any(-1)
+    text = (sheet[y : y + H, :band] > 100).any(-1)
     rows = np.flatnonzero(text.any(1))
     assert rows.size and rows.max() < 20  # the name sits beside the 20 frame rows, not lower
     for j in range(2):  # frames untouched, captions below them in each column
         x = band + 4 + j * (90 + 4)
-        np.testing.assert_array_equal(sheet[y:y + 20, x:x + 90], short[0])
-        below = (sheet[y + 20:y + H, x:x + 90] > 100).any(-1)
+        np.testing.assert_array_equal(sheet[y : y + 20, x : x + 90], short[0])
+        below = (sheet[y + 20 : y + H, x : x + 90] > 100).any(-1)
         cols = np.flatnonzero(below.any(0))
         assert cols.size and cols.min() < 30 and cols.max() > 60  # under the first and the last panel
-        assert (plain[y + 20:y + H, x:x + 90] > 100).sum() == 0  # nothing there without panels
+        assert (plain[y + 20 : y + H, x : x + 90] > 100).sum() == 0  # nothing there without panels
     with pytest.raises(ValueError, match="expected 2 panel lists"):
         contact_sheet([tall, short], panels=[None])

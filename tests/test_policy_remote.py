@@ -20,7 +20,7 @@ from oscar_core.media.video import read_video
 from oscar_core.policy.remote import pack, unpack
 from oscar_core.toyworld.closed_loop import toy_simulator, write_closed_loop_sessions
 
-FAILING = '''
+FAILING = """
 import numpy as np
 
 class FailsOnSecondCall:
@@ -38,14 +38,18 @@ class DiesOnSecondCall(FailsOnSecondCall):
             import os
             os._exit(1)  # the server process dies mid-episode
         return super().infer(obs)
-'''
+"""
 
 
 @contextlib.contextmanager
 def _serve(target: str):
     """A real server process for ``target`` on a free loopback port; yields its ws:// address."""
-    proc = subprocess.Popen([sys.executable, "-m", "oscar_core.policy.serve", target, "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "oscar_core.policy.serve", target, "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     line = proc.stdout.readline()
     if not line.startswith("listening on "):
         proc.kill()
@@ -58,8 +62,12 @@ def _serve(target: str):
 
 
 def test_openpi_array_encoding_round_trips():
-    obs = {"observation/exterior_image_1_left": np.arange(12, dtype=np.uint8).reshape(2, 2, 3),
-           "observation/joint_position": np.linspace(0, 1, 7), "prompt": "pick", "n": np.float32(2.5)}
+    obs = {
+        "observation/exterior_image_1_left": np.arange(12, dtype=np.uint8).reshape(2, 2, 3),
+        "observation/joint_position": np.linspace(0, 1, 7),
+        "prompt": "pick",
+        "n": np.float32(2.5),
+    }
     back = unpack(pack(obs))
     assert back["prompt"] == "pick" and back["n"] == np.float32(2.5) and back["n"].dtype == np.float32
     np.testing.assert_array_equal(back["observation/exterior_image_1_left"], obs["observation/exterior_image_1_left"])
@@ -77,13 +85,20 @@ def sessions(tmp_path_factory) -> Path:
 def test_served_policy_gives_the_same_cells_as_in_process(sessions, tmp_path):
     local = run_closed_loop(sessions, tmp_path / "local", simulator=toy_simulator, fps=10.0, chunk_frames=17)
     with _serve("oscar_core.toyworld.image_policies:ExactPolicy") as uri:
-        remote = run_closed_loop(sessions, tmp_path / "remote", simulator=toy_simulator, fps=10.0, chunk_frames=17,
-                                 policy_sources={"exact": uri})
+        remote = run_closed_loop(
+            sessions,
+            tmp_path / "remote",
+            simulator=toy_simulator,
+            fps=10.0,
+            chunk_frames=17,
+            policy_sources={"exact": uri},
+        )
     assert remote.counts["failed"] == 0 and local.counts["failed"] == 0
     for a, b in zip(local.records, remote.records):
         assert a["outcome"] == b["outcome"]
-        np.testing.assert_array_equal(read_video(tmp_path / "local" / a["video"]),
-                                      read_video(tmp_path / "remote" / b["video"]))
+        np.testing.assert_array_equal(
+            read_video(tmp_path / "local" / a["video"]), read_video(tmp_path / "remote" / b["video"])
+        )
         ca = json.loads((tmp_path / "local" / a["dir"] / "calls.json").read_text())["calls"]
         cb = json.loads((tmp_path / "remote" / b["dir"] / "calls.json").read_text())["calls"]
         assert [c["actions"] for c in ca] == [c["actions"] for c in cb]
@@ -97,19 +112,28 @@ def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path):
     m = sessions.parent / "joint.json"
     m.write_text(json.dumps(data))
     with _serve(f"{tmp_path / 'failing.py'}:FailsOnSecondCall") as uri:
-        res = run_closed_loop(m, tmp_path / "err", simulator=toy_simulator, fps=10.0, chunk_frames=17,
-                              policy_sources={"exact": uri})
-    assert [r["reason"] for r in res.records] == ["infer raised RuntimeError: policy server error: "
-                                                  "ValueError: weights not found"] * 2
+        res = run_closed_loop(
+            m, tmp_path / "err", simulator=toy_simulator, fps=10.0, chunk_frames=17, policy_sources={"exact": uri}
+        )
+    assert [r["reason"] for r in res.records] == [
+        "infer raised RuntimeError: policy server error: ValueError: weights not found"
+    ] * 2
     with _serve(f"{tmp_path / 'failing.py'}:DiesOnSecondCall") as uri:
-        res = run_closed_loop(m, tmp_path / "died", simulator=toy_simulator, fps=10.0, chunk_frames=17,
-                              policy_sources={"exact": uri})
+        res = run_closed_loop(
+            m, tmp_path / "died", simulator=toy_simulator, fps=10.0, chunk_frames=17, policy_sources={"exact": uri}
+        )
     first, second = (r["reason"] for r in res.records)
     assert first.startswith("infer raised ConnectionClosed"), first  # the connection dropped mid-episode
     assert second.startswith("cannot load ws://"), second  # nobody listens any more
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    res = run_closed_loop(m, tmp_path / "refused", simulator=toy_simulator, fps=10.0, chunk_frames=17,
-                          policy_sources={"exact": f"ws://127.0.0.1:{port}"})
+    res = run_closed_loop(
+        m,
+        tmp_path / "refused",
+        simulator=toy_simulator,
+        fps=10.0,
+        chunk_frames=17,
+        policy_sources={"exact": f"ws://127.0.0.1:{port}"},
+    )
     assert all(r["status"] == "failed" and r["reason"].startswith("cannot load ws://") for r in res.records)

@@ -13,13 +13,25 @@ POLICIES = ("a", "b", "c")
 
 def report(wm_of, sessions=6, real_of=lambda s, j: int(s % 3 >= j)):
     """An eval-run report: policy j of session s really succeeds when s % 3 >= j; wm_of(s, j) gives its verdict."""
-    return {"cells": [{"cell": f"s{s}/{p}", "session": f"s{s}", "policy": p, "real_success": real_of(s, j),
-                       "wm_success": wm_of(s, j)} for s in range(sessions) for j, p in enumerate(POLICIES)]}
+    return {
+        "cells": [
+            {
+                "cell": f"s{s}/{p}",
+                "session": f"s{s}",
+                "policy": p,
+                "real_success": real_of(s, j),
+                "wm_success": wm_of(s, j),
+            }
+            for s in range(sessions)
+            for j, p in enumerate(POLICIES)
+        ]
+    }
 
 
 def test_rates_average_the_seeds_per_cell():
-    sessions, policies, real, wm = cell_rates([report(lambda s, j: 1), report(lambda s, j: 0),
-                                               report(lambda s, j: int(j == 0))])
+    sessions, policies, real, wm = cell_rates(
+        [report(lambda s, j: 1), report(lambda s, j: 0), report(lambda s, j: int(j == 0))]
+    )
     assert policies == list(POLICIES) and len(sessions) == 6
     np.testing.assert_allclose(wm[:, 0], 2 / 3)
     np.testing.assert_allclose(wm[:, 1:], 1 / 3)
@@ -32,8 +44,9 @@ def test_a_world_model_that_agrees_ranks_perfectly_in_every_resample_and_a_rever
     assert np.all(boot[np.isfinite(boot)] == pytest.approx(1.0))
     boot = session_bootstrap(real, 1 - real, resamples=300)
     assert np.all(boot[np.isfinite(boot)] == pytest.approx(-1.0))
-    assert np.array_equal(session_bootstrap(real, real, 50, seed=3), session_bootstrap(real, real, 50, seed=3),
-                          equal_nan=True)
+    assert np.array_equal(
+        session_bootstrap(real, real, 50, seed=3), session_bootstrap(real, real, 50, seed=3), equal_nan=True
+    )
 
 
 def test_runs_over_different_manifests_are_refused():
@@ -84,12 +97,15 @@ def test_a_partial_run_is_flagged_and_exits_1(tmp_path, capsys):
     assert "PARTIAL" in err and "14/18" in err
 
 
-@pytest.mark.parametrize("make, expected", [
-    (lambda root: root / "missing", "found no such folder"),
-    (lambda root: root, "found a folder without report.json"),
-    (lambda root: (root / "report.json").write_text("{not json") and root, "unreadable"),
-    (lambda root: (root / "report.json").write_text('{"cells": 3}') and root, "expected a list of judged cells"),
-])
+@pytest.mark.parametrize(
+    "make, expected",
+    [
+        (lambda root: root / "missing", "found no such folder"),
+        (lambda root: root, "found a folder without report.json"),
+        (lambda root: (root / "report.json").write_text("{not json") and root, "unreadable"),
+        (lambda root: (root / "report.json").write_text('{"cells": 3}') and root, "expected a list of judged cells"),
+    ],
+)
 def test_bad_run_folders_are_named_before_any_work(tmp_path, capsys, make, expected):
     folder = make(tmp_path)
     assert main([str(folder)]) == 2
@@ -102,9 +118,14 @@ def test_the_module_command_still_runs_as_documented(tmp_path):
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-m", "oscar_core.metrics.policy_seeds", str(tmp_path / "nope")],
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "oscar_core.metrics.policy_seeds", str(tmp_path / "nope")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 2 and done.stderr.startswith(f"error: {tmp_path / 'nope'}: field 'report.json'")
-    usage = subprocess.run([sys.executable, "-m", "oscar_core.metrics.policy_seeds", "--help"],
-                           capture_output=True, text=True, timeout=120)
+    usage = subprocess.run(
+        [sys.executable, "-m", "oscar_core.metrics.policy_seeds", "--help"], capture_output=True, text=True, timeout=120
+    )
     assert usage.returncode == 0 and usage.stdout.startswith("usage: python -m oscar_core.metrics.policy_seeds")

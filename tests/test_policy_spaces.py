@@ -56,12 +56,15 @@ def test_spec_defaults_are_droids_and_bad_fields_are_named():
 def test_check_answer_accepts_good_and_names_each_fault():
     good = check_answer({"actions": np.zeros((10, 8), np.float32)}, width=8, min_horizon=8)
     assert good.shape == (10, 8) and good.dtype == np.float64
-    cases = [([1, 2], "expected a dict"), ({"act": 1}, "found keys"),
-             ({"actions": np.zeros((10, 7))}, r"shape \(H, 8\), found \(10, 7\)"),
-             ({"actions": np.zeros((4, 8))}, "at least 8 rows"),
-             ({"actions": np.array([["a"] * 8] * 8)}, "dtype"),
-             ({"actions": np.full((8, 8), np.nan)}, "finite values, found nan at row 0, column 0"),
-             ({"actions": np.full((8, 8), np.inf)}, "finite")]
+    cases = [
+        ([1, 2], "expected a dict"),
+        ({"act": 1}, "found keys"),
+        ({"actions": np.zeros((10, 7))}, r"shape \(H, 8\), found \(10, 7\)"),
+        ({"actions": np.zeros((4, 8))}, "at least 8 rows"),
+        ({"actions": np.array([["a"] * 8] * 8)}, "dtype"),
+        ({"actions": np.full((8, 8), np.nan)}, "finite values, found nan at row 0, column 0"),
+        ({"actions": np.full((8, 8), np.inf)}, "finite"),
+    ]
     for answer, match in cases:
         with pytest.raises(PolicyFault, match=match):
             check_answer(answer, width=8, min_horizon=8)

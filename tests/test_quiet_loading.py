@@ -25,8 +25,14 @@ HINT = "accelerate"
 def _run(code: str, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     env.pop("OSCAR_VERBOSITY", None)
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code), *args], check=False, capture_output=True,
-                          text=True, env=env, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code), *args],
+        check=False,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
 
 
 def test_loading_the_bundled_vae_is_quiet_and_real_warnings_still_show():
@@ -54,12 +60,23 @@ def test_eval_video_with_the_toy_vae_prints_no_hint(tmp_path):
     rng = np.random.default_rng(0)
     for name in ("pred", "gt"):
         np.save(tmp_path / f"{name}.npy", rng.integers(0, 256, (5, 32, 32, 3), dtype=np.uint8))
-    proc = _run("""
+    proc = _run(
+        """
         import sys
         from oscar_core.cli import main
         sys.exit(main(sys.argv[1:]))
-        """, "eval", "video", str(tmp_path / "pred.npy"), str(tmp_path / "gt.npy"), "--frames", "0", "--json",
-                "--no-cached-networks", "--vae-model", "oscar-toy")
+        """,
+        "eval",
+        "video",
+        str(tmp_path / "pred.npy"),
+        str(tmp_path / "gt.npy"),
+        "--frames",
+        "0",
+        "--json",
+        "--no-cached-networks",
+        "--vae-model",
+        "oscar-toy",
+    )
     assert proc.returncode == 0, proc.stderr
     assert '"latent_l2"' in proc.stdout
     assert HINT not in proc.stderr, proc.stderr

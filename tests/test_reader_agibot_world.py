@@ -22,8 +22,9 @@ def g1():
     return AgiBotG1()
 
 
-def write_episode(root, g1, task="327", episode="648642", *, action_rows=T, nan=False, drop=None, no_camera_file=None,
-                  video_frames=T):
+def write_episode(
+    root, g1, task="327", episode="648642", *, action_rows=T, nan=False, drop=None, no_camera_file=None, video_frames=T
+):
     """One episode in AgiBot World's folders, from known joint values and a known head-camera mount."""
     lo, hi = g1.tree.limits()
     body = [g1.tree.joint_names.index(n) for n in JOINTS]
@@ -48,9 +49,13 @@ def write_episode(root, g1, task="327", episode="648642", *, action_rows=T, nan=
             del f[drop]
     cam = root / "parameters" / task / episode / "parameters" / "camera"
     cam.mkdir(parents=True)
-    files = {"head_intrinsic_params": {"intrinsic": {"fx": 390.1, "fy": 389.7, "ppx": 321.2, "ppy": 243.8}},
-             "head_extrinsic_params_aligned": [{"extrinsic": {"rotation_matrix": C[:3, :3].tolist(),
-                                                              "translation_vector": C[:3, 3].tolist()}} for C in cam_to_base]}
+    files = {
+        "head_intrinsic_params": {"intrinsic": {"fx": 390.1, "fy": 389.7, "ppx": 321.2, "ppy": 243.8}},
+        "head_extrinsic_params_aligned": [
+            {"extrinsic": {"rotation_matrix": C[:3, :3].tolist(), "translation_vector": C[:3, 3].tolist()}}
+            for C in cam_to_base
+        ],
+    }
     for name, doc in files.items():
         if name != no_camera_file:
             (cam / f"{name}.json").write_text(json.dumps(doc))
@@ -59,7 +64,9 @@ def write_episode(root, g1, task="327", episode="648642", *, action_rows=T, nan=
     write_video(videos / "head_color.mp4", np.zeros((video_frames, 48, 64, 3), np.uint8), fps=30)
     write_video(videos / "hand_left_color.mp4", np.zeros((2, 48, 64, 3), np.uint8), fps=30)
     (root / "task_info").mkdir(exist_ok=True)
-    (root / "task_info" / f"task_{task}.json").write_text(json.dumps([{"episode_id": int(episode), "task_name": "Pick up the cup"}]))
+    (root / "task_info" / f"task_{task}.json").write_text(
+        json.dumps([{"episode_id": int(episode), "task_name": "Pick up the cup"}])
+    )
     return q, cam_to_base, h5
 
 
@@ -74,7 +81,12 @@ def test_lists_and_loads_an_episode(tmp_path, g1):
     reader, refs = _load(tmp_path)
     assert len(refs) == 1
     ref = refs[0]
-    assert (ref.episode_id, ref.embodiment, ref.n_frames, ref.task) == ("agibot_world/327/648642", "agibot_g1", T, "Pick up the cup")
+    assert (ref.episode_id, ref.embodiment, ref.n_frames, ref.task) == (
+        "agibot_world/327/648642",
+        "agibot_g1",
+        T,
+        "Pick up the cup",
+    )
     assert ref.cameras == ("head_color", "hand_left_color")
     ep = reader.load_episode(ref)
     np.testing.assert_allclose(ep.trajectory.q, q, atol=1e-12)
@@ -85,18 +97,26 @@ def test_lists_and_loads_an_episode(tmp_path, g1):
     assert ep.camera_name == "head_color"
 
 
-@pytest.mark.parametrize("kind, field, words", [
-    ("action_longer", "action/effector/position", "12 rows.*found 15 rows"),
-    ("nan", "state/joint/position", "non-finite"),
-    ("missing_field", "state/head/position", "missing"),
-    ("camera_file", "<file>", "head_extrinsic_params_aligned.json.*no such file"),
-    ("short_video", "head_color", "expected 12 frames.*found 7 frames"),
-    ("truncated_h5", "<file>", "a readable file"),
-    ("truncated_mp4", "head_color", "truncated|readable video"),
-])
+@pytest.mark.parametrize(
+    "kind, field, words",
+    [
+        ("action_longer", "action/effector/position", "12 rows.*found 15 rows"),
+        ("nan", "state/joint/position", "non-finite"),
+        ("missing_field", "state/head/position", "missing"),
+        ("camera_file", "<file>", "head_extrinsic_params_aligned.json.*no such file"),
+        ("short_video", "head_color", "expected 12 frames.*found 7 frames"),
+        ("truncated_h5", "<file>", "a readable file"),
+        ("truncated_mp4", "head_color", "truncated|readable video"),
+    ],
+)
 def test_bad_episodes_are_rejected_with_their_reason(tmp_path, g1, kind, field, words):
-    kw = {"action_longer": {"action_rows": 15}, "nan": {"nan": True}, "missing_field": {"drop": "state/head/position"},
-          "camera_file": {"no_camera_file": "head_extrinsic_params_aligned"}, "short_video": {"video_frames": 7}}.get(kind, {})
+    kw = {
+        "action_longer": {"action_rows": 15},
+        "nan": {"nan": True},
+        "missing_field": {"drop": "state/head/position"},
+        "camera_file": {"no_camera_file": "head_extrinsic_params_aligned"},
+        "short_video": {"video_frames": 7},
+    }.get(kind, {})
     _, _, h5 = write_episode(tmp_path, g1, **kw)
     if kind == "truncated_h5":
         h5.write_bytes(h5.read_bytes()[:1000])

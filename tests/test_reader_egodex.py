@@ -30,7 +30,9 @@ def camera_frame_points():
 def camera_poses():
     """(T, 4, 4) camera → world, ARKit axes, moving and turning."""
     P = np.tile(np.eye(4), (T, 1, 1))
-    P[:, :3, :3] = Rotation.from_euler("xyz", np.stack([0.1 * np.arange(T), np.full(T, 0.3), np.zeros(T)], 1)).as_matrix()
+    P[:, :3, :3] = Rotation.from_euler(
+        "xyz", np.stack([0.1 * np.arange(T), np.full(T, 0.3), np.zeros(T)], 1)
+    ).as_matrix()
     P[:, :3, 3] = np.stack([0.02 * np.arange(T), np.full(T, 1.5), np.zeros(T)], 1)
     return P
 
@@ -40,7 +42,9 @@ def write_episode(root, name="part1/basic_pick_place/0", *, nan=False, drop=None
     h5.parent.mkdir(parents=True, exist_ok=True)
     cv = camera_frame_points()
     P = camera_poses()
-    world = np.einsum("tij,thkj->thki", P[:, :3, :3], np.einsum("ij,thkj->thki", GL_FROM_CV, cv)) + P[:, None, None, :3, 3]
+    world = (
+        np.einsum("tij,thkj->thki", P[:, :3, :3], np.einsum("ij,thkj->thki", GL_FROM_CV, cv)) + P[:, None, None, :3, 3]
+    )
     with h5py.File(h5, "w") as f:
         f.attrs["llm_description"] = "Pick up the cup and place it on the plate."
         f["camera/intrinsic"] = K
@@ -65,7 +69,12 @@ def test_loads_an_episode_into_the_camera_frame(tmp_path):
     cv = write_episode(tmp_path)
     reader = EgoDexReader()
     [ref] = list(reader.list_episodes(str(tmp_path)))
-    assert (ref.episode_id, ref.embodiment, ref.n_frames, ref.fps) == ("egodex/part1/basic_pick_place/0", "mano", T, 30.0)
+    assert (ref.episode_id, ref.embodiment, ref.n_frames, ref.fps) == (
+        "egodex/part1/basic_pick_place/0",
+        "mano",
+        T,
+        30.0,
+    )
     assert ref.task == "Pick up the cup and place it on the plate."
     ep = reader.load_episode(ref)
     np.testing.assert_allclose(ep.trajectory.keypoints.reshape(T, 2, 21, 3), cv, atol=1e-9)
@@ -87,17 +96,26 @@ def test_low_confidence_points_become_missing(tmp_path):
     assert np.isnan(kp[3, 1, 8]).all() and np.isfinite(kp[2, 1, 8]).all() and np.isfinite(kp[3, 1, 7]).all()
 
 
-@pytest.mark.parametrize("kind, field, words", [
-    ("nan", "transforms/rightIndexFingerTip", "non-finite"),
-    ("missing_field", "transforms/leftThumbTip", "missing"),
-    ("no_video", "egocentric", "no such file"),
-    ("short_video", "egocentric", "expected 10 frames.*found 6"),
-    ("truncated_video", "egocentric", "truncated|readable video"),
-    ("no_intrinsic", "camera/intrinsic", "missing"),
-])
+@pytest.mark.parametrize(
+    "kind, field, words",
+    [
+        ("nan", "transforms/rightIndexFingerTip", "non-finite"),
+        ("missing_field", "transforms/leftThumbTip", "missing"),
+        ("no_video", "egocentric", "no such file"),
+        ("short_video", "egocentric", "expected 10 frames.*found 6"),
+        ("truncated_video", "egocentric", "truncated|readable video"),
+        ("no_intrinsic", "camera/intrinsic", "missing"),
+    ],
+)
 def test_bad_episodes(tmp_path, kind, field, words):
-    kw = {"nan": {"nan": True}, "missing_field": {"drop": "transforms/leftThumbTip"}, "no_video": {"video": False},
-          "short_video": {"video_frames": 6}, "truncated_video": {}, "no_intrinsic": {"drop": "camera/intrinsic"}}[kind]
+    kw = {
+        "nan": {"nan": True},
+        "missing_field": {"drop": "transforms/leftThumbTip"},
+        "no_video": {"video": False},
+        "short_video": {"video_frames": 6},
+        "truncated_video": {},
+        "no_intrinsic": {"drop": "camera/intrinsic"},
+    }[kind]
     write_episode(tmp_path, **kw)
     if kind == "truncated_video":
         mp4 = next(tmp_path.rglob("*.mp4"))

@@ -22,18 +22,32 @@ def write_episode(root, *, kept_left=None, nan=False, drop=None, frames=None, vi
         j = np.stack([hand_keypoints(curl=t / T, side=side) + [dx, 0.05, 0.45] for t in range(T)])
         if nan and side == "right":
             j[2, 5, 1] = np.nan
-        hands[side] = {"joints_camspace": j, "kept_frames": np.ones(T, int).tolist() if side == "right" or kept_left is None
-                       else kept_left, "beta": np.zeros(10), "hand_pose": np.tile(np.eye(3), (T, 15, 1, 1))}
-    d = {"extrinsics": np.tile(np.eye(4), (T, 1, 1)), "intrinsics": K, "video_name": "P01_01",
-         "video_decode_frame": list(range(FIRST, FIRST + T)) if frames is None else frames, "anno_type": "right",
-         "text": {"right": [("Open the fridge.", (0, T - 1))], "left": []}, "avg_speed": 0.01,
-         "total_rotvec_degree": 3.0, "total_transl_dist": 0.02, **hands}
+        hands[side] = {
+            "joints_camspace": j,
+            "kept_frames": np.ones(T, int).tolist() if side == "right" or kept_left is None else kept_left,
+            "beta": np.zeros(10),
+            "hand_pose": np.tile(np.eye(3), (T, 15, 1, 1)),
+        }
+    d = {
+        "extrinsics": np.tile(np.eye(4), (T, 1, 1)),
+        "intrinsics": K,
+        "video_name": "P01_01",
+        "video_decode_frame": list(range(FIRST, FIRST + T)) if frames is None else frames,
+        "anno_type": "right",
+        "text": {"right": [("Open the fridge.", (0, T - 1))], "left": []},
+        "avg_speed": 0.01,
+        "total_rotvec_degree": 3.0,
+        "total_transl_dist": 0.02,
+        **hands,
+    }
     if drop:
         del d[drop]
     if evil:
+
         class Evil:
             def __reduce__(self):
                 return (os.system, ("echo pwned",))
+
         d["extra"] = Evil()
     np.save(ann / "EPIC_P01_01_ep_000003.npy", np.array(d, dtype=object), allow_pickle=True)
     if video:
@@ -65,18 +79,26 @@ def test_lists_by_name_and_loads(tmp_path):
     np.testing.assert_allclose(got, [FIRST * 8, (FIRST + T - 1) * 8], atol=4)  # frames 10 and 17 of the raw video
 
 
-@pytest.mark.parametrize("kind, field, words", [
-    ("nan", "right.joints_camspace", "non-finite values in 1 kept frames"),
-    ("missing_field", "intrinsics", "missing"),
-    ("gap", "video_decode_frame", "consecutive"),
-    ("no_video", "egocentric", "no such file"),
-    ("short_video", "egocentric", "expected 8 frames.*found 5"),
-    ("evil", "pickle global", "posix.system|nt.system"),
-])
+@pytest.mark.parametrize(
+    "kind, field, words",
+    [
+        ("nan", "right.joints_camspace", "non-finite values in 1 kept frames"),
+        ("missing_field", "intrinsics", "missing"),
+        ("gap", "video_decode_frame", "consecutive"),
+        ("no_video", "egocentric", "no such file"),
+        ("short_video", "egocentric", "expected 8 frames.*found 5"),
+        ("evil", "pickle global", "posix.system|nt.system"),
+    ],
+)
 def test_bad_episodes(tmp_path, kind, field, words):
-    kw = {"nan": {"nan": True}, "missing_field": {"drop": "intrinsics"},
-          "gap": {"frames": [10, 11, 13, 14, 15, 16, 17, 18]}, "no_video": {"video": False},
-          "short_video": {"video_frames": 15}, "evil": {"evil": True}}[kind]
+    kw = {
+        "nan": {"nan": True},
+        "missing_field": {"drop": "intrinsics"},
+        "gap": {"frames": [10, 11, 13, 14, 15, 16, 17, 18]},
+        "no_video": {"video": False},
+        "short_video": {"video_frames": 15},
+        "evil": {"evil": True},
+    }[kind]
     write_episode(tmp_path, **kw)
     [ref] = list(EpicVitraReader().list_episodes(str(tmp_path)))
     with pytest.raises(EpisodeError, match=words) as e:

@@ -46,15 +46,37 @@ def write_droid_v3(root, *, cameras=("exterior_1_left", "wrist_left"), lengths=L
         "episode_index": {"dtype": "int64", "shape": [1], "names": None},
     }
     for c in cameras:
-        features[f"observation.images.{c}"] = {"dtype": "video", "shape": [32, 48, 3], "names": ["height", "width", "channels"]}
+        features[f"observation.images.{c}"] = {
+            "dtype": "video",
+            "shape": [32, 48, 3],
+            "names": ["height", "width", "channels"],
+        }
         features[f"camera_extrinsics.{c}"] = {"dtype": "float64", "shape": [6], "names": None}
     (root / "meta").mkdir()
-    (root / "meta" / "info.json").write_text(json.dumps({
-        "codebase_version": "v3.0", "robot_type": "franka", "fps": FPS, "chunks_size": 1000, "features": features,
-        "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"}))
-    cols = {k: [] for k in ("observation.state.joint_position", "observation.state.gripper_position", "timestamp",
-                            "frame_index", "episode_index", "index")}
+    (root / "meta" / "info.json").write_text(
+        json.dumps(
+            {
+                "codebase_version": "v3.0",
+                "robot_type": "franka",
+                "fps": FPS,
+                "chunks_size": 1000,
+                "features": features,
+                "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+                "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+            }
+        )
+    )
+    cols = {
+        k: []
+        for k in (
+            "observation.state.joint_position",
+            "observation.state.gripper_position",
+            "timestamp",
+            "frame_index",
+            "episode_index",
+            "index",
+        )
+    }
     for c in cameras:
         cols[f"camera_extrinsics.{c}"] = []
     ep_rows, start, t0 = [], 0, 0.0
@@ -71,12 +93,25 @@ def write_droid_v3(root, *, cameras=("exterior_1_left", "wrist_left"), lengths=L
         cols["index"] += list(range(start, start + T))
         for c in cameras:
             cols[f"camera_extrinsics.{c}"] += [list(XYZ) + list(RPY)] * T
-        row = {"episode_index": e, "tasks": [f"task {e}"], "length": T, "data/chunk_index": 0, "data/file_index": 0,
-               "dataset_from_index": start, "dataset_to_index": start + T}
+        row = {
+            "episode_index": e,
+            "tasks": [f"task {e}"],
+            "length": T,
+            "data/chunk_index": 0,
+            "data/file_index": 0,
+            "dataset_from_index": start,
+            "dataset_to_index": start + T,
+        }
         for c in cameras:
             k = f"observation.images.{c}"
-            row.update({f"videos/{k}/chunk_index": 0, f"videos/{k}/file_index": 0,
-                        f"videos/{k}/from_timestamp": t0, f"videos/{k}/to_timestamp": t0 + T / FPS})
+            row.update(
+                {
+                    f"videos/{k}/chunk_index": 0,
+                    f"videos/{k}/file_index": 0,
+                    f"videos/{k}/from_timestamp": t0,
+                    f"videos/{k}/to_timestamp": t0 + T / FPS,
+                }
+            )
         ep_rows.append(row)
         start, t0 = start + T, t0 + T / FPS
     (root / "data" / "chunk-000").mkdir(parents=True)
@@ -96,7 +131,14 @@ def test_lists_droid_episodes_from_metadata(tmp_path):
     refs = list(LeRobotReader().list_episodes(str(root)))
     assert [r.episode_id for r in refs] == ["droid/0", "droid/1"]
     r = refs[1]
-    assert (r.source, r.reader, r.embodiment, r.n_frames, r.fps, r.task) == ("droid", "lerobot", "franka_robotiq", 10, FPS, "task 1")
+    assert (r.source, r.reader, r.embodiment, r.n_frames, r.fps, r.task) == (
+        "droid",
+        "lerobot",
+        "franka_robotiq",
+        10,
+        FPS,
+        "task 1",
+    )
     assert r.cameras == ("observation.images.exterior_1_left", "observation.images.wrist_left")
     assert r.meta["camera"] == "observation.images.exterior_1_left"
     json.dumps(r.meta)  # manifest rows must serialise
@@ -111,8 +153,14 @@ def test_loads_droid_episode_slice_of_shared_files(tmp_path):
     # the gripper signal is whatever the franka DROID adapter makes of the episode's own rows (its unit may change)
     from oscar_embodiments.franka.adapters import from_droid
 
-    want_traj, _ = from_droid({"observation/joint_position": _q(10, 1), "observation/gripper_position": np.linspace(0, 1, 10)},
-                              "exterior_1_left", extrinsic=list(XYZ) + list(RPY), intrinsics=K, image_size=(48, 32), fps=FPS)
+    want_traj, _ = from_droid(
+        {"observation/joint_position": _q(10, 1), "observation/gripper_position": np.linspace(0, 1, 10)},
+        "exterior_1_left",
+        extrinsic=list(XYZ) + list(RPY),
+        intrinsics=K,
+        image_size=(48, 32),
+        fps=FPS,
+    )
     np.testing.assert_allclose(ep.trajectory.gripper, want_traj.gripper, atol=1e-6)
     want = np.eye(4)
     want[:3, :3] = Rotation.from_euler("xyz", RPY).as_matrix()  # second implementation of the Euler convention
@@ -168,7 +216,9 @@ def test_droid_bad_inputs(tmp_path):
 
     root = write_droid_v3(tmp_path / "nodata")
     ref = list(reader.list_episodes(str(root)))[0]
-    tab = pq.read_table(root / "data" / "chunk-000" / "file-000.parquet").drop_columns(["observation.state.gripper_position"])
+    tab = pq.read_table(root / "data" / "chunk-000" / "file-000.parquet").drop_columns(
+        ["observation.state.gripper_position"]
+    )
     pq.write_table(tab, root / "data" / "chunk-000" / "file-000.parquet")
     with pytest.raises(EpisodeError) as e:
         reader.load_episode(ref)
@@ -178,26 +228,65 @@ def test_droid_bad_inputs(tmp_path):
 def write_moma_v3(root, T=12):
     """An AIROA-MoMa LeRobot v3.0 dataset: observation.state named by info.json, a head camera."""
     root.mkdir(parents=True)
-    names = ["arm_lift_joint", "arm_flex_joint", "arm_roll_joint", "wrist_flex_joint", "wrist_roll_joint",
-             "hand_motor_joint", "head_pan_joint", "head_tilt_joint"]
+    names = [
+        "arm_lift_joint",
+        "arm_flex_joint",
+        "arm_roll_joint",
+        "wrist_flex_joint",
+        "wrist_roll_joint",
+        "hand_motor_joint",
+        "head_pan_joint",
+        "head_tilt_joint",
+    ]
     key = "observation.images.head_camera_rgb"
     (root / "meta" / "episodes" / "chunk-000").mkdir(parents=True)
-    (root / "meta" / "info.json").write_text(json.dumps({
-        "codebase_version": "v3.0", "robot_type": "hsr", "fps": 10, "features": {
-            "observation.state": {"dtype": "float32", "shape": [8], "names": names},
-            "timestamp": {"dtype": "float32", "shape": [1], "names": None},
-            key: {"dtype": "video", "shape": [32, 48, 3], "names": ["height", "width", "channels"]}}}))
+    (root / "meta" / "info.json").write_text(
+        json.dumps(
+            {
+                "codebase_version": "v3.0",
+                "robot_type": "hsr",
+                "fps": 10,
+                "features": {
+                    "observation.state": {"dtype": "float32", "shape": [8], "names": names},
+                    "timestamp": {"dtype": "float32", "shape": [1], "names": None},
+                    key: {"dtype": "video", "shape": [32, 48, 3], "names": ["height", "width", "channels"]},
+                },
+            }
+        )
+    )
     state = np.zeros((T, 8))
     state[:, 0] = np.linspace(0.0, 0.3, T)
     state[:, 1] = -0.5
     (root / "data" / "chunk-000").mkdir(parents=True)
-    pq.write_table(pa.table({"observation.state": state.tolist(), "timestamp": (np.arange(T) / 10).tolist(),
-                             "frame_index": list(range(T)), "episode_index": [0] * T}),
-                   root / "data" / "chunk-000" / "file-000.parquet")
-    pq.write_table(pa.Table.from_pylist([{
-        "episode_index": 0, "tasks": ["tidy"], "length": T, "data/chunk_index": 0, "data/file_index": 0,
-        f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0, f"videos/{key}/from_timestamp": 0.0,
-        f"videos/{key}/to_timestamp": T / 10}]), root / "meta" / "episodes" / "chunk-000" / "file-000.parquet")
+    pq.write_table(
+        pa.table(
+            {
+                "observation.state": state.tolist(),
+                "timestamp": (np.arange(T) / 10).tolist(),
+                "frame_index": list(range(T)),
+                "episode_index": [0] * T,
+            }
+        ),
+        root / "data" / "chunk-000" / "file-000.parquet",
+    )
+    pq.write_table(
+        pa.Table.from_pylist(
+            [
+                {
+                    "episode_index": 0,
+                    "tasks": ["tidy"],
+                    "length": T,
+                    "data/chunk_index": 0,
+                    "data/file_index": 0,
+                    f"videos/{key}/chunk_index": 0,
+                    f"videos/{key}/file_index": 0,
+                    f"videos/{key}/from_timestamp": 0.0,
+                    f"videos/{key}/to_timestamp": T / 10,
+                }
+            ]
+        ),
+        root / "meta" / "episodes" / "chunk-000" / "file-000.parquet",
+    )
     d = root / "videos" / key / "chunk-000"
     d.mkdir(parents=True)
     write_video(d / "file-000.mp4", _frames(T, 0), fps=10)
@@ -208,7 +297,11 @@ def test_loads_airoa_moma_episode(tmp_path):
     state = write_moma_v3(tmp_path / "moma")
     reader = LeRobotReader()
     ref = next(iter(reader.list_episodes(str(tmp_path / "moma"))))
-    assert (ref.episode_id, ref.embodiment, ref.cameras) == ("airoa_moma/0", "hsr", ("observation.images.head_camera_rgb",))
+    assert (ref.episode_id, ref.embodiment, ref.cameras) == (
+        "airoa_moma/0",
+        "hsr",
+        ("observation.images.head_camera_rgb",),
+    )
     ep = reader.load_episode(ref)
     from oscar_embodiments.hsr import JOINTS
 
@@ -219,7 +312,8 @@ def test_loads_airoa_moma_episode(tmp_path):
 
 def test_unknown_lerobot_dataset_is_refused(tmp_path):
     (tmp_path / "meta").mkdir()
-    (tmp_path / "meta" / "info.json").write_text(json.dumps({"codebase_version": "v3.0", "fps": 30,
-                                                             "features": {"action": {"dtype": "float32"}}}))
+    (tmp_path / "meta" / "info.json").write_text(
+        json.dumps({"codebase_version": "v3.0", "fps": 30, "features": {"action": {"dtype": "float32"}}})
+    )
     with pytest.raises(ValueError, match="expected a DROID .* or AIROA-MoMa"):
         list(LeRobotReader().list_episodes(str(tmp_path)))

@@ -37,8 +37,9 @@ def test_droid_from_the_hub_ingests_with_intrinsics_from_the_command_line(tmp_pa
 
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps({"exterior_1_left": list(K)}))
-    rc, out, err = _ingest(capsys, root, "--reader", "lerobot", "--reader-option", f"intrinsics={cams}",
-                           "--out", tmp_path / "run")
+    rc, out, err = _ingest(
+        capsys, root, "--reader", "lerobot", "--reader-option", f"intrinsics={cams}", "--out", tmp_path / "run"
+    )
     assert rc == 0, err
     assert "2 of 2 episodes live" in out
     rows = read_stage(str(tmp_path / "run" / "ingest"))
@@ -50,17 +51,28 @@ def test_droid_from_the_hub_ingests_with_intrinsics_from_the_command_line(tmp_pa
 
 def test_a_yaml_value_works_as_well_as_a_file(tmp_path, capsys):
     root = write_droid_v3(tmp_path / "droid")
-    rc, out, err = _ingest(capsys, root, "--reader", "lerobot", "--reader-option",
-                           "intrinsics={exterior_1_left: [" + ", ".join(f"{k:g}" for k in K) + "]}", "--out", tmp_path / "run")
+    rc, out, err = _ingest(
+        capsys,
+        root,
+        "--reader",
+        "lerobot",
+        "--reader-option",
+        "intrinsics={exterior_1_left: [" + ", ".join(f"{k:g}" for k in K) + "]}",
+        "--out",
+        tmp_path / "run",
+    )
     assert rc == 0 and "2 of 2 episodes live" in out, err
 
 
-@pytest.mark.parametrize("option, message", [
-    ("intrinsic=cams.json", "reader 'lerobot' has no such option; it takes: intrinsics"),
-    ("intrinsics=5", "--reader-option intrinsics (reader 'lerobot'): expected a mapping"),
-    ("intrinsics=missing.json", "expected a .json file, found no such file"),
-    ("intrinsics", "expected NAME=VALUE"),
-])
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        ("intrinsic=cams.json", "reader 'lerobot' has no such option; it takes: intrinsics"),
+        ("intrinsics=5", "--reader-option intrinsics (reader 'lerobot'): expected a mapping"),
+        ("intrinsics=missing.json", "expected a .json file, found no such file"),
+        ("intrinsics", "expected NAME=VALUE"),
+    ],
+)
 def test_a_bad_reader_option_is_refused_before_listing(tmp_path, capsys, monkeypatch, option, message):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "cams.json").write_text("{}")
@@ -73,9 +85,13 @@ def test_a_bad_reader_option_is_refused_before_listing(tmp_path, capsys, monkeyp
 
 def test_option_values_are_type_checked_against_the_constructor(tmp_path):
     assert check_reader_options(DroidRawReader, parse_reader_options(["image_size=[1280, 720]"])) == {
-        "image_size": (1280, 720)}
-    with pytest.raises(ReaderOptionError, match=r"--reader-option image_size \(reader 'droid_raw'\)\[1\]: expected an "
-                                                r"integer, found str 'x'"):
+        "image_size": (1280, 720)
+    }
+    with pytest.raises(
+        ReaderOptionError,
+        match=r"--reader-option image_size \(reader 'droid_raw'\)\[1\]: expected an "
+        r"integer, found str 'x'",
+    ):
         check_reader_options(DroidRawReader, {"image_size": [1280, "x"]})
     with pytest.raises(ReaderOptionError, match="expected a list of 2 values"):
         check_reader_options(DroidRawReader, {"image_size": [1, 2, 3]})
@@ -101,14 +117,18 @@ def test_an_unreadable_episode_table_names_itself_and_the_rest_goes_on(tmp_path,
     assert [r.episode_id for r in refs] == ["droid/0", "droid/1", "droid/meta/episodes/chunk-000/file-001.parquet"]
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps({"exterior_1_left": list(K)}))
-    rc, out, err = _ingest(capsys, root, "--reader", "lerobot", "--reader-option", f"intrinsics={cams}",
-                           "--out", tmp_path / "run")
+    rc, out, err = _ingest(
+        capsys, root, "--reader", "lerobot", "--reader-option", f"intrinsics={cams}", "--out", tmp_path / "run"
+    )
     assert rc == 0, err
     assert "2 of 3 episodes live" in out
     rows = {r["id"]: r for r in read_stage(str(tmp_path / "run" / "ingest"))}
     bad = rows["droid/meta/episodes/chunk-000/file-001.parquet"]
     assert bad["ingest_status"] == "rejected"
-    assert str(broken) in bad["ingest_reason"] and "a readable LeRobot episode table (meta/episodes)" in bad["ingest_reason"]
+    assert (
+        str(broken) in bad["ingest_reason"]
+        and "a readable LeRobot episode table (meta/episodes)" in bad["ingest_reason"]
+    )
     assert "magic bytes" in bad["ingest_reason"].lower() or "parquet" in bad["ingest_reason"].lower()
     assert rows["droid/0"]["ingest_status"] == rows["droid/1"]["ingest_status"] == "ok"
 
@@ -129,8 +149,11 @@ def test_a_broken_line_of_a_v21_episode_list_is_one_rejected_row(tmp_path):
     refs = list(reader.list_episodes(str(tmp_path)))
     base = "interndata_a1/articulation_tasks/franka/close_the_electriccooker"
     assert [r.episode_id for r in refs] == [f"{base}/0", f"{base}/meta/episodes.jsonl:2", f"{base}/2"]
-    with pytest.raises(EpisodeError, match=r"episodes.jsonl: field '<file>': expected a readable LeRobot episode "
-                                           r"table \(meta/episodes\); .* found line 2: expected \{episode_index"):
+    with pytest.raises(
+        EpisodeError,
+        match=r"episodes.jsonl: field '<file>': expected a readable LeRobot episode "
+        r"table \(meta/episodes\); .* found line 2: expected \{episode_index",
+    ):
         reader.load_episode(refs[1])
     assert reader.load_episode(refs[2]).n_frames == 10
 
@@ -145,5 +168,7 @@ def test_a_plugin_reader_taking_any_keyword_gets_its_options_unchecked_by_name()
             self.root, self.extra = root, extra
 
     assert check_reader_options(Open, {"root": "/d", "anything": [1, 2]}) == {"root": "/d", "anything": [1, 2]}
-    with pytest.raises(ReaderOptionError, match="--reader-option root \\(reader 'open'\\): expected a string, found int 3"):
+    with pytest.raises(
+        ReaderOptionError, match="--reader-option root \\(reader 'open'\\): expected a string, found int 3"
+    ):
         check_reader_options(Open, {"root": 3})

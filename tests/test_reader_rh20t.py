@@ -32,8 +32,9 @@ def save(path, obj):
     np.save(path, np.array(obj, dtype=object) if isinstance(obj, dict) else obj, allow_pickle=True)
 
 
-def write_scene(root, cfg=5, *, joints=7, wide_gripper=False, nan=False, no_gripper_file=False, video_frames=None,
-                stamp_gap=False):
+def write_scene(
+    root, cfg=5, *, joints=7, wide_gripper=False, nan=False, no_gripper_file=False, video_frames=None, stamp_gap=False
+):
     _, in_hand, tc, align = CONFIGS[cfg]
     tc = np.array(tc)
     # E[serial] such that rh20t's formula E[serial] @ inv(E[in_hand]) @ tc @ inv(T_base_tcp) @ align gives E_BASE
@@ -59,10 +60,15 @@ def write_scene(root, cfg=5, *, joints=7, wide_gripper=False, nan=False, no_grip
     width = np.linspace(80.0 if cfg == 5 else 85.0, 10.0, T)
     if wide_gripper:
         width[2] = 300.0
-    keys = stamps[first:first + T]
-    joint = {s: {t: np.r_[q[i], np.zeros(7)][: 14 if cfg == 5 else joints] for i, t in enumerate(keys)} for s in (STATIC, OTHER)}
-    grip = {s: {t: {"gripper_info": [width[i], 0.0, 0.0], "gripper_command": [0, 0, 0]} for i, t in enumerate(keys)}
-            for s in (STATIC, OTHER)}
+    keys = stamps[first : first + T]
+    joint = {
+        s: {t: np.r_[q[i], np.zeros(7)][: 14 if cfg == 5 else joints] for i, t in enumerate(keys)}
+        for s in (STATIC, OTHER)
+    }
+    grip = {
+        s: {t: {"gripper_info": [width[i], 0.0, 0.0], "gripper_command": [0, 0, 0]} for i, t in enumerate(keys)}
+        for s in (STATIC, OTHER)
+    }
     save(scene / "transformed" / "joint.npy", joint)
     if not no_gripper_file:
         save(scene / "transformed" / "gripper.npy", grip)
@@ -83,7 +89,10 @@ def test_loads_a_scene(tmp_path, cfg, embodiment):
     reader = RH20TReader()
     [ref] = list(reader.list_episodes(str(tmp_path)))
     assert (ref.episode_id, ref.embodiment, ref.cameras) == (
-        f"rh20t_cfg{cfg}/task_0001_user_0016_scene_0001_cfg_000{cfg}", embodiment, (STATIC, OTHER))
+        f"rh20t_cfg{cfg}/task_0001_user_0016_scene_0001_cfg_000{cfg}",
+        embodiment,
+        (STATIC, OTHER),
+    )
     ep = reader.load_episode(ref)
     np.testing.assert_allclose(ep.trajectory.q, q, atol=1e-12)
     np.testing.assert_allclose(ep.camera.extrinsic, E_BASE, atol=1e-9)
@@ -107,17 +116,26 @@ def test_calib_tcp_matches_rh20t_preprocessing():
     np.testing.assert_allclose(k[:3], [0.4, 0.1, 0.3])
 
 
-@pytest.mark.parametrize("kind, field, words", [
-    ("nan", "joint['036422060215'][1629432100500]", "non-finite"),
-    ("wide_gripper", "gripper['036422060215'].gripper_info[0]", "300 at frame 2"),
-    ("no_gripper_file", "<file>", "no such file"),
-    ("short_video", "036422060215", "expected 8 frames.*found 3"),
-    ("stamp_gap", "color", "consecutive video frames"),
-    ("no_intrinsics_file", "<file>", "intrinsics.npy.*no such file"),
-])
+@pytest.mark.parametrize(
+    "kind, field, words",
+    [
+        ("nan", "joint['036422060215'][1629432100500]", "non-finite"),
+        ("wide_gripper", "gripper['036422060215'].gripper_info[0]", "300 at frame 2"),
+        ("no_gripper_file", "<file>", "no such file"),
+        ("short_video", "036422060215", "expected 8 frames.*found 3"),
+        ("stamp_gap", "color", "consecutive video frames"),
+        ("no_intrinsics_file", "<file>", "intrinsics.npy.*no such file"),
+    ],
+)
 def test_bad_scenes(tmp_path, kind, field, words):
-    kw = {"nan": {"nan": True}, "wide_gripper": {"wide_gripper": True}, "no_gripper_file": {"no_gripper_file": True},
-          "short_video": {"video_frames": 5}, "stamp_gap": {"stamp_gap": True}, "no_intrinsics_file": {}}[kind]
+    kw = {
+        "nan": {"nan": True},
+        "wide_gripper": {"wide_gripper": True},
+        "no_gripper_file": {"no_gripper_file": True},
+        "short_video": {"video_frames": 5},
+        "stamp_gap": {"stamp_gap": True},
+        "no_intrinsics_file": {},
+    }[kind]
     write_scene(tmp_path, 5, **kw)
     if kind == "no_intrinsics_file":
         next(tmp_path.rglob("intrinsics.npy")).unlink()

@@ -29,9 +29,11 @@ def test_all_builtin_readers_register_through_the_entry_point():
 
 
 def test_listing_the_readers_imports_no_heavy_dependency():
-    code = ("import sys; from oscar_core.plugin.registry import Registry; r = Registry(); "
-            "[r.get_reader(n) for n in r.reader_names()]; "
-            "print([m for m in ('h5py', 'pyarrow', 'av') if m in sys.modules])")
+    code = (
+        "import sys; from oscar_core.plugin.registry import Registry; r = Registry(); "
+        "[r.get_reader(n) for n in r.reader_names()]; "
+        "print([m for m in ('h5py', 'pyarrow', 'av') if m in sys.modules])"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out.endswith("[]"), out
 
@@ -55,8 +57,15 @@ def _fixtures(tmp_path):
     epic.write_episode(tmp_path / "epic")
     idata.write_task(tmp_path / "interndata")
     rh.write_scene(tmp_path / "rh20t", 7)
-    return {"lerobot": "lerobot", "agibot_world": "agibot", "droid_raw": "droid", "egodex": "egodex",
-            "epic_vitra": "epic", "interndata_a1": "interndata", "rh20t": "rh20t"}
+    return {
+        "lerobot": "lerobot",
+        "agibot_world": "agibot",
+        "droid_raw": "droid",
+        "egodex": "egodex",
+        "epic_vitra": "epic",
+        "interndata_a1": "interndata",
+        "rh20t": "rh20t",
+    }
 
 
 @pytest.mark.slow  # builds one dataset per reader (the AgiBot one runs FK: ~15 s on a cold process)
@@ -110,12 +119,20 @@ def test_missing_optional_dependency_names_the_extra(tmp_path, monkeypatch):
     from oscar_core.data.readers.agibot_world import AgiBotWorldReader
     from oscar_core.data.readers.lerobot import LeRobotReader
 
-    with pytest.raises(ImportError, match=r"'agibot_world' dataset reader needs .*'h5py'.*pip install \"oscar-wm\[data\]\""):
+    with pytest.raises(
+        ImportError, match=r"'agibot_world' dataset reader needs .*'h5py'.*pip install \"oscar-wm\[data\]\""
+    ):
         list(AgiBotWorldReader().list_episodes(str(tmp_path)))
     (tmp_path / "meta" / "episodes").mkdir(parents=True)
-    (tmp_path / "meta" / "info.json").write_text(json.dumps({
-        "codebase_version": "v3.0", "fps": 15, "features": {"observation.state.joint_position": {},
-                                                             "observation.state.gripper_position": {}}}))
+    (tmp_path / "meta" / "info.json").write_text(
+        json.dumps(
+            {
+                "codebase_version": "v3.0",
+                "fps": 15,
+                "features": {"observation.state.joint_position": {}, "observation.state.gripper_position": {}},
+            }
+        )
+    )
     with pytest.raises(ImportError, match=r"'lerobot' dataset reader needs .*'pyarrow'.*oscar-wm\[data\]"):
         list(LeRobotReader().list_episodes(str(tmp_path)))
 

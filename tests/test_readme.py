@@ -64,8 +64,14 @@ def test_the_install_line_and_the_extras_table_name_every_extra():
 
 def test_the_readme_says_nothing_about_the_projects_history():
     assert HISTORY.findall(README.read_text()) == []
-    for page in ["index.md", "benchmarks.md", "rendering.md", "cli.md", "architecture.md", *(
-            f"studies/{p.name}" for p in (DOCS / "studies").glob("*.md"))]:
+    for page in [
+        "index.md",
+        "benchmarks.md",
+        "rendering.md",
+        "cli.md",
+        "architecture.md",
+        *(f"studies/{p.name}" for p in (DOCS / "studies").glob("*.md")),
+    ]:
         assert HISTORY.findall((DOCS / page).read_text()) == [], page
 
 
@@ -87,25 +93,33 @@ def test_the_checks_notice_a_missing_extra_and_a_history_phrase():
     text = 'pip install "oscar-wm[mano]"'
     assert set(re.search(r'pip install "oscar-wm\[([a-z,]+)\]"', text).group(1).split(",")) != extras() - {"dev"}
     assert HISTORY.findall("as issue 23 asked, unlike the old default") == ["issue 23", "the old default"]
-    assert bash_blocks("```bash\n# a comment\noscar a\n\noscar b --x\n```\n```console\noscar c\n```\n") \
-        == ["oscar a", "oscar b --x"]
+    assert bash_blocks("```bash\n# a comment\noscar a\n\noscar b --x\n```\n```console\noscar c\n```\n") == [
+        "oscar a",
+        "oscar b --x",
+    ]
 
 
 @pytest.mark.slow
 def test_the_tour_runs_as_printed(tmp_path):
     bin_dir = Path(sys.executable).parent
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}", "OSCAR_DISABLE_PROGRESS_BARS": "1"}
+    env = {
+        **os.environ,
+        "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}",
+        "OSCAR_DISABLE_PROGRESS_BARS": "1",
+    }
     probe = subprocess.run([str(bin_dir / "oscar"), "toyworld", "example", "--help"], capture_output=True, env=env)
     if probe.returncode != 0:
-        pytest.skip("`oscar toyworld example --help` exits non-zero: the command the tour's rollout needs is not "
-                    "in this checkout yet")
+        pytest.skip(
+            "`oscar toyworld example --help` exits non-zero: the command the tour's rollout needs is not "
+            "in this checkout yet"
+        )
     (tmp_path / "examples").symlink_to(ROOT / "examples")  # the scratch folder stands for the clone's root
     commands = bash_blocks(section(README.read_text(), "A five-minute tour"))
     assert len(commands) >= 5
     for command in commands:
-        proc = subprocess.run(shlex.split(command), cwd=tmp_path, env=env, capture_output=True, text=True,
-                              timeout=1800)
-        assert proc.returncode == 0 and "Traceback" not in proc.stderr, \
+        proc = subprocess.run(shlex.split(command), cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1800)
+        assert proc.returncode == 0 and "Traceback" not in proc.stderr, (
             f"README tour: {command}\nexit {proc.returncode}\n{proc.stderr[-3000:]}"
+        )
     for made in ("skeleton.mp4", "toy_rollout.mp4", "toy_eval/report.html", "toy_eval/report.json"):
         assert (tmp_path / made).is_file(), f"README tour: {made} was not written"

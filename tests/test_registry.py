@@ -69,29 +69,60 @@ def test_builtin_example_plugin_registers_through_the_same_group():
 
 def test_broken_plugins_are_reported_and_others_still_load(site):
     fake_distribution(site, "oscar-good", "1.0", {"oscar_good": good_module("good")}, {"good": "oscar_good"})
-    fake_distribution(site, "oscar-broken-import", "0.1", {"oscar_broken": "import does_not_exist_anywhere\n"},
-                      {"broken": "oscar_broken"})
-    fake_distribution(site, "oscar-raises", "0.2", {"oscar_raises": '''
+    fake_distribution(
+        site,
+        "oscar-broken-import",
+        "0.1",
+        {"oscar_broken": "import does_not_exist_anywhere\n"},
+        {"broken": "oscar_broken"},
+    )
+    fake_distribution(
+        site,
+        "oscar-raises",
+        "0.2",
+        {
+            "oscar_raises": """
         from oscar_core import hookimpl
         @hookimpl
         def oscar_register_embodiments():
             raise RuntimeError("boom")
-        '''}, {"raises": "oscar_raises"})
-    fake_distribution(site, "oscar-badclass", "0.3", {"oscar_badclass": '''
+        """
+        },
+        {"raises": "oscar_raises"},
+    )
+    fake_distribution(
+        site,
+        "oscar-badclass",
+        "0.3",
+        {
+            "oscar_badclass": """
         from oscar_core import Embodiment, hookimpl
         class Bad(Embodiment):
             name = "Bad Name"
         @hookimpl
         def oscar_register_embodiments():
             return [Bad, int]
-        '''}, {"badclass": "oscar_badclass"})
-    fake_distribution(site, "oscar-zdupe", "9.9", {"oscar_dupe": good_module("good", cls="Again")}, {"dupe": "oscar_dupe"})
-    fake_distribution(site, "oscar-badhook", "0.4", {"oscar_badhook": '''
+        """
+        },
+        {"badclass": "oscar_badclass"},
+    )
+    fake_distribution(
+        site, "oscar-zdupe", "9.9", {"oscar_dupe": good_module("good", cls="Again")}, {"dupe": "oscar_dupe"}
+    )
+    fake_distribution(
+        site,
+        "oscar-badhook",
+        "0.4",
+        {
+            "oscar_badhook": """
         from oscar_core import hookimpl
         @hookimpl
         def oscar_register_embodiments(unexpected_argument):
             return []
-        '''}, {"badhook": "oscar_badhook"})
+        """
+        },
+        {"badhook": "oscar_badhook"},
+    )
     with pytest.warns(UserWarning):
         reg = Registry()
     assert "good" in reg.names()
@@ -110,9 +141,13 @@ def test_broken_plugins_are_reported_and_others_still_load(site):
 
 
 def test_contract_checked_against_the_urdf_names_the_distribution(site):
-    fake_distribution(site, "oscar-wronglink", "2.0",
-                      {"oscar_wronglink": good_module("wronglink", links='"base_link", "no_such_link"')},
-                      {"wronglink": "oscar_wronglink"})
+    fake_distribution(
+        site,
+        "oscar-wronglink",
+        "2.0",
+        {"oscar_wronglink": good_module("wronglink", links='"base_link", "no_such_link"')},
+        {"wronglink": "oscar_wronglink"},
+    )
     reg = Registry(warn=False)
     with pytest.raises(PluginError, match=r"(?s)'wronglink' from oscar-wronglink 2.0.*no_such_link"):
         reg.get("wronglink")
@@ -143,8 +178,9 @@ def test_broken_one_file_plugin(tmp_path, site):
 
 def test_autoload_can_be_disabled_and_plugins_blocked(site, monkeypatch):
     fake_distribution(site, "oscar-alpha", "1.0", {"oscar_alpha": good_module("alpha")}, {"alpha": "oscar_alpha"})
-    fake_distribution(site, "oscar-broken-import", "0.1", {"oscar_broken2": "raise ImportError('x')\n"},
-                      {"broken": "oscar_broken2"})
+    fake_distribution(
+        site, "oscar-broken-import", "0.1", {"oscar_broken2": "raise ImportError('x')\n"}, {"broken": "oscar_broken2"}
+    )
     monkeypatch.setenv("OSCAR_DISABLE_PLUGIN_AUTOLOAD", "1")
     assert Registry(warn=False).names() == []
     monkeypatch.delenv("OSCAR_DISABLE_PLUGIN_AUTOLOAD")
@@ -159,4 +195,6 @@ def test_every_hook_is_documented_with_its_signature():
     assert hooks, "no hooks found"
     for name in hooks:
         sig = f"{name}{inspect.signature(getattr(hookspecs, name))}"
-        assert re.search(rf"^### `{re.escape(sig)}`$", docs, re.M), f"hook {sig} is not documented in docs/write-a-plugin.md"
+        assert re.search(rf"^### `{re.escape(sig)}`$", docs, re.M), (
+            f"hook {sig} is not documented in docs/write-a-plugin.md"
+        )

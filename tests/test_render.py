@@ -60,7 +60,7 @@ def test_invisible_or_nan_point_removes_only_its_own_segments():
 
 def test_far_off_image_endpoint_is_clipped():
     near = np.array([[100.0, 100.0], [700.0, 100.0 + 600.0 * 0.25]])  # off the right edge
-    far = np.array([[100.0, 100.0], [100.0 + 1e9, 100.0 + 0.25e9]])    # same line, 1e9 px away
+    far = np.array([[100.0, 100.0], [100.0 + 1e9, 100.0 + 0.25e9]])  # same line, 1e9 px away
     a, b = draw(near)[0], draw(far)[0]
     assert a[:, :500].any()
     diff = np.abs(a.astype(int) - b.astype(int))
@@ -75,8 +75,11 @@ def test_segment_between_two_off_image_points_crossing_the_image_is_drawn():
 def test_thickness_scales_with_resolution():
     def lit_column(scale):
         W, H = 512 * scale, 288 * scale
-        out = draw([[50.0 * scale, 140.3 * scale], [450.0 * scale, 140.3 * scale]], size=(W, H), pcol=[(0, 0, 0)] * 2)[0]
+        out = draw([[50.0 * scale, 140.3 * scale], [450.0 * scale, 140.3 * scale]], size=(W, H), pcol=[(0, 0, 0)] * 2)[
+            0
+        ]
         return out[:, 250 * scale, 0].astype(float).sum() / 255.0  # ink across the line
+
     assert lit_column(2) / lit_column(1) == pytest.approx(2.0, rel=0.15)
 
 
@@ -110,7 +113,9 @@ def test_nan_openness_hides_the_indicator():
 
 def test_bad_arguments_are_named():
     with pytest.raises(ValueError, match="uv must have shape"):
-        rasterise(np.zeros((3, 2)), np.ones((3, 2), bool), [(0, 1)], (64, 64), edge_colors=[RED], point_colors=[RED] * 2)
+        rasterise(
+            np.zeros((3, 2)), np.ones((3, 2), bool), [(0, 1)], (64, 64), edge_colors=[RED], point_colors=[RED] * 2
+        )
     with pytest.raises(ValueError, match="edges index out of range"):
         draw([[1.0, 1.0], [2.0, 2.0]], edges=[(0, 5)])
 
@@ -120,9 +125,15 @@ def test_bad_arguments_are_named():
 
 def segment(p0, p1, *, size=(512, 288), line_width=2.0):
     """(H, W) intensity image of one white segment without dots."""
-    out = rasterise(np.array([[p0, p1]], float), np.ones((1, 2), bool), [(0, 1)], size,
-                    edge_colors=[(255, 255, 255)], point_colors=[(0, 0, 0)] * 2,
-                    style=SkeletonStyle(line_width=line_width, point_radius=0))
+    out = rasterise(
+        np.array([[p0, p1]], float),
+        np.ones((1, 2), bool),
+        [(0, 1)],
+        size,
+        edge_colors=[(255, 255, 255)],
+        point_colors=[(0, 0, 0)] * 2,
+        style=SkeletonStyle(line_width=line_width, point_radius=0),
+    )
     return out[0, ..., 0]
 
 
@@ -216,7 +227,7 @@ def test_gripper_ring_marks_the_open_size_and_openness_is_clipped():
     style = SkeletonStyle()
     base = np.array([[10.0, 10.0], [20.0, 10.0]])
     closed = draw(base, grippers=marks(0.0))[0]
-    ring = closed[144, 256 + 7:256 + 12]  # 9 px out: the open-size ring, in the open colour
+    ring = closed[144, 256 + 7 : 256 + 12]  # 9 px out: the open-size ring, in the open colour
     assert ring[:, 1].max() > 100 and not ring[:, 0].any()
     assert not closed[144, 256 + 6].any()  # black between the closed disc and the ring
     np.testing.assert_array_equal(draw(base, grippers=marks(1.7))[0], draw(base, grippers=marks(1.0))[0])

@@ -109,7 +109,7 @@ class Points:
         t0 = int(traj.timestamps[0])
         T = len(traj)
         G = self.g.shape[1]
-        return SkeletonFrames(self.pts[t0:t0 + T], self.g[t0:t0 + T], np.ones((T, G)), None)
+        return SkeletonFrames(self.pts[t0 : t0 + T], self.g[t0 : t0 + T], np.ones((T, G)), None)
 
 
 def points_traj(T):
@@ -164,8 +164,10 @@ def test_empty_view_warns_naming_the_frames_and_strict_makes_it_an_error():
         warnings.simplefilter("always")
         list(iter_skeleton_chunks(emb, points_traj(T), camera(), chunk_frames=3, camera_source="cam.json"))
     messages = [str(w.message) for w in caught if w.category is EmptyViewWarning]
-    assert messages == ["cam.json: the camera sees nothing of the robot (every point behind the camera or "
-                        "outside the image) in 4 of 10 frames: 2-4, 8"]
+    assert messages == [
+        "cam.json: the camera sees nothing of the robot (every point behind the camera or "
+        "outside the image) in 4 of 10 frames: 2-4, 8"
+    ]
     with pytest.raises(EmptyViewError, match="cam.json.*2 of 10 frames: 2-3.*strict"):
         list(iter_skeleton_chunks(emb, points_traj(T), camera(), chunk_frames=4, strict=True, camera_source="cam.json"))
 
@@ -193,8 +195,8 @@ def test_rgb_to_yuv420p_is_bt601_limited_range_with_averaged_chroma(H, W):
     flat = got.reshape(-1)
     n, m = H * W, (H // 2) * (W // 2)
     assert np.abs(got[:H] - ycc[..., 0]).max() <= 1.0
-    assert np.abs(flat[n:n + m].reshape(H // 2, W // 2) - mean[..., 1]).max() <= 2.0
-    assert np.abs(flat[n + m:].reshape(H // 2, W // 2) - mean[..., 2]).max() <= 2.0
+    assert np.abs(flat[n : n + m].reshape(H // 2, W // 2) - mean[..., 1]).max() <= 2.0
+    assert np.abs(flat[n + m :].reshape(H // 2, W // 2) - mean[..., 2]).max() <= 2.0
 
 
 @pytest.mark.parametrize("yuv", ["opencv", "swscale"])
@@ -204,7 +206,7 @@ def test_h264_of_a_skeleton_keeps_its_colours(tmp_path, yuv):
     emb, traj, cam = toyarm()
     video = render_skeleton_video(emb, traj.time_slice(0, 12), cam, (320, 180))
     back = read_video(write_video(tmp_path / "s.mp4", video, 10, yuv=yuv)).astype(float)
-    psnr = 10 * np.log10(255 ** 2 / np.mean((back - video) ** 2))
+    psnr = 10 * np.log10(255**2 / np.mean((back - video) ** 2))
     assert psnr > 33, psnr
 
 
@@ -224,4 +226,6 @@ def test_a_plugin_that_overrides_fk_keeps_its_own_kinematics():
     plain = emb.frames(traj.time_slice(0, 3))
     moved = shifted.frames(traj.time_slice(0, 3))
     assert calls == ["cpu"]
-    np.testing.assert_allclose(moved.points - plain.points, np.broadcast_to([0, 0, 0.05], plain.points.shape), atol=1e-12)
+    np.testing.assert_allclose(
+        moved.points - plain.points, np.broadcast_to([0, 0, 0.05], plain.points.shape), atol=1e-12
+    )

@@ -37,13 +37,29 @@ def eval_report(tmp_path_factory):
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
     root = tmp_path_factory.mktemp("eval")
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5, fps=15.0))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, fps=15.0),
+    )
     mdir = oscar_zoo.export(model, root / "tiny")
     manifest = make_study(root / "study")
     out = root / "out"
-    argv = ["eval", "run", str(manifest), "--model", str(mdir), "--out", str(out), "--judge",
-            str(manifest.parent / "judge_fns.py:judge"), "--pairwise", "--steps", "1", "--no-progress"]
+    argv = [
+        "eval",
+        "run",
+        str(manifest),
+        "--model",
+        str(mdir),
+        "--out",
+        str(out),
+        "--judge",
+        str(manifest.parent / "judge_fns.py:judge"),
+        "--pairwise",
+        "--steps",
+        "1",
+        "--no-progress",
+    ]
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         code = main(argv)
@@ -56,16 +72,30 @@ def eval_report(tmp_path_factory):
 def test_eval_run_report_plays_and_matches_report_json(eval_report, tmp_path, monkeypatch):
     monkeypatch.setenv("OSCAR_TEST_JUDGE_LOG", str(tmp_path / "judge.log"))
     report = report_json(eval_report)
-    check = open_page(eval_report / "report.html", tmp_path / "eval.png",
-                      select={"policy": "#policies td[data-field]", "metric": "#fidelity td[data-metric]",
-                              "cell": ".item [data-field]", "items": ".item"},
-                      screenshot_at="#rollouts")
+    check = open_page(
+        eval_report / "report.html",
+        tmp_path / "eval.png",
+        select={
+            "policy": "#policies td[data-field]",
+            "metric": "#fidelity td[data-metric]",
+            "cell": ".item [data-field]",
+            "items": ".item",
+        },
+        screenshot_at="#rollouts",
+    )
     assert check.problems == []
     assert len(check.videos) == 7  # 6 rollouts + the one real video
     assert all(v["width"] > 0 for v in check.videos)
     pol = {p["policy"]: p for p in report["policies"]}
-    specs = {"cells": "d", "real_success_rate": ".3f", "wm_success_rate": ".3f", "wm_mean_partial": ".1f",
-             "not_judged": "d", "real_score": ".4g", "bt_elo": ".1f"}
+    specs = {
+        "cells": "d",
+        "real_success_rate": ".3f",
+        "wm_success_rate": ".3f",
+        "wm_mean_partial": ".1f",
+        "not_judged": "d",
+        "real_score": ".4g",
+        "bt_elo": ".1f",
+    }
     # each td sits in a row whose data-policy names the policy: read it through the row order
     tds = check.texts["policy"]
     assert len(tds) == len(pol) * len(specs)
@@ -73,10 +103,10 @@ def test_eval_run_report_plays_and_matches_report_json(eval_report, tmp_path, mo
         p = report["policies"][k // len(specs)]
         assert td["text"] == _fmt(p[td["data"]["field"]], specs[td["data"]["field"]]), (p["policy"], td)
     m = report["comparison"]["metrics"]
-    mspecs = {"mmrv": ".3f", "mmrv_simpler": ".3f", "spearman_rho": "+.3f", "pearson_r": "+.3f",
-              "sisr_delta_pp": ".2f"}
+    mspecs = {"mmrv": ".3f", "mmrv_simpler": ".3f", "spearman_rho": "+.3f", "pearson_r": "+.3f", "sisr_delta_pp": ".2f"}
     assert {t["data"]["metric"]: t["text"] for t in check.texts["metric"]} == {
-        k: _fmt(m[k], s) for k, s in mspecs.items()}
+        k: _fmt(m[k], s) for k, s in mspecs.items()
+    }
     cells = {c["cell"]: c for c in report["cells"]}
     assert sorted(i["data"]["cell"] for i in check.texts["items"]) == sorted(cells)
     for item in check.texts["items"]:
@@ -101,8 +131,11 @@ def _check_provenance(check, command: str):
 def test_eval_run_prints_the_page_and_the_page_says_what_made_it_and_defines_its_metrics(eval_report, tmp_path):
     printed = (eval_report.parent / "stdout.txt").read_text()
     assert f"open {eval_report / 'report.html'} in a browser" in printed
-    check = open_page(eval_report / "report.html", tmp_path / "eval.png",
-                      select={"made": "#provenance [data-field]", "defs": "#definitions dd"})
+    check = open_page(
+        eval_report / "report.html",
+        tmp_path / "eval.png",
+        select={"made": "#provenance [data-field]", "defs": "#definitions dd"},
+    )
     _check_provenance(check, (eval_report.parent / "command.txt").read_text())
     defs = {d["data"]["define"]: d["text"] for d in check.texts["defs"]}
     assert set(defs) == {"mmrv", "mmrv_simpler", "sisr_delta_pp"}
@@ -128,8 +161,7 @@ def test_a_bradley_terry_fit_at_the_bound_shows_no_board(eval_report, tmp_path):
     report = report_json(folder)
     report["bradley_terry"] = {**bt.to_dict(), "warnings": [], "partial": None}
     write_html_report(folder, report, load_manifest(report["manifest"]), [], progress=False)
-    check = open_page(folder / "report.html", tmp_path / "bt.png",
-                      select={"note": "#bt-degenerate", "board": "#board"})
+    check = open_page(folder / "report.html", tmp_path / "bt.png", select={"note": "#bt-degenerate", "board": "#board"})
     assert check.texts["board"] == []
     (note,) = check.texts["note"]
     assert "the tie parameter reached the optimiser's bound" in note["text"] and "not shown" in note["text"]
@@ -158,11 +190,14 @@ def test_missing_truncated_and_dropped_videos_are_named_on_their_cards(eval_repo
     manifest = load_manifest(report["manifest"])
     junk = tmp_path / "real.mkv"
     junk.write_bytes(b"cut short")
-    manifest = dataclasses.replace(manifest, cells=tuple(
-        dataclasses.replace(c, real_video=junk) if c.id == "s1/good" else c for c in manifest.cells))
+    manifest = dataclasses.replace(
+        manifest,
+        cells=tuple(dataclasses.replace(c, real_video=junk) if c.id == "s1/good" else c for c in manifest.cells),
+    )
     write_html_report(folder, report, manifest, [], progress=False)
-    check = open_page(folder / "report.html", tmp_path / "cards.png",
-                      select={"problems": ".item .media-problem", "items": ".item"})
+    check = open_page(
+        folder / "report.html", tmp_path / "cards.png", select={"problems": ".item .media-problem", "items": ".item"}
+    )
     problems = {p["data"]["problem"] + " " + p["text"] for p in check.texts["problems"]}
     assert len(problems) == 3, problems
     assert any(t.startswith("rollout rollout video: missing:") and gone.name in t for t in problems)
@@ -209,8 +244,27 @@ def toy_report(tmp_path_factory):
     from oscar_core.train.clips import ClipSet
 
     root = tmp_path_factory.mktemp("toy")
-    assert main(["toyworld", "generate", "--embodiments", "toyarm,franka", "--episodes", "2", "--size", "48x48",
-                 "--frames", "9", "--out", str(root / "clips"), "--no-progress", "--json"]) == 0
+    assert (
+        main(
+            [
+                "toyworld",
+                "generate",
+                "--embodiments",
+                "toyarm,franka",
+                "--episodes",
+                "2",
+                "--size",
+                "48x48",
+                "--frames",
+                "9",
+                "--out",
+                str(root / "clips"),
+                "--no-progress",
+                "--json",
+            ]
+        )
+        == 0
+    )
     cs = ClipSet(root / "clips")
     (root / "same").mkdir()
     for r in cs:
@@ -223,15 +277,47 @@ def toy_report(tmp_path_factory):
     from oscar_core.model import ModelCard, OscarWorldModel
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny-toy", chunk_frames=9, fps=10.0),
-                                         empty_prompt=torch.zeros(1, 1, 48))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny-toy", chunk_frames=9, fps=10.0),
+        empty_prompt=torch.zeros(1, 1, 48),
+    )
     mdir = oscar_zoo.export(model, root / "tiny-toy")
-    assert main(["toyworld", "rollout", str(root / "clips"), "--model", str(mdir), "--split", "all",
-                 "--steps", "1", "--out", str(root / "wm")]) == 0
-    argv = ["toyworld", "eval", "--gt", str(root / "clips"), "--pred", f"true={root / 'same'}",
-            "--pred", f"first_frame={root / 'ff'}", "--pred", f"tiny={root / 'wm'}", "--out", str(root / "table.json"),
-            "--plot", str(root / "table.png")]
+    assert (
+        main(
+            [
+                "toyworld",
+                "rollout",
+                str(root / "clips"),
+                "--model",
+                str(mdir),
+                "--split",
+                "all",
+                "--steps",
+                "1",
+                "--out",
+                str(root / "wm"),
+            ]
+        )
+        == 0
+    )
+    argv = [
+        "toyworld",
+        "eval",
+        "--gt",
+        str(root / "clips"),
+        "--pred",
+        f"true={root / 'same'}",
+        "--pred",
+        f"first_frame={root / 'ff'}",
+        "--pred",
+        f"tiny={root / 'wm'}",
+        "--out",
+        str(root / "table.json"),
+        "--plot",
+        str(root / "table.png"),
+    ]
     assert main(argv) == 0
     (root / "command.txt").write_text(shlex.join(["oscar", *argv]))
     return root
@@ -239,14 +325,24 @@ def toy_report(tmp_path_factory):
 
 def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
     table = json.loads((toy_report / "table.json").read_text())
-    check = open_page(toy_report / "table.html", tmp_path / "toy.png",
-                      select={"row": "#rows td[data-field]", "fig": ".item figure[data-condition] [data-field]",
-                              "items": ".item"}, screenshot_at="#clips")
+    check = open_page(
+        toy_report / "table.html",
+        tmp_path / "toy.png",
+        select={"row": "#rows td[data-field]", "fig": ".item figure[data-condition] [data-field]", "items": ".item"},
+        screenshot_at="#clips",
+    )
     assert check.problems == []
     n_clips = len(check.texts["items"])
     assert n_clips == 4 and len(check.videos) == n_clips * 4  # truth + 3 conditions per clip
-    specs = {"clips": "d", "psnr_db": ".2f", "ssim": ".3f", "motion_iou": ".3f", "ee_error_px": ".2f",
-             "object_error_px": ".2f", "moved_object_error_px": ".2f"}
+    specs = {
+        "clips": "d",
+        "psnr_db": ".2f",
+        "ssim": ".3f",
+        "motion_iou": ".3f",
+        "ee_error_px": ".2f",
+        "object_error_px": ".2f",
+        "moved_object_error_px": ".2f",
+    }
     tds = check.texts["row"]
     names = list(table["rows"])
     assert len(tds) == len(names) * len(specs)
@@ -260,8 +356,11 @@ def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
 def test_toyworld_eval_page_names_its_model_and_what_made_it(toy_report, tmp_path):
     from oscar_core._util.stage import model_identity
 
-    check = open_page(toy_report / "table.html", tmp_path / "toy.png",
-                      select={"made": "#provenance [data-field]", "model": "#model", "by": "#rows td[data-made-by]"})
+    check = open_page(
+        toy_report / "table.html",
+        tmp_path / "toy.png",
+        select={"made": "#provenance [data-field]", "model": "#model", "by": "#rows td[data-made-by]"},
+    )
     _check_provenance(check, (toy_report / "command.txt").read_text())
     assert check.texts["model"][0]["text"] == "model tiny-toy"
     by = {t["data"]["madeBy"]: t["text"] for t in check.texts["by"]}
@@ -291,13 +390,19 @@ def data_run(tmp_path_factory):
 
 def test_data_stats_page_shows_the_funnel_of_stats_json_with_thumbnails(data_run, tmp_path):
     stats = json.loads((data_run / "stats.json").read_text())
-    check = open_page(data_run / "stats.html", tmp_path / "stats.png",
-                      select={"funnel": "#funnel tr[data-key] td[data-field]", "rows": "#funnel tr[data-key]",
-                              "items": ".item"})
+    check = open_page(
+        data_run / "stats.html",
+        tmp_path / "stats.png",
+        select={"funnel": "#funnel tr[data-key] td[data-field]", "rows": "#funnel tr[data-key]", "items": ".item"},
+    )
     assert check.problems == []
     keys = [r["data"]["key"] for r in check.texts["rows"]]
     assert keys == ["public", *stats["columns"], "kept"] and len(stats["columns"]) == 2
-    want = [stats["total"]["public"], *[stats["total"]["rejected"][c] for c in stats["columns"]], stats["total"]["kept"]]
+    want = [
+        stats["total"]["public"],
+        *[stats["total"]["rejected"][c] for c in stats["columns"]],
+        stats["total"]["kept"],
+    ]
     assert [int(t["text"]) for t in check.texts["funnel"]] == want
     # one example per rejection (each reason has one episode), two kept, each with its middle frame
     assert sorted(i["data"]["column"] for i in check.texts["items"]) == sorted([*stats["columns"], "kept", "kept"])

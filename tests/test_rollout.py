@@ -22,8 +22,11 @@ STEPS = 3
 
 @pytest.fixture(scope="module")
 def model():
-    return OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny", chunk_frames=9))
+    return OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=9),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -55,9 +58,11 @@ def test_flow_sigmas_are_shifted_and_end_at_zero():
 
 def test_guidance_w1_equals_the_conditional_branch(model):
     cond_only = _sample(model, SamplerConfig(steps=STEPS, guidance=None))
-    for config in (SamplerConfig(steps=STEPS, guidance=1.0, guidance_form="standard"),  # v_u + 1 (v_c - v_u)
-                   SamplerConfig(steps=STEPS, guidance=1.0, batched_cfg=False, guidance_form="standard"),
-                   SamplerConfig(steps=STEPS, guidance=0.0, guidance_form="diffusers")):  # v_c + 0 (v_c - v_u)
+    for config in (
+        SamplerConfig(steps=STEPS, guidance=1.0, guidance_form="standard"),  # v_u + 1 (v_c - v_u)
+        SamplerConfig(steps=STEPS, guidance=1.0, batched_cfg=False, guidance_form="standard"),
+        SamplerConfig(steps=STEPS, guidance=0.0, guidance_form="diffusers"),
+    ):  # v_c + 0 (v_c - v_u)
         torch.testing.assert_close(_sample(model, config), cond_only, rtol=1e-5, atol=1e-5)
     assert (_sample(model, SamplerConfig(steps=STEPS, guidance=6.0)) - cond_only).abs().max() > 1e-4
 
@@ -83,8 +88,18 @@ class _Spy(torch.nn.Module):
     def project_text(self, text):
         return text
 
-    def forward(self, hidden_states, timestep, encoder_hidden_states, condition_mask, padding_mask, fps,
-                skeleton_latents, return_dict, text_projected=False):
+    def forward(
+        self,
+        hidden_states,
+        timestep,
+        encoder_hidden_states,
+        condition_mask,
+        padding_mask,
+        fps,
+        skeleton_latents,
+        return_dict,
+        text_projected=False,
+    ):
         self.calls.append((hidden_states.clone(), timestep.clone(), skeleton_latents.clone(), condition_mask.clone()))
         return (2 * skeleton_latents + 0.5 * hidden_states,)
 
@@ -95,8 +110,9 @@ def test_guidance_forms_and_unconditional_branch():
     s = torch.randn(1, 4, 3, 2, 2)
     t, mask, text = torch.rand(1, 1, 3, 1, 1), torch.zeros(1, 1, 3, 2, 2), torch.zeros(1, 1, 8)
     v_c, v_u = 2 * s + 0.5 * x, 0.5 * x
-    std = guided_velocity(spy, x, t, text, s, mask, None, SamplerConfig(guidance=6.0, batched_cfg=False,
-                                                                        guidance_form="standard"))
+    std = guided_velocity(
+        spy, x, t, text, s, mask, None, SamplerConfig(guidance=6.0, batched_cfg=False, guidance_form="standard")
+    )
     torch.testing.assert_close(std, v_u + 6 * (v_c - v_u))
     assert torch.count_nonzero(spy.calls[-1][2]) == 0  # the unconditional branch sees a zero skeleton
     dif = guided_velocity(spy, x, t, text, s, mask, None, SamplerConfig(guidance=6.0, guidance_form="diffusers"))
@@ -108,8 +124,14 @@ def test_first_latent_frame_is_clean_at_every_step_and_at_the_end():
     spy = _Spy()
     first = torch.randn(1, 4, 1, 2, 2)
     skel = torch.randn(1, 4, 3, 2, 2)
-    out = sample_chunk(spy, first, skel, torch.zeros(1, 1, 8), SamplerConfig(steps=4, guidance=None),
-                       generator=torch.Generator().manual_seed(0))
+    out = sample_chunk(
+        spy,
+        first,
+        skel,
+        torch.zeros(1, 1, 8),
+        SamplerConfig(steps=4, guidance=None),
+        generator=torch.Generator().manual_seed(0),
+    )
     assert len(spy.calls) == 4
     for x, t, _, mask in spy.calls:
         assert torch.equal(x[:, :, :1], first)
@@ -139,14 +161,21 @@ def test_rollout_length_seeds_and_no_duplicated_frame(model, clip):
     for prev, seed in zip(result.chunks[:-1], result.seeds[1:]):
         assert torch.equal(seed, prev[:, :, -1:])  # the last generated frame seeds the next chunk
     to_u8 = model.vae.to_uint8
-    expected = np.concatenate([to_u8(result.chunks[0])[0], to_u8(result.chunks[1])[0, 1:], to_u8(result.chunks[2])[0, 1:]])
+    expected = np.concatenate(
+        [to_u8(result.chunks[0])[0], to_u8(result.chunks[1])[0, 1:], to_u8(result.chunks[2])[0, 1:]]
+    )
     np.testing.assert_array_equal(result.frames, expected[:20])
 
 
 def test_bf16_with_offloaded_vae_and_text_runs_and_matches_float32_shape(clip):
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(chunk_frames=5), dtype=torch.bfloat16, offload_vae=True,
-                                         offload_text=True)
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(chunk_frames=5),
+        dtype=torch.bfloat16,
+        offload_vae=True,
+        offload_text=True,
+    )
     assert model.transformer.dtype == torch.bfloat16
     assert model.transformer.learnable_pos_embed.pos_emb_t.dtype == torch.float32  # kept float32
     frames = model.rollout(clip[0], clip[1][:9], sampler=SamplerConfig(steps=2), progress=False).frames
@@ -174,12 +203,15 @@ def test_progress_bars_per_chunk_and_step(model, clip, capsys, monkeypatch):
     assert "rollout chunks" in err and "chunk 2/2" in err
 
 
-@pytest.mark.parametrize("case,match", [
-    ("size", "first frame: expected the skeleton video's size 64x32"),
-    ("short", "expected at least one chunk of 9 frames, found 7 frames; use chunk_frames=5"),
-    ("chunk", "chunk_frames: expected a frame count of the form 4k\\+1"),
-    ("divisible", "divisible by 16"),
-])
+@pytest.mark.parametrize(
+    "case,match",
+    [
+        ("size", "first frame: expected the skeleton video's size 64x32"),
+        ("short", "expected at least one chunk of 9 frames, found 7 frames; use chunk_frames=5"),
+        ("chunk", "chunk_frames: expected a frame count of the form 4k\\+1"),
+        ("divisible", "divisible by 16"),
+    ],
+)
 def test_bad_rollout_inputs_are_clear_errors(model, clip, case, match):
     first, skel = clip
     kwargs = dict(sampler=SamplerConfig(steps=1), progress=False)

@@ -45,8 +45,11 @@ def isolated(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def model_dir(tmp_path_factory):
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=41, fps=15.0))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=41, fps=15.0),
+    )
     return oscar_zoo.export(model, tmp_path_factory.mktemp("m") / "tiny")
 
 
@@ -59,9 +62,27 @@ def first_frame(tmp_path_factory):
 
 
 def _args(model_dir, first_frame, out, *extra):
-    return ("rollout", "--model", model_dir, "--embodiment", "toyarm", "--first-frame", first_frame,
-            "--trajectory", TRAJ, "--camera", CAM, "--out", out, "--size", "64x32", "--steps", "1",
-            "--no-progress", *extra)
+    return (
+        "rollout",
+        "--model",
+        model_dir,
+        "--embodiment",
+        "toyarm",
+        "--first-frame",
+        first_frame,
+        "--trajectory",
+        TRAJ,
+        "--camera",
+        CAM,
+        "--out",
+        out,
+        "--size",
+        "64x32",
+        "--steps",
+        "1",
+        "--no-progress",
+        *extra,
+    )
 
 
 def test_rollout_writes_video_and_side_by_side(capsys, tmp_path, model_dir, first_frame):
@@ -83,9 +104,21 @@ def test_the_python_function_writes_what_the_command_writes(capsys, tmp_path, mo
     code, stdout, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "cli.mkv", "--json", "--seed", "2"))
     assert code == 0, err
     seen = []
-    result = run_rollout(RolloutRequest(model=str(model_dir), embodiment="toyarm", first_frame=str(first_frame),
-                                        trajectory=str(TRAJ), camera=str(CAM), out=str(tmp_path / "api.mkv"),
-                                        size="64x32", steps=1, seed=2, progress=False), notify=seen.append)
+    result = run_rollout(
+        RolloutRequest(
+            model=str(model_dir),
+            embodiment="toyarm",
+            first_frame=str(first_frame),
+            trajectory=str(TRAJ),
+            camera=str(CAM),
+            out=str(tmp_path / "api.mkv"),
+            size="64x32",
+            steps=1,
+            seed=2,
+            progress=False,
+        ),
+        notify=seen.append,
+    )
     np.testing.assert_array_equal(read_video(result.out), read_video(tmp_path / "cli.mkv"))
     assert result.side_by_side == side_by_side_path(tmp_path / "api.mkv") and result.side_by_side.is_file()
     cli = json.loads(stdout)
@@ -99,7 +132,9 @@ def test_first_frame_size_must_match_the_camera(capsys, tmp_path, model_dir):
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.zeros((100, 200, 3), np.uint8))
     code, _, err = run(capsys, *_args(model_dir, small, tmp_path / "v.mp4"))
-    assert code == 2 and "field 'image size': expected 640x360 (the image size of camera" in err and "found 200x100" in err
+    assert (
+        code == 2 and "field 'image size': expected 640x360 (the image size of camera" in err and "found 200x100" in err
+    )
 
 
 def test_trajectory_shorter_than_one_chunk(capsys, tmp_path, model_dir, first_frame):
@@ -110,8 +145,10 @@ def test_trajectory_shorter_than_one_chunk(capsys, tmp_path, model_dir, first_fr
 def test_unknown_model_and_missing_prompt_embedding(capsys, tmp_path, model_dir, first_frame):
     code, _, err = run(capsys, *_args("nope", first_frame, tmp_path / "v.mp4"))
     assert code == 2 and "cosmos-predict2.5-2b, oscar-2b" in err
-    code, _, err = run(capsys, *_args(model_dir, first_frame, tmp_path / "v.mp4", "--prompt", "wave",
-                                      "--prompt-cache", tmp_path / "cache"))
+    code, _, err = run(
+        capsys,
+        *_args(model_dir, first_frame, tmp_path / "v.mp4", "--prompt", "wave", "--prompt-cache", tmp_path / "cache"),
+    )
     assert code == 2 and "expected a cached embedding" in err and "--prompt-embeds" in err
 
 
@@ -139,8 +176,11 @@ def test_rollout_of_a_mesh_model_is_conditioned_on_the_mesh_video(capsys, tmp_pa
     from oscar_core import get_embodiment, load_camera, load_trajectory
     from oscar_core.render.mesh import render_mesh_video
 
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny-mesh", chunk_frames=41, fps=15.0, condition="mesh"))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny-mesh", chunk_frames=41, fps=15.0, condition="mesh"),
+    )
     folder = oscar_zoo.export(model, tmp_path / "tiny-mesh")
     out = tmp_path / "video.mkv"
     code, _, err = run(capsys, *_args(folder, first_frame, out))
@@ -169,8 +209,9 @@ def test_rollout_reports_its_fixed_costs_and_compile_decision(capsys, tmp_path, 
     # in this test process "startup" is the whole pytest session so far: the command itself took < outer
     assert timings["wall"] - timings["startup"] <= outer + 0.01
     assert summary["compile"].startswith("compile=auto: eager on cpu") and summary["dtype"] == "torch.float32"
-    code, stdout, _ = run(capsys, *_args(model_dir, first_frame, tmp_path / "w.mkv", "--json", "--no-side-by-side",
-                                         "--no-compile"))
+    code, stdout, _ = run(
+        capsys, *_args(model_dir, first_frame, tmp_path / "w.mkv", "--json", "--no-side-by-side", "--no-compile")
+    )
     assert code == 0 and json.loads(stdout)["compile"] == "compile=never"
 
 
@@ -193,15 +234,18 @@ def test_a_video_first_frame_rolls_out_as_its_frame_0(capsys, tmp_path, model_di
 
 def test_rollout_uses_the_card_sampler_unless_a_flag_says_otherwise(capsys, tmp_path, first_frame):
     card = ModelCard(name="tiny-card", chunk_frames=41, fps=15.0, sampler={"steps": 1, "guidance": 2.0})
-    folder = oscar_zoo.export(OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                                           card), tmp_path / "m")
+    folder = oscar_zoo.export(
+        OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0), card), tmp_path / "m"
+    )
     args = [a for a in _args(folder, first_frame, tmp_path / "v.mkv", "--json") if a not in ("--steps", "1")]
     code, stdout, err = run(capsys, *args)
     assert code == 0, err
     summary = json.loads(stdout)
     assert summary["steps"] == 1 and summary["guidance"] == {"w": 2.0, "form": "diffusers"}
-    assert ("sampler: steps 1 (model card), guidance 2 (model card), guidance form diffusers (library default), "
-            "preset none (library default)") in err
+    assert (
+        "sampler: steps 1 (model card), guidance 2 (model card), guidance form diffusers (library default), "
+        "preset none (library default)"
+    ) in err
     code, stdout, err = run(capsys, *args, "--guidance", "0.5", "--guidance-form", "standard")
     assert code == 0, err
     summary = json.loads(stdout)

@@ -33,8 +33,8 @@ def _gaussian_problem(seed=0):
     eps = torch.randn(2, 2048, generator=g)
 
     def velocity(z, sigma):
-        a = (1 - sigma) ** 2 * s ** 2 + sigma ** 2
-        return -mu + (sigma - (1 - sigma) * s ** 2) / a * (z - (1 - sigma) * mu)
+        a = (1 - sigma) ** 2 * s**2 + sigma**2
+        return -mu + (sigma - (1 - sigma) * s**2) / a * (z - (1 - sigma) * mu)
 
     return velocity, eps, mu + s * eps
 
@@ -90,8 +90,18 @@ class _Spy(torch.nn.Module):
     def project_text(self, text):
         return text
 
-    def forward(self, hidden_states, timestep, encoder_hidden_states, condition_mask, padding_mask, fps,
-                skeleton_latents, return_dict, text_projected=False):
+    def forward(
+        self,
+        hidden_states,
+        timestep,
+        encoder_hidden_states,
+        condition_mask,
+        padding_mask,
+        fps,
+        skeleton_latents,
+        return_dict,
+        text_projected=False,
+    ):
         self.calls.append(dict(x=hidden_states.clone(), t=timestep.clone(), s=skeleton_latents.clone()))
         return (self.fn(hidden_states, skeleton_latents),)
 
@@ -159,9 +169,11 @@ def test_guidance_runs_one_branch_when_the_formula_reduces_to_one():
     assert branches(SamplerConfig(guidance=0.0, guidance_form="diffusers")) == ("cond",)
     assert branches(SamplerConfig(guidance=1.0, guidance_form="diffusers")) == ("cond", "uncond")
     assert branches(SamplerConfig(guidance=None)) == ("cond",)
-    for config, uses_skeleton in ((SamplerConfig(steps=2, guidance=1.0, guidance_form="standard"), True),
-                                  (SamplerConfig(steps=2, guidance=0.0, guidance_form="standard"), False),
-                                  (SamplerConfig(steps=2, guidance=0.0, guidance_form="diffusers"), True)):
+    for config, uses_skeleton in (
+        (SamplerConfig(steps=2, guidance=1.0, guidance_form="standard"), True),
+        (SamplerConfig(steps=2, guidance=0.0, guidance_form="standard"), False),
+        (SamplerConfig(steps=2, guidance=0.0, guidance_form="diffusers"), True),
+    ):
         spy = _Spy()
         _, _, skel, _ = _chunk(spy, config)
         assert len(spy.calls) == 2 and all(c["x"].shape[0] == 1 for c in spy.calls)
@@ -202,7 +214,7 @@ class _IndexVAE:
     def decode(self, latents):
         b, _, t, h, w = latents.shape
         v = latents[:, :1]
-        frames = torch.cat([v[:, :, :1]] + [v[:, :, k:k + 1].expand(b, 1, 4, h, w) for k in range(1, t)], dim=2)
+        frames = torch.cat([v[:, :, :1]] + [v[:, :, k : k + 1].expand(b, 1, 4, h, w) for k in range(1, t)], dim=2)
         return frames.expand(b, 3, frames.shape[2], h, w).repeat_interleave(8, -1).repeat_interleave(8, -2).clone()
 
 
@@ -220,8 +232,16 @@ def test_each_chunk_is_conditioned_on_its_own_skeleton_frames():
     vae = _IndexVAE()
     total, chunk = 23, 9  # chunks start at 0, 8, 16; the last runs past the end and is padded
     skel = _index_video(total)
-    result = rollout(spy, vae, skel[0], skel, torch.zeros(1, 1, 8), chunk_frames=chunk,
-                     sampler=SamplerConfig(steps=1, solver="euler", guidance=None), progress=False)
+    result = rollout(
+        spy,
+        vae,
+        skel[0],
+        skel,
+        torch.zeros(1, 1, 8),
+        chunk_frames=chunk,
+        sampler=SamplerConfig(steps=1, solver="euler", guidance=None),
+        progress=False,
+    )
     assert result.starts == [0, 8, 16] and len(result.frames) == total
     seen = [c["s"] for c in spy.calls]  # one call per chunk (1 step, one branch)
     for start, s in zip(result.starts, seen):
@@ -234,8 +254,19 @@ def test_unconditional_skeleton_kinds_and_black_video_cached_per_chunk_size(kind
     spy = _Spy()
     vae = _IndexVAE()
     skel = _index_video(23)
-    list(iter_rollout(spy, vae, skel[0], skel, torch.zeros(1, 1, 8), chunk_frames=9, progress=False,
-                      sampler=SamplerConfig(steps=1, solver="euler", guidance=6.0), uncond_skeleton=kind))
+    list(
+        iter_rollout(
+            spy,
+            vae,
+            skel[0],
+            skel,
+            torch.zeros(1, 1, 8),
+            chunk_frames=9,
+            progress=False,
+            sampler=SamplerConfig(steps=1, solver="euler", guidance=6.0),
+            uncond_skeleton=kind,
+        )
+    )
     uncond = [c["s"][1:] for c in spy.calls]
     expected = 0.0 if kind == "zero_latent" else -1.0  # black pixels are -1 and this VAE keeps values
     assert all(torch.all(u == expected) for u in uncond)
@@ -254,12 +285,17 @@ def test_model_rollout_reads_the_unconditional_skeleton_from_the_card(monkeypatc
     model.transformer, model.vae, model.empty_prompt = type("T", (), {"text_dim": 8})(), None, torch.zeros(1, 1, 8)
     model.rollout(np.zeros((16, 16, 3), np.uint8), _index_video(9), progress=False)
     assert seen["uncond_skeleton"] == "black_video" and seen["sampler"].solver == "euler"
-    model.scheduler_config = {"_class_name": "UniPCMultistepScheduler", "use_flow_sigmas": True, "flow_shift": 3.0,
-                              "prediction_type": "flow_prediction"}
+    model.scheduler_config = {
+        "_class_name": "UniPCMultistepScheduler",
+        "use_flow_sigmas": True,
+        "flow_shift": 3.0,
+        "prediction_type": "flow_prediction",
+    }
     model.rollout(np.zeros((16, 16, 3), np.uint8), _index_video(9), progress=False)
     assert seen["sampler"].solver == "unipc" and seen["sampler"].scheduler_config["flow_shift"] == 3.0
-    model.rollout(np.zeros((16, 16, 3), np.uint8), _index_video(9), progress=False,
-                  sampler=SamplerConfig(solver="euler"))
+    model.rollout(
+        np.zeros((16, 16, 3), np.uint8), _index_video(9), progress=False, sampler=SamplerConfig(solver="euler")
+    )
     assert seen["sampler"].solver == "euler"  # the option beats the checkpoint
 
 
@@ -289,8 +325,16 @@ def test_the_next_seed_is_clamped_before_it_is_re_encoded():
 
     vae = LoudVAE()
     skel = _index_video(17)
-    frames = rollout(_Spy(), vae, skel[0], skel, torch.zeros(1, 1, 8), chunk_frames=9, progress=False,
-                     sampler=SamplerConfig(steps=1, guidance=None)).frames
+    frames = rollout(
+        _Spy(),
+        vae,
+        skel[0],
+        skel,
+        torch.zeros(1, 1, 8),
+        chunk_frames=9,
+        progress=False,
+        sampler=SamplerConfig(steps=1, guidance=None),
+    ).frames
     assert len(vae.seeds) == 2 and vae.seeds[1] <= 1.0  # chunk 1's seed: the clamped last frame of chunk 0
     assert frames.dtype == np.uint8 and frames[1:].min() == 255
 
@@ -328,8 +372,9 @@ def test_guidance_interval_covering_all_or_no_steps_equals_full_or_no_guidance()
     assert torch.equal(full, every) and torch.equal(cond, never) and not torch.equal(full, cond)
 
 
-@pytest.mark.parametrize("bad", [(0.5, 0.2), (-0.1, 0.5), (0.2, 1.5), (0.1,), "0.1,0.9", (float("nan"), 1.0),
-                                 (True, 1.0)])
+@pytest.mark.parametrize(
+    "bad", [(0.5, 0.2), (-0.1, 0.5), (0.2, 1.5), (0.1,), "0.1,0.9", (float("nan"), 1.0), (True, 1.0)]
+)
 def test_guidance_interval_refuses_what_is_not_an_interval_of_noise_levels(bad):
     from oscar_core.model import ModelInputError
 
@@ -346,8 +391,10 @@ def test_presets_set_steps_and_interval_and_keep_the_rest():
     paper = apply_preset(base, "paper")
     assert (paper.steps, paper.guidance_interval, paper.guidance, paper.shift) == (35, None, 3.0, 4.0)
     fast = apply_preset(base, "fast")
-    assert (fast.steps, fast.guidance_interval) == (SAMPLER_PRESETS["fast"]["steps"],
-                                                    SAMPLER_PRESETS["fast"]["guidance_interval"])
+    assert (fast.steps, fast.guidance_interval) == (
+        SAMPLER_PRESETS["fast"]["steps"],
+        SAMPLER_PRESETS["fast"]["guidance_interval"],
+    )
     with pytest.raises(ModelInputError, match="sampler preset: expected one of"):
         apply_preset(base, "turbo")
 
@@ -361,12 +408,24 @@ def test_per_item_generators_draw_what_each_item_draws_alone():
     first = torch.randn(3, 4, 1, 2, 2, generator=g)
     skel = torch.randn(3, 4, 3, 2, 2, generator=g)
     config = SamplerConfig(steps=4, guidance=3.0)
-    batch = sample_chunk(_Spy(fn), first, skel, torch.zeros(1, 1, 8), config,
-                         generators=[torch.Generator().manual_seed(s) for s in (7, 8, 9)])
+    batch = sample_chunk(
+        _Spy(fn),
+        first,
+        skel,
+        torch.zeros(1, 1, 8),
+        config,
+        generators=[torch.Generator().manual_seed(s) for s in (7, 8, 9)],
+    )
     for i, s in enumerate((7, 8, 9)):
-        alone = sample_chunk(_Spy(fn), first[i:i + 1], skel[i:i + 1], torch.zeros(1, 1, 8), config,
-                             generator=torch.Generator().manual_seed(s))
-        torch.testing.assert_close(batch[i:i + 1], alone, rtol=1e-5, atol=1e-5)
+        alone = sample_chunk(
+            _Spy(fn),
+            first[i : i + 1],
+            skel[i : i + 1],
+            torch.zeros(1, 1, 8),
+            config,
+            generator=torch.Generator().manual_seed(s),
+        )
+        torch.testing.assert_close(batch[i : i + 1], alone, rtol=1e-5, atol=1e-5)
     with pytest.raises(Exception, match="generators: expected one per batch item"):
         sample_chunk(_Spy(fn), first, skel, torch.zeros(1, 1, 8), config, generators=[torch.Generator()])
 
@@ -374,15 +433,20 @@ def test_per_item_generators_draw_what_each_item_draws_alone():
 def test_rollout_batch_equals_one_at_a_time():
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="t", chunk_frames=5, fps=15.0))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="t", chunk_frames=5, fps=15.0),
+    )
     rng = np.random.default_rng(0)
     firsts = [rng.integers(0, 255, (16, 32, 3), dtype=np.uint8) for _ in range(3)]
     skels = [rng.integers(0, 255, (11, 16, 32, 3), dtype=np.uint8) for _ in range(3)]  # 3 chunks, the last padded
     prompt = torch.randn(1, 4, model.transformer.text_dim, generator=torch.Generator().manual_seed(1))
     config = SamplerConfig(steps=3, guidance=2.0)
-    alone = [model.rollout(f, s, prompt, sampler=config, seed=10 + k, progress=False).frames
-             for k, (f, s) in enumerate(zip(firsts, skels))]
+    alone = [
+        model.rollout(f, s, prompt, sampler=config, seed=10 + k, progress=False).frames
+        for k, (f, s) in enumerate(zip(firsts, skels))
+    ]
     batch = model.rollout_batch(firsts, skels, [prompt] * 3, sampler=config, seeds=[10, 11, 12])
     for a, b in zip(alone, batch):
         assert a.shape == b.shape == (11, 16, 32, 3)

@@ -80,16 +80,30 @@ def test_engine_recomputes_a_stage_whose_settings_changed(tmp_path):
     again = run_sharded(Count(log), rows, url, shard_size=2, workers=1, progress=False, parts=parts)
     assert again.skipped == ["part-000000", "part-000001"] and not again.processed
     with pytest.warns(StageRecomputed, match=r"settings.k: 1 -> 2"):
-        other = run_sharded(Count(log), rows, url, shard_size=2, workers=1, progress=False,
-                            parts=stage_parts("count", input={"stage": None}, settings={"k": 2}))
+        other = run_sharded(
+            Count(log),
+            rows,
+            url,
+            shard_size=2,
+            workers=1,
+            progress=False,
+            parts=stage_parts("count", input={"stage": None}, settings={"k": 2}),
+        )
     assert other.processed == ["part-000000", "part-000001"] and not other.skipped
     assert other.changed == ["settings.k: 1 -> 2"]
     assert log.read_text().split() == ["part-000000", "part-000001"] * 2
     assert read_fingerprint(url)["parts"]["settings"] == {"k": 2}
     # a new shard size is a new plan: recomputed, not refused
     with pytest.warns(StageRecomputed, match="shard_size: 2 -> 3"):
-        run_sharded(Count(log), rows, url, shard_size=3, workers=1, progress=False,
-                    parts=stage_parts("count", input={"stage": None}, settings={"k": 2}))
+        run_sharded(
+            Count(log),
+            rows,
+            url,
+            shard_size=3,
+            workers=1,
+            progress=False,
+            parts=stage_parts("count", input={"stage": None}, settings={"k": 2}),
+        )
 
 
 @pytest.fixture
@@ -171,8 +185,9 @@ def silent_hub():
     srv.close()
 
 
-def test_dedup_with_an_unreachable_hub_fails_within_the_timeout_and_records_nothing(tmp_path, src, silent_hub,
-                                                                                     monkeypatch, capsys):
+def test_dedup_with_an_unreachable_hub_fails_within_the_timeout_and_records_nothing(
+    tmp_path, src, silent_hub, monkeypatch, capsys
+):
     run = tmp_path / "run"
     assert main(["data", "ingest", str(src), "--reader", "npz", "--out", str(run), *COMMON]) == 0
     monkeypatch.setenv("HF_ENDPOINT", silent_hub)
@@ -222,8 +237,13 @@ def test_a_model_failing_in_the_stage_fails_it_instead_of_rejecting_every_episod
 
 def _killed_writer(code: str, folder: Path, wait_for) -> None:
     """Run ``code`` in a child (it must print READY once its temporary exists), kill -9 it, wait for it."""
-    p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], stdout=subprocess.PIPE, text=True,
-                         cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    p = subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+    )
     try:
         assert p.stdout.readline().strip() == "READY"
         assert wait_for(), list(folder.iterdir())
@@ -236,14 +256,18 @@ def _killed_writer(code: str, folder: Path, wait_for) -> None:
 def test_a_killed_writers_temporary_is_swept_by_the_next_write_and_a_live_ones_kept(tmp_path):
     folder = tmp_path / "out"
     folder.mkdir()
-    _killed_writer(f"""
+    _killed_writer(
+        f"""
         import time
         from oscar_core._util.atomic import atomic_output
-        with atomic_output({str(folder / 'x.json')!r}) as tmp:
+        with atomic_output({str(folder / "x.json")!r}) as tmp:
             tmp.write_text("half")
             print("READY", flush=True)
             time.sleep(60)
-        """, folder, lambda: any(p.name.startswith(".x.json.") for p in folder.iterdir()))
+        """,
+        folder,
+        lambda: any(p.name.startswith(".x.json.") for p in folder.iterdir()),
+    )
     left = [p.name for p in folder.iterdir()]
     assert len(left) == 1 and ".tmp" in left[0]
     with atomic_output(folder / "y.json") as tmp:  # mine, alive: never swept by another writer
@@ -255,16 +279,20 @@ def test_a_killed_writers_temporary_is_swept_by_the_next_write_and_a_live_ones_k
 def test_a_killed_render_and_a_killed_export_shard_are_swept_by_the_next_run(tmp_path, src):
     vids = tmp_path / "vids"
     vids.mkdir()
-    _killed_writer(f"""
+    _killed_writer(
+        f"""
         import time
         from oscar_core.media.video import VideoWriter
         import numpy as np
-        w = VideoWriter({str(vids / 'a.mkv')!r}, 15, size=(32, 32))
+        w = VideoWriter({str(vids / "a.mkv")!r}, 15, size=(32, 32))
         w.__enter__()
         w.write(np.zeros((2, 32, 32, 3), np.uint8))
         print("READY", flush=True)
         time.sleep(60)
-        """, vids, lambda: any(".tmp" in p.name for p in vids.iterdir()))
+        """,
+        vids,
+        lambda: any(".tmp" in p.name for p in vids.iterdir()),
+    )
     from oscar_core.media.video import VideoWriter
 
     with VideoWriter(vids / "b.mkv", 15, size=(32, 32)) as w:  # another target in the same folder
@@ -274,13 +302,17 @@ def test_a_killed_render_and_a_killed_export_shard_are_swept_by_the_next_run(tmp
     run, clips = tmp_path / "run", tmp_path / "clips"
     assert main(["data", "ingest", str(src), "--reader", "npz", "--out", str(run), *COMMON]) == 0
     clips.mkdir()
-    _killed_writer(f"""
+    _killed_writer(
+        f"""
         import time
         from oscar_core.train.clips import ClipSetWriter
         ClipSetWriter({str(clips)!r}).shard("shard-part-000000")
         print("READY", flush=True)
         time.sleep(60)
-        """, clips, lambda: any(p.name.startswith(".shard-part-000000.") for p in clips.iterdir()))
+        """,
+        clips,
+        lambda: any(p.name.startswith(".shard-part-000000.") for p in clips.iterdir()),
+    )
     assert main(["data", "export", str(run), "--out", str(clips), *COMMON]) == 0
     assert not [p.name for p in clips.iterdir() if p.name.startswith(".")]
 
@@ -318,8 +350,14 @@ def test_two_render_pools_in_one_process_after_threads_exist(tmp_path):
         stop.set()
         print("DONE", flush=True)
         """
-    p = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=240,
-                       cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    p = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO)),
+    )
     assert p.returncode == 0 and "DONE" in p.stdout, p.stderr[-2000:]
 
 
@@ -343,7 +381,8 @@ def _descendants(pid: int) -> set[int]:
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc to find the workers")
 def test_workers_die_with_a_killed_parent(tmp_path):
-    (tmp_path / "slowstage.py").write_text(textwrap.dedent("""
+    (tmp_path / "slowstage.py").write_text(
+        textwrap.dedent("""
         import os, time
         class Slow:
             name = "slow"
@@ -351,14 +390,15 @@ def test_workers_die_with_a_killed_parent(tmp_path):
                 open(os.path.join(os.environ["MARKS"], str(os.getpid())), "w").close()
                 time.sleep(120)
                 return rows
-        """))
+        """)
+    )
     marks = tmp_path / "marks"
     marks.mkdir()
     code = f"""
         from oscar_core.data.engine import run_sharded
         from slowstage import Slow
         rows = [{{"id": f"e{{i}}"}} for i in range(2)]
-        run_sharded(Slow(), rows, {str(tmp_path / 'stage')!r}, shard_size=1, workers=2, progress=False)
+        run_sharded(Slow(), rows, {str(tmp_path / "stage")!r}, shard_size=1, workers=2, progress=False)
         """
     env = dict(os.environ, PYTHONPATH=f"{REPO}{os.pathsep}{tmp_path}", MARKS=str(marks))
     p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], env=env, cwd=tmp_path)
@@ -387,8 +427,12 @@ def test_render_many_resume_skips_unchanged_episodes_and_redoes_changed_ones(tmp
     for i in range(2):
         trajs.append(tmp_path / f"t{i}.npz")
         save_trajectory(load_trajectory(ASSETS / "example_trajectory.npz").time_slice(3 * i, 3 * i + 3), trajs[-1])
-    specs = [EpisodeSpec("toyarm", str(t), str(ASSETS / "example_camera.json"), str(tmp_path / "v" / f"{t.stem}.mkv"),
-                         size=(32, 32)) for t in trajs]
+    specs = [
+        EpisodeSpec(
+            "toyarm", str(t), str(ASSETS / "example_camera.json"), str(tmp_path / "v" / f"{t.stem}.mkv"), size=(32, 32)
+        )
+        for t in trajs
+    ]
     first = render_many(specs, resume=True)
     assert [r.skipped for r in first] == [False, False] and all(record_path(s).is_file() for s in specs)
     assert [r.skipped for r in render_many(specs, resume=True)] == [True, True]
@@ -403,12 +447,24 @@ def test_render_many_resume_skips_unchanged_episodes_and_redoes_changed_ones(tmp
 def test_zoo_pull_against_a_silent_hub_fails_within_the_timeout_counted_from_the_start(tmp_path, silent_hub):
     """The whole command, interpreter start-up and imports included: no agent-registry request before ours,
     no diffusers import before the request, and the request's timeout counted from the process's start."""
-    env = dict(os.environ, PYTHONPATH=str(REPO), HF_ENDPOINT=silent_hub, HF_HUB_CACHE=str(tmp_path / "cache"),
-               HF_HOME=str(tmp_path / "home"), OSCAR_HUB_TIMEOUT="6")
+    env = dict(
+        os.environ,
+        PYTHONPATH=str(REPO),
+        HF_ENDPOINT=silent_hub,
+        HF_HUB_CACHE=str(tmp_path / "cache"),
+        HF_HOME=str(tmp_path / "home"),
+        OSCAR_HUB_TIMEOUT="6",
+    )
     env.pop("HF_HUB_OFFLINE", None)
     t0 = time.monotonic()
-    p = subprocess.run([sys.executable, "-m", "oscar_core.cli", "zoo", "pull", "oscar-2b"], capture_output=True,
-                       text=True, env=env, cwd=REPO, timeout=120)
+    p = subprocess.run(
+        [sys.executable, "-m", "oscar_core.cli", "zoo", "pull", "oscar-2b"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO,
+        timeout=120,
+    )
     wall = time.monotonic() - t0
     assert p.returncode != 0 and "cannot reach the Hub" in p.stderr and "HF_HUB_OFFLINE=1" in p.stderr, p.stderr
     assert wall < 6 + 2.5, f"{wall:.1f} s for a 6 s timeout"
@@ -429,8 +485,9 @@ def test_a_down_caption_endpoint_fails_the_stage_at_once(tmp_path, src, silent_h
         run_caption(str(run), CaptionConfig(base_url=refused, model="m", max_retries=4), workers=1, progress=False)
     assert time.monotonic() - t0 < 3.0
     with pytest.raises(EndpointUnreachable, match=r"no answer within 1 s"):
-        run_caption(str(run), CaptionConfig(base_url=silent_hub + "/v1", model="m", timeout=1.0), workers=1,
-                    progress=False)
+        run_caption(
+            str(run), CaptionConfig(base_url=silent_hub + "/v1", model="m", timeout=1.0), workers=1, progress=False
+        )
     assert not (run / "caption" / "completions").exists() and not (run / "caption" / "shards").exists()
 
 

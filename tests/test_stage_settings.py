@@ -60,17 +60,33 @@ def _refused_for(key: str, call) -> None:
 def _generate_cfg(**kw):
     from oscar_core.toyworld.generate import GenerateConfig
 
-    base = dict(embodiments=("toyarm",), episodes=1, width=16, height=16, frames=5, fps=10.0, seed=0, shard_size=50,
-                supersample=1, skeleton=False, pick_miss=0.0)
+    base = dict(
+        embodiments=("toyarm",),
+        episodes=1,
+        width=16,
+        height=16,
+        frames=5,
+        fps=10.0,
+        seed=0,
+        shard_size=50,
+        supersample=1,
+        skeleton=False,
+        pick_miss=0.0,
+    )
     return GenerateConfig(**{**base, **kw})
 
 
 GENERATE_CHANGES = {
-    "format": lambda mp: ({}, _bump_format(mp)), "seed": lambda mp: ({"seed": 1}, None),
-    "width": lambda mp: ({"width": 32}, None), "height": lambda mp: ({"height": 32}, None),
-    "frames": lambda mp: ({"frames": 9}, None), "fps": lambda mp: ({"fps": 5.0}, None),
-    "shard_size": lambda mp: ({"shard_size": 7}, None), "supersample": lambda mp: ({"supersample": 2}, None),
-    "skeleton": lambda mp: ({"skeleton": True}, None), "pick_miss": lambda mp: ({"pick_miss": 0.5}, None),
+    "format": lambda mp: ({}, _bump_format(mp)),
+    "seed": lambda mp: ({"seed": 1}, None),
+    "width": lambda mp: ({"width": 32}, None),
+    "height": lambda mp: ({"height": 32}, None),
+    "frames": lambda mp: ({"frames": 9}, None),
+    "fps": lambda mp: ({"fps": 5.0}, None),
+    "shard_size": lambda mp: ({"shard_size": 7}, None),
+    "supersample": lambda mp: ({"supersample": 2}, None),
+    "skeleton": lambda mp: ({"skeleton": True}, None),
+    "pick_miss": lambda mp: ({"pick_miss": 0.5}, None),
 }
 
 
@@ -116,9 +132,12 @@ def tiny_model():
     from oscar_core.model import ModelCard, OscarWorldModel
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    return OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny", chunk_frames=5, fps=10.0),
-                                        empty_prompt=torch.zeros(1, 1, 48))
+    return OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, fps=10.0),
+        empty_prompt=torch.zeros(1, 1, 48),
+    )
 
 
 def _rollouts(model, clips, out, **kw):
@@ -141,8 +160,10 @@ ROLLOUT_CHANGES = {
     "split": lambda mp, m, c: ({"split": "train"}, None),
     "limit": lambda mp, m, c: ({"limit": 1}, None),
     "clips": lambda mp, m, c: ({"clipset": c}, None),  # the same clips at another path
-    "sampler": lambda mp, m, c: ({"sampler": __import__("oscar_core.model.sampler", fromlist=["x"]).SamplerConfig(
-        steps=2)}, None),
+    "sampler": lambda mp, m, c: (
+        {"sampler": __import__("oscar_core.model.sampler", fromlist=["x"]).SamplerConfig(steps=2)},
+        None,
+    ),
     "seed": lambda mp, m, c: ({"seed": 1}, None),
 }
 
@@ -201,8 +222,10 @@ BENCH_CHANGES = {
     "card": lambda mp, m, c, t: ({}, mp.setattr(m, "card", _other_card(m))),
     "set": lambda mp, m, c, t: ({"bench": _bench(c, t / "other.json")}, None),  # the same clips at another path
     "frames": lambda mp, m, c, t: ({"bench": _bench(c, t / "short.json", frames=3)}, None),  # comes with its set
-    "sampler": lambda mp, m, c, t: ({"sampler": __import__("oscar_core.model.sampler", fromlist=["x"]).SamplerConfig(
-        steps=2)}, None),
+    "sampler": lambda mp, m, c, t: (
+        {"sampler": __import__("oscar_core.model.sampler", fromlist=["x"]).SamplerConfig(steps=2)},
+        None,
+    ),
     "seed": lambda mp, m, c, t: ({"seed": 1}, None),
     "prompt": lambda mp, m, c, t: ({"prompt": "clip"}, None),
 }
@@ -312,8 +335,13 @@ def test_latent_cache_refuses_each_changed_setting(cached, cache_src, key, tmp_p
 def _render_spec(tmp_path, **kw):
     from oscar_core.render.batch import EpisodeSpec
 
-    base = dict(embodiment="toyarm", trajectory=str(tmp_path / "t.npz"), camera=str(tmp_path / "c.json"),
-                out=str(tmp_path / "v" / "t.mkv"), size=(32, 32))
+    base = dict(
+        embodiment="toyarm",
+        trajectory=str(tmp_path / "t.npz"),
+        camera=str(tmp_path / "c.json"),
+        out=str(tmp_path / "v" / "t.mkv"),
+        size=(32, 32),
+    )
     return EpisodeSpec(**{**base, **kw})
 
 
@@ -350,12 +378,18 @@ def _one_file_plugin(tmp_path):
 RENDER_CHANGES = {
     "format_version": None,  # the bumped FORMAT_VERSION (monkeypatched in the test)
     "embodiment": lambda p: ({"embodiment": "toyarm_alias"}, {}),
-    "trajectory": _edit_trajectory, "camera": _edit_camera,
-    "size": lambda p: ({"size": (48, 32)}, {}), "fps": lambda p: ({"fps": 5.0}, {}),
-    "resize": lambda p: ({"resize": "stretch"}, {}), "format": lambda p: ({"format": "mkv"}, {}),
-    "condition": lambda p: ({"condition": "capsules"}, {}), "preset": lambda p: ({}, {"preset": "veryfast"}),
-    "crf": lambda p: ({}, {"crf": 30}), "yuv": lambda p: ({}, {"yuv": "swscale"}),
-    "strict": lambda p: ({}, {"strict": True}), "device": None,  # one device here: checked on the parts only
+    "trajectory": _edit_trajectory,
+    "camera": _edit_camera,
+    "size": lambda p: ({"size": (48, 32)}, {}),
+    "fps": lambda p: ({"fps": 5.0}, {}),
+    "resize": lambda p: ({"resize": "stretch"}, {}),
+    "format": lambda p: ({"format": "mkv"}, {}),
+    "condition": lambda p: ({"condition": "capsules"}, {}),
+    "preset": lambda p: ({}, {"preset": "veryfast"}),
+    "crf": lambda p: ({}, {"crf": 30}),
+    "yuv": lambda p: ({}, {"yuv": "swscale"}),
+    "strict": lambda p: ({}, {"strict": True}),
+    "device": None,  # one device here: checked on the parts only
     "plugin_paths": _one_file_plugin,
 }
 
@@ -391,8 +425,9 @@ def test_batch_render_redoes_an_episode_for_each_changed_setting(key, tmp_path, 
             from oscar_core.plugin import registry as reg
 
             real_get = reg.Registry.get
-            monkeypatch.setattr(reg.Registry, "get", lambda self, n: Alias() if n == "toyarm_alias" else
-                                real_get(self, n))
+            monkeypatch.setattr(
+                reg.Registry, "get", lambda self, n: Alias() if n == "toyarm_alias" else real_get(self, n)
+            )
         s_change, o_change = RENDER_CHANGES[key](tmp_path)
         spec, opts = dataclasses.replace(spec, **s_change), dataclasses.replace(opts, **o_change)
     (result,) = render_many([spec], opts, resume=True)
@@ -463,8 +498,13 @@ def test_filter_recomputes_for_each_changed_setting(data_run, field, tmp_path):
     assert res.processed and not res.skipped
 
 
-EXPORT_CHANGES = {"out": None, "size": {"size": (32, 32)}, "render_skeleton": {"render_skeleton": True},
-                  "video_codec": {"video_codec": "h264"}, "plugin_paths": "plugin"}
+EXPORT_CHANGES = {
+    "out": None,
+    "size": {"size": (32, 32)},
+    "render_skeleton": {"render_skeleton": True},
+    "video_codec": {"video_codec": "h264"},
+    "plugin_paths": "plugin",
+}
 
 
 def test_export_fingerprint_holds_every_export_setting(data_run, tmp_path):
@@ -507,8 +547,17 @@ def _cell(tmp_path):
 
     for name in ("first.png", "traj.npz", "cam.json", "embeds.safetensors"):
         (tmp_path / name).write_bytes(name.encode())
-    return Cell("s", "p", "task", "toyarm", tmp_path / "first.png", tmp_path / "traj.npz", tmp_path / "cam.json", 0,
-                prompt_embeds=tmp_path / "embeds.safetensors")
+    return Cell(
+        "s",
+        "p",
+        "task",
+        "toyarm",
+        tmp_path / "first.png",
+        tmp_path / "traj.npz",
+        tmp_path / "cam.json",
+        0,
+        prompt_embeds=tmp_path / "embeds.safetensors",
+    )
 
 
 def _rollout_key_args():
@@ -567,8 +616,11 @@ def test_ray_engine_records_cells_that_finish_out_of_order_under_their_own_names
     from oscar_core.model import ModelCard, OscarWorldModel, SamplerConfig
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5, fps=15.0))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, fps=15.0),
+    )
     mdir = oscar_zoo.export(model, tmp_path / "tiny")
     manifest = make_study(tmp_path / "study", frames=41)
     for npz in sorted((tmp_path / "study").glob("*.npz")):
@@ -608,10 +660,15 @@ def test_ray_engine_records_cells_that_finish_out_of_order_under_their_own_names
 # ---------------------------------------------------------------------------------------------- data ingest
 
 #: What ingest's fingerprint holds; each is changed alone below, except where the reason says why not.
-INGEST_PARTS = {"input.source": "tested", "input.reader": "no second reader reads the npz layout",
-                "input.listing": "tested in test_stage_resume (the dataset grew)", "settings.plugin_paths": "tested",
-                "input.ids": "the episodes of the listing (changes with it)", "input.shard_size": "tested",
-                "settings.reader_options": "the npz reader takes no options"}
+INGEST_PARTS = {
+    "input.source": "tested",
+    "input.reader": "no second reader reads the npz layout",
+    "input.listing": "tested in test_stage_resume (the dataset grew)",
+    "settings.plugin_paths": "tested",
+    "input.ids": "the episodes of the listing (changes with it)",
+    "input.shard_size": "tested",
+    "settings.reader_options": "the npz reader takes no options",
+}
 
 
 def test_ingest_fingerprint_holds_what_the_tests_name(data_run):

@@ -31,12 +31,15 @@ def _tokenizer():
     vocab = {w: i for i, w in enumerate(specials + words)}
     tok = Tokenizer(models.WordLevel(vocab, unk_token="[UNK]"))
     tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    hf = PreTrainedTokenizerFast(tokenizer_object=tok, pad_token="<|endoftext|>", eos_token="<|im_end|>",
-                                 unk_token="[UNK]")
+    hf = PreTrainedTokenizerFast(
+        tokenizer_object=tok, pad_token="<|endoftext|>", eos_token="<|im_end|>", unk_token="[UNK]"
+    )
     hf.add_special_tokens({"additional_special_tokens": ["<|im_start|>"]})
     # a ChatML template of the Qwen kind (the real one ships with the real tokenizer)
-    hf.chat_template = ("{% for m in messages %}<|im_start|>{{ m['role'] }} {% for c in m['content'] %}"
-                        "{{ c['text'] }}{% endfor %}<|im_end|> {% endfor %}")
+    hf.chat_template = (
+        "{% for m in messages %}<|im_start|>{{ m['role'] }} {% for c in m['content'] %}"
+        "{{ c['text'] }}{% endfor %}<|im_end|> {% endfor %}"
+    )
     return hf
 
 
@@ -44,11 +47,20 @@ def _encoder(seed=0):
     from transformers import Qwen2_5_VLConfig, Qwen2_5_VLForConditionalGeneration
 
     cfg = Qwen2_5_VLConfig(
-        text_config=dict(vocab_size=64, hidden_size=HIDDEN, num_hidden_layers=LAYERS, num_attention_heads=2,
-                         num_key_value_heads=1, intermediate_size=24, max_position_embeddings=1024,
-                         rope_scaling={"type": "mrope", "mrope_section": [1, 1, 2]}),
-        vision_config=dict(depth=1, hidden_size=8, intermediate_size=8, num_heads=2, out_hidden_size=HIDDEN,
-                           fullatt_block_indexes=[0]))
+        text_config=dict(
+            vocab_size=64,
+            hidden_size=HIDDEN,
+            num_hidden_layers=LAYERS,
+            num_attention_heads=2,
+            num_key_value_heads=1,
+            intermediate_size=24,
+            max_position_embeddings=1024,
+            rope_scaling={"type": "mrope", "mrope_section": [1, 1, 2]},
+        ),
+        vision_config=dict(
+            depth=1, hidden_size=8, intermediate_size=8, num_heads=2, out_hidden_size=HIDDEN, fullatt_block_indexes=[0]
+        ),
+    )
     torch.manual_seed(seed)
     return Qwen2_5_VLForConditionalGeneration(cfg).eval()
 
@@ -76,15 +88,16 @@ def test_embeddings_equal_diffusers_cosmos25_pipeline(pipeline_folder):
     # diffusers' method on an object holding the same tokenizer and encoder (the pipeline itself would
     # also need a VAE, a DiT and the guardrail package)
     holder = types.SimpleNamespace(tokenizer=enc.tokenizer, text_encoder=enc.model)
-    reference = Cosmos2_5_PredictBasePipeline._get_prompt_embeds(holder, PROMPTS, max_sequence_length=512,
-                                                                 device=torch.device("cpu"), dtype=torch.float32)
+    reference = Cosmos2_5_PredictBasePipeline._get_prompt_embeds(
+        holder, PROMPTS, max_sequence_length=512, device=torch.device("cpu"), dtype=torch.float32
+    )
     ours = encode_prompts(enc.model, enc.tokenizer, PROMPTS)
     assert ours.shape == (3, 512, LAYERS * HIDDEN) == reference.shape
     torch.testing.assert_close(ours, reference, rtol=0, atol=0)
     assert enc.text_dim == LAYERS * HIDDEN
     # the prompts differ, so do their embeddings; each layer block is normalised (mean 0, std 1 per token)
     assert not torch.equal(ours[0], ours[1])
-    block = ours[0, :, HIDDEN:2 * HIDDEN]
+    block = ours[0, :, HIDDEN : 2 * HIDDEN]
     torch.testing.assert_close(block.mean(-1), torch.zeros(512), atol=1e-5, rtol=0)
     torch.testing.assert_close(block.std(-1), torch.ones(512), atol=1e-4, rtol=0)
 
@@ -115,8 +128,11 @@ def test_cache_by_prompt_and_encoder(pipeline_folder, tmp_path, monkeypatch):
 
 
 def test_encoder_ids_and_the_missing_extra(monkeypatch):
-    assert parse_encoder_id("nvidia/Cosmos-Predict2.5-2B@diffusers/base/post-trained:text_encoder") == \
-        ("nvidia/Cosmos-Predict2.5-2B", "diffusers/base/post-trained", "text_encoder")
+    assert parse_encoder_id("nvidia/Cosmos-Predict2.5-2B@diffusers/base/post-trained:text_encoder") == (
+        "nvidia/Cosmos-Predict2.5-2B",
+        "diffusers/base/post-trained",
+        "text_encoder",
+    )
     assert parse_encoder_id("me/enc") == ("me/enc", None, "text_encoder")
     import sys
 
@@ -139,8 +155,17 @@ def test_cli_encode_prompt_writes_cache_and_file(pipeline_folder, tmp_path, caps
     from oscar_core.cli import main
 
     out = tmp_path / "wave.safetensors"
-    args = ["encode-prompt", "wave", "--encoder", str(pipeline_folder), "--out", str(out), "--json",
-            "--prompt-cache", str(tmp_path / "c")]
+    args = [
+        "encode-prompt",
+        "wave",
+        "--encoder",
+        str(pipeline_folder),
+        "--out",
+        str(out),
+        "--json",
+        "--prompt-cache",
+        str(tmp_path / "c"),
+    ]
     assert main(args) == 0
     first = json.loads(capsys.readouterr().out)
     assert first["shape"] == [1, 512, 48] and first["was_cached"] is False and out.is_file()
@@ -161,16 +186,36 @@ def test_rollout_prompt_uses_the_checkpoints_encoder_and_says_where_text_came_fr
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
     assets = Path(__file__).resolve().parents[1] / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=81, fps=15.0,
-                                                   text_encoder_id=str(pipeline_folder)))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=81, fps=15.0, text_encoder_id=str(pipeline_folder)),
+    )
     folder = oscar_zoo.export(model, tmp_path / "m")
     first = tmp_path / "first.png"
     cv2.imwrite(str(first), np.zeros((360, 640, 3), np.uint8))
-    base = ["rollout", "--model", str(folder), "--embodiment", "toyarm", "--first-frame", str(first),
-            "--trajectory", str(assets / "example_trajectory.npz"), "--camera", str(assets / "example_camera.json"),
-            "--size", "32x16", "--steps", "1", "--no-progress", "--no-side-by-side", "--prompt-cache",
-            str(tmp_path / "c"), "--json"]
+    base = [
+        "rollout",
+        "--model",
+        str(folder),
+        "--embodiment",
+        "toyarm",
+        "--first-frame",
+        str(first),
+        "--trajectory",
+        str(assets / "example_trajectory.npz"),
+        "--camera",
+        str(assets / "example_camera.json"),
+        "--size",
+        "32x16",
+        "--steps",
+        "1",
+        "--no-progress",
+        "--no-side-by-side",
+        "--prompt-cache",
+        str(tmp_path / "c"),
+        "--json",
+    ]
     assert main(base + ["--out", str(tmp_path / "a.mkv"), "--prompt", "wave"]) == 0
     out, err = capsys.readouterr()
     assert "text: prompt 'wave', computed with" in err and json.loads(out)["text"].startswith("prompt 'wave'")

@@ -16,6 +16,7 @@ def machine(monkeypatch):
     def set_machine(cores: int, load: float):
         monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
         monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+
     return set_machine
 
 
@@ -100,11 +101,20 @@ def test_every_torch_command_has_threads():
             for name, child in action.choices.items():
                 yield from leaves(child, path + (name,))
 
-    with_threads = {path for path, p in leaves(build_parser())
-                    if any(getattr(a, "oscar_threads", False) for a in p._actions)}
-    for path in [("rollout",), ("eval", "run"), ("eval", "benchmark", "run"), ("render",), ("train",),
-                 ("toyworld", "generate"), ("toyworld", "train-vae"), ("toyworld", "reconstruct"),
-                 ("toyworld", "rollout")]:
+    with_threads = {
+        path for path, p in leaves(build_parser()) if any(getattr(a, "oscar_threads", False) for a in p._actions)
+    }
+    for path in [
+        ("rollout",),
+        ("eval", "run"),
+        ("eval", "benchmark", "run"),
+        ("render",),
+        ("train",),
+        ("toyworld", "generate"),
+        ("toyworld", "train-vae"),
+        ("toyworld", "reconstruct"),
+        ("toyworld", "rollout"),
+    ]:
         assert path in with_threads, path
 
 
@@ -112,8 +122,15 @@ def test_the_command_applies_the_choice_to_torch(machine, monkeypatch, tmp_path,
     from oscar_core.cli import main
     from oscar_core.toyworld import vae_train
 
-    monkeypatch.setattr(vae_train, "train_vae", lambda clips, out, cfg, log=None: {
-        "heldout_psnr_db": 0.0, "steps_done": 0, "wall_s": float(torch_threads.get_num_threads())})
+    monkeypatch.setattr(
+        vae_train,
+        "train_vae",
+        lambda clips, out, cfg, log=None: {
+            "heldout_psnr_db": 0.0,
+            "steps_done": 0,
+            "wall_s": float(torch_threads.get_num_threads()),
+        },
+    )
     machine(8, 5.2)  # 3 cores idle
     assert main(["toyworld", "train-vae", str(tmp_path), "--out", str(tmp_path / "o")]) == 0
     assert torch_threads.get_num_threads() == 3

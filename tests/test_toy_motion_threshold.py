@@ -28,7 +28,7 @@ def test_the_threshold_on_uint8_frames():
 
 def test_the_grey_level_is_the_mean_of_rgb():
     v = np.full((2, 1, 2, 3), 100.0, np.float32)
-    v[1, 0, 0] = (100 + 3 * 24, 100, 100)       # one channel up by 72: mean up by exactly 24 → not counted
+    v[1, 0, 0] = (100 + 3 * 24, 100, 100)  # one channel up by 72: mean up by exactly 24 → not counted
     v[1, 0, 1] = (100 + 3 * 24 + 0.3, 100, 100)  # mean up by 24.1 → counted
     assert motion_mask(v)[0, 0].tolist() == [False, True]
 
@@ -41,7 +41,7 @@ def test_changes_are_measured_from_the_first_frame():
 
 def test_motion_iou_moves_across_the_threshold():
     gt = _video([30.0, 30.0, 0.0, 0.0])
-    at = _video([24.0, 30.0, 0.0, 0.0])         # the first pixel exactly at the threshold: not moving
+    at = _video([24.0, 30.0, 0.0, 0.0])  # the first pixel exactly at the threshold: not moving
     above = _video([24.0 + 1e-3, 30.0, 0.0, 0.0])
     assert motion_iou(at, gt) == pytest.approx(1 / 2)
     assert motion_iou(above, gt) == 1.0
@@ -50,8 +50,12 @@ def test_motion_iou_moves_across_the_threshold():
 
 def test_exact_threshold_changes_with_sums_not_divisible_by_3_do_not_count():
     """RGB sums that are not multiples of 3: a float32 mean rounds and once counted these exact 24-level changes."""
-    pairs = [((62, 48, 41), (87, 67, 69)), ((170, 132, 57), (197, 155, 79)), ((96, 50, 174), (126, 67, 199)),
-             ((123, 125, 72), (152, 147, 93))]
+    pairs = [
+        ((62, 48, 41), (87, 67, 69)),
+        ((170, 132, 57), (197, 155, 79)),
+        ((96, 50, 174), (126, 67, 199)),
+        ((123, 125, 72), (152, 147, 93)),
+    ]
     v = np.zeros((2, 1, len(pairs), 3), np.uint8)
     for i, (a, b) in enumerate(pairs):
         assert sum(a) % 3 and sum(b) - sum(a) == 3 * 24  # mean up by exactly 24 levels

@@ -108,8 +108,18 @@ def test_motions_stay_inside_urdf_limits_and_in_view(name):
 def test_carry_rule_attaches_only_on_a_close_within_reach_and_drops_on_open():
     R, reach = 0.05, 0.11
     T = 8
-    ee = np.array([[0.5, 0.0, 0.5], [0.3, 0.0, 0.3], [0.1, 0.0, 0.1], [0.0, 0.0, 0.1], [0.0, 0.0, 0.1],
-                   [0.1, 0.2, 0.4], [0.2, 0.3, 0.5], [0.3, 0.3, 0.5]])
+    ee = np.array(
+        [
+            [0.5, 0.0, 0.5],
+            [0.3, 0.0, 0.3],
+            [0.1, 0.0, 0.1],
+            [0.0, 0.0, 0.1],
+            [0.0, 0.0, 0.1],
+            [0.1, 0.2, 0.4],
+            [0.2, 0.3, 0.5],
+            [0.3, 0.3, 0.5],
+        ]
+    )
     start = np.array([0.0, 0.0, R])
     # closes at frame 3, 5 cm above the ball's centre: attached until it opens at frame 6
     op = np.array([1, 1, 1, 0, 0, 0, 1, 1], dtype=float)
@@ -272,7 +282,7 @@ def test_moved_object_error_counts_only_frames_where_the_true_ball_moved():
     gt = np.full((5, 20, 20, 3), 100, np.uint8)
     xs = [4, 4, 8, 12, 16]  # the ball lies still for a frame, then is carried 4 px per frame
     for t, x in enumerate(xs):
-        gt[t, 8:10, x:x + 2] = (255, 212, 0)
+        gt[t, 8:10, x : x + 2] = (255, 212, 0)
     still = np.repeat(gt[:1], 5, axis=0)  # a prediction that leaves the ball where it lay
     r = moved_object_error(still, gt)
     assert r["frames"] == 3 and r["error_px"] == pytest.approx(np.mean([4.0, 8.0, 12.0]))
@@ -301,8 +311,20 @@ def test_cli_eval_writes_json_and_plot(tmp_path, small_set, capsys):
     pred.mkdir()
     for r in small_set:
         np.save(pred / f"{r.id}.npy", small_set.load(r, skeleton=False).rgb)
-    rc = main(["toyworld", "eval", "--gt", str(small_set.root), "--pred", f"true={pred}", "--out",
-               str(tmp_path / "t.json"), "--plot", str(tmp_path / "t.png")])
+    rc = main(
+        [
+            "toyworld",
+            "eval",
+            "--gt",
+            str(small_set.root),
+            "--pred",
+            f"true={pred}",
+            "--out",
+            str(tmp_path / "t.json"),
+            "--plot",
+            str(tmp_path / "t.png"),
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out
     assert "| true |" in out and "100.00" in out
@@ -359,8 +381,27 @@ def test_an_out_of_tree_one_file_plugin_generates_clips(tmp_path, capsys):
     plugin = tmp_path / "stick_plugin.py"
     plugin.write_text(textwrap.dedent(PLUGIN.format(urdf=tmp_path / "stick.urdf")))
     out = tmp_path / "clips"
-    rc = main(["--plugin", str(plugin), "toyworld", "generate", "--embodiments", "stick", "--episodes", "3",
-               "--size", "32x32", "--frames", "9", "--seed", "1", "--out", str(out), "--json"])
+    rc = main(
+        [
+            "--plugin",
+            str(plugin),
+            "toyworld",
+            "generate",
+            "--embodiments",
+            "stick",
+            "--episodes",
+            "3",
+            "--size",
+            "32x32",
+            "--frames",
+            "9",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+            "--json",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     summary = json.loads(capsys.readouterr().out)
     assert summary["episodes_written"] == 3
@@ -392,11 +433,18 @@ def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
     from oscar_core.toyworld.vae_train import VAETrainConfig, load_toy_vae, train_vae, write_reconstructions
 
     clips = tmp_path / "clips"
-    generate_clipset(GenerateConfig(("toyarm",), episodes=10, width=16, height=16, frames=5, seed=0, shard_size=10,
-                                    skeleton=False), clips, REG)
+    generate_clipset(
+        GenerateConfig(("toyarm",), episodes=10, width=16, height=16, frames=5, seed=0, shard_size=10, skeleton=False),
+        clips,
+        REG,
+    )
     n = torch.get_num_threads()
-    card = train_vae(clips, tmp_path / "vae", VAETrainConfig(steps=2, batch=1, base_dim=4, eval_every=0, eval_clips=1),
-                     log=lambda m: None)
+    card = train_vae(
+        clips,
+        tmp_path / "vae",
+        VAETrainConfig(steps=2, batch=1, base_dim=4, eval_every=0, eval_clips=1),
+        log=lambda m: None,
+    )
     torch.set_num_threads(n)
     assert card["steps_done"] == 2 and card["heldout_clips"] == ["toyarm-000009"]
     assert (tmp_path / "vae" / "vae" / "diffusion_pytorch_model.safetensors").is_file()
@@ -414,17 +462,31 @@ def test_train_vae_saves_a_loadable_autoencoder_whose_numbers_agree(tmp_path):
     # trainer's evaluation ran before the statistics were set
     assert table["rows"]["vae"]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-3)
     # fine-tuning starts from the saved weights (same architecture, whatever --base-dim says)
-    tuned = train_vae(clips, tmp_path / "tuned", VAETrainConfig(steps=1, batch=1, base_dim=99, eval_every=0,
-                                                                eval_clips=1, init=str(tmp_path / "vae")),
-                      log=lambda m: None)
+    tuned = train_vae(
+        clips,
+        tmp_path / "tuned",
+        VAETrainConfig(steps=1, batch=1, base_dim=99, eval_every=0, eval_clips=1, init=str(tmp_path / "vae")),
+        log=lambda m: None,
+    )
     torch.set_num_threads(n)
     assert tuned["config"] == card["config"]
     assert tuned["evals"][0]["psnr_db"] == pytest.approx(card["heldout_psnr_db"], abs=1e-3)  # normalisation rounding
     # --residual: the Wan 2.2 variant of the same class, recorded in config.json and the card
-    res = train_vae(clips, tmp_path / "res", VAETrainConfig(steps=5, stop_at=1, batch=1, base_dim=4, eval_every=0,
-                                                            eval_clips=1, config={"is_residual": True},
-                                                            foreground=10.0),
-                    log=lambda m: None)
+    res = train_vae(
+        clips,
+        tmp_path / "res",
+        VAETrainConfig(
+            steps=5,
+            stop_at=1,
+            batch=1,
+            base_dim=4,
+            eval_every=0,
+            eval_clips=1,
+            config={"is_residual": True},
+            foreground=10.0,
+        ),
+        log=lambda m: None,
+    )
     torch.set_num_threads(n)
     assert res["config"]["is_residual"] and load_toy_vae(tmp_path / "res").config.is_residual
     assert (res["steps_done"], res["stopped_by"]) == (1, "stop_at (1)")
@@ -447,13 +509,20 @@ def test_foreground_weight_changes_the_update_and_only_through_moving_pixels(tmp
     import oscar_core.toyworld.vae_train as vt
 
     clips = tmp_path / "clips"
-    generate_clipset(GenerateConfig(("toyarm",), episodes=10, width=16, height=16, frames=5, seed=0, shard_size=10,
-                                    skeleton=False), clips, REG)
+    generate_clipset(
+        GenerateConfig(("toyarm",), episodes=10, width=16, height=16, frames=5, seed=0, shard_size=10, skeleton=False),
+        clips,
+        REG,
+    )
     n = torch.get_num_threads()
 
     def weights(name, **kw):
-        vt.train_vae(clips, tmp_path / name, vt.VAETrainConfig(steps=2, batch=1, base_dim=4, eval_every=0,
-                                                               eval_clips=1, **kw), log=lambda m: None)
+        vt.train_vae(
+            clips,
+            tmp_path / name,
+            vt.VAETrainConfig(steps=2, batch=1, base_dim=4, eval_every=0, eval_clips=1, **kw),
+            log=lambda m: None,
+        )
         torch.set_num_threads(n)
         return load_file(tmp_path / name / "vae" / "diffusion_pytorch_model.safetensors")
 
@@ -484,7 +553,7 @@ def test_moving_pixels_marks_a_moving_square_and_its_rim():
 
     x = torch.full((1, 3, 5, 12, 12), -0.5)
     for t in range(5):  # a 2 x 2 square moving one pixel right per frame on row 5-6; a still 2 x 2 square at 0-1
-        x[0, :, t, 5:7, 2 + t:4 + t] = 0.8
+        x[0, :, t, 5:7, 2 + t : 4 + t] = 0.8
     x[0, :, :, 0:2, 0:2] = 0.9
     x[0, 1, :, 10, 10] += torch.linspace(0, 0.05, 5)  # changes by less than the threshold: still
     m = moving_pixels(x)

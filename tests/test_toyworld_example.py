@@ -25,8 +25,10 @@ from oscar_core.train.clips import ClipSet
 REPO = Path(__file__).resolve().parents[1]
 #: The two commands of the example, as docs/toyworld.md (and the README) print them.
 EXAMPLE = "oscar toyworld example --out toy_example"
-ROLLOUT = ("oscar rollout --model oscar-toy --embodiment toyarm --first-frame toy_example/first_frame.png "
-           "--trajectory toy_example/trajectory.npz --camera toy_example/camera.json --out toy_rollout.mp4")
+ROLLOUT = (
+    "oscar rollout --model oscar-toy --embodiment toyarm --first-frame toy_example/first_frame.png "
+    "--trajectory toy_example/trajectory.npz --camera toy_example/camera.json --out toy_rollout.mp4"
+)
 
 
 def _docs_commands() -> list[str]:
@@ -64,8 +66,25 @@ def test_the_example_is_the_toy_worlds_own_episode(tmp_path):
     """first_frame.png, trajectory.npz and camera.json equal frame 0, trajectory and camera of held-out episode 9 of
     `toyworld generate` with the same seed (a second path through the generator, the clip-set writer and reader)."""
     assert main(["toyworld", "example", "--out", str(tmp_path / "ex"), "--seed", "3", "--json"]) == 0
-    assert main(["toyworld", "generate", "--embodiments", "toyarm", "--episodes", "10", "--seed", "3",
-                 "--out", str(tmp_path / "clips"), "--no-skeleton", "--json"]) == 0
+    assert (
+        main(
+            [
+                "toyworld",
+                "generate",
+                "--embodiments",
+                "toyarm",
+                "--episodes",
+                "10",
+                "--seed",
+                "3",
+                "--out",
+                str(tmp_path / "clips"),
+                "--no-skeleton",
+                "--json",
+            ]
+        )
+        == 0
+    )
     cs = ClipSet(tmp_path / "clips")
     rec = next(r for r in cs if r.meta["episode"] == 9)
     assert rec.meta["split"] == "heldout"
@@ -108,8 +127,11 @@ def test_a_video_first_frame_is_its_frame_0(tmp_path):
 
 def test_bad_first_frames_name_the_file_and_what_was_expected(tmp_path):
     (tmp_path / "junk.mp4").write_bytes(b"not a video at all")
-    with pytest.raises(InputFileError, match=r"junk.mp4: field 'video frame 0': expected a readable image \(PNG, "
-                                             r"JPEG\) or video .* found a file that does not decode as a video"):
+    with pytest.raises(
+        InputFileError,
+        match=r"junk.mp4: field 'video frame 0': expected a readable image \(PNG, "
+        r"JPEG\) or video .* found a file that does not decode as a video",
+    ):
         read_image(tmp_path / "junk.mp4")
     (tmp_path / "junk.png").write_bytes(b"not an image")
     with pytest.raises(InputFileError, match="junk.png: field 'image': .* found text"):

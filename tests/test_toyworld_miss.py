@@ -36,8 +36,16 @@ def _one_thread():
 
 
 def episode(name, i, pick_miss=0.0, seed=0, size=(32, 32), frames=9):
-    return make_episode(REG.get(name), episode_rng(seed, name, i), size[0], size[1], frames, ss=1,
-                        pick_miss=pick_miss, miss_rng=miss_rng(seed, name, i))
+    return make_episode(
+        REG.get(name),
+        episode_rng(seed, name, i),
+        size[0],
+        size[1],
+        frames,
+        ss=1,
+        pick_miss=pick_miss,
+        miss_rng=miss_rng(seed, name, i),
+    )
 
 
 def grasp_frame(name, ep) -> int:
@@ -137,8 +145,20 @@ def test_miss_start_bands_and_base_distance():
 def test_bad_fraction_is_refused(tmp_path, capsys):
     for bad in ("-0.1", "1.5", "x", "nan"):
         with pytest.raises(SystemExit) as e:
-            main(["toyworld", "generate", "--embodiments", "toyarm", "--episodes", "1", "--pick-miss", bad,
-                  "--out", str(tmp_path / "c")])
+            main(
+                [
+                    "toyworld",
+                    "generate",
+                    "--embodiments",
+                    "toyarm",
+                    "--episodes",
+                    "1",
+                    "--pick-miss",
+                    bad,
+                    "--out",
+                    str(tmp_path / "c"),
+                ]
+            )
         assert e.value.code == 2
         err = capsys.readouterr().err
         assert "--pick-miss" in err and bad in err, err
@@ -151,8 +171,9 @@ def test_bad_fraction_is_refused(tmp_path, capsys):
 
 
 def test_generated_records_say_which_picks_missed(tmp_path):
-    generate_clipset(GenerateConfig(("toyarm",), 4, 16, 16, 9, seed=0, skeleton=False, pick_miss=1.0),
-                     tmp_path / "m", REG)
+    generate_clipset(
+        GenerateConfig(("toyarm",), 4, 16, 16, 9, seed=0, skeleton=False, pick_miss=1.0), tmp_path / "m", REG
+    )
     generate_clipset(GenerateConfig(("toyarm",), 4, 16, 16, 9, seed=0, skeleton=False), tmp_path / "z", REG)
     kinds = []
     for r in ClipSet(tmp_path / "m"):
@@ -185,6 +206,7 @@ def test_a_rerun_with_another_miss_fraction_is_refused_and_more_episodes_are_add
     assert generate_clipset(cfg, out, reg)["episodes_written"] == 2
     with pytest.raises(StageChanged, match="pick_miss"):
         generate_clipset(GenerateConfig(("toyarm",), 2, width=32, height=32, frames=9, shard_size=2), out, reg)
-    more = generate_clipset(GenerateConfig(("toyarm",), 4, width=32, height=32, frames=9, shard_size=2,
-                                           pick_miss=0.5), out, reg)
+    more = generate_clipset(
+        GenerateConfig(("toyarm",), 4, width=32, height=32, frames=9, shard_size=2, pick_miss=0.5), out, reg
+    )
     assert (more["episodes_written"], more["episodes_skipped"]) == (2, 2)

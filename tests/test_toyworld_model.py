@@ -21,7 +21,9 @@ EPISODES = [(0, "franka", 9), (0, "kuka", 19), (0, "toyarm", 29), (0, "franka", 
 #: measured with the shipped checkpoint on EPISODES (docs/toyworld.md, "The shipped model"): mean motion IoU and
 #: mean PSNR of the true-skeleton rollouts minus those of the shuffled-skeleton rollouts (each episode given the
 #: next one's skeleton)
-MEASURED_MOTION_IOU_MARGIN = 0.147  # 0.1473: true 0.299, 0.201, 0.242, 0.154 against shuffled 0.084, 0.092, 0.059, 0.072
+MEASURED_MOTION_IOU_MARGIN = (
+    0.147  # 0.1473: true 0.299, 0.201, 0.242, 0.154 against shuffled 0.084, 0.092, 0.059, 0.072
+)
 MEASURED_PSNR_MARGIN_DB = 1.22  # 1.220: true 22.26 dB against shuffled 21.04 dB
 
 
@@ -45,8 +47,9 @@ def test_in_the_zoo_bundled_and_pinned():
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
     assert size < 20e6, f"oscar-toy is {size / 1e6:.1f} MB"
     assert (folder / "README.md").is_file()
-    out = subprocess.run([sys.executable, "-m", "oscar_core.cli", "zoo", "list"], capture_output=True, text=True,
-                         check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "oscar_core.cli", "zoo", "list"], capture_output=True, text=True, check=True
+    ).stdout
     assert "oscar-toy" in out and "bundled with oscar-wm" in out
 
 
@@ -96,9 +99,31 @@ def test_cli_rollout_on_a_held_out_embodiment(tmp_path):
     cv2.imwrite(str(tmp_path / "f0.png"), ep.rgb[0][..., ::-1])
     save_trajectory(ep.trajectory, tmp_path / "t.npz")
     save_camera(ep.camera, tmp_path / "c.json")
-    subprocess.run([sys.executable, "-m", "oscar_core.cli", "rollout", "--model", "oscar-toy", "--embodiment", "hsr",
-                    "--first-frame", str(tmp_path / "f0.png"), "--trajectory", str(tmp_path / "t.npz"),
-                    "--camera", str(tmp_path / "c.json"), "--out", str(tmp_path / "r.mp4"), "--steps", "10"],
-                   check=True, capture_output=True, text=True, env={**__import__("os").environ, "OMP_NUM_THREADS": "1"})
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "oscar_core.cli",
+            "rollout",
+            "--model",
+            "oscar-toy",
+            "--embodiment",
+            "hsr",
+            "--first-frame",
+            str(tmp_path / "f0.png"),
+            "--trajectory",
+            str(tmp_path / "t.npz"),
+            "--camera",
+            str(tmp_path / "c.json"),
+            "--out",
+            str(tmp_path / "r.mp4"),
+            "--steps",
+            "10",
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+        env={**__import__("os").environ, "OMP_NUM_THREADS": "1"},
+    )
     video = read_video(tmp_path / "r.mp4")
     assert video.shape == (17, 64, 64, 3)

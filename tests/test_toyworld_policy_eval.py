@@ -45,8 +45,15 @@ def toyarm():
 
 def _session(emb, i, policies=SURE, frames=9):
     names = [p.name for p in policies]
-    return plan_session(emb, session_rng(0, emb.name, i), 32, 32, frames, policies=policies,
-                        policy_rngs={n: session_rng(0, emb.name, i, 0, n) for n in names})
+    return plan_session(
+        emb,
+        session_rng(0, emb.name, i),
+        32,
+        32,
+        frames,
+        policies=policies,
+        policy_rngs={n: session_rng(0, emb.name, i, 0, n) for n in names},
+    )
 
 
 def test_expert_always_succeeds_and_far_aim_never(toyarm):
@@ -84,12 +91,18 @@ def _disc_video(centres, size=32, r=2.5):
 
 def _judge_clip():
     # identity homography / 2: one ball radius = 2 pixels, so 3 radii = 6 pixels (the drawn disc: 2.5 px radius)
-    return SimpleNamespace(info={"px_to_floor_radii": np.diag([0.5, 0.5, 1.0]).tolist(), "success_radii": 3.0,
-                                 "ball_start_px": [10, 10], "ball_radius_px": 2.5})
+    return SimpleNamespace(
+        info={
+            "px_to_floor_radii": np.diag([0.5, 0.5, 1.0]).tolist(),
+            "success_radii": 3.0,
+            "ball_start_px": [10, 10],
+            "ball_radius_px": 2.5,
+        }
+    )
 
 
 def _streak(v, t, x0, x1, y):
-    v[t, y:y + 2, x0:x1] = (255, 209, 0)  # a 2-pixel-thick yellow smear, not a ball
+    v[t, y : y + 2, x0:x1] = (255, 209, 0)  # a 2-pixel-thick yellow smear, not a ball
 
 
 def test_ball_moved_known_answers():
@@ -152,7 +165,9 @@ def test_ball_moved_is_not_fooled_by_generation_artefacts():
 
 def test_ball_reading_internals():
     r = ball_reading(_disc_video([(10, 10)] * 5 + [(18, 10)] * 4), _judge_clip().info)
-    assert r["start_px"] == [10.0, 10.0] and r["tail"] == [6, 7, 8] and r["left"] and r["found"] == 3 and r["last_found"]
+    assert (
+        r["start_px"] == [10.0, 10.0] and r["tail"] == [6, 7, 8] and r["left"] and r["found"] == 3 and r["last_found"]
+    )
     assert r["distance"] == pytest.approx(4.0) and r["at_start"] == [0, 0, 0]
     assert all(b["compact"] and b["n"] == r["n0"] for b in r["blob"])
 
@@ -166,8 +181,7 @@ def test_function_judge_version_keys_stored_verdicts():
 
 def test_manifest_real_outcomes_and_judge_agreement(tmp_path):
     # 64x64, the judge's design size (at 32x32 the carried ball shrinks below its 3-pixel minimum)
-    summary = write_policy_eval(tmp_path / "pe", ["toyarm"], 2, seed=0, width=64, height=64, frames=9,
-                                policies=SURE)
+    summary = write_policy_eval(tmp_path / "pe", ["toyarm"], 2, seed=0, width=64, height=64, frames=9, policies=SURE)
     m = load_manifest(tmp_path / "pe" / "manifest.json")
     assert m.policies == ("expert", "never") and len(m.cells) == 4 and m.size == (64, 64)
     assert m.real_success_rates() == {"expert": 1.0, "never": 0.0}
@@ -210,18 +224,52 @@ def test_eval_run_end_to_end_on_the_toy_manifest(tmp_path, capsys):
     from oscar_core.model import ModelCard, OscarWorldModel
     from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    code = oscar_main(["toyworld", "policy-eval", "--embodiments", "toyarm", "--sessions", "2", "--seed", "0",
-                       "--size", "32x32", "--frames", "9", "--out", str(tmp_path / "pe"), "--json"])
+    code = oscar_main(
+        [
+            "toyworld",
+            "policy-eval",
+            "--embodiments",
+            "toyarm",
+            "--sessions",
+            "2",
+            "--seed",
+            "0",
+            "--size",
+            "32x32",
+            "--frames",
+            "9",
+            "--out",
+            str(tmp_path / "pe"),
+            "--json",
+        ]
+    )
     assert code == 0
     summary = json.loads(capsys.readouterr().out)
     assert list(summary["policies"]) == ["expert", "good", "sloppy", "random"]
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5, fps=10.0))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, fps=10.0),
+    )
     model_dir = oscar_zoo.export(model, tmp_path / "tiny")
     out = tmp_path / "report"
-    code = oscar_main(["eval", "run", str(tmp_path / "pe" / "manifest.json"), "--model", str(model_dir),
-                       "--judge", "oscar_core.toyworld.judge:ball_moved", "--pairwise", "--steps", "1",
-                       "--out", str(out), "--no-progress"])
+    code = oscar_main(
+        [
+            "eval",
+            "run",
+            str(tmp_path / "pe" / "manifest.json"),
+            "--model",
+            str(model_dir),
+            "--judge",
+            "oscar_core.toyworld.judge:ball_moved",
+            "--pairwise",
+            "--steps",
+            "1",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert code == 0  # every cell got a valid verdict
     report = json.loads((out / "report.json").read_text())
     m = load_manifest(tmp_path / "pe" / "manifest.json")
@@ -235,8 +283,19 @@ def test_eval_run_end_to_end_on_the_toy_manifest(tmp_path, capsys):
     assert len(report["pairs"]) == 2 * 6  # 6 pairs of 4 policies per session
     # the per-cell judge internals of the same rollouts, through the CLI
     capsys.readouterr()
-    assert oscar_main(["toyworld", "carry", str(tmp_path / "pe" / "manifest.json"), str(out),
-                       "--json", str(tmp_path / "carry.json")]) == 0
+    assert (
+        oscar_main(
+            [
+                "toyworld",
+                "carry",
+                str(tmp_path / "pe" / "manifest.json"),
+                str(out),
+                "--json",
+                str(tmp_path / "carry.json"),
+            ]
+        )
+        == 0
+    )
     table = capsys.readouterr().out
     assert table.count("\n") == 2 + 4 and "| random | 2 |" in table, table
     carried = json.loads((tmp_path / "carry.json").read_text())

@@ -18,24 +18,40 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
     root = tmp_path_factory.mktemp("toy") / "clips"
-    generate_clipset(GenerateConfig(embodiments=("toyarm", "franka"), episodes=20, width=32, height=32, frames=9,
-                                    seed=0, shard_size=20, supersample=1), root, Registry())
+    generate_clipset(
+        GenerateConfig(
+            embodiments=("toyarm", "franka"),
+            episodes=20,
+            width=32,
+            height=32,
+            frames=9,
+            seed=0,
+            shard_size=20,
+            supersample=1,
+        ),
+        root,
+        Registry(),
+    )
     return root
 
 
 @pytest.fixture(scope="module")
 def model():
     """A tiny model whose skeleton embedder is not zero, so the skeleton changes the video."""
-    return OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.5), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny", chunk_frames=9, width=32, height=32))
+    return OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.5),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=9, width=32, height=32),
+    )
 
 
 FAST = SamplerConfig(steps=2, guidance=2.0)
 
 
 def _rec(cid, emb):
-    return ClipRecord(id=cid, source="s", embodiment=emb, n_frames=9, fps=10.0, width=32, height=32, openness=(),
-                      files={})
+    return ClipRecord(
+        id=cid, source="s", embodiment=emb, n_frames=9, fps=10.0, width=32, height=32, openness=(), files={}
+    )
 
 
 def test_shuffled_partners_are_a_derangement_within_each_embodiment():
@@ -60,8 +76,12 @@ def test_conditions_differ_and_zero_ignores_the_skeleton(tmp_path, clips, model)
     rec = cs.record("franka-000009")
     first = cs.load(rec, frames=1, skeleton=False).rgb[0]
     skel = cs.load(rec, video=False).skeleton
-    want = model.rollout(first, np.zeros_like(skel), sampler=SamplerConfig(steps=2, guidance=0.0, guidance_form="standard"),
-                         progress=False).frames
+    want = model.rollout(
+        first,
+        np.zeros_like(skel),
+        sampler=SamplerConfig(steps=2, guidance=0.0, guidance_form="standard"),
+        progress=False,
+    ).frames
     np.testing.assert_array_equal(runs["zero"]["franka-000009"], want)
     # true: the stored skeleton with the given sampler
     want = model.rollout(first, skel, sampler=FAST, progress=False).frames
@@ -93,8 +113,15 @@ def test_train_split_shuffles_across_clips_and_resume_keeps_written(tmp_path, cl
     with pytest.raises(StageChanged, match=r"condition: shuffled -> true"):
         write_rollouts(model, clips, tmp_path / "sh", "true", split="train", limit=3, sampler=FAST)
     with pytest.raises(StageChanged, match=r"sampler.steps: 2 -> 3"):
-        write_rollouts(model, clips, tmp_path / "sh", "shuffled", split="train", limit=3,
-                       sampler=SamplerConfig(steps=3, guidance=2.0))
+        write_rollouts(
+            model,
+            clips,
+            tmp_path / "sh",
+            "shuffled",
+            split="train",
+            limit=3,
+            sampler=SamplerConfig(steps=3, guidance=2.0),
+        )
     with pytest.raises(ValueError, match="condition"):
         write_rollouts(model, clips, tmp_path / "x", "reversed")
     with pytest.raises(ValueError, match="meta.split == 'nope'"):
@@ -120,8 +147,9 @@ def test_demo_adds_the_toy_world_row(tmp_path, model):
     from oscar_core.demo import run_demo
 
     folder = tmp_path / "m"
-    OscarWorldModel(model.transformer, model.vae, ModelCard(name="tiny", chunk_frames=9, width=32, height=32)) \
-        .save_pretrained(folder)
+    OscarWorldModel(
+        model.transformer, model.vae, ModelCard(name="tiny", chunk_frames=9, width=32, height=32)
+    ).save_pretrained(folder)
     summary = run_demo(tmp_path / "demo", size=(64, 48), names=["toyarm"], toy_model=str(folder), log=lambda m: None)
     assert (tmp_path / "demo" / "toyworld_rollout.mp4").is_file()
     assert summary["toy_world"]["episode"].startswith("franka-000009")
@@ -130,8 +158,9 @@ def test_demo_adds_the_toy_world_row(tmp_path, model):
     v = read_video(tmp_path / "demo" / "toyworld_rollout.mp4")
     assert v.shape == (9, 64, 3 * 64 + 2 * 2, 3)  # three 32x32 panels scaled 2x, 2-pixel gaps
     # a model that cannot be loaded is reported, not fatal
-    summary = run_demo(tmp_path / "demo2", size=(64, 48), names=["toyarm"], toy_model=str(tmp_path / "none"),
-                       log=lambda m: None)
+    summary = run_demo(
+        tmp_path / "demo2", size=(64, 48), names=["toyarm"], toy_model=str(tmp_path / "none"), log=lambda m: None
+    )
     assert "toy_world" not in summary and any("toy_world" in s for s in summary["skipped"])
 
 
@@ -140,11 +169,22 @@ def test_package_writes_a_loadable_named_folder_with_a_model_card(tmp_path, mode
 
     export = tmp_path / "export"
     model.save_pretrained(export)
-    table = {"rows": {"true skeleton": {"clips": 3, "psnr_db": 20.0, "ssim": 0.5, "motion_iou": 0.4,
-                                        "ee_error_px": 5.0, "object_error_px": 6.0}},
-             "markdown": "| condition | clips |\n|---|---|\n| true skeleton | 3 |"}
-    hashes = package_toy_model(export, tmp_path / "out", name="toy-x", training={"steps": 7, "wall": "1 min"},
-                               table=table)
+    table = {
+        "rows": {
+            "true skeleton": {
+                "clips": 3,
+                "psnr_db": 20.0,
+                "ssim": 0.5,
+                "motion_iou": 0.4,
+                "ee_error_px": 5.0,
+                "object_error_px": 6.0,
+            }
+        },
+        "markdown": "| condition | clips |\n|---|---|\n| true skeleton | 3 |",
+    }
+    hashes = package_toy_model(
+        export, tmp_path / "out", name="toy-x", training={"steps": 7, "wall": "1 min"}, table=table
+    )
     assert hashes == file_hashes(tmp_path / "out") and "README.md" in hashes
     loaded = OscarWorldModel.from_pretrained(tmp_path / "out")
     assert (loaded.card.name, loaded.card.license, loaded.card.text_encoder_id) == ("toy-x", "Apache-2.0", None)

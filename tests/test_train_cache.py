@@ -81,8 +81,13 @@ def test_split_filter_and_resume(tmp_path):
     from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
 
     src = tmp_path / "toy"
-    generate_clipset(GenerateConfig(embodiments=("toyarm",), episodes=10, width=32, height=32, frames=9, seed=0,
-                                    shard_size=5, supersample=1), src, Registry())
+    generate_clipset(
+        GenerateConfig(
+            embodiments=("toyarm",), episodes=10, width=32, height=32, frames=9, seed=0, shard_size=5, supersample=1
+        ),
+        src,
+        Registry(),
+    )
     vae = vae4x()
     s = cache_latents(src, tmp_path / "train", vae, window=9, split="train", log=lambda m: None)
     ids = [r.id for r in ClipSet(tmp_path / "train")]
@@ -107,9 +112,13 @@ def test_trainer_uses_latents_cached_at_the_vaes_compression(tmp_path, source):
     """A 4x-space VAE's 8x8 latents of 32x32 clips are recognised as cached (not only WAN's 8x)."""
     vae = vae4x()
     cache_latents(source, tmp_path / "out", vae, window=9, log=lambda m: None)
-    cfg = config_from_dict({"run_dir": str(tmp_path / "run"), "model": {"transformer": "tiny", "vae": "tiny"},
-                            "data": {"clips": [str(tmp_path / "out")], "window": 9, "width": 32, "height": 32,
-                                     "latents": "cached"}})
+    cfg = config_from_dict(
+        {
+            "run_dir": str(tmp_path / "run"),
+            "model": {"transformer": "tiny", "vae": "tiny"},
+            "data": {"clips": [str(tmp_path / "out")], "window": 9, "width": 32, "height": 32, "latents": "cached"},
+        }
+    )
     data = TrainData(cfg, vae, 48)
     assert data.cached
     item = data.planner().plan(0, 1)[0]
@@ -120,8 +129,22 @@ def test_trainer_uses_latents_cached_at_the_vaes_compression(tmp_path, source):
 def test_cli(tmp_path, source, capsys):
     vae_dir = tmp_path / "vae"
     vae4x().vae.save_pretrained(vae_dir, safe_serialization=True)
-    rc = main(["train", "--cache-latents", str(source), "--vae", str(vae_dir), "--window", "9", "--out",
-               str(tmp_path / "out"), "--threads", "1", "--json"])
+    rc = main(
+        [
+            "train",
+            "--cache-latents",
+            str(source),
+            "--vae",
+            str(vae_dir),
+            "--window",
+            "9",
+            "--out",
+            str(tmp_path / "out"),
+            "--threads",
+            "1",
+            "--json",
+        ]
+    )
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["clips_cached"] == 3

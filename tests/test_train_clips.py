@@ -39,8 +39,18 @@ def parts():
 
 def record(traj, clip_id="ep0", **kw):
     op = clip_openness(ToyArm(), traj)
-    d = dict(id=clip_id, source="toyworld", embodiment="toyarm", n_frames=len(traj), fps=float(traj.fps), width=W,
-             height=H, openness=tuple(map(tuple, op)), files={}, caption="pick up the cube")
+    d = dict(
+        id=clip_id,
+        source="toyworld",
+        embodiment="toyarm",
+        n_frames=len(traj),
+        fps=float(traj.fps),
+        width=W,
+        height=H,
+        openness=tuple(map(tuple, op)),
+        files={},
+        caption="pick up the cube",
+    )
     d.update(kw)
     return ClipRecord(**d)
 
@@ -57,8 +67,13 @@ def write_set(root, parts, n=2, **clip_kw):
 def test_round_trip_is_lossless(tmp_path, parts):
     traj, cam, rgb = parts
     pe = torch.randn(7, 16)
-    lat = {"video": torch.randn(2, 4, 2, 3, 4), "skeleton": torch.randn(2, 4, 2, 3, 4), "starts": [0, 3], "window": 5,
-           "vae": "tiny"}
+    lat = {
+        "video": torch.randn(2, 4, 2, 3, 4),
+        "skeleton": torch.randn(2, 4, 2, 3, 4),
+        "starts": [0, 3],
+        "window": 5,
+        "vae": "tiny",
+    }
     write_set(tmp_path, parts, skeleton=rgb[::-1].copy(), prompt_embeds=pe, latents=lat)
     cs = ClipSet(tmp_path)
     assert [r.id for r in cs] == ["ep0", "ep1"]
@@ -133,15 +148,18 @@ def _edit_index(root, fn):
     index.write_text("".join(json.dumps(r) + "\n" for r in rows))
 
 
-@pytest.mark.parametrize("edit, field", [
-    (lambda r: r.pop("fps"), "fps"),
-    (lambda r: r["files"].pop("camera"), "files.camera"),
-    (lambda r: r.update(openness=[[0.5]] * 3), "openness"),
-    (lambda r: r.update(openness=[[1.5]] * r["n_frames"]), "openness"),
-    (lambda r: r.update(n_frames=0), "n_frames"),
-    (lambda r: r["files"].update(rgb="../../etc/passwd.mkv"), "files.rgb"),
-    (lambda r: r.update(colour="red"), "colour"),
-])
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        (lambda r: r.pop("fps"), "fps"),
+        (lambda r: r["files"].pop("camera"), "files.camera"),
+        (lambda r: r.update(openness=[[0.5]] * 3), "openness"),
+        (lambda r: r.update(openness=[[1.5]] * r["n_frames"]), "openness"),
+        (lambda r: r.update(n_frames=0), "n_frames"),
+        (lambda r: r["files"].update(rgb="../../etc/passwd.mkv"), "files.rgb"),
+        (lambda r: r.update(colour="red"), "colour"),
+    ],
+)
 def test_bad_records_name_shard_clip_and_field(tmp_path, parts, edit, field):
     write_set(tmp_path, parts, n=1)
     _edit_index(tmp_path, edit)

@@ -20,8 +20,16 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
-    return write_toy_clipset(tmp_path_factory.mktemp("clips") / "toy", clips=3, frames=13, width=32, height=32,
-                             latents_vae="random", latents_window=9, prompt_dim=48)
+    return write_toy_clipset(
+        tmp_path_factory.mktemp("clips") / "toy",
+        clips=3,
+        frames=13,
+        width=32,
+        height=32,
+        latents_vae="random",
+        latents_window=9,
+        prompt_dim=48,
+    )
 
 
 def _port() -> int:
@@ -31,10 +39,18 @@ def _port() -> int:
 
 
 def run(tmp_path, clipset, name, nproc, parallel="auto"):
-    cfg = {"run_dir": str(tmp_path / name), "steps": 3, "batch_size": 4, "micro_batch": 1, "save_every": 3,
-           "parallel": parallel, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-           "data": {"clips": [str(clipset)], "window": 9, "width": 32, "height": 32, "skeleton_dropout": 0.5},
-           "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0, "ema_decay": 0.5}}
+    cfg = {
+        "run_dir": str(tmp_path / name),
+        "steps": 3,
+        "batch_size": 4,
+        "micro_batch": 1,
+        "save_every": 3,
+        "parallel": parallel,
+        "export": False,
+        "model": {"transformer": "tiny", "vae": "tiny"},
+        "data": {"clips": [str(clipset)], "window": 9, "width": 32, "height": 32, "skeleton_dropout": 0.5},
+        "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0, "ema_decay": 0.5},
+    }
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
     if nproc == 1:  # in this process: the plain loop, no process group
@@ -46,8 +62,21 @@ def run(tmp_path, clipset, name, nproc, parallel="auto"):
             torch.set_num_threads(n)
         return _weights(tmp_path / name)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", str(nproc), "--master-addr", "127.0.0.1",
-           "--master-port", str(_port()), "-m", "oscar_core.train", str(path), "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc-per-node",
+        str(nproc),
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(_port()),
+        "-m",
+        "oscar_core.train",
+        str(path),
+        "--no-progress",
+    ]
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     return _weights(tmp_path / name)
@@ -57,7 +86,9 @@ def _weights(run_dir):
     model = build_transformer(load_config(run_dir / "config.yaml"))
     out = {}
     for key in ("model", "ema"):
-        out[key] = {k: v.clone() for k, v in load_weights(latest_checkpoint(run_dir), model, key=key).state_dict().items()}
+        out[key] = {
+            k: v.clone() for k, v in load_weights(latest_checkpoint(run_dir), model, key=key).state_dict().items()
+        }
     return out
 
 

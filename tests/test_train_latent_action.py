@@ -66,9 +66,13 @@ def test_features_through_the_embodiment_fk():
 
 def _inputs(b=2, t=3):
     g = torch.Generator().manual_seed(0)
-    return dict(hidden_states=torch.randn(b, 16, t, 4, 4, generator=g), timestep=torch.rand(b, 1, t, 1, 1, generator=g),
-                encoder_hidden_states=torch.randn(b, 2, 48, generator=g),
-                condition_mask=torch.zeros(b, 1, t, 4, 4), return_dict=False)
+    return dict(
+        hidden_states=torch.randn(b, 16, t, 4, 4, generator=g),
+        timestep=torch.rand(b, 1, t, 1, 1, generator=g),
+        encoder_hidden_states=torch.randn(b, 2, 48, generator=g),
+        condition_mask=torch.zeros(b, 1, t, 4, 4),
+        return_dict=False,
+    )
 
 
 def test_model_starts_as_the_base_and_injects_both_tokens():

@@ -26,10 +26,10 @@ from test_train_loop import tiny
 
 REPO = Path(__file__).resolve().parents[1]
 STEPS = SamplerConfig(steps=2)  # action_guidance None: the conditional branch alone
-pytestmark = [pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
-              pytest.mark.usefixtures("one_thread")]  # tests/conftest.py
-
-
+pytestmark = [
+    pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
+    pytest.mark.usefixtures("one_thread"),
+]  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +42,9 @@ def toyarm():
 def exported(tmp_path_factory):
     """A 2-step tiny latent-action run (9-frame windows, 32x32), exported."""
     root = tmp_path_factory.mktemp("la")
-    clips = write_toy_clipset(root / "clips", clips=3, frames=13, width=32, height=32, latents_vae="random",
-                              latents_window=9, prompt_dim=48)
+    clips = write_toy_clipset(
+        root / "clips", clips=3, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
+    )
     cfg = tiny(clips, root / "run", steps=2, export=True, condition="latent_action")
     return train(cfg, progress=False).export
 
@@ -94,8 +95,10 @@ def test_card_condition_defaults_to_skeleton_and_is_checked():
 def test_hold_actions_equal_the_features_of_a_padded_trajectory(toyarm):
     emb, full, _ = toyarm
     traj = full.time_slice(30, 42)  # the gripper closes in here: openness is not constant
-    padded = traj.replace(q=np.concatenate([traj.q, np.repeat(traj.q[-1:], 5, 0)]),
-                          gripper=np.concatenate([traj.gripper, np.repeat(traj.gripper[-1:], 5, 0)]))
+    padded = traj.replace(
+        q=np.concatenate([traj.q, np.repeat(traj.q[-1:], 5, 0)]),
+        gripper=np.concatenate([traj.gripper, np.repeat(traj.gripper[-1:], 5, 0)]),
+    )
     want = latent_actions(emb, padded)
     got = hold_actions(latent_actions(emb, traj), len(want))
     assert got.shape == (16, ACTION_DIM)
@@ -111,14 +114,16 @@ def test_each_chunk_is_fed_its_window_of_the_trajectory_actions(model, toyarm):
     seen = record_actions(model)
     out = model.rollout_trajectory(FIRST, traj, cam, emb, progress=False, sampler=STEPS)
     assert out.frames.shape == (20, 32, 32, 3) and out.starts == [0, 8, 16]
-    padded = traj.replace(q=np.concatenate([traj.q, np.repeat(traj.q[-1:], 5, 0)]),
-                          gripper=np.concatenate([traj.gripper, np.repeat(traj.gripper[-1:], 5, 0)]))
+    padded = traj.replace(
+        q=np.concatenate([traj.q, np.repeat(traj.q[-1:], 5, 0)]),
+        gripper=np.concatenate([traj.gripper, np.repeat(traj.gripper[-1:], 5, 0)]),
+    )
     feats = torch.from_numpy(latent_actions(emb, padded)).float()  # (24, 14)
     assert len(seen) == 3 * STEPS.steps
     for i, a in enumerate(seen):
         start = out.starts[i // STEPS.steps]
         assert a is not None and a.shape == (1, 8, ACTION_DIM)
-        torch.testing.assert_close(a[0], feats[start:start + 8], rtol=0, atol=1e-6)
+        torch.testing.assert_close(a[0], feats[start : start + 8], rtol=0, atol=1e-6)
 
 
 def test_actions_change_the_video(model, toyarm):
@@ -144,8 +149,9 @@ def test_actions_change_the_video(model, toyarm):
 def test_action_guidance_runs_an_unconditional_branch_without_actions(model, toyarm):
     emb, full, cam = toyarm
     seen = record_actions(model)
-    model.rollout_trajectory(FIRST, full.time_slice(0, 9), cam, emb, progress=False,
-                             sampler=SamplerConfig(steps=2, action_guidance=3.0))
+    model.rollout_trajectory(
+        FIRST, full.time_slice(0, 9), cam, emb, progress=False, sampler=SamplerConfig(steps=2, action_guidance=3.0)
+    )
     assert [a is None for a in seen] == [False, True, False, True]  # cond, uncond per step
     seen.clear()
     model.rollout_trajectory(FIRST, full.time_slice(0, 9), cam, emb, progress=False, sampler=STEPS)
@@ -165,13 +171,21 @@ def test_guided_velocity_over_actions_is_the_cfg_formula(model):
     acts = torch.randn(1, 8, ACTION_DIM, generator=g)
     kw = dict(text_projected=True)
     v_c = guided_velocity(tr, x, t, text, None, mask, pad, SamplerConfig(), actions=acts, **kw)
-    v_u = tr(hidden_states=x, timestep=t, encoder_hidden_states=text, condition_mask=mask, padding_mask=pad,
-             return_dict=False, text_projected=True)[0]
+    v_u = tr(
+        hidden_states=x,
+        timestep=t,
+        encoder_hidden_states=text,
+        condition_mask=mask,
+        padding_mask=pad,
+        return_dict=False,
+        text_projected=True,
+    )[0]
     w = 2.5
     v = guided_velocity(tr, x, t, text, None, mask, pad, SamplerConfig(action_guidance=w), actions=acts, **kw)
     torch.testing.assert_close(v, v_c + w * (v_c - v_u), rtol=1e-5, atol=1e-6)
-    v = guided_velocity(tr, x, t, text, None, mask, pad, SamplerConfig(action_guidance=w, guidance_form="standard"),
-                        actions=acts, **kw)
+    v = guided_velocity(
+        tr, x, t, text, None, mask, pad, SamplerConfig(action_guidance=w, guidance_form="standard"), actions=acts, **kw
+    )
     torch.testing.assert_close(v, v_u + w * (v_c - v_u), rtol=1e-5, atol=1e-6)
     assert (v_c - v_u).abs().max() > 0
 
@@ -181,8 +195,11 @@ def test_wrong_inputs_are_named(model, toyarm):
     acts = latent_actions(emb, full.time_slice(0, 9))
     with pytest.raises(ModelInputError, match="latent-action model: expected actions"):
         model.rollout(FIRST, np.zeros((9, 32, 32, 3), np.uint8), progress=False, sampler=STEPS)
-    with pytest.raises(ModelInputError, match=r"chunk_frames: a latent-action model takes the window it was trained "
-                                              r"on \(9 frames.*found 13"):
+    with pytest.raises(
+        ModelInputError,
+        match=r"chunk_frames: a latent-action model takes the window it was trained "
+        r"on \(9 frames.*found 13",
+    ):
         model.rollout(FIRST, None, actions=acts, chunk_frames=13, progress=False, sampler=STEPS)
 
 
@@ -207,10 +224,31 @@ def test_oscar_rollout_cli_rolls_a_latent_action_model_out(tmp_path, capsys, exp
     parser = argparse.ArgumentParser(prog="oscar")
     add_model_parsers(parser.add_subparsers(dest="command", required=True))
     out = tmp_path / "v.mkv"
-    args = parser.parse_args([str(a) for a in (
-        "rollout", "--model", exported, "--embodiment", "toyarm", "--first-frame", first,
-        "--trajectory", assets / "example_trajectory.npz", "--camera", assets / "example_camera.json",
-        "--out", out, "--steps", "1", "--no-progress", "--no-side-by-side", "--json")])
+    args = parser.parse_args(
+        [
+            str(a)
+            for a in (
+                "rollout",
+                "--model",
+                exported,
+                "--embodiment",
+                "toyarm",
+                "--first-frame",
+                first,
+                "--trajectory",
+                assets / "example_trajectory.npz",
+                "--camera",
+                assets / "example_camera.json",
+                "--out",
+                out,
+                "--steps",
+                "1",
+                "--no-progress",
+                "--no-side-by-side",
+                "--json",
+            )
+        ]
+    )
     try:
         code = args.func(args)
     except OscarError as exc:  # pragma: no cover - shows the message on failure
@@ -236,4 +274,4 @@ def test_eval_run_rolls_a_latent_action_model_out_from_each_cells_actions(model,
 
     cell = load_manifest(manifest).cells[0]
     want = latent_actions(Registry().get(cell.embodiment), load_trajectory(cell.trajectory))
-    assert any(np.allclose(a[0, :len(want)].numpy(), want, atol=1e-5) for a in seen)
+    assert any(np.allclose(a[0, : len(want)].numpy(), want, atol=1e-5) for a in seen)

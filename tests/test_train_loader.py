@@ -29,13 +29,19 @@ def onthefly(tmp_path_factory):
 
 def _schedule(data, cfg, steps, accum=1):
     planner = data.planner()
-    return micro_batches(lambda s: StepPlanner.rank_slice(planner.plan(s, cfg.batch_size), 0, 1), 0, steps, accum,
-                         cfg.micro_batch)
+    return micro_batches(
+        lambda s: StepPlanner.rank_slice(planner.plan(s, cfg.batch_size), 0, 1), 0, steps, accum, cfg.micro_batch
+    )
 
 
 def test_worker_threads_give_the_batches_of_the_main_process_in_order(tmp_path, onthefly):
-    cfg = tiny(onthefly, tmp_path / "r", batch_size=4, micro_batch=2,
-               **{"data.skeleton_dropout": 0.5, "data.unconditional_skeleton": "black_video"})
+    cfg = tiny(
+        onthefly,
+        tmp_path / "r",
+        batch_size=4,
+        micro_batch=2,
+        **{"data.skeleton_dropout": 0.5, "data.unconditional_skeleton": "black_video"},
+    )
     vae = build_vae(cfg)
     plain = list(iter_batches(TrainData(cfg, vae, 48), _schedule(TrainData(cfg, vae, 48), cfg, 4, 2), "skeleton"))
     data = TrainData(cfg, vae, 48)
@@ -87,7 +93,10 @@ def test_workers_and_prefetch_are_checked(tmp_path, onthefly):
 
 def test_the_start_line_counts_clips_trained_without_text(tmp_path, onthefly):
     cfg = tiny(onthefly, tmp_path / "r")
-    assert TrainData(cfg, None, 48).summary()["prompts"] == {"embedded": 0, "caption_only_zero_text": 3,
-                                                             "none_zero_text": 0}
+    assert TrainData(cfg, None, 48).summary()["prompts"] == {
+        "embedded": 0,
+        "caption_only_zero_text": 3,
+        "none_zero_text": 0,
+    }
     embedded = write_toy_clipset(tmp_path / "emb", clips=2, frames=13, width=32, height=32, prompt_dim=48)
     assert TrainData(tiny(embedded, tmp_path / "r2"), None, 48).summary()["prompts"]["embedded"] == 2

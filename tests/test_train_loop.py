@@ -26,15 +26,24 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
     root = tmp_path_factory.mktemp("clips") / "toy"
-    return write_toy_clipset(root, clips=3, frames=13, width=32, height=32, latents_vae="random", latents_window=9,
-                             prompt_dim=48)
+    return write_toy_clipset(
+        root, clips=3, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
+    )
 
 
 def tiny(clips, run_dir, **over) -> TrainConfig:
-    d = {"run_dir": str(run_dir), "steps": 4, "batch_size": 2, "micro_batch": 1, "save_every": 2, "log_every": 1,
-         "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-         "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32},
-         "optim": {"lr": 1e-3, "warmup_steps": 2, "grad_clip": 1.0, "ema_decay": 0.9}}
+    d = {
+        "run_dir": str(run_dir),
+        "steps": 4,
+        "batch_size": 2,
+        "micro_batch": 1,
+        "save_every": 2,
+        "log_every": 1,
+        "export": False,
+        "model": {"transformer": "tiny", "vae": "tiny"},
+        "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32},
+        "optim": {"lr": 1e-3, "warmup_steps": 2, "grad_clip": 1.0, "ema_decay": 0.9},
+    }
     for k, v in over.items():
         node = d
         *parents, last = k.split(".")
@@ -52,10 +61,18 @@ def weights(run_dir, key="model"):
 # ---------------------------------------------------------------------- learning
 @pytest.mark.slow
 def test_tiny_config_overfits_one_clip(tmp_path):
-    clips = write_toy_clipset(tmp_path / "one", clips=1, frames=9, width=32, height=32, latents_vae="random",
-                              latents_window=9)
-    cfg = tiny(clips, tmp_path / "run", steps=150, batch_size=1, save_every=150, log_every=50,
-               **{"data.skeleton_dropout": 0.0, "optim.lr": 3e-3, "optim.warmup_steps": 5})
+    clips = write_toy_clipset(
+        tmp_path / "one", clips=1, frames=9, width=32, height=32, latents_vae="random", latents_window=9
+    )
+    cfg = tiny(
+        clips,
+        tmp_path / "run",
+        steps=150,
+        batch_size=1,
+        save_every=150,
+        log_every=50,
+        **{"data.skeleton_dropout": 0.0, "optim.lr": 3e-3, "optim.warmup_steps": 5},
+    )
     data = TrainData(cfg, None, 48)
     eval_items = data.planner().plan(10_000, 16)  # a fixed evaluation batch: 16 (sigma, noise) draws
 
@@ -136,8 +153,12 @@ def test_export_is_a_zoo_loadable_model_with_ema_weights(tmp_path, clipset):
     # a rollout through the exported model runs (tiny sizes, 2 steps)
     from oscar_core.model.sampler import SamplerConfig
 
-    out = model.rollout(np.zeros((32, 32, 3), np.uint8), np.zeros((9, 32, 32, 3), np.uint8), progress=False,
-                        sampler=SamplerConfig(steps=2, guidance=None))
+    out = model.rollout(
+        np.zeros((32, 32, 3), np.uint8),
+        np.zeros((9, 32, 32, 3), np.uint8),
+        progress=False,
+        sampler=SamplerConfig(steps=2, guidance=None),
+    )
     assert out.frames.shape == (9, 32, 32, 3)
     assert model.empty_prompt is None  # the clips carried prompt embeddings: no empty prompt is invented
 
@@ -147,8 +168,9 @@ def test_export_of_a_run_without_prompts_stores_the_zero_prompt_it_trained_on(tm
 
     import oscar_zoo
 
-    clips = write_toy_clipset(tmp_path / "noprompt", clips=1, frames=9, width=32, height=32, latents_vae="random",
-                              latents_window=9)
+    clips = write_toy_clipset(
+        tmp_path / "noprompt", clips=1, frames=9, width=32, height=32, latents_vae="random", latents_window=9
+    )
     cfg = tiny(clips, tmp_path / "run", steps=1, export=True)
     model = oscar_zoo.load(train(cfg, progress=False).export)
     assert model.empty_prompt.shape == (1, 1, 48) and not model.empty_prompt.any()
@@ -202,8 +224,13 @@ def test_stage_two_warm_starts_from_its_parent(tmp_path, clipset):
     stage1 = tiny(clipset, tmp_path / "stage1", steps=2)
     train(stage1, progress=False)
     # lr ~ 0: one stage-2 step leaves the parent's weights exactly in place
-    stage2 = tiny(clipset, tmp_path / "stage2", steps=1, parent_run=str(stage1.run_dir),
-                  **{"optim.lr": 1e-30, "optim.warmup_steps": 0})
+    stage2 = tiny(
+        clipset,
+        tmp_path / "stage2",
+        steps=1,
+        parent_run=str(stage1.run_dir),
+        **{"optim.lr": 1e-30, "optim.warmup_steps": 0},
+    )
     train(stage2, progress=False)
     a, b = weights(stage1.run_dir), weights(stage2.run_dir)
     assert all(torch.equal(a[k], b[k]) for k in a)
@@ -239,10 +266,19 @@ def _shard(clips):
 def test_clip_shorter_than_the_window_is_named_or_skipped(tmp_path, clipset):
     with pytest.raises(ClipFormatError, match=r"shard-000000.*clip 'toy-0'.*n_frames.*at least the window's 17"):
         TrainData(tiny(clipset, tmp_path, **{"data.window": 17}), None, 48)
-    short = write_toy_clipset(tmp_path / "mixed", clips=1, frames=9, width=32, height=32, latents_vae="random",
-                              latents_window=9)
-    cfg = tiny(short, tmp_path / "run", **{"data.clips": [str(clipset), str(short)], "data.window": 13,
-                                            "data.skip_bad_clips": True, "data.latents": "auto"})
+    short = write_toy_clipset(
+        tmp_path / "mixed", clips=1, frames=9, width=32, height=32, latents_vae="random", latents_window=9
+    )
+    cfg = tiny(
+        short,
+        tmp_path / "run",
+        **{
+            "data.clips": [str(clipset), str(short)],
+            "data.window": 13,
+            "data.skip_bad_clips": True,
+            "data.latents": "auto",
+        },
+    )
     data = TrainData(cfg, build_vae(cfg), 48)
     assert data.summary()["skipped_clips"] == 1 and data.skipped[0]["clip"] == "toy-0"
     assert data.summary()["clips"] == 3
@@ -335,9 +371,22 @@ def test_cli_trains_resumes_and_exports(tmp_path, clipset, capsys):
     from oscar_core.cli import main
 
     run = tmp_path / "run"
-    args = ["train", str(REPO / "configs" / "train" / "tiny-cpu.yaml"), "--set", f"run_dir={run}", "--set", "steps=2",
-            "--set", f"data.clips=[{clipset}]", "--set", "batch_size=2", "--set", "export=false", "--no-progress",
-            "--json"]
+    args = [
+        "train",
+        str(REPO / "configs" / "train" / "tiny-cpu.yaml"),
+        "--set",
+        f"run_dir={run}",
+        "--set",
+        "steps=2",
+        "--set",
+        f"data.clips=[{clipset}]",
+        "--set",
+        "batch_size=2",
+        "--set",
+        "export=false",
+        "--no-progress",
+        "--json",
+    ]
     assert main(args) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["step"] == 2
     # the run folder keeps a plain log and the training curves (loss, grad norm, lr)
@@ -361,13 +410,26 @@ def test_config_names_a_vae_folder_and_a_transformer_config(tmp_path):
     from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG, build_tiny_vae
 
     build_tiny_vae(seed=7).save_pretrained(tmp_path / "vae", safe_serialization=True)
-    (tmp_path / "dit.json").write_text(json.dumps({**TINY_TRANSFORMER_CONFIG, "num_layers": 1,
-                                                   "num_attention_heads": 1}))
-    clips = write_toy_clipset(tmp_path / "clips", clips=1, frames=17, width=64, height=64, latents_vae="random",
-                              latents_window=17)
-    cfg = tiny(clips, tmp_path / "run", steps=1, batch_size=1, export=True,
-               **{"model.vae": str(tmp_path / "vae"), "model.transformer": str(tmp_path / "dit.json"),
-                  "data.window": 17, "data.width": 64, "data.height": 64})
+    (tmp_path / "dit.json").write_text(
+        json.dumps({**TINY_TRANSFORMER_CONFIG, "num_layers": 1, "num_attention_heads": 1})
+    )
+    clips = write_toy_clipset(
+        tmp_path / "clips", clips=1, frames=17, width=64, height=64, latents_vae="random", latents_window=17
+    )
+    cfg = tiny(
+        clips,
+        tmp_path / "run",
+        steps=1,
+        batch_size=1,
+        export=True,
+        **{
+            "model.vae": str(tmp_path / "vae"),
+            "model.transformer": str(tmp_path / "dit.json"),
+            "data.window": 17,
+            "data.width": 64,
+            "data.height": 64,
+        },
+    )
     result = train(cfg, progress=False)
     import oscar_zoo
 
@@ -391,14 +453,23 @@ def test_the_memory_policy_counts_tokens_with_the_vaes_own_compression(tmp_path,
 
     monkeypatch.setattr(loop, "prepare_for_training", prepare)
     clips = write_toy_clipset(tmp_path / "clips", clips=1, frames=17, width=64, height=64)
-    cfg = tiny(clips, tmp_path / "run", **{"model.vae": str(REPO / "zoo" / "assets" / "oscar-toy" / "vae"),
-                                           "data.window": 17, "data.width": 64, "data.height": 64})
+    cfg = tiny(
+        clips,
+        tmp_path / "run",
+        **{
+            "model.vae": str(REPO / "zoo" / "assets" / "oscar-toy" / "vae"),
+            "data.window": 17,
+            "data.width": 64,
+            "data.height": 64,
+        },
+    )
     with pytest.raises(KeyboardInterrupt):
         train(cfg, progress=False)
     assert asked == [(4, 4)]
     with pytest.raises(KeyboardInterrupt):
-        train(tiny(clips, tmp_path / "run2", **{"data.window": 17, "data.width": 64, "data.height": 64}),
-              progress=False)
+        train(
+            tiny(clips, tmp_path / "run2", **{"data.window": 17, "data.width": 64, "data.height": 64}), progress=False
+        )
     assert asked[-1] == (4, 8)  # the tiny test VAE: WAN's factors
 
 
@@ -411,8 +482,10 @@ def test_resume_with_more_steps_extends_the_run_bitwise(tmp_path, clipset):
     train(straight, progress=False)
     short = tiny(clipset, tmp_path / "short", steps=2)
     assert train(short, progress=False).step == 2
-    assert main(["train", "--resume", str(short.run_dir), "--set", "steps=4", "--set", "save_every=1",
-                 "--no-progress"]) == 0
+    assert (
+        main(["train", "--resume", str(short.run_dir), "--set", "steps=4", "--set", "save_every=1", "--no-progress"])
+        == 0
+    )
     for key in ("model", "ema"):
         a, b = weights(straight.run_dir, key), weights(short.run_dir, key)
         assert all(torch.equal(a[k], b[k]) for k in a), key
@@ -431,8 +504,12 @@ def test_resume_overrides_other_than_extending_ones_are_refused_naming_the_field
     before = (Path(cfg.run_dir) / "config.yaml").read_text()
     assert main(["train", "--resume", str(cfg.run_dir), "--set", "optim.lr=0.5"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: --set: field 'optim.lr': expected with --resume only steps, save_every, log_every, "
-                          "keep_last") and err.count("\n") == 1
+    assert (
+        err.startswith(
+            "error: --set: field 'optim.lr': expected with --resume only steps, save_every, log_every, keep_last"
+        )
+        and err.count("\n") == 1
+    )
     assert main(["train", "--resume", str(cfg.run_dir), "--set", "steps=1"]) == 2  # fewer than done: refused
     assert "field 'steps': expected at least the latest checkpoint's step 2, found 1" in capsys.readouterr().err
     assert (Path(cfg.run_dir) / "config.yaml").read_text() == before  # nothing changed by a refused resume
@@ -442,9 +519,11 @@ def test_a_bad_set_value_blames_set_not_the_yaml_file(tmp_path, capsys):
     from oscar_core.cli import main
 
     config = str(REPO / "configs" / "train" / "tiny-cpu.yaml")
-    for value, found in [("steps=abc", "expected an integer, found str 'abc'"),
-                         ("optim.lr=nope", "expected a number, found str 'nope'"),
-                         ("steps=0", "expected a positive integer, found 0")]:
+    for value, found in [
+        ("steps=abc", "expected an integer, found str 'abc'"),
+        ("optim.lr=nope", "expected a number, found str 'nope'"),
+        ("steps=0", "expected a positive integer, found 0"),
+    ]:
         assert main(["train", config, "--set", value, "--set", f"run_dir={tmp_path / 'r'}"]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"error: --set: field '{value.split('=')[0]}'") and found in err, err

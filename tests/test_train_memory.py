@@ -9,8 +9,11 @@ from oscar_core.train import memory
 from oscar_core.train.config import TrainConfigError, config_from_dict
 from oscar_core.train.models import build_transformer, prepare_for_training
 
-BASE = {"run_dir": "runs/x", "model": {"transformer": "tiny", "vae": "tiny"},
-        "data": {"clips": ["clips"], "window": 9, "width": 32, "height": 32}}
+BASE = {
+    "run_dir": "runs/x",
+    "model": {"transformer": "tiny", "vae": "tiny"},
+    "data": {"clips": ["clips"], "window": 9, "width": 32, "height": 32},
+}
 
 
 def _config(**top):
@@ -20,11 +23,15 @@ def _config(**top):
 
 def _inputs(seed=0, frames=3, h=4, w=4):
     g = torch.Generator().manual_seed(seed)
-    return dict(hidden_states=torch.randn(2, 16, frames, h, w, generator=g),
-                timestep=torch.rand(2, 1, frames, 1, 1, generator=g),
-                encoder_hidden_states=torch.randn(2, 5, 48, generator=g),
-                condition_mask=torch.zeros(2, 1, frames, h, w), padding_mask=torch.zeros(1, 1, h, w),
-                skeleton_latents=torch.randn(2, 16, frames, h, w, generator=g), return_dict=False)
+    return dict(
+        hidden_states=torch.randn(2, 16, frames, h, w, generator=g),
+        timestep=torch.rand(2, 1, frames, 1, 1, generator=g),
+        encoder_hidden_states=torch.randn(2, 5, 48, generator=g),
+        condition_mask=torch.zeros(2, 1, frames, h, w),
+        padding_mask=torch.zeros(1, 1, h, w),
+        skeleton_latents=torch.randn(2, 16, frames, h, w, generator=g),
+        return_dict=False,
+    )
 
 
 def _loss_and_grads(model, inputs):
@@ -95,10 +102,13 @@ def test_memory_model_adds_up():
     assert memory.tokens_per_clip(81, 512, 288) == 21 * 18 * 32  # the 2B recipe's 12,096 tokens
 
 
-@pytest.mark.parametrize("override, field, found", [
-    ({"activation_checkpointing": "some"}, "activation_checkpointing", "'some'"),
-    ({"model": {"compile": "yes"}}, "model.compile", "str 'yes'"),
-])
+@pytest.mark.parametrize(
+    "override, field, found",
+    [
+        ({"activation_checkpointing": "some"}, "activation_checkpointing", "'some'"),
+        ({"model": {"compile": "yes"}}, "model.compile", "str 'yes'"),
+    ],
+)
 def test_bad_settings_are_clear_errors(override, field, found):
     with pytest.raises(TrainConfigError) as info:
         _config(**copy.deepcopy(override))
@@ -136,6 +146,7 @@ def test_the_estimate_counts_tokens_at_the_vaes_compression():
     model = build_transformer(config)
     wan, toy = memory.model_estimate(model, config), memory.model_estimate(model, config, compression=(4, 4))
     d = config.data
-    assert memory.tokens_per_clip(d.window, d.width, d.height, (1, 2, 2), 4, 4) == \
-        4 * memory.tokens_per_clip(d.window, d.width, d.height, (1, 2, 2), 4, 8)
+    assert memory.tokens_per_clip(d.window, d.width, d.height, (1, 2, 2), 4, 4) == 4 * memory.tokens_per_clip(
+        d.window, d.width, d.height, (1, 2, 2), 4, 8
+    )
     assert toy.activations_none == pytest.approx(4 * wan.activations_none)

@@ -23,15 +23,25 @@ from oscar_core.train.synthetic import write_toy_clipset
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_train_loop import tiny
 
-pytestmark = [pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
-              pytest.mark.usefixtures("one_thread")]  # tests/conftest.py
+pytestmark = [
+    pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
+    pytest.mark.usefixtures("one_thread"),
+]  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
     """Toy-arm clips with cached latents (of the video and of the *skeleton*)."""
-    return write_toy_clipset(tmp_path_factory.mktemp("mesh") / "clips", clips=2, frames=13, width=32, height=32,
-                             latents_vae="random", latents_window=9, prompt_dim=48)
+    return write_toy_clipset(
+        tmp_path_factory.mktemp("mesh") / "clips",
+        clips=2,
+        frames=13,
+        width=32,
+        height=32,
+        latents_vae="random",
+        latents_window=9,
+        prompt_dim=48,
+    )
 
 
 def test_the_mesh_latent_is_the_vae_encoding_of_the_mesh_video(tmp_path, clips):

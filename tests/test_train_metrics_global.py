@@ -28,10 +28,19 @@ def _port() -> int:
 
 
 def _config(tmp_path, clips, name):
-    cfg = {"run_dir": str(tmp_path / name), "steps": STEPS, "batch_size": BATCH, "micro_batch": 1, "save_every": STEPS,
-           "log_every": 1, "parallel": "auto", "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-           "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32, "skeleton_dropout": 0.5},
-           "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0, "ema_decay": 0.5}}
+    cfg = {
+        "run_dir": str(tmp_path / name),
+        "steps": STEPS,
+        "batch_size": BATCH,
+        "micro_batch": 1,
+        "save_every": STEPS,
+        "log_every": 1,
+        "parallel": "auto",
+        "export": False,
+        "model": {"transformer": "tiny", "vae": "tiny"},
+        "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32, "skeleton_dropout": 0.5},
+        "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0, "ema_decay": 0.5},
+    }
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
@@ -43,8 +52,16 @@ def _steps(run_dir):
 
 
 def test_two_processes_log_the_global_batch(tmp_path):
-    clips = write_toy_clipset(tmp_path / "clips", clips=3, frames=13, width=32, height=32, latents_vae="random",
-                              latents_window=9, prompt_dim=48)
+    clips = write_toy_clipset(
+        tmp_path / "clips",
+        clips=3,
+        frames=13,
+        width=32,
+        height=32,
+        latents_vae="random",
+        latents_window=9,
+        prompt_dim=48,
+    )
     one_cfg = _config(tmp_path, clips, "one")
     n = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -53,9 +70,21 @@ def test_two_processes_log_the_global_batch(tmp_path):
     finally:
         torch.set_num_threads(n)
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1",
-           "--master-port", str(_port()), "-m", "oscar_core.train", str(_config(tmp_path, clips, "two")),
-           "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc-per-node",
+        "2",
+        "--master-addr",
+        "127.0.0.1",
+        "--master-port",
+        str(_port()),
+        "-m",
+        "oscar_core.train",
+        str(_config(tmp_path, clips, "two")),
+        "--no-progress",
+    ]
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     one, two = _steps(tmp_path / "one"), _steps(tmp_path / "two")

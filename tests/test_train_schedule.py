@@ -1,7 +1,6 @@
 """The learning-rate warm-up and the EMA, checked against their definitions on a tiny run: the first step trains at
 lr / warmup (not 0), and the EMA after each step is decay * EMA + (1 - decay) * weights, from the initial weights."""
 
-
 import pytest
 import torch
 
@@ -23,13 +22,24 @@ def test_warmup_is_linear_from_the_first_step():
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     root = tmp_path_factory.mktemp("schedule")
-    clips = write_toy_clipset(root / "clips", clips=2, frames=13, width=32, height=32, latents_vae="random",
-                              latents_window=9, prompt_dim=48)
-    cfg = config_from_dict({
-        "run_dir": str(root / "run"), "steps": 3, "batch_size": 1, "micro_batch": 1, "save_every": 1, "keep_last": 3,
-        "log_every": 1, "export": False, "model": {"transformer": "tiny", "vae": "tiny"},
-        "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32},
-        "optim": {"lr": 1e-3, "warmup_steps": 4, "grad_clip": 1.0, "ema_decay": 0.75}})
+    clips = write_toy_clipset(
+        root / "clips", clips=2, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
+    )
+    cfg = config_from_dict(
+        {
+            "run_dir": str(root / "run"),
+            "steps": 3,
+            "batch_size": 1,
+            "micro_batch": 1,
+            "save_every": 1,
+            "keep_last": 3,
+            "log_every": 1,
+            "export": False,
+            "model": {"transformer": "tiny", "vae": "tiny"},
+            "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32},
+            "optim": {"lr": 1e-3, "warmup_steps": 4, "grad_clip": 1.0, "ema_decay": 0.75},
+        }
+    )
     train(cfg, progress=False)
     return root / "run"
 

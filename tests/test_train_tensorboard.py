@@ -17,8 +17,16 @@ from test_train_loop import tiny
 
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
-    return write_toy_clipset(tmp_path_factory.mktemp("tb") / "toy", clips=2, frames=13, width=32, height=32,
-                             latents_vae="random", latents_window=9, prompt_dim=48)
+    return write_toy_clipset(
+        tmp_path_factory.mktemp("tb") / "toy",
+        clips=2,
+        frames=13,
+        width=32,
+        height=32,
+        latents_vae="random",
+        latents_window=9,
+        prompt_dim=48,
+    )
 
 
 def test_scalars_equal_the_metrics_file(tmp_path, clipset):

@@ -21,8 +21,16 @@ from test_train_loop import tiny
 
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
-    return write_toy_clipset(tmp_path_factory.mktemp("wb") / "toy", clips=2, frames=13, width=32, height=32,
-                             latents_vae="random", latents_window=9, prompt_dim=48)
+    return write_toy_clipset(
+        tmp_path_factory.mktemp("wb") / "toy",
+        clips=2,
+        frames=13,
+        width=32,
+        height=32,
+        latents_vae="random",
+        latents_window=9,
+        prompt_dim=48,
+    )
 
 
 class _FakeWandb(types.ModuleType):
@@ -81,8 +89,10 @@ def test_missing_wandb_names_the_extra_before_anything_is_written(tmp_path, clip
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("field, value, expected", [("log.wandb", "yes", "true or false"),
-                                                    ("log.wandb_mode", "cloud", "offline, online or disabled")])
+@pytest.mark.parametrize(
+    "field, value, expected",
+    [("log.wandb", "yes", "true or false"), ("log.wandb_mode", "cloud", "offline, online or disabled")],
+)
 def test_the_settings_are_checked(tmp_path, clipset, field, value, expected):
     with pytest.raises(TrainConfigError, match=f"'{field}': expected {expected}"):
         tiny(clipset, tmp_path, **{field: value})

@@ -30,8 +30,15 @@ def test_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     base = np.tile(np.eye(4), (5, 1, 1))
     base[:, :3, 3] = rng.normal(size=(5, 3))
-    traj = Trajectory(ARM, rng.normal(size=(5, 4)), fps=29.97, gripper=rng.uniform(0, 0.08, (5, 1)),
-                      gripper_names=("gripper",), base_pose=base, timestamps=np.arange(5) / 29.97)
+    traj = Trajectory(
+        ARM,
+        rng.normal(size=(5, 4)),
+        fps=29.97,
+        gripper=rng.uniform(0, 0.08, (5, 1)),
+        gripper_names=("gripper",),
+        base_pose=base,
+        timestamps=np.arange(5) / 29.97,
+    )
     path = save_trajectory(traj, tmp_path / "t.npz")
     back = load_trajectory(path)
     assert back.joint_names == ARM and back.fps == pytest.approx(29.97) and back.gripper_names == ("gripper",)
@@ -48,17 +55,20 @@ def test_reorders_joints_by_name(toyarm):
     np.testing.assert_array_equal(checked.q, q[:, ::-1])
 
 
-@pytest.mark.parametrize("kwargs, field, fragment", [
-    (dict(names=ARM, q=np.zeros((5, 3))), "q", "shape (T, 4)"),
-    (dict(names=ARM, q=np.zeros((0, 4))), "q", "at least one frame"),
-    (dict(names=ARM, q=np.where(np.eye(5, 4) > 0, np.nan, 0.0)), "q", "nan at frame 0, joint 'base_yaw'"),
-    (dict(names=ARM, q=np.full((5, 4), np.inf)), "q", "inf at frame 0"),
-    (dict(names=ARM + ("base_yaw",), q=np.zeros((5, 5))), "joint_names", "duplicates"),
-    (dict(names=ARM, q=np.zeros((5, 4)), fps=0), "fps", "positive"),
-    (dict(names=ARM, q=np.zeros((5, 4)), gripper=np.zeros((4, 1))), "gripper", "shape (5, G)"),
-    (dict(names=ARM, q=np.zeros((5, 4)), base_pose=np.zeros((5, 4, 4))), "base_pose", "rigid"),
-    (dict(names=ARM, q=np.zeros((5, 4)), base_pose=np.zeros((5, 3, 4))), "base_pose", "(5, 4, 4)"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field, fragment",
+    [
+        (dict(names=ARM, q=np.zeros((5, 3))), "q", "shape (T, 4)"),
+        (dict(names=ARM, q=np.zeros((0, 4))), "q", "at least one frame"),
+        (dict(names=ARM, q=np.where(np.eye(5, 4) > 0, np.nan, 0.0)), "q", "nan at frame 0, joint 'base_yaw'"),
+        (dict(names=ARM, q=np.full((5, 4), np.inf)), "q", "inf at frame 0"),
+        (dict(names=ARM + ("base_yaw",), q=np.zeros((5, 5))), "joint_names", "duplicates"),
+        (dict(names=ARM, q=np.zeros((5, 4)), fps=0), "fps", "positive"),
+        (dict(names=ARM, q=np.zeros((5, 4)), gripper=np.zeros((4, 1))), "gripper", "shape (5, G)"),
+        (dict(names=ARM, q=np.zeros((5, 4)), base_pose=np.zeros((5, 4, 4))), "base_pose", "rigid"),
+        (dict(names=ARM, q=np.zeros((5, 4)), base_pose=np.zeros((5, 3, 4))), "base_pose", "(5, 4, 4)"),
+    ],
+)
 def test_bad_trajectory_fields(kwargs, field, fragment):
     names, q = kwargs.pop("names"), kwargs.pop("q")
     kwargs.setdefault("fps", 10)
@@ -94,7 +104,9 @@ def test_limits_warn_but_render(toyarm):
     q = np.zeros((6, 4))
     q[2:4, 1] = 2.0  # shoulder limit is 1.6
     traj = Trajectory(ARM, q, fps=10, gripper=np.full((6, 1), 0.04), source="wild.npz")
-    with pytest.warns(JointLimitWarning, match=r"wild.npz: joint 'shoulder' is beyond its limits \[-1.6, 1.6\] in 2 frames"):
+    with pytest.warns(
+        JointLimitWarning, match=r"wild.npz: joint 'shoulder' is beyond its limits \[-1.6, 1.6\] in 2 frames"
+    ):
         checked = toyarm.check_trajectory(traj)
     assert toyarm.frames(checked).points.shape == (6, 8, 3)
 
@@ -131,8 +143,15 @@ def test_time_slice_cuts_every_per_frame_field():
     T = 6
     base = np.tile(np.eye(4), (T, 1, 1))
     base[:, 0, 3] = np.arange(T)
-    traj = Trajectory(ARM, np.arange(T * 4.0).reshape(T, 4), fps=10, gripper=np.full((T, 1), 0.04),
-                      base_pose=base, timestamps=np.arange(T) / 10, keypoints=np.zeros((T, 2, 3)))
+    traj = Trajectory(
+        ARM,
+        np.arange(T * 4.0).reshape(T, 4),
+        fps=10,
+        gripper=np.full((T, 1), 0.04),
+        base_pose=base,
+        timestamps=np.arange(T) / 10,
+        keypoints=np.zeros((T, 2, 3)),
+    )
     part = traj.time_slice(2, 4)
     assert len(part) == 2 and part.q[0, 0] == 8.0 and part.base_pose[0, 0, 3] == 2.0
     assert part.gripper.shape == (2, 1) and part.timestamps.shape == (2,) and part.keypoints.shape == (2, 2, 3)

@@ -58,8 +58,9 @@ def test_a_garbled_record_is_ignored(tmp_path, monkeypatch, cache):
 
 
 def test_a_changed_weight_file_is_still_refused_on_the_next_load(tmp_path, monkeypatch):
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0), build_tiny_vae(seed=0),
-                                         ModelCard(name="t", chunk_frames=17))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0), build_tiny_vae(seed=0), ModelCard(name="t", chunk_frames=17)
+    )
     folder = oscar_zoo.export(model, tmp_path / "m")
     calls = _count_hashes(monkeypatch)
     oscar_zoo.load(folder)

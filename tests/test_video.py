@@ -15,8 +15,17 @@ def random_frames(T=6, H=37, W=53, seed=0):
 
 def smooth_frames(T=24, H=96, W=160):
     y, x = np.mgrid[:H, :W].astype(float)
-    frames = [np.stack([128 + 100 * np.sin((x + 3 * t) / 17), 128 + 100 * np.cos((y - 2 * t) / 13),
-                        128 + 80 * np.sin((x + y + t) / 29)], axis=-1) for t in range(T)]
+    frames = [
+        np.stack(
+            [
+                128 + 100 * np.sin((x + 3 * t) / 17),
+                128 + 100 * np.cos((y - 2 * t) / 13),
+                128 + 80 * np.sin((x + y + t) / 29),
+            ],
+            axis=-1,
+        )
+        for t in range(T)
+    ]
     return np.clip(np.stack(frames), 0, 255).astype(np.uint8)
 
 
@@ -33,7 +42,7 @@ def test_h264_round_trip_quality_count_and_fps(tmp_path):
     back = read_video(path)
     assert back.shape == frames.shape
     mse = np.mean((back.astype(float) - frames) ** 2)
-    assert 10 * np.log10(255 ** 2 / mse) > 35
+    assert 10 * np.log10(255**2 / mse) > 35
     info = video_info(path)
     assert info["frames"] == len(frames) and info["codec"] == "h264"
     assert info["fps"] == pytest.approx(29.97, abs=1e-3)

@@ -33,8 +33,11 @@ def isolated(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def tiny():
-    return OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny", chunk_frames=5, embodiments=("toyarm",)))
+    return OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5, embodiments=("toyarm",)),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -196,8 +199,11 @@ def test_push_registers_and_loads_back_by_name(hub, exported, tiny, monkeypatch)
     from huggingface_hub import HfApi
 
     monkeypatch.setattr(HfApi, "create_repo", lambda self, repo_id, **kw: None)
-    monkeypatch.setattr(HfApi, "upload_folder", lambda self, folder_path, repo_id, **kw:
-                        type("Commit", (), {"oid": hub.add_folder(repo_id, folder_path)})())
+    monkeypatch.setattr(
+        HfApi,
+        "upload_folder",
+        lambda self, folder_path, repo_id, **kw: type("Commit", (), {"oid": hub.add_folder(repo_id, folder_path)})(),
+    )
     spec = oscar_zoo.push(exported, "me/pushed", name="pushed")
     assert spec.pinned and spec.files and all(f.sha256 for f in spec.files)
     model = oscar_zoo.load("pushed", endpoint=hub.url)

@@ -24,12 +24,23 @@ def offline(tmp_path, monkeypatch):
 @pytest.fixture
 def bundled(tmp_path, monkeypatch):
     folder = tmp_path / "assets" / "tiny-bundled"
-    model = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny-bundled", chunk_frames=5))
+    model = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny-bundled", chunk_frames=5),
+    )
     model.save_pretrained(folder)
-    spec = CheckpointSpec(name="tiny-bundled", repo_id="", revision=None, kind="oscar", license="Apache-2.0", paper=None,
-                          chunk_frames=5, files=tuple(FileSpec(p, h) for p, h in file_hashes(folder).items()),
-                          bundled=str(folder))  # absolute: the package folder is not joined to it
+    spec = CheckpointSpec(
+        name="tiny-bundled",
+        repo_id="",
+        revision=None,
+        kind="oscar",
+        license="Apache-2.0",
+        paper=None,
+        chunk_frames=5,
+        files=tuple(FileSpec(p, h) for p, h in file_hashes(folder).items()),
+        bundled=str(folder),
+    )  # absolute: the package folder is not joined to it
     from oscar_zoo import _fetch
 
     monkeypatch.setattr(_fetch, "list_models", lambda: (spec,))

@@ -25,8 +25,12 @@ from oscar_zoo._hub import HubUnreachableError, lock_path, read_lock
 from oscar_zoo.testing import MockHub
 
 #: the 2.5 conversion's config keys shapes cannot tell (rope scale (1, 3, 3), no learnable positions)
-NATIVE_CFG = {**TINY_TRANSFORMER_CONFIG, "rope_scale": (1.0, 3.0, 3.0), "extra_pos_embed_type": None,
-              "max_size": (128, 240, 240)}
+NATIVE_CFG = {
+    **TINY_TRANSFORMER_CONFIG,
+    "rope_scale": (1.0, 3.0, 3.0),
+    "extra_pos_embed_type": None,
+    "max_size": (128, 240, 240),
+}
 
 
 @pytest.fixture(autouse=True)
@@ -57,13 +61,12 @@ def _to_native(key: str) -> str:
 
 
 def _oscar_dit(seed=0):
-    return build_tiny_transformer(seed=seed, skeleton_scale=0.05, **{k: NATIVE_CFG[k] for k in
-                                                                      ("rope_scale", "extra_pos_embed_type",
-                                                                       "max_size")})
+    return build_tiny_transformer(
+        seed=seed, skeleton_scale=0.05, **{k: NATIVE_CFG[k] for k in ("rope_scale", "extra_pos_embed_type", "max_size")}
+    )
 
 
-def _native_folder(tmp_path, dit, *, skeleton_name="net.skeleton_embedder.proj.1.weight", suffix=".pt",
-                   ema_twin=False):
+def _native_folder(tmp_path, dit, *, skeleton_name="net.skeleton_embedder.proj.1.weight", suffix=".pt", ema_twin=False):
     """A native-Cosmos folder: ``base/post-trained/<id>_ema_bf16<suffix>`` + diffusers ``vae/``."""
     folder = tmp_path / "native"
     state = {}
@@ -77,8 +80,10 @@ def _native_folder(tmp_path, dit, *, skeleton_name="net.skeleton_embedder.proj.1
     state["net.pos_embedder.seq"] = torch.arange(4.0)
     state["net.blocks.0.self_attn._extra_state"] = torch.zeros(1)
     if ema_twin:  # both copies: the EMA one must win
-        state = {**{k.replace("net.", "net_ema.", 1): v for k, v in state.items()},
-                 **{k: torch.randn_like(v.float()).to(v.dtype) for k, v in state.items()}}
+        state = {
+            **{k.replace("net.", "net_ema.", 1): v for k, v in state.items()},
+            **{k: torch.randn_like(v.float()).to(v.dtype) for k, v in state.items()},
+        }
     path = folder / "base" / "post-trained" / f"81edfebe_ema_bf16{suffix}"
     path.parent.mkdir(parents=True)
     if suffix == ".pt":
@@ -113,8 +118,9 @@ def test_native_keys_map_like_diffusers_conversion():
     for dropped in ("net.accum_iteration", "net.pos_embedder.seq", "net.blocks.1.self_attn._extra_state"):
         assert map_native_key(dropped) is None
     with pytest.raises(CheckpointLayoutError, match="both map to"):
-        map_native_state({"net.blocks.0.mlp.layer1.weight": torch.zeros(1),
-                          "net.blocks.0.ff.net.0.proj.weight": torch.zeros(1)}, "x")
+        map_native_state(
+            {"net.blocks.0.mlp.layer1.weight": torch.zeros(1), "net.blocks.0.ff.net.0.proj.weight": torch.zeros(1)}, "x"
+        )
 
 
 @pytest.mark.parametrize("suffix", [".pt", ".safetensors"])
@@ -159,8 +165,11 @@ def test_native_checkpoint_through_the_mock_hub_fetches_only_what_it_needs(tmp_p
     model = oscar_zoo.load("nvidia/native", endpoint=hub.url)
     assert _same(model.transformer, dit)
     fetched = {path.split("/resolve/", 1)[1].split("/", 1)[1] for m, path in hub.requests if "/resolve/" in path}
-    assert fetched == {"base/post-trained/81edfebe_ema_bf16.pt", "vae/config.json",
-                       "vae/diffusion_pytorch_model.safetensors"}
+    assert fetched == {
+        "base/post-trained/81edfebe_ema_bf16.pt",
+        "vae/config.json",
+        "vae/diffusion_pytorch_model.safetensors",
+    }
 
 
 def test_several_native_files_must_be_chosen(tmp_path):
@@ -192,9 +201,18 @@ def test_diffusers_folder_with_scheduler_and_a_renamed_skeleton_embedder(tmp_pat
     save_file(state, str(weights))
     build_tiny_vae(seed=3).save_pretrained(folder / "vae")
     (folder / "scheduler").mkdir()
-    (folder / "scheduler" / "scheduler_config.json").write_text(json.dumps({
-        "_class_name": "UniPCMultistepScheduler", "use_flow_sigmas": True, "prediction_type": "flow_prediction",
-        "use_karras_sigmas": True, "sigma_max": 200.0, "sigma_min": 0.01}))
+    (folder / "scheduler" / "scheduler_config.json").write_text(
+        json.dumps(
+            {
+                "_class_name": "UniPCMultistepScheduler",
+                "use_flow_sigmas": True,
+                "prediction_type": "flow_prediction",
+                "use_karras_sigmas": True,
+                "sigma_max": 200.0,
+                "sigma_min": 0.01,
+            }
+        )
+    )
     report = []
     model = oscar_zoo.load(str(folder), report=report)
     assert _same(model.transformer, dit)
@@ -214,8 +232,10 @@ def test_nothing_matches_lists_files_layouts_and_expectations(tmp_path):
     assert "found weights.bin" in msg
     for layout in ("oscar: oscar_model.json", "diffusers: transformer/config.json", "cosmos-native: one DiT"):
         assert layout in msg
-    assert detect_layout(["a.pt", "vae/config.json", "vae/diffusion_pytorch_model.safetensors"], "x").kind == \
-        "cosmos-native"
+    assert (
+        detect_layout(["a.pt", "vae/config.json", "vae/diffusion_pytorch_model.safetensors"], "x").kind
+        == "cosmos-native"
+    )
 
 
 # --------------------------------------------------------------------------- convert
@@ -229,8 +249,13 @@ def test_convert_native_to_oscar_layout_and_cli(tmp_path, capsys):
     assert main(["zoo", "convert", str(folder), str(tmp_path / "out"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["layout"] == "cosmos-native" and any("skeleton_embedder" in line for line in out["report"])
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["README.md", "oscar_manifest.json",
-                                                                      "oscar_model.json", "transformer", "vae"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "README.md",
+        "oscar_manifest.json",
+        "oscar_model.json",
+        "transformer",
+        "vae",
+    ]
     assert not list((tmp_path / "out").rglob("*.pt")) and not list((tmp_path / "out").rglob("*.bin"))
     back = oscar_zoo.load(str(tmp_path / "out"))
     assert _same(back.transformer, dit)
@@ -240,8 +265,11 @@ def test_convert_native_to_oscar_layout_and_cli(tmp_path, capsys):
 
 
 def _exported(tmp_path):
-    tiny = OscarWorldModel.from_modules(build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                        ModelCard(name="tiny", chunk_frames=5))
+    tiny = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=0, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5),
+    )
     return oscar_zoo.export(tiny, tmp_path / "export"), tiny
 
 
@@ -254,8 +282,11 @@ def test_pull_writes_a_lock_and_a_moved_branch_still_loads_the_locked_commit(tmp
     assert set(lock.files) >= {"oscar_model.json", "transformer/diffusion_pytorch_model.safetensors"}
     assert all(len(h) == 64 for h in lock.files.values())
     # the branch moves to other weights; load keeps to the locked commit
-    other = OscarWorldModel.from_modules(build_tiny_transformer(seed=9, skeleton_scale=0.05), build_tiny_vae(seed=0),
-                                         ModelCard(name="tiny", chunk_frames=5))
+    other = OscarWorldModel.from_modules(
+        build_tiny_transformer(seed=9, skeleton_scale=0.05),
+        build_tiny_vae(seed=0),
+        ModelCard(name="tiny", chunk_frames=5),
+    )
     hub.add_folder("me/tiny", oscar_zoo.export(other, tmp_path / "other"))
     assert _same(oscar_zoo.load("me/tiny", endpoint=hub.url).transformer, tiny.transformer)
     # a new pull moves the lock
@@ -318,8 +349,11 @@ def _refused_port():
 
 def test_refused_hub_fails_at_once_with_the_offline_hint():
     t0 = time.monotonic()
-    with pytest.raises(HubUnreachableError, match=r"cannot reach the Hub \(http://127.0.0.1:\d+: .*\); set "
-                                                  r"HF_HUB_OFFLINE=1 to use the cache"):
+    with pytest.raises(
+        HubUnreachableError,
+        match=r"cannot reach the Hub \(http://127.0.0.1:\d+: .*\); set "
+        r"HF_HUB_OFFLINE=1 to use the cache",
+    ):
         oscar_zoo.pull("oscar-2b", endpoint=_refused_port())
     assert time.monotonic() - t0 < 5
 
@@ -352,10 +386,20 @@ def test_cli_reports_an_unreachable_hub_in_seconds(tmp_path):
     import subprocess
     import sys
 
-    env = {"HF_HUB_CACHE": str(tmp_path / "c"), "HF_ENDPOINT": _refused_port(), "PATH": "/usr/bin:/bin",
-           "OSCAR_ZOO_REGISTRY": str(tmp_path / "r.json"), "HOME": str(tmp_path)}
-    proc = subprocess.run([sys.executable, "-m", "oscar_core.cli", "zoo", "pull", "oscar-2b"], env=env,
-                          capture_output=True, text=True, timeout=300)  # the time bound is tested in-process
+    env = {
+        "HF_HUB_CACHE": str(tmp_path / "c"),
+        "HF_ENDPOINT": _refused_port(),
+        "PATH": "/usr/bin:/bin",
+        "OSCAR_ZOO_REGISTRY": str(tmp_path / "r.json"),
+        "HOME": str(tmp_path),
+    }
+    proc = subprocess.run(
+        [sys.executable, "-m", "oscar_core.cli", "zoo", "pull", "oscar-2b"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )  # the time bound is tested in-process
     assert proc.returncode != 0
     assert "cannot reach the Hub" in proc.stderr and "HF_HUB_OFFLINE=1" in proc.stderr
     assert "layout" not in proc.stderr and "Traceback" not in proc.stderr

@@ -36,4 +36,7 @@ def test_the_model_file_names_are_the_world_models():
     from oscar_core.model import _files, world_model
 
     assert (world_model.MODEL_FILE, world_model.EMPTY_PROMPT_FILE, world_model.SCHEDULER_FILE) == (
-        _files.MODEL_FILE, _files.EMPTY_PROMPT_FILE, _files.SCHEDULER_FILE)
+        _files.MODEL_FILE,
+        _files.EMPTY_PROMPT_FILE,
+        _files.SCHEDULER_FILE,
+    )

@@ -23,5 +23,21 @@ from ._load import convert, export, load, pull, push
 from ._registry import register, registry_path, unregister, user_models
 from ._table import CHECKPOINTS, COSMOS_TEXT_ENCODER_ID, CheckpointSpec, FileSpec
 
-__all__ = ["CHECKPOINTS", "COSMOS_TEXT_ENCODER_ID", "CheckpointSpec", "FileSpec", "UnknownModelError", "convert", "export",
-           "list_models", "load", "pull", "push", "register", "registry_path", "resolve", "unregister", "user_models"]
+__all__ = [
+    "CHECKPOINTS",
+    "COSMOS_TEXT_ENCODER_ID",
+    "CheckpointSpec",
+    "FileSpec",
+    "UnknownModelError",
+    "convert",
+    "export",
+    "list_models",
+    "load",
+    "pull",
+    "push",
+    "register",
+    "registry_path",
+    "resolve",
+    "unregister",
+    "user_models",
+]

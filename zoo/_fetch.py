@@ -34,11 +34,29 @@ from ._hub import HubUnreachableError, Lock, cached_commit, probe, read_lock, sn
 from ._registry import user_models
 from ._table import CHECKPOINTS, CheckpointSpec
 
-__all__ = ["UnknownModelError", "Resolved", "resolve", "fetch", "list_models", "is_offline", "OSCAR_LAYOUT",
-           "needed_files", "hub_snapshot", "HubUnreachableError", "Fetched"]
+__all__ = [
+    "UnknownModelError",
+    "Resolved",
+    "resolve",
+    "fetch",
+    "list_models",
+    "is_offline",
+    "OSCAR_LAYOUT",
+    "needed_files",
+    "hub_snapshot",
+    "HubUnreachableError",
+    "Fetched",
+]
 
-OSCAR_LAYOUT = (MODEL_FILE, "transformer/config.json", f"transformer/{WEIGHTS_NAME} (or an index + shards)",
-                "vae/config.json", f"vae/{WEIGHTS_NAME}", f"{MANIFEST_NAME} (optional)", f"{EMPTY_PROMPT_FILE} (optional)")
+OSCAR_LAYOUT = (
+    MODEL_FILE,
+    "transformer/config.json",
+    f"transformer/{WEIGHTS_NAME} (or an index + shards)",
+    "vae/config.json",
+    f"vae/{WEIGHTS_NAME}",
+    f"{MANIFEST_NAME} (optional)",
+    f"{EMPTY_PROMPT_FILE} (optional)",
+)
 _PICKLES = (".bin", ".pt", ".pth", ".ckpt", ".pkl")
 
 
@@ -85,8 +103,9 @@ def resolve(name_or_repo_or_path, revision: str | None = None) -> Resolved:
     for spec in list_models():
         if spec.name == text:
             if revision is not None and spec.bundled:
-                raise UnknownModelError(f"model {text!r}: expected no revision (it is bundled with oscar-wm), "
-                                        f"found {revision!r}")
+                raise UnknownModelError(
+                    f"model {text!r}: expected no revision (it is bundled with oscar-wm), found {revision!r}"
+                )
             if revision is not None:
                 spec = _replace_revision(spec, revision)
             return Resolved(f"{spec.name} ({spec.repo_id}@{spec.revision or 'main'})", spec=spec)
@@ -96,20 +115,24 @@ def resolve(name_or_repo_or_path, revision: str | None = None) -> Resolved:
                 if revision is not None:
                     spec = _replace_revision(spec, revision)
                 return Resolved(f"{spec.name} ({text}@{spec.revision or 'main'})", spec=spec)
-        spec = CheckpointSpec(name=text, repo_id=text, revision=revision, kind="oscar", license=None, paper=None,
-                              source="hub id")
+        spec = CheckpointSpec(
+            name=text, repo_id=text, revision=revision, kind="oscar", license=None, paper=None, source="hub id"
+        )
         return Resolved(f"{text}@{revision or 'main'}", spec=spec)
     known = ", ".join(s.name for s in list_models())
-    raise UnknownModelError(f"model {text!r}: expected a zoo name ({known}), a Hub repo id 'owner/name' or an "
-                            f"existing folder, found none of these")
+    raise UnknownModelError(
+        f"model {text!r}: expected a zoo name ({known}), a Hub repo id 'owner/name' or an "
+        f"existing folder, found none of these"
+    )
 
 
 def bundled_folder(spec: CheckpointSpec) -> Path:
     """The folder of a checkpoint shipped inside the ``oscar_zoo`` package (``spec.bundled``)."""
     folder = Path(__file__).resolve().parent / spec.bundled
     if not folder.is_dir():
-        raise CheckpointLayoutError(spec.name, "bundled", f"the folder {folder} shipped with oscar-wm",
-                                    "no such folder", "reinstall oscar-wm")
+        raise CheckpointLayoutError(
+            spec.name, "bundled", f"the folder {folder} shipped with oscar-wm", "no such folder", "reinstall oscar-wm"
+        )
     return folder
 
 
@@ -130,7 +153,7 @@ def _component(files: set[str], sub: str) -> list[str]:
     if f"{sub}/{WEIGHTS_NAME}" in files:
         return out + [f"{sub}/{WEIGHTS_NAME}"]
     if f"{sub}/{INDEX_NAME}" in files:
-        shards = [f for f in files if f.startswith(sub + "/") and _SHARD.match(f[len(sub) + 1:])]
+        shards = [f for f in files if f.startswith(sub + "/") and _SHARD.match(f[len(sub) + 1 :])]
         return out + [f"{sub}/{INDEX_NAME}"] + sorted(shards)
     return out
 
@@ -138,8 +161,11 @@ def _component(files: set[str], sub: str) -> list[str]:
 def needed_files(layout: Layout, files) -> list[str]:
     """The files of a listing that loading ``layout`` reads (nothing else is downloaded)."""
     files = set(files)
-    need = _component(files, "transformer") + _component(files, "vae") if layout.kind != "cosmos-native" \
+    need = (
+        _component(files, "transformer") + _component(files, "vae")
+        if layout.kind != "cosmos-native"
         else [layout.native_file] + _component(files, "vae")
+    )
     if layout.kind == "cosmos-native":
         beside = str(Path(layout.native_file).parent / CONFIG_NAME).removeprefix("./")
         need += [beside] if beside in files else []
@@ -169,22 +195,42 @@ def _download(repo_id: str, commit: str, paths, *, cache_dir, endpoint, token, f
     root = None
     for path in paths:
         try:
-            local = hf_hub_download(repo_id, path, revision=commit, cache_dir=cache_dir, endpoint=endpoint,
-                                    force_download=force, token=token, etag_timeout=hub_timeout())
+            local = hf_hub_download(
+                repo_id,
+                path,
+                revision=commit,
+                cache_dir=cache_dir,
+                endpoint=endpoint,
+                force_download=force,
+                token=token,
+                etag_timeout=hub_timeout(),
+            )
         except OSError as exc:  # connection errors are OSErrors too: say which
             name = type(exc).__name__
             if "Connect" in name or "Timeout" in name or "Offline" in name:
-                raise HubUnreachableError(f"cannot reach the Hub ({endpoint or 'huggingface.co'}: {name} while "
-                                          f"downloading {path}); set HF_HUB_OFFLINE=1 to use the cache") from None
-            raise CheckpointIntegrityError(f"{repo_id}@{commit}: {path}", "download", "a complete file",
-                                           f"{name}: {exc}") from None
+                raise HubUnreachableError(
+                    f"cannot reach the Hub ({endpoint or 'huggingface.co'}: {name} while "
+                    f"downloading {path}); set HF_HUB_OFFLINE=1 to use the cache"
+                ) from None
+            raise CheckpointIntegrityError(
+                f"{repo_id}@{commit}: {path}", "download", "a complete file", f"{name}: {exc}"
+            ) from None
         root = Path(str(local)[: -len(path)])
     return root
 
 
-def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only: bool | None = None,
-          force_download: bool = False, token=None, verify: bool = True, native_file: str | None = None,
-          update_lock: bool = False) -> Fetched:
+def fetch(
+    resolved: Resolved,
+    *,
+    cache_dir=None,
+    endpoint=None,
+    local_files_only: bool | None = None,
+    force_download: bool = False,
+    token=None,
+    verify: bool = True,
+    native_file: str | None = None,
+    update_lock: bool = False,
+) -> Fetched:
     """Download (or find in the cache) what ``resolved`` needs, verify it, and say which layout it is.
 
     update_lock: resolve the revision anew and rewrite the lock (``pull``);
@@ -205,8 +251,9 @@ def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only
         layout = detect_layout(files, resolved.label, native_file)
         need = needed_files(layout, files)
         if verify or update_lock:
-            verify_folder(folder, {f.path: f.sha256 for f in spec.files}, label=resolved.label, files=need,
-                          name=spec.name)
+            verify_folder(
+                folder, {f.path: f.sha256 for f in spec.files}, label=resolved.label, files=need, name=spec.name
+            )
         return Fetched(folder, layout, resolved.label, None, tuple(need))
     endpoint = endpoint or os.environ.get("HF_ENDPOINT") or None
     cache_dir = str(cache_dir) if cache_dir is not None else (os.environ.get("HF_HUB_CACHE") or None)
@@ -216,9 +263,13 @@ def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only
         commit = lock.commit if lock else cached_commit(spec.repo_id, revision, cache_dir)
         root = snapshot_folder(spec.repo_id, commit, cache_dir) if commit else None
         if root is None or not root.is_dir():
-            raise CheckpointLayoutError(resolved.label, "local cache", f"a cached snapshot of {spec.repo_id}@{revision}",
-                                        "nothing in the local cache (offline: HF_HUB_OFFLINE=1 or "
-                                        "local_files_only=True)", "run `oscar zoo pull NAME` online once")
+            raise CheckpointLayoutError(
+                resolved.label,
+                "local cache",
+                f"a cached snapshot of {spec.repo_id}@{revision}",
+                "nothing in the local cache (offline: HF_HUB_OFFLINE=1 or local_files_only=True)",
+                "run `oscar zoo pull NAME` online once",
+            )
         files = list_folder(root)
     else:
         info = probe(spec.repo_id, lock.commit if lock else revision, endpoint=endpoint, token=token)
@@ -227,31 +278,55 @@ def fetch(resolved: Resolved, *, cache_dir=None, endpoint=None, local_files_only
         layout = detect_layout(files, resolved.label, native_file)
     except CheckpointLayoutError as exc:
         if spec.source == "table" and spec.name == "oscar-2b":
-            hint = "; ".join(h for h in (exc.hint, "the layout of this release is unverified: please report what "
-                                         "the repository holds") if h)
+            hint = "; ".join(
+                h
+                for h in (exc.hint, "the layout of this release is unverified: please report what the repository holds")
+                if h
+            )
             raise CheckpointLayoutError(exc.source, exc.what, exc.expected, exc.found, hint) from None
         raise
     need = needed_files(layout, files)
     if root is None:
-        root = _download(spec.repo_id, commit, need, cache_dir=cache_dir, endpoint=endpoint, token=token,
-                         force=force_download)
+        root = _download(
+            spec.repo_id, commit, need, cache_dir=cache_dir, endpoint=endpoint, token=token, force=force_download
+        )
     else:
         absent = [p for p in need if not (root / p).is_file()]
         if absent:
-            raise CheckpointLayoutError(resolved.label, "local cache", ", ".join(need), f"missing {', '.join(absent)}",
-                                        "offline mode reads only the local cache: run `oscar zoo pull NAME` online")
+            raise CheckpointLayoutError(
+                resolved.label,
+                "local cache",
+                ", ".join(need),
+                f"missing {', '.join(absent)}",
+                "offline mode reads only the local cache: run `oscar zoo pull NAME` online",
+            )
     hashes = None
     if verify or update_lock:
         pinned = {f.path: f.sha256 for f in spec.files}
-        hashes = verify_folder(root, pinned, label=resolved.label, files=need, name=spec.name,
-                               locked=lock.files if lock else None, hash_all=update_lock)
+        hashes = verify_folder(
+            root,
+            pinned,
+            label=resolved.label,
+            files=need,
+            name=spec.name,
+            locked=lock.files if lock else None,
+            hash_all=update_lock,
+        )
     if update_lock:
         write_lock(Lock(spec.repo_id, revision, commit, layout.kind, hashes), cache_dir)
     return Fetched(root, layout, resolved.label, commit, tuple(need))
 
 
-def hub_snapshot(repo_id: str, revision: str | None, patterns, *, cache_dir=None, endpoint=None,
-                 local_files_only: bool | None = None, token=None) -> tuple[Path, str]:
+def hub_snapshot(
+    repo_id: str,
+    revision: str | None,
+    patterns,
+    *,
+    cache_dir=None,
+    endpoint=None,
+    local_files_only: bool | None = None,
+    token=None,
+) -> tuple[Path, str]:
     """Files of ``repo_id`` matching ``patterns`` (fnmatch) at ``revision``: (snapshot folder, commit)."""
     from fnmatch import fnmatch
 
@@ -262,8 +337,13 @@ def hub_snapshot(repo_id: str, revision: str | None, patterns, *, cache_dir=None
         commit = cached_commit(repo_id, revision, cache_dir)
         root = snapshot_folder(repo_id, commit, cache_dir) if commit else None
         if root is None or not root.is_dir():
-            raise CheckpointLayoutError(f"{repo_id}@{revision}", "local cache", f"a cached snapshot of {repo_id}",
-                                        "nothing in the local cache (offline)", "run it online once")
+            raise CheckpointLayoutError(
+                f"{repo_id}@{revision}",
+                "local cache",
+                f"a cached snapshot of {repo_id}",
+                "nothing in the local cache (offline)",
+                "run it online once",
+            )
         return root, commit
     info = probe(repo_id, revision, endpoint=endpoint, token=token)
     need = [f for f in info.files if any(fnmatch(f, p) for p in patterns)]
@@ -273,8 +353,16 @@ def hub_snapshot(repo_id: str, revision: str | None, patterns, *, cache_dir=None
     return root, info.commit
 
 
-def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, files=None, name: str | None = None,
-                  locked: dict[str, str] | None = None, hash_all: bool = False) -> dict[str, str]:
+def verify_folder(
+    root: Path,
+    pinned: dict[str, str | None],
+    *,
+    label: str,
+    files=None,
+    name: str | None = None,
+    locked: dict[str, str] | None = None,
+    hash_all: bool = False,
+) -> dict[str, str]:
     """Hash each file once and check it against the pinned (table/registry), locked and manifest sha256.
 
     Also checks every safetensors file's structure. Only files with an
@@ -296,8 +384,9 @@ def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, file
                 expected.setdefault(path, []).append((meta["sha256"].lower(), "manifest"))
         missing = sorted(p for p in set(expected) | set(pinned) if not (root / p).is_file())
         if missing:
-            raise CheckpointLayoutError(label, "files", ", ".join(sorted(set(expected) | set(pinned))),
-                                        f"missing {', '.join(missing)}")
+            raise CheckpointLayoutError(
+                label, "files", ", ".join(sorted(set(expected) | set(pinned))), f"missing {', '.join(missing)}"
+            )
         hashes = {}
         for rel in sorted(set(files) | set(expected)):
             if rel not in expected and not hash_all:
@@ -312,6 +401,11 @@ def verify_folder(root: Path, pinned: dict[str, str | None], *, label: str, file
                 check_safetensors(root / rel)
         return {k: v for k, v in hashes.items() if k in set(files)}
     except CheckpointIntegrityError as exc:
-        raise CheckpointIntegrityError(exc.path, exc.what, exc.expected, exc.found,
-                                       f"the file is corrupted, partial or was changed; fetch it again with "
-                                       f"`oscar zoo pull --force {hint_name}` (checkpoint {label})") from None
+        raise CheckpointIntegrityError(
+            exc.path,
+            exc.what,
+            exc.expected,
+            exc.found,
+            f"the file is corrupted, partial or was changed; fetch it again with "
+            f"`oscar zoo pull --force {hint_name}` (checkpoint {label})",
+        ) from None

@@ -33,8 +33,19 @@ from oscar_core._util.atomic import atomic_write_bytes
 from oscar_core.errors import OscarError
 from oscar_core.model.errors import CheckpointLayoutError
 
-__all__ = ["HubUnreachableError", "HubInfo", "probe", "hub_timeout", "cache_root", "cached_commit", "Lock",
-           "read_lock", "write_lock", "lock_path", "is_commit"]
+__all__ = [
+    "HubUnreachableError",
+    "HubInfo",
+    "probe",
+    "hub_timeout",
+    "cache_root",
+    "cached_commit",
+    "Lock",
+    "read_lock",
+    "write_lock",
+    "lock_path",
+    "is_commit",
+]
 
 _COMMIT = re.compile(r"^[0-9a-f]{40}$")
 
@@ -98,8 +109,9 @@ class HubInfo:
     files: tuple[str, ...]
 
 
-def probe(repo_id: str, revision: str, *, endpoint: str | None = None, token=None,
-          timeout: float | None = None) -> HubInfo:
+def probe(
+    repo_id: str, revision: str, *, endpoint: str | None = None, token=None, timeout: float | None = None
+) -> HubInfo:
     """Resolve ``revision`` of ``repo_id`` with one request; see the module docstring for the errors."""
     import httpx
     from huggingface_hub import constants
@@ -110,30 +122,39 @@ def probe(repo_id: str, revision: str, *, endpoint: str | None = None, token=Non
     try:
         response = httpx.get(url, headers=_headers(token), timeout=request_timeout(seconds), follow_redirects=True)
     except httpx.TimeoutException:
-        raise HubUnreachableError(f"cannot reach the Hub ({base}: no answer within {seconds:g} s); set "
-                                  "HF_HUB_OFFLINE=1 to use the cache") from None
+        raise HubUnreachableError(
+            f"cannot reach the Hub ({base}: no answer within {seconds:g} s); set HF_HUB_OFFLINE=1 to use the cache"
+        ) from None
     except httpx.HTTPError as exc:
-        raise HubUnreachableError(f"cannot reach the Hub ({base}: {type(exc).__name__}: {exc}); set "
-                                  "HF_HUB_OFFLINE=1 to use the cache") from None
+        raise HubUnreachableError(
+            f"cannot reach the Hub ({base}: {type(exc).__name__}: {exc}); set HF_HUB_OFFLINE=1 to use the cache"
+        ) from None
     code = response.headers.get("X-Error-Code", "")
     label = f"{repo_id}@{revision}"
     if response.status_code == 404 and code == "RevisionNotFound":
-        raise CheckpointLayoutError(label, "revision", f"a branch, tag or commit of {repo_id}",
-                                    f"no revision {revision!r}")
+        raise CheckpointLayoutError(
+            label, "revision", f"a branch, tag or commit of {repo_id}", f"no revision {revision!r}"
+        )
     if response.status_code in (401, 403, 404):
-        raise CheckpointLayoutError(label, "repository", f"an accessible Hub repository {repo_id}",
-                                    f"HTTP {response.status_code} {code or ''}".strip(),
-                                    f"check the id, your token and the endpoint ({base})")
+        raise CheckpointLayoutError(
+            label,
+            "repository",
+            f"an accessible Hub repository {repo_id}",
+            f"HTTP {response.status_code} {code or ''}".strip(),
+            f"check the id, your token and the endpoint ({base})",
+        )
     if response.status_code >= 400:
-        raise HubUnreachableError(f"cannot reach the Hub ({base}: HTTP {response.status_code}); set "
-                                  "HF_HUB_OFFLINE=1 to use the cache")
+        raise HubUnreachableError(
+            f"cannot reach the Hub ({base}: HTTP {response.status_code}); set HF_HUB_OFFLINE=1 to use the cache"
+        )
     try:
         data = response.json()
         commit = data["sha"]
         files = tuple(sorted(s["rfilename"] for s in data.get("siblings", [])))
     except (ValueError, KeyError, TypeError):
-        raise CheckpointLayoutError(url, "repo info", "a JSON object with 'sha' and 'siblings'",
-                                    response.text[:120]) from None
+        raise CheckpointLayoutError(
+            url, "repo info", "a JSON object with 'sha' and 'siblings'", response.text[:120]
+        ) from None
     return HubInfo(repo_id, revision, commit, files)
 
 
@@ -184,8 +205,12 @@ class Lock:
 
 
 def lock_path(repo_id: str, revision: str, cache_dir=None) -> Path:
-    return cache_root(cache_dir) / "oscar-locks" / f"models--{repo_id.replace('/', '--')}" / \
-        f"{quote(revision, safe='')}.json"
+    return (
+        cache_root(cache_dir)
+        / "oscar-locks"
+        / f"models--{repo_id.replace('/', '--')}"
+        / f"{quote(revision, safe='')}.json"
+    )
 
 
 def read_lock(repo_id: str, revision: str, cache_dir=None) -> Lock | None:
@@ -196,8 +221,13 @@ def read_lock(repo_id: str, revision: str, cache_dir=None) -> Lock | None:
         data = json.loads(path.read_text())
         lock = Lock(data["repo_id"], data["revision"], data["commit"], data["layout"], dict(data["files"]))
     except (ValueError, KeyError, TypeError):
-        raise CheckpointLayoutError(path, "lock file", "JSON with repo_id, revision, commit, layout, files",
-                                    "an unreadable file", "delete it and run `oscar zoo pull` again") from None
+        raise CheckpointLayoutError(
+            path,
+            "lock file",
+            "JSON with repo_id, revision, commit, layout, files",
+            "an unreadable file",
+            "delete it and run `oscar zoo pull` again",
+        ) from None
     if lock.repo_id != repo_id or lock.revision != revision:
         raise CheckpointLayoutError(path, "lock file", f"{repo_id}@{revision}", f"{lock.repo_id}@{lock.revision}")
     return lock
@@ -206,7 +236,14 @@ def read_lock(repo_id: str, revision: str, cache_dir=None) -> Lock | None:
 def write_lock(lock: Lock, cache_dir=None) -> Path:
     path = lock_path(lock.repo_id, lock.revision, cache_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": "oscar-zoo-lock", "version": 1, "repo_id": lock.repo_id, "revision": lock.revision,
-               "commit": lock.commit, "layout": lock.layout, "files": dict(sorted(lock.files.items()))}
+    payload = {
+        "format": "oscar-zoo-lock",
+        "version": 1,
+        "repo_id": lock.repo_id,
+        "revision": lock.revision,
+        "commit": lock.commit,
+        "layout": lock.layout,
+        "files": dict(sorted(lock.files.items())),
+    }
     atomic_write_bytes(path, (json.dumps(payload, indent=2) + "\n").encode())
     return path

@@ -22,9 +22,18 @@ if TYPE_CHECKING:  # torch and diffusers load with the model, not with `oscar zo
 __all__ = ["load", "pull", "export", "push", "convert"]
 
 
-def pull(name_or_repo_or_path, revision: str | None = None, *, cache_dir=None, endpoint=None,
-         local_files_only: bool | None = None, force_download: bool = False, token=None, verify: bool = True,
-         native_file: str | None = None) -> Path:
+def pull(
+    name_or_repo_or_path,
+    revision: str | None = None,
+    *,
+    cache_dir=None,
+    endpoint=None,
+    local_files_only: bool | None = None,
+    force_download: bool = False,
+    token=None,
+    verify: bool = True,
+    native_file: str | None = None,
+) -> Path:
     """Download (or find in the cache) and verify a checkpoint; return its local folder.
 
     Online, a pull resolves the revision anew and records the commit and the
@@ -38,17 +47,38 @@ def pull(name_or_repo_or_path, revision: str | None = None, *, cache_dir=None, e
         ``HF_ENDPOINT`` now, else huggingface.co). local_files_only: None →
         ``HF_HUB_OFFLINE``. force_download: fetch again (after a corruption).
     """
-    got = fetch(resolve(name_or_repo_or_path, revision), cache_dir=cache_dir, endpoint=endpoint,
-                local_files_only=local_files_only, force_download=force_download, token=token, verify=verify,
-                native_file=native_file, update_lock=not is_offline(local_files_only))
+    got = fetch(
+        resolve(name_or_repo_or_path, revision),
+        cache_dir=cache_dir,
+        endpoint=endpoint,
+        local_files_only=local_files_only,
+        force_download=force_download,
+        token=token,
+        verify=verify,
+        native_file=native_file,
+        update_lock=not is_offline(local_files_only),
+    )
     return got.folder
 
 
-def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype: torch.dtype | None = None, *,
-         vae_dtype: torch.dtype | None = None, offload_vae: bool = False, offload_text: bool = False,
-         cache_dir=None, endpoint=None,
-         local_files_only: bool | None = None, force_download: bool = False, token=None,
-         verify: bool = True, native_file: str | None = None, report: list | None = None) -> OscarWorldModel:
+def load(
+    name_or_repo_or_path,
+    revision: str | None = None,
+    device="cpu",
+    dtype: torch.dtype | None = None,
+    *,
+    vae_dtype: torch.dtype | None = None,
+    offload_vae: bool = False,
+    offload_text: bool = False,
+    cache_dir=None,
+    endpoint=None,
+    local_files_only: bool | None = None,
+    force_download: bool = False,
+    token=None,
+    verify: bool = True,
+    native_file: str | None = None,
+    report: list | None = None,
+) -> OscarWorldModel:
     """Load a world model by zoo name, Hub id or folder (arguments as :func:`pull`).
 
     Safetensors only, never ``trust_remote_code``, never unpickles; sha256
@@ -71,8 +101,16 @@ def load(name_or_repo_or_path, revision: str | None = None, device="cpu", dtype:
 
     check_device(device, ModelInputError)  # before resolving or downloading anything
     resolved = resolve(name_or_repo_or_path, revision)
-    got = fetch(resolved, cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
-                force_download=force_download, token=token, verify=verify, native_file=native_file)
+    got = fetch(
+        resolved,
+        cache_dir=cache_dir,
+        endpoint=endpoint,
+        local_files_only=local_files_only,
+        force_download=force_download,
+        token=token,
+        verify=verify,
+        native_file=native_file,
+    )
     options = dict(device=device, dtype=dtype, vae_dtype=vae_dtype, offload_vae=offload_vae, offload_text=offload_text)
     card = None if got.layout.kind == "oscar" else _card_from_spec(resolved.spec)
     model, layout = load_folder(got.folder, got.layout, card, verify=False, **options)  # fetch() verified it
@@ -87,13 +125,29 @@ def _card_from_spec(spec: CheckpointSpec | None) -> ModelCard:
     if spec is None:
         return ModelCard(name="cosmos-base", text_encoder_id=COSMOS_TEXT_ENCODER_ID)
     base = f"{spec.repo_id}@{spec.revision or 'main'}"
-    return ModelCard(name=spec.name, chunk_frames=spec.chunk_frames or 81, width=spec.width, height=spec.height,
-                     fps=spec.fps, embodiments=spec.embodiments, text_encoder_id=spec.text_encoder_id, base=base,
-                     license=spec.license)
+    return ModelCard(
+        name=spec.name,
+        chunk_frames=spec.chunk_frames or 81,
+        width=spec.width,
+        height=spec.height,
+        fps=spec.fps,
+        embodiments=spec.embodiments,
+        text_encoder_id=spec.text_encoder_id,
+        base=base,
+        license=spec.license,
+    )
 
 
-def convert(src, dst, *, revision: str | None = None, native_file: str | None = None, card: ModelCard | None = None,
-            report: list | None = None, **fetch_options) -> Path:
+def convert(
+    src,
+    dst,
+    *,
+    revision: str | None = None,
+    native_file: str | None = None,
+    card: ModelCard | None = None,
+    report: list | None = None,
+    **fetch_options,
+) -> Path:
     """Load ``src`` in any layout (zoo name, Hub id or folder) and write it to ``dst`` in oscar's layout.
 
     The weights keep their stored dtype; the scheduler config (if any) is
@@ -108,8 +162,17 @@ def export(model: OscarWorldModel, folder, card: ModelCard | None = None) -> Pat
     return model.save_pretrained(folder, card)
 
 
-def push(folder, repo_id: str, *, name: str | None = None, private: bool | None = None, token=None,
-         endpoint=None, commit_message: str = "Upload OSCAR world model", overwrite: bool = False):
+def push(
+    folder,
+    repo_id: str,
+    *,
+    name: str | None = None,
+    private: bool | None = None,
+    token=None,
+    endpoint=None,
+    commit_message: str = "Upload OSCAR world model",
+    overwrite: bool = False,
+):
     """Upload an exported folder to the Hub; with ``name``, register it so ``load(name)`` finds it.
 
     The registry entry pins the commit the upload created and the sha256 of
@@ -121,8 +184,10 @@ def push(folder, repo_id: str, *, name: str | None = None, private: bool | None 
     folder = Path(folder)
     manifest = read_manifest(folder)
     if manifest is None or not (folder / MODEL_FILE).is_file():
-        raise ValueError(f"{folder}: expected a folder written by oscar_zoo.export (with {MODEL_FILE} and a "
-                         f"manifest), found {sorted(p.name for p in folder.iterdir()) if folder.is_dir() else 'none'}")
+        raise ValueError(
+            f"{folder}: expected a folder written by oscar_zoo.export (with {MODEL_FILE} and a "
+            f"manifest), found {sorted(p.name for p in folder.iterdir()) if folder.is_dir() else 'none'}"
+        )
     api = HfApi(endpoint=endpoint or os.environ.get("HF_ENDPOINT") or None, token=token)
     api.create_repo(repo_id, private=private, exist_ok=True)
     info = api.upload_folder(folder_path=str(folder), repo_id=repo_id, commit_message=commit_message)
@@ -130,7 +195,8 @@ def push(folder, repo_id: str, *, name: str | None = None, private: bool | None 
     if name is None:
         return commit
     card = json.loads((folder / MODEL_FILE).read_text()).get("card", {})
-    fields = {k: card.get(k) for k in ("license", "embodiments", "chunk_frames", "width", "height", "fps",
-                                       "text_encoder_id")}
+    fields = {
+        k: card.get(k) for k in ("license", "embodiments", "chunk_frames", "width", "height", "fps", "text_encoder_id")
+    }
     files = {path: meta.get("sha256") for path, meta in manifest.items()}
     return register(name, repo_id, commit, kind="oscar", files=files, overwrite=overwrite, **fields)

@@ -50,22 +50,35 @@ def _read(path: Path) -> dict:
         if data.get("format") != FORMAT or not isinstance(models, dict):
             raise ValueError
     except (ValueError, KeyError, TypeError):
-        raise CheckpointLayoutError(path, "models", f"a {FORMAT} JSON file", "an unreadable registry",
-                                    "fix or delete the file") from None
+        raise CheckpointLayoutError(
+            path, "models", f"a {FORMAT} JSON file", "an unreadable registry", "fix or delete the file"
+        ) from None
     return models
 
 
 def _spec(name: str, entry: dict, path: Path) -> CheckpointSpec:
     try:
         return CheckpointSpec(
-            name=name, repo_id=entry["repo_id"], revision=entry.get("revision"), kind=entry.get("kind", "oscar"),
-            license=entry.get("license"), paper=entry.get("paper"), embodiments=tuple(entry.get("embodiments", ())),
-            chunk_frames=entry.get("chunk_frames"), width=entry.get("width"), height=entry.get("height"),
-            fps=entry.get("fps"), files=tuple(FileSpec(p, h) for p, h in sorted(entry.get("files", {}).items())),
-            text_encoder_id=entry.get("text_encoder_id"), notes=entry.get("notes", ""), source=str(path))
+            name=name,
+            repo_id=entry["repo_id"],
+            revision=entry.get("revision"),
+            kind=entry.get("kind", "oscar"),
+            license=entry.get("license"),
+            paper=entry.get("paper"),
+            embodiments=tuple(entry.get("embodiments", ())),
+            chunk_frames=entry.get("chunk_frames"),
+            width=entry.get("width"),
+            height=entry.get("height"),
+            fps=entry.get("fps"),
+            files=tuple(FileSpec(p, h) for p, h in sorted(entry.get("files", {}).items())),
+            text_encoder_id=entry.get("text_encoder_id"),
+            notes=entry.get("notes", ""),
+            source=str(path),
+        )
     except (KeyError, TypeError):
-        raise CheckpointLayoutError(path, f"models.{name}", "an entry with at least 'repo_id'", repr(entry)[:120]) \
-            from None
+        raise CheckpointLayoutError(
+            path, f"models.{name}", "an entry with at least 'repo_id'", repr(entry)[:120]
+        ) from None
 
 
 def user_models() -> tuple[CheckpointSpec, ...]:
@@ -74,8 +87,16 @@ def user_models() -> tuple[CheckpointSpec, ...]:
     return tuple(_spec(name, entry, path) for name, entry in sorted(_read(path).items()))
 
 
-def register(name: str, repo_id: str, revision: str | None = None, *, kind: str = "oscar",
-             files: dict[str, str | None] | None = None, overwrite: bool = False, **card) -> CheckpointSpec:
+def register(
+    name: str,
+    repo_id: str,
+    revision: str | None = None,
+    *,
+    kind: str = "oscar",
+    files: dict[str, str | None] | None = None,
+    overwrite: bool = False,
+    **card,
+) -> CheckpointSpec:
     """Add ``name → repo_id@revision`` to the user registry; returns its spec.
 
     files: {path in the repo: sha256 or None}, checked on every load (export
@@ -86,8 +107,10 @@ def register(name: str, repo_id: str, revision: str | None = None, *, kind: str 
     if not _NAME.match(name or ""):
         raise ValueError(f"zoo name: expected lowercase letters, digits, '.', '_' or '-' (no '/'), found {name!r}")
     if any(spec.name == name for spec in CHECKPOINTS):
-        raise ValueError(f"zoo name {name!r}: expected a name not in the built-in table "
-                         f"({', '.join(s.name for s in CHECKPOINTS)}), found a clash")
+        raise ValueError(
+            f"zoo name {name!r}: expected a name not in the built-in table "
+            f"({', '.join(s.name for s in CHECKPOINTS)}), found a clash"
+        )
     if kind not in KINDS:
         raise ValueError(f"zoo kind: expected one of {KINDS}, found {kind!r}")
     unknown = sorted(set(card) - set(_CARD_KEYS))
@@ -96,8 +119,10 @@ def register(name: str, repo_id: str, revision: str | None = None, *, kind: str 
     path = registry_path()
     models = _read(path)
     if name in models and not overwrite:
-        raise ValueError(f"{path}: model {name!r} is already registered (-> {models[name]['repo_id']}); "
-                         "pass overwrite=True to replace it")
+        raise ValueError(
+            f"{path}: model {name!r} is already registered (-> {models[name]['repo_id']}); "
+            "pass overwrite=True to replace it"
+        )
     entry = {"repo_id": repo_id, "revision": revision, "kind": kind, "files": dict(sorted((files or {}).items()))}
     entry.update({k: (list(v) if k == "embodiments" else v) for k, v in card.items() if v is not None})
     models[name] = entry

@@ -93,73 +93,100 @@ class CheckpointSpec:
 
     def row(self) -> dict:
         """A JSON-ready summary (``oscar zoo list --json``)."""
-        return {"name": self.name, "repo_id": self.repo_id, "revision": self.revision or "main (unpinned)",
-                "kind": self.kind, "license": self.license, "paper": self.paper,
-                "embodiments": list(self.embodiments), "chunk_frames": self.chunk_frames,
-                "resolution": f"{self.width}x{self.height}" if self.width and self.height else None, "fps": self.fps,
-                "files": {f.path: f.sha256 for f in self.files}, "source": self.source, "notes": self.notes,
-                "bundled": self.bundled}
+        return {
+            "name": self.name,
+            "repo_id": self.repo_id,
+            "revision": self.revision or "main (unpinned)",
+            "kind": self.kind,
+            "license": self.license,
+            "paper": self.paper,
+            "embodiments": list(self.embodiments),
+            "chunk_frames": self.chunk_frames,
+            "resolution": f"{self.width}x{self.height}" if self.width and self.height else None,
+            "fps": self.fps,
+            "files": {f.path: f.sha256 for f in self.files},
+            "source": self.source,
+            "notes": self.notes,
+            "bundled": self.bundled,
+        }
 
 
 _OSCAR_LAYOUT = (FileSpec("oscar_model.json"), FileSpec("transformer/config.json"), FileSpec("vae/config.json"))
 
-CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(sorted((
-    CheckpointSpec(
-        name="cosmos-predict2.5-2b",
-        repo_id="nvidia/Cosmos-Predict2.5-2B",
-        revision="diffusers/base/post-trained",
-        kind="cosmos-base",
-        license="NVIDIA Open Model License",
-        paper="arXiv:2511.00062 (World simulation with video foundation models for physical AI)",
-        embodiments=(),
-        chunk_frames=93, width=1280, height=704, fps=16.0,
-        files=(FileSpec("transformer/config.json"), FileSpec("vae/config.json")),
-        text_encoder_id=COSMOS_TEXT_ENCODER_ID,
-        notes="base for fine-tuning: loads as an OSCAR model with a zero skeleton embedder (PE_s)",
-    ),
-    CheckpointSpec(
-        name="oscar-2b",
-        repo_id="zywu2115/OSCAR-2B",
-        revision=None,
-        kind="oscar",
-        license=None,
-        paper="OSCAR: Omni-Embodiment Action-Conditioned World Model for Robotics "
-              "(https://wuzy2115.github.io/oscar-project-page/)",
-        embodiments=("franka", "kuka", "agibot_g1", "hsr", "mano"),
-        chunk_frames=81, width=512, height=288, fps=None,
-        files=_OSCAR_LAYOUT,
-        text_encoder_id=COSMOS_TEXT_ENCODER_ID,
-        notes="the paper's release; file layout, license, commit and hashes unverified",
-    ),
-    CheckpointSpec(
-        name="oscar-toy",
-        repo_id="",
-        revision=None,
-        kind="oscar",
-        license="Apache-2.0",
-        paper="oscar's toy-world reproduction of OSCAR's central claim (docs/toyworld.md)",
-        embodiments=("franka", "kuka", "toyarm"),
-        chunk_frames=17, width=64, height=64, fps=10.0,
-        files=(
-            FileSpec("README.md",
-                     "4e53a322a63d8fdb419512a6ec402f5d3af54d6a25f331db99a0aab2258abe0a"),
-            FileSpec("oscar_manifest.json",
-                     "dd458a47bb259834d8d43d7d5f1a766ecd0f0ea0a5199a1a5f4a5333611b4452"),
-            FileSpec("oscar_model.json",
-                     "506281c49863b31a8483dfc7492317bc7ddb2f27064744c844102a0762c8cf23"),
-            FileSpec("text/empty_prompt_embeds.safetensors",
-                     "315a414f568f65357cd9dd70dab0b3a573913300961246539db4ecbb13f595d2"),
-            FileSpec("transformer/config.json",
-                     "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"),
-            FileSpec("transformer/diffusion_pytorch_model.safetensors",
-                     "e20f0c20e57931ff04422683ed2a563fabba0382888946a04ade2984512f5d55"),
-            FileSpec("vae/config.json",
-                     "750a9a1fad8678bcda27b417ac2aff7fe00779bbbd795af652fcdaee18daa9d6"),
-            FileSpec("vae/diffusion_pytorch_model.safetensors",
-                     "1b3bb605c1316222e8c9e93249756185ee0c3493037905d546cc76c3819efa31"),
+CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
+    sorted(
+        (
+            CheckpointSpec(
+                name="cosmos-predict2.5-2b",
+                repo_id="nvidia/Cosmos-Predict2.5-2B",
+                revision="diffusers/base/post-trained",
+                kind="cosmos-base",
+                license="NVIDIA Open Model License",
+                paper="arXiv:2511.00062 (World simulation with video foundation models for physical AI)",
+                embodiments=(),
+                chunk_frames=93,
+                width=1280,
+                height=704,
+                fps=16.0,
+                files=(FileSpec("transformer/config.json"), FileSpec("vae/config.json")),
+                text_encoder_id=COSMOS_TEXT_ENCODER_ID,
+                notes="base for fine-tuning: loads as an OSCAR model with a zero skeleton embedder (PE_s)",
+            ),
+            CheckpointSpec(
+                name="oscar-2b",
+                repo_id="zywu2115/OSCAR-2B",
+                revision=None,
+                kind="oscar",
+                license=None,
+                paper="OSCAR: Omni-Embodiment Action-Conditioned World Model for Robotics "
+                "(https://wuzy2115.github.io/oscar-project-page/)",
+                embodiments=("franka", "kuka", "agibot_g1", "hsr", "mano"),
+                chunk_frames=81,
+                width=512,
+                height=288,
+                fps=None,
+                files=_OSCAR_LAYOUT,
+                text_encoder_id=COSMOS_TEXT_ENCODER_ID,
+                notes="the paper's release; file layout, license, commit and hashes unverified",
+            ),
+            CheckpointSpec(
+                name="oscar-toy",
+                repo_id="",
+                revision=None,
+                kind="oscar",
+                license="Apache-2.0",
+                paper="oscar's toy-world reproduction of OSCAR's central claim (docs/toyworld.md)",
+                embodiments=("franka", "kuka", "toyarm"),
+                chunk_frames=17,
+                width=64,
+                height=64,
+                fps=10.0,
+                files=(
+                    FileSpec("README.md", "4e53a322a63d8fdb419512a6ec402f5d3af54d6a25f331db99a0aab2258abe0a"),
+                    FileSpec("oscar_manifest.json", "dd458a47bb259834d8d43d7d5f1a766ecd0f0ea0a5199a1a5f4a5333611b4452"),
+                    FileSpec("oscar_model.json", "506281c49863b31a8483dfc7492317bc7ddb2f27064744c844102a0762c8cf23"),
+                    FileSpec(
+                        "text/empty_prompt_embeds.safetensors",
+                        "315a414f568f65357cd9dd70dab0b3a573913300961246539db4ecbb13f595d2",
+                    ),
+                    FileSpec(
+                        "transformer/config.json", "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"
+                    ),
+                    FileSpec(
+                        "transformer/diffusion_pytorch_model.safetensors",
+                        "e20f0c20e57931ff04422683ed2a563fabba0382888946a04ade2984512f5d55",
+                    ),
+                    FileSpec("vae/config.json", "750a9a1fad8678bcda27b417ac2aff7fe00779bbbd795af652fcdaee18daa9d6"),
+                    FileSpec(
+                        "vae/diffusion_pytorch_model.safetensors",
+                        "1b3bb605c1316222e8c9e93249756185ee0c3493037905d546cc76c3819efa31",
+                    ),
+                ),
+                text_encoder_id=None,
+                notes="bundled: a small DiT + VAE trained on the procedural toy world on a CPU; not a model of real robots",
+                bundled="assets/oscar-toy",
+            ),
         ),
-        text_encoder_id=None,
-        notes="bundled: a small DiT + VAE trained on the procedural toy world on a CPU; not a model of real robots",
-        bundled="assets/oscar-toy",
-    ),
-), key=lambda spec: spec.name))
+        key=lambda spec: spec.name,
+    )
+)

@@ -57,8 +57,11 @@ class MockHub:
     def add_folder(self, repo_id: str, folder, revision: str = "main") -> str:
         """Publish every file under ``folder`` (hidden files skipped)."""
         folder = Path(folder)
-        files = {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
-                 if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts)}
+        files = {
+            p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*"))
+            if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+        }
         return self.add_files(repo_id, files, revision)
 
     def tamper(self, repo_id: str, path: str, data: bytes, revision: str = "main") -> None:
@@ -100,8 +103,9 @@ class MockHub:
 
         self._server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self._server.daemon_threads = True
-        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.05},
-                                        name="oscar-mock-hub", daemon=True)
+        self._thread = threading.Thread(
+            target=self._server.serve_forever, kwargs={"poll_interval": 0.05}, name="oscar-mock-hub", daemon=True
+        )
         self._thread.start()
         return self
 
@@ -123,8 +127,12 @@ class MockHub:
         self.requests.append((req.command, path))
         parts = [unquote(p) for p in path.strip("/").split("/")]
         if len(parts) >= 5 and parts[0] == "api" and parts[1] == "models" and parts[4] in ("revision", "tree"):
-            repo_id, kind, revision, sub = f"{parts[2]}/{parts[3]}", parts[4], parts[5] if len(parts) > 5 else "main", \
-                "/".join(parts[6:])
+            repo_id, kind, revision, sub = (
+                f"{parts[2]}/{parts[3]}",
+                parts[4],
+                parts[5] if len(parts) > 5 else "main",
+                "/".join(parts[6:]),
+            )
             return self._api(req, head, repo_id, kind, revision, sub)
         if len(parts) >= 5 and parts[2] == "resolve":
             return self._resolve(req, head, f"{parts[0]}/{parts[1]}", parts[3], "/".join(parts[4:]))
@@ -135,10 +143,16 @@ class MockHub:
         if error:
             return self._send(req, 404, error.encode(), head, {"X-Error-Code": error})
         if file_path not in files:
-            return self._send(req, 404, b"EntryNotFound", head, {"X-Error-Code": "EntryNotFound", "X-Repo-Commit": commit})
+            return self._send(
+                req, 404, b"EntryNotFound", head, {"X-Error-Code": "EntryNotFound", "X-Repo-Commit": commit}
+            )
         data = files[file_path]
-        headers = {"X-Repo-Commit": commit, "ETag": f'"{hashlib.sha256(data).hexdigest()}"',
-                   "Content-Type": "application/octet-stream", "Accept-Ranges": "bytes"}
+        headers = {
+            "X-Repo-Commit": commit,
+            "ETag": f'"{hashlib.sha256(data).hexdigest()}"',
+            "Content-Type": "application/octet-stream",
+            "Accept-Ranges": "bytes",
+        }
         start = 0
         rng = req.headers.get("Range", "")
         if rng.startswith("bytes=") and not head:
@@ -152,12 +166,20 @@ class MockHub:
         if error:
             return self._send(req, 404, json.dumps({"error": error}).encode(), head, {"X-Error-Code": error})
         if kind == "revision":
-            body = {"id": repo_id, "modelId": repo_id, "sha": commit, "private": False,
-                    "siblings": [{"rfilename": p} for p in sorted(files)]}
+            body = {
+                "id": repo_id,
+                "modelId": repo_id,
+                "sha": commit,
+                "private": False,
+                "siblings": [{"rfilename": p} for p in sorted(files)],
+            }
         else:
             prefix = sub.rstrip("/") + "/" if sub else ""
-            body = [{"type": "file", "path": p, "size": len(d), "oid": hashlib.sha1(d).hexdigest()}
-                    for p, d in sorted(files.items()) if p.startswith(prefix)]
+            body = [
+                {"type": "file", "path": p, "size": len(d), "oid": hashlib.sha1(d).hexdigest()}
+                for p, d in sorted(files.items())
+                if p.startswith(prefix)
+            ]
         self._send(req, 200, json.dumps(body).encode(), head, {"Content-Type": "application/json"})
 
     @staticmethod

@@ -60,34 +60,65 @@ class AgiBotG1(Embodiment):
     skeleton = Skeleton(
         links=_TORSO + _LEFT + _RIGHT,
         points={
-            "gripper_l_outer_link1": _OUTER_TIP, "gripper_l_inner_link1": _INNER_TIP,
-            "gripper_r_outer_link1": _OUTER_TIP, "gripper_r_inner_link1": _INNER_TIP,
+            "gripper_l_outer_link1": _OUTER_TIP,
+            "gripper_l_inner_link1": _INNER_TIP,
+            "gripper_r_outer_link1": _OUTER_TIP,
+            "gripper_r_inner_link1": _INNER_TIP,
         },
         # Given explicitly: collapsing the tree would join the head and the
         # shoulders both to the waist joint, drawing two overlapping spines.
         edges=(
-            ("base_link", "body_link1"), ("body_link1", "body_link2"), ("body_link2", "arm_base_link"),
-            ("arm_base_link", "head_link1"), ("head_link1", "head_link2"),
-            ("arm_base_link", "arm_l_link1"), ("arm_l_link1", "arm_l_link3"), ("arm_l_link3", "arm_l_link5"),
-            ("arm_l_link5", "arm_l_link7"), ("arm_l_link7", "gripper_l_outer_link1"),
+            ("base_link", "body_link1"),
+            ("body_link1", "body_link2"),
+            ("body_link2", "arm_base_link"),
+            ("arm_base_link", "head_link1"),
+            ("head_link1", "head_link2"),
+            ("arm_base_link", "arm_l_link1"),
+            ("arm_l_link1", "arm_l_link3"),
+            ("arm_l_link3", "arm_l_link5"),
+            ("arm_l_link5", "arm_l_link7"),
+            ("arm_l_link7", "gripper_l_outer_link1"),
             ("arm_l_link7", "gripper_l_inner_link1"),
-            ("arm_base_link", "arm_r_link1"), ("arm_r_link1", "arm_r_link3"), ("arm_r_link3", "arm_r_link5"),
-            ("arm_r_link5", "arm_r_link7"), ("arm_r_link7", "gripper_r_outer_link1"),
+            ("arm_base_link", "arm_r_link1"),
+            ("arm_r_link1", "arm_r_link3"),
+            ("arm_r_link3", "arm_r_link5"),
+            ("arm_r_link5", "arm_r_link7"),
+            ("arm_r_link7", "gripper_r_outer_link1"),
             ("arm_r_link7", "gripper_r_inner_link1"),
         ),
         groups={"left_arm": _LEFT, "right_arm": _RIGHT, "torso_head": _TORSO},
         colors={"left_arm": (255, 170, 0), "right_arm": (0, 170, 255), "torso_head": (255, 60, 200)},
     )
-    end_effector_links = ("gripper_l_center_link", "gripper_r_center_link")  # the gripper's link (latent-action baseline)
+    end_effector_links = (
+        "gripper_l_center_link",
+        "gripper_r_center_link",
+    )  # the gripper's link (latent-action baseline)
     grippers = (
-        Gripper("left_gripper", link="gripper_l_center_link", signal_range=(0.0, 1.0), closed_at="high",
-                joint="idx41_gripper_l_outer_joint1", joint_range=(0.0, 0.7853981633974483)),
-        Gripper("right_gripper", link="gripper_r_center_link", signal_range=(0.0, 1.0), closed_at="high",
-                joint="idx81_gripper_r_outer_joint1", joint_range=(0.0, 0.7853981633974483)),
+        Gripper(
+            "left_gripper",
+            link="gripper_l_center_link",
+            signal_range=(0.0, 1.0),
+            closed_at="high",
+            joint="idx41_gripper_l_outer_joint1",
+            joint_range=(0.0, 0.7853981633974483),
+        ),
+        Gripper(
+            "right_gripper",
+            link="gripper_r_center_link",
+            signal_range=(0.0, 1.0),
+            closed_at="high",
+            joint="idx81_gripper_r_outer_joint1",
+            joint_range=(0.0, 0.7853981633974483),
+        ),
     )
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=HEAD_CAMERA_LINK)
     # arm-only trajectories may leave out the waist and head: the reference's zero (README "Default pose")
-    default_pose = {"idx01_body_joint1": 0.0, "idx02_body_joint2": 0.0, "idx11_head_joint1": 0.0, "idx12_head_joint2": 0.0}
+    default_pose = {
+        "idx01_body_joint1": 0.0,
+        "idx02_body_joint2": 0.0,
+        "idx11_head_joint1": 0.0,
+        "idx12_head_joint2": 0.0,
+    }
     example_trajectory = ASSETS / "example_trajectory.npz"
     example_camera = ASSETS / "example_camera.json"
 

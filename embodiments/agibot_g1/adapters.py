@@ -133,8 +133,13 @@ def _seconds(raw: Any, n: int, source: str) -> np.ndarray:
 
 def _intrinsics(record: Any, image_size, source: str) -> Intrinsics:
     key = "head_intrinsic_params"
-    doc = _get(record, key, source, 'the parsed head_intrinsic_params.json: {"intrinsic": {"fx", "fy", "ppx", "ppy"}}',
-               error=CameraFileError)
+    doc = _get(
+        record,
+        key,
+        source,
+        'the parsed head_intrinsic_params.json: {"intrinsic": {"fx", "fy", "ppx", "ppy"}}',
+        error=CameraFileError,
+    )
     intr = doc.get("intrinsic", doc) if isinstance(doc, Mapping) else None
     if not isinstance(intr, Mapping):
         raise CameraFileError(source, key, 'an object {"intrinsic": {"fx", "fy", "ppx", "ppy"}}', type(doc).__name__)
@@ -162,7 +167,13 @@ def _intrinsics(record: Any, image_size, source: str) -> Intrinsics:
     try:
         return Intrinsics(values["fx"], values["fy"], values["cx"], values["cy"], width, height, distortion)
     except CameraFileError as e:
-        field = f"{key}.intrinsic.{e.field}" if e.field in values else "image_size" if e.field in ("width", "height") else e.field
+        field = (
+            f"{key}.intrinsic.{e.field}"
+            if e.field in values
+            else "image_size"
+            if e.field in ("width", "height")
+            else e.field
+        )
         raise CameraFileError(source, field, e.expected, e.found) from None
 
 
@@ -173,7 +184,9 @@ def _camera_poses(record: Any, source: str) -> np.ndarray:
     doc = _get(record, key, source, what, error=CameraFileError)
     items = [doc] if isinstance(doc, Mapping) else doc
     if not isinstance(items, (list, tuple)) or not items:
-        raise CameraFileError(source, key, what, f"{type(doc).__name__} of length {len(doc) if hasattr(doc, '__len__') else '?'}")
+        raise CameraFileError(
+            source, key, what, f"{type(doc).__name__} of length {len(doc) if hasattr(doc, '__len__') else '?'}"
+        )
     poses = np.tile(np.eye(4), (len(items), 1, 1))
     for i, item in enumerate(items):
         ext = item.get("extrinsic", item) if isinstance(item, Mapping) else None
@@ -183,13 +196,21 @@ def _camera_poses(record: Any, source: str) -> np.ndarray:
         except (KeyError, TypeError, ValueError):
             raise CameraFileError(source, f"{key}[{i}]", what, repr(item)[:120]) from None
         if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
-            raise CameraFileError(source, f"{key}[{i}]", "a finite 3x3 rotation_matrix and 3-vector translation_vector",
-                                  f"shapes {R.shape} and {t.shape}")
+            raise CameraFileError(
+                source,
+                f"{key}[{i}]",
+                "a finite 3x3 rotation_matrix and 3-vector translation_vector",
+                f"shapes {R.shape} and {t.shape}",
+            )
         U, _, Vt = np.linalg.svd(R)  # stored with a few digits: re-orthonormalise small errors
         Rn = U @ Vt
         if np.abs(R - Rn).max() > 1e-3 or np.linalg.det(Rn) < 0:
-            raise CameraFileError(source, f"{key}[{i}].rotation_matrix", "a rotation (orthonormal, det +1)",
-                                  f"max |R - nearest rotation| = {np.abs(R - Rn).max():.3g}, det {np.linalg.det(R):.3g}")
+            raise CameraFileError(
+                source,
+                f"{key}[{i}].rotation_matrix",
+                "a rotation (orthonormal, det +1)",
+                f"max |R - nearest rotation| = {np.abs(R - Rn).max():.3g}, det {np.linalg.det(R):.3g}",
+            )
         poses[i, :3, :3], poses[i, :3, 3] = Rn, t
     return poses
 
@@ -201,7 +222,9 @@ def _embodiment():
     return AgiBotG1()
 
 
-def head_camera_in_link(traj: Trajectory, camera_to_base: np.ndarray, source: str = "<agibot_world record>") -> np.ndarray:
+def head_camera_in_link(
+    traj: Trajectory, camera_to_base: np.ndarray, source: str = "<agibot_world record>"
+) -> np.ndarray:
     """The head camera's pose in the head link, (4, 4), from per-frame base-frame poses.
 
     traj: a trajectory of this embodiment (T frames); camera_to_base: (E, 4, 4)
@@ -235,7 +258,9 @@ def head_camera_in_link(traj: Trajectory, camera_to_base: np.ndarray, source: st
             f"{dt[k] * 100:.1f} cm / {np.rad2deg(da[k]):.1f} deg from the mean pose (tolerance "
             f"{MOUNT_TOL_M * 100:.0f} cm / {np.rad2deg(MOUNT_TOL_RAD):.0f} deg); the mean is used. Check that the "
             "extrinsics are camera-to-base and that waist/head positions match the URDF's joint zeros",
-            MountConsistencyWarning, stacklevel=2)
+            MountConsistencyWarning,
+            stacklevel=2,
+        )
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = Rm, tm
     return T
@@ -244,9 +269,15 @@ def head_camera_in_link(traj: Trajectory, camera_to_base: np.ndarray, source: st
 # --------------------------------------------------------------------------- the adapter
 
 
-def from_agibot_world(record: Mapping, *, image_size: tuple[int, int] | None = None, fps: float | None = None,
-                      gripper_key: str = "action/effector/position", head_camera: str = "per_frame",
-                      source: str = "<agibot_world record>") -> tuple[Trajectory, Camera]:
+def from_agibot_world(
+    record: Mapping,
+    *,
+    image_size: tuple[int, int] | None = None,
+    fps: float | None = None,
+    gripper_key: str = "action/effector/position",
+    head_camera: str = "per_frame",
+    source: str = "<agibot_world record>",
+) -> tuple[Trajectory, Camera]:
     """One AgiBot World episode → (trajectory, head camera).
 
     record: mapping with the proprio_stats.h5 fields ``state/joint/position``
@@ -273,16 +304,21 @@ def from_agibot_world(record: Mapping, *, image_size: tuple[int, int] | None = N
         the waist and head joints.
     """
     if head_camera not in HEAD_CAMERA_MODES:
-        raise ValueError(f"from_agibot_world: head_camera must be one of {list(HEAD_CAMERA_MODES)}, found {head_camera!r}")
+        raise ValueError(
+            f"from_agibot_world: head_camera must be one of {list(HEAD_CAMERA_MODES)}, found {head_camera!r}"
+        )
     arms = _columns(record, "state/joint/position", 14, "left arm [:, :7] then right arm [:, 7:], radians", source)
     waist = _columns(record, "state/waist/position", 2, "waist pitch [:, 0] (rad), lift [:, 1] (m)", source)
     head = _columns(record, "state/head/position", 2, "head yaw [:, 0], pitch [:, 1], radians", source)
     grip = _columns(record, gripper_key, 2, "left [:, 0], right [:, 1] gripper, 0 open .. 1 closed", source)
     if grip.max() > 1.05 or grip.min() < -0.05:
-        raise TrajectoryError(source, gripper_key,
-                              "gripper signals in 0 (open) .. 1 (closed), as action/effector/position stores them "
-                              "(state/effector/position is a motor reading of about 35 .. 120, not accepted)",
-                              f"values in [{grip.min():g}, {grip.max():g}]")
+        raise TrajectoryError(
+            source,
+            gripper_key,
+            "gripper signals in 0 (open) .. 1 (closed), as action/effector/position stores them "
+            "(state/effector/position is a motor reading of about 35 .. 120, not accepted)",
+            f"values in [{grip.min():g}, {grip.max():g}]",
+        )
     n = len(arms)
     for key, a in (("state/waist/position", waist), ("state/head/position", head), (gripper_key, grip)):
         if len(a) != n:
@@ -295,20 +331,37 @@ def from_agibot_world(record: Mapping, *, image_size: tuple[int, int] | None = N
         timestamps = _seconds(ts, n, source)
         if fps is None and n > 1 and np.median(np.diff(timestamps)) > 0:
             fps = float(1.0 / np.median(np.diff(timestamps)))
-    traj = Trajectory(JOINTS, q, fps or AGIBOT_WORLD_FPS, gripper=grip, gripper_names=GRIPPER_NAMES,
-                      timestamps=timestamps, source=source)
+    traj = Trajectory(
+        JOINTS,
+        q,
+        fps or AGIBOT_WORLD_FPS,
+        gripper=grip,
+        gripper_names=GRIPPER_NAMES,
+        timestamps=timestamps,
+        source=source,
+    )
 
     intrinsics = _intrinsics(record, image_size, source)
     poses = _camera_poses(record, source)
     if head_camera == "head_link":
         extrinsic = head_camera_in_link(traj, poses, source)
-        camera = Camera(intrinsics, extrinsic, convention="opencv", direction="camera_to_world",
-                        mount_link=HEAD_CAMERA_LINK, embodiment=EMBODIMENT)
+        camera = Camera(
+            intrinsics,
+            extrinsic,
+            convention="opencv",
+            direction="camera_to_world",
+            mount_link=HEAD_CAMERA_LINK,
+            embodiment=EMBODIMENT,
+        )
         return traj, camera
     if len(poses) != n:
-        raise CameraFileError(source, "head_extrinsic_params_aligned",
-                              f"{n} poses, one per state frame (or pass head_camera='head_link' to fit one head-link "
-                              "pose to the frames both hold)", f"{len(poses)} poses")
+        raise CameraFileError(
+            source,
+            "head_extrinsic_params_aligned",
+            f"{n} poses, one per state frame (or pass head_camera='head_link' to fit one head-link "
+            "pose to the frames both hold)",
+            f"{len(poses)} poses",
+        )
     camera = Camera(intrinsics, poses, convention="opencv", direction="camera_to_world", embodiment=EMBODIMENT)
     return traj, camera
 
@@ -325,8 +378,10 @@ def load_agibot_world_episode(root, task_id, episode_id, gripper_key: str = "act
         raise ImportError("reading AgiBot World's proprio_stats.h5 needs h5py: pip install h5py") from None
     root = Path(root)
     h5 = root / "proprio_stats" / str(task_id) / str(episode_id) / "proprio_stats.h5"
-    params = [root / "parameters" / str(task_id) / str(episode_id) / "parameters" / "camera",
-              root / "parameters" / str(task_id) / str(episode_id) / "camera"]
+    params = [
+        root / "parameters" / str(task_id) / str(episode_id) / "parameters" / "camera",
+        root / "parameters" / str(task_id) / str(episode_id) / "camera",
+    ]
     record: dict[str, Any] = {}
     with h5py.File(h5, "r") as f:
         for key in ("state/joint/position", "state/waist/position", "state/head/position", gripper_key, "timestamp"):

@@ -34,12 +34,14 @@ ASSETS = HERE / "assets"
 # Translation: on the front of the head, estimated from the head's collision
 # sphere in the reference URDF (centre (0.0115, -0.0253, 0.0009) m, radius
 # 0.113 m in head_link2); not a calibration.
-HEAD_CAMERA_IN_HEAD_LINK2 = np.array([
-    [0.0, 0.0, 1.0, 0.11],
-    [0.0, 1.0, 0.0, -0.03],
-    [-1.0, 0.0, 0.0, 0.0],
-    [0.0, 0.0, 0.0, 1.0],
-])
+HEAD_CAMERA_IN_HEAD_LINK2 = np.array(
+    [
+        [0.0, 0.0, 1.0, 0.11],
+        [0.0, 1.0, 0.0, -0.03],
+        [-1.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
 # An illustrative 640x480 pinhole (about 80 degrees horizontal field of view);
 # real episodes use their own head_intrinsic_params.json (see adapters.py).
 HEAD_INTRINSICS = Intrinsics(fx=380.0, fy=380.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -53,31 +55,42 @@ PLACE_L = [1.776, -1.617, -2.294, -1.45, 2.356, 1.618, 0.6]
 READY_R = [-v for v in READY_L]
 
 
-
-
 def keyframe(lift, pitch, head_yaw, head_pitch, left, right, grip_left, grip_right):
     return [lift, pitch, head_yaw, head_pitch, *left, *right, grip_left, grip_right]
 
 
 def make_trajectory() -> Trajectory:
     # gripper signals: AgiBot World action/effector/position, 0 = open, 1 = closed
-    keys = np.array([
-        keyframe(0.15, 0.20, 0.00, 0.35, READY_L, READY_R, 0.0, 0.0),  # ready, looking at the table
-        keyframe(0.15, 0.20, 0.10, 0.45, ABOVE_L, READY_R, 0.0, 0.0),  # above the object
-        keyframe(0.15, 0.22, 0.12, 0.50, GRASP_L, READY_R, 0.0, 0.0),  # descend
-        keyframe(0.15, 0.22, 0.12, 0.50, GRASP_L, READY_R, 1.0, 0.0),  # close
-        keyframe(0.17, 0.20, 0.08, 0.40, LIFT_L, READY_R, 1.0, 0.0),   # lift
-        keyframe(0.17, 0.20, 0.00, 0.45, PLACE_L, READY_R, 1.0, 0.0),  # carry over the target
-        keyframe(0.17, 0.20, 0.00, 0.45, PLACE_L, READY_R, 0.0, 0.0),  # release
-    ])
+    keys = np.array(
+        [
+            keyframe(0.15, 0.20, 0.00, 0.35, READY_L, READY_R, 0.0, 0.0),  # ready, looking at the table
+            keyframe(0.15, 0.20, 0.10, 0.45, ABOVE_L, READY_R, 0.0, 0.0),  # above the object
+            keyframe(0.15, 0.22, 0.12, 0.50, GRASP_L, READY_R, 0.0, 0.0),  # descend
+            keyframe(0.15, 0.22, 0.12, 0.50, GRASP_L, READY_R, 1.0, 0.0),  # close
+            keyframe(0.17, 0.20, 0.08, 0.40, LIFT_L, READY_R, 1.0, 0.0),  # lift
+            keyframe(0.17, 0.20, 0.00, 0.45, PLACE_L, READY_R, 1.0, 0.0),  # carry over the target
+            keyframe(0.17, 0.20, 0.00, 0.45, PLACE_L, READY_R, 0.0, 0.0),  # release
+        ]
+    )
     q = interpolate_keyframes(keys, 16)  # 6 segments * 16 + 1 = 97 frames
-    return Trajectory(joint_names=JOINTS, q=q[:, :len(JOINTS)], fps=30.0,
-                      gripper=q[:, len(JOINTS):], gripper_names=("left_gripper", "right_gripper"))
+    return Trajectory(
+        joint_names=JOINTS,
+        q=q[:, : len(JOINTS)],
+        fps=30.0,
+        gripper=q[:, len(JOINTS) :],
+        gripper_names=("left_gripper", "right_gripper"),
+    )
 
 
 def make_camera() -> Camera:
-    return Camera(HEAD_INTRINSICS, HEAD_CAMERA_IN_HEAD_LINK2, convention="opencv", direction="camera_to_world",
-                  mount_link=HEAD_CAMERA_LINK, embodiment="agibot_g1")
+    return Camera(
+        HEAD_INTRINSICS,
+        HEAD_CAMERA_IN_HEAD_LINK2,
+        convention="opencv",
+        direction="camera_to_world",
+        mount_link=HEAD_CAMERA_LINK,
+        embodiment="agibot_g1",
+    )
 
 
 def main():

@@ -16,8 +16,15 @@ from oscar_core import CameraSpec, Embodiment, Gripper, Skeleton, hookimpl
 
 from ._panda_urdf import URDF_DISTRIBUTION, URDF_SUFFIX, panda_urdf_path
 
-__all__ = ["Franka", "ASSETS", "JOINT_NAMES", "URDF_DISTRIBUTION", "URDF_SUFFIX", "panda_urdf_path",
-           "oscar_register_embodiments"]
+__all__ = [
+    "Franka",
+    "ASSETS",
+    "JOINT_NAMES",
+    "URDF_DISTRIBUTION",
+    "URDF_SUFFIX",
+    "panda_urdf_path",
+    "oscar_register_embodiments",
+]
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 
@@ -57,8 +64,17 @@ class Franka(Embodiment):
     datasets = ("droid", "rh20t_cfg5", "interndata_a1")
     urdf = _PandaURDF()
     skeleton = Skeleton(
-        links=("panda_link0", "panda_link1", "panda_link3", "panda_link4", "panda_link5", "panda_link7",
-               "panda_hand", "panda_leftfinger", "panda_rightfinger"),
+        links=(
+            "panda_link0",
+            "panda_link1",
+            "panda_link3",
+            "panda_link4",
+            "panda_link5",
+            "panda_link7",
+            "panda_hand",
+            "panda_leftfinger",
+            "panda_rightfinger",
+        ),
         points={"panda_hand": PALM, "panda_leftfinger": FINGERTIP, "panda_rightfinger": FINGERTIP},
         groups={
             "arm": ("panda_link0", "panda_link1", "panda_link3", "panda_link4", "panda_link5", "panda_link7"),
@@ -71,8 +87,15 @@ class Franka(Embodiment):
     # palm, so that it does not cover the jaw drawn by the fingertips.
     end_effector_links = ("panda_hand",)  # the gripper's link (latent-action baseline)
     grippers = (
-        Gripper("gripper", link="panda_hand", point=(0.0, 0.0, 0.0), signal_range=(0.0, 0.08),
-                closed_at="low", joint="panda_finger_joint1", joint_range=(0.0, 0.04)),
+        Gripper(
+            "gripper",
+            link="panda_hand",
+            point=(0.0, 0.0, 0.0),
+            signal_range=(0.0, 0.08),
+            closed_at="low",
+            joint="panda_finger_joint1",
+            joint_range=(0.0, 0.04),
+        ),
     )
     # DROID's convention (the adapters give each Camera its own direction:
     # RH20T calibrations are world_to_camera).

@@ -32,7 +32,8 @@ def panda_urdf_path() -> Path:
     except metadata.PackageNotFoundError:
         raise PluginError(
             f"embodiment 'franka' needs the Panda URDF from the '{URDF_DISTRIBUTION}' distribution, "
-            f"which is not installed; install it with: pip install {URDF_DISTRIBUTION}") from None
+            f"which is not installed; install it with: pip install {URDF_DISTRIBUTION}"
+        ) from None
     for f in dist.files or ():
         if f.as_posix().endswith(URDF_SUFFIX):
             path = Path(dist.locate_file(f)).resolve()
@@ -40,4 +41,5 @@ def panda_urdf_path() -> Path:
                 return path
     raise PluginError(
         f"embodiment 'franka': the installed '{URDF_DISTRIBUTION}' {dist.version} does not contain "
-        f"'{URDF_SUFFIX}' (expected in its file list); reinstall it with: pip install --force-reinstall {URDF_DISTRIBUTION}")
+        f"'{URDF_SUFFIX}' (expected in its file list); reinstall it with: pip install --force-reinstall {URDF_DISTRIBUTION}"
+    )

@@ -87,8 +87,12 @@ def _radians(q: np.ndarray, source: str, field: str) -> np.ndarray:
     """Refuse joint angles that cannot be radians (|q| > 2 pi): most likely degrees."""
     if np.abs(q).max() > 2 * np.pi:
         t, j = np.unravel_index(int(np.argmax(np.abs(q))), q.shape)
-        raise TrajectoryError(source, field, "joint angles in radians (|q| <= 2 pi)",
-                              f"{q[t, j]:g} at frame {t}, joint {j + 1} (degrees?)")
+        raise TrajectoryError(
+            source,
+            field,
+            "joint angles in radians (|q| <= 2 pi)",
+            f"{q[t, j]:g} at frame {t}, joint {j + 1} (degrees?)",
+        )
     return q
 
 
@@ -97,36 +101,48 @@ def _column(value: Any, source: str, field: str, T: int, what: str) -> np.ndarra
     if g.ndim == 2 and g.shape[1] == 1:
         g = g[:, 0]
     if g.shape != (T,):
-        raise TrajectoryError(source, field, f"{what}, shape ({T},) or ({T}, 1) (one value per frame)", f"shape {g.shape}")
+        raise TrajectoryError(
+            source, field, f"{what}, shape ({T},) or ({T}, 1) (one value per frame)", f"shape {g.shape}"
+        )
     return g
 
 
-def _check_range(values: np.ndarray, lo: float, hi: float, source: str, field: str, what: str,
-                 tolerance: float = 0.05) -> np.ndarray:
+def _check_range(
+    values: np.ndarray, lo: float, hi: float, source: str, field: str, what: str, tolerance: float = 0.05
+) -> np.ndarray:
     """Values in [lo, hi] ± tolerance × span, clipped; else an error naming the first bad frame."""
     slack = tolerance * (hi - lo)
     bad = np.flatnonzero((values < lo - slack) | (values > hi + slack))
     if bad.size:
         t = int(bad[0])
-        raise TrajectoryError(source, field, f"{what} in [{lo:g}, {hi:g}]",
-                              f"{values[t]:g} at frame {t} ({bad.size} frames out of range)")
+        raise TrajectoryError(
+            source, field, f"{what} in [{lo:g}, {hi:g}]", f"{values[t]:g} at frame {t} ({bad.size} frames out of range)"
+        )
     return np.clip(values, lo, hi)
 
 
 def _rotation_xyz(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """Fixed-axis X-Y-Z Euler angles: R = Rz(yaw) @ Ry(pitch) @ Rx(roll) (scipy ``"xyz"``)."""
     cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 
 def _rotation_quat_wxyz(w: float, x: float, y: float, z: float) -> np.ndarray:
     n = np.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _rigid(M: np.ndarray, source: str, field: str) -> np.ndarray:
@@ -140,8 +156,12 @@ def _static(per_frame: np.ndarray, source: str, field: str, hint: str) -> np.nda
         spread = float(np.abs(per_frame - per_frame[:1]).max())
         if spread > STATIC_TOL:
             t = int(np.argmax(np.abs(per_frame - per_frame[:1]).reshape(len(per_frame), -1).max(axis=1)))
-            raise CameraFileError(source, field, f"a static camera: the same extrinsic in every frame ({hint})",
-                                  f"a change of {spread:.3g} at frame {t}")
+            raise CameraFileError(
+                source,
+                field,
+                f"a static camera: the same extrinsic in every frame ({hint})",
+                f"a change of {spread:.3g} at frame {t}",
+            )
     return per_frame[0] if per_frame.ndim >= 2 else per_frame
 
 
@@ -153,7 +173,9 @@ def _intrinsics(K: Any, image_size: tuple[int, int], source: str, field: str) ->
     elif K.shape in ((3, 3), (3, 4)):
         fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     else:
-        raise CameraFileError(source, field, "a 3x3 (or 3x4) camera matrix or (fx, fy, cx, cy), pixels", f"shape {K.shape}")
+        raise CameraFileError(
+            source, field, "a 3x3 (or 3x4) camera matrix or (fx, fy, cx, cy), pixels", f"shape {K.shape}"
+        )
     try:
         return Intrinsics(float(fx), float(fy), float(cx), float(cy), int(image_size[0]), int(image_size[1]))
     except CameraFileError as e:
@@ -164,7 +186,9 @@ def _timestamps_ms(keys, source: str, field: str) -> np.ndarray:
     try:
         ts = np.array(sorted(int(k) for k in keys), dtype=np.int64)
     except (TypeError, ValueError):
-        raise TrajectoryError(source, field, "integer timestamps in milliseconds as keys", f"keys {list(keys)[:3]}...") from None
+        raise TrajectoryError(
+            source, field, "integer timestamps in milliseconds as keys", f"keys {list(keys)[:3]}..."
+        ) from None
     if ts.size == 0:
         raise TrajectoryError(source, field, "at least one timestamped frame", "none")
     return ts
@@ -174,7 +198,9 @@ def _fps_from(ts_s: np.ndarray, fps: float | None, source: str, field: str) -> f
     if fps is not None:
         return float(fps)
     if ts_s.size < 2:
-        raise TrajectoryError(source, field, "two or more frames to infer the frame rate (or pass fps=)", f"{ts_s.size} frame")
+        raise TrajectoryError(
+            source, field, "two or more frames to infer the frame rate (or pass fps=)", f"{ts_s.size} frame"
+        )
     dt = np.diff(ts_s)
     if (dt <= 0).any():
         raise TrajectoryError(source, field, "strictly increasing timestamps", f"a step of {dt.min():g} s")
@@ -187,9 +213,17 @@ def _fps_from(ts_s: np.ndarray, fps: float | None, source: str, field: str) -> f
 DROID_EMBODIMENTS = ("franka_robotiq", "franka")
 
 
-def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: Any = None,
-               image_size: tuple[int, int] = (1280, 720), fps: float = DROID_FPS,
-               embodiment: str = "franka_robotiq", source: str = "<droid>") -> tuple[Trajectory, Camera]:
+def from_droid(
+    record: Any,
+    camera: str,
+    *,
+    extrinsic: Any = None,
+    intrinsics: Any = None,
+    image_size: tuple[int, int] = (1280, 720),
+    fps: float = DROID_FPS,
+    embodiment: str = "franka_robotiq",
+    source: str = "<droid>",
+) -> tuple[Trajectory, Camera]:
     """A DROID episode → (Trajectory, Camera) for one external (static) camera.
 
     Source layout (raw release, ``trajectory.h5``; written by
@@ -224,23 +258,53 @@ def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: A
     """
     if embodiment not in DROID_EMBODIMENTS:
         raise ValueError(f"from_droid: embodiment must be one of {list(DROID_EMBODIMENTS)}, found {embodiment!r}")
-    q = _joints(_lookup(record, ("observation/robot_state/joint_positions", "observation/joint_position"),
-                        source, "joint positions (T, 7)"), source, "observation/robot_state/joint_positions")
+    q = _joints(
+        _lookup(
+            record,
+            ("observation/robot_state/joint_positions", "observation/joint_position"),
+            source,
+            "joint positions (T, 7)",
+        ),
+        source,
+        "observation/robot_state/joint_positions",
+    )
     T = len(q)
-    pos = _column(_lookup(record, ("observation/robot_state/gripper_position", "observation/gripper_position"),
-                          source, "gripper position (T,)"), source, "observation/robot_state/gripper_position", T,
-                  "Robotiq gripper position, 0 (open) .. 1 (closed)")
-    pos = _check_range(pos, 0.0, 1.0, source, "observation/robot_state/gripper_position",
-                       "DROID gripper position (0 = open, 1 = closed)")
+    pos = _column(
+        _lookup(
+            record,
+            ("observation/robot_state/gripper_position", "observation/gripper_position"),
+            source,
+            "gripper position (T,)",
+        ),
+        source,
+        "observation/robot_state/gripper_position",
+        T,
+        "Robotiq gripper position, 0 (open) .. 1 (closed)",
+    )
+    pos = _check_range(
+        pos,
+        0.0,
+        1.0,
+        source,
+        "observation/robot_state/gripper_position",
+        "DROID gripper position (0 = open, 1 = closed)",
+    )
     signal = pos if embodiment == "franka_robotiq" else PANDA_MAX_WIDTH * (1.0 - pos)
 
     ext_field = f"observation/camera_extrinsics/{camera}"
     if extrinsic is None:
-        extrinsic = _lookup(record, (ext_field,), source, f"the extrinsic of camera {camera!r} (or pass extrinsic=)",
-                            error=CameraFileError)
+        extrinsic = _lookup(
+            record,
+            (ext_field,),
+            source,
+            f"the extrinsic of camera {camera!r} (or pass extrinsic=)",
+            error=CameraFileError,
+        )
     e = _array(extrinsic, source, ext_field, "[x, y, z, roll, pitch, yaw] (metres, radians)", error=CameraFileError)
     if e.shape[-1:] != (6,) or e.ndim > 2:
-        raise CameraFileError(source, ext_field, "[x, y, z, roll, pitch, yaw] per frame, shape (6,) or (T, 6)", f"shape {e.shape}")
+        raise CameraFileError(
+            source, ext_field, "[x, y, z, roll, pitch, yaw] per frame, shape (6,) or (T, 6)", f"shape {e.shape}"
+        )
     e = _static(e, source, ext_field, "DROID's wrist camera moves with the hand; use an external camera")
     M = np.eye(4)
     M[:3, :3] = _rotation_xyz(*e[3:6])
@@ -248,24 +312,47 @@ def from_droid(record: Any, camera: str, *, extrinsic: Any = None, intrinsics: A
 
     int_field = f"observation/camera_intrinsics/{camera}"
     if intrinsics is None:
-        intrinsics = _lookup(record, (int_field,), source, f"the intrinsics of camera {camera!r} (or pass intrinsics=)",
-                             error=CameraFileError)
+        intrinsics = _lookup(
+            record,
+            (int_field,),
+            source,
+            f"the intrinsics of camera {camera!r} (or pass intrinsics=)",
+            error=CameraFileError,
+        )
     K = _array(intrinsics, source, int_field, "a camera matrix", error=CameraFileError)
     if K.ndim == 3:
         K = K[0]
-    cam = Camera(_intrinsics(K, image_size, source, int_field), M, convention="opencv",
-                 direction="camera_to_world", embodiment=embodiment)
-    traj = Trajectory(JOINT_NAMES, q, fps, gripper=signal[:, None], gripper_names=GRIPPER_NAMES,
-                      timestamps=np.arange(T) / float(fps), source=source)
+    cam = Camera(
+        _intrinsics(K, image_size, source, int_field),
+        M,
+        convention="opencv",
+        direction="camera_to_world",
+        embodiment=embodiment,
+    )
+    traj = Trajectory(
+        JOINT_NAMES,
+        q,
+        fps,
+        gripper=signal[:, None],
+        gripper_names=GRIPPER_NAMES,
+        timestamps=np.arange(T) / float(fps),
+        source=source,
+    )
     return traj, cam
 
 
 # --------------------------------------------------------------------------- RH20T
 
 
-def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_serial: str,
-                         tcp_camera_mat: Any, calib_tcp: Any, align_mat_base: Any = None,
-                         source: str = "<rh20t calib>") -> np.ndarray:
+def rh20t_base_to_camera(
+    extrinsics: Mapping[str, Any],
+    serial: str,
+    in_hand_serial: str,
+    tcp_camera_mat: Any,
+    calib_tcp: Any,
+    align_mat_base: Any = None,
+    source: str = "<rh20t calib>",
+) -> np.ndarray:
     """RH20T's base-aligned extrinsic of camera ``serial``: (4, 4) robot base → camera.
 
     Mirrors ``RH20TScene.extrinsics_base_aligned`` (``rh20t_api/scene.py``):
@@ -279,11 +366,14 @@ def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_ser
 
         T_cam_base = E[serial] @ inv(E[in_hand]) @ tc_mat @ inv(T_base_tcp) @ align_mat_base
     """
+
     def mat(key):
         try:
             m = _array(extrinsics[key], source, f"extrinsics[{key!r}]", "a 4x4 matrix", error=CameraFileError)
         except KeyError:
-            raise CameraFileError(source, f"extrinsics[{key!r}]", f"a calibrated camera (have {sorted(extrinsics)})", "missing") from None
+            raise CameraFileError(
+                source, f"extrinsics[{key!r}]", f"a calibrated camera (have {sorted(extrinsics)})", "missing"
+            ) from None
         return _rigid(m.reshape(-1, 4, 4)[0], source, f"extrinsics[{key!r}]")
 
     tc = _rigid(_array(tcp_camera_mat, source, "tc_mat", "a 4x4 matrix", error=CameraFileError), source, "tc_mat")
@@ -293,28 +383,47 @@ def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_ser
     T_base_tcp = np.eye(4)
     T_base_tcp[:3, :3] = _rotation_quat_wxyz(*p[3:])
     T_base_tcp[:3, 3] = p[:3]
-    align = np.eye(4) if align_mat_base is None else _rigid(
-        _array(align_mat_base, source, "align_mat_base", "a 4x4 matrix", error=CameraFileError), source, "align_mat_base")
-    return _rigid(mat(serial) @ np.linalg.inv(mat(in_hand_serial)) @ tc @ np.linalg.inv(T_base_tcp) @ align,
-                  source, "base-aligned extrinsic")
+    align = (
+        np.eye(4)
+        if align_mat_base is None
+        else _rigid(
+            _array(align_mat_base, source, "align_mat_base", "a 4x4 matrix", error=CameraFileError),
+            source,
+            "align_mat_base",
+        )
+    )
+    return _rigid(
+        mat(serial) @ np.linalg.inv(mat(in_hand_serial)) @ tc @ np.linalg.inv(T_base_tcp) @ align,
+        source,
+        "base-aligned extrinsic",
+    )
 
 
 def _rh20t_series(joint: Mapping, gripper: Mapping, serial: str, source: str):
     """Joint rows, gripper widths (mm) at the joint timestamps, timestamps (s)."""
     if serial not in joint:
-        raise TrajectoryError(source, f"joint[{serial!r}]", f"joint angles recorded for camera {serial} "
-                              f"(have {sorted(joint)})", "missing")
+        raise TrajectoryError(
+            source, f"joint[{serial!r}]", f"joint angles recorded for camera {serial} (have {sorted(joint)})", "missing"
+        )
     if serial not in gripper:
-        raise TrajectoryError(source, f"gripper[{serial!r}]", f"gripper states recorded for camera {serial} "
-                              f"(have {sorted(gripper)})", "missing")
+        raise TrajectoryError(
+            source,
+            f"gripper[{serial!r}]",
+            f"gripper states recorded for camera {serial} (have {sorted(gripper)})",
+            "missing",
+        )
     ts = _timestamps_ms(joint[serial].keys(), source, f"joint[{serial!r}]")
     gts = _timestamps_ms(gripper[serial].keys(), source, f"gripper[{serial!r}]")
     jd = {int(k): v for k, v in joint[serial].items()}
     gd = {int(k): v for k, v in gripper[serial].items()}
     rows = [_array(jd[t], source, f"joint[{serial!r}][{t}]", "joint angles").reshape(-1) for t in ts.tolist()]
     if len({r.size for r in rows}) != 1:
-        raise TrajectoryError(source, f"joint[{serial!r}]", "the same number of values in every frame",
-                              f"sizes {sorted({r.size for r in rows})}")
+        raise TrajectoryError(
+            source,
+            f"joint[{serial!r}]",
+            "the same number of values in every frame",
+            f"sizes {sorted({r.size for r in rows})}",
+        )
     rows = np.stack(rows)
     widths = []
     for t in gts.tolist():
@@ -322,16 +431,25 @@ def _rh20t_series(joint: Mapping, gripper: Mapping, serial: str, source: str):
         try:
             info = entry["gripper_info"]
         except (KeyError, TypeError, IndexError):
-            raise TrajectoryError(source, f"gripper[{serial!r}][{t}]", "a dict with 'gripper_info' ([width_mm, ...])",
-                                  repr(entry)[:80]) from None
+            raise TrajectoryError(
+                source, f"gripper[{serial!r}][{t}]", "a dict with 'gripper_info' ([width_mm, ...])", repr(entry)[:80]
+            ) from None
         widths.append(float(np.asarray(info, dtype=np.float64).reshape(-1)[0]))
     width_mm = np.interp(ts, gts, np.array(widths))  # RH20T's own loader interpolates linearly too
     return rows, width_mm, (ts - ts[0]) / 1000.0
 
 
-def from_rh20t(joint: Mapping, gripper: Mapping, intrinsics: Mapping, extrinsics_base: Mapping, serial: str, *,
-               fps: float | None = None, image_size: tuple[int, int] = (1280, 720),
-               source: str = "<rh20t cfg5>") -> tuple[Trajectory, Camera]:
+def from_rh20t(
+    joint: Mapping,
+    gripper: Mapping,
+    intrinsics: Mapping,
+    extrinsics_base: Mapping,
+    serial: str,
+    *,
+    fps: float | None = None,
+    image_size: tuple[int, int] = (1280, 720),
+    source: str = "<rh20t cfg5>",
+) -> tuple[Trajectory, Camera]:
     """An RH20T cfg5 (Franka) scene seen by camera ``serial`` → (Trajectory, Camera).
 
     Source layout (RH20T release, read with ``np.load(..., allow_pickle=True).item()``;
@@ -356,35 +474,69 @@ def from_rh20t(joint: Mapping, gripper: Mapping, intrinsics: Mapping, extrinsics
     """
     rows, width_mm, ts = _rh20t_series(joint, gripper, serial, source)
     if rows.shape[1] < 7:
-        raise TrajectoryError(source, f"joint[{serial!r}]", "at least 7 values per frame (panda_joint1..7, radians)",
-                              f"{rows.shape[1]} values")
+        raise TrajectoryError(
+            source,
+            f"joint[{serial!r}]",
+            "at least 7 values per frame (panda_joint1..7, radians)",
+            f"{rows.shape[1]} values",
+        )
     _radians(rows[:, :7], source, f"joint[{serial!r}]")
-    width_mm = _check_range(width_mm, 0.0, 1000 * PANDA_MAX_WIDTH, source, f"gripper[{serial!r}].gripper_info[0]",
-                            "Franka Hand width in millimetres")
+    width_mm = _check_range(
+        width_mm,
+        0.0,
+        1000 * PANDA_MAX_WIDTH,
+        source,
+        f"gripper[{serial!r}].gripper_info[0]",
+        "Franka Hand width in millimetres",
+    )
     try:
         K = intrinsics[serial]
     except KeyError:
-        raise CameraFileError(source, f"intrinsics[{serial!r}]", f"a calibrated camera (have {sorted(intrinsics)})", "missing") from None
+        raise CameraFileError(
+            source, f"intrinsics[{serial!r}]", f"a calibrated camera (have {sorted(intrinsics)})", "missing"
+        ) from None
     try:
         E = extrinsics_base[serial]
     except KeyError:
-        raise CameraFileError(source, f"extrinsics_base[{serial!r}]", f"a calibrated camera (have {sorted(extrinsics_base)})",
-                              "missing") from None
-    E = _rigid(_array(E, source, f"extrinsics_base[{serial!r}]", "a 4x4 matrix", error=CameraFileError).reshape(-1, 4, 4)[0],
-               source, f"extrinsics_base[{serial!r}]")
-    cam = Camera(_intrinsics(K, image_size, source, f"intrinsics[{serial!r}]"), E, convention="opencv",
-                 direction="world_to_camera", embodiment=EMBODIMENT)
+        raise CameraFileError(
+            source, f"extrinsics_base[{serial!r}]", f"a calibrated camera (have {sorted(extrinsics_base)})", "missing"
+        ) from None
+    E = _rigid(
+        _array(E, source, f"extrinsics_base[{serial!r}]", "a 4x4 matrix", error=CameraFileError).reshape(-1, 4, 4)[0],
+        source,
+        f"extrinsics_base[{serial!r}]",
+    )
+    cam = Camera(
+        _intrinsics(K, image_size, source, f"intrinsics[{serial!r}]"),
+        E,
+        convention="opencv",
+        direction="world_to_camera",
+        embodiment=EMBODIMENT,
+    )
     fps = _fps_from(ts, fps, source, f"joint[{serial!r}]")
-    traj = Trajectory(JOINT_NAMES, rows[:, :7], fps, gripper=(width_mm / 1000.0)[:, None], gripper_names=GRIPPER_NAMES,
-                      timestamps=ts, source=source)
+    traj = Trajectory(
+        JOINT_NAMES,
+        rows[:, :7],
+        fps,
+        gripper=(width_mm / 1000.0)[:, None],
+        gripper_names=GRIPPER_NAMES,
+        timestamps=ts,
+        source=source,
+    )
     return traj, cam
 
 
 # --------------------------------------------------------------------------- InternData-A1
 
 
-def from_interndata(frames: Mapping[str, Any], *, camera: str = "head", fps: float | None = None,
-                    image_size: tuple[int, int] = (640, 480), source: str = "<interndata-a1>") -> tuple[Trajectory, Camera]:
+def from_interndata(
+    frames: Mapping[str, Any],
+    *,
+    camera: str = "head",
+    fps: float | None = None,
+    image_size: tuple[int, int] = (640, 480),
+    source: str = "<interndata-a1>",
+) -> tuple[Trajectory, Camera]:
     """An InternData-A1 Franka episode (LeRobot v2.1 parquet columns) → (Trajectory, Camera).
 
     Source layout (columns written by InternData-A1's
@@ -404,32 +556,57 @@ def from_interndata(frames: Mapping[str, Any], *, camera: str = "head", fps: flo
     Only the static head camera is supported: the hand camera moves with the
     wrist (and the converter writes its pose into the head column).
     """
-    q = _joints(_lookup(frames, ("states.joint.position",), source, "joint positions (T, 7)"), source,
-                "states.joint.position")
+    q = _joints(
+        _lookup(frames, ("states.joint.position",), source, "joint positions (T, 7)"), source, "states.joint.position"
+    )
     T = len(q)
-    width = _column(_lookup(frames, ("states.gripper.position",), source, "gripper width (T, 1)"), source,
-                    "states.gripper.position", T, "Panda finger width in metres")
+    width = _column(
+        _lookup(frames, ("states.gripper.position",), source, "gripper width (T, 1)"),
+        source,
+        "states.gripper.position",
+        T,
+        "Panda finger width in metres",
+    )
     width = _check_range(width, 0.0, PANDA_MAX_WIDTH, source, "states.gripper.position", "Panda finger width (metres)")
     if camera != "head":
-        raise CameraFileError(source, "camera", "'head' (the static scene camera; the hand camera moves with the wrist)",
-                              repr(camera))
+        raise CameraFileError(
+            source, "camera", "'head' (the static scene camera; the hand camera moves with the wrist)", repr(camera)
+        )
     ext_field, int_field = f"{camera}_camera_to_robot_extrinsics", f"{camera}_camera_intrinsics"
-    e = _array(_lookup(frames, (ext_field,), source, "the camera pose (T, 7)", CameraFileError), source, ext_field,
-               "[x, y, z, qw, qx, qy, qz]", error=CameraFileError)
+    e = _array(
+        _lookup(frames, (ext_field,), source, "the camera pose (T, 7)", CameraFileError),
+        source,
+        ext_field,
+        "[x, y, z, qw, qx, qy, qz]",
+        error=CameraFileError,
+    )
     if e.shape[-1:] != (7,) or e.ndim > 2:
-        raise CameraFileError(source, ext_field, "[x, y, z, qw, qx, qy, qz] per frame, shape (T, 7)", f"shape {e.shape}")
+        raise CameraFileError(
+            source, ext_field, "[x, y, z, qw, qx, qy, qz] per frame, shape (T, 7)", f"shape {e.shape}"
+        )
     e = _static(e, source, ext_field, "the scene camera of an InternData-A1 episode does not move")
     n = float(np.linalg.norm(e[3:]))
     if abs(n - 1.0) > 1e-3:
-        raise CameraFileError(source, ext_field, "a unit quaternion (norm within 1e-3 of 1) in [qw, qx, qy, qz]", f"norm {n:.6g}")
+        raise CameraFileError(
+            source, ext_field, "a unit quaternion (norm within 1e-3 of 1) in [qw, qx, qy, qz]", f"norm {n:.6g}"
+        )
     M = np.eye(4)
     M[:3, :3] = _rotation_quat_wxyz(*e[3:])
     M[:3, 3] = e[:3]
-    K = _array(_lookup(frames, (int_field,), source, "the intrinsics (T, 4)", CameraFileError), source, int_field,
-               "[fx, fy, cx, cy]",
-               error=CameraFileError)
-    cam = Camera(_intrinsics(K[0] if K.ndim == 2 else K, image_size, source, int_field), M, convention="opencv",
-                 direction="camera_to_world", embodiment=EMBODIMENT)
+    K = _array(
+        _lookup(frames, (int_field,), source, "the intrinsics (T, 4)", CameraFileError),
+        source,
+        int_field,
+        "[fx, fy, cx, cy]",
+        error=CameraFileError,
+    )
+    cam = Camera(
+        _intrinsics(K[0] if K.ndim == 2 else K, image_size, source, int_field),
+        M,
+        convention="opencv",
+        direction="camera_to_world",
+        embodiment=EMBODIMENT,
+    )
     timestamps = None
     try:
         timestamps = _column(_lookup(frames, ("timestamp",), source, "timestamps"), source, "timestamp", T, "seconds")
@@ -440,6 +617,7 @@ def from_interndata(frames: Mapping[str, Any], *, camera: str = "head", fps: flo
         if timestamps is None:
             raise TrajectoryError(source, "timestamp", "a timestamp column, or fps= (meta/info.json 'fps')", "missing")
         fps = _fps_from(timestamps, None, source, "timestamp")
-    traj = Trajectory(JOINT_NAMES, q, fps, gripper=width[:, None], gripper_names=GRIPPER_NAMES, timestamps=timestamps,
-                      source=source)
+    traj = Trajectory(
+        JOINT_NAMES, q, fps, gripper=width[:, None], gripper_names=GRIPPER_NAMES, timestamps=timestamps, source=source
+    )
     return traj, cam

@@ -18,8 +18,15 @@ from pathlib import Path
 from oscar_core import CameraSpec, Embodiment, Gripper, Skeleton
 from oscar_core.urdf import KinematicTree
 
-__all__ = ["FrankaRobotiq", "ROBOTIQ_XACRO", "FLANGE", "COUPLING_LENGTH", "COUPLING_YAW", "ROBOTIQ_CLOSED",
-           "build_franka_robotiq_tree"]
+__all__ = [
+    "FrankaRobotiq",
+    "ROBOTIQ_XACRO",
+    "FLANGE",
+    "COUPLING_LENGTH",
+    "COUPLING_YAW",
+    "ROBOTIQ_CLOSED",
+    "build_franka_robotiq_tree",
+]
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 ROBOTIQ_XACRO = ASSETS / "robotiq_2f85.urdf.xacro"
@@ -35,8 +42,9 @@ COUPLING_YAW = -math.pi / 4
 ROBOTIQ_CLOSED = 0.8
 
 
-def build_franka_robotiq_tree(panda_urdf: str | Path | None = None, coupling_length: float = COUPLING_LENGTH,
-                              coupling_yaw: float = COUPLING_YAW) -> KinematicTree:
+def build_franka_robotiq_tree(
+    panda_urdf: str | Path | None = None, coupling_length: float = COUPLING_LENGTH, coupling_yaw: float = COUPLING_YAW
+) -> KinematicTree:
     """The Panda arm with the Robotiq 2F-85 on its flange, as one :class:`KinematicTree`.
 
     panda_urdf: the Panda URDF (default: the one in ``example-robot-data``).
@@ -52,7 +60,9 @@ def build_franka_robotiq_tree(panda_urdf: str | Path | None = None, coupling_len
     from ._panda_urdf import panda_urdf_path
 
     panda_urdf = Path(panda_urdf) if panda_urdf is not None else panda_urdf_path()
-    robot = etree.fromstring(panda_urdf.read_bytes(), parser=etree.XMLParser(remove_comments=True, resolve_entities=False))
+    robot = etree.fromstring(
+        panda_urdf.read_bytes(), parser=etree.XMLParser(remove_comments=True, resolve_entities=False)
+    )
     children: dict[str, list[str]] = {}
     for j in robot.findall("joint"):
         children.setdefault(j.find("parent").get("link"), []).append(j.find("child").get("link"))
@@ -64,11 +74,19 @@ def build_franka_robotiq_tree(panda_urdf: str | Path | None = None, coupling_len
     for el in list(robot):
         if el.tag == "link" and el.get("name") in below:
             robot.remove(el)
-        elif el.tag in ("joint", "transmission") and el.find("child") is not None and el.find("child").get("link") in below:
+        elif (
+            el.tag in ("joint", "transmission")
+            and el.find("child") is not None
+            and el.find("child").get("link") in below
+        ):
             robot.remove(el)
         elif el.tag in ("transmission", "gazebo"):  # not kinematics; may name the removed joints
             robot.remove(el)
-    args = {"parent": FLANGE, "coupling_length": repr(float(coupling_length)), "coupling_yaw": repr(float(coupling_yaw))}
+    args = {
+        "parent": FLANGE,
+        "coupling_length": repr(float(coupling_length)),
+        "coupling_yaw": repr(float(coupling_yaw)),
+    }
     gripper = etree.fromstring(expand_xacro(ROBOTIQ_XACRO, args).encode())
     for el in gripper:
         if el.tag in ("link", "joint"):
@@ -114,8 +132,15 @@ class FrankaRobotiq(Embodiment):
     # It drives finger_joint linearly from 0.8 rad (closed) to 0 (open); the other
     # knuckle and both inner fingers mimic it. The indicator sits on the coupling.
     grippers = (
-        Gripper("gripper", link="robotiq_base", point=(0.0, 0.0, 0.0), signal_range=(0.0, 1.0), closed_at="high",
-                joint="finger_joint", joint_range=(ROBOTIQ_CLOSED, 0.0)),
+        Gripper(
+            "gripper",
+            link="robotiq_base",
+            point=(0.0, 0.0, 0.0),
+            signal_range=(0.0, 1.0),
+            closed_at="high",
+            joint="finger_joint",
+            joint_range=(ROBOTIQ_CLOSED, 0.0),
+        ),
     )
     end_effector_links = ("robotiq_base",)  # the gripper's link (latent-action baseline)
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=None)

@@ -29,13 +29,28 @@ import numpy as np
 
 from oscar_core import CameraSpec, Embodiment, Gripper, Skeleton, hookimpl
 
-__all__ = ["HSR", "JOINTS", "HEAD_CAMERA_LINK", "HAND_RANGE", "HAND_CONTACT", "base_pose_from_xy_yaw", "oscar_register_embodiments"]
+__all__ = [
+    "HSR",
+    "JOINTS",
+    "HEAD_CAMERA_LINK",
+    "HAND_RANGE",
+    "HAND_CONTACT",
+    "base_pose_from_xy_yaw",
+    "oscar_register_embodiments",
+]
 
 ASSETS = Path(__file__).parent / "assets"
 
 #: the trajectory joint order (``HSR().joint_names``)
-JOINTS = ("arm_lift_joint", "arm_flex_joint", "arm_roll_joint", "wrist_flex_joint", "wrist_roll_joint",
-          "head_pan_joint", "head_tilt_joint")
+JOINTS = (
+    "arm_lift_joint",
+    "arm_flex_joint",
+    "arm_roll_joint",
+    "wrist_flex_joint",
+    "wrist_roll_joint",
+    "head_pan_joint",
+    "head_tilt_joint",
+)
 #: hand_motor_joint limits of the reference, radians: (closed, open)
 HAND_RANGE = (-0.798, 1.24)
 #: hand_motor_joint angle at which the fingertips meet (their frames are 4 mm
@@ -84,21 +99,35 @@ class HSR(Embodiment):
         # base axis; collapsing the tree would draw them as two overlapping
         # vertical lines from the floor.
         edges=(
-            ("base_footprint", "base_range_sensor_link"), ("base_footprint", "arm_lift_link"),
-            ("arm_lift_link", "arm_flex_link"), ("arm_flex_link", "wrist_flex_link"),
+            ("base_footprint", "base_range_sensor_link"),
+            ("base_footprint", "arm_lift_link"),
+            ("arm_lift_link", "arm_flex_link"),
+            ("arm_flex_link", "wrist_flex_link"),
             ("wrist_flex_link", "hand_palm_link"),
-            ("arm_lift_link", "torso_lift_link"), ("torso_lift_link", "head_tilt_link"),
+            ("arm_lift_link", "torso_lift_link"),
+            ("torso_lift_link", "head_tilt_link"),
             ("head_tilt_link", "head_rgbd_sensor_link"),
-            ("hand_palm_link", "hand_l_proximal_link"), ("hand_l_proximal_link", "hand_l_finger_tip_frame"),
-            ("hand_palm_link", "hand_r_proximal_link"), ("hand_r_proximal_link", "hand_r_finger_tip_frame"),
+            ("hand_palm_link", "hand_l_proximal_link"),
+            ("hand_l_proximal_link", "hand_l_finger_tip_frame"),
+            ("hand_palm_link", "hand_r_proximal_link"),
+            ("hand_r_proximal_link", "hand_r_finger_tip_frame"),
         ),
         groups={"base": _BASE, "arm": _ARM, "torso_head": _TORSO, "hand": _HAND},
         colors={"base": (140, 100, 255), "arm": (255, 170, 0), "torso_head": (255, 60, 200), "hand": (0, 170, 255)},
     )
     # the indicator sits between the fingertips (9 cm out of the palm)
     end_effector_links = ("hand_palm_link",)  # the gripper's link (latent-action baseline)
-    grippers = (Gripper("hand", link="hand_palm_link", point=(0.0, 0.0, 0.09), signal_range=HAND_RANGE,
-                        closed_at="low", joint="hand_motor_joint", joint_range=(HAND_CONTACT, HAND_RANGE[1])),)
+    grippers = (
+        Gripper(
+            "hand",
+            link="hand_palm_link",
+            point=(0.0, 0.0, 0.09),
+            signal_range=HAND_RANGE,
+            closed_at="low",
+            joint="hand_motor_joint",
+            joint_range=(HAND_CONTACT, HAND_RANGE[1]),
+        ),
+    )
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=HEAD_CAMERA_LINK)
     example_trajectory = ASSETS / "example_trajectory.npz"
     example_camera = ASSETS / "example_camera.json"

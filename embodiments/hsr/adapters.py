@@ -35,12 +35,21 @@ __all__ = ["from_airoa_moma", "AIROA_MOMA_FPS", "AIROA_MOMA_STATE_NAMES", "HEAD_
 #: frames per second of AIROA-MoMa (meta/info.json ``fps``)
 AIROA_MOMA_FPS = 10.0
 #: ``observation.state`` column names when a record gives none (the 8-wide layout)
-AIROA_MOMA_STATE_NAMES = ("arm_lift_joint", "arm_flex_joint", "arm_roll_joint", "wrist_flex_joint",
-                          "wrist_roll_joint", "hand_motor_joint", "head_pan_joint", "head_tilt_joint")
+AIROA_MOMA_STATE_NAMES = (
+    "arm_lift_joint",
+    "arm_flex_joint",
+    "arm_roll_joint",
+    "wrist_flex_joint",
+    "wrist_roll_joint",
+    "hand_motor_joint",
+    "head_pan_joint",
+    "head_tilt_joint",
+)
 #: nominal head RGB camera: the HSR description's Gazebo sensor on the head RGB-D
 #: frame is 640x480 with a 1.047 rad horizontal field of view
-HEAD_INTRINSICS = Intrinsics(fx=320.0 / math.tan(1.047 / 2.0), fy=320.0 / math.tan(1.047 / 2.0),
-                             cx=319.5, cy=239.5, width=640, height=480)
+HEAD_INTRINSICS = Intrinsics(
+    fx=320.0 / math.tan(1.047 / 2.0), fy=320.0 / math.tan(1.047 / 2.0), cx=319.5, cy=239.5, width=640, height=480
+)
 
 EMBODIMENT = "hsr"
 STATE_KEY = "observation.state"
@@ -48,8 +57,14 @@ STATE_KEY = "observation.state"
 
 def head_camera(intrinsics: Intrinsics = HEAD_INTRINSICS) -> Camera:
     """The head RGB-D camera: identity pose in ``head_rgbd_sensor_link`` (already an optical frame)."""
-    return Camera(intrinsics, np.eye(4), convention="opencv", direction="camera_to_world",
-                  mount_link=HEAD_CAMERA_LINK, embodiment=EMBODIMENT)
+    return Camera(
+        intrinsics,
+        np.eye(4),
+        convention="opencv",
+        direction="camera_to_world",
+        mount_link=HEAD_CAMERA_LINK,
+        embodiment=EMBODIMENT,
+    )
 
 
 def _get(record: Any, key: str):
@@ -97,9 +112,13 @@ def _state_names(record: Any, width: int, source: str) -> list[str]:
     if found is None:
         if width == len(AIROA_MOMA_STATE_NAMES):
             return list(AIROA_MOMA_STATE_NAMES)
-        raise TrajectoryError(source, "names", f"column names for {STATE_KEY!r} (record['names'] or record['info'], "
-                              f"the parsed meta/info.json) when it is not the 8-wide layout {list(AIROA_MOMA_STATE_NAMES)}",
-                              f"none, and {width} columns")
+        raise TrajectoryError(
+            source,
+            "names",
+            f"column names for {STATE_KEY!r} (record['names'] or record['info'], "
+            f"the parsed meta/info.json) when it is not the 8-wide layout {list(AIROA_MOMA_STATE_NAMES)}",
+            f"none, and {width} columns",
+        )
     if len(found) != width:
         raise TrajectoryError(source, "names", f"{width} names, one per {STATE_KEY} column", f"{len(found)} names")
     return found
@@ -109,13 +128,16 @@ def _intrinsics_from_camera_info(info: Any, source: str) -> Intrinsics:
     """A ROS sensor_msgs/CameraInfo as a dict: width, height, K (9 numbers, row-major), D (plumb_bob)."""
     field = "camera_info"
     if not isinstance(info, Mapping):
-        raise CameraFileError(source, field, "a mapping with width, height, K and optional D (ROS CameraInfo)",
-                              type(info).__name__)
+        raise CameraFileError(
+            source, field, "a mapping with width, height, K and optional D (ROS CameraInfo)", type(info).__name__
+        )
     try:
         K = np.asarray(info.get("K", info.get("k")), dtype=np.float64).reshape(-1)
         width, height = int(info["width"]), int(info["height"])
     except (KeyError, TypeError, ValueError):
-        raise CameraFileError(source, field, "width, height and K (9 numbers, row-major)", repr(dict(info))[:120]) from None
+        raise CameraFileError(
+            source, field, "width, height and K (9 numbers, row-major)", repr(dict(info))[:120]
+        ) from None
     if K.shape != (9,):
         raise CameraFileError(source, f"{field}.K", "9 numbers (3x3, row-major)", f"{K.size} numbers")
     D = info.get("D", info.get("d")) or []
@@ -128,8 +150,13 @@ def _intrinsics_from_camera_info(info: Any, source: str) -> Intrinsics:
         raise CameraFileError(source, f"{field}.{e.field}", e.expected, e.found) from None
 
 
-def from_airoa_moma(record: Mapping, *, fps: float | None = None, camera_info: Mapping | None = None,
-                    source: str = "<airoa_moma record>") -> tuple[Trajectory, Camera]:
+def from_airoa_moma(
+    record: Mapping,
+    *,
+    fps: float | None = None,
+    camera_info: Mapping | None = None,
+    source: str = "<airoa_moma record>",
+) -> tuple[Trajectory, Camera]:
     """One AIROA-MoMa episode → (trajectory, head camera on ``head_rgbd_sensor_link``).
 
     record: mapping with
@@ -154,7 +181,9 @@ def from_airoa_moma(record: Mapping, *, fps: float | None = None, camera_info: M
         raise TrajectoryError(source, STATE_KEY, "joint positions, shape (T, D), named by meta/info.json", "missing")
     state = _array(raw, source, STATE_KEY, "joint positions, shape (T, D)")
     if state.ndim != 2 or state.shape[0] < 1:
-        raise TrajectoryError(source, STATE_KEY, "shape (T, D): one row of joint positions per frame", f"shape {state.shape}")
+        raise TrajectoryError(
+            source, STATE_KEY, "shape (T, D): one row of joint positions per frame", f"shape {state.shape}"
+        )
     names = _state_names(record, state.shape[1], source)
     wanted = list(JOINTS) + ["hand_motor_joint"]
     missing = [n for n in wanted if n not in names]
@@ -180,12 +209,21 @@ def from_airoa_moma(record: Mapping, *, fps: float | None = None, camera_info: M
     if xyyaw is not None:
         xyyaw = _array(xyyaw, source, "base_pose", "base x, y (m), yaw (rad), shape (T, 3)")
         if xyyaw.shape != (T, 3):
-            raise TrajectoryError(source, "base_pose", f"shape ({T}, 3): base x, y (m), yaw (rad) per frame",
-                                  f"shape {xyyaw.shape}")
+            raise TrajectoryError(
+                source, "base_pose", f"shape ({T}, 3): base x, y (m), yaw (rad) per frame", f"shape {xyyaw.shape}"
+            )
         base_pose = base_pose_from_xy_yaw(xyyaw[:, 0], xyyaw[:, 1], xyyaw[:, 2])
 
-    traj = Trajectory(JOINTS, q, fps or AIROA_MOMA_FPS, gripper=hand, gripper_names=("hand",),
-                      base_pose=base_pose, timestamps=timestamps, source=source)
+    traj = Trajectory(
+        JOINTS,
+        q,
+        fps or AIROA_MOMA_FPS,
+        gripper=hand,
+        gripper_names=("hand",),
+        base_pose=base_pose,
+        timestamps=timestamps,
+        source=source,
+    )
     if camera_info is None:
         camera_info = _get(record, "camera_info")
     intrinsics = HEAD_INTRINSICS if camera_info is None else _intrinsics_from_camera_info(camera_info, source)

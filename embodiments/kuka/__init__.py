@@ -43,15 +43,32 @@ class KukaIiwa14(Embodiment):
     packages = {"oscar_kuka_description": ASSETS}
     skeleton = Skeleton(
         links=(
-            "lbr_iiwa_link_0", "lbr_iiwa_link_1", "lbr_iiwa_link_2", "lbr_iiwa_link_3",
-            "lbr_iiwa_link_4", "lbr_iiwa_link_5", "lbr_iiwa_link_6", "lbr_iiwa_link_7",
-            "lbr_iiwa_flange", "gripper_palm", "gripper_left_finger", "gripper_right_finger",
+            "lbr_iiwa_link_0",
+            "lbr_iiwa_link_1",
+            "lbr_iiwa_link_2",
+            "lbr_iiwa_link_3",
+            "lbr_iiwa_link_4",
+            "lbr_iiwa_link_5",
+            "lbr_iiwa_link_6",
+            "lbr_iiwa_link_7",
+            "lbr_iiwa_flange",
+            "gripper_palm",
+            "gripper_left_finger",
+            "gripper_right_finger",
         ),
         points=_HOUSINGS,
         groups={
-            "arm": ("lbr_iiwa_link_0", "lbr_iiwa_link_1", "lbr_iiwa_link_2", "lbr_iiwa_link_3",
-                    "lbr_iiwa_link_4", "lbr_iiwa_link_5", "lbr_iiwa_link_6", "lbr_iiwa_link_7",
-                    "lbr_iiwa_flange"),
+            "arm": (
+                "lbr_iiwa_link_0",
+                "lbr_iiwa_link_1",
+                "lbr_iiwa_link_2",
+                "lbr_iiwa_link_3",
+                "lbr_iiwa_link_4",
+                "lbr_iiwa_link_5",
+                "lbr_iiwa_link_6",
+                "lbr_iiwa_link_7",
+                "lbr_iiwa_flange",
+            ),
             "hand": ("gripper_palm", "gripper_left_finger", "gripper_right_finger"),
         },
     )
@@ -60,8 +77,15 @@ class KukaIiwa14(Embodiment):
     # drawn on the fixed palm frame, behind the jaw, so it does not cover it.
     end_effector_links = ("gripper_palm",)  # the gripper's link (latent-action baseline)
     grippers = (
-        Gripper("gripper", link="gripper_palm", point=(0.0, 0.0, 0.0), signal_range=(0.0, 1.0),
-                closed_at="high", joint="gripper_finger_joint", joint_range=(0.0, 0.0425)),
+        Gripper(
+            "gripper",
+            link="gripper_palm",
+            point=(0.0, 0.0, 0.0),
+            signal_range=(0.0, 1.0),
+            closed_at="high",
+            joint="gripper_finger_joint",
+            joint_range=(0.0, 0.0425),
+        ),
     )
     # RH20T calibrations map robot-base points into the OpenCV camera frame.
     camera = CameraSpec(convention="opencv", direction="world_to_camera", mount_link=None)

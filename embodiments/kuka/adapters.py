@@ -49,9 +49,13 @@ def _rigid(M: np.ndarray, source: str, field: str) -> np.ndarray:
 def _quat_wxyz(w, x, y, z) -> np.ndarray:
     n = np.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _get(mapping: Mapping, key: str, source: str, field: str, what: str, error=TrajectoryError):
@@ -71,9 +75,15 @@ def _by_time(d: Mapping, source: str, field: str) -> dict[int, Any]:
     return out
 
 
-def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_serial: str,
-                         tcp_camera_mat: Any, calib_tcp: Any, align_mat_base: Any = None,
-                         source: str = "<rh20t calib>") -> np.ndarray:
+def rh20t_base_to_camera(
+    extrinsics: Mapping[str, Any],
+    serial: str,
+    in_hand_serial: str,
+    tcp_camera_mat: Any,
+    calib_tcp: Any,
+    align_mat_base: Any = None,
+    source: str = "<rh20t calib>",
+) -> np.ndarray:
     """RH20T's base-aligned extrinsic of camera ``serial``: (4, 4) robot base → camera.
 
     As ``RH20TScene.extrinsics_base_aligned`` in ``rh20t_api/scene.py``:
@@ -84,11 +94,18 @@ def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_ser
     TCP at calibration time (``calib/<t>/tcp.npy`` after the KUKA preprocessor,
     which converts millimetres to metres).
     """
-    E = {k: _rigid(_array(v, source, f"extrinsics[{k!r}]", "a 4x4 matrix", CameraFileError), source,
-                   f"extrinsics[{k!r}]") for k, v in extrinsics.items() if k in (serial, in_hand_serial)}
+    E = {
+        k: _rigid(
+            _array(v, source, f"extrinsics[{k!r}]", "a 4x4 matrix", CameraFileError), source, f"extrinsics[{k!r}]"
+        )
+        for k, v in extrinsics.items()
+        if k in (serial, in_hand_serial)
+    }
     for k in (serial, in_hand_serial):
         if k not in E:
-            raise CameraFileError(source, f"extrinsics[{k!r}]", f"a calibrated camera (have {sorted(extrinsics)})", "missing")
+            raise CameraFileError(
+                source, f"extrinsics[{k!r}]", f"a calibrated camera (have {sorted(extrinsics)})", "missing"
+            )
     tc = _rigid(_array(tcp_camera_mat, source, "tc_mat", "a 4x4 matrix", CameraFileError), source, "tc_mat")
     p = _array(calib_tcp, source, "calib_tcp", "[x, y, z, qw, qx, qy, qz]", CameraFileError).reshape(-1)
     if p.shape != (7,):
@@ -96,15 +113,31 @@ def rh20t_base_to_camera(extrinsics: Mapping[str, Any], serial: str, in_hand_ser
     T_base_tcp = np.eye(4)
     T_base_tcp[:3, :3] = _quat_wxyz(*p[3:])
     T_base_tcp[:3, 3] = p[:3]
-    align = np.eye(4) if align_mat_base is None else _rigid(
-        _array(align_mat_base, source, "align_mat_base", "a 4x4 matrix", CameraFileError), source, "align_mat_base")
-    return _rigid(E[serial] @ np.linalg.inv(E[in_hand_serial]) @ tc @ np.linalg.inv(T_base_tcp) @ align,
-                  source, "base-aligned extrinsic")
+    align = (
+        np.eye(4)
+        if align_mat_base is None
+        else _rigid(
+            _array(align_mat_base, source, "align_mat_base", "a 4x4 matrix", CameraFileError), source, "align_mat_base"
+        )
+    )
+    return _rigid(
+        E[serial] @ np.linalg.inv(E[in_hand_serial]) @ tc @ np.linalg.inv(T_base_tcp) @ align,
+        source,
+        "base-aligned extrinsic",
+    )
 
 
-def from_rh20t(joint: Mapping, gripper: Mapping, intrinsics: Mapping, extrinsics_base: Mapping, serial: str, *,
-               fps: float | None = None, image_size: tuple[int, int] = (1280, 720),
-               source: str = "<rh20t cfg7>") -> tuple[Trajectory, Camera]:
+def from_rh20t(
+    joint: Mapping,
+    gripper: Mapping,
+    intrinsics: Mapping,
+    extrinsics_base: Mapping,
+    serial: str,
+    *,
+    fps: float | None = None,
+    image_size: tuple[int, int] = (1280, 720),
+    source: str = "<rh20t cfg7>",
+) -> tuple[Trajectory, Camera]:
     """An RH20T cfg7 (KUKA LBR iiwa 14 + Robotiq 2F-85) scene seen by camera ``serial``.
 
     Source layout (``np.load(..., allow_pickle=True).item()`` of the release
@@ -126,57 +159,93 @@ def from_rh20t(joint: Mapping, gripper: Mapping, intrinsics: Mapping, extrinsics
     image_size: the calibrated image size, 1280x720 (videos are released at 640x360).
     fps: default from the median timestamp step.
     """
-    jd = _by_time(_get(joint, serial, source, f"joint[{serial!r}]", f"joint angles recorded for camera {serial}"),
-                  source, f"joint[{serial!r}]")
-    gd = _by_time(_get(gripper, serial, source, f"gripper[{serial!r}]", f"gripper states recorded for camera {serial}"),
-                  source, f"gripper[{serial!r}]")
+    jd = _by_time(
+        _get(joint, serial, source, f"joint[{serial!r}]", f"joint angles recorded for camera {serial}"),
+        source,
+        f"joint[{serial!r}]",
+    )
+    gd = _by_time(
+        _get(gripper, serial, source, f"gripper[{serial!r}]", f"gripper states recorded for camera {serial}"),
+        source,
+        f"gripper[{serial!r}]",
+    )
     ts = np.array(sorted(jd), dtype=np.int64)
     rows = [_array(jd[t], source, f"joint[{serial!r}][{t}]", "joint angles").reshape(-1) for t in ts.tolist()]
     if any(r.size != 7 for r in rows):
         bad = next(r.size for r in rows if r.size != 7)
-        raise TrajectoryError(source, f"joint[{serial!r}]", f"7 values per frame: {list(JOINT_NAMES)} in radians",
-                              f"{bad} values")
+        raise TrajectoryError(
+            source, f"joint[{serial!r}]", f"7 values per frame: {list(JOINT_NAMES)} in radians", f"{bad} values"
+        )
     q = np.stack(rows)
     if np.abs(q).max() > 2 * np.pi:
         t, j = np.unravel_index(int(np.argmax(np.abs(q))), q.shape)
-        raise TrajectoryError(source, f"joint[{serial!r}]", "joint angles in radians (|q| <= 2 pi)",
-                              f"{q[t, j]:g} at frame {t}, {JOINT_NAMES[j]} (degrees?)")
+        raise TrajectoryError(
+            source,
+            f"joint[{serial!r}]",
+            "joint angles in radians (|q| <= 2 pi)",
+            f"{q[t, j]:g} at frame {t}, {JOINT_NAMES[j]} (degrees?)",
+        )
     gts = np.array(sorted(gd), dtype=np.int64)
     widths = []
     for t in gts.tolist():
         try:
             widths.append(float(np.asarray(gd[t]["gripper_info"], dtype=np.float64).reshape(-1)[0]))
         except (KeyError, TypeError, IndexError, ValueError):
-            raise TrajectoryError(source, f"gripper[{serial!r}][{t}]", "a dict with 'gripper_info' ([width_mm, ...])",
-                                  repr(gd[t])[:80]) from None
+            raise TrajectoryError(
+                source, f"gripper[{serial!r}][{t}]", "a dict with 'gripper_info' ([width_mm, ...])", repr(gd[t])[:80]
+            ) from None
     width_mm = np.interp(ts, gts, np.array(widths))
     slack = 0.05 * ROBOTIQ_2F85_STROKE_MM
     bad = np.flatnonzero((width_mm < -slack) | (width_mm > ROBOTIQ_2F85_STROKE_MM + slack))
     if bad.size:
-        raise TrajectoryError(source, f"gripper[{serial!r}].gripper_info[0]",
-                              f"Robotiq 2F-85 width in millimetres in [0, {ROBOTIQ_2F85_STROKE_MM:g}]",
-                              f"{width_mm[bad[0]]:g} at frame {int(bad[0])} ({bad.size} frames out of range)")
+        raise TrajectoryError(
+            source,
+            f"gripper[{serial!r}].gripper_info[0]",
+            f"Robotiq 2F-85 width in millimetres in [0, {ROBOTIQ_2F85_STROKE_MM:g}]",
+            f"{width_mm[bad[0]]:g} at frame {int(bad[0])} ({bad.size} frames out of range)",
+        )
     position = 1.0 - np.clip(width_mm, 0.0, ROBOTIQ_2F85_STROKE_MM) / ROBOTIQ_2F85_STROKE_MM
 
-    K = _array(_get(intrinsics, serial, source, f"intrinsics[{serial!r}]", "a calibrated camera", CameraFileError),
-               source, f"intrinsics[{serial!r}]", "a 3x3 or 3x4 camera matrix", CameraFileError)
+    K = _array(
+        _get(intrinsics, serial, source, f"intrinsics[{serial!r}]", "a calibrated camera", CameraFileError),
+        source,
+        f"intrinsics[{serial!r}]",
+        "a 3x3 or 3x4 camera matrix",
+        CameraFileError,
+    )
     if K.shape not in ((3, 3), (3, 4)):
-        raise CameraFileError(source, f"intrinsics[{serial!r}]", "a 3x3 or 3x4 camera matrix (pixels)", f"shape {K.shape}")
+        raise CameraFileError(
+            source, f"intrinsics[{serial!r}]", "a 3x3 or 3x4 camera matrix (pixels)", f"shape {K.shape}"
+        )
     try:
-        intr = Intrinsics(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(image_size[0]), int(image_size[1]))
+        intr = Intrinsics(
+            float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(image_size[0]), int(image_size[1])
+        )
     except CameraFileError as e:
         raise CameraFileError(source, f"intrinsics[{serial!r}].{e.field}", e.expected, e.found) from None
-    E = _rigid(_array(_get(extrinsics_base, serial, source, f"extrinsics_base[{serial!r}]", "a calibrated camera",
-                           CameraFileError), source, f"extrinsics_base[{serial!r}]", "a 4x4 matrix", CameraFileError),
-               source, f"extrinsics_base[{serial!r}]")
+    E = _rigid(
+        _array(
+            _get(
+                extrinsics_base, serial, source, f"extrinsics_base[{serial!r}]", "a calibrated camera", CameraFileError
+            ),
+            source,
+            f"extrinsics_base[{serial!r}]",
+            "a 4x4 matrix",
+            CameraFileError,
+        ),
+        source,
+        f"extrinsics_base[{serial!r}]",
+    )
     cam = Camera(intr, E, convention="opencv", direction="world_to_camera", embodiment=EMBODIMENT)
 
     seconds = (ts - ts[0]) / 1000.0
     if fps is None:
         if len(ts) < 2:
-            raise TrajectoryError(source, f"joint[{serial!r}]", "two or more frames to infer the frame rate (or pass fps=)",
-                                  "1 frame")
+            raise TrajectoryError(
+                source, f"joint[{serial!r}]", "two or more frames to infer the frame rate (or pass fps=)", "1 frame"
+            )
         fps = 1.0 / float(np.median(np.diff(seconds)))
-    traj = Trajectory(JOINT_NAMES, q, fps, gripper=position[:, None], gripper_names=GRIPPER_NAMES,
-                      timestamps=seconds, source=source)
+    traj = Trajectory(
+        JOINT_NAMES, q, fps, gripper=position[:, None], gripper_names=GRIPPER_NAMES, timestamps=seconds, source=source
+    )
     return traj, cam

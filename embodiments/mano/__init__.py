@@ -31,9 +31,24 @@ from .mano_model import ENV_MANO_DIR, SMPLX_MISSING, mano_keypoints, require_smp
 from .mano_pickle import MANOModelError, load_mano_pickle
 from .topology import COLORS, EDGES, GROUPS, HANDS, NUM_KEYPOINTS, PALM, POINT_NAMES
 
-__all__ = ["Mano", "ASSETS", "trajectory_from_keypoints", "trajectory_from_mano", "mano_keypoints", "hand_openness",
-           "gripper_signal", "to_camera_frame", "egocentric_camera", "load_mano_pickle", "MANOModelError",
-           "smplx_problem", "require_smplx", "SMPLX_MISSING", "ENV_MANO_DIR", "oscar_register_embodiments"]
+__all__ = [
+    "Mano",
+    "ASSETS",
+    "trajectory_from_keypoints",
+    "trajectory_from_mano",
+    "mano_keypoints",
+    "hand_openness",
+    "gripper_signal",
+    "to_camera_frame",
+    "egocentric_camera",
+    "load_mano_pickle",
+    "MANOModelError",
+    "smplx_problem",
+    "require_smplx",
+    "SMPLX_MISSING",
+    "ENV_MANO_DIR",
+    "oscar_register_embodiments",
+]
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 
@@ -42,14 +57,18 @@ class Mano(Embodiment):
     """Left and right human hands as 21-keypoint skeletons (MANO joints + fingertips)."""
 
     name = "mano"
-    description = ("two human hands, 21 keypoints each, from (T, 2, 21, 3) keypoints or MANO parameters "
-                   '(the MANO-parameter input needs smplx: pip install "oscar-wm[mano]", and the licensed MANO files)')
+    description = (
+        "two human hands, 21 keypoints each, from (T, 2, 21, 3) keypoints or MANO parameters "
+        '(the MANO-parameter input needs smplx: pip install "oscar-wm[mano]", and the licensed MANO files)'
+    )
     license = "Apache-2.0"  # the topology and colours are ours; MANO model files are licensed separately
     datasets = ("egodex", "epic_kitchens")
     skeleton = Skeleton(links=POINT_NAMES, edges=EDGES, groups=GROUPS, colors=COLORS)
     # signal: openness from fingertip flexion, 0 (fist) .. 1 (flat open hand); drawn at the palm centre
-    grippers = (Gripper("left", link="left_wrist", signal_range=(0.0, 1.0), closed_at="low"),
-                Gripper("right", link="right_wrist", signal_range=(0.0, 1.0), closed_at="low"))
+    grippers = (
+        Gripper("left", link="left_wrist", signal_range=(0.0, 1.0), closed_at="low"),
+        Gripper("right", link="right_wrist", signal_range=(0.0, 1.0), closed_at="low"),
+    )
     camera = CameraSpec(convention="opencv", direction="camera_to_world", mount_link=None)
     example_trajectory = ASSETS / "example_trajectory.npz"
     example_camera = ASSETS / "example_camera.json"
@@ -57,9 +76,13 @@ class Mano(Embodiment):
     def check_trajectory(self, traj):
         """Requires ``keypoints`` (T, 42, 3); fills the gripper columns from them when absent."""
         if traj.keypoints is None:
-            raise TrajectoryError(traj.source, "keypoints",
-                                  f"shape (T, {len(POINT_NAMES)}, 3): the 21 keypoints of the left hand, then the right "
-                                  "(make one with oscar_embodiments.mano.trajectory_from_keypoints)", "missing")
+            raise TrajectoryError(
+                traj.source,
+                "keypoints",
+                f"shape (T, {len(POINT_NAMES)}, 3): the 21 keypoints of the left hand, then the right "
+                "(make one with oscar_embodiments.mano.trajectory_from_keypoints)",
+                "missing",
+            )
         if traj.gripper.shape[1] == 0 and traj.keypoints.shape[1] == len(POINT_NAMES):
             kp = traj.keypoints.reshape(len(traj), 2, NUM_KEYPOINTS, 3)
             traj = traj.replace(gripper=gripper_signal(kp), gripper_names=HANDS)
@@ -73,8 +96,10 @@ class Mano(Embodiment):
         always None here (``check_camera`` refuses a mounted camera).
         """
         if mount_link is not None:
-            raise ValueError(f"mano: a camera cannot ride on link {mount_link!r}; give keypoints in the camera frame "
-                             "(trajectory_from_keypoints(..., camera_poses=...))")
+            raise ValueError(
+                f"mano: a camera cannot ride on link {mount_link!r}; give keypoints in the camera frame "
+                "(trajectory_from_keypoints(..., camera_poses=...))"
+            )
         pts = traj.keypoints
         hands = pts.reshape(len(traj), 2, NUM_KEYPOINTS, 3)
         palm = hands[:, :, list(PALM)].mean(axis=2)  # NaN if any palm point is missing

@@ -46,8 +46,10 @@ def _check_poses(poses, T: int) -> np.ndarray:
     bad = (dev > 1e-5) | (bottom > 1e-9) | (det < 0)
     if bad.any():
         t = int(np.argmax(bad))
-        raise ValueError(f"camera_poses: expected rigid transforms (orthonormal rotation, det +1, last row 0 0 0 1), "
-                         f"found rotation error {dev[t]:.2g}, det {det[t]:.3g}, last row {P[t, 3].tolist()} at frame {t}")
+        raise ValueError(
+            f"camera_poses: expected rigid transforms (orthonormal rotation, det +1, last row 0 0 0 1), "
+            f"found rotation error {dev[t]:.2g}, det {det[t]:.3g}, last row {P[t, 3].tolist()} at frame {t}"
+        )
     return P
 
 
@@ -79,21 +81,33 @@ def _as_two_hands(keypoints, hand: str | None) -> np.ndarray:
     kp = np.asarray(keypoints, dtype=np.float64)
     if kp.ndim == 3 and kp.shape[1:] == (NUM_KEYPOINTS, 3):
         if hand not in HANDS:
-            raise ValueError(f"keypoints of shape {kp.shape} hold one hand: pass hand='left' or hand='right', found {hand!r}")
+            raise ValueError(
+                f"keypoints of shape {kp.shape} hold one hand: pass hand='left' or hand='right', found {hand!r}"
+            )
         both = np.full((kp.shape[0], 2, NUM_KEYPOINTS, 3), np.nan)
         both[:, HANDS.index(hand)] = kp
         return both
     if kp.ndim != 4 or kp.shape[1:] != (2, NUM_KEYPOINTS, 3):
-        raise ValueError(f"keypoints: expected shape (T, 2, {NUM_KEYPOINTS}, 3) (hand axis 0 = left, 1 = right) "
-                         f"or (T, {NUM_KEYPOINTS}, 3) with hand=..., found {kp.shape}")
+        raise ValueError(
+            f"keypoints: expected shape (T, 2, {NUM_KEYPOINTS}, 3) (hand axis 0 = left, 1 = right) "
+            f"or (T, {NUM_KEYPOINTS}, 3) with hand=..., found {kp.shape}"
+        )
     if hand is not None:
         raise ValueError("hand=... is only for keypoints of a single hand, shape (T, 21, 3)")
     return kp
 
 
-def trajectory_from_keypoints(keypoints, fps: float, *, hand: str | None = None, camera_poses=None,
-                              camera_convention: str = "opencv", gripper=None, timestamps=None,
-                              source: str = "<keypoints>") -> Trajectory:
+def trajectory_from_keypoints(
+    keypoints,
+    fps: float,
+    *,
+    hand: str | None = None,
+    camera_poses=None,
+    camera_convention: str = "opencv",
+    gripper=None,
+    timestamps=None,
+    source: str = "<keypoints>",
+) -> Trajectory:
     """A ``mano`` trajectory from 3D hand keypoints.
 
     keypoints: (T, 2, 21, 3) metres, hand axis 0 = left, 1 = right, keypoint
@@ -113,12 +127,19 @@ def trajectory_from_keypoints(keypoints, fps: float, *, hand: str | None = None,
         kp = to_camera_frame(kp, camera_poses, camera_convention)
     T = kp.shape[0]
     g = gripper_signal(kp) if gripper is None else np.asarray(gripper, dtype=np.float64)
-    return Trajectory(joint_names=(), q=np.zeros((T, 0)), fps=fps, gripper=g, gripper_names=HANDS,
-                      timestamps=timestamps, source=source, keypoints=kp.reshape(T, 2 * NUM_KEYPOINTS, 3))
+    return Trajectory(
+        joint_names=(),
+        q=np.zeros((T, 0)),
+        fps=fps,
+        gripper=g,
+        gripper_names=HANDS,
+        timestamps=timestamps,
+        source=source,
+        keypoints=kp.reshape(T, 2 * NUM_KEYPOINTS, 3),
+    )
 
 
-def egocentric_camera(fx: float, fy: float, cx: float, cy: float, width: int, height: int,
-                      distortion=()) -> Camera:
+def egocentric_camera(fx: float, fy: float, cx: float, cy: float, width: int, height: int, distortion=()) -> Camera:
     """The camera of camera-frame keypoints: the dataset's intrinsics (pixels),
     identity extrinsic, OpenCV axes, static; tagged for the ``mano`` embodiment."""
     return Camera(Intrinsics(fx, fy, cx, cy, width, height, tuple(distortion)), np.eye(4), embodiment="mano")

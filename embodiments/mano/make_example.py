@@ -72,8 +72,9 @@ def main():
     kp = np.stack([one_hand("left", delay=8, grasp=0.7), one_hand("right", delay=0, grasp=0.8)], axis=1)
     traj = trajectory_from_keypoints(kp, FPS)
     save_trajectory(traj, ASSETS / "example_trajectory.npz")
-    save_camera(egocentric_camera(fx=420.0, fy=420.0, cx=319.5, cy=179.5, width=640, height=360),
-                ASSETS / "example_camera.json")
+    save_camera(
+        egocentric_camera(fx=420.0, fy=420.0, cx=319.5, cy=179.5, width=640, height=360), ASSETS / "example_camera.json"
+    )
     print(f"wrote {T} frames and a camera to {ASSETS}")
 
 

@@ -39,8 +39,17 @@ from oscar_core.errors import InputFileError
 __all__ = ["MANOModelError", "load_mano_pickle", "loads_mano_pickle", "REQUIRED_KEYS", "ALLOWED_GLOBALS"]
 
 #: Fields smplx.MANO reads from the model dict.
-REQUIRED_KEYS = ("v_template", "f", "J_regressor", "kintree_table", "weights", "posedirs", "shapedirs",
-                 "hands_components", "hands_mean")
+REQUIRED_KEYS = (
+    "v_template",
+    "f",
+    "J_regressor",
+    "kintree_table",
+    "weights",
+    "posedirs",
+    "shapedirs",
+    "hands_components",
+    "hands_mean",
+)
 
 
 class MANOModelError(InputFileError):
@@ -102,7 +111,9 @@ def _dtype(spec, align=False, copy=False):
 
 def _latin1_encode(text, encoding="latin1", *rest):
     if not isinstance(text, str) or str(encoding).lower().replace("-", "") != "latin1" or rest:
-        raise _Refused(f"_codecs.encode with {type(text).__name__}, {encoding!r} (only latin-1 text → bytes is allowed)")
+        raise _Refused(
+            f"_codecs.encode with {type(text).__name__}, {encoding!r} (only latin-1 text → bytes is allowed)"
+        )
     return text.encode("latin1")
 
 
@@ -112,12 +123,21 @@ def _reconstructor(cls, base, state=None):
         if state is not None:
             obj.__setstate__(state)
         return obj
-    raise _Refused(f"copyreg._reconstructor({getattr(cls, '__name__', cls)!r}, ...) (only for chumpy/scipy placeholders)")
+    raise _Refused(
+        f"copyreg._reconstructor({getattr(cls, '__name__', cls)!r}, ...) (only for chumpy/scipy placeholders)"
+    )
 
 
 _NUMPY_MODULES = ("numpy.core.multiarray", "numpy._core.multiarray")
-_SPARSE_MODULES = ("scipy.sparse", "scipy.sparse.csc", "scipy.sparse._csc", "scipy.sparse.csr", "scipy.sparse._csr",
-                   "scipy.sparse.compressed", "scipy.sparse._compressed")
+_SPARSE_MODULES = (
+    "scipy.sparse",
+    "scipy.sparse.csc",
+    "scipy.sparse._csc",
+    "scipy.sparse.csr",
+    "scipy.sparse._csr",
+    "scipy.sparse.compressed",
+    "scipy.sparse._compressed",
+)
 
 #: (module, name) pairs the unpickler resolves (chumpy.* and scipy sparse matrices become placeholders).
 ALLOWED_GLOBALS: dict[tuple[str, str], Any] = {
@@ -159,8 +179,12 @@ def _convert(obj, source: str, where: str):
     if isinstance(obj, _ChumpyPlaceholder):
         state = obj._state if isinstance(obj._state, dict) else {}
         if "x" not in state:
-            raise MANOModelError(source, where, "a chumpy array that stores its value ('x' in its pickled state)",
-                                 f"a {obj._qualname} without one (a derived chumpy expression, which cannot be read without chumpy)")
+            raise MANOModelError(
+                source,
+                where,
+                "a chumpy array that stores its value ('x' in its pickled state)",
+                f"a {obj._qualname} without one (a derived chumpy expression, which cannot be read without chumpy)",
+            )
         return np.asarray(_convert(state["x"], source, where))
     if isinstance(obj, _SparsePlaceholder):
         import scipy.sparse as sp
@@ -172,8 +196,12 @@ def _convert(obj, source: str, where: str):
             make = sp.csc_matrix if obj._format == "csc" else sp.csr_matrix
             return make(parts, shape=tuple(int(s) for s in shape))
         except (KeyError, TypeError, ValueError) as exc:
-            raise MANOModelError(source, where, f"a {obj._format.upper()} sparse matrix (data, indices, indptr, shape)",
-                                 f"{type(exc).__name__}: {exc}") from None
+            raise MANOModelError(
+                source,
+                where,
+                f"a {obj._format.upper()} sparse matrix (data, indices, indptr, shape)",
+                f"{type(exc).__name__}: {exc}",
+            ) from None
     if isinstance(obj, _Placeholder):  # pragma: no cover - only the two kinds above exist
         raise MANOModelError(source, where, "plain data", obj._qualname)
     if isinstance(obj, dict):
@@ -190,10 +218,13 @@ def loads_mano_pickle(data: bytes, source: str = "<MANO model>") -> dict:
     try:
         raw = _RestrictedUnpickler(io.BytesIO(data), source).load()
     except _Refused as exc:
-        raise MANOModelError(source, "pickle global",
-                             "only the numpy / scipy.sparse / chumpy classes a MANO model file uses "
-                             "(oscar_embodiments.mano.mano_pickle.ALLOWED_GLOBALS)",
-                             f"{exc.what}, which was refused (nothing from the file was imported or run)") from None
+        raise MANOModelError(
+            source,
+            "pickle global",
+            "only the numpy / scipy.sparse / chumpy classes a MANO model file uses "
+            "(oscar_embodiments.mano.mano_pickle.ALLOWED_GLOBALS)",
+            f"{exc.what}, which was refused (nothing from the file was imported or run)",
+        ) from None
     except MANOModelError:
         raise
     except Exception as exc:  # noqa: BLE001 - truncated or corrupt data, wrong argument types for an allowed callable
@@ -217,8 +248,9 @@ def load_mano_pickle(path) -> dict:
     """
     path = Path(path)
     if not path.is_file():
-        raise MANOModelError(str(path), "<file>", "the MANO model file (licensed separately, see the mano README)",
-                             "no such file")
+        raise MANOModelError(
+            str(path), "<file>", "the MANO model file (licensed separately, see the mano README)", "no such file"
+        )
     return loads_mano_pickle(path.read_bytes(), str(path))
 
 
@@ -241,5 +273,6 @@ def _check_shapes(m: dict, source: str) -> None:
     }
     for k, s in want.items():
         if V < 1 or J < 2 or shape(k) != s:
-            raise MANOModelError(source, k, f"shape {s} (V = vertices of v_template, J = joints of kintree_table)",
-                                 f"shape {shape(k)}")
+            raise MANOModelError(
+                source, k, f"shape {s} (V = vertices of v_template, J = joints of kintree_table)", f"shape {shape(k)}"
+            )

@@ -26,9 +26,24 @@ ring, thumb, three joints each) and have no fingertips;
 from __future__ import annotations
 
 __all__ = [
-    "HANDS", "FINGERS", "KEYPOINT_NAMES", "NUM_KEYPOINTS", "POINT_NAMES", "HAND_BONES", "BONES", "EDGES",
-    "GROUPS", "COLORS", "TIPS", "MCPS", "PALM", "FINGER_CHAINS", "FINGERTIP_VERTICES", "MANO_JOINT_NAMES",
-    "MANO_TO_KEYPOINTS", "point_name",
+    "HANDS",
+    "FINGERS",
+    "KEYPOINT_NAMES",
+    "NUM_KEYPOINTS",
+    "POINT_NAMES",
+    "HAND_BONES",
+    "BONES",
+    "EDGES",
+    "GROUPS",
+    "COLORS",
+    "TIPS",
+    "MCPS",
+    "PALM",
+    "FINGER_CHAINS",
+    "FINGERTIP_VERTICES",
+    "MANO_JOINT_NAMES",
+    "MANO_TO_KEYPOINTS",
+    "point_name",
 ]
 
 HANDS: tuple[str, str] = ("left", "right")
@@ -36,16 +51,33 @@ FINGERS: tuple[str, ...] = ("thumb", "index", "middle", "ring", "pinky")
 
 KEYPOINT_NAMES: tuple[str, ...] = (
     "wrist",
-    "thumb_cmc", "thumb_mcp", "thumb_ip", "thumb_tip",
-    "index_mcp", "index_pip", "index_dip", "index_tip",
-    "middle_mcp", "middle_pip", "middle_dip", "middle_tip",
-    "ring_mcp", "ring_pip", "ring_dip", "ring_tip",
-    "pinky_mcp", "pinky_pip", "pinky_dip", "pinky_tip",
+    "thumb_cmc",
+    "thumb_mcp",
+    "thumb_ip",
+    "thumb_tip",
+    "index_mcp",
+    "index_pip",
+    "index_dip",
+    "index_tip",
+    "middle_mcp",
+    "middle_pip",
+    "middle_dip",
+    "middle_tip",
+    "ring_mcp",
+    "ring_pip",
+    "ring_dip",
+    "ring_tip",
+    "pinky_mcp",
+    "pinky_pip",
+    "pinky_dip",
+    "pinky_tip",
 )
 NUM_KEYPOINTS = len(KEYPOINT_NAMES)  # 21
 
 #: Per finger, its four keypoint indices from the palm outwards.
-FINGER_CHAINS: dict[str, tuple[int, int, int, int]] = {f: tuple(range(1 + 4 * i, 5 + 4 * i)) for i, f in enumerate(FINGERS)}
+FINGER_CHAINS: dict[str, tuple[int, int, int, int]] = {
+    f: tuple(range(1 + 4 * i, 5 + 4 * i)) for i, f in enumerate(FINGERS)
+}
 #: Keypoint indices of the fingertips (thumb .. pinky) and of the four finger MCPs.
 TIPS: tuple[int, ...] = tuple(c[-1] for c in FINGER_CHAINS.values())
 MCPS: tuple[int, ...] = tuple(FINGER_CHAINS[f][0] for f in FINGERS[1:])
@@ -98,11 +130,21 @@ COLORS: dict[str, tuple[int, int, int]] = {
 #: smplx.MANO's 16 joints, in the order of the model's kinematic tree.
 MANO_JOINT_NAMES: tuple[str, ...] = (
     "wrist",
-    "index_mcp", "index_pip", "index_dip",
-    "middle_mcp", "middle_pip", "middle_dip",
-    "pinky_mcp", "pinky_pip", "pinky_dip",
-    "ring_mcp", "ring_pip", "ring_dip",
-    "thumb_cmc", "thumb_mcp", "thumb_ip",
+    "index_mcp",
+    "index_pip",
+    "index_dip",
+    "middle_mcp",
+    "middle_pip",
+    "middle_dip",
+    "pinky_mcp",
+    "pinky_pip",
+    "pinky_dip",
+    "ring_mcp",
+    "ring_pip",
+    "ring_dip",
+    "thumb_cmc",
+    "thumb_mcp",
+    "thumb_ip",
 )
 
 #: MANO mesh vertices used as fingertips (the ``mano`` entry of smplx's

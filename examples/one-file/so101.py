@@ -22,8 +22,10 @@ def so101_urdf() -> Path:
     try:
         dist = metadata.distribution("example-robot-data")
     except metadata.PackageNotFoundError:
-        raise PluginError("embodiment 'so101' needs the 'example-robot-data' distribution; "
-                          "install it with: pip install example-robot-data") from None
+        raise PluginError(
+            "embodiment 'so101' needs the 'example-robot-data' distribution; "
+            "install it with: pip install example-robot-data"
+        ) from None
     for f in dist.files or ():
         if f.as_posix().endswith(SUFFIX):
             return Path(dist.locate_file(f)).resolve()
@@ -42,10 +44,27 @@ class SO101(Embodiment):
     description = "SO-101 arm from example-robot-data (one-file plugin example)"
     license = "Apache-2.0"
     urdf = _URDF()
-    skeleton = Skeleton(links=("base_link", "shoulder_link", "upper_arm_link", "lower_arm_link", "wrist_link",
-                               "gripper_link", "moving_jaw_so101_v1_link"))
-    grippers = (Gripper("gripper", link="gripper_link", signal_range=(0.0, 1.0), closed_at="low",
-                        joint="gripper", joint_range=(0.0, 1.5)),)
+    skeleton = Skeleton(
+        links=(
+            "base_link",
+            "shoulder_link",
+            "upper_arm_link",
+            "lower_arm_link",
+            "wrist_link",
+            "gripper_link",
+            "moving_jaw_so101_v1_link",
+        )
+    )
+    grippers = (
+        Gripper(
+            "gripper",
+            link="gripper_link",
+            signal_range=(0.0, 1.0),
+            closed_at="low",
+            joint="gripper",
+            joint_range=(0.0, 1.5),
+        ),
+    )
     end_effector_links = ("gripper_link",)
 
 

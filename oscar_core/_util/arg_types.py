@@ -18,6 +18,7 @@ __all__ = ["count", "default_device", "device", "device_name", "interval", "numb
 
 def count(minimum: int = 1):
     """An integer ≥ ``minimum`` (``count(0)``: 0 allowed; ``count(None)``: any integer)."""
+
     def parse(text: str) -> int:
         try:
             value = int(text)
@@ -33,6 +34,7 @@ def count(minimum: int = 1):
 
 def number(minimum: float | None = None, maximum: float | None = None, *, above: float | None = None):
     """A finite number in [``minimum``, ``maximum``] (and > ``above`` when given)."""
+
     def parse(text: str) -> float:
         try:
             value = float(text)
@@ -71,6 +73,7 @@ def _device_check(check: str):
 
     "cpu" passes without importing torch: argparse also converts string defaults, and a render needs no torch.
     """
+
     def parse(text: str) -> str:
         if text == "cpu":
             return text

@@ -22,8 +22,7 @@ from pathlib import Path
 
 from ..errors import OutputPathError
 
-__all__ = ["atomic_output", "atomic_write_bytes", "tmp_prefix", "pid_alive", "sweep_dead_temporaries",
-           "sweep_once"]
+__all__ = ["atomic_output", "atomic_write_bytes", "tmp_prefix", "pid_alive", "sweep_dead_temporaries", "sweep_once"]
 
 # .<name>.<pid>.<random>.tmp<anything>: name may itself hold dots; the pid is the last all-digit part before it
 TMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.(?P<rand>[A-Za-z0-9_-]+)\.tmp(?P<suffix>.*)$")

@@ -17,8 +17,16 @@ import shlex
 __all__ = ["own_examples", "filter_examples", "example_command"]
 
 #: Options of the top-level ``oscar`` that may stand before the sub-command, and whether they take a value.
-_GLOBAL = {"--plugin": True, "-v": False, "-vv": False, "--verbose": False, "-q": False, "-qq": False,
-           "--quiet": False, "--no-progress": False}
+_GLOBAL = {
+    "--plugin": True,
+    "-v": False,
+    "-vv": False,
+    "--verbose": False,
+    "-q": False,
+    "-qq": False,
+    "--quiet": False,
+    "--no-progress": False,
+}
 
 
 def example_command(line: str) -> str | None:

@@ -42,12 +42,16 @@ def device_problem(device) -> str | None:
     parsed = torch.device(device)
     if parsed.type == "cuda":
         if not torch.cuda.is_available():
-            return (f"expected a device this machine has, found {text!r}: no CUDA device is available here "
-                    f"(torch {torch.__version__}, torch.cuda.is_available() is False)")
+            return (
+                f"expected a device this machine has, found {text!r}: no CUDA device is available here "
+                f"(torch {torch.__version__}, torch.cuda.is_available() is False)"
+            )
         count = torch.cuda.device_count()
         if parsed.index is not None and parsed.index >= count:
-            return (f"expected a device this machine has, found {text!r}: it has {count} CUDA device(s), "
-                    f"cuda:0 to cuda:{count - 1}")
+            return (
+                f"expected a device this machine has, found {text!r}: it has {count} CUDA device(s), "
+                f"cuda:0 to cuda:{count - 1}"
+            )
     elif parsed.type == "mps" and not torch.backends.mps.is_available():
         return f"expected a device this machine has, found {text!r}: MPS is not available here"
     return None

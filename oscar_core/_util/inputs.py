@@ -59,8 +59,7 @@ def describe_content(path, head: bytes | None = None) -> str:
     return "JSON text" if head.lstrip()[:1] in (b"{", b"[") else "text"
 
 
-def read_text_file(path, expected: str, *, error: type[Exception] = InputFileError,
-                   field: str = "<file>") -> str:
+def read_text_file(path, expected: str, *, error: type[Exception] = InputFileError, field: str = "<file>") -> str:
     """The utf-8 text of ``path``; ``error(path, field, expected, found)`` (an InputFileError-like class) when it
     is missing, a folder, unreadable or not utf-8 text (``found`` says what it is: :func:`describe_content`).
     ``expected`` names the format, e.g. "camera calibration JSON (utf-8 text)"."""

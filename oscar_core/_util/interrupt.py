@@ -20,8 +20,17 @@ import signal
 import threading
 import time
 
-__all__ = ["EXIT_INTERRUPTED", "Interrupted", "interrupted", "message", "noting_interrupts", "output_of", "report",
-           "stop_pool", "worker_ignores_interrupt"]
+__all__ = [
+    "EXIT_INTERRUPTED",
+    "Interrupted",
+    "interrupted",
+    "message",
+    "noting_interrupts",
+    "output_of",
+    "report",
+    "stop_pool",
+    "worker_ignores_interrupt",
+]
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
 GRACE_S = 3.0  # seconds busy threads get to end after Ctrl-C before the process exits without them

@@ -36,15 +36,36 @@ import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["ROOT", "ENV_VERBOSITY", "ENV_DISABLE_PROGRESS", "get_logger", "set_verbosity", "get_verbosity",
-           "verbosity_from_env", "configure_cli", "cli_output", "progress_bar", "progress_bars_enabled", "enable_progress_bars",
-           "disable_progress_bars", "run_log", "log_result", "command_line", "set_command_line"]
+__all__ = [
+    "ROOT",
+    "ENV_VERBOSITY",
+    "ENV_DISABLE_PROGRESS",
+    "get_logger",
+    "set_verbosity",
+    "get_verbosity",
+    "verbosity_from_env",
+    "configure_cli",
+    "cli_output",
+    "progress_bar",
+    "progress_bars_enabled",
+    "enable_progress_bars",
+    "disable_progress_bars",
+    "run_log",
+    "log_result",
+    "command_line",
+    "set_command_line",
+]
 
 ROOT = "oscar"
 ENV_VERBOSITY = "OSCAR_VERBOSITY"
 ENV_DISABLE_PROGRESS = "OSCAR_DISABLE_PROGRESS_BARS"
-LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING, "error": logging.ERROR,
-          "critical": logging.CRITICAL}
+LEVELS = {
+    "debug": logging.DEBUG,
+    "info": logging.INFO,
+    "warning": logging.WARNING,
+    "error": logging.ERROR,
+    "critical": logging.CRITICAL,
+}
 _FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 _verbosity: int | None = None  # None: not set in code yet (the environment or WARNING decides)
@@ -52,9 +73,13 @@ _progress_enabled: bool | None = None  # None: not set in code yet (the environm
 
 
 def _logger_name(name: str) -> str:
-    for prefix, new in (("oscar_core", ROOT), ("oscar_zoo", f"{ROOT}.zoo"), ("oscar_embodiments", f"{ROOT}.embodiments")):
+    for prefix, new in (
+        ("oscar_core", ROOT),
+        ("oscar_zoo", f"{ROOT}.zoo"),
+        ("oscar_embodiments", f"{ROOT}.embodiments"),
+    ):
         if name == prefix or name.startswith(prefix + "."):
-            return new + name[len(prefix):]
+            return new + name[len(prefix) :]
     if name == ROOT or name.startswith(ROOT + "."):
         return name
     return f"{ROOT}.{name}"
@@ -216,8 +241,16 @@ def progress_bars_enabled() -> bool:
     return bool(isatty and isatty())
 
 
-def progress_bar(iterable: Iterable | None = None, *, total: int | None = None, desc: str | None = None,
-                 unit: str = "it", leave: bool = True, enabled: bool | None = None, **kwargs):
+def progress_bar(
+    iterable: Iterable | None = None,
+    *,
+    total: int | None = None,
+    desc: str | None = None,
+    unit: str = "it",
+    leave: bool = True,
+    enabled: bool | None = None,
+    **kwargs,
+):
     """A tqdm bar on stderr (rate and ETA), disabled per :func:`progress_bars_enabled`.
 
     enabled: False forces it off (e.g. ``--json`` output); None/True defer to
@@ -227,8 +260,17 @@ def progress_bar(iterable: Iterable | None = None, *, total: int | None = None, 
     from tqdm.auto import tqdm
 
     on = progress_bars_enabled() and enabled is not False
-    return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, disable=not on, file=sys.stderr,
-                dynamic_ncols=True, **kwargs)
+    return tqdm(
+        iterable,
+        total=total,
+        desc=desc,
+        unit=unit,
+        leave=leave,
+        disable=not on,
+        file=sys.stderr,
+        dynamic_ncols=True,
+        **kwargs,
+    )
 
 
 class _RunLogHandler(logging.FileHandler):
@@ -315,8 +357,9 @@ def run_log(folder, job: str, *, level: int = logging.INFO, command: str | None 
             handler.emit(handler._record(logging.ERROR, "stopped by %s: %s", type(exc).__name__, exc))
         raise
     else:  # a finished job always leaves its log: the command line and the result
-        handler.emit(handler._record(logging.INFO, "result: %s (%.1f s)", handler.result or "finished",
-                                     time.perf_counter() - t0))
+        handler.emit(
+            handler._record(logging.INFO, "result: %s (%.1f s)", handler.result or "finished", time.perf_counter() - t0)
+        )
     finally:
         _RUN_LOGS.remove(handler)
         root.removeHandler(handler)

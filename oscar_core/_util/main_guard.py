@@ -47,11 +47,13 @@ class MainGuardError(OscarError, RuntimeError):
 
 
 def _message(what: str, path: str, line: int) -> str:
-    return (f"{what}: {path}, line {line}: expected this call under `{_GUARD}`, found it at the script's top "
-            f"level. Each worker process imports the script again (as `__mp_main__`: fork-server and spawn "
-            f"workers do not copy this process) and would run this call, and everything else at the top level, "
-            f"once more. Move the script's top-level work under `{_GUARD}` (e.g. into a main() called there), "
-            f"or use workers=1.")
+    return (
+        f"{what}: {path}, line {line}: expected this call under `{_GUARD}`, found it at the script's top "
+        f"level. Each worker process imports the script again (as `__mp_main__`: fork-server and spawn "
+        f"workers do not copy this process) and would run this call, and everything else at the top level, "
+        f"once more. Move the script's top-level work under `{_GUARD}` (e.g. into a main() called there), "
+        f"or use workers=1."
+    )
 
 
 def _module_frame(start: FrameType | None, globals_of=None, name: str | None = None) -> FrameType | None:
@@ -60,8 +62,9 @@ def _module_frame(start: FrameType | None, globals_of=None, name: str | None = N
     frame = start
     while frame is not None:
         if frame.f_code.co_name == "<module>" and (
-                (globals_of is not None and frame.f_globals is globals_of)
-                or (name is not None and frame.f_globals.get("__name__") == name)):
+            (globals_of is not None and frame.f_globals is globals_of)
+            or (name is not None and frame.f_globals.get("__name__") == name)
+        ):
             return frame
         frame = frame.f_back
     return None
@@ -134,9 +137,11 @@ def check_main_guard(what: str) -> None:
     if main is None or not path or spec_name == "__main__" or spec_name.endswith(".__main__"):
         return  # no script, or one the workers never run again
     if path.startswith("<") and path.endswith(">"):  # python - < script.py: workers look for a file named <stdin>
-        raise MainGuardError(f"{what}: expected the main script in a file, found {path} (a script read from "
-                             f"standard input); every worker process imports the main script again and cannot "
-                             f"find it. Run it from a file, or use workers=1.")
+        raise MainGuardError(
+            f"{what}: expected the main script in a file, found {path} (a script read from "
+            f"standard input); every worker process imports the main script again and cannot "
+            f"find it. Run it from a file, or use workers=1."
+        )
     frame = _module_frame(caller, globals_of=vars(main))
     if frame is None or Path(frame.f_code.co_filename).resolve() != Path(path).resolve():
         return  # not called while the script's top level runs (a thread, an exec'd string): nothing to re-run

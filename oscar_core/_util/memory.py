@@ -15,7 +15,7 @@ from ..errors import OscarError
 
 __all__ = ["ArraySizeError", "available_bytes", "check_fits"]
 
-GIB = 1024 ** 3
+GIB = 1024**3
 
 
 class ArraySizeError(OscarError, ValueError):
@@ -55,5 +55,7 @@ def check_fits(shape: tuple[int, ...], itemsize: int, what: str, hint: str, avai
     if available is None:
         available = available_bytes()
     if available is not None and need > available:
-        raise ArraySizeError(f"{what} of shape {tuple(int(n) for n in shape)} needs {need / GIB:.1f} GiB, "
-                             f"found {available / GIB:.1f} GiB of memory available; {hint}")
+        raise ArraySizeError(
+            f"{what} of shape {tuple(int(n) for n in shape)} needs {need / GIB:.1f} GiB, "
+            f"found {available / GIB:.1f} GiB of memory available; {hint}"
+        )

@@ -12,5 +12,6 @@ def require(module: str, extra: str):
     try:
         return import_module(module)
     except ImportError as exc:
-        raise ImportError(f"{module} is needed here and is not installed ({exc}); "
-                          f'install it with: pip install "oscar-wm[{extra}]"') from None
+        raise ImportError(
+            f'{module} is needed here and is not installed ({exc}); install it with: pip install "oscar-wm[{extra}]"'
+        ) from None

@@ -33,5 +33,8 @@ def provenance() -> dict:
     """``{"date": UTC ISO 8601 to the second, "command": command_line(), "version": oscar's version}``."""
     from .. import __version__
 
-    return {"date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "command": command_line(),
-            "version": __version__}
+    return {
+        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "command": command_line(),
+        "version": __version__,
+    }

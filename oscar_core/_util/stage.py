@@ -34,8 +34,18 @@ from typing import Any, Literal
 
 from ..errors import OscarError
 
-__all__ = ["FORMAT_VERSION", "EngineName", "StageChanged", "changes", "check_stage", "fingerprint", "model_identity",
-           "pool_context", "watch_parent", "worker_initializer"]
+__all__ = [
+    "FORMAT_VERSION",
+    "EngineName",
+    "StageChanged",
+    "changes",
+    "check_stage",
+    "fingerprint",
+    "model_identity",
+    "pool_context",
+    "watch_parent",
+    "worker_initializer",
+]
 
 #: where a stage's work runs: a local process pool (or this process), or Ray tasks / actors
 EngineName = Literal["local", "ray"]
@@ -118,8 +128,10 @@ def check_stage(folder, parts: Mapping[str, Any], *, redo: str) -> None:
         if isinstance(old, dict) and old.get("fingerprint") == new:
             return
         what = changes(old.get("parts") if isinstance(old, dict) else None, parts)
-        raise StageChanged(f"{folder}: expected output of the same inputs and settings as this run, found one made "
-                           f"under others ({'; '.join(what)}); {redo}")
+        raise StageChanged(
+            f"{folder}: expected output of the same inputs and settings as this run, found one made "
+            f"under others ({'; '.join(what)}); {redo}"
+        )
     Path(folder).mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, json.dumps({"fingerprint": new, "parts": _canonical(parts)}, indent=1).encode())
 

@@ -35,8 +35,17 @@ import warnings
 from ..errors import OscarError
 from .log import get_logger
 
-__all__ = ["ThreadOversubscriptionWarning", "ENV_THREADS", "available_cpus", "idle_cpus", "default_threads",
-           "check_threads", "choose_threads", "use_threads", "passive_openmp"]
+__all__ = [
+    "ThreadOversubscriptionWarning",
+    "ENV_THREADS",
+    "available_cpus",
+    "idle_cpus",
+    "default_threads",
+    "check_threads",
+    "choose_threads",
+    "use_threads",
+    "passive_openmp",
+]
 
 ENV_THREADS = "OSCAR_NUM_THREADS"
 
@@ -78,8 +87,9 @@ def default_threads() -> int:
     return idle_cpus()
 
 
-def choose_threads(requested: int | None = None, *, env: dict | None = None, cpus: int | None = None,
-                   load: float | None = None) -> int:
+def choose_threads(
+    requested: int | None = None, *, env: dict | None = None, cpus: int | None = None, load: float | None = None
+) -> int:
     """The torch thread count of a command: ``requested`` (``--threads``), else ``$OSCAR_NUM_THREADS``, else a
     ``$OMP_NUM_THREADS`` the user set, else the cores idle now (:func:`idle_cpus`; ``cpus`` and ``load`` stand in
     for this machine's in tests; ``env`` for ``os.environ``).
@@ -116,9 +126,14 @@ def use_threads(requested: int | None = None, *, import_torch: bool = True) -> i
     n = choose_threads(requested)
     passive_openmp()
     load = _load()
-    get_logger(__name__).debug("torch threads: %d (%s; %d cores available, load average %s, OMP_WAIT_POLICY=%s)", n,
-                               "--threads" if requested is not None else "automatic", available_cpus(),
-                               "unknown" if load is None else f"{load:.2f}", os.environ.get("OMP_WAIT_POLICY"))
+    get_logger(__name__).debug(
+        "torch threads: %d (%s; %d cores available, load average %s, OMP_WAIT_POLICY=%s)",
+        n,
+        "--threads" if requested is not None else "automatic",
+        available_cpus(),
+        "unknown" if load is None else f"{load:.2f}",
+        os.environ.get("OMP_WAIT_POLICY"),
+    )
     torch = sys.modules.get("torch")
     if torch is None and import_torch:
         import torch
@@ -137,11 +152,14 @@ def check_threads(requested: int, what: str) -> None:
     """Warn when ``requested`` threads/workers for ``what`` (a flag name) exceed the idle cores."""
     idle = idle_cpus()
     if requested > idle:
-        warnings.warn(f"{what}: {requested} requested, but only {idle} of {available_cpus()} cores are idle now "
-                      f"(load average {os.getloadavg()[0]:.1f}); on a busy machine more threads than idle cores "
-                      f"run much slower (toyworld train-vae: 27-46 s per step with 2 threads against 2.7-5 s with 1 "
-                      f"on a busy 2-core machine). Leave the flag out to use what is idle.",
-                      ThreadOversubscriptionWarning, stacklevel=2)
+        warnings.warn(
+            f"{what}: {requested} requested, but only {idle} of {available_cpus()} cores are idle now "
+            f"(load average {os.getloadavg()[0]:.1f}); on a busy machine more threads than idle cores "
+            f"run much slower (toyworld train-vae: 27-46 s per step with 2 threads against 2.7-5 s with 1 "
+            f"on a busy 2-core machine). Leave the flag out to use what is idle.",
+            ThreadOversubscriptionWarning,
+            stacklevel=2,
+        )
 
 
 def threads_option(parser, what: str = "torch CPU threads"):
@@ -149,8 +167,12 @@ def threads_option(parser, what: str = "torch CPU threads"):
     it with :func:`use_threads` before the sub-command runs. Returns the action."""
     from .arg_types import count
 
-    action = parser.add_argument("--threads", type=count(1), default=None,
-                                 help=f"{what} (default: ${ENV_THREADS}, else the cores idle now, at least 1; on a "
-                                      "busy machine more threads than idle cores run much slower)")
+    action = parser.add_argument(
+        "--threads",
+        type=count(1),
+        default=None,
+        help=f"{what} (default: ${ENV_THREADS}, else the cores idle now, at least 1; on a "
+        "busy machine more threads than idle cores run much slower)",
+    )
     action.oscar_threads = True
     return action

@@ -10,10 +10,22 @@ from __future__ import annotations
 from .._util.lazy import lazy_exports
 
 _EXPORTS = {
-    "PixelPoints": "points", "PointsFileError": "points", "load_points": "points", "save_points": "points",
-    "calibrate": "pnp", "CalibrationResult": "pnp", "Correspondences": "pnp", "build_correspondences": "pnp",
-    "check_geometry": "pnp", "skeleton_points": "pnp", "rotation_error_deg": "pnp", "position_error_mm": "pnp",
-    "calibration_score": "score", "ScoreConfig": "score", "CalibrationScore": "score", "perturb_camera": "score",
+    "PixelPoints": "points",
+    "PointsFileError": "points",
+    "load_points": "points",
+    "save_points": "points",
+    "calibrate": "pnp",
+    "CalibrationResult": "pnp",
+    "Correspondences": "pnp",
+    "build_correspondences": "pnp",
+    "check_geometry": "pnp",
+    "skeleton_points": "pnp",
+    "rotation_error_deg": "pnp",
+    "position_error_mm": "pnp",
+    "calibration_score": "score",
+    "ScoreConfig": "score",
+    "CalibrationScore": "score",
+    "perturb_camera": "score",
 }
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -26,9 +26,13 @@ See docs/calibration.md.
 def add_calibrate_parser(sub) -> None:
     """Register ``oscar calibrate`` (and ``oscar calibrate score``) on the top-level sub-parser collection."""
     fmt = argparse.RawDescriptionHelpFormatter
-    c = sub.add_parser("calibrate", help="estimate a fixed camera from skeleton points on video frames (PnP); "
-                                         "`calibrate score`: how well a camera lines the robot up with a video",
-                       epilog=EPILOG, formatter_class=fmt)
+    c = sub.add_parser(
+        "calibrate",
+        help="estimate a fixed camera from skeleton points on video frames (PnP); "
+        "`calibrate score`: how well a camera lines the robot up with a video",
+        epilog=EPILOG,
+        formatter_class=fmt,
+    )
     # required in practice; checked in cmd_calibrate so that `oscar calibrate score ...` parses without them
     c.add_argument("--embodiment", help="embodiment name (see `oscar embodiments`)")
     c.add_argument("--trajectory", help="trajectory .npz (docs/formats.md)")
@@ -38,9 +42,12 @@ def add_calibrate_parser(sub) -> None:
     how.add_argument("--intrinsics", metavar="FILE", help="known intrinsics: a camera .json (kept fixed)")
     how.add_argument("--estimate-intrinsics", action="store_true", help="estimate fx, fy, cx, cy too (no distortion)")
     c.add_argument("--out", help="camera .json to write (docs/formats.md)")
-    c.add_argument("--threshold", type=number(above=0.0), default=None,
-                   help="reprojection error (pixels) above which a point is an outlier "
-                        "(default 4; about 4x the clicking noise)")
+    c.add_argument(
+        "--threshold",
+        type=number(above=0.0),
+        default=None,
+        help="reprojection error (pixels) above which a point is an outlier (default 4; about 4x the clicking noise)",
+    )
     c.add_argument("--video", help="the RGB video the points were read on (for --overlay)")
     c.add_argument("--overlay", metavar="OUT_VIDEO", help="write the skeleton seen by the new camera over --video")
     c.add_argument("--seed", type=count(0), default=0, help="RANSAC seed (default 0)")
@@ -48,14 +55,22 @@ def add_calibrate_parser(sub) -> None:
     c.set_defaults(func=cmd_calibrate)
 
     cs = c.add_subparsers(dest="calibrate_command", metavar="score")
-    s = cs.add_parser("score", help="how well the robot rendered through a camera lines up with a video, in [0, 1]",
-                      epilog=SCORE_EPILOG, formatter_class=fmt)
+    s = cs.add_parser(
+        "score",
+        help="how well the robot rendered through a camera lines up with a video, in [0, 1]",
+        epilog=SCORE_EPILOG,
+        formatter_class=fmt,
+    )
     s.add_argument("--video", required=True, help="the RGB video (file or PNG folder), frame t = trajectory frame t")
     s.add_argument("--trajectory", required=True, help="trajectory .npz (docs/formats.md)")
     s.add_argument("--camera", required=True, help="camera .json to score (docs/formats.md)")
     s.add_argument("--embodiment", required=True, help="embodiment name (see `oscar embodiments`)")
-    s.add_argument("--threshold", type=number(0.0, 255.0), default=None,
-                   help="a pixel moves when one of its R, G, B values (0-255) changes by more (default 20)")
+    s.add_argument(
+        "--threshold",
+        type=number(0.0, 255.0),
+        default=None,
+        help="a pixel moves when one of its R, G, B values (0-255) changes by more (default 20)",
+    )
     s.add_argument("--gap", type=count(1), default=None, help="frames between the two frames of a pair (default 1)")
     s.add_argument("--width", type=count(8), default=None, help="working width in pixels (default 160)")
     s.add_argument("--json", action="store_true", help="print the score with every pair's value as JSON")
@@ -94,8 +109,11 @@ def cmd_calibrate(args) -> int:
     from .pnp import calibrate
     from .points import load_points
 
-    missing = [f"--{n.replace('_', '-')}" for n in ("embodiment", "trajectory", "points", "size", "out")
-               if not getattr(args, n)]
+    missing = [
+        f"--{n.replace('_', '-')}"
+        for n in ("embodiment", "trajectory", "points", "size", "out")
+        if not getattr(args, n)
+    ]
     if missing:
         raise OscarError(f"calibrate: expected {', '.join(missing)} (see oscar calibrate --help)")
     if not args.intrinsics and not args.estimate_intrinsics:
@@ -117,8 +135,9 @@ def cmd_calibrate(args) -> int:
     if args.overlay:
         from ..render.overlay import write_overlay
 
-        path, frames, _, _ = write_overlay(emb, traj, result.camera, args.video, args.overlay, size=size,
-                                           camera_source=str(args.out))
+        path, frames, _, _ = write_overlay(
+            emb, traj, result.camera, args.video, args.overlay, size=size, camera_source=str(args.out)
+        )
         report["overlay"] = str(path)
     if args.json:
         print(json.dumps(report, indent=2))
@@ -129,18 +148,23 @@ def cmd_calibrate(args) -> int:
 
 def _print_report(result, args) -> None:
     i = result.camera.intrinsics
-    print(f"wrote {args.out}: {int(result.inlier.sum())} of {len(result.residual_px)} points within "
-          f"{result.threshold_px:g} px, rms {result.rms_px:.2f} px; fx {i.fx:.1f} fy {i.fy:.1f} cx {i.cx:.1f} "
-          f"cy {i.cy:.1f}{' (estimated)' if result.estimated_intrinsics else ''}")
+    print(
+        f"wrote {args.out}: {int(result.inlier.sum())} of {len(result.residual_px)} points within "
+        f"{result.threshold_px:g} px, rms {result.rms_px:.2f} px; fx {i.fx:.1f} fy {i.fy:.1f} cx {i.cx:.1f} "
+        f"cy {i.cy:.1f}{' (estimated)' if result.estimated_intrinsics else ''}"
+    )
     print("per point:")
     for r in result.per_point:
-        print(f"  {r['point']:<24} {r['points']:4d} points  mean {r['mean_px']:6.2f} px  max {r['max_px']:6.2f} px"
-              f"  {r['outliers']} outliers")
+        print(
+            f"  {r['point']:<24} {r['points']:4d} points  mean {r['mean_px']:6.2f} px  max {r['max_px']:6.2f} px"
+            f"  {r['outliers']} outliers"
+        )
     worst = sorted(result.per_frame, key=lambda r: -r["mean_px"])[:5]
     print("worst frames: " + ", ".join(f"{r['frame']} ({r['mean_px']:.2f} px)" for r in worst))
     for r in result.outliers[:20]:
-        print(f"outlier: points[{r['index']}] frame {r['frame']} {r['point']}: {r['residual_px']:.1f} px",
-)
+        print(
+            f"outlier: points[{r['index']}] frame {r['frame']} {r['point']}: {r['residual_px']:.1f} px",
+        )
     if len(result.outliers) > 20:
         print(f"outlier: … and {len(result.outliers) - 20} more (--json lists them all)")
     if getattr(args, "overlay", None):
@@ -166,6 +190,8 @@ def cmd_score(args) -> int:
         print(f"score: none (the robot does not move between any pair of frames of {args.trajectory})")
         return 0
     values = [r["iou"] for r in result.per_pair if r["counted"]]
-    print(f"score {result.score:.3f} (median over {result.pairs} frame pairs where the robot moves; "
-          f"quartiles {float(np.percentile(values, 25)):.3f}-{float(np.percentile(values, 75)):.3f})")
+    print(
+        f"score {result.score:.3f} (median over {result.pairs} frame pairs where the robot moves; "
+        f"quartiles {float(np.percentile(values, 25)):.3f}-{float(np.percentile(values, 75)):.3f})"
+    )
     return 0

@@ -39,9 +39,21 @@ from .._util.log import get_logger
 from ..camera import Camera, Intrinsics, camera_to_dict, project
 from .points import PixelPoints, PointsFileError
 
-__all__ = ["MIN_CORRESPONDENCES", "DISTINCT_MM", "COLLINEAR_RATIO", "FOV_SWEEP_DEG", "MAX_ROUNDS", "Correspondences",
-           "CalibrationResult", "skeleton_points", "build_correspondences", "check_geometry", "calibrate",
-           "rotation_error_deg", "position_error_mm"]
+__all__ = [
+    "MIN_CORRESPONDENCES",
+    "DISTINCT_MM",
+    "COLLINEAR_RATIO",
+    "FOV_SWEEP_DEG",
+    "MAX_ROUNDS",
+    "Correspondences",
+    "CalibrationResult",
+    "skeleton_points",
+    "build_correspondences",
+    "check_geometry",
+    "calibrate",
+    "rotation_error_deg",
+    "position_error_mm",
+]
 
 _log = get_logger(__name__)
 
@@ -101,11 +113,19 @@ class CalibrationResult:
 
     def to_dict(self) -> dict:
         """A JSON-ready report (the camera in the camera file format)."""
-        return {"camera": camera_to_dict(self.camera), "correspondences": int(len(self.residual_px)),
-                "inliers": int(self.inlier.sum()), "threshold_px": self.threshold_px, "rms_px": self.rms_px,
-                "median_px": float(np.median(self.residual_px)), "estimated_intrinsics": self.estimated_intrinsics,
-                "rounds": self.rounds, "outliers": self.outliers, "per_frame": self.per_frame,
-                "per_point": self.per_point}
+        return {
+            "camera": camera_to_dict(self.camera),
+            "correspondences": int(len(self.residual_px)),
+            "inliers": int(self.inlier.sum()),
+            "threshold_px": self.threshold_px,
+            "rms_px": self.rms_px,
+            "median_px": float(np.median(self.residual_px)),
+            "estimated_intrinsics": self.estimated_intrinsics,
+            "rounds": self.rounds,
+            "outliers": self.outliers,
+            "per_frame": self.per_frame,
+            "per_point": self.per_point,
+        }
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -117,8 +137,9 @@ def skeleton_points(embodiment, traj) -> np.ndarray:
     return np.asarray(embodiment.frames(embodiment.check_trajectory(traj)).points, dtype=np.float64)
 
 
-def build_correspondences(embodiment, traj, pixels: PixelPoints, size: tuple[int, int],
-                          points: np.ndarray | None = None) -> Correspondences:
+def build_correspondences(
+    embodiment, traj, pixels: PixelPoints, size: tuple[int, int], points: np.ndarray | None = None
+) -> Correspondences:
     """Pair each observed pixel with its 3D point; :class:`PointsFileError` on an entry that does not fit.
 
     size: (width, height) of the image the pixels were read on. points: (T, K, 3) skeleton points when
@@ -135,22 +156,28 @@ def build_correspondences(embodiment, traj, pixels: PixelPoints, size: tuple[int
     if unknown:
         i, n = unknown[0]
         more = f" (and {len(unknown) - 1} more entries)" if len(unknown) > 1 else ""
-        raise PointsFileError(src, f"points[{i}].point", f"one of {embodiment.name}'s skeleton points {list(names)}",
-                              f"{n!r}{more}")
+        raise PointsFileError(
+            src, f"points[{i}].point", f"one of {embodiment.name}'s skeleton points {list(names)}", f"{n!r}{more}"
+        )
     T = len(traj)
     bad = np.flatnonzero(pixels.frame >= T)
     if bad.size:
         i = int(bad[0])
-        raise PointsFileError(src, f"points[{i}].frame", f"a frame index below {T} (the trajectory's length)",
-                              str(int(pixels.frame[i])))
+        raise PointsFileError(
+            src, f"points[{i}].frame", f"a frame index below {T} (the trajectory's length)", str(int(pixels.frame[i]))
+        )
     W, H = size
     for axis, key, extent in ((0, "u", W), (1, "v", H)):
         outside = np.flatnonzero((pixels.uv[:, axis] < -0.5) | (pixels.uv[:, axis] >= extent - 0.5))
         if outside.size:
             i = int(outside[0])
-            raise PointsFileError(src, f"points[{i}].{key}", f"a pixel inside the {W}x{H} image "
-                                  f"([-0.5, {extent - 0.5:g}))", f"{pixels.uv[i, axis]:g} (frame {int(pixels.frame[i])}, "
-                                  f"point {pixels.name[i]!r}; {outside.size} entries outside)")
+            raise PointsFileError(
+                src,
+                f"points[{i}].{key}",
+                f"a pixel inside the {W}x{H} image ([-0.5, {extent - 0.5:g}))",
+                f"{pixels.uv[i, axis]:g} (frame {int(pixels.frame[i])}, "
+                f"point {pixels.name[i]!r}; {outside.size} entries outside)",
+            )
     P = skeleton_points(embodiment, traj) if points is None else np.asarray(points, dtype=np.float64)
     idx = np.array([at[n] for n in pixels.name], dtype=np.int64)
     xyz = P[pixels.frame, idx] if len(idx) else np.zeros((0, 3))
@@ -189,21 +216,33 @@ def check_geometry(corr: Correspondences, estimate_intrinsics: bool = False) -> 
         frames = np.unique(corr.frame)
         if travel < DISTINCT_MM * 1e-3 and len(frames) > 1:
             raise PointsFileError(
-                src, "points", f"points on frames where the robot has moved, or at least {need} points on one frame",
+                src,
+                "points",
+                f"points on frames where the robot has moved, or at least {need} points on one frame",
                 f"a robot that did not move (its observed points travel {travel * 1e3:.2g} mm over the {len(frames)} "
-                f"frames seen) and at most {per_frame} points on one frame")
+                f"frames seen) and at most {per_frame} points on one frame",
+            )
     if n < need:
-        raise PointsFileError(src, "points", f"at least {need} correspondences with distinct 3D points",
-                              f"{n} ({len(corr)} entries)")
+        raise PointsFileError(
+            src, "points", f"at least {need} correspondences with distinct 3D points", f"{n} ({len(corr)} entries)"
+        )
     s = np.linalg.svd(distinct - distinct.mean(0), compute_uv=False)
     if s[1] < COLLINEAR_RATIO * s[0]:
-        raise PointsFileError(src, "points", "3D points that span more than a line",
-                              f"{n} nearly collinear points (singular values {s[0]:.3g}, {s[1]:.2g}, {s[2]:.2g} m; "
-                              f"ratio {s[1] / s[0]:.2g} < {COLLINEAR_RATIO:g})")
+        raise PointsFileError(
+            src,
+            "points",
+            "3D points that span more than a line",
+            f"{n} nearly collinear points (singular values {s[0]:.3g}, {s[1]:.2g}, {s[2]:.2g} m; "
+            f"ratio {s[1] / s[0]:.2g} < {COLLINEAR_RATIO:g})",
+        )
     if estimate_intrinsics and s[2] < COLLINEAR_RATIO * s[0]:
-        raise PointsFileError(src, "points", "3D points off one plane to estimate intrinsics (or give the intrinsics)",
-                              f"{n} nearly coplanar points (singular values {s[0]:.3g}, {s[1]:.3g}, {s[2]:.2g} m; "
-                              f"ratio {s[2] / s[0]:.2g} < {COLLINEAR_RATIO:g})")
+        raise PointsFileError(
+            src,
+            "points",
+            "3D points off one plane to estimate intrinsics (or give the intrinsics)",
+            f"{n} nearly coplanar points (singular values {s[0]:.3g}, {s[1]:.3g}, {s[2]:.2g} m; "
+            f"ratio {s[2] / s[0]:.2g} < {COLLINEAR_RATIO:g})",
+        )
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -231,8 +270,7 @@ def _fit(params, xyz, uv, intr, dist, fit_intr: bool, loss: str = "linear", f_sc
         return _project_cv(p, xyz, intr, dist, fit_intr)[1]
 
     method = "lm" if loss == "linear" and len(uv) * 2 >= len(params) else "trf"
-    res = least_squares(fun, params, jac=jac, method=method, loss=loss, f_scale=f_scale, x_scale="jac",
-                        max_nfev=200)
+    res = least_squares(fun, params, jac=jac, method=method, loss=loss, f_scale=f_scale, x_scale="jac", max_nfev=200)
     return res.x, float(res.cost)
 
 
@@ -241,9 +279,15 @@ def _ransac(xyz, uv, K, dist, threshold_px: float, seed: int):
     import cv2
 
     cv2.setRNGSeed(int(seed))
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(xyz.reshape(-1, 1, 3), uv.reshape(-1, 1, 2), K, dist,
-                                             iterationsCount=2000, reprojectionError=float(threshold_px),
-                                             confidence=0.999)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        xyz.reshape(-1, 1, 3),
+        uv.reshape(-1, 1, 2),
+        K,
+        dist,
+        iterationsCount=2000,
+        reprojectionError=float(threshold_px),
+        confidence=0.999,
+    )
     if not ok or inl is None or len(inl) < MIN_CORRESPONDENCES:
         return None
     mask = np.zeros(len(uv), bool)
@@ -258,8 +302,12 @@ def _initial(corr: Correspondences, size, intr: Intrinsics | None, threshold_px:
     if intr is not None:
         got = _ransac(corr.xyz, corr.uv, intr.matrix(), dist, threshold_px, seed)
         if got is None:
-            raise PointsFileError(corr.source, "points", f"a pose that puts at least {MIN_CORRESPONDENCES} points "
-                                  f"within {threshold_px:g} px (RANSAC PnP)", "none")
+            raise PointsFileError(
+                corr.source,
+                "points",
+                f"a pose that puts at least {MIN_CORRESPONDENCES} points within {threshold_px:g} px (RANSAC PnP)",
+                "none",
+            )
         rvec, tvec, mask = got
         return np.concatenate([rvec, tvec]), mask
     best = None
@@ -276,8 +324,13 @@ def _initial(corr: Correspondences, size, intr: Intrinsics | None, threshold_px:
         if p[6] > 0 and p[7] > 0 and (best is None or cost < best[1]):
             best = (p, cost)
     if best is None:
-        raise PointsFileError(corr.source, "points", "a camera that explains the points (RANSAC PnP over fields "
-                              f"of view {FOV_SWEEP_DEG[0]:g}-{FOV_SWEEP_DEG[-1]:g} degrees)", "none")
+        raise PointsFileError(
+            corr.source,
+            "points",
+            "a camera that explains the points (RANSAC PnP over fields "
+            f"of view {FOV_SWEEP_DEG[0]:g}-{FOV_SWEEP_DEG[-1]:g} degrees)",
+            "none",
+        )
     p = best[0]
     resid = np.linalg.norm(_project_cv(p, corr.xyz, None, dist, True)[0] - corr.uv, axis=1)
     return p, resid <= threshold_px
@@ -300,16 +353,31 @@ def _camera(params: np.ndarray, intr: Intrinsics | None, size, fit_intr: bool, e
 def _rows(key: str, labels, residual: np.ndarray, inlier: np.ndarray, order=None) -> list[dict]:
     """One row per distinct label (in ``order``, else sorted): {key: label, points, outliers, mean_px, max_px}."""
     out = []
-    for label in (sorted(set(labels)) if order is None else [x for x in order if x in set(labels)]):
+    for label in sorted(set(labels)) if order is None else [x for x in order if x in set(labels)]:
         sel = np.array([lb == label for lb in labels])
         r = residual[sel]
-        out.append({key: label, "points": int(sel.sum()), "outliers": int((~inlier[sel]).sum()),
-                    "mean_px": float(r.mean()), "max_px": float(r.max())})
+        out.append(
+            {
+                key: label,
+                "points": int(sel.sum()),
+                "outliers": int((~inlier[sel]).sum()),
+                "mean_px": float(r.mean()),
+                "max_px": float(r.max()),
+            }
+        )
     return out
 
 
-def calibrate(embodiment, traj, pixels: PixelPoints, size: tuple[int, int], intrinsics: Intrinsics | None = None, *,
-              threshold_px: float = 4.0, seed: int = 0) -> CalibrationResult:
+def calibrate(
+    embodiment,
+    traj,
+    pixels: PixelPoints,
+    size: tuple[int, int],
+    intrinsics: Intrinsics | None = None,
+    *,
+    threshold_px: float = 4.0,
+    seed: int = 0,
+) -> CalibrationResult:
     """A static camera seeing ``embodiment`` move along ``traj`` from the observed ``pixels``.
 
     size: (width, height) of the image, pixels. intrinsics: the camera's, kept fixed (resized to ``size``
@@ -332,8 +400,12 @@ def calibrate(embodiment, traj, pixels: PixelPoints, size: tuple[int, int], intr
     rounds = 0
     for rounds in range(1, MAX_ROUNDS + 1):  # noqa: B007 (the count of rounds run is reported)
         if inlier.sum() < MIN_CORRESPONDENCES:
-            raise PointsFileError(corr.source, "points", f"at least {MIN_CORRESPONDENCES} points within "
-                                  f"{threshold_px:g} px of the fitted camera", f"{int(inlier.sum())} of {len(corr)}")
+            raise PointsFileError(
+                corr.source,
+                "points",
+                f"at least {MIN_CORRESPONDENCES} points within {threshold_px:g} px of the fitted camera",
+                f"{int(inlier.sum())} of {len(corr)}",
+            )
         params, _ = _fit(params, corr.xyz[inlier], corr.uv[inlier], fixed, dist, fit_intr)
         uv = _project_cv(params, corr.xyz, fixed, dist, fit_intr)[0]
         new = np.linalg.norm(uv - corr.uv, axis=1) <= threshold_px
@@ -347,14 +419,30 @@ def calibrate(embodiment, traj, pixels: PixelPoints, size: tuple[int, int], intr
     inlier = residual <= threshold_px
     rms = float(np.sqrt(np.mean(residual[inlier] ** 2))) if inlier.any() else float("nan")
     names = [corr.names[k] for k in corr.point]
-    outliers = [{"index": int(i), "frame": int(corr.frame[i]), "point": names[i], "residual_px": float(residual[i])}
-                for i in np.flatnonzero(~inlier)]
+    outliers = [
+        {"index": int(i), "frame": int(corr.frame[i]), "point": names[i], "residual_px": float(residual[i])}
+        for i in np.flatnonzero(~inlier)
+    ]
     outliers.sort(key=lambda r: -r["residual_px"])
-    result = CalibrationResult(camera, residual, inlier, float(threshold_px), rms,
-                               _rows("frame", corr.frame.tolist(), residual, inlier),
-                               _rows("point", names, residual, inlier, corr.names), outliers, fit_intr, rounds)
-    _log.info("calibrated from %d correspondences: %d inliers, rms %.3g px, %d outliers", len(corr),
-              int(inlier.sum()), rms, len(outliers))
+    result = CalibrationResult(
+        camera,
+        residual,
+        inlier,
+        float(threshold_px),
+        rms,
+        _rows("frame", corr.frame.tolist(), residual, inlier),
+        _rows("point", names, residual, inlier, corr.names),
+        outliers,
+        fit_intr,
+        rounds,
+    )
+    _log.info(
+        "calibrated from %d correspondences: %d inliers, rms %.3g px, %d outliers",
+        len(corr),
+        int(inlier.sum()),
+        rms,
+        len(outliers),
+    )
     return result
 
 
@@ -370,6 +458,7 @@ def rotation_error_deg(a: Camera, b: Camera) -> float:
 
 def position_error_mm(a: Camera, b: Camera) -> float:
     """Distance (millimetres) between the optical centres of two static cameras."""
+
     def centre(cam):
         M = cam.world_to_cv()
         return -M[:3, :3].T @ M[:3, 3]

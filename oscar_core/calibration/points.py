@@ -64,8 +64,10 @@ class PixelPoints:
 
     def to_dict(self) -> dict:
         """The JSON document (:func:`load_points` reads it back)."""
-        entries = [{"frame": int(f), "point": n, "u": float(u), "v": float(v)}
-                   for f, n, (u, v) in zip(self.frame, self.name, self.uv)]
+        entries = [
+            {"frame": int(f), "point": n, "u": float(u), "v": float(v)}
+            for f, n, (u, v) in zip(self.frame, self.name, self.uv)
+        ]
         out: dict = {"points": entries}
         if self.embodiment is not None:
             out = {"embodiment": self.embodiment, **out}
@@ -100,8 +102,12 @@ def parse_points(doc, source: str = "<points>") -> PixelPoints:
         missing = [k for k in _ENTRY_KEYS if k not in e]
         extra = sorted(set(e) - set(_ENTRY_KEYS))
         if missing or extra:
-            raise PointsFileError(source, where, f"exactly the keys {list(_ENTRY_KEYS)}",
-                                  f"missing {missing}" if missing else f"unknown keys {extra}")
+            raise PointsFileError(
+                source,
+                where,
+                f"exactly the keys {list(_ENTRY_KEYS)}",
+                f"missing {missing}" if missing else f"unknown keys {extra}",
+            )
         f = e["frame"]
         if isinstance(f, bool) or not isinstance(f, int) or f < 0:
             raise PointsFileError(source, f"{where}.frame", "a frame index, an integer >= 0", _short(f))
@@ -113,14 +119,19 @@ def parse_points(doc, source: str = "<points>") -> PixelPoints:
                 raise PointsFileError(source, f"{where}.{k}", "a finite number of pixels", _short(x))
         key = (f, e["point"])
         if key in seen:
-            raise PointsFileError(source, where, "one entry per (frame, point)",
-                                  f"a second entry for frame {f}, point {e['point']!r} (first: points[{seen[key]}])")
+            raise PointsFileError(
+                source,
+                where,
+                "one entry per (frame, point)",
+                f"a second entry for frame {f}, point {e['point']!r} (first: points[{seen[key]}])",
+            )
         seen[key] = i
         frames.append(f)
         names.append(e["point"])
         uv.append((float(e["u"]), float(e["v"])))
-    return PixelPoints(np.asarray(frames, dtype=np.int64), tuple(names), np.asarray(uv, dtype=np.float64).reshape(-1, 2),
-                       emb, source)
+    return PixelPoints(
+        np.asarray(frames, dtype=np.int64), tuple(names), np.asarray(uv, dtype=np.float64).reshape(-1, 2), emb, source
+    )
 
 
 def load_points(path: str | os.PathLike) -> PixelPoints:

@@ -46,7 +46,15 @@ from .._util.log import get_logger
 from ..camera import Camera
 from ..errors import OscarError
 
-__all__ = ["ScoreConfig", "CalibrationScore", "calibration_score", "motion_iou", "moving", "body_video", "perturb_camera"]
+__all__ = [
+    "ScoreConfig",
+    "CalibrationScore",
+    "calibration_score",
+    "motion_iou",
+    "moving",
+    "body_video",
+    "perturb_camera",
+]
 
 _log = get_logger(__name__)
 
@@ -55,17 +63,22 @@ _log = get_logger(__name__)
 class ScoreConfig:
     """Settings of :func:`calibration_score` (the module docstring defines each)."""
 
-    threshold: float = 20.0          # a pixel moves when one of its R, G, B values (0-255) changes by more
-    gap: int = 1                     # frames between the two frames of a pair
-    width: int = 160                 # working width, pixels (frames and renders are scaled to it)
-    min_travel_m: float = 0.005      # metres some skeleton point must travel between a pair's frames for it to count
-    max_pairs: int = 64              # at most this many pairs, at uniform times
-    skeleton_dilate_px: int = 3      # keypoint embodiments: thickening of the skeleton's motion mask, working pixels
+    threshold: float = 20.0  # a pixel moves when one of its R, G, B values (0-255) changes by more
+    gap: int = 1  # frames between the two frames of a pair
+    width: int = 160  # working width, pixels (frames and renders are scaled to it)
+    min_travel_m: float = 0.005  # metres some skeleton point must travel between a pair's frames for it to count
+    max_pairs: int = 64  # at most this many pairs, at uniform times
+    skeleton_dilate_px: int = 3  # keypoint embodiments: thickening of the skeleton's motion mask, working pixels
 
     def __post_init__(self):
-        checks = {"threshold": self.threshold >= 0, "gap": self.gap >= 1, "width": self.width >= 8,
-                  "min_travel_m": self.min_travel_m >= 0, "max_pairs": self.max_pairs >= 1,
-                  "skeleton_dilate_px": self.skeleton_dilate_px >= 0}
+        checks = {
+            "threshold": self.threshold >= 0,
+            "gap": self.gap >= 1,
+            "width": self.width >= 8,
+            "min_travel_m": self.min_travel_m >= 0,
+            "max_pairs": self.max_pairs >= 1,
+            "skeleton_dilate_px": self.skeleton_dilate_px >= 0,
+        }
         for name, ok in checks.items():
             value = getattr(self, name)
             if not ok or not np.isfinite(value):
@@ -85,8 +98,12 @@ class CalibrationScore:
     def to_dict(self) -> dict:
         from dataclasses import asdict
 
-        return {"score": None if not np.isfinite(self.score) else self.score, "pairs": self.pairs,
-                "config": asdict(self.config), "per_pair": self.per_pair}
+        return {
+            "score": None if not np.isfinite(self.score) else self.score,
+            "pairs": self.pairs,
+            "config": asdict(self.config),
+            "per_pair": self.per_pair,
+        }
 
 
 def motion_iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -145,8 +162,9 @@ class _Frames:
         return self._read(np.asarray(idx, dtype=np.int64))
 
 
-def calibration_score(video, embodiment, traj, camera: Camera, config: ScoreConfig = ScoreConfig(), *,
-                      camera_source: str = "<camera>") -> CalibrationScore:
+def calibration_score(
+    video, embodiment, traj, camera: Camera, config: ScoreConfig = ScoreConfig(), *, camera_source: str = "<camera>"
+) -> CalibrationScore:
     """Score ``camera`` as the calibration of ``video`` for ``traj`` of ``embodiment`` (module docstring).
 
     video: (T', H, W, 3) uint8 RGB frames, a video file or PNG folder, or an object with ``n_frames`` and
@@ -163,8 +181,9 @@ def calibration_score(video, embodiment, traj, camera: Camera, config: ScoreConf
     camera.check_frames(len(traj), camera_source)
     T, cfg = len(traj), config
     if frames.n_frames < T:
-        raise OscarError(f"{frames.source}: expected at least {T} frames (the trajectory's length), "
-                         f"found {frames.n_frames}")
+        raise OscarError(
+            f"{frames.source}: expected at least {T} frames (the trajectory's length), found {frames.n_frames}"
+        )
     if T <= cfg.gap:
         return CalibrationScore(float("nan"), [], 0, cfg)
     starts = np.unique(np.linspace(0, T - 1 - cfg.gap, min(cfg.max_pairs, T - cfg.gap)).round().astype(np.int64))
@@ -196,8 +215,16 @@ def calibration_score(video, embodiment, traj, camera: Camera, config: ScoreConf
         if kernel is not None:
             render_mask = cv2.dilate(render_mask.astype(np.uint8), kernel) > 0
         iou = motion_iou(video_mask, render_mask)
-        rows.append({"t0": t0, "t1": t0 + cfg.gap, "iou": iou, "video_px": int(video_mask.sum()),
-                     "render_px": int(render_mask.sum()), "counted": counted})
+        rows.append(
+            {
+                "t0": t0,
+                "t1": t0 + cfg.gap,
+                "iou": iou,
+                "video_px": int(video_mask.sum()),
+                "render_px": int(render_mask.sum()),
+                "counted": counted,
+            }
+        )
         if counted:
             values.append(iou)
     score = float(np.median(values)) if values else float("nan")

@@ -20,8 +20,14 @@ __all__ = ["SIZE", "random_trajectory", "problem", "observe"]
 SIZE = (640, 480)
 
 
-def random_trajectory(embodiment, rng: np.random.Generator, keys: int = 5, frames_per_key: int = 12,
-                      fps: float = 10.0, shrink: float = 0.15) -> Trajectory:
+def random_trajectory(
+    embodiment,
+    rng: np.random.Generator,
+    keys: int = 5,
+    frames_per_key: int = 12,
+    fps: float = 10.0,
+    shrink: float = 0.15,
+) -> Trajectory:
     """A smooth joint trajectory of ``(keys - 1) · frames_per_key + 1`` frames through ``keys`` random
     configurations drawn uniformly inside the joint limits shrunk by ``shrink`` of each range; grippers open."""
     lo, hi = joint_limits(embodiment, shrink)
@@ -30,8 +36,9 @@ def random_trajectory(embodiment, rng: np.random.Generator, keys: int = 5, frame
     return Trajectory(embodiment.joint_names, q, fps, gripper, embodiment.gripper_names or None, source="<synthetic>")
 
 
-def problem(embodiment, seed: int, sigma_px: float = 1.0, *, every: int = 4,
-            keep: float = 0.8) -> tuple[Trajectory, Camera, PixelPoints]:
+def problem(
+    embodiment, seed: int, sigma_px: float = 1.0, *, every: int = 4, keep: float = 0.8
+) -> tuple[Trajectory, Camera, PixelPoints]:
     """Synthetic problem ``seed`` of ``embodiment`` with clicking noise ``sigma_px``: (trajectory, true camera,
     observed points).
 
@@ -53,8 +60,17 @@ def problem(embodiment, seed: int, sigma_px: float = 1.0, *, every: int = 4,
     return traj, cam, points
 
 
-def observe(embodiment, traj: Trajectory, camera: Camera, rng: np.random.Generator, sigma_px: float = 0.0, *,
-            frames=None, keep: float = 1.0, margin_px: float = 1.0) -> PixelPoints:
+def observe(
+    embodiment,
+    traj: Trajectory,
+    camera: Camera,
+    rng: np.random.Generator,
+    sigma_px: float = 0.0,
+    *,
+    frames=None,
+    keep: float = 1.0,
+    margin_px: float = 1.0,
+) -> PixelPoints:
     """What a person (or a keypoint detector) would click: the skeleton points of ``frames`` (default:
     every frame) projected through ``camera``, plus Gaussian noise of ``sigma_px`` pixels per axis.
 
@@ -68,10 +84,14 @@ def observe(embodiment, traj: Trajectory, camera: Camera, rng: np.random.Generat
     pr = project(P[frames], camera)
     uv = pr.uv + rng.normal(0.0, sigma_px, size=pr.uv.shape) if sigma_px > 0 else pr.uv
     W, H = camera.intrinsics.width, camera.intrinsics.height
-    ok = (pr.in_front & (uv[..., 0] >= margin_px - 0.5) & (uv[..., 0] <= W - 0.5 - margin_px)
-          & (uv[..., 1] >= margin_px - 0.5) & (uv[..., 1] <= H - 0.5 - margin_px))
+    ok = (
+        pr.in_front
+        & (uv[..., 0] >= margin_px - 0.5)
+        & (uv[..., 0] <= W - 0.5 - margin_px)
+        & (uv[..., 1] >= margin_px - 0.5)
+        & (uv[..., 1] <= H - 0.5 - margin_px)
+    )
     if keep < 1.0:
         ok &= rng.random(ok.shape) < keep
     f_idx, k_idx = np.nonzero(ok)
-    return PixelPoints(frames[f_idx], tuple(names[k] for k in k_idx), uv[f_idx, k_idx], embodiment.name,
-                       "<synthetic>")
+    return PixelPoints(frames[f_idx], tuple(names[k] for k in k_idx), uv[f_idx, k_idx], embodiment.name, "<synthetic>")

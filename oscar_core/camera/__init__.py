@@ -6,14 +6,14 @@ pinhole (:class:`Camera`) ← file (the camera JSON file). Units and conventions
 
 from .file import camera_from_dict, camera_to_dict, load_camera, save_camera
 from .geometry import (
-                       CONVENTION_ALIASES,
-                       CONVENTIONS,
-                       DIRECTIONS,
-                       as_rigid_transform,
-                       as_rigid_transforms,
-                       canonical_convention,
-                       convention_to_opencv,
-                       look_at,
+    CONVENTION_ALIASES,
+    CONVENTIONS,
+    DIRECTIONS,
+    as_rigid_transform,
+    as_rigid_transforms,
+    canonical_convention,
+    convention_to_opencv,
+    look_at,
 )
 from .intrinsics import Intrinsics
 from .pinhole import Camera

@@ -42,8 +42,10 @@ def read_vector(src: str, fieldname: str, v: Any, n: int, what: str) -> list[flo
 
 
 def read_matrix(src: str, fieldname: str, v: Any, rows: int, cols: int) -> np.ndarray:
-    ok = isinstance(v, (list, tuple)) and len(v) == rows and all(
-        isinstance(r, (list, tuple)) and len(r) == cols for r in v
+    ok = (
+        isinstance(v, (list, tuple))
+        and len(v) == rows
+        and all(isinstance(r, (list, tuple)) and len(r) == cols for r in v)
     )
     if not ok:
         try:
@@ -51,7 +53,9 @@ def read_matrix(src: str, fieldname: str, v: Any, rows: int, cols: int) -> np.nd
         except Exception:  # noqa: BLE001 (numpy refuses ragged nesting in several ways; only a shape is wanted)
             found = short_repr(v)
         raise CameraFileError(src, fieldname, f"a {rows}x{cols} nested list of numbers", found)
-    return np.array([[read_number(src, f"{fieldname}[{r}][{c}]", x) for c, x in enumerate(row)] for r, row in enumerate(v)])
+    return np.array(
+        [[read_number(src, f"{fieldname}[{r}][{c}]", x) for c, x in enumerate(row)] for r, row in enumerate(v)]
+    )
 
 
 def _per_frame(form: str, value: Any) -> bool:
@@ -69,14 +73,18 @@ def read_extrinsic(v: Any, src: str) -> np.ndarray:
     """(4, 4), or (T, 4, 4) when the form holds one value per frame."""
     if not isinstance(v, Mapping) or len(v) != 1 or next(iter(v)) not in _EXTRINSIC_FORMS:
         found = f"keys {sorted(v)}" if isinstance(v, Mapping) else short_repr(v)
-        raise CameraFileError(src, "extrinsic", f"an object with exactly one of the keys {list(_EXTRINSIC_FORMS)}", found)
+        raise CameraFileError(
+            src, "extrinsic", f"an object with exactly one of the keys {list(_EXTRINSIC_FORMS)}", found
+        )
     form, value = next(iter(v.items()))
     if _per_frame(form, value):
         fast = _per_frame_fast(form, value)
         if fast is not None:
             return fast
         # slow path: one frame at a time, so that an error names the frame and the entry
-        return np.stack([_parse_one_extrinsic(form, item, f"extrinsic.{form}[{t}]", src) for t, item in enumerate(value)])
+        return np.stack(
+            [_parse_one_extrinsic(form, item, f"extrinsic.{form}[{t}]", src) for t, item in enumerate(value)]
+        )
     return _parse_one_extrinsic(form, value, f"extrinsic.{form}", src)
 
 
@@ -97,7 +105,11 @@ def _per_frame_fast(form: str, value: Any) -> np.ndarray | None:
             return None
         R = A[:, :3, :3]
         dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
-        ok = (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12) & (dev <= ORTHONORMAL_TOL) & (np.linalg.det(R) >= 0)
+        ok = (
+            (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12)
+            & (dev <= ORTHONORMAL_TOL)
+            & (np.linalg.det(R) >= 0)
+        )
         return A if ok.all() else None
     if A.ndim != 2 or A.shape[1] != width:
         return None
@@ -106,20 +118,28 @@ def _per_frame_fast(form: str, value: Any) -> np.ndarray | None:
     if form == "xyz_rpy":
         r, p, y = A[:, 3], A[:, 4], A[:, 5]
         cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-        M[:, :3, :3] = np.stack([
-            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
-            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
-            np.stack([-sp, cp * sr, cp * cr], -1)], axis=1)
+        M[:, :3, :3] = np.stack(
+            [
+                np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+                np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+                np.stack([-sp, cp * sr, cp * cr], -1),
+            ],
+            axis=1,
+        )
     else:
         q = A[:, 3:]
         n = np.linalg.norm(q, axis=1)
         if (np.abs(n - 1.0) > 1e-3).any():
             return None
         x, y, z, w = (q / n[:, None]).T
-        M[:, :3, :3] = np.stack([
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], axis=1)
+        M[:, :3, :3] = np.stack(
+            [
+                np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+                np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+                np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+            ],
+            axis=1,
+        )
     return M
 
 

@@ -81,6 +81,7 @@ __all__ = ["camera_from_dict", "camera_to_dict", "load_camera", "save_camera"]
 #: the keys of a camera file (any other is an error)
 TOP_KEYS = ("image_size", "intrinsics", "distortion", "extrinsic", "convention", "direction", "mount", "embodiment")
 
+
 def _parse_intrinsics(d: Mapping, src: str) -> Intrinsics:
     size = d["image_size"]
     if not isinstance(size, (list, tuple)) or len(size) != 2 or not all(is_int(s) and s > 0 for s in size):
@@ -92,7 +93,9 @@ def _parse_intrinsics(d: Mapping, src: str) -> Intrinsics:
         raise CameraFileError(src, "intrinsics", 'an object {"fx","fy","cx","cy"} or {"K"}', short_repr(intr))
     if "K" in intr:
         if set(intr) != {"K"}:
-            raise CameraFileError(src, "intrinsics", 'either only "K" or only "fx","fy","cx","cy"', f"keys {sorted(intr)}")
+            raise CameraFileError(
+                src, "intrinsics", 'either only "K" or only "fx","fy","cx","cy"', f"keys {sorted(intr)}"
+            )
         K = read_matrix(src, "intrinsics.K", intr["K"], 3, 3)
         if K[0, 1] != 0 or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1], rtol=0, atol=1e-12):
             raise CameraFileError(src, "intrinsics.K", "[[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)", K.tolist())

@@ -16,8 +16,16 @@ import numpy as np
 from oscar_core.errors import CameraFileError
 
 __all__ = [
-    "CONVENTIONS", "CONVENTION_ALIASES", "DIRECTIONS", "canonical_convention", "convention_to_opencv",
-    "as_rigid_transform", "as_rigid_transforms", "look_at", "rotation_from_rpy", "rotation_from_quat_xyzw"
+    "CONVENTIONS",
+    "CONVENTION_ALIASES",
+    "DIRECTIONS",
+    "canonical_convention",
+    "convention_to_opencv",
+    "as_rigid_transform",
+    "as_rigid_transforms",
+    "look_at",
+    "rotation_from_rpy",
+    "rotation_from_quat_xyzw",
 ]
 
 # --------------------------------------------------------------------------- conventions
@@ -61,9 +69,7 @@ def canonical_convention(name: str) -> str:
             return name
         if name in CONVENTION_ALIASES:
             return CONVENTION_ALIASES[name]
-    raise ValueError(
-        f"unknown camera convention {name!r}; valid names: {', '.join(CONVENTION_NAMES)}"
-    )
+    raise ValueError(f"unknown camera convention {name!r}; valid names: {', '.join(CONVENTION_NAMES)}")
 
 
 def convention_to_opencv(name: str) -> np.ndarray:
@@ -132,8 +138,9 @@ def rigid_problem(M: np.ndarray, tol: float = ORTHONORMAL_TOL) -> tuple[str, str
     return None
 
 
-def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsic",
-                        tol: float = ORTHONORMAL_TOL) -> np.ndarray:
+def as_rigid_transforms(
+    M: Any, source: str = "<matrix>", field: str = "extrinsic", tol: float = ORTHONORMAL_TOL
+) -> np.ndarray:
     """Like :func:`as_rigid_transform` for one (4, 4) or a stack (T, 4, 4), T >= 1,
     checking each; an error names the first bad frame as ``field[t]``."""
     try:
@@ -145,8 +152,12 @@ def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsi
         R = A[:, :3, :3]
         with np.errstate(all="ignore"):
             dev = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(1, 2))
-            bad = (~np.isfinite(A).all(axis=(1, 2)) | (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-12)
-                   | ~(dev <= tol) | (np.linalg.det(np.where(np.isfinite(R), R, 0.0)) < 0))
+            bad = (
+                ~np.isfinite(A).all(axis=(1, 2))
+                | (np.abs(A[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-12)
+                | ~(dev <= tol)
+                | (np.linalg.det(np.where(np.isfinite(R), R, 0.0)) < 0)
+            )
         if bad.any():  # the first bad frame, reported by the one-matrix check
             t = int(np.argmax(bad))
             as_rigid_transform(A[t], source, f"{field}[{t}]", tol)
@@ -156,13 +167,15 @@ def as_rigid_transforms(M: Any, source: str = "<matrix>", field: str = "extrinsi
             A[fix, :3, :3] = U @ Vt
         return A
     if A.ndim == 3:
-        raise CameraFileError(source, field, "one 4x4 rigid transform or one per frame, shape (T >= 1, 4, 4)",
-                              f"shape {A.shape}")
+        raise CameraFileError(
+            source, field, "one 4x4 rigid transform or one per frame, shape (T >= 1, 4, 4)", f"shape {A.shape}"
+        )
     return as_rigid_transform(A, source, field, tol)
 
 
-def as_rigid_transform(M: Any, source: str = "<matrix>", field: str = "extrinsic",
-                       tol: float = ORTHONORMAL_TOL) -> np.ndarray:
+def as_rigid_transform(
+    M: Any, source: str = "<matrix>", field: str = "extrinsic", tol: float = ORTHONORMAL_TOL
+) -> np.ndarray:
     """A checked (4, 4) rigid transform: finite, last row [0, 0, 0, 1], rotation
     within ``tol`` of orthonormal (then replaced by the nearest rotation) and
     proper. Raises :class:`CameraFileError` naming ``source`` and ``field``.

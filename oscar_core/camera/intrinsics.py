@@ -16,6 +16,7 @@ from .geometry import DISTORTION_LENGTHS, is_int, is_number
 
 __all__ = ["Intrinsics"]
 
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole intrinsics with OpenCV distortion.
@@ -60,7 +61,8 @@ class Intrinsics:
             raise CameraFileError(src, "distortion", "a sequence of numbers", repr(d)) from None
         if len(d) == 14:
             raise CameraFileError(
-                src, "distortion",
+                src,
+                "distortion",
                 "0, 4, 5, 8 or 12 coefficients (the 14-coefficient tilted model is not supported)",
                 "14 coefficients",
             )

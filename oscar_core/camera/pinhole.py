@@ -42,6 +42,7 @@ from .intrinsics import Intrinsics
 
 __all__ = ["Camera"]
 
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated camera.
@@ -119,8 +120,12 @@ class Camera:
         """Raise :class:`CameraFileError` unless a per-frame camera has exactly ``num_frames`` extrinsics."""
         n = self.num_frames
         if n is not None and n != int(num_frames):
-            raise CameraFileError(source, "extrinsic", f"{int(num_frames)} per-frame extrinsics, one per trajectory frame",
-                                  f"{n} extrinsics")
+            raise CameraFileError(
+                source,
+                "extrinsic",
+                f"{int(num_frames)} per-frame extrinsics, one per trajectory frame",
+                f"{n} extrinsics",
+            )
 
     def time_slice(self, start: int | None = None, stop: int | None = None) -> Camera:
         """The camera for frames ``start:stop`` (as ``Trajectory.time_slice``); itself when it has one extrinsic."""
@@ -155,8 +160,10 @@ class Camera:
             raise ValueError(f"world_to_cv: mount_pose must have shape (4, 4) or (T, 4, 4), found {P.shape}")
         n = self.num_frames
         if n is not None and P.ndim == 3 and P.shape[0] != n:
-            raise ValueError(f"world_to_cv: this camera has {n} per-frame extrinsics but mount_pose has "
-                             f"{P.shape[0]} frames, shape {P.shape}")
+            raise ValueError(
+                f"world_to_cv: this camera has {n} per-frame extrinsics but mount_pose has "
+                f"{P.shape[0]} frames, shape {P.shape}"
+            )
         return self._cv_from_ref @ rigid_inverse(P)
 
     def resized(self, width: int, height: int, mode: str = "crop") -> Camera:

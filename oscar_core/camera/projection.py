@@ -26,6 +26,7 @@ class Projector(Protocol):
 
     def world_to_cv(self, mount_pose: Any = None) -> np.ndarray: ...
 
+
 # --------------------------------------------------------------------------- projection
 
 
@@ -109,8 +110,11 @@ def project(points: Any, camera: Projector, mount_pose: Any = None, near: float 
     M = camera.world_to_cv(mount_pose)
     R, t = M[..., :3, :3], M[..., :3, 3]
     if M.ndim == 3 and (P.ndim < 2 or P.shape[0] != M.shape[0]):
-        why = (f"{camera.num_frames} per-frame extrinsics" if camera.num_frames is not None
-               else f"mount_pose of shape {M.shape}")
+        why = (
+            f"{camera.num_frames} per-frame extrinsics"
+            if camera.num_frames is not None
+            else f"mount_pose of shape {M.shape}"
+        )
         raise ValueError(f"project: with {why}, points must have shape ({M.shape[0]}, ..., 3), found {P.shape}")
     with np.errstate(all="ignore"):  # NaN points pass through silently
         if M.ndim == 2:

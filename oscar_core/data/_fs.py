@@ -16,8 +16,18 @@ import os
 import posixpath
 import uuid
 
-__all__ = ["url_to_fs", "join", "write_bytes_atomic", "read_bytes", "exists", "listdir", "local_path", "is_local",
-           "process_local", "put_tree"]
+__all__ = [
+    "url_to_fs",
+    "join",
+    "write_bytes_atomic",
+    "read_bytes",
+    "exists",
+    "listdir",
+    "local_path",
+    "is_local",
+    "process_local",
+    "put_tree",
+]
 
 
 def url_to_fs(url: str):
@@ -37,14 +47,18 @@ def url_to_fs(url: str):
         proto = url.split("://", 1)[0]
         impl = known_implementations.get(proto, {}).get("class", "")
         package = impl.split(".", 1)[0] or "the filesystem's package"
-        raise ImportError(f"{url}: the {proto}:// filesystem needs the Python package {package!r} "
-                          f"(pip install {package}); fsspec says: {exc}") from None
+        raise ImportError(
+            f"{url}: the {proto}:// filesystem needs the Python package {package!r} "
+            f"(pip install {package}); fsspec says: {exc}"
+        ) from None
     except ValueError as exc:
         if "Protocol not known" not in str(exc):
             raise
         proto = url.split("://", 1)[0]
-        raise ValueError(f"{url}: expected a local path or an fsspec URL, found the unknown protocol {proto!r} "
-                         f"(known: file, memory, s3, gcs, az, hdfs, … see fsspec.available_protocols())") from None
+        raise ValueError(
+            f"{url}: expected a local path or an fsspec URL, found the unknown protocol {proto!r} "
+            f"(known: file, memory, s3, gcs, az, hdfs, … see fsspec.available_protocols())"
+        ) from None
 
 
 def process_local(url: str) -> bool:
@@ -142,6 +156,8 @@ def local_path(url: str) -> str:
     fs, path = url_to_fs(url)
     protocols = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
     if "file" not in protocols and "local" not in protocols:
-        raise ValueError(f"{url}: expected a local folder or a file:// URL here (this output is written with local "
-                         f"file APIs), found protocol {protocols[0]!r}")
+        raise ValueError(
+            f"{url}: expected a local folder or a file:// URL here (this output is written with local "
+            f"file APIs), found protocol {protocols[0]!r}"
+        )
     return path

@@ -47,8 +47,16 @@ from .manifest import is_alive
 
 CACHE_FORMAT = 2  # 2: the key also holds jpeg_quality and max_tokens (1 had neither: such entries are not reused)
 
-__all__ = ["SYSTEM_PROMPT", "CaptionConfig", "CaptionStage", "frame_indices", "cache_key", "plan_budget",
-           "EndpointUnreachable", "check_endpoint"]
+__all__ = [
+    "SYSTEM_PROMPT",
+    "CaptionConfig",
+    "CaptionStage",
+    "frame_indices",
+    "cache_key",
+    "plan_budget",
+    "EndpointUnreachable",
+    "check_endpoint",
+]
 
 USER_TEXT = "Describe this video."
 
@@ -61,29 +69,44 @@ class EmptyAnswer(RuntimeError):
 class CaptionConfig:
     """Endpoint and sampling settings of ``oscar data caption``."""
 
-    base_url: str                          # e.g. http://localhost:8000/v1 (vLLM's OpenAI-compatible server)
-    model: str                             # e.g. Qwen/Qwen3-VL-30B-A3B-Instruct (the paper's)
-    api_key_env: str = "OPENAI_API_KEY"    # environment variable holding the key ("EMPTY" when unset, as vLLM accepts)
-    fps: float = 15.0                      # frames per second of episode sent (paper)
-    long_fps: float = 2.0                  # for long episodes (paper: 1-2 fps for DROID)
+    base_url: str  # e.g. http://localhost:8000/v1 (vLLM's OpenAI-compatible server)
+    model: str  # e.g. Qwen/Qwen3-VL-30B-A3B-Instruct (the paper's)
+    api_key_env: str = "OPENAI_API_KEY"  # environment variable holding the key ("EMPTY" when unset, as vLLM accepts)
+    fps: float = 15.0  # frames per second of episode sent (paper)
+    long_fps: float = 2.0  # for long episodes (paper: 1-2 fps for DROID)
     long_sources: tuple[str, ...] = ("droid",)  # sources always sampled at long_fps
-    long_seconds: float = 60.0             # episodes longer than this use long_fps too
-    max_frames: int = 256                  # upper bound on frames per request (uniformly thinned)
-    frame_width: int = 448                 # pixels; frames are resized to this width (aspect kept)
+    long_seconds: float = 60.0  # episodes longer than this use long_fps too
+    max_frames: int = 256  # upper bound on frames per request (uniformly thinned)
+    frame_width: int = 448  # pixels; frames are resized to this width (aspect kept)
     jpeg_quality: int = 90
-    max_tokens: int = 300                  # the prompt asks for 80-100 words
-    max_retries: int = 4                   # SDK retries per request
-    timeout: float = 180.0                 # seconds per request
-    budget: int | None = None              # episodes sent per run (None: no limit)
+    max_tokens: int = 300  # the prompt asks for 80-100 words
+    max_retries: int = 4  # SDK retries per request
+    timeout: float = 180.0  # seconds per request
+    budget: int | None = None  # episodes sent per run (None: no limit)
 
     def key_fields(self) -> dict:
         """What a caption depends on (the cache key's fields besides episode, frames and prompt; the stage's
         fingerprint settings): model, frame sampling, frame size and JPEG quality, the answer's token limit, and
         the cache format. Not the endpoint URL, retries, timeout or budget (they change how, not what, is asked)."""
-        return {"cache_format": CACHE_FORMAT,
-                **{k: v for k, v in asdict(self).items() if k in ("model", "fps", "long_fps", "long_sources",
-                                                                   "long_seconds", "max_frames", "frame_width",
-                                                                   "jpeg_quality", "max_tokens")}}
+        return {
+            "cache_format": CACHE_FORMAT,
+            **{
+                k: v
+                for k, v in asdict(self).items()
+                if k
+                in (
+                    "model",
+                    "fps",
+                    "long_fps",
+                    "long_sources",
+                    "long_seconds",
+                    "max_frames",
+                    "frame_width",
+                    "jpeg_quality",
+                    "max_tokens",
+                )
+            },
+        }
 
 
 class EndpointUnreachable(OscarError, ConnectionError):
@@ -116,9 +139,11 @@ def check_endpoint(base_url: str, seconds: float = 10.0) -> None:
     t.join(seconds)
     if t.is_alive() or "error" in got:
         cause = f"no answer within {seconds:g} s" if t.is_alive() else got["error"][:200]
-        raise EndpointUnreachable(f"--endpoint {base_url}: cannot reach the captioning endpoint ({cause}); start "
-                                  "the server or fix --endpoint, then run the same command again (nothing was "
-                                  "recorded; cached captions are kept)")
+        raise EndpointUnreachable(
+            f"--endpoint {base_url}: cannot reach the captioning endpoint ({cause}); start "
+            "the server or fix --endpoint, then run the same command again (nothing was "
+            "recorded; cached captions are kept)"
+        )
 
 
 def frame_indices(n_frames: int, fps: float, source: str, cfg: CaptionConfig) -> np.ndarray:
@@ -132,8 +157,15 @@ def frame_indices(n_frames: int, fps: float, source: str, cfg: CaptionConfig) ->
 
 
 def cache_key(row: dict, idx: np.ndarray, cfg: CaptionConfig) -> str:
-    blob = json.dumps({"id": row["id"], "frames": idx.tolist(), "prompt": hashlib.sha256(SYSTEM_PROMPT.encode()).hexdigest(),
-                       **cfg.key_fields()}, sort_keys=True)
+    blob = json.dumps(
+        {
+            "id": row["id"],
+            "frames": idx.tolist(),
+            "prompt": hashlib.sha256(SYSTEM_PROMPT.encode()).hexdigest(),
+            **cfg.key_fields(),
+        },
+        sort_keys=True,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -209,26 +241,37 @@ class CaptionStage:
                     o.update(caption_status="failed", caption_reason=f"failed: {reason_of(exc)}")
                 else:
                     o["caption"] = text
-                    _fs.write_bytes_atomic(url, json.dumps({"id": r["id"], "caption": text, "model": self.config.model,
-                                                            "frames": idx.tolist()}).encode())
+                    _fs.write_bytes_atomic(
+                        url,
+                        json.dumps(
+                            {"id": r["id"], "caption": text, "model": self.config.model, "frames": idx.tolist()}
+                        ).encode(),
+                    )
             out.append(o)
         return out
 
     def _client(self):
         openai = require("openai", "data")
-        return openai.OpenAI(base_url=self.config.base_url, api_key=os.environ.get(self.config.api_key_env) or "EMPTY",
-                             max_retries=self.config.max_retries, timeout=self.config.timeout)
+        return openai.OpenAI(
+            base_url=self.config.base_url,
+            api_key=os.environ.get(self.config.api_key_env) or "EMPTY",
+            max_retries=self.config.max_retries,
+            timeout=self.config.timeout,
+        )
 
     def _request(self, client, row: dict, idx: np.ndarray) -> str:
         ep, _ = load_row(row, self.plugin_paths)
         frames = ep.video.read(idx)
         cfg = self.config
         content = [{"type": "text", "text": USER_TEXT}]
-        content += [{"type": "image_url", "image_url": {"url": _jpeg_url(f, cfg.frame_width, cfg.jpeg_quality)}}
-                    for f in frames]
+        content += [
+            {"type": "image_url", "image_url": {"url": _jpeg_url(f, cfg.frame_width, cfg.jpeg_quality)}} for f in frames
+        ]
         resp = client.chat.completions.create(
-            model=cfg.model, max_tokens=cfg.max_tokens,
-            messages=[{"role": "system", "content": SYSTEM_PROMPT}, {"role": "user", "content": content}])
+            model=cfg.model,
+            max_tokens=cfg.max_tokens,
+            messages=[{"role": "system", "content": SYSTEM_PROMPT}, {"role": "user", "content": content}],
+        )
         text = (resp.choices[0].message.content or "").strip() if resp.choices else ""
         if not text:
             raise EmptyAnswer(f"{cfg.base_url}: expected a caption for {row['id']!r}, found an empty answer")

@@ -28,17 +28,32 @@ every stage: --engine local|ray, --workers N, --shard-size N; re-running a stage
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--engine", choices=("local", "ray"), default="local",
-                   help="local: a process pool (default); ray: Ray Data (pip install \"oscar-wm[ray]\")")
-    p.add_argument("--workers", type=count(1), default=None, help="worker processes / Ray CPUs, one torch thread each (default: the cores idle now; "
-                        "1: in-process)")
-    p.add_argument("--shard-size", type=count(1), default=32, help="episodes per shard, the unit of resumption (default 32)")
+    p.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help='local: a process pool (default); ray: Ray Data (pip install "oscar-wm[ray]")',
+    )
+    p.add_argument(
+        "--workers",
+        type=count(1),
+        default=None,
+        help="worker processes / Ray CPUs, one torch thread each (default: the cores idle now; 1: in-process)",
+    )
+    p.add_argument(
+        "--shard-size", type=count(1), default=32, help="episodes per shard, the unit of resumption (default 32)"
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def _kw(args) -> dict:
-    return {"engine": args.engine, "workers": args.workers, "shard_size": args.shard_size,
-            "progress": not args.no_progress, "plugin_paths": tuple(args.plugin or ())}
+    return {
+        "engine": args.engine,
+        "workers": args.workers,
+        "shard_size": args.shard_size,
+        "progress": not args.no_progress,
+        "plugin_paths": tuple(args.plugin or ()),
+    }
 
 
 def _run_log(run: str, stage: str):
@@ -55,10 +70,13 @@ def _run_log(run: str, stage: str):
 def _report(run, what: str) -> None:
     from .._util.log import log_result
 
-    log_result(f"{len(run.processed)} shards done now, {len(run.skipped)} already done, "
-               f"{len(run.incomplete)} unfinished")
-    print(f"{what}: {len(run.processed)} shards done now, {len(run.skipped)} already done"
-          + (f", {len(run.incomplete)} unfinished (run again)" if run.incomplete else ""))
+    log_result(
+        f"{len(run.processed)} shards done now, {len(run.skipped)} already done, {len(run.incomplete)} unfinished"
+    )
+    print(
+        f"{what}: {len(run.processed)} shards done now, {len(run.skipped)} already done"
+        + (f", {len(run.incomplete)} unfinished (run again)" if run.incomplete else "")
+    )
     if run.rows:
         from .manifest import is_alive
 
@@ -92,8 +110,10 @@ def cmd_dedup(args) -> int:
     from .run import run_dedup
 
     if args.embedder == "siglip" and not args.siglip:
-        raise ValueError("oscar data dedup: --siglip: expected a SigLIP model (Hub id or folder) with --embedder siglip, "
-                         "found none (or use --embedder trajectory, which needs no weights)")
+        raise ValueError(
+            "oscar data dedup: --siglip: expected a SigLIP model (Hub id or folder) with --embedder siglip, "
+            "found none (or use --embedder trajectory, which needs no weights)"
+        )
     embedder = SiglipEmbedder(args.siglip, args.device) if args.embedder == "siglip" else TrajectoryEmbedder()
     cfg = DedupConfig(cosine=args.cosine, rms_alpha=args.rms_alpha, rms_floor=args.rms_floor, nprobe=args.nprobe)
     with _run_log(args.run, "dedup"):
@@ -107,9 +127,16 @@ def cmd_caption(args) -> int:
     from .caption import CaptionConfig
     from .run import run_caption
 
-    cfg = CaptionConfig(base_url=args.endpoint, model=args.model, fps=args.fps, long_fps=args.long_fps,
-                        max_frames=args.max_frames, budget=args.budget, max_retries=args.retries,
-                        api_key_env=args.api_key_env)
+    cfg = CaptionConfig(
+        base_url=args.endpoint,
+        model=args.model,
+        fps=args.fps,
+        long_fps=args.long_fps,
+        max_frames=args.max_frames,
+        budget=args.budget,
+        max_retries=args.retries,
+        api_key_env=args.api_key_env,
+    )
     with _run_log(args.run, "caption"):
         res = run_caption(args.run, cfg, **_kw(args))
         _report(res, "caption")
@@ -122,8 +149,9 @@ def cmd_export(args) -> int:
 
     size = parse_size(args.size) if args.size else None
     with _run_log(args.run, "export"):
-        res = run_export(args.run, args.out, size=size, render_skeleton=args.render_skeleton, video_codec=args.codec,
-                         **_kw(args))
+        res = run_export(
+            args.run, args.out, size=size, render_skeleton=args.render_skeleton, video_codec=args.codec, **_kw(args)
+        )
         _report(res, "export")
     return 0
 
@@ -155,66 +183,104 @@ def cmd_sample_dataset(args) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"{summary['dataset']}: {summary['episodes']} episodes, {summary['frames']} frames, LeRobot v3.0 "
-              f"(DROID columns, one shared MP4); ingest it with --reader {summary['reader']}")
+        print(
+            f"{summary['dataset']}: {summary['episodes']} episodes, {summary['frames']} frames, LeRobot v3.0 "
+            f"(DROID columns, one shared MP4); ingest it with --reader {summary['reader']}"
+        )
     return 0
 
 
 def add_data_parser(sub) -> None:
     """Register ``oscar data <stage>`` on the top-level sub-parser collection."""
     fmt = argparse.RawDescriptionHelpFormatter
-    d = sub.add_parser("data", help="data pipeline: ingest, filter, dedup, caption, export, stats",
-                       epilog=EXAMPLE, formatter_class=fmt)
+    d = sub.add_parser(
+        "data", help="data pipeline: ingest, filter, dedup, caption, export, stats", epilog=EXAMPLE, formatter_class=fmt
+    )
     ds = d.add_subparsers(dest="data_command", required=True)
 
-    p = ds.add_parser("sample-dataset", help="write a small LeRobot v3.0 dataset (7 episodes, one shared MP4) to try "
-                                             "the pipeline offline", epilog=EXAMPLE, formatter_class=fmt)
+    p = ds.add_parser(
+        "sample-dataset",
+        help="write a small LeRobot v3.0 dataset (7 episodes, one shared MP4) to try the pipeline offline",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     output_option(p.add_argument("out", help="a new folder"), "folder")
     p.add_argument("--frames", type=int, default=80, help="frames per episode (default 80)")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the summary (with each episode's expected fate) as JSON")
     p.set_defaults(func=cmd_sample_dataset)
 
-    p = ds.add_parser("ingest", help="list a dataset's episodes into a manifest and probe each one", epilog=EXAMPLE,
-                      formatter_class=fmt)
+    p = ds.add_parser(
+        "ingest",
+        help="list a dataset's episodes into a manifest and probe each one",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     p.add_argument("source", help="dataset folder or fsspec URL")
     p.add_argument("--reader", required=True, help="dataset reader name (npz, lerobot, droid, …)")
-    p.add_argument("--reader-option", action="append", metavar="NAME=VALUE",
-                   help="a reader's constructor option (docs/datasets.md), e.g. intrinsics=cam.json for DROID from "
-                        "the Hub; VALUE is YAML or a .json/.yaml file; repeatable")
+    p.add_argument(
+        "--reader-option",
+        action="append",
+        metavar="NAME=VALUE",
+        help="a reader's constructor option (docs/datasets.md), e.g. intrinsics=cam.json for DROID from "
+        "the Hub; VALUE is YAML or a .json/.yaml file; repeatable",
+    )
     output_option(p.add_argument("--out", required=True, help="run folder or fsspec URL"), "folder")
     _common(p)
     p.set_defaults(func=cmd_ingest)
 
-    p = ds.add_parser("filter", help="length, static camera, meaningful action, visible skeleton, joint spikes "
-                                     "(and, when asked, the calibration score)",
-                      epilog=EXAMPLE, formatter_class=fmt)
+    p = ds.add_parser(
+        "filter",
+        help="length, static camera, meaningful action, visible skeleton, joint spikes "
+        "(and, when asked, the calibration score)",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     output_option(p.add_argument("run", help="run folder"), "folder")
-    p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="override a threshold (FilterConfig field: min_length, max_camera_motion, min_action, "
-                        "min_visible, max_joint_speed, max_point_speed, min_calibration_score (0: off), …); "
-                        "repeatable")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="NAME=VALUE",
+        help="override a threshold (FilterConfig field: min_length, max_camera_motion, min_action, "
+        "min_visible, max_joint_speed, max_point_speed, min_calibration_score (0: off), …); "
+        "repeatable",
+    )
     _common(p)
     p.set_defaults(func=cmd_filter)
 
-    p = ds.add_parser("dedup", help="SigLIP (or motion) candidates (cosine > 0.95) verified by trajectory RMS, one kept "
-                                    "per group",
-                      epilog=EXAMPLE, formatter_class=fmt)
+    p = ds.add_parser(
+        "dedup",
+        help="SigLIP (or motion) candidates (cosine > 0.95) verified by trajectory RMS, one kept per group",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     output_option(p.add_argument("run", help="run folder"), "folder")
-    p.add_argument("--embedder", choices=("siglip", "trajectory"), default="siglip",
-                   help="siglip: SigLIP picture embeddings find candidates (the paper; needs --siglip); trajectory: "
-                        "the skeleton's motion does, no weights to download")
+    p.add_argument(
+        "--embedder",
+        choices=("siglip", "trajectory"),
+        default="siglip",
+        help="siglip: SigLIP picture embeddings find candidates (the paper; needs --siglip); trajectory: "
+        "the skeleton's motion does, no weights to download",
+    )
     p.add_argument("--siglip", help="SigLIP vision model: Hub id or local folder (with --embedder siglip)")
     p.add_argument("--device", type=device, default="cpu", help="torch device for SigLIP")
-    p.add_argument("--cosine", type=number(-1.0, 1.0), default=0.95, help="visual candidate threshold (default 0.95, the paper's)")
-    p.add_argument("--rms-alpha", type=number(0.0), default=0.25, help="duplicate when RMS < alpha x smaller motion scale")
+    p.add_argument(
+        "--cosine", type=number(-1.0, 1.0), default=0.95, help="visual candidate threshold (default 0.95, the paper's)"
+    )
+    p.add_argument(
+        "--rms-alpha", type=number(0.0), default=0.25, help="duplicate when RMS < alpha x smaller motion scale"
+    )
     p.add_argument("--rms-floor", type=number(0.0), default=0.01, help="... or below this many metres (default 0.01)")
     p.add_argument("--nprobe", type=count(1), default=16, help="k-means clusters searched per episode (default 16)")
     _common(p)
     p.set_defaults(func=cmd_dedup)
 
-    p = ds.add_parser("caption", help="captions from an OpenAI-compatible VLM endpoint (cached, retried, budgeted)",
-                      epilog=EXAMPLE, formatter_class=fmt)
+    p = ds.add_parser(
+        "caption",
+        help="captions from an OpenAI-compatible VLM endpoint (cached, retried, budgeted)",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--endpoint", required=True, help="base URL, e.g. http://localhost:8000/v1")
     p.add_argument("--model", required=True, help="model name the endpoint serves")
@@ -227,23 +293,41 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_caption)
 
-    p = ds.add_parser("export", help="live episodes as training clips (docs/formats.md, Training clips)",
-                      epilog=EXAMPLE, formatter_class=fmt)
+    p = ds.add_parser(
+        "export",
+        help="live episodes as training clips (docs/formats.md, Training clips)",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     output_option(p.add_argument("run", help="run folder"), "folder")
     output_option(p.add_argument("--out", required=True, help="clip set folder or fsspec URL"), "folder")
     p.add_argument("--size", help="WIDTHxHEIGHT to resize to (default: the video's)")
-    p.add_argument("--render-skeleton", action="store_true", help="store the skeleton video (default: the trainer "
-                                                                  "renders it on the fly)")
-    p.add_argument("--codec", choices=("ffv1", "h264"), default="ffv1", help="clip video codec (default ffv1, lossless)")
+    p.add_argument(
+        "--render-skeleton",
+        action="store_true",
+        help="store the skeleton video (default: the trainer renders it on the fly)",
+    )
+    p.add_argument(
+        "--codec", choices=("ffv1", "h264"), default="ffv1", help="clip video codec (default ffv1, lossless)"
+    )
     _common(p)
     p.set_defaults(func=cmd_export)
 
-    p = ds.add_parser("stats", help="the paper's Table 1 for a run: public vs kept, rejections per filter",
-                      epilog=EXAMPLE, formatter_class=fmt)
+    p = ds.add_parser(
+        "stats",
+        help="the paper's Table 1 for a run: public vs kept, rejections per filter",
+        epilog=EXAMPLE,
+        formatter_class=fmt,
+    )
     output_option(p.add_argument("run", help="run folder"), "folder")
     p.add_argument("--json", action="store_true", help="print JSON (always written to RUN/stats.json)")
-    output_option(p.add_argument("--plot", metavar="PATH",
-                                 help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])"), "file")
-    p.add_argument("--no-html", action="store_true", help="do not write RUN/stats.html (the funnel with thumbnails "
-                                                         "of rejected episodes per reason)")
+    output_option(
+        p.add_argument("--plot", metavar="PATH", help="also save a bar chart (.png/.pdf/.svg; needs oscar-wm[plots])"),
+        "file",
+    )
+    p.add_argument(
+        "--no-html",
+        action="store_true",
+        help="do not write RUN/stats.html (the funnel with thumbnails of rejected episodes per reason)",
+    )
     p.set_defaults(func=cmd_stats)

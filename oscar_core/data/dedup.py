@@ -42,21 +42,36 @@ from .._util.optional import require
 from ..errors import OscarError
 from ._episode import EPISODE_ERRORS, load_row, reason_of
 
-__all__ = ["DedupConfig", "ModelLoadError", "SiglipEmbedder", "TrajectoryEmbedder", "trajectory_embedding", "EmbedStage", "resample_points", "candidate_pairs", "pca_projection", "brute_force_pairs",
-           "trajectory_rms", "motion_scale", "adaptive_threshold", "UnionFind", "dedup_rows"]
+__all__ = [
+    "DedupConfig",
+    "ModelLoadError",
+    "SiglipEmbedder",
+    "TrajectoryEmbedder",
+    "trajectory_embedding",
+    "EmbedStage",
+    "resample_points",
+    "candidate_pairs",
+    "pca_projection",
+    "brute_force_pairs",
+    "trajectory_rms",
+    "motion_scale",
+    "adaptive_threshold",
+    "UnionFind",
+    "dedup_rows",
+]
 
 
 @dataclass(frozen=True)
 class DedupConfig:
     """Thresholds and search settings of ``oscar data dedup``."""
 
-    cosine: float = 0.95          # SigLIP cosine above which a pair is a visual candidate (paper)
-    frames: int = 5               # uniformly sampled frames per episode (paper)
-    steps: int = 64               # resampled trajectory steps (paper)
-    rms_alpha: float = 0.25       # duplicate when RMS < rms_alpha x the smaller motion scale ...
-    rms_floor: float = 0.01       # ... or below this many metres
-    nlist: int | None = None      # k-means clusters; None: 4·sqrt(N) (exact search below 2048 episodes)
-    nprobe: int = 16              # clusters searched per episode: its own and the nearest others
+    cosine: float = 0.95  # SigLIP cosine above which a pair is a visual candidate (paper)
+    frames: int = 5  # uniformly sampled frames per episode (paper)
+    steps: int = 64  # resampled trajectory steps (paper)
+    rms_alpha: float = 0.25  # duplicate when RMS < rms_alpha x the smaller motion scale ...
+    rms_floor: float = 0.01  # ... or below this many metres
+    nlist: int | None = None  # k-means clusters; None: 4·sqrt(N) (exact search below 2048 episodes)
+    nprobe: int = 16  # clusters searched per episode: its own and the nearest others
     reduce_dim: int | None = 128  # candidate search on this many principal directions (None: full width)
 
 
@@ -86,8 +101,13 @@ class SiglipEmbedder:
         self.revision: str | None = None  # the Hub commit, or a hash of a local folder's config and weight sizes
 
     def __getstate__(self):
-        return {"model_name": self.model_name, "device": self.device, "_model": None, "_folder": self._folder,
-                "revision": self.revision}
+        return {
+            "model_name": self.model_name,
+            "device": self.device,
+            "_model": None,
+            "_folder": self._folder,
+            "revision": self.revision,
+        }
 
     def identity(self) -> dict:
         """What the embeddings depend on: model name, resolved revision, device kind (part of the stage fingerprint)."""
@@ -102,13 +122,16 @@ class SiglipEmbedder:
         local = Path(self.model_name).expanduser()
         if local.is_dir():
             if not (local / "config.json").is_file():
-                raise ModelLoadError(f"--siglip {self.model_name}: expected a model folder with config.json "
-                                     "(save_pretrained), found none")
+                raise ModelLoadError(
+                    f"--siglip {self.model_name}: expected a model folder with config.json "
+                    "(save_pretrained), found none"
+                )
             self._folder, self.revision = str(local.resolve()), _folder_hash(local)
             return self._folder
         if local.exists() or self.model_name.count("/") != 1 or self.model_name.startswith(("/", ".", "~")):
-            raise ModelLoadError(f"--siglip {self.model_name}: expected a Hub id (owner/name) or a model folder, "
-                                 "found neither")
+            raise ModelLoadError(
+                f"--siglip {self.model_name}: expected a Hub id (owner/name) or a model folder, found neither"
+            )
         self._folder, self.revision = _hub_folder(self.model_name)
         return self._folder
 
@@ -119,8 +142,10 @@ class SiglipEmbedder:
             try:
                 self._model = tr.SiglipVisionModel.from_pretrained(folder, local_files_only=True).to(self.device).eval()
             except (OSError, ValueError, RuntimeError) as exc:
-                raise ModelLoadError(f"--siglip {self.model_name}: cannot load the model from {folder} "
-                                     f"({type(exc).__name__}: {str(exc)[:300]})") from None
+                raise ModelLoadError(
+                    f"--siglip {self.model_name}: cannot load the model from {folder} "
+                    f"({type(exc).__name__}: {str(exc)[:300]})"
+                ) from None
         return self._model
 
     @staticmethod
@@ -129,8 +154,9 @@ class SiglipEmbedder:
         import torch
 
         Image = require("PIL.Image", "data")
-        x = np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(f)).resize((size, size), Image.BICUBIC))
-                      for f in frames])
+        x = np.stack(
+            [np.asarray(Image.fromarray(np.ascontiguousarray(f)).resize((size, size), Image.BICUBIC)) for f in frames]
+        )
         return torch.from_numpy(x).permute(0, 3, 1, 2).float().mul(1 / 255.0).sub(0.5).div(0.5)
 
     def __call__(self, frames: np.ndarray) -> np.ndarray:
@@ -182,15 +208,19 @@ def _hub_folder(repo_id: str) -> tuple[str, str]:
     if folder is not None and (Path(folder) / "config.json").is_file():
         return folder, Path(folder).name
     if offline:
-        raise ModelLoadError(f"--siglip {repo_id}: not in the Hub cache ({cache_dir or constants.HF_HUB_CACHE}) and HF_HUB_OFFLINE "
-                             "is set; run once online (unset HF_HUB_OFFLINE) or pass a local model folder")
+        raise ModelLoadError(
+            f"--siglip {repo_id}: not in the Hub cache ({cache_dir or constants.HF_HUB_CACHE}) and HF_HUB_OFFLINE "
+            "is set; run once online (unset HF_HUB_OFFLINE) or pass a local model folder"
+        )
     base = (os.environ.get("HF_ENDPOINT") or constants.ENDPOINT).rstrip("/")
     _check_reachable(f"{base}/api/models/{repo_id}/revision/main", base, repo_id)
     try:
         folder = snapshot_download(repo_id, allow_patterns=patterns, etag_timeout=_hub_timeout(), cache_dir=cache_dir)
     except Exception as exc:  # noqa: BLE001 - any failure here is the whole stage's, named with its cause
-        raise ModelLoadError(f"--siglip {repo_id}: download failed ({type(exc).__name__}: {str(exc)[:300]}); with "
-                             "the model in the cache, HF_HUB_OFFLINE=1 skips the Hub") from None
+        raise ModelLoadError(
+            f"--siglip {repo_id}: download failed ({type(exc).__name__}: {str(exc)[:300]}); with "
+            "the model in the cache, HF_HUB_OFFLINE=1 skips the Hub"
+        ) from None
     return folder, Path(folder).name
 
 
@@ -210,18 +240,24 @@ def _check_reachable(url: str, base: str, repo_id: str) -> None:
     t = threading.Thread(target=get, daemon=True, name="oscar-hub-check")
     t.start()
     t.join(seconds)
-    fix = (f"set HF_HUB_OFFLINE=1 to use the cache ({repo_id} must be in it: download it once online) or pass a "
-           "local model folder to --siglip")
+    fix = (
+        f"set HF_HUB_OFFLINE=1 to use the cache ({repo_id} must be in it: download it once online) or pass a "
+        "local model folder to --siglip"
+    )
     if t.is_alive():
-        raise ModelLoadError(f"--siglip {repo_id}: cannot reach the Hub ({base}: no answer within {seconds:g} s, "
-                             f"OSCAR_HUB_TIMEOUT); {fix}")
+        raise ModelLoadError(
+            f"--siglip {repo_id}: cannot reach the Hub ({base}: no answer within {seconds:g} s, "
+            f"OSCAR_HUB_TIMEOUT); {fix}"
+        )
     if "error" in result:
         raise ModelLoadError(f"--siglip {repo_id}: cannot reach the Hub ({base}: {result['error'][:200]}); {fix}")
     if result["status"] >= 500:
         raise ModelLoadError(f"--siglip {repo_id}: cannot reach the Hub ({base}: HTTP {result['status']}); {fix}")
     if result["status"] in (401, 403, 404):
-        raise ModelLoadError(f"--siglip {repo_id}: the Hub has no accessible model {repo_id} (HTTP "
-                             f"{result['status']}); check the id and your token (HF_TOKEN)")
+        raise ModelLoadError(
+            f"--siglip {repo_id}: the Hub has no accessible model {repo_id} (HTTP "
+            f"{result['status']}); check the id and your token (HF_TOKEN)"
+        )
 
 
 class TrajectoryEmbedder:
@@ -336,7 +372,7 @@ def brute_force_pairs(emb: np.ndarray, threshold: float = 0.95, block: int = 409
     x = np.ascontiguousarray(emb, dtype=np.float32)
     out = []
     for s in range(0, len(x), block):
-        sims = x[s:s + block] @ x.T
+        sims = x[s : s + block] @ x.T
         i, j = np.nonzero(sims > threshold)
         i = i + s
         keep = i < j
@@ -360,7 +396,7 @@ def _exact_pairs(x: np.ndarray, threshold: float, batch: int = 65536) -> np.ndar
     index.add(x)
     out = []
     for s in range(0, len(x), batch):
-        lims, _, ids = index.range_search(x[s:s + batch], float(threshold))
+        lims, _, ids = index.range_search(x[s : s + batch], float(threshold))
         out.append(_pairs_from_lims(lims, ids, s))  # a pair found from either end counts
     return _sorted_pairs(np.concatenate(out)) if out else np.zeros((0, 2), np.int64)
 
@@ -383,10 +419,20 @@ def pca_projection(x: np.ndarray, dim: int, sample: int = 20000, seed: int = 0) 
     return mean.astype(np.float32), np.ascontiguousarray(v[:, ::-1][:, :dim], dtype=np.float32)
 
 
-def candidate_pairs(emb: np.ndarray, threshold: float = 0.95, *, nlist: int | None = None, nprobe: int = 16,
-                    exact_below: int = 2048, reduce_dim: int | None = 128, train_per_list: int = 40, niter: int = 10,
-                    block: int = 1 << 24, seed: int = 0,
-                    timings: dict[str, float] | None = None) -> np.ndarray:
+def candidate_pairs(
+    emb: np.ndarray,
+    threshold: float = 0.95,
+    *,
+    nlist: int | None = None,
+    nprobe: int = 16,
+    exact_below: int = 2048,
+    reduce_dim: int | None = 128,
+    train_per_list: int = 40,
+    niter: int = 10,
+    block: int = 1 << 24,
+    seed: int = 0,
+    timings: dict[str, float] | None = None,
+) -> np.ndarray:
     """(P, 2) int64 sorted pairs i < j with cosine(emb_i, emb_j) > threshold; emb: (N, D) unit rows.
 
     Below ``exact_below`` rows (and with no ``nlist``) an exact flat range
@@ -439,7 +485,7 @@ def candidate_pairs(emb: np.ndarray, threshold: float = 0.95, *, nlist: int | No
         mean, basis = pca_projection(x, int(reduce_dim), seed=seed)
         z = np.empty((n, basis.shape[1]), np.float32)
         for s in range(0, n, 65536):
-            np.matmul(x[s:s + 65536] - mean, basis, out=z[s:s + 65536])
+            np.matmul(x[s : s + 65536] - mean, basis, out=z[s : s + 65536])
     else:
         z = x
     r = z.shape[1]
@@ -472,14 +518,14 @@ def candidate_pairs(emb: np.ndarray, threshold: float = 0.95, *, nlist: int | No
     # 3. dense blocks per list
     found = []
     for lst in range(k):
-        mem = member_order[member_start[lst]:member_start[lst + 1]]
+        mem = member_order[member_start[lst] : member_start[lst + 1]]
         if not len(mem):
             continue
-        qry = query_order[query_start[lst]:query_start[lst + 1]]
+        qry = query_order[query_start[lst] : query_start[lst + 1]]
         mt = np.ascontiguousarray(ma[mem].T)
         step = max(1, block // len(mem))
         for s in range(0, len(qry), step):
-            q = qry[s:s + step]
+            q = qry[s : s + step]
             qi, mj = np.nonzero(qa[q] @ mt > -radius)
             a, b = q[qi], mem[mj]
             keep = a != b
@@ -490,8 +536,8 @@ def candidate_pairs(emb: np.ndarray, threshold: float = 0.95, *, nlist: int | No
     # 4. exact check on the full vectors
     ok = np.zeros(len(pairs), bool)
     for s in range(0, len(pairs), 65536):
-        p = pairs[s:s + 65536]
-        ok[s:s + 65536] = np.einsum("ij,ij->i", x[p[:, 0]], x[p[:, 1]]) > threshold
+        p = pairs[s : s + 65536]
+        ok[s : s + 65536] = np.einsum("ij,ij->i", x[p[:, 0]], x[p[:, 1]]) > threshold
     lap("check")
     return pairs[ok]
 
@@ -593,7 +639,10 @@ def dedup_rows(rows, cfg: DedupConfig = DedupConfig()) -> tuple[list[dict], dict
             o["dedup_group"] = kept_id
             if k != keep:
                 d, thr = link_rms[k]
-                o.update(dedup_status="rejected", dedup_value=d,
-                         dedup_reason=f"duplicate: of {kept_id} (rms {d:.4g} m < {thr:.4g} m)")
+                o.update(
+                    dedup_status="rejected",
+                    dedup_value=d,
+                    dedup_reason=f"duplicate: of {kept_id} (rms {d:.4g} m < {thr:.4g} m)",
+                )
                 summary["removed"] += 1
     return out, summary

@@ -120,8 +120,10 @@ def run_shard(fn: Callable, rows: list[dict], stage_url: str, name: str) -> tupl
     want = [r["id"] for r in rows]
     got = [r["id"] for r in out]
     if got != want:
-        raise RuntimeError(f"stage {getattr(fn, 'name', fn)!r}, shard {name}: expected rows for ids {want[:3]}…, "
-                           f"found {got[:3]}… ({len(got)} rows for {len(want)})")
+        raise RuntimeError(
+            f"stage {getattr(fn, 'name', fn)!r}, shard {name}: expected rows for ids {want[:3]}…, "
+            f"found {got[:3]}… ({len(got)} rows for {len(want)})"
+        )
     _fs.write_bytes_atomic(_shard_url(stage_url, name), rows_to_parquet(out))
     check = getattr(fn, "shard_complete", None)
     done = bool(check(out)) if check is not None else True
@@ -135,7 +137,7 @@ def _plan(rows: list[dict], shard_size: int) -> dict[str, list[str]]:
     if len(set(ids)) != len(ids):
         dup = sorted({i for i in ids if ids.count(i) > 1})[:3]
         raise ValueError(f"manifest: field 'id': expected unique episode ids, found duplicates {dup}")
-    return {f"part-{k // shard_size:06d}": ids[k:k + shard_size] for k in range(0, len(ids), shard_size)}
+    return {f"part-{k // shard_size:06d}": ids[k : k + shard_size] for k in range(0, len(ids), shard_size)}
 
 
 def _worker_init() -> None:
@@ -158,9 +160,20 @@ def _worker_init() -> None:
 
 
 # modules a worker needs: imported once by the fork server, inherited by every worker it forks
-_PRELOAD = ["numpy", "cv2", "torch", "av", "pyarrow", "oscar_core.plugin.registry", "oscar_core.render.skeleton_video",
-            "oscar_core.data.ingest", "oscar_core.data.filters", "oscar_core.data.dedup", "oscar_core.data.export",
-            "oscar_core.data.caption"]
+_PRELOAD = [
+    "numpy",
+    "cv2",
+    "torch",
+    "av",
+    "pyarrow",
+    "oscar_core.plugin.registry",
+    "oscar_core.render.skeleton_video",
+    "oscar_core.data.ingest",
+    "oscar_core.data.filters",
+    "oscar_core.data.dedup",
+    "oscar_core.data.export",
+    "oscar_core.data.caption",
+]
 
 
 def _pool_context():
@@ -181,11 +194,17 @@ def ids_hash(rows: list[dict]) -> str:
     return h.hexdigest()[:16]
 
 
-def stage_parts(stage: str, *, input: Mapping[str, Any], settings: Mapping[str, Any],
-                model: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def stage_parts(
+    stage: str, *, input: Mapping[str, Any], settings: Mapping[str, Any], model: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """The fingerprint parts of a data stage (see the module docstring)."""
-    return {"stage": stage, "format": _stage.FORMAT_VERSION, "input": dict(input), "settings": dict(settings),
-            "model": dict(model) if model else None}
+    return {
+        "stage": stage,
+        "format": _stage.FORMAT_VERSION,
+        "input": dict(input),
+        "settings": dict(settings),
+        "model": dict(model) if model else None,
+    }
 
 
 def read_fingerprint(stage_url: str) -> dict | None:
@@ -225,10 +244,15 @@ def use_fingerprint(stage_url: str, parts: Mapping[str, Any], *, clear: tuple[st
     what = _stage.changes(old.get("parts") if old else None, parts) if (old or has_work) else []
     if what:
         _clear_stage(stage_url, clear)
-        warnings.warn(f"{stage_url}: made under other inputs or settings ({'; '.join(what)}); its old output is "
-                      "deleted and the stage is computed again", StageRecomputed, stacklevel=3)
-    _fs.write_bytes_atomic(_fs.join(stage_url, FINGERPRINT),
-                           json.dumps({"fingerprint": new, "parts": _stage._canonical(parts)}).encode())
+        warnings.warn(
+            f"{stage_url}: made under other inputs or settings ({'; '.join(what)}); its old output is "
+            "deleted and the stage is computed again",
+            StageRecomputed,
+            stacklevel=3,
+        )
+    _fs.write_bytes_atomic(
+        _fs.join(stage_url, FINGERPRINT), json.dumps({"fingerprint": new, "parts": _stage._canonical(parts)}).encode()
+    )
     return what
 
 
@@ -248,13 +272,24 @@ def check_workers_see(url: str, engine: EngineName, workers: int | None) -> None
     """ValueError when worker processes (``--workers`` > 1 or Ray) would write ``url`` on a filesystem only this
     process sees (``memory://``): their output would be lost."""
     if (engine == "ray" or (workers or os.cpu_count() or 1) > 1) and _fs.process_local(url):
-        raise ValueError(f"{url}: a memory:// folder lives in this process only; expected --workers 1 and "
-                         f"--engine local with it, found --engine {engine} --workers {workers or os.cpu_count()}")
+        raise ValueError(
+            f"{url}: a memory:// folder lives in this process only; expected --workers 1 and "
+            f"--engine local with it, found --engine {engine} --workers {workers or os.cpu_count()}"
+        )
 
 
-def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: int = 32, engine: EngineName = "local",
-                workers: int | None = None, progress: bool = True, desc: str = "",
-                parts: Mapping[str, Any] | None = None) -> StageRun:
+def run_sharded(
+    fn: Callable,
+    rows: list[dict],
+    stage_url: str,
+    *,
+    shard_size: int = 32,
+    engine: EngineName = "local",
+    workers: int | None = None,
+    progress: bool = True,
+    desc: str = "",
+    parts: Mapping[str, Any] | None = None,
+) -> StageRun:
     """Map ``fn`` over ``rows`` in shards into ``stage_url``; skip shards already completed.
 
     rows: input rows in a fixed order (the plan is made from it on the first
@@ -284,8 +319,10 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     if _fs.exists(plan_url):
         old = json.loads(_fs.read_bytes(plan_url))
         if old.get("shards") != plan:
-            raise ValueError(f"{plan_url}: expected the plan of this input (same episodes, same --shard-size), found "
-                             f"another run's plan; use a new output folder or delete this stage's folder")
+            raise ValueError(
+                f"{plan_url}: expected the plan of this input (same episodes, same --shard-size), found "
+                f"another run's plan; use a new output folder or delete this stage's folder"
+            )
     else:
         _fs.write_bytes_atomic(plan_url, json.dumps({"shards": plan, "shard_size": shard_size}).encode())
     by_id = {r["id"]: r for r in rows}
@@ -305,8 +342,15 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
         if workers:
             check_threads(workers, "--workers")
         n_workers = min(workers or default_threads(), len(tasks))  # default: the cores idle now, one thread each
-        _log.info("%s: %d shards of %d to do (%d done earlier), engine %s, %d worker(s)", desc or stage_url,
-                  len(tasks), len(plan), len(run.skipped), engine, n_workers)
+        _log.info(
+            "%s: %d shards of %d to do (%d done earlier), engine %s, %d worker(s)",
+            desc or stage_url,
+            len(tasks),
+            len(plan),
+            len(run.skipped),
+            engine,
+            n_workers,
+        )
         if engine == "ray":
             results = _run_ray(fn, tasks, stage_url, n_workers)
             bar.update(len(results))
@@ -321,8 +365,12 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
             from .._util.main_guard import check_main_guard
 
             check_main_guard(f"run_sharded(workers={n_workers})")  # a script's unguarded top level would run again
-            with ProcessPoolExecutor(n_workers, mp_context=_pool_context(), initializer=_stage.worker_initializer,
-                                     initargs=(os.getpid(), _worker_init)) as pool:
+            with ProcessPoolExecutor(
+                n_workers,
+                mp_context=_pool_context(),
+                initializer=_stage.worker_initializer,
+                initargs=(os.getpid(), _worker_init),
+            ) as pool:
                 try:
                     futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
                     for fut in as_completed(futures):
@@ -337,8 +385,12 @@ def run_sharded(fn: Callable, rows: list[dict], stage_url: str, *, shard_size: i
     run.processed.sort()
     run.incomplete.sort()
     if run.incomplete:
-        _log.warning("%s: %d shard(s) unfinished (%s); run the stage again", desc or stage_url, len(run.incomplete),
-                     ", ".join(run.incomplete[:5]))
+        _log.warning(
+            "%s: %d shard(s) unfinished (%s); run the stage again",
+            desc or stage_url,
+            len(run.incomplete),
+            ", ".join(run.incomplete[:5]),
+        )
     elif tasks:
         _log.info("%s: %d shards done -> %s", desc or stage_url, len(run.processed), stage_url)
     if not run.incomplete:
@@ -351,8 +403,13 @@ def _run_ray(fn, tasks, stage_url, n_workers) -> list[tuple[str, int, bool]]:
 
     ray = require("ray", "ray")
     if not ray.is_initialized():
-        ray.init(num_cpus=max(1, n_workers), include_dashboard=False, log_to_driver=False,
-                 configure_logging=False, ignore_reinit_error=True)
+        ray.init(
+            num_cpus=max(1, n_workers),
+            include_dashboard=False,
+            log_to_driver=False,
+            configure_logging=False,
+            ignore_reinit_error=True,
+        )
     import ray.data
 
     ctx = ray.data.DataContext.get_current()
@@ -375,7 +432,11 @@ def write_stage_manifest(stage_url: str, names: list[str]):
         url = _shard_url(stage_url, name)
         tables.append(table_from_parquet(_fs.read_bytes(url), url))
     tables = [t for t in tables if t.num_columns]
-    table = pa.concat_tables(tables, promote_options="permissive") if tables else pa.table({"id": pa.array([], pa.string())})
+    table = (
+        pa.concat_tables(tables, promote_options="permissive")
+        if tables
+        else pa.table({"id": pa.array([], pa.string())})
+    )
     table = table.sort_by("id")
     _fs.write_bytes_atomic(_fs.join(stage_url, MANIFEST), table_to_parquet(table))
     return table
@@ -394,7 +455,9 @@ def read_stage(stage_url: str) -> list[dict]:
             plan = json.loads(_fs.read_bytes(plan_url))["shards"]
             done = {n[:-5] for n in _fs.listdir(_fs.join(stage_url, "completions"))}
             missing = [n for n in plan if n not in done]
-            raise StageIncomplete(f"{stage_url}: expected a finished stage, found {len(missing)} of {len(plan)} shards "
-                                  f"not done ({', '.join(missing[:3])}…); run the stage again to finish it")
+            raise StageIncomplete(
+                f"{stage_url}: expected a finished stage, found {len(missing)} of {len(plan)} shards "
+                f"not done ({', '.join(missing[:3])}…); run the stage again to finish it"
+            )
         raise StageIncomplete(f"{url}: expected a stage manifest, found no such file (has the stage run?)")
     return rows_from_parquet(_fs.read_bytes(url), url)

@@ -72,8 +72,9 @@ class ExportStage:
                 if not is_alive(r):
                     out.append(r)
                     continue
-                o = dict(r, export_status="ok", export_reason=None, export_value=None, export_clip=None,
-                         export_shard=None)
+                o = dict(
+                    r, export_status="ok", export_reason=None, export_value=None, export_clip=None, export_shard=None
+                )
                 try:
                     clip = self._clip(r)
                 except EPISODE_ERRORS as exc:
@@ -100,10 +101,20 @@ class ExportStage:
             cam = cam.resized(W, H, mode="crop")
         skeleton = render_skeleton_video(emb, traj, cam, (W, H)) if self.render_skeleton else None
         op = clip_openness(emb, traj)
-        rec = ClipRecord(id=clip_id(row["id"]), source=row["source"], embodiment=row["embodiment"], n_frames=len(traj),
-                         fps=float(traj.fps), width=int(W), height=int(H), openness=tuple(map(tuple, op.tolist())),
-                         files={}, caption=row.get("caption"), task=row.get("task"),
-                         meta={"episode": row["id"], "frames": [0, len(traj)], "camera": row.get("camera")})
+        rec = ClipRecord(
+            id=clip_id(row["id"]),
+            source=row["source"],
+            embodiment=row["embodiment"],
+            n_frames=len(traj),
+            fps=float(traj.fps),
+            width=int(W),
+            height=int(H),
+            openness=tuple(map(tuple, op.tolist())),
+            files={},
+            caption=row.get("caption"),
+            task=row.get("task"),
+            meta={"episode": row["id"], "frames": [0, len(traj)], "camera": row.get("camera")},
+        )
         return Clip(rec, rgb=rgb, trajectory=traj, camera=cam, skeleton=skeleton)
 
 

@@ -44,8 +44,16 @@ import numpy as np
 
 from ._episode import EPISODE_ERRORS, camera_at_video_size, load_row, reason_of
 
-__all__ = ["FilterConfig", "FilterStage", "FILTERS", "measure_camera_motion", "measure_action", "measure_visible",
-           "measure_spikes", "decide"]
+__all__ = [
+    "FilterConfig",
+    "FilterStage",
+    "FILTERS",
+    "measure_camera_motion",
+    "measure_action",
+    "measure_visible",
+    "measure_spikes",
+    "decide",
+]
 
 FILTERS = ("length", "camera_motion", "action", "visible", "spike_joint", "spike_point", "calibration_score")
 
@@ -54,18 +62,18 @@ FILTERS = ("length", "camera_motion", "action", "visible", "spike_joint", "spike
 class FilterConfig:
     """Thresholds of ``oscar data filter`` (each overridable with ``--set name=value``)."""
 
-    min_length: int = 70                 # frames; the paper's length filter
-    max_camera_motion: float = 0.02      # image diagonals / s of median background flow (2 % of the diagonal per second)
-    min_action: float = 0.03             # metres some skeleton point must travel from its start (3 cm)
-    min_visible: float = 0.8             # fraction of projected skeleton points inside the image
-    max_joint_speed: float = 10.0        # rad/s (m/s for prismatic joints); 4x Franka's fastest joint limit
-    max_point_speed: float = 5.0         # m/s of any skeleton point between two frames
-    motion_pairs: int = 8                # frame pairs for camera motion, at uniform times
-    motion_gap_s: float = 0.2            # seconds between the two frames of a pair
-    motion_width: int = 160              # pixels; frames are resized to this width for the flow
-    motion_mask_px: int = 6              # pixels (at motion_width) the skeleton mask is thickened by
-    min_texture: float = 8.0             # grey-level gradient a pixel needs to count as background texture
-    min_calibration_score: float = 0.0   # least calibration score (0-1, docs/calibration.md); 0: off, not measured
+    min_length: int = 70  # frames; the paper's length filter
+    max_camera_motion: float = 0.02  # image diagonals / s of median background flow (2 % of the diagonal per second)
+    min_action: float = 0.03  # metres some skeleton point must travel from its start (3 cm)
+    min_visible: float = 0.8  # fraction of projected skeleton points inside the image
+    max_joint_speed: float = 10.0  # rad/s (m/s for prismatic joints); 4x Franka's fastest joint limit
+    max_point_speed: float = 5.0  # m/s of any skeleton point between two frames
+    motion_pairs: int = 8  # frame pairs for camera motion, at uniform times
+    motion_gap_s: float = 0.2  # seconds between the two frames of a pair
+    motion_width: int = 160  # pixels; frames are resized to this width for the flow
+    motion_mask_px: int = 6  # pixels (at motion_width) the skeleton mask is thickened by
+    min_texture: float = 8.0  # grey-level gradient a pixel needs to count as background texture
+    min_calibration_score: float = 0.0  # least calibration score (0-1, docs/calibration.md); 0: off, not measured
 
     @classmethod
     def from_overrides(cls, items: list[str] | None) -> FilterConfig:
@@ -89,12 +97,14 @@ class FilterConfig:
         return asdict(self)
 
 
-def _skeleton_mask(uv: np.ndarray, usable: np.ndarray, edges: np.ndarray, shape: tuple[int, int], thick: int) -> np.ndarray:
+def _skeleton_mask(
+    uv: np.ndarray, usable: np.ndarray, edges: np.ndarray, shape: tuple[int, int], thick: int
+) -> np.ndarray:
     """(H, W) bool: True where the skeleton (points + edges of one frame's uv (K, 2) pixels) is drawn."""
     import cv2
 
     m = np.zeros(shape, np.uint8)
-    pts = np.round(np.nan_to_num(uv, nan=-1e6)).astype(np.int64).clip(-10**6, 10**6)
+    pts = np.round(np.nan_to_num(uv, nan=-1e6)).astype(np.int64).clip(-(10**6), 10**6)
     for a, b in np.asarray(edges).reshape(-1, 2):
         if usable[a] and usable[b]:
             cv2.line(m, tuple(int(v) for v in pts[a]), tuple(int(v) for v in pts[b]), 1, thickness=max(1, 2 * thick))
@@ -104,8 +114,9 @@ def _skeleton_mask(uv: np.ndarray, usable: np.ndarray, edges: np.ndarray, shape:
     return m.astype(bool)
 
 
-def measure_camera_motion(video, uv: np.ndarray | None, usable: np.ndarray | None, edges: np.ndarray,
-                          cfg: FilterConfig = FilterConfig()) -> float:
+def measure_camera_motion(
+    video, uv: np.ndarray | None, usable: np.ndarray | None, edges: np.ndarray, cfg: FilterConfig = FilterConfig()
+) -> float:
     """Median background motion of ``video`` in image diagonals per second (NaN: not measurable).
 
     uv: (T, K, 2) projected skeleton pixels at the video's size, usable: (T, K)
@@ -176,8 +187,12 @@ def decide(m: dict[str, float], cfg: FilterConfig) -> tuple[str, float, str] | N
         ("visible", m["visible"] < cfg.min_visible, "<", cfg.min_visible),
         ("spike_joint", m["spike_joint"] > cfg.max_joint_speed, ">", cfg.max_joint_speed),
         ("spike_point", m["spike_point"] > cfg.max_point_speed, ">", cfg.max_point_speed),
-        ("calibration_score", m.get("calibration_score", math.nan) < cfg.min_calibration_score, "<",
-         cfg.min_calibration_score),
+        (
+            "calibration_score",
+            m.get("calibration_score", math.nan) < cfg.min_calibration_score,
+            "<",
+            cfg.min_calibration_score,
+        ),
     ]
     for name, failed, op, thr in checks:
         if failed:  # NaN compares False: an unmeasurable value passes

@@ -79,9 +79,22 @@ def write_stats_html(stats: dict[str, Any], run: str, *, thumbs: int = THUMBS, p
         for k, row in enumerate(_examples(str(folder), stats["stage"], thumbs).get(col, [])):
             dest = media / re.sub(r"[^A-Za-z0-9_.-]+", "_", col) / f"{k}.png"
             has = _thumb(row, dest, plugin_paths)
-            items.append({"id": row["id"], "reason": _reason(row), "task": row.get("task"),
-                          "url": relative_url(dest, folder) if has else None})
+            items.append(
+                {
+                    "id": row["id"],
+                    "reason": _reason(row),
+                    "task": row.get("task"),
+                    "url": relative_url(dest, folder) if has else None,
+                }
+            )
         examples.append({"column": col, "episodes": items})
     public = stats["total"]["public"] or 1
-    return render_page(folder / "stats.html", "data_stats.html.j2", generator="data stats",
-                       title=f"oscar data stats — {folder.name}", stats=stats, examples=examples, public=public)
+    return render_page(
+        folder / "stats.html",
+        "data_stats.html.j2",
+        generator="data stats",
+        title=f"oscar data stats — {folder.name}",
+        stats=stats,
+        examples=examples,
+        public=public,
+    )

@@ -19,8 +19,9 @@ from .manifest import ref_to_row
 __all__ = ["list_rows", "IngestStage"]
 
 
-def list_rows(source: str, reader_name: str, plugin_paths: tuple[str, ...] = (),
-              reader_options: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+def list_rows(
+    source: str, reader_name: str, plugin_paths: tuple[str, ...] = (), reader_options: dict[str, Any] | None = None
+) -> list[dict[str, Any]]:
     """Base manifest rows of every episode the reader lists under ``source``, sorted by id.
 
     reader_options: the reader's constructor keywords (``--reader-option``),
@@ -58,8 +59,9 @@ class IngestStage:
             if ep.video is None:
                 raise ValueError(f"{row['id']}: field 'video': expected a video, found none")
             if abs(ep.video.n_frames - ep.n_frames) > 0:
-                raise ValueError(f"{ep.video.path}: expected {ep.n_frames} video frames (one per state), "
-                                 f"found {ep.video.n_frames}")
+                raise ValueError(
+                    f"{ep.video.path}: expected {ep.n_frames} video frames (one per state), found {ep.video.n_frames}"
+                )
             frames = ep.video.read([0, ep.video.n_frames - 1])
             out.update(height=int(frames.shape[1]), width=int(frames.shape[2]))
             out["ingest_value"] = float(ep.n_frames)

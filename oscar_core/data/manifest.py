@@ -35,9 +35,18 @@ from typing import Any
 from .._util.optional import require
 from ..plugin.reader import EpisodeRef
 
-__all__ = ["STAGES", "BASE_COLUMNS", "ref_to_row", "row_to_ref", "rows_to_parquet", "rows_from_parquet",
-           "table_from_parquet", "table_to_parquet", "is_alive",
-           "rejection"]
+__all__ = [
+    "STAGES",
+    "BASE_COLUMNS",
+    "ref_to_row",
+    "row_to_ref",
+    "rows_to_parquet",
+    "rows_from_parquet",
+    "table_from_parquet",
+    "table_to_parquet",
+    "is_alive",
+    "rejection",
+]
 
 STAGES = ("ingest", "filter", "dedup", "caption", "export")
 BASE_COLUMNS = ("id", "source", "reader", "embodiment", "length", "fps", "cameras", "camera", "task", "paths", "meta")
@@ -46,20 +55,33 @@ BASE_COLUMNS = ("id", "source", "reader", "embodiment", "length", "fps", "camera
 def ref_to_row(ref: EpisodeRef) -> dict[str, Any]:
     """The base columns of one episode."""
     return {
-        "id": ref.episode_id, "source": ref.source, "reader": ref.reader, "embodiment": ref.embodiment,
+        "id": ref.episode_id,
+        "source": ref.source,
+        "reader": ref.reader,
+        "embodiment": ref.embodiment,
         "length": None if ref.n_frames is None else int(ref.n_frames),
         "fps": None if ref.fps is None else float(ref.fps),
-        "cameras": list(ref.cameras), "camera": None, "task": ref.task,
-        "paths": json.dumps(dict(ref.paths), sort_keys=True), "meta": json.dumps(ref.meta, sort_keys=True),
+        "cameras": list(ref.cameras),
+        "camera": None,
+        "task": ref.task,
+        "paths": json.dumps(dict(ref.paths), sort_keys=True),
+        "meta": json.dumps(ref.meta, sort_keys=True),
     }
 
 
 def row_to_ref(row: dict[str, Any]) -> EpisodeRef:
     """Rebuild the reader's :class:`EpisodeRef` from a manifest row."""
     return EpisodeRef(
-        episode_id=row["id"], source=row["source"], reader=row["reader"], embodiment=row["embodiment"],
-        paths=json.loads(row["paths"]), n_frames=row.get("length"), fps=row.get("fps"), task=row.get("task"),
-        cameras=tuple(row.get("cameras") or ()), meta=json.loads(row.get("meta") or "{}"),
+        episode_id=row["id"],
+        source=row["source"],
+        reader=row["reader"],
+        embodiment=row["embodiment"],
+        paths=json.loads(row["paths"]),
+        n_frames=row.get("length"),
+        fps=row.get("fps"),
+        task=row.get("task"),
+        cameras=tuple(row.get("cameras") or ()),
+        meta=json.loads(row.get("meta") or "{}"),
     )
 
 

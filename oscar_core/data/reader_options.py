@@ -45,19 +45,24 @@ def parse_reader_options(items: list[str] | None) -> dict[str, Any]:
         path = Path(text.strip())
         if path.suffix.lower() in _FILES:
             if not path.is_file():
-                raise ReaderOptionError(f"--reader-option {name}={text}: expected a {path.suffix} file, found no such file")
+                raise ReaderOptionError(
+                    f"--reader-option {name}={text}: expected a {path.suffix} file, found no such file"
+                )
             try:
                 raw = path.read_text()
                 out[name] = json.loads(raw) if path.suffix.lower() == ".json" else yaml.safe_load(raw)
             except (OSError, ValueError, yaml.YAMLError) as exc:
-                raise ReaderOptionError(f"--reader-option {name}={text}: expected {path.suffix[1:].upper()}, found "
-                                        f"{type(exc).__name__}: {str(exc).splitlines()[0]}") from None
+                raise ReaderOptionError(
+                    f"--reader-option {name}={text}: expected {path.suffix[1:].upper()}, found "
+                    f"{type(exc).__name__}: {str(exc).splitlines()[0]}"
+                ) from None
         else:
             try:
                 out[name] = yaml.safe_load(text)
             except yaml.YAMLError as exc:
-                raise ReaderOptionError(f"--reader-option {name}: expected a YAML value, found {text!r} "
-                                        f"({str(exc).splitlines()[0]})") from None
+                raise ReaderOptionError(
+                    f"--reader-option {name}: expected a YAML value, found {text!r} ({str(exc).splitlines()[0]})"
+                ) from None
     return out
 
 
@@ -86,7 +91,9 @@ def check_reader_options(cls, options: dict[str, Any]) -> dict[str, Any]:
     for name, value in options.items():
         if name not in known and not open_ended:
             takes = ", ".join(sorted(known)) or "none"
-            raise ReaderOptionError(f"--reader-option {name}: reader {cls.name!r} has no such option; it takes: {takes}")
+            raise ReaderOptionError(
+                f"--reader-option {name}: reader {cls.name!r} has no such option; it takes: {takes}"
+            )
         out[name] = _typed(hints.get(name, Any), value, f"--reader-option {name} (reader {cls.name!r})")
     return out
 
@@ -117,8 +124,11 @@ def _typed(hint, value, where: str):
     if origin is str:
         return value if isinstance(value, str) else bad("a string")
     if origin is dict:
-        return value if isinstance(value, dict) else bad("a mapping, e.g. {exterior_1_left: [fx, fy, cx, cy]} or a "
-                                                         ".json/.yaml file holding one")
+        return (
+            value
+            if isinstance(value, dict)
+            else bad("a mapping, e.g. {exterior_1_left: [fx, fy, cx, cy]} or a .json/.yaml file holding one")
+        )
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             bad("a list, e.g. [1280, 720]")

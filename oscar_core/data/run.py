@@ -30,8 +30,16 @@ from .engine import StageRun, read_fingerprint, read_stage, run_sharded, stage_p
 from .manifest import rows_to_parquet
 from .stats import latest_stage
 
-__all__ = ["run_ingest", "run_filter", "run_dedup", "run_caption", "run_export", "input_rows", "StaleStage",
-           "stale_reason"]
+__all__ = [
+    "run_ingest",
+    "run_filter",
+    "run_dedup",
+    "run_caption",
+    "run_export",
+    "input_rows",
+    "StaleStage",
+    "stale_reason",
+]
 
 
 class StaleStage(_stage.StageChanged):
@@ -54,8 +62,10 @@ def stale_reason(run: str, stage: str) -> str | None:
             return None
         theirs = read_fingerprint(_fs.join(run, prev))
         if theirs is None or theirs["fingerprint"] != src.get("fingerprint"):
-            return (f"{stage} was made from a '{prev}' output that has since been computed again "
-                    f"(under other inputs or settings)")
+            return (
+                f"{stage} was made from a '{prev}' output that has since been computed again "
+                f"(under other inputs or settings)"
+            )
         stage = prev
     return None
 
@@ -65,12 +75,16 @@ def input_rows(run: str, stage: str) -> tuple[str, list[dict]]:
     :class:`StaleStage` naming the command to re-run when that stage is stale."""
     prev = latest_stage(run, before=stage)
     if prev is None:
-        raise ValueError(f"{run}: expected a finished stage before '{stage}' (run `oscar data ingest` first), found none")
+        raise ValueError(
+            f"{run}: expected a finished stage before '{stage}' (run `oscar data ingest` first), found none"
+        )
     why = stale_reason(run, prev)
     if why is not None:
-        raise StaleStage(f"{_fs.join(run, prev)}: expected an input for '{stage}' made from the current earlier "
-                         f"stages, found a stale one ({why}); run `oscar data {prev} {run} …` again (it recomputes "
-                         f"with the settings you give it) or delete {_fs.join(run, prev)}")
+        raise StaleStage(
+            f"{_fs.join(run, prev)}: expected an input for '{stage}' made from the current earlier "
+            f"stages, found a stale one ({why}); run `oscar data {prev} {run} …` again (it recomputes "
+            f"with the settings you give it) or delete {_fs.join(run, prev)}"
+        )
     return prev, read_stage(_fs.join(run, prev))
 
 
@@ -83,8 +97,9 @@ def _opts(kw: dict[str, Any]) -> dict[str, Any]:
     return {k: kw[k] for k in ("engine", "workers", "shard_size", "progress") if k in kw}
 
 
-def run_ingest(source: str, reader: str, run: str, *, plugin_paths: tuple[str, ...] = (),
-               reader_options: dict | None = None, **kw) -> StageRun:
+def run_ingest(
+    source: str, reader: str, run: str, *, plugin_paths: tuple[str, ...] = (), reader_options: dict | None = None, **kw
+) -> StageRun:
     """List ``source`` with ``reader`` (built with ``reader_options``) and probe every episode into ``RUN/ingest``."""
     from .ingest import IngestStage, list_rows
 
@@ -92,10 +107,14 @@ def run_ingest(source: str, reader: str, run: str, *, plugin_paths: tuple[str, .
     if not rows:
         raise ValueError(f"{source}: expected episodes for reader {reader!r}, found none")
     listing = hashlib.sha256(json.dumps(rows, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    parts = stage_parts("ingest", input={"source": str(source), "reader": reader, "listing": listing},
-                        settings={"plugin_paths": list(plugin_paths), "reader_options": dict(reader_options or {})})
-    return run_sharded(IngestStage(tuple(plugin_paths)), rows, _fs.join(run, "ingest"), desc="ingest", parts=parts,
-                       **_opts(kw))
+    parts = stage_parts(
+        "ingest",
+        input={"source": str(source), "reader": reader, "listing": listing},
+        settings={"plugin_paths": list(plugin_paths), "reader_options": dict(reader_options or {})},
+    )
+    return run_sharded(
+        IngestStage(tuple(plugin_paths)), rows, _fs.join(run, "ingest"), desc="ingest", parts=parts, **_opts(kw)
+    )
 
 
 def run_filter(run: str, config=None, *, plugin_paths: tuple[str, ...] = (), **kw) -> StageRun:
@@ -104,8 +123,9 @@ def run_filter(run: str, config=None, *, plugin_paths: tuple[str, ...] = (), **k
     prev, rows = input_rows(run, "filter")
     stage = FilterStage(config or FilterConfig(), tuple(plugin_paths))
     url = _fs.join(run, "filter")
-    parts = stage_parts("filter", input=_input(run, prev),
-                        settings={**stage.config.to_dict(), "plugin_paths": list(plugin_paths)})
+    parts = stage_parts(
+        "filter", input=_input(run, prev), settings={**stage.config.to_dict(), "plugin_paths": list(plugin_paths)}
+    )
     res = run_sharded(stage, rows, url, desc="filter", parts=parts, **_opts(kw))
     # config.json names the thresholds of the verdicts now in the stage (after a recompute, never before)
     _fs.write_bytes_atomic(_fs.join(url, "config.json"), json.dumps(stage.config.to_dict()).encode())
@@ -123,13 +143,25 @@ def run_dedup(run: str, embedder, config=None, *, plugin_paths: tuple[str, ...] 
     # a model that cannot be found or loaded fails here, before any episode (nothing is recorded as done)
     model = embedder.identity() if hasattr(embedder, "identity") else {"model": type(embedder).__qualname__}
     src = _input(run, prev)
-    embed_parts = stage_parts("dedup-embed", input=src, model=model,
-                              settings={"frames": cfg.frames, "steps": cfg.steps, "plugin_paths": list(plugin_paths)})
-    use_fingerprint(url, stage_parts("dedup", input=src, model=model,
-                                     settings={**cfg.__dict__, "plugin_paths": list(plugin_paths)}),
-                    clear=("summary.json",))
-    res = run_sharded(EmbedStage(embedder, cfg, tuple(plugin_paths)), rows, _fs.join(url, "embed"), desc="dedup embed",
-                      parts=embed_parts, **_opts(kw))
+    embed_parts = stage_parts(
+        "dedup-embed",
+        input=src,
+        model=model,
+        settings={"frames": cfg.frames, "steps": cfg.steps, "plugin_paths": list(plugin_paths)},
+    )
+    use_fingerprint(
+        url,
+        stage_parts("dedup", input=src, model=model, settings={**cfg.__dict__, "plugin_paths": list(plugin_paths)}),
+        clear=("summary.json",),
+    )
+    res = run_sharded(
+        EmbedStage(embedder, cfg, tuple(plugin_paths)),
+        rows,
+        _fs.join(url, "embed"),
+        desc="dedup embed",
+        parts=embed_parts,
+        **_opts(kw),
+    )
     out, summary = dedup_rows(res.table, cfg)
     _fs.write_bytes_atomic(_fs.join(url, "summary.json"), json.dumps(summary).encode())
     _fs.write_bytes_atomic(_fs.join(url, "manifest.parquet"), rows_to_parquet(out))
@@ -149,14 +181,24 @@ def run_caption(run: str, config, *, plugin_paths: tuple[str, ...] = (), **kw) -
         from .caption import check_endpoint
 
         check_endpoint(config.base_url, min(float(config.timeout), 10.0))
-    parts = stage_parts("caption", input=_input(run, prev), settings={**config.key_fields(),
-                                                                      "plugin_paths": list(plugin_paths)})
-    return run_sharded(CaptionStage(config, cache, allowed, tuple(plugin_paths)), rows, url, desc="caption",
-                       parts=parts, **_opts(kw))
+    parts = stage_parts(
+        "caption", input=_input(run, prev), settings={**config.key_fields(), "plugin_paths": list(plugin_paths)}
+    )
+    return run_sharded(
+        CaptionStage(config, cache, allowed, tuple(plugin_paths)), rows, url, desc="caption", parts=parts, **_opts(kw)
+    )
 
 
-def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, video_codec: str = "ffv1",
-               plugin_paths: tuple[str, ...] = (), **kw) -> StageRun:
+def run_export(
+    run: str,
+    out: str,
+    *,
+    size=None,
+    render_skeleton: bool = False,
+    video_codec: str = "ffv1",
+    plugin_paths: tuple[str, ...] = (),
+    **kw,
+) -> StageRun:
     """Write every live episode as a training clip into the clip set ``out`` (a local folder or an fsspec URL)."""
     from .engine import check_workers_see
     from .export import ExportStage
@@ -168,8 +210,12 @@ def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, 
         from .manifest import is_alive
 
         longest = max((int(r.get("length") or 0) for r in rows if is_alive(r)), default=0)
-        check_fits((max(longest, 1), int(size[1]), int(size[0]), 3), 1,
-                   "the longest live episode at --size (T, H, W, 3) uint8", "use a smaller --size")
+        check_fits(
+            (max(longest, 1), int(size[1]), int(size[0]), 3),
+            1,
+            "the longest live episode at --size (T, H, W, 3) uint8",
+            "use a smaller --size",
+        )
     out = str(out)
     where = os.path.abspath(_fs.local_path(out)) if _fs.is_local(out) else out
     if _fs.is_local(out):
@@ -177,7 +223,15 @@ def run_export(run: str, out: str, *, size=None, render_skeleton: bool = False, 
 
         sweep_dead_temporaries(where)  # shard folders of killed exports
     stage = ExportStage(out, tuple(size) if size else None, render_skeleton, video_codec, tuple(plugin_paths))
-    parts = stage_parts("export", input=_input(run, prev),
-                        settings={"out": where, "size": list(size) if size else None, "render_skeleton": render_skeleton,
-                                  "video_codec": video_codec, "plugin_paths": list(plugin_paths)})
+    parts = stage_parts(
+        "export",
+        input=_input(run, prev),
+        settings={
+            "out": where,
+            "size": list(size) if size else None,
+            "render_skeleton": render_skeleton,
+            "video_codec": video_codec,
+            "plugin_paths": list(plugin_paths),
+        },
+    )
     return run_sharded(stage, rows, _fs.join(run, "export"), desc="export", parts=parts, **_opts(kw))

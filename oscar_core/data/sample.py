@@ -41,8 +41,15 @@ CAMERA = "exterior_1_left"
 VIDEO_KEY = f"observation.images.{CAMERA}"
 FPS = 15.0
 #: task text → what the pipeline does with the episode
-EXPECTED = {"normal-0": "kept", "normal-1": "kept", "normal-2": "kept", "normal-3": "kept",
-            "short": "filter:length", "still": "filter:action", "copy-of-0": "dedup:duplicate"}
+EXPECTED = {
+    "normal-0": "kept",
+    "normal-1": "kept",
+    "normal-2": "kept",
+    "normal-3": "kept",
+    "short": "filter:length",
+    "still": "filter:action",
+    "copy-of-0": "dedup:duplicate",
+}
 
 
 def _motion(q0: np.ndarray, g0: np.ndarray, rng: np.random.Generator, n: int, still: bool = False):
@@ -65,8 +72,9 @@ def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return (40 + 150 * img).astype(np.uint8)
 
 
-def write_sample_dataset(out, *, frames: int = 80, size: tuple[int, int] = (192, 108), seed: int = 0,
-                         registry=None) -> dict:
+def write_sample_dataset(
+    out, *, frames: int = 80, size: tuple[int, int] = (192, 108), seed: int = 0, registry=None
+) -> dict:
     """Write the dataset of the module docstring to ``out`` (a new or empty folder); returns a summary
     (``expected``: episode id → ``kept`` or the rejection column the pipeline gives it).
 
@@ -103,30 +111,66 @@ def write_sample_dataset(out, *, frames: int = 80, size: tuple[int, int] = (192,
     base = [_motion(example["q"], example["gripper"], np.random.default_rng([seed, e]), frames) for e in range(4)]
     plan += [(f"normal-{e}", *base[e]) for e in range(4)]
     plan.append(("short", *_motion(example["q"], example["gripper"], np.random.default_rng([seed, 10]), 40)))
-    plan.append(("still", *_motion(example["q"], example["gripper"], np.random.default_rng([seed, 11]), frames,
-                                   still=True)))
+    plan.append(
+        ("still", *_motion(example["q"], example["gripper"], np.random.default_rng([seed, 11]), frames, still=True))
+    )
     plan.append(("copy-of-0", base[0][0] + 0.0005 * rng.standard_normal(base[0][0].shape), base[0][1]))
     feat = lambda shape, dtype="float32": {"dtype": dtype, "shape": shape, "names": None}  # noqa: E731
-    info = {"codebase_version": "v3.0", "robot_type": "franka", "fps": FPS, "chunks_size": 1000,
-            "total_episodes": len(plan), "total_frames": int(sum(len(q) for _, q, _ in plan)),
-            "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
-            "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
-            "features": {"observation.state.joint_position": feat([7]),
-                         "observation.state.gripper_position": feat([1]),
-                         f"camera_extrinsics.{CAMERA}": feat([6], "float64"),
-                         "timestamp": feat([1]), "frame_index": feat([1], "int64"),
-                         "episode_index": feat([1], "int64"), "index": feat([1], "int64"),
-                         VIDEO_KEY: {"dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
-                                     "info": {"video.fps": FPS, "video.codec": "h264", "video.pix_fmt": "yuv420p",
-                                              "camera.intrinsics": intrinsics}}}}
-    cols = {k: [] for k in ("observation.state.joint_position", "observation.state.gripper_position",
-                            f"camera_extrinsics.{CAMERA}", "timestamp", "frame_index", "episode_index", "index")}
+    info = {
+        "codebase_version": "v3.0",
+        "robot_type": "franka",
+        "fps": FPS,
+        "chunks_size": 1000,
+        "total_episodes": len(plan),
+        "total_frames": int(sum(len(q) for _, q, _ in plan)),
+        "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+        "features": {
+            "observation.state.joint_position": feat([7]),
+            "observation.state.gripper_position": feat([1]),
+            f"camera_extrinsics.{CAMERA}": feat([6], "float64"),
+            "timestamp": feat([1]),
+            "frame_index": feat([1], "int64"),
+            "episode_index": feat([1], "int64"),
+            "index": feat([1], "int64"),
+            VIDEO_KEY: {
+                "dtype": "video",
+                "shape": [h, w, 3],
+                "names": ["height", "width", "channels"],
+                "info": {
+                    "video.fps": FPS,
+                    "video.codec": "h264",
+                    "video.pix_fmt": "yuv420p",
+                    "camera.intrinsics": intrinsics,
+                },
+            },
+        },
+    }
+    cols = {
+        k: []
+        for k in (
+            "observation.state.joint_position",
+            "observation.state.gripper_position",
+            f"camera_extrinsics.{CAMERA}",
+            "timestamp",
+            "frame_index",
+            "episode_index",
+            "index",
+        )
+    }
     episodes, video, start, t0 = [], [], 0, 0.0
     for e, (task, q, g) in enumerate(plan):
         T = len(q)
         record = {"observation/joint_position": q, "observation/gripper_position": g}
-        traj, camera = from_droid(record, CAMERA, extrinsic=extrinsic, intrinsics=intrinsics, image_size=(w, h),
-                                  fps=FPS, source=f"sample {task}")
+        traj, camera = from_droid(
+            record,
+            CAMERA,
+            extrinsic=extrinsic,
+            intrinsics=intrinsics,
+            image_size=(w, h),
+            fps=FPS,
+            source=f"sample {task}",
+        )
         skel = render_skeleton_video(emb, traj, camera, (w, h))
         bg = _texture(np.random.default_rng([seed, 100 + e]), h, w)
         video.append(np.where(skel.max(axis=-1, keepdims=True) > 0, skel, bg[None]))
@@ -137,15 +181,28 @@ def write_sample_dataset(out, *, frames: int = 80, size: tuple[int, int] = (192,
         cols["frame_index"] += list(range(T))
         cols["episode_index"] += [e] * T
         cols["index"] += list(range(start, start + T))
-        episodes.append({"episode_index": e, "tasks": [task], "length": T, "data/chunk_index": 0,
-                         "data/file_index": 0, "dataset_from_index": start, "dataset_to_index": start + T,
-                         f"videos/{VIDEO_KEY}/chunk_index": 0, f"videos/{VIDEO_KEY}/file_index": 0,
-                         f"videos/{VIDEO_KEY}/from_timestamp": t0, f"videos/{VIDEO_KEY}/to_timestamp": t0 + T / FPS})
+        episodes.append(
+            {
+                "episode_index": e,
+                "tasks": [task],
+                "length": T,
+                "data/chunk_index": 0,
+                "data/file_index": 0,
+                "dataset_from_index": start,
+                "dataset_to_index": start + T,
+                f"videos/{VIDEO_KEY}/chunk_index": 0,
+                f"videos/{VIDEO_KEY}/file_index": 0,
+                f"videos/{VIDEO_KEY}/from_timestamp": t0,
+                f"videos/{VIDEO_KEY}/to_timestamp": t0 + T / FPS,
+            }
+        )
         start, t0 = start + T, t0 + T / FPS
     import io
 
-    for table, path in ((pa.table(cols), out / "data" / "chunk-000" / "file-000.parquet"),
-                        (pa.Table.from_pylist(episodes), out / "meta" / "episodes" / "chunk-000" / "file-000.parquet")):
+    for table, path in (
+        (pa.table(cols), out / "data" / "chunk-000" / "file-000.parquet"),
+        (pa.Table.from_pylist(episodes), out / "meta" / "episodes" / "chunk-000" / "file-000.parquet"),
+    ):
         path.parent.mkdir(parents=True, exist_ok=True)
         buf = io.BytesIO()
         pq.write_table(table, buf)
@@ -154,5 +211,10 @@ def write_sample_dataset(out, *, frames: int = 80, size: tuple[int, int] = (192,
     vdir.mkdir(parents=True, exist_ok=True)
     write_video(vdir / "file-000.mp4", np.concatenate(video), FPS)
     atomic_write_bytes(out / "meta" / "info.json", (json.dumps(info, indent=2) + "\n").encode())
-    return {"dataset": str(out), "reader": "lerobot", "episodes": len(plan), "frames": info["total_frames"],
-            "expected": {f"droid/{e}": EXPECTED[task] for e, (task, _, _) in enumerate(plan)}}
+    return {
+        "dataset": str(out),
+        "reader": "lerobot",
+        "episodes": len(plan),
+        "frames": info["total_frames"],
+        "expected": {f"droid/{e}": EXPECTED[task] for e, (task, _, _) in enumerate(plan)},
+    }

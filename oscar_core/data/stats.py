@@ -60,17 +60,29 @@ def compute_stats(run: str) -> dict[str, Any]:
     order = {f"{s}:": i for i, s in enumerate(STAGES)}
     columns.sort(key=lambda c: (order.get(c.split(":")[0] + ":", 99), c))
     rows = [groups[k] for k in sorted(groups)]
-    total = {"source": "total", "embodiment": "", "public": sum(g["public"] for g in rows),
-             "kept": sum(g["kept"] for g in rows),
-             "rejected": {c: sum(g["rejected"].get(c, 0) for g in rows) for c in columns}}
+    total = {
+        "source": "total",
+        "embodiment": "",
+        "public": sum(g["public"] for g in rows),
+        "kept": sum(g["kept"] for g in rows),
+        "rejected": {c: sum(g["rejected"].get(c, 0) for g in rows) for c in columns},
+    }
     return {"run": str(run), "stage": stage, "columns": columns, "rows": rows, "total": total}
 
 
 def format_table(stats: dict[str, Any]) -> str:
     """A plain-text table: source, embodiment, public, one column per rejection kind, kept."""
     head = ["source", "embodiment", "public", *stats["columns"], "kept"]
-    body = [[g["source"], g["embodiment"], str(g["public"]), *[str(g["rejected"].get(c, 0)) for c in stats["columns"]],
-             str(g["kept"])] for g in [*stats["rows"], stats["total"]]]
+    body = [
+        [
+            g["source"],
+            g["embodiment"],
+            str(g["public"]),
+            *[str(g["rejected"].get(c, 0)) for c in stats["columns"]],
+            str(g["kept"]),
+        ]
+        for g in [*stats["rows"], stats["total"]]
+    ]
     widths = [max(len(h), *(len(b[i]) for b in body)) for i, h in enumerate(head)]
 
     def line(cells):
@@ -87,7 +99,9 @@ def plot_stats(stats: dict[str, Any], path: str) -> str:
     try:
         import matplotlib
     except ImportError:
-        raise ImportError('matplotlib is needed for the stats plot; install it with: pip install "oscar-wm[plots]"') from None
+        raise ImportError(
+            'matplotlib is needed for the stats plot; install it with: pip install "oscar-wm[plots]"'
+        ) from None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np

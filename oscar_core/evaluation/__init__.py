@@ -13,9 +13,16 @@ from __future__ import annotations
 from .._util.lazy import lazy_exports
 
 _EXPORTS = {
-    "Cell": "manifest", "Manifest": "manifest", "ManifestError": "manifest", "load_manifest": "manifest",
-    "EvaluationResult": "loop", "run_evaluation": "loop",
-    "build_report": "report", "write_report": "report", "contact_sheet": "report", "format_summary": "report",
+    "Cell": "manifest",
+    "Manifest": "manifest",
+    "ManifestError": "manifest",
+    "load_manifest": "manifest",
+    "EvaluationResult": "loop",
+    "run_evaluation": "loop",
+    "build_report": "report",
+    "write_report": "report",
+    "contact_sheet": "report",
+    "format_summary": "report",
     "load_judge": "cli",
 }
 

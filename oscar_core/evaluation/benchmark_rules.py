@@ -29,8 +29,18 @@ from collections.abc import Hashable, Mapping
 
 import numpy as np
 
-__all__ = ["end_effector_pixels", "forward_window", "motion_magnitude", "text_embedding", "pooled_embedding",
-           "dedup_features", "kmeans_representatives", "distinct_rows", "sqrt_quotas", "TEXT_DIM"]
+__all__ = [
+    "end_effector_pixels",
+    "forward_window",
+    "motion_magnitude",
+    "text_embedding",
+    "pooled_embedding",
+    "dedup_features",
+    "kmeans_representatives",
+    "distinct_rows",
+    "sqrt_quotas",
+    "TEXT_DIM",
+]
 
 #: width of the hashed bag-of-words text embedding (:func:`text_embedding`)
 TEXT_DIM = 256
@@ -52,8 +62,9 @@ def end_effector_pixels(embodiment, trajectory, camera) -> tuple[np.ndarray, np.
     return np.asarray(p.uv, dtype=np.float64), np.asarray(p.in_front, dtype=bool)
 
 
-def forward_window(uv: np.ndarray, in_front: np.ndarray, width: int, height: int, frames: int,
-                   margin: float = 0.0) -> int | None:
+def forward_window(
+    uv: np.ndarray, in_front: np.ndarray, width: int, height: int, frames: int, margin: float = 0.0
+) -> int | None:
     """The first frame in ``[0, frames)`` whose end effector is outside the image, or None when it never leaves.
 
     uv: (T, 2) pixels (pixel centres at integers); in_front: (T,) bool. A point
@@ -68,9 +79,15 @@ def forward_window(uv: np.ndarray, in_front: np.ndarray, width: int, height: int
         return len(uv)
     u, v = uv[:frames, 0], uv[:frames, 1]
     with np.errstate(invalid="ignore"):
-        inside = (np.asarray(in_front[:frames], bool) & np.isfinite(u) & np.isfinite(v)
-                  & (u >= margin - 0.5) & (u < width - 0.5 - margin)
-                  & (v >= margin - 0.5) & (v < height - 0.5 - margin))
+        inside = (
+            np.asarray(in_front[:frames], bool)
+            & np.isfinite(u)
+            & np.isfinite(v)
+            & (u >= margin - 0.5)
+            & (u < width - 0.5 - margin)
+            & (v >= margin - 0.5)
+            & (v < height - 0.5 - margin)
+        )
     bad = np.flatnonzero(~inside)
     return int(bad[0]) if bad.size else None
 
@@ -175,8 +192,9 @@ def distinct_rows(x: np.ndarray) -> int:
     return len(np.unique(np.round(x.reshape(len(x), -1), 9), axis=0)) if len(x) else 0
 
 
-def sqrt_quotas(available: Mapping[Hashable, int], total: int, *, corpus: Mapping[Hashable, int] | None = None
-                ) -> dict[Hashable, int]:
+def sqrt_quotas(
+    available: Mapping[Hashable, int], total: int, *, corpus: Mapping[Hashable, int] | None = None
+) -> dict[Hashable, int]:
     """Clips per group: ``total`` split in proportion to sqrt(N) of each group, by largest remainders.
 
     available: group → clips that may be chosen; corpus: group → N, the size

@@ -48,8 +48,9 @@ PROMPT_MODES = ("clip", "empty")
 _log = get_logger(__name__)
 
 
-def rollout_clip(model, clipset, rec, frames: int, *, sampler, seed: int = 0, registry=None, source=None,
-                 prompt: str = "clip") -> tuple[np.ndarray, float]:
+def rollout_clip(
+    model, clipset, rec, frames: int, *, sampler, seed: int = 0, registry=None, source=None, prompt: str = "clip"
+) -> tuple[np.ndarray, float]:
     """One rollout: ``model`` from ``rec``'s first frame, conditioned on ``source``'s trajectory (default ``rec``).
 
     clipset: the :class:`~oscar_core.train.clips.ClipSet` holding both records;
@@ -66,7 +67,7 @@ def rollout_clip(model, clipset, rec, frames: int, *, sampler, seed: int = 0, re
     options = dict(sampler=sampler, seed=seed, progress=False, keep_chunks=False)
     t0 = time.perf_counter()
     if takes_actions(model.card.condition):
-        acts = model.rollout_inputs(clip.trajectory, clip.camera, emb)["actions"][:frames - 1]
+        acts = model.rollout_inputs(clip.trajectory, clip.camera, emb)["actions"][: frames - 1]
         video = model.rollout(first, None, embeds, actions=acts, **options)
     else:  # the card's condition video: the stored skeleton, or the mesh / capsules rendered
         cond = clipset.condition_video(source, clip, registry, video_condition_of(model.card.condition))[:frames]
@@ -86,8 +87,9 @@ def read_timing(folder, clip_id: str) -> dict | None:
         return None
 
 
-def run_benchmark(model, bench: dict, out, *, sampler, seed: int = 0, prompt: str = "clip", registry=None,
-                  model_id: str | None = None) -> dict:
+def run_benchmark(
+    model, bench: dict, out, *, sampler, seed: int = 0, prompt: str = "clip", registry=None, model_id: str | None = None
+) -> dict:
     """Roll ``model`` out on every clip of ``bench`` (a loaded set) into ``out``; see the module.
 
     model_id: what names the weights (:func:`oscar_core._util.stage.model_identity`
@@ -102,10 +104,17 @@ def run_benchmark(model, bench: dict, out, *, sampler, seed: int = 0, prompt: st
     registry = registry if registry is not None else Registry()
     frames = int(bench["settings"]["frames"])
     card = model.card
-    parts = {"stage": "benchmark-run", "format": _stage.FORMAT_VERSION, "model": model_id,
-             "card": dataclasses.asdict(card) if dataclasses.is_dataclass(card) else repr(card),
-             "set": bench["fingerprint"], "frames": frames, "sampler": dataclasses.asdict(sampler), "seed": seed,
-             "prompt": prompt}
+    parts = {
+        "stage": "benchmark-run",
+        "format": _stage.FORMAT_VERSION,
+        "model": model_id,
+        "card": dataclasses.asdict(card) if dataclasses.is_dataclass(card) else repr(card),
+        "set": bench["fingerprint"],
+        "frames": frames,
+        "sampler": dataclasses.asdict(sampler),
+        "seed": seed,
+        "prompt": prompt,
+    }
     out = Path(out)
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     sweep_dead_temporaries(out)
@@ -118,16 +127,25 @@ def run_benchmark(model, bench: dict, out, *, sampler, seed: int = 0, prompt: st
             kept += 1
             continue
         cs = sets.get(entry["clipset"]) or sets.setdefault(entry["clipset"], ClipSet(entry["clipset"]))
-        video, seconds = rollout_clip(model, cs, cs.record(cid), frames, sampler=sampler, seed=seed,
-                                      registry=registry, prompt=prompt)
+        video, seconds = rollout_clip(
+            model, cs, cs.record(cid), frames, sampler=sampler, seed=seed, registry=registry, prompt=prompt
+        )
         buf = io.BytesIO()
         np.save(buf, video)
         atomic_write_bytes(out / f"{cid}.npy", buf.getvalue())
-        record = {"id": cid, "seconds": seconds, "frames_generated": frames - 1,
-                  "frames_per_s": (frames - 1) / seconds if seconds > 0 else None}
+        record = {
+            "id": cid,
+            "seconds": seconds,
+            "frames_generated": frames - 1,
+            "frames_per_s": (frames - 1) / seconds if seconds > 0 else None,
+        }
         atomic_write_bytes(out / f"{cid}.json", (json.dumps(record) + "\n").encode())
         fps.append(record["frames_per_s"])
         written += 1
         _log.debug("%s: rollout %.2f s", cid, seconds)
-    return {"written": written, "kept": kept, "clips": len(bench["clips"]),
-            "frames_per_s": float(np.mean(fps)) if fps else None}
+    return {
+        "written": written,
+        "kept": kept,
+        "clips": len(bench["clips"]),
+        "frames_per_s": float(np.mean(fps)) if fps else None,
+    }

@@ -64,9 +64,19 @@ def _caption_vector(cs, rec, text: str) -> np.ndarray:
     return rules.text_embedding(rec.caption or rec.task)
 
 
-def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters: int | None = None,
-                        seed: int = 0, split: str | None = "heldout", margin: float = 0.0, text: str = "prompt",
-                        registry=None) -> dict:
+def build_benchmark_set(
+    clipsets,
+    out,
+    total: int,
+    *,
+    frames: int = 49,
+    clusters: int | None = None,
+    seed: int = 0,
+    split: str | None = "heldout",
+    margin: float = 0.0,
+    text: str = "prompt",
+    registry=None,
+) -> dict:
     """Choose ``total`` clips from ``clipsets`` (paths) by the rules of the module; write the set to ``out``.
 
     frames: the evaluation horizon (the paper's 49); margin: pixels kept clear
@@ -92,13 +102,18 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
             if split is not None and r.meta.get("split") != split:
                 continue
             if r.id in owner:
-                raise BenchmarkSetError(f"clip id {r.id!r} is in both {owner[r.id].root} and {cs.root}: expected ids "
-                                        "unique across the clip sets of one benchmark")
+                raise BenchmarkSetError(
+                    f"clip id {r.id!r} is in both {owner[r.id].root} and {cs.root}: expected ids "
+                    "unique across the clip sets of one benchmark"
+                )
             owner[r.id] = cs
             recs.append(r)
     if not recs:
-        raise BenchmarkSetError(f"{', '.join(str(c.root) for c in sets)}: expected clips"
-                                + (f" with meta.split == {split!r}" if split else "") + ", found none")
+        raise BenchmarkSetError(
+            f"{', '.join(str(c.root) for c in sets)}: expected clips"
+            + (f" with meta.split == {split!r}" if split else "")
+            + ", found none"
+        )
     corpus: dict[str, int] = {}
     for r in recs:
         corpus[_group(r)] = corpus.get(_group(r), 0) + 1
@@ -115,8 +130,14 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
         uv, front = rules.end_effector_pixels(emb, emb.check_trajectory(clip.trajectory), cam)
         out_at = rules.forward_window(uv, front, r.width, r.height, frames, margin)
         if out_at is not None:
-            dropped.append({"id": r.id, "rule": "forward_window",
-                            "reason": f"end effector outside the image at frame {out_at}", "frame": out_at})
+            dropped.append(
+                {
+                    "id": r.id,
+                    "rule": "forward_window",
+                    "reason": f"end effector outside the image at frame {out_at}",
+                    "frame": out_at,
+                }
+            )
             continue
         motion[r.id] = rules.motion_magnitude(uv, frames, r.width, r.height)
         passed.append(r)
@@ -126,11 +147,14 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
     feats = {}
     for g, members in by_group.items():
         members.sort(key=lambda r: r.id)
-        feats[g] = rules.dedup_features(np.stack([_caption_vector(owner[r.id], r, text) for r in members]),
-                                        np.array([motion[r.id] for r in members]))
+        feats[g] = rules.dedup_features(
+            np.stack([_caption_vector(owner[r.id], r, text) for r in members]),
+            np.array([motion[r.id] for r in members]),
+        )
     # a group offers its distinct clips only: an exact duplicate never fills a quota
-    quotas = rules.sqrt_quotas({g: rules.distinct_rows(feats[g]) if g in feats else 0 for g in corpus}, total,
-                               corpus=corpus)
+    quotas = rules.sqrt_quotas(
+        {g: rules.distinct_rows(feats[g]) if g in feats else 0 for g in corpus}, total, corpus=corpus
+    )
     chosen = []
     for g in sorted(by_group):
         members, x, q = by_group[g], feats[g], quotas[g]
@@ -142,12 +166,22 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
                 continue
             twin = next((members[j].id for j in keep if np.allclose(x[i], x[j], rtol=0, atol=1e-9)), None)
             if clusters is None and twin is None:  # the quota's k-means picked another clip of its cluster
-                dropped.append({"id": r.id, "rule": "quota", "reason": f"not the representative of its k-means "
-                                                                       f"cluster (quota {q} = {k} clusters in {g})"})
+                dropped.append(
+                    {
+                        "id": r.id,
+                        "rule": "quota",
+                        "reason": f"not the representative of its k-means cluster (quota {q} = {k} clusters in {g})",
+                    }
+                )
             else:
-                dropped.append({"id": r.id, "rule": "dedup", "reason": f"near-duplicate: not the representative of "
-                                f"its k-means cluster ({k} clusters in {g})"
-                                + (f"; same features as {twin}" if twin else "")})
+                dropped.append(
+                    {
+                        "id": r.id,
+                        "rule": "dedup",
+                        "reason": f"near-duplicate: not the representative of "
+                        f"its k-means cluster ({k} clusters in {g})" + (f"; same features as {twin}" if twin else ""),
+                    }
+                )
         if len(keep) > q:  # --clusters larger than the quota: a seeded random draw of the representatives
             rng = np.random.default_rng([seed, len(g)] + list(g.encode()))
             order = [keep[i] for i in rng.permutation(len(keep))]
@@ -155,27 +189,65 @@ def build_benchmark_set(clipsets, out, total: int, *, frames: int = 49, clusters
                 dropped.append({"id": members[i].id, "rule": "quota", "reason": f"beyond the quota {q} of {g}"})
             keep = sorted(order[:q])
         chosen += [members[i] for i in keep]
-    counts = {"candidates": len(recs), **{rule: sum(1 for d in dropped if d["rule"] == rule)
-                                          for rule in ("forward_window", "dedup", "quota")}, "chosen": len(chosen)}
-    why = (f"{counts['candidates']} candidates: {counts['forward_window']} dropped by the forward window (horizon "
-           f"{frames} frames, margin {margin}), {counts['dedup']} as near-duplicates")
+    counts = {
+        "candidates": len(recs),
+        **{rule: sum(1 for d in dropped if d["rule"] == rule) for rule in ("forward_window", "dedup", "quota")},
+        "chosen": len(chosen),
+    }
+    why = (
+        f"{counts['candidates']} candidates: {counts['forward_window']} dropped by the forward window (horizon "
+        f"{frames} frames, margin {margin}), {counts['dedup']} as near-duplicates"
+    )
     if not chosen:
-        raise BenchmarkSetError(f"{out}: expected a set of --total {total} clips, found no clip to choose ({why}); "
-                                "a shorter --frames or another --split may leave some")
+        raise BenchmarkSetError(
+            f"{out}: expected a set of --total {total} clips, found no clip to choose ({why}); "
+            "a shorter --frames or another --split may leave some"
+        )
     if len(chosen) < total:
-        _log.warning("benchmark set %s: %d clips, %d short of --total %d (%s)", out, len(chosen), total - len(chosen),
-                     total, why)
-    settings = {"frames": frames, "total": total, "clusters": clusters, "seed": seed, "split": split,
-                "margin": margin, "text": text, "feature": "caption embedding + end-effector path / image diagonal"}
-    clips = [{"clipset": str(owner[r.id].root.resolve()), "id": r.id, "embodiment": r.embodiment,
-              "source": r.source, "n_frames": r.n_frames, "motion": round(motion[r.id], 6)} for r in chosen]
-    parts = {"format": SET_FORMAT, "format_version": _stage.FORMAT_VERSION, "settings": settings,
-             "clipsets": [str(c.root.resolve()) for c in sets], "clips": [[c["clipset"], c["id"]] for c in clips]}
-    data = {"format": SET_FORMAT, "format_version": _stage.FORMAT_VERSION, "fingerprint": _stage.fingerprint(parts),
-            "settings": settings, "clipsets": parts["clipsets"], "counts": counts,
-            "quotas": {g: {"corpus": corpus[g], "passed": len(by_group.get(g, [])), "quota": quotas[g]}
-                       for g in sorted(corpus)},
-            "clips": clips, "dropped": sorted(dropped, key=lambda d: d["id"])}
+        _log.warning(
+            "benchmark set %s: %d clips, %d short of --total %d (%s)", out, len(chosen), total - len(chosen), total, why
+        )
+    settings = {
+        "frames": frames,
+        "total": total,
+        "clusters": clusters,
+        "seed": seed,
+        "split": split,
+        "margin": margin,
+        "text": text,
+        "feature": "caption embedding + end-effector path / image diagonal",
+    }
+    clips = [
+        {
+            "clipset": str(owner[r.id].root.resolve()),
+            "id": r.id,
+            "embodiment": r.embodiment,
+            "source": r.source,
+            "n_frames": r.n_frames,
+            "motion": round(motion[r.id], 6),
+        }
+        for r in chosen
+    ]
+    parts = {
+        "format": SET_FORMAT,
+        "format_version": _stage.FORMAT_VERSION,
+        "settings": settings,
+        "clipsets": [str(c.root.resolve()) for c in sets],
+        "clips": [[c["clipset"], c["id"]] for c in clips],
+    }
+    data = {
+        "format": SET_FORMAT,
+        "format_version": _stage.FORMAT_VERSION,
+        "fingerprint": _stage.fingerprint(parts),
+        "settings": settings,
+        "clipsets": parts["clipsets"],
+        "counts": counts,
+        "quotas": {
+            g: {"corpus": corpus[g], "passed": len(by_group.get(g, [])), "quota": quotas[g]} for g in sorted(corpus)
+        },
+        "clips": clips,
+        "dropped": sorted(dropped, key=lambda d: d["id"]),
+    }
     atomic_write_bytes(out, (json.dumps(data, indent=1) + "\n").encode())
     _log.info("benchmark set %s: %d clips of %d candidates", out, len(chosen), len(recs))
     return data
@@ -199,12 +271,21 @@ def load_benchmark_set(path) -> dict:
         if key not in data:
             raise BenchmarkSetError(f"{path}: field {key!r}: expected present, found missing")
     if not data["clips"]:
-        raise BenchmarkSetError(f"{path}: field 'clips': expected at least one clip, found an empty set (build it "
-                                "again with a shorter --frames or more clips)")
-    parts = {"format": SET_FORMAT, "format_version": data.get("format_version"), "settings": data["settings"],
-             "clipsets": data["clipsets"], "clips": [[c["clipset"], c["id"]] for c in data["clips"]]}
+        raise BenchmarkSetError(
+            f"{path}: field 'clips': expected at least one clip, found an empty set (build it "
+            "again with a shorter --frames or more clips)"
+        )
+    parts = {
+        "format": SET_FORMAT,
+        "format_version": data.get("format_version"),
+        "settings": data["settings"],
+        "clipsets": data["clipsets"],
+        "clips": [[c["clipset"], c["id"]] for c in data["clips"]],
+    }
     if _stage.fingerprint(parts) != data["fingerprint"]:
-        raise BenchmarkSetError(f"{path}: field 'fingerprint': expected the sha256 of its settings and clips, found "
-                                "another (the file was edited); build the set again")
+        raise BenchmarkSetError(
+            f"{path}: field 'fingerprint': expected the sha256 of its settings and clips, found "
+            "another (the file was edited); build the set again"
+        )
     data["path"] = str(path)
     return data

@@ -29,8 +29,16 @@ from ..errors import OscarError
 
 __all__ = ["BenchmarkTableError", "benchmark_table", "format_benchmark_table", "COLUMNS"]
 
-COLUMNS = (("psnr", "PSNR ↑"), ("ssim", "SSIM ↑"), ("lpips", "LPIPS ↓"), ("tlpips", "tLPIPS ↓"), ("fvd", "FVD ↓"),
-           ("fid", "FID ↓"), ("latent_l2", "L2 latent ↓"), ("frames_per_s", "frames/s ↑"))
+COLUMNS = (
+    ("psnr", "PSNR ↑"),
+    ("ssim", "SSIM ↑"),
+    ("lpips", "LPIPS ↓"),
+    ("tlpips", "tLPIPS ↓"),
+    ("fvd", "FVD ↓"),
+    ("fid", "FID ↓"),
+    ("latent_l2", "L2 latent ↓"),
+    ("frames_per_s", "frames/s ↑"),
+)
 
 
 class BenchmarkTableError(OscarError, ValueError):
@@ -43,29 +51,41 @@ def _check_row(name: str, folder: Path, bench: dict) -> dict:
 
     fp = folder / "fingerprint.json"
     if not fp.is_file():
-        raise BenchmarkTableError(f"--pred {name}={folder}: expected a folder written by `oscar eval benchmark run` "
-                                  "(with fingerprint.json), found none")
+        raise BenchmarkTableError(
+            f"--pred {name}={folder}: expected a folder written by `oscar eval benchmark run` "
+            "(with fingerprint.json), found none"
+        )
     parts = json.loads(fp.read_text()).get("parts", {})
     if parts.get("set") != bench["fingerprint"]:
-        raise BenchmarkTableError(f"--pred {name}={folder}: expected rollouts of the benchmark set {bench['path']} "
-                                  f"(fingerprint {bench['fingerprint'][:12]}), found rollouts of another set "
-                                  f"({str(parts.get('set'))[:12]})")
-    missing = [c["id"] for c in bench["clips"]
-               if read_timing(folder, c["id"]) is None or not (folder / f"{c['id']}.npy").is_file()]
+        raise BenchmarkTableError(
+            f"--pred {name}={folder}: expected rollouts of the benchmark set {bench['path']} "
+            f"(fingerprint {bench['fingerprint'][:12]}), found rollouts of another set "
+            f"({str(parts.get('set'))[:12]})"
+        )
+    missing = [
+        c["id"]
+        for c in bench["clips"]
+        if read_timing(folder, c["id"]) is None or not (folder / f"{c['id']}.npy").is_file()
+    ]
     if missing:
         few = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
-        raise BenchmarkTableError(f"--pred {name}={folder}: expected predictions of all {len(bench['clips'])} clips "
-                                  f"of the set, found {len(bench['clips']) - len(missing)} (lacking {few}); "
-                                  "finish the run (`oscar eval benchmark run` resumes)")
+        raise BenchmarkTableError(
+            f"--pred {name}={folder}: expected predictions of all {len(bench['clips'])} clips "
+            f"of the set, found {len(bench['clips']) - len(missing)} (lacking {few}); "
+            "finish the run (`oscar eval benchmark run` resumes)"
+        )
     extra = sorted(p.stem for p in folder.glob("*.npy") if p.stem not in {c["id"] for c in bench["clips"]})
     if extra:
-        raise BenchmarkTableError(f"--pred {name}={folder}: expected predictions of the set's clips only, found "
-                                  f"others ({', '.join(extra[:5])})")
+        raise BenchmarkTableError(
+            f"--pred {name}={folder}: expected predictions of the set's clips only, found "
+            f"others ({', '.join(extra[:5])})"
+        )
     return parts
 
 
-def benchmark_table(bench: dict, rows: dict[str, str], *, networks: dict | None = None, notes: dict | None = None,
-                    device: str = "cpu") -> dict:
+def benchmark_table(
+    bench: dict, rows: dict[str, str], *, networks: dict | None = None, notes: dict | None = None, device: str = "cpu"
+) -> dict:
     """The table: ``rows`` maps a row name to its run folder; ``bench`` is a loaded set.
 
     networks: ``lpips``, ``vae``, ``i3d``, ``inception`` (as
@@ -93,8 +113,12 @@ def benchmark_table(bench: dict, rows: dict[str, str], *, networks: dict | None 
         return gt_cache[entry["id"]]
 
     missing = {}
-    for key, metrics in (("lpips", ("lpips", "tlpips")), ("vae", ("latent_l2",)), ("i3d", ("fvd",)),
-                         ("inception", ("fid",))):
+    for key, metrics in (
+        ("lpips", ("lpips", "tlpips")),
+        ("vae", ("latent_l2",)),
+        ("i3d", ("fvd",)),
+        ("inception", ("fid",)),
+    ):
         if networks.get(key) is None:
             for m in metrics:
                 missing[m] = notes.get(m) or notes.get(key) or f"no {key} network given"
@@ -103,31 +127,61 @@ def benchmark_table(bench: dict, rows: dict[str, str], *, networks: dict | None 
         missing["fvd"] = "FVD needs at least 2 clips"
     out_rows, out_clips = {}, {}
     for name, folder in folders.items():
-        clips = [Clip(name=e["id"], pred=np.load(folder / f"{e['id']}.npy")[:frames], gt=truth(e),
-                      embodiment=e["embodiment"]) for e in bench["clips"]]
-        rep = evaluate_videos(clips, n_frames=frames, lpips_net=networks.get("lpips"), vae=networks.get("vae"),
-                              fvd_extractor=networks.get("i3d"), fid_extractor=networks.get("inception"),
-                              device=device).to_dict()
+        clips = [
+            Clip(
+                name=e["id"], pred=np.load(folder / f"{e['id']}.npy")[:frames], gt=truth(e), embodiment=e["embodiment"]
+            )
+            for e in bench["clips"]
+        ]
+        rep = evaluate_videos(
+            clips,
+            n_frames=frames,
+            lpips_net=networks.get("lpips"),
+            vae=networks.get("vae"),
+            fvd_extractor=networks.get("i3d"),
+            fid_extractor=networks.get("inception"),
+            device=device,
+        ).to_dict()
         timing = {e["id"]: read_timing(folder, e["id"]) for e in bench["clips"]}  # each record read once
         fps = [t["frames_per_s"] for t in timing.values() if t and t["frames_per_s"]]
         speed = float(np.mean(fps)) if fps else None
-        per = {emb: {**vals, "frames_per_s": _mean([timing[e["id"]]["frames_per_s"]
-                                                     for e in bench["clips"] if e["embodiment"] == emb])}
-               for emb, vals in rep["per_embodiment"].items()}
-        out_rows[name] = {"folder": str(folder), "model": fingerprints[name].get("model"),
-                          "per_embodiment": per,
-                          "mean_over_embodiments": {**rep["mean_over_embodiments"], "fvd": rep["aggregate"].get("fvd"),
-                                                    "fid": rep["aggregate"].get("fid"), "frames_per_s": speed},
-                          "mean_over_clips": rep["aggregate"]}
+        per = {
+            emb: {
+                **vals,
+                "frames_per_s": _mean(
+                    [timing[e["id"]]["frames_per_s"] for e in bench["clips"] if e["embodiment"] == emb]
+                ),
+            }
+            for emb, vals in rep["per_embodiment"].items()
+        }
+        out_rows[name] = {
+            "folder": str(folder),
+            "model": fingerprints[name].get("model"),
+            "per_embodiment": per,
+            "mean_over_embodiments": {
+                **rep["mean_over_embodiments"],
+                "fvd": rep["aggregate"].get("fvd"),
+                "fid": rep["aggregate"].get("fid"),
+                "frames_per_s": speed,
+            },
+            "mean_over_clips": rep["aggregate"],
+        }
         for block in (out_rows[name]["mean_over_embodiments"], out_rows[name]["mean_over_clips"], *per.values()):
             for key, _ in COLUMNS:  # a metric not computed is null (its reason in "missing"), never absent
                 block.setdefault(key, None)
         out_clips[name] = rep["clips"]
-    return {"set": bench["path"], "set_fingerprint": bench["fingerprint"], "frames": frames,
-            "clips": len(bench["clips"]), "embodiments": sorted({c["embodiment"] for c in bench["clips"]}),
-            "average": "per-clip metrics: mean per embodiment, then the unweighted mean over embodiments; "
-                       "FVD / FID: over all clips; frames/s: mean over clips",
-            "rows": out_rows, "per_clip": out_clips, "missing": missing}
+    return {
+        "set": bench["path"],
+        "set_fingerprint": bench["fingerprint"],
+        "frames": frames,
+        "clips": len(bench["clips"]),
+        "embodiments": sorted({c["embodiment"] for c in bench["clips"]}),
+        "average": "per-clip metrics: mean per embodiment, then the unweighted mean over embodiments; "
+        "FVD / FID: over all clips; frames/s: mean over clips",
+        "rows": out_rows,
+        "per_clip": out_clips,
+        "missing": missing,
+    }
 
 
 def _mean(values) -> float | None:
@@ -145,16 +199,26 @@ def format_benchmark_table(table: dict) -> str:
     """Markdown: the averaged table (one line per row), then one table per embodiment, then what is missing."""
     head = "| model | " + " | ".join(label for _, label in COLUMNS) + " |"
     rule = "|---" * (len(COLUMNS) + 1) + "|"
-    lines = [f"Averaged over {len(table['embodiments'])} embodiments ({table['clips']} clips, first "
-             f"{table['frames']} frames)", "", head, rule]
+    lines = [
+        f"Averaged over {len(table['embodiments'])} embodiments ({table['clips']} clips, first "
+        f"{table['frames']} frames)",
+        "",
+        head,
+        rule,
+    ]
     for name, r in table["rows"].items():
         m = r["mean_over_embodiments"]
         lines.append(f"| {name} | " + " | ".join(_fmt(m.get(k), k) for k, _ in COLUMNS) + " |")
     per_cols = [(k, lab) for k, lab in COLUMNS if k not in ("fvd", "fid")]
     for emb in table["embodiments"]:
         n = next((r["per_embodiment"][emb]["clips"] for r in table["rows"].values()), 0)
-        lines += ["", f"{emb} ({n} clips)", "", "| model | " + " | ".join(lab for _, lab in per_cols) + " |",
-                  "|---" * (len(per_cols) + 1) + "|"]
+        lines += [
+            "",
+            f"{emb} ({n} clips)",
+            "",
+            "| model | " + " | ".join(lab for _, lab in per_cols) + " |",
+            "|---" * (len(per_cols) + 1) + "|",
+        ]
         for name, r in table["rows"].items():
             m = r["per_embodiment"].get(emb, {})
             lines.append(f"| {name} | " + " | ".join(_fmt(m.get(k), k) for k, _ in per_cols) + " |")

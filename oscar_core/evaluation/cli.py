@@ -72,8 +72,9 @@ def load_judge(spec: str):
         return obj
     if callable(obj):  # a function's ``version`` attribute (default "1") keys the verdicts stored for resume
         return ProgrammaticJudge(obj, name=spec.replace(os.sep, "/"), version=str(getattr(obj, "version", "1")))
-    raise MetricInputError(spec, "--judge", "a judge object (with judge_many) or a function (video, clip) -> verdict",
-                           type(obj).__name__)
+    raise MetricInputError(
+        spec, "--judge", "a judge object (with judge_many) or a function (video, clip) -> verdict", type(obj).__name__
+    )
 
 
 def _extra_body(text: str | None) -> dict | None:
@@ -91,10 +92,16 @@ def _extra_body(text: str | None) -> dict | None:
 
 def _vlm_kwargs(args) -> dict:
     api_key = os.environ.get(args.api_key_env) or None
-    return dict(base_url=args.judge_base_url, model=args.judge_model, api_key=api_key,
-                max_tokens=args.judge_max_tokens, timeout=args.judge_timeout,
-                extra_body=_extra_body(args.judge_extra_body), cache_dir=Path(args.out) / "judge_cache",
-                max_requests=args.max_requests)
+    return dict(
+        base_url=args.judge_base_url,
+        model=args.judge_model,
+        api_key=api_key,
+        max_tokens=args.judge_max_tokens,
+        timeout=args.judge_timeout,
+        extra_body=_extra_body(args.judge_extra_body),
+        cache_dir=Path(args.out) / "judge_cache",
+        max_requests=args.max_requests,
+    )
 
 
 def cmd_eval_run(args) -> int:
@@ -109,8 +116,9 @@ def cmd_eval_run(args) -> int:
 
         problem = device_problem(args.device)
         if problem is not None:  # --engine ray's workers may run where this machine's devices do not matter
-            raise MetricInputError("--device", "device", "a device this machine has (with --engine local)",
-                                   problem.split("found ", 1)[-1])
+            raise MetricInputError(
+                "--device", "device", "a device this machine has (with --engine local)", problem.split("found ", 1)[-1]
+            )
     manifest = load_manifest(args.manifest)  # every row checked before anything else
     judge = pairwise = None
     if args.judge == "vlm":
@@ -118,8 +126,9 @@ def cmd_eval_run(args) -> int:
 
         judge = SuccessJudge(**_vlm_kwargs(args))
         if args.pairwise:  # one client: --max-requests is the budget of the whole run
-            pairwise = PairwiseJudge(both_orders=args.both_orders, client=judge.client,
-                                     cache_dir=Path(args.out) / "judge_cache")
+            pairwise = PairwiseJudge(
+                both_orders=args.both_orders, client=judge.client, cache_dir=Path(args.out) / "judge_cache"
+            )
     elif args.judge != "none":
         judge = load_judge(args.judge)
         if args.pairwise:
@@ -128,21 +137,39 @@ def cmd_eval_run(args) -> int:
             pairwise = judge
     elif args.pairwise:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
-    options = dict(steps=args.steps, preset=args.preset, guidance_interval=args.guidance_interval, shift=args.shift,
-                   guidance=args.guidance, guidance_form=args.guidance_form, defaults={"guidance_form": "standard"})
+    options = dict(
+        steps=args.steps,
+        preset=args.preset,
+        guidance_interval=args.guidance_interval,
+        shift=args.shift,
+        guidance=args.guidance,
+        guidance_form=args.guidance_form,
+        defaults={"guidance_form": "standard"},
+    )
     resolve_sampler(None, **options)  # the flags checked before the model is looked up
     choice = resolve_sampler(card_sampler_of(args.model, args.revision), **options)
     sampler = choice.config
     print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "eval-run"):
-        result = run_evaluation(manifest, args.out, model_spec=args.model, revision=args.revision, judge=judge,
-                                pairwise_judge=pairwise, sampler=sampler, chunk_frames=args.chunk_frames,
-                                device=args.device or default_device(), dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
-                                compile=args.compile,
-                                plugin_paths=getattr(args, "plugin", None) or (),
-                                progress=not args.no_progress and progress_bars_enabled(),
-                                plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
-                                batch_cells=args.batch_cells, engine=args.engine, workers=args.workers)
+        result = run_evaluation(
+            manifest,
+            args.out,
+            model_spec=args.model,
+            revision=args.revision,
+            judge=judge,
+            pairwise_judge=pairwise,
+            sampler=sampler,
+            chunk_frames=args.chunk_frames,
+            device=args.device or default_device(),
+            dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
+            compile=args.compile,
+            plugin_paths=getattr(args, "plugin", None) or (),
+            progress=not args.no_progress and progress_bars_enabled(),
+            plot_formats=[f.strip() for f in args.plot_format.split(",") if f.strip()],
+            batch_cells=args.batch_cells,
+            engine=args.engine,
+            workers=args.workers,
+        )
         log_result(f"wrote {result.paths['report']}; verdicts not ok: {result.report['counts']['verdicts_not_ok']}")
     report = result.report
     if args.json:
@@ -159,51 +186,89 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     """Add ``run`` to the ``oscar eval`` sub-parsers."""
     from ..metrics.judge import ENV_API_KEY
 
-    r = sub.add_parser("run", help="roll out every (session, policy) of a manifest, judge, compare with reality",
-                       description="The policy-evaluation loop: roll the world model out for every cell of the "
-                                   "manifest (resumable), judge success and pairwise preferences, compare with the "
-                                   "real outcomes (MMRV, Spearman rho, Pearson r, SISR_delta), write a report folder.",
-                       epilog=RUN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r = sub.add_parser(
+        "run",
+        help="roll out every (session, policy) of a manifest, judge, compare with reality",
+        description="The policy-evaluation loop: roll the world model out for every cell of the "
+        "manifest (resumable), judge success and pairwise preferences, compare with the "
+        "real outcomes (MMRV, Spearman rho, Pearson r, SISR_delta), write a report folder.",
+        epilog=RUN_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     r.add_argument("manifest", help="manifest JSON (docs/evaluation.md)")
     r.add_argument("--model", required=True, help="world model: zoo name, Hub id owner/name, or folder")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
-    output_option(r.add_argument("--out", required=True,
-                                 help="report folder (created; re-running resumes in it)"), "folder")
+    output_option(
+        r.add_argument("--out", required=True, help="report folder (created; re-running resumes in it)"), "folder"
+    )
     r.add_argument("--judge", default="none", help="vlm, none, module:attr or file.py:attr (default none)")
     r.add_argument("--pairwise", action="store_true", help="pairwise preferences within sessions + Bradley-Terry")
     r.add_argument("--both-orders", action="store_true", help="VLM pairwise: ask A/B and B/A, reconcile")
     r.add_argument("--judge-base-url", help="VLM endpoint (default $OSCAR_JUDGE_BASE_URL)")
     r.add_argument("--judge-model", help="VLM model name (default $OSCAR_JUDGE_MODEL)")
-    r.add_argument("--api-key-env", default=ENV_API_KEY, metavar="VAR", help=f"variable holding the API key "
-                                                                             f"(default {ENV_API_KEY})")
+    r.add_argument(
+        "--api-key-env",
+        default=ENV_API_KEY,
+        metavar="VAR",
+        help=f"variable holding the API key (default {ENV_API_KEY})",
+    )
     r.add_argument("--judge-max-tokens", type=count(1), help="VLM max_completion_tokens (default: not sent)")
-    r.add_argument("--judge-timeout", type=number(above=0.0), default=120.0, help="VLM seconds per request (default 120)")
-    r.add_argument("--judge-extra-body", metavar="JSON",
-                   help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
-                        'judge ran at high reasoning effort)')
+    r.add_argument(
+        "--judge-timeout", type=number(above=0.0), default=120.0, help="VLM seconds per request (default 120)"
+    )
+    r.add_argument(
+        "--judge-extra-body",
+        metavar="JSON",
+        help='extra request fields for the VLM, e.g. \'{"reasoning_effort": "high"}\' (the paper\'s GPT-5 '
+        "judge ran at high reasoning effort)",
+    )
     r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
     r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
     r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget (as oscar rollout --preset)")
-    r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
-                   help="guide only the steps with noise level in [LO, HI]")
+    r.add_argument(
+        "--guidance-interval", metavar="LO,HI", type=interval, help="guide only the steps with noise level in [LO, HI]"
+    )
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
     r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
-    r.add_argument("--guidance-form", choices=("standard", "diffusers"),
-                   help="default: the model card's, else standard")
+    r.add_argument(
+        "--guidance-form", choices=("standard", "diffusers"), help="default: the model card's, else standard"
+    )
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
-    r.add_argument("--engine", choices=("local", "ray"), default="local",
-                   help="where rollouts run: this process (default), or Ray actors (a running cluster via "
-                        "RAY_ADDRESS, else a local one), one model per GPU (pip install \"oscar-wm[ray]\")")
-    r.add_argument("--workers", type=count(1), default=1, metavar="N",
-                   help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)")
-    r.add_argument("--batch-cells", type=count(1), default=1, metavar="N",
-                   help="roll out up to N cells in one batch (same frame count and size; each video equals its "
-                        "one-at-a-time rollout up to float rounding; default 1)")
+    r.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="where rollouts run: this process (default), or Ray actors (a running cluster via "
+        'RAY_ADDRESS, else a local one), one model per GPU (pip install "oscar-wm[ray]")',
+    )
+    r.add_argument(
+        "--workers",
+        type=count(1),
+        default=1,
+        metavar="N",
+        help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)",
+    )
+    r.add_argument(
+        "--batch-cells",
+        type=count(1),
+        default=1,
+        metavar="N",
+        help="roll out up to N cells in one batch (same frame count and size; each video equals its "
+        "one-at-a-time rollout up to float rounding; default 1)",
+    )
     threads_option(r, "torch CPU threads of the local rollouts")
-    r.add_argument("--device", type=device_name, help="torch device of the rollouts (default: cuda when available, "
-                   "else cpu); checked against this machine unless --engine ray (the workers' machines)")
-    r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto",
-                   help="DiT dtype (default auto: bfloat16 on CUDA, float32 on the CPU)")
+    r.add_argument(
+        "--device",
+        type=device_name,
+        help="torch device of the rollouts (default: cuda when available, "
+        "else cpu); checked against this machine unless --engine ray (the workers' machines)",
+    )
+    r.add_argument(
+        "--dtype",
+        choices=("auto", "float32", "bfloat16", "float16"),
+        default="auto",
+        help="DiT dtype (default auto: bfloat16 on CUDA, float32 on the CPU)",
+    )
     add_compile_options(r)
     r.add_argument("--plot-format", default="png", help="comma-separated plot formats (png, pdf, svg)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -37,8 +37,9 @@ def _policy_sources(items) -> dict:
     for item in items or ():
         name, sep, src = item.partition("=")
         if not sep or not name or not src:
-            raise MetricInputError("--policy", "value", "NAME=module:attr (or file.py:attr, an entry point)",
-                                   repr(item))
+            raise MetricInputError(
+                "--policy", "value", "NAME=module:attr (or file.py:attr, an entry point)", repr(item)
+            )
         out[name] = src
     return out
 
@@ -59,30 +60,46 @@ def cmd_closed_loop(args) -> int:
 
         simulator = toy_simulator
     elif args.model is None:
-        raise MetricInputError("--model", "value", "a world model (zoo name, Hub id or folder), or --simulator toy",
-                               "none")
+        raise MetricInputError(
+            "--model", "value", "a world model (zoo name, Hub id or folder), or --simulator toy", "none"
+        )
     judge = None
     if args.judge != "none":
         from .cli import load_judge
 
         judge = load_judge(args.judge)
-    options = dict(steps=args.steps, shift=args.shift, guidance=args.guidance, guidance_form=args.guidance_form,
-                   defaults={"guidance_form": "standard"})
+    options = dict(
+        steps=args.steps,
+        shift=args.shift,
+        guidance=args.guidance,
+        guidance_form=args.guidance_form,
+        defaults={"guidance_form": "standard"},
+    )
     resolve_sampler(None, **options)  # the flags checked before the model is looked up
     choice = resolve_sampler(None if simulator is not None else card_sampler_of(args.model, args.revision), **options)
     sampler = choice.config
     if simulator is None:
         print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "eval-closed-loop"):
-        result = run_closed_loop(manifest, args.out, model_spec=args.model if simulator is None else None,
-                                 revision=args.revision, simulator=simulator, judge=judge, sampler=sampler,
-                                 chunk_frames=args.chunk_frames or (17 if simulator else None),
-                                 fps=args.fps, replan_every=args.replan_every, policy_timeout=args.policy_timeout,
-                                 retry_failed=args.retry_failed, policy_sources=sources,
-                                 device=args.device or default_device(),
-                                 dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
-                                 plugin_paths=getattr(args, "plugin", None) or (),
-                                 progress=not args.no_progress and progress_bars_enabled())
+        result = run_closed_loop(
+            manifest,
+            args.out,
+            model_spec=args.model if simulator is None else None,
+            revision=args.revision,
+            simulator=simulator,
+            judge=judge,
+            sampler=sampler,
+            chunk_frames=args.chunk_frames or (17 if simulator else None),
+            fps=args.fps,
+            replan_every=args.replan_every,
+            policy_timeout=args.policy_timeout,
+            retry_failed=args.retry_failed,
+            policy_sources=sources,
+            device=args.device or default_device(),
+            dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
+            plugin_paths=getattr(args, "plugin", None) or (),
+            progress=not args.no_progress and progress_bars_enabled(),
+        )
         log_result(f"wrote {result.paths['report']}; failed cells: {result.counts['failed']}")
     if args.json:
         print(json.dumps({**result.report, "files": result.paths}, indent=1))
@@ -94,35 +111,60 @@ def cmd_closed_loop(args) -> int:
 
 def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
     """Add ``closed-loop`` to the ``oscar eval`` sub-parsers."""
-    r = sub.add_parser("closed-loop", help="run policies closed loop in the world model (or the toy simulator)",
-                       description="Closed-loop policy evaluation: every (session, policy) cell of the manifest runs "
-                                   "with the policy acting on the world model's generated frames and its actions "
-                                   "driving the next chunk; resumable; writes a report ranking the policies.",
-                       epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r = sub.add_parser(
+        "closed-loop",
+        help="run policies closed loop in the world model (or the toy simulator)",
+        description="Closed-loop policy evaluation: every (session, policy) cell of the manifest runs "
+        "with the policy acting on the world model's generated frames and its actions "
+        "driving the next chunk; resumable; writes a report ranking the policies.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     r.add_argument("manifest", help="closed-loop manifest JSON (docs/closed-loop.md)")
     r.add_argument("--model", help="world model: zoo name, Hub id owner/name, or folder")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
     r.add_argument("--simulator", choices=("toy",), help="run in the toy world's simulator instead of a model")
-    output_option(r.add_argument("--out", required=True, help="run folder (created; re-running resumes in it)"),
-                  "folder")
-    r.add_argument("--policy", action="append", metavar="NAME=SOURCE",
-                   help="replace (or add) policy NAME's source: module:attr, file.py:attr or an oscar.policies "
-                        "entry point (repeatable)")
-    r.add_argument("--replan-every", type=count(1), metavar="K",
-                   help="actions executed per policy call (default: each policy's actions_per_call)")
-    r.add_argument("--policy-timeout", type=number(above=0.0), metavar="S",
-                   help="seconds a policy call may take (default: each policy's timeout_s, 30)")
+    output_option(
+        r.add_argument("--out", required=True, help="run folder (created; re-running resumes in it)"), "folder"
+    )
+    r.add_argument(
+        "--policy",
+        action="append",
+        metavar="NAME=SOURCE",
+        help="replace (or add) policy NAME's source: module:attr, file.py:attr or an oscar.policies "
+        "entry point (repeatable)",
+    )
+    r.add_argument(
+        "--replan-every",
+        type=count(1),
+        metavar="K",
+        help="actions executed per policy call (default: each policy's actions_per_call)",
+    )
+    r.add_argument(
+        "--policy-timeout",
+        type=number(above=0.0),
+        metavar="S",
+        help="seconds a policy call may take (default: each policy's timeout_s, 30)",
+    )
     r.add_argument("--retry-failed", action="store_true", help="redo cells recorded as failed")
     r.add_argument("--judge", default="none", help="success judge: none or module:attr / file.py:attr (default none)")
     r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35)")
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
     r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
-    r.add_argument("--guidance-form", choices=("standard", "diffusers"),
-                   help="guidance form (default: the model card's, else standard)")
-    r.add_argument("--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's; 17 for "
-                                                         "--simulator)")
-    r.add_argument("--fps", type=number(above=0.0), default=10.0,
-                   help="frame rate of a --simulator world (a model's is its card's; default 10)")
+    r.add_argument(
+        "--guidance-form",
+        choices=("standard", "diffusers"),
+        help="guidance form (default: the model card's, else standard)",
+    )
+    r.add_argument(
+        "--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's; 17 for --simulator)"
+    )
+    r.add_argument(
+        "--fps",
+        type=number(above=0.0),
+        default=10.0,
+        help="frame rate of a --simulator world (a model's is its card's; default 10)",
+    )
     r.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto")
     threads_option(r, "torch CPU threads of the world model")

@@ -59,11 +59,21 @@ from .closed_loop_manifest import ClosedLoopManifest, Session, load_closed_loop_
 from .closed_loop_report import VIEWS
 from .manifest import file_digest
 
-__all__ = ["RECORD_VERSION", "VIEWS", "ClosedLoopResult", "CellRun", "ModelWorld", "run_closed_loop", "run_cell",
-           "cell_dir", "chunk_seed"]
+__all__ = [
+    "RECORD_VERSION",
+    "VIEWS",
+    "ClosedLoopResult",
+    "CellRun",
+    "ModelWorld",
+    "run_closed_loop",
+    "run_cell",
+    "cell_dir",
+    "chunk_seed",
+]
 
 RECORD_VERSION = 1
 _log = get_logger(__name__)
+
 
 def cell_dir(out: Path, session: str, policy: str) -> Path:
     return Path(out) / "cells" / session / policy
@@ -84,8 +94,23 @@ class ModelWorld:
 
     name = "world-model"
 
-    def __init__(self, model, *, first, camera, camera_source: str, emb, q0, g0, fps: float, chunk_frames: int,
-                 size, prompt, sampler, seed: int):
+    def __init__(
+        self,
+        model,
+        *,
+        first,
+        camera,
+        camera_source: str,
+        emb,
+        q0,
+        g0,
+        fps: float,
+        chunk_frames: int,
+        size,
+        prompt,
+        sampler,
+        seed: int,
+    ):
         self.model, self.first, self.camera, self.camera_source, self.emb = model, first, camera, camera_source, emb
         self.fps, self.chunk_frames, self.chunk = float(fps), int(chunk_frames), int(chunk_frames) - 1
         self.size, self.prompt, self.sampler, self.seed = tuple(size), prompt, sampler, seed
@@ -97,15 +122,24 @@ class ModelWorld:
     def _condition(self, q: np.ndarray, g: np.ndarray) -> np.ndarray:
         from ..kinematics.trajectory import Trajectory
 
-        traj = Trajectory(self.emb.joint_names, q, self.fps, g, self.emb.gripper_names or None,
-                          source="<closed-loop chunk>")
+        traj = Trajectory(
+            self.emb.joint_names, q, self.fps, g, self.emb.gripper_names or None, source="<closed-loop chunk>"
+        )
         if hasattr(self.model, "rollout_inputs"):
-            return self.model.rollout_inputs(traj, self.camera, self.emb, self.size, resize_mode="crop",
-                                             camera_source=self.camera_source)["skeleton"]
+            return self.model.rollout_inputs(
+                traj, self.camera, self.emb, self.size, resize_mode="crop", camera_source=self.camera_source
+            )["skeleton"]
         from ..render.conditions import condition_video, video_condition_of
 
-        return condition_video(video_condition_of(self.model.card.condition), self.emb, traj, self.camera,
-                               self.size, resize_mode="crop", camera_source=self.camera_source)
+        return condition_video(
+            video_condition_of(self.model.card.condition),
+            self.emb,
+            traj,
+            self.camera,
+            self.size,
+            resize_mode="crop",
+            camera_source=self.camera_source,
+        )
 
     def step(self, q: np.ndarray, gripper: np.ndarray) -> np.ndarray:
         """(n, H, W, 3) uint8 new frames for joint positions ``q`` (n, J) and gripper signals (n, G), n = chunk."""
@@ -118,9 +152,16 @@ class ModelWorld:
         self.condition += list(cond[1:])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "trained at WxH": said once in the report instead
-            frames = self.model.rollout(self.last, cond, self.prompt, chunk_frames=self.chunk_frames,
-                                        sampler=self.sampler, seed=chunk_seed(self.seed, self.steps), progress=False,
-                                        keep_chunks=False).frames[1:]
+            frames = self.model.rollout(
+                self.last,
+                cond,
+                self.prompt,
+                chunk_frames=self.chunk_frames,
+                sampler=self.sampler,
+                seed=chunk_seed(self.seed, self.steps),
+                progress=False,
+                keep_chunks=False,
+            ).frames[1:]
         self.q, self.g = np.concatenate([self.q, q]), np.concatenate([self.g, gripper])
         self.last = frames[-1]
         self.steps += 1
@@ -144,8 +185,9 @@ class CellRun:
     clipped: int = 0
 
 
-def _observation(spec: PolicySpec, frame: np.ndarray, q: np.ndarray, closure: float, task: str,
-                 extras: dict) -> tuple[dict, str]:
+def _observation(
+    spec: PolicySpec, frame: np.ndarray, q: np.ndarray, closure: float, task: str, extras: dict
+) -> tuple[dict, str]:
     """The observation dict under the policy's keys, and the SHA-256 of the image sent."""
     import cv2
 
@@ -176,8 +218,20 @@ def _signal_to_closure(emb, signal: np.ndarray) -> float:
     return float(1.0 - emb.gripper_openness(np.asarray(signal, float)[None, :])[0, 0])
 
 
-def run_cell(world, policy, spec: PolicySpec, emb, *, q0, g0, task: str, horizon: int, extras: dict | None = None,
-             replan_every: int | None = None, timeout_s: float | None = None) -> CellRun:
+def run_cell(
+    world,
+    policy,
+    spec: PolicySpec,
+    emb,
+    *,
+    q0,
+    g0,
+    task: str,
+    horizon: int,
+    extras: dict | None = None,
+    replan_every: int | None = None,
+    timeout_s: float | None = None,
+) -> CellRun:
     """Run one cell (module docstring, steps 1–5) and return what it did; a policy fault ends it with a reason."""
     adapter = ActionAdapter(emb, spec.action_space, spec.gripper, spec.control_hz)
     K = int(replan_every or spec.actions_per_call)
@@ -216,9 +270,13 @@ def run_cell(world, policy, spec: PolicySpec, emb, *, q0, g0, task: str, horizon
             knots_q += list(res.q)
             knots_c += list(res.closure)
             clipped += res.clipped
-            record.update(actions=actions.tolist(), executed=K, clipped=res.clipped,
-                          ik_position_error_m=[None if np.isnan(v) else float(v) for v in res.ik_position_error],
-                          ik_rotation_error_rad=[None if np.isnan(v) else float(v) for v in res.ik_rotation_error])
+            record.update(
+                actions=actions.tolist(),
+                executed=K,
+                clipped=res.clipped,
+                ik_position_error_m=[None if np.isnan(v) else float(v) for v in res.ik_position_error],
+                ik_rotation_error_rad=[None if np.isnan(v) else float(v) for v in res.ik_rotation_error],
+            )
             calls.append(record)
             if isinstance(answer, dict) and answer.get("done") is True:
                 done = True
@@ -266,19 +324,42 @@ def _write_json(path: Path, data) -> None:
 
 
 def _session_parts(s: Session) -> dict:
-    return {"task": s.task, "embodiment": s.embodiment, "horizon": s.horizon, "seed": s.seed, "extras": s.extras,
-            "first_frame": file_digest(s.first_frame), "camera": file_digest(s.camera),
-            "initial_state": file_digest(s.initial_state),
-            "prompt_embeds": file_digest(s.prompt_embeds) if s.prompt_embeds else None,
-            "simulator": file_digest(s.simulator) if s.simulator else None}
+    return {
+        "task": s.task,
+        "embodiment": s.embodiment,
+        "horizon": s.horizon,
+        "seed": s.seed,
+        "extras": s.extras,
+        "first_frame": file_digest(s.first_frame),
+        "camera": file_digest(s.camera),
+        "initial_state": file_digest(s.initial_state),
+        "prompt_embeds": file_digest(s.prompt_embeds) if s.prompt_embeds else None,
+        "simulator": file_digest(s.simulator) if s.simulator else None,
+    }
 
 
-def run_closed_loop(manifest, out, *, model=None, model_spec: str | None = None, revision: str | None = None,
-                    simulator: Callable | None = None, judge=None, sampler=None, chunk_frames: int | None = None,
-                    fps: float | None = None, replan_every: int | None = None, policy_timeout: float | None = None,
-                    retry_failed: bool = False, policy_sources: dict | None = None, device="cpu", dtype=None,
-                    plugin_paths=(), progress: bool = False,
-                    log: Callable[[str], None] | None = None) -> ClosedLoopResult:
+def run_closed_loop(
+    manifest,
+    out,
+    *,
+    model=None,
+    model_spec: str | None = None,
+    revision: str | None = None,
+    simulator: Callable | None = None,
+    judge=None,
+    sampler=None,
+    chunk_frames: int | None = None,
+    fps: float | None = None,
+    replan_every: int | None = None,
+    policy_timeout: float | None = None,
+    retry_failed: bool = False,
+    policy_sources: dict | None = None,
+    device="cpu",
+    dtype=None,
+    plugin_paths=(),
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> ClosedLoopResult:
     """Run every cell of ``manifest`` (a path or a loaded manifest) closed loop and write ``out``.
 
     The world: the world model ``model`` (loaded) or ``model_spec`` (``oscar_zoo.load``; loaded only if some cell
@@ -309,19 +390,27 @@ def run_closed_loop(manifest, out, *, model=None, model_spec: str | None = None,
             specs.append(PolicySpec(name=name, source=src))
     for spec in specs:
         if replan_every is not None and replan_every > spec.actions_per_call:
-            log(f"policy {spec.name}: replan_every {replan_every} > its actions_per_call {spec.actions_per_call}: "
-                "its answers must hold at least that many actions")
+            log(
+                f"policy {spec.name}: replan_every {replan_every} > its actions_per_call {spec.actions_per_call}: "
+                "its answers must hold at least that many actions"
+            )
     if simulator is None and model is None and model_spec is None:
         raise MetricInputError("model", "model", "a world model, a model spec or a simulator", "none")
     if simulator is not None and (fps is None or chunk_frames is None):
-        raise MetricInputError("simulator", "fps/chunk_frames", "both given for a simulator world", f"{fps}/{chunk_frames}")
+        raise MetricInputError(
+            "simulator", "fps/chunk_frames", "both given for a simulator world", f"{fps}/{chunk_frames}"
+        )
     embs = {}
     for s in manifest.sessions:
         try:
             embs[s.embodiment] = get_embodiment(s.embodiment, plugin_paths)
         except (KeyError, ValueError, Exception) as exc:  # noqa: BLE001 - named in the error
-            raise MetricInputError(f"{manifest.path}: sessions[{s.row}]", "embodiment",
-                                   "an installed embodiment (oscar embodiments)", f"{s.embodiment!r}: {exc}") from None
+            raise MetricInputError(
+                f"{manifest.path}: sessions[{s.row}]",
+                "embodiment",
+                "an installed embodiment (oscar embodiments)",
+                f"{s.embodiment!r}: {exc}",
+            ) from None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for folder in (out, *sorted(out.glob("cells/*/*"))):
@@ -338,12 +427,21 @@ def run_closed_loop(manifest, out, *, model=None, model_spec: str | None = None,
         return loaded["model"]
 
     if simulator is not None:
-        world_id = {"kind": "simulator", "name": getattr(simulator, "identity", repr(simulator)), "fps": fps,
-                    "chunk_frames": chunk_frames, "size": manifest.size}
+        world_id = {
+            "kind": "simulator",
+            "name": getattr(simulator, "identity", repr(simulator)),
+            "fps": fps,
+            "chunk_frames": chunk_frames,
+            "size": manifest.size,
+        }
     else:
-        world_id = {"kind": "world-model",
-                    "model": _stage.model_identity(model_spec, revision) if model_spec else f"object:{type(model).__name__}",
-                    "sampler": dataclasses.asdict(sampler), "chunk_frames": chunk_frames, "size": manifest.size}
+        world_id = {
+            "kind": "world-model",
+            "model": _stage.model_identity(model_spec, revision) if model_spec else f"object:{type(model).__name__}",
+            "sampler": dataclasses.asdict(sampler),
+            "chunk_frames": chunk_frames,
+            "size": manifest.size,
+        }
     counts = {"cells": len(manifest.sessions) * len(specs), "done": 0, "reused": 0, "failed": 0, "retried": 0}
     records: list[dict] = []
     policies: dict[str, object] = {}
@@ -353,13 +451,21 @@ def run_closed_loop(manifest, out, *, model=None, model_spec: str | None = None,
         for spec in specs:
             folder = cell_dir(out, s.session, spec.name)
             K = int(replan_every or spec.actions_per_call)
-            parts = {"v": RECORD_VERSION, "world": world_id, "session": sparts, "replan_every": K,
-                     "policy": {k: v for k, v in spec.to_dict().items() if k != "timeout_s"}}
+            parts = {
+                "v": RECORD_VERSION,
+                "world": world_id,
+                "session": sparts,
+                "replan_every": K,
+                "policy": {k: v for k, v in spec.to_dict().items() if k != "timeout_s"},
+            }
             key = _stage.fingerprint(parts)
             rec = _read_record(folder / "record.json")
             if rec is not None and rec.get("key") == key:
-                if rec["status"] == "ok" and (folder / "video.mkv").is_file() \
-                        and rec.get("video_sha256") == file_digest(folder / "video.mkv"):
+                if (
+                    rec["status"] == "ok"
+                    and (folder / "video.mkv").is_file()
+                    and rec.get("video_sha256") == file_digest(folder / "video.mkv")
+                ):
                     counts["reused"] += 1
                     records.append(rec)
                     bar.update(1)
@@ -372,11 +478,28 @@ def run_closed_loop(manifest, out, *, model=None, model_spec: str | None = None,
                     continue
                 counts["retried"] += rec["status"] == "failed"
             elif rec is not None:
-                log(f"{s.session}/{spec.name}: redone, its inputs changed: "
-                    + "; ".join(_stage.changes(rec.get("parts"), parts)))
-            rec = _run_and_write(out, s, spec, embs[s.embodiment], parts, key, policies=policies,
-                                 get_model=get_model, simulator=simulator, sampler=sampler, size=manifest.size,
-                                 chunk_frames=chunk_frames, fps=fps, K=K, timeout=policy_timeout, log=log)
+                log(
+                    f"{s.session}/{spec.name}: redone, its inputs changed: "
+                    + "; ".join(_stage.changes(rec.get("parts"), parts))
+                )
+            rec = _run_and_write(
+                out,
+                s,
+                spec,
+                embs[s.embodiment],
+                parts,
+                key,
+                policies=policies,
+                get_model=get_model,
+                simulator=simulator,
+                sampler=sampler,
+                size=manifest.size,
+                chunk_frames=chunk_frames,
+                fps=fps,
+                K=K,
+                timeout=policy_timeout,
+                log=log,
+            )
             counts["done"] += 1
             counts["failed"] += rec["status"] == "failed"
             records.append(rec)
@@ -399,14 +522,25 @@ def _judge(out: Path, manifest: ClosedLoopManifest, records: list[dict], judge, 
 
     jid = _judge_id(judge)
     by_name = {s.session: s for s in manifest.sessions}
-    todo = [r for r in records if r["status"] == "ok"
-            and not (isinstance(r.get("verdict"), dict) and r["verdict"].get("judge_id") == jid)]
+    todo = [
+        r
+        for r in records
+        if r["status"] == "ok" and not (isinstance(r.get("verdict"), dict) and r["verdict"].get("judge_id") == jid)
+    ]
     if not todo:
         return
     log(f"judging {len(todo)} closed-loop videos")
-    clips = [JudgeClip(name=f"{r['session']}/{r['policy']}", video=out / r["video"],
-                       instruction=by_name[r["session"]].task, policy=r["policy"], session=r["session"],
-                       info=by_name[r["session"]].info) for r in todo]
+    clips = [
+        JudgeClip(
+            name=f"{r['session']}/{r['policy']}",
+            video=out / r["video"],
+            instruction=by_name[r["session"]].task,
+            policy=r["policy"],
+            session=r["session"],
+            info=by_name[r["session"]].info,
+        )
+        for r in todo
+    ]
     for r, v in zip(todo, judge.judge_many(clips, progress=progress)):
         if v.ok:
             r["verdict"] = {"judge_id": jid, "binary": v.binary, "partial": v.partial, "reason": v.reason}
@@ -415,8 +549,25 @@ def _judge(out: Path, manifest: ClosedLoopManifest, records: list[dict], judge, 
             r["verdict"] = {"judge_id": None, "binary": None, "status": v.status, "error": v.error}
 
 
-def _run_and_write(out: Path, s: Session, spec: PolicySpec, emb, parts: dict, key: str, *, policies: dict,
-                   get_model, simulator, sampler, size, chunk_frames, fps, K: int, timeout, log) -> dict:
+def _run_and_write(
+    out: Path,
+    s: Session,
+    spec: PolicySpec,
+    emb,
+    parts: dict,
+    key: str,
+    *,
+    policies: dict,
+    get_model,
+    simulator,
+    sampler,
+    size,
+    chunk_frames,
+    fps,
+    K: int,
+    timeout,
+    log,
+) -> dict:
     """Run one cell and write its files, the record last."""
     from ..kinematics.trajectory import Trajectory, load_trajectory, save_trajectory
     from ..media.video import write_video
@@ -441,9 +592,21 @@ def _run_and_write(out: Path, s: Session, spec: PolicySpec, emb, parts: dict, ke
         card = model.card
         size = size or ((card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0]))
         first = fit_image(first, size[0], size[1], "crop")
-        world = ModelWorld(model, first=first, camera=camera, camera_source=str(s.camera), emb=emb, q0=q0, g0=g0,
-                           fps=float(card.fps or fps or 10.0), chunk_frames=int(chunk_frames or card.chunk_frames),
-                           size=size, prompt=cell_prompt(s), sampler=sampler, seed=s.seed)
+        world = ModelWorld(
+            model,
+            first=first,
+            camera=camera,
+            camera_source=str(s.camera),
+            emb=emb,
+            q0=q0,
+            g0=g0,
+            fps=float(card.fps or fps or 10.0),
+            chunk_frames=int(chunk_frames or card.chunk_frames),
+            size=size,
+            prompt=cell_prompt(s),
+            sampler=sampler,
+            seed=s.seed,
+        )
     fault = None
     if spec.name not in policies:
         try:
@@ -454,8 +617,19 @@ def _run_and_write(out: Path, s: Session, spec: PolicySpec, emb, parts: dict, ke
     if isinstance(policy, PolicyFault):
         run = CellRun(first[None], q0[None], g0[None], [], policy.reason)
     else:
-        run = run_cell(world, policy, spec, emb, q0=q0, g0=g0, task=s.task, horizon=s.horizon, extras=s.extras,
-                       replan_every=K, timeout_s=timeout)
+        run = run_cell(
+            world,
+            policy,
+            spec,
+            emb,
+            q0=q0,
+            g0=g0,
+            task=s.task,
+            horizon=s.horizon,
+            extras=s.extras,
+            replan_every=K,
+            timeout_s=timeout,
+        )
     seconds = time.perf_counter() - t0
     fault = run.fault
     if fault is not None:  # a timed-out call may still run, a remote connection may be broken: load it afresh
@@ -463,24 +637,53 @@ def _run_and_write(out: Path, s: Session, spec: PolicySpec, emb, parts: dict, ke
     rel = folder.relative_to(out)
     _write_json(folder / "calls.json", {"policy": spec.name, "session": s.session, "calls": run.calls})
     latencies = [c["latency_s"] for c in run.calls if "latency_s" in c]
-    rec = {"v": RECORD_VERSION, "session": s.session, "policy": spec.name, "key": key, "parts": parts,
-           "dir": str(rel), "status": "failed" if fault else "ok", "reason": fault, "world": world.name,
-           "frames": int(len(run.frames)), "calls": len(run.calls), "clipped_actions": run.clipped,
-           "done_by_policy": run.done_by_policy, "seconds": round(seconds, 3),
-           "latency_s": {"mean": float(np.mean(latencies)) if latencies else None,
-                         "max": float(np.max(latencies)) if latencies else None},
-           "ik_max_position_error_m": _max_ik(run.calls), "outcome": None, "verdict": None,
-           "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    rec = {
+        "v": RECORD_VERSION,
+        "session": s.session,
+        "policy": spec.name,
+        "key": key,
+        "parts": parts,
+        "dir": str(rel),
+        "status": "failed" if fault else "ok",
+        "reason": fault,
+        "world": world.name,
+        "frames": int(len(run.frames)),
+        "calls": len(run.calls),
+        "clipped_actions": run.clipped,
+        "done_by_policy": run.done_by_policy,
+        "seconds": round(seconds, 3),
+        "latency_s": {
+            "mean": float(np.mean(latencies)) if latencies else None,
+            "max": float(np.max(latencies)) if latencies else None,
+        },
+        "ik_max_position_error_m": _max_ik(run.calls),
+        "outcome": None,
+        "verdict": None,
+        "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
     if fault is None:
         write_video(folder / "video.mkv", run.frames, world.fps)
         cond = getattr(world, "condition", None)
         if cond:
-            write_video(folder / "condition.mkv", np.stack(cond[:len(run.frames)]), world.fps)
+            write_video(folder / "condition.mkv", np.stack(cond[: len(run.frames)]), world.fps)
             rec["condition"] = str(rel / "condition.mkv")
-        save_trajectory(Trajectory(emb.joint_names, run.q, world.fps, run.gripper, emb.gripper_names or None,
-                                   source=f"<closed loop {s.session}/{spec.name}>"), folder / "trajectory.npz")
-        rec.update(video=str(rel / "video.mkv"), video_sha256=file_digest(folder / "video.mkv"),
-                   trajectory=str(rel / "trajectory.npz"), outcome=world.outcome() or None)
+        save_trajectory(
+            Trajectory(
+                emb.joint_names,
+                run.q,
+                world.fps,
+                run.gripper,
+                emb.gripper_names or None,
+                source=f"<closed loop {s.session}/{spec.name}>",
+            ),
+            folder / "trajectory.npz",
+        )
+        rec.update(
+            video=str(rel / "video.mkv"),
+            video_sha256=file_digest(folder / "video.mkv"),
+            trajectory=str(rel / "trajectory.npz"),
+            outcome=world.outcome() or None,
+        )
         log(f"{s.session}/{spec.name}: {rec['frames']} frames, {rec['calls']} policy calls in {seconds:.1f} s")
     else:
         log(f"{s.session}/{spec.name}: FAILED: {fault}")

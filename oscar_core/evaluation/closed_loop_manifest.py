@@ -36,8 +36,20 @@ from .manifest import _NAME, ManifestError, _size, resolve_paths
 __all__ = ["FORMAT", "Session", "ClosedLoopManifest", "load_closed_loop_manifest"]
 
 FORMAT = "oscar-closed-loop-manifest"
-SESSION_KEYS = ("session", "task", "embodiment", "first_frame", "camera", "initial_state", "horizon",
-                "prompt_embeds", "seed", "info", "extras", "simulator")
+SESSION_KEYS = (
+    "session",
+    "task",
+    "embodiment",
+    "first_frame",
+    "camera",
+    "initial_state",
+    "horizon",
+    "prompt_embeds",
+    "seed",
+    "info",
+    "extras",
+    "simulator",
+)
 REQUIRED = ("session", "task", "embodiment", "first_frame", "camera", "initial_state", "horizon")
 PATH_KEYS = ("first_frame", "camera", "initial_state", "prompt_embeds", "simulator")
 TOP_KEYS = ("format", "policies", "defaults", "sessions", "description")
@@ -100,7 +112,9 @@ def load_closed_loop_manifest(path) -> ClosedLoopManifest:
             raise ManifestError(f"{path}: policies[{k}]", "policy", "a valid policy declaration", str(exc)) from None
     names = [p.name for p in policies]
     if len(set(names)) != len(names):
-        raise ManifestError(path, "policies", "unique names", f"duplicates {sorted({n for n in names if names.count(n) > 1})}")
+        raise ManifestError(
+            path, "policies", "unique names", f"duplicates {sorted({n for n in names if names.count(n) > 1})}"
+        )
     defaults = data.get("defaults", {})
     if not isinstance(defaults, dict):
         raise ManifestError(path, "defaults", "an object of session keys", type(defaults).__name__)
@@ -147,8 +161,18 @@ def _session(path: Path, k: int, raw, defaults: dict) -> Session:
         if not isinstance(merged.get(key, {}), dict):
             raise ManifestError(row, key, "an object", type(merged[key]).__name__)
     paths = resolve_paths(path, row, merged, PATH_KEYS)
-    return Session(session=merged["session"], task=merged["task"].strip(), embodiment=merged["embodiment"],
-                   first_frame=paths["first_frame"], camera=paths["camera"], initial_state=paths["initial_state"],
-                   horizon=horizon, row=k, prompt_embeds=paths["prompt_embeds"], seed=seed,
-                   info=dict(merged.get("info", {})), extras=dict(merged.get("extras", {})),
-                   simulator=paths["simulator"])
+    return Session(
+        session=merged["session"],
+        task=merged["task"].strip(),
+        embodiment=merged["embodiment"],
+        first_frame=paths["first_frame"],
+        camera=paths["camera"],
+        initial_state=paths["initial_state"],
+        horizon=horizon,
+        row=k,
+        prompt_embeds=paths["prompt_embeds"],
+        seed=seed,
+        info=dict(merged.get("info", {})),
+        extras=dict(merged.get("extras", {})),
+        simulator=paths["simulator"],
+    )

@@ -21,11 +21,13 @@ __all__ = ["VIEWS", "build_closed_loop_report", "write_closed_loop_report", "for
 
 
 #: What each observation field receives: the world generates one view (the session camera's).
-VIEWS = {"image": "the latest generated frame of the session camera, resized to the policy's image_size",
-         "wrist_image": "black (0) at the policy's image_size: the world model generates one view only",
-         "joint_position": "the end of the joint path the policy commanded so far (J,), radians / metres",
-         "gripper_position": "the commanded gripper closure (1,) in [0, 1], 1 = closed",
-         "prompt": "the session's task"}
+VIEWS = {
+    "image": "the latest generated frame of the session camera, resized to the policy's image_size",
+    "wrist_image": "black (0) at the policy's image_size: the world model generates one view only",
+    "joint_position": "the end of the joint path the policy commanded so far (J,), radians / metres",
+    "gripper_position": "the commanded gripper closure (1,) in [0, 1], 1 = closed",
+    "prompt": "the session's task",
+}
 
 
 def _mean(vals):
@@ -42,29 +44,61 @@ def build_closed_loop_report(manifest, specs, records: list[dict], counts: dict,
         verdicts = [(r.get("verdict") or {}).get("binary") for r in mine]
         judged = [v if r["status"] == "ok" else 0 for v, r in zip(verdicts, mine)]
         sim = [((r.get("outcome") or {}).get("success") if r["status"] == "ok" else 0) for r in mine]
-        rows.append({
-            "policy": spec.name, "source": spec.source, "action_space": spec.action_space,
-            "control_hz": spec.control_hz, "cells": len(mine), "ok": len(ok), "failed": len(mine) - len(ok),
-            "success_rate": _mean(judged) if judge is not None and all(v is not None for v in judged) else None,
-            "sim_success_rate": _mean(sim) if sim and all(v is not None for v in sim) else None,
-            "mean_latency_s": _mean([(r.get("latency_s") or {}).get("mean") for r in mine]),
-            "max_latency_s": max([(r.get("latency_s") or {}).get("max") or 0.0 for r in mine], default=None),
-            "clipped_actions": int(sum(r.get("clipped_actions") or 0 for r in mine)),
-            "ik_max_position_error_m": max([r.get("ik_max_position_error_m") or 0.0 for r in mine], default=None),
-            "fault_reasons": sorted({r["reason"] for r in mine if r["reason"]}),
-        })
-    by = "success_rate" if all(r["success_rate"] is not None for r in rows) else (
-        "sim_success_rate" if all(r["sim_success_rate"] is not None for r in rows) else None)
+        rows.append(
+            {
+                "policy": spec.name,
+                "source": spec.source,
+                "action_space": spec.action_space,
+                "control_hz": spec.control_hz,
+                "cells": len(mine),
+                "ok": len(ok),
+                "failed": len(mine) - len(ok),
+                "success_rate": _mean(judged) if judge is not None and all(v is not None for v in judged) else None,
+                "sim_success_rate": _mean(sim) if sim and all(v is not None for v in sim) else None,
+                "mean_latency_s": _mean([(r.get("latency_s") or {}).get("mean") for r in mine]),
+                "max_latency_s": max([(r.get("latency_s") or {}).get("max") or 0.0 for r in mine], default=None),
+                "clipped_actions": int(sum(r.get("clipped_actions") or 0 for r in mine)),
+                "ik_max_position_error_m": max([r.get("ik_max_position_error_m") or 0.0 for r in mine], default=None),
+                "fault_reasons": sorted({r["reason"] for r in mine if r["reason"]}),
+            }
+        )
+    by = (
+        "success_rate"
+        if all(r["success_rate"] is not None for r in rows)
+        else ("sim_success_rate" if all(r["sim_success_rate"] is not None for r in rows) else None)
+    )
     ranking = sorted(rows, key=lambda r: -(r[by] if by else 0.0)) if by else []
-    cells = [{"session": r["session"], "policy": r["policy"], "status": r["status"], "reason": r["reason"],
-              "frames": r["frames"], "calls": r["calls"], "clipped_actions": r["clipped_actions"],
-              "success": (r.get("verdict") or {}).get("binary"), "judge_reason": (r.get("verdict") or {}).get("reason"),
-              "sim_success": (r.get("outcome") or {}).get("success"), "video": r.get("video"), "dir": r["dir"]}
-             for r in records]
-    return nan_to_none({"format": "oscar-closed-loop-report", "manifest": str(manifest.path), "world": world,
-                        "judge": judge.describe() if judge is not None and hasattr(judge, "describe") else None,
-                        "views": VIEWS, "counts": counts, "ranked_by": by,
-                        "ranking": [r["policy"] for r in ranking], "policies": rows, "cells": cells})
+    cells = [
+        {
+            "session": r["session"],
+            "policy": r["policy"],
+            "status": r["status"],
+            "reason": r["reason"],
+            "frames": r["frames"],
+            "calls": r["calls"],
+            "clipped_actions": r["clipped_actions"],
+            "success": (r.get("verdict") or {}).get("binary"),
+            "judge_reason": (r.get("verdict") or {}).get("reason"),
+            "sim_success": (r.get("outcome") or {}).get("success"),
+            "video": r.get("video"),
+            "dir": r["dir"],
+        }
+        for r in records
+    ]
+    return nan_to_none(
+        {
+            "format": "oscar-closed-loop-report",
+            "manifest": str(manifest.path),
+            "world": world,
+            "judge": judge.describe() if judge is not None and hasattr(judge, "describe") else None,
+            "views": VIEWS,
+            "counts": counts,
+            "ranked_by": by,
+            "ranking": [r["policy"] for r in ranking],
+            "policies": rows,
+            "cells": cells,
+        }
+    )
 
 
 def _fmt(v, spec: str) -> str:
@@ -74,20 +108,28 @@ def _fmt(v, spec: str) -> str:
 def format_closed_loop_summary(report: dict) -> str:
     """``summary.md``: the per-policy table, what the views received, the failed cells."""
     c = report["counts"]
-    lines = ["# Closed-loop policy evaluation", "", f"- manifest: `{report['manifest']}`",
-             f"- world: `{json.dumps(report['world'])}`",
-             f"- cells: {c['cells']} (run {c['done']}, reused {c['reused']}, failed {c['failed']})",
-             f"- ranked by: {report['ranked_by'] or 'nothing (no success figures)'}", "",
-             "| rank | policy | cells | failed | success rate | sim success rate | mean latency (s) | clipped | "
-             "worst IK residual (m) |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Closed-loop policy evaluation",
+        "",
+        f"- manifest: `{report['manifest']}`",
+        f"- world: `{json.dumps(report['world'])}`",
+        f"- cells: {c['cells']} (run {c['done']}, reused {c['reused']}, failed {c['failed']})",
+        f"- ranked by: {report['ranked_by'] or 'nothing (no success figures)'}",
+        "",
+        "| rank | policy | cells | failed | success rate | sim success rate | mean latency (s) | clipped | "
+        "worst IK residual (m) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     order = report["ranking"] or [p["policy"] for p in report["policies"]]
     by_name = {p["policy"]: p for p in report["policies"]}
     for k, name in enumerate(order):
         p = by_name[name]
-        lines.append(f"| {k + 1 if report['ranking'] else '-'} | {name} | {p['cells']} | {p['failed']} | "
-                     f"{_fmt(p['success_rate'], '.3f')} | {_fmt(p['sim_success_rate'], '.3f')} | "
-                     f"{_fmt(p['mean_latency_s'], '.4f')} | {p['clipped_actions']} | "
-                     f"{_fmt(p['ik_max_position_error_m'], '.2e')} |")
+        lines.append(
+            f"| {k + 1 if report['ranking'] else '-'} | {name} | {p['cells']} | {p['failed']} | "
+            f"{_fmt(p['success_rate'], '.3f')} | {_fmt(p['sim_success_rate'], '.3f')} | "
+            f"{_fmt(p['mean_latency_s'], '.4f')} | {p['clipped_actions']} | "
+            f"{_fmt(p['ik_max_position_error_m'], '.2e')} |"
+        )
     lines += ["", "## What the policy receives", ""]
     lines += [f"- `{k}`: {v}" for k, v in report["views"].items()]
     bad = [x for x in report["cells"] if x["status"] != "ok"]

@@ -53,8 +53,9 @@ def _verdict(cell: dict) -> str:
     return "success" if cell["wm_success"] else "failure"
 
 
-def _media(source, dest: Path, page_dir: Path, *, expected: int | None = None,
-           fps: float | None = None) -> tuple[str | None, str | None]:
+def _media(
+    source, dest: Path, page_dir: Path, *, expected: int | None = None, fps: float | None = None
+) -> tuple[str | None, str | None]:
     """The browser copy of video ``source`` and what is wrong with it: ``(url or None, problem or None)``.
 
     A missing or unreadable file, or one without frames, gives no url and says why; a video with fewer
@@ -78,8 +79,9 @@ def _media(source, dest: Path, page_dir: Path, *, expected: int | None = None,
     return url, None
 
 
-def write_html_report(out, report: dict, manifest: Manifest, records: list[dict], *, plots=(), sheets=None,
-                      progress: bool = True) -> Path:
+def write_html_report(
+    out, report: dict, manifest: Manifest, records: list[dict], *, plots=(), sheets=None, progress: bool = True
+) -> Path:
     """Write ``out/report.html`` (and its browser media) for ``report`` (:func:`~.report.build_report`).
 
     plots: paths of PNG/SVG plots to show; sheets: ``{session: path}`` of the
@@ -95,8 +97,13 @@ def write_html_report(out, report: dict, manifest: Manifest, records: list[dict]
     sessions: dict[str, dict] = {}
     bar = progress_bar(report["cells"], desc="report.html: videos", unit="cell", enabled=progress)
     for cell in bar:
-        rollout_url, rollout_problem = _media(out / cell["video"], media_path(out, cell["video"], "rollouts"), out,
-                                              expected=cell.get("frames"), fps=fps_by_cell.get(cell["cell"]))
+        rollout_url, rollout_problem = _media(
+            out / cell["video"],
+            media_path(out, cell["video"], "rollouts"),
+            out,
+            expected=cell.get("frames"),
+            fps=fps_by_cell.get(cell["cell"]),
+        )
         if rollout_problem:
             _log.warning("report.html: cell %s: rollout video %s: %s", cell["cell"], cell["video"], rollout_problem)
         real_url = real_problem = None
@@ -105,10 +112,20 @@ def write_html_report(out, report: dict, manifest: Manifest, records: list[dict]
             real_url, real_problem = _media(mcell.real_video, media_path(out, cell["video"], "real"), out)
             if real_problem:
                 _log.warning("report.html: cell %s: real video %s: %s", cell["cell"], mcell.real_video, real_problem)
-        s = sessions.setdefault(cell["session"], {"name": cell["session"], "task": cell.get("task"), "cells": [],
-                                                  "pairs": [], "sheet_url": None})
-        s["cells"].append({**cell, "verdict": _verdict(cell), "rollout_url": rollout_url,
-                           "rollout_problem": rollout_problem, "real_url": real_url, "real_problem": real_problem})
+        s = sessions.setdefault(
+            cell["session"],
+            {"name": cell["session"], "task": cell.get("task"), "cells": [], "pairs": [], "sheet_url": None},
+        )
+        s["cells"].append(
+            {
+                **cell,
+                "verdict": _verdict(cell),
+                "rollout_url": rollout_url,
+                "rollout_problem": rollout_problem,
+                "real_url": real_url,
+                "real_problem": real_problem,
+            }
+        )
     session_of = {c["cell"]: c["session"] for c in report["cells"]}
     for p in report["pairs"]:
         s = sessions.get(session_of.get(p["clip_a"]))
@@ -122,9 +139,20 @@ def write_html_report(out, report: dict, manifest: Manifest, records: list[dict]
     if judge:
         judge_text = judge.get("name") or judge.get("model") if isinstance(judge, dict) else None
         judge_text = judge_text or json.dumps(judge)[:200]
-    return render_page(out / "report.html", "eval_run.html.j2", generator="eval run",
-                       title=f"oscar eval run — {report['model']}", report=report, judge_text=judge_text,
-                       sessions=list(sessions.values()), policy_names=[p["policy"] for p in report["policies"]],
-                       n_cells=len(report["cells"]), mmrv_max=_mmrv_max(report),
-                       plots=[{"name": Path(p).stem, "url": relative_url(p, out)} for p in plots
-                              if Path(p).suffix.lower() in (".png", ".svg")])
+    return render_page(
+        out / "report.html",
+        "eval_run.html.j2",
+        generator="eval run",
+        title=f"oscar eval run — {report['model']}",
+        report=report,
+        judge_text=judge_text,
+        sessions=list(sessions.values()),
+        policy_names=[p["policy"] for p in report["policies"]],
+        n_cells=len(report["cells"]),
+        mmrv_max=_mmrv_max(report),
+        plots=[
+            {"name": Path(p).stem, "url": relative_url(p, out)}
+            for p in plots
+            if Path(p).suffix.lower() in (".png", ".svg")
+        ],
+    )

@@ -53,8 +53,17 @@ from .._util.stage import EngineName
 from ..metrics.common import MetricInputError
 from .manifest import Cell, Manifest, file_digest, load_manifest
 
-__all__ = ["RECORD_VERSION", "EvaluationResult", "EvaluationSettings", "run_evaluation", "card_sampler_of", "model_identity", "rollout_key",
-           "record_path", "video_path"]
+__all__ = [
+    "RECORD_VERSION",
+    "EvaluationResult",
+    "EvaluationSettings",
+    "run_evaluation",
+    "card_sampler_of",
+    "model_identity",
+    "rollout_key",
+    "record_path",
+    "video_path",
+]
 
 RECORD_VERSION = 1
 _log = get_logger(__name__)
@@ -90,18 +99,30 @@ model_identity = _stage.model_identity  # shared with toyworld rollouts (one def
 
 def rollout_key(cell: Cell, *, model_id: str, sampler: dict, chunk_frames, size, fps) -> str:
     """SHA-256 of everything that determines a cell's rollout (module docstring, step 1)."""
-    fields = {"v": RECORD_VERSION, "model": model_id, "sampler": sampler, "chunk_frames": chunk_frames,
-              "size": list(size) if size else None, "fps": fps, "seed": cell.seed, "embodiment": cell.embodiment,
-              "first_frame": file_digest(cell.first_frame), "trajectory": file_digest(cell.trajectory),
-              "camera": file_digest(cell.camera),
-              "prompt_embeds": file_digest(cell.prompt_embeds) if cell.prompt_embeds else None}
+    fields = {
+        "v": RECORD_VERSION,
+        "model": model_id,
+        "sampler": sampler,
+        "chunk_frames": chunk_frames,
+        "size": list(size) if size else None,
+        "fps": fps,
+        "seed": cell.seed,
+        "embodiment": cell.embodiment,
+        "first_frame": file_digest(cell.first_frame),
+        "trajectory": file_digest(cell.trajectory),
+        "camera": file_digest(cell.camera),
+        "prompt_embeds": file_digest(cell.prompt_embeds) if cell.prompt_embeds else None,
+    }
     return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
 
 
 def _judge_id(judge) -> str:
     desc = judge.describe() if hasattr(judge, "describe") else {"repr": repr(judge)}
-    desc = {k: v for k, v in desc.items() if k not in ("concurrency", "cache_dir", "timeout", "max_attempts",
-                                                       "max_requests", "dry_run")}
+    desc = {
+        k: v
+        for k, v in desc.items()
+        if k not in ("concurrency", "cache_dir", "timeout", "max_attempts", "max_requests", "dry_run")
+    }
     return hashlib.sha256(json.dumps(desc, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -138,9 +159,12 @@ def _check_embodiments(manifest: Manifest, plugin_paths) -> None:
         try:
             get_embodiment(cell.embodiment, plugin_paths)
         except (OscarError, KeyError, ValueError) as exc:
-            raise MetricInputError(f"{manifest.path}: cells[{cell.row}] (session {cell.session!r}, policy "
-                                   f"{cell.policy!r})", "embodiment", "an installed embodiment (oscar embodiments)",
-                                   f"{cell.embodiment!r}: {exc}") from None
+            raise MetricInputError(
+                f"{manifest.path}: cells[{cell.row}] (session {cell.session!r}, policy {cell.policy!r})",
+                "embodiment",
+                "an installed embodiment (oscar embodiments)",
+                f"{cell.embodiment!r}: {exc}",
+            ) from None
 
 
 @dataclass(frozen=True)
@@ -189,8 +213,12 @@ class EvaluationSettings:
         if self.engine not in ("local", "ray"):
             raise MetricInputError("engine", "value", '"local" or "ray"', repr(self.engine))
         if self.engine == "ray" and self.model_spec is None:
-            raise MetricInputError("engine", "ray", "a model spec (zoo name, Hub id or folder) each worker loads",
-                                   f"a model object ({type(model).__name__})")
+            raise MetricInputError(
+                "engine",
+                "ray",
+                "a model spec (zoo name, Hub id or folder) each worker loads",
+                f"a model object ({type(model).__name__})",
+            )
 
 
 @dataclass
@@ -211,9 +239,17 @@ class _Run:
         return self.settings.model_spec if self.settings.model_spec is not None else self.model_id
 
 
-def run_evaluation(manifest, out, *, model=None, judge=None, pairwise_judge=None,
-                   settings: EvaluationSettings | None = None, log: Callable[[str], None] | None = None,
-                   **fields) -> EvaluationResult:
+def run_evaluation(
+    manifest,
+    out,
+    *,
+    model=None,
+    judge=None,
+    pairwise_judge=None,
+    settings: EvaluationSettings | None = None,
+    log: Callable[[str], None] | None = None,
+    **fields,
+) -> EvaluationResult:
     """Run the loop of the module docstring and write the report folder ``out``: rollouts, success verdicts,
     pairwise preferences, then metrics and the report, one phase each.
 
@@ -264,8 +300,11 @@ def _start(manifest, out, model, settings: EvaluationSettings, log) -> _Run:
     else:  # the card's recommended settings over the library's defaults
         from ..model.sampler import resolve_sampler
 
-        card_sampler = (getattr(getattr(model, "card", None), "sampler", None) if model is not None
-                        else card_sampler_of(spec, revision))
+        card_sampler = (
+            getattr(getattr(model, "card", None), "sampler", None)
+            if model is not None
+            else card_sampler_of(spec, revision)
+        )
         choice = resolve_sampler(card_sampler)
         log(f"sampler: {choice.describe()}")
         sampler = choice.config
@@ -277,8 +316,14 @@ def _start(manifest, out, model, settings: EvaluationSettings, log) -> _Run:
         log(f"loading world model {spec}")
         return oscar_zoo.load(spec, revision, device=settings.device, dtype=settings.dtype)
 
-    counts = {"cells": len(manifest.cells), "rollouts_done": 0, "rollouts_reused": 0, "verdicts_done": 0,
-              "verdicts_reused": 0, "verdicts_not_ok": 0}
+    counts = {
+        "cells": len(manifest.cells),
+        "rollouts_done": 0,
+        "rollouts_reused": 0,
+        "verdicts_done": 0,
+        "verdicts_reused": 0,
+        "verdicts_not_ok": 0,
+    }
     return _Run(manifest, out, settings, log, _LazyModel(model, load), model_id, sampler, counts)
 
 
@@ -294,11 +339,16 @@ def _rollouts(run: _Run) -> list[dict]:
     pending = []  # (index, cell, key) of the cells without a valid rollout
     for k, cell in enumerate(manifest.cells):
         rpath, vpath = record_path(out, cell), video_path(out, cell)
-        key = rollout_key(cell, model_id=run.model_id, sampler=sampler_fields, chunk_frames=st.chunk_frames,
-                          size=size, fps=None)
+        key = rollout_key(
+            cell, model_id=run.model_id, sampler=sampler_fields, chunk_frames=st.chunk_frames, size=size, fps=None
+        )
         rec = _read_record(rpath)
-        if (rec is not None and rec.get("rollout_key") == key and vpath.is_file()
-                and rec.get("video_sha256") == file_digest(vpath)):
+        if (
+            rec is not None
+            and rec.get("rollout_key") == key
+            and vpath.is_file()
+            and rec.get("video_sha256") == file_digest(vpath)
+        ):
             counts["rollouts_reused"] += 1
             done[k] = rec
             bar.update(1)
@@ -312,26 +362,55 @@ def _rollouts(run: _Run) -> list[dict]:
         rpath, vpath = record_path(out, cell), video_path(out, cell)
         vpath.parent.mkdir(parents=True, exist_ok=True)
         write_video(vpath, frames, fps)
-        rec = {"v": RECORD_VERSION, "cell": cell.id, "session": cell.session, "policy": cell.policy,
-               "row": cell.row, "rollout_key": key, "model": run.model_name,
-               "video": str(vpath.relative_to(out)), "video_sha256": file_digest(vpath),
-               "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])],
-               "fps": fps, "seconds": round(seconds, 3), "verdict": None, "batch": batch,
-               "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        rec = {
+            "v": RECORD_VERSION,
+            "cell": cell.id,
+            "session": cell.session,
+            "policy": cell.policy,
+            "row": cell.row,
+            "rollout_key": key,
+            "model": run.model_name,
+            "video": str(vpath.relative_to(out)),
+            "video_sha256": file_digest(vpath),
+            "frames": int(len(frames)),
+            "size": [int(frames.shape[2]), int(frames.shape[1])],
+            "fps": fps,
+            "seconds": round(seconds, 3),
+            "verdict": None,
+            "batch": batch,
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
         _write_json(rpath, rec)
         counts["rollouts_done"] += 1
         done[k] = rec
         bar.update(1)
-        log(f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
-            f"{rec['seconds']:.1f} s" + (f" (batch of {batch})" if batch > 1 else ""))
+        log(
+            f"[{k + 1}/{len(manifest.cells)}] rolled out {cell.id}: {rec['frames']} frames in "
+            f"{rec['seconds']:.1f} s" + (f" (batch of {batch})" if batch > 1 else "")
+        )
 
-    options = dict(size=size, sampler=run.sampler, chunk_frames=st.chunk_frames, plugin_paths=tuple(st.plugin_paths),
-                   batch_cells=st.batch_cells)
+    options = dict(
+        size=size,
+        sampler=run.sampler,
+        chunk_frames=st.chunk_frames,
+        plugin_paths=tuple(st.plugin_paths),
+        batch_cells=st.batch_cells,
+    )
     if pending and st.engine == "ray":
         from .rollout_engines import roll_out_on_ray
 
-        roll_out_on_ray(pending, record, model_spec=st.model_spec, revision=st.revision, device=st.device,
-                        dtype=st.dtype, workers=st.workers, log=log, compile=st.compile or "auto", **options)
+        roll_out_on_ray(
+            pending,
+            record,
+            model_spec=st.model_spec,
+            revision=st.revision,
+            device=st.device,
+            dtype=st.dtype,
+            workers=st.workers,
+            log=log,
+            compile=st.compile or "auto",
+            **options,
+        )
     elif pending:
         from .rollout_engines import roll_out_cells
 
@@ -353,8 +432,12 @@ def _success_verdicts(run: _Run, records: list[dict], judge) -> tuple[list, list
     from ..metrics.judge import JudgeClip, SuccessVerdict
 
     manifest, out, counts = run.manifest, run.out, run.counts
-    clips = [JudgeClip(name=c.id, video=out / r["video"], instruction=c.task, policy=c.policy, session=c.session,
-                       info=c.info) for c, r in zip(manifest.cells, records)]
+    clips = [
+        JudgeClip(
+            name=c.id, video=out / r["video"], instruction=c.task, policy=c.policy, session=c.session, info=c.info
+        )
+        for c, r in zip(manifest.cells, records)
+    ]
     verdicts: list[SuccessVerdict | None] = [None] * len(clips)
     if judge is None:
         return clips, verdicts
@@ -406,12 +489,19 @@ def _report(run: _Run, records, verdicts, pair_verdicts, judge, pairwise_judge, 
     from .report import build_report, write_report
 
     wm = success_by_policy([v for v in verdicts if v is not None]) if judge is not None else {}
-    report = build_report(run.manifest, records, verdicts, pair_verdicts, wm, counts=run.counts,
-                          model=run.model_name,
-                          judge=judge.describe() if judge is not None and hasattr(judge, "describe") else None,
-                          pairwise_judge=(pairwise_judge.describe() if pairwise_judge is not None
-                                          and hasattr(pairwise_judge, "describe") else None),
-                          sampler=dataclasses.asdict(run.sampler))
-    paths = write_report(run.out, report, run.manifest, records, plot_formats=run.settings.plot_formats,
-                         log=user_log)
+    report = build_report(
+        run.manifest,
+        records,
+        verdicts,
+        pair_verdicts,
+        wm,
+        counts=run.counts,
+        model=run.model_name,
+        judge=judge.describe() if judge is not None and hasattr(judge, "describe") else None,
+        pairwise_judge=(
+            pairwise_judge.describe() if pairwise_judge is not None and hasattr(pairwise_judge, "describe") else None
+        ),
+        sampler=dataclasses.asdict(run.sampler),
+    )
+    paths = write_report(run.out, report, run.manifest, records, plot_formats=run.settings.plot_formats, log=user_log)
     return EvaluationResult(out=run.out, records=records, counts=run.counts, report=report, paths=paths)

@@ -49,8 +49,20 @@ __all__ = ["FORMAT", "Cell", "Manifest", "ManifestError", "load_manifest", "file
 
 FORMAT = "oscar-eval-manifest"
 _NAME = re.compile(r"\A[A-Za-z0-9][A-Za-z0-9._-]*\Z")
-CELL_KEYS = ("session", "policy", "task", "embodiment", "first_frame", "trajectory", "camera", "real_success",
-             "real_video", "prompt_embeds", "seed", "info")
+CELL_KEYS = (
+    "session",
+    "policy",
+    "task",
+    "embodiment",
+    "first_frame",
+    "trajectory",
+    "camera",
+    "real_success",
+    "real_video",
+    "prompt_embeds",
+    "seed",
+    "info",
+)
 REQUIRED = ("session", "policy", "task", "embodiment", "first_frame", "trajectory", "camera")
 PATH_KEYS = ("first_frame", "trajectory", "camera", "real_video", "prompt_embeds")
 TOP_KEYS = ("format", "policies", "defaults", "real_scores", "cells", "description")
@@ -153,15 +165,15 @@ def _size(value, source: str) -> tuple[int, int]:
             w, h = int(m.group(1)), int(m.group(2))
             if w % 16 == 0 and h % 16 == 0 and w > 0 and h > 0:
                 return w, h
-    raise ManifestError(source, "defaults.size", "WIDTHxHEIGHT with both multiples of 16, e.g. \"512x288\"",
-                        repr(value))
+    raise ManifestError(source, "defaults.size", 'WIDTHxHEIGHT with both multiples of 16, e.g. "512x288"', repr(value))
 
 
 def load_manifest(path) -> Manifest:
     """Read and check a manifest (rules in the module docstring); raises :class:`ManifestError`."""
     path = Path(path).resolve()
-    text = read_text_file(path, "an evaluation manifest JSON file (utf-8 text; docs/evaluation.md)",
-                          error=ManifestError, field="file")
+    text = read_text_file(
+        path, "an evaluation manifest JSON file (utf-8 text; docs/evaluation.md)", error=ManifestError, field="file"
+    )
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -174,10 +186,14 @@ def load_manifest(path) -> Manifest:
     if data.get("format", FORMAT) != FORMAT:
         raise ManifestError(path, "format", repr(FORMAT), repr(data.get("format")))
     policies = data.get("policies")
-    if (not isinstance(policies, list) or len(policies) < 1
-            or not all(isinstance(p, str) and _NAME.match(p) for p in policies)):
-        raise ManifestError(path, "policies", "a non-empty list of policy names (letters, digits, . _ -)",
-                            repr(policies))
+    if (
+        not isinstance(policies, list)
+        or len(policies) < 1
+        or not all(isinstance(p, str) and _NAME.match(p) for p in policies)
+    ):
+        raise ManifestError(
+            path, "policies", "a non-empty list of policy names (letters, digits, . _ -)", repr(policies)
+        )
     dup = sorted({p for p in policies if policies.count(p) > 1})
     if dup:
         raise ManifestError(path, "policies", "unique policy names", f"duplicates {dup}")
@@ -191,8 +207,12 @@ def load_manifest(path) -> Manifest:
     real_scores = data.get("real_scores")
     if real_scores is not None:
         if not isinstance(real_scores, dict) or sorted(real_scores) != sorted(policies):
-            raise ManifestError(path, "real_scores", f"a score for each of the policies {policies}",
-                                repr(sorted(real_scores) if isinstance(real_scores, dict) else real_scores))
+            raise ManifestError(
+                path,
+                "real_scores",
+                f"a score for each of the policies {policies}",
+                repr(sorted(real_scores) if isinstance(real_scores, dict) else real_scores),
+            )
         real_scores = {p: finite_float(real_scores[p], str(path), f"real_scores.{p}") for p in policies}
     rows = data.get("cells")
     if not isinstance(rows, list) or not rows:
@@ -222,19 +242,22 @@ def _cell(path: Path, k: int, raw, defaults: dict, policies: list, seen: dict, t
             raise ManifestError(row, key, "a non-empty string", repr(v))
     for key in ("session", "policy"):
         if not _NAME.match(merged[key]):
-            raise ManifestError(row, key, "a name of letters, digits, '.', '_' or '-' (it becomes a file name)",
-                                repr(merged[key]))
+            raise ManifestError(
+                row, key, "a name of letters, digits, '.', '_' or '-' (it becomes a file name)", repr(merged[key])
+            )
     session, policy = merged["session"], merged["policy"]
     if policy not in policies:
         raise ManifestError(row, "policy", f"one of the manifest's policies {policies}", repr(policy))
     if (session, policy) in seen:
-        raise ManifestError(row, "session/policy", "one cell per (session, policy)",
-                            f"a duplicate of cells[{seen[(session, policy)]}]")
+        raise ManifestError(
+            row, "session/policy", "one cell per (session, policy)", f"a duplicate of cells[{seen[(session, policy)]}]"
+        )
     seen[(session, policy)] = k
     task = merged["task"].strip()
     if session in tasks and tasks[session][0] != task:
-        raise ManifestError(row, "task", f"the session's task {tasks[session][0]!r} (as in cells[{tasks[session][1]}])",
-                            repr(task))
+        raise ManifestError(
+            row, "task", f"the session's task {tasks[session][0]!r} (as in cells[{tasks[session][1]}])", repr(task)
+        )
     tasks.setdefault(session, (task, k))
     paths = resolve_paths(path, row, merged, PATH_KEYS)
     real = merged.get("real_success")
@@ -246,7 +269,18 @@ def _cell(path: Path, k: int, raw, defaults: dict, policies: list, seen: dict, t
     info = merged.get("info", {})
     if not isinstance(info, dict):
         raise ManifestError(row, "info", "an object (handed to programmatic judges)", type(info).__name__)
-    return Cell(session=session, policy=policy, task=task, embodiment=merged["embodiment"],
-                first_frame=paths["first_frame"], trajectory=paths["trajectory"], camera=paths["camera"], row=k,
-                real_success=None if real is None else int(real), real_video=paths["real_video"],
-                prompt_embeds=paths["prompt_embeds"], seed=seed, info=dict(info))
+    return Cell(
+        session=session,
+        policy=policy,
+        task=task,
+        embodiment=merged["embodiment"],
+        first_frame=paths["first_frame"],
+        trajectory=paths["trajectory"],
+        camera=paths["camera"],
+        row=k,
+        real_success=None if real is None else int(real),
+        real_video=paths["real_video"],
+        prompt_embeds=paths["prompt_embeds"],
+        seed=seed,
+        info=dict(info),
+    )

@@ -49,8 +49,19 @@ SHEET_HEIGHT = 96
 _BAR = 4
 
 
-def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pair_verdicts: Sequence, wm: dict, *,
-                 counts: dict, model, judge, pairwise_judge, sampler: dict) -> dict:
+def build_report(
+    manifest: Manifest,
+    records: list[dict],
+    verdicts: Sequence,
+    pair_verdicts: Sequence,
+    wm: dict,
+    *,
+    counts: dict,
+    model,
+    judge,
+    pairwise_judge,
+    sampler: dict,
+) -> dict:
     """Everything ``report.json`` holds (module docstring)."""
     from ..metrics.bradley_terry import world_model_ranking
     from ..metrics.judge import preferences_from_verdicts
@@ -74,13 +85,19 @@ def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pa
     for p in policies:
         real_eps = [c.real_success for c in manifest.cells if c.policy == p and c.real_success is not None]
         w = wm.get(p, {})
-        rows[p] = {"policy": p, "cells": sum(c.policy == p for c in manifest.cells),
-                   "real_success_rate": float(np.mean(real_eps)) if real_eps else None, "real_episodes": real_eps,
-                   "real_score": (manifest.real_scores or {}).get(p),
-                   "wm_success_rate": w.get("success_rate"), "wm_episodes": w.get("episodes", []),
-                   "wm_mean_partial": w.get("mean_partial"), "judged": w.get("judged", 0),
-                   "not_judged": w.get("not_judged", 0),
-                   "bt_elo": bt.scores("elo")[p] if bt is not None and bt.degenerate is None else None}
+        rows[p] = {
+            "policy": p,
+            "cells": sum(c.policy == p for c in manifest.cells),
+            "real_success_rate": float(np.mean(real_eps)) if real_eps else None,
+            "real_episodes": real_eps,
+            "real_score": (manifest.real_scores or {}).get(p),
+            "wm_success_rate": w.get("success_rate"),
+            "wm_episodes": w.get("episodes", []),
+            "wm_mean_partial": w.get("mean_partial"),
+            "judged": w.get("judged", 0),
+            "not_judged": w.get("not_judged", 0),
+            "bt_elo": bt.scores("elo")[p] if bt is not None and bt.degenerate is None else None,
+        }
     comparison, comparison_error, wm_fallback = None, None, None
     wm_sr = {p: rows[p]["wm_success_rate"] for p in policies}
     if len(policies) < 2:
@@ -96,34 +113,64 @@ def build_report(manifest: Manifest, records: list[dict], verdicts: Sequence, pa
     else:
         # one ranking rule with `oscar eval policies`: tied Elo (to ELO_TIE_DECIMALS) are tied ranks, and a
         # degenerate fit or no fit at all falls back to success rates, saying so
-        wm_elo, wm_label, wm_fallback = world_model_ranking(bt, bt_error) if pairwise_judge is not None \
-            else (None, "success_rate", None)
-        comparison = compare_policies(real_sr, wm_sr, real_score=manifest.real_scores,
-                                      wm_score=wm_elo,
-                                      real_score_label="real_scores", wm_score_label=wm_label)
+        wm_elo, wm_label, wm_fallback = (
+            world_model_ranking(bt, bt_error) if pairwise_judge is not None else (None, "success_rate", None)
+        )
+        comparison = compare_policies(
+            real_sr,
+            wm_sr,
+            real_score=manifest.real_scores,
+            wm_score=wm_elo,
+            real_score_label="real_scores",
+            wm_score_label=wm_label,
+        )
     pair_rows = [v.to_dict() for v in pair_verdicts]
     by_cell = {v.clip: v for v in verdicts if v is not None}
     cells = []
     for cell, rec in zip(manifest.cells, records):
         v = by_cell.get(cell.id)
-        cells.append({"cell": cell.id, "session": cell.session, "policy": cell.policy, "task": cell.task,
-                      "real_success": cell.real_success, "wm_success": v.binary if v is not None else None,
-                      "wm_partial": v.partial if v is not None else None,
-                      "reason": v.reason if v is not None else None,
-                      "status": v.status if v is not None else None, "error": v.error if v is not None else None,
-                      "video": rec["video"], "frames": rec["frames"], "rollout_seconds": rec.get("seconds")})
-    return nan_to_none({
-        "manifest": str(manifest.path), "model": model, "sampler": sampler, "judge": judge,
-        "pairwise_judge": pairwise_judge, "counts": counts,
-        "policies": [rows[p] for p in policies],
-        "comparison": ({**comparison.to_dict(), "partial": _partial(cells, "cells"), "wm_ranking_fallback": wm_fallback}
-                       if comparison is not None else None),
-        "comparison_error": comparison_error,
-        "bradley_terry": ({**bt.to_dict(), "warnings": bt_warnings, "partial": _partial(pair_rows, "pairs")}
-                          if bt is not None else None),
-        "bradley_terry_error": bt_error,
-        "cells": cells, "pairs": pair_rows,
-    })
+        cells.append(
+            {
+                "cell": cell.id,
+                "session": cell.session,
+                "policy": cell.policy,
+                "task": cell.task,
+                "real_success": cell.real_success,
+                "wm_success": v.binary if v is not None else None,
+                "wm_partial": v.partial if v is not None else None,
+                "reason": v.reason if v is not None else None,
+                "status": v.status if v is not None else None,
+                "error": v.error if v is not None else None,
+                "video": rec["video"],
+                "frames": rec["frames"],
+                "rollout_seconds": rec.get("seconds"),
+            }
+        )
+    return nan_to_none(
+        {
+            "manifest": str(manifest.path),
+            "model": model,
+            "sampler": sampler,
+            "judge": judge,
+            "pairwise_judge": pairwise_judge,
+            "counts": counts,
+            "policies": [rows[p] for p in policies],
+            "comparison": (
+                {**comparison.to_dict(), "partial": _partial(cells, "cells"), "wm_ranking_fallback": wm_fallback}
+                if comparison is not None
+                else None
+            ),
+            "comparison_error": comparison_error,
+            "bradley_terry": (
+                {**bt.to_dict(), "warnings": bt_warnings, "partial": _partial(pair_rows, "pairs")}
+                if bt is not None
+                else None
+            ),
+            "bradley_terry_error": bt_error,
+            "cells": cells,
+            "pairs": pair_rows,
+        }
+    )
 
 
 def _not_judged_reason(status: str | None, error: str | None) -> str:
@@ -160,19 +207,27 @@ def _fmt(v, spec: str) -> str:
 
 def format_summary(report: dict, sheets: dict[str, list[str]] | None = None) -> str:
     """``summary.md``: per-policy table, fidelity metrics, Bradley–Terry board, cells that are not ``ok``."""
-    lines = ["# Policy evaluation in the world model", "",
-             f"- manifest: `{report['manifest']}`", f"- model: `{report['model']}`",
-             f"- judge: `{json.dumps(report['judge'])}`" if report["judge"] else "- judge: none",
-             f"- cells: {report['counts']['cells']} (rollouts done {report['counts']['rollouts_done']}, reused "
-             f"{report['counts']['rollouts_reused']}; verdicts done {report['counts']['verdicts_done']}, reused "
-             f"{report['counts']['verdicts_reused']}, not ok {report['counts']['verdicts_not_ok']})", "",
-             "## Per policy", "",
-             "| policy | cells | real SR | world-model SR | mean partial | not judged | real score | BT Elo |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Policy evaluation in the world model",
+        "",
+        f"- manifest: `{report['manifest']}`",
+        f"- model: `{report['model']}`",
+        f"- judge: `{json.dumps(report['judge'])}`" if report["judge"] else "- judge: none",
+        f"- cells: {report['counts']['cells']} (rollouts done {report['counts']['rollouts_done']}, reused "
+        f"{report['counts']['rollouts_reused']}; verdicts done {report['counts']['verdicts_done']}, reused "
+        f"{report['counts']['verdicts_reused']}, not ok {report['counts']['verdicts_not_ok']})",
+        "",
+        "## Per policy",
+        "",
+        "| policy | cells | real SR | world-model SR | mean partial | not judged | real score | BT Elo |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in report["policies"]:
-        lines.append(f"| {r['policy']} | {r['cells']} | {_fmt(r['real_success_rate'], '.3f')} | "
-                     f"{_fmt(r['wm_success_rate'], '.3f')} | {_fmt(r['wm_mean_partial'], '.1f')} | "
-                     f"{r['not_judged']} | {_fmt(r['real_score'], '.4g')} | {_fmt(r['bt_elo'], '.1f')} |")
+        lines.append(
+            f"| {r['policy']} | {r['cells']} | {_fmt(r['real_success_rate'], '.3f')} | "
+            f"{_fmt(r['wm_success_rate'], '.3f')} | {_fmt(r['wm_mean_partial'], '.1f')} | "
+            f"{r['not_judged']} | {_fmt(r['real_score'], '.4g')} | {_fmt(r['bt_elo'], '.1f')} |"
+        )
     lines += ["", "## Fidelity (world model against real)", ""]
     comp = report["comparison"]
     if comp is None:
@@ -184,27 +239,37 @@ def format_summary(report: dict, sheets: dict[str, list[str]] | None = None) -> 
         partial = _partial_note(comp.get("partial"))
         if partial:
             lines += [f"**{partial}**: every figure below comes from the judged cells only.", ""]
-        lines += [f"| metric | value{' (partial)' if partial else ''} |", "|---|---|",
-                  f"| MMRV (rank form, range [0, {mmrv_rank_max(n):.3f}]) ↓ | {_fmt(m['mmrv'], '.3f')} |",
-                  f"| MMRV (SIMPLER, success-rate gap) ↓ | {_fmt(m['mmrv_simpler'], '.3f')} |",
-                  f"| Spearman ρ ↑ | {_fmt(m['spearman_rho'], '+.3f')} |",
-                  f"| Pearson r ↑ | {_fmt(m['pearson_r'], '+.3f')} |",
-                  f"| SISR_Δ (pp) ↓ | {_fmt(m['sisr_delta_pp'], '.2f')} |", "",
-                  f"Ranked by: real = {comp['ranked_by']['real']}, world model = {comp['ranked_by']['wm']}."]
+        lines += [
+            f"| metric | value{' (partial)' if partial else ''} |",
+            "|---|---|",
+            f"| MMRV (rank form, range [0, {mmrv_rank_max(n):.3f}]) ↓ | {_fmt(m['mmrv'], '.3f')} |",
+            f"| MMRV (SIMPLER, success-rate gap) ↓ | {_fmt(m['mmrv_simpler'], '.3f')} |",
+            f"| Spearman ρ ↑ | {_fmt(m['spearman_rho'], '+.3f')} |",
+            f"| Pearson r ↑ | {_fmt(m['pearson_r'], '+.3f')} |",
+            f"| SISR_Δ (pp) ↓ | {_fmt(m['sisr_delta_pp'], '.2f')} |",
+            "",
+            f"Ranked by: real = {comp['ranked_by']['real']}, world model = {comp['ranked_by']['wm']}.",
+        ]
         if comp.get("wm_ranking_fallback"):
             lines.append(f"\n{comp['wm_ranking_fallback'][0].upper()}{comp['wm_ranking_fallback'][1:]}.")
     bt = report["bradley_terry"]
     if bt is not None and bt.get("degenerate"):
-        lines += ["", "## Bradley–Terry–Davidson (world-model pairwise preferences)", "",
-                  f"No ranking: {bt['degenerate']} ({bt['n_comparisons']} comparisons)."]
+        lines += [
+            "",
+            "## Bradley–Terry–Davidson (world-model pairwise preferences)",
+            "",
+            f"No ranking: {bt['degenerate']} ({bt['n_comparisons']} comparisons).",
+        ]
     elif bt is not None:
         partial = _partial_note(bt.get("partial"))
         lines += ["", "## Bradley–Terry–Davidson (world-model pairwise preferences)", ""]
         lines += [f"**{partial}**.", ""] if partial else []
         lines += ["| policy | Elo | ± std |", "|---|---|---|"]
         lines += [f"| {b['policy']} | {b['elo']:.1f} | {b['elo_std']:.1f} |" for b in bt["board"]]
-        lines.append(f"\n{bt['n_comparisons']} comparisons, tie ν {bt['tie_nu']:.4f}"
-                     + ("" if bt["converged"] else " (NOT converged)"))
+        lines.append(
+            f"\n{bt['n_comparisons']} comparisons, tie ν {bt['tie_nu']:.4f}"
+            + ("" if bt["converged"] else " (NOT converged)")
+        )
         lines += [f"\nwarning: {w}" for w in bt.get("warnings", [])]
     elif report.get("bradley_terry_error"):
         lines += ["", f"No Bradley–Terry fit: {report['bradley_terry_error']}."]
@@ -213,8 +278,13 @@ def format_summary(report: dict, sheets: dict[str, list[str]] | None = None) -> 
         lines += ["", "## Cells without a valid verdict", ""]
         lines += [f"- `{c['cell']}`: {c['status']}: {c['error']}" for c in bad]
     if sheets:
-        lines += ["", "## Contact sheets", "",
-                  "Rows top to bottom (each: rollout band, then the real band when there is a real video):", ""]
+        lines += [
+            "",
+            "## Contact sheets",
+            "",
+            "Rows top to bottom (each: rollout band, then the real band when there is a real video):",
+            "",
+        ]
         lines += [f"- `contact_sheets/{s}.png`: {', '.join(rows)}" for s, rows in sheets.items()]
     return "\n".join(lines) + "\n"
 
@@ -237,8 +307,9 @@ def _thumbs(video: np.ndarray, n: int, height: int) -> np.ndarray:
     return np.concatenate(parts, axis=1)
 
 
-def contact_sheet(rows: Sequence[tuple[np.ndarray, np.ndarray | None]], *, frames: int = SHEET_FRAMES,
-                  height: int = SHEET_HEIGHT) -> np.ndarray:
+def contact_sheet(
+    rows: Sequence[tuple[np.ndarray, np.ndarray | None]], *, frames: int = SHEET_FRAMES, height: int = SHEET_HEIGHT
+) -> np.ndarray:
     """Stack ``(rollout, real or None)`` video pairs into one (H, W, 3) uint8 image (module docstring)."""
     bands = []
     for rollout, real in rows:
@@ -267,8 +338,15 @@ def _write_png(path: Path, image: np.ndarray) -> None:
     atomic_write_bytes(path, buf.tobytes())
 
 
-def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict], *, plot_formats=("png",),
-                 log: Callable[[str], None] | None = None) -> dict:
+def write_report(
+    out: Path,
+    report: dict,
+    manifest: Manifest,
+    records: list[dict],
+    *,
+    plot_formats=("png",),
+    log: Callable[[str], None] | None = None,
+) -> dict:
     """Write ``report.json``, ``summary.md``, the plots and the contact sheets; returns their paths.
 
     Problems that do not stop the report (an unreadable real video, no
@@ -280,6 +358,7 @@ def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict
         _log.warning(msg)
         if log is not None:
             log(f"warning: {msg}")
+
     from ..metrics.video import load_video
 
     out = Path(out)
@@ -310,12 +389,15 @@ def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict
 
             comp = report["comparison"]
             pol = [p["policy"] for p in comp["policies"]]
-            c = compare_policies({p["policy"]: p["real_success"] for p in comp["policies"]},
-                                 {p["policy"]: p["wm_success"] for p in comp["policies"]},
-                                 real_score={p["policy"]: p["real_score"] for p in comp["policies"]},
-                                 wm_score={p["policy"]: p["wm_score"] for p in comp["policies"]},
-                                 names=pol, real_score_label=comp["ranked_by"]["real"],
-                                 wm_score_label=comp["ranked_by"]["wm"])
+            c = compare_policies(
+                {p["policy"]: p["real_success"] for p in comp["policies"]},
+                {p["policy"]: p["wm_success"] for p in comp["policies"]},
+                real_score={p["policy"]: p["real_score"] for p in comp["policies"]},
+                wm_score={p["policy"]: p["wm_score"] for p in comp["policies"]},
+                names=pol,
+                real_score_label=comp["ranked_by"]["real"],
+                wm_score_label=comp["ranked_by"]["wm"],
+            )
             written = plot_comparison(c, out / "plots", formats=plot_formats)
             paths["plots"] = {k: [str(p) for p in v] for k, v in written.items()}
         except ImportError as exc:
@@ -323,8 +405,11 @@ def write_report(out: Path, report: dict, manifest: Manifest, records: list[dict
     from .html import write_html_report
 
     plots = [p for v in paths.get("plots", {}).values() for p in v]
-    paths["html"] = str(write_html_report(out, report, manifest, records, plots=plots,
-                                          sheets={s: out / "contact_sheets" / f"{s}.png" for s in sheets}))
+    paths["html"] = str(
+        write_html_report(
+            out, report, manifest, records, plots=plots, sheets={s: out / "contact_sheets" / f"{s}.png" for s in sheets}
+        )
+    )
     report_path = out / "report.json"
     atomic_write_bytes(report_path, (json.dumps({**report, "files": paths}, indent=2) + "\n").encode())
     summary = out / "summary.md"

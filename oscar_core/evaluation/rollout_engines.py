@@ -46,7 +46,6 @@ def cell_prompt(cell: Cell):
     raise MetricInputError(cell.prompt_embeds, "tensors", "a tensor named 'prompt_embeds'", sorted(tensors))
 
 
-
 def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     """The cell's rollout inputs: ``first`` (H, W, 3) uint8 at the rollout size, ``video`` (T, H, W, 3) uint8
     condition video (the card's: skeleton, mesh or capsules; None for a latent-action model), ``actions``
@@ -69,11 +68,25 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
     else:  # any model with rollout(first, skeleton, prompt, ...) (evaluation/loop.py): the card's condition video
         from ..render.conditions import condition_video, video_condition_of
 
-        cond = {"skeleton": condition_video(video_condition_of(card.condition), emb, traj, camera, size,
-                                            resize_mode="crop", camera_source=str(cell.camera))}
+        cond = {
+            "skeleton": condition_video(
+                video_condition_of(card.condition),
+                emb,
+                traj,
+                camera,
+                size,
+                resize_mode="crop",
+                camera_source=str(cell.camera),
+            )
+        }
     first = fit_image(first, size[0], size[1], "crop")
-    return {"first": first, "video": cond.get("skeleton"), "actions": cond.get("actions"),
-            "prompt": cell_prompt(cell), "fps": float(traj.fps)}
+    return {
+        "first": first,
+        "video": cond.get("skeleton"),
+        "actions": cond.get("actions"),
+        "prompt": cell_prompt(cell),
+        "fps": float(traj.fps),
+    }
 
 
 def _batch_key(inputs: dict) -> tuple:
@@ -90,15 +103,33 @@ def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progres
         if len(group) == 1:
             g = group[0]
             extra = {} if g["actions"] is None else {"actions": g["actions"]}  # a latent-action model's input
-            return [model.rollout(g["first"], g["video"], g["prompt"], chunk_frames=chunk_frames, sampler=sampler,
-                                  seed=seeds[0], progress=progress, keep_chunks=False, **extra).frames]
-        return model.rollout_batch([g["first"] for g in group], [g["video"] for g in group],
-                                   [g["prompt"] for g in group], chunk_frames=chunk_frames, sampler=sampler,
-                                   seeds=seeds, progress=progress)
+            return [
+                model.rollout(
+                    g["first"],
+                    g["video"],
+                    g["prompt"],
+                    chunk_frames=chunk_frames,
+                    sampler=sampler,
+                    seed=seeds[0],
+                    progress=progress,
+                    keep_chunks=False,
+                    **extra,
+                ).frames
+            ]
+        return model.rollout_batch(
+            [g["first"] for g in group],
+            [g["video"] for g in group],
+            [g["prompt"] for g in group],
+            chunk_frames=chunk_frames,
+            sampler=sampler,
+            seeds=seeds,
+            progress=progress,
+        )
 
 
-def roll_out_cells(model, cells: Sequence[Cell], *, size, sampler, chunk_frames, plugin_paths, batch_cells: int,
-                   progress: bool = False) -> Iterator[tuple[list, list]]:
+def roll_out_cells(
+    model, cells: Sequence[Cell], *, size, sampler, chunk_frames, plugin_paths, batch_cells: int, progress: bool = False
+) -> Iterator[tuple[list, list]]:
     """Roll ``cells`` out in order; yields ``([(cell, seconds per cell), ...], [(frames, fps), ...])`` per group.
 
     A group is consecutive cells with one :func:`_batch_key`, at most ``batch_cells`` of them (one for a
@@ -110,8 +141,9 @@ def roll_out_cells(model, cells: Sequence[Cell], *, size, sampler, chunk_frames,
 
     def flush():
         t0 = time.perf_counter()
-        videos = _roll_out(model, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for c in group],
-                           progress=progress)
+        videos = _roll_out(
+            model, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for c in group], progress=progress
+        )
         seconds = (time.perf_counter() - t0) / len(group)
         return [(c, seconds) for c in group], [(v, inp["fps"]) for v, inp in zip(videos, inputs)]
 
@@ -129,8 +161,16 @@ def roll_out_cells(model, cells: Sequence[Cell], *, size, sampler, chunk_frames,
 class _RolloutWorker:
     """A Ray actor's state: one model, loaded once; :meth:`roll` rolls a list of cells out."""
 
-    def __init__(self, model_spec: str, revision, device: str, dtype_name: str | None, plugin_paths: tuple,
-                 compile: str = "auto", cells: int = 1):
+    def __init__(
+        self,
+        model_spec: str,
+        revision,
+        device: str,
+        dtype_name: str | None,
+        plugin_paths: tuple,
+        compile: str = "auto",
+        cells: int = 1,
+    ):
         import torch
 
         import oscar_zoo
@@ -148,9 +188,23 @@ class _RolloutWorker:
         return out
 
 
-def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, model_spec: str, revision, device,
-                    dtype, workers: int, size, sampler, chunk_frames, plugin_paths, batch_cells: int,
-                    log: Callable[[str], None], compile: str = "auto") -> None:
+def roll_out_on_ray(
+    pending: list[tuple[int, Cell, str]],
+    record: Callable,
+    *,
+    model_spec: str,
+    revision,
+    device,
+    dtype,
+    workers: int,
+    size,
+    sampler,
+    chunk_frames,
+    plugin_paths,
+    batch_cells: int,
+    log: Callable[[str], None],
+    compile: str = "auto",
+) -> None:
     """Roll the ``pending`` cells ((index, cell, rollout key), manifest order) out on ``workers`` Ray actors and
     call ``record(index, cell, key, frames, fps, seconds, batch)`` for each as its group comes back."""
     from .._util.optional import require
@@ -163,19 +217,27 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
     kind = "GPU" if gpu else "CPU"
     free = int(ray.available_resources().get(kind, 0))  # an actor Ray cannot place would wait forever
     if free < 1:
-        raise MetricInputError("engine", "ray", f"a Ray cluster with a free {kind} for each worker",
-                               f"no free {kind} (cluster: {ray.cluster_resources()})")
+        raise MetricInputError(
+            "engine",
+            "ray",
+            f"a Ray cluster with a free {kind} for each worker",
+            f"no free {kind} (cluster: {ray.cluster_resources()})",
+        )
     n = min(workers, len(pending), free)
     if n < min(workers, len(pending)):
         log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
     actor_cls = ray.remote(**resources)(_RolloutWorker)
     dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
     share = -(-len(pending) // n)  # cells per worker, for the compile policy
-    actors = [actor_cls.remote(model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths),
-                               compile, share) for _ in range(n)]
+    actors = [
+        actor_cls.remote(
+            model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths), compile, share
+        )
+        for _ in range(n)
+    ]
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, batch_cells=batch_cells)
-    queue = [pending[i:i + batch_cells] for i in range(0, len(pending), batch_cells)]
+    queue = [pending[i : i + batch_cells] for i in range(0, len(pending), batch_cells)]
     by_id = {c.id: (k, c, key) for k, c, key in pending}
     in_flight: dict = {}
 
@@ -194,11 +256,13 @@ def roll_out_on_ray(pending: list[tuple[int, Cell, str]], record: Callable, *, m
                 results = ray.get(ref)
             except ray.exceptions.RayTaskError as exc:  # a worker's fault is the run's: its cause, not Ray's wrapper
                 cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
-                raise MetricInputError("engine", "ray", "every worker's rollouts", f"{type(cause).__name__}: "
-                                       f"{cause}") from None
+                raise MetricInputError(
+                    "engine", "ray", "every worker's rollouts", f"{type(cause).__name__}: {cause}"
+                ) from None
             except ray.exceptions.RayActorError as exc:  # the worker died, e.g. its model could not load
-                raise MetricInputError("engine", "ray", f"a worker that loads {model_spec}",
-                                       str(exc).strip().splitlines()[-1][:2000]) from None
+                raise MetricInputError(
+                    "engine", "ray", f"a worker that loads {model_spec}", str(exc).strip().splitlines()[-1][:2000]
+                ) from None
             submit(actor)
             for cell_id, frames, fps, seconds, batch in results:
                 k, cell, key = by_id[cell_id]

@@ -31,8 +31,14 @@ def build_chain_from_tree(tree: KinematicTree, dtype=torch.float64, device="cpu"
         else:
             jtype = {"continuous": "revolute"}.get(joint.type, joint.type)
             offset = pkt.Transform3d(matrix=torch.tensor(joint.origin, dtype=torch.float64), dtype=torch.float64)
-            f.joint = pkf.Joint(joint.name, offset=offset, joint_type=jtype, axis=tuple(joint.axis.tolist()),
-                                dtype=torch.float64, limits=(joint.lower, joint.upper) if joint.lower is not None else None)
+            f.joint = pkf.Joint(
+                joint.name,
+                offset=offset,
+                joint_type=jtype,
+                axis=tuple(joint.axis.tolist()),
+                dtype=torch.float64,
+                limits=(joint.lower, joint.upper) if joint.lower is not None else None,
+            )
         f.link = pkf.Link(link)
         f.children = [make_frame(j.child, j) for j in children.get(link, [])]
         return f

@@ -73,10 +73,14 @@ class Trajectory:
 
     def __post_init__(self):
         src = self.source
-        names = tuple(str(n) for n in np.atleast_1d(np.asarray(self.joint_names)).tolist()) if len(self.joint_names) else ()
+        names = (
+            tuple(str(n) for n in np.atleast_1d(np.asarray(self.joint_names)).tolist()) if len(self.joint_names) else ()
+        )
         object.__setattr__(self, "joint_names", names)
         if len(set(names)) != len(names):
-            raise TrajectoryError(src, "joint_names", "unique names", f"duplicates {sorted({n for n in names if names.count(n) > 1})}")
+            raise TrajectoryError(
+                src, "joint_names", "unique names", f"duplicates {sorted({n for n in names if names.count(n) > 1})}"
+            )
         try:
             q = np.asarray(self.q, dtype=np.float64)
         except (TypeError, ValueError):
@@ -109,7 +113,9 @@ class Trajectory:
         if self.gripper_names is not None:
             gn = tuple(str(n) for n in np.atleast_1d(np.asarray(self.gripper_names)).tolist())
             if len(gn) != g.shape[1]:
-                raise TrajectoryError(src, "gripper_names", f"{g.shape[1]} names (one per gripper column)", f"{len(gn)}")
+                raise TrajectoryError(
+                    src, "gripper_names", f"{g.shape[1]} names (one per gripper column)", f"{len(gn)}"
+                )
             object.__setattr__(self, "gripper_names", gn)
         if self.base_pose is not None:
             b = np.asarray(self.base_pose, dtype=np.float64)
@@ -123,8 +129,12 @@ class Trajectory:
             bottom = np.abs(b[:, 3] - [0, 0, 0, 1]).max(axis=1)
             if dev.max() > 1e-5 or bottom.max() > 1e-9:
                 t = int(np.argmax(np.maximum(dev, bottom)))
-                raise TrajectoryError(src, "base_pose", "rigid transforms (orthonormal rotation, last row 0 0 0 1)",
-                                      f"rotation error {dev[t]:.2g} / last row {b[t, 3].tolist()} at frame {t}")
+                raise TrajectoryError(
+                    src,
+                    "base_pose",
+                    "rigid transforms (orthonormal rotation, last row 0 0 0 1)",
+                    f"rotation error {dev[t]:.2g} / last row {b[t, 3].tolist()} at frame {t}",
+                )
             object.__setattr__(self, "base_pose", b)
         if self.timestamps is not None:
             ts = np.asarray(self.timestamps, dtype=np.float64)
@@ -135,14 +145,20 @@ class Trajectory:
             try:
                 kp = np.asarray(self.keypoints, dtype=np.float64)
             except (TypeError, ValueError):
-                raise TrajectoryError(src, "keypoints", "numbers (metres)", f"dtype {np.asarray(self.keypoints).dtype}") from None
+                raise TrajectoryError(
+                    src, "keypoints", "numbers (metres)", f"dtype {np.asarray(self.keypoints).dtype}"
+                ) from None
             if kp.ndim != 3 or kp.shape[0] != T or kp.shape[2] != 3 or kp.shape[1] < 1:
                 raise TrajectoryError(src, "keypoints", f"shape ({T}, P, 3) with P >= 1", f"shape {kp.shape}")
             inf = np.isinf(kp)
             if inf.any():
                 (t, k, _), n = tuple(int(i) for i in np.argwhere(inf)[0]), int(inf.sum())
-                raise TrajectoryError(src, "keypoints", "finite values or NaN (NaN marks a missing point)",
-                                      f"{kp[t, k].tolist()} at frame {t}, point {k} ({n} values)")
+                raise TrajectoryError(
+                    src,
+                    "keypoints",
+                    "finite values or NaN (NaN marks a missing point)",
+                    f"{kp[t, k].tolist()} at frame {t}, point {k} ({n} values)",
+                )
             object.__setattr__(self, "keypoints", kp)
 
     @property
@@ -171,8 +187,10 @@ def interpolate_keyframes(keys, frames_per_segment: int) -> np.ndarray:
     """
     keys = np.asarray(keys, dtype=np.float64)
     if keys.ndim != 2 or len(keys) < 2 or frames_per_segment < 1:
-        raise ValueError(f"interpolate_keyframes: expected (N >= 2, D) keys and frames_per_segment >= 1, "
-                         f"found {keys.shape} and {frames_per_segment}")
+        raise ValueError(
+            f"interpolate_keyframes: expected (N >= 2, D) keys and frames_per_segment >= 1, "
+            f"found {keys.shape} and {frames_per_segment}"
+        )
     s = np.linspace(0, 1, frames_per_segment, endpoint=False)
     ease = s * s * (3 - 2 * s)
     parts = [a + ease[:, None] * (b - a) for a, b in zip(keys[:-1], keys[1:])]
@@ -196,7 +214,9 @@ def load_trajectory(path) -> Trajectory:
         raise TrajectoryError(src, "<file>", "a NumPy .npz archive", f"{type(exc).__name__}: {exc}") from None
     unknown = sorted(set(data) - set(TRAJECTORY_FIELDS))
     if unknown:
-        raise TrajectoryError(src, unknown[0], f"only the fields {list(TRAJECTORY_FIELDS)}", f"unknown fields {unknown}")
+        raise TrajectoryError(
+            src, unknown[0], f"only the fields {list(TRAJECTORY_FIELDS)}", f"unknown fields {unknown}"
+        )
     if "keypoints" in data and "joint_names" not in data and "q" not in data:
         # a keypoint trajectory (no joints): T comes from the keypoints
         kp = data["keypoints"]

@@ -185,7 +185,9 @@ def _parse_joint(el, source: str) -> Joint:
         try:
             mimic = (mimic_el.get("joint"), float(mimic_el.get("multiplier", "1")), float(mimic_el.get("offset", "0")))
         except ValueError:
-            raise KinematicsFileError(source, f"{where}.mimic", "numeric multiplier/offset", etree.tostring(mimic_el).decode()) from None
+            raise KinematicsFileError(
+                source, f"{where}.mimic", "numeric multiplier/offset", etree.tostring(mimic_el).decode()
+            ) from None
         if not mimic[0]:
             raise KinematicsFileError(source, f"{where}.mimic.joint", "the name of the joint to follow", "none")
     return Joint(name, jtype, parent_el.get("link"), child_el.get("link"), origin, axis, lower, upper, mimic)
@@ -218,9 +220,13 @@ def build_tree_from_urdf_string(text: str | bytes, source: str = "<string>") -> 
     for j in joints:
         for role, link in (("parent", j.parent), ("child", j.child)):
             if link not in link_set:
-                raise KinematicsFileError(source, f"joint[{j.name}].{role}", "the name of a <link> in the file", repr(link))
+                raise KinematicsFileError(
+                    source, f"joint[{j.name}].{role}", "the name of a <link> in the file", repr(link)
+                )
         if j.child in parent_of:
-            raise KinematicsFileError(source, f"joint[{j.name}].child", "a link with one parent joint", f"{j.child!r} has two")
+            raise KinematicsFileError(
+                source, f"joint[{j.name}].child", "a link with one parent joint", f"{j.child!r} has two"
+            )
         parent_of[j.child] = j.parent
         joint_of[j.child] = j
     roots = [l for l in links if l not in parent_of]
@@ -238,9 +244,13 @@ def build_tree_from_urdf_string(text: str | bytes, source: str = "<string>") -> 
         if j.mimic is not None:
             src = by_name.get(j.mimic[0])
             if src is None or not src.movable:
-                raise KinematicsFileError(source, f"joint[{j.name}].mimic.joint", "a movable joint of this robot", repr(j.mimic[0]))
+                raise KinematicsFileError(
+                    source, f"joint[{j.name}].mimic.joint", "a movable joint of this robot", repr(j.mimic[0])
+                )
             if src.mimic is not None:
-                raise KinematicsFileError(source, f"joint[{j.name}].mimic.joint", "a joint that is not itself a mimic", repr(src.name))
+                raise KinematicsFileError(
+                    source, f"joint[{j.name}].mimic.joint", "a joint that is not itself a mimic", repr(src.name)
+                )
     return KinematicTree(root.get("name", ""), source, roots[0], tuple(links), tuple(joints), parent_of, joint_of)
 
 
@@ -269,7 +279,10 @@ def _package_resolver(packages: Mapping[str, str | Path], source: str):
     def get_package_share_directory(pkg: str) -> str:
         if pkg not in packages:
             raise KinematicsFileError(
-                source, f"$(find {pkg})", f"a package given in packages= (known: {sorted(packages) or 'none'})", "unknown package"
+                source,
+                f"$(find {pkg})",
+                f"a package given in packages= (known: {sorted(packages) or 'none'})",
+                "unknown package",
             )
         return str(packages[pkg])
 
@@ -308,10 +321,14 @@ def expand_xacro(path, args: Mapping[str, str] | None = None, packages: Mapping[
     except InputFileError:
         raise
     except Exception as exc:  # noqa: BLE001 - xacro raises its own XacroException and XML errors
-        raise KinematicsFileError(str(path), "<xacro>", "a xacro file that expands", f"{type(exc).__name__}: {exc}") from None
+        raise KinematicsFileError(
+            str(path), "<xacro>", "a xacro file that expands", f"{type(exc).__name__}: {exc}"
+        ) from None
     return doc.toxml()
 
 
-def build_tree_from_xacro(path, args: Mapping[str, str] | None = None, packages: Mapping[str, str | Path] | None = None) -> KinematicTree:
+def build_tree_from_xacro(
+    path, args: Mapping[str, str] | None = None, packages: Mapping[str, str | Path] | None = None
+) -> KinematicTree:
     """Expand a xacro file (see :func:`expand_xacro`) and parse the result."""
     return build_tree_from_urdf_string(expand_xacro(path, args, packages), str(path))

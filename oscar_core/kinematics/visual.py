@@ -60,8 +60,10 @@ class LinkGeometry:
         if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
             raise ValueError(f"link {self.link!r}: vertices: expected finite (V, 3) metres, found shape {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
-            raise ValueError(f"link {self.link!r}: faces: expected (F, 3) indices into {len(v)} vertices, "
-                             f"found shape {f.shape}" + (f" with indices {f.min()}..{f.max()}" if f.size else ""))
+            raise ValueError(
+                f"link {self.link!r}: faces: expected (F, 3) indices into {len(v)} vertices, "
+                f"found shape {f.shape}" + (f" with indices {f.min()}..{f.max()}" if f.size else "")
+            )
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", f)
 
@@ -203,7 +205,7 @@ def _cached_mesh(path: str, mtime: float) -> tuple[np.ndarray, np.ndarray]:
 def _resolve_filename(filename: str, urdf_dir: Path | None, packages: Mapping[str, Path | str]) -> Path:
     """A URDF mesh ``filename`` → a local path (which may not exist)."""
     if filename.startswith("package://"):
-        rest = filename[len("package://"):]
+        rest = filename[len("package://") :]
         pkg, _, rel = rest.partition("/")
         if pkg in packages:
             return Path(packages[pkg]) / rel
@@ -242,15 +244,20 @@ def _positive(el, attr: str, source: str, where: str) -> float:
     return v
 
 
-def _visual_triangles(vis, source: str, where: str, urdf_dir: Path | None,
-                      packages: Mapping[str, Path | str]) -> tuple[np.ndarray, np.ndarray]:
+def _visual_triangles(
+    vis, source: str, where: str, urdf_dir: Path | None, packages: Mapping[str, Path | str]
+) -> tuple[np.ndarray, np.ndarray]:
     from .urdf import rpy_to_matrix
 
     geom = vis.find("geometry")
     shapes = [c for c in (geom if geom is not None else []) if isinstance(c.tag, str)]
     if len(shapes) != 1:
-        raise KinematicsFileError(source, f"{where}.geometry", "one of mesh, box, cylinder, sphere, capsule",
-                                  f"{len(shapes)} elements" if shapes or geom is not None else "no <geometry>")
+        raise KinematicsFileError(
+            source,
+            f"{where}.geometry",
+            "one of mesh, box, cylinder, sphere, capsule",
+            f"{len(shapes)} elements" if shapes or geom is not None else "no <geometry>",
+        )
     shape = shapes[0]
     w = f"{where}.geometry.{shape.tag}"
     if shape.tag == "box":
@@ -270,24 +277,30 @@ def _visual_triangles(vis, source: str, where: str, urdf_dir: Path | None,
             raise KinematicsFileError(source, f"{w}.filename", "a mesh file name", "none")
         path = _resolve_filename(filename, urdf_dir, packages)
         if not path.is_file():
-            raise KinematicsFileError(source, f"{w}.filename", "an existing mesh file (STL, DAE, OBJ)",
-                                      f"{filename!r} → {path} (no such file)")
+            raise KinematicsFileError(
+                source,
+                f"{w}.filename",
+                "an existing mesh file (STL, DAE, OBJ)",
+                f"{filename!r} → {path} (no such file)",
+            )
         v, f = _cached_mesh(str(path.resolve()), os.path.getmtime(path))
         scale = _floats(shape, "scale", 3, (1.0, 1.0, 1.0), source, w)
         v = v * scale
         if np.prod(scale) < 0:  # a mirror: keep the faces wound counter-clockwise seen from outside
             f = f[:, ::-1]
     else:
-        raise KinematicsFileError(source, f"{where}.geometry", "one of mesh, box, cylinder, sphere, capsule",
-                                  f"<{shape.tag}>")
+        raise KinematicsFileError(
+            source, f"{where}.geometry", "one of mesh, box, cylinder, sphere, capsule", f"<{shape.tag}>"
+        )
     origin = vis.find("origin")
     R = rpy_to_matrix(_floats(origin, "rpy", 3, (0.0, 0.0, 0.0), source, f"{where}.origin"))
     t = _floats(origin, "xyz", 3, (0.0, 0.0, 0.0), source, f"{where}.origin")
     return v @ R.T + t, f
 
 
-def read_urdf_visuals(urdf, packages: Mapping[str, Path | str] | None = None, *, source: str | None = None,
-                      base_dir=None) -> VisualGeometry:
+def read_urdf_visuals(
+    urdf, packages: Mapping[str, Path | str] | None = None, *, source: str | None = None, base_dir=None
+) -> VisualGeometry:
     """Every link's ``<visual>`` triangles from a URDF file path or a URDF string.
 
     urdf: a path, or the XML text (then ``source`` names it in messages and
@@ -314,11 +327,18 @@ def read_urdf_visuals(urdf, packages: Mapping[str, Path | str] | None = None, *,
     links = []
     for link in root.findall("link"):
         name = link.get("name")
-        parts = [_visual_triangles(vis, source, f"link[{name}].visual[{i}]", urdf_dir, packages)
-                 for i, vis in enumerate(link.findall("visual"))]
+        parts = [
+            _visual_triangles(vis, source, f"link[{name}].visual[{i}]", urdf_dir, packages)
+            for i, vis in enumerate(link.findall("visual"))
+        ]
         if not parts:
             continue
         offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
-        links.append(LinkGeometry(name, np.concatenate([v for v, _ in parts]),
-                                  np.concatenate([f + o for (_, f), o in zip(parts, offsets)])))
+        links.append(
+            LinkGeometry(
+                name,
+                np.concatenate([v for v, _ in parts]),
+                np.concatenate([f + o for (_, f), o in zip(parts, offsets)]),
+            )
+        )
     return VisualGeometry(tuple(links), source)

@@ -22,8 +22,19 @@ from .._util.log import progress_bars_enabled
 from ..errors import OutputPathError
 from .video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
-__all__ = ["write_video", "read_video", "video_info", "SUPPORTED_OUTPUTS", "VideoWriter", "check_output",
-           "remove_stale_temporaries", "rgb_to_yuv420p", "output_codec", "PRESETS", "DEFAULT_PRESET"]
+__all__ = [
+    "write_video",
+    "read_video",
+    "video_info",
+    "SUPPORTED_OUTPUTS",
+    "VideoWriter",
+    "check_output",
+    "remove_stale_temporaries",
+    "rgb_to_yuv420p",
+    "output_codec",
+    "PRESETS",
+    "DEFAULT_PRESET",
+]
 
 SUPPORTED_OUTPUTS = {".mp4": "H.264 (libx264, yuv420p)", ".mkv": "FFV1 lossless RGB", "folder/": "PNG frames"}
 FRAME_PATTERN = "frame_{:06d}.png"
@@ -36,7 +47,9 @@ _TMP_MARK = ".tmp"
 def _check_frame(frame: np.ndarray, index: int, shape: tuple | None) -> np.ndarray:
     frame = np.asarray(frame)
     if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
-        raise ValueError(f"frames: expected (H, W, 3) uint8 RGB frames, found {frame.dtype} {frame.shape} at frame {index}")
+        raise ValueError(
+            f"frames: expected (H, W, 3) uint8 RGB frames, found {frame.dtype} {frame.shape} at frame {index}"
+        )
     if shape is not None and frame.shape != shape:
         raise ValueError(f"frames: expected every frame of shape {shape}, found {frame.shape} at frame {index}")
     return frame
@@ -80,8 +93,12 @@ def output_codec(path, *, format: str | None = None) -> str:
     if path.suffix.lower() in (".mp4", ".mkv"):
         return FORMATS[path.suffix.lower()[1:]]
     if path.suffix == "":
-        raise OutputPathError(path, "the name has no suffix; expected " + _supported()
-                              + " (a folder of PNG frames is asked for with a trailing /, --format png, or format=\"png\" in Python)")
+        raise OutputPathError(
+            path,
+            "the name has no suffix; expected "
+            + _supported()
+            + ' (a folder of PNG frames is asked for with a trailing /, --format png, or format="png" in Python)',
+        )
     raise OutputPathError(path, f"unsupported suffix {path.suffix!r}; supported: " + _supported())
 
 
@@ -116,8 +133,11 @@ def check_output(path, *, format: str | None = None, size: tuple[int, int] | Non
         raise OutputPathError(path, "it is a folder")
     if size is not None and codec == "h264" and (size[0] % 2 or size[1] % 2):
         W, H = size
-        raise OutputPathError(path, f"H.264 (yuv420p) needs an even width and height, found {W}x{H}; "
-                                    f"use e.g. --size {W + W % 2}x{H + H % 2} or a lossless .mkv")
+        raise OutputPathError(
+            path,
+            f"H.264 (yuv420p) needs an even width and height, found {W}x{H}; "
+            f"use e.g. --size {W + W % 2}x{H + H % 2} or a lossless .mkv",
+        )
     return path, codec
 
 
@@ -139,8 +159,9 @@ def remove_stale_temporaries(path) -> list[Path]:
 
 
 # limited-range ("tv") BT.601 chroma from OpenCV's full-range YCrCb: 128 + (c - 128) * 224 / 255
-_CHROMA_LUT = np.repeat(np.clip(np.rint(128 + (np.arange(256) - 128) * 224 / 255), 0, 255)
-                        .astype(np.uint8)[:, None], 3, axis=1).reshape(256, 1, 3)
+_CHROMA_LUT = np.repeat(
+    np.clip(np.rint(128 + (np.arange(256) - 128) * 224 / 255), 0, 255).astype(np.uint8)[:, None], 3, axis=1
+).reshape(256, 1, 3)
 
 
 def rgb_to_yuv420p(frame: np.ndarray) -> np.ndarray:
@@ -161,8 +182,8 @@ def rgb_to_yuv420p(frame: np.ndarray) -> np.ndarray:
     # plane does not fill whole rows of W, so place them through the flat view
     flat = out.reshape(-1)
     n, m = H * W, (H // 2) * (W // 2)
-    flat[n:n + m] = ycc[..., 2].reshape(-1)  # Cb (U)
-    flat[n + m:] = ycc[..., 1].reshape(-1)   # Cr (V)
+    flat[n : n + m] = ycc[..., 2].reshape(-1)  # Cb (U)
+    flat[n + m :] = ycc[..., 1].reshape(-1)  # Cr (V)
     return out
 
 
@@ -185,9 +206,20 @@ class VideoWriter:
     killed writer left for the same target (:func:`remove_stale_temporaries`).
     """
 
-    def __init__(self, path, fps: float, *, format: str | None = None, crf: int = 18,
-                 preset: str = DEFAULT_PRESET, yuv: str = DEFAULT_YUV, threads: int = 0,
-                 size: tuple[int, int] | None = None, progress: bool = False, total: int | None = None):
+    def __init__(
+        self,
+        path,
+        fps: float,
+        *,
+        format: str | None = None,
+        crf: int = 18,
+        preset: str = DEFAULT_PRESET,
+        yuv: str = DEFAULT_YUV,
+        threads: int = 0,
+        size: tuple[int, int] | None = None,
+        progress: bool = False,
+        total: int | None = None,
+    ):
         self.path, self.codec = check_output(path, format=format, size=size)
         self.rate = _rate(fps)
         if preset not in PRESETS:
@@ -205,8 +237,9 @@ class VideoWriter:
             if self.codec == "png":
                 self.tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(self.path), suffix=_TMP_MARK, dir=self.path.parent))
             else:
-                fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(self.path), suffix=_TMP_MARK + self.path.suffix,
-                                           dir=self.path.parent)
+                fd, tmp = tempfile.mkstemp(
+                    prefix=tmp_prefix(self.path), suffix=_TMP_MARK + self.path.suffix, dir=self.path.parent
+                )
                 os.close(fd)
                 self.tmp = Path(tmp)
         except OSError as exc:
@@ -231,7 +264,7 @@ class VideoWriter:
         if self._done:
             raise ValueError(f"{self.path}: the writer is closed")
         arr = frames if isinstance(frames, np.ndarray) and frames.ndim == 3 else None
-        for frame in ([arr] if arr is not None else frames):
+        for frame in [arr] if arr is not None else frames:
             frame = _check_frame(frame, self.frames, self._shape)
             if self._shape is None:
                 self._open(frame.shape)
@@ -243,8 +276,10 @@ class VideoWriter:
     def _open(self, shape: tuple) -> None:
         H, W = shape[:2]
         if self.codec == "h264" and (W % 2 or H % 2):
-            raise ValueError(f"H.264 (yuv420p) needs an even width and height, found {W}x{H}; "
-                             f"use e.g. --size {W + W % 2}x{H + H % 2} or a lossless .mkv")
+            raise ValueError(
+                f"H.264 (yuv420p) needs an even width and height, found {W}x{H}; "
+                f"use e.g. --size {W + W % 2}x{H + H % 2} or a lossless .mkv"
+            )
         self._shape = shape
         if self.codec == "png":
             return
@@ -336,9 +371,19 @@ def _umask() -> int:
     return mask
 
 
-def write_video(path, frames, fps: float, *, codec: str | None = None, crf: int = 18, progress: bool = False,
-                threads: int = 0, preset: str = DEFAULT_PRESET, yuv: str = DEFAULT_YUV,
-                format: str | None = None) -> Path:
+def write_video(
+    path,
+    frames,
+    fps: float,
+    *,
+    codec: str | None = None,
+    crf: int = 18,
+    progress: bool = False,
+    threads: int = 0,
+    preset: str = DEFAULT_PRESET,
+    yuv: str = DEFAULT_YUV,
+    format: str | None = None,
+) -> Path:
     """Write frames to ``path``.
 
     path: ``.mp4`` → H.264 (width and height must be even: yuv420p), ``.mkv``
@@ -360,8 +405,18 @@ def write_video(path, frames, fps: float, *, codec: str | None = None, crf: int 
     frames = _frames(frames)
     size = (frames.shape[2], frames.shape[1]) if isinstance(frames, np.ndarray) else None
     total = len(frames) if hasattr(frames, "__len__") else None
-    writer = VideoWriter(path, fps, format=format, crf=crf, preset=preset, yuv=yuv, threads=threads,
-                         size=size, progress=progress, total=total)
+    writer = VideoWriter(
+        path,
+        fps,
+        format=format,
+        crf=crf,
+        preset=preset,
+        yuv=yuv,
+        threads=threads,
+        size=size,
+        progress=progress,
+        total=total,
+    )
     with writer:
         if isinstance(frames, np.ndarray):
             writer.write(frames)
@@ -389,8 +444,10 @@ def read_video(path, *, max_frames: int | None = None) -> np.ndarray:
             if img is None:
                 raise ValueError(f"{f}: not a readable PNG frame")
             if frames and img.shape != frames[0].shape:
-                raise ValueError(f"{f}: frame size {img.shape[1]}x{img.shape[0]} differs from "
-                                 f"{frames[0].shape[1]}x{frames[0].shape[0]} of {files[0].name}")
+                raise ValueError(
+                    f"{f}: frame size {img.shape[1]}x{img.shape[0]} differs from "
+                    f"{frames[0].shape[1]}x{frames[0].shape[0]} of {files[0].name}"
+                )
             frames.append(img[..., ::-1])
         return np.stack(frames)
     import av
@@ -417,12 +474,22 @@ def video_info(path) -> dict:
     if path.is_dir():
         files = sorted(path.glob("*.png"))
         first = read_video(path, max_frames=1)[0] if files else None
-        return {"frames": len(files), "fps": None, "width": None if first is None else first.shape[1],
-                "height": None if first is None else first.shape[0], "codec": "png"}
+        return {
+            "frames": len(files),
+            "fps": None,
+            "width": None if first is None else first.shape[1],
+            "height": None if first is None else first.shape[0],
+            "codec": "png",
+        }
     import av
 
     with av.open(str(path)) as container:
         s = container.streams.video[0]
         frames = s.frames or sum(1 for _ in container.demux(s) if _.size)
-        return {"frames": int(frames), "fps": float(s.average_rate) if s.average_rate else None,
-                "width": s.codec_context.width, "height": s.codec_context.height, "codec": s.codec_context.name}
+        return {
+            "frames": int(frames),
+            "fps": float(s.average_rate) if s.average_rate else None,
+            "width": s.codec_context.width,
+            "height": s.codec_context.height,
+            "codec": s.codec_context.name,
+        }

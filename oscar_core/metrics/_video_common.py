@@ -57,11 +57,16 @@ def _pair(pred, gt, n_frames, source: str = "") -> tuple[np.ndarray, np.ndarray]
     p_src, g_src = (f"{source}pred", f"{source}gt")
     pred, gt = _frames(pred, n_frames, p_src), _frames(gt, n_frames, g_src)
     if pred.shape[1:3] != gt.shape[1:3]:
-        raise MetricInputError(p_src, "frame size", f"{gt.shape[2]}x{gt.shape[1]} (W x H, as {g_src}); resize first",
-                               f"{pred.shape[2]}x{pred.shape[1]}")
+        raise MetricInputError(
+            p_src,
+            "frame size",
+            f"{gt.shape[2]}x{gt.shape[1]} (W x H, as {g_src}); resize first",
+            f"{pred.shape[2]}x{pred.shape[1]}",
+        )
     if n_frames is None and len(pred) != len(gt):
-        raise MetricInputError(p_src, "frames", f"{len(gt)} frames (as {g_src}) when n_frames=None",
-                               f"{len(pred)} frames")
+        raise MetricInputError(
+            p_src, "frames", f"{len(gt)} frames (as {g_src}) when n_frames=None", f"{len(pred)} frames"
+        )
     return pred, gt
 
 
@@ -117,8 +122,12 @@ def load_torchscript(path, *, device="cpu", sha256: str | None = None, **call_kw
             warnings.simplefilter("ignore", DeprecationWarning)
             module = torch.jit.load(source, map_location=device)
     except Exception as exc:  # torch raises RuntimeError/ValueError with varying text
-        raise MetricInputError(p, "contents", "a TorchScript archive (torch.jit.save)",
-                               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
+        raise MetricInputError(
+            p,
+            "contents",
+            "a TorchScript archive (torch.jit.save)",
+            f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}",
+        ) from exc
     module.eval()
 
     def call(*args):

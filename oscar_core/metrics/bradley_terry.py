@@ -18,8 +18,16 @@ import numpy as np
 from .common import MetricInputError, nan_to_none
 
 __all__ = [
-    "Preference", "parse_preference", "BradleyTerryResult", "BradleyTerryWarning", "fit_bradley_terry",
-    "ELO_SCALE", "ELO_SHIFT", "ELO_TIE_DECIMALS", "PHI_BOUND", "world_model_ranking"
+    "Preference",
+    "parse_preference",
+    "BradleyTerryResult",
+    "BradleyTerryWarning",
+    "fit_bradley_terry",
+    "ELO_SCALE",
+    "ELO_SHIFT",
+    "ELO_TIE_DECIMALS",
+    "PHI_BOUND",
+    "world_model_ranking",
 ]
 
 #: RoboArena's display transform of a Bradley–Terry score θ: Elo = 200·θ + 1500.
@@ -153,25 +161,41 @@ class BradleyTerryResult:
 
     def to_dict(self) -> dict:
         order = np.argsort(-self.theta, kind="mergesort")
-        return nan_to_none({
-            "model": "bradley_terry_davidson",
-            "tie_nu": self.tie_nu, "n_comparisons": self.n_comparisons,
-            "log_likelihood": self.log_likelihood, "iterations": self.iterations, "converged": self.converged,
-            "degenerate": self.degenerate,
-            "board": [{"policy": self.policies[k], "theta": float(self.theta[k]), "std": float(self.std[k]),
-                       "elo": float(self.elo[k]), "elo_std": float(self.elo_std[k])} for k in order],
-        })
+        return nan_to_none(
+            {
+                "model": "bradley_terry_davidson",
+                "tie_nu": self.tie_nu,
+                "n_comparisons": self.n_comparisons,
+                "log_likelihood": self.log_likelihood,
+                "iterations": self.iterations,
+                "converged": self.converged,
+                "degenerate": self.degenerate,
+                "board": [
+                    {
+                        "policy": self.policies[k],
+                        "theta": float(self.theta[k]),
+                        "std": float(self.std[k]),
+                        "elo": float(self.elo[k]),
+                        "elo_std": float(self.elo_std[k]),
+                    }
+                    for k in order
+                ],
+            }
+        )
 
     def format_table(self) -> str:
         if self.degenerate is not None:
             return f"no ranking: {self.degenerate} ({self.n_comparisons} comparisons)"
         rows = [("policy", "Elo", "± std", "theta")] + [
             (b["policy"], f"{b['elo']:.1f}", f"{b['elo_std']:.1f}", f"{b['theta']:+.4f}")
-            for b in self.to_dict()["board"]]
+            for b in self.to_dict()["board"]
+        ]
         widths = [max(len(r[i]) for r in rows) for i in range(4)]
         lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-        lines.append(f"tie nu {self.tie_nu:.4f}   comparisons {self.n_comparisons}"
-                     + ("" if self.converged else "   (NOT converged)"))
+        lines.append(
+            f"tie nu {self.tie_nu:.4f}   comparisons {self.n_comparisons}"
+            + ("" if self.converged else "   (NOT converged)")
+        )
         return "\n".join(lines)
 
 
@@ -194,7 +218,7 @@ def _unordered_groups(n_groups: int, labels: np.ndarray, edges: list[tuple[int, 
     for a, b in edges:
         reach[labels[a], labels[b]] = True
     for k in range(n_groups):  # transitive closure (Floyd–Warshall on booleans)
-        reach |= reach[:, k:k + 1] & reach[k:k + 1, :]
+        reach |= reach[:, k : k + 1] & reach[k : k + 1, :]
     for g in range(n_groups):
         for h in range(g + 1, n_groups):
             if not reach[g, h] and not reach[h, g]:
@@ -202,8 +226,15 @@ def _unordered_groups(n_groups: int, labels: np.ndarray, edges: list[tuple[int, 
     return None
 
 
-def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: float = 1e-8,
-                      hess_ridge: float = 1e-6, source: str = "preferences") -> BradleyTerryResult:
+def fit_bradley_terry(
+    preferences,
+    *,
+    policies=None,
+    max_iters: int = 200,
+    tol: float = 1e-8,
+    hess_ridge: float = 1e-6,
+    source: str = "preferences",
+) -> BradleyTerryResult:
     """Bradley–Terry scores with Davidson ties, fitted like RoboArena's leaderboard.
 
     Model (Davidson 1970), for a comparison of policies i and j::
@@ -260,8 +291,9 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
         for k, p in enumerate(prefs):
             for col in ("a", "b"):
                 if getattr(p, col) not in known:
-                    raise MetricInputError(p.where or f"{source}[{k}]", col, f"one of the policies {names}",
-                                           repr(getattr(p, col)))
+                    raise MetricInputError(
+                        p.where or f"{source}[{k}]", col, f"one of the policies {names}", repr(getattr(p, col))
+                    )
     n = len(names)
     if n < 2:
         raise MetricInputError(source, "policies", "comparisons between at least 2 policies", f"{n} policies {names}")
@@ -272,14 +304,18 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
     counts = np.bincount(i_idx, minlength=n) + np.bincount(j_idx, minlength=n)
     unused = [names[k] for k in range(n) if counts[k] == 0]
     if unused:
-        raise MetricInputError(source, "policies", "at least one comparison for every listed policy",
-                               f"no comparisons for {unused}")
+        raise MetricInputError(
+            source, "policies", "at least one comparison for every listed policy", f"no comparisons for {unused}"
+        )
     n_comp, labels = _components(n, list(zip(i_idx.tolist(), j_idx.tolist())), strong=False)
     if n_comp > 1:
         groups = [[names[k] for k in range(n) if labels[k] == c] for c in range(n_comp)]
-        raise MetricInputError(source, "comparison graph",
-                               "every policy linked to every other through comparisons",
-                               f"{n_comp} separate groups {groups}")
+        raise MetricInputError(
+            source,
+            "comparison graph",
+            "every policy linked to every other through comparisons",
+            f"{n_comp} separate groups {groups}",
+        )
     # "beats or ties" graph: the MLE is finite iff it is strongly connected (Ford 1957, with ties as two-way links)
     edges = []
     for a, b, o in zip(i_idx.tolist(), j_idx.tolist(), y.tolist()):
@@ -290,9 +326,13 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
     n_strong, slabels = _components(n, edges, strong=True)
     if n_strong > 1:
         groups = [[names[k] for k in range(n) if slabels[k] == c] for c in range(n_strong)]
-        warnings.warn(f"{source}: some policies never lose (or never win) against the others, so their "
-                      f"maximum-likelihood Bradley-Terry scores are infinite; groups {groups}. The reported scores "
-                      f"grow with max_iters.", BradleyTerryWarning, stacklevel=2)
+        warnings.warn(
+            f"{source}: some policies never lose (or never win) against the others, so their "
+            f"maximum-likelihood Bradley-Terry scores are infinite; groups {groups}. The reported scores "
+            f"grow with max_iters.",
+            BradleyTerryWarning,
+            stacklevel=2,
+        )
 
     ref = n - 1
     free = np.r_[np.arange(n - 1), n]  # free θ's, then φ (index n in the full vector)
@@ -372,8 +412,12 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
             converged = True
             break
     if not converged and n_strong == 1:
-        warnings.warn(f"{source}: the Bradley-Terry Newton iteration stopped after {iterations} steps without "
-                      f"converging (tol={tol}).", BradleyTerryWarning, stacklevel=2)
+        warnings.warn(
+            f"{source}: the Bradley-Terry Newton iteration stopped after {iterations} steps without "
+            f"converging (tol={tol}).",
+            BradleyTerryWarning,
+            stacklevel=2,
+        )
 
     final_nll, _, final_hess = nll_grad_hess(params)
     cov = np.linalg.pinv(final_hess + hess_ridge * eye, rcond=1e-12)
@@ -388,18 +432,29 @@ def fit_bradley_terry(preferences, *, policies=None, max_iters: int = 200, tol: 
     if np.all(y == 1):
         degenerate = "every comparison is a tie, so the preferences do not order the policies"
     elif params[-1] >= PHI_BOUND:
-        degenerate = (f"the tie parameter reached the optimiser's bound (nu = e^{PHI_BOUND:g}): almost every "
-                      f"comparison is a tie")
+        degenerate = (
+            f"the tie parameter reached the optimiser's bound (nu = e^{PHI_BOUND:g}): almost every comparison is a tie"
+        )
     elif n_strong > 1 and (undetermined := _unordered_groups(n_strong, slabels, edges, names)):
-        degenerate = (f"the preferences leave the order of the groups {undetermined} undetermined (and the "
-                      f"maximum-likelihood scores are infinite)")
+        degenerate = (
+            f"the preferences leave the order of the groups {undetermined} undetermined (and the "
+            f"maximum-likelihood scores are infinite)"
+        )
     elif not converged and n_strong == 1:  # with infinite scores (a strict order of groups) it cannot converge
         degenerate = f"the fit did not converge in {iterations} steps"
     else:
         degenerate = None
-    return BradleyTerryResult(policies=tuple(names), theta=theta, std=std, tie_nu=float(math.exp(params[-1])),
-                              n_comparisons=len(prefs), log_likelihood=-final_nll, iterations=iterations,
-                              converged=converged, degenerate=degenerate)
+    return BradleyTerryResult(
+        policies=tuple(names),
+        theta=theta,
+        std=std,
+        tie_nu=float(math.exp(params[-1])),
+        n_comparisons=len(prefs),
+        log_likelihood=-final_nll,
+        iterations=iterations,
+        converged=converged,
+        degenerate=degenerate,
+    )
 
 
 def world_model_ranking(bt: BradleyTerryResult | None, no_fit_reason: str | None = None):

@@ -72,8 +72,16 @@ from .cli_judge import JUDGE_EXAMPLES, PAIRWISE_EXAMPLES, _add_judge_args, cmd_e
 from .common import MetricInputError
 
 __all__ = [
-    "add_eval_parser", "cmd_eval_video", "cmd_eval_policies", "cmd_eval_judge", "cmd_eval_pairwise",
-    "read_policy_results", "read_preferences", "collect_clips", "collect_judge_videos", "read_tasks"
+    "add_eval_parser",
+    "cmd_eval_video",
+    "cmd_eval_policies",
+    "cmd_eval_judge",
+    "cmd_eval_pairwise",
+    "read_policy_results",
+    "read_preferences",
+    "collect_clips",
+    "collect_judge_videos",
+    "read_tasks",
 ]
 
 VIDEO_EXAMPLES = """examples:
@@ -92,6 +100,7 @@ POLICY_EXAMPLES = """examples:
   oscar eval policies --real real.json --wm wm.json --plot figs/ --plot-format png,pdf
 """
 
+
 # --------------------------------------------------------------------------- #
 # commands
 # --------------------------------------------------------------------------- #
@@ -103,16 +112,26 @@ def cmd_eval_video(args) -> int:
     clips = collect_clips(args.pred, args.gt, embodiment=args.embodiment)
     from .networks import resolve_networks
 
-    nets, used_cache, notes = resolve_networks(lpips=args.lpips, i3d=args.i3d, inception=args.inception,
-                                               vae=args.vae, vae_model=args.vae_model,
-                                               use_cache=not args.no_cached_networks, device=args.device)
+    nets, used_cache, notes = resolve_networks(
+        lpips=args.lpips,
+        i3d=args.i3d,
+        inception=args.inception,
+        vae=args.vae,
+        vae_model=args.vae_model,
+        use_cache=not args.no_cached_networks,
+        device=args.device,
+    )
     notes = {k: v for k, v in notes.items() if k == "latent_l2"}  # this command's notes: as before
     vae = nets["vae"]
     report = evaluate_videos(
-        clips, n_frames=None if args.frames == 0 else args.frames,
-        lpips_net=nets["lpips"], vae=vae,
-        fvd_extractor=nets["i3d"] if len(clips) > 1 or args.i3d else None, fid_extractor=nets["inception"],
-        device=args.device, progress=not args.json and progress_bars_enabled(),
+        clips,
+        n_frames=None if args.frames == 0 else args.frames,
+        lpips_net=nets["lpips"],
+        vae=vae,
+        fvd_extractor=nets["i3d"] if len(clips) > 1 or args.i3d else None,
+        fid_extractor=nets["inception"],
+        device=args.device,
+        progress=not args.json and progress_bars_enabled(),
     )
     data = report.to_dict()
     data["networks_from_cache"] = used_cache
@@ -141,11 +160,9 @@ def cmd_eval_policies(args) -> int:
     compare_policies(real_sr, wm_sr)  # the two files must name the same policies before anything else
     bt, wm_label, fallback = None, "score", None
     if args.preferences:
-        bt = fit_bradley_terry(read_preferences(args.preferences), policies=list(real_sr),
-                               source=str(args.preferences))
+        bt = fit_bradley_terry(read_preferences(args.preferences), policies=list(real_sr), source=str(args.preferences))
         wm_score, wm_label, fallback = world_model_ranking(bt)
-    comparison = compare_policies(real_sr, wm_sr, real_score=real_score, wm_score=wm_score,
-                                  wm_score_label=wm_label)
+    comparison = compare_policies(real_sr, wm_sr, real_score=real_score, wm_score=wm_score, wm_score_label=wm_label)
     data = comparison.to_dict()
     if bt is not None:
         data["bradley_terry"] = bt.to_dict()
@@ -180,8 +197,9 @@ def _plot_formats(spec: str) -> list[str]:
     formats = [f.strip().lower().lstrip(".") for f in spec.split(",") if f.strip()]
     bad = [f for f in formats if f not in FORMATS]
     if not formats or bad:
-        raise MetricInputError("--plot-format", "formats", f"a comma-separated list of {', '.join(FORMATS)}",
-                               repr(spec))
+        raise MetricInputError(
+            "--plot-format", "formats", f"a comma-separated list of {', '.join(FORMATS)}", repr(spec)
+        )
     return formats
 
 
@@ -193,93 +211,160 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
     """
     from .judge import DEFAULT_JUDGE_FRAMES, DEFAULT_PAIRWISE_FRAMES  # standard library + numpy only
 
-    ev = subparsers.add_parser("eval", help="evaluate world-model videos or policy rankings",
-                               description="Evaluate world-model rollouts: video quality against ground truth, "
-                                           "policy rankings against real-robot results, and VLM judges of "
-                                           "rollouts (success per clip, pairwise preferences).",
-                               epilog=VIDEO_EXAMPLES + "\n" + POLICY_EXAMPLES + "\n" + JUDGE_EXAMPLES + "\n"
-                                      + PAIRWISE_EXAMPLES,
-                               formatter_class=argparse.RawDescriptionHelpFormatter)
+    ev = subparsers.add_parser(
+        "eval",
+        help="evaluate world-model videos or policy rankings",
+        description="Evaluate world-model rollouts: video quality against ground truth, "
+        "policy rankings against real-robot results, and VLM judges of "
+        "rollouts (success per clip, pairwise preferences).",
+        epilog=VIDEO_EXAMPLES + "\n" + POLICY_EXAMPLES + "\n" + JUDGE_EXAMPLES + "\n" + PAIRWISE_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = ev.add_subparsers(dest="eval_command", required=True)
 
-    v = sub.add_parser("video", help="PSNR, SSIM, LPIPS, tLPIPS, latent L2, FVD, FID",
-                       description="Video quality of predictions against ground truth (first 49 frames).",
-                       epilog=VIDEO_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    v = sub.add_parser(
+        "video",
+        help="PSNR, SSIM, LPIPS, tLPIPS, latent L2, FVD, FID",
+        description="Video quality of predictions against ground truth (first 49 frames).",
+        epilog=VIDEO_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     v.add_argument("pred", help="predicted video, or folder of predicted clips")
     v.add_argument("gt", help="ground-truth video, or folder of ground-truth clips")
     v.add_argument("--frames", type=count(0), default=49, help="compare the first N frames (default 49; 0 = all)")
     v.add_argument("--embodiment", help="tag every clip with this embodiment (default: the sub-folder name)")
-    v.add_argument("--lpips", metavar="NET", help="LPIPS network: TorchScript .pt taking (x, y) in [-1, 1], "
-                                                  "or module:attr (enables LPIPS and tLPIPS)")
-    v.add_argument("--vae", metavar="NET", help="VAE encoder for latent L2: .pt or module:attr, "
-                                                "input (1, 3, T, H, W) in [-1, 1]")
+    v.add_argument(
+        "--lpips",
+        metavar="NET",
+        help="LPIPS network: TorchScript .pt taking (x, y) in [-1, 1], or module:attr (enables LPIPS and tLPIPS)",
+    )
+    v.add_argument(
+        "--vae", metavar="NET", help="VAE encoder for latent L2: .pt or module:attr, input (1, 3, T, H, W) in [-1, 1]"
+    )
     v.add_argument("--i3d", metavar="NET", help="FVD feature extractor, e.g. i3d_torchscript.pt (StyleGAN-V)")
     v.add_argument("--inception", metavar="NET", help="FID feature extractor, e.g. inception-2015-12-05.pt")
-    v.add_argument("--vae-model", default="oscar-2b", metavar="MODEL",
-                   help="checkpoint (zoo name, Hub id or folder) whose VAE computes latent L2 when --vae is not "
-                        "given, if it is in the local cache (default oscar-2b; none = skip)")
-    v.add_argument("--no-cached-networks", action="store_true",
-                   help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)")
+    v.add_argument(
+        "--vae-model",
+        default="oscar-2b",
+        metavar="MODEL",
+        help="checkpoint (zoo name, Hub id or folder) whose VAE computes latent L2 when --vae is not "
+        "given, if it is in the local cache (default oscar-2b; none = skip)",
+    )
+    v.add_argument(
+        "--no-cached-networks",
+        action="store_true",
+        help="do not use the networks fetched by `oscar eval weights pull` (used by default when cached)",
+    )
     v.add_argument("--device", type=device, default="cpu", help="torch device for the networks (cpu, cuda)")
     v.add_argument("--json", action="store_true", help="print JSON instead of a table")
     output_option(v.add_argument("--out", metavar="FILE", help="also write the JSON results here"), "file")
     v.set_defaults(func=cmd_eval_video)
 
-    p = sub.add_parser("policies", help="MMRV, Spearman rho, Pearson r, SISR_delta, Bradley-Terry",
-                       description="Rank fidelity of world-model policy evaluation against real-robot results.",
-                       epilog=POLICY_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = sub.add_parser(
+        "policies",
+        help="MMRV, Spearman rho, Pearson r, SISR_delta, Bradley-Terry",
+        description="Rank fidelity of world-model policy evaluation against real-robot results.",
+        epilog=POLICY_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--real", required=True, metavar="JSON", help="real-robot results per policy")
     p.add_argument("--wm", required=True, metavar="JSON", help="world-model results per policy")
     p.add_argument("--preferences", metavar="JSONL", help="world-model pairwise preferences (Bradley-Terry)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     output_option(p.add_argument("--out", metavar="FILE", help="also write the JSON results here"), "file")
-    output_option(p.add_argument("--plot", metavar="DIR",
-                                 help="write success_scatter.png and rank_slope.png to DIR (created)"), "folder")
-    p.add_argument("--plot-format", default="png", metavar="FMTS",
-                   help="comma-separated plot formats: png, pdf, svg (default png)")
+    output_option(
+        p.add_argument("--plot", metavar="DIR", help="write success_scatter.png and rank_slope.png to DIR (created)"),
+        "folder",
+    )
+    p.add_argument(
+        "--plot-format", default="png", metavar="FMTS", help="comma-separated plot formats: png, pdf, svg (default png)"
+    )
     p.set_defaults(func=cmd_eval_policies)
 
-    j = sub.add_parser("judge", help="VLM success verdict per rollout (OpenAI-compatible endpoint)",
-                       description="Ask a vision-language model whether each rollout completed its task: "
-                                   "binary success, partial progress 0-100 and a reason per clip.",
-                       epilog=JUDGE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    j = sub.add_parser(
+        "judge",
+        help="VLM success verdict per rollout (OpenAI-compatible endpoint)",
+        description="Ask a vision-language model whether each rollout completed its task: "
+        "binary success, partial progress 0-100 and a reason per clip.",
+        epilog=JUDGE_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     _add_judge_args(j, DEFAULT_JUDGE_FRAMES)
-    output_option(j.add_argument("--wm-out", metavar="FILE",
-                                 help="write per-policy success rates for `eval policies --wm`"), "file")
-    j.add_argument("--prompt", default="paper", help="paper (the paper's prompt, word for word; default), oscar "
-                                                     "(a more detailed one), or a text file with an {instruction} "
-                                                     "template")
+    output_option(
+        j.add_argument("--wm-out", metavar="FILE", help="write per-policy success rates for `eval policies --wm`"),
+        "file",
+    )
+    j.add_argument(
+        "--prompt",
+        default="paper",
+        help="paper (the paper's prompt, word for word; default), oscar "
+        "(a more detailed one), or a text file with an {instruction} "
+        "template",
+    )
     j.set_defaults(func=cmd_eval_judge)
 
-    pw = sub.add_parser("pairwise", help="VLM pairwise preferences within sessions + Bradley-Terry",
-                        description="Ask a vision-language model which of two policies' rollouts of the same "
-                                    "session is better, for every pair, and fit Bradley-Terry-Davidson scores.",
-                        epilog=PAIRWISE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    pw = sub.add_parser(
+        "pairwise",
+        help="VLM pairwise preferences within sessions + Bradley-Terry",
+        description="Ask a vision-language model which of two policies' rollouts of the same "
+        "session is better, for every pair, and fit Bradley-Terry-Davidson scores.",
+        epilog=PAIRWISE_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     _add_judge_args(pw, DEFAULT_PAIRWISE_FRAMES)
     pw.add_argument("--seed", type=count(0), default=0, help="seed of the per-pair A/B order (default 0)")
-    pw.add_argument("--both-orders", action="store_true",
-                    help="ask every pair in both orders; disagreeing orders count as a tie (position bias)")
-    pw.add_argument("--layout", choices=("sets", "side_by_side"), default="sets",
-                    help="all frames of A then all of B (sets, default), or A|B side by side per time step")
-    output_option(pw.add_argument("--preferences-out", metavar="JSONL",
-                    help="write the valid verdicts as preferences for `eval policies --preferences`"), "file")
+    pw.add_argument(
+        "--both-orders",
+        action="store_true",
+        help="ask every pair in both orders; disagreeing orders count as a tie (position bias)",
+    )
+    pw.add_argument(
+        "--layout",
+        choices=("sets", "side_by_side"),
+        default="sets",
+        help="all frames of A then all of B (sets, default), or A|B side by side per time step",
+    )
+    output_option(
+        pw.add_argument(
+            "--preferences-out",
+            metavar="JSONL",
+            help="write the valid verdicts as preferences for `eval policies --preferences`",
+        ),
+        "file",
+    )
     pw.set_defaults(func=cmd_eval_pairwise)
 
     for add_command in extra_commands:
         add_command(sub)
 
-    w = sub.add_parser("weights", help="fetch the standard metric networks (I3D, Inception, LPIPS) into a cache",
-                       description="Download the FVD / FID / LPIPS networks from their canonical URLs, check their "
-                                   "sha256 (pinned, or recorded on first use), and keep them in the cache that "
-                                   "`oscar eval video` uses by default.",
-                       epilog=WEIGHTS_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    w = sub.add_parser(
+        "weights",
+        help="fetch the standard metric networks (I3D, Inception, LPIPS) into a cache",
+        description="Download the FVD / FID / LPIPS networks from their canonical URLs, check their "
+        "sha256 (pinned, or recorded on first use), and keep them in the cache that "
+        "`oscar eval video` uses by default.",
+        epilog=WEIGHTS_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     wsub = w.add_subparsers(dest="weights_command", required=True)
-    wp = wsub.add_parser("pull", help="download and verify", epilog=WEIGHTS_EXAMPLES,
-                         formatter_class=argparse.RawDescriptionHelpFormatter)
-    wp.add_argument("names", nargs="*", help="i3d, inception, lpips-alex, lpips-vgg, alexnet, vgg16 "
-                                             "(default: i3d inception lpips-alex alexnet; 'all' for every file)")
-    output_option(wp.add_argument("--cache", metavar="DIR", help="cache folder (default $OSCAR_WEIGHTS_CACHE or "
-                                                   "~/.cache/oscar/weights)"), "folder")
+    wp = wsub.add_parser(
+        "pull",
+        help="download and verify",
+        epilog=WEIGHTS_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    wp.add_argument(
+        "names",
+        nargs="*",
+        help="i3d, inception, lpips-alex, lpips-vgg, alexnet, vgg16 "
+        "(default: i3d inception lpips-alex alexnet; 'all' for every file)",
+    )
+    output_option(
+        wp.add_argument(
+            "--cache", metavar="DIR", help="cache folder (default $OSCAR_WEIGHTS_CACHE or ~/.cache/oscar/weights)"
+        ),
+        "folder",
+    )
     wp.add_argument("--force", action="store_true", help="download again even if cached")
     wp.add_argument("--json", action="store_true", help="machine-readable output")
     wp.set_defaults(func=cmd_eval_weights_pull)
@@ -304,8 +389,12 @@ def cmd_eval_weights_pull(args) -> int:
     names = list(args.names) or list(GROUPS["default"])
     if names == ["all"]:
         names = list(GROUPS["all"])
-    result = pull_weights(names, cache_dir=args.cache, force=args.force,
-                          log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)))
+    result = pull_weights(
+        names,
+        cache_dir=args.cache,
+        force=args.force,
+        log=(lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr)),
+    )
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -319,9 +408,19 @@ def cmd_eval_weights_list(args) -> int:
 
     cache = weights_cache_dir(args.cache)
     lock = _read_lock(cache) if cache.is_dir() else {}
-    rows = [{"name": w.name, "file": w.filename, "url": w.url, "pin": w.pin,
-             "sha256": w.sha256 or (lock.get(w.name) or {}).get("sha256"), "sha256_prefix": w.sha256_prefix,
-             "cached": (cache / w.filename).is_file(), "source": w.source} for w in WEIGHTS.values()]
+    rows = [
+        {
+            "name": w.name,
+            "file": w.filename,
+            "url": w.url,
+            "pin": w.pin,
+            "sha256": w.sha256 or (lock.get(w.name) or {}).get("sha256"),
+            "sha256_prefix": w.sha256_prefix,
+            "cached": (cache / w.filename).is_file(),
+            "source": w.source,
+        }
+        for w in WEIGHTS.values()
+    ]
     if args.json:
         print(json.dumps({"cache": str(cache), "weights": rows}, indent=2))
     else:

@@ -14,8 +14,13 @@ from .._util.inputs import read_text_file
 from .common import MetricInputError, finite_float
 
 __all__ = [
-    "VIDEO_EXTS", "FRAME_EXTS", "collect_clips", "read_policy_results", "read_preferences",
-    "collect_judge_videos", "read_tasks"
+    "VIDEO_EXTS",
+    "FRAME_EXTS",
+    "collect_clips",
+    "read_policy_results",
+    "read_preferences",
+    "collect_judge_videos",
+    "read_tasks",
 ]
 
 VIDEO_EXTS = (".mp4", ".mkv", ".avi", ".mov", ".webm", ".gif", ".npy")
@@ -57,15 +62,22 @@ def collect_clips(pred, gt, *, embodiment: str | None = None) -> list:
         return [Clip(pred.stem, pred, gt, embodiment)]
     pc, gc = _find_clips(pred), _find_clips(gt)
     if not pc:
-        raise MetricInputError(pred, "clips", f"video files ({', '.join(VIDEO_EXTS)}) or PNG-frame folders",
-                               "none")
+        raise MetricInputError(pred, "clips", f"video files ({', '.join(VIDEO_EXTS)}) or PNG-frame folders", "none")
     missing, extra = sorted(set(pc) - set(gc)), sorted(set(gc) - set(pc))
     if missing:
-        raise MetricInputError(gt, "clips", f"a ground truth for every prediction in {pred}",
-                               f"none for {missing[:10]}{' ...' if len(missing) > 10 else ''}")
+        raise MetricInputError(
+            gt,
+            "clips",
+            f"a ground truth for every prediction in {pred}",
+            f"none for {missing[:10]}{' ...' if len(missing) > 10 else ''}",
+        )
     if extra:
-        raise MetricInputError(pred, "clips", f"a prediction for every ground truth in {gt}",
-                               f"none for {extra[:10]}{' ...' if len(extra) > 10 else ''}")
+        raise MetricInputError(
+            pred,
+            "clips",
+            f"a prediction for every ground truth in {gt}",
+            f"none for {extra[:10]}{' ...' if len(extra) > 10 else ''}",
+        )
     clips = []
     for name in sorted(pc):
         tag = embodiment if embodiment is not None else (name.split("/")[0] if "/" in name else None)
@@ -149,8 +161,12 @@ def collect_judge_videos(spec) -> dict[str, Path]:
         where = f"video files ({', '.join(VIDEO_EXTS)}) or PNG-frame folders under it"
     elif path.exists():
         if path.is_file() and path.suffix.lower() not in VIDEO_EXTS:
-            raise MetricInputError(raw, "--videos", f"a video file ({', '.join(VIDEO_EXTS)}), a folder or a glob",
-                                   f"a {path.suffix or 'suffix-less'} file")
+            raise MetricInputError(
+                raw,
+                "--videos",
+                f"a video file ({', '.join(VIDEO_EXTS)}), a folder or a glob",
+                f"a {path.suffix or 'suffix-less'} file",
+            )
         return {path.stem if path.is_file() else path.name: path}
     elif glob.has_magic(raw):
         base = _glob_base(raw)
@@ -162,8 +178,9 @@ def collect_judge_videos(spec) -> dict[str, Path]:
                 found[(rel.with_suffix("") if p.is_file() else rel).as_posix()] = p
         where = f"matches that are video files ({', '.join(VIDEO_EXTS)}) or PNG-frame folders"
     else:
-        raise MetricInputError(raw, "--videos", "an existing folder, video file or glob pattern",
-                               "no such file or folder")
+        raise MetricInputError(
+            raw, "--videos", "an existing folder, video file or glob pattern", "no such file or folder"
+        )
     if not found:
         raise MetricInputError(raw, "--videos", where, "none")
     return found
@@ -190,8 +207,9 @@ def read_tasks(path, videos) -> list:
         if plain:
             value = {"instruction": value}
         if not isinstance(value, dict):
-            raise MetricInputError(path, key, 'an instruction, or an object with "instruction", "policy", "session"',
-                                   repr(value))
+            raise MetricInputError(
+                path, key, 'an instruction, or an object with "instruction", "policy", "session"', repr(value)
+            )
         extra = sorted(k for k in value if k not in _TASK_KEYS)
         if extra:
             raise MetricInputError(path, key, f"only the keys {list(_TASK_KEYS)}", f"extra keys {extra}")
@@ -209,11 +227,22 @@ def read_tasks(path, videos) -> list:
         if "instruction" not in merged:
             missing.append(name)
             continue
-        clips.append(JudgeClip(name=name, video=video, instruction=merged["instruction"].strip(),
-                               policy=merged["policy"], session=merged["session"]))
+        clips.append(
+            JudgeClip(
+                name=name,
+                video=video,
+                instruction=merged["instruction"].strip(),
+                policy=merged["policy"],
+                session=merged["session"],
+            )
+        )
     if missing:
-        raise MetricInputError(path, "instruction", "a task for every clip (keyed by the clip's name or a folder)",
-                               f"none for {missing[:10]}{' ...' if len(missing) > 10 else ''}")
+        raise MetricInputError(
+            path,
+            "instruction",
+            "a task for every clip (keyed by the clip's name or a folder)",
+            f"none for {missing[:10]}{' ...' if len(missing) > 10 else ''}",
+        )
     return clips
 
 

@@ -19,11 +19,17 @@ __all__ = ["main"]
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m oscar_core.metrics.policy_seeds",
-                                     description="Policy evaluation averaged over rollout seeds: per-policy rates, "
-                                                 "Spearman rho with a session bootstrap, Pearson r, MMRV, SISR.")
-    parser.add_argument("runs", nargs="+", metavar="RUN", help="`oscar eval run` output folders, one per rollout "
-                        "seed, over the same manifest's cells")
+    parser = argparse.ArgumentParser(
+        prog="python -m oscar_core.metrics.policy_seeds",
+        description="Policy evaluation averaged over rollout seeds: per-policy rates, "
+        "Spearman rho with a session bootstrap, Pearson r, MMRV, SISR.",
+    )
+    parser.add_argument(
+        "runs",
+        nargs="+",
+        metavar="RUN",
+        help="`oscar eval run` output folders, one per rollout seed, over the same manifest's cells",
+    )
     parser.add_argument("--resamples", type=count(1), default=2000, help="session bootstrap resamples (2000)")
     parser.add_argument("--seed", type=count(0), default=0, help="bootstrap seed (0)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -36,18 +42,28 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(s, indent=2))
     else:
-        print(f"{len(s['runs'])} runs, {s['sessions']} sessions; judged cells per run: "
-              + ", ".join(f"{j}/{n}" for j, n in s["judged"]))
-        print("policy: real / world model: " + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in
-                                                          zip(s["policies"], s["real_success"], s["wm_success"])))
+        print(
+            f"{len(s['runs'])} runs, {s['sessions']} sessions; judged cells per run: "
+            + ", ".join(f"{j}/{n}" for j, n in s["judged"])
+        )
+        print(
+            "policy: real / world model: "
+            + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in zip(s["policies"], s["real_success"], s["wm_success"]))
+        )
         ci = s["spearman_ci95"]
-        print(f"Spearman {s['spearman_rho']:+.3f}" + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
-              + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
-              f"SISR {s['sisr_delta_pp']:.2f} pp")
+        print(
+            f"Spearman {s['spearman_rho']:+.3f}"
+            + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
+            + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
+            f"SISR {s['sisr_delta_pp']:.2f} pp"
+        )
     if not s["complete"]:
-        print("warning: PARTIAL: some runs judged fewer cells than they hold (judged cells per run: "
-              + ", ".join(f"{j}/{n}" for j, n in s["judged"]) + "); those cells average fewer seeds",
-              file=sys.stderr)
+        print(
+            "warning: PARTIAL: some runs judged fewer cells than they hold (judged cells per run: "
+            + ", ".join(f"{j}/{n}" for j, n in s["judged"])
+            + "); those cells average fewer seeds",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

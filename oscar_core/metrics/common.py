@@ -48,8 +48,9 @@ def nan_to_none(value):
     return value
 
 
-def align_policy_values(real, wm, *, names=None, real_name: str = "real", wm_name: str = "wm",
-                        min_policies: int = 2) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+def align_policy_values(
+    real, wm, *, names=None, real_name: str = "real", wm_name: str = "wm", min_policies: int = 2
+) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """Align two per-policy value collections by policy name.
 
     ``real`` and ``wm`` are either both mappings ``{policy: value}`` (matched by
@@ -62,8 +63,9 @@ def align_policy_values(real, wm, *, names=None, real_name: str = "real", wm_nam
     real_is_map, wm_is_map = isinstance(real, Mapping), isinstance(wm, Mapping)
     if real_is_map != wm_is_map:
         kinds = {True: "a mapping {policy: value}", False: "a sequence"}
-        raise MetricInputError(wm_name, "type", f"the same kind of input as {real_name} ({kinds[real_is_map]})",
-                               kinds[wm_is_map])
+        raise MetricInputError(
+            wm_name, "type", f"the same kind of input as {real_name} ({kinds[real_is_map]})", kinds[wm_is_map]
+        )
     if real_is_map:
         real_keys, wm_keys = [str(k) for k in real], [str(k) for k in wm]
         missing = [k for k in real_keys if k not in set(wm_keys)]
@@ -74,8 +76,9 @@ def align_policy_values(real, wm, *, names=None, real_name: str = "real", wm_nam
                 found.append(f"missing {missing}")
             if extra:
                 found.append(f"extra {extra}")
-            raise MetricInputError(wm_name, "policy names", f"the same policies as {real_name} {sorted(real_keys)}",
-                                   "; ".join(found))
+            raise MetricInputError(
+                wm_name, "policy names", f"the same policies as {real_name} {sorted(real_keys)}", "; ".join(found)
+            )
         if names is None:
             order = real_keys
         else:
@@ -89,28 +92,39 @@ def align_policy_values(real, wm, *, names=None, real_name: str = "real", wm_nam
     else:
         for src, seq in ((real_name, real), (wm_name, wm)):
             if isinstance(seq, (str, bytes)) or not isinstance(seq, (Sequence, np.ndarray)):
-                raise MetricInputError(src, "type", "a mapping {policy: value} or a sequence of numbers",
-                                       type(seq).__name__)
+                raise MetricInputError(
+                    src, "type", "a mapping {policy: value} or a sequence of numbers", type(seq).__name__
+                )
         real_arr, wm_arr = np.asarray(real, dtype=object), np.asarray(wm, dtype=object)
         if real_arr.ndim != 1 or wm_arr.ndim != 1:
-            raise MetricInputError(real_name if real_arr.ndim != 1 else wm_name, "shape", "a flat sequence (N,)",
-                                   f"shape {real_arr.shape if real_arr.ndim != 1 else wm_arr.shape}")
+            raise MetricInputError(
+                real_name if real_arr.ndim != 1 else wm_name,
+                "shape",
+                "a flat sequence (N,)",
+                f"shape {real_arr.shape if real_arr.ndim != 1 else wm_arr.shape}",
+            )
         if len(real_arr) != len(wm_arr):
-            raise MetricInputError(wm_name, "length", f"{len(real_arr)} values (one per policy, as in {real_name})",
-                                   f"{len(wm_arr)} values")
+            raise MetricInputError(
+                wm_name,
+                "length",
+                f"{len(real_arr)} values (one per policy, as in {real_name})",
+                f"{len(wm_arr)} values",
+            )
         if names is None:
             order = [f"policy_{k}" for k in range(len(real_arr))]
         else:
             order = [str(n) for n in names]
             if len(order) != len(real_arr):
-                raise MetricInputError("names", "length", f"{len(real_arr)} names (one per value)",
-                                       f"{len(order)} names")
+                raise MetricInputError(
+                    "names", "length", f"{len(real_arr)} names (one per value)", f"{len(order)} names"
+                )
             if len(set(order)) != len(order):
                 dup = sorted({n for n in order if order.count(n) > 1})
                 raise MetricInputError("names", "policy names", "unique names", f"duplicates {dup}")
         r = [finite_float(v, real_name, f"[{k}] ({order[k]})") for k, v in enumerate(real_arr)]
         w = [finite_float(v, wm_name, f"[{k}] ({order[k]})") for k, v in enumerate(wm_arr)]
     if len(order) < min_policies:
-        raise MetricInputError(real_name, "number of policies", f"at least {min_policies} policies to compare",
-                               f"{len(order)}")
+        raise MetricInputError(
+            real_name, "number of policies", f"at least {min_policies} policies to compare", f"{len(order)}"
+        )
     return tuple(order), np.asarray(r, dtype=np.float64), np.asarray(w, dtype=np.float64)

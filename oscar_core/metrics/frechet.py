@@ -15,8 +15,16 @@ from ._video_common import DEFAULT_FRAMES, _callable, _frames, _torch, _unit
 from .common import MetricInputError
 
 __all__ = [
-    "I3D_CALL_KWARGS", "I3D_PREPROCESSED_KWARGS", "INCEPTION_CALL_KWARGS", "feature_statistics",
-    "frechet_distance", "frechet_distance_from_features", "video_features", "frame_features", "fvd", "fid"
+    "I3D_CALL_KWARGS",
+    "I3D_PREPROCESSED_KWARGS",
+    "INCEPTION_CALL_KWARGS",
+    "feature_statistics",
+    "frechet_distance",
+    "frechet_distance_from_features",
+    "video_features",
+    "frame_features",
+    "fvd",
+    "fid",
 ]
 
 #: Keyword arguments StyleGAN-V's FVD (``src/metrics/frechet_video_distance.py``) calls
@@ -97,7 +105,7 @@ def _preprocess_i3d(video: np.ndarray, resolution: int | None):
         x = torch.nn.functional.interpolate(x, size=size, mode="bilinear", align_corners=False)
         h, w = x.shape[-2:]
         top, left = (h - resolution) // 2, (w - resolution) // 2
-        x = x[:, :, top:top + resolution, left:left + resolution]
+        x = x[:, :, top : top + resolution, left : left + resolution]
     return (x * 2.0 - 1.0).permute(1, 0, 2, 3).contiguous()
 
 
@@ -108,9 +116,17 @@ def _check_features(out, n: int, what: str) -> np.ndarray:
     return arr
 
 
-def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAULT_FRAMES,
-                   resolution: int | None = None, batch_size: int = 4, device="cpu",
-                   extractor_kwargs: Mapping | None = None, source: str = "videos") -> np.ndarray:
+def video_features(
+    videos: Iterable,
+    extractor,
+    *,
+    n_frames: int | None = DEFAULT_FRAMES,
+    resolution: int | None = None,
+    batch_size: int = 4,
+    device="cpu",
+    extractor_kwargs: Mapping | None = None,
+    source: str = "videos",
+) -> np.ndarray:
     """Per-clip features for FVD (one feature vector per video).
 
     Default (``resolution=None``): exactly what StyleGAN-V's FVD
@@ -163,8 +179,16 @@ def video_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAUL
     return np.concatenate(feats)
 
 
-def frame_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 32,
-                   device="cpu", extractor_kwargs: Mapping | None = None, source: str = "videos") -> np.ndarray:
+def frame_features(
+    videos: Iterable,
+    extractor,
+    *,
+    n_frames: int | None = DEFAULT_FRAMES,
+    batch_size: int = 32,
+    device="cpu",
+    extractor_kwargs: Mapping | None = None,
+    source: str = "videos",
+) -> np.ndarray:
     """Per-frame features for FID: every frame of every clip is one sample.
 
     Each batch is passed as a ``torch.uint8`` tensor (B, 3, H, W) in [0, 255]
@@ -183,7 +207,7 @@ def frame_features(videos: Iterable, extractor, *, n_frames: int | None = DEFAUL
             v = _frames(v, n_frames, f"{source}[{k}]")
             u8 = v if v.dtype == np.uint8 else np.round(_unit(v, np.float32) * 255.0).astype(np.uint8)
             for s in range(0, len(u8), batch_size):
-                x = torch.from_numpy(np.ascontiguousarray(u8[s:s + batch_size])).permute(0, 3, 1, 2).to(device)
+                x = torch.from_numpy(np.ascontiguousarray(u8[s : s + batch_size])).permute(0, 3, 1, 2).to(device)
                 feats.append(_check_features(f(x), len(x), "fid_extractor"))
     if not feats:
         raise MetricInputError(source, "videos", "at least one video", "none")
@@ -194,13 +218,17 @@ def fvd(pred_videos: Iterable, gt_videos: Iterable, extractor, **kwargs) -> floa
     """Fréchet Video Distance (Unterthiner et al. 2018): :func:`frechet_distance` between Gaussians
     fitted to :func:`video_features` of the predicted and the ground-truth clips (≥ 2 clips each;
     ``kwargs`` go to :func:`video_features`). Lower is better."""
-    return frechet_distance_from_features(video_features(pred_videos, extractor, source="pred_videos", **kwargs),
-                                          video_features(gt_videos, extractor, source="gt_videos", **kwargs))
+    return frechet_distance_from_features(
+        video_features(pred_videos, extractor, source="pred_videos", **kwargs),
+        video_features(gt_videos, extractor, source="gt_videos", **kwargs),
+    )
 
 
 def fid(pred_videos: Iterable, gt_videos: Iterable, extractor, **kwargs) -> float:
     """Fréchet Inception Distance over frames (Heusel et al. 2017): :func:`frechet_distance` between
     Gaussians fitted to :func:`frame_features` of all predicted and all ground-truth frames
     (``kwargs`` go to :func:`frame_features`). Lower is better."""
-    return frechet_distance_from_features(frame_features(pred_videos, extractor, source="pred_videos", **kwargs),
-                                          frame_features(gt_videos, extractor, source="gt_videos", **kwargs))
+    return frechet_distance_from_features(
+        frame_features(pred_videos, extractor, source="pred_videos", **kwargs),
+        frame_features(gt_videos, extractor, source="gt_videos", **kwargs),
+    )

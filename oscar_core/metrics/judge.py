@@ -114,6 +114,7 @@ __all__ = [
     "preferences_from_verdicts",
 ]
 
+
 # --------------------------------------------------------------------------- #
 # the judges
 # --------------------------------------------------------------------------- #
@@ -128,13 +129,30 @@ def _progress(n: int, enabled: bool, desc: str):
 class _BaseJudge:
     default_frames = DEFAULT_JUDGE_FRAMES
 
-    def __init__(self, *, base_url=None, model=None, api_key=None, n_frames: int | None = None,
-                 max_side: int | None = DEFAULT_MAX_SIDE, image_format: str = "jpeg", jpeg_quality: int = 90,
-                 temperature: float | None = None, max_tokens: int | None = None, extra_body: Mapping | None = None,
-                 timeout: float = 120.0, max_attempts: int = 5, backoff: float = 1.0, backoff_max: float = 30.0,
-                 concurrency: int = 4, cache_dir=None, client: ChatClient | None = None,
-                 token_field: str = "max_completion_tokens", max_timeout_retries: int = 1,
-                 max_requests: int | None = None):
+    def __init__(
+        self,
+        *,
+        base_url=None,
+        model=None,
+        api_key=None,
+        n_frames: int | None = None,
+        max_side: int | None = DEFAULT_MAX_SIDE,
+        image_format: str = "jpeg",
+        jpeg_quality: int = 90,
+        temperature: float | None = None,
+        max_tokens: int | None = None,
+        extra_body: Mapping | None = None,
+        timeout: float = 120.0,
+        max_attempts: int = 5,
+        backoff: float = 1.0,
+        backoff_max: float = 30.0,
+        concurrency: int = 4,
+        cache_dir=None,
+        client: ChatClient | None = None,
+        token_field: str = "max_completion_tokens",
+        max_timeout_retries: int = 1,
+        max_requests: int | None = None,
+    ):
         n_frames = self.default_frames if n_frames is None else n_frames
         if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 1:
             raise MetricInputError("n_frames", "value", "an integer >= 1", repr(n_frames))
@@ -147,10 +165,21 @@ class _BaseJudge:
             raise MetricInputError("jpeg_quality", "value", "an integer in [1, 100]", repr(jpeg_quality))
         if isinstance(concurrency, bool) or not isinstance(concurrency, int) or concurrency < 1:
             raise MetricInputError("concurrency", "value", "an integer >= 1", repr(concurrency))
-        self.client = client or ChatClient(base_url, model, api_key, timeout=timeout, max_attempts=max_attempts,
-                                           backoff=backoff, backoff_max=backoff_max, temperature=temperature,
-                                           max_tokens=max_tokens, extra_body=extra_body, token_field=token_field,
-                                           max_timeout_retries=max_timeout_retries, max_requests=max_requests)
+        self.client = client or ChatClient(
+            base_url,
+            model,
+            api_key,
+            timeout=timeout,
+            max_attempts=max_attempts,
+            backoff=backoff,
+            backoff_max=backoff_max,
+            temperature=temperature,
+            max_tokens=max_tokens,
+            extra_body=extra_body,
+            token_field=token_field,
+            max_timeout_retries=max_timeout_retries,
+            max_requests=max_requests,
+        )
         self.n_frames, self.max_side = n_frames, max_side
         self.image_format, self.jpeg_quality = image_format, jpeg_quality
         self.concurrency = concurrency
@@ -159,8 +188,9 @@ class _BaseJudge:
             try:
                 self.cache_dir.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
-                raise MetricInputError(self.cache_dir, "cache_dir", "a writable folder",
-                                       exc.strerror or str(exc)) from None
+                raise MetricInputError(
+                    self.cache_dir, "cache_dir", "a writable folder", exc.strerror or str(exc)
+                ) from None
         self._hashes: dict = {}
         self._hash_lock = threading.Lock()
 
@@ -170,16 +200,27 @@ class _BaseJudge:
 
     def settings(self) -> dict:
         """Frame and sampling settings (recorded in results; part of every cache key)."""
-        return {"n_frames": self.n_frames, "max_side": self.max_side, "image_format": self.image_format,
-                "jpeg_quality": self.jpeg_quality if self.image_format == "jpeg" else None,
-                "sampling": self.client.sampling()}
+        return {
+            "n_frames": self.n_frames,
+            "max_side": self.max_side,
+            "image_format": self.image_format,
+            "jpeg_quality": self.jpeg_quality if self.image_format == "jpeg" else None,
+            "sampling": self.client.sampling(),
+        }
 
     def describe(self) -> dict:
         """JSON-ready description of the judge (no API key)."""
-        return {"base_url": self.client.base_url, "model": self.model, **self.settings(),
-                "max_attempts": self.client.max_attempts, "timeout": self.client.timeout,
-                "max_timeout_retries": self.client.max_timeout_retries, "max_requests": self.client.max_requests,
-                "concurrency": self.concurrency, "cache_dir": None if self.cache_dir is None else str(self.cache_dir)}
+        return {
+            "base_url": self.client.base_url,
+            "model": self.model,
+            **self.settings(),
+            "max_attempts": self.client.max_attempts,
+            "timeout": self.client.timeout,
+            "max_timeout_retries": self.client.max_timeout_retries,
+            "max_requests": self.client.max_requests,
+            "concurrency": self.concurrency,
+            "cache_dir": None if self.cache_dir is None else str(self.cache_dir),
+        }
 
     def _hash(self, video) -> str:
         if not isinstance(video, (str, os.PathLike)):
@@ -207,8 +248,9 @@ class _BaseJudge:
     def _run(self, items: Sequence, work, desc: str, progress: bool) -> list:
         results: list = [None] * len(items)
         bar = _progress(len(items), progress, desc)
-        pool = ThreadPoolExecutor(max_workers=min(self.concurrency, max(1, len(items))),
-                                  thread_name_prefix="oscar-judge")
+        pool = ThreadPoolExecutor(
+            max_workers=min(self.concurrency, max(1, len(items))), thread_name_prefix="oscar-judge"
+        )
         try:
             futures = {pool.submit(work, item): k for k, item in enumerate(items)}
             for fut in as_completed(futures):
@@ -251,8 +293,12 @@ class SuccessJudge(_BaseJudge):
         elif isinstance(prompt, str) and "{instruction}" in prompt:
             self.system_prompt, self.user_prompt = None, prompt
         else:
-            raise MetricInputError("prompt", "value", '"paper", "oscar" or a template containing {instruction} '
-                                   "(and optionally {n_frames})", repr(prompt)[:80])
+            raise MetricInputError(
+                "prompt",
+                "value",
+                '"paper", "oscar" or a template containing {instruction} (and optionally {n_frames})',
+                repr(prompt)[:80],
+            )
         self.prompt = prompt if prompt in SUCCESS_PROMPTS else "custom"
 
     def settings(self) -> dict:
@@ -285,21 +331,41 @@ class SuccessJudge(_BaseJudge):
             frames, total = self._frames(clip.video, clip.name)
             urls = [_encode_image(f, self.image_format, self.jpeg_quality) for f in frames]
             msgs = self.messages(clip.instruction, urls)
-            texts = [m["content"] if isinstance(m["content"], str) else
-                     "".join(p["text"] for p in m["content"] if p["type"] == "text") for m in msgs]
-            out.append({"clip": clip.name, "cached": False, "model": self.model, "texts": texts,
-                        "images": len(urls), "frames_total": total,
-                        "image_size": [int(frames[0].shape[1]), int(frames[0].shape[0])],
-                        "image_bytes": sum(len(u) for u in urls), "sampling": self.client.sampling()})
+            texts = [
+                m["content"]
+                if isinstance(m["content"], str)
+                else "".join(p["text"] for p in m["content"] if p["type"] == "text")
+                for m in msgs
+            ]
+            out.append(
+                {
+                    "clip": clip.name,
+                    "cached": False,
+                    "model": self.model,
+                    "texts": texts,
+                    "images": len(urls),
+                    "frames_total": total,
+                    "image_size": [int(frames[0].shape[1]), int(frames[0].shape[0])],
+                    "image_bytes": sum(len(u) for u in urls),
+                    "sampling": self.client.sampling(),
+                }
+            )
         return out
 
     def _cache_fields(self, content_hash: str, instruction: str) -> dict:
         # the prompt templates, the instruction, the video content and the settings determine the request
         # exactly (the frame count in the text is min(n_frames, T), a function of the content), so a cache
         # hit needs no decoding
-        return {"v": CACHE_VERSION, "kind": "success", "video": content_hash, "model": self.model,
-                "system": self.system_prompt, "user": self.user_prompt, "instruction": instruction.strip(),
-                "settings": self.settings()}
+        return {
+            "v": CACHE_VERSION,
+            "kind": "success",
+            "video": content_hash,
+            "model": self.model,
+            "system": self.system_prompt,
+            "user": self.user_prompt,
+            "instruction": instruction.strip(),
+            "settings": self.settings(),
+        }
 
     def judge(self, clip: JudgeClip) -> SuccessVerdict:
         """Judge one clip; never raises for a per-clip problem (it becomes an "error" verdict)."""
@@ -317,8 +383,14 @@ class SuccessJudge(_BaseJudge):
         return self._run(clips, self._judge, "judging", progress)
 
     def _verdict(self, clip: JudgeClip, **kw) -> SuccessVerdict:
-        return SuccessVerdict(clip=clip.name, policy=clip.policy_name, session=clip.session,
-                              instruction=clip.instruction, model=self.model, **kw)
+        return SuccessVerdict(
+            clip=clip.name,
+            policy=clip.policy_name,
+            session=clip.session,
+            instruction=clip.instruction,
+            model=self.model,
+            **kw,
+        )
 
     def _judge(self, clip: JudgeClip) -> SuccessVerdict:
         base: dict = {}
@@ -327,8 +399,11 @@ class SuccessJudge(_BaseJudge):
             base = {"cache_key": key}
             entry = _cache_read(self.cache_dir, key)
             if entry is not None:
-                base.update(frames_total=entry.get("frames_total"), frames_sent=entry.get("frames_sent"),
-                            usage=entry.get("usage"))
+                base.update(
+                    frames_total=entry.get("frames_total"),
+                    frames_sent=entry.get("frames_sent"),
+                    usage=entry.get("usage"),
+                )
                 return self._from_answer(clip, entry["answer"], base, attempts=0, cached=True, errors=())
             frames, total = self._frames(clip.video, clip.name)
             base.update(frames_total=total, frames_sent=len(frames))
@@ -336,13 +411,32 @@ class SuccessJudge(_BaseJudge):
             try:
                 answer, attempts, errors, usage = self.client.complete(self.messages(clip.instruction, images))
             except JudgeRequestError as exc:
-                return self._verdict(clip, status="error", error=str(exc), raw=exc.raw, attempts=exc.attempts,
-                                     attempt_errors=exc.attempt_errors, **base)
-            _cache_write(self.cache_dir, key, {"key": key, "kind": "success", "model": self.model,
-                                               "clip": clip.name, "instruction": clip.instruction,
-                                               "frames_total": total, "frames_sent": len(frames),
-                                               "settings": self.settings(), "answer": answer, "usage": usage,
-                                               "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+                return self._verdict(
+                    clip,
+                    status="error",
+                    error=str(exc),
+                    raw=exc.raw,
+                    attempts=exc.attempts,
+                    attempt_errors=exc.attempt_errors,
+                    **base,
+                )
+            _cache_write(
+                self.cache_dir,
+                key,
+                {
+                    "key": key,
+                    "kind": "success",
+                    "model": self.model,
+                    "clip": clip.name,
+                    "instruction": clip.instruction,
+                    "frames_total": total,
+                    "frames_sent": len(frames),
+                    "settings": self.settings(),
+                    "answer": answer,
+                    "usage": usage,
+                    "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                },
+            )
             base["usage"] = usage
             return self._from_answer(clip, answer, base, attempts=attempts, cached=False, errors=errors)
         except JudgeEndpointUnreachable:
@@ -355,10 +449,26 @@ class SuccessJudge(_BaseJudge):
             parsed = parse_success_answer(answer if answer is not None else "")
         except MalformedAnswer as exc:
             msg = "the model returned no text" if answer is None else str(exc)
-            return self._verdict(clip, status="malformed", raw=answer, error=f"malformed answer: {msg}",
-                                 attempts=attempts, cached=cached, attempt_errors=tuple(errors), **base)
-        return self._verdict(clip, status="ok", raw=answer, attempts=attempts, cached=cached,
-                             attempt_errors=tuple(errors), **parsed, **base)
+            return self._verdict(
+                clip,
+                status="malformed",
+                raw=answer,
+                error=f"malformed answer: {msg}",
+                attempts=attempts,
+                cached=cached,
+                attempt_errors=tuple(errors),
+                **base,
+            )
+        return self._verdict(
+            clip,
+            status="ok",
+            raw=answer,
+            attempts=attempts,
+            cached=cached,
+            attempt_errors=tuple(errors),
+            **parsed,
+            **base,
+        )
 
 
 def _sum_usage(usages) -> dict | None:
@@ -428,8 +538,12 @@ class PairwiseJudge(_BaseJudge):
         texts = self._texts(instruction, len(first), len(second))
         parts = [{"type": "text", "text": texts[0]}]
         if self.layout == "sets":
-            parts += [{"type": "text", "text": texts[1]}, *map(_image_part, first),
-                      {"type": "text", "text": texts[2]}, *map(_image_part, second)]
+            parts += [
+                {"type": "text", "text": texts[1]},
+                *map(_image_part, first),
+                {"type": "text", "text": texts[2]},
+                *map(_image_part, second),
+            ]
         else:
             parts += [{"type": "text", "text": texts[1]}, *map(_image_part, first)]
         return [{"role": "system", "content": self.system_prompt}, {"role": "user", "content": parts}]
@@ -458,13 +572,22 @@ class PairwiseJudge(_BaseJudge):
         _check_clip(pair.a, f"{source}.a")
         _check_clip(pair.b, f"{source}.b")
         if pair.a.policy_name == pair.b.policy_name:
-            raise MetricInputError(f"{source} ({pair.id})", "b", f"a policy other than {pair.a.policy_name!r}",
-                                   repr(pair.b.policy_name))
+            raise MetricInputError(
+                f"{source} ({pair.id})", "b", f"a policy other than {pair.a.policy_name!r}", repr(pair.b.policy_name)
+            )
 
     def _verdict(self, pair: JudgePair, swapped: bool, **kw) -> PairwiseVerdict:
-        return PairwiseVerdict(pair=pair.id, a=pair.a.policy_name, b=pair.b.policy_name, clip_a=pair.a.name,
-                               clip_b=pair.b.name, instruction=pair.a.instruction, swapped=swapped,
-                               model=self.model, **kw)
+        return PairwiseVerdict(
+            pair=pair.id,
+            a=pair.a.policy_name,
+            b=pair.b.policy_name,
+            clip_a=pair.a.name,
+            clip_b=pair.b.name,
+            instruction=pair.a.instruction,
+            swapped=swapped,
+            model=self.model,
+            **kw,
+        )
 
     def _compare(self, pair: JudgePair) -> PairwiseVerdict:
         """One verdict; with ``both_orders`` the pair is asked as is and swapped, then reconciled:
@@ -473,26 +596,49 @@ class PairwiseJudge(_BaseJudge):
         if not self.both_orders:
             return self._compare_once(pair, self.swapped(pair))
         v1, v2 = self._compare_once(pair, False), self._compare_once(pair, True)
-        both = dict(orders=(v1, v2), attempts=v1.attempts + v2.attempts, cached=v1.cached and v2.cached,
-                    attempt_errors=v1.attempt_errors + v2.attempt_errors, swapped=False,
-                    usage=_sum_usage([v1.usage, v2.usage]))
+        both = dict(
+            orders=(v1, v2),
+            attempts=v1.attempts + v2.attempts,
+            cached=v1.cached and v2.cached,
+            attempt_errors=v1.attempt_errors + v2.attempt_errors,
+            swapped=False,
+            usage=_sum_usage([v1.usage, v2.usage]),
+        )
         bad = next((v for v in (v1, v2) if not v.ok), None)
         if bad is not None:
             return replace(bad, model_winner=None, winner=None, reason=None, **both)
         agree = v1.winner == v2.winner
-        reason = v1.reason if agree else (f"the two orders disagree (as shown: {v1.winner}, swapped: {v2.winner}); "
-                                          "counted as a tie")
-        return replace(v1, model_winner=None, winner=v1.winner if agree else "tie", reason=reason,
-                       orders_agree=agree, raw=None, cache_key=None, **both)
+        reason = (
+            v1.reason
+            if agree
+            else (f"the two orders disagree (as shown: {v1.winner}, swapped: {v2.winner}); counted as a tie")
+        )
+        return replace(
+            v1,
+            model_winner=None,
+            winner=v1.winner if agree else "tie",
+            reason=reason,
+            orders_agree=agree,
+            raw=None,
+            cache_key=None,
+            **both,
+        )
 
     def _compare_once(self, pair: JudgePair, swapped: bool) -> PairwiseVerdict:
         first, second = (pair.b, pair.a) if swapped else (pair.a, pair.b)
         base: dict = {}
         try:
-            fields = {"v": CACHE_VERSION, "kind": "pairwise", "first": self._hash(first.video),
-                      "second": self._hash(second.video), "model": self.model, "system": self.system_prompt,
-                      "user": [self.user_prompt, *self.set_labels, self.side_by_side_note],
-                      "instruction": pair.a.instruction.strip(), "settings": self.settings()}
+            fields = {
+                "v": CACHE_VERSION,
+                "kind": "pairwise",
+                "first": self._hash(first.video),
+                "second": self._hash(second.video),
+                "model": self.model,
+                "system": self.system_prompt,
+                "user": [self.user_prompt, *self.set_labels, self.side_by_side_note],
+                "instruction": pair.a.instruction.strip(),
+                "settings": self.settings(),
+            }
             key = _key(fields)
             base = {"cache_key": key}
             entry = _cache_read(self.cache_dir, key)
@@ -516,14 +662,34 @@ class PairwiseJudge(_BaseJudge):
             try:
                 answer, attempts, errors, usage = self.client.complete(self.messages(pair.a.instruction, urls1, urls2))
             except JudgeRequestError as exc:
-                return self._verdict(pair, swapped, status="error", error=str(exc), raw=exc.raw,
-                                     attempts=exc.attempts, attempt_errors=exc.attempt_errors, **base)
-            _cache_write(self.cache_dir, key, {"key": key, "kind": "pairwise", "model": self.model, "pair": pair.id,
-                                               "shown_first": first.name, "shown_second": second.name,
-                                               "instruction": pair.a.instruction,
-                                               "frames_sent": list(base["frames_sent"]),
-                                               "settings": self.settings(), "answer": answer, "usage": usage,
-                                               "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+                return self._verdict(
+                    pair,
+                    swapped,
+                    status="error",
+                    error=str(exc),
+                    raw=exc.raw,
+                    attempts=exc.attempts,
+                    attempt_errors=exc.attempt_errors,
+                    **base,
+                )
+            _cache_write(
+                self.cache_dir,
+                key,
+                {
+                    "key": key,
+                    "kind": "pairwise",
+                    "model": self.model,
+                    "pair": pair.id,
+                    "shown_first": first.name,
+                    "shown_second": second.name,
+                    "instruction": pair.a.instruction,
+                    "frames_sent": list(base["frames_sent"]),
+                    "settings": self.settings(),
+                    "answer": answer,
+                    "usage": usage,
+                    "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                },
+            )
             base["usage"] = usage
             return self._from_answer(pair, swapped, answer, base, attempts=attempts, cached=False, errors=errors)
         except JudgeEndpointUnreachable:
@@ -536,12 +702,32 @@ class PairwiseJudge(_BaseJudge):
             parsed = parse_pairwise_answer(answer if answer is not None else "")
         except MalformedAnswer as exc:
             msg = "the model returned no text" if answer is None else str(exc)
-            return self._verdict(pair, swapped, status="malformed", raw=answer, error=f"malformed answer: {msg}",
-                                 attempts=attempts, cached=cached, attempt_errors=tuple(errors), **base)
+            return self._verdict(
+                pair,
+                swapped,
+                status="malformed",
+                raw=answer,
+                error=f"malformed answer: {msg}",
+                attempts=attempts,
+                cached=cached,
+                attempt_errors=tuple(errors),
+                **base,
+            )
         shown = parsed["winner"]
         if shown == "tie":
             winner = "tie"
         else:
             winner = {"A": "b", "B": "a"}[shown] if swapped else {"A": "a", "B": "b"}[shown]
-        return self._verdict(pair, swapped, status="ok", model_winner=shown, winner=winner, reason=parsed["reason"],
-                             raw=answer, attempts=attempts, cached=cached, attempt_errors=tuple(errors), **base)
+        return self._verdict(
+            pair,
+            swapped,
+            status="ok",
+            model_winner=shown,
+            winner=winner,
+            reason=parsed["reason"],
+            raw=answer,
+            attempts=attempts,
+            cached=cached,
+            attempt_errors=tuple(errors),
+            **base,
+        )

@@ -50,8 +50,15 @@ from pathlib import Path
 from ..errors import OscarError
 from .common import MetricInputError
 
-__all__ = ["ENV_BASE_URL", "ENV_MODEL", "ENV_API_KEY", "CACHE_VERSION", "JudgeRequestError", "JudgeEndpointUnreachable",
-           "ChatClient"]
+__all__ = [
+    "ENV_BASE_URL",
+    "ENV_MODEL",
+    "ENV_API_KEY",
+    "CACHE_VERSION",
+    "JudgeRequestError",
+    "JudgeEndpointUnreachable",
+    "ChatClient",
+]
 
 ENV_BASE_URL = "OSCAR_JUDGE_BASE_URL"
 ENV_MODEL = "OSCAR_JUDGE_MODEL"
@@ -79,8 +86,15 @@ class JudgeRequestError(RuntimeError):
     the last failure was of a retryable kind.
     """
 
-    def __init__(self, message: str, *, attempts: int, attempt_errors: Sequence[str] = (), raw: str | None = None,
-                 retryable: bool = False):
+    def __init__(
+        self,
+        message: str,
+        *,
+        attempts: int,
+        attempt_errors: Sequence[str] = (),
+        raw: str | None = None,
+        retryable: bool = False,
+    ):
         super().__init__(message)
         self.attempts = attempts
         self.attempt_errors = tuple(attempt_errors)
@@ -103,8 +117,9 @@ def _resolve(value, env: str, what: str, required: bool) -> str | None:
 def _chat_url(base_url: str) -> str:
     url = base_url.strip().rstrip("/")
     if not re.match(r"\Ahttps?://[^/\s]+", url):
-        raise MetricInputError("base_url", "url", "an http:// or https:// URL such as http://127.0.0.1:8000/v1",
-                               repr(base_url))
+        raise MetricInputError(
+            "base_url", "url", "an http:// or https:// URL such as http://127.0.0.1:8000/v1", repr(base_url)
+        )
     return url if url.endswith("/chat/completions") else url + "/chat/completions"
 
 
@@ -170,8 +185,10 @@ def _openai():
     try:
         import openai
     except ImportError:
-        raise ImportError("oscar's VLM judges use the OpenAI Python SDK, which is not installed; install it with: "
-                          'pip install "oscar-wm[judge]"') from None
+        raise ImportError(
+            "oscar's VLM judges use the OpenAI Python SDK, which is not installed; install it with: "
+            'pip install "oscar-wm[judge]"'
+        ) from None
     return openai
 
 
@@ -197,29 +214,52 @@ class ChatClient:
     Thread-safe.
     """
 
-    def __init__(self, base_url: str | None = None, model: str | None = None, api_key: str | None = None, *,
-                 timeout: float = 120.0, max_attempts: int = 5, backoff: float = 1.0, backoff_max: float = 30.0,
-                 temperature: float | None = None, max_tokens: int | None = None,
-                 extra_body: Mapping | None = None, token_field: str = "max_completion_tokens",
-                 max_timeout_retries: int = 1, max_requests: int | None = None):
+    def __init__(
+        self,
+        base_url: str | None = None,
+        model: str | None = None,
+        api_key: str | None = None,
+        *,
+        timeout: float = 120.0,
+        max_attempts: int = 5,
+        backoff: float = 1.0,
+        backoff_max: float = 30.0,
+        temperature: float | None = None,
+        max_tokens: int | None = None,
+        extra_body: Mapping | None = None,
+        token_field: str = "max_completion_tokens",
+        max_timeout_retries: int = 1,
+        max_requests: int | None = None,
+    ):
         self.base_url = _resolve(base_url, ENV_BASE_URL, "base URL", True)
         self.url = _chat_url(self.base_url)
         self.model = _resolve(model, ENV_MODEL, "model name", True)
         self._api_key = _resolve(api_key, ENV_API_KEY, "API key", False)
-        for name, value, positive in (("timeout", timeout, True), ("backoff", backoff, False),
-                                      ("backoff_max", backoff_max, False)):
-            if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-                    or value < 0 or (positive and value == 0)):
-                raise MetricInputError(name, "value", "a number of seconds " + ("> 0" if positive else ">= 0"),
-                                       repr(value))
+        for name, value, positive in (
+            ("timeout", timeout, True),
+            ("backoff", backoff, False),
+            ("backoff_max", backoff_max, False),
+        ):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not math.isfinite(value)
+                or value < 0
+                or (positive and value == 0)
+            ):
+                raise MetricInputError(
+                    name, "value", "a number of seconds " + ("> 0" if positive else ">= 0"), repr(value)
+                )
         for name, value, low in (("max_attempts", max_attempts, 1), ("max_timeout_retries", max_timeout_retries, 0)):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise MetricInputError(name, "value", f"an integer >= {low}", repr(value))
-        if max_requests is not None and (isinstance(max_requests, bool) or not isinstance(max_requests, int)
-                                         or max_requests < 0):
+        if max_requests is not None and (
+            isinstance(max_requests, bool) or not isinstance(max_requests, int) or max_requests < 0
+        ):
             raise MetricInputError("max_requests", "value", "an integer >= 0 or None", repr(max_requests))
-        if max_tokens is not None and (isinstance(max_tokens, bool) or not isinstance(max_tokens, int)
-                                       or max_tokens < 1):
+        if max_tokens is not None and (
+            isinstance(max_tokens, bool) or not isinstance(max_tokens, int) or max_tokens < 1
+        ):
             raise MetricInputError("max_tokens", "value", "an integer >= 1 or None", repr(max_tokens))
         if token_field not in ("max_completion_tokens", "max_tokens"):
             raise MetricInputError("token_field", "value", '"max_completion_tokens" or "max_tokens"', repr(token_field))
@@ -227,8 +267,7 @@ class ChatClient:
             raise MetricInputError("extra_body", "type", "a JSON object (mapping)", type(extra_body).__name__)
         reserved = sorted({"model", "messages"} & set(extra_body or {}))
         if reserved:
-            raise MetricInputError("extra_body", "keys", "request fields other than 'model' and 'messages'",
-                                   reserved)
+            raise MetricInputError("extra_body", "keys", "request fields other than 'model' and 'messages'", reserved)
         self.timeout, self.max_attempts = float(timeout), max_attempts
         self.backoff, self.backoff_max = float(backoff), float(backoff_max)
         self.temperature, self.max_tokens, self.token_field = temperature, max_tokens, token_field
@@ -236,8 +275,9 @@ class ChatClient:
         self.extra_body = dict(extra_body or {})
         openai = _openai()
         sdk_base = self.url[: -len("/chat/completions")]
-        self._sdk = openai.OpenAI(base_url=sdk_base, api_key=self._api_key or "no-key", timeout=self.timeout,
-                                  max_retries=0)
+        self._sdk = openai.OpenAI(
+            base_url=sdk_base, api_key=self._api_key or "no-key", timeout=self.timeout, max_retries=0
+        )
         self._no_auth = None if self._api_key else {"Authorization": openai.Omit()}
         self._rng = random.Random()
         self._lock = threading.Lock()
@@ -293,14 +333,16 @@ class ChatClient:
                 self._unreachable = (
                     f"the judge endpoint {self.url} refused all {self._refused_in_a_row} connections and never "
                     f"answered ({cause}); nothing was judged. Start the server, or point --judge-base-url / "
-                    f"${ENV_BASE_URL} at a running one, then run the same command again")
+                    f"${ENV_BASE_URL} at a running one, then run the same command again"
+                )
         if self._unreachable is not None:
             raise JudgeEndpointUnreachable(self._unreachable)
 
     def _send(self, messages: list) -> str:
         """One HTTP request through the SDK; returns the reply body's text (SDK exceptions propagate)."""
         raw = self._sdk.chat.completions.with_raw_response.create(
-            model=self.model, messages=messages, extra_body=self.sampling() or None, extra_headers=self._no_auth)
+            model=self.model, messages=messages, extra_body=self.sampling() or None, extra_headers=self._no_auth
+        )
         return raw.http_response.text
 
     def complete(self, messages: list) -> tuple[str | None, int, tuple[str, ...], dict | None]:
@@ -343,7 +385,10 @@ class ChatClient:
                     raise JudgeRequestError(
                         f"request to {self.url} timed out {timeouts} time(s); not retried beyond "
                         f"max_timeout_retries={self.max_timeout_retries} (a timed-out request may still be billed)",
-                        attempts=attempt, attempt_errors=errors, retryable=True) from None
+                        attempts=attempt,
+                        attempt_errors=errors,
+                        retryable=True,
+                    ) from None
             except openai.APIConnectionError as exc:
                 cause = exc.__cause__ or exc
                 errors.append(f"connection: {type(cause).__name__}: {cause}")
@@ -357,8 +402,9 @@ class ChatClient:
                     body = json.loads(text)
                     content = _message_text(body)
                 except (json.JSONDecodeError, ValueError) as exc:
-                    msg = (f"not an OpenAI chat completion from {self.url}: "
-                           + ("the body is not JSON" if isinstance(exc, json.JSONDecodeError) else str(exc)))
+                    msg = f"not an OpenAI chat completion from {self.url}: " + (
+                        "the body is not JSON" if isinstance(exc, json.JSONDecodeError) else str(exc)
+                    )
                     errors.append(msg)
                     raise JudgeRequestError(msg, attempts=attempt, attempt_errors=errors, raw=text[:4000]) from None
                 usage = _usage(body)
@@ -369,8 +415,13 @@ class ChatClient:
                 return content, attempt, tuple(errors), usage
             if not retryable or attempt >= self.max_attempts:
                 what = "failed" if not retryable else f"failed after {attempt} attempts"
-                raise JudgeRequestError(f"request to {self.url} {what}: {errors[-1]}", attempts=attempt,
-                                        attempt_errors=errors, raw=raw, retryable=retryable)
+                raise JudgeRequestError(
+                    f"request to {self.url} {what}: {errors[-1]}",
+                    attempts=attempt,
+                    attempt_errors=errors,
+                    raw=raw,
+                    retryable=retryable,
+                )
             time.sleep(self._delay(attempt, retry_after))
 
 
@@ -379,8 +430,11 @@ def _usage(body: dict) -> dict | None:
     u = body.get("usage") if isinstance(body, dict) else None
     if not isinstance(u, dict):
         return None
-    out = {k: int(u[k]) for k in ("prompt_tokens", "completion_tokens", "total_tokens")
-           if isinstance(u.get(k), int) and not isinstance(u.get(k), bool)}
+    out = {
+        k: int(u[k])
+        for k in ("prompt_tokens", "completion_tokens", "total_tokens")
+        if isinstance(u.get(k), int) and not isinstance(u.get(k), bool)
+    }
     return out or None
 
 

@@ -98,8 +98,7 @@ def _side_by_side(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 
     h = left.shape[0]
     if right.shape[0] != h:
-        right = cv2.resize(right, (max(1, round(right.shape[1] * h / right.shape[0])), h),
-                           interpolation=cv2.INTER_AREA)
+        right = cv2.resize(right, (max(1, round(right.shape[1] * h / right.shape[0])), h), interpolation=cv2.INTER_AREA)
     bar = np.full((h, _SEPARATOR_PX, 3), 128, dtype=np.uint8)
     return np.concatenate([left, bar, right], axis=1)
 

@@ -28,10 +28,20 @@ import re
 from collections.abc import Sequence
 
 __all__ = [
-    "DEFAULT_JUDGE_FRAMES", "DEFAULT_PAIRWISE_FRAMES", "PAPER_SUCCESS_PROMPT", "SUCCESS_PROMPTS",
-    "SUCCESS_SYSTEM_PROMPT", "SUCCESS_USER_PROMPT", "PAIRWISE_SYSTEM_PROMPT", "PAIRWISE_USER_PROMPT",
-    "PAIRWISE_SETS_LABELS", "PAIRWISE_SIDE_BY_SIDE_NOTE", "STATUSES", "MalformedAnswer",
-    "parse_success_answer", "parse_pairwise_answer"
+    "DEFAULT_JUDGE_FRAMES",
+    "DEFAULT_PAIRWISE_FRAMES",
+    "PAPER_SUCCESS_PROMPT",
+    "SUCCESS_PROMPTS",
+    "SUCCESS_SYSTEM_PROMPT",
+    "SUCCESS_USER_PROMPT",
+    "PAIRWISE_SYSTEM_PROMPT",
+    "PAIRWISE_USER_PROMPT",
+    "PAIRWISE_SETS_LABELS",
+    "PAIRWISE_SIDE_BY_SIDE_NOTE",
+    "STATUSES",
+    "MalformedAnswer",
+    "parse_success_answer",
+    "parse_pairwise_answer",
 ]
 
 #: Frames per rollout for the success judge (the paper's 32).
@@ -103,11 +113,15 @@ Reply with exactly one JSON object and no other text:
 #: User text of the pairwise judge. Fields: ``instruction``, ``n_frames``.
 PAIRWISE_USER_PROMPT = "Instruction: {instruction}"
 #: Labels placed before each frame set in the "sets" layout. Fields: ``n_frames``.
-PAIRWISE_SETS_LABELS = ("Attempt A, {n_frames} frames in temporal order:",
-                        "Attempt B, {n_frames} frames in temporal order:")
+PAIRWISE_SETS_LABELS = (
+    "Attempt A, {n_frames} frames in temporal order:",
+    "Attempt B, {n_frames} frames in temporal order:",
+)
 #: Text placed before the images in the "side_by_side" layout. Fields: ``n_frames``.
-PAIRWISE_SIDE_BY_SIDE_NOTE = ("{n_frames} images in temporal order follow. Each image shows the same moment of "
-                              "both attempts: attempt A on the left, attempt B on the right, split by a grey bar.")
+PAIRWISE_SIDE_BY_SIDE_NOTE = (
+    "{n_frames} images in temporal order follow. Each image shows the same moment of "
+    "both attempts: attempt A on the left, attempt B on the right, split by a grey bar."
+)
 
 STATUSES = ("ok", "malformed", "error")
 
@@ -144,8 +158,10 @@ def _json_object(text) -> dict:
     if m:
         s = m.group(1).strip()
     if not s.startswith("{"):
-        raise MalformedAnswer("expected one JSON object (optionally inside a ```json fence) and nothing else, "
-                              f"found text starting {s[:40]!r}")
+        raise MalformedAnswer(
+            "expected one JSON object (optionally inside a ```json fence) and nothing else, "
+            f"found text starting {s[:40]!r}"
+        )
     try:
         obj = json.loads(s, object_pairs_hook=_no_duplicates, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
@@ -198,5 +214,5 @@ def parse_pairwise_answer(text: str) -> dict:
     _check_keys(obj, ("winner", "reason"))
     winner = obj["winner"]
     if winner not in ("A", "B", "tie") or not isinstance(winner, str):
-        raise MalformedAnswer(f"'winner': expected \"A\", \"B\" or \"tie\", found {winner!r}")
+        raise MalformedAnswer(f'\'winner\': expected "A", "B" or "tie", found {winner!r}')
     return {"winner": winner, "reason": _reason(obj)}

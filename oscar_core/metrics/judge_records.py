@@ -22,9 +22,15 @@ import numpy as np
 from .common import MetricInputError
 
 __all__ = [
-    "JudgeClip", "JudgePair", "SuccessVerdict", "PairwiseVerdict", "pairs_by_session", "success_by_policy",
-    "preferences_from_verdicts"
+    "JudgeClip",
+    "JudgePair",
+    "SuccessVerdict",
+    "PairwiseVerdict",
+    "pairs_by_session",
+    "success_by_policy",
+    "preferences_from_verdicts",
 ]
+
 
 # --------------------------------------------------------------------------- #
 # inputs
@@ -73,8 +79,9 @@ def _check_clip(clip, source: str) -> JudgeClip:
     if not isinstance(clip.name, str) or not clip.name:
         raise MetricInputError(source, "name", "a non-empty clip name", repr(clip.name))
     if not isinstance(clip.instruction, str) or not clip.instruction.strip():
-        raise MetricInputError(f"{source} ({clip.name})", "instruction", "a non-empty task instruction",
-                               repr(clip.instruction))
+        raise MetricInputError(
+            f"{source} ({clip.name})", "instruction", "a non-empty task instruction", repr(clip.instruction)
+        )
     for key in ("policy", "session"):
         value = getattr(clip, key)
         if value is not None and (not isinstance(value, str) or not value):
@@ -82,16 +89,19 @@ def _check_clip(clip, source: str) -> JudgeClip:
     video = clip.video
     if isinstance(video, (str, os.PathLike)):
         if not Path(video).exists():
-            raise MetricInputError(video, "video", f"an existing video file or frame folder (clip {clip.name!r})",
-                                   "no such file or folder")
+            raise MetricInputError(
+                video, "video", f"an existing video file or frame folder (clip {clip.name!r})", "no such file or folder"
+            )
     elif isinstance(video, np.ndarray) or (hasattr(video, "detach") and hasattr(video, "cpu")):
         shape = tuple(video.shape)
         if len(shape) != 4 or shape[-1] != 3 or shape[0] < 1:
-            raise MetricInputError(f"{source} ({clip.name})", "video", "(T, H, W, 3) frames with T >= 1",
-                                   f"shape {shape}")
+            raise MetricInputError(
+                f"{source} ({clip.name})", "video", "(T, H, W, 3) frames with T >= 1", f"shape {shape}"
+            )
     else:
-        raise MetricInputError(f"{source} ({clip.name})", "video", "a path or a (T, H, W, 3) array",
-                               type(video).__name__)
+        raise MetricInputError(
+            f"{source} ({clip.name})", "video", "a path or a (T, H, W, 3) array", type(video).__name__
+        )
     return clip
 
 
@@ -123,9 +133,12 @@ def pairs_by_session(clips: Iterable[JudgeClip]) -> list[JudgePair]:
         for a, b in itertools.combinations(members, 2):
             if a.instruction.strip() != b.instruction.strip():
                 where = f"session {value!r}" if _kind == "session" else f"clips {a.name!r}, {b.name!r}"
-                raise MetricInputError(where, "instruction",
-                                       f"the same instruction for every clip ({a.name}: {a.instruction!r})",
-                                       f"{b.name}: {b.instruction!r}")
+                raise MetricInputError(
+                    where,
+                    "instruction",
+                    f"the same instruction for every clip ({a.name}: {a.instruction!r})",
+                    f"{b.name}: {b.instruction!r}",
+                )
             if a.policy_name != b.policy_name:
                 pairs.append(JudgePair(a, b))
     return pairs
@@ -171,11 +184,26 @@ class SuccessVerdict:
         return self.status == "ok"
 
     def to_dict(self) -> dict:
-        return {"clip": self.clip, "policy": self.policy, "session": self.session, "instruction": self.instruction,
-                "status": self.status, "binary": self.binary, "partial": self.partial, "reason": self.reason,
-                "raw": self.raw, "error": self.error, "attempts": self.attempts, "cached": self.cached,
-                "attempt_errors": list(self.attempt_errors), "frames_total": self.frames_total,
-                "frames_sent": self.frames_sent, "cache_key": self.cache_key, "model": self.model, "usage": self.usage}
+        return {
+            "clip": self.clip,
+            "policy": self.policy,
+            "session": self.session,
+            "instruction": self.instruction,
+            "status": self.status,
+            "binary": self.binary,
+            "partial": self.partial,
+            "reason": self.reason,
+            "raw": self.raw,
+            "error": self.error,
+            "attempts": self.attempts,
+            "cached": self.cached,
+            "attempt_errors": list(self.attempt_errors),
+            "frames_total": self.frames_total,
+            "frames_sent": self.frames_sent,
+            "cache_key": self.cache_key,
+            "model": self.model,
+            "usage": self.usage,
+        }
 
 
 @dataclass(frozen=True)
@@ -234,14 +262,32 @@ class PairwiseVerdict:
         return Preference(self.a, self.b, {"a": 2, "tie": 1, "b": 0}[self.winner], where=self.pair)
 
     def to_dict(self) -> dict:
-        return {"pair": self.pair, "a": self.a, "b": self.b, "clip_a": self.clip_a, "clip_b": self.clip_b,
-                "instruction": self.instruction, "swapped": self.swapped, "shown_first": self.shown_first,
-                "status": self.status, "model_winner": self.model_winner, "winner": self.winner,
-                "winner_policy": self.winner_policy, "reason": self.reason, "raw": self.raw, "error": self.error,
-                "attempts": self.attempts, "cached": self.cached, "attempt_errors": list(self.attempt_errors),
-                "frames_sent": list(self.frames_sent) if self.frames_sent else None, "cache_key": self.cache_key,
-                "model": self.model, "usage": self.usage, "orders_agree": self.orders_agree,
-                "orders": [o.to_dict() for o in self.orders] if self.orders else None}
+        return {
+            "pair": self.pair,
+            "a": self.a,
+            "b": self.b,
+            "clip_a": self.clip_a,
+            "clip_b": self.clip_b,
+            "instruction": self.instruction,
+            "swapped": self.swapped,
+            "shown_first": self.shown_first,
+            "status": self.status,
+            "model_winner": self.model_winner,
+            "winner": self.winner,
+            "winner_policy": self.winner_policy,
+            "reason": self.reason,
+            "raw": self.raw,
+            "error": self.error,
+            "attempts": self.attempts,
+            "cached": self.cached,
+            "attempt_errors": list(self.attempt_errors),
+            "frames_sent": list(self.frames_sent) if self.frames_sent else None,
+            "cache_key": self.cache_key,
+            "model": self.model,
+            "usage": self.usage,
+            "orders_agree": self.orders_agree,
+            "orders": [o.to_dict() for o in self.orders] if self.orders else None,
+        }
 
 
 def success_by_policy(verdicts: Iterable[SuccessVerdict]) -> dict[str, dict]:
@@ -265,9 +311,13 @@ def success_by_policy(verdicts: Iterable[SuccessVerdict]) -> dict[str, dict]:
     summary = {}
     for policy, row in out.items():
         eps, parts = row["episodes"], row["partials"]
-        summary[policy] = {"success_rate": float(np.mean(eps)) if eps else None, "episodes": eps,
-                           "mean_partial": float(np.mean(parts)) if parts else None, "judged": len(eps),
-                           "not_judged": row["not_judged"]}
+        summary[policy] = {
+            "success_rate": float(np.mean(eps)) if eps else None,
+            "episodes": eps,
+            "mean_partial": float(np.mean(parts)) if parts else None,
+            "judged": len(eps),
+            "not_judged": row["not_judged"],
+        }
     return summary
 
 

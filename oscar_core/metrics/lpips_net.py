@@ -36,13 +36,18 @@ _VGG16 = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 51
 def alexnet_features() -> nn.Sequential:
     """torchvision's ``AlexNet().features`` (same indices, shapes and parameter names)."""
     return nn.Sequential(
-        nn.Conv2d(3, 64, kernel_size=11, stride=4, padding=2), nn.ReLU(inplace=False),
+        nn.Conv2d(3, 64, kernel_size=11, stride=4, padding=2),
+        nn.ReLU(inplace=False),
         nn.MaxPool2d(kernel_size=3, stride=2),
-        nn.Conv2d(64, 192, kernel_size=5, padding=2), nn.ReLU(inplace=False),
+        nn.Conv2d(64, 192, kernel_size=5, padding=2),
+        nn.ReLU(inplace=False),
         nn.MaxPool2d(kernel_size=3, stride=2),
-        nn.Conv2d(192, 384, kernel_size=3, padding=1), nn.ReLU(inplace=False),
-        nn.Conv2d(384, 256, kernel_size=3, padding=1), nn.ReLU(inplace=False),
-        nn.Conv2d(256, 256, kernel_size=3, padding=1), nn.ReLU(inplace=False),
+        nn.Conv2d(192, 384, kernel_size=3, padding=1),
+        nn.ReLU(inplace=False),
+        nn.Conv2d(384, 256, kernel_size=3, padding=1),
+        nn.ReLU(inplace=False),
+        nn.Conv2d(256, 256, kernel_size=3, padding=1),
+        nn.ReLU(inplace=False),
         nn.MaxPool2d(kernel_size=3, stride=2),
     )
 
@@ -68,8 +73,12 @@ def load_pth_state_dict(path) -> dict:
     try:
         data = torch.load(str(p), map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - an unpickling error has many types
-        raise MetricInputError(p, "contents", "a state dict of tensors (torch.load weights_only=True)",
-                               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from None
+        raise MetricInputError(
+            p,
+            "contents",
+            "a state dict of tensors (torch.load weights_only=True)",
+            f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}",
+        ) from None
     if not isinstance(data, dict) or not all(isinstance(v, torch.Tensor) for v in data.values()):
         raise MetricInputError(p, "contents", "a mapping of parameter names to tensors", type(data).__name__)
     return data
@@ -105,7 +114,7 @@ class LPIPS(nn.Module):
 
     def load_trunk(self, state: dict, source: str = "trunk") -> None:
         """Load torchvision's classifier weights: every ``features.*`` key must match; ``classifier.*`` is unused."""
-        feats = {k[len("features."):]: v for k, v in state.items() if k.startswith("features.")}
+        feats = {k[len("features.") :]: v for k, v in state.items() if k.startswith("features.")}
         other = sorted(k for k in state if not k.startswith(("features.", "classifier.")))
         if other:
             raise MetricInputError(source, "keys", "torchvision keys features.* / classifier.*", f"unknown {other[:5]}")
@@ -116,8 +125,9 @@ class LPIPS(nn.Module):
         for k, lin in enumerate(self.lins):
             key = f"lin{k}.model.1.weight"
             if key not in state:
-                raise MetricInputError(source, key, f"a ({CHANNELS[self.net_name][k]}-channel) linear layer",
-                                       "no such key")
+                raise MetricInputError(
+                    source, key, f"a ({CHANNELS[self.net_name][k]}-channel) linear layer", "no such key"
+                )
             self._load(lin, {"weight": state[key]}, source, f"lin{k}.model.1.")
 
     @staticmethod
@@ -126,8 +136,12 @@ class LPIPS(nn.Module):
         missing = sorted(set(expected) - set(state))
         extra = sorted(set(state) - set(expected))
         if missing or extra:
-            raise MetricInputError(source, "keys", f"exactly {[prefix + k for k in sorted(expected)][:6]}...",
-                                   f"missing {[prefix + k for k in missing][:5]}, extra {[prefix + k for k in extra][:5]}")
+            raise MetricInputError(
+                source,
+                "keys",
+                f"exactly {[prefix + k for k in sorted(expected)][:6]}...",
+                f"missing {[prefix + k for k in missing][:5]}, extra {[prefix + k for k in extra][:5]}",
+            )
         for k, v in state.items():
             if tuple(v.shape) != tuple(expected[k].shape):
                 raise MetricInputError(source, prefix + k, f"shape {tuple(expected[k].shape)}", f"{tuple(v.shape)}")
@@ -141,8 +155,8 @@ class LPIPS(nn.Module):
         for i, layer in enumerate(self.features):
             x, y = layer(x), layer(y)
             if i in taps:
-                nx = x / (torch.sqrt((x ** 2).sum(dim=1, keepdim=True)) + 1e-10)
-                ny = y / (torch.sqrt((y ** 2).sum(dim=1, keepdim=True)) + 1e-10)
+                nx = x / (torch.sqrt((x**2).sum(dim=1, keepdim=True)) + 1e-10)
+                ny = y / (torch.sqrt((y**2).sum(dim=1, keepdim=True)) + 1e-10)
                 total = total + self.lins[k]((nx - ny) ** 2).mean(dim=(2, 3), keepdim=True)
                 k += 1
                 if k == len(taps):

@@ -39,16 +39,21 @@ def load_network(spec: str | None, what: str):
     return obj()
 
 
-def resolve_networks(*, lpips=None, i3d=None, inception=None, vae=None, vae_model: str = "none",
-                     use_cache: bool = True, device="cpu") -> tuple[dict, list[str], dict]:
+def resolve_networks(
+    *, lpips=None, i3d=None, inception=None, vae=None, vae_model: str = "none", use_cache: bool = True, device="cpu"
+) -> tuple[dict, list[str], dict]:
     """(networks {lpips, i3d, inception, vae: network or None}, names taken from the cache, notes {key: why not}).
 
     lpips, i3d, inception, vae: specs as :func:`load_network` takes them
     (None: not given); vae_model: a checkpoint whose VAE computes latent L2
     when ``vae`` is not given, from the local cache only ("none": skip).
     """
-    nets = {"lpips": load_network(lpips, "--lpips"), "i3d": load_network(i3d, "--i3d"),
-            "inception": load_network(inception, "--inception"), "vae": load_network(vae, "--vae")}
+    nets = {
+        "lpips": load_network(lpips, "--lpips"),
+        "i3d": load_network(i3d, "--i3d"),
+        "inception": load_network(inception, "--inception"),
+        "vae": load_network(vae, "--vae"),
+    }
     used_cache: list[str] = []
     notes: dict[str, str] = {}
     if use_cache:
@@ -60,17 +65,20 @@ def resolve_networks(*, lpips=None, i3d=None, inception=None, vae=None, vae_mode
                 used_cache.append(key)
     for key in ("lpips", "i3d", "inception"):
         if nets[key] is None:
-            notes[key] = (f"no --{key} network given" + (" and none in the weights cache (`oscar eval weights pull`)"
-                                                          if use_cache else " (--no-cached-networks)"))
+            notes[key] = f"no --{key} network given" + (
+                " and none in the weights cache (`oscar eval weights pull`)" if use_cache else " (--no-cached-networks)"
+            )
     if nets["vae"] is None and vae_model != "none":
         from .project_vae import load_project_vae
 
         try:
             nets["vae"] = load_project_vae(vae_model, device=device)
         except Exception as exc:  # noqa: BLE001 - not cached / not a checkpoint: latent L2 is skipped, and said so
-            notes["latent_l2"] = (f"skipped: the VAE of {vae_model!r} is not available locally "
-                                  f"({type(exc).__name__}: {str(exc)[:200]}); `oscar zoo pull {vae_model}` or "
-                                  "--vae / --vae-model FOLDER")
+            notes["latent_l2"] = (
+                f"skipped: the VAE of {vae_model!r} is not available locally "
+                f"({type(exc).__name__}: {str(exc)[:200]}); `oscar zoo pull {vae_model}` or "
+                "--vae / --vae-model FOLDER"
+            )
     elif nets["vae"] is None:
         notes["vae"] = "no --vae network given (--vae-model none)"
     return nets, used_cache, notes

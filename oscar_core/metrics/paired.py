@@ -16,8 +16,9 @@ import numpy as np
 __all__ = ["paired_bootstrap_interval", "paired_difference"]
 
 
-def paired_bootstrap_interval(diff, resamples: int = 2000, seed: int = 0, level: float = 0.95,
-                              rng: np.random.Generator | None = None) -> tuple[float, float]:
+def paired_bootstrap_interval(
+    diff, resamples: int = 2000, seed: int = 0, level: float = 0.95, rng: np.random.Generator | None = None
+) -> tuple[float, float]:
     """Percentile-bootstrap interval of the mean of ``diff`` (N,) paired differences.
 
     Non-finite entries are left out (a metric undefined on a clip); (NaN, NaN) when none is left.
@@ -38,8 +39,9 @@ def paired_bootstrap_interval(diff, resamples: int = 2000, seed: int = 0, level:
     return float(np.percentile(means, tail)), float(np.percentile(means, 100 - tail))
 
 
-def paired_difference(row: dict, reference: dict, metric: str, resamples: int = 2000, seed: int = 0,
-                      level: float = 0.95) -> dict:
+def paired_difference(
+    row: dict, reference: dict, metric: str, resamples: int = 2000, seed: int = 0, level: float = 0.95
+) -> dict:
     """``row − reference`` for ``metric`` over the clips both have a finite value for.
 
     row, reference: clip id → per-clip metrics (dicts holding ``metric``). Returns

@@ -56,8 +56,10 @@ def _matplotlib():
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
     except ImportError:
-        raise ImportError("oscar's evaluation plots need matplotlib, which is not installed; "
-                          "install it with: pip install \"oscar-wm[plots]\"") from None
+        raise ImportError(
+            "oscar's evaluation plots need matplotlib, which is not installed; "
+            'install it with: pip install "oscar-wm[plots]"'
+        ) from None
     return Figure, FigureCanvasAgg
 
 
@@ -76,9 +78,17 @@ def descending_ranks(scores) -> np.ndarray:
     return len(s) + 1 - average_ranks(s)
 
 
-def success_scatter_figure(real, wm, *, names=None, title: str | None = None, figsize=SCATTER_SIZE,
-                           dpi: int = DPI, xlabel: str = "real success rate",
-                           ylabel: str = "world-model success rate"):
+def success_scatter_figure(
+    real,
+    wm,
+    *,
+    names=None,
+    title: str | None = None,
+    figsize=SCATTER_SIZE,
+    dpi: int = DPI,
+    xlabel: str = "real success rate",
+    ylabel: str = "world-model success rate",
+):
     """A Figure: world-model against real success rate per policy, with the identity line.
 
     ``real``, ``wm``: per-policy success rates in [0, 1], both mappings
@@ -92,8 +102,7 @@ def success_scatter_figure(real, wm, *, names=None, title: str | None = None, fi
                 raise MetricInputError(side, n, "a success rate in [0, 1]", v)
     fig = new_figure(figsize, dpi)
     ax = fig.add_subplot(1, 1, 1)
-    ax.plot([0.0, 1.0], [0.0, 1.0], linestyle="--", color="0.6", linewidth=1.0, zorder=1, gid="identity",
-            label="y = x")
+    ax.plot([0.0, 1.0], [0.0, 1.0], linestyle="--", color="0.6", linewidth=1.0, zorder=1, gid="identity", label="y = x")
     ax.scatter(r, w, s=36, color="tab:blue", edgecolor="white", linewidth=0.6, zorder=3, gid="points")
     pad = 0.04
     ax.set_xlim(-pad, 1.0 + pad)
@@ -105,8 +114,10 @@ def success_scatter_figure(real, wm, *, names=None, title: str | None = None, fi
     if title:
         ax.set_title(title, fontsize=10)
     fig.subplots_adjust(left=0.14, right=0.95, bottom=0.11, top=0.92)
-    labels = [ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=8, gid=f"label:{name}",
-                          zorder=4) for name, x, y in zip(order, r, w)]
+    labels = [
+        ax.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=8, gid=f"label:{name}", zorder=4)
+        for name, x, y in zip(order, r, w)
+    ]
     place_labels(fig, ax, labels)
     return fig
 
@@ -114,8 +125,11 @@ def success_scatter_figure(real, wm, *, names=None, title: str | None = None, fi
 #: Offsets (points) and alignment tried for a point's label, in order: right-above, right-below, left-above,
 #: left-below, then further up and down on both sides.
 _LABEL_SLOTS = [((4, 4), "left"), ((4, -11), "left"), ((-4, 4), "right"), ((-4, -11), "right")] + [
-    ((dx, dy), ha) for k in range(1, 12) for dy in (4 + 10 * k, -11 - 10 * k)
-    for dx, ha in (((4, "left"), (-4, "right")))]
+    ((dx, dy), ha)
+    for k in range(1, 12)
+    for dy in (4 + 10 * k, -11 - 10 * k)
+    for dx, ha in (((4, "left"), (-4, "right")))
+]
 
 
 def place_labels(fig, ax, labels) -> None:
@@ -130,7 +144,7 @@ def place_labels(fig, ax, labels) -> None:
             label.xyann = (dx, dy)
             label.set_horizontalalignment(ha)
             box = label.get_window_extent(renderer)
-            fits = (box.x0 >= inside.x0 and box.x1 <= inside.x1 and box.y0 >= inside.y0 and box.y1 <= inside.y1)
+            fits = box.x0 >= inside.x0 and box.x1 <= inside.x1 and box.y0 >= inside.y0 and box.y1 <= inside.y1
             if fits and not any(box.overlaps(other) for other in placed):
                 break
         else:
@@ -140,8 +154,16 @@ def place_labels(fig, ax, labels) -> None:
         placed.append(box)
 
 
-def rank_slope_figure(real_score, wm_score, *, names=None, labels: Sequence[str] = ("real", "world model"),
-                      title: str | None = None, figsize=SLOPE_SIZE, dpi: int = DPI):
+def rank_slope_figure(
+    real_score,
+    wm_score,
+    *,
+    names=None,
+    labels: Sequence[str] = ("real", "world model"),
+    title: str | None = None,
+    figsize=SLOPE_SIZE,
+    dpi: int = DPI,
+):
     """A Figure: the two rankings side by side, one line per policy from its real to its world-model rank.
 
     ``real_score``, ``wm_score``: per-policy ranking scores, higher = better
@@ -150,8 +172,9 @@ def rank_slope_figure(real_score, wm_score, *, names=None, labels: Sequence[str]
     is ``x = [0, 1]``, ``y = [real rank, wm rank]`` (gid ``"rank:<policy>"``);
     "name (rank)" is written at both ends (gids ``"label:<policy>:real"`` / ``":wm"``).
     """
-    order, r, w = align_policy_values(real_score, wm_score, names=names, real_name="real_score",
-                                      wm_name="wm_score", min_policies=1)
+    order, r, w = align_policy_values(
+        real_score, wm_score, names=names, real_name="real_score", wm_name="wm_score", min_policies=1
+    )
     rr, wr = descending_ranks(r), descending_ranks(w)
     n = len(order)
     fig = new_figure(figsize, dpi)
@@ -167,12 +190,31 @@ def rank_slope_figure(real_score, wm_score, *, names=None, labels: Sequence[str]
 
     dy_real, dy_wm = stacked(rr), stacked(wr)
     for k, name in enumerate(order):
-        ax.plot([0.0, 1.0], [rr[k], wr[k]], marker="o", color=colors[k], linewidth=1.8, markersize=5,
-                gid=f"rank:{name}")
-        ax.annotate(f"{name} ({rr[k]:g})", (0.0, rr[k]), xytext=(-8, dy_real[k]), textcoords="offset points",
-                    ha="right", va="center", fontsize=8, color=colors[k], gid=f"label:{name}:real")
-        ax.annotate(f"({wr[k]:g}) {name}", (1.0, wr[k]), xytext=(8, dy_wm[k]), textcoords="offset points",
-                    ha="left", va="center", fontsize=8, color=colors[k], gid=f"label:{name}:wm")
+        ax.plot(
+            [0.0, 1.0], [rr[k], wr[k]], marker="o", color=colors[k], linewidth=1.8, markersize=5, gid=f"rank:{name}"
+        )
+        ax.annotate(
+            f"{name} ({rr[k]:g})",
+            (0.0, rr[k]),
+            xytext=(-8, dy_real[k]),
+            textcoords="offset points",
+            ha="right",
+            va="center",
+            fontsize=8,
+            color=colors[k],
+            gid=f"label:{name}:real",
+        )
+        ax.annotate(
+            f"({wr[k]:g}) {name}",
+            (1.0, wr[k]),
+            xytext=(8, dy_wm[k]),
+            textcoords="offset points",
+            ha="left",
+            va="center",
+            fontsize=8,
+            color=colors[k],
+            gid=f"label:{name}:wm",
+        )
     ax.set_xlim(-0.05, 1.05)
     ax.set_ylim(n + 0.5, 0.5)  # rank 1 on top
     ax.set_xticks([0.0, 1.0], list(labels))
@@ -212,8 +254,7 @@ def save_figure(fig, path, *, extra_formats: Sequence[str] = ()) -> Path:
             targets.append((sibling, fmt))
     for target, fmt in targets:
         with atomic_output(target) as tmp:
-            fig.savefig(tmp, format=fmt, dpi=fig.dpi,
-                        metadata={"Software": None} if fmt == "png" else None)
+            fig.savefig(tmp, format=fmt, dpi=fig.dpi, metadata={"Software": None} if fmt == "png" else None)
     return path
 
 
@@ -247,12 +288,17 @@ def plot_comparison(comparison, out_dir, *, formats: Sequence[str] = ("png",)) -
         return "n/a" if v is None or not np.isfinite(v) else format(v, fmt)
 
     by = c.ranked_by
-    scatter = success_scatter_figure(dict(zip(c.policies, c.real_success)), dict(zip(c.policies, c.wm_success)),
-                                     title=f"Pearson r {num(c.pearson_r, '+.3f')}   "
-                                           f"SISR\u0394 {num(c.sisr_delta_pp, '.2f')} pp")
-    slope = rank_slope_figure(dict(zip(c.policies, c.real_score)), dict(zip(c.policies, c.wm_score)),
-                              labels=(f"real\n({by['real']})", f"world model\n({by['wm']})"),
-                              title=f"Spearman \u03c1 {num(c.spearman_rho, '+.3f')}   MMRV {num(c.mmrv, '.3f')}")
+    scatter = success_scatter_figure(
+        dict(zip(c.policies, c.real_success)),
+        dict(zip(c.policies, c.wm_success)),
+        title=f"Pearson r {num(c.pearson_r, '+.3f')}   SISR\u0394 {num(c.sisr_delta_pp, '.2f')} pp",
+    )
+    slope = rank_slope_figure(
+        dict(zip(c.policies, c.real_score)),
+        dict(zip(c.policies, c.wm_score)),
+        labels=(f"real\n({by['real']})", f"world model\n({by['wm']})"),
+        title=f"Spearman \u03c1 {num(c.spearman_rho, '+.3f')}   MMRV {num(c.mmrv, '.3f')}",
+    )
     out = {}
     for stem, fig in (("success_scatter", scatter), ("rank_slope", slope)):
         first = out_dir / f"{stem}.{formats[0]}"

@@ -288,26 +288,46 @@ class PolicyComparison:
         n = len(self.policies)
         real_rank = n + 1 - average_ranks(self.real_score)
         wm_rank = n + 1 - average_ranks(self.wm_score)
-        return nan_to_none({
-            "n_policies": n,
-            "ranked_by": dict(self.ranked_by),
-            "metrics": {"mmrv": self.mmrv, "mmrv_simpler": self.mmrv_simpler, "spearman_rho": self.spearman_rho,
-                        "pearson_r": self.pearson_r, "sisr_delta_pp": self.sisr_delta_pp},
-            "policies": [
-                {"policy": p, "real_success": float(self.real_success[k]), "wm_success": float(self.wm_success[k]),
-                 "real_score": float(self.real_score[k]), "wm_score": float(self.wm_score[k]),
-                 "real_rank": float(real_rank[k]), "wm_rank": float(wm_rank[k])}
-                for k, p in enumerate(self.policies)
-            ],
-        })
+        return nan_to_none(
+            {
+                "n_policies": n,
+                "ranked_by": dict(self.ranked_by),
+                "metrics": {
+                    "mmrv": self.mmrv,
+                    "mmrv_simpler": self.mmrv_simpler,
+                    "spearman_rho": self.spearman_rho,
+                    "pearson_r": self.pearson_r,
+                    "sisr_delta_pp": self.sisr_delta_pp,
+                },
+                "policies": [
+                    {
+                        "policy": p,
+                        "real_success": float(self.real_success[k]),
+                        "wm_success": float(self.wm_success[k]),
+                        "real_score": float(self.real_score[k]),
+                        "wm_score": float(self.wm_score[k]),
+                        "real_rank": float(real_rank[k]),
+                        "wm_rank": float(wm_rank[k]),
+                    }
+                    for k, p in enumerate(self.policies)
+                ],
+            }
+        )
 
     def format_table(self) -> str:
         """Human-readable table: one row per policy (rank 1 = best), then the metrics."""
         d = self.to_dict()
         header = ("policy", "real SR", "wm SR", "real score", "wm score", "real rank", "wm rank")
         rows = [header] + [
-            (p["policy"], f"{p['real_success']:.3f}", f"{p['wm_success']:.3f}", f"{p['real_score']:.4g}",
-             f"{p['wm_score']:.4g}", f"{p['real_rank']:g}", f"{p['wm_rank']:g}")
+            (
+                p["policy"],
+                f"{p['real_success']:.3f}",
+                f"{p['wm_success']:.3f}",
+                f"{p['real_score']:.4g}",
+                f"{p['wm_score']:.4g}",
+                f"{p['real_rank']:g}",
+                f"{p['wm_rank']:g}",
+            )
             for p in sorted(d["policies"], key=lambda p: p["real_rank"])
         ]
         widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
@@ -319,15 +339,25 @@ class PolicyComparison:
 
         lines.append("")
         lines.append(f"ranked by: real={self.ranked_by['real']}, wm={self.ranked_by['wm']}")
-        lines.append(f"MMRV (rank, range [0, {mmrv_rank_max(len(self.policies)):.3f}]) {f(m['mmrv'], '.3f')}   "
-                     f"MMRV (SIMPLER, SR gap) {f(m['mmrv_simpler'], '.3f')}   "
-                     f"Spearman rho {f(m['spearman_rho'], '+.3f')}   Pearson r {f(m['pearson_r'], '+.3f')}   "
-                     f"SISR_delta {f(m['sisr_delta_pp'], '.2f')} pp")
+        lines.append(
+            f"MMRV (rank, range [0, {mmrv_rank_max(len(self.policies)):.3f}]) {f(m['mmrv'], '.3f')}   "
+            f"MMRV (SIMPLER, SR gap) {f(m['mmrv_simpler'], '.3f')}   "
+            f"Spearman rho {f(m['spearman_rho'], '+.3f')}   Pearson r {f(m['pearson_r'], '+.3f')}   "
+            f"SISR_delta {f(m['sisr_delta_pp'], '.2f')} pp"
+        )
         return "\n".join(lines)
 
 
-def compare_policies(real_success, wm_success, *, real_score=None, wm_score=None, names=None,
-                     real_score_label: str = "score", wm_score_label: str = "score") -> PolicyComparison:
+def compare_policies(
+    real_success,
+    wm_success,
+    *,
+    real_score=None,
+    wm_score=None,
+    names=None,
+    real_score_label: str = "score",
+    wm_score_label: str = "score",
+) -> PolicyComparison:
     """Every rank-fidelity metric of the paper's policy-evaluation table in one call.
 
     ``real_success``, ``wm_success``: per-policy success rates in [0, 1]
@@ -338,8 +368,9 @@ def compare_policies(real_success, wm_success, *, real_score=None, wm_score=None
     scores; Pearson r, SISR_Δ and SIMPLER's MMRV use the success rates.
     ``*_score_label`` names the given scores in ``ranked_by`` (e.g. ``"bradley_terry_elo"``).
     """
-    order, rs, ws = align_policy_values(real_success, wm_success, names=names,
-                                        real_name="real_success", wm_name="wm_success")
+    order, rs, ws = align_policy_values(
+        real_success, wm_success, names=names, real_name="real_success", wm_name="wm_success"
+    )
     _check_rates(rs, order, "real_success")
     _check_rates(ws, order, "wm_success")
     keyed = isinstance(real_success, Mapping)
@@ -348,16 +379,21 @@ def compare_policies(real_success, wm_success, *, real_score=None, wm_score=None
         if given is None:
             return fallback, "success_rate"
         ref = dict(zip(order, fallback)) if keyed else fallback
-        _, _, vals = align_policy_values(ref, given, names=order, real_name=f"{side}_success",
-                                         wm_name=f"{side}_score")
+        _, _, vals = align_policy_values(ref, given, names=order, real_name=f"{side}_success", wm_name=f"{side}_score")
         return vals, label
 
     r_score, r_by = scores(real_score, rs, "real", real_score_label)
     w_score, w_by = scores(wm_score, ws, "wm", wm_score_label)
     return PolicyComparison(
-        policies=order, real_success=rs, wm_success=ws, real_score=r_score, wm_score=w_score,
+        policies=order,
+        real_success=rs,
+        wm_success=ws,
+        real_score=r_score,
+        wm_score=w_score,
         ranked_by={"real": r_by, "wm": w_by},
-        mmrv=mmrv_rank(r_score, w_score), mmrv_simpler=mmrv_simpler(rs, ws),
-        spearman_rho=spearman_rho(r_score, w_score), pearson_r=pearson_r(rs, ws),
+        mmrv=mmrv_rank(r_score, w_score),
+        mmrv_simpler=mmrv_simpler(rs, ws),
+        spearman_rho=spearman_rho(r_score, w_score),
+        pearson_r=pearson_r(rs, ws),
         sisr_delta_pp=sisr_delta(rs, ws),
     )

@@ -38,8 +38,10 @@ def cell_rates(reports: list[dict]) -> tuple[list[str], list[str], np.ndarray, n
         for c in rep["cells"]:
             d = cells.setdefault((c["session"], c["policy"]), {"real": c["real_success"], "wm": []})
             if d["real"] != c["real_success"]:
-                raise ValueError(f"cell {c['cell']}: real success {c['real_success']} in one report and {d['real']} "
-                                 "in another; expected runs over the same manifest")
+                raise ValueError(
+                    f"cell {c['cell']}: real success {c['real_success']} in one report and {d['real']} "
+                    "in another; expected runs over the same manifest"
+                )
             if c.get("wm_success") is not None:
                 d["wm"].append(float(c["wm_success"]))
     sessions = sorted({s for s, _ in cells})
@@ -83,9 +85,12 @@ def read_reports(folders) -> list[dict]:
         except (OSError, ValueError) as exc:
             raise MetricInputError(str(path), "JSON", "an `oscar eval run` report", f"unreadable ({exc})") from None
         if not isinstance(report, dict) or not isinstance(report.get("cells"), list):
-            raise MetricInputError(str(path), "cells", "a list of judged cells", type(report.get("cells", None)
-                                                                                      if isinstance(report, dict)
-                                                                                      else report).__name__)
+            raise MetricInputError(
+                str(path),
+                "cells",
+                "a list of judged cells",
+                type(report.get("cells", None) if isinstance(report, dict) else report).__name__,
+            )
         reports.append(report)
     return reports
 
@@ -100,19 +105,30 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0) -> dict:
     try:
         sessions, policies, real, wm = cell_rates(reports)
     except (KeyError, ValueError) as exc:
-        raise MetricInputError(", ".join(map(str, folders)), "cells", "runs over the same manifest's cells",
-                               str(exc)) from None
+        raise MetricInputError(
+            ", ".join(map(str, folders)), "cells", "runs over the same manifest's cells", str(exc)
+        ) from None
     judged = [[sum(c.get("wm_success") is not None for c in rep["cells"]), len(rep["cells"])] for rep in reports]
     r, w = np.nanmean(real, 0), np.nanmean(wm, 0)
     boot = session_bootstrap(real, wm, resamples, seed)
     ok = boot[np.isfinite(boot)]
-    return {"runs": [str(f) for f in folders], "sessions": len(sessions), "policies": policies,
-            "real_success": r.tolist(), "wm_success": w.tolist(), "spearman_rho": spearman_rho(r, w),
-            "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
-            "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
-            "pearson_r": pearson_r(r, w), "mmrv": mmrv_rank(r, w), "sisr_delta_pp": sisr_delta(r, w),
-            "judged": judged, "complete": all(j == n for j, n in judged),
-            "resamples": resamples, "seed": seed}
+    return {
+        "runs": [str(f) for f in folders],
+        "sessions": len(sessions),
+        "policies": policies,
+        "real_success": r.tolist(),
+        "wm_success": w.tolist(),
+        "spearman_rho": spearman_rho(r, w),
+        "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
+        "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
+        "pearson_r": pearson_r(r, w),
+        "mmrv": mmrv_rank(r, w),
+        "sisr_delta_pp": sisr_delta(r, w),
+        "judged": judged,
+        "complete": all(j == n for j, n in judged),
+        "resamples": resamples,
+        "seed": seed,
+    }
 
 
 if __name__ == "__main__":

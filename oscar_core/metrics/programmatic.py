@@ -57,8 +57,7 @@ def check_verdict_fields(answer) -> dict:
     binary, partial, reason = answer["binary"], answer["partial"], answer["reason"]
     if isinstance(binary, (bool, np.bool_)) or not isinstance(binary, (int, np.integer)) or binary not in (0, 1):
         raise ValueError(f"'binary': expected the integer 0 or 1, found {binary!r}")
-    if (isinstance(partial, (bool, np.bool_)) or not isinstance(partial, (int, np.integer))
-            or not 0 <= partial <= 100):
+    if isinstance(partial, (bool, np.bool_)) or not isinstance(partial, (int, np.integer)) or not 0 <= partial <= 100:
         raise ValueError(f"'partial': expected an integer in [0, 100], found {partial!r}")
     if not isinstance(reason, str) or not reason.strip():
         raise ValueError(f"'reason': expected a non-empty string, found {reason!r}")
@@ -76,21 +75,25 @@ class ProgrammaticJudge:
 
     kind = "programmatic"
 
-    def __init__(self, fn: Callable, *, name: str | None = None, version: str = "1",
-                 compare: Callable | None = None):
+    def __init__(self, fn: Callable, *, name: str | None = None, version: str = "1", compare: Callable | None = None):
         if not callable(fn):
             raise MetricInputError("fn", "type", "a function (video, clip) -> verdict", type(fn).__name__)
         if compare is not None and not callable(compare):
-            raise MetricInputError("compare", "type", "a function (video_a, video_b, pair) -> 'a'|'b'|'tie'",
-                                   type(compare).__name__)
+            raise MetricInputError(
+                "compare", "type", "a function (video_a, video_b, pair) -> 'a'|'b'|'tie'", type(compare).__name__
+            )
         self.fn, self.compare_fn = fn, compare
         self.name = name or f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
         self.version = str(version)
         self.model = f"programmatic:{self.name}"
 
     def describe(self) -> dict:
-        return {"kind": self.kind, "name": self.name, "version": self.version,
-                "compare": None if self.compare_fn is None else getattr(self.compare_fn, "__qualname__", "custom")}
+        return {
+            "kind": self.kind,
+            "name": self.name,
+            "version": self.version,
+            "compare": None if self.compare_fn is None else getattr(self.compare_fn, "__qualname__", "custom"),
+        }
 
     # ------------------------------------------------------------------ success
     def judge(self, clip: JudgeClip) -> SuccessVerdict:
@@ -105,8 +108,14 @@ class ProgrammaticJudge:
         return [self._judge(c) for c in clips]
 
     def _verdict(self, clip: JudgeClip, **kw) -> SuccessVerdict:
-        return SuccessVerdict(clip=clip.name, policy=clip.policy_name, session=clip.session,
-                              instruction=clip.instruction, model=self.model, **kw)
+        return SuccessVerdict(
+            clip=clip.name,
+            policy=clip.policy_name,
+            session=clip.session,
+            instruction=clip.instruction,
+            model=self.model,
+            **kw,
+        )
 
     def _judge(self, clip: JudgeClip) -> SuccessVerdict:
         try:
@@ -117,13 +126,19 @@ class ProgrammaticJudge:
         try:
             fields = check_verdict_fields(answer)
         except ValueError as exc:
-            return self._verdict(clip, status="malformed", raw=repr(answer)[:2000], error=f"malformed answer: {exc}",
-                                 frames_total=len(video))
+            return self._verdict(
+                clip,
+                status="malformed",
+                raw=repr(answer)[:2000],
+                error=f"malformed answer: {exc}",
+                frames_total=len(video),
+            )
         return self._verdict(clip, status="ok", frames_total=len(video), frames_sent=len(video), **fields)
 
     # ------------------------------------------------------------------ pairwise
-    def compare_many(self, pairs: Iterable[JudgePair], *, progress: bool = False,
-                     verdicts: Sequence[SuccessVerdict] | None = None) -> list[PairwiseVerdict]:
+    def compare_many(
+        self, pairs: Iterable[JudgePair], *, progress: bool = False, verdicts: Sequence[SuccessVerdict] | None = None
+    ) -> list[PairwiseVerdict]:
         """One preference per pair, in input order.
 
         Default rule: the clip with the higher ``(binary, partial)`` wins, equal
@@ -139,22 +154,39 @@ class ProgrammaticJudge:
         known = {v.clip: v for v in (verdicts or ())}
         out = []
         for pair in pairs:
-            base = dict(pair=pair.id, a=pair.a.policy_name, b=pair.b.policy_name, clip_a=pair.a.name,
-                        clip_b=pair.b.name, instruction=pair.a.instruction, swapped=False, model=self.model)
+            base = dict(
+                pair=pair.id,
+                a=pair.a.policy_name,
+                b=pair.b.policy_name,
+                clip_a=pair.a.name,
+                clip_b=pair.b.name,
+                instruction=pair.a.instruction,
+                swapped=False,
+                model=self.model,
+            )
             if self.compare_fn is not None:
                 try:
-                    winner = self.compare_fn(_load_frames(pair.a.video, pair.a.name),
-                                             _load_frames(pair.b.video, pair.b.name), pair)
+                    winner = self.compare_fn(
+                        _load_frames(pair.a.video, pair.a.name), _load_frames(pair.b.video, pair.b.name), pair
+                    )
                 except Exception as exc:  # noqa: BLE001
                     out.append(PairwiseVerdict(status="error", error=f"{type(exc).__name__}: {exc}", **base))
                     continue
                 if winner not in ("a", "b", "tie"):
-                    out.append(PairwiseVerdict(status="malformed", raw=repr(winner)[:200],
-                                               error=f"malformed answer: expected 'a', 'b' or 'tie', found {winner!r}",
-                                               **base))
+                    out.append(
+                        PairwiseVerdict(
+                            status="malformed",
+                            raw=repr(winner)[:200],
+                            error=f"malformed answer: expected 'a', 'b' or 'tie', found {winner!r}",
+                            **base,
+                        )
+                    )
                     continue
-                out.append(PairwiseVerdict(status="ok", winner=winner, model_winner=winner,
-                                           reason="programmatic comparison", **base))
+                out.append(
+                    PairwiseVerdict(
+                        status="ok", winner=winner, model_winner=winner, reason="programmatic comparison", **base
+                    )
+                )
                 continue
             va = known.get(pair.a.name) or self._judge(pair.a)
             vb = known.get(pair.b.name) or self._judge(pair.b)
@@ -165,6 +197,9 @@ class ProgrammaticJudge:
                 continue
             sa, sb = (va.binary, va.partial), (vb.binary, vb.partial)
             winner = "a" if sa > sb else "b" if sb > sa else "tie"
-            out.append(PairwiseVerdict(status="ok", winner=winner, model_winner=winner,
-                                       reason=f"(binary, partial) {sa} vs {sb}", **base))
+            out.append(
+                PairwiseVerdict(
+                    status="ok", winner=winner, model_winner=winner, reason=f"(binary, partial) {sa} vs {sb}", **base
+                )
+            )
         return out

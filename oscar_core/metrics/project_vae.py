@@ -21,15 +21,18 @@ __all__ = ["DEFAULT_VAE_MODEL", "load_project_vae"]
 DEFAULT_VAE_MODEL = "oscar-2b"
 
 
-def load_project_vae(spec: str = DEFAULT_VAE_MODEL, revision: str | None = None, *, device="cpu",
-                     download: bool = False) -> Callable:
+def load_project_vae(
+    spec: str = DEFAULT_VAE_MODEL, revision: str | None = None, *, device="cpu", download: bool = False
+) -> Callable:
     """The VAE encoder of checkpoint ``spec`` (see the module docstring); raises if it is not available."""
     import oscar_zoo
 
     from ..model.vae import VideoVAE, load_vae_folder
 
     folder = Path(spec) if Path(spec).is_dir() else oscar_zoo.pull(spec, revision, local_files_only=not download)
-    vae = load_vae_folder(folder / "vae")  # strict, and no hint about `accelerate` (diffusers' from_pretrained logs one)
+    vae = load_vae_folder(
+        folder / "vae"
+    )  # strict, and no hint about `accelerate` (diffusers' from_pretrained logs one)
     wrapped = VideoVAE(vae, device=device)
 
     def encode(x):

@@ -35,8 +35,13 @@ TEMPLATES = Path(__file__).parent.parent / "templates"
 def _environment():
     import jinja2
 
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATES)), autoescape=True,
-                             undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(str(TEMPLATES)),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
     env.filters["num"] = _num
     env.filters["tojson_attr"] = lambda v: json.dumps(v)
     return env
@@ -102,8 +107,10 @@ def browser_video(source, dest, *, fps: float | None = None, min_height: int = 1
         frames = source
     frames = np.asarray(frames, dtype=np.uint8)
     if frames.ndim != 4 or frames.shape[-1] != 3 or len(frames) == 0:
-        raise ValueError(f"{source if not isinstance(source, np.ndarray) else 'frames'}: expected (T, H, W, 3) "
-                         f"frames, found shape {frames.shape}")
+        raise ValueError(
+            f"{source if not isinstance(source, np.ndarray) else 'frames'}: expected (T, H, W, 3) "
+            f"frames, found shape {frames.shape}"
+        )
     k = max(1, -(-min_height // frames.shape[1]))
     if k > 1:
         frames = frames.repeat(k, axis=1).repeat(k, axis=2)

@@ -94,6 +94,7 @@ __all__ = [
 #: Per-frame PSNR cap in dB (see :func:`psnr`): identical frames score this instead of inf.
 PSNR_CAP_DB = 100.0
 
+
 # --------------------------------------------------------------------------- #
 # PSNR and SSIM
 # --------------------------------------------------------------------------- #
@@ -156,7 +157,7 @@ def ssim(pred, gt, *, n_frames: int | None = DEFAULT_FRAMES) -> np.ndarray:
     if H < 11 or W < 11:
         raise MetricInputError("pred", "frame size", "at least 11x11 pixels for the SSIM window", f"{W}x{H}")
     g = _gaussian_window().reshape(-1, 1)
-    c1, c2 = 0.01 ** 2, 0.03 ** 2  # data range 1 after scaling to [0, 1]
+    c1, c2 = 0.01**2, 0.03**2  # data range 1 after scaling to [0, 1]
 
     def blur(img):  # separable Gaussian; the 5-pixel border it touches is cropped, so the border mode is moot
         return cv2.sepFilter2D(img, cv2.CV_64F, g, g, borderType=cv2.BORDER_REFLECT)[5:-5, 5:-5]
@@ -181,13 +182,12 @@ def _lpips_pairs(a: np.ndarray, b: np.ndarray, net: Callable, batch_size: int, d
     out = np.empty(len(a))
     with torch.no_grad():
         for s in range(0, len(a), batch_size):
-            x, y = _to_tensor_nchw(a[s:s + batch_size], device), _to_tensor_nchw(b[s:s + batch_size], device)
-            out[s:s + batch_size] = _flat(net(x, y), len(x), "lpips_net")
+            x, y = _to_tensor_nchw(a[s : s + batch_size], device), _to_tensor_nchw(b[s : s + batch_size], device)
+            out[s : s + batch_size] = _flat(net(x, y), len(x), "lpips_net")
     return out
 
 
-def lpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 16,
-          device="cpu") -> np.ndarray:
+def lpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 16, device="cpu") -> np.ndarray:
     """LPIPS distance per frame (Zhang et al. 2018), with the LPIPS network given by the caller.
 
     ``net(x, y)`` receives two float32 tensors (B, 3, H, W) in [-1, 1] (RGB, no
@@ -202,8 +202,7 @@ def lpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: i
     return _lpips_pairs(pred, gt, _callable(net, "lpips_net", device=device), batch_size, device)
 
 
-def tlpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 16,
-           device="cpu") -> np.ndarray:
+def tlpips(pred, gt, net, *, n_frames: int | None = DEFAULT_FRAMES, batch_size: int = 16, device="cpu") -> np.ndarray:
     """Temporal LPIPS per step, as TecoGAN defines tLP (Chu et al. 2020, "Learning temporal
     coherence via self-supervision for GAN-based video generation").
 
@@ -250,8 +249,9 @@ def latent_l2(pred, gt, encoder, *, n_frames: int | None = DEFAULT_FRAMES, devic
                 raise MetricInputError("vae", "output", "a latent tensor", type(out).__name__)
             z.append(out.detach().double().cpu())
     if z[0].shape != z[1].shape:
-        raise MetricInputError("vae", "output shape", f"the same latent shape for both videos {tuple(z[1].shape)}",
-                               f"{tuple(z[0].shape)}")
+        raise MetricInputError(
+            "vae", "output shape", f"the same latent shape for both videos {tuple(z[1].shape)}", f"{tuple(z[0].shape)}"
+        )
     return float(((z[0] - z[1]) ** 2).mean())
 
 
@@ -273,6 +273,7 @@ class Clip:
 
     def load(self, max_frames: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(pred, gt) arrays; paths are read (at most ``max_frames`` frames)."""
+
         def get(v):
             return load_video(v, max_frames=max_frames) if isinstance(v, (str, os.PathLike)) else v
 
@@ -313,9 +314,15 @@ class VideoReport:
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (NaN / inf → null)."""
-        return nan_to_none({"n_frames": self.n_frames, "aggregate": self.aggregate, "clips": self.clips,
-                            "per_embodiment": self.per_embodiment,
-                            "mean_over_embodiments": self.mean_over_embodiments})
+        return nan_to_none(
+            {
+                "n_frames": self.n_frames,
+                "aggregate": self.aggregate,
+                "clips": self.clips,
+                "per_embodiment": self.per_embodiment,
+                "mean_over_embodiments": self.mean_over_embodiments,
+            }
+        )
 
     def format_table(self) -> str:
         """Per-clip rows, then per-embodiment means and the overall means."""
@@ -329,15 +336,14 @@ class VideoReport:
                 return "inf"
             return f"{v:.2f}" if m in ("psnr", "fvd", "fid") else f"{v:.4f}"
 
-        rows = [header] + [(c["name"], c.get("embodiment") or "-", *(fmt(c.get(m), m) for m in metrics))
-                           for c in self.clips]
+        rows = [header] + [
+            (c["name"], c.get("embodiment") or "-", *(fmt(c.get(m), m) for m in metrics)) for c in self.clips
+        ]
         for tag, res in self.per_embodiment.items():
             rows.append((f"[mean] {tag} ({res['clips']})", tag, *(fmt(res.get(m), m) for m in metrics)))
         if self.mean_over_embodiments:
-            rows.append(("[mean over embodiments]", "-", *(fmt(self.mean_over_embodiments.get(m), m)
-                                                             for m in metrics)))
-        rows.append((f"[mean over clips] ({len(self.clips)})", "-", *(fmt(self.aggregate.get(m), m)
-                                                                      for m in metrics)))
+            rows.append(("[mean over embodiments]", "-", *(fmt(self.mean_over_embodiments.get(m), m) for m in metrics)))
+        rows.append((f"[mean over clips] ({len(self.clips)})", "-", *(fmt(self.aggregate.get(m), m) for m in metrics)))
         widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
         lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
         extra = [f"{m.upper()} {fmt(self.aggregate[m], m)}" for m in SET_METRICS if self.aggregate.get(m) is not None]
@@ -346,9 +352,18 @@ class VideoReport:
         return "\n".join(lines)
 
 
-def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRAMES, lpips_net=None, vae=None,
-                    fvd_extractor=None, fid_extractor=None, device="cpu", fvd_resolution: int | None = None,
-                    progress: bool = False) -> VideoReport:
+def evaluate_videos(
+    clips: Sequence[Clip],
+    *,
+    n_frames: int | None = DEFAULT_FRAMES,
+    lpips_net=None,
+    vae=None,
+    fvd_extractor=None,
+    fid_extractor=None,
+    device="cpu",
+    fvd_resolution: int | None = None,
+    progress: bool = False,
+) -> VideoReport:
     """Every video metric for a list of clips.
 
     Always computes PSNR and SSIM; LPIPS and tLPIPS when ``lpips_net`` is given
@@ -370,8 +385,9 @@ def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRA
     fv = _callable(fvd_extractor, "fvd_extractor", i3d_kwargs, device) if fvd_extractor is not None else None
     fi = _callable(fid_extractor, "fid_extractor", INCEPTION_CALL_KWARGS, device) if fid_extractor is not None else None
     if fv is not None and len(clips) < 2:
-        raise MetricInputError("clips", "clips", "at least 2 clips for FVD (a covariance needs 2 samples)",
-                               f"{len(clips)}")
+        raise MetricInputError(
+            "clips", "clips", "at least 2 clips for FVD (a covariance needs 2 samples)", f"{len(clips)}"
+        )
     iterator = clips
     if progress and progress_bars_enabled():
         from tqdm import tqdm
@@ -392,10 +408,16 @@ def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRA
         if enc is not None:
             row["latent_l2"] = latent_l2(pred, gt, enc, n_frames=None, device=device)
         if fv is not None:
-            fvd_feats[0].append(video_features([pred], fv, n_frames=None, resolution=fvd_resolution, device=device,
-                                               source=f"{clip.name}: pred"))
-            fvd_feats[1].append(video_features([gt], fv, n_frames=None, resolution=fvd_resolution, device=device,
-                                               source=f"{clip.name}: gt"))
+            fvd_feats[0].append(
+                video_features(
+                    [pred], fv, n_frames=None, resolution=fvd_resolution, device=device, source=f"{clip.name}: pred"
+                )
+            )
+            fvd_feats[1].append(
+                video_features(
+                    [gt], fv, n_frames=None, resolution=fvd_resolution, device=device, source=f"{clip.name}: gt"
+                )
+            )
         if fi is not None:
             fid_feats[0].append(frame_features([pred], fi, n_frames=None, device=device))
             fid_feats[1].append(frame_features([gt], fi, n_frames=None, device=device))
@@ -415,9 +437,8 @@ def evaluate_videos(clips: Sequence[Clip], *, n_frames: int | None = DEFAULT_FRA
             per_emb[tag] = {"clips": len(sel), **{m: _mean(r.get(m) for r in sel) for m in metrics}}
         untagged = [r for r in rows if r["embodiment"] is None]
         if untagged:
-            per_emb["(untagged)"] = {"clips": len(untagged), **{m: _mean(r.get(m) for r in untagged)
-                                                                for m in metrics}}
+            per_emb["(untagged)"] = {"clips": len(untagged), **{m: _mean(r.get(m) for r in untagged) for m in metrics}}
         macro = {m: _mean(v.get(m) for v in per_emb.values()) for m in metrics}
-    return VideoReport(n_frames=n_frames, clips=rows, aggregate=aggregate, per_embodiment=per_emb,
-                       mean_over_embodiments=macro)
-
+    return VideoReport(
+        n_frames=n_frames, clips=rows, aggregate=aggregate, per_embodiment=per_emb, mean_over_embodiments=macro
+    )

@@ -46,8 +46,17 @@ from pathlib import Path
 from .._util.atomic import atomic_write_bytes
 from .common import MetricInputError
 
-__all__ = ["WeightFile", "WEIGHTS", "WeightHashError", "weights_cache_dir", "pull_weights", "weight_path",
-           "cached_networks", "LOCK_NAME", "GROUPS"]
+__all__ = [
+    "WeightFile",
+    "WEIGHTS",
+    "WeightHashError",
+    "weights_cache_dir",
+    "pull_weights",
+    "weight_path",
+    "cached_networks",
+    "LOCK_NAME",
+    "GROUPS",
+]
 
 LOCK_NAME = "weights.lock.json"
 _LPIPS_COMMIT = "082bb24f84c091ea94de2867d34c4544f68e0963"
@@ -72,26 +81,59 @@ class WeightFile:
         return "sha256 prefix" if self.sha256_prefix else "trust on first use"
 
 
-WEIGHTS: dict[str, WeightFile] = {w.name: w for w in (
-    WeightFile("i3d", "https://www.dropbox.com/s/ge9e5ujwgetktms/i3d_torchscript.pt?dl=1", "i3d_torchscript.pt",
-               "torchscript", "StyleGAN-V src/metrics/frechet_video_distance.py (universome/stylegan-v@3fecd69)"),
-    WeightFile("inception",
-               "https://nvlabs-fi-cdn.nvidia.com/stylegan2-ada-pytorch/pretrained/metrics/inception-2015-12-05.pt",
-               "inception-2015-12-05.pt", "torchscript",
-               "StyleGAN2-ADA metrics/frechet_inception_distance.py (TorchScript of the TF 2015-12-05 Inception)"),
-    WeightFile("lpips-alex", f"https://raw.githubusercontent.com/richzhang/PerceptualSimilarity/{_LPIPS_COMMIT}/"
-                             "lpips/weights/v0.1/alex.pth", "lpips_v0.1_alex.pth", "state_dict",
-               f"richzhang/PerceptualSimilarity@{_LPIPS_COMMIT[:7]} lpips/weights/v0.1/alex.pth (6009 bytes)",
-               sha256="df73285e35b22355a2df87cdb6b70b343713b667eddbda73e1977e0c860835c0"),
-    WeightFile("lpips-vgg", f"https://raw.githubusercontent.com/richzhang/PerceptualSimilarity/{_LPIPS_COMMIT}/"
-                            "lpips/weights/v0.1/vgg.pth", "lpips_v0.1_vgg.pth", "state_dict",
-               f"richzhang/PerceptualSimilarity@{_LPIPS_COMMIT[:7]} lpips/weights/v0.1/vgg.pth (7289 bytes)",
-               sha256="a78928a0af1e5f0fcb1f3b9e8f8c3a2a5a3de244d830ad5c1feddc79b8432868"),
-    WeightFile("alexnet", "https://download.pytorch.org/models/alexnet-owt-7be5be79.pth", "alexnet-owt-7be5be79.pth",
-               "state_dict", "torchvision AlexNet_Weights.IMAGENET1K_V1 (LPIPS's trunk)", sha256_prefix="7be5be79"),
-    WeightFile("vgg16", "https://download.pytorch.org/models/vgg16-397923af.pth", "vgg16-397923af.pth",
-               "state_dict", "torchvision VGG16_Weights.IMAGENET1K_V1 (LPIPS's VGG trunk)", sha256_prefix="397923af"),
-)}
+WEIGHTS: dict[str, WeightFile] = {
+    w.name: w
+    for w in (
+        WeightFile(
+            "i3d",
+            "https://www.dropbox.com/s/ge9e5ujwgetktms/i3d_torchscript.pt?dl=1",
+            "i3d_torchscript.pt",
+            "torchscript",
+            "StyleGAN-V src/metrics/frechet_video_distance.py (universome/stylegan-v@3fecd69)",
+        ),
+        WeightFile(
+            "inception",
+            "https://nvlabs-fi-cdn.nvidia.com/stylegan2-ada-pytorch/pretrained/metrics/inception-2015-12-05.pt",
+            "inception-2015-12-05.pt",
+            "torchscript",
+            "StyleGAN2-ADA metrics/frechet_inception_distance.py (TorchScript of the TF 2015-12-05 Inception)",
+        ),
+        WeightFile(
+            "lpips-alex",
+            f"https://raw.githubusercontent.com/richzhang/PerceptualSimilarity/{_LPIPS_COMMIT}/"
+            "lpips/weights/v0.1/alex.pth",
+            "lpips_v0.1_alex.pth",
+            "state_dict",
+            f"richzhang/PerceptualSimilarity@{_LPIPS_COMMIT[:7]} lpips/weights/v0.1/alex.pth (6009 bytes)",
+            sha256="df73285e35b22355a2df87cdb6b70b343713b667eddbda73e1977e0c860835c0",
+        ),
+        WeightFile(
+            "lpips-vgg",
+            f"https://raw.githubusercontent.com/richzhang/PerceptualSimilarity/{_LPIPS_COMMIT}/"
+            "lpips/weights/v0.1/vgg.pth",
+            "lpips_v0.1_vgg.pth",
+            "state_dict",
+            f"richzhang/PerceptualSimilarity@{_LPIPS_COMMIT[:7]} lpips/weights/v0.1/vgg.pth (7289 bytes)",
+            sha256="a78928a0af1e5f0fcb1f3b9e8f8c3a2a5a3de244d830ad5c1feddc79b8432868",
+        ),
+        WeightFile(
+            "alexnet",
+            "https://download.pytorch.org/models/alexnet-owt-7be5be79.pth",
+            "alexnet-owt-7be5be79.pth",
+            "state_dict",
+            "torchvision AlexNet_Weights.IMAGENET1K_V1 (LPIPS's trunk)",
+            sha256_prefix="7be5be79",
+        ),
+        WeightFile(
+            "vgg16",
+            "https://download.pytorch.org/models/vgg16-397923af.pth",
+            "vgg16-397923af.pth",
+            "state_dict",
+            "torchvision VGG16_Weights.IMAGENET1K_V1 (LPIPS's VGG trunk)",
+            sha256_prefix="397923af",
+        ),
+    )
+}
 
 #: What ``oscar eval weights pull`` fetches by default (LPIPS-VGG on request).
 GROUPS = {"default": ("i3d", "inception", "lpips-alex", "alexnet"), "all": tuple(WEIGHTS)}
@@ -145,8 +187,9 @@ def _check(w: WeightFile, digest: str, lock: dict, where) -> str:
     entry = lock.get(w.name)
     if entry is not None:
         if entry.get("url") == w.url and entry.get("sha256") != digest:
-            raise WeightHashError(where, "sha256", f"{entry.get('sha256')} (recorded in {LOCK_NAME} on "
-                                  f"{entry.get('recorded')})", digest)
+            raise WeightHashError(
+                where, "sha256", f"{entry.get('sha256')} (recorded in {LOCK_NAME} on {entry.get('recorded')})", digest
+            )
         if entry.get("url") == w.url:
             return "matches the lock file"
     return "trust on first use"
@@ -164,9 +207,15 @@ def _download(url: str, dest: Path, timeout: float, progress: Callable[[str], No
         raise MetricInputError(url, "download", "a reachable URL", f"{type(reason).__name__}: {reason}") from None
 
 
-def pull_weights(names: Iterable[str] = GROUPS["default"], *, cache_dir=None, force: bool = False,
-                 table: Mapping[str, WeightFile] | None = None, timeout: float = 300.0,
-                 log: Callable[[str], None] | None = None) -> dict[str, dict]:
+def pull_weights(
+    names: Iterable[str] = GROUPS["default"],
+    *,
+    cache_dir=None,
+    force: bool = False,
+    table: Mapping[str, WeightFile] | None = None,
+    timeout: float = 300.0,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, dict]:
     """Download (or verify, if cached) the named files; returns ``{name: {"path", "sha256", "status", "pin"}}``.
 
     ``table`` replaces :data:`WEIGHTS` (tests serve fixture files from 127.0.0.1).
@@ -202,12 +251,24 @@ def pull_weights(names: Iterable[str] = GROUPS["default"], *, cache_dir=None, fo
                 tmp.unlink(missing_ok=True)
             status = "downloaded"
         if how == "trust on first use":
-            lock[w.name] = {"url": w.url, "sha256": digest, "size": path.stat().st_size,
-                            "recorded": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "how": "trust on first use"}
+            lock[w.name] = {
+                "url": w.url,
+                "sha256": digest,
+                "size": path.stat().st_size,
+                "recorded": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                "how": "trust on first use",
+            }
             _write_lock(cache, lock)
             log(f"{w.name}: no published sha256; recorded {digest} in {cache / LOCK_NAME} (trust on first use)")
-        out[name] = {"path": str(path), "sha256": digest, "status": status, "check": how, "pin": w.pin,
-                     "url": w.url, "source": w.source}
+        out[name] = {
+            "path": str(path),
+            "sha256": digest,
+            "status": status,
+            "check": how,
+            "pin": w.pin,
+            "url": w.url,
+            "source": w.source,
+        }
     return out
 
 
@@ -235,8 +296,12 @@ def _verified(name: str, cache_dir, table) -> tuple[Path, str] | None:
     digest = _sha256(path)
     how = _check(w, digest, lock, path)
     if how == "trust on first use":
-        raise WeightHashError(path, "sha256", f"an entry in {cache / LOCK_NAME} (pull it with oscar eval weights "
-                              "pull)", "a file oscar did not download")
+        raise WeightHashError(
+            path,
+            "sha256",
+            f"an entry in {cache / LOCK_NAME} (pull it with oscar eval weights pull)",
+            "a file oscar did not download",
+        )
     return path, digest
 
 

@@ -36,8 +36,16 @@ from .errors import CheckpointLayoutError
 if TYPE_CHECKING:  # imported where tensors are read (keeps `oscar zoo list` free of torch)
     import torch
 
-__all__ = ["NATIVE_RENAMES", "NATIVE_SUFFIXES", "map_native_key", "map_native_state", "read_native_state",
-           "infer_config", "find_skeleton_key", "COSMOS25_DEFAULTS"]
+__all__ = [
+    "NATIVE_RENAMES",
+    "NATIVE_SUFFIXES",
+    "map_native_key",
+    "map_native_state",
+    "read_native_state",
+    "infer_config",
+    "find_skeleton_key",
+    "COSMOS25_DEFAULTS",
+]
 
 NATIVE_SUFFIXES = (".pt", ".pth", ".safetensors")
 
@@ -67,21 +75,30 @@ NATIVE_RENAMES: tuple[tuple[str, str], ...] = (
     ("final_layer.adaln_modulation.2", "norm_out.linear_2"),
     ("final_layer.linear", "proj_out"),
 )
-_DROP = ("accum_video_sample_counter", "accum_image_sample_counter", "accum_iteration", "accum_train_in_hours",
-         "pos_embedder.seq", "pos_embedder.dim_spatial_range", "pos_embedder.dim_temporal_range", "_extra_state")
+_DROP = (
+    "accum_video_sample_counter",
+    "accum_image_sample_counter",
+    "accum_iteration",
+    "accum_train_in_hours",
+    "pos_embedder.seq",
+    "pos_embedder.dim_spatial_range",
+    "pos_embedder.dim_temporal_range",
+    "_extra_state",
+)
 _PREFIXES = ("net_ema.", "net.")
 _SKELETON_WORDS = ("skeleton", "skel", "pose", "kinematic", "keypoint")
 
 #: What tensor shapes cannot tell, from diffusers' ``Cosmos-2.5-Predict-Base-2B`` conversion entry.
-COSMOS25_DEFAULTS = dict(patch_size=(1, 2, 2), rope_scale=(1.0, 3.0, 3.0), concat_padding_mask=True,
-                         max_size=(128, 240, 240))
+COSMOS25_DEFAULTS = dict(
+    patch_size=(1, 2, 2), rope_scale=(1.0, 3.0, 3.0), concat_padding_mask=True, max_size=(128, 240, 240)
+)
 
 
 def map_native_key(key: str) -> str | None:
     """The diffusers name of a native key (prefix stripped, renames applied); None for bookkeeping tensors."""
     for prefix in _PREFIXES:
         if key.startswith(prefix):
-            key = key[len(prefix):]
+            key = key[len(prefix) :]
             break
     if any(d in key for d in _DROP):
         return None
@@ -98,8 +115,9 @@ def _unwrap(obj, source) -> dict:
             obj = obj[wrapper]
     if not isinstance(obj, dict) or not all(isinstance(v, torch.Tensor) for v in obj.values()):
         kinds = sorted({type(v).__name__ for v in obj.values()}) if isinstance(obj, dict) else [type(obj).__name__]
-        raise CheckpointLayoutError(source, "state dict", "a mapping of tensor names to tensors",
-                                    f"values of type {', '.join(kinds)}")
+        raise CheckpointLayoutError(
+            source, "state dict", "a mapping of tensor names to tensors", f"values of type {', '.join(kinds)}"
+        )
     return obj
 
 
@@ -118,13 +136,18 @@ def read_native_state(path) -> dict[str, torch.Tensor]:
     try:
         obj = torch.load(str(path), map_location="cpu", weights_only=True, mmap=True)
     except Exception as exc:  # noqa: BLE001 - any refusal by the safe unpickler is a layout problem
-        raise CheckpointLayoutError(path, "torch checkpoint", "a state dict loadable with weights_only=True",
-                                    f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}") from None
+        raise CheckpointLayoutError(
+            path,
+            "torch checkpoint",
+            "a state dict loadable with weights_only=True",
+            f"{type(exc).__name__}: {str(exc).splitlines()[0][:200]}",
+        ) from None
     return _unwrap(obj, path)
 
 
-def map_native_state(state: dict[str, torch.Tensor], source, origin: dict[str, str] | None = None
-                     ) -> dict[str, torch.Tensor]:
+def map_native_state(
+    state: dict[str, torch.Tensor], source, origin: dict[str, str] | None = None
+) -> dict[str, torch.Tensor]:
     """Native keys → diffusers keys; the EMA copy (``net_ema.``) wins when both it and ``net.`` are present.
 
     origin: filled with {diffusers key: native key} when given (for reports).
@@ -139,20 +162,31 @@ def map_native_state(state: dict[str, torch.Tensor], source, origin: dict[str, s
         if new is None:
             continue
         if new in out:
-            raise CheckpointLayoutError(source, "keys", "one native key per diffusers key",
-                                        f"{origin[new]} and {key} both map to {new}")
+            raise CheckpointLayoutError(
+                source, "keys", "one native key per diffusers key", f"{origin[new]} and {key} both map to {new}"
+            )
         out[new], origin[new] = value, key
     return out
 
 
-def find_skeleton_key(state: dict[str, torch.Tensor], expected: set[str], hidden: int,
-                      source) -> str | None:
+def find_skeleton_key(state: dict[str, torch.Tensor], expected: set[str], hidden: int, source) -> str | None:
     """The one left-over key that is PE_s's weight, or None; raises when several candidates compete."""
-    candidates = [k for k, v in state.items() if k not in expected and k.endswith("weight") and v.ndim == 2
-                  and v.shape[0] == hidden and any(w in k.lower() for w in _SKELETON_WORDS)]
+    candidates = [
+        k
+        for k, v in state.items()
+        if k not in expected
+        and k.endswith("weight")
+        and v.ndim == 2
+        and v.shape[0] == hidden
+        and any(w in k.lower() for w in _SKELETON_WORDS)
+    ]
     if len(candidates) > 1:
-        raise CheckpointLayoutError(source, "skeleton embedder", "one weight named like skeleton/pose/kinematic "
-                                    "of output width " + str(hidden), f"several: {', '.join(sorted(candidates))}")
+        raise CheckpointLayoutError(
+            source,
+            "skeleton embedder",
+            "one weight named like skeleton/pose/kinematic of output width " + str(hidden),
+            f"several: {', '.join(sorted(candidates))}",
+        )
     return candidates[0] if candidates else None
 
 
@@ -163,13 +197,22 @@ def _count_blocks(state) -> int:
 
 def infer_config(state: dict[str, torch.Tensor], source, overrides: dict | None = None) -> dict:
     """An ``OscarTransformer3DModel`` config from (diffusers-named) tensor shapes, plus ``overrides``."""
-    need = ("patch_embed.proj.weight", "transformer_blocks.0.attn1.norm_q.weight",
-            "transformer_blocks.0.ff.net.0.proj.weight", "transformer_blocks.0.norm1.linear_1.weight",
-            "transformer_blocks.0.attn2.to_k.weight", "proj_out.weight")
+    need = (
+        "patch_embed.proj.weight",
+        "transformer_blocks.0.attn1.norm_q.weight",
+        "transformer_blocks.0.ff.net.0.proj.weight",
+        "transformer_blocks.0.norm1.linear_1.weight",
+        "transformer_blocks.0.attn2.to_k.weight",
+        "proj_out.weight",
+    )
     missing = [k for k in need if k not in state]
     if missing:
-        raise CheckpointLayoutError(source, "native keys", "a Cosmos-Predict2.5 DiT (after renaming: "
-                                    + ", ".join(need) + ")", f"missing {', '.join(missing)}")
+        raise CheckpointLayoutError(
+            source,
+            "native keys",
+            "a Cosmos-Predict2.5 DiT (after renaming: " + ", ".join(need) + ")",
+            f"missing {', '.join(missing)}",
+        )
     cfg = dict(COSMOS25_DEFAULTS)
     cfg.update(overrides or {})
     p_t, p_h, p_w = cfg["patch_size"]
@@ -181,21 +224,32 @@ def infer_config(state: dict[str, torch.Tensor], source, overrides: dict | None 
     inferred = dict(
         in_channels=state["patch_embed.proj.weight"].shape[1] // vol - pad,
         out_channels=state["proj_out.weight"].shape[0] // vol,
-        num_attention_heads=hidden // head_dim, attention_head_dim=head_dim, num_layers=_count_blocks(state),
+        num_attention_heads=hidden // head_dim,
+        attention_head_dim=head_dim,
+        num_layers=_count_blocks(state),
         mlp_ratio=state["transformer_blocks.0.ff.net.0.proj.weight"].shape[0] / hidden,
-        text_embed_dim=text_dim, adaln_lora_dim=state["transformer_blocks.0.norm1.linear_1.weight"].shape[0],
+        text_embed_dim=text_dim,
+        adaln_lora_dim=state["transformer_blocks.0.norm1.linear_1.weight"].shape[0],
         encoder_hidden_states_channels=text_dim,
     )
     if "crossattn_proj.0.weight" in state:
         w = state["crossattn_proj.0.weight"]
-        inferred.update(use_crossattn_projection=True, crossattn_proj_in_channels=w.shape[1],
-                        encoder_hidden_states_channels=w.shape[0])
+        inferred.update(
+            use_crossattn_projection=True,
+            crossattn_proj_in_channels=w.shape[1],
+            encoder_hidden_states_channels=w.shape[0],
+        )
     else:
         inferred.update(use_crossattn_projection=False)
     if "learnable_pos_embed.pos_emb_t" in state:
-        inferred.update(extra_pos_embed_type="learnable", max_size=(
-            state["learnable_pos_embed.pos_emb_t"].shape[0] * p_t, state["learnable_pos_embed.pos_emb_h"].shape[0] * p_h,
-            state["learnable_pos_embed.pos_emb_w"].shape[0] * p_w))
+        inferred.update(
+            extra_pos_embed_type="learnable",
+            max_size=(
+                state["learnable_pos_embed.pos_emb_t"].shape[0] * p_t,
+                state["learnable_pos_embed.pos_emb_h"].shape[0] * p_h,
+                state["learnable_pos_embed.pos_emb_w"].shape[0] * p_w,
+            ),
+        )
     else:
         inferred.update(extra_pos_embed_type=None)
     for key, value in inferred.items():

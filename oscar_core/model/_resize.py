@@ -50,8 +50,10 @@ def resize_padding_mask(mask: torch.Tensor, size, interpolation: str = "nearest"
         size already matches (as torchvision does).
     """
     if interpolation != "nearest":
-        raise ValueError(f"resize_padding_mask: interpolation: expected 'nearest' (the only mode diffusers' Cosmos "
-                         f"code uses for the padding mask), found {interpolation!r}")
+        raise ValueError(
+            f"resize_padding_mask: interpolation: expected 'nearest' (the only mode diffusers' Cosmos "
+            f"code uses for the padding mask), found {interpolation!r}"
+        )
     if not isinstance(mask, torch.Tensor) or not 2 <= mask.ndim <= 4:
         found = f"{type(mask).__name__} with {getattr(mask, 'ndim', '?')} dims"
         raise ValueError(f"resize_padding_mask: mask: expected a tensor of 2 to 4 dims (..., H, W), found {found}")
@@ -87,7 +89,9 @@ def _shim_resize(img, size, interpolation="nearest", max_size=None, antialias=No
     return resize_padding_mask(img, size, interpolation=str(getattr(interpolation, "value", interpolation)))
 
 
-_SHIM = types.SimpleNamespace(functional=types.SimpleNamespace(resize=_shim_resize), InterpolationMode=_InterpolationMode)
+_SHIM = types.SimpleNamespace(
+    functional=types.SimpleNamespace(resize=_shim_resize), InterpolationMode=_InterpolationMode
+)
 _MODULES = ("diffusers.models.transformers.transformer_cosmos", "diffusers.models.controlnets.controlnet_cosmos")
 
 

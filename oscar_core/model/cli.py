@@ -18,8 +18,15 @@ from .._util.threads import threads_option
 from .presets import SAMPLER_PRESETS
 from .rollout_files import RolloutRequest, side_by_side_path, text_encoder
 
-__all__ = ["add_model_parsers", "cmd_rollout", "cmd_zoo_list", "cmd_zoo_pull", "cmd_zoo_convert", "cmd_encode_prompt",
-           "side_by_side_path"]
+__all__ = [
+    "add_model_parsers",
+    "cmd_rollout",
+    "cmd_zoo_list",
+    "cmd_zoo_pull",
+    "cmd_zoo_convert",
+    "cmd_encode_prompt",
+    "side_by_side_path",
+]
 
 ROLLOUT_EXAMPLES = """examples:
   oscar rollout --model oscar-2b --embodiment franka --first-frame img.png --trajectory traj.npz \\
@@ -58,53 +65,106 @@ _DTYPES = ("float32", "bfloat16", "float16")
 def add_model_parsers(subparsers) -> None:
     """Add ``rollout`` and ``zoo {list,pull}`` to an ``argparse`` sub-parser set."""
     fmt = argparse.RawDescriptionHelpFormatter
-    r = subparsers.add_parser("rollout", help="roll the world model out along a trajectory (skeleton-conditioned)",
-                              epilog=ROLLOUT_EXAMPLES, formatter_class=fmt)
+    r = subparsers.add_parser(
+        "rollout",
+        help="roll the world model out along a trajectory (skeleton-conditioned)",
+        epilog=ROLLOUT_EXAMPLES,
+        formatter_class=fmt,
+    )
     r.add_argument("--model", required=True, help="zoo name, Hub id owner/name, or folder (see `oscar zoo list`)")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
     r.add_argument("--embodiment", required=True, help="embodiment name (see `oscar embodiments`)")
-    r.add_argument("--first-frame", required=True, help="first RGB frame taken by --camera: an image (PNG/JPEG) "
-                   "or a video (MP4/MKV/...: its frame 0)")
+    r.add_argument(
+        "--first-frame",
+        required=True,
+        help="first RGB frame taken by --camera: an image (PNG/JPEG) or a video (MP4/MKV/...: its frame 0)",
+    )
     r.add_argument("--trajectory", required=True, help="trajectory .npz (docs/formats.md)")
     r.add_argument("--camera", required=True, help="camera calibration .json (docs/formats.md)")
-    output_option(r.add_argument("--out", required=True,
-                                 help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)"), "any")
+    output_option(
+        r.add_argument("--out", required=True, help="rollout video: .mp4 (H.264), .mkv (lossless) or folder/ (PNGs)"),
+        "any",
+    )
     r.add_argument("--side-by-side", help="side-by-side video path (default: OUT_side.mp4)")
     r.add_argument("--no-side-by-side", action="store_true", help="do not write the side-by-side video")
     text = r.add_mutually_exclusive_group()
-    text.add_argument("--prompt", help="task text; embedded with the model's text encoder on the first use, then "
-                      "read from the prompt cache (--prompt-cache)")
-    text.add_argument("--prompt-embeds", metavar="FILE", help="precomputed prompt embedding (.safetensors, tensor "
-                      "'prompt_embeds' of shape (1, L, D))")
-    output_option(r.add_argument("--prompt-cache", metavar="DIR",
-                                 help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds "
-                   "or ~/.cache/oscar/prompt_embeds)"), "folder")
-    r.add_argument("--text-encoder", metavar="ID_OR_FOLDER", help="text encoder for --prompt (default: the "
-                   "checkpoint's text_encoder_id)")
+    text.add_argument(
+        "--prompt",
+        help="task text; embedded with the model's text encoder on the first use, then "
+        "read from the prompt cache (--prompt-cache)",
+    )
+    text.add_argument(
+        "--prompt-embeds",
+        metavar="FILE",
+        help="precomputed prompt embedding (.safetensors, tensor 'prompt_embeds' of shape (1, L, D))",
+    )
+    output_option(
+        r.add_argument(
+            "--prompt-cache",
+            metavar="DIR",
+            help="prompt-embedding cache (default: $OSCAR_CACHE/prompt_embeds or ~/.cache/oscar/prompt_embeds)",
+        ),
+        "folder",
+    )
+    r.add_argument(
+        "--text-encoder",
+        metavar="ID_OR_FOLDER",
+        help="text encoder for --prompt (default: the checkpoint's text_encoder_id)",
+    )
     r.add_argument("--native-file", help="which native Cosmos checkpoint file, when a folder/repo holds several")
     r.add_argument("--size", help="rollout WIDTHxHEIGHT, multiples of 16 (default: the model's, else the camera's)")
-    r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
-                   help="how camera and first frame are fitted to --size (default: centre crop)")
+    r.add_argument(
+        "--resize",
+        choices=("crop", "stretch"),
+        default="crop",
+        help="how camera and first frame are fitted to --size (default: centre crop)",
+    )
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35, or "
-                   "the preset's)")
-    r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget: paper (35 steps, guidance at every "
-                   "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md); default: "
-                   "the model card's, else none")
-    r.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
-                   help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch")
-    r.add_argument("--solver", choices=("unipc", "euler"), help="unipc (2nd order, as Cosmos/diffusers) or euler "
-                   "(default: the checkpoint's scheduler, else unipc)")
+    r.add_argument(
+        "--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35, or the preset's)"
+    )
+    r.add_argument(
+        "--preset",
+        choices=sorted(SAMPLER_PRESETS),
+        help="sampling budget: paper (35 steps, guidance at every "
+        "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md); default: "
+        "the model card's, else none",
+    )
+    r.add_argument(
+        "--guidance-interval",
+        metavar="LO,HI",
+        type=interval,
+        help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch",
+    )
+    r.add_argument(
+        "--solver",
+        choices=("unipc", "euler"),
+        help="unipc (2nd order, as Cosmos/diffusers) or euler (default: the checkpoint's scheduler, else unipc)",
+    )
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6, the "
-                   "paper's; 0 with --guidance-form diffusers or 1 with standard = conditional branch only)")
-    r.add_argument("--guidance-form", choices=("diffusers", "standard"),
-                   help="diffusers (Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); standard: v_u + "
-                   "w(v_c - v_u) (default: the model card's, else diffusers)")
-    r.add_argument("--action-guidance", type=number(0.0), help="latent-action models: guidance w over the actions "
-                   "(unconditional branch: no action tokens; default: none, the conditional branch only)")
-    r.add_argument("--two-pass-cfg", action="store_true", help="run the two guidance branches as two forwards "
-                   "(less memory) instead of one batched forward")
+    r.add_argument(
+        "--guidance",
+        type=number(0.0),
+        help="skeleton guidance w (default: the model card's, else 6, the "
+        "paper's; 0 with --guidance-form diffusers or 1 with standard = conditional branch only)",
+    )
+    r.add_argument(
+        "--guidance-form",
+        choices=("diffusers", "standard"),
+        help="diffusers (Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); standard: v_u + "
+        "w(v_c - v_u) (default: the model card's, else diffusers)",
+    )
+    r.add_argument(
+        "--action-guidance",
+        type=number(0.0),
+        help="latent-action models: guidance w over the actions "
+        "(unconditional branch: no action tokens; default: none, the conditional branch only)",
+    )
+    r.add_argument(
+        "--two-pass-cfg",
+        action="store_true",
+        help="run the two guidance branches as two forwards (less memory) instead of one batched forward",
+    )
     r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
     r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
@@ -117,21 +177,28 @@ def add_model_parsers(subparsers) -> None:
     r.add_argument("--vae-tiling", action="store_true", help="tile VAE encode/decode (GPU memory)")
     r.add_argument("--vae-slicing", action="store_true", help="VAE one batch element at a time")
     r.add_argument("--offload-vae", action="store_true", help="keep the VAE on the CPU between uses")
-    r.add_argument("--offload-text", action="store_true", help="keep the DiT's text projection on the CPU "
-                   "(the prompt is projected once per chunk)")
+    r.add_argument(
+        "--offload-text",
+        action="store_true",
+        help="keep the DiT's text projection on the CPU (the prompt is projected once per chunk)",
+    )
     r.add_argument("--offline", action="store_true", help="use only the local Hub cache (like HF_HUB_OFFLINE=1)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars")
     r.add_argument("--json", action="store_true", help="print a machine-readable summary")
     r.set_defaults(func=cmd_rollout)
 
-    z = subparsers.add_parser("zoo", help="named world-model checkpoints: list, pull", epilog=ZOO_EXAMPLES,
-                              formatter_class=fmt)
+    z = subparsers.add_parser(
+        "zoo", help="named world-model checkpoints: list, pull", epilog=ZOO_EXAMPLES, formatter_class=fmt
+    )
     zsub = z.add_subparsers(dest="zoo_command", required=True)
-    zl = zsub.add_parser("list", help="the zoo table and your registered models", epilog=ZOO_EXAMPLES, formatter_class=fmt)
+    zl = zsub.add_parser(
+        "list", help="the zoo table and your registered models", epilog=ZOO_EXAMPLES, formatter_class=fmt
+    )
     zl.add_argument("--json", action="store_true", help="machine-readable output")
     zl.set_defaults(func=cmd_zoo_list)
-    zp = zsub.add_parser("pull", help="download and verify a checkpoint into the Hub cache", epilog=ZOO_EXAMPLES,
-                         formatter_class=fmt)
+    zp = zsub.add_parser(
+        "pull", help="download and verify a checkpoint into the Hub cache", epilog=ZOO_EXAMPLES, formatter_class=fmt
+    )
     zp.add_argument("name", help="zoo name, Hub id owner/name, or folder")
     zp.add_argument("--revision", help="Hub revision overriding the pinned one")
     zp.add_argument("--force", action="store_true", help="download again even if cached (after a corruption)")
@@ -139,8 +206,12 @@ def add_model_parsers(subparsers) -> None:
     zp.add_argument("--json", action="store_true", help="machine-readable output")
     zp.add_argument("--native-file", help="which native Cosmos checkpoint file, when the repo holds several")
     zp.set_defaults(func=cmd_zoo_pull)
-    zc = zsub.add_parser("convert", help="write any checkpoint layout (oscar, diffusers, native Cosmos) as oscar's "
-                         "(safetensors)", epilog=ZOO_EXAMPLES, formatter_class=fmt)
+    zc = zsub.add_parser(
+        "convert",
+        help="write any checkpoint layout (oscar, diffusers, native Cosmos) as oscar's (safetensors)",
+        epilog=ZOO_EXAMPLES,
+        formatter_class=fmt,
+    )
     zc.add_argument("src", help="zoo name, Hub id owner/name, or folder, in any supported layout")
     output_option(zc.add_argument("dst", help="output folder (oscar layout)"), "folder")
     zc.add_argument("--revision", help="Hub revision")
@@ -149,14 +220,23 @@ def add_model_parsers(subparsers) -> None:
     zc.add_argument("--json", action="store_true", help="machine-readable output")
     zc.set_defaults(func=cmd_zoo_convert)
 
-    e = subparsers.add_parser("encode-prompt", help="compute (and cache) the text embedding of a prompt",
-                              epilog=ENCODE_EXAMPLES, formatter_class=fmt)
+    e = subparsers.add_parser(
+        "encode-prompt",
+        help="compute (and cache) the text embedding of a prompt",
+        epilog=ENCODE_EXAMPLES,
+        formatter_class=fmt,
+    )
     e.add_argument("prompt", help='the prompt text ("" for the empty prompt)')
     e.add_argument("--model", help="zoo name / Hub id whose text_encoder_id to use (default: cosmos-predict2.5-2b's)")
-    e.add_argument("--encoder", metavar="ID_OR_FOLDER", help="text encoder: 'owner/name@revision:text_encoder' or a "
-                   "diffusers pipeline folder (text_encoder/ + tokenizer/)")
-    output_option(e.add_argument("--out",
-                                 help="also write the embedding here (.safetensors, tensor 'prompt_embeds')"), "file")
+    e.add_argument(
+        "--encoder",
+        metavar="ID_OR_FOLDER",
+        help="text encoder: 'owner/name@revision:text_encoder' or a "
+        "diffusers pipeline folder (text_encoder/ + tokenizer/)",
+    )
+    output_option(
+        e.add_argument("--out", help="also write the embedding here (.safetensors, tensor 'prompt_embeds')"), "file"
+    )
     output_option(e.add_argument("--prompt-cache", metavar="DIR", help="prompt-embedding cache folder"), "folder")
     e.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
     e.add_argument("--dtype", choices=_DTYPES, help="encoder dtype (default: the checkpoint's)")
@@ -179,9 +259,18 @@ def cmd_zoo_list(args) -> int:
     rows = [header]
     for s in specs:
         where = "bundled with oscar-wm" if s.bundled else f"{s.repo_id}@{s.revision or 'main (unpinned)'}"
-        rows.append((s.name, where, s.kind, s.license or "?",
-                     ",".join(s.embodiments) or "-", str(s.chunk_frames or "?"),
-                     f"{s.width}x{s.height}" if s.width and s.height else "?", f"{s.fps:g}" if s.fps else "?"))
+        rows.append(
+            (
+                s.name,
+                where,
+                s.kind,
+                s.license or "?",
+                ",".join(s.embodiments) or "-",
+                str(s.chunk_frames or "?"),
+                f"{s.width}x{s.height}" if s.width and s.height else "?",
+                f"{s.fps:g}" if s.fps else "?",
+            )
+        )
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
     for row in rows:
         print("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip())
@@ -193,8 +282,13 @@ def cmd_zoo_pull(args) -> int:
     import oscar_zoo
     from oscar_zoo._hub import lock_path
 
-    folder = oscar_zoo.pull(args.name, args.revision, force_download=args.force,
-                            local_files_only=True if args.offline else None, native_file=args.native_file)
+    folder = oscar_zoo.pull(
+        args.name,
+        args.revision,
+        force_download=args.force,
+        local_files_only=True if args.offline else None,
+        native_file=args.native_file,
+    )
     resolved = oscar_zoo.resolve(args.name, args.revision)
     lock = lock_path(resolved.spec.repo_id, resolved.revision) if resolved.spec is not None else None
     lock = lock if lock is not None and lock.is_file() else None
@@ -210,8 +304,9 @@ def cmd_zoo_convert(args) -> int:
     from oscar_zoo._fetch import fetch, resolve
 
     report: list[str] = []
-    got = fetch(resolve(args.src, args.revision), local_files_only=True if args.offline else None,
-                native_file=args.native_file)
+    got = fetch(
+        resolve(args.src, args.revision), local_files_only=True if args.offline else None, native_file=args.native_file
+    )
     out = oscar_zoo.convert(got.folder, args.dst, native_file=args.native_file, report=report)
     if args.json:
         print(json.dumps({"src": args.src, "dst": str(out), "layout": got.layout.kind, "report": report}, indent=2))
@@ -234,8 +329,9 @@ def _encoder_id_for(model: str | None) -> str:
             return spec.text_encoder_id
         from .errors import ModelInputError
 
-        raise ModelInputError(f"model {model!r}: expected a zoo entry with a text_encoder_id, found none; pass "
-                              "--encoder ID_OR_FOLDER")
+        raise ModelInputError(
+            f"model {model!r}: expected a zoo entry with a text_encoder_id, found none; pass --encoder ID_OR_FOLDER"
+        )
     return oscar_zoo.COSMOS_TEXT_ENCODER_ID
 
 
@@ -250,16 +346,24 @@ def cmd_encode_prompt(args) -> int:
         encoder = text_encoder(encoder_id, args.device or default_device(), args.dtype, args.offline)
         cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder.encoder_id)
         embeds, cached = encoder.cached(args.prompt, args.prompt_cache)
-    summary = {"prompt": args.prompt, "encoder_id": cache.encoder_id, "shape": list(embeds.shape),
-               "cache_file": str(cache.path(args.prompt)), "was_cached": cached}
+    summary = {
+        "prompt": args.prompt,
+        "encoder_id": cache.encoder_id,
+        "shape": list(embeds.shape),
+        "cache_file": str(cache.path(args.prompt)),
+        "was_cached": cached,
+    }
     if args.out:
         from safetensors.torch import save_file
 
         from .._util.atomic import atomic_output
 
         with atomic_output(args.out) as tmp:
-            save_file({"prompt_embeds": embeds.contiguous()}, str(tmp),
-                      metadata={"prompt": args.prompt, "encoder_id": cache.encoder_id})
+            save_file(
+                {"prompt_embeds": embeds.contiguous()},
+                str(tmp),
+                metadata={"prompt": args.prompt, "encoder_id": cache.encoder_id},
+            )
         summary["out"] = str(args.out)
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -279,17 +383,45 @@ def cmd_rollout(args) -> int:
     from .rollout_files import run_rollout
 
     request = RolloutRequest(
-        model=args.model, embodiment=args.embodiment, first_frame=args.first_frame, trajectory=args.trajectory,
-        camera=args.camera, out=args.out, revision=args.revision, side_by_side=args.side_by_side,
-        no_side_by_side=args.no_side_by_side, prompt=args.prompt, prompt_embeds=args.prompt_embeds,
-        prompt_cache=args.prompt_cache, text_encoder=args.text_encoder, native_file=args.native_file,
-        size=args.size, resize=args.resize, chunk_frames=args.chunk_frames, steps=args.steps, preset=args.preset,
-        guidance_interval=args.guidance_interval, solver=args.solver, shift=args.shift, guidance=args.guidance,
-        guidance_form=args.guidance_form, action_guidance=getattr(args, "action_guidance", None),
-        two_pass_cfg=args.two_pass_cfg, seed=args.seed, fps=args.fps, device=args.device, dtype=args.dtype,
-        compile=args.compile, vae_tiling=args.vae_tiling, vae_slicing=args.vae_slicing,
-        offload_vae=args.offload_vae, offload_text=args.offload_text, offline=args.offline,
-        progress=not args.no_progress, plugin_paths=tuple(getattr(args, "plugin", None) or ()))
+        model=args.model,
+        embodiment=args.embodiment,
+        first_frame=args.first_frame,
+        trajectory=args.trajectory,
+        camera=args.camera,
+        out=args.out,
+        revision=args.revision,
+        side_by_side=args.side_by_side,
+        no_side_by_side=args.no_side_by_side,
+        prompt=args.prompt,
+        prompt_embeds=args.prompt_embeds,
+        prompt_cache=args.prompt_cache,
+        text_encoder=args.text_encoder,
+        native_file=args.native_file,
+        size=args.size,
+        resize=args.resize,
+        chunk_frames=args.chunk_frames,
+        steps=args.steps,
+        preset=args.preset,
+        guidance_interval=args.guidance_interval,
+        solver=args.solver,
+        shift=args.shift,
+        guidance=args.guidance,
+        guidance_form=args.guidance_form,
+        action_guidance=getattr(args, "action_guidance", None),
+        two_pass_cfg=args.two_pass_cfg,
+        seed=args.seed,
+        fps=args.fps,
+        device=args.device,
+        dtype=args.dtype,
+        compile=args.compile,
+        vae_tiling=args.vae_tiling,
+        vae_slicing=args.vae_slicing,
+        offload_vae=args.offload_vae,
+        offload_text=args.offload_text,
+        offline=args.offline,
+        progress=not args.no_progress,
+        plugin_paths=tuple(getattr(args, "plugin", None) or ()),
+    )
     result = run_rollout(request, notify=lambda line: print(line, file=sys.stderr), startup=startup, given="flag")
     summary = result.summary
     if args.json:
@@ -297,10 +429,14 @@ def cmd_rollout(args) -> int:
     else:
         width, height = summary["size"]
         extra = f" and {summary['side_by_side']}" if "side_by_side" in summary else ""
-        print(f"wrote {summary['rollout']}{extra}: {summary['frames']} frames, {width}x{height}, "
-              f"{summary['fps']:g} fps, {summary['chunks']} chunk(s)")
-        print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items())
-              + f" ({summary['compile']})", file=sys.stderr)
+        print(
+            f"wrote {summary['rollout']}{extra}: {summary['frames']} frames, {width}x{height}, "
+            f"{summary['fps']:g} fps, {summary['chunks']} chunk(s)"
+        )
+        print(
+            "seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in result.timings.items()) + f" ({summary['compile']})",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -317,5 +453,3 @@ def _seconds_since_process_start() -> float | None:
         return max(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 0.0)
     except (OSError, ValueError, IndexError):
         return None
-
-

@@ -86,8 +86,9 @@ def break_even_chunks(steps: int = PAPER_STEPS, evaluations: int | None = None) 
     return math.floor(COMPILE_COST_S / saving) + 1
 
 
-def compile_decision(mode: str, device, chunks: int, steps: int = PAPER_STEPS,
-                     evaluations: int | None = None) -> tuple[bool, str]:
+def compile_decision(
+    mode: str, device, chunks: int, steps: int = PAPER_STEPS, evaluations: int | None = None
+) -> tuple[bool, str]:
     """(compile?, why) for a job of ``chunks`` chunks of ``steps`` steps (``evaluations`` DiT evaluations each,
     None: 2 × steps) on ``device`` (module docstring)."""
     check_compile_mode(mode)
@@ -118,7 +119,9 @@ class _CompiledForward:
             return self.compiled(*args, **kwargs)
         except Exception as exc:  # noqa: BLE001 - any compiler fault; the eager call below re-raises input errors
             out = self.eager(*args, **kwargs)  # an error of the inputs themselves raises here, as eager would
-            self._fall_back(f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ''}")
+            self._fall_back(
+                f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ''}"
+            )
             return out
 
     def _fall_back(self, reason: str) -> None:
@@ -201,8 +204,19 @@ def add_compile_options(parser) -> None:
     """``--compile auto|always|never`` (a bare ``--compile``: always) and ``--no-compile`` (= never) on an
     ``argparse`` parser; the value lands in ``args.compile`` (default ``auto``)."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--compile", choices=COMPILE_MODES, nargs="?", const="always", default="auto",
-                       help=f"torch.compile the DiT: auto (default: on CUDA when the job has >= {break_even_chunks()} "
-                            "35-step chunks, where compiling pays for itself), always, never (docs/world-model.md)")
-    group.add_argument("--no-compile", dest="compile", action="store_const", const="never",
-                       help="run the DiT eager (= --compile never)")
+    group.add_argument(
+        "--compile",
+        choices=COMPILE_MODES,
+        nargs="?",
+        const="always",
+        default="auto",
+        help=f"torch.compile the DiT: auto (default: on CUDA when the job has >= {break_even_chunks()} "
+        "35-step chunks, where compiling pays for itself), always, never (docs/world-model.md)",
+    )
+    group.add_argument(
+        "--no-compile",
+        dest="compile",
+        action="store_const",
+        const="never",
+        help="run the DiT eager (= --compile never)",
+    )

@@ -19,8 +19,14 @@ __all__ = ["LIBRARY_NAME", "PIPELINE_TAG", "hub_metadata", "hub_license", "with_
 LIBRARY_NAME = "oscar-wm"
 PIPELINE_TAG = "image-to-video"
 #: SPDX id → the Hub's licence id (lower case; https://huggingface.co/docs/hub/repositories-licenses).
-_HUB_LICENSES = {"apache-2.0": "apache-2.0", "mit": "mit", "cc-by-4.0": "cc-by-4.0", "cc-by-nc-4.0": "cc-by-nc-4.0",
-                 "bsd-3-clause": "bsd-3-clause", "openrail": "openrail"}
+_HUB_LICENSES = {
+    "apache-2.0": "apache-2.0",
+    "mit": "mit",
+    "cc-by-4.0": "cc-by-4.0",
+    "cc-by-nc-4.0": "cc-by-nc-4.0",
+    "bsd-3-clause": "bsd-3-clause",
+    "openrail": "openrail",
+}
 _NVIDIA_OPEN = "https://www.nvidia.com/en-us/agreements/enterprise-software/nvidia-open-model-license/"
 
 
@@ -46,8 +52,15 @@ def hub_metadata(card: dict, *, tags=()) -> dict:
     if base:
         meta["base_model"] = str(base).split("@", 1)[0]  # "owner/name@revision" → the repo id the Hub links
     meta["pipeline_tag"] = PIPELINE_TAG
-    all_tags = ["oscar", "world-model", "robotics", "video-generation", "skeleton-conditioned", *tags,
-                *[f"embodiment:{e}" for e in card.get("embodiments") or ()]]
+    all_tags = [
+        "oscar",
+        "world-model",
+        "robotics",
+        "video-generation",
+        "skeleton-conditioned",
+        *tags,
+        *[f"embodiment:{e}" for e in card.get("embodiments") or ()],
+    ]
     meta["tags"] = list(dict.fromkeys(all_tags))  # in order, no repeats
     return meta
 
@@ -58,7 +71,7 @@ def with_hub_metadata(markdown: str, card: dict, *, tags=()) -> str:
     if body.startswith("---\n"):
         end = body.find("\n---\n", 4)
         if end != -1:
-            body = body[end + len("\n---\n"):].lstrip("\n")
+            body = body[end + len("\n---\n") :].lstrip("\n")
     block = yaml.safe_dump(hub_metadata(card, tags=tags), sort_keys=False, allow_unicode=True)
     return f"---\n{block}---\n\n{body}"
 
@@ -69,13 +82,24 @@ def default_model_card(card: dict) -> str:
     name = card.get("name") or "oscar-model"
     emb = ", ".join(card.get("embodiments") or []) or "not recorded"
     size = f"{card.get('width')}x{card.get('height')}" if card.get("width") else "not recorded"
-    lines = [f"# {name}", "",
-             "An OSCAR skeleton-conditioned video world model in oscar's folder layout (`oscar-wm` on the "
-             "package index).", "",
-             f"- embodiments: {emb}", f"- chunk: {card.get('chunk_frames')} frames at {size}, {card.get('fps')} fps",
-             f"- condition: {card.get('condition', 'skeleton')}; base: {card.get('base') or 'none recorded'}",
-             f"- licence: {card.get('license') or 'not recorded'}", "",
-             "```python", "import oscar_zoo", "", 'model = oscar_zoo.load("<this folder or its Hub repo>")', "```", "",
-             "This card was written by `save_pretrained`; say how the model was trained and what it was measured to "
-             "do before sharing it.", ""]
+    lines = [
+        f"# {name}",
+        "",
+        "An OSCAR skeleton-conditioned video world model in oscar's folder layout (`oscar-wm` on the package index).",
+        "",
+        f"- embodiments: {emb}",
+        f"- chunk: {card.get('chunk_frames')} frames at {size}, {card.get('fps')} fps",
+        f"- condition: {card.get('condition', 'skeleton')}; base: {card.get('base') or 'none recorded'}",
+        f"- licence: {card.get('license') or 'not recorded'}",
+        "",
+        "```python",
+        "import oscar_zoo",
+        "",
+        'model = oscar_zoo.load("<this folder or its Hub repo>")',
+        "```",
+        "",
+        "This card was written by `save_pretrained`; say how the model was trained and what it was measured to "
+        "do before sharing it.",
+        "",
+    ]
     return with_hub_metadata("\n".join(lines), card)

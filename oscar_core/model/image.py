@@ -56,6 +56,10 @@ def read_first_frame(path, camera, camera_source) -> np.ndarray:
     first = read_image(path)
     cam_size = (camera.intrinsics.width, camera.intrinsics.height)
     if (first.shape[1], first.shape[0]) != cam_size:
-        raise InputFileError(path, "image size", f"{cam_size[0]}x{cam_size[1]} (the image size of camera "
-                             f"{camera_source})", f"{first.shape[1]}x{first.shape[0]}")
+        raise InputFileError(
+            path,
+            "image size",
+            f"{cam_size[0]}x{cam_size[1]} (the image size of camera {camera_source})",
+            f"{first.shape[1]}x{first.shape[0]}",
+        )
     return first

@@ -29,8 +29,14 @@ from torch import nn
 from .errors import ModelInputError
 from .transformer import OscarTransformer3DModel
 
-__all__ = ["ACTION_DIM", "ACTION_SCALE", "latent_actions", "actions_from_poses", "hold_actions",
-           "LatentActionTransformer"]
+__all__ = [
+    "ACTION_DIM",
+    "ACTION_SCALE",
+    "latent_actions",
+    "actions_from_poses",
+    "hold_actions",
+    "LatentActionTransformer",
+]
 
 ACTION_DIM = 14
 ACTION_SCALE = 20.0
@@ -52,10 +58,10 @@ def actions_from_poses(poses: np.ndarray, openness: np.ndarray) -> np.ndarray:
     for a in range(A):
         R, p = poses[:, a, :3, :3], poses[:, a, :3, 3]
         dp = np.einsum("tji,tj->ti", R[:-1], p[1:] - p[:-1])  # R_{t-1}^T (p_t - p_{t-1})
-        dR = np.einsum("tji,tjk->tik", R[:-1], R[1:])          # R_{t-1}^T R_t
+        dR = np.einsum("tji,tjk->tik", R[:-1], R[1:])  # R_{t-1}^T R_t
         euler = Rotation.from_matrix(dR).as_euler(EULER)
-        out[:, 7 * a:7 * a + 3] = ACTION_SCALE * dp
-        out[:, 7 * a + 3:7 * a + 6] = ACTION_SCALE * euler
+        out[:, 7 * a : 7 * a + 3] = ACTION_SCALE * dp
+        out[:, 7 * a + 3 : 7 * a + 6] = ACTION_SCALE * euler
         if a < openness.shape[1]:
             out[:, 7 * a + 6] = openness[1:, a]
     return out
@@ -65,8 +71,10 @@ def latent_actions(embodiment, trajectory) -> np.ndarray:
     """(T − 1, 14) float64 latent actions of a trajectory through its embodiment's FK."""
     links = tuple(getattr(embodiment, "end_effector_links", ()) or ())
     if not embodiment.uses_kinematic_tree() or not links:
-        raise ModelInputError(f"embodiment {embodiment.name!r}: expected end_effector_links (1 or 2 links of its "
-                              f"kinematic tree) for latent actions, found {links or 'none'}")
+        raise ModelInputError(
+            f"embodiment {embodiment.name!r}: expected end_effector_links (1 or 2 links of its "
+            f"kinematic tree) for latent actions, found {links or 'none'}"
+        )
     traj = embodiment.check_trajectory(trajectory)
     poses = embodiment.fk(embodiment.full_configuration(traj), traj.base_pose, links=list(links)).to(torch.float64)
     openness = embodiment.gripper_openness(traj.gripper, traj.source)
@@ -86,8 +94,9 @@ def hold_actions(actions: np.ndarray, transitions: int) -> np.ndarray:
     if actions.ndim != 2 or actions.shape[1] != ACTION_DIM or len(actions) < 1:
         raise ModelInputError(f"latent actions: expected (N >= 1, {ACTION_DIM}), found {actions.shape}")
     if transitions < len(actions):
-        raise ModelInputError(f"latent actions: expected at most {transitions} rows to extend to {transitions}, "
-                              f"found {len(actions)}")
+        raise ModelInputError(
+            f"latent actions: expected at most {transitions} rows to extend to {transitions}, found {len(actions)}"
+        )
     hold = np.zeros((transitions - len(actions), ACTION_DIM), dtype=actions.dtype)
     hold[:, 6::7] = actions[-1, 6::7]
     return np.concatenate([actions, hold])
@@ -139,14 +148,26 @@ class LatentActionTransformer(OscarTransformer3DModel):
     ) -> None:
         # diffusers' ConfigMixin needs every argument spelled out (a **kwargs pass-through is not saved)
         super().__init__(
-            in_channels=in_channels, out_channels=out_channels, num_attention_heads=num_attention_heads,
-            attention_head_dim=attention_head_dim, num_layers=num_layers, mlp_ratio=mlp_ratio,
-            text_embed_dim=text_embed_dim, adaln_lora_dim=adaln_lora_dim, max_size=max_size, patch_size=patch_size,
-            rope_scale=rope_scale, concat_padding_mask=concat_padding_mask, extra_pos_embed_type=extra_pos_embed_type,
-            use_crossattn_projection=use_crossattn_projection, crossattn_proj_in_channels=crossattn_proj_in_channels,
+            in_channels=in_channels,
+            out_channels=out_channels,
+            num_attention_heads=num_attention_heads,
+            attention_head_dim=attention_head_dim,
+            num_layers=num_layers,
+            mlp_ratio=mlp_ratio,
+            text_embed_dim=text_embed_dim,
+            adaln_lora_dim=adaln_lora_dim,
+            max_size=max_size,
+            patch_size=patch_size,
+            rope_scale=rope_scale,
+            concat_padding_mask=concat_padding_mask,
+            extra_pos_embed_type=extra_pos_embed_type,
+            use_crossattn_projection=use_crossattn_projection,
+            crossattn_proj_in_channels=crossattn_proj_in_channels,
             encoder_hidden_states_channels=encoder_hidden_states_channels,
-            controlnet_block_every_n=controlnet_block_every_n, img_context_dim_in=img_context_dim_in,
-            img_context_num_tokens=img_context_num_tokens, img_context_dim_out=img_context_dim_out,
+            controlnet_block_every_n=controlnet_block_every_n,
+            img_context_dim_in=img_context_dim_in,
+            img_context_num_tokens=img_context_num_tokens,
+            img_context_dim_out=img_context_dim_out,
             skeleton_channels=skeleton_channels,
         )
         hidden = self.config.num_attention_heads * self.config.attention_head_dim

@@ -44,11 +44,11 @@ _COMPONENT_DIRS = ("transformer/", "vae/", "text_encoder/", "tokenizer/", "sched
 #: layout → what it expects (for error messages and docs).
 LAYOUTS = {
     "oscar": f"{MODEL_FILE}, transformer/{CONFIG_NAME} + {WEIGHTS_NAME} (or an index + shards), "
-             f"vae/{CONFIG_NAME} + {WEIGHTS_NAME}",
+    f"vae/{CONFIG_NAME} + {WEIGHTS_NAME}",
     "diffusers": f"transformer/{CONFIG_NAME} + safetensors weights, vae/{CONFIG_NAME} + safetensors weights "
-                 f"(optional: {SCHEDULER_CONFIG})",
+    f"(optional: {SCHEDULER_CONFIG})",
     "cosmos-native": "one DiT checkpoint (*.pt, *.pth or *.safetensors, e.g. *_ema_bf16.pt) outside the "
-                     f"component folders, plus a diffusers vae/ ({CONFIG_NAME} + safetensors weights)",
+    f"component folders, plus a diffusers vae/ ({CONFIG_NAME} + safetensors weights)",
 }
 
 
@@ -88,8 +88,9 @@ def detect_layout(files, source, native_file: str | None = None) -> Layout:
     partial = [s for s in ("transformer", "vae") if any(f.startswith(s + "/") for f in files)]
     if partial or MODEL_FILE in files:
         lacking = [f"{s}/{CONFIG_NAME}" for s in ("transformer", "vae") if f"{s}/{CONFIG_NAME}" not in files]
-        lacking += [f"{s}/{WEIGHTS_NAME} (or {INDEX_NAME})" for s in ("transformer", "vae")
-                    if not _has_weights(files, s)]
+        lacking += [
+            f"{s}/{WEIGHTS_NAME} (or {INDEX_NAME})" for s in ("transformer", "vae") if not _has_weights(files, s)
+        ]
         hint = f"closest: {'oscar' if MODEL_FILE in files else 'diffusers'}, missing {', '.join(lacking)}"
     if len(natives) > 1:
         hint = f"several native checkpoints ({', '.join(natives)}): choose one with native_file=... / --native-file"
@@ -100,8 +101,11 @@ def detect_layout(files, source, native_file: str | None = None) -> Layout:
 
 def list_folder(folder: Path) -> list[str]:
     """Relative POSIX paths of the files under ``folder`` (hidden ones skipped)."""
-    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
-                  if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts))
+    return sorted(
+        p.relative_to(folder).as_posix()
+        for p in folder.rglob("*")
+        if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+    )
 
 
 def _vae(folder: Path):
@@ -163,8 +167,9 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
             transformer = OscarTransformer3DModel.load_strict(folder / "transformer")
             report.append("skeleton embedder: skeleton_embed.proj.weight (OscarTransformer3DModel)")
         else:
-            transformer = _transformer_from_state(config, load_state_dict(folder / "transformer"),
-                                                  folder / "transformer", report)
+            transformer = _transformer_from_state(
+                config, load_state_dict(folder / "transformer"), folder / "transformer", report
+            )
         report.insert(0, f"layout: diffusers ({folder})")
     elif layout.kind == "cosmos-native":
         path = folder / layout.native_file

@@ -20,17 +20,24 @@ MANIFEST_NAME = "oscar_manifest.json"
 
 
 def _files(folder: Path) -> list[str]:
-    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
-                  if p.is_file() and p.name != MANIFEST_NAME and not any(part.startswith(".") for part in
-                                                                         p.relative_to(folder).parts))
+    return sorted(
+        p.relative_to(folder).as_posix()
+        for p in folder.rglob("*")
+        if p.is_file()
+        and p.name != MANIFEST_NAME
+        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+    )
 
 
 def write_manifest(folder) -> dict[str, dict]:
     """Hash every file under ``folder`` (hidden ones excepted) into ``folder/oscar_manifest.json``."""
     folder = Path(folder)
-    files = {rel: {"size": (folder / rel).stat().st_size, "sha256": sha256_file(folder / rel)} for rel in _files(folder)}
-    (folder / MANIFEST_NAME).write_text(json.dumps({"format": "oscar-manifest", "version": 1, "files": files},
-                                                   indent=2, sort_keys=True) + "\n")
+    files = {
+        rel: {"size": (folder / rel).stat().st_size, "sha256": sha256_file(folder / rel)} for rel in _files(folder)
+    }
+    (folder / MANIFEST_NAME).write_text(
+        json.dumps({"format": "oscar-manifest", "version": 1, "files": files}, indent=2, sort_keys=True) + "\n"
+    )
     return files
 
 
@@ -45,8 +52,9 @@ def read_manifest(folder) -> dict[str, dict] | None:
         if not isinstance(files, dict):
             raise TypeError
     except (ValueError, KeyError, TypeError):
-        raise CheckpointLayoutError(path, "files", "a JSON object {path: {size, sha256}}", "an unreadable manifest") \
-            from None
+        raise CheckpointLayoutError(
+            path, "files", "a JSON object {path: {size, sha256}}", "an unreadable manifest"
+        ) from None
     return files
 
 
@@ -60,12 +68,18 @@ def verify_files(folder, expected: dict[str, str | None], source: str | None = N
     folder = Path(folder)
     missing = sorted(p for p in expected if not (folder / p).is_file())
     if missing:
-        raise CheckpointLayoutError(source or folder, "files", ", ".join(sorted(expected)), f"missing {', '.join(missing)}")
+        raise CheckpointLayoutError(
+            source or folder, "files", ", ".join(sorted(expected)), f"missing {', '.join(missing)}"
+        )
     for rel, digest in sorted(expected.items()):
         if digest is None:
             continue
         found = file_sha256(folder / rel)  # remembered while the file is unchanged (OSCAR_VERIFY=full: always read)
         if found != digest.lower():
-            raise CheckpointIntegrityError(folder / rel, "sha256", digest.lower(), found,
-                                           "the file is corrupted, partial or was changed; download it again "
-                                           "(oscar zoo pull --force NAME)")
+            raise CheckpointIntegrityError(
+                folder / rel,
+                "sha256",
+                digest.lower(),
+                found,
+                "the file is corrupted, partial or was changed; download it again (oscar zoo pull --force NAME)",
+            )

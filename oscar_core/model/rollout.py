@@ -99,14 +99,20 @@ def chunk_plan(num_frames: int, chunk_frames: int, temporal: int = 4) -> list[in
     """Start frame of each chunk of ``chunk_frames`` covering ``num_frames`` (overlap of one frame)."""
     check_frame_count(chunk_frames, temporal, what="chunk_frames")
     if chunk_frames < 1 + temporal:
-        raise ModelInputError(f"chunk_frames: expected at least {1 + temporal} (one frame to predict beyond the "
-                              f"seed), found {chunk_frames}")
+        raise ModelInputError(
+            f"chunk_frames: expected at least {1 + temporal} (one frame to predict beyond the "
+            f"seed), found {chunk_frames}"
+        )
     if num_frames < chunk_frames:
         shorter = (max(num_frames - 1, 0) // temporal) * temporal + 1
-        hint = (f"; use chunk_frames={shorter} (--chunk-frames {shorter}) or a longer trajectory"
-                if shorter >= 1 + temporal else "; use a longer trajectory")
-        raise ModelInputError(f"trajectory: expected at least one chunk of {chunk_frames} frames, "
-                              f"found {num_frames} frames{hint}")
+        hint = (
+            f"; use chunk_frames={shorter} (--chunk-frames {shorter}) or a longer trajectory"
+            if shorter >= 1 + temporal
+            else "; use a longer trajectory"
+        )
+        raise ModelInputError(
+            f"trajectory: expected at least one chunk of {chunk_frames} frames, found {num_frames} frames{hint}"
+        )
     count = math.ceil((num_frames - 1) / (chunk_frames - 1))
     return [c * (chunk_frames - 1) for c in range(count)]
 
@@ -117,8 +123,9 @@ def _check_first(first_frame, spatial: int) -> np.ndarray:
         raise ModelInputError(f"first frame: expected (H, W, 3) uint8 RGB, found {first.dtype} {first.shape}")
     h, w = first.shape[:2]
     if h % spatial or w % spatial:
-        raise ModelInputError(f"frame size: expected width and height divisible by {spatial} (VAE x DiT patch), "
-                              f"found {w}x{h}")
+        raise ModelInputError(
+            f"frame size: expected width and height divisible by {spatial} (VAE x DiT patch), found {w}x{h}"
+        )
     return first
 
 
@@ -131,8 +138,10 @@ def _check_actions(actions, num_frames: int | None, chunk_frames: int, temporal:
     starts = chunk_plan(total, chunk_frames, temporal)
     need = starts[-1] + chunk_frames - 1
     if len(acts) < need:
-        raise ModelInputError(f"actions: expected at least {need} rows (transitions of {len(starts)} chunk(s) of "
-                              f"{chunk_frames} frames covering {total} frames), found {len(acts)}")
+        raise ModelInputError(
+            f"actions: expected at least {need} rows (transitions of {len(starts)} chunk(s) of "
+            f"{chunk_frames} frames covering {total} frames), found {len(acts)}"
+        )
     return acts, total, starts
 
 
@@ -144,12 +153,15 @@ def _check_inputs(first_frame, skeleton, spatial: int):
     if first.dtype != np.uint8 or first.ndim != 3 or first.shape[-1] != 3:
         raise ModelInputError(f"first frame: expected (H, W, 3) uint8 RGB, found {first.dtype} {first.shape}")
     if first.shape != skel.shape[1:]:
-        raise ModelInputError(f"first frame: expected the skeleton video's size {skel.shape[2]}x{skel.shape[1]} "
-                              f"(width x height), found {first.shape[1]}x{first.shape[0]}")
+        raise ModelInputError(
+            f"first frame: expected the skeleton video's size {skel.shape[2]}x{skel.shape[1]} "
+            f"(width x height), found {first.shape[1]}x{first.shape[0]}"
+        )
     h, w = first.shape[:2]
     if h % spatial or w % spatial:
-        raise ModelInputError(f"frame size: expected width and height divisible by {spatial} (VAE x DiT patch), "
-                              f"found {w}x{h}")
+        raise ModelInputError(
+            f"frame size: expected width and height divisible by {spatial} (VAE x DiT patch), found {w}x{h}"
+        )
     return first, skel
 
 
@@ -174,10 +186,23 @@ class _UncondSkeletons:
 
 
 @torch.no_grad()
-def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *,
-                 chunk_frames: int = 81, sampler: SamplerConfig = SamplerConfig(), seed: int = 0,
-                 progress: bool = True, uncond_skeleton: str = "zero_latent", result: RolloutResult | None = None,
-                 keep_chunks: bool = False, actions=None, num_frames: int | None = None):
+def iter_rollout(
+    transformer,
+    vae: VideoVAE,
+    first_frame,
+    skeleton,
+    prompt_embeds: torch.Tensor,
+    *,
+    chunk_frames: int = 81,
+    sampler: SamplerConfig = SamplerConfig(),
+    seed: int = 0,
+    progress: bool = True,
+    uncond_skeleton: str = "zero_latent",
+    result: RolloutResult | None = None,
+    keep_chunks: bool = False,
+    actions=None,
+    num_frames: int | None = None,
+):
     """Like :func:`rollout`, but yields each chunk's new frames as soon as they are decoded.
 
     Yields (N_c, H, W, 3) uint8 arrays whose concatenation is the T-frame
@@ -205,16 +230,45 @@ def iter_rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embed
     if result is not None:
         result.starts = list(starts)
     results = [result] if result is not None else None
-    for frames in _chunks(transformer, vae, [first], None if skel is None else [skel],
-                          None if skel is not None else acts, prompt_embeds, starts, total, chunk_frames, sampler,
-                          [generator], progress, uncond, results, keep_chunks,
-                          timings=result.timings if result is not None else None):
+    for frames in _chunks(
+        transformer,
+        vae,
+        [first],
+        None if skel is None else [skel],
+        None if skel is not None else acts,
+        prompt_embeds,
+        starts,
+        total,
+        chunk_frames,
+        sampler,
+        [generator],
+        progress,
+        uncond,
+        results,
+        keep_chunks,
+        timings=result.timings if result is not None else None,
+    ):
         yield frames[0]
 
 
-def _chunks(transformer, vae: VideoVAE, firsts: list, skels: list | None, acts, prompt_embeds, starts, total: int,
-            chunk_frames: int, sampler: SamplerConfig, generators: list, progress: bool, uncond: _UncondSkeletons,
-            results: list | None, keep_chunks: bool, timings: dict | None = None):
+def _chunks(
+    transformer,
+    vae: VideoVAE,
+    firsts: list,
+    skels: list | None,
+    acts,
+    prompt_embeds,
+    starts,
+    total: int,
+    chunk_frames: int,
+    sampler: SamplerConfig,
+    generators: list,
+    progress: bool,
+    uncond: _UncondSkeletons,
+    results: list | None,
+    keep_chunks: bool,
+    timings: dict | None = None,
+):
     """The chunk loop of B rollouts sharing one chunk plan: yields, per chunk, B arrays (N_c, H, W, 3) uint8.
 
     firsts: B (H, W, 3) seed frames; skels: B padded (≥ starts[-1] + L, H, W, 3) condition videos, or None with
@@ -233,29 +287,48 @@ def _chunks(transformer, vae: VideoVAE, firsts: list, skels: list | None, acts, 
         for index, start in enumerate(starts):
             with clock("encode"):
                 first_latent = vae.encode(seed_pixels)
-            with tqdm(total=sampler.steps, desc=f"chunk {index + 1}/{len(starts)}", unit="step", leave=False,
-                      disable=not progress) as bar:
+            with tqdm(
+                total=sampler.steps,
+                desc=f"chunk {index + 1}/{len(starts)}",
+                unit="step",
+                leave=False,
+                disable=not progress,
+            ) as bar:
                 if skels is None:
                     with clock("sample"):
-                        latent = sample_chunk(transformer, first_latent, None, prompt_embeds, sampler,
-                                              generator=generators[0], progress=bar,
-                                              actions=acts[None, start:start + chunk_frames - 1],
-                                              latent_frames=(chunk_frames - 1) // vae.temporal + 1)
+                        latent = sample_chunk(
+                            transformer,
+                            first_latent,
+                            None,
+                            prompt_embeds,
+                            sampler,
+                            generator=generators[0],
+                            progress=bar,
+                            actions=acts[None, start : start + chunk_frames - 1],
+                            latent_frames=(chunk_frames - 1) // vae.temporal + 1,
+                        )
                 else:
-                    window = np.stack([s[start:start + chunk_frames] for s in skels])  # (B, L, H, W, 3)
+                    window = np.stack([s[start : start + chunk_frames] for s in skels])  # (B, L, H, W, 3)
                     with clock("encode"):
                         skeleton_latent = vae.encode(VideoVAE.to_pixels(window))
                         uncond_latent = uncond.get(chunk_frames, height, width)
                     with clock("sample"):
-                        latent = sample_chunk(transformer, first_latent, skeleton_latent, prompt_embeds, sampler,
-                                              progress=bar, uncond_skeleton=uncond_latent,
-                                              **({"generator": generators[0]} if b == 1 else {"generators": generators}))
+                        latent = sample_chunk(
+                            transformer,
+                            first_latent,
+                            skeleton_latent,
+                            prompt_embeds,
+                            sampler,
+                            progress=bar,
+                            uncond_skeleton=uncond_latent,
+                            **({"generator": generators[0]} if b == 1 else {"generators": generators}),
+                        )
             with clock("decode"):
                 video = vae.decode(latent).cpu().clamp_(-1.0, 1.0)  # (B, 3, L, H, W)
             if keep_chunks and results is not None:
                 for i, res in enumerate(results):
-                    res.chunks.append(video[i:i + 1])
-                    res.seeds.append(seed_pixels[i:i + 1])
+                    res.chunks.append(video[i : i + 1])
+                    res.seeds.append(seed_pixels[i : i + 1])
             new = video if index == 0 else video[:, :, 1:]
             with clock("decode"):
                 frames = VideoVAE.to_uint8(new)[:, : total - emitted]
@@ -269,9 +342,19 @@ def _chunks(transformer, vae: VideoVAE, firsts: list, skels: list | None, acts, 
 
 
 @torch.no_grad()
-def rollout_batch(transformer, vae: VideoVAE, first_frames, skeletons, prompt_embeds: torch.Tensor, *,
-                  chunk_frames: int = 81, sampler: SamplerConfig = SamplerConfig(), seeds=None,
-                  progress: bool = False, uncond_skeleton: str = "zero_latent") -> list[np.ndarray]:
+def rollout_batch(
+    transformer,
+    vae: VideoVAE,
+    first_frames,
+    skeletons,
+    prompt_embeds: torch.Tensor,
+    *,
+    chunk_frames: int = 81,
+    sampler: SamplerConfig = SamplerConfig(),
+    seeds=None,
+    progress: bool = False,
+    uncond_skeleton: str = "zero_latent",
+) -> list[np.ndarray]:
     """B rollouts in one batch: each equals :func:`rollout` of its own inputs and seed, up to float rounding.
 
     first_frames: B (H, W, 3) uint8 images; skeletons: B (T, H, W, 3) uint8 condition videos, all of the same
@@ -281,8 +364,9 @@ def rollout_batch(transformer, vae: VideoVAE, first_frames, skeletons, prompt_em
     """
     b = len(first_frames)
     if b == 0 or len(skeletons) != b:
-        raise ModelInputError(f"rollout_batch: expected as many skeleton videos as first frames (>= 1), found "
-                              f"{len(skeletons)} and {b}")
+        raise ModelInputError(
+            f"rollout_batch: expected as many skeleton videos as first frames (>= 1), found {len(skeletons)} and {b}"
+        )
     seeds = [0] * b if seeds is None else [int(s) for s in seeds]
     if len(seeds) != b:
         raise ModelInputError(f"rollout_batch: expected {b} seeds, found {len(seeds)}")
@@ -294,25 +378,53 @@ def rollout_batch(transformer, vae: VideoVAE, first_frames, skeletons, prompt_em
     total = len(pairs[0][1])
     starts = chunk_plan(total, chunk_frames, vae.temporal)
     padded_len = starts[-1] + chunk_frames
-    skels = [np.concatenate([s, np.repeat(s[-1:], padded_len - total, axis=0)]) if padded_len > total else s
-             for _, s in pairs]
+    skels = [
+        np.concatenate([s, np.repeat(s[-1:], padded_len - total, axis=0)]) if padded_len > total else s
+        for _, s in pairs
+    ]
     if prompt_embeds.shape[0] not in (1, b):
         raise ModelInputError(f"prompt_embeds: expected batch 1 or {b}, found shape {tuple(prompt_embeds.shape)}")
     generators = [torch.Generator(device="cpu").manual_seed(s) for s in seeds]
     pieces = [[] for _ in range(b)]
-    for frames in _chunks(transformer, vae, [f for f, _ in pairs], skels, None, prompt_embeds, starts, total,
-                          chunk_frames, sampler, generators, progress, _UncondSkeletons(vae, uncond_skeleton), None,
-                          False):
+    for frames in _chunks(
+        transformer,
+        vae,
+        [f for f, _ in pairs],
+        skels,
+        None,
+        prompt_embeds,
+        starts,
+        total,
+        chunk_frames,
+        sampler,
+        generators,
+        progress,
+        _UncondSkeletons(vae, uncond_skeleton),
+        None,
+        False,
+    ):
         for i, f in enumerate(frames):
             pieces[i].append(f)
     return [np.concatenate(p, axis=0) for p in pieces]
 
 
 @torch.no_grad()
-def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: torch.Tensor, *, chunk_frames: int = 81,
-            sampler: SamplerConfig = SamplerConfig(), seed: int = 0, progress: bool = True,
-            keep_chunks: bool = True, uncond_skeleton: str = "zero_latent", actions=None,
-            num_frames: int | None = None) -> RolloutResult:
+def rollout(
+    transformer,
+    vae: VideoVAE,
+    first_frame,
+    skeleton,
+    prompt_embeds: torch.Tensor,
+    *,
+    chunk_frames: int = 81,
+    sampler: SamplerConfig = SamplerConfig(),
+    seed: int = 0,
+    progress: bool = True,
+    keep_chunks: bool = True,
+    uncond_skeleton: str = "zero_latent",
+    actions=None,
+    num_frames: int | None = None,
+) -> RolloutResult:
     """Roll the world model out along a skeleton video.
 
     transformer: OscarTransformer3DModel; vae: VideoVAE.
@@ -329,8 +441,23 @@ def rollout(transformer, vae: VideoVAE, first_frame, skeleton, prompt_embeds: to
     returns: RolloutResult with T frames.
     """
     result = RolloutResult(frames=np.empty(0, np.uint8))
-    pieces = list(iter_rollout(transformer, vae, first_frame, skeleton, prompt_embeds, chunk_frames=chunk_frames,
-                               sampler=sampler, seed=seed, progress=progress, uncond_skeleton=uncond_skeleton,
-                               result=result, keep_chunks=keep_chunks, actions=actions, num_frames=num_frames))
+    pieces = list(
+        iter_rollout(
+            transformer,
+            vae,
+            first_frame,
+            skeleton,
+            prompt_embeds,
+            chunk_frames=chunk_frames,
+            sampler=sampler,
+            seed=seed,
+            progress=progress,
+            uncond_skeleton=uncond_skeleton,
+            result=result,
+            keep_chunks=keep_chunks,
+            actions=actions,
+            num_frames=num_frames,
+        )
+    )
     result.frames = np.concatenate(pieces, axis=0)
     return result

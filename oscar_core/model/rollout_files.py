@@ -113,8 +113,13 @@ def _notify_log(message: str) -> None:
     (_log.warning if message.startswith("warning: ") else _log.info)(message)
 
 
-def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None = None,
-                startup: float | None = None, given: str = "request") -> RolloutFilesResult:
+def run_rollout(
+    request: RolloutRequest,
+    *,
+    notify: Callable[[str], None] | None = None,
+    startup: float | None = None,
+    given: str = "request",
+) -> RolloutFilesResult:
     """Roll ``request.model`` out along ``request.trajectory`` from ``request.first_frame`` and write the videos.
 
     Steps: read the inputs (embodiment, trajectory, camera, first frame) and the sampler options, check the
@@ -148,9 +153,17 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     traj = load_trajectory(r.trajectory)
     camera = emb.load_camera(r.camera)
     first = read_first_frame(r.first_frame, camera, r.camera)
-    sampler_options = dict(steps=r.steps, preset=r.preset, guidance_interval=r.guidance_interval, shift=r.shift,
-                           guidance=r.guidance, guidance_form=r.guidance_form, batched_cfg=not r.two_pass_cfg,
-                           solver=r.solver, action_guidance=r.action_guidance)
+    sampler_options = dict(
+        steps=r.steps,
+        preset=r.preset,
+        guidance_interval=r.guidance_interval,
+        shift=r.shift,
+        guidance=r.guidance,
+        guidance_form=r.guidance_form,
+        batched_cfg=not r.two_pass_cfg,
+        solver=r.solver,
+        action_guidance=r.action_guidance,
+    )
     resolve_sampler(None, **sampler_options)  # the given options checked before any weights load
     # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
     from ..media.video import check_output
@@ -161,8 +174,12 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     if size is not None:  # the skeleton video of the whole trajectory is held in memory
         from .._util.memory import check_fits
 
-        check_fits((len(traj), size[1], size[0], 3), 1, "the skeleton video (T, H, W, 3) uint8 at --size",
-                   "use a smaller --size")
+        check_fits(
+            (len(traj), size[1], size[0], 3),
+            1,
+            "the skeleton video (T, H, W, 3) uint8 at --size",
+            "use a smaller --size",
+        )
     side_path = None if r.no_side_by_side else (r.side_by_side or side_by_side_path(r.out))
     if side_path is not None:
         check_output(side_path)
@@ -174,9 +191,17 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
         from .world_model import OscarWorldModel  # noqa: F401 - diffusers (~3 s on a CPU): counted as import
     timings["import"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    model = oscar_zoo.load(r.model, r.revision, device=device, dtype=dtype, offload_vae=r.offload_vae,
-                           offload_text=r.offload_text, local_files_only=True if r.offline else None,
-                           native_file=r.native_file, report=report)
+    model = oscar_zoo.load(
+        r.model,
+        r.revision,
+        device=device,
+        dtype=dtype,
+        offload_vae=r.offload_vae,
+        offload_text=r.offload_text,
+        local_files_only=True if r.offline else None,
+        native_file=r.native_file,
+        report=report,
+    )
     timings["load"] = time.perf_counter() - t0
     for line in report:
         say(line)
@@ -191,8 +216,15 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     width, height = rollout_size(r, model.card, camera)
     # the card's condition video (the skeleton, or the mesh / capsules for a model trained on those)
     t0 = time.perf_counter()
-    skeleton = condition_video(video_condition_of(model.card.condition), emb, traj, camera,
-                               (width, height), resize_mode=r.resize, camera_source=r.camera)
+    skeleton = condition_video(
+        video_condition_of(model.card.condition),
+        emb,
+        traj,
+        camera,
+        (width, height),
+        resize_mode=r.resize,
+        camera_source=r.camera,
+    )
     first = fit_image(first, width, height, r.resize)
     timings["render"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -202,8 +234,10 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     if prompt is None and model.empty_prompt is None:
         prompt = torch.zeros(1, 1, model.transformer.text_dim)
     if model.card.fps and abs(model.card.fps - traj.fps) > 1e-6:
-        say(f"warning: {r.trajectory} is at {traj.fps:g} fps but the model was trained at {model.card.fps:g} fps; "
-            "resample the trajectory for faithful motion speed")
+        say(
+            f"warning: {r.trajectory} is at {traj.fps:g} fps but the model was trained at {model.card.fps:g} fps; "
+            "resample the trajectory for faithful motion speed"
+        )
     from .rollout import RolloutResult
 
     fps = r.fps or traj.fps
@@ -213,8 +247,17 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
     timings["render"] += time.perf_counter() - t0
     t0 = time.perf_counter()
-    chunks = model.iter_rollout(first, None if latent_action else skeleton, prompt, chunk_frames=r.chunk_frames,
-                                sampler=sampler, seed=r.seed, progress=r.progress, result=result, actions=actions)
+    chunks = model.iter_rollout(
+        first,
+        None if latent_action else skeleton,
+        prompt,
+        chunk_frames=r.chunk_frames,
+        sampler=sampler,
+        seed=r.seed,
+        progress=r.progress,
+        result=result,
+        actions=actions,
+    )
     # torch.compile's set-up when the policy compiles (mostly inductor's imports, ~1.5 s on a CPU; 0 eager); the
     # compile itself runs inside the first chunk's sample
     timings["compile"] = time.perf_counter() - t0
@@ -224,14 +267,27 @@ def run_rollout(request: RolloutRequest, *, notify: Callable[[str], None] | None
     timings.update({k: result.timings.get(k, 0.0) for k in ("encode", "sample", "decode")})
     timings["write"] = max(streamed - sum(result.timings.values()), 0.0)  # what streaming added beyond the model
     timings["wall"] = time.perf_counter() - t_start + (startup or 0.0)
-    summary = {"rollout": str(out), "frames": count, "size": [width, height], "fps": fps,
-               "chunks": len(result.starts), "model": r.model, "seed": r.seed, "text": text_source,
-               "sampler": model.sampler_for(sampler).resolved_solver, "steps": sampler.steps,
-               "unconditional_skeleton": model.card.unconditional_skeleton,
-               "guidance": {"w": sampler.guidance, "form": sampler.guidance_form}, "preset": choice.preset,
-               "sampler_sources": dict(choice.sources), "condition": model.card.condition,
-               "compile": model.compile_reason, "dtype": str(next(model.transformer.parameters()).dtype),
-               "device": str(device), "timings": {k: round(v, 3) for k, v in timings.items()}}
+    summary = {
+        "rollout": str(out),
+        "frames": count,
+        "size": [width, height],
+        "fps": fps,
+        "chunks": len(result.starts),
+        "model": r.model,
+        "seed": r.seed,
+        "text": text_source,
+        "sampler": model.sampler_for(sampler).resolved_solver,
+        "steps": sampler.steps,
+        "unconditional_skeleton": model.card.unconditional_skeleton,
+        "guidance": {"w": sampler.guidance, "form": sampler.guidance_form},
+        "preset": choice.preset,
+        "sampler_sources": dict(choice.sources),
+        "condition": model.card.condition,
+        "compile": model.compile_reason,
+        "dtype": str(next(model.transformer.parameters()).dtype),
+        "device": str(device),
+        "timings": {k: round(v, 3) for k, v in timings.items()},
+    }
     if str(device).startswith("cuda"):  # which GPU the timings were measured on
         summary["device_name"] = torch.cuda.get_device_name(torch.device(device))
     if latent_action:
@@ -254,9 +310,11 @@ def rollout_size(args, card, camera) -> tuple[int, int]:
     else:
         size, origin = (camera.intrinsics.width, camera.intrinsics.height), f"the camera's image size ({args.camera})"
     if size[0] % 16 or size[1] % 16:
-        raise ModelInputError(f"rollout size: expected width and height divisible by 16 (VAE x DiT patch), found "
-                              f"{size[0]}x{size[1]} from {origin}; pass --size, e.g. "
-                              f"{size[0] // 16 * 16}x{size[1] // 16 * 16}")
+        raise ModelInputError(
+            f"rollout size: expected width and height divisible by 16 (VAE x DiT patch), found "
+            f"{size[0]}x{size[1]} from {origin}; pass --size, e.g. "
+            f"{size[0] // 16 * 16}x{size[1] // 16 * 16}"
+        )
     return size
 
 
@@ -308,8 +366,10 @@ def prompt_embeds_for(args, model, device) -> tuple:
         if model.empty_prompt is not None:
             return None, "empty-prompt embedding stored in the checkpoint (no --prompt)"
         if not encoder:
-            return None, ("ZERO text embedding: no --prompt and the checkpoint names no text encoder "
-                          "(text_encoder_id) and ships no empty-prompt embedding")
+            return None, (
+                "ZERO text embedding: no --prompt and the checkpoint names no text encoder "
+                "(text_encoder_id) and ships no empty-prompt embedding"
+            )
     prompt = "" if args.prompt is None else args.prompt
     what = "empty-prompt embedding (no --prompt)" if args.prompt is None else f"prompt {prompt!r}"
     cache = PromptEmbeddingCache(args.prompt_cache, encoder_id=encoder or "unknown-encoder")
@@ -322,7 +382,8 @@ def prompt_embeds_for(args, model, device) -> tuple:
         raise ModelInputError(
             f"{cache.root}: prompt {prompt!r}: expected a cached embedding made by encoder 'unknown-encoder' "
             f"({cache.path(prompt).name}), found none, and the checkpoint names no text encoder; pass "
-            "--text-encoder ID_OR_FOLDER, or --prompt-embeds FILE")
+            "--text-encoder ID_OR_FOLDER, or --prompt-embeds FILE"
+        )
     text = text_encoder(encoder, device, None, args.offline)
     embeds, _ = text.cached(prompt, args.prompt_cache)
     return embeds.to(torch.float32), f"{what}, computed with {text.encoder_id} and cached"
@@ -349,7 +410,7 @@ def _write_streams(chunks, skeleton, out, side_path, fps):
                 start = state["count"]
                 state["count"] += len(block)
                 if side_path is not None:
-                    skel = skeleton[start:start + len(block)]
+                    skel = skeleton[start : start + len(block)]
                     side_q.put(np.concatenate([block, overlay_skeleton(skel, block)], axis=2))
                 yield from block
         finally:

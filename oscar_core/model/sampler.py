@@ -74,10 +74,25 @@ import torch
 from .errors import ModelInputError
 from .presets import SAMPLER_PRESETS
 
-__all__ = ["SamplerConfig", "flow_sigmas", "guided_velocity", "sample_chunk", "integrate", "unipc_scheduler",
-           "branches", "GUIDANCE_FORMS", "SOLVERS", "SAMPLER_PRESETS", "apply_preset", "model_calls",
-           "CARD_SAMPLER_KEYS", "SamplerChoice", "check_card_sampler", "resolve_sampler",
-           "step_sigmas"]
+__all__ = [
+    "SamplerConfig",
+    "flow_sigmas",
+    "guided_velocity",
+    "sample_chunk",
+    "integrate",
+    "unipc_scheduler",
+    "branches",
+    "GUIDANCE_FORMS",
+    "SOLVERS",
+    "SAMPLER_PRESETS",
+    "apply_preset",
+    "model_calls",
+    "CARD_SAMPLER_KEYS",
+    "SamplerChoice",
+    "check_card_sampler",
+    "resolve_sampler",
+    "step_sigmas",
+]
 
 GUIDANCE_FORMS = ("standard", "diffusers")
 SOLVERS = ("unipc", "euler")
@@ -121,11 +136,16 @@ class SamplerConfig:
     def __post_init__(self):
         if self.guidance_interval is not None:
             iv = self.guidance_interval
-            ok = (isinstance(iv, (tuple, list)) and len(iv) == 2 and all(_finite(v) for v in iv)
-                  and 0.0 <= float(iv[0]) <= float(iv[1]) <= 1.0)
+            ok = (
+                isinstance(iv, (tuple, list))
+                and len(iv) == 2
+                and all(_finite(v) for v in iv)
+                and 0.0 <= float(iv[0]) <= float(iv[1]) <= 1.0
+            )
             if not ok:
-                raise ModelInputError(f"guidance_interval: expected (lo, hi) noise levels with 0 <= lo <= hi <= 1, "
-                                      f"found {iv!r}")
+                raise ModelInputError(
+                    f"guidance_interval: expected (lo, hi) noise levels with 0 <= lo <= hi <= 1, found {iv!r}"
+                )
             object.__setattr__(self, "guidance_interval", (float(iv[0]), float(iv[1])))
         steps = self.steps
         if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
@@ -135,15 +155,18 @@ class SamplerConfig:
         for name in ("guidance", "action_guidance"):
             w = getattr(self, name)
             if w is not None and (not _finite(w) or w < 0):
-                raise ModelInputError(f"sampler {name}: expected a finite number >= 0 (or None: the conditional "
-                                      f"branch alone), found {w!r}")
+                raise ModelInputError(
+                    f"sampler {name}: expected a finite number >= 0 (or None: the conditional "
+                    f"branch alone), found {w!r}"
+                )
         if not _finite(self.cond_timestep) or self.cond_timestep < 0:
             raise ModelInputError(f"sampler cond_timestep: expected a finite number >= 0, found {self.cond_timestep!r}")
         if self.guidance_form not in GUIDANCE_FORMS:
             raise ModelInputError(f"guidance_form: expected one of {GUIDANCE_FORMS}, found {self.guidance_form!r}")
         if self.solver is not None and self.solver not in SOLVERS:
-            raise ModelInputError(f"sampler solver: expected one of {SOLVERS} (or None: the checkpoint's), "
-                                  f"found {self.solver!r}")
+            raise ModelInputError(
+                f"sampler solver: expected one of {SOLVERS} (or None: the checkpoint's), found {self.solver!r}"
+            )
 
     @property
     def resolved_solver(self) -> str:
@@ -154,8 +177,6 @@ class SamplerConfig:
 def _finite(x) -> bool:
     """A real number (not a bool), neither NaN nor infinite."""
     return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
-
-
 
 
 def apply_preset(config: SamplerConfig, name: str | None) -> SamplerConfig:
@@ -204,17 +225,21 @@ def unipc_scheduler(config: SamplerConfig):
         cfg = {k: v for k, v in dict(config.scheduler_config).items() if not k.startswith("_")}
         scheduler = UniPCMultistepScheduler.from_config(cfg)
         if not scheduler.config.use_flow_sigmas or scheduler.config.prediction_type != "flow_prediction":
-            raise ModelInputError("scheduler config: expected use_flow_sigmas=True and prediction_type="
-                                  f"'flow_prediction' (a rectified-flow model), found use_flow_sigmas="
-                                  f"{scheduler.config.use_flow_sigmas}, prediction_type="
-                                  f"{scheduler.config.prediction_type!r}")
+            raise ModelInputError(
+                "scheduler config: expected use_flow_sigmas=True and prediction_type="
+                f"'flow_prediction' (a rectified-flow model), found use_flow_sigmas="
+                f"{scheduler.config.use_flow_sigmas}, prediction_type="
+                f"{scheduler.config.prediction_type!r}"
+            )
         return scheduler
-    return UniPCMultistepScheduler(use_flow_sigmas=True, prediction_type="flow_prediction",
-                                   flow_shift=float(config.shift))
+    return UniPCMultistepScheduler(
+        use_flow_sigmas=True, prediction_type="flow_prediction", flow_shift=float(config.shift)
+    )
 
 
-def integrate(velocity: Callable[[torch.Tensor, float], torch.Tensor], x: torch.Tensor, config: SamplerConfig,
-              progress=None) -> torch.Tensor:
+def integrate(
+    velocity: Callable[[torch.Tensor, float], torch.Tensor], x: torch.Tensor, config: SamplerConfig, progress=None
+) -> torch.Tensor:
     """Integrate dz/dσ = velocity(z, σ) from σ ≈ 1 (``x``, the noise) down to σ = 0 with ``config``'s solver.
 
     velocity: (z float32 of x's shape, σ float) → velocity of the same shape;
@@ -248,9 +273,19 @@ def branches(config: SamplerConfig) -> tuple[str, ...]:
     return ("cond",) if w == 0.0 else ("cond", "uncond")
 
 
-def guided_velocity(transformer, latents, timestep, text, skeleton, condition_mask, padding_mask,
-                    config: SamplerConfig, text_projected: bool = False,
-                    uncond_skeleton: torch.Tensor | None = None, actions: torch.Tensor | None = None) -> torch.Tensor:
+def guided_velocity(
+    transformer,
+    latents,
+    timestep,
+    text,
+    skeleton,
+    condition_mask,
+    padding_mask,
+    config: SamplerConfig,
+    text_projected: bool = False,
+    uncond_skeleton: torch.Tensor | None = None,
+    actions: torch.Tensor | None = None,
+) -> torch.Tensor:
     """The guided velocity (B, C, T, H, W) of one denoising step (float32).
 
     latents: (B, C, T, H, W) model input; timestep: (B, 1, T, 1, 1);
@@ -263,14 +298,23 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
     over the actions; see :func:`_action_guided_velocity`).
     """
     if actions is not None:
-        return _action_guided_velocity(transformer, latents, timestep, text, actions, condition_mask, padding_mask,
-                                       config, text_projected)
+        return _action_guided_velocity(
+            transformer, latents, timestep, text, actions, condition_mask, padding_mask, config, text_projected
+        )
     dtype = transformer.dtype  # the timestep stays float32: bf16 would round sigma to 3 digits
 
     def call(x, t, txt, skel, mask):
-        out = transformer(hidden_states=x.to(dtype), timestep=t, encoder_hidden_states=txt.to(dtype),
-                          condition_mask=mask.to(dtype), padding_mask=padding_mask, fps=config.fps,
-                          skeleton_latents=skel.to(dtype), return_dict=False, text_projected=text_projected)[0]
+        out = transformer(
+            hidden_states=x.to(dtype),
+            timestep=t,
+            encoder_hidden_states=txt.to(dtype),
+            condition_mask=mask.to(dtype),
+            padding_mask=padding_mask,
+            fps=config.fps,
+            skeleton_latents=skel.to(dtype),
+            return_dict=False,
+            text_projected=text_projected,
+        )[0]
         return out.float()
 
     need = branches(config)
@@ -278,16 +322,23 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
         if uncond_skeleton is None:
             uncond_skeleton = torch.zeros_like(skeleton)
         elif uncond_skeleton.shape[1:] != skeleton.shape[1:] or uncond_skeleton.shape[0] not in (1, skeleton.shape[0]):
-            raise ModelInputError(f"uncond_skeleton: expected shape (1 or {skeleton.shape[0]}, "
-                                  f"{tuple(skeleton.shape[1:])}), found {tuple(uncond_skeleton.shape)}")
+            raise ModelInputError(
+                f"uncond_skeleton: expected shape (1 or {skeleton.shape[0]}, "
+                f"{tuple(skeleton.shape[1:])}), found {tuple(uncond_skeleton.shape)}"
+            )
         uncond_skeleton = uncond_skeleton.to(skeleton.device, skeleton.dtype).expand_as(skeleton)
     if need == ("cond",):
         return call(latents, timestep, text, skeleton, condition_mask)
     if need == ("uncond",):
         return call(latents, timestep, text, uncond_skeleton, condition_mask)
     if config.batched_cfg:
-        both = call(torch.cat([latents, latents]), torch.cat([timestep, timestep]), torch.cat([text, text]),
-                    torch.cat([skeleton, uncond_skeleton]), torch.cat([condition_mask, condition_mask]))
+        both = call(
+            torch.cat([latents, latents]),
+            torch.cat([timestep, timestep]),
+            torch.cat([text, text]),
+            torch.cat([skeleton, uncond_skeleton]),
+            torch.cat([condition_mask, condition_mask]),
+        )
         v_cond, v_uncond = both.chunk(2)
     else:
         v_cond = call(latents, timestep, text, skeleton, condition_mask)
@@ -298,17 +349,34 @@ def guided_velocity(transformer, latents, timestep, text, skeleton, condition_ma
     return v_cond + w * (v_cond - v_uncond)
 
 
-def _action_guided_velocity(transformer, latents, timestep, text, actions, condition_mask, padding_mask,
-                            config: SamplerConfig, text_projected: bool) -> torch.Tensor:
+def _action_guided_velocity(
+    transformer,
+    latents,
+    timestep,
+    text,
+    actions,
+    condition_mask,
+    padding_mask,
+    config: SamplerConfig,
+    text_projected: bool,
+) -> torch.Tensor:
     """Guided velocity of a latent-action model: w = ``config.action_guidance``, unconditional = no action tokens."""
     from dataclasses import replace
 
     dtype = transformer.dtype
 
     def call(act):
-        out = transformer(hidden_states=latents.to(dtype), timestep=timestep, encoder_hidden_states=text.to(dtype),
-                          condition_mask=condition_mask.to(dtype), padding_mask=padding_mask, fps=config.fps,
-                          actions=act, return_dict=False, text_projected=text_projected)[0]
+        out = transformer(
+            hidden_states=latents.to(dtype),
+            timestep=timestep,
+            encoder_hidden_states=text.to(dtype),
+            condition_mask=condition_mask.to(dtype),
+            padding_mask=padding_mask,
+            fps=config.fps,
+            actions=act,
+            return_dict=False,
+            text_projected=text_projected,
+        )[0]
         return out.float()
 
     need = branches(replace(config, guidance=config.action_guidance))
@@ -324,11 +392,20 @@ def _action_guided_velocity(transformer, latents, timestep, text, actions, condi
 
 
 @torch.no_grad()
-def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch.Tensor | None, text: torch.Tensor,
-                 config: SamplerConfig = SamplerConfig(), generator: torch.Generator | None = None,
-                 progress=None, uncond_skeleton: torch.Tensor | None = None, *,
-                 actions: torch.Tensor | None = None, latent_frames: int | None = None,
-                 generators=None) -> torch.Tensor:
+def sample_chunk(
+    transformer,
+    first_latent: torch.Tensor,
+    skeleton_latent: torch.Tensor | None,
+    text: torch.Tensor,
+    config: SamplerConfig = SamplerConfig(),
+    generator: torch.Generator | None = None,
+    progress=None,
+    uncond_skeleton: torch.Tensor | None = None,
+    *,
+    actions: torch.Tensor | None = None,
+    latent_frames: int | None = None,
+    generators=None,
+) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
     first_latent: (B, C, 1, H, W) normalised clean latent of the seed frame.
@@ -348,9 +425,11 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     device = next(transformer.parameters()).device
     if actions is not None:
         if skeleton_latent is not None or latent_frames is None:
-            raise ModelInputError("sample_chunk: with actions, expected skeleton_latent=None and latent_frames set, "
-                                  f"found skeleton_latent={'a tensor' if skeleton_latent is not None else None}, "
-                                  f"latent_frames={latent_frames}")
+            raise ModelInputError(
+                "sample_chunk: with actions, expected skeleton_latent=None and latent_frames set, "
+                f"found skeleton_latent={'a tensor' if skeleton_latent is not None else None}, "
+                f"latent_frames={latent_frames}"
+            )
         b, _, _, h, w = first_latent.shape
         t = int(latent_frames)
         if actions.ndim != 3 or actions.shape[0] != b:
@@ -362,8 +441,10 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
     b, _, t, h, w = skeleton_latent.shape
     c = first_latent.shape[1]
     if first_latent.shape != (b, c, 1, h, w):
-        raise ModelInputError(f"first_latent: expected shape {(b, c, 1, h, w)} (one frame of the skeleton "
-                              f"latent's size), found {tuple(first_latent.shape)}")
+        raise ModelInputError(
+            f"first_latent: expected shape {(b, c, 1, h, w)} (one frame of the skeleton "
+            f"latent's size), found {tuple(first_latent.shape)}"
+        )
     if text.shape[0] not in (1, b):
         raise ModelInputError(f"text: expected batch 1 or {b}, found shape {tuple(text.shape)}")
     # the prompt is the same at every step: project it once (where the projection lives), not per step
@@ -395,9 +476,19 @@ def sample_chunk(transformer, first_latent: torch.Tensor, skeleton_latent: torch
         model_in = mask * clean + (1.0 - mask) * x
         timestep = indicator * config.cond_timestep + (1.0 - indicator) * sigma
         step_config = config if guided_at(config, float(sigma)) else unguided
-        v = guided_velocity(transformer, model_in, timestep, text, None if actions is not None else skeleton_latent,
-                            mask, padding, step_config, text_projected=True, uncond_skeleton=uncond_skeleton,
-                            actions=actions)
+        v = guided_velocity(
+            transformer,
+            model_in,
+            timestep,
+            text,
+            None if actions is not None else skeleton_latent,
+            mask,
+            padding,
+            step_config,
+            text_projected=True,
+            uncond_skeleton=uncond_skeleton,
+            actions=actions,
+        )
         return true_velocity + v * (1.0 - mask)
 
     x = integrate(velocity, noise, config, progress)
@@ -424,17 +515,20 @@ def check_card_sampler(value, source: str = "model card sampler") -> dict | None
     if unknown:
         raise ModelInputError(f"{source}: expected keys among {', '.join(CARD_SAMPLER_KEYS)}, found {unknown}")
     out = dict(value)
-    if "steps" in out and (isinstance(out["steps"], bool) or not isinstance(out["steps"], numbers.Integral)
-                           or out["steps"] < 1):
+    if "steps" in out and (
+        isinstance(out["steps"], bool) or not isinstance(out["steps"], numbers.Integral) or out["steps"] < 1
+    ):
         raise ModelInputError(f"{source}.steps: expected an integer >= 1, found {out['steps']!r}")
     if "guidance" in out and out["guidance"] is not None and (not _finite(out["guidance"]) or out["guidance"] < 0):
         raise ModelInputError(f"{source}.guidance: expected a finite number >= 0, found {out['guidance']!r}")
     if "guidance_form" in out and out["guidance_form"] not in GUIDANCE_FORMS:
-        raise ModelInputError(f"{source}.guidance_form: expected one of {GUIDANCE_FORMS}, found "
-                              f"{out['guidance_form']!r}")
+        raise ModelInputError(
+            f"{source}.guidance_form: expected one of {GUIDANCE_FORMS}, found {out['guidance_form']!r}"
+        )
     if "preset" in out and out["preset"] is not None and out["preset"] not in SAMPLER_PRESETS:
-        raise ModelInputError(f"{source}.preset: expected one of {sorted(SAMPLER_PRESETS)} or null, found "
-                              f"{out['preset']!r}")
+        raise ModelInputError(
+            f"{source}.preset: expected one of {sorted(SAMPLER_PRESETS)} or null, found {out['preset']!r}"
+        )
     return out
 
 
@@ -452,15 +546,28 @@ class SamplerChoice:
         """One line, e.g. ``steps 20 (model card), guidance 3 (model card), guidance form diffusers (model card),
         preset none (library default)``; ``given`` names the explicit source (``"flag"`` on the command line)."""
         c = self.config
-        values = {"steps": c.steps, "guidance": "none" if c.guidance is None else f"{c.guidance:g}",
-                  "guidance_form": c.guidance_form, "preset": self.preset or "none"}
-        return ", ".join(f"{k.replace('_', ' ')} {values[k]} ({self.sources[k].replace(GIVEN, given)})"
-                         for k in CARD_SAMPLER_KEYS)
+        values = {
+            "steps": c.steps,
+            "guidance": "none" if c.guidance is None else f"{c.guidance:g}",
+            "guidance_form": c.guidance_form,
+            "preset": self.preset or "none",
+        }
+        return ", ".join(
+            f"{k.replace('_', ' ')} {values[k]} ({self.sources[k].replace(GIVEN, given)})" for k in CARD_SAMPLER_KEYS
+        )
 
 
-def resolve_sampler(card_sampler=None, *, steps: int | None = None, guidance: float | None = None,
-                    guidance_form: str | None = None, preset: str | None = None,
-                    guidance_interval: tuple[float, float] | None = None, defaults=None, **fields) -> SamplerChoice:
+def resolve_sampler(
+    card_sampler=None,
+    *,
+    steps: int | None = None,
+    guidance: float | None = None,
+    guidance_form: str | None = None,
+    preset: str | None = None,
+    guidance_interval: tuple[float, float] | None = None,
+    defaults=None,
+    **fields,
+) -> SamplerChoice:
     """The sampler an entry point runs: each of steps, guidance, guidance form and preset from the caller when
     given (not None), else from the model card's recommendation ``card_sampler`` (``ModelCard.sampler``), else
     the library default (35 steps, guidance 6, the diffusers form, no preset; ``defaults`` overrides these per
@@ -482,8 +589,9 @@ def resolve_sampler(card_sampler=None, *, steps: int | None = None, guidance: fl
             value[key], sources[key] = card[key], CARD
         else:
             value[key], sources[key] = lib[key], DEFAULT
-    config = apply_preset(SamplerConfig(guidance=value["guidance"], guidance_form=value["guidance_form"], **fields),
-                          value["preset"])
+    config = apply_preset(
+        SamplerConfig(guidance=value["guidance"], guidance_form=value["guidance_form"], **fields), value["preset"]
+    )
     if value["preset"] is not None and rank[sources["preset"]] > rank[sources["steps"]]:
         sources["steps"] = f"preset {value['preset']} ({sources['preset']})"
     else:

@@ -58,8 +58,10 @@ def check_prompt_embeds(embeds: torch.Tensor, dim: int, source: str = "prompt_em
     if embeds.ndim == 2:
         embeds = embeds.unsqueeze(0)
     if embeds.shape[-1] != dim or embeds.shape[1] < 1:
-        raise ModelInputError(f"{source}: expected last dimension {dim} (the model's text dimension) and L >= 1, "
-                              f"found shape {tuple(embeds.shape)}")
+        raise ModelInputError(
+            f"{source}: expected last dimension {dim} (the model's text dimension) and L >= 1, "
+            f"found shape {tuple(embeds.shape)}"
+        )
     return embeds
 
 
@@ -98,11 +100,20 @@ class PromptEmbeddingCache:
                 meta = fh.metadata() or {}
             tensors = load_file(str(path))
         except (SafetensorError, OSError, ValueError) as exc:
-            raise CheckpointIntegrityError(path, "prompt embedding file", "a readable safetensors file",
-                                           f"an unreadable file ({exc})", "delete it to recompute") from None
+            raise CheckpointIntegrityError(
+                path,
+                "prompt embedding file",
+                "a readable safetensors file",
+                f"an unreadable file ({exc})",
+                "delete it to recompute",
+            ) from None
         if meta.get("prompt") != prompt or meta.get("encoder_id") != self.encoder_id or _TENSOR not in tensors:
-            raise CheckpointIntegrityError(path, "metadata", f"prompt {prompt!r} by encoder {self.encoder_id!r}",
-                                           f"prompt {meta.get('prompt')!r} by encoder {meta.get('encoder_id')!r}")
+            raise CheckpointIntegrityError(
+                path,
+                "metadata",
+                f"prompt {prompt!r} by encoder {self.encoder_id!r}",
+                f"prompt {meta.get('prompt')!r} by encoder {meta.get('encoder_id')!r}",
+            )
         return tensors[_TENSOR]
 
     def put(self, prompt: str, embeds: torch.Tensor) -> Path:
@@ -113,8 +124,11 @@ class PromptEmbeddingCache:
         path = self.path(prompt)
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(path) as tmp:
-            save_file({_TENSOR: embeds.detach().cpu().contiguous()}, str(tmp),
-                      metadata={"prompt": prompt, "encoder_id": self.encoder_id})
+            save_file(
+                {_TENSOR: embeds.detach().cpu().contiguous()},
+                str(tmp),
+                metadata={"prompt": prompt, "encoder_id": self.encoder_id},
+            )
         return path
 
     def get_or_encode(self, prompt: str, encode) -> torch.Tensor:

@@ -35,8 +35,17 @@ import torch
 
 from .errors import CheckpointLayoutError, ModelInputError
 
-__all__ = ["SYSTEM_PROMPT", "MAX_SEQUENCE_LENGTH", "require_transformers", "chat", "prompt_input_ids",
-           "embed_hidden_states", "encode_prompts", "TextEncoder", "parse_encoder_id"]
+__all__ = [
+    "SYSTEM_PROMPT",
+    "MAX_SEQUENCE_LENGTH",
+    "require_transformers",
+    "chat",
+    "prompt_input_ids",
+    "embed_hidden_states",
+    "encode_prompts",
+    "TextEncoder",
+    "parse_encoder_id",
+]
 
 SYSTEM_PROMPT = "You are a helpful assistant who will provide prompts to an image generator."
 MAX_SEQUENCE_LENGTH = 512
@@ -54,8 +63,10 @@ def require_transformers():
 
 def chat(prompt: str) -> list[dict]:
     """The two-turn conversation the Cosmos 2.5 pipeline feeds the chat template."""
-    return [{"role": "system", "content": [{"type": "text", "text": SYSTEM_PROMPT}]},
-            {"role": "user", "content": [{"type": "text", "text": prompt}]}]
+    return [
+        {"role": "system", "content": [{"type": "text", "text": SYSTEM_PROMPT}]},
+        {"role": "user", "content": [{"type": "text", "text": prompt}]},
+    ]
 
 
 def prompt_input_ids(tokenizer, prompts: list[str], max_length: int = MAX_SEQUENCE_LENGTH) -> torch.Tensor:
@@ -64,9 +75,15 @@ def prompt_input_ids(tokenizer, prompts: list[str], max_length: int = MAX_SEQUEN
     for prompt in prompts:
         if not isinstance(prompt, str):
             raise ModelInputError(f"prompt: expected a string, found {type(prompt).__name__}")
-        ids = tokenizer.apply_chat_template(chat(prompt), tokenize=True, add_generation_prompt=False,
-                                            add_vision_id=False, max_length=max_length, truncation=True,
-                                            padding="max_length")
+        ids = tokenizer.apply_chat_template(
+            chat(prompt),
+            tokenize=True,
+            add_generation_prompt=False,
+            add_vision_id=False,
+            max_length=max_length,
+            truncation=True,
+            padding="max_length",
+        )
         if not isinstance(ids, list) and "input_ids" in ids:
             ids = ids["input_ids"]
         rows.append(torch.as_tensor(ids, dtype=torch.long))
@@ -82,8 +99,14 @@ def embed_hidden_states(hidden_states) -> torch.Tensor:
 
 
 @torch.no_grad()
-def encode_prompts(text_encoder, tokenizer, prompts: str | list[str], *, max_length: int = MAX_SEQUENCE_LENGTH,
-                   dtype: torch.dtype | None = None) -> torch.Tensor:
+def encode_prompts(
+    text_encoder,
+    tokenizer,
+    prompts: str | list[str],
+    *,
+    max_length: int = MAX_SEQUENCE_LENGTH,
+    dtype: torch.dtype | None = None,
+) -> torch.Tensor:
     """(B, max_length, layers × hidden) prompt embeddings, as diffusers' Cosmos 2.5 pipeline computes them.
 
     text_encoder: a transformers ``Qwen2_5_VLForConditionalGeneration`` (any
@@ -115,8 +138,15 @@ class TextEncoder:
         self.model, self.tokenizer, self.encoder_id, self.max_length = model, tokenizer, encoder_id, max_length
 
     @classmethod
-    def from_folder(cls, folder, *, encoder_id: str | None = None, subfolder: str = "text_encoder",
-                    device="cpu", dtype: torch.dtype | None = None) -> TextEncoder:
+    def from_folder(
+        cls,
+        folder,
+        *,
+        encoder_id: str | None = None,
+        subfolder: str = "text_encoder",
+        device="cpu",
+        dtype: torch.dtype | None = None,
+    ) -> TextEncoder:
         """Load ``folder/text_encoder`` (safetensors only) and ``folder/tokenizer`` (a diffusers pipeline folder)."""
         transformers = require_transformers()
         folder = Path(folder)
@@ -124,13 +154,27 @@ class TextEncoder:
         for need in (enc_dir / "config.json", tok_dir):
             if not need.exists():
                 found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"
-                raise CheckpointLayoutError(folder, "text encoder", f"{subfolder}/config.json + safetensors weights "
-                                            "and tokenizer/ (a diffusers Cosmos-Predict2.5 folder)", found)
+                raise CheckpointLayoutError(
+                    folder,
+                    "text encoder",
+                    f"{subfolder}/config.json + safetensors weights "
+                    "and tokenizer/ (a diffusers Cosmos-Predict2.5 folder)",
+                    found,
+                )
         if not any(enc_dir.glob("*.safetensors")):
-            raise CheckpointLayoutError(enc_dir, "weights", "safetensors files (pickles are never loaded)",
-                                        ", ".join(sorted(p.name for p in enc_dir.iterdir())))
-        model = transformers.Qwen2_5_VLForConditionalGeneration.from_pretrained(
-            str(enc_dir), use_safetensors=True, dtype=dtype or "auto").to(device).eval()
+            raise CheckpointLayoutError(
+                enc_dir,
+                "weights",
+                "safetensors files (pickles are never loaded)",
+                ", ".join(sorted(p.name for p in enc_dir.iterdir())),
+            )
+        model = (
+            transformers.Qwen2_5_VLForConditionalGeneration.from_pretrained(
+                str(enc_dir), use_safetensors=True, dtype=dtype or "auto"
+            )
+            .to(device)
+            .eval()
+        )
         tokenizer = transformers.AutoTokenizer.from_pretrained(str(tok_dir))
         if encoder_id is None:
             digest = hashlib.sha256((enc_dir / "config.json").read_bytes()).hexdigest()[:16]
@@ -138,21 +182,36 @@ class TextEncoder:
         return cls(model, tokenizer, encoder_id)
 
     @classmethod
-    def from_hub(cls, encoder_id: str, *, cache_dir=None, endpoint=None, local_files_only: bool | None = None,
-                 token=None, device="cpu", dtype: torch.dtype | None = None) -> TextEncoder:
+    def from_hub(
+        cls,
+        encoder_id: str,
+        *,
+        cache_dir=None,
+        endpoint=None,
+        local_files_only: bool | None = None,
+        token=None,
+        device="cpu",
+        dtype: torch.dtype | None = None,
+    ) -> TextEncoder:
         """Download ``text_encoder/`` and ``tokenizer/`` of ``encoder_id``'s repo (safetensors, JSON, text only)."""
         require_transformers()
         from oscar_zoo._fetch import hub_snapshot
 
         repo, revision, sub = parse_encoder_id(encoder_id)
         if Path(repo).expanduser().is_dir():
-            return cls.from_folder(Path(repo).expanduser(), encoder_id=encoder_id, subfolder=sub, device=device,
-                                   dtype=dtype)
-        root, _commit = hub_snapshot(repo, revision, [f"{sub}/*.json", f"{sub}/*.safetensors", "tokenizer/*"],
-                                    cache_dir=cache_dir, endpoint=endpoint, local_files_only=local_files_only,
-                                    token=token)
-        return cls.from_folder(root, encoder_id=encoder_id, subfolder=sub,
-                               device=device, dtype=dtype)
+            return cls.from_folder(
+                Path(repo).expanduser(), encoder_id=encoder_id, subfolder=sub, device=device, dtype=dtype
+            )
+        root, _commit = hub_snapshot(
+            repo,
+            revision,
+            [f"{sub}/*.json", f"{sub}/*.safetensors", "tokenizer/*"],
+            cache_dir=cache_dir,
+            endpoint=endpoint,
+            local_files_only=local_files_only,
+            token=token,
+        )
+        return cls.from_folder(root, encoder_id=encoder_id, subfolder=sub, device=device, dtype=dtype)
 
     @property
     def text_dim(self) -> int:

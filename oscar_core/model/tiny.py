@@ -12,30 +12,66 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["TINY_TRANSFORMER_CONFIG", "TINY_VAE_CONFIG", "COSMOS_2B_TRANSFORMER_CONFIG", "build_random_2b",
-           "build_tiny_transformer", "build_tiny_vae"]
+__all__ = [
+    "TINY_TRANSFORMER_CONFIG",
+    "TINY_VAE_CONFIG",
+    "COSMOS_2B_TRANSFORMER_CONFIG",
+    "build_random_2b",
+    "build_tiny_transformer",
+    "build_tiny_vae",
+]
 
 #: Tiny DiT: hidden 64 (2 heads x 32), 2 blocks, 16 latent channels + condition mask, text dim 48 -> 32.
 TINY_TRANSFORMER_CONFIG = dict(
-    in_channels=17, out_channels=16, num_attention_heads=2, attention_head_dim=32, num_layers=2, mlp_ratio=2.0,
-    text_embed_dim=32, adaln_lora_dim=16, max_size=(32, 64, 64), patch_size=(1, 2, 2), rope_scale=(1.0, 1.0, 1.0),
-    concat_padding_mask=True, extra_pos_embed_type="learnable", use_crossattn_projection=True,
-    crossattn_proj_in_channels=48, encoder_hidden_states_channels=32,
+    in_channels=17,
+    out_channels=16,
+    num_attention_heads=2,
+    attention_head_dim=32,
+    num_layers=2,
+    mlp_ratio=2.0,
+    text_embed_dim=32,
+    adaln_lora_dim=16,
+    max_size=(32, 64, 64),
+    patch_size=(1, 2, 2),
+    rope_scale=(1.0, 1.0, 1.0),
+    concat_padding_mask=True,
+    extra_pos_embed_type="learnable",
+    use_crossattn_projection=True,
+    crossattn_proj_in_channels=48,
+    encoder_hidden_states_channels=32,
 )
 
 #: Tiny WAN 2.1 VAE: z = 16, 4x time and 8x space compression like the real one, base width 8.
-TINY_VAE_CONFIG = dict(base_dim=8, z_dim=16, dim_mult=[1, 2, 2, 2], num_res_blocks=1, attn_scales=[],
-                       temperal_downsample=[False, True, True])
+TINY_VAE_CONFIG = dict(
+    base_dim=8,
+    z_dim=16,
+    dim_mult=[1, 2, 2, 2],
+    num_res_blocks=1,
+    attn_scales=[],
+    temperal_downsample=[False, True, True],
+)
 
 #: Cosmos-Predict2.5-2B transformer exactly as diffusers' conversion script builds it
 #: (``scripts/convert_cosmos_to_diffusers.py``, entry "Cosmos-2.5-Predict-Base-2B"): 28 blocks, 16 heads x 128,
 #: patch (1, 2, 2), 16 + 1 condition-mask input channels + padding mask, text 100352 -> 1024, RoPE scale
 #: (1, 3, 3) and no learnable positional embedding (the native config says "learnable" but ships no weights).
 COSMOS_2B_TRANSFORMER_CONFIG = dict(
-    in_channels=17, out_channels=16, num_attention_heads=16, attention_head_dim=128, num_layers=28, mlp_ratio=4.0,
-    text_embed_dim=1024, adaln_lora_dim=256, max_size=(128, 240, 240), patch_size=(1, 2, 2),
-    rope_scale=(1.0, 3.0, 3.0), concat_padding_mask=True, extra_pos_embed_type=None, use_crossattn_projection=True,
-    crossattn_proj_in_channels=100352, encoder_hidden_states_channels=1024,
+    in_channels=17,
+    out_channels=16,
+    num_attention_heads=16,
+    attention_head_dim=128,
+    num_layers=28,
+    mlp_ratio=4.0,
+    text_embed_dim=1024,
+    adaln_lora_dim=256,
+    max_size=(128, 240, 240),
+    patch_size=(1, 2, 2),
+    rope_scale=(1.0, 3.0, 3.0),
+    concat_padding_mask=True,
+    extra_pos_embed_type=None,
+    use_crossattn_projection=True,
+    crossattn_proj_in_channels=100352,
+    encoder_hidden_states_channels=1024,
 )
 
 

@@ -84,14 +84,26 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         skeleton_channels: int | None = None,
     ) -> None:
         super().__init__(
-            in_channels=in_channels, out_channels=out_channels, num_attention_heads=num_attention_heads,
-            attention_head_dim=attention_head_dim, num_layers=num_layers, mlp_ratio=mlp_ratio,
-            text_embed_dim=text_embed_dim, adaln_lora_dim=adaln_lora_dim, max_size=max_size, patch_size=patch_size,
-            rope_scale=rope_scale, concat_padding_mask=concat_padding_mask, extra_pos_embed_type=extra_pos_embed_type,
-            use_crossattn_projection=use_crossattn_projection, crossattn_proj_in_channels=crossattn_proj_in_channels,
+            in_channels=in_channels,
+            out_channels=out_channels,
+            num_attention_heads=num_attention_heads,
+            attention_head_dim=attention_head_dim,
+            num_layers=num_layers,
+            mlp_ratio=mlp_ratio,
+            text_embed_dim=text_embed_dim,
+            adaln_lora_dim=adaln_lora_dim,
+            max_size=max_size,
+            patch_size=patch_size,
+            rope_scale=rope_scale,
+            concat_padding_mask=concat_padding_mask,
+            extra_pos_embed_type=extra_pos_embed_type,
+            use_crossattn_projection=use_crossattn_projection,
+            crossattn_proj_in_channels=crossattn_proj_in_channels,
             encoder_hidden_states_channels=encoder_hidden_states_channels,
-            controlnet_block_every_n=controlnet_block_every_n, img_context_dim_in=img_context_dim_in,
-            img_context_num_tokens=img_context_num_tokens, img_context_dim_out=img_context_dim_out,
+            controlnet_block_every_n=controlnet_block_every_n,
+            img_context_dim_in=img_context_dim_in,
+            img_context_num_tokens=img_context_num_tokens,
+            img_context_dim_out=img_context_dim_out,
         )
         hidden_size = num_attention_heads * attention_head_dim
         self.skeleton_embed = CosmosPatchEmbed(self.skeleton_in_channels, hidden_size, tuple(patch_size), bias=False)
@@ -107,8 +119,9 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         return cast_model(model, device, dtype)
 
     @classmethod
-    def from_cosmos_base(cls, base, skeleton_channels: int | None = None, device=None,
-                         dtype: torch.dtype | None = None) -> OscarTransformer3DModel:
+    def from_cosmos_base(
+        cls, base, skeleton_channels: int | None = None, device=None, dtype: torch.dtype | None = None
+    ) -> OscarTransformer3DModel:
         """Start fine-tuning from base Cosmos weights: the base loaded strictly plus a zero PE_s.
 
         base: a folder written by ``CosmosTransformer3DModel.save_pretrained``
@@ -121,8 +134,12 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
             config, state, source = dict(base.config), base.state_dict(), f"<{type(base).__name__} in memory>"
             state = {k: v.detach().to("cpu", copy=True) for k, v in state.items()}
             if isinstance(base, cls):
-                raise CheckpointLayoutError(source, "base model", "a CosmosTransformer3DModel without PE_s",
-                                            "an OscarTransformer3DModel (already has PE_s)")
+                raise CheckpointLayoutError(
+                    source,
+                    "base model",
+                    "a CosmosTransformer3DModel without PE_s",
+                    "an OscarTransformer3DModel (already has PE_s)",
+                )
         else:
             config = read_config(base, ("CosmosTransformer3DModel",))
             state, source = load_state_dict(base), base
@@ -181,8 +198,10 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         batch, _, frames, height, width = hidden_states.shape
         p_t, p_h, p_w = cfg.patch_size
         if frames % p_t or height % p_h or width % p_w:
-            raise ModelInputError(f"hidden_states: expected T, H, W divisible by the patch size {tuple(cfg.patch_size)}, "
-                                  f"found {(frames, height, width)}")
+            raise ModelInputError(
+                f"hidden_states: expected T, H, W divisible by the patch size {tuple(cfg.patch_size)}, "
+                f"found {(frames, height, width)}"
+            )
 
         # 1. extra input channels: condition mask, then the resized padding mask
         x = hidden_states if condition_mask is None else torch.cat([hidden_states, condition_mask], dim=1)
@@ -193,9 +212,11 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
 
         want = self.patch_embed.proj.in_features // (p_t * p_h * p_w)
         if x.shape[1] != want:
-            raise ModelInputError(f"hidden_states: expected {want} input channels to the patch embedder (latent + "
-                                  f"condition mask{' + padding mask' if cfg.concat_padding_mask else ''}), found "
-                                  f"{x.shape[1]}; pass condition_mask when the model has an extra mask channel")
+            raise ModelInputError(
+                f"hidden_states: expected {want} input channels to the patch embedder (latent + "
+                f"condition mask{' + padding mask' if cfg.concat_padding_mask else ''}), found "
+                f"{x.shape[1]}; pass condition_mask when the model has an extra mask channel"
+            )
 
         # 2. positions (they depend on the shape of x only)
         rotary = self.rope(x, fps=fps)
@@ -210,7 +231,9 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         temb, embedded_t = self._time_embedding(tokens, timestep, batch, frames // p_t, height // p_h, width // p_w)
 
         # 5. text (and optional image) context
-        text_ctx, img_ctx = encoder_hidden_states if isinstance(encoder_hidden_states, tuple) else (encoder_hidden_states, None)
+        text_ctx, img_ctx = (
+            encoder_hidden_states if isinstance(encoder_hidden_states, tuple) else (encoder_hidden_states, None)
+        )
         if not text_projected:
             text_ctx = self.project_text(text_ctx)
         if img_ctx is not None and cfg.img_context_dim_in:
@@ -221,7 +244,10 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         residuals = {}
         if block_controlnet_hidden_states is not None:
             every = cfg.controlnet_block_every_n
-            residuals = {b: block_controlnet_hidden_states[i] for i, b in enumerate(range(0, len(self.transformer_blocks), every))}
+            residuals = {
+                b: block_controlnet_hidden_states[i]
+                for i, b in enumerate(range(0, len(self.transformer_blocks), every))
+            }
         for index, block in enumerate(self.transformer_blocks):
             args = (tokens, context, embedded_t, temb, rotary, extra_pos, attention_mask, residuals.get(index))
             if torch.is_grad_enabled() and self.gradient_checkpointing:
@@ -252,7 +278,9 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         if padding_mask is None:
             return x.new_zeros(batch, 1, frames, height, width)
         if padding_mask.ndim != 4 or padding_mask.shape[1] != 1 or padding_mask.shape[0] not in (1, batch):
-            raise ModelInputError(f"padding_mask: expected (1 or {batch}, 1, H, W), found shape {tuple(padding_mask.shape)}")
+            raise ModelInputError(
+                f"padding_mask: expected (1 or {batch}, 1, H, W), found shape {tuple(padding_mask.shape)}"
+            )
         mask = resize_padding_mask(padding_mask, (height, width)).to(x.dtype)
         return mask.unsqueeze(2).expand(batch, 1, frames, height, width)
 
@@ -261,8 +289,10 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
         b, _, t, h, w = video_shape
         want = (b, self.skeleton_in_channels, t, h, w)
         if tuple(skeleton.shape) != want:
-            raise ModelInputError(f"skeleton_latents: expected shape {want} (batch, skeleton channels, and the video "
-                                  f"latent's frames/size), found {tuple(skeleton.shape)}")
+            raise ModelInputError(
+                f"skeleton_latents: expected shape {want} (batch, skeleton channels, and the video "
+                f"latent's frames/size), found {tuple(skeleton.shape)}"
+            )
         weight = self.skeleton_embed.proj.weight
         return self.skeleton_embed(skeleton.to(weight.dtype)).flatten(1, 3).to(dtype)
 
@@ -271,8 +301,9 @@ class OscarTransformer3DModel(CosmosTransformer3DModel):
             return self.time_embed(tokens, timestep)
         if timestep.ndim == 5:
             if tuple(timestep.shape) != (batch, 1, t, 1, 1):
-                raise ModelInputError(f"timestep: expected (B,) or (B, 1, T, 1, 1) = {(batch, 1, t, 1, 1)}, "
-                                      f"found {tuple(timestep.shape)}")
+                raise ModelInputError(
+                    f"timestep: expected (B,) or (B, 1, T, 1, 1) = {(batch, 1, t, 1, 1)}, found {tuple(timestep.shape)}"
+                )
             temb, embedded = self.time_embed(tokens, timestep.flatten())
             # per latent frame -> per token (valid because the temporal patch size is 1 for Cosmos)
             return tuple(e.view(batch, t, 1, 1, -1).expand(-1, -1, h, w, -1).flatten(1, 3) for e in (temb, embedded))

@@ -29,8 +29,10 @@ def check_frame_count(frames: int, temporal: int = 4, what: str = "video") -> in
     """Raise unless ``frames`` = temporal·k + 1 (k ≥ 0); returns the latent frame count k + 1."""
     if frames < 1 or (frames - 1) % temporal:
         lower = (max(frames - 1, 0) // temporal) * temporal + 1
-        raise ModelInputError(f"{what}: expected a frame count of the form {temporal}k+1 (1, 5, 9, ..., 81, ...), "
-                              f"found {frames} (nearest valid: {lower} or {lower + temporal})")
+        raise ModelInputError(
+            f"{what}: expected a frame count of the form {temporal}k+1 (1, 5, 9, ..., 81, ...), "
+            f"found {frames} (nearest valid: {lower} or {lower + temporal})"
+        )
     return (frames - 1) // temporal + 1
 
 
@@ -45,8 +47,9 @@ def load_vae_folder(folder, device="cpu"):
     """
     from diffusers import AutoencoderKLWan
 
-    return build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)),
-                        load_state_dict(folder, device=device), folder)
+    return build_strict(
+        AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder, device=device), folder
+    )
 
 
 class VideoVAE:
@@ -70,8 +73,10 @@ class VideoVAE:
         self.mean = torch.tensor(cfg.latents_mean, dtype=torch.float32).view(1, -1, 1, 1, 1)
         self.std = torch.tensor(cfg.latents_std, dtype=torch.float32).view(1, -1, 1, 1, 1)
         if self.mean.shape[1] != self.z_dim or self.std.shape[1] != self.z_dim:
-            raise ModelInputError(f"VAE config: expected latents_mean/latents_std of length z_dim = {self.z_dim}, "
-                                  f"found {self.mean.shape[1]} / {self.std.shape[1]}")
+            raise ModelInputError(
+                f"VAE config: expected latents_mean/latents_std of length z_dim = {self.z_dim}, "
+                f"found {self.mean.shape[1]} / {self.std.shape[1]}"
+            )
         cast_model(vae, "cpu" if offload else self.device, dtype)
         vae.eval()
 
@@ -89,8 +94,9 @@ class VideoVAE:
         """(C, T', H', W') of the latent of a (frames, height, width) video; checks 4k+1 and the size."""
         t = check_frame_count(frames, self.temporal)
         if height % self.spatial or width % self.spatial:
-            raise ModelInputError(f"video size: expected width and height divisible by {self.spatial}, "
-                                  f"found {width}x{height}")
+            raise ModelInputError(
+                f"video size: expected width and height divisible by {self.spatial}, found {width}x{height}"
+            )
         return self.z_dim, t, height // self.spatial, width // self.spatial
 
     @staticmethod
@@ -98,8 +104,9 @@ class VideoVAE:
         """(T, H, W, 3) or (B, T, H, W, 3) uint8 RGB → (B, 3, T, H, W) float32 in [-1, 1]."""
         a = np.asarray(frames)
         if a.dtype != np.uint8 or a.ndim not in (4, 5) or a.shape[-1] != 3:
-            raise ModelInputError(f"frames: expected (T, H, W, 3) or (B, T, H, W, 3) uint8 RGB, "
-                                  f"found {a.dtype} {a.shape}")
+            raise ModelInputError(
+                f"frames: expected (T, H, W, 3) or (B, T, H, W, 3) uint8 RGB, found {a.dtype} {a.shape}"
+            )
         if not (a.flags.writeable and a.flags.c_contiguous):
             # torch.from_numpy warns on a read-only array (a frame of a memory map, np.broadcast_to, a view
             # marked read-only): one contiguous, writable copy of the uint8 frames (the float copy follows anyway)

@@ -22,8 +22,18 @@ from typing import TYPE_CHECKING
 
 from .errors import CheckpointIntegrityError, CheckpointLayoutError
 
-__all__ = ["CONFIG_NAME", "WEIGHTS_NAME", "INDEX_NAME", "weight_files", "check_safetensors", "read_config",
-           "load_state_dict", "build_strict", "meta_tensors", "cast_model"]
+__all__ = [
+    "CONFIG_NAME",
+    "WEIGHTS_NAME",
+    "INDEX_NAME",
+    "weight_files",
+    "check_safetensors",
+    "read_config",
+    "load_state_dict",
+    "build_strict",
+    "meta_tensors",
+    "cast_model",
+]
 
 CONFIG_NAME = "config.json"
 WEIGHTS_NAME = "diffusion_pytorch_model.safetensors"
@@ -52,17 +62,25 @@ def weight_files(folder) -> list[Path]:
         try:
             weight_map = json.loads(index.read_text())["weight_map"]
         except (ValueError, KeyError, TypeError) as exc:
-            raise CheckpointLayoutError(index, "weight_map", "a JSON object {tensor name: shard file}",
-                                        f"unreadable index ({exc})") from None
+            raise CheckpointLayoutError(
+                index, "weight_map", "a JSON object {tensor name: shard file}", f"unreadable index ({exc})"
+            ) from None
         shards = sorted({folder / name for name in weight_map.values()})
         missing = [p.name for p in shards if not p.is_file()]
         if missing:
-            raise CheckpointLayoutError(folder, "weight shards", f"every shard listed in {INDEX_NAME}",
-                                        f"missing {', '.join(missing)}")
+            raise CheckpointLayoutError(
+                folder, "weight shards", f"every shard listed in {INDEX_NAME}", f"missing {', '.join(missing)}"
+            )
         return shards
     pickles = [p.name for p in sorted(folder.glob("*")) if p.suffix in _PICKLE_SUFFIXES] if folder.is_dir() else []
-    hint = (f"only pickle-based weights ({', '.join(pickles)}) are there; oscar loads safetensors only and never "
-            "unpickles a checkpoint") if pickles else ""
+    hint = (
+        (
+            f"only pickle-based weights ({', '.join(pickles)}) are there; oscar loads safetensors only and never "
+            "unpickles a checkpoint"
+        )
+        if pickles
+        else ""
+    )
     raise CheckpointLayoutError(folder, "weights", f"{WEIGHTS_NAME} or {INDEX_NAME}", _listing(folder), hint)
 
 
@@ -76,18 +94,29 @@ def check_safetensors(path) -> dict:
     path = Path(path)
     size = path.stat().st_size
     if size < 8:
-        raise CheckpointIntegrityError(path, "safetensors header", "at least 8 bytes", f"a file of {size} bytes",
-                                       "the file is partial; download it again")
+        raise CheckpointIntegrityError(
+            path,
+            "safetensors header",
+            "at least 8 bytes",
+            f"a file of {size} bytes",
+            "the file is partial; download it again",
+        )
     with path.open("rb") as fh:
         (n,) = struct.unpack("<Q", fh.read(8))
         if n > min(size - 8, _MAX_HEADER):
-            raise CheckpointIntegrityError(path, "safetensors header length", f"at most {size - 8} bytes",
-                                           f"{n} bytes", "the file is partial or not a safetensors file")
+            raise CheckpointIntegrityError(
+                path,
+                "safetensors header length",
+                f"at most {size - 8} bytes",
+                f"{n} bytes",
+                "the file is partial or not a safetensors file",
+            )
         try:
             header = json.loads(fh.read(n))
         except ValueError:
-            raise CheckpointIntegrityError(path, "safetensors header", "a JSON object", "unreadable bytes",
-                                           "the file is corrupted") from None
+            raise CheckpointIntegrityError(
+                path, "safetensors header", "a JSON object", "unreadable bytes", "the file is corrupted"
+            ) from None
     end = 0
     for name, info in header.items():
         if name == "__metadata__":
@@ -95,12 +124,18 @@ def check_safetensors(path) -> dict:
         try:
             start, stop = (int(v) for v in info["data_offsets"])
         except (KeyError, TypeError, ValueError):
-            raise CheckpointIntegrityError(path, f"tensor {name!r}", "data_offsets [start, end]",
-                                           repr(info)[:80]) from None
+            raise CheckpointIntegrityError(
+                path, f"tensor {name!r}", "data_offsets [start, end]", repr(info)[:80]
+            ) from None
         end = max(end, stop)
     if 8 + n + end != size:
-        raise CheckpointIntegrityError(path, "file size", f"{8 + n + end} bytes (header + tensor data)",
-                                       f"{size} bytes", "the file is partial or corrupted; download it again")
+        raise CheckpointIntegrityError(
+            path,
+            "file size",
+            f"{8 + n + end} bytes (header + tensor data)",
+            f"{size} bytes",
+            "the file is partial or corrupted; download it again",
+        )
     return header
 
 
@@ -158,11 +193,17 @@ def build_strict(cls, config: dict, state: dict[str, torch.Tensor], source, zero
         if missing:
             parts.append(f"missing {len(missing)} ({', '.join(missing[:6])}{', ...' if len(missing) > 6 else ''})")
         if unexpected:
-            parts.append(f"unexpected {len(unexpected)} ({', '.join(unexpected[:6])}"
-                         f"{', ...' if len(unexpected) > 6 else ''})")
-        raise CheckpointLayoutError(source, "weights", f"the {len(expected)} tensors of {cls.__name__}", "; ".join(parts))
-    bad = [f"{k} {tuple(state[k].shape)} (expected {tuple(v.shape)})" for k, v in expected.items()
-           if k in state and tuple(state[k].shape) != tuple(v.shape)]
+            parts.append(
+                f"unexpected {len(unexpected)} ({', '.join(unexpected[:6])}{', ...' if len(unexpected) > 6 else ''})"
+            )
+        raise CheckpointLayoutError(
+            source, "weights", f"the {len(expected)} tensors of {cls.__name__}", "; ".join(parts)
+        )
+    bad = [
+        f"{k} {tuple(state[k].shape)} (expected {tuple(v.shape)})"
+        for k, v in expected.items()
+        if k in state and tuple(state[k].shape) != tuple(v.shape)
+    ]
     if bad:
         raise CheckpointLayoutError(source, "tensor shapes", "shapes matching config.json", "; ".join(bad[:4]))
     full = dict(state)
@@ -185,8 +226,9 @@ def cast_model(model: torch.nn.Module, device=None, dtype: torch.dtype | None = 
     if kwargs:  # plain nn.Module.to: diffusers' override only adds a warning about float32 modules we handle here
         torch.nn.Module.to(model, **kwargs)
     if dtype is not None and dtype != torch.float32:
-        keep = (getattr(model, "_oscar_keep_in_fp32_modules", None) or getattr(model, "_keep_in_fp32_modules", None)
-                or [])
+        keep = (
+            getattr(model, "_oscar_keep_in_fp32_modules", None) or getattr(model, "_keep_in_fp32_modules", None) or []
+        )
         for name, module in model.named_modules():
             if any(name == k or name.startswith(k + ".") for k in keep):
                 module.to(torch.float32)

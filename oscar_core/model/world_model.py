@@ -87,8 +87,10 @@ class ModelCard:
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
         if self.unconditional_skeleton not in UNCONDITIONAL_SKELETONS:
-            raise ModelInputError(f"model card unconditional_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, "
-                                  f"found {self.unconditional_skeleton!r}")
+            raise ModelInputError(
+                f"model card unconditional_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, "
+                f"found {self.unconditional_skeleton!r}"
+            )
         if self.condition not in CONDITIONS:
             raise ModelInputError(f"model card condition: expected one of {CONDITIONS}, found {self.condition!r}")
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
@@ -131,9 +133,19 @@ class OscarWorldModel:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_modules(cls, transformer, vae, card: ModelCard | None = None, empty_prompt=None, *, device="cpu",
-                     dtype: torch.dtype | None = None, vae_dtype: torch.dtype | None = None,
-                     offload_vae: bool = False, offload_text: bool = False) -> OscarWorldModel:
+    def from_modules(
+        cls,
+        transformer,
+        vae,
+        card: ModelCard | None = None,
+        empty_prompt=None,
+        *,
+        device="cpu",
+        dtype: torch.dtype | None = None,
+        vae_dtype: torch.dtype | None = None,
+        offload_vae: bool = False,
+        offload_text: bool = False,
+    ) -> OscarWorldModel:
         """Assemble from an OscarTransformer3DModel and an AutoencoderKLWan (moved to device/dtype).
 
         dtype None: bfloat16 on CUDA (the fast default), else the modules' own dtype.
@@ -150,16 +162,25 @@ class OscarWorldModel:
             transformer.crossattn_proj.to("cpu")
         transformer.eval()
         vae_dtype = vae_dtype or dtype or torch.float32
-        model = cls(transformer, VideoVAE(vae, device=device, dtype=vae_dtype, offload=offload_vae),
-                    card or ModelCard(), None)
+        model = cls(
+            transformer, VideoVAE(vae, device=device, dtype=vae_dtype, offload=offload_vae), card or ModelCard(), None
+        )
         if empty_prompt is not None:
             model.empty_prompt = check_prompt_embeds(empty_prompt, transformer.text_dim, "empty prompt embedding")
         return model
 
     @classmethod
-    def from_pretrained(cls, folder, *, device="cpu", dtype: torch.dtype | None = None,
-                        vae_dtype: torch.dtype | None = None, offload_vae: bool = False,
-                        offload_text: bool = False, verify: bool = True) -> OscarWorldModel:
+    def from_pretrained(
+        cls,
+        folder,
+        *,
+        device="cpu",
+        dtype: torch.dtype | None = None,
+        vae_dtype: torch.dtype | None = None,
+        offload_vae: bool = False,
+        offload_text: bool = False,
+        verify: bool = True,
+    ) -> OscarWorldModel:
         """Load a folder written by :meth:`save_pretrained` (safetensors only, keys matched strictly).
 
         verify: check every file against ``oscar_manifest.json`` (sha256) and
@@ -190,26 +211,54 @@ class OscarWorldModel:
             if "prompt_embeds" not in tensors:
                 raise CheckpointLayoutError(folder / EMPTY_PROMPT_FILE, "tensors", "'prompt_embeds'", sorted(tensors))
             empty = tensors["prompt_embeds"]
-        model = cls.from_modules(transformer, vae, card, empty, device=device, dtype=dtype, vae_dtype=vae_dtype,
-                                 offload_vae=offload_vae, offload_text=offload_text)
+        model = cls.from_modules(
+            transformer,
+            vae,
+            card,
+            empty,
+            device=device,
+            dtype=dtype,
+            vae_dtype=vae_dtype,
+            offload_vae=offload_vae,
+            offload_text=offload_text,
+        )
         if (folder / SCHEDULER_FILE).is_file():
             try:
                 model.scheduler_config = json.loads((folder / SCHEDULER_FILE).read_text())
             except ValueError as exc:
-                raise CheckpointLayoutError(folder / SCHEDULER_FILE, "JSON", "a JSON object",
-                                            f"unreadable JSON ({exc})") from None
+                raise CheckpointLayoutError(
+                    folder / SCHEDULER_FILE, "JSON", "a JSON object", f"unreadable JSON ({exc})"
+                ) from None
         return model
 
     @classmethod
-    def from_cosmos_base(cls, folder, card: ModelCard | None = None, *, skeleton_channels: int | None = None,
-                         device="cpu", dtype: torch.dtype | None = None, vae_dtype: torch.dtype | None = None,
-                         offload_vae: bool = False, offload_text: bool = False) -> OscarWorldModel:
+    def from_cosmos_base(
+        cls,
+        folder,
+        card: ModelCard | None = None,
+        *,
+        skeleton_channels: int | None = None,
+        device="cpu",
+        dtype: torch.dtype | None = None,
+        vae_dtype: torch.dtype | None = None,
+        offload_vae: bool = False,
+        offload_text: bool = False,
+    ) -> OscarWorldModel:
         """Start from a Cosmos-Predict2.5 diffusers folder (``transformer/`` + ``vae/``): base + zero PE_s."""
         folder = Path(folder)
         transformer = OscarTransformer3DModel.from_cosmos_base(folder / "transformer", skeleton_channels)
         vae = load_vae_folder(folder / "vae")
-        return cls.from_modules(transformer, vae, card, None, device=device, dtype=dtype, vae_dtype=vae_dtype,
-                                offload_vae=offload_vae, offload_text=offload_text)
+        return cls.from_modules(
+            transformer,
+            vae,
+            card,
+            None,
+            device=device,
+            dtype=dtype,
+            vae_dtype=vae_dtype,
+            offload_vae=offload_vae,
+            offload_text=offload_text,
+        )
 
     # ------------------------------------------------------------------ export
     def save_pretrained(self, folder, card: ModelCard | None = None, max_shard_size: str | int = "10GB") -> Path:
@@ -225,8 +274,9 @@ class OscarWorldModel:
         if self.empty_prompt is not None:
             (folder / "text").mkdir(exist_ok=True)
             save_file({"prompt_embeds": self.empty_prompt.detach().cpu().contiguous()}, str(folder / EMPTY_PROMPT_FILE))
-        (folder / MODEL_FILE).write_text(json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()},
-                                                    indent=2) + "\n")
+        (folder / MODEL_FILE).write_text(
+            json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()}, indent=2) + "\n"
+        )
         write_manifest(folder)
         if not (folder / "README.md").exists():
             # a model card with the Hub's metadata block (model/hub_card.py); documentation, outside the manifest
@@ -266,13 +316,17 @@ class OscarWorldModel:
             cache = PromptEmbeddingCache(cache_dir, encoder_id=self.card.text_encoder_id)
             found = cache.get("")
             if found is not None:
-                return check_prompt_embeds(found.float(), dim, str(cache.path(""))), \
-                    f"empty-prompt embedding from the prompt cache ({cache.path('')})"
+                return check_prompt_embeds(
+                    found.float(), dim, str(cache.path(""))
+                ), f"empty-prompt embedding from the prompt cache ({cache.path('')})"
         import warnings
 
-        warnings.warn("no prompt embedding and no empty-prompt embedding (none in the checkpoint, none cached for "
-                      f"encoder {self.card.text_encoder_id!r}): using a ZERO text embedding, which the model never "
-                      "saw in training; run `oscar encode-prompt \"\" --model NAME` once", stacklevel=3)
+        warnings.warn(
+            "no prompt embedding and no empty-prompt embedding (none in the checkpoint, none cached for "
+            f"encoder {self.card.text_encoder_id!r}): using a ZERO text embedding, which the model never "
+            'saw in training; run `oscar encode-prompt "" --model NAME` once',
+            stacklevel=3,
+        )
         return empty_prompt_embeds(dim), "ZERO text embedding (no empty-prompt embedding available)"
 
     def recommended_sampler(self, **given) -> SamplerConfig:
@@ -328,8 +382,9 @@ class OscarWorldModel:
             chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal))
         except (ModelInputError, TypeError, ValueError):
             return  # the rollout itself reports the bad input
-        ok, why = compile_decision(self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps,
-                                   model_calls(sampler))
+        ok, why = compile_decision(
+            self.compile_mode, self.device, chunks * self.compile_cells, sampler.steps, model_calls(sampler)
+        )
         if why != self.compile_reason:  # said once per job: every cell of `oscar eval run` weighs the same
             _log.info("%s", why)
         self.compile_reason = why
@@ -342,9 +397,19 @@ class OscarWorldModel:
     def enable_vae_slicing(self) -> None:
         self.vae.enable_slicing()
 
-    def rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
-                chunk_frames: int | None = None, sampler: SamplerConfig | None = None, seed: int = 0,
-                progress: bool = True, keep_chunks: bool = True, actions=None):
+    def rollout(
+        self,
+        first_frame,
+        skeleton,
+        prompt_embeds: torch.Tensor | None = None,
+        *,
+        chunk_frames: int | None = None,
+        sampler: SamplerConfig | None = None,
+        seed: int = 0,
+        progress: bool = True,
+        keep_chunks: bool = True,
+        actions=None,
+    ):
         """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default.
 
         A latent-action model takes ``actions`` (T − 1, 14) (``latent_actions``
@@ -362,15 +427,38 @@ class OscarWorldModel:
             if (w, h) != (self.card.width, self.card.height):
                 import warnings
 
-                warnings.warn(f"model {self.card.name or ''} was trained at {self.card.width}x{self.card.height}; "
-                              f"rolling out at {w}x{h}", stacklevel=2)
-        return rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
-                       chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
-                       keep_chunks=keep_chunks, uncond_skeleton=self.card.unconditional_skeleton, actions=actions,
-                       num_frames=num_frames)
+                warnings.warn(
+                    f"model {self.card.name or ''} was trained at {self.card.width}x{self.card.height}; "
+                    f"rolling out at {w}x{h}",
+                    stacklevel=2,
+                )
+        return rollout(
+            self.transformer,
+            self.vae,
+            first_frame,
+            skeleton,
+            self.prompt_embeds(prompt_embeds),
+            chunk_frames=chunk,
+            sampler=self.sampler_for(sampler),
+            seed=seed,
+            progress=progress,
+            keep_chunks=keep_chunks,
+            uncond_skeleton=self.card.unconditional_skeleton,
+            actions=actions,
+            num_frames=num_frames,
+        )
 
-    def rollout_batch(self, first_frames, skeletons, prompt_embeds=None, *, chunk_frames: int | None = None,
-                      sampler: SamplerConfig | None = None, seeds=None, progress: bool = False) -> list:
+    def rollout_batch(
+        self,
+        first_frames,
+        skeletons,
+        prompt_embeds=None,
+        *,
+        chunk_frames: int | None = None,
+        sampler: SamplerConfig | None = None,
+        seeds=None,
+        progress: bool = False,
+    ) -> list:
         """B rollouts in one batch (see :func:`oscar_core.model.rollout.rollout_batch`): B (T, H, W, 3) uint8 videos,
         each equal to :meth:`rollout` of its own inputs and seed up to float rounding.
 
@@ -385,21 +473,41 @@ class OscarWorldModel:
         if isinstance(prompt_embeds, (list, tuple)):
             embeds = [self.prompt_embeds(e) for e in prompt_embeds]
             if len({tuple(e.shape) for e in embeds}) != 1:
-                raise ModelInputError(f"prompt_embeds: expected one shape for the batch, found "
-                                      f"{sorted({tuple(e.shape) for e in embeds})}")
+                raise ModelInputError(
+                    f"prompt_embeds: expected one shape for the batch, found {sorted({tuple(e.shape) for e in embeds})}"
+                )
             prompt = torch.cat(embeds)
         else:
             prompt = self.prompt_embeds(prompt_embeds)
         chunk = int(chunk_frames or self.card.chunk_frames)
         if len(skeletons):
             self._prepare_compile(len(skeletons[0]), chunk, sampler)
-        return rollout_batch(self.transformer, self.vae, first_frames, skeletons, prompt,
-                             chunk_frames=int(chunk_frames or self.card.chunk_frames), sampler=self.sampler_for(sampler),
-                             seeds=seeds, progress=progress, uncond_skeleton=self.card.unconditional_skeleton)
+        return rollout_batch(
+            self.transformer,
+            self.vae,
+            first_frames,
+            skeletons,
+            prompt,
+            chunk_frames=int(chunk_frames or self.card.chunk_frames),
+            sampler=self.sampler_for(sampler),
+            seeds=seeds,
+            progress=progress,
+            uncond_skeleton=self.card.unconditional_skeleton,
+        )
 
-    def iter_rollout(self, first_frame, skeleton, prompt_embeds: torch.Tensor | None = None, *,
-                     chunk_frames: int | None = None, sampler: SamplerConfig | None = None, seed: int = 0,
-                     progress: bool = True, result=None, actions=None):
+    def iter_rollout(
+        self,
+        first_frame,
+        skeleton,
+        prompt_embeds: torch.Tensor | None = None,
+        *,
+        chunk_frames: int | None = None,
+        sampler: SamplerConfig | None = None,
+        seed: int = 0,
+        progress: bool = True,
+        result=None,
+        actions=None,
+    ):
         """Stream a rollout: yields each chunk's new uint8 frames (see :func:`oscar_core.model.rollout.iter_rollout`)."""
         from .rollout import iter_rollout
 
@@ -407,37 +515,62 @@ class OscarWorldModel:
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
-        return iter_rollout(self.transformer, self.vae, first_frame, skeleton, self.prompt_embeds(prompt_embeds),
-                            chunk_frames=chunk, sampler=self.sampler_for(sampler), seed=seed, progress=progress,
-                            uncond_skeleton=self.card.unconditional_skeleton, result=result, actions=actions,
-                            num_frames=num_frames)
+        return iter_rollout(
+            self.transformer,
+            self.vae,
+            first_frame,
+            skeleton,
+            self.prompt_embeds(prompt_embeds),
+            chunk_frames=chunk,
+            sampler=self.sampler_for(sampler),
+            seed=seed,
+            progress=progress,
+            uncond_skeleton=self.card.unconditional_skeleton,
+            result=result,
+            actions=actions,
+            num_frames=num_frames,
+        )
 
     def _rollout_actions(self, skeleton, actions, chunk: int):
         """(actions padded to the chunk plan or None, frame count or None); checks the input fits the card."""
         if not takes_actions(self.card.condition):
             if actions is not None:
-                raise ModelInputError(f"rollout: model {self.card.name or ''} is conditioned on "
-                                      f"{self.card.condition!r}: expected a skeleton video, found actions")
+                raise ModelInputError(
+                    f"rollout: model {self.card.name or ''} is conditioned on "
+                    f"{self.card.condition!r}: expected a skeleton video, found actions"
+                )
             return None, None
         if actions is None or skeleton is not None:
-            raise ModelInputError(f"rollout: model {self.card.name or ''} is a latent-action model: expected "
-                                  "actions (T - 1, 14) and skeleton=None (rollout_trajectory builds them), found "
-                                  f"{'a skeleton video' if skeleton is not None else 'no actions'}")
+            raise ModelInputError(
+                f"rollout: model {self.card.name or ''} is a latent-action model: expected "
+                "actions (T - 1, 14) and skeleton=None (rollout_trajectory builds them), found "
+                f"{'a skeleton video' if skeleton is not None else 'no actions'}"
+            )
         from .latent_action import hold_actions
         from .rollout import chunk_plan
 
         trained = int(getattr(self.transformer.config, "action_frames", chunk - 1)) + 1
         if chunk != trained:
-            raise ModelInputError(f"chunk_frames: a latent-action model takes the window it was trained on "
-                                  f"({trained} frames: its actions are (chunk_frames - 1, 14) = "
-                                  f"({trained - 1}, 14)), found {chunk}")
+            raise ModelInputError(
+                f"chunk_frames: a latent-action model takes the window it was trained on "
+                f"({trained} frames: its actions are (chunk_frames - 1, 14) = "
+                f"({trained - 1}, 14)), found {chunk}"
+            )
         actions = np.asarray(actions)
         total = len(actions) + 1
         starts = chunk_plan(total, chunk, self.vae.temporal)
         return hold_actions(actions, max(starts[-1] + chunk - 1, len(actions))), total
 
-    def rollout_inputs(self, trajectory, camera, embodiment, size: tuple[int, int] | None = None, *,
-                       resize_mode: str = "crop", camera_source: str = "<camera>") -> dict:
+    def rollout_inputs(
+        self,
+        trajectory,
+        camera,
+        embodiment,
+        size: tuple[int, int] | None = None,
+        *,
+        resize_mode: str = "crop",
+        camera_source: str = "<camera>",
+    ) -> dict:
         """What this model's rollout is conditioned on, from a trajectory: ``{"skeleton": ...}`` or ``{"actions": ...}``.
 
         skeleton: (T, H, W, 3) uint8 video rendered at ``size`` (width, height)
@@ -454,11 +587,24 @@ class OscarWorldModel:
             size = (self.card.width, self.card.height)
         # the card's condition video (skeleton, mesh or capsules) goes in the skeleton stream
         name = video_condition_of(self.card.condition)
-        return {"skeleton": condition_video(name, embodiment, trajectory, camera, size, resize_mode=resize_mode,
-                                            camera_source=camera_source)}
+        return {
+            "skeleton": condition_video(
+                name, embodiment, trajectory, camera, size, resize_mode=resize_mode, camera_source=camera_source
+            )
+        }
 
-    def rollout_trajectory(self, first_frame, trajectory, camera, embodiment, prompt_embeds: torch.Tensor | None = None,
-                           *, size: tuple[int, int] | None = None, resize_mode: str = "crop", **options):
+    def rollout_trajectory(
+        self,
+        first_frame,
+        trajectory,
+        camera,
+        embodiment,
+        prompt_embeds: torch.Tensor | None = None,
+        *,
+        size: tuple[int, int] | None = None,
+        resize_mode: str = "crop",
+        **options,
+    ):
         """Roll out along a trajectory, whatever the card's condition: skeleton rendered, or latent actions.
 
         first_frame: (H, W, 3) uint8 already at the rollout size; trajectory,
@@ -476,8 +622,12 @@ def read_card(folder: Path) -> ModelCard:
     path = folder / MODEL_FILE
     if not path.is_file():
         found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"
-        raise CheckpointLayoutError(folder, MODEL_FILE, f"an OSCAR model folder ({MODEL_FILE}, transformer/, vae/, "
-                                    f"{MANIFEST_NAME})", found or "an empty folder")
+        raise CheckpointLayoutError(
+            folder,
+            MODEL_FILE,
+            f"an OSCAR model folder ({MODEL_FILE}, transformer/, vae/, {MANIFEST_NAME})",
+            found or "an empty folder",
+        )
     try:
         data = json.loads(path.read_text())
     except ValueError as exc:

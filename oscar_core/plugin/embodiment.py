@@ -179,8 +179,10 @@ class Embodiment:
         if cls.uses_kinematic_tree():
             given = [k for k in ("urdf", "urdf_text", "xacro") if getattr(cls, k) is not None]
             if len(given) != 1:
-                out.append("urdf/urdf_text/xacro: expected exactly one kinematic description, found "
-                           + (" and ".join(given) if given else "none"))
+                out.append(
+                    "urdf/urdf_text/xacro: expected exactly one kinematic description, found "
+                    + (" and ".join(given) if given else "none")
+                )
             if cls.urdf_text is not None and not isinstance(cls.urdf_text, str):
                 out.append(f"urdf_text: expected the URDF XML as a str, found {type(cls.urdf_text).__name__}")
         if not isinstance(cls.skeleton, Skeleton):
@@ -224,7 +226,9 @@ class Embodiment:
         tree_joints = set(self.tree.joint_names)
         for g in self.grippers:
             if g.joint is not None and g.joint not in tree_joints:
-                out.append(f"grippers[{g.name}].joint: expected a movable, non-mimic joint of the tree, found {g.joint!r}")
+                out.append(
+                    f"grippers[{g.name}].joint: expected a movable, non-mimic joint of the tree, found {g.joint!r}"
+                )
         for link in self.end_effector_links:
             if link not in known:
                 out.append(f"end_effector_links: expected links of the kinematic tree, found {link!r}")
@@ -236,11 +240,15 @@ class Embodiment:
             limits = {n: (lo[i], hi[i]) for i, n in enumerate(self.tree.joint_names)}
             for n, v in self.default_pose.items():
                 if n not in names:
-                    out.append(f"default_pose[{n!r}]: expected a joint of the trajectory order {list(names)} "
-                               "(not a mimic or gripper-driven joint)")
+                    out.append(
+                        f"default_pose[{n!r}]: expected a joint of the trajectory order {list(names)} "
+                        "(not a mimic or gripper-driven joint)"
+                    )
                 elif not (limits[n][0] - 1e-9 <= float(v) <= limits[n][1] + 1e-9):
-                    out.append(f"default_pose[{n!r}]: expected a value within the joint's limits "
-                               f"[{limits[n][0]:g}, {limits[n][1]:g}], found {float(v):g}")
+                    out.append(
+                        f"default_pose[{n!r}]: expected a value within the joint's limits "
+                        f"[{limits[n][0]:g}, {limits[n][1]:g}], found {float(v):g}"
+                    )
         return out
 
     def __init__(self):
@@ -248,8 +256,10 @@ class Embodiment:
         if not problems:
             problems = self.problems()
         if problems:
-            raise PluginError(f"embodiment {self.name!r} ({type(self).__module__}.{type(self).__qualname__}) "
-                              "breaks the contract:\n  " + "\n  ".join(problems))
+            raise PluginError(
+                f"embodiment {self.name!r} ({type(self).__module__}.{type(self).__qualname__}) "
+                "breaks the contract:\n  " + "\n  ".join(problems)
+            )
 
     # ---- kinematics ------------------------------------------------------
     @functools.cached_property
@@ -353,8 +363,10 @@ class Embodiment:
         from ..kinematics.visual import read_urdf_visuals
 
         if not self.uses_kinematic_tree():
-            raise PluginError(f"embodiment {self.name!r} has no visual geometry: it computes its points itself "
-                              "(no URDF); override Embodiment.visual_geometry to give triangles per link")
+            raise PluginError(
+                f"embodiment {self.name!r} has no visual geometry: it computes its points itself "
+                "(no URDF); override Embodiment.visual_geometry to give triangles per link"
+            )
         if self.urdf is not None:
             geo = read_urdf_visuals(self.urdf, self.packages)
         elif self.urdf_text is not None:  # relative mesh names: beside the plugin's module file
@@ -366,12 +378,18 @@ class Embodiment:
         else:
             from ..kinematics.urdf import expand_xacro
 
-            geo = read_urdf_visuals(expand_xacro(self.xacro, self.xacro_args, self.packages), self.packages,
-                                    source=str(self.xacro), base_dir=Path(self.xacro).parent)
+            geo = read_urdf_visuals(
+                expand_xacro(self.xacro, self.xacro_args, self.packages),
+                self.packages,
+                source=str(self.xacro),
+                base_dir=Path(self.xacro).parent,
+            )
         if not geo.links:
-            raise PluginError(f"embodiment {self.name!r} has no visual geometry: {geo.source} has no <visual> "
-                              "elements (a kinematic-only description); add them to its links or override "
-                              "Embodiment.visual_geometry")
+            raise PluginError(
+                f"embodiment {self.name!r} has no visual geometry: {geo.source} has no <visual> "
+                "elements (a kinematic-only description); add them to its links or override "
+                "Embodiment.visual_geometry"
+            )
         return geo
 
     # ---- trajectories ----------------------------------------------------
@@ -388,33 +406,54 @@ class Embodiment:
         if traj.keypoints is not None:
             K = len(self.skeleton.links)
             if self.uses_kinematic_tree():
-                raise TrajectoryError(src, "keypoints", f"no keypoints ({self.name!r} computes its points from joint positions)",
-                                      f"shape {traj.keypoints.shape}")
+                raise TrajectoryError(
+                    src,
+                    "keypoints",
+                    f"no keypoints ({self.name!r} computes its points from joint positions)",
+                    f"shape {traj.keypoints.shape}",
+                )
             if traj.keypoints.shape[1] != K:
-                raise TrajectoryError(src, "keypoints", f"shape (T, {K}, 3): one point per skeleton point of {self.name!r}",
-                                      f"shape {traj.keypoints.shape}")
+                raise TrajectoryError(
+                    src,
+                    "keypoints",
+                    f"shape (T, {K}, 3): one point per skeleton point of {self.name!r}",
+                    f"shape {traj.keypoints.shape}",
+                )
         expected = self.joint_names
         traj, filled = self.fill_default_pose(traj)
         if set(traj.joint_names) != set(expected) or len(traj.joint_names) != len(expected):
             unknown = [n for n in traj.joint_names if n not in expected]
             missing = [n for n in expected if n not in traj.joint_names]
             without = " (the embodiment has no default pose for them)" if missing and self.default_pose else ""
-            raise TrajectoryError(src, "joint_names", f"the {len(expected)} joints of {self.name!r}: {list(expected)}",
-                                  f"{len(traj.joint_names)} names; unknown {unknown}, missing {missing}{without}")
+            raise TrajectoryError(
+                src,
+                "joint_names",
+                f"the {len(expected)} joints of {self.name!r}: {list(expected)}",
+                f"{len(traj.joint_names)} names; unknown {unknown}, missing {missing}{without}",
+            )
         if filled:
-            warnings.warn(DefaultPoseWarning(
-                f"{src}: {len(filled)} joints not in the trajectory were set from the default pose of {self.name!r}: "
-                + ", ".join(f"{n}={v:g}" for n, v in filled.items()), tuple(filled), filled), stacklevel=2)
+            warnings.warn(
+                DefaultPoseWarning(
+                    f"{src}: {len(filled)} joints not in the trajectory were set from the default pose of {self.name!r}: "
+                    + ", ".join(f"{n}={v:g}" for n, v in filled.items()),
+                    tuple(filled),
+                    filled,
+                ),
+                stacklevel=2,
+            )
         if tuple(traj.joint_names) != expected:
             order = [traj.joint_names.index(n) for n in expected]
             traj = traj.replace(joint_names=expected, q=traj.q[:, order])
         G = len(self.grippers)
         if traj.gripper.shape[1] != G:
-            raise TrajectoryError(src, "gripper", f"shape (T, {G}) for grippers {list(self.gripper_names)}",
-                                  f"shape {traj.gripper.shape}")
+            raise TrajectoryError(
+                src, "gripper", f"shape (T, {G}) for grippers {list(self.gripper_names)}", f"shape {traj.gripper.shape}"
+            )
         if traj.gripper_names is not None and tuple(traj.gripper_names) != self.gripper_names:
             if set(traj.gripper_names) != set(self.gripper_names):
-                raise TrajectoryError(src, "gripper_names", f"{list(self.gripper_names)}", f"{list(traj.gripper_names)}")
+                raise TrajectoryError(
+                    src, "gripper_names", f"{list(self.gripper_names)}", f"{list(traj.gripper_names)}"
+                )
             order = [list(traj.gripper_names).index(n) for n in self.gripper_names]
             traj = traj.replace(gripper_names=self.gripper_names, gripper=traj.gripper[:, order])
         if self.uses_kinematic_tree():
@@ -428,7 +467,9 @@ class Embodiment:
                 warnings.warn(
                     f"{src}: joint {expected[j]!r} is beyond its limits [{lo[j]:g}, {hi[j]:g}] in {int(over[:, j].sum())} "
                     f"frames (first: {traj.q[t, j]:g} at frame {t}); {int(over.any(0).sum())} joints affected; rendering anyway",
-                    JointLimitWarning, stacklevel=2)
+                    JointLimitWarning,
+                    stacklevel=2,
+                )
         return traj
 
     def fill_default_pose(self, traj: Trajectory) -> tuple[Trajectory, dict[str, float]]:
@@ -444,13 +485,13 @@ class Embodiment:
         if not self.default_pose or traj.keypoints is not None:
             return traj, {}
         given = set(traj.joint_names)
-        filled = {n: float(self.default_pose[n]) for n in self.joint_names
-                  if n not in given and n in self.default_pose}
+        filled = {n: float(self.default_pose[n]) for n in self.joint_names if n not in given and n in self.default_pose}
         if not filled:
             return traj, {}
         cols = np.broadcast_to(np.array(list(filled.values())), (len(traj), len(filled)))
-        return traj.replace(joint_names=tuple(traj.joint_names) + tuple(filled),
-                            q=np.concatenate([traj.q, cols], axis=1)), filled
+        return traj.replace(
+            joint_names=tuple(traj.joint_names) + tuple(filled), q=np.concatenate([traj.q, cols], axis=1)
+        ), filled
 
     def gripper_openness(self, gripper: np.ndarray, source: str = "<trajectory>") -> np.ndarray:
         """(T, G) raw gripper signals → (T, G) openness in [0, 1]."""
@@ -525,8 +566,9 @@ class Embodiment:
             want = "static (mount: null)"
             if self.camera.mount_link is not None:
                 want += f" or mount link {self.camera.mount_link!r}"
-            raise CameraFileError(source, "mount", f"{want} for embodiment {self.name!r}",
-                                  f"mount link {camera.mount_link!r}")
+            raise CameraFileError(
+                source, "mount", f"{want} for embodiment {self.name!r}", f"mount link {camera.mount_link!r}"
+            )
 
     def info(self) -> dict:
         """A summary for listings (loads the kinematic description)."""

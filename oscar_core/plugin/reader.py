@@ -35,7 +35,13 @@ class EpisodeError(OscarError, ValueError):
     """One episode cannot be read; names the episode, the file, the field, what was expected and found."""
 
     def __init__(self, episode_id, path, field, expected, found):
-        self.episode_id, self.path, self.field, self.expected, self.found = episode_id, str(path), field, expected, found
+        self.episode_id, self.path, self.field, self.expected, self.found = (
+            episode_id,
+            str(path),
+            field,
+            expected,
+            found,
+        )
         super().__init__(f"episode {episode_id!r}: {path}: field '{field}': expected {expected}, found {found}")
 
     def __reduce__(self):
@@ -92,8 +98,10 @@ class VideoSource:
 
         want = list(range(self.n_frames)) if indices is None else [int(i) for i in indices]
         if any(i < 0 or i >= self.n_frames for i in want):
-            raise ValueError(f"{self.path}: frame indices must lie in [0, {self.n_frames}), found "
-                             f"{[i for i in want if i < 0 or i >= self.n_frames][:5]}")
+            raise ValueError(
+                f"{self.path}: frame indices must lie in [0, {self.n_frames}), found "
+                f"{[i for i in want if i < 0 or i >= self.n_frames][:5]}"
+            )
         if not want:
             return np.zeros((0, 0, 0, 3), np.uint8)
         order = sorted(set(want))
@@ -123,8 +131,10 @@ class VideoSource:
             raise ValueError(f"{self.path}: not a readable video ({exc})") from None
         missing = [i for i in order if i not in got]
         if missing:
-            raise ValueError(f"{self.path}: expected {self.n_frames} frames from {self.start:g} s at {self.fps:g} fps, "
-                             f"frames {missing[:5]}{'…' if len(missing) > 5 else ''} are missing (truncated video?)")
+            raise ValueError(
+                f"{self.path}: expected {self.n_frames} frames from {self.start:g} s at {self.fps:g} fps, "
+                f"frames {missing[:5]}{'…' if len(missing) > 5 else ''} are missing (truncated video?)"
+            )
         return np.stack([got[i] for i in want])
 
 
@@ -182,4 +192,3 @@ class Reader:
             if getattr(cls, meth) is getattr(Reader, meth):
                 problems.append(f"does not implement `{meth}`")
         return problems
-

@@ -62,7 +62,7 @@ class EmbodimentEntry:
 
     name: str
     cls: type
-    plugin: str        # entry-point name or file path
+    plugin: str  # entry-point name or file path
     distribution: str  # distribution name, or "file:<path>" for path plugins
     version: str
 
@@ -103,8 +103,13 @@ class Registry:
     or distributions to skip (added to ``OSCAR_BLOCK_PLUGINS``).
     """
 
-    def __init__(self, plugin_paths: Iterable[str | Path] = (), autoload: bool | None = None,
-                 blocked: Iterable[str] = (), warn: bool = True):
+    def __init__(
+        self,
+        plugin_paths: Iterable[str | Path] = (),
+        autoload: bool | None = None,
+        blocked: Iterable[str] = (),
+        warn: bool = True,
+    ):
         self.pm = pluggy.PluginManager(hookspecs.PROJECT_NAME)
         self.pm.add_hookspecs(hookspecs)
         self.entries: dict[str, EmbodimentEntry] = {}
@@ -131,8 +136,9 @@ class Registry:
             warnings.warn(str(failure), PluginLoadWarning, stacklevel=3)
 
     def _load_entry_points(self) -> None:
-        eps = sorted(md.entry_points(group=ENTRY_POINT_GROUP),
-                     key=lambda ep: ((ep.dist.name if ep.dist else ""), ep.name))
+        eps = sorted(
+            md.entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: ((ep.dist.name if ep.dist else ""), ep.name)
+        )
         seen = set()
         for ep in eps:
             dist = ep.dist.name if ep.dist else "<unknown distribution>"
@@ -147,7 +153,9 @@ class Registry:
             except BaseException as exc:  # an import may raise anything, even SystemExit
                 if isinstance(exc, KeyboardInterrupt):
                     raise
-                self._fail(ep.name, f"{dist} {version}".strip(), f"import of {ep.value!r} failed: {type(exc).__name__}: {exc}")
+                self._fail(
+                    ep.name, f"{dist} {version}".strip(), f"import of {ep.value!r} failed: {type(exc).__name__}: {exc}"
+                )
                 continue
             self._register_module(module, ep.name, dist, version)
 
@@ -182,14 +190,23 @@ class Registry:
         except (ValueError, pluggy.PluginValidationError) as exc:  # already registered, or bad hookimpl signature
             self._fail(plugin, who, str(exc).replace("\n", " "))
             return
-        unknown = [n for n in dir(module) if n.startswith("oscar_") and callable(getattr(module, n))
-                   and not hasattr(self.pm.hook, n)]
+        unknown = [
+            n
+            for n in dir(module)
+            if n.startswith("oscar_") and callable(getattr(module, n)) and not hasattr(self.pm.hook, n)
+        ]
         if unknown:
-            self._fail(plugin, who, f"unknown hooks {unknown}; known: {[h for h in dir(self.pm.hook) if h.startswith('oscar_')]}")
+            self._fail(
+                plugin,
+                who,
+                f"unknown hooks {unknown}; known: {[h for h in dir(self.pm.hook) if h.startswith('oscar_')]}",
+            )
         from .reader import Reader
 
-        for hook, base, entries, kind in (("oscar_register_embodiments", Embodiment, self.entries, "embodiment"),
-                                          ("oscar_register_readers", Reader, self.reader_entries, "reader")):
+        for hook, base, entries, kind in (
+            ("oscar_register_embodiments", Embodiment, self.entries, "embodiment"),
+            ("oscar_register_readers", Reader, self.reader_entries, "reader"),
+        ):
             for cls in self._hook_classes(module, hook, base, plugin, who):
                 self._add_class(cls, plugin, dist, version, entries, kind)
 
@@ -205,13 +222,18 @@ class Registry:
             if returned is None:
                 continue
             if isinstance(returned, type) or not isinstance(returned, (list, tuple)):
-                self._fail(plugin, who, f"{hook} must return a list of {base.__name__} classes, returned {type(returned).__name__}")
+                self._fail(
+                    plugin,
+                    who,
+                    f"{hook} must return a list of {base.__name__} classes, returned {type(returned).__name__}",
+                )
                 continue
             classes.extend(returned)
         return classes
 
-    def _add_class(self, cls, plugin: str, dist: str, version: str, entries: dict | None = None,
-                   kind: str = "embodiment") -> None:
+    def _add_class(
+        self, cls, plugin: str, dist: str, version: str, entries: dict | None = None, kind: str = "embodiment"
+    ) -> None:
         """Check one registered class (an embodiment, or with ``kind="reader"`` a dataset reader) and keep it."""
         from .reader import Reader
 
@@ -229,9 +251,13 @@ class Registry:
             return
         prior = entries.get(cls.name)
         if prior is not None:
-            self._fail(plugin, who, f"{kind} name {cls.name!r} is already registered by "
-                                    f"{prior.distribution} {prior.version}".rstrip() + f" (plugin {prior.plugin!r}); "
-                                    f"{who} registers it again ({cls.__module__}.{cls.__qualname__})")
+            self._fail(
+                plugin,
+                who,
+                f"{kind} name {cls.name!r} is already registered by {prior.distribution} {prior.version}".rstrip()
+                + f" (plugin {prior.plugin!r}); "
+                f"{who} registers it again ({cls.__module__}.{cls.__qualname__})",
+            )
             return
         entries[cls.name] = EmbodimentEntry(cls.name, cls, plugin, dist, version)
 
@@ -242,13 +268,16 @@ class Registry:
     def get_reader(self, name: str, options: dict | None = None):
         """A new instance of the dataset reader ``name``; options: its constructor's keywords (checked by the caller)."""
         if name not in self.reader_entries:
-            raise PluginError(f"unknown dataset reader {name!r}; registered: {', '.join(self.reader_names()) or 'none'}")
+            raise PluginError(
+                f"unknown dataset reader {name!r}; registered: {', '.join(self.reader_names()) or 'none'}"
+            )
         entry = self.reader_entries[name]
         try:
             return entry.cls(**(options or {}))
         except Exception as exc:
-            raise PluginError(f"reader {name!r} from {entry.distribution} {entry.version}".rstrip()
-                              + f" could not be created: {exc}") from exc
+            raise PluginError(
+                f"reader {name!r} from {entry.distribution} {entry.version}".rstrip() + f" could not be created: {exc}"
+            ) from exc
 
     def names(self) -> list[str]:
         return sorted(self.entries)
@@ -264,8 +293,10 @@ class Registry:
             try:
                 self._instances[name] = entry.cls()
             except Exception as exc:
-                raise PluginError(f"embodiment {name!r} from {entry.distribution} {entry.version}".rstrip()
-                                  + f" could not be loaded: {exc}") from exc
+                raise PluginError(
+                    f"embodiment {name!r} from {entry.distribution} {entry.version}".rstrip()
+                    + f" could not be loaded: {exc}"
+                ) from exc
         return self._instances[name]
 
 

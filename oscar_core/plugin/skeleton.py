@@ -12,13 +12,13 @@ __all__ = ["Skeleton", "DEFAULT_PALETTE", "collapse_tree_edges"]
 # Distinct, saturated RGB colours that stay apart after H.264 chroma
 # subsampling; assigned to limb groups in order unless a plugin names colours.
 DEFAULT_PALETTE: tuple[tuple[int, int, int], ...] = (
-    (255, 170, 0),   # orange
-    (0, 170, 255),   # sky blue
+    (255, 170, 0),  # orange
+    (0, 170, 255),  # sky blue
     (255, 60, 200),  # magenta
     (120, 255, 60),  # lime
     (255, 255, 80),  # yellow
-    (140, 100, 255), # violet
-    (0, 255, 200),   # aqua
+    (140, 100, 255),  # violet
+    (0, 255, 200),  # aqua
     (255, 110, 90),  # coral
 )
 

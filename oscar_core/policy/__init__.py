@@ -15,11 +15,22 @@ from __future__ import annotations
 from .._util.lazy import lazy_exports
 
 _EXPORTS = {
-    "ACTION_SPACES": "protocol", "GRIPPER_MODES": "protocol", "DROID_KEYS": "protocol", "Policy": "protocol",
-    "PolicySpec": "protocol", "PolicyFault": "protocol", "PolicySpecError": "protocol", "check_answer": "protocol",
-    "call_policy": "protocol", "load_policy": "loading", "action_width": "protocol",
-    "ActionAdapter": "spaces", "AdapterResult": "spaces", "resample": "spaces",
-    "EndEffectorIK": "ik", "IKResult": "ik",
+    "ACTION_SPACES": "protocol",
+    "GRIPPER_MODES": "protocol",
+    "DROID_KEYS": "protocol",
+    "Policy": "protocol",
+    "PolicySpec": "protocol",
+    "PolicyFault": "protocol",
+    "PolicySpecError": "protocol",
+    "check_answer": "protocol",
+    "call_policy": "protocol",
+    "load_policy": "loading",
+    "action_width": "protocol",
+    "ActionAdapter": "spaces",
+    "AdapterResult": "spaces",
+    "resample": "spaces",
+    "EndEffectorIK": "ik",
+    "IKResult": "ik",
 }
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -40,8 +40,15 @@ class EndEffectorIK:
     position and rotation errors at which a solve stops.
     """
 
-    def __init__(self, emb, damping: float = 0.02, max_iter: int = 200, tol_m: float = 1e-5,
-                 tol_rad: float = 1e-4, eps: float = 1e-6):
+    def __init__(
+        self,
+        emb,
+        damping: float = 0.02,
+        max_iter: int = 200,
+        tol_m: float = 1e-5,
+        tol_rad: float = 1e-4,
+        eps: float = 1e-6,
+    ):
         self.emb = emb
         self.fk = NumpyForwardKinematics(emb.tree)
         if len(emb.grippers):
@@ -105,13 +112,13 @@ class EndEffectorIK:
             er = float(np.linalg.norm(err[3:])) if rows == 6 else 0.0
             if (ep <= self.tol_m and er <= self.tol_rad) or it == self.max_iter:
                 break
-            plus, minus = T[1:J + 1], T[J + 1:]
+            plus, minus = T[1 : J + 1], T[J + 1 :]
             jac = np.empty((rows, J))
             jac[:3] = ((plus[:, :3, 3] - minus[:, :3, 3]) / (2 * self.eps)).T
             if rows == 6:  # rotation rows: rotvec of R+ R-ᵀ / 2ε (the angular velocity per unit joint motion)
                 rel = np.einsum("nij,nkj->nik", plus[:, :3, :3], minus[:, :3, :3])
                 jac[3:] = (Rotation.from_matrix(rel).as_rotvec() / (2 * self.eps)).T
-            dq = jac.T @ np.linalg.solve(jac @ jac.T + self.damping ** 2 * eye, err)
+            dq = jac.T @ np.linalg.solve(jac @ jac.T + self.damping**2 * eye, err)
             q = np.clip(q + dq, self.lo, self.hi)
         return IKResult(q, ep, er, it)
 

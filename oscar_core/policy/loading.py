@@ -45,8 +45,12 @@ def load_policy(source: str):
             found = [ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name == source]
             if not found:
                 names = sorted(ep.name for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
-                raise PolicySpecError(source, "policy", f"module:attr, file.py:attr or an {ENTRY_POINT_GROUP} entry "
-                                      f"point (installed: {names or 'none'})", "none of these")
+                raise PolicySpecError(
+                    source,
+                    "policy",
+                    f"module:attr, file.py:attr or an {ENTRY_POINT_GROUP} entry point (installed: {names or 'none'})",
+                    "none of these",
+                )
             obj = found[0].load()
     except FileNotFoundError:
         raise PolicySpecError(source, "policy", "an existing Python file", "no such file") from None
@@ -60,5 +64,6 @@ def load_policy(source: str):
         return obj
     if callable(obj):
         return _FunctionPolicy(obj)
-    raise PolicySpecError(source, "policy", "an object with infer(obs), a class of one, or a function",
-                          type(obj).__name__)
+    raise PolicySpecError(
+        source, "policy", "an object with infer(obs), a class of one, or a function", type(obj).__name__
+    )

@@ -27,13 +27,28 @@ import numpy as np
 
 from ..errors import OscarError
 
-__all__ = ["ActionSpaceName", "GripperMode", "ACTION_SPACES", "GRIPPER_MODES", "DROID_KEYS", "OBS_FIELDS",
-           "ENTRY_POINT_GROUP", "Policy", "PolicySpec", "PolicyFault", "PolicySpecError", "action_width",
-           "check_answer", "call_policy", "absurd_bounds"]
+__all__ = [
+    "ActionSpaceName",
+    "GripperMode",
+    "ACTION_SPACES",
+    "GRIPPER_MODES",
+    "DROID_KEYS",
+    "OBS_FIELDS",
+    "ENTRY_POINT_GROUP",
+    "Policy",
+    "PolicySpec",
+    "PolicyFault",
+    "PolicySpecError",
+    "action_width",
+    "check_answer",
+    "call_policy",
+    "absurd_bounds",
+]
 
 #: Action spaces a policy may declare (:mod:`oscar_core.policy.spaces`).
-ActionSpaceName = Literal["joint_position", "joint_velocity", "joint_delta", "ee_pose", "ee_delta",
-                          "ee_position", "ee_position_delta"]
+ActionSpaceName = Literal[
+    "joint_position", "joint_velocity", "joint_delta", "ee_pose", "ee_delta", "ee_position", "ee_position_delta"
+]
 ACTION_SPACES: tuple[str, ...] = get_args(ActionSpaceName)
 #: How the last action column drives the gripper: its closure in [0, 1] (1 = closed, DROID's convention), or
 #: the same thresholded at 0.5.
@@ -85,8 +100,15 @@ class Policy(Protocol):
 
 def action_width(space: str, joints: int) -> int:
     """D of an action row in ``space`` for a robot of ``joints`` arm joints: the arm part plus one gripper column."""
-    arm = {"joint_position": joints, "joint_velocity": joints, "joint_delta": joints, "ee_pose": 6,
-           "ee_delta": 6, "ee_position": 3, "ee_position_delta": 3}[space]
+    arm = {
+        "joint_position": joints,
+        "joint_velocity": joints,
+        "joint_delta": joints,
+        "ee_pose": 6,
+        "ee_delta": 6,
+        "ee_position": 3,
+        "ee_position_delta": 3,
+    }[space]
     return arm + 1
 
 
@@ -113,10 +135,17 @@ class PolicySpec:
     timeout_s: float = 30.0
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "source": self.source, "action_space": self.action_space,
-                "control_hz": self.control_hz, "image_size": list(self.image_size),
-                "actions_per_call": self.actions_per_call, "gripper": self.gripper, "keys": dict(self.keys),
-                "timeout_s": self.timeout_s}
+        return {
+            "name": self.name,
+            "source": self.source,
+            "action_space": self.action_space,
+            "control_hz": self.control_hz,
+            "image_size": list(self.image_size),
+            "actions_per_call": self.actions_per_call,
+            "gripper": self.gripper,
+            "keys": dict(self.keys),
+            "timeout_s": self.timeout_s,
+        }
 
     @classmethod
     def from_dict(cls, data: Mapping, source: str = "<policy>") -> PolicySpec:
@@ -124,8 +153,17 @@ class PolicySpec:
         DROID's values). Raises :class:`PolicySpecError` naming ``source`` and the field."""
         if not isinstance(data, Mapping):
             raise PolicySpecError(source, "policy", "an object", type(data).__name__)
-        allowed = {"name", "policy", "action_space", "control_hz", "image_size", "actions_per_call", "gripper",
-                   "keys", "timeout_s"}
+        allowed = {
+            "name",
+            "policy",
+            "action_space",
+            "control_hz",
+            "image_size",
+            "actions_per_call",
+            "gripper",
+            "keys",
+            "timeout_s",
+        }
         extra = sorted(set(data) - allowed)
         if extra:
             raise PolicySpecError(source, "keys", f"only {sorted(allowed)}", f"unknown keys {extra}")
@@ -133,8 +171,9 @@ class PolicySpec:
         if not isinstance(name, str) or not name or not all(c.isalnum() or c in "._-" for c in name):
             raise PolicySpecError(source, "name", "a name of letters, digits, '.', '_' or '-'", repr(name))
         if not isinstance(src, str) or not src:
-            raise PolicySpecError(source, "policy", "module:attr, file.py:attr, an entry-point name or ws://host:port",
-                                  repr(src))
+            raise PolicySpecError(
+                source, "policy", "module:attr, file.py:attr, an entry-point name or ws://host:port", repr(src)
+            )
         space = data.get("action_space", "joint_velocity")
         if space not in ACTION_SPACES:
             raise PolicySpecError(source, "action_space", f"one of {list(ACTION_SPACES)}", repr(space))
@@ -148,18 +187,31 @@ class PolicySpec:
         if isinstance(k, bool) or not isinstance(k, int) or k < 1:
             raise PolicySpecError(source, "actions_per_call", "an integer >= 1", repr(k))
         size = data.get("image_size", [224, 224])
-        if (not isinstance(size, (list, tuple)) or len(size) != 2
-                or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        if (
+            not isinstance(size, (list, tuple))
+            or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
+        ):
             raise PolicySpecError(source, "image_size", "[width, height], positive integers", repr(size))
         keys = data.get("keys", {})
         if not isinstance(keys, Mapping) or not all(k in OBS_FIELDS and isinstance(v, str) for k, v in keys.items()):
-            raise PolicySpecError(source, "keys", f"an object mapping some of {list(OBS_FIELDS)} to key strings",
-                                  repr(keys))
+            raise PolicySpecError(
+                source, "keys", f"an object mapping some of {list(OBS_FIELDS)} to key strings", repr(keys)
+            )
         timeout = data.get("timeout_s", 30.0)
         if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not timeout > 0:
             raise PolicySpecError(source, "timeout_s", "a positive number of seconds", repr(timeout))
-        return cls(name=name, source=src, action_space=space, control_hz=float(hz), image_size=(size[0], size[1]),
-                   actions_per_call=k, gripper=gripper, keys={**DROID_KEYS, **keys}, timeout_s=float(timeout))
+        return cls(
+            name=name,
+            source=src,
+            action_space=space,
+            control_hz=float(hz),
+            image_size=(size[0], size[1]),
+            actions_per_call=k,
+            gripper=gripper,
+            keys={**DROID_KEYS, **keys},
+            timeout_s=float(timeout),
+        )
 
 
 def absurd_bounds(space: str, lo: np.ndarray, hi: np.ndarray, hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -184,8 +236,9 @@ def absurd_bounds(space: str, lo: np.ndarray, hi: np.ndarray, hz: float) -> tupl
     return np.append(a, -1.0), np.append(b, 2.0)
 
 
-def check_answer(answer: Any, *, width: int, min_horizon: int, bounds: tuple[np.ndarray, np.ndarray] | None = None
-                 ) -> np.ndarray:
+def check_answer(
+    answer: Any, *, width: int, min_horizon: int, bounds: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     """The (H, D) float64 actions of a policy's ``answer``, or :class:`PolicyFault` saying what is wrong.
 
     width: D; min_horizon: the fewest rows accepted (the actions executed per call); bounds: (D,) lower and
@@ -199,27 +252,33 @@ def check_answer(answer: Any, *, width: int, min_horizon: int, bounds: tuple[np.
     try:
         arr = np.asarray(raw)
     except Exception as exc:  # noqa: BLE001 - anything a policy returns
-        raise PolicyFault(f"actions: expected an (H, {width}) float array, found {type(raw).__name__} ({exc})") from None
+        raise PolicyFault(
+            f"actions: expected an (H, {width}) float array, found {type(raw).__name__} ({exc})"
+        ) from None
     if arr.dtype.kind not in "fiu" or arr.dtype == bool:
         raise PolicyFault(f"actions: expected an (H, {width}) float array, found dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != width:
         raise PolicyFault(f"actions: expected shape (H, {width}), found {arr.shape}")
     if arr.shape[0] < min_horizon:
-        raise PolicyFault(f"actions: expected at least {min_horizon} rows (actions executed per call), "
-                          f"found {arr.shape[0]}")
+        raise PolicyFault(
+            f"actions: expected at least {min_horizon} rows (actions executed per call), found {arr.shape[0]}"
+        )
     arr = arr.astype(np.float64)
     bad = ~np.isfinite(arr)
     if bad.any():
         r, c = (int(v) for v in np.argwhere(bad)[0])
-        raise PolicyFault(f"actions: expected finite values, found {arr[r, c]} at row {r}, column {c} "
-                          f"({int(bad.sum())} values)")
+        raise PolicyFault(
+            f"actions: expected finite values, found {arr[r, c]} at row {r}, column {c} ({int(bad.sum())} values)"
+        )
     if bounds is not None:
         lo, hi = bounds
         out = (arr < lo) | (arr > hi)
         if out.any():
             r, c = (int(v) for v in np.argwhere(out)[0])
-            raise PolicyFault(f"actions: expected values within [{lo[c]:.4g}, {hi[c]:.4g}] in column {c} (beyond "
-                              f"that no robot goes), found {arr[r, c]:.6g} at row {r}")
+            raise PolicyFault(
+                f"actions: expected values within [{lo[c]:.4g}, {hi[c]:.4g}] in column {c} (beyond "
+                f"that no robot goes), found {arr[r, c]:.6g} at row {r}"
+            )
     return arr
 
 

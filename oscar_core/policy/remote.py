@@ -32,8 +32,12 @@ def _pack_array(obj):
     if isinstance(obj, (np.ndarray, np.generic)) and obj.dtype.kind in ("V", "O", "c"):
         raise ValueError(f"cannot send an array of dtype {obj.dtype}")
     if isinstance(obj, np.ndarray):
-        return {b"__ndarray__": True, b"data": np.ascontiguousarray(obj).tobytes(), b"dtype": obj.dtype.str,
-                b"shape": obj.shape}
+        return {
+            b"__ndarray__": True,
+            b"data": np.ascontiguousarray(obj).tobytes(),
+            b"dtype": obj.dtype.str,
+            b"shape": obj.shape,
+        }
     if isinstance(obj, np.generic):
         return {b"__npgeneric__": True, b"data": obj.item(), b"dtype": obj.dtype.str}
     return obj
@@ -87,7 +91,7 @@ class WebsocketPolicy:
 
     def reset(self) -> None:
         """A fresh connection (A policy is served by ``python -m oscar_core.policy.serve module:attr --port 8000``.
-openpi's protocol has no reset message)."""
+        openpi's protocol has no reset message)."""
         self._connect()
 
     def infer(self, obs: dict) -> dict:
@@ -122,8 +126,9 @@ def _handler(policy_factory, metadata: dict, ws) -> None:
             return
 
 
-def serve_policy(policy_factory, host: str = "127.0.0.1", port: int = 8000, metadata: dict | None = None,
-                 ready=None) -> None:
+def serve_policy(
+    policy_factory, host: str = "127.0.0.1", port: int = 8000, metadata: dict | None = None, ready=None
+) -> None:
     """Serve a fresh ``policy_factory()`` per connection over openpi's protocol until interrupted; ``ready`` (a
     callable) receives the bound port once listening."""
     server_mod = require("websockets.sync.server", "policy")

@@ -15,9 +15,11 @@ __all__ = ["main"]
 def main(argv=None) -> int:
     """``python -m oscar_core.policy.serve module:attr [--host H] [--port P]``: serve a policy; prints
     ``listening on ws://H:P`` once ready (port 0: a free port)."""
-    p = argparse.ArgumentParser(prog="python -m oscar_core.policy.serve",
-                                description="serve a policy (module:attr, file.py:attr or an oscar.policies entry "
-                                            "point) over openpi's websocket protocol")
+    p = argparse.ArgumentParser(
+        prog="python -m oscar_core.policy.serve",
+        description="serve a policy (module:attr, file.py:attr or an oscar.policies entry "
+        "point) over openpi's websocket protocol",
+    )
     p.add_argument("policy")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)

@@ -107,8 +107,11 @@ class ActionAdapter:
                 if self.space in ("ee_delta", "ee_position_delta"):
                     T = self.ik.pose(q)
                     pos = T[:3, 3] + arm[:3]
-                    rot = (Rotation.from_rotvec(arm[3:6]) * Rotation.from_matrix(T[:3, :3])).as_rotvec() \
-                        if self.space == "ee_delta" else None
+                    rot = (
+                        (Rotation.from_rotvec(arm[3:6]) * Rotation.from_matrix(T[:3, :3])).as_rotvec()
+                        if self.space == "ee_delta"
+                        else None
+                    )
                 else:
                     pos, rot = arm[:3], (arm[3:6] if self.space == "ee_pose" else None)
                 res = self.ik.solve(q, pos, rot)

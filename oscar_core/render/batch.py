@@ -146,8 +146,9 @@ def _registry(plugin_paths: Sequence[str]):
     return _REGISTRIES[key]
 
 
-def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), *, registry=None,
-                   index: int = 0) -> EpisodeResult:
+def render_episode(
+    spec: EpisodeSpec, options: RenderOptions = RenderOptions(), *, registry=None, index: int = 0
+) -> EpisodeResult:
     """Render ``spec`` to ``spec.out``, streaming; raises on any error (see :func:`render_many`).
 
     The output path, suffix and (for H.264) even size are checked before any
@@ -170,13 +171,29 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
     stats = RenderStats()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        writer = VideoWriter(spec.out, spec.fps or traj.fps, format=spec.format, crf=options.crf,
-                             preset=options.preset or DEFAULT_PRESET, yuv=options.yuv or DEFAULT_YUV,
-                             threads=0 if options.threads is None else options.threads, size=size)
+        writer = VideoWriter(
+            spec.out,
+            spec.fps or traj.fps,
+            format=spec.format,
+            crf=options.crf,
+            preset=options.preset or DEFAULT_PRESET,
+            yuv=options.yuv or DEFAULT_YUV,
+            threads=0 if options.threads is None else options.threads,
+            size=size,
+        )
         with writer:
-            for chunk in iter_chunks(emb, traj, cam, size, resize_mode=spec.resize, device=options.device,
-                                     camera_source=str(spec.camera), strict=options.strict, stats=stats,
-                                     chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES):
+            for chunk in iter_chunks(
+                emb,
+                traj,
+                cam,
+                size,
+                resize_mode=spec.resize,
+                device=options.device,
+                camera_source=str(spec.camera),
+                strict=options.strict,
+                stats=stats,
+                chunk_frames=options.chunk_frames or DEFAULT_CHUNK_FRAMES,
+            ):
                 writer.write(chunk)
     seen, messages = set(), []
     for w in caught:
@@ -184,8 +201,20 @@ def render_episode(spec: EpisodeSpec, options: RenderOptions = RenderOptions(), 
         if text not in seen:
             seen.add(text)
             messages.append(text)
-    return EpisodeResult(index, spec, True, str(writer.path), writer.frames, size[0], size[1], spec.fps or traj.fps,
-                         time.perf_counter() - t0, None, messages, stats.empty_frames)
+    return EpisodeResult(
+        index,
+        spec,
+        True,
+        str(writer.path),
+        writer.frames,
+        size[0],
+        size[1],
+        spec.fps or traj.fps,
+        time.perf_counter() - t0,
+        None,
+        messages,
+        stats.empty_frames,
+    )
 
 
 def _safe_render(index: int, spec: EpisodeSpec, options: RenderOptions, registry=None) -> EpisodeResult:
@@ -230,12 +259,23 @@ def _file_sha256(path: str) -> str | None:
 
 def episode_parts(spec: EpisodeSpec, options: RenderOptions) -> dict:
     """What ``spec``'s output depends on (its fingerprint parts; see the module docstring)."""
-    return {"format_version": _stage.FORMAT_VERSION, "embodiment": spec.embodiment,
-            "trajectory": _file_sha256(spec.trajectory), "camera": _file_sha256(spec.camera),
-            "size": list(spec.size) if spec.size else None, "fps": spec.fps, "resize": spec.resize,
-            "format": spec.format, "condition": spec.condition or options.condition, "preset": options.preset,
-            "crf": options.crf, "yuv": options.yuv, "strict": options.strict,
-            "device": str(options.device).split(":")[0], "plugin_paths": list(options.plugin_paths)}
+    return {
+        "format_version": _stage.FORMAT_VERSION,
+        "embodiment": spec.embodiment,
+        "trajectory": _file_sha256(spec.trajectory),
+        "camera": _file_sha256(spec.camera),
+        "size": list(spec.size) if spec.size else None,
+        "fps": spec.fps,
+        "resize": spec.resize,
+        "format": spec.format,
+        "condition": spec.condition or options.condition,
+        "preset": options.preset,
+        "crf": options.crf,
+        "yuv": options.yuv,
+        "strict": options.strict,
+        "device": str(options.device).split(":")[0],
+        "plugin_paths": list(options.plugin_paths),
+    }
 
 
 def _resumed(index: int, spec: EpisodeSpec, parts: dict) -> EpisodeResult | None:
@@ -249,15 +289,32 @@ def _resumed(index: int, spec: EpisodeSpec, parts: dict) -> EpisodeResult | None
         return None
     if not isinstance(got, dict) or got.get("fingerprint") != _stage.fingerprint(parts):
         return None
-    return EpisodeResult(index, spec, True, got.get("out"), int(got.get("frames", 0)), got.get("width"),
-                         got.get("height"), got.get("fps"), 0.0, skipped=True)
+    return EpisodeResult(
+        index,
+        spec,
+        True,
+        got.get("out"),
+        int(got.get("frames", 0)),
+        got.get("width"),
+        got.get("height"),
+        got.get("fps"),
+        0.0,
+        skipped=True,
+    )
 
 
 def _write_record(r: EpisodeResult, parts: dict) -> None:
     from .._util.atomic import atomic_write_bytes
 
-    body = {"fingerprint": _stage.fingerprint(parts), "parts": parts, "out": r.out, "frames": r.frames,
-            "width": r.width, "height": r.height, "fps": r.fps}
+    body = {
+        "fingerprint": _stage.fingerprint(parts),
+        "parts": parts,
+        "out": r.out,
+        "frames": r.frames,
+        "width": r.width,
+        "height": r.height,
+        "fps": r.fps,
+    }
     try:
         atomic_write_bytes(record_path(r.spec), json.dumps(body, indent=1).encode())
     except OSError:  # pragma: no cover - the video itself was written; a missing record only costs a re-render
@@ -294,9 +351,16 @@ def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
             raise OutputPathError(s.out, f"cannot make folder {parent}: {exc.strerror or exc}") from None
 
 
-def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOptions(), *, workers: int = 1,
-                progress: bool | None = False, on_result: Callable[[EpisodeResult], None] | None = None,
-                registry=None, resume: bool = False) -> list[EpisodeResult]:
+def render_many(
+    specs: Iterable[EpisodeSpec],
+    options: RenderOptions = RenderOptions(),
+    *,
+    workers: int = 1,
+    progress: bool | None = False,
+    on_result: Callable[[EpisodeResult], None] | None = None,
+    registry=None,
+    resume: bool = False,
+) -> list[EpisodeResult]:
     """Render every spec; returns one :class:`EpisodeResult` per spec, in input order.
 
     workers: processes (1: in this process, reusing ``registry`` if given).
@@ -350,8 +414,9 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
             on_result(r)
 
     def new_bar():
-        return tqdm(total=len(specs), desc="rendering", unit="episode",
-                    disable=None if progress is None else not progress)
+        return tqdm(
+            total=len(specs), desc="rendering", unit="episode", disable=None if progress is None else not progress
+        )
 
     todo = []
     for i, s in enumerate(specs):
@@ -376,9 +441,12 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
             from concurrent.futures import ProcessPoolExecutor, as_completed
 
             ctx = _pool_context(specs, options)
-            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx,
-                                     initializer=_stage.worker_initializer,
-                                     initargs=(os.getpid(), _init_worker)) as pool:
+            with ProcessPoolExecutor(
+                max_workers=min(workers, len(todo)),
+                mp_context=ctx,
+                initializer=_stage.worker_initializer,
+                initargs=(os.getpid(), _init_worker),
+            ) as pool:
                 try:
                     futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
                     for fut in as_completed(futures):
@@ -386,8 +454,11 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
                             done(fut.result())
                         except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
                             i = futures[fut]
-                            done(EpisodeResult(i, specs[i], False,
-                                               error=f"worker process failed: {type(exc).__name__}: {exc}"))
+                            done(
+                                EpisodeResult(
+                                    i, specs[i], False, error=f"worker process failed: {type(exc).__name__}: {exc}"
+                                )
+                            )
                 except KeyboardInterrupt:  # stop now rather than render the rest of the queue first
                     from .._util.interrupt import stop_pool
 
@@ -400,8 +471,16 @@ def render_many(specs: Iterable[EpisodeSpec], options: RenderOptions = RenderOpt
 
 
 # modules a render worker needs: imported once by the fork server, inherited by every worker it forks
-_PRELOAD = ["numpy", "av", "cv2", "oscar_core.render.batch", "oscar_core.plugin.registry", "oscar_core.render.skeleton_stream",
-            "oscar_core.kinematics.trajectory", "oscar_core.media.video"]
+_PRELOAD = [
+    "numpy",
+    "av",
+    "cv2",
+    "oscar_core.render.batch",
+    "oscar_core.plugin.registry",
+    "oscar_core.render.skeleton_stream",
+    "oscar_core.kinematics.trajectory",
+    "oscar_core.media.video",
+]
 
 
 def _pool_context(specs: Sequence[EpisodeSpec], options: RenderOptions):
@@ -451,8 +530,9 @@ def _parse_size(value, where: str, source: str) -> tuple[int, int] | None:
         try:
             w, h = (int(v) for v in str(value).lower().split("x"))
         except ValueError:
-            raise InputFileError(source, f"{where}.size", "WIDTHxHEIGHT such as 512x288 (or [512, 288])",
-                                 repr(value)) from None
+            raise InputFileError(
+                source, f"{where}.size", "WIDTHxHEIGHT such as 512x288 (or [512, 288])", repr(value)
+            ) from None
     if not (isinstance(w, int) and isinstance(h, int)) or w < 2 or h < 2:
         raise InputFileError(source, f"{where}.size", "a size of at least 2x2 pixels", repr(value))
     return int(w), int(h)
@@ -461,8 +541,12 @@ def _parse_size(value, where: str, source: str) -> tuple[int, int] | None:
 def _spec_from_row(row: dict, where: str, source: str, base: Path) -> EpisodeSpec:
     unknown = [k for k in row if k not in MANIFEST_FIELDS]
     if unknown:
-        raise InputFileError(source, f"{where}.{unknown[0]}", f"only the fields {', '.join(MANIFEST_FIELDS)}",
-                             f"unknown field(s) {unknown}")
+        raise InputFileError(
+            source,
+            f"{where}.{unknown[0]}",
+            f"only the fields {', '.join(MANIFEST_FIELDS)}",
+            f"unknown field(s) {unknown}",
+        )
     for k in REQUIRED_FIELDS:
         v = row.get(k)
         if not isinstance(v, str) or not v.strip():
@@ -495,8 +579,17 @@ def _spec_from_row(row: dict, where: str, source: str, base: Path) -> EpisodeSpe
     condition = row.get("condition") or None
     if condition not in (None, *CONDITIONS):
         raise InputFileError(source, f"{where}.condition", " or ".join(CONDITIONS), repr(condition))
-    return EpisodeSpec(row["embodiment"].strip(), resolve(row["trajectory"]), resolve(row["camera"]),
-                       resolve(row["out"]), _parse_size(row.get("size"), where, source), fps, resize, fmt, condition)
+    return EpisodeSpec(
+        row["embodiment"].strip(),
+        resolve(row["trajectory"]),
+        resolve(row["camera"]),
+        resolve(row["out"]),
+        _parse_size(row.get("size"), where, source),
+        fps,
+        resize,
+        fmt,
+        condition,
+    )
 
 
 def read_manifest(path) -> list[EpisodeSpec]:
@@ -520,7 +613,9 @@ def read_manifest(path) -> list[EpisodeSpec]:
             try:
                 row = json.loads(line)
             except json.JSONDecodeError as exc:
-                raise InputFileError(source, f"line {n}", "one JSON object per line", f"invalid JSON ({exc.msg})") from None
+                raise InputFileError(
+                    source, f"line {n}", "one JSON object per line", f"invalid JSON ({exc.msg})"
+                ) from None
             if not isinstance(row, dict):
                 raise InputFileError(source, f"line {n}", "a JSON object", type(row).__name__)
             specs.append(_spec_from_row(row, f"line {n}", source, base))
@@ -532,10 +627,21 @@ def read_manifest(path) -> list[EpisodeSpec]:
             if not any((v or "").strip() for v in row.values() if isinstance(v, str)):
                 continue
             if None in row:
-                raise InputFileError(source, f"line {reader.line_num}", "as many values as header columns",
-                                     f"extra values {row[None]}")
-            specs.append(_spec_from_row({k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()
-                                         if k is not None and v not in ("", None)}, f"line {reader.line_num}", source, base))
+                raise InputFileError(
+                    source, f"line {reader.line_num}", "as many values as header columns", f"extra values {row[None]}"
+                )
+            specs.append(
+                _spec_from_row(
+                    {
+                        k: (v.strip() if isinstance(v, str) else v)
+                        for k, v in row.items()
+                        if k is not None and v not in ("", None)
+                    },
+                    f"line {reader.line_num}",
+                    source,
+                    base,
+                )
+            )
     else:
         raise InputFileError(source, "suffix", ".jsonl or .csv", repr(path.suffix))
     if not specs:
@@ -543,9 +649,17 @@ def read_manifest(path) -> list[EpisodeSpec]:
     return specs
 
 
-def specs_from_folder(folder, embodiment: str, out_dir, *, camera=None, suffix: str = ".mp4",
-                      size: tuple[int, int] | None = None, fps: float | None = None,
-                      resize: str = "crop") -> list[EpisodeSpec]:
+def specs_from_folder(
+    folder,
+    embodiment: str,
+    out_dir,
+    *,
+    camera=None,
+    suffix: str = ".mp4",
+    size: tuple[int, int] | None = None,
+    fps: float | None = None,
+    resize: str = "crop",
+) -> list[EpisodeSpec]:
     """One spec per ``*.npz`` trajectory in ``folder`` (sorted by name).
 
     Each trajectory's camera is ``camera`` when given, else ``<stem>.json``
@@ -562,14 +676,21 @@ def specs_from_folder(folder, embodiment: str, out_dir, *, camera=None, suffix: 
     shared = folder / "camera.json"
     specs, missing = [], []
     for t in trajs:
-        cam = Path(camera) if camera else (t.with_suffix(".json") if t.with_suffix(".json").is_file()
-                                           else shared if shared.is_file() else None)
+        cam = (
+            Path(camera)
+            if camera
+            else (t.with_suffix(".json") if t.with_suffix(".json").is_file() else shared if shared.is_file() else None)
+        )
         if cam is None:
             missing.append(t.name)
             continue
         out = str(Path(out_dir) / t.stem) + suffix
         specs.append(EpisodeSpec(embodiment, str(t), str(cam), out, size, fps, resize))
     if missing:
-        raise InputFileError(str(folder), "camera", "<stem>.json beside each trajectory, a camera.json in the "
-                             "folder, or --camera", f"no camera for {missing[:5]}" + (" …" if len(missing) > 5 else ""))
+        raise InputFileError(
+            str(folder),
+            "camera",
+            "<stem>.json beside each trajectory, a camera.json in the folder, or --camera",
+            f"no camera for {missing[:5]}" + (" …" if len(missing) > 5 else ""),
+        )
     return specs

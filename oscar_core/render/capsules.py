@@ -30,8 +30,20 @@ from .guarded_projection import project_cv, to_camera
 from .mesh import draw_frames, link_palette, record_empty
 from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 
-__all__ = ["CAPSULES", "CapsuleRenderer", "CapsuleJob", "RADIUS_BASE", "RADIUS_TIP", "CapsuleStyle", "link_radii",
-           "body_reach", "finger_axes", "body_vertices", "iter_capsule_chunks", "render_capsule_video"]
+__all__ = [
+    "CAPSULES",
+    "CapsuleRenderer",
+    "CapsuleJob",
+    "RADIUS_BASE",
+    "RADIUS_TIP",
+    "CapsuleStyle",
+    "link_radii",
+    "body_reach",
+    "finger_axes",
+    "body_vertices",
+    "iter_capsule_chunks",
+    "render_capsule_video",
+]
 
 #: capsule radius at the first skeleton edge, as a fraction of the robot's reach
 RADIUS_BASE = 0.07
@@ -128,8 +140,9 @@ def finger_axes(points: np.ndarray, gripper_point: np.ndarray, min_distance: flo
     return np.where(n > 1e-12, d / np.maximum(n, 1e-12), [0.0, 0.0, -1.0])
 
 
-def body_vertices(frames, edges: np.ndarray, reach: float, style: CapsuleStyle | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def body_vertices(
+    frames, edges: np.ndarray, reach: float, style: CapsuleStyle | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The body's triangles for every frame.
 
     frames: :class:`~oscar_core.plugin.embodiment.SkeletonFrames` (points (T, K, 3), gripper_points (T, G, 3),
@@ -167,8 +180,11 @@ def body_vertices(frames, edges: np.ndarray, reach: float, style: CapsuleStyle |
                 add(_place(unit, side, a, a + 3.0 * r_tip * axis, np.full(T, 0.5 * r_tip)), len(edges) + g)
     if not verts:
         return np.zeros((T, 0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
-    return (np.concatenate(verts, axis=1), np.concatenate(faces).astype(np.int64),
-            np.concatenate(part).astype(np.int64))
+    return (
+        np.concatenate(verts, axis=1),
+        np.concatenate(faces).astype(np.int64),
+        np.concatenate(part).astype(np.int64),
+    )
 
 
 @dataclass(frozen=True)
@@ -203,18 +219,31 @@ class CapsuleRenderer(ChunkedRenderer):
     sees_nothing_of = "of the robot's capsule body"
     video_chunk_frames = 64
 
-    def prepare(self, embodiment, traj, camera: Camera, size, *, style: CapsuleStyle | None, resize_mode: str,
-                device, camera_source: str) -> CapsuleJob:
+    def prepare(
+        self,
+        embodiment,
+        traj,
+        camera: Camera,
+        size,
+        *,
+        style: CapsuleStyle | None,
+        resize_mode: str,
+        device,
+        camera_source: str,
+    ) -> CapsuleJob:
         """Also raises :class:`~oscar_core.errors.PluginError` for an embodiment without a kinematic tree or
         without skeleton edges."""
         from ..errors import PluginError
 
         if not embodiment.uses_kinematic_tree():
-            raise PluginError(f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
-                              "the capsule body needs a skeleton from FK")
+            raise PluginError(
+                f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
+                "the capsule body needs a skeleton from FK"
+            )
         if len(embodiment.edges) == 0:
-            raise PluginError(f"embodiment {embodiment.name!r} has no skeleton edges: the capsule body has nothing "
-                              "to draw")
+            raise PluginError(
+                f"embodiment {embodiment.name!r} has no skeleton edges: the capsule body has nothing to draw"
+            )
         style = style or CapsuleStyle()
         traj, camera = prepare_view(embodiment, traj, camera, size, resize_mode, camera_source)
         edges = embodiment.edge_index()
@@ -223,11 +252,13 @@ class CapsuleRenderer(ChunkedRenderer):
         _, _, tri = _unit_capsule(int(style.segments))
         n_parts = len(edges) + (len(embodiment.grippers) if style.fingers else 0)
         parts = np.concatenate([np.full(len(tri) * (1 if k < len(edges) else 2), k) for k in range(n_parts)])
-        return CapsuleJob(embodiment, traj, camera, style, reach, edges, np.ascontiguousarray(palette[parts]),
-                          str(device))
+        return CapsuleJob(
+            embodiment, traj, camera, style, reach, edges, np.ascontiguousarray(palette[parts]), str(device)
+        )
 
-    def render_range(self, job: CapsuleJob, start: int, stop: int, out: np.ndarray | None,
-                     stats: RenderStats | None) -> np.ndarray:
+    def render_range(
+        self, job: CapsuleJob, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None
+    ) -> np.ndarray:
         cam, Pc, uv, folded, faces = _vertices_cv(job, start, stop)
         intr = cam.intrinsics
         if out is None:
@@ -243,27 +274,68 @@ class CapsuleRenderer(ChunkedRenderer):
 CAPSULES = CapsuleRenderer()
 
 
-def iter_capsule_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                        style: CapsuleStyle | None = None, resize_mode: str = "crop", device="cpu",
-                        camera_source: str = "<camera>", chunk_frames: int = DEFAULT_CHUNK_FRAMES,
-                        strict: bool = False, stats: RenderStats | None = None) -> Iterator[np.ndarray]:
+def iter_capsule_chunks(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: CapsuleStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    strict: bool = False,
+    stats: RenderStats | None = None,
+) -> Iterator[np.ndarray]:
     """Render the capsule body of ``traj`` chunk by chunk: yields (n, H, W, 3) uint8, n ≤ chunk_frames.
 
     Arguments as :func:`oscar_core.render.skeleton_stream.iter_skeleton_chunks`; ``style`` is a :class:`CapsuleStyle`.
     """
-    return CAPSULES.iter_chunks(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                                camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)
+    return CAPSULES.iter_chunks(
+        embodiment,
+        traj,
+        camera,
+        size,
+        style=style,
+        resize_mode=resize_mode,
+        device=device,
+        camera_source=camera_source,
+        chunk_frames=chunk_frames,
+        strict=strict,
+        stats=stats,
+    )
 
 
-def render_capsule_video(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                         style: CapsuleStyle | None = None, resize_mode: str = "crop", device="cpu",
-                         camera_source: str = "<camera>", chunk_frames: int = 64, strict: bool = False,
-                         stats: RenderStats | None = None) -> np.ndarray:
+def render_capsule_video(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: CapsuleStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+    chunk_frames: int = 64,
+    strict: bool = False,
+    stats: RenderStats | None = None,
+) -> np.ndarray:
     """The capsule-body condition video of ``traj`` seen by ``camera``: (T, H, W, 3) uint8 RGB on black.
 
     The counterpart of :func:`oscar_core.render.skeleton_video.render_skeleton_video` (same arguments; ``style`` is a
     :class:`CapsuleStyle`).
     """
-    return CAPSULES.render_video(embodiment, traj, camera, size, style=style, resize_mode=resize_mode,
-                                 device=device, camera_source=camera_source, chunk_frames=chunk_frames,
-                                 strict=strict, stats=stats)
+    return CAPSULES.render_video(
+        embodiment,
+        traj,
+        camera,
+        size,
+        style=style,
+        resize_mode=resize_mode,
+        device=device,
+        camera_source=camera_source,
+        chunk_frames=chunk_frames,
+        strict=strict,
+        stats=stats,
+    )

@@ -33,46 +33,87 @@ def add_render_parser(sub) -> None:
     """Register ``oscar render`` on the sub-command parsers ``sub``."""
     from ..media.video_options import DEFAULT_PRESET, DEFAULT_YUV, PRESETS, YUV_PATHS
 
-    r = sub.add_parser("render", help="render skeleton (or mesh) condition videos from trajectories "
-                                      "(one, or many with a worker pool)",
-                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r = sub.add_parser(
+        "render",
+        help="render skeleton (or mesh) condition videos from trajectories (one, or many with a worker pool)",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     r.add_argument("--embodiment", help="embodiment name (see `oscar embodiments`)")
     r.add_argument("--trajectory", help="trajectory .npz (docs/formats.md)")
     r.add_argument("--camera", help="camera calibration .json (docs/formats.md)")
-    output_option(r.add_argument("--out", help="output: .mp4 (H.264), .mkv (lossless FFV1) or a folder/ (PNG frames); "
-                                 "with --trajectories, the output folder"), "any")
+    output_option(
+        r.add_argument(
+            "--out",
+            help="output: .mp4 (H.264), .mkv (lossless FFV1) or a folder/ (PNG frames); "
+            "with --trajectories, the output folder",
+        ),
+        "any",
+    )
     r.add_argument("--manifest", help="render every episode of this .jsonl/.csv manifest (docs/formats.md)")
     r.add_argument("--trajectories", metavar="DIR", help="render every DIR/*.npz (cameras beside them) into --out")
-    r.add_argument("--format", choices=("mp4", "mkv", "png"),
-                   help="output format instead of the suffix (png: a folder of PNG frames)")
-    r.add_argument("--condition", choices=CONDITIONS, default="skeleton",
-                   help="condition video: the skeleton (default), the robot's visual geometry (mesh; "
-                        "needs <visual> elements and the mesh extra: docs/mesh-condition.md) or capsules along "
-                        "the skeleton with fingers (capsules; any kinematic tree)")
+    r.add_argument(
+        "--format",
+        choices=("mp4", "mkv", "png"),
+        help="output format instead of the suffix (png: a folder of PNG frames)",
+    )
+    r.add_argument(
+        "--condition",
+        choices=CONDITIONS,
+        default="skeleton",
+        help="condition video: the skeleton (default), the robot's visual geometry (mesh; "
+        "needs <visual> elements and the mesh extra: docs/mesh-condition.md) or capsules along "
+        "the skeleton with fingers (capsules; any kinematic tree)",
+    )
     r.add_argument("--size", help="output WIDTHxHEIGHT, e.g. 512x288 (default: the calibration's image size)")
-    r.add_argument("--resize", choices=("crop", "stretch"), default="crop",
-                   help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)")
+    r.add_argument(
+        "--resize",
+        choices=("crop", "stretch"),
+        default="crop",
+        help="how the calibration is fitted to --size of another aspect ratio (default: centre crop)",
+    )
     r.add_argument("--overlay", metavar="RGB_VIDEO", help="blend the skeleton over this video to check the calibration")
     r.add_argument("--alpha", type=number(0.0, 1.0), default=0.8, help="overlay opacity of the skeleton (default 0.8)")
     r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
-    r.add_argument("--device", type=device, default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)")
+    r.add_argument(
+        "--device", type=device, default="cpu", help="device for forward kinematics (cpu: NumPy; cuda: torch)"
+    )
     r.add_argument("--workers", type=count(1), default=1, help="processes rendering episodes in parallel (default 1)")
     threads_option(r, "torch CPU threads per process (forward kinematics, meshes)")
     # only a batch (--manifest / --trajectories) with --resume keeps finished episodes for the same command
     r.set_defaults(_resumes=lambda a: bool(a.manifest or a.trajectories) and a.resume)
-    r.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
-                   help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)")
+    r.add_argument(
+        "--preset",
+        choices=PRESETS,
+        default=DEFAULT_PRESET,
+        help=f"x264 speed preset for .mp4 (default {DEFAULT_PRESET}; README lists speed and quality)",
+    )
     r.add_argument("--crf", type=count(0), default=18, help="x264 quality, lower is better (default 18)")
-    r.add_argument("--yuv", choices=YUV_PATHS, default=DEFAULT_YUV,
-                   help=f"RGB to yuv420p conversion for .mp4 (default {DEFAULT_YUV}; both BT.601 limited range)")
-    r.add_argument("--strict", action="store_true",
-                   help="a frame where the camera sees nothing of the robot is an error (default: a warning)")
+    r.add_argument(
+        "--yuv",
+        choices=YUV_PATHS,
+        default=DEFAULT_YUV,
+        help=f"RGB to yuv420p conversion for .mp4 (default {DEFAULT_YUV}; both BT.601 limited range)",
+    )
+    r.add_argument(
+        "--strict",
+        action="store_true",
+        help="a frame where the camera sees nothing of the robot is an error (default: a warning)",
+    )
     r.add_argument("--json", action="store_true", help="print a machine-readable summary")
-    r.add_argument("--resume", action=argparse.BooleanOptionalAction, default=True,
-                   help="batches: skip episodes whose output and its .<name>.oscar-render.json record match the "
-                        "inputs and settings (default); --no-resume renders every episode again")
-    r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="progress bar on stderr (default: when stderr is a terminal)")
+    r.add_argument(
+        "--resume",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="batches: skip episodes whose output and its .<name>.oscar-render.json record match the "
+        "inputs and settings (default); --no-resume renders every episode again",
+    )
+    r.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: when stderr is a terminal)",
+    )
     r.set_defaults(func=cmd_render)
 
 
@@ -103,20 +144,45 @@ def _specs(args):
         if missing:
             raise OscarError(f"render --trajectories: expected {' and '.join(missing)}")
         suffix = {"mkv": ".mkv", "png": "/", "mp4": ".mp4", None: ".mp4"}[args.format]
-        return specs_from_folder(args.trajectories, args.embodiment, args.out, camera=args.camera, suffix=suffix,
-                                 size=_size(args.size), fps=args.fps, resize=args.resize), True
+        return specs_from_folder(
+            args.trajectories,
+            args.embodiment,
+            args.out,
+            camera=args.camera,
+            suffix=suffix,
+            size=_size(args.size),
+            fps=args.fps,
+            resize=args.resize,
+        ), True
     missing = [f"--{n}" for n in ("embodiment", "trajectory", "camera", "out") if not getattr(args, n)]
     if missing:
         raise OscarError(f"render: expected {', '.join(missing)} (or --manifest FILE / --trajectories DIR)")
-    return [EpisodeSpec(args.embodiment, args.trajectory, args.camera, args.out, _size(args.size), args.fps,
-                        args.resize, args.format)], False
+    return [
+        EpisodeSpec(
+            args.embodiment,
+            args.trajectory,
+            args.camera,
+            args.out,
+            _size(args.size),
+            args.fps,
+            args.resize,
+            args.format,
+        )
+    ], False
 
 
 def _options(args):
     from .batch import RenderOptions
 
-    return RenderOptions(preset=args.preset, crf=args.crf, yuv=args.yuv, strict=args.strict, device=args.device,
-                         plugin_paths=tuple(args.plugin or ()), condition=args.condition)
+    return RenderOptions(
+        preset=args.preset,
+        crf=args.crf,
+        yuv=args.yuv,
+        strict=args.strict,
+        device=args.device,
+        plugin_paths=tuple(args.plugin or ()),
+        condition=args.condition,
+    )
 
 
 def cmd_render(args) -> int:
@@ -153,9 +219,11 @@ def cmd_render(args) -> int:
             if not r.ok:
                 print(f"error: episode {r.index} ({r.spec.trajectory} -> {r.spec.out}): {r.error}", file=sys.stderr)
         skipped = f", {summary['skipped']} unchanged and skipped" if summary["skipped"] else ""
-        print(f"rendered {summary['ok']} of {summary['episodes']} episodes ({summary['failed']} failed{skipped}), "
-              f"{summary['frames']} frames in {summary['seconds']:.2f} s: "
-              f"{summary['episodes_per_second'] or 0:.2f} episodes/s, {summary['frames_per_second'] or 0:.0f} frames/s")
+        print(
+            f"rendered {summary['ok']} of {summary['episodes']} episodes ({summary['failed']} failed{skipped}), "
+            f"{summary['frames']} frames in {summary['seconds']:.2f} s: "
+            f"{summary['episodes_per_second'] or 0:.2f} episodes/s, {summary['frames_per_second'] or 0:.0f} frames/s"
+        )
     return 0 if summary["failed"] == 0 else 1
 
 
@@ -168,9 +236,24 @@ def _render_overlay(args, spec) -> int:
     emb = _registry(tuple(args.plugin or ())).get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)
     cam = emb.load_camera(spec.camera)
-    path, frames, size, fps = write_overlay(emb, traj, cam, args.overlay, spec.out, condition=args.condition,
-                                            size=spec.size, resize_mode=spec.resize, alpha=args.alpha, fps=spec.fps,
-                                            format=spec.format, preset=args.preset, crf=args.crf, yuv=args.yuv,
-                                            device=args.device, camera_source=str(spec.camera), strict=args.strict)
+    path, frames, size, fps = write_overlay(
+        emb,
+        traj,
+        cam,
+        args.overlay,
+        spec.out,
+        condition=args.condition,
+        size=spec.size,
+        resize_mode=spec.resize,
+        alpha=args.alpha,
+        fps=spec.fps,
+        format=spec.format,
+        preset=args.preset,
+        crf=args.crf,
+        yuv=args.yuv,
+        device=args.device,
+        camera_source=str(spec.camera),
+        strict=args.strict,
+    )
     print(f"wrote {path}: {frames} frames, {size[0]}x{size[1]}, {fps:g} fps")
     return 0

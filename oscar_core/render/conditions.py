@@ -26,9 +26,24 @@ from typing import Literal
 
 from ..errors import OscarError
 
-__all__ = ["ConditionName", "VideoConditionName", "Condition", "REGISTRY", "CONDITIONS", "MODEL_CONDITIONS",
-           "DEFAULT_CONDITION", "condition", "takes_actions", "is_video_condition", "check_condition",
-           "chunk_renderer", "video_renderer", "renderer", "condition_video", "video_condition_of"]
+__all__ = [
+    "ConditionName",
+    "VideoConditionName",
+    "Condition",
+    "REGISTRY",
+    "CONDITIONS",
+    "MODEL_CONDITIONS",
+    "DEFAULT_CONDITION",
+    "condition",
+    "takes_actions",
+    "is_video_condition",
+    "check_condition",
+    "chunk_renderer",
+    "video_renderer",
+    "renderer",
+    "condition_video",
+    "video_condition_of",
+]
 
 #: every condition a model card or a training config may name
 ConditionName = Literal["skeleton", "mesh", "capsules", "latent_action", "none"]
@@ -51,20 +66,22 @@ class Condition:
         return self.renderer is not None
 
 
-REGISTRY: dict[str, Condition] = {c.name: c for c in (
-    Condition("skeleton", "oscar_core.render.skeleton_stream:SKELETON"),
-    Condition("mesh", "oscar_core.render.mesh:MESH"),
-    Condition("capsules", "oscar_core.render.capsules:CAPSULES"),
-    Condition("latent_action", actions=True),
-    Condition("none"),
-)}
+REGISTRY: dict[str, Condition] = {
+    c.name: c
+    for c in (
+        Condition("skeleton", "oscar_core.render.skeleton_stream:SKELETON"),
+        Condition("mesh", "oscar_core.render.mesh:MESH"),
+        Condition("capsules", "oscar_core.render.capsules:CAPSULES"),
+        Condition("latent_action", actions=True),
+        Condition("none"),
+    )
+}
 
 #: the video conditions (``oscar render --condition``, the latent cache, the batch renderer), in registry order
 CONDITIONS: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if c.is_video)
 #: every condition a model may be trained with
 MODEL_CONDITIONS: tuple[str, ...] = tuple(REGISTRY)
 DEFAULT_CONDITION = "skeleton"
-
 
 
 def condition(name: str, source: str = "condition") -> Condition:
@@ -118,8 +135,10 @@ def video_renderer(name: str) -> Callable:
     return renderer(name).render_video
 
 
-def condition_video(name: str, embodiment, trajectory, camera, size, *, resize_mode: str = "crop",
-                    camera_source: str = "<camera>"):
+def condition_video(
+    name: str, embodiment, trajectory, camera, size, *, resize_mode: str = "crop", camera_source: str = "<camera>"
+):
     """(T, H, W, 3) uint8 condition video ``name`` of ``trajectory`` seen by ``camera`` at ``size`` (width, height)."""
-    return video_renderer(name)(embodiment, trajectory, camera, size, resize_mode=resize_mode,
-                                camera_source=camera_source)
+    return video_renderer(name)(
+        embodiment, trajectory, camera, size, resize_mode=resize_mode, camera_source=camera_source
+    )

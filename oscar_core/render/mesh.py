@@ -31,8 +31,18 @@ from .guarded_projection import project_cv, to_camera
 from .mesh_raster import CLIP_Z, clip_near, rasterise_mesh, shade_faces
 from .renderer import DEFAULT_CHUNK_FRAMES, ChunkedRenderer, RenderStats, prepare_view
 
-__all__ = ["MESH", "MeshRenderer", "MeshJob", "MeshStyle", "DEFAULT_SIMPLIFY", "link_palette", "mesh_geometry",
-           "mesh_vertices", "iter_mesh_chunks", "render_mesh_video"]
+__all__ = [
+    "MESH",
+    "MeshRenderer",
+    "MeshJob",
+    "MeshStyle",
+    "DEFAULT_SIMPLIFY",
+    "link_palette",
+    "mesh_geometry",
+    "mesh_vertices",
+    "iter_mesh_chunks",
+    "render_mesh_video",
+]
 
 #: default vertex-clustering cell, metres (docs/mesh-condition.md: silhouette IoU against the full meshes)
 DEFAULT_SIMPLIFY = 0.008
@@ -86,17 +96,23 @@ def mesh_geometry(embodiment, simplify: float | None = DEFAULT_SIMPLIFY) -> Visu
     if geo is None:
         geo = embodiment.visual_geometry()
         if not isinstance(geo, VisualGeometry):
-            raise PluginError(f"embodiment {embodiment.name!r}: visual_geometry() must return a "
-                              f"oscar_core.kinematics.visual.VisualGeometry, found {type(geo).__name__}")
+            raise PluginError(
+                f"embodiment {embodiment.name!r}: visual_geometry() must return a "
+                f"oscar_core.kinematics.visual.VisualGeometry, found {type(geo).__name__}"
+            )
         if not geo.links or geo.face_count == 0:
-            raise PluginError(f"embodiment {embodiment.name!r} has no visual geometry ({geo.source} gives no "
-                              "triangles); the mesh condition needs <visual> elements in its URDF or an override "
-                              "of Embodiment.visual_geometry")
+            raise PluginError(
+                f"embodiment {embodiment.name!r} has no visual geometry ({geo.source} gives no "
+                "triangles); the mesh condition needs <visual> elements in its URDF or an override "
+                "of Embodiment.visual_geometry"
+            )
         known = set(embodiment.tree.links)
         unknown = [n for n in geo.link_names if n not in known]
         if unknown:
-            raise PluginError(f"embodiment {embodiment.name!r}: visual geometry ({geo.source}) names links "
-                              f"{unknown} that its kinematic tree does not have")
+            raise PluginError(
+                f"embodiment {embodiment.name!r}: visual geometry ({geo.source}) names links "
+                f"{unknown} that its kinematic tree does not have"
+            )
         cache["full"] = geo
     out = geo if simplify is None else geo.simplified(simplify)
     cache[simplify] = out
@@ -115,8 +131,13 @@ def _pack(geo: VisualGeometry) -> _Mesh:
         faces.append(g.faces + offset)
         rgb.append(np.broadcast_to(palette[at[g.link]], (len(g.faces), 3)))
         offset += len(g.vertices)
-    return _Mesh(names, np.concatenate(verts), np.concatenate(vlink), np.concatenate(faces),
-                 np.ascontiguousarray(np.concatenate(rgb)))
+    return _Mesh(
+        names,
+        np.concatenate(verts),
+        np.concatenate(vlink),
+        np.concatenate(faces),
+        np.ascontiguousarray(np.concatenate(rgb)),
+    )
 
 
 @dataclass(frozen=True)
@@ -152,28 +173,46 @@ def vertices_cv(job: MeshJob, start: int, stop: int):
     # the FK the skeleton's frames() uses (NumPy on the CPU, the plugin's own fk otherwise)
     poses = emb._link_poses(emb.full_configuration(sub), sub.base_pose, links, job.device)
     M = cam.world_to_cv(poses[:, -1] if mount else None)
-    Pc = to_camera(_world_vertices(job.mesh, poses[:, :len(job.mesh.links)]), M)
+    Pc = to_camera(_world_vertices(job.mesh, poses[:, : len(job.mesh.links)]), M)
     # the skeleton's projection; folded: beyond the lens model's valid radius
     uv, folded = project_cv(Pc, cam.intrinsics)
     return cam, Pc, uv, folded
 
 
-def mesh_vertices(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                  style: MeshStyle | None = None, resize_mode: str = "crop", device="cpu",
-                  camera_source: str = "<camera>") -> tuple[np.ndarray, np.ndarray]:
+def mesh_vertices(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: MeshStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+) -> tuple[np.ndarray, np.ndarray]:
     """Where the renderer puts every vertex: (T, V, 2) pixels and (T, V) depth in metres.
 
     Vertices are those of :func:`mesh_geometry` (``style.simplify``), links in
     its order. The renderer draws exactly these positions.
     """
-    job = MESH.prepare(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                       camera_source=camera_source)
+    job = MESH.prepare(
+        embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device, camera_source=camera_source
+    )
     _, Pc, uv, _ = vertices_cv(job, 0, len(job.traj))
     return uv, Pc[..., 2]
 
 
-def draw_frames(Pc: np.ndarray, uv: np.ndarray, folded: np.ndarray, faces: np.ndarray, face_rgb: np.ndarray,
-                intr, ambient: float, cull_back: bool, out: np.ndarray) -> np.ndarray:
+def draw_frames(
+    Pc: np.ndarray,
+    uv: np.ndarray,
+    folded: np.ndarray,
+    faces: np.ndarray,
+    face_rgb: np.ndarray,
+    intr,
+    ambient: float,
+    cull_back: bool,
+    out: np.ndarray,
+) -> np.ndarray:
     """Rasterise n frames of one triangle set into ``out`` (n, H, W, 3) uint8 (drawn over, not cleared).
 
     Pc: (n, V, 3) camera-frame vertices, metres; uv: (n, V, 2) their pixels; folded: (n, V) bool,
@@ -187,7 +226,7 @@ def draw_frames(Pc: np.ndarray, uv: np.ndarray, folded: np.ndarray, faces: np.nd
         P, f, src, uv_i, ok = Pc[i], faces, None, uv[i], ~folded[i]
         if not (P[:, 2] > CLIP_Z).all():  # some geometry at or behind the near plane: cut the triangles there
             P, f, src = clip_near(P, f)
-            extra, extra_folded = project_cv(P[len(Pc[i]):], intr)
+            extra, extra_folded = project_cv(P[len(Pc[i]) :], intr)
             uv_i = np.concatenate([uv_i, extra])
             ok = np.concatenate([ok, ~extra_folded])
 
@@ -215,27 +254,41 @@ class MeshRenderer(ChunkedRenderer):
     sees_nothing_of = "of the robot's geometry"
     video_chunk_frames = 64
 
-    def prepare(self, embodiment, traj, camera: Camera, size, *, style: MeshStyle | None, resize_mode: str, device,
-                camera_source: str) -> MeshJob:
+    def prepare(
+        self,
+        embodiment,
+        traj,
+        camera: Camera,
+        size,
+        *,
+        style: MeshStyle | None,
+        resize_mode: str,
+        device,
+        camera_source: str,
+    ) -> MeshJob:
         """Also raises :class:`PluginError` for an embodiment without a kinematic tree."""
         if not embodiment.uses_kinematic_tree():
-            raise PluginError(f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
-                              "the mesh condition needs link poses and visual geometry, which it does not have")
+            raise PluginError(
+                f"embodiment {embodiment.name!r} computes its points itself (no kinematic tree); "
+                "the mesh condition needs link poses and visual geometry, which it does not have"
+            )
         style = style or MeshStyle()
         mesh = _pack(mesh_geometry(embodiment, style.simplify))
         traj, camera = prepare_view(embodiment, traj, camera, size, resize_mode, camera_source)
         return MeshJob(embodiment, traj, camera, style, str(device), mesh)
 
-    def render_range(self, job: MeshJob, start: int, stop: int, out: np.ndarray | None,
-                     stats: RenderStats | None) -> np.ndarray:
+    def render_range(
+        self, job: MeshJob, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None
+    ) -> np.ndarray:
         cam, Pc, uv, folded = vertices_cv(job, start, stop)
         intr = cam.intrinsics
         if out is None:
             out = np.zeros((stop - start, intr.height, intr.width, 3), np.uint8)
         else:
             out[...] = 0
-        draw_frames(Pc, uv, folded, job.mesh.faces, job.mesh.face_rgb, intr, job.style.ambient, job.style.cull_back,
-                    out)
+        draw_frames(
+            Pc, uv, folded, job.mesh.faces, job.mesh.face_rgb, intr, job.style.ambient, job.style.cull_back, out
+        )
         record_empty(out, start, stats)
         return out
 
@@ -244,10 +297,20 @@ class MeshRenderer(ChunkedRenderer):
 MESH = MeshRenderer()
 
 
-def iter_mesh_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                     style: MeshStyle | None = None, resize_mode: str = "crop", device="cpu",
-                     camera_source: str = "<camera>", chunk_frames: int = DEFAULT_CHUNK_FRAMES,
-                     strict: bool = False, stats: RenderStats | None = None) -> Iterator[np.ndarray]:
+def iter_mesh_chunks(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: MeshStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    strict: bool = False,
+    stats: RenderStats | None = None,
+) -> Iterator[np.ndarray]:
     """Render the mesh condition of ``traj`` chunk by chunk: yields (n, H, W, 3) uint8, n ≤ chunk_frames.
 
     Arguments as :func:`oscar_core.render.skeleton_stream.iter_skeleton_chunks`; ``style`` is a
@@ -255,14 +318,35 @@ def iter_mesh_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | N
     :class:`~oscar_core.render.renderer.EmptyViewWarning` at the end (``strict``:
     :class:`~oscar_core.render.renderer.EmptyViewError` at once).
     """
-    return MESH.iter_chunks(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                            camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)
+    return MESH.iter_chunks(
+        embodiment,
+        traj,
+        camera,
+        size,
+        style=style,
+        resize_mode=resize_mode,
+        device=device,
+        camera_source=camera_source,
+        chunk_frames=chunk_frames,
+        strict=strict,
+        stats=stats,
+    )
 
 
-def render_mesh_video(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                      style: MeshStyle | None = None, resize_mode: str = "crop", device="cpu",
-                      camera_source: str = "<camera>", chunk_frames: int = 64, strict: bool = False,
-                      stats: RenderStats | None = None) -> np.ndarray:
+def render_mesh_video(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: MeshStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+    chunk_frames: int = 64,
+    strict: bool = False,
+    stats: RenderStats | None = None,
+) -> np.ndarray:
     """The mesh condition video of ``traj`` seen by ``camera``: (T, H, W, 3) uint8 RGB on black.
 
     The counterpart of :func:`oscar_core.render.skeleton_video.render_skeleton_video` (same
@@ -270,5 +354,16 @@ def render_mesh_video(embodiment, traj, camera: Camera, size: tuple[int, int] | 
     :func:`iter_mesh_chunks`. Raises :class:`PluginError` for an embodiment
     without visual geometry.
     """
-    return MESH.render_video(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                             camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)
+    return MESH.render_video(
+        embodiment,
+        traj,
+        camera,
+        size,
+        style=style,
+        resize_mode=resize_mode,
+        device=device,
+        camera_source=camera_source,
+        chunk_frames=chunk_frames,
+        strict=strict,
+        stats=stats,
+    )

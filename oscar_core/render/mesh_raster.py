@@ -103,9 +103,18 @@ def _edge_params(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, ...]:
     return s, e - s, np.where(swap, -1.0, 1.0)
 
 
-def rasterise_mesh(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, face_rgb: np.ndarray,
-                   size: tuple[int, int], out: np.ndarray | None = None, *, usable: np.ndarray | None = None,
-                   cull_back: bool = False, max_fragments: int = MAX_FRAGMENTS) -> np.ndarray:
+def rasterise_mesh(
+    uv: np.ndarray,
+    depth: np.ndarray,
+    faces: np.ndarray,
+    face_rgb: np.ndarray,
+    size: tuple[int, int],
+    out: np.ndarray | None = None,
+    *,
+    usable: np.ndarray | None = None,
+    cull_back: bool = False,
+    max_fragments: int = MAX_FRAGMENTS,
+) -> np.ndarray:
     """Draw one frame of triangles with a z-buffer.
 
     uv: (V, 2) pixels; depth: (V,) metres along the optical axis; faces: (F, 3)

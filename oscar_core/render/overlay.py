@@ -11,11 +11,26 @@ from ..errors import OscarError
 __all__ = ["write_overlay"]
 
 
-def write_overlay(embodiment, traj, camera, rgb_video, out, *, condition: str = "skeleton",
-                  size: tuple[int, int] | None = None, resize_mode: str = "crop", alpha: float = 0.8,
-                  fps: float | None = None, format: str | None = None, preset: str | None = None, crf: int = 18,
-                  yuv: str | None = None, device="cpu", camera_source: str = "<camera>",
-                  strict: bool = False) -> tuple[Path, int, tuple[int, int], float]:
+def write_overlay(
+    embodiment,
+    traj,
+    camera,
+    rgb_video,
+    out,
+    *,
+    condition: str = "skeleton",
+    size: tuple[int, int] | None = None,
+    resize_mode: str = "crop",
+    alpha: float = 0.8,
+    fps: float | None = None,
+    format: str | None = None,
+    preset: str | None = None,
+    crf: int = 18,
+    yuv: str | None = None,
+    device="cpu",
+    camera_source: str = "<camera>",
+    strict: bool = False,
+) -> tuple[Path, int, tuple[int, int], float]:
     """Render ``condition`` of ``traj`` seen by ``camera`` and blend it over the frames of ``rgb_video``
     (:func:`oscar_core.render.skeleton_video.overlay_skeleton`), chunk by chunk, into ``out``.
 
@@ -33,15 +48,26 @@ def write_overlay(embodiment, traj, camera, rgb_video, out, *, condition: str = 
         size = (info["width"], info["height"])
     rgb = read_video(rgb_video, max_frames=len(traj))
     if len(rgb) < len(traj):
-        raise OscarError(f"{rgb_video}: expected at least {len(traj)} frames (the trajectory's length), found {len(rgb)}")
+        raise OscarError(
+            f"{rgb_video}: expected at least {len(traj)} frames (the trajectory's length), found {len(rgb)}"
+        )
     fps = fps or traj.fps
-    with VideoWriter(out, fps, format=format, preset=preset or DEFAULT_PRESET, crf=crf, yuv=yuv or DEFAULT_YUV,
-                     size=tuple(size)) as writer:
+    with VideoWriter(
+        out, fps, format=format, preset=preset or DEFAULT_PRESET, crf=crf, yuv=yuv or DEFAULT_YUV, size=tuple(size)
+    ) as writer:
         t = 0
-        for chunk in chunk_renderer(condition)(embodiment, traj, camera, tuple(size), resize_mode=resize_mode,
-                                               device=device, camera_source=camera_source, strict=strict):
+        for chunk in chunk_renderer(condition)(
+            embodiment,
+            traj,
+            camera,
+            tuple(size),
+            resize_mode=resize_mode,
+            device=device,
+            camera_source=camera_source,
+            strict=strict,
+        ):
             H, W = chunk.shape[1:3]
-            real = np.stack([fit_image(f, W, H, resize_mode) for f in rgb[t:t + len(chunk)]])
+            real = np.stack([fit_image(f, W, H, resize_mode) for f in rgb[t : t + len(chunk)]])
             writer.write(overlay_skeleton(chunk, real, alpha=alpha))
             t += len(chunk)
     return Path(writer.path), writer.frames, (int(size[0]), int(size[1])), float(fps)

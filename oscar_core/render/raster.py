@@ -34,13 +34,30 @@ _ONE = float(1 << _SHIFT)
 # to draw.  Beyond the last row the relation is linear (see _calibrated).
 # Capsule: effective full width -> geometric half-width.
 _CAPSULE_CAL = np.array(
-    [[1.673, 0.0], [1.746, 0.125], [1.892, 0.25], [2.108, 0.375], [2.332, 0.5],
-     [2.830, 0.75], [3.325, 1.0], [4.326, 1.5]]
+    [
+        [1.673, 0.0],
+        [1.746, 0.125],
+        [1.892, 0.25],
+        [2.108, 0.375],
+        [2.332, 0.5],
+        [2.830, 0.75],
+        [3.325, 1.0],
+        [4.326, 1.5],
+    ]
 )
 # Regular polygon disc: effective radius -> geometric (area-equivalent) radius.
 _DISC_CAL = np.array(
-    [[0.223, 0.0], [0.884, 0.25], [1.179, 0.5], [1.427, 0.75], [1.671, 1.0],
-     [2.164, 1.5], [2.647, 2.0], [3.143, 2.5], [3.640, 3.0]]
+    [
+        [0.223, 0.0],
+        [0.884, 0.25],
+        [1.179, 0.5],
+        [1.427, 0.75],
+        [1.671, 1.0],
+        [2.164, 1.5],
+        [2.647, 2.0],
+        [3.143, 2.5],
+        [3.640, 3.0],
+    ]
 )
 # Effective width of cv2's 1-px anti-aliased line (the thinnest stroke available).
 _THIN_LINE_WIDTH = 1.345
@@ -257,8 +274,9 @@ def rasterise(
     if out is None:
         from .._util.memory import check_fits
 
-        check_fits(shape, 1, "the skeleton video (T, H, W, 3) uint8",
-                   "use a smaller --size (or render fewer frames at a time)")
+        check_fits(
+            shape, 1, "the skeleton video (T, H, W, 3) uint8", "use a smaller --size (or render fewer frames at a time)"
+        )
         out = np.zeros(shape, dtype=np.uint8)
     else:
         if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
@@ -292,8 +310,10 @@ def rasterise(
             p0, p1 = (np.asarray(a, dtype=np.float64) for a in segments[:2])
             seg_ok = np.asarray(segments[2], dtype=bool)
             if p0.shape != (T, E, 2) or p1.shape != (T, E, 2) or seg_ok.shape != (T, E):
-                raise ValueError(f"segments must be (T, E, 2), (T, E, 2), (T, E) arrays with T={T}, E={E}, "
-                                 f"got {p0.shape}, {p1.shape}, {seg_ok.shape}")
+                raise ValueError(
+                    f"segments must be (T, E, 2), (T, E, 2), (T, E) arrays with T={T}, E={E}, "
+                    f"got {p0.shape}, {p1.shape}, {seg_ok.shape}"
+                )
             seg_ok = seg_ok & np.isfinite(p0).all(-1) & np.isfinite(p1).all(-1)
         p0 = np.where(seg_ok[..., None], p0, 0.0)
         p1 = np.where(seg_ok[..., None], p1, 0.0)
@@ -344,8 +364,10 @@ def _draw_discs(frames, centres, usable, radius_px, colors, width, height, aa, l
     geo = _disc_radius(radius_px, aa)
     near = (
         usable
-        & (centres[..., 0] > -radius_px - 2) & (centres[..., 0] < width - 1 + radius_px + 2)
-        & (centres[..., 1] > -radius_px - 2) & (centres[..., 1] < height - 1 + radius_px + 2)
+        & (centres[..., 0] > -radius_px - 2)
+        & (centres[..., 0] < width - 1 + radius_px + 2)
+        & (centres[..., 1] > -radius_px - 2)
+        & (centres[..., 1] < height - 1 + radius_px + 2)
     )
     if not near.any():
         return
@@ -373,8 +395,7 @@ def _draw_grippers(frames, g: GripperMarks, T, style, scale, width, height, line
     gopen = np.asarray(g.openness, dtype=np.float64)
     if gvis.shape != (T, G) or gopen.shape != (T, G):
         raise ValueError(
-            f"grippers.visible and grippers.openness must have shape {(T, G)}, "
-            f"got {gvis.shape} and {gopen.shape}"
+            f"grippers.visible and grippers.openness must have shape {(T, G)}, got {gvis.shape} and {gopen.shape}"
         )
     if G == 0:
         return
@@ -393,8 +414,10 @@ def _draw_grippers(frames, g: GripperMarks, T, style, scale, width, height, line
     ring_r = np.maximum(r_open, radius)
     near = (
         ok
-        & (guv[..., 0] > -ring_r - 3) & (guv[..., 0] < width + ring_r + 2)
-        & (guv[..., 1] > -ring_r - 3) & (guv[..., 1] < height + ring_r + 2)
+        & (guv[..., 0] > -ring_r - 3)
+        & (guv[..., 0] < width + ring_r + 2)
+        & (guv[..., 1] > -ring_r - 3)
+        & (guv[..., 1] < height + ring_r + 2)
     )
     thickness = _stroke_thickness(max(1.0, scale)) if style.antialias else max(1, round(scale))
     ring_col = tuple(int(v) for v in style.gripper_color_open)

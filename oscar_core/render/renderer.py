@@ -28,8 +28,17 @@ import numpy as np
 
 from ..errors import OscarError
 
-__all__ = ["DEFAULT_CHUNK_FRAMES", "EmptyViewWarning", "EmptyViewError", "RenderStats", "format_frames",
-           "RenderJob", "ConditionRenderer", "ChunkedRenderer", "prepare_view"]
+__all__ = [
+    "DEFAULT_CHUNK_FRAMES",
+    "EmptyViewWarning",
+    "EmptyViewError",
+    "RenderStats",
+    "format_frames",
+    "RenderJob",
+    "ConditionRenderer",
+    "ChunkedRenderer",
+    "prepare_view",
+]
 
 DEFAULT_CHUNK_FRAMES = 16
 
@@ -90,25 +99,49 @@ class ConditionRenderer(Protocol):
 
     name: str
 
-    def prepare(self, embodiment, traj, camera, size, *, style, resize_mode: str, device,
-                camera_source: str) -> RenderJob:
+    def prepare(
+        self, embodiment, traj, camera, size, *, style, resize_mode: str, device, camera_source: str
+    ) -> RenderJob:
         """Check the inputs and build what every frame range needs (raises before any frame is drawn)."""
 
-    def render_range(self, job: RenderJob, start: int, stop: int, out: np.ndarray | None,
-                     stats: RenderStats | None) -> np.ndarray:
+    def render_range(
+        self, job: RenderJob, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None
+    ) -> np.ndarray:
         """Frames ``start:stop`` of ``job`` → (n, H, W, 3) uint8 (into ``out`` when given); empty frames are
         recorded in ``stats``."""
 
-    def iter_chunks(self, embodiment, traj, camera, size: tuple[int, int] | None = None, *, style=None,
-                    resize_mode: str = "crop", device="cpu", camera_source: str = "<camera>",
-                    chunk_frames: int = DEFAULT_CHUNK_FRAMES, strict: bool = False,
-                    stats: RenderStats | None = None) -> Iterator[np.ndarray]:
+    def iter_chunks(
+        self,
+        embodiment,
+        traj,
+        camera,
+        size: tuple[int, int] | None = None,
+        *,
+        style=None,
+        resize_mode: str = "crop",
+        device="cpu",
+        camera_source: str = "<camera>",
+        chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+        strict: bool = False,
+        stats: RenderStats | None = None,
+    ) -> Iterator[np.ndarray]:
         """The video chunk by chunk: (n, H, W, 3) uint8 arrays, n ≤ chunk_frames, each a fresh array."""
 
-    def render_video(self, embodiment, traj, camera, size: tuple[int, int] | None = None, *, style=None,
-                     resize_mode: str = "crop", device="cpu", camera_source: str = "<camera>",
-                     chunk_frames: int | None = None, strict: bool = False,
-                     stats: RenderStats | None = None) -> np.ndarray:
+    def render_video(
+        self,
+        embodiment,
+        traj,
+        camera,
+        size: tuple[int, int] | None = None,
+        *,
+        style=None,
+        resize_mode: str = "crop",
+        device="cpu",
+        camera_source: str = "<camera>",
+        chunk_frames: int | None = None,
+        strict: bool = False,
+        stats: RenderStats | None = None,
+    ) -> np.ndarray:
         """The whole video as one (T, H, W, 3) uint8 array."""
 
 
@@ -127,19 +160,31 @@ class ChunkedRenderer:
     def prepare(self, embodiment, traj, camera, size, *, style, resize_mode, device, camera_source):
         raise NotImplementedError
 
-    def render_range(self, job, start: int, stop: int, out: np.ndarray | None,
-                     stats: RenderStats | None) -> np.ndarray:
+    def render_range(self, job, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None) -> np.ndarray:
         raise NotImplementedError
 
     def empty_message(self, source: str, empty: list[int], total: int) -> str:
         """The sentence of an :class:`EmptyViewWarning` / :class:`EmptyViewError` naming the empty frames."""
-        return (f"{source}: the camera sees nothing {self.sees_nothing_of} in {len(empty)} of {total} frames: "
-                f"{format_frames(empty)}")
+        return (
+            f"{source}: the camera sees nothing {self.sees_nothing_of} in {len(empty)} of {total} frames: "
+            f"{format_frames(empty)}"
+        )
 
-    def iter_chunks(self, embodiment, traj, camera, size: tuple[int, int] | None = None, *, style=None,
-                    resize_mode: str = "crop", device="cpu", camera_source: str = "<camera>",
-                    chunk_frames: int = DEFAULT_CHUNK_FRAMES, strict: bool = False,
-                    stats: RenderStats | None = None) -> Iterator[np.ndarray]:
+    def iter_chunks(
+        self,
+        embodiment,
+        traj,
+        camera,
+        size: tuple[int, int] | None = None,
+        *,
+        style=None,
+        resize_mode: str = "crop",
+        device="cpu",
+        camera_source: str = "<camera>",
+        chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+        strict: bool = False,
+        stats: RenderStats | None = None,
+    ) -> Iterator[np.ndarray]:
         """Render chunk by chunk: yields (n, H, W, 3) uint8 RGB arrays, n ≤ chunk_frames, each a fresh array.
 
         size: output (width, height) pixels (None: the calibration's size; ``resize_mode`` "crop": centre crop
@@ -152,31 +197,58 @@ class ChunkedRenderer:
         """
         if chunk_frames < 1:
             raise ValueError(f"chunk_frames: expected a positive number of frames, found {chunk_frames}")
-        job = self.prepare(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                           camera_source=camera_source)
+        job = self.prepare(
+            embodiment,
+            traj,
+            camera,
+            size,
+            style=style,
+            resize_mode=resize_mode,
+            device=device,
+            camera_source=camera_source,
+        )
         stats = stats if stats is not None else RenderStats()
         total = len(job.traj)
         for start in range(0, total, chunk_frames):
             before = len(stats.empty_frames)
             chunk = self.render_range(job, start, min(total, start + chunk_frames), None, stats)
             if strict and len(stats.empty_frames) > before:
-                raise EmptyViewError(self.empty_message(camera_source, stats.empty_frames[before:], total)
-                                     + " (strict)")
+                raise EmptyViewError(
+                    self.empty_message(camera_source, stats.empty_frames[before:], total) + " (strict)"
+                )
             yield chunk
         if stats.empty_frames:
-            warnings.warn(self.empty_message(camera_source, stats.empty_frames, total), EmptyViewWarning,
-                          stacklevel=2)
+            warnings.warn(self.empty_message(camera_source, stats.empty_frames, total), EmptyViewWarning, stacklevel=2)
 
-    def render_video(self, embodiment, traj, camera, size: tuple[int, int] | None = None, *, style=None,
-                     resize_mode: str = "crop", device="cpu", camera_source: str = "<camera>",
-                     chunk_frames: int | None = None, strict: bool = False,
-                     stats: RenderStats | None = None) -> np.ndarray:
+    def render_video(
+        self,
+        embodiment,
+        traj,
+        camera,
+        size: tuple[int, int] | None = None,
+        *,
+        style=None,
+        resize_mode: str = "crop",
+        device="cpu",
+        camera_source: str = "<camera>",
+        chunk_frames: int | None = None,
+        strict: bool = False,
+        stats: RenderStats | None = None,
+    ) -> np.ndarray:
         """The whole video as one (T, H, W, 3) uint8 RGB array on black, drawn range by range into it
         (``chunk_frames`` frames at a time, default :attr:`video_chunk_frames`); arguments as
         :meth:`iter_chunks`. Empty frames give one :class:`EmptyViewWarning` at the end (``strict``:
         :class:`EmptyViewError`)."""
-        job = self.prepare(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                           camera_source=camera_source)
+        job = self.prepare(
+            embodiment,
+            traj,
+            camera,
+            size,
+            style=style,
+            resize_mode=resize_mode,
+            device=device,
+            camera_source=camera_source,
+        )
         stats = stats if stats is not None else RenderStats()
         intr = job.camera.intrinsics
         total = len(job.traj)

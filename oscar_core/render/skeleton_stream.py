@@ -82,15 +82,34 @@ class SkeletonRenderer(ChunkedRenderer):
     sees_nothing_of = "of the robot (every point behind the camera or outside the image)"
     video_chunk_frames = 256
 
-    def prepare(self, embodiment, traj, camera: Camera, size, *, style: SkeletonStyle | None, resize_mode: str,
-                device, camera_source: str) -> SkeletonJob:
+    def prepare(
+        self,
+        embodiment,
+        traj,
+        camera: Camera,
+        size,
+        *,
+        style: SkeletonStyle | None,
+        resize_mode: str,
+        device,
+        camera_source: str,
+    ) -> SkeletonJob:
         traj, camera = prepare_view(embodiment, traj, camera, size, resize_mode, camera_source)
         point_colors, edge_colors = embodiment.colors()
-        return SkeletonJob(embodiment, traj, camera, style or SkeletonStyle(), str(device), embodiment.edge_index(),
-                           point_colors, edge_colors)
+        return SkeletonJob(
+            embodiment,
+            traj,
+            camera,
+            style or SkeletonStyle(),
+            str(device),
+            embodiment.edge_index(),
+            point_colors,
+            edge_colors,
+        )
 
-    def render_range(self, job: SkeletonJob, start: int, stop: int, out: np.ndarray | None,
-                     stats: RenderStats | None) -> np.ndarray:
+    def render_range(
+        self, job: SkeletonJob, start: int, stop: int, out: np.ndarray | None, stats: RenderStats | None
+    ) -> np.ndarray:
         """Frames start:stop of ``job`` → (n, H, W, 3) uint8 (into ``out`` when given)."""
         cam = job.camera.time_slice(start, stop)  # a camera that moves per frame: this chunk's extrinsics
         intr = cam.intrinsics
@@ -106,14 +125,28 @@ class SkeletonRenderer(ChunkedRenderer):
         edges = job.edges
         segments = _near_plane_segments(Pc, proj, edges, intr) if len(edges) else None
         marks = GripperMarks(uv=gproj.uv, visible=gproj.in_front, openness=fr.openness)
-        video = rasterise(proj.uv, proj.in_front, edges, (intr.width, intr.height), edge_colors=job.edge_colors,
-                          point_colors=job.point_colors, grippers=marks, style=job.style, out=out, segments=segments)
+        video = rasterise(
+            proj.uv,
+            proj.in_front,
+            edges,
+            (intr.width, intr.height),
+            edge_colors=job.edge_colors,
+            point_colors=job.point_colors,
+            grippers=marks,
+            style=job.style,
+            out=out,
+            segments=segments,
+        )
         if stats is not None:
             seen = proj.in_image.any(-1) | gproj.in_image.any(-1)
             if segments is not None:
                 hi = np.array([intr.width - 0.5, intr.height - 0.5])
-                crosses, _, _ = clip_segments(np.where(segments[2][..., None], segments[0], 0.0),
-                                               np.where(segments[2][..., None], segments[1], 0.0), -0.5, hi)
+                crosses, _, _ = clip_segments(
+                    np.where(segments[2][..., None], segments[0], 0.0),
+                    np.where(segments[2][..., None], segments[1], 0.0),
+                    -0.5,
+                    hi,
+                )
                 seen |= (crosses & segments[2]).any(-1)
             stats.frames += n
             stats.empty_frames.extend((start + np.flatnonzero(~seen)).tolist())
@@ -124,10 +157,20 @@ class SkeletonRenderer(ChunkedRenderer):
 SKELETON = SkeletonRenderer()
 
 
-def iter_skeleton_chunks(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                         style: SkeletonStyle | None = None, resize_mode: str = "crop", device="cpu",
-                         camera_source: str = "<camera>", chunk_frames: int = DEFAULT_CHUNK_FRAMES,
-                         strict: bool = False, stats: RenderStats | None = None) -> Iterator[np.ndarray]:
+def iter_skeleton_chunks(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: SkeletonStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    strict: bool = False,
+    stats: RenderStats | None = None,
+) -> Iterator[np.ndarray]:
     """Render ``traj`` seen by ``camera`` chunk by chunk (:meth:`SkeletonRenderer.iter_chunks`).
 
     size: output (width, height) pixels (None: the calibration's size; see
@@ -136,16 +179,47 @@ def iter_skeleton_chunks(embodiment, traj, camera: Camera, size: tuple[int, int]
     nothing of the robot give one :class:`~oscar_core.render.renderer.EmptyViewWarning` after the last chunk
     (``strict``: :class:`~oscar_core.render.renderer.EmptyViewError` at once).
     """
-    return SKELETON.iter_chunks(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                                camera_source=camera_source, chunk_frames=chunk_frames, strict=strict, stats=stats)
+    return SKELETON.iter_chunks(
+        embodiment,
+        traj,
+        camera,
+        size,
+        style=style,
+        resize_mode=resize_mode,
+        device=device,
+        camera_source=camera_source,
+        chunk_frames=chunk_frames,
+        strict=strict,
+        stats=stats,
+    )
 
 
-def render_into(embodiment, traj, camera: Camera, size: tuple[int, int] | None = None, *,
-                style: SkeletonStyle | None = None, resize_mode: str = "crop", device="cpu",
-                camera_source: str = "<camera>", chunk_frames: int = 256, strict: bool = False,
-                stats: RenderStats | None = None) -> np.ndarray:
+def render_into(
+    embodiment,
+    traj,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: SkeletonStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+    chunk_frames: int = 256,
+    strict: bool = False,
+    stats: RenderStats | None = None,
+) -> np.ndarray:
     """The whole video as one (T, H, W, 3) uint8 array, rendered chunk by chunk into it
     (:meth:`SkeletonRenderer.render_video`)."""
-    return SKELETON.render_video(embodiment, traj, camera, size, style=style, resize_mode=resize_mode,
-                                 device=device, camera_source=camera_source, chunk_frames=chunk_frames,
-                                 strict=strict, stats=stats)
+    return SKELETON.render_video(
+        embodiment,
+        traj,
+        camera,
+        size,
+        style=style,
+        resize_mode=resize_mode,
+        device=device,
+        camera_source=camera_source,
+        chunk_frames=chunk_frames,
+        strict=strict,
+        stats=stats,
+    )

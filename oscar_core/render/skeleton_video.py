@@ -11,7 +11,14 @@ from ..kinematics.trajectory import Trajectory
 from ..plugin.embodiment import Embodiment
 from .raster import GripperMarks, SkeletonStyle
 
-__all__ = ["render_skeleton_video", "overlay_skeleton", "fit_image", "parse_size", "SkeletonProjection", "project_skeleton"]
+__all__ = [
+    "render_skeleton_video",
+    "overlay_skeleton",
+    "fit_image",
+    "parse_size",
+    "SkeletonProjection",
+    "project_skeleton",
+]
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -52,9 +59,17 @@ def project_skeleton(embodiment: Embodiment, traj: Trajectory, camera: Camera, d
     return SkeletonProjection(pts.uv, pts.in_front, marks)
 
 
-def render_skeleton_video(embodiment: Embodiment, traj: Trajectory, camera: Camera, size: tuple[int, int] | None = None, *,
-                          style: SkeletonStyle | None = None, resize_mode: str = "crop", device="cpu",
-                          camera_source: str = "<camera>") -> np.ndarray:
+def render_skeleton_video(
+    embodiment: Embodiment,
+    traj: Trajectory,
+    camera: Camera,
+    size: tuple[int, int] | None = None,
+    *,
+    style: SkeletonStyle | None = None,
+    resize_mode: str = "crop",
+    device="cpu",
+    camera_source: str = "<camera>",
+) -> np.ndarray:
     """Render ``traj`` of ``embodiment`` seen by ``camera``.
 
     size: output (width, height) pixels; the camera's intrinsics are rescaled
@@ -69,8 +84,9 @@ def render_skeleton_video(embodiment: Embodiment, traj: Trajectory, camera: Came
     """
     from .skeleton_stream import render_into
 
-    return render_into(embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device,
-                       camera_source=camera_source)
+    return render_into(
+        embodiment, traj, camera, size, style=style, resize_mode=resize_mode, device=device, camera_source=camera_source
+    )
 
 
 def overlay_skeleton(skeleton: np.ndarray, rgb: np.ndarray, alpha: float = 0.8) -> np.ndarray:
@@ -107,7 +123,7 @@ def fit_image(image: np.ndarray, width: int, height: int, mode: str = "crop") ->
         else:
             cw, ch = w, int(round(w / aspect))
         x0, y0 = (w - cw) // 2, (h - ch) // 2
-        image = image[y0:y0 + ch, x0:x0 + cw]
+        image = image[y0 : y0 + ch, x0 : x0 + cw]
     elif mode != "stretch":
         raise ValueError(f"fit_image: mode must be 'crop' or 'stretch', found {mode!r}")
     shrinking = width < image.shape[1]

@@ -9,4 +9,5 @@ from __future__ import annotations
 from .._util.lazy import lazy_exports
 
 __all__, __getattr__, __dir__ = lazy_exports(
-    __name__, {name: "golden" for name in ("assert_matches_golden", "compare_images", "read_png", "write_png")})
+    __name__, {name: "golden" for name in ("assert_matches_golden", "compare_images", "read_png", "write_png")}
+)

@@ -49,8 +49,9 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
     return path
 
 
-def assert_matches_golden(actual: np.ndarray, golden_path: str | Path, *, tol: float, results_dir: str | Path,
-                          regenerate: bool = False) -> None:
+def assert_matches_golden(
+    actual: np.ndarray, golden_path: str | Path, *, tol: float, results_dir: str | Path, regenerate: bool = False
+) -> None:
     """Compare ``actual`` (H, W, 3) uint8 RGB with the PNG at ``golden_path``.
 
     regenerate: write ``actual`` as the new golden instead of comparing (only
@@ -65,12 +66,16 @@ def assert_matches_golden(actual: np.ndarray, golden_path: str | Path, *, tol: f
         write_png(golden_path, actual)
         return
     if not golden_path.is_file():
-        raise AssertionError(f"golden image {golden_path} does not exist; create it with pytest --oscar-regen-golden "
-                             "and look at it before committing")
+        raise AssertionError(
+            f"golden image {golden_path} does not exist; create it with pytest --oscar-regen-golden "
+            "and look at it before committing"
+        )
     expected = read_png(golden_path)
     if expected.shape != actual.shape:
-        raise AssertionError(f"golden {golden_path}: size {expected.shape[1]}x{expected.shape[0]}, "
-                             f"actual {actual.shape[1]}x{actual.shape[0]}")
+        raise AssertionError(
+            f"golden {golden_path}: size {expected.shape[1]}x{expected.shape[0]}, "
+            f"actual {actual.shape[1]}x{actual.shape[0]}"
+        )
     rms = compare_images(actual, expected)
     if rms <= tol:
         return
@@ -81,5 +86,7 @@ def assert_matches_golden(actual: np.ndarray, golden_path: str | Path, *, tol: f
     diff = np.clip(np.abs(actual.astype(np.int16) - expected.astype(np.int16)) * DIFF_GAIN, 0, 255).astype(np.uint8)
     for p, img in zip(paths, (actual, expected, diff)):
         write_png(p, img)
-    raise AssertionError(f"{golden_path.name}: RMS {rms:.3f} > tolerance {tol} (0-255 scale)\n"
-                         f"  actual:   {paths[0]}\n  expected: {paths[1]}\n  diff x{DIFF_GAIN}: {paths[2]}")
+    raise AssertionError(
+        f"{golden_path.name}: RMS {rms:.3f} > tolerance {tol} (0-255 scale)\n"
+        f"  actual:   {paths[0]}\n  expected: {paths[1]}\n  diff x{DIFF_GAIN}: {paths[2]}"
+    )

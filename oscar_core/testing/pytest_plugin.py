@@ -36,10 +36,18 @@ def pytest_addoption(parser, pluginmanager):
     # entry points are loaded, so blocking the alias here is in time.
     _block_other_name(pluginmanager)
     group = parser.getgroup("oscar", "oscar golden images")
-    group.addoption("--oscar-regen-golden", action="store_true", default=False,
-                    help="write golden images instead of comparing against them")
-    group.addoption("--oscar-golden-results", default=None, metavar="DIR",
-                    help="folder for actual/expected/diff images of failed comparisons (default: <rootdir>/golden-results)")
+    group.addoption(
+        "--oscar-regen-golden",
+        action="store_true",
+        default=False,
+        help="write golden images instead of comparing against them",
+    )
+    group.addoption(
+        "--oscar-golden-results",
+        default=None,
+        metavar="DIR",
+        help="folder for actual/expected/diff images of failed comparisons (default: <rootdir>/golden-results)",
+    )
 
 
 class GoldenChecker:
@@ -59,5 +67,6 @@ class GoldenChecker:
 def golden(request) -> GoldenChecker:
     config = request.config
     results = config.getoption("--oscar-golden-results") or Path(str(config.rootpath)) / "golden-results"
-    return GoldenChecker(Path(str(request.path)).parent / "golden", Path(results),
-                         bool(config.getoption("--oscar-regen-golden")))
+    return GoldenChecker(
+        Path(str(request.path)).parent / "golden", Path(results), bool(config.getoption("--oscar-regen-golden"))
+    )

@@ -19,8 +19,9 @@ __all__ = ["BASELINES", "write_baseline"]
 BASELINES = ("first_frame",)
 
 
-def write_baseline(clipset, out, kind: str = "first_frame", split: str | None = "heldout",
-                   limit: int | None = None) -> list[str]:
+def write_baseline(
+    clipset, out, kind: str = "first_frame", split: str | None = "heldout", limit: int | None = None
+) -> list[str]:
     """Write the ``kind`` prediction of each clip (of ``split``; at most ``limit``, every k-th) as
     ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8)."""
     from ..train.clips import ClipSet

@@ -43,13 +43,17 @@ def carry_rows(manifest, eval_out) -> list[dict]:
     m = load_manifest(manifest)
     pe = Path(manifest).parent / "policy_eval.json"
     if not pe.is_file():
-        raise FileNotFoundError(f"{pe}: expected the policy_eval.json of oscar toyworld policy-eval beside the "
-                                f"manifest (it says whether the real gripper grabbed the ball), found no such file")
+        raise FileNotFoundError(
+            f"{pe}: expected the policy_eval.json of oscar toyworld policy-eval beside the "
+            f"manifest (it says whether the real gripper grabbed the ball), found no such file"
+        )
     grabbed = {(r["session"], r["policy"]): bool(r["grabbed"]) for r in json.loads(pe.read_text())["rows"]}
     missing = [c.id for c in m.cells if not video_path(Path(eval_out), c).is_file()]
     if missing:  # before any video is read
-        raise FileNotFoundError(f"{eval_out}: expected the rollout of every cell written by oscar eval run, found "
-                                f"{len(missing)} of {len(m.cells)} missing (first: {missing[0]})")
+        raise FileNotFoundError(
+            f"{eval_out}: expected the rollout of every cell written by oscar eval run, found "
+            f"{len(missing)} of {len(m.cells)} missing (first: {missing[0]})"
+        )
     place, ee_end = {}, {}
     for c in m.cells:  # the session's real place position and the end-effector's end pose, pixels
         real = read_video(c.real_video)
@@ -69,11 +73,23 @@ def carry_rows(manifest, eval_out) -> list[dict]:
                 return None
             return round(float(np.linalg.norm(_to_floor(H, np.asarray(blob["px"])) - _to_floor(H, p))), 3)
 
-        rows.append({"cell": c.id, "session": c.session, "policy": c.policy, "real_success": c.real_success,
-                     "real_grabbed": grabbed.get((c.session, c.policy)), "wm_success": v["binary"],
-                     "wm_left_start": r.get("left"), "wm_distance": r.get("distance"),
-                     "blob_to_place": dist(place.get(c.session)), "blob_to_ee_end": dist(ee_end.get(c.session)),
-                     "at_start": r.get("at_start"), "n0": r.get("n0"), "reason": v["reason"]})
+        rows.append(
+            {
+                "cell": c.id,
+                "session": c.session,
+                "policy": c.policy,
+                "real_success": c.real_success,
+                "real_grabbed": grabbed.get((c.session, c.policy)),
+                "wm_success": v["binary"],
+                "wm_left_start": r.get("left"),
+                "wm_distance": r.get("distance"),
+                "blob_to_place": dist(place.get(c.session)),
+                "blob_to_ee_end": dist(ee_end.get(c.session)),
+                "at_start": r.get("at_start"),
+                "n0": r.get("n0"),
+                "reason": v["reason"],
+            }
+        )
     return rows
 
 
@@ -92,13 +108,18 @@ def carry_summary(rows: list[dict], policies) -> dict:
             xs = [r[k] for r in mine if r[k] is not None]
             return float(np.median(xs)) if xs else None
 
-        out[p] = {"cells": len(mine), "real_sr": _mean(r["real_success"] for r in mine),
-                  "wm_sr": _mean(r["wm_success"] for r in mine), "grabbed": len(g),
-                  "left_if_grabbed": _mean(r["wm_left_start"] for r in g),
-                  "left_if_missed": _mean(r["wm_left_start"] for r in n),
-                  "success_if_grabbed": _mean(r["wm_success"] for r in g),
-                  "success_if_missed": _mean(r["wm_success"] for r in n),
-                  "blob_to_place": med("blob_to_place"), "blob_to_ee_end": med("blob_to_ee_end")}
+        out[p] = {
+            "cells": len(mine),
+            "real_sr": _mean(r["real_success"] for r in mine),
+            "wm_sr": _mean(r["wm_success"] for r in mine),
+            "grabbed": len(g),
+            "left_if_grabbed": _mean(r["wm_left_start"] for r in g),
+            "left_if_missed": _mean(r["wm_left_start"] for r in n),
+            "success_if_grabbed": _mean(r["wm_success"] for r in g),
+            "success_if_missed": _mean(r["wm_success"] for r in n),
+            "blob_to_place": med("blob_to_place"),
+            "blob_to_ee_end": med("blob_to_ee_end"),
+        }
     return out
 
 

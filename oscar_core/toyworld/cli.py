@@ -18,8 +18,17 @@ from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..model.presets import SAMPLER_PRESETS
 
-__all__ = ["add_toyworld_parser", "cmd_example", "cmd_generate", "cmd_train_vae", "cmd_reconstruct", "cmd_baseline",
-           "cmd_eval", "cmd_policy_eval", "cmd_carry"]
+__all__ = [
+    "add_toyworld_parser",
+    "cmd_example",
+    "cmd_generate",
+    "cmd_train_vae",
+    "cmd_reconstruct",
+    "cmd_baseline",
+    "cmd_eval",
+    "cmd_policy_eval",
+    "cmd_carry",
+]
 
 _log = get_logger(__name__)
 
@@ -47,158 +56,279 @@ EXAMPLES = """examples:
 
 def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
-    tw = subparsers.add_parser("toyworld", help="the procedural toy world: generate clips, train its VAE, evaluate",
-                               description="A procedural world small enough to train OSCAR on a CPU.",
-                               epilog=EXAMPLES, formatter_class=fmt)
+    tw = subparsers.add_parser(
+        "toyworld",
+        help="the procedural toy world: generate clips, train its VAE, evaluate",
+        description="A procedural world small enough to train OSCAR on a CPU.",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     sub = tw.add_subparsers(dest="toyworld_command", required=True)
 
-    g = sub.add_parser("generate", help="write toy-world episodes as a training clip set",
-                       epilog=EXAMPLES, formatter_class=fmt)
+    g = sub.add_parser(
+        "generate", help="write toy-world episodes as a training clip set", epilog=EXAMPLES, formatter_class=fmt
+    )
     g.add_argument("--embodiments", required=True, help="comma-separated embodiment names (plugins included)")
     g.add_argument("--episodes", type=count(1), required=True, help="episodes per embodiment")
     g.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels (default 64x64)")
     g.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17; 4k+1 for the VAE)")
     g.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate written to the clips (default 10)")
-    g.add_argument("--seed", type=count(0), default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only")
-    output_option(g.add_argument("--out", required=True,
-                                 help="clip-set folder (re-running resumes: finished shards are kept)"), "folder")
+    g.add_argument(
+        "--seed", type=count(0), default=0, help="seed: episode i of embodiment e depends on (seed, e, i) only"
+    )
+    output_option(
+        g.add_argument("--out", required=True, help="clip-set folder (re-running resumes: finished shards are kept)"),
+        "folder",
+    )
     g.add_argument("--shard-size", type=count(1), default=50, help="episodes per shard (default 50)")
     g.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor (default 2)")
     g.add_argument("--no-skeleton", action="store_true", help="do not store the skeleton videos")
-    g.add_argument("--pick-miss", type=number(0.0, 1.0), default=0.0, metavar="F",
-                   help="fraction in [0, 1] of pick-and-place episodes whose ball lies out of the gripper's reach "
-                        "(it closes beside the ball, lifts, and the ball stays); default 0 (sets as before)")
+    g.add_argument(
+        "--pick-miss",
+        type=number(0.0, 1.0),
+        default=0.0,
+        metavar="F",
+        help="fraction in [0, 1] of pick-and-place episodes whose ball lies out of the gripper's reach "
+        "(it closes beside the ball, lifts, and the ball stays); default 0 (sets as before)",
+    )
     threads_option(g, "torch threads for forward kinematics")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
 
-    x = sub.add_parser("example", help="write a first frame, trajectory and camera of one toy-world episode: "
-                                       "the inputs of `oscar rollout --model oscar-toy`",
-                       epilog=EXAMPLES, formatter_class=fmt)
-    output_option(x.add_argument("--out", required=True,
-                                 help="folder for first_frame.png, trajectory.npz and camera.json"), "folder")
+    x = sub.add_parser(
+        "example",
+        help="write a first frame, trajectory and camera of one toy-world episode: "
+        "the inputs of `oscar rollout --model oscar-toy`",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
+    output_option(
+        x.add_argument("--out", required=True, help="folder for first_frame.png, trajectory.npz and camera.json"),
+        "folder",
+    )
     x.add_argument("--embodiment", default="toyarm", help="embodiment name (default toyarm; plugins included)")
-    x.add_argument("--seed", type=count(0), default=0,
-                   help="seed: the example is held-out episode 9 of `toyworld generate --seed SEED` (default 0)")
+    x.add_argument(
+        "--seed",
+        type=count(0),
+        default=0,
+        help="seed: the example is held-out episode 9 of `toyworld generate --seed SEED` (default 0)",
+    )
     x.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels (default 64x64, oscar-toy's)")
-    x.add_argument("--frames", type=count(2), default=17, help="frames of the trajectory (default 17: one oscar-toy "
-                                                              "chunk)")
+    x.add_argument(
+        "--frames", type=count(2), default=17, help="frames of the trajectory (default 17: one oscar-toy chunk)"
+    )
     x.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectory (default 10)")
     x.add_argument("--json", action="store_true", help="print the summary as JSON")
     x.set_defaults(func=cmd_example)
 
-    v = sub.add_parser("train-vae", help="train the toy world's AutoencoderKLWan on a clip set",
-                       epilog=EXAMPLES, formatter_class=fmt)
+    v = sub.add_parser(
+        "train-vae", help="train the toy world's AutoencoderKLWan on a clip set", epilog=EXAMPLES, formatter_class=fmt
+    )
     v.add_argument("clips", help="clip set written by `oscar toyworld generate`")
     output_option(v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)"), "folder")
     from .vae_train import VAETrainConfig
 
     d = VAETrainConfig()
     for name in ("steps", "stop_at", "batch", "window", "seed", "base_dim", "eval_every", "eval_clips"):
-        v.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}")
+        v.add_argument(
+            "--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}"
+        )
     threads_option(v, "torch threads")
     for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
-        v.add_argument("--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}")
+        v.add_argument(
+            "--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}"
+        )
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
-    v.add_argument("--residual", action="store_true",
-                   help="the Wan 2.2 variant of the class (is_residual=True): pixel-averaging shortcuts around each "
-                        "down/up-sampling block, which carry colour to the latent from the first step")
-    v.add_argument("--sample-posterior", action="store_true",
-                   help="decode a sample of the posterior in training (the textbook VAE); default: its mean")
+    v.add_argument(
+        "--residual",
+        action="store_true",
+        help="the Wan 2.2 variant of the class (is_residual=True): pixel-averaging shortcuts around each "
+        "down/up-sampling block, which carry colour to the latent from the first step",
+    )
+    v.add_argument(
+        "--sample-posterior",
+        action="store_true",
+        help="decode a sample of the posterior in training (the textbook VAE); default: its mean",
+    )
     v.set_defaults(func=cmd_train_vae)
 
-    r = sub.add_parser("reconstruct", help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
-                       epilog=EXAMPLES, formatter_class=fmt)
+    r = sub.add_parser(
+        "reconstruct",
+        help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     r.add_argument("clips", help="clip set")
     r.add_argument("--vae", required=True, help="folder written by train-vae (holding vae/)")
     output_option(r.add_argument("--out", required=True, help="folder for <clip id>.npy reconstructions"), "folder")
-    r.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    r.add_argument(
+        "--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)"
+    )
     r.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
     threads_option(r, "torch threads")
     r.set_defaults(func=cmd_reconstruct)
 
-    b = sub.add_parser("baseline", help="write model-free reference predictions (first frame repeated)",
-                       epilog=EXAMPLES, formatter_class=fmt)
+    b = sub.add_parser(
+        "baseline",
+        help="write model-free reference predictions (first frame repeated)",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     b.add_argument("clips", help="clip set")
-    b.add_argument("--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)")
+    b.add_argument(
+        "--kind", default="first_frame", choices=("first_frame",), help="which baseline (default first_frame)"
+    )
     output_option(b.add_argument("--out", required=True, help="folder for <clip id>.npy predictions"), "folder")
-    b.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    b.add_argument(
+        "--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)"
+    )
     b.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
     b.set_defaults(func=cmd_baseline)
 
-    o = sub.add_parser("rollout", help="roll a world model out on every clip of a split (true / shuffled / zero "
-                                       "skeleton) as predictions for eval", epilog=EXAMPLES, formatter_class=fmt)
+    o = sub.add_parser(
+        "rollout",
+        help="roll a world model out on every clip of a split (true / shuffled / zero "
+        "skeleton) as predictions for eval",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     o.add_argument("clips", help="clip set (first frames and skeletons come from it)")
     o.add_argument("--model", required=True, help="zoo name (oscar-toy) or model folder")
-    o.add_argument("--condition", default="true", choices=("true", "shuffled", "zero"),
-                   help="the skeleton the model sees (default true)")
-    output_option(o.add_argument("--out", required=True,
-                                 help="folder for <clip id>.npy predictions (re-running resumes)"), "folder")
-    o.add_argument("--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)")
+    o.add_argument(
+        "--condition",
+        default="true",
+        choices=("true", "shuffled", "zero"),
+        help="the skeleton the model sees (default true)",
+    )
+    output_option(
+        o.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)"),
+        "folder",
+    )
+    o.add_argument(
+        "--split", default="heldout", help="clips of this meta.split (default heldout; 'all' for every clip)"
+    )
     o.add_argument("--limit", type=count(1), help="at most this many clips")
     o.add_argument("--steps", type=count(1), default=None, help="sampler steps (default: the model card's, else 35)")
     o.add_argument("--guidance", type=number(0.0), default=None, help="guidance w (default: the model card's, else 6)")
-    o.add_argument("--guidance-form", choices=("diffusers", "standard"), default=None,
-                   help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)")
+    o.add_argument(
+        "--guidance-form",
+        choices=("diffusers", "standard"),
+        default=None,
+        help="v_c + w(v_c - v_u) (diffusers, default) or v_u + w(v_c - v_u) (standard)",
+    )
     o.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0; the same for every condition)")
-    o.add_argument("--guidance-interval", metavar="LO,HI", type=interval,
-                   help="guide only the steps with noise level in [LO, HI] (e.g. 0.3,1.0); the others run the "
-                        "conditional branch alone")
-    o.add_argument("--preset", choices=sorted(SAMPLER_PRESETS),
-                   help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
-                        "sets the steps and the guidance interval")
+    o.add_argument(
+        "--guidance-interval",
+        metavar="LO,HI",
+        type=interval,
+        help="guide only the steps with noise level in [LO, HI] (e.g. 0.3,1.0); the others run the "
+        "conditional branch alone",
+    )
+    o.add_argument(
+        "--preset",
+        choices=sorted(SAMPLER_PRESETS),
+        help="sampling budget: paper (35 steps, guidance everywhere) or fast (docs/world-model.md); "
+        "sets the steps and the guidance interval",
+    )
     threads_option(o, "torch threads")
     o.set_defaults(func=cmd_rollout)
 
-    k = sub.add_parser("package", help="turn an exported toy-world run into a shippable model folder (card, "
-                                       "zero prompt, README model card, sha256 of every file)",
-                       epilog=EXAMPLES, formatter_class=fmt)
+    k = sub.add_parser(
+        "package",
+        help="turn an exported toy-world run into a shippable model folder (card, "
+        "zero prompt, README model card, sha256 of every file)",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     k.add_argument("export", help="the exported run (RUN_DIR/export)")
-    output_option(k.add_argument("--out", required=True,
-                                 help="the model folder to write (replaced atomically)"), "folder")
+    output_option(
+        k.add_argument("--out", required=True, help="the model folder to write (replaced atomically)"), "folder"
+    )
     k.add_argument("--name", default="oscar-toy", help="model name in the card (default oscar-toy)")
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
     k.set_defaults(func=cmd_package)
-    pe = sub.add_parser("policy-eval", help="scripted pick-and-place policies: write an `oscar eval run` manifest "
-                                            "with their real outcomes", epilog=EXAMPLES, formatter_class=fmt)
+    pe = sub.add_parser(
+        "policy-eval",
+        help="scripted pick-and-place policies: write an `oscar eval run` manifest with their real outcomes",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     _add_policy_eval_arguments(pe)
     pe.set_defaults(func=cmd_policy_eval)
-    cl = sub.add_parser("closed-loop-sessions", help="toy sessions and image-based policies: write an `oscar eval "
-                                                      "closed-loop` manifest", epilog=EXAMPLES, formatter_class=fmt)
+    cl = sub.add_parser(
+        "closed-loop-sessions",
+        help="toy sessions and image-based policies: write an `oscar eval closed-loop` manifest",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     cl.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
     cl.add_argument("--sessions", type=count(1), required=True, help="sessions per embodiment")
     cl.add_argument("--seed", type=count(0), default=0, help="session i of embodiment e depends on (seed, e, i) only")
     cl.add_argument("--horizon", type=count(2), default=49, help="frames per episode, the first included (default 49)")
     cl.add_argument("--policies", help="comma-separated toy policies (default: exact,noisy,late,never_closes,random)")
-    output_option(cl.add_argument("--out", required=True, help="folder for manifest.json and the session folders"),
-                  "folder")
+    output_option(
+        cl.add_argument("--out", required=True, help="folder for manifest.json and the session folders"), "folder"
+    )
     cl.set_defaults(func=cmd_closed_loop_sessions)
-    cy = sub.add_parser("carry", help="where the generated ball goes: per-cell judge internals of an `oscar eval "
-                                      "run` on a policy-eval manifest, per policy against the real grab",
-                        epilog=EXAMPLES, formatter_class=fmt)
+    cy = sub.add_parser(
+        "carry",
+        help="where the generated ball goes: per-cell judge internals of an `oscar eval "
+        "run` on a policy-eval manifest, per policy against the real grab",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
     _add_carry_arguments(cy)
     cy.set_defaults(func=cmd_carry)
 
-    e = sub.add_parser("eval", help="PSNR, SSIM, end-effector and object errors of generated videos",
-                       epilog=EXAMPLES, formatter_class=fmt)
-    e.add_argument("--gt", required=True, action="append", help="the clip set holding the ground truth (repeat for "
-                                                                 "several sets, e.g. held-out embodiments)")
-    e.add_argument("--pred", action="append", required=True, metavar="[NAME=]FOLDER",
-                   help="folder of generated videos named <clip id>.mp4/.mkv/.npy (or a folder of PNGs per clip); "
-                        "repeat with NAME= for several conditions (rows of the table)")
-    e.add_argument("--split", default=None, help="only clips of this meta.split (e.g. heldout; default: every "
-                                                 "clip that has a prediction)")
-    e.add_argument("--clips", choices=("same", "common", "each"), default="same",
-                   help="when the --pred folders cover different clips: same (default) refuses, common scores the "
-                        "clips all of them have, each scores every row over its own clips and marks the table")
-    e.add_argument("--paired", metavar="NAME", help="also give every other row minus row NAME per metric over the "
-                   "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)")
+    e = sub.add_parser(
+        "eval",
+        help="PSNR, SSIM, end-effector and object errors of generated videos",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
+    e.add_argument(
+        "--gt",
+        required=True,
+        action="append",
+        help="the clip set holding the ground truth (repeat for several sets, e.g. held-out embodiments)",
+    )
+    e.add_argument(
+        "--pred",
+        action="append",
+        required=True,
+        metavar="[NAME=]FOLDER",
+        help="folder of generated videos named <clip id>.mp4/.mkv/.npy (or a folder of PNGs per clip); "
+        "repeat with NAME= for several conditions (rows of the table)",
+    )
+    e.add_argument(
+        "--split",
+        default=None,
+        help="only clips of this meta.split (e.g. heldout; default: every clip that has a prediction)",
+    )
+    e.add_argument(
+        "--clips",
+        choices=("same", "common", "each"),
+        default="same",
+        help="when the --pred folders cover different clips: same (default) refuses, common scores the "
+        "clips all of them have, each scores every row over its own clips and marks the table",
+    )
+    e.add_argument(
+        "--paired",
+        metavar="NAME",
+        help="also give every other row minus row NAME per metric over the "
+        "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)",
+    )
     output_option(e.add_argument("--out", help="write the table as JSON here"), "file")
     output_option(e.add_argument("--plot", help="write a PNG bar chart of the table here"), "file")
-    output_option(e.add_argument("--html",
-                                 help="write the page (table, plot, clips under each condition beside the truth) here; "
-                                  "default: beside --out as <name>.html, media in <name>_media/"), "file")
+    output_option(
+        e.add_argument(
+            "--html",
+            help="write the page (table, plot, clips under each condition beside the truth) here; "
+            "default: beside --out as <name>.html, media in <name>_media/",
+        ),
+        "file",
+    )
     e.add_argument("--no-html", action="store_true", help="no page")
     e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -217,16 +347,28 @@ def cmd_example(args) -> int:
     from .example import write_example
 
     w, h = parse_size(args.size)
-    summary = write_example(args.out, args.embodiment, seed=args.seed, width=w, height=h, frames=args.frames,
-                            fps=args.fps, registry=_registry(args))
+    summary = write_example(
+        args.out,
+        args.embodiment,
+        seed=args.seed,
+        width=w,
+        height=h,
+        frames=args.frames,
+        fps=args.fps,
+        registry=_registry(args),
+    )
     if args.json:
         print(json.dumps(summary))
         return 0
-    print(f"{args.out}: {summary['episode']}, {args.frames} frames at {w}x{h}, {args.fps:g} fps: "
-          + ", ".join(Path(f).name for f in summary["files"]))
-    print(f"  oscar rollout --model oscar-toy --embodiment {summary['embodiment']} "
-          f"--first-frame {summary['files'][0]} --trajectory {summary['files'][1]} --camera {summary['files'][2]} "
-          f"--out toy_rollout.mp4")
+    print(
+        f"{args.out}: {summary['episode']}, {args.frames} frames at {w}x{h}, {args.fps:g} fps: "
+        + ", ".join(Path(f).name for f in summary["files"])
+    )
+    print(
+        f"  oscar rollout --model oscar-toy --embodiment {summary['embodiment']} "
+        f"--first-frame {summary['files'][0]} --trajectory {summary['files'][1]} --camera {summary['files'][2]} "
+        f"--out toy_rollout.mp4"
+    )
     return 0
 
 
@@ -238,8 +380,19 @@ def cmd_generate(args) -> int:
     names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
     if not names:
         raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
-    cfg = GenerateConfig(names, args.episodes, w, h, args.frames, args.fps, args.seed, args.shard_size,
-                         args.supersample, not args.no_skeleton, args.pick_miss)
+    cfg = GenerateConfig(
+        names,
+        args.episodes,
+        w,
+        h,
+        args.frames,
+        args.fps,
+        args.seed,
+        args.shard_size,
+        args.supersample,
+        not args.no_skeleton,
+        args.pick_miss,
+    )
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))
         log_result(f"{summary['episodes_written']} episodes written, {summary['episodes_skipped']} kept")
@@ -247,33 +400,51 @@ def cmd_generate(args) -> int:
         print(json.dumps(summary))
     else:
         eps = summary["episodes_per_s"]
-        print(f"{args.out}: {summary['episodes_written']} episodes written, {summary['episodes_skipped']} kept from "
-              f"an earlier run, {summary['wall_s']:.1f} s" + (f" ({eps:.2f} episodes/s)" if eps else ""))
+        print(
+            f"{args.out}: {summary['episodes_written']} episodes written, {summary['episodes_skipped']} kept from "
+            f"an earlier run, {summary['wall_s']:.1f} s" + (f" ({eps:.2f} episodes/s)" if eps else "")
+        )
     return 0
 
 
 def cmd_train_vae(args) -> int:
     from .vae_train import VAETrainConfig, train_vae
 
-    cfg = VAETrainConfig(steps=args.steps, stop_at=args.stop_at, batch=args.batch, window=args.window, lr=args.lr,
-                         kl=args.kl, chroma=args.chroma, foreground=args.foreground, seed=args.seed,
-                         threads=args.threads, base_dim=args.base_dim, max_minutes=args.max_minutes,
-                         eval_every=args.eval_every, eval_clips=args.eval_clips, init=args.init,
-                         config={"is_residual": True} if args.residual else {},
-                         sample_posterior=args.sample_posterior)
+    cfg = VAETrainConfig(
+        steps=args.steps,
+        stop_at=args.stop_at,
+        batch=args.batch,
+        window=args.window,
+        lr=args.lr,
+        kl=args.kl,
+        chroma=args.chroma,
+        foreground=args.foreground,
+        seed=args.seed,
+        threads=args.threads,
+        base_dim=args.base_dim,
+        max_minutes=args.max_minutes,
+        eval_every=args.eval_every,
+        eval_clips=args.eval_clips,
+        init=args.init,
+        config={"is_residual": True} if args.residual else {},
+        sample_posterior=args.sample_posterior,
+    )
     with run_log(args.out, "toyworld-train-vae"):
         card = train_vae(args.clips, args.out, cfg)
         log_result(f"held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps")
-    print(f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
-          f"{card['wall_s']:.0f} s")
+    print(
+        f"{args.out}/vae: held-out PSNR {card['heldout_psnr_db']:.2f} dB after {card['steps_done']} steps, "
+        f"{card['wall_s']:.0f} s"
+    )
     return 0
 
 
 def cmd_reconstruct(args) -> int:
     from .vae_train import write_reconstructions
 
-    ids = write_reconstructions(args.clips, args.vae, args.out, None if args.split == "all" else args.split,
-                                args.limit, args.threads)
+    ids = write_reconstructions(
+        args.clips, args.vae, args.out, None if args.split == "all" else args.split, args.limit, args.threads
+    )
     print(f"{args.out}: {len(ids)} reconstructions")
     return 0
 
@@ -294,20 +465,35 @@ def cmd_rollout(args) -> int:
     from .rollouts import write_rollouts
 
     model = oscar_zoo.load(args.model)
-    choice = resolve_sampler(model.card.sampler, steps=args.steps, guidance=args.guidance,
-                             guidance_form=args.guidance_form, guidance_interval=args.guidance_interval,
-                             preset=args.preset)
+    choice = resolve_sampler(
+        model.card.sampler,
+        steps=args.steps,
+        guidance=args.guidance,
+        guidance_form=args.guidance_form,
+        guidance_interval=args.guidance_interval,
+        preset=args.preset,
+    )
     sampler = choice.config
     print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, f"toyworld-rollout-{args.condition}"):
-        summary = write_rollouts(model, args.clips, args.out, args.condition,
-                                 split=None if args.split == "all" else args.split, limit=args.limit,
-                                 sampler=sampler, seed=args.seed, registry=_registry(args),
-                                 model_id=model_identity(args.model))
+        summary = write_rollouts(
+            model,
+            args.clips,
+            args.out,
+            args.condition,
+            split=None if args.split == "all" else args.split,
+            limit=args.limit,
+            sampler=sampler,
+            seed=args.seed,
+            registry=_registry(args),
+            model_id=model_identity(args.model),
+        )
         log_result(f"{summary['written']} rollouts written, {summary['kept']} kept")
     per = f", {summary['s_per_rollout']:.2f} s per rollout" if summary["s_per_rollout"] else ""
-    print(f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
-          f"an earlier run{per}")
+    print(
+        f"{args.out}: {summary['written']} {args.condition}-skeleton rollouts written, {summary['kept']} kept from "
+        f"an earlier run{per}"
+    )
     return 0
 
 
@@ -353,13 +539,21 @@ def _add_policy_eval_arguments(p) -> None:
     """The options of ``oscar toyworld policy-eval`` (on the argparse parser ``p``)."""
     p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
     p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
-    p.add_argument("--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only")
-    output_option(p.add_argument("--out", required=True,
-                                 help="folder for manifest.json, policy_eval.json and the session folders"), "folder")
+    p.add_argument(
+        "--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only"
+    )
+    output_option(
+        p.add_argument(
+            "--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders"
+        ),
+        "folder",
+    )
     p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
     p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
     p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
-    p.add_argument("--supersample", type=count(1), default=2, help="anti-aliasing factor of the real renders (default 2)")
+    p.add_argument(
+        "--supersample", type=count(1), default=2, help="anti-aliasing factor of the real renders (default 2)"
+    )
     p.add_argument("--json", action="store_true", help="print the summary (without per-episode rows) as JSON")
 
 
@@ -374,16 +568,27 @@ def cmd_policy_eval(args) -> int:
     names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
     if not names:
         raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
-    summary = write_policy_eval(args.out, names, args.sessions, seed=args.seed, width=w, height=h,
-                                frames=args.frames, fps=args.fps, supersample=args.supersample,
-                                registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
-                                progress=_log.info)
+    summary = write_policy_eval(
+        args.out,
+        names,
+        args.sessions,
+        seed=args.seed,
+        width=w,
+        height=h,
+        frames=args.frames,
+        fps=args.fps,
+        supersample=args.supersample,
+        registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
+        progress=_log.info,
+    )
     if args.json:
         print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
         return 0
-    print(f"{args.out}/manifest.json: {len(summary['rows'])} cells, {args.sessions} sessions x "
-          f"{len(names)} embodiments; true success rate per policy (ball grabbed and moved >= "
-          f"{SUCCESS_RADII:g} ball radii):")
+    print(
+        f"{args.out}/manifest.json: {len(summary['rows'])} cells, {args.sessions} sessions x "
+        f"{len(names)} embodiments; true success rate per policy (ball grabbed and moved >= "
+        f"{SUCCESS_RADII:g} ball radii):"
+    )
     for p, v in summary["policies"].items():
         per = ", ".join(f"{e} {r:.2f}" for e, r in v["by_embodiment"].items())
         print(f"  {p:<8} aim sigma {v['aim_sigma_radii']:.2f} R: {v['success_rate']:.2f}  ({per})")
@@ -393,8 +598,9 @@ def cmd_policy_eval(args) -> int:
 def _add_carry_arguments(p) -> None:
     p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
     p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
-    output_option(p.add_argument("--json", default=None,
-                                 help="also write every row and the summary to this JSON file"), "file")
+    output_option(
+        p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file"), "file"
+    )
 
 
 def cmd_carry(args) -> int:
@@ -409,13 +615,17 @@ def cmd_carry(args) -> int:
     def f(x) -> str:
         return "n/a" if x is None else f"{x:.2f}"
 
-    print("| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
-          "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |")
+    print(
+        "| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
+        "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for p, s in summary.items():
-        print(f"| {p} | {s['cells']} | {f(s['real_sr'])} | {f(s['wm_sr'])} | {s['grabbed']} | "
-              f"{f(s['left_if_grabbed'])} / {f(s['left_if_missed'])} | {f(s['success_if_grabbed'])} / "
-              f"{f(s['success_if_missed'])} | {f(s['blob_to_place'])} | {f(s['blob_to_ee_end'])} |")
+        print(
+            f"| {p} | {s['cells']} | {f(s['real_sr'])} | {f(s['wm_sr'])} | {s['grabbed']} | "
+            f"{f(s['left_if_grabbed'])} / {f(s['left_if_missed'])} | {f(s['success_if_grabbed'])} / "
+            f"{f(s['success_if_missed'])} | {f(s['blob_to_place'])} | {f(s['blob_to_ee_end'])} |"
+        )
     if args.json:
         atomic_write_bytes(Path(args.json), (json.dumps({"summary": summary, "rows": rows}, indent=1) + "\n").encode())
     return 0
@@ -431,9 +641,18 @@ def cmd_closed_loop_sessions(args) -> int:
     pols = [p.strip() for p in args.policies.split(",") if p.strip()] if args.policies else None
     bad = [p for p in pols or () if p not in POLICIES]
     if not names or bad:
-        raise ValueError(f"--embodiments/--policies: expected embodiment names and toy policies among "
-                         f"{list(POLICIES)}, found {names} / {bad}")
-    path = write_closed_loop_sessions(args.out, names, args.sessions, seed=args.seed, horizon=args.horizon,
-                                      policies=pols, registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()))
+        raise ValueError(
+            f"--embodiments/--policies: expected embodiment names and toy policies among "
+            f"{list(POLICIES)}, found {names} / {bad}"
+        )
+    path = write_closed_loop_sessions(
+        args.out,
+        names,
+        args.sessions,
+        seed=args.seed,
+        horizon=args.horizon,
+        policies=pols,
+        registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
+    )
     print(f"wrote {path}: {args.sessions} sessions x {len(names)} embodiments")
     return 0

@@ -36,11 +36,23 @@ TASK = "pick up the yellow ball and put it down at x={x:.4f} y={y:.4f}"
 def scene_to_dict(scene) -> dict:
     """A :class:`~oscar_core.toyworld.scene.Scene` as JSON-ready lists (floats round-trip exactly)."""
     l = scene.light
-    return {"floor_colors": np.asarray(scene.floor_colors).tolist(), "tile": scene.tile, "noise_seed": scene.noise_seed,
-            "sky_top": np.asarray(scene.sky_top).tolist(), "sky_bottom": np.asarray(scene.sky_bottom).tolist(),
-            "light": {"direction": list(l.direction), "ambient": l.ambient, "diffuse": l.diffuse,
-                      "specular": l.specular, "shininess": l.shininess, "tint": list(l.tint)},
-            "link_colors": np.asarray(scene.link_colors).tolist(), "fog": scene.fog}
+    return {
+        "floor_colors": np.asarray(scene.floor_colors).tolist(),
+        "tile": scene.tile,
+        "noise_seed": scene.noise_seed,
+        "sky_top": np.asarray(scene.sky_top).tolist(),
+        "sky_bottom": np.asarray(scene.sky_bottom).tolist(),
+        "light": {
+            "direction": list(l.direction),
+            "ambient": l.ambient,
+            "diffuse": l.diffuse,
+            "specular": l.specular,
+            "shininess": l.shininess,
+            "tint": list(l.tint),
+        },
+        "link_colors": np.asarray(scene.link_colors).tolist(),
+        "fog": scene.fog,
+    }
 
 
 def scene_from_dict(d: dict):
@@ -48,10 +60,24 @@ def scene_from_dict(d: dict):
     from .scene import Scene
 
     li = d["light"]
-    light = Light(direction=tuple(li["direction"]), ambient=li["ambient"], diffuse=li["diffuse"],
-                  specular=li["specular"], shininess=li["shininess"], tint=tuple(li["tint"]))
-    return Scene(np.array(d["floor_colors"]), d["tile"], d["noise_seed"], np.array(d["sky_top"]),
-                 np.array(d["sky_bottom"]), light, np.array(d["link_colors"]).reshape(-1, 3), d["fog"])
+    light = Light(
+        direction=tuple(li["direction"]),
+        ambient=li["ambient"],
+        diffuse=li["diffuse"],
+        specular=li["specular"],
+        shininess=li["shininess"],
+        tint=tuple(li["tint"]),
+    )
+    return Scene(
+        np.array(d["floor_colors"]),
+        d["tile"],
+        d["noise_seed"],
+        np.array(d["sky_top"]),
+        np.array(d["sky_bottom"]),
+        light,
+        np.array(d["link_colors"]).reshape(-1, 3),
+        d["fog"],
+    )
 
 
 class ToySimulator:
@@ -72,8 +98,9 @@ class ToySimulator:
         self._state()
 
     def _state(self):
-        traj = Trajectory(self.emb.joint_names, self.q, self.fps, self.g, self.emb.gripper_names or None,
-                          source="<toy simulator>")
+        traj = Trajectory(
+            self.emb.joint_names, self.q, self.fps, self.g, self.emb.gripper_names or None, source="<toy simulator>"
+        )
         points, ee = ee_points(self.emb, traj)
         openness = self.emb.gripper_openness(self.g)
         obj, attached = carry_object(ee, openness[:, 0], self.ball, self.R, grab_distance=GRAB_RADII * self.R)
@@ -86,8 +113,9 @@ class ToySimulator:
         n = len(q)
         self.q, self.g = np.concatenate([self.q, q]), np.concatenate([self.g, gripper])
         traj, points, ee, obj, attached = self._state()
-        motion = Motion(traj.time_slice(-n), "pick_place", points[-n:], ee[-n:], obj[-n:], attached[-n:], self.R,
-                        self.scale)
+        motion = Motion(
+            traj.time_slice(-n), "pick_place", points[-n:], ee[-n:], obj[-n:], attached[-n:], self.R, self.scale
+        )
         return render_world(self.emb, motion, self.scene, self.camera, ss=self.ss).rgb
 
     def outcome(self) -> dict:
@@ -95,8 +123,11 @@ class ToySimulator:
         _, _, _, obj, attached = self._state()
         disp = float(np.linalg.norm(obj[-1, :2] - self.ball[:2]) / self.R)
         grabbed = bool(attached.any())
-        return {"success": int(grabbed and disp >= SUCCESS_RADII), "grabbed": grabbed,
-                "displacement_radii": round(disp, 4)}
+        return {
+            "success": int(grabbed and disp >= SUCCESS_RADII),
+            "grabbed": grabbed,
+            "displacement_radii": round(disp, 4),
+        }
 
 
 def toy_simulator(session, emb, camera, first, size, fps, chunk_frames):
@@ -104,11 +135,14 @@ def toy_simulator(session, emb, camera, first, size, fps, chunk_frames):
     from ..kinematics.trajectory import load_trajectory
 
     if session.simulator is None:
-        raise ValueError(f"session {session.session!r}: field 'simulator': expected the toy world's sim.json, "
-                         "found none")
+        raise ValueError(
+            f"session {session.session!r}: field 'simulator': expected the toy world's sim.json, found none"
+        )
     if (camera.intrinsics.width, camera.intrinsics.height) != tuple(size):
-        raise ValueError(f"session {session.session!r}: the toy simulator renders at the camera's size "
-                         f"{camera.intrinsics.width}x{camera.intrinsics.height}, found rollout size {size}")
+        raise ValueError(
+            f"session {session.session!r}: the toy simulator renders at the camera's size "
+            f"{camera.intrinsics.width}x{camera.intrinsics.height}, found rollout size {size}"
+        )
     state = load_trajectory(session.initial_state)
     sim = json.loads(Path(session.simulator).read_text())
     return ToySimulator(emb, camera, first, sim, state.q[0], state.gripper[0], fps, chunk_frames)
@@ -117,8 +151,19 @@ def toy_simulator(session, emb, camera, first, size, fps, chunk_frames):
 toy_simulator.identity = "oscar_core.toyworld.closed_loop:toy_simulator v1"
 
 
-def write_closed_loop_sessions(out, embodiments, sessions: int, *, seed: int = 0, width: int = 64, height: int = 64,
-                               horizon: int = 49, fps: float = 10.0, policies=None, registry=None) -> Path:
+def write_closed_loop_sessions(
+    out,
+    embodiments,
+    sessions: int,
+    *,
+    seed: int = 0,
+    width: int = 64,
+    height: int = 64,
+    horizon: int = 49,
+    fps: float = 10.0,
+    policies=None,
+    registry=None,
+) -> Path:
     """Write ``sessions`` toy sessions per embodiment and ``out/manifest.json`` (module docstring); returns the
     manifest's path. Session ``i`` of embodiment ``e`` depends only on (seed, e, i)."""
     from .._util.atomic import atomic_write_bytes
@@ -150,32 +195,56 @@ def write_closed_loop_sessions(out, embodiments, sessions: int, *, seed: int = 0
             folder = out / sid
             folder.mkdir(exist_ok=True)
             traj = ep.motion.trajectory
-            start = Trajectory(traj.joint_names, traj.q[:1], fps, traj.gripper[:1], traj.gripper_names,
-                               source=f"<{sid} start>")
+            start = Trajectory(
+                traj.joint_names, traj.q[:1], fps, traj.gripper[:1], traj.gripper_names, source=f"<{sid} start>"
+            )
             save_trajectory(start, folder / "state.npz")
             save_camera(s.camera, folder / "camera.json")
-            motion = Motion(start, "pick_place", ep.motion.points[:1], ep.motion.ee[:1],
-                            np.array([s.ball]), np.zeros(1, bool), s.radius, s.scale)
+            motion = Motion(
+                start,
+                "pick_place",
+                ep.motion.points[:1],
+                ep.motion.ee[:1],
+                np.array([s.ball]),
+                np.zeros(1, bool),
+                s.radius,
+                s.scale,
+            )
             render = render_world(emb, motion, s.scene, s.camera, ss=2)
             atomic_write_bytes(folder / "first.png", _png_bytes(render.rgb[0]))
             sim = {"ball": s.ball.tolist(), "radius": s.radius, "scale": s.scale, "scene": scene_to_dict(s.scene)}
             atomic_write_bytes(folder / "sim.json", json.dumps(sim).encode())
             place = ep.motion.object[-1]  # where the expert's plan put the ball: reachable and in view
             K = s.camera.intrinsics
-            rows.append({
-                "session": sid, "embodiment": emb.name, "task": TASK.format(x=place[0], y=place[1]),
-                "first_frame": f"{sid}/first.png", "camera": f"{sid}/camera.json",
-                "initial_state": f"{sid}/state.npz", "simulator": f"{sid}/sim.json",
-                "extras": {"toy/embodiment": emb.name, "toy/intrinsics": [K.fx, K.fy, K.cx, K.cy],
-                           "toy/world_to_cv": s.camera.world_to_cv().tolist()},
-                "info": {"ball_start_px": [round(float(v), 3) for v in render.object_px[0]],
-                         "ball_radius_px": round(_radius_px(s), 3),
-                         "px_to_floor_radii": floor_homography(s.camera, s.radius, s.radius).tolist(),
-                         "success_radii": SUCCESS_RADII}})
-    manifest = {"format": "oscar-closed-loop-manifest",
-                "description": f"toy-world closed loop, {sessions} sessions x {list(embodiments)}, seed {seed}",
-                "policies": policy_specs(policies), "defaults": {"size": f"{width}x{height}", "horizon": horizon},
-                "sessions": rows}
+            rows.append(
+                {
+                    "session": sid,
+                    "embodiment": emb.name,
+                    "task": TASK.format(x=place[0], y=place[1]),
+                    "first_frame": f"{sid}/first.png",
+                    "camera": f"{sid}/camera.json",
+                    "initial_state": f"{sid}/state.npz",
+                    "simulator": f"{sid}/sim.json",
+                    "extras": {
+                        "toy/embodiment": emb.name,
+                        "toy/intrinsics": [K.fx, K.fy, K.cx, K.cy],
+                        "toy/world_to_cv": s.camera.world_to_cv().tolist(),
+                    },
+                    "info": {
+                        "ball_start_px": [round(float(v), 3) for v in render.object_px[0]],
+                        "ball_radius_px": round(_radius_px(s), 3),
+                        "px_to_floor_radii": floor_homography(s.camera, s.radius, s.radius).tolist(),
+                        "success_radii": SUCCESS_RADII,
+                    },
+                }
+            )
+    manifest = {
+        "format": "oscar-closed-loop-manifest",
+        "description": f"toy-world closed loop, {sessions} sessions x {list(embodiments)}, seed {seed}",
+        "policies": policy_specs(policies),
+        "defaults": {"size": f"{width}x{height}", "horizon": horizon},
+        "sessions": rows,
+    }
     path = out / "manifest.json"
     atomic_write_bytes(path, (json.dumps(manifest, indent=1) + "\n").encode())
     return path

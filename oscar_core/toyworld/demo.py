@@ -32,8 +32,9 @@ def side_by_side(*videos: np.ndarray, scale: int = 2, gap: int = 2) -> np.ndarra
     return np.concatenate(parts, axis=2)
 
 
-def toy_rollout_demo(out_dir, model="oscar-toy", registry=None, steps: int | None = 20,
-                     guidance: float | None = 3.0, seed: int = 0) -> tuple[np.ndarray, dict]:
+def toy_rollout_demo(
+    out_dir, model="oscar-toy", registry=None, steps: int | None = 20, guidance: float | None = 3.0, seed: int = 0
+) -> tuple[np.ndarray, dict]:
     """Roll ``model`` out on :data:`DEMO_EPISODE`; returns the side-by-side video and a summary.
 
     Writes ``OUT_DIR/toyworld_rollout.mp4``. Sampler: 20 UniPC steps,
@@ -62,13 +63,24 @@ def toy_rollout_demo(out_dir, model="oscar-toy", registry=None, steps: int | Non
     torch.set_num_threads(1)  # a 64x64 rollout is latency-bound: one thread is fastest on a shared CPU
     try:
         t0 = time.perf_counter()
-        result = m.rollout(ep.rgb[0], skel, sampler=sampler_for_card(m.card, steps, guidance), seed=seed,
-                           progress=False, keep_chunks=False)
+        result = m.rollout(
+            ep.rgb[0],
+            skel,
+            sampler=sampler_for_card(m.card, steps, guidance),
+            seed=seed,
+            progress=False,
+            keep_chunks=False,
+        )
         wall = time.perf_counter() - t0
     finally:
         torch.set_num_threads(threads)
     video = side_by_side(result.frames, ep.rgb, skel)
     out = write_video(Path(out_dir) / "toyworld_rollout.mp4", video, ep.trajectory.fps)
     score = float(np.mean(np.minimum(psnr(result.frames[1:], ep.rgb[1:], n_frames=None), 100.0)))
-    return video, {"path": str(out), "episode": f"{name}-{index:06d} (seed {ep_seed})", "rollout_seconds": round(wall, 3),
-                   "psnr_db": round(score, 2), "model": m.card.name}
+    return video, {
+        "path": str(out),
+        "episode": f"{name}-{index:06d} (seed {ep_seed})",
+        "rollout_seconds": round(wall, 3),
+        "psnr_db": round(score, 2),
+        "model": m.card.name,
+    }

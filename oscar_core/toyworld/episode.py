@@ -20,8 +20,16 @@ from .motion import Motion, check_supported, sample_motion
 from .raster import Canvas
 from .scene import EE_RGB, OBJECT_RGB, Scene, background, sample_camera, sample_scene
 
-__all__ = ["Episode", "RenderResult", "render_world", "plan_episode", "make_episode", "episode_rng", "miss_rng",
-           "link_radii"]
+__all__ = [
+    "Episode",
+    "RenderResult",
+    "render_world",
+    "plan_episode",
+    "make_episode",
+    "episode_rng",
+    "miss_rng",
+    "link_radii",
+]
 
 
 @dataclass
@@ -44,8 +52,15 @@ class RenderResult:
     ee_area: np.ndarray
 
 
-def render_world(emb: Embodiment, motion: Motion, scene: Scene, camera: Camera, ss: int = 2,
-                 draw_robot: bool = True, full_frame: bool = False) -> RenderResult:
+def render_world(
+    emb: Embodiment,
+    motion: Motion,
+    scene: Scene,
+    camera: Camera,
+    ss: int = 2,
+    draw_robot: bool = True,
+    full_frame: bool = False,
+) -> RenderResult:
     """Render ``motion`` seen by a static ``camera`` (output size = the camera's image size).
 
     ss: supersampling factor (the frame is drawn at ss× the size and area-averaged
@@ -56,8 +71,9 @@ def render_world(emb: Embodiment, motion: Motion, scene: Scene, camera: Camera, 
     import cv2
 
     if camera.mount_link is not None:
-        raise ValueError("toyworld render: expected a static camera (mount: null), "
-                         f"found one mounted on {camera.mount_link!r}")
+        raise ValueError(
+            f"toyworld render: expected a static camera (mount: null), found one mounted on {camera.mount_link!r}"
+        )
     W, H = camera.intrinsics.width, camera.intrinsics.height
     cam = camera.resized(W * ss, H * ss, mode="stretch") if ss != 1 else camera
     f = cam.intrinsics.fx
@@ -140,10 +156,14 @@ class Episode:
         extra = {"missed": bool(m.missed), "grabbed": bool(np.any(m.attached))} if miss_fields else {}
         return {
             "kind": m.kind,
-            "ee_px": rows(r.ee_px), "ee_area": [round(float(a), 2) for a in r.ee_area],
-            "object_px": rows(r.object_px), "object_area": [round(float(a), 2) for a in r.object_area],
+            "ee_px": rows(r.ee_px),
+            "ee_area": [round(float(a), 2) for a in r.ee_area],
+            "object_px": rows(r.object_px),
+            "object_area": [round(float(a), 2) for a in r.object_area],
             "attached": [bool(a) for a in m.attached],
-            "object_radius_m": round(m.object_radius, 5), "reach_m": round(m.scale, 5), **extra,
+            "object_radius_m": round(m.object_radius, 5),
+            "reach_m": round(m.scale, 5),
+            **extra,
         }
 
 
@@ -151,8 +171,7 @@ def _episode_generator(seed: int, embodiment: str, index: int, *tag: int) -> np.
     """A generator seeded by (seed, crc32 of the embodiment's name, episode index, *tag)."""
     import zlib
 
-    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index),
-                                                         *tag]))
+    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(embodiment.encode()), int(index), *tag]))
 
 
 def episode_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
@@ -171,9 +190,16 @@ def miss_rng(seed: int, embodiment: str, index: int) -> np.random.Generator:
     return _episode_generator(seed, embodiment, index, _MISS_TAG)
 
 
-def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
-                 fps: float = 10.0, pick_miss: float = 0.0,
-                 miss_rng: np.random.Generator | None = None) -> tuple[Motion, Scene, Camera]:
+def plan_episode(
+    emb: Embodiment,
+    rng: np.random.Generator,
+    width: int,
+    height: int,
+    frames: int,
+    fps: float = 10.0,
+    pick_miss: float = 0.0,
+    miss_rng: np.random.Generator | None = None,
+) -> tuple[Motion, Scene, Camera]:
     """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels).
 
     pick_miss, miss_rng: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's ball is
@@ -189,9 +215,17 @@ def plan_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: 
     return motion, scene, camera
 
 
-def make_episode(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
-                 fps: float = 10.0, ss: int = 2, pick_miss: float = 0.0,
-                 miss_rng: np.random.Generator | None = None) -> Episode:
+def make_episode(
+    emb: Embodiment,
+    rng: np.random.Generator,
+    width: int,
+    height: int,
+    frames: int,
+    fps: float = 10.0,
+    ss: int = 2,
+    pick_miss: float = 0.0,
+    miss_rng: np.random.Generator | None = None,
+) -> Episode:
     """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``
     (``pick_miss``, ``miss_rng``: :func:`plan_episode`)."""
     motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng)

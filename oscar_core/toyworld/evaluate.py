@@ -27,9 +27,22 @@ import numpy as np
 
 from .locate import EE_TARGET, OBJECT_TARGET, position_errors
 
-__all__ = ["PSNR_CAP", "find_prediction", "evaluate_clip", "evaluate_conditions", "format_table", "add_paired", "format_paired", "plot_table",
-           "parse_pred_args", "motion_iou", "motion_mask", "MOTION_THRESHOLD", "moved_object_error",
-           "MOVED_OBJECT_SHIFT_PX"]
+__all__ = [
+    "PSNR_CAP",
+    "find_prediction",
+    "evaluate_clip",
+    "evaluate_conditions",
+    "format_table",
+    "add_paired",
+    "format_paired",
+    "plot_table",
+    "parse_pred_args",
+    "motion_iou",
+    "motion_mask",
+    "MOTION_THRESHOLD",
+    "moved_object_error",
+    "MOVED_OBJECT_SHIFT_PX",
+]
 
 PSNR_CAP = 100.0
 METRICS = ("psnr_db", "ssim", "motion_iou", "ee_error_px", "object_error_px", "moved_object_error_px")
@@ -40,8 +53,9 @@ MOTION_THRESHOLD = 24.0
 MOVED_OBJECT_SHIFT_PX = 3.0
 
 
-def moved_object_error(pred: np.ndarray, gt: np.ndarray, min_shift: float = MOVED_OBJECT_SHIFT_PX,
-                       errors: dict | None = None) -> dict:
+def moved_object_error(
+    pred: np.ndarray, gt: np.ndarray, min_shift: float = MOVED_OBJECT_SHIFT_PX, errors: dict | None = None
+) -> dict:
     """The object error over the frames where the ground-truth object has moved, i.e. where an action moved it.
 
     pred, gt: (T, H, W, 3) uint8. A frame counts when the object is shown in
@@ -83,6 +97,8 @@ def motion_iou(pred: np.ndarray, gt: np.ndarray, threshold: float = MOTION_THRES
     a, b = motion_mask(pred, threshold), motion_mask(gt, threshold)
     union = np.logical_or(a, b).sum()
     return float(np.logical_and(a, b).sum() / union) if union else float("nan")
+
+
 _SUFFIXES = (".mp4", ".mkv", ".npy")
 
 
@@ -118,24 +134,33 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
 
     pred, gt = np.asarray(pred), np.asarray(gt)
     if pred.shape != gt.shape or pred.dtype != np.uint8:
-        raise ValueError(f"{where}: expected a uint8 video of shape {gt.shape} (the ground truth's), "
-                         f"found {pred.dtype} {pred.shape}")
+        raise ValueError(
+            f"{where}: expected a uint8 video of shape {gt.shape} (the ground truth's), found {pred.dtype} {pred.shape}"
+        )
     p = np.minimum(psnr(pred, gt, n_frames=None), PSNR_CAP)
     s = ssim(pred, gt, n_frames=None)
     ee = position_errors(pred, gt, EE_TARGET)
     ob = position_errors(pred, gt, OBJECT_TARGET)
     moved = moved_object_error(pred, gt, errors=ob)
-    return {"psnr_db": float(p.mean()), "ssim": float(s.mean()), "motion_iou": motion_iou(pred, gt),
-            "ee_error_px": ee["error_px"],
-            "object_error_px": ob["error_px"], "ee_found": ee["found"], "object_found": ob["found"],
-            "moved_object_error_px": moved["error_px"], "moved_object_frames": moved["frames"]}
+    return {
+        "psnr_db": float(p.mean()),
+        "ssim": float(s.mean()),
+        "motion_iou": motion_iou(pred, gt),
+        "ee_error_px": ee["error_px"],
+        "object_error_px": ob["error_px"],
+        "ee_found": ee["found"],
+        "object_found": ob["found"],
+        "moved_object_error_px": moved["error_px"],
+        "moved_object_frames": moved["frames"],
+    }
 
 
 CLIP_MODES = ("same", "common", "each")
 
 
-def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | None = None,
-                        clips_mode: str = "same") -> dict:
+def evaluate_conditions(
+    gt_clipset, conditions: dict[str, str], split: str | None = None, clips_mode: str = "same"
+) -> dict:
     """The table: one row per condition (name → folder of generated videos).
 
     gt_clipset: a clip set, or a list of them (clip ids must be unique across
@@ -156,8 +181,10 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
     from ..metrics.video import load_video
     from ..train.clips import ClipSet
 
-    sets = [g if isinstance(g, ClipSet) else ClipSet(g)
-            for g in (gt_clipset if isinstance(gt_clipset, (list, tuple)) else [gt_clipset])]
+    sets = [
+        g if isinstance(g, ClipSet) else ClipSet(g)
+        for g in (gt_clipset if isinstance(gt_clipset, (list, tuple)) else [gt_clipset])
+    ]
     recs, owner = [], {}
     for c in sets:
         for r in c:
@@ -172,9 +199,10 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
             raise FileNotFoundError(f"--pred {name}={folder}: no such folder")
         found[name] = {r.id: p for r in recs if (p := find_prediction(folder, r.id)) is not None}
         if not found[name]:
-            raise ValueError(f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
-                             f"{', '.join(str(c.root) for c in sets)}" + (f" (split {split!r})" if split else "")
-                             + ", found none")
+            raise ValueError(
+                f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
+                f"{', '.join(str(c.root) for c in sets)}" + (f" (split {split!r})" if split else "") + ", found none"
+            )
     ids = {name: set(got) for name, got in found.items()}
     common = set.intersection(*ids.values()) if ids else set()
     same = all(v == common for v in ids.values())
@@ -184,11 +212,17 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
         for name, v in ids.items():
             if v != ids[first]:
                 lacks, extra = sorted(ids[first] - v), sorted(v - ids[first])
-                diffs.append(f"--pred {name} has {len(v)} clips against {len(ids[first])} of --pred {first}"
-                             + (f", lacking {_few(lacks)}" if lacks else "") + (f", adding {_few(extra)}" if extra else ""))
-        raise ValueError("the rows would be means over different clips: " + "; ".join(diffs)
-                         + f"; expected predictions for the same clips, or --clips common (score the {len(common)} "
-                           "clips all have) or --clips each (score each row over its own clips, marked)")
+                diffs.append(
+                    f"--pred {name} has {len(v)} clips against {len(ids[first])} of --pred {first}"
+                    + (f", lacking {_few(lacks)}" if lacks else "")
+                    + (f", adding {_few(extra)}" if extra else "")
+                )
+        raise ValueError(
+            "the rows would be means over different clips: "
+            + "; ".join(diffs)
+            + f"; expected predictions for the same clips, or --clips common (score the {len(common)} "
+            "clips all have) or --clips each (score each row over its own clips, marked)"
+        )
     if clips_mode == "common":
         if not common:
             raise ValueError(f"--clips common: expected clips every condition has, found none ({', '.join(ids)})")
@@ -209,8 +243,14 @@ def evaluate_conditions(gt_clipset, conditions: dict[str, str], split: str | Non
         rows[name] = row
         clips[name] = per
     roots = [str(c.root) for c in sets]
-    return {"ground_truth": roots[0] if len(roots) == 1 else roots, "split": split, "metrics": list(METRICS),
-            "same_clips": len({frozenset(v) for v in clips.values()}) <= 1, "rows": rows, "clips": clips}
+    return {
+        "ground_truth": roots[0] if len(roots) == 1 else roots,
+        "split": split,
+        "metrics": list(METRICS),
+        "same_clips": len({frozenset(v) for v in clips.values()}) <= 1,
+        "rows": rows,
+        "clips": clips,
+    }
 
 
 def _few(ids: list[str], n: int = 3) -> str:
@@ -233,9 +273,17 @@ def add_paired(table: dict, reference: str, resamples: int = 2000, seed: int = 0
     if reference not in table["rows"]:
         raise ValueError(f"--paired {reference}: expected the name of a --pred row ({', '.join(table['rows'])})")
     ref = table["clips"][reference]
-    table["paired"] = {"reference": reference, "resamples": resamples, "seed": seed, "level": 0.95,
-                       "rows": {name: {m: paired_difference(per, ref, m, resamples, seed) for m in METRICS}
-                                for name, per in table["clips"].items() if name != reference}}
+    table["paired"] = {
+        "reference": reference,
+        "resamples": resamples,
+        "seed": seed,
+        "level": 0.95,
+        "rows": {
+            name: {m: paired_difference(per, ref, m, resamples, seed) for m in METRICS}
+            for name, per in table["clips"].items()
+            if name != reference
+        },
+    }
     return table
 
 
@@ -244,10 +292,19 @@ def format_paired(table: dict) -> str:
     paired = table.get("paired")
     if not paired:
         return ""
-    names = ("PSNR (dB)", "SSIM", "motion IoU", "end-effector error (px)", "object error (px)",
-             "moved-object error (px)")
-    lines = [f"\nminus {paired['reference']!r}, paired over the same clips (mean [95 % bootstrap interval]):",
-             "| condition | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    names = (
+        "PSNR (dB)",
+        "SSIM",
+        "motion IoU",
+        "end-effector error (px)",
+        "object error (px)",
+        "moved-object error (px)",
+    )
+    lines = [
+        f"\nminus {paired['reference']!r}, paired over the same clips (mean [95 % bootstrap interval]):",
+        "| condition | " + " | ".join(names) + " |",
+        "|---" * (len(names) + 1) + "|",
+    ]
     for name, per in paired["rows"].items():
         cells = []
         for m in METRICS:
@@ -260,15 +317,19 @@ def format_paired(table: dict) -> str:
 
 def format_table(table: dict) -> str:
     """The rows as a Markdown table."""
-    head = ("| condition | clips | PSNR (dB) ↑ | SSIM ↑ | motion IoU ↑ | end-effector error (px) ↓ | "
-            "object error (px) ↓ | moved-object error (px) ↓ |")
+    head = (
+        "| condition | clips | PSNR (dB) ↑ | SSIM ↑ | motion IoU ↑ | end-effector error (px) ↓ | "
+        "object error (px) ↓ | moved-object error (px) ↓ |"
+    )
     lines = [head, "|---|---|---|---|---|---|---|---|"]
     nan = float("nan")
     for name, r in table["rows"].items():
         moved = r.get("moved_object_error_px", nan)
-        lines.append(f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r.get('motion_iou', nan):.3f} | "
-                     f"{r['ee_error_px']:.2f} | {r['object_error_px']:.2f} | "
-                     f"{moved:.2f} ({r.get('moved_object_clips', 0)} clips) |")
+        lines.append(
+            f"| {name} | {r['clips']} | {r['psnr_db']:.2f} | {r['ssim']:.3f} | {r.get('motion_iou', nan):.3f} | "
+            f"{r['ee_error_px']:.2f} | {r['object_error_px']:.2f} | "
+            f"{moved:.2f} ({r.get('moved_object_clips', 0)} clips) |"
+        )
     if table.get("same_clips") is False:
         lines.append("\nnot comparable: the rows are means over different clips (see the clips column)")
     paired = format_paired(table)
@@ -280,8 +341,14 @@ def plot_table(table: dict, path) -> Path:
     from ..metrics.plots import new_figure, save_figure
 
     names = list(table["rows"])
-    labels = {"psnr_db": "PSNR (dB) ↑", "ssim": "SSIM ↑", "motion_iou": "motion IoU ↑", "ee_error_px": "end-effector error (px) ↓",
-              "object_error_px": "object error (px) ↓", "moved_object_error_px": "moved-object error (px) ↓"}
+    labels = {
+        "psnr_db": "PSNR (dB) ↑",
+        "ssim": "SSIM ↑",
+        "motion_iou": "motion IoU ↑",
+        "ee_error_px": "end-effector error (px) ↓",
+        "object_error_px": "object error (px) ↓",
+        "moved_object_error_px": "moved-object error (px) ↓",
+    }
     fig = new_figure((3.2 * len(METRICS), 3.2), 100)
     for i, m in enumerate(METRICS):
         ax = fig.add_subplot(1, len(METRICS), i + 1)

@@ -26,8 +26,18 @@ EXAMPLE_INDEX = 9
 EXAMPLE_FILES = ("first_frame.png", "trajectory.npz", "camera.json")
 
 
-def write_example(out, embodiment: str = "toyarm", *, seed: int = 0, width: int = 64, height: int = 64,
-                  frames: int = 17, fps: float = 10.0, supersample: int = 2, registry=None) -> dict:
+def write_example(
+    out,
+    embodiment: str = "toyarm",
+    *,
+    seed: int = 0,
+    width: int = 64,
+    height: int = 64,
+    frames: int = 17,
+    fps: float = 10.0,
+    supersample: int = 2,
+    registry=None,
+) -> dict:
     """Write ``out``/first_frame.png, trajectory.npz and camera.json for episode :data:`EXAMPLE_INDEX` of
     ``embodiment`` under ``seed``; returns ``{"files": [paths], "episode": ..., "frames", "size", "fps"}``.
 
@@ -58,8 +68,14 @@ def write_example(out, embodiment: str = "toyarm", *, seed: int = 0, width: int 
     atomic_write_bytes(paths[0], _png_bytes(np.ascontiguousarray(first)))
     save_trajectory(motion.trajectory, paths[1])
     save_camera(camera, paths[2])
-    return {"files": [str(p) for p in paths], "episode": f"{emb.name} episode {EXAMPLE_INDEX} (seed {seed})",
-            "embodiment": emb.name, "frames": frames, "size": [width, height], "fps": fps}
+    return {
+        "files": [str(p) for p in paths],
+        "episode": f"{emb.name} episode {EXAMPLE_INDEX} (seed {seed})",
+        "embodiment": emb.name,
+        "frames": frames,
+        "size": [width, height],
+        "fps": fps,
+    }
 
 
 def _check_folder(out: Path) -> None:

@@ -54,7 +54,7 @@ def clip_id(embodiment: str, index: int) -> str:
 
 
 def split_of(index: int) -> str:
-    """"heldout" for every tenth episode (index % 10 == 9), else "train"."""
+    """ "heldout" for every tenth episode (index % 10 == 9), else "train"."""
     return "heldout" if index % 10 == 9 else "train"
 
 
@@ -80,9 +80,19 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
     # what every episode depends on besides (seed, embodiment, index): a re-run with other settings into the same
     # folder would mix episodes of two kinds; more episodes or embodiments only add shards, so they are left out
-    parts = {"stage": "toyworld-generate", "format": _stage.FORMAT_VERSION, "seed": cfg.seed, "width": cfg.width,
-             "height": cfg.height, "frames": cfg.frames, "fps": cfg.fps, "shard_size": cfg.shard_size,
-             "supersample": cfg.supersample, "skeleton": cfg.skeleton, "pick_miss": cfg.pick_miss}
+    parts = {
+        "stage": "toyworld-generate",
+        "format": _stage.FORMAT_VERSION,
+        "seed": cfg.seed,
+        "width": cfg.width,
+        "height": cfg.height,
+        "frames": cfg.frames,
+        "fps": cfg.fps,
+        "shard_size": cfg.shard_size,
+        "supersample": cfg.supersample,
+        "skeleton": cfg.skeleton,
+        "pick_miss": cfg.pick_miss,
+    }
     writer = ClipSetWriter(out)  # first: a set of another format is refused before anything is recorded
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer.remove_stale()
@@ -102,19 +112,42 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
             with writer.shard(name) as shard:
                 for i in range(lo, hi):
                     r0 = time.perf_counter()
-                    ep = make_episode(emb, episode_rng(cfg.seed, emb.name, i), cfg.width, cfg.height, cfg.frames,
-                                      cfg.fps, ss=cfg.supersample, pick_miss=cfg.pick_miss,
-                                      miss_rng=miss_rng(cfg.seed, emb.name, i))
+                    ep = make_episode(
+                        emb,
+                        episode_rng(cfg.seed, emb.name, i),
+                        cfg.width,
+                        cfg.height,
+                        cfg.frames,
+                        cfg.fps,
+                        ss=cfg.supersample,
+                        pick_miss=cfg.pick_miss,
+                        miss_rng=miss_rng(cfg.seed, emb.name, i),
+                    )
                     skel = None
                     if cfg.skeleton:
                         skel = render_skeleton_video(emb, ep.trajectory, ep.camera)
                     render_s += time.perf_counter() - r0
                     openness = clip_openness(emb, ep.trajectory)
-                    meta = {"seed": cfg.seed, "episode": i, "split": split_of(i), "toyworld": ep.ground_truth(cfg.pick_miss > 0)}
-                    rec = ClipRecord(id=clip_id(emb.name, i), source=SOURCE, embodiment=emb.name, n_frames=cfg.frames,
-                                     fps=cfg.fps, width=cfg.width, height=cfg.height,
-                                     openness=tuple(tuple(float(v) for v in row) for row in openness),
-                                     files={}, caption=None, task=_task(ep.motion.kind), meta=meta)
+                    meta = {
+                        "seed": cfg.seed,
+                        "episode": i,
+                        "split": split_of(i),
+                        "toyworld": ep.ground_truth(cfg.pick_miss > 0),
+                    }
+                    rec = ClipRecord(
+                        id=clip_id(emb.name, i),
+                        source=SOURCE,
+                        embodiment=emb.name,
+                        n_frames=cfg.frames,
+                        fps=cfg.fps,
+                        width=cfg.width,
+                        height=cfg.height,
+                        openness=tuple(tuple(float(v) for v in row) for row in openness),
+                        files={},
+                        caption=None,
+                        task=_task(ep.motion.kind),
+                        meta=meta,
+                    )
                     shard.add(Clip(rec, rgb=ep.rgb, trajectory=ep.trajectory, camera=ep.camera, skeleton=skel))
                     done += 1
                     bar.update(1)
@@ -124,8 +157,13 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                 progress(msg)
     bar.close()
     wall = time.perf_counter() - t0
-    return {"episodes_written": done, "episodes_skipped": skipped, "wall_s": wall, "render_s": render_s,
-            "episodes_per_s": done / wall if done and wall > 0 else None}
+    return {
+        "episodes_written": done,
+        "episodes_skipped": skipped,
+        "wall_s": wall,
+        "render_s": render_s,
+        "episodes_per_s": done / wall if done and wall > 0 else None,
+    }
 
 
 def _task(kind: str) -> str:

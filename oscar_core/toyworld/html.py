@@ -48,8 +48,9 @@ def made_by(folder) -> dict:
     return {"model": name, "identity": ident, "text": text}
 
 
-def write_eval_html(table: dict, gt_clipsets, conditions: dict[str, str], path, *, plot=None,
-                    max_clips: int = MAX_CLIPS) -> Path:
+def write_eval_html(
+    table: dict, gt_clipsets, conditions: dict[str, str], path, *, plot=None, max_clips: int = MAX_CLIPS
+) -> Path:
     """Write the page for ``table`` (:func:`~oscar_core.toyworld.evaluate.evaluate_conditions`); returns its path.
 
     gt_clipsets: the clip set(s) the table was computed on; conditions: name →
@@ -83,8 +84,17 @@ def write_eval_html(table: dict, gt_clipsets, conditions: dict[str, str], path, 
                 url = relative_url(out, path.parent)
             row["cells"].append({"condition": name, "url": url, "metrics": m})
         clips.append(row)
-    return render_page(path, "toyworld_eval.html.j2", generator="toyworld eval",
-                       title="oscar toyworld eval", table=table, names=names, clips=clips,
-                       n_evaluated=len(evaluated), models=models,
-                       model_names=sorted({m["model"] for m in models.values() if m["model"]}), embodiments=sorted({c["embodiment"] for c in clips}),
-                       plot_url=relative_url(plot, path.parent) if plot else None)
+    return render_page(
+        path,
+        "toyworld_eval.html.j2",
+        generator="toyworld eval",
+        title="oscar toyworld eval",
+        table=table,
+        names=names,
+        clips=clips,
+        n_evaluated=len(evaluated),
+        models=models,
+        model_names=sorted({m["model"] for m in models.values() if m["model"]}),
+        embodiments=sorted({c["embodiment"] for c in clips}),
+        plot_url=relative_url(plot, path.parent) if plot else None,
+    )

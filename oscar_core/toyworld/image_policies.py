@@ -32,15 +32,33 @@ import re
 
 import numpy as np
 
-__all__ = ["CONTROL_HZ", "EXECUTED", "HORIZON", "SPEC", "POLICIES", "ToyPickPlace", "ExactPolicy", "NoisyPolicy",
-           "LatePolicy", "NeverClosesPolicy", "RandomPolicy", "policy_specs", "perceive_ball"]
+__all__ = [
+    "CONTROL_HZ",
+    "EXECUTED",
+    "HORIZON",
+    "SPEC",
+    "POLICIES",
+    "ToyPickPlace",
+    "ExactPolicy",
+    "NoisyPolicy",
+    "LatePolicy",
+    "NeverClosesPolicy",
+    "RandomPolicy",
+    "policy_specs",
+    "perceive_ball",
+]
 
 CONTROL_HZ = 10.0
 EXECUTED = 8
 HORIZON = 16
 #: The declaration every toy policy needs in a closed-loop manifest (besides its name and source).
-SPEC = {"action_space": "ee_position", "control_hz": CONTROL_HZ, "image_size": [64, 64],
-        "actions_per_call": EXECUTED, "gripper": "position"}
+SPEC = {
+    "action_space": "ee_position",
+    "control_hz": CONTROL_HZ,
+    "image_size": [64, 64],
+    "actions_per_call": EXECUTED,
+    "gripper": "position",
+}
 _PLACE = re.compile(r"x=(-?\d+(?:\.\d+)?)\s+y=(-?\d+(?:\.\d+)?)")
 _REACH: dict[str, float] = {}
 
@@ -122,8 +140,12 @@ class ToyPickPlace:
         ee = self.ik.pose(q)[:3, 3]
         close_at = 16 + self.delay
         if self.step < close_at - 2:  # look for the ball until the gripper is about to close
-            seen = perceive_ball(np.asarray(obs["observation/exterior_image_1_left"]), obs["toy/intrinsics"],
-                                 obs["toy/world_to_cv"], self.R)
+            seen = perceive_ball(
+                np.asarray(obs["observation/exterior_image_1_left"]),
+                obs["toy/intrinsics"],
+                obs["toy/world_to_cv"],
+                self.R,
+            )
             if seen is not None:
                 self.ball = seen
         m = _PLACE.search(str(obs.get("prompt", "")))
@@ -138,8 +160,15 @@ class ToyPickPlace:
         R, lift = self.R, 2 * self.R + 0.25 * self.scale
         grasp = np.array([self.ball[0] + self.aim[0], self.ball[1] + self.aim[1], 2 * R])
         place = np.array([place_xy[0], place_xy[1], 2 * R])
-        keys = [(14, grasp), (17, grasp), (26, grasp + [0, 0, lift]), (35, place + [0, 0, lift]), (40, place),
-                (41, place), (48, place + [0, 0, lift])]
+        keys = [
+            (14, grasp),
+            (17, grasp),
+            (26, grasp + [0, 0, lift]),
+            (35, place + [0, 0, lift]),
+            (40, place),
+            (41, place),
+            (48, place + [0, 0, lift]),
+        ]
         out = np.empty((HORIZON, 4))
         for i in range(HORIZON):
             t = self.step + i + 1
@@ -195,8 +224,13 @@ class RandomPolicy(ToyPickPlace):
 
 
 #: name → ``module:attr`` of the toy policies, best first.
-POLICIES = {"exact": f"{__name__}:ExactPolicy", "noisy": f"{__name__}:NoisyPolicy", "late": f"{__name__}:LatePolicy",
-            "never_closes": f"{__name__}:NeverClosesPolicy", "random": f"{__name__}:RandomPolicy"}
+POLICIES = {
+    "exact": f"{__name__}:ExactPolicy",
+    "noisy": f"{__name__}:NoisyPolicy",
+    "late": f"{__name__}:LatePolicy",
+    "never_closes": f"{__name__}:NeverClosesPolicy",
+    "random": f"{__name__}:RandomPolicy",
+}
 
 
 def policy_specs(names=None) -> list[dict]:

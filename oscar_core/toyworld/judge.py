@@ -64,8 +64,9 @@ __all__ = [
 
 VERSION = "3"
 #: The ball's colour target for generated frames: at least 3 pixels (a stray yellowish pixel is not a ball).
-BALL = ColorTarget("object", OBJECT_TARGET.hue, OBJECT_TARGET.hue_tol, OBJECT_TARGET.min_sat, OBJECT_TARGET.min_val,
-                   min_pixels=3.0)
+BALL = ColorTarget(
+    "object", OBJECT_TARGET.hue, OBJECT_TARGET.hue_tol, OBJECT_TARGET.min_sat, OBJECT_TARGET.min_val, min_pixels=3.0
+)
 #: The start disk's radius, ball radii (pixels of the ball's start radius).
 START_DISK_RADII = 1.5
 #: The ball left its start when the median tail count in the start disk is at most this fraction of frame 0's.
@@ -108,12 +109,15 @@ def _blobs(mask: np.ndarray, min_pixels: float) -> list[dict]:
 
 def _check_info(info: dict) -> np.ndarray:
     if "px_to_floor_radii" not in info:
-        raise ValueError(f"toyworld judge: clip info: expected 'px_to_floor_radii' (written by oscar toyworld "
-                         f"policy-eval), found keys {sorted(info)}")
+        raise ValueError(
+            f"toyworld judge: clip info: expected 'px_to_floor_radii' (written by oscar toyworld "
+            f"policy-eval), found keys {sorted(info)}"
+        )
     H = np.asarray(info["px_to_floor_radii"], dtype=np.float64)
     if H.shape != (3, 3) or not np.isfinite(H).all():
-        raise ValueError(f"toyworld judge: clip info: 'px_to_floor_radii': expected a finite 3x3 matrix, "
-                         f"found shape {H.shape}")
+        raise ValueError(
+            f"toyworld judge: clip info: 'px_to_floor_radii': expected a finite 3x3 matrix, found shape {H.shape}"
+        )
     return H
 
 
@@ -150,8 +154,8 @@ def ball_reading(video: np.ndarray, info: dict) -> dict:
     else:
         return {"start_px": None, "reason": "ball not found in frame 0 and no info.ball_radius_px"}
     disk = np.hypot(xs - start[0], ys - start[1]) <= START_DISK_RADII * r_px
-    n0 = int((mask[0] & disk).sum()) if first else round(np.pi * r_px ** 2)
-    n_ball = b0["n"] if first else np.pi * r_px ** 2
+    n0 = int((mask[0] & disk).sum()) if first else round(np.pi * r_px**2)
+    n_ball = b0["n"] if first else np.pi * r_px**2
     a0 = _floor_area_per_px(H, start)
     s_floor = _to_floor(H, start)
     tail = list(range(T - max(3, T // 4), T)) if T > 3 else list(range(1, T))
@@ -167,15 +171,32 @@ def ball_reading(video: np.ndarray, info: dict) -> dict:
         fill = b["n"] / (np.pi * max(b["reach"], 0.5) ** 2)
         compact = bool(MIN_AREA_RATIO * expected <= b["n"] <= MAX_AREA_RATIO * expected and fill >= MIN_FILL)
         d = float(np.linalg.norm(_to_floor(H, b["c"]) - s_floor))
-        blobs.append({"px": [round(float(v), 2) for v in b["c"]], "n": b["n"], "expected_n": round(expected, 1),
-                      "fill": round(float(fill), 3), "compact": compact, "radii": round(d, 3)})
+        blobs.append(
+            {
+                "px": [round(float(v), 2) for v in b["c"]],
+                "n": b["n"],
+                "expected_n": round(expected, 1),
+                "fill": round(float(fill), 3),
+                "compact": compact,
+                "radii": round(d, 3),
+            }
+        )
         if compact:
             dists.append(d)
     left = bool(np.median(at_start) <= LEFT_FRACTION * n0)
-    return {"start_px": [round(float(v), 2) for v in start], "start_src": src, "n0": n0, "r_px": round(r_px, 3),
-            "tail": tail, "at_start": at_start, "blob": blobs, "left": left, "found": len(dists),
-            "last_found": bool(blobs[-1] is not None and blobs[-1]["compact"]),
-            "distance": float(np.median(dists)) if dists else None}
+    return {
+        "start_px": [round(float(v), 2) for v in start],
+        "start_src": src,
+        "n0": n0,
+        "r_px": round(r_px, 3),
+        "tail": tail,
+        "at_start": at_start,
+        "blob": blobs,
+        "left": left,
+        "found": len(dists),
+        "last_found": bool(blobs[-1] is not None and blobs[-1]["compact"]),
+        "distance": float(np.median(dists)) if dists else None,
+    }
 
 
 def ball_displacement(video: np.ndarray, info: dict) -> tuple[float | None, str]:
@@ -188,9 +209,11 @@ def ball_displacement(video: np.ndarray, info: dict) -> tuple[float | None, str]
     k = len(r["tail"])
     if not r["last_found"]:
         return None, "no compact ball blob in the last frame"
-    return r["distance"], (f"compact ball blob in {r['found']} of the last {k} frames, median {r['distance']:.2f} "
-                           f"ball radii from its start ({r['start_px'][0]:.1f}, {r['start_px'][1]:.1f}) px "
-                           f"({r['start_src']})")
+    return r["distance"], (
+        f"compact ball blob in {r['found']} of the last {k} frames, median {r['distance']:.2f} "
+        f"ball radii from its start ({r['start_px'][0]:.1f}, {r['start_px'][1]:.1f}) px "
+        f"({r['start_src']})"
+    )
 
 
 def ball_moved(video: np.ndarray, clip) -> dict:
@@ -204,12 +227,18 @@ def ball_moved(video: np.ndarray, clip) -> dict:
     if r["start_px"] is None:
         return {"binary": 0, "partial": 0, "reason": r["reason"]}
     k = len(r["tail"])
-    stay = (f"{int(np.median(r['at_start']))} yellow pixels (median of the last {k} frames) left in the start "
-            f"disk against {r['n0']} in frame 0")
+    stay = (
+        f"{int(np.median(r['at_start']))} yellow pixels (median of the last {k} frames) left in the start "
+        f"disk against {r['n0']} in frame 0"
+    )
     if not r["last_found"]:
         b = r["blob"][-1]
-        why = (f"its largest yellow blob is not ball-like ({b['n']} px where a ball has {b['expected_n']:.0f}, "
-               f"fill {b['fill']:.2f})" if b is not None else "no yellow blob")
+        why = (
+            f"its largest yellow blob is not ball-like ({b['n']} px where a ball has {b['expected_n']:.0f}, "
+            f"fill {b['fill']:.2f})"
+            if b is not None
+            else "no yellow blob"
+        )
         return {"binary": 0, "partial": 0, "reason": f"no compact ball in the last frame: {why}; {stay}"}
     d = r["distance"]
     partial = int(min(100, round(100 * d / need)))

@@ -91,6 +91,11 @@ def position_errors(pred: np.ndarray, gt: np.ndarray, target: ColorTarget) -> di
     err[both] = np.linalg.norm(pp[both] - gp[both], axis=1)
     err[shown & ~found] = diag
     n = int(shown.sum())
-    return {"error_px": float(np.nanmean(err)) if n else float("nan"),
-            "median_px": float(np.nanmedian(err)) if n else float("nan"),
-            "found": float(found[shown].mean()) if n else float("nan"), "frames": n, "per_frame": err, "gt_px": gp}
+    return {
+        "error_px": float(np.nanmean(err)) if n else float("nan"),
+        "median_px": float(np.nanmedian(err)) if n else float("nan"),
+        "found": float(found[shown].mean()) if n else float("nan"),
+        "frames": n,
+        "per_frame": err,
+        "gt_px": gp,
+    }

@@ -39,9 +39,22 @@ from ..kinematics.workspace import (
 )
 from ..plugin.embodiment import Embodiment
 
-__all__ = ["ToyWorldError", "check_supported", "joint_limits", "Motion", "sample_motion", "carry_object",
-           "min_jerk", "openness_to_signal", "ee_points", "miss_start", "GRAB_RADII", "MISS_NEAR_RADII",
-           "MISS_FAR_RADII", "MISS_NEAR_FRACTION"]
+__all__ = [
+    "ToyWorldError",
+    "check_supported",
+    "joint_limits",
+    "Motion",
+    "sample_motion",
+    "carry_object",
+    "min_jerk",
+    "openness_to_signal",
+    "ee_points",
+    "miss_start",
+    "GRAB_RADII",
+    "MISS_NEAR_RADII",
+    "MISS_FAR_RADII",
+    "MISS_NEAR_FRACTION",
+]
 
 OPEN_THRESHOLD = 0.5
 #: The carry rule's grab distance, ball radii.
@@ -64,7 +77,8 @@ def check_supported(emb: Embodiment) -> None:
         raise ToyWorldError(
             f"toyworld: embodiment {emb.name!r} reads its skeleton from keypoints (it overrides Embodiment.frames, "
             f"as hands do); the toy world draws joint-space motions inside URDF limits and supports only "
-            f"kinematic-tree embodiments (urdf/xacro)")
+            f"kinematic-tree embodiments (urdf/xacro)"
+        )
     if len(emb.joint_names) == 0:
         raise ToyWorldError(f"toyworld: embodiment {emb.name!r} has no movable joints to move")
     if len(emb.edges) == 0:
@@ -80,12 +94,13 @@ def min_jerk(keys: np.ndarray, times: np.ndarray, T: int) -> np.ndarray:
         t0, t1 = int(times[k]), int(times[k + 1])
         s = (np.arange(t0, t1 + 1) - t0) / max(t1 - t0, 1)
         w = 10 * s**3 - 15 * s**4 + 6 * s**5
-        out[t0:t1 + 1] = keys[k] + w[:, None] * (keys[k + 1] - keys[k])
+        out[t0 : t1 + 1] = keys[k] + w[:, None] * (keys[k + 1] - keys[k])
     return out
 
 
-def carry_object(ee: np.ndarray, openness: np.ndarray, start: np.ndarray, radius: float,
-                 grab_distance: float) -> tuple[np.ndarray, np.ndarray]:
+def carry_object(
+    ee: np.ndarray, openness: np.ndarray, start: np.ndarray, radius: float, grab_distance: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Object positions under the attachment rule of the module docstring.
 
     ee: (T, 3) end-effector, metres; openness: (T,) of the gripper that
@@ -134,8 +149,9 @@ class Motion:
     missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
 
 
-def miss_start(rng: np.random.Generator, grasp_xy: np.ndarray, base_xy: np.ndarray, radius: float,
-               scale: float) -> np.ndarray:
+def miss_start(
+    rng: np.random.Generator, grasp_xy: np.ndarray, base_xy: np.ndarray, radius: float, scale: float
+) -> np.ndarray:
     """(2,) floor position, metres, of a missed pick's ball: at a distance from ``grasp_xy`` (the grasp
     end-effector, metres) drawn from the near band with probability :data:`MISS_NEAR_FRACTION` (else the far
     band), in ``radius`` units, at the first of 16 uniform angles that keeps it at least 0.25 ``scale`` from the
@@ -151,9 +167,16 @@ def miss_start(rng: np.random.Generator, grasp_xy: np.ndarray, base_xy: np.ndarr
     return cand[ok[0] if len(ok) else int(np.argmax(from_base))]
 
 
-def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: float = 10.0,
-                  pick_place_prob: float = 0.75, n_candidates: int = 768, pick_miss: float = 0.0,
-                  miss_rng: np.random.Generator | None = None) -> Motion:
+def sample_motion(
+    emb: Embodiment,
+    rng: np.random.Generator,
+    frames: int,
+    fps: float = 10.0,
+    pick_place_prob: float = 0.75,
+    n_candidates: int = 768,
+    pick_miss: float = 0.0,
+    miss_rng: np.random.Generator | None = None,
+) -> Motion:
     """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
     reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses.
 
@@ -225,7 +248,7 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
         n_keys = int(rng.integers(3, 5))
         keys = q[rng.choice(valid, size=n_keys)]
         times = np.unique(np.round(np.linspace(0, T - 1, n_keys)).astype(int))
-        qt = min_jerk(keys[:len(times)], times, T)
+        qt = min_jerk(keys[: len(times)], times, T)
         openness = np.ones((T, G))
         for i in range(G):
             if rng.uniform() < 0.6:
@@ -235,8 +258,14 @@ def sample_motion(emb: Embodiment, rng: np.random.Generator, frames: int, fps: f
         # the object lies somewhere on the floor in the workspace
         k = int(rng.choice(valid))
         obj0 = np.array([ee[k, 0], ee[k, 1], R])
-    traj = Trajectory(emb.joint_names, qt, fps, openness_to_signal(emb, openness), emb.gripper_names or None,
-                      source=f"<toyworld {emb.name}>")
+    traj = Trajectory(
+        emb.joint_names,
+        qt,
+        fps,
+        openness_to_signal(emb, openness),
+        emb.gripper_names or None,
+        source=f"<toyworld {emb.name}>",
+    )
     points, ee_t = ee_points(emb, traj)
     if G:
         obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=GRAB_RADII * R)

@@ -33,32 +33,51 @@ def file_hashes(folder) -> dict[str, str]:
 def model_card_markdown(name: str, card: dict, training: dict, table: dict | None) -> str:
     """The README.md of a shipped toy model (markdown, with the Hub's YAML metadata block on top:
     :func:`oscar_core.model.hub_card.with_hub_metadata`)."""
-    lines = [f"# {name}", "",
-             "A small OSCAR world model trained on oscar's procedural toy world (docs/toyworld.md) on a 2-core CPU.",
-             "It is the toy-scale test of the paper's central claim, that the skeleton video drives the generated "
-             "video; the table below says how far this checkpoint gets. It is not a model of real robots or real "
-             "scenes.", "",
-             "## Model", "",
-             f"- DiT: `OscarTransformer3DModel`, {training.get('transformer_parameters', '?')} parameters; "
-             f"VAE: `AutoencoderKLWan` (4x time, 4x space), {training.get('vae_parameters', '?')} parameters.",
-             f"- Chunk: {card.get('chunk_frames')} frames at {card.get('width')}x{card.get('height')}, "
-             f"{card.get('fps')} fps; unconditional skeleton: {card.get('unconditional_skeleton')}; "
-             "prompt: the zero embedding (trained without text).",
-             f"- Trained on: {', '.join(card.get('embodiments', []))} (held out: "
-             f"{', '.join(training.get('heldout_embodiments', [])) or 'none'}).", "",
-             "## Training", ""]
+    lines = [
+        f"# {name}",
+        "",
+        "A small OSCAR world model trained on oscar's procedural toy world (docs/toyworld.md) on a 2-core CPU.",
+        "It is the toy-scale test of the paper's central claim, that the skeleton video drives the generated "
+        "video; the table below says how far this checkpoint gets. It is not a model of real robots or real "
+        "scenes.",
+        "",
+        "## Model",
+        "",
+        f"- DiT: `OscarTransformer3DModel`, {training.get('transformer_parameters', '?')} parameters; "
+        f"VAE: `AutoencoderKLWan` (4x time, 4x space), {training.get('vae_parameters', '?')} parameters.",
+        f"- Chunk: {card.get('chunk_frames')} frames at {card.get('width')}x{card.get('height')}, "
+        f"{card.get('fps')} fps; unconditional skeleton: {card.get('unconditional_skeleton')}; "
+        "prompt: the zero embedding (trained without text).",
+        f"- Trained on: {', '.join(card.get('embodiments', []))} (held out: "
+        f"{', '.join(training.get('heldout_embodiments', [])) or 'none'}).",
+        "",
+        "## Training",
+        "",
+    ]
     for k, v in training.items():
         if k not in ("transformer_parameters", "vae_parameters", "heldout_embodiments"):
             lines.append(f"- {k}: {v}")
     if table:
         lines += ["", "## Measured (held-out episodes)", "", table.get("markdown", "").rstrip()]
-    lines += ["", "## Licence", "", f"{card.get('license') or 'Apache-2.0'} (the weights, like the code of oscar-wm).",
-              ""]
+    lines += [
+        "",
+        "## Licence",
+        "",
+        f"{card.get('license') or 'Apache-2.0'} (the weights, like the code of oscar-wm).",
+        "",
+    ]
     return with_hub_metadata("\n".join(lines), card, tags=("toy-world",))
 
 
-def package_toy_model(export, out, *, name: str = "oscar-toy", license: str = "Apache-2.0",
-                      training: dict | None = None, table: dict | None = None) -> dict[str, str]:
+def package_toy_model(
+    export,
+    out,
+    *,
+    name: str = "oscar-toy",
+    license: str = "Apache-2.0",
+    training: dict | None = None,
+    table: dict | None = None,
+) -> dict[str, str]:
     """Write the shipped folder ``out`` from the exported run ``export``; returns its file hashes."""
     from dataclasses import replace
 

@@ -46,9 +46,23 @@ from ..kinematics.workspace import ee_points, joint_limits, open_fk, openness_to
 from ..plugin.embodiment import Embodiment
 from .motion import GRAB_RADII, Motion, ToyWorldError, carry_object, check_supported, min_jerk
 
-__all__ = ["Policy", "POLICIES", "SUCCESS_RADII", "PLACE_MIN_RADII", "GRAB_RADII", "Session", "PolicyEpisode",
-           "plan_session", "policy_eval_refusal", "CANDIDATE_ROUNDS", "policy_motion", "session_rng",
-           "floor_homography", "write_policy_eval", "TASK"]
+__all__ = [
+    "Policy",
+    "POLICIES",
+    "SUCCESS_RADII",
+    "PLACE_MIN_RADII",
+    "GRAB_RADII",
+    "Session",
+    "PolicyEpisode",
+    "plan_session",
+    "policy_eval_refusal",
+    "CANDIDATE_ROUNDS",
+    "policy_motion",
+    "session_rng",
+    "floor_homography",
+    "write_policy_eval",
+    "TASK",
+]
 
 _log = get_logger(__name__)
 
@@ -69,8 +83,12 @@ class Policy:
 
 
 #: The default policies, best first.
-POLICIES: tuple[Policy, ...] = (Policy("expert", 0.3), Policy("good", 1.25), Policy("sloppy", 2.0),
-                                 Policy("random", 4.0))
+POLICIES: tuple[Policy, ...] = (
+    Policy("expert", 0.3),
+    Policy("good", 1.25),
+    Policy("sloppy", 2.0),
+    Policy("random", 4.0),
+)
 
 
 @dataclass
@@ -108,8 +126,9 @@ class Session:
     episodes: list[PolicyEpisode] = field(default_factory=list)
 
 
-def session_rng(seed: int, embodiment: str, index: int, attempt: int = 0, policy: str | None = None
-                ) -> np.random.Generator:
+def session_rng(
+    seed: int, embodiment: str, index: int, attempt: int = 0, policy: str | None = None
+) -> np.random.Generator:
     """The generator of session ``index`` of ``embodiment`` (and of one policy's aim in it): independent of
     every other session, and of the training episodes of the same seed (``episode_rng``)."""
     words = [int(seed), zlib.crc32(embodiment.encode()), int(index), 0x9E55, int(attempt)]
@@ -118,9 +137,20 @@ def session_rng(seed: int, embodiment: str, index: int, attempt: int = 0, policy
     return np.random.default_rng(np.random.SeedSequence(words))
 
 
-def _reach(emb: Embodiment, q: np.ndarray, ee: np.ndarray, ok: np.ndarray, target: np.ndarray, lo: np.ndarray,
-           hi: np.ndarray, floor: float, rng: np.random.Generator, rounds: int = 10, keep: int = 6,
-           proposals: int = 24) -> np.ndarray:
+def _reach(
+    emb: Embodiment,
+    q: np.ndarray,
+    ee: np.ndarray,
+    ok: np.ndarray,
+    target: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    floor: float,
+    rng: np.random.Generator,
+    rounds: int = 10,
+    keep: int = 6,
+    proposals: int = 24,
+) -> np.ndarray:
     """The configuration (J,) whose end-effector is nearest ``target`` (3,) metres: the best of the candidates
     ``q`` (N, J) (``ee`` (N, 3), ``ok`` (N,) allowed), refined by ``rounds`` of Gaussian perturbations in joint
     space with a shrinking step; a proposal with a skeleton point below ``floor`` metres is rejected."""
@@ -170,8 +200,9 @@ class _Candidates:
     usable: np.ndarray
 
 
-def _candidates(emb: Embodiment, rng: np.random.Generator, n_candidates: int,
-                rounds: int = CANDIDATE_ROUNDS) -> _Candidates:
+def _candidates(
+    emb: Embodiment, rng: np.random.Generator, n_candidates: int, rounds: int = CANDIDATE_ROUNDS
+) -> _Candidates:
     """Draw ``n_candidates`` configurations uniformly inside the joint limits (forward kinematics only), and
     another ``n_candidates`` while no floor pose has a place :data:`PLACE_MIN_RADII` ball radii away or no high
     pose exists, at most ``rounds`` times. A floor pose puts the end-effector 2 ± 0.6 ball radii above the floor
@@ -190,8 +221,11 @@ def _candidates(emb: Embodiment, rng: np.random.Generator, n_candidates: int,
         R = 0.09 * scale  # as sample_motion: a ball about 7 pixels across at 64 x 64
         floor = -0.02 * scale
         above = (pts[..., 2].min(1) >= floor) & (ee[:, 2] >= R)
-        grasp = np.flatnonzero(above & (np.abs(ee[:, 2] - 2 * R) <= 0.6 * R)
-                               & (np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale))
+        grasp = np.flatnonzero(
+            above
+            & (np.abs(ee[:, 2] - 2 * R) <= 0.6 * R)
+            & (np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale)
+        )
         high = np.flatnonzero(above & (ee[:, 2] >= 2 * R + 0.25 * scale))
         far = np.linalg.norm(ee[grasp, None, :2] - ee[None, grasp, :2], axis=-1) >= PLACE_MIN_RADII * R
         usable = grasp[far.any(1)]
@@ -215,21 +249,34 @@ def policy_eval_refusal(emb: Embodiment, n_candidates: int = 768) -> str | None:
     rounds = CANDIDATE_ROUNDS
     c = _candidates(emb, np.random.default_rng(0), n_candidates * rounds, rounds=1)
     if len(c.grasp) < 2 or len(c.high) < 1:
-        return (f"embodiment {emb.name!r}: expected poses that reach the floor and lift well above it, found "
-                f"{len(c.grasp)} floor and {len(c.high)} high poses in {len(c.q)} sampled configurations")
+        return (
+            f"embodiment {emb.name!r}: expected poses that reach the floor and lift well above it, found "
+            f"{len(c.grasp)} floor and {len(c.high)} high poses in {len(c.q)} sampled configurations"
+        )
     if len(c.usable) == 0:
         xy = c.ee[c.grasp, :2]
         span = float(np.linalg.norm(xy[:, None] - xy[None], axis=-1).max())
-        return (f"embodiment {emb.name!r}: its end-effector reaches the floor over a patch {span:.2f} m across "
-                f"(its base stays still in the toy world), and a pick-and-place needs a place "
-                f"{PLACE_MIN_RADII:g} ball radii = {PLACE_MIN_RADII * c.radius:.2f} m from the ball "
-                f"({len(c.q)} sampled configurations)")
+        return (
+            f"embodiment {emb.name!r}: its end-effector reaches the floor over a patch {span:.2f} m across "
+            f"(its base stays still in the toy world), and a pick-and-place needs a place "
+            f"{PLACE_MIN_RADII:g} ball radii = {PLACE_MIN_RADII * c.radius:.2f} m from the ball "
+            f"({len(c.q)} sampled configurations)"
+        )
     return None
 
 
-def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: int, frames: int,
-                 fps: float = 10.0, policies=POLICIES, policy_rngs: dict | None = None,
-                 n_candidates: int = 768, rounds: int = CANDIDATE_ROUNDS) -> Session:
+def plan_session(
+    emb: Embodiment,
+    rng: np.random.Generator,
+    width: int,
+    height: int,
+    frames: int,
+    fps: float = 10.0,
+    policies=POLICIES,
+    policy_rngs: dict | None = None,
+    n_candidates: int = 768,
+    rounds: int = CANDIDATE_ROUNDS,
+) -> Session:
     """Plan one session and every policy's episode in it (no rendering).
 
     rng: the session's generator (scene, ball, poses, timing, camera);
@@ -250,11 +297,15 @@ def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: 
     q, pts, ee, above, grasp, high, usable = c.q, c.pts, c.ee, c.above, c.grasp, c.high, c.usable
     lo, hi, scale, R, floor = c.lo, c.hi, c.scale, c.radius, c.floor
     if len(grasp) < 2 or len(high) < 1:
-        raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r}: expected poses that reach the floor and "
-                            f"lift well above it, found {len(grasp)} floor and {len(high)} high poses")
+        raise ToyWorldError(
+            f"toyworld policy-eval: embodiment {emb.name!r}: expected poses that reach the floor and "
+            f"lift well above it, found {len(grasp)} floor and {len(high)} high poses"
+        )
     if len(usable) == 0:
-        raise ToyWorldError(f"toyworld policy-eval: embodiment {emb.name!r}: expected two floor poses at least "
-                            f"{PLACE_MIN_RADII} ball radii apart, found none in {len(q)} sampled configurations")
+        raise ToyWorldError(
+            f"toyworld policy-eval: embodiment {emb.name!r}: expected two floor poses at least "
+            f"{PLACE_MIN_RADII} ball radii apart, found none in {len(q)} sampled configurations"
+        )
     g = int(rng.choice(usable))
     ball = np.array([ee[g, 0], ee[g, 1], R])
     places = grasp[np.linalg.norm(ee[grasp, :2] - ball[:2], axis=1) >= PLACE_MIN_RADII * R]
@@ -276,22 +327,39 @@ def plan_session(emb: Embodiment, rng: np.random.Generator, width: int, height: 
         qg = _reach(emb, q, ee, above, target, lo, hi, floor, prng)
         mid = (qg + place) / 2
         lift = q[int(high[np.argmin(np.linalg.norm(q[high] - mid, axis=1))])]
-        motion = policy_motion(emb, [start, qg, qg, lift, place, place, end], times, close_at, release, ball, R,
-                               scale, fps)
+        motion = policy_motion(
+            emb, [start, qg, qg, lift, place, place, end], times, close_at, release, ball, R, scale, fps
+        )
         disp = float(np.linalg.norm(motion.object[-1, :2] - ball[:2]) / R)
         grabbed = bool(motion.attached.any())
         grasp_err = (motion.ee[a, :2] - ball[:2]) / R
-        episodes.append(PolicyEpisode(pol, motion, int(grabbed and disp >= SUCCESS_RADII), grabbed, disp, aim,
-                                      grasp_err))
+        episodes.append(
+            PolicyEpisode(pol, motion, int(grabbed and disp >= SUCCESS_RADII), grabbed, disp, aim, grasp_err)
+        )
     scene = sample_scene(rng, len(emb.edges), scale)
-    seen = np.concatenate([np.concatenate([ep.motion.points.reshape(-1, 3), ep.motion.object + [0, 0, R],
-                                           ep.motion.object - [0, 0, R]]) for ep in episodes])
+    seen = np.concatenate(
+        [
+            np.concatenate(
+                [ep.motion.points.reshape(-1, 3), ep.motion.object + [0, 0, R], ep.motion.object - [0, 0, R]]
+            )
+            for ep in episodes
+        ]
+    )
     camera = sample_camera(rng, seen, width, height, base_xy=pts[0, 0, :2], embodiment=emb.name)
     return Session(emb.name, ball, R, scale, scene, camera, episodes)
 
 
-def policy_motion(emb: Embodiment, keys, times: np.ndarray, close_at: int, release: int, ball: np.ndarray,
-                  radius: float, scale: float, fps: float = 10.0) -> Motion:
+def policy_motion(
+    emb: Embodiment,
+    keys,
+    times: np.ndarray,
+    close_at: int,
+    release: int,
+    ball: np.ndarray,
+    radius: float,
+    scale: float,
+    fps: float = 10.0,
+) -> Motion:
     """A pick-and-place :class:`Motion` through joint keyframes ``keys`` (7 of (J,): start, grasp, grasp, lift,
     place, place, end) at frames ``times`` (7,): the first gripper closes at frame ``close_at`` (one in-between
     frame before) and opens at ``release``; the ball (3,) metres of ``radius`` metres moves by the carry rule."""
@@ -304,8 +372,14 @@ def policy_motion(emb: Embodiment, keys, times: np.ndarray, close_at: int, relea
     openness[close_at:release, 0] = 0.0
     if close_at > 0:
         openness[close_at - 1, 0] = 0.6  # as sample_motion: fingers on the way
-    traj = Trajectory(emb.joint_names, qt, fps, openness_to_signal(emb, openness), emb.gripper_names or None,
-                      source=f"<toyworld policy-eval {emb.name}>")
+    traj = Trajectory(
+        emb.joint_names,
+        qt,
+        fps,
+        openness_to_signal(emb, openness),
+        emb.gripper_names or None,
+        source=f"<toyworld policy-eval {emb.name}>",
+    )
     points, ee = ee_points(emb, traj)
     obj, attached = carry_object(ee, openness[:, 0], ball, radius, grab_distance=GRAB_RADII * radius)
     return Motion(traj, "pick_place", points, ee, obj, attached, radius, scale)
@@ -329,8 +403,10 @@ def floor_homography(camera: Camera, height_m: float, unit_m: float) -> np.ndarr
     pr = project(world, camera)
     good = pr.in_front & (pr.depth > 1e-6)
     if good.sum() < 4:
-        raise ValueError(f"floor homography: expected the plane z = {height_m:.3g} m in front of the camera, "
-                         f"found {int(good.sum())} of 25 grid points in front ({K.width}x{K.height} camera)")
+        raise ValueError(
+            f"floor homography: expected the plane z = {height_m:.3g} m in front of the camera, "
+            f"found {int(good.sum())} of 25 grid points in front ({K.width}x{K.height} camera)"
+        )
     Hm, _ = cv2.findHomography(pr.uv[good].astype(np.float64), world[good, :2] / unit_m, 0)
     return Hm
 
@@ -360,9 +436,21 @@ def _png_bytes(img: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: int = 64, height: int = 64,
-                      frames: int = 17, fps: float = 10.0, supersample: int = 2, policies=POLICIES, registry=None,
-                      progress: Callable[[str], None] | None = None) -> dict:
+def write_policy_eval(
+    out,
+    embodiments,
+    sessions: int,
+    *,
+    seed: int = 0,
+    width: int = 64,
+    height: int = 64,
+    frames: int = 17,
+    fps: float = 10.0,
+    supersample: int = 2,
+    policies=POLICIES,
+    registry=None,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
     """Write ``sessions`` sessions per embodiment and ``out``/manifest.json; returns the summary also written
     to ``out``/policy_eval.json (true success rate per policy, per embodiment and overall).
 
@@ -380,8 +468,10 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
     if sessions < 1:
         raise ValueError(f"toyworld policy-eval: --sessions: expected at least 1, found {sessions}")
     if width % 16 or height % 16 or width <= 0 or height <= 0:
-        raise ValueError(f"toyworld policy-eval: --size: expected WIDTHxHEIGHT, both multiples of 16 (the rollout "
-                         f"size of oscar eval run), found {width}x{height}")
+        raise ValueError(
+            f"toyworld policy-eval: --size: expected WIDTHxHEIGHT, both multiples of 16 (the rollout "
+            f"size of oscar eval run), found {width}x{height}"
+        )
     names = [p.name for p in policies]
     if len(set(names)) != len(names) or not names:
         raise ValueError(f"toyworld policy-eval: policies: expected unique names, found {names}")
@@ -398,8 +488,16 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
         for i in range(sessions):
             for attempt in range(MAX_ATTEMPTS):
                 try:
-                    s = plan_session(emb, session_rng(seed, emb.name, i, attempt), width, height, frames, fps,
-                                     policies, {n: session_rng(seed, emb.name, i, attempt, n) for n in names})
+                    s = plan_session(
+                        emb,
+                        session_rng(seed, emb.name, i, attempt),
+                        width,
+                        height,
+                        frames,
+                        fps,
+                        policies,
+                        {n: session_rng(seed, emb.name, i, attempt, n) for n in names},
+                    )
                 except ValueError as exc:  # no camera sees it all: draw the session again
                     if isinstance(exc, ToyWorldError) or attempt == MAX_ATTEMPTS - 1:
                         raise
@@ -408,9 +506,11 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
                 if _outcome_visible(s, renders):
                     break
                 if attempt == MAX_ATTEMPTS - 1:
-                    raise ToyWorldError(f"toyworld policy-eval: {emb.name} session {i}: expected a camera that sees "
-                                        f"the ball at the start and the end of every episode, found none in "
-                                        f"{MAX_ATTEMPTS} attempts")
+                    raise ToyWorldError(
+                        f"toyworld policy-eval: {emb.name} session {i}: expected a camera that sees "
+                        f"the ball at the start and the end of every episode, found none in "
+                        f"{MAX_ATTEMPTS} attempts"
+                    )
             name = f"{emb.name}-{i:04d}"
             folder = out / name
             folder.mkdir(exist_ok=True)
@@ -426,31 +526,66 @@ def write_policy_eval(out, embodiments, sessions: int, *, seed: int = 0, width: 
                     raise AssertionError(f"{name}: policy {ep.policy.name!r} starts from a different first frame")
                 save_trajectory(ep.motion.trajectory, folder / f"{ep.policy.name}.npz")
                 write_video(folder / f"{ep.policy.name}_real.mkv", render.rgb, fps)
-                info = {"ball_start_px": [round(float(v), 3) for v in start_px], "ball_radius_px": round(r_px, 3),
-                        "px_to_floor_radii": [[float(v) for v in row] for row in Hm],
-                        "success_radii": SUCCESS_RADII}  # nothing about the outcome or the policy
-                cells.append({"session": name, "policy": ep.policy.name, "embodiment": emb.name,
-                              "first_frame": f"{name}/first.png", "trajectory": f"{name}/{ep.policy.name}.npz",
-                              "camera": f"{name}/camera.json", "real_success": ep.success,
-                              "real_video": f"{name}/{ep.policy.name}_real.mkv", "info": info})
-                rows.append({"session": name, "embodiment": emb.name, "policy": ep.policy.name,
-                             "attempt": attempt, "real_success": ep.success, "grabbed": ep.grabbed,
-                             "displacement_radii": round(ep.displacement, 3),
-                             "aim_error_radii": [round(float(v), 3) for v in ep.aim_error],
-                             "grasp_error_radii": [round(float(v), 3) for v in ep.grasp_error]})
+                info = {
+                    "ball_start_px": [round(float(v), 3) for v in start_px],
+                    "ball_radius_px": round(r_px, 3),
+                    "px_to_floor_radii": [[float(v) for v in row] for row in Hm],
+                    "success_radii": SUCCESS_RADII,
+                }  # nothing about the outcome or the policy
+                cells.append(
+                    {
+                        "session": name,
+                        "policy": ep.policy.name,
+                        "embodiment": emb.name,
+                        "first_frame": f"{name}/first.png",
+                        "trajectory": f"{name}/{ep.policy.name}.npz",
+                        "camera": f"{name}/camera.json",
+                        "real_success": ep.success,
+                        "real_video": f"{name}/{ep.policy.name}_real.mkv",
+                        "info": info,
+                    }
+                )
+                rows.append(
+                    {
+                        "session": name,
+                        "embodiment": emb.name,
+                        "policy": ep.policy.name,
+                        "attempt": attempt,
+                        "real_success": ep.success,
+                        "grabbed": ep.grabbed,
+                        "displacement_radii": round(ep.displacement, 3),
+                        "aim_error_radii": [round(float(v), 3) for v in ep.aim_error],
+                        "grasp_error_radii": [round(float(v), 3) for v in ep.grasp_error],
+                    }
+                )
             (progress or _log.info)(f"{name}: " + ", ".join(f"{ep.policy.name} {ep.success}" for ep in s.episodes))
-    manifest = {"format": "oscar-eval-manifest", "policies": names,
-                "description": (f"toy-world pick-and-place, {sessions} sessions x {len(embs)} embodiments "
-                                f"({','.join(e.name for e in embs)}), seed {seed}; oscar toyworld policy-eval"),
-                "defaults": {"size": f"{width}x{height}", "task": TASK}, "cells": cells}
+    manifest = {
+        "format": "oscar-eval-manifest",
+        "policies": names,
+        "description": (
+            f"toy-world pick-and-place, {sessions} sessions x {len(embs)} embodiments "
+            f"({','.join(e.name for e in embs)}), seed {seed}; oscar toyworld policy-eval"
+        ),
+        "defaults": {"size": f"{width}x{height}", "task": TASK},
+        "cells": cells,
+    }
     atomic_write_bytes(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
-    summary = {"seed": seed, "sessions": sessions, "embodiments": [e.name for e in embs], "frames": frames,
-               "size": [width, height], "success_radii": SUCCESS_RADII, "grab_radii": GRAB_RADII,
-               "policies": {p.name: {"aim_sigma_radii": p.aim_sigma} for p in policies}, "rows": rows}
+    summary = {
+        "seed": seed,
+        "sessions": sessions,
+        "embodiments": [e.name for e in embs],
+        "frames": frames,
+        "size": [width, height],
+        "success_radii": SUCCESS_RADII,
+        "grab_radii": GRAB_RADII,
+        "policies": {p.name: {"aim_sigma_radii": p.aim_sigma} for p in policies},
+        "rows": rows,
+    }
     for p in names:
         mine = [r for r in rows if r["policy"] == p]
         summary["policies"][p]["success_rate"] = float(np.mean([r["real_success"] for r in mine]))
         summary["policies"][p]["by_embodiment"] = {
-            e.name: float(np.mean([r["real_success"] for r in mine if r["embodiment"] == e.name])) for e in embs}
+            e.name: float(np.mean([r["real_success"] for r in mine if r["embodiment"] == e.name])) for e in embs
+        }
     atomic_write_bytes(out / "policy_eval.json", (json.dumps(summary, indent=1) + "\n").encode())
     return summary

@@ -86,8 +86,9 @@ class Canvas:
         zb[win] = depth[win]
         self.label[sl][win] = label
 
-    def capsule(self, p0, p1, z0: float, z1: float, radius: float, focal: float, color, light: Light,
-                label: int) -> None:
+    def capsule(
+        self, p0, p1, z0: float, z1: float, radius: float, focal: float, color, light: Light, label: int
+    ) -> None:
         """A capsule between pixels ``p0``, ``p1`` (2,) at depths ``z0``, ``z1`` (metres, > 0).
 
         radius: metres; focal: pixels (its on-screen radius is radius·focal/z,
@@ -96,8 +97,9 @@ class Canvas:
         p0, p1 = np.asarray(p0, dtype=np.float64), np.asarray(p1, dtype=np.float64)
         r0, r1 = radius * focal / z0, radius * focal / z1
         rmax = max(r0, r1)
-        box = self._box(min(p0[0], p1[0]) - rmax, max(p0[0], p1[0]) + rmax,
-                        min(p0[1], p1[1]) - rmax, max(p0[1], p1[1]) + rmax)
+        box = self._box(
+            min(p0[0], p1[0]) - rmax, max(p0[0], p1[0]) + rmax, min(p0[1], p1[1]) - rmax, max(p0[1], p1[1]) + rmax
+        )
         if box is None:
             return
         sl, xs, ys = box

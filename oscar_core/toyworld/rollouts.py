@@ -52,7 +52,7 @@ def spread(records: list, limit: int | None) -> list:
     """At most ``limit`` of ``records``, every k-th (so every embodiment of a clip set is represented)."""
     if limit is None or len(records) <= limit:
         return list(records)
-    return list(records[::len(records) // limit][:limit])
+    return list(records[:: len(records) // limit][:limit])
 
 
 def skeleton_partners(records) -> dict[str, str]:
@@ -73,21 +73,43 @@ def skeleton_partners(records) -> dict[str, str]:
 _log = get_logger(__name__)
 
 
-def sampler_for_card(card, steps: int | None = None, guidance: float | None = None,
-                     guidance_form: str | None = None, guidance_interval: tuple[float, float] | None = None,
-                     preset: str | None = None):
+def sampler_for_card(
+    card,
+    steps: int | None = None,
+    guidance: float | None = None,
+    guidance_form: str | None = None,
+    guidance_interval: tuple[float, float] | None = None,
+    preset: str | None = None,
+):
     """A ``SamplerConfig``: the given steps / guidance / form / preset, else the card's recommended ones
     (``card.sampler``), else the library's defaults (35 steps, guidance 6 in the diffusers form at every step);
     :func:`oscar_core.model.sampler.resolve_sampler`."""
     from ..model.sampler import resolve_sampler
 
-    return resolve_sampler(getattr(card, "sampler", None), steps=steps, guidance=guidance,
-                           guidance_form=guidance_form, guidance_interval=guidance_interval, preset=preset).config
+    return resolve_sampler(
+        getattr(card, "sampler", None),
+        steps=steps,
+        guidance=guidance,
+        guidance_form=guidance_form,
+        guidance_interval=guidance_interval,
+        preset=preset,
+    ).config
 
 
-def write_rollouts(model, clipset, out, condition: str = "true", *, split: str | None = "heldout",
-                   limit: int | None = None, sampler=None, seed: int = 0, registry=None,
-                   log: Callable[[str], None] | None = None, model_id: str | None = None) -> dict:
+def write_rollouts(
+    model,
+    clipset,
+    out,
+    condition: str = "true",
+    *,
+    split: str | None = "heldout",
+    limit: int | None = None,
+    sampler=None,
+    seed: int = 0,
+    registry=None,
+    log: Callable[[str], None] | None = None,
+    model_id: str | None = None,
+) -> dict:
     """Roll ``model`` (an ``OscarWorldModel``) out on every clip of ``split`` under ``condition``; see the module.
 
     limit: at most this many clips, every k-th of the split's (so every
@@ -117,12 +139,22 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
     partner = skeleton_partners(recs)
     out = Path(out)
     card = model.card
-    parts = {"stage": "toyworld-rollout", "format": _stage.FORMAT_VERSION, "model": model_id,
-             "card": dataclasses.asdict(card) if dataclasses.is_dataclass(card) else repr(card),
-             "condition": condition, "split": split, "limit": limit,
-             "clips": {"set": str(Path(clipset).resolve()), "ids": [r.id for r in recs],
-                       "frames": [r.n_frames for r in recs]},
-             "sampler": dataclasses.asdict(sampler), "seed": seed}
+    parts = {
+        "stage": "toyworld-rollout",
+        "format": _stage.FORMAT_VERSION,
+        "model": model_id,
+        "card": dataclasses.asdict(card) if dataclasses.is_dataclass(card) else repr(card),
+        "condition": condition,
+        "split": split,
+        "limit": limit,
+        "clips": {
+            "set": str(Path(clipset).resolve()),
+            "ids": [r.id for r in recs],
+            "frames": [r.n_frames for r in recs],
+        },
+        "sampler": dataclasses.asdict(sampler),
+        "seed": seed,
+    }
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     sweep_dead_temporaries(out)
     written = kept = 0
@@ -134,8 +166,17 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
             kept += 1
             continue
         source = cs.record(partner[rec.id]) if condition == "shuffled" else rec
-        frames, secs = rollout_clip(model, cs, rec, min(rec.n_frames, source.n_frames), sampler=sampler, seed=seed,
-                                    registry=registry, source=source, prompt="empty")
+        frames, secs = rollout_clip(
+            model,
+            cs,
+            rec,
+            min(rec.n_frames, source.n_frames),
+            sampler=sampler,
+            seed=seed,
+            registry=registry,
+            source=source,
+            prompt="empty",
+        )
         seconds.append(secs)
         buf = io.BytesIO()
         np.save(buf, frames.astype(np.uint8))
@@ -146,5 +187,9 @@ def write_rollouts(model, clipset, out, condition: str = "true", *, split: str |
         if log:
             log(msg)
     bar.close()
-    return {"condition": condition, "written": written, "kept": kept,
-            "s_per_rollout": float(np.mean(seconds)) if seconds else None}
+    return {
+        "condition": condition,
+        "written": written,
+        "kept": kept,
+        "s_per_rollout": float(np.mean(seconds)) if seconds else None,
+    }

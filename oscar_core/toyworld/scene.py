@@ -20,8 +20,17 @@ import numpy as np
 from ..camera import Camera, Intrinsics, look_at
 from .raster import Light
 
-__all__ = ["OBJECT_RGB", "EE_RGB", "OBJECT_HUE", "EE_HUE", "LINK_HUES", "Scene", "sample_scene", "background",
-           "sample_camera"]
+__all__ = [
+    "OBJECT_RGB",
+    "EE_RGB",
+    "OBJECT_HUE",
+    "EE_HUE",
+    "LINK_HUES",
+    "Scene",
+    "sample_scene",
+    "background",
+    "sample_camera",
+]
 
 #: Object colour, RGB in [0, 1], and its hue in degrees.
 OBJECT_RGB = (1.0, 0.82, 0.0)
@@ -68,14 +77,39 @@ def sample_scene(rng: np.random.Generator, n_edges: int, scale: float) -> Scene:
     sky_bottom = _hsv(hs + rng.uniform(-60, 60), rng.uniform(0.0, 0.3), rng.uniform(0.3, 0.8))
     lx, ly = rng.uniform(-0.8, 0.8), rng.uniform(-0.9, -0.1)
     d = np.array([lx, ly, -1.0])
-    light = Light(direction=tuple(d / np.linalg.norm(d)), ambient=float(rng.uniform(0.25, 0.45)),
-                  diffuse=float(rng.uniform(0.55, 0.8)), specular=float(rng.uniform(0.1, 0.35)),
-                  shininess=float(rng.uniform(12, 40)), tint=tuple(rng.uniform(0.88, 1.0, 3)))
+    light = Light(
+        direction=tuple(d / np.linalg.norm(d)),
+        ambient=float(rng.uniform(0.25, 0.45)),
+        diffuse=float(rng.uniform(0.55, 0.8)),
+        specular=float(rng.uniform(0.1, 0.35)),
+        shininess=float(rng.uniform(12, 40)),
+        tint=tuple(rng.uniform(0.88, 1.0, 3)),
+    )
     offset = int(rng.integers(len(LINK_HUES)))
-    links = np.stack([_hsv(LINK_HUES[(offset + e) % len(LINK_HUES)] + rng.uniform(-8, 8), rng.uniform(0.45, 0.7),
-                           rng.uniform(0.7, 0.95)) for e in range(n_edges)]) if n_edges else np.zeros((0, 3))
-    return Scene(np.stack([c1, c2]), float(scale * rng.uniform(0.3, 0.6)), int(rng.integers(2**31)), sky_top,
-                 sky_bottom, light, links, float(scale * rng.uniform(3.0, 6.0)))
+    links = (
+        np.stack(
+            [
+                _hsv(
+                    LINK_HUES[(offset + e) % len(LINK_HUES)] + rng.uniform(-8, 8),
+                    rng.uniform(0.45, 0.7),
+                    rng.uniform(0.7, 0.95),
+                )
+                for e in range(n_edges)
+            ]
+        )
+        if n_edges
+        else np.zeros((0, 3))
+    )
+    return Scene(
+        np.stack([c1, c2]),
+        float(scale * rng.uniform(0.3, 0.6)),
+        int(rng.integers(2**31)),
+        sky_top,
+        sky_bottom,
+        light,
+        links,
+        float(scale * rng.uniform(3.0, 6.0)),
+    )
 
 
 def _value_noise(seed: int, xy: np.ndarray, cell: float) -> np.ndarray:
@@ -132,8 +166,16 @@ def background(scene: Scene, camera: Camera) -> tuple[np.ndarray, np.ndarray, np
     return np.clip(rgb, 0, 1), depth, floor_xy
 
 
-def sample_camera(rng: np.random.Generator, points: np.ndarray, width: int, height: int, *,
-                  base_xy=(0.0, 0.0), margin_px: float = 2.0, embodiment: str | None = None) -> Camera:
+def sample_camera(
+    rng: np.random.Generator,
+    points: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    base_xy=(0.0, 0.0),
+    margin_px: float = 2.0,
+    embodiment: str | None = None,
+) -> Camera:
     """A static camera around the robot that sees every point in ``points`` (N, 3) metres.
 
     Looks at the points' bounding-box centre from a random azimuth within 110
@@ -163,9 +205,16 @@ def sample_camera(rng: np.random.Generator, points: np.ndarray, width: int, heig
             cam = Camera(K, look_at(eye, target), embodiment=embodiment)
             pr = project(P, cam)
             u, v = pr.uv[:, 0], pr.uv[:, 1]
-            if (pr.in_front.all() and (pr.depth > 0.05 * radius).all() and (u >= margin_px).all()
-                    and (u <= width - 1 - margin_px).all() and (v >= margin_px).all()
-                    and (v <= height - 1 - margin_px).all()):
+            if (
+                pr.in_front.all()
+                and (pr.depth > 0.05 * radius).all()
+                and (u >= margin_px).all()
+                and (u <= width - 1 - margin_px).all()
+                and (v >= margin_px).all()
+                and (v <= height - 1 - margin_px).all()
+            ):
                 return cam
-    raise ValueError(f"toyworld camera: expected a view that sees all {len(P)} points, found none in 20 tries "
-                     f"(workspace radius {radius:.3g} m)")
+    raise ValueError(
+        f"toyworld camera: expected a view that sees all {len(P)} points, found none in 20 tries "
+        f"(workspace radius {radius:.3g} m)"
+    )

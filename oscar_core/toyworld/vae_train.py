@@ -41,14 +41,30 @@ import numpy as np
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
 
-__all__ = ["VAETrainConfig", "TOY_VAE_CONFIG", "train_vae", "load_clip_frames", "vae_psnr", "load_toy_vae",
-           "write_reconstructions", "chroma_ratio", "moving_pixels"]
+__all__ = [
+    "VAETrainConfig",
+    "TOY_VAE_CONFIG",
+    "train_vae",
+    "load_clip_frames",
+    "vae_psnr",
+    "load_toy_vae",
+    "write_reconstructions",
+    "chroma_ratio",
+    "moving_pixels",
+]
 
 #: The toy world's VAE: z = 16 channels, 4x time compression (as the real WAN 2.1 VAE) but 4x space, not 8x:
 #: two spatial levels instead of three, so a 64 x 64 frame keeps a 16 x 16 latent (at 8 x 8 the 3-pixel arm and
 #: the 7-pixel ball blurred away: 18.4 dB after 45 min of training); base width 16.
-TOY_VAE_CONFIG = dict(base_dim=16, z_dim=16, dim_mult=[1, 2, 2], num_res_blocks=1, attn_scales=[],
-                      temperal_downsample=[True, True], is_residual=False)
+TOY_VAE_CONFIG = dict(
+    base_dim=16,
+    z_dim=16,
+    dim_mult=[1, 2, 2],
+    num_res_blocks=1,
+    attn_scales=[],
+    temperal_downsample=[True, True],
+    is_residual=False,
+)
 
 
 _log = get_logger(__name__)
@@ -105,6 +121,7 @@ def chroma_ratio(pred: np.ndarray, truth: np.ndarray) -> float:
     A pixel's chroma is its RGB minus the mean of its three channels; 1.0 means the
     reconstructions are as colourful as the truth, 0 means grey.
     """
+
     def rms(x):
         x = x.astype(np.float64)
         return float(np.sqrt(np.mean((x - x.mean(-1, keepdims=True)) ** 2)))
@@ -139,9 +156,9 @@ def vae_psnr(vae, frames: np.ndarray, batch: int = 4) -> tuple[float, np.ndarray
     recs, scores = [], []
     with torch.no_grad():
         for i in range(0, len(frames), batch):
-            x = VideoVAE.to_pixels(frames[i:i + batch])
+            x = VideoVAE.to_pixels(frames[i : i + batch])
             y = VideoVAE.to_uint8(vv.reconstruct(x))
-            for a, b in zip(y, frames[i:i + batch]):
+            for a, b in zip(y, frames[i : i + batch]):
                 s = psnr(a, b, n_frames=None)
                 scores.append(np.minimum(s, 100.0).mean())
                 recs.append(a)
@@ -157,7 +174,7 @@ def _latent_stats(vae, frames: np.ndarray, batch: int = 4) -> tuple[list[float],
     zs = []
     with torch.no_grad():
         for i in range(0, len(frames), batch):
-            x = VideoVAE.to_pixels(frames[i:i + batch])
+            x = VideoVAE.to_pixels(frames[i : i + batch])
             zs.append(vae.encode(x).latent_dist.mode().float())
     z = torch.cat(zs).transpose(0, 1).reshape(vae.config.z_dim, -1)
     return z.mean(1).tolist(), z.std(1).clamp_min(1e-4).tolist()
@@ -183,8 +200,10 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     t_load = time.perf_counter()
     train, _ = load_clip_frames(clipset, "train")
     held, held_ids = load_clip_frames(clipset, "heldout", limit=cfg.eval_clips)
-    log(f"data: {len(train)} train clips {train.shape[1:]}, {len(held)} held-out clips "
-        f"({time.perf_counter() - t_load:.1f} s to load)")
+    log(
+        f"data: {len(train)} train clips {train.shape[1:]}, {len(held)} held-out clips "
+        f"({time.perf_counter() - t_load:.1f} s to load)"
+    )
     N, T = train.shape[:2]
     if T < cfg.window:
         raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
@@ -197,7 +216,8 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     n_params = sum(p.numel() for p in vae.parameters())
     opt = torch.optim.AdamW(vae.parameters(), lr=cfg.lr, weight_decay=0.0)
     sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s / max(cfg.steps, 1), 1.0))))
+        opt, lambda s: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s / max(cfg.steps, 1), 1.0)))
+    )
     vae.train()
     curve, evals = [], []
     t0 = time.perf_counter()
@@ -206,8 +226,14 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     def held_out_eval(step: int, wall_s: float | None = None) -> dict:
         """PSNR and chroma ratio of the held-out clips, appended to ``evals`` (wall_s: measured when None)."""
         p, recs = vae_psnr(vae, held)
-        evals.append({"step": step, "psnr_db": p, "chroma_ratio": chroma_ratio(recs, held),
-                      "wall_s": round(time.perf_counter() - t0, 1) if wall_s is None else wall_s})
+        evals.append(
+            {
+                "step": step,
+                "psnr_db": p,
+                "chroma_ratio": chroma_ratio(recs, held),
+                "wall_s": round(time.perf_counter() - t0, 1) if wall_s is None else wall_s,
+            }
+        )
         return evals[-1]
 
     psnr0 = held_out_eval(0, wall_s=0.0)["psnr_db"]
@@ -217,7 +243,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     while step < cfg.steps:
         idx = rng.integers(0, N, cfg.batch)
         starts = rng.integers(0, T - cfg.window + 1, cfg.batch)
-        clip = np.stack([train[i, s:s + cfg.window] for i, s in zip(idx, starts)])
+        clip = np.stack([train[i, s : s + cfg.window] for i, s in zip(idx, starts)])
         flip = rng.uniform(size=cfg.batch) < 0.5  # horizontal flips: more views for free
         clip[flip] = clip[flip][:, :, :, ::-1]
         x = torch.from_numpy(np.ascontiguousarray(clip)).permute(0, 4, 1, 2, 3).float().div(127.5).sub(1.0)
@@ -225,7 +251,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
         y = vae.decode(post.sample() if cfg.sample_posterior else post.mode()).sample
         err = (y - x) ** 2
         rec = torch.mean(err)
-        kl = 0.5 * torch.mean(post.mean ** 2 + post.var - 1.0 - post.logvar)  # per latent element
+        kl = 0.5 * torch.mean(post.mean**2 + post.var - 1.0 - post.logvar)  # per latent element
         loss = rec + cfg.kl * kl
         if cfg.foreground:
             loss = loss + cfg.foreground * torch.mean(moving_pixels(x) * err)
@@ -242,8 +268,10 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
         if step % 25 == 0 or step == 1:
             bar.set_postfix(mse=f"{float(rec.detach()):.5f}", refresh=False)
             curve.append({"step": step, "mse": float(rec.detach()), "kl": float(kl.detach()), "wall_s": round(wall, 1)})
-            log(f"step {step}/{cfg.steps}  mse {curve[-1]['mse']:.5f}  (≈ {10 * math.log10(4 / max(curve[-1]['mse'], 1e-12)):.2f} dB "
-                f"train)  kl {curve[-1]['kl']:.4g}  {wall:.0f} s")
+            log(
+                f"step {step}/{cfg.steps}  mse {curve[-1]['mse']:.5f}  (≈ {10 * math.log10(4 / max(curve[-1]['mse'], 1e-12)):.2f} dB "
+                f"train)  kl {curve[-1]['kl']:.4g}  {wall:.0f} s"
+            )
         if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
             e = held_out_eval(step)
             log(f"step {step}: held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}")
@@ -256,8 +284,10 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
             break
     bar.close()
     e = held_out_eval(step)
-    log(f"done: {step} steps, held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}, "
-        f"{time.perf_counter() - t0:.0f} s (stopped by {stopped})")
+    log(
+        f"done: {step} steps, held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}, "
+        f"{time.perf_counter() - t0:.0f} s (stopped by {stopped})"
+    )
     return _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped)
 
 
@@ -278,10 +308,19 @@ def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, 
         shutil.rmtree(out / "vae")
     os.replace(tmp, out / "vae")
     card = {
-        "format": "oscar-toy-vae", "class": "AutoencoderKLWan", "config": config, "parameters": n_params,
-        "settings": asdict(cfg), "steps_done": step, "stopped_by": stopped,
-        "wall_s": round(time.perf_counter() - t0, 1), "heldout_clips": held_ids,
-        "heldout_psnr_db": evals[-1]["psnr_db"], "heldout_chroma_ratio": evals[-1].get("chroma_ratio"), "evals": evals, "curve": curve,
+        "format": "oscar-toy-vae",
+        "class": "AutoencoderKLWan",
+        "config": config,
+        "parameters": n_params,
+        "settings": asdict(cfg),
+        "steps_done": step,
+        "stopped_by": stopped,
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "heldout_clips": held_ids,
+        "heldout_psnr_db": evals[-1]["psnr_db"],
+        "heldout_chroma_ratio": evals[-1].get("chroma_ratio"),
+        "evals": evals,
+        "curve": curve,
     }
     atomic_write_bytes(out / "vae_card.json", (json.dumps(card, indent=2) + "\n").encode())
     return card
@@ -296,11 +335,14 @@ def load_toy_vae(folder):
     folder = Path(folder)
     if (folder / "vae").is_dir():
         folder = folder / "vae"
-    return build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder).eval()
+    return build_strict(
+        AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder
+    ).eval()
 
 
-def write_reconstructions(clipset, vae_folder, out, split: str | None = "heldout", limit: int | None = None,
-                          threads: int = 1) -> list[str]:
+def write_reconstructions(
+    clipset, vae_folder, out, split: str | None = "heldout", limit: int | None = None, threads: int = 1
+) -> list[str]:
     """Write decode(encode(clip)) of each clip (of ``split``) as ``OUT/<clip id>.npy`` ((T, H, W, 3) uint8).
 
     These are what ``oscar toyworld eval`` scores as the VAE's ceiling: no

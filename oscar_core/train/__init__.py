@@ -10,12 +10,25 @@ from __future__ import annotations
 from .._util.lazy import lazy_exports
 
 _EXPORTS = {
-    "ClipSet": "clips", "ClipSetWriter": "clips", "ClipRecord": "clips", "Clip": "clips",
-    "ClipFormatError": "clips", "clip_openness": "clips",
-    "TrainConfig": "config", "TrainConfigError": "config", "load_config": "config", "config_from_dict": "config",
-    "train": "loop", "TrainResult": "loop", "export_run": "export",
-    "sample_sigmas": "flow", "flow_inputs": "flow", "flow_loss": "flow",
-    "StepPlanner": "sampling", "mixing_weights": "sampling", "window_prior": "sampling",
+    "ClipSet": "clips",
+    "ClipSetWriter": "clips",
+    "ClipRecord": "clips",
+    "Clip": "clips",
+    "ClipFormatError": "clips",
+    "clip_openness": "clips",
+    "TrainConfig": "config",
+    "TrainConfigError": "config",
+    "load_config": "config",
+    "config_from_dict": "config",
+    "train": "loop",
+    "TrainResult": "loop",
+    "export_run": "export",
+    "sample_sigmas": "flow",
+    "flow_inputs": "flow",
+    "flow_loss": "flow",
+    "StepPlanner": "sampling",
+    "mixing_weights": "sampling",
+    "window_prior": "sampling",
     "write_toy_clipset": "synthetic",
 }
 

@@ -63,9 +63,19 @@ def _weights_digest(module) -> str:
     return h.hexdigest()
 
 
-def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_name: str = "",
-                  split: str | None = None, batch: int = 8, registry=None,
-                  log: Callable[[str], None] = print, condition: str = "skeleton") -> CacheSummary:
+def cache_latents(
+    src,
+    out,
+    vae,
+    window: int,
+    stride: int | None = None,
+    vae_name: str = "",
+    split: str | None = None,
+    batch: int = 8,
+    registry=None,
+    log: Callable[[str], None] = print,
+    condition: str = "skeleton",
+) -> CacheSummary:
     """Write ``OUT``: the clip set ``SRC`` with cached latents of ``window``-frame windows.
 
     vae: a :class:`~oscar_core.model.vae.VideoVAE`; window: frames per window
@@ -102,9 +112,17 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
     if not vae_name:
         cfg = json.dumps(dict(vae.vae.config), sort_keys=True, default=str)
         vae_name = "config-sha256:" + hashlib.sha256(cfg.encode()).hexdigest()[:16]
-    parts = {"stage": "latent-cache", "format": _stage.FORMAT_VERSION, "source": str(source.root.resolve()),
-             "vae": vae_name, "vae_weights": _weights_digest(vae.vae), "window": window, "stride": stride,
-             "split": split, "condition": condition}
+    parts = {
+        "stage": "latent-cache",
+        "format": _stage.FORMAT_VERSION,
+        "source": str(source.root.resolve()),
+        "vae": vae_name,
+        "vae_weights": _weights_digest(vae.vae),
+        "window": window,
+        "stride": stride,
+        "split": split,
+        "condition": condition,
+    }
     writer = ClipSetWriter(out)  # first: a cache of another format is refused before anything is recorded
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer.remove_stale()
@@ -126,23 +144,34 @@ def cache_latents(src, out, vae, window: int, stride: int | None = None, vae_nam
             starts = window_starts(rec.n_frames, window, stride)
             skel = source.condition_video(rec, clip, registry, condition) if len(starts) else None
             loaded.append((rec, clip, starts))
-            windows += [(len(loaded) - 1, "video", clip.rgb[s:s + window]) for s in starts]
-            windows += [(len(loaded) - 1, "skeleton", skel[s:s + window]) for s in starts]
+            windows += [(len(loaded) - 1, "video", clip.rgb[s : s + window]) for s in starts]
+            windows += [(len(loaded) - 1, "skeleton", skel[s : s + window]) for s in starts]
         encoded: dict[tuple[int, str], list] = {}
         with torch.no_grad():
             for i in range(0, len(windows), batch):
-                part = windows[i:i + batch]
+                part = windows[i : i + batch]
                 z = vae.encode(vae.to_pixels(np.stack([w for _, _, w in part])))
                 for (k, role, _), zk in zip(part, z):
                     encoded.setdefault((k, role), []).append(zk)
         with writer.shard(shard.name) as sw:
             for k, (rec, clip, starts) in enumerate(loaded):
                 if len(starts):
-                    clip = Clip(rec, rgb=clip.rgb, trajectory=clip.trajectory, camera=clip.camera, skeleton=clip.skeleton,
-                                prompt_embeds=clip.prompt_embeds,
-                                latents={"video": torch.stack(encoded[k, "video"]).float(),
-                                         "skeleton": torch.stack(encoded[k, "skeleton"]).float(), "starts": starts,
-                                         "window": window, "vae": vae_name, "condition": condition})
+                    clip = Clip(
+                        rec,
+                        rgb=clip.rgb,
+                        trajectory=clip.trajectory,
+                        camera=clip.camera,
+                        skeleton=clip.skeleton,
+                        prompt_embeds=clip.prompt_embeds,
+                        latents={
+                            "video": torch.stack(encoded[k, "video"]).float(),
+                            "skeleton": torch.stack(encoded[k, "skeleton"]).float(),
+                            "starts": starts,
+                            "window": window,
+                            "vae": vae_name,
+                            "condition": condition,
+                        },
+                    )
                     cached += 1
                 else:
                     short += 1

@@ -40,8 +40,17 @@ from ..model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from ..model.manifest import sha256_file
 from .parallel import DistInfo, barrier
 
-__all__ = ["CHECKPOINT_INDEX", "checkpoint_dir", "checkpoint_step", "list_checkpoints", "latest_checkpoint",
-           "save_checkpoint", "load_checkpoint", "load_weights", "verify_checkpoint"]
+__all__ = [
+    "CHECKPOINT_INDEX",
+    "checkpoint_dir",
+    "checkpoint_step",
+    "list_checkpoints",
+    "latest_checkpoint",
+    "save_checkpoint",
+    "load_checkpoint",
+    "load_weights",
+    "verify_checkpoint",
+]
 
 CHECKPOINT_INDEX = "oscar_checkpoint.json"
 _STEP = re.compile(r"^step-(\d{8})$")
@@ -69,8 +78,12 @@ def latest_checkpoint(run_dir) -> Path:
     """The newest finished checkpoint of ``run_dir``; CheckpointLayoutError when there is none."""
     found = list_checkpoints(run_dir)
     if not found:
-        raise CheckpointLayoutError(run_dir, "checkpoints", f"a folder checkpoints/step-NNNNNNNN/ with {CHECKPOINT_INDEX}",
-                                    "none (not a run folder, or no checkpoint was saved yet)")
+        raise CheckpointLayoutError(
+            run_dir,
+            "checkpoints",
+            f"a folder checkpoints/step-NNNNNNNN/ with {CHECKPOINT_INDEX}",
+            "none (not a run folder, or no checkpoint was saved yet)",
+        )
     return found[-1]
 
 
@@ -87,8 +100,13 @@ def _state(model, optimizer, ema: dict, step: int) -> dict:
     from torch.distributed.checkpoint.state_dict import get_state_dict
 
     model_sd, optim_sd = get_state_dict(model, optimizer)
-    return {"model": model_sd, "optim": optim_sd, "ema": ema, "step": torch.tensor(step, dtype=torch.int64),
-            "rng": torch.get_rng_state()}
+    return {
+        "model": model_sd,
+        "optim": optim_sd,
+        "ema": ema,
+        "step": torch.tensor(step, dtype=torch.int64),
+        "rng": torch.get_rng_state(),
+    }
 
 
 def save_checkpoint(run_dir, step: int, model, optimizer, ema: dict, info: DistInfo, keep_last: int = 3) -> Path:
@@ -106,8 +124,13 @@ def save_checkpoint(run_dir, step: int, model, optimizer, ema: dict, info: DistI
     barrier(info)
     if info.main:
         files = sorted(p.name for p in tmp.iterdir() if p.is_file())
-        index = {"format": "oscar-train-checkpoint", "version": 1, "step": step, "world_size": info.world,
-                 "files": {f: {"size": (tmp / f).stat().st_size, "sha256": sha256_file(tmp / f)} for f in files}}
+        index = {
+            "format": "oscar-train-checkpoint",
+            "version": 1,
+            "step": step,
+            "world_size": info.world,
+            "files": {f: {"size": (tmp / f).stat().st_size, "sha256": sha256_file(tmp / f)} for f in files},
+        }
         (tmp / CHECKPOINT_INDEX).write_text(json.dumps(index, indent=2, sort_keys=True) + "\n")
         if final.exists():
             shutil.rmtree(final)
@@ -129,18 +152,25 @@ def verify_checkpoint(folder) -> dict:
         files = index["files"]
         step = int(index["step"])
     except (ValueError, KeyError, TypeError):
-        raise CheckpointIntegrityError(path, "index", "a JSON object with step and files", "an unreadable index") \
-            from None
+        raise CheckpointIntegrityError(
+            path, "index", "a JSON object with step and files", "an unreadable index"
+        ) from None
     for name, meta in sorted(files.items()):
         f = folder / name
         if not f.is_file():
             raise CheckpointIntegrityError(f, "file", f"present ({meta['size']} bytes)", "missing")
         if f.stat().st_size != meta["size"]:
-            raise CheckpointIntegrityError(f, "size", f"{meta['size']} bytes", f"{f.stat().st_size} bytes",
-                                           "the checkpoint is corrupted or partial")
+            raise CheckpointIntegrityError(
+                f,
+                "size",
+                f"{meta['size']} bytes",
+                f"{f.stat().st_size} bytes",
+                "the checkpoint is corrupted or partial",
+            )
         if sha256_file(f) != meta["sha256"]:
-            raise CheckpointIntegrityError(f, "sha256", meta["sha256"], sha256_file(f),
-                                           "the checkpoint is corrupted; resume from an older one")
+            raise CheckpointIntegrityError(
+                f, "sha256", meta["sha256"], sha256_file(f), "the checkpoint is corrupted; resume from an older one"
+            )
     index["step"] = step
     return index
 
@@ -157,8 +187,12 @@ def load_checkpoint(folder, model, optimizer, ema: dict, info: DistInfo, verify:
         with _quiet(not info.distributed):
             dcp.load(state, checkpoint_id=str(folder), no_dist=not info.distributed)
     except Exception as exc:  # noqa: BLE001 - DCP raises many kinds on bad files
-        raise CheckpointIntegrityError(folder, "DCP checkpoint", "tensors matching the model and optimiser",
-                                       f"{type(exc).__name__}: {str(exc).splitlines()[0][:300]}") from None
+        raise CheckpointIntegrityError(
+            folder,
+            "DCP checkpoint",
+            "tensors matching the model and optimiser",
+            f"{type(exc).__name__}: {str(exc).splitlines()[0][:300]}",
+        ) from None
     set_state_dict(model, optimizer, model_state_dict=state["model"], optim_state_dict=state["optim"])
     torch.set_rng_state(state["rng"])
     return int(state["step"])
@@ -173,8 +207,9 @@ def load_weights(folder, model: torch.nn.Module, key: str = "ema", verify: bool 
         with _quiet(True):
             dcp.load(state, checkpoint_id=str(folder), no_dist=True)
     except Exception as exc:  # noqa: BLE001
-        raise CheckpointIntegrityError(folder, key, f"the {key} weights of this model",
-                                       f"{type(exc).__name__}: {str(exc).splitlines()[0][:300]}") from None
+        raise CheckpointIntegrityError(
+            folder, key, f"the {key} weights of this model", f"{type(exc).__name__}: {str(exc).splitlines()[0][:300]}"
+        ) from None
     with torch.no_grad():
         for n, p in model.named_parameters():
             p.copy_(state[key][n])

@@ -33,25 +33,45 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", nargs="?", help="training config (YAML; see configs/train/ and docs/training.md)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its latest checkpoint")
     p.add_argument("--export", metavar="RUN_DIR", help="export a run's checkpoint as a model folder and exit")
-    p.add_argument("--cache-latents", metavar="CLIPS", help="write a copy of a clip set with cached VAE latents "
-                                                            "(needs --vae, --window, --out) and exit")
+    p.add_argument(
+        "--cache-latents",
+        metavar="CLIPS",
+        help="write a copy of a clip set with cached VAE latents (needs --vae, --window, --out) and exit",
+    )
     p.add_argument("--vae", help="with --cache-latents: an AutoencoderKLWan folder or an OSCAR model folder")
     p.add_argument("--window", type=count(1), help="with --cache-latents: frames per window (4k+1)")
-    p.add_argument("--stride", type=count(1), help="with --cache-latents: frames between window starts (default: window)")
+    p.add_argument(
+        "--stride", type=count(1), help="with --cache-latents: frames between window starts (default: window)"
+    )
     threads_option(p)
     p.add_argument("--split", help="with --cache-latents: copy only clips whose meta.split is this (e.g. train)")
     p.add_argument("--batch", type=count(1), default=8, help="with --cache-latents: windows per VAE call (default 8)")
-    p.add_argument("--condition", choices=CONDITIONS, default="skeleton",
-                   help="with --cache-latents: the condition video cached beside the video (default skeleton; "
-                        "mesh or capsules for a model trained on those)")
-    output_option(p.add_argument("--out",
-                                 help="with --export: output folder (default RUN_DIR/export); with --cache-latents: "
-                                 "the new clip set"), "folder")
+    p.add_argument(
+        "--condition",
+        choices=CONDITIONS,
+        default="skeleton",
+        help="with --cache-latents: the condition video cached beside the video (default skeleton; "
+        "mesh or capsules for a model trained on those)",
+    )
+    output_option(
+        p.add_argument(
+            "--out",
+            help="with --export: output folder (default RUN_DIR/export); with --cache-latents: the new clip set",
+        ),
+        "folder",
+    )
     p.add_argument("--step", type=count(0), help="with --export: the checkpoint's step (default: the latest)")
-    p.add_argument("--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable); with "
-                        "--resume only steps, save_every, log_every and keep_last (train a run further)")
+    p.add_argument(
+        "--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights"
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable); with "
+        "--resume only steps, save_every, log_every and keep_last (train a run further)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar (metrics still go to metrics.jsonl)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_train)
@@ -59,14 +79,19 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_train_parser(subparsers) -> None:
     """Add ``train`` to an ``argparse`` sub-parser set."""
-    p = subparsers.add_parser("train", help="train the world model (the paper's fine-tuning recipe)", epilog=EXAMPLES,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = subparsers.add_parser(
+        "train",
+        help="train the world model (the paper's fine-tuning recipe)",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     _add_arguments(p)
 
 
 def build_train_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m oscar_core.train", epilog=EXAMPLES,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m oscar_core.train", epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     _add_arguments(p)
     return p
 
@@ -76,8 +101,12 @@ def cmd_train(args) -> int:
 
     modes = [bool(args.config), bool(args.resume), bool(args.export), bool(args.cache_latents)]
     if sum(modes) != 1:
-        raise TrainConfigError("<command line>", "config / --resume / --export / --cache-latents",
-                               "exactly one of them", f"{sum(modes)} given")
+        raise TrainConfigError(
+            "<command line>",
+            "config / --resume / --export / --cache-latents",
+            "exactly one of them",
+            f"{sum(modes)} given",
+        )
     if args.cache_latents:
         return _cache_latents(args)
     if args.export:
@@ -106,8 +135,12 @@ def cmd_train(args) -> int:
         with _resume_hint(config.run_dir), log:
             result = train(config, progress=not args.no_progress, source=args.config)
             log_result(_result_line(result))
-    summary = {"run_dir": str(result.run_dir), "step": result.step, "loss": result.last_loss,
-               "export": str(result.export) if result.export else None}
+    summary = {
+        "run_dir": str(result.run_dir),
+        "step": result.step,
+        "loss": result.last_loss,
+        "export": str(result.export) if result.export else None,
+    }
     if int(os.environ.get("RANK", "0")) == 0:
         print(json.dumps(summary) if args.json else _result_line(result))
     return 0
@@ -115,8 +148,9 @@ def cmd_train(args) -> int:
 
 def _result_line(result) -> str:
     loss = "no steps left to run" if result.last_loss is None else f"loss {result.last_loss:.4f}"
-    return (f"trained {result.run_dir} to step {result.step} ({loss})"
-            + (f"; exported to {result.export}" if result.export else ""))
+    return f"trained {result.run_dir} to step {result.step} ({loss})" + (
+        f"; exported to {result.export}" if result.export else ""
+    )
 
 
 @contextlib.contextmanager
@@ -156,9 +190,21 @@ def _cache_latents(args) -> int:
     config = TrainConfig()
     config.model.vae = args.vae
     vae = build_vae(config, source="--vae")
-    summary = cache_latents(args.cache_latents, args.out, vae, args.window, args.stride, split=args.split, batch=args.batch,
-                            log=(lambda _m: None) if args.json else print, condition=args.condition)
-    print(json.dumps(asdict(summary)) if args.json else
-          f"{summary.out}: {summary.clips_cached} clips cached, {summary.clips_too_short} too short for the window; "
-          f"{summary.shards_written} shards written, {summary.shards_kept} kept from an earlier run ({summary.wall_s} s)")
+    summary = cache_latents(
+        args.cache_latents,
+        args.out,
+        vae,
+        args.window,
+        args.stride,
+        split=args.split,
+        batch=args.batch,
+        log=(lambda _m: None) if args.json else print,
+        condition=args.condition,
+    )
+    print(
+        json.dumps(asdict(summary))
+        if args.json
+        else f"{summary.out}: {summary.clips_cached} clips cached, {summary.clips_too_short} too short for the window; "
+        f"{summary.shards_written} shards written, {summary.shards_kept} kept from an earlier run ({summary.wall_s} s)"
+    )
     return 0

@@ -150,12 +150,19 @@ class ClipRecord:
         try:
             arr = np.asarray(op, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ClipFormatError(where, clip, "openness", "a (T, G) list of numbers", "ragged or non-numeric rows") from None
+            raise ClipFormatError(
+                where, clip, "openness", "a (T, G) list of numbers", "ragged or non-numeric rows"
+            ) from None
         if arr.ndim != 2 or arr.shape[0] != d["n_frames"]:
             raise ClipFormatError(where, clip, "openness", f"shape ({d['n_frames']}, G)", f"shape {arr.shape}")
         if arr.size and (not np.isfinite(arr).all() or arr.min() < 0 or arr.max() > 1):
-            raise ClipFormatError(where, clip, "openness", "finite values in [0, 1]",
-                                  f"range [{np.nanmin(arr):g}, {np.nanmax(arr):g}]" if np.isfinite(arr).any() else "NaN")
+            raise ClipFormatError(
+                where,
+                clip,
+                "openness",
+                "finite values in [0, 1]",
+                f"range [{np.nanmin(arr):g}, {np.nanmax(arr):g}]" if np.isfinite(arr).any() else "NaN",
+            )
         files = d["files"]
         if not isinstance(files, dict):
             raise ClipFormatError(where, clip, "files", "an object of role -> relative path", type(files).__name__)
@@ -164,22 +171,36 @@ class ClipRecord:
                 raise ClipFormatError(where, clip, f"files.{role}", "present", "missing")
         for role, rel in files.items():
             if role not in REQUIRED_FILES + OPTIONAL_FILES:
-                raise ClipFormatError(where, clip, f"files.{role}", f"a role among {REQUIRED_FILES + OPTIONAL_FILES}",
-                                      "an unknown role")
+                raise ClipFormatError(
+                    where, clip, f"files.{role}", f"a role among {REQUIRED_FILES + OPTIONAL_FILES}", "an unknown role"
+                )
             if not isinstance(rel, str) or not rel or rel.startswith("/") or ".." in Path(rel).parts:
                 raise ClipFormatError(where, clip, f"files.{role}", "a relative path inside the shard", repr(rel))
         for role in ("rgb", "skeleton"):
             if role in files and Path(files[role]).suffix not in _VIDEO_SUFFIXES:
-                raise ClipFormatError(where, clip, f"files.{role}", f"a video ending in {_VIDEO_SUFFIXES}", repr(files[role]))
+                raise ClipFormatError(
+                    where, clip, f"files.{role}", f"a video ending in {_VIDEO_SUFFIXES}", repr(files[role])
+                )
         for k in ("caption", "task"):
             if d.get(k) is not None and not isinstance(d[k], str):
                 raise ClipFormatError(where, clip, k, "a string or null", type(d[k]).__name__)
         if not isinstance(d.get("meta", {}), dict):
             raise ClipFormatError(where, clip, "meta", "an object", type(d["meta"]).__name__)
         rows = tuple(tuple(float(v) for v in row) for row in arr)
-        return cls(id=clip, source=d["source"], embodiment=d["embodiment"], n_frames=d["n_frames"], fps=float(d["fps"]),
-                   width=d["width"], height=d["height"], openness=rows, files=dict(files), caption=d.get("caption"),
-                   task=d.get("task"), meta=dict(d.get("meta", {})))
+        return cls(
+            id=clip,
+            source=d["source"],
+            embodiment=d["embodiment"],
+            n_frames=d["n_frames"],
+            fps=float(d["fps"]),
+            width=d["width"],
+            height=d["height"],
+            openness=rows,
+            files=dict(files),
+            caption=d.get("caption"),
+            task=d.get("task"),
+            meta=dict(d.get("meta", {})),
+        )
 
 
 @dataclass(eq=False)
@@ -244,21 +265,32 @@ class ShardWriter:
         rgb = np.asarray(clip.rgb)
         T = rec.n_frames
         if rgb.ndim != 4 or rgb.shape[0] != T or rgb.shape[1:] != (rec.height, rec.width, 3) or rgb.dtype != np.uint8:
-            raise ClipFormatError(self.final, rec.id, "rgb", f"uint8 ({T}, {rec.height}, {rec.width}, 3)",
-                                  f"{rgb.dtype} {tuple(rgb.shape)}")
+            raise ClipFormatError(
+                self.final,
+                rec.id,
+                "rgb",
+                f"uint8 ({T}, {rec.height}, {rec.width}, 3)",
+                f"{rgb.dtype} {tuple(rgb.shape)}",
+            )
         if len(clip.trajectory) != T:
             raise ClipFormatError(self.final, rec.id, "trajectory", f"{T} frames", f"{len(clip.trajectory)}")
         folder = self.tmp / rec.id
         folder.mkdir()
         ext = ".mkv" if self.video_codec == "ffv1" else ".mp4"
-        files = {"rgb": f"{rec.id}/rgb{ext}", "trajectory": f"{rec.id}/trajectory.npz", "camera": f"{rec.id}/camera.json"}
+        files = {
+            "rgb": f"{rec.id}/rgb{ext}",
+            "trajectory": f"{rec.id}/trajectory.npz",
+            "camera": f"{rec.id}/camera.json",
+        }
         write_video(self.tmp / files["rgb"], rgb, rec.fps, codec=self.video_codec)
         save_trajectory(clip.trajectory, self.tmp / files["trajectory"])
         save_camera(clip.camera, self.tmp / files["camera"])
         if clip.skeleton is not None:
             sk = np.asarray(clip.skeleton)
             if sk.shape != rgb.shape or sk.dtype != np.uint8:
-                raise ClipFormatError(self.final, rec.id, "skeleton", f"uint8 {tuple(rgb.shape)}", f"{sk.dtype} {tuple(sk.shape)}")
+                raise ClipFormatError(
+                    self.final, rec.id, "skeleton", f"uint8 {tuple(rgb.shape)}", f"{sk.dtype} {tuple(sk.shape)}"
+                )
             files["skeleton"] = f"{rec.id}/skeleton{ext}"
             write_video(self.tmp / files["skeleton"], sk, rec.fps, codec=self.video_codec)
         if clip.prompt_embeds is not None or clip.latents is not None:
@@ -268,7 +300,9 @@ class ShardWriter:
             if clip.prompt_embeds is not None:
                 pe = torch.as_tensor(clip.prompt_embeds)
                 if pe.ndim != 2:
-                    raise ClipFormatError(self.final, rec.id, "prompt_embeds", "shape (L, D)", f"shape {tuple(pe.shape)}")
+                    raise ClipFormatError(
+                        self.final, rec.id, "prompt_embeds", "shape (L, D)", f"shape {tuple(pe.shape)}"
+                    )
                 files["prompt_embeds"] = f"{rec.id}/prompt.safetensors"
                 save_file({"prompt_embeds": pe.contiguous()}, str(self.tmp / files["prompt_embeds"]))
             if clip.latents is not None:
@@ -314,13 +348,28 @@ def _latents_to_file(latents: dict, where, rec: ClipRecord):
     starts = torch.as_tensor(latents["starts"], dtype=torch.int64)
     window = int(latents["window"])
     if video.ndim != 5 or skel.shape[0] != video.shape[0] or skel.shape[2:] != video.shape[2:]:
-        raise ClipFormatError(where, rec.id, "latents", "video and skeleton of shape (N, C, t, h, w) with equal N, t, h, w",
-                              f"{tuple(video.shape)} and {tuple(skel.shape)}")
+        raise ClipFormatError(
+            where,
+            rec.id,
+            "latents",
+            "video and skeleton of shape (N, C, t, h, w) with equal N, t, h, w",
+            f"{tuple(video.shape)} and {tuple(skel.shape)}",
+        )
     if starts.shape != (video.shape[0],) or (starts < 0).any() or (starts + window > rec.n_frames).any():
-        raise ClipFormatError(where, rec.id, "latents.starts", f"{video.shape[0]} starts with start + {window} <= {rec.n_frames}",
-                              starts.tolist())
-    meta = {"window": str(window), "vae": str(latents["vae"]), "width": str(rec.width), "height": str(rec.height),
-            "condition": str(latents.get("condition") or "skeleton")}  # what the condition stream encodes
+        raise ClipFormatError(
+            where,
+            rec.id,
+            "latents.starts",
+            f"{video.shape[0]} starts with start + {window} <= {rec.n_frames}",
+            starts.tolist(),
+        )
+    meta = {
+        "window": str(window),
+        "vae": str(latents["vae"]),
+        "width": str(rec.width),
+        "height": str(rec.height),
+        "condition": str(latents.get("condition") or "skeleton"),
+    }  # what the condition stream encodes
     return {"video": video.contiguous(), "skeleton": skel.contiguous(), "starts": starts}, meta
 
 
@@ -334,7 +383,9 @@ class ClipSetWriter:
         if marker.exists():
             _read_marker(marker)
         else:
-            atomic_write_bytes(marker, json.dumps({"format": CLIPSET_FORMAT, "format_version": FORMAT_VERSION}).encode())
+            atomic_write_bytes(
+                marker, json.dumps({"format": CLIPSET_FORMAT, "format_version": FORMAT_VERSION}).encode()
+            )
         if video_codec not in ("ffv1", "h264"):
             raise ValueError(f"video_codec: expected 'ffv1' or 'h264', found {video_codec!r}")
         self.video_codec = video_codec
@@ -366,11 +417,17 @@ def _read_marker(path: Path) -> dict:
     except (OSError, json.JSONDecodeError) as exc:
         raise ClipFormatError(path, None, "<file>", "a JSON object", f"unreadable ({exc})") from None
     if not isinstance(d, dict) or d.get("format") != CLIPSET_FORMAT:
-        raise ClipFormatError(path, None, "format", repr(CLIPSET_FORMAT), repr(d.get("format") if isinstance(d, dict) else d))
+        raise ClipFormatError(
+            path, None, "format", repr(CLIPSET_FORMAT), repr(d.get("format") if isinstance(d, dict) else d)
+        )
     if d.get("format_version") != FORMAT_VERSION:
-        raise ClipFormatError(path, None, "format_version",
-                              f"{FORMAT_VERSION} (a set of another format is made again with the command that made it)",
-                              repr(d.get("format_version")))
+        raise ClipFormatError(
+            path,
+            None,
+            "format_version",
+            f"{FORMAT_VERSION} (a set of another format is made again with the command that made it)",
+            repr(d.get("format_version")),
+        )
     return d
 
 
@@ -408,11 +465,14 @@ class ClipSet:
                 try:
                     d = json.loads(line)
                 except json.JSONDecodeError as exc:
-                    raise ClipFormatError(where, None, "<line>", "one JSON object", f"invalid JSON ({exc.msg})") from None
+                    raise ClipFormatError(
+                        where, None, "<line>", "one JSON object", f"invalid JSON ({exc.msg})"
+                    ) from None
                 rec = ClipRecord.from_dict(d, where)
                 if rec.id in self.shard_of:
-                    raise ClipFormatError(where, rec.id, "id", "unique in the clip set",
-                                          f"also in {self.shard_of[rec.id].name}")
+                    raise ClipFormatError(
+                        where, rec.id, "id", "unique in the clip set", f"also in {self.shard_of[rec.id].name}"
+                    )
                 self.shard_of[rec.id] = shard
                 self.records.append(rec)
         self._by_id = {r.id: r for r in self.records}
@@ -449,7 +509,9 @@ class ClipSet:
         except InputFileError as exc:
             raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
         if len(traj) != rec.n_frames:
-            raise ClipFormatError(shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames")
+            raise ClipFormatError(
+                shard, rec.id, "trajectory", f"{rec.n_frames} frames (n_frames)", f"{len(traj)} frames"
+            )
         return traj
 
     def skeleton_video(self, rec: ClipRecord, clip: Clip, registry) -> np.ndarray:
@@ -459,8 +521,13 @@ class ClipSet:
             return clip.skeleton
         from ..render.skeleton_video import render_skeleton_video
 
-        return render_skeleton_video(registry.get(rec.embodiment), clip.trajectory, clip.camera, (rec.width, rec.height),
-                                     camera_source=str(self.path(rec, "camera")))
+        return render_skeleton_video(
+            registry.get(rec.embodiment),
+            clip.trajectory,
+            clip.camera,
+            (rec.width, rec.height),
+            camera_source=str(self.path(rec, "camera")),
+        )
 
     def condition_video(self, rec: ClipRecord, clip: Clip, registry, condition: str = "skeleton") -> np.ndarray:
         """(T, H, W, 3) uint8 condition video ``condition`` (:mod:`oscar_core.render.conditions`) of a loaded ``clip``:
@@ -470,11 +537,25 @@ class ClipSet:
             return self.skeleton_video(rec, clip, registry)
         from ..render.conditions import condition_video
 
-        return condition_video(condition, registry.get(rec.embodiment), clip.trajectory, clip.camera,
-                               (rec.width, rec.height), camera_source=str(self.path(rec, "camera")))
+        return condition_video(
+            condition,
+            registry.get(rec.embodiment),
+            clip.trajectory,
+            clip.camera,
+            (rec.width, rec.height),
+            camera_source=str(self.path(rec, "camera")),
+        )
 
-    def load(self, rec: ClipRecord | str, *, start: int = 0, frames: int | None = None, video: bool = True,
-             skeleton: bool = True, registry=None) -> Clip:
+    def load(
+        self,
+        rec: ClipRecord | str,
+        *,
+        start: int = 0,
+        frames: int | None = None,
+        video: bool = True,
+        skeleton: bool = True,
+        registry=None,
+    ) -> Clip:
         """Read a clip, or the window ``[start, start + frames)`` of it, and check it against its record.
 
         Checks: every file present; the video's frame size is the record's; the
@@ -492,8 +573,13 @@ class ClipSet:
         shard = self.shard_of[rec.id]
         n = rec.n_frames - start if frames is None else int(frames)
         if start < 0 or n < 1 or start + n > rec.n_frames:
-            raise ClipFormatError(shard, rec.id, "n_frames", f"at least {start + max(n, 1)} frames for the window "
-                                  f"[{start}, {start + n})", rec.n_frames)
+            raise ClipFormatError(
+                shard,
+                rec.id,
+                "n_frames",
+                f"at least {start + max(n, 1)} frames for the window [{start}, {start + n})",
+                rec.n_frames,
+            )
         traj = self.read_trajectory(rec)
         try:
             if registry is not None:
@@ -503,10 +589,14 @@ class ClipSet:
         except InputFileError as exc:
             raise ClipFormatError(shard, rec.id, exc.field, exc.expected, exc.found) from None
         if camera.num_frames is not None and camera.num_frames != rec.n_frames:  # one extrinsic per frame
-            raise ClipFormatError(shard, rec.id, "camera", f"{rec.n_frames} per-frame extrinsics (n_frames)",
-                                  f"{camera.num_frames}")
-        clip = Clip(rec, trajectory=traj.time_slice(start, start + n) if (start, n) != (0, rec.n_frames) else traj,
-                    camera=camera.time_slice(start, start + n))
+            raise ClipFormatError(
+                shard, rec.id, "camera", f"{rec.n_frames} per-frame extrinsics (n_frames)", f"{camera.num_frames}"
+            )
+        clip = Clip(
+            rec,
+            trajectory=traj.time_slice(start, start + n) if (start, n) != (0, rec.n_frames) else traj,
+            camera=camera.time_slice(start, start + n),
+        )
 
         def read_window(role: str) -> np.ndarray:
             try:
@@ -514,11 +604,12 @@ class ClipSet:
             except (ValueError, FileNotFoundError) as exc:
                 raise ClipFormatError(shard, rec.id, f"files.{role}", "a readable video", str(exc)) from None
             if v.shape[1:3] != (rec.height, rec.width):
-                raise ClipFormatError(shard, rec.id, role, f"frames of {rec.width}x{rec.height}",
-                                      f"{v.shape[2]}x{v.shape[1]}")
+                raise ClipFormatError(
+                    shard, rec.id, role, f"frames of {rec.width}x{rec.height}", f"{v.shape[2]}x{v.shape[1]}"
+                )
             if len(v) < start + n:
                 raise ClipFormatError(shard, rec.id, role, f"{rec.n_frames} frames (n_frames)", f"{len(v)} frames")
-            return v[start:start + n]
+            return v[start : start + n]
 
         if video:
             clip.rgb = read_window("rgb")
@@ -530,7 +621,9 @@ class ClipSet:
             if "prompt_embeds" in rec.files:
                 with safe_open(str(shard / rec.files["prompt_embeds"]), "pt") as f:
                     if "prompt_embeds" not in f.keys():
-                        raise ClipFormatError(shard, rec.id, "prompt_embeds", "a tensor 'prompt_embeds'", sorted(f.keys()))
+                        raise ClipFormatError(
+                            shard, rec.id, "prompt_embeds", "a tensor 'prompt_embeds'", sorted(f.keys())
+                        )
                     clip.prompt_embeds = f.get_tensor("prompt_embeds")
             if "latents" in rec.files:
                 with safe_open(str(shard / rec.files["latents"]), "pt") as f:

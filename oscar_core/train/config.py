@@ -31,9 +31,24 @@ from .._util.inputs import read_text_file
 from ..errors import OscarError
 from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
 
-__all__ = ["TrainConfigError", "ModelSection", "DataSection", "FlowSection", "OptimSection", "LogSection", "TrainConfig",
-           "load_config", "save_config", "config_from_dict", "config_to_dict", "CONDITIONS", "PARALLEL_MODES",
-           "RESUME_OVERRIDES", "parse_overrides", "check_resume_overrides"]
+__all__ = [
+    "TrainConfigError",
+    "ModelSection",
+    "DataSection",
+    "FlowSection",
+    "OptimSection",
+    "LogSection",
+    "TrainConfig",
+    "load_config",
+    "save_config",
+    "config_from_dict",
+    "config_to_dict",
+    "CONDITIONS",
+    "PARALLEL_MODES",
+    "RESUME_OVERRIDES",
+    "parse_overrides",
+    "check_resume_overrides",
+]
 
 PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
 CHECKPOINTING = ("none", "full", "auto")
@@ -207,6 +222,7 @@ class TrainConfig:
 
     def validate(self, source: str = "<config>") -> TrainConfig:
         """Raise :class:`TrainConfigError` naming the first bad field."""
+
         def bad(name, expected, found):
             raise TrainConfigError(source, name, expected, repr(found))
 
@@ -276,13 +292,16 @@ class TrainConfig:
         return self
 
 
-_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection,
-             "log": LogSection}
+_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection, "log": LogSection}
 
 
 #: keys this loader no longer reads, by section prefix: what to write instead (the error's "expected")
-_RENAMED = {"model.": {"gradient_checkpointing": "the top-level key activation_checkpointing instead (full for true, "
-                                                  "auto or none for false)"}}
+_RENAMED = {
+    "model.": {
+        "gradient_checkpointing": "the top-level key activation_checkpointing instead (full for true, "
+        "auto or none for false)"
+    }
+}
 
 
 def _build(cls, data: Any, source: str, prefix: str):
@@ -328,11 +347,13 @@ def _typed(hint, value: Any, source: str, name: str) -> Any:
     origin = typing.get_origin(hint) or hint
     if origin is Any:
         return value
-    ok = {bool: lambda v: isinstance(v, bool),
-          int: lambda v: isinstance(v, int) and not isinstance(v, bool),
-          float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
-          str: lambda v: isinstance(v, str),
-          list: lambda v: isinstance(v, list)}[origin]
+    ok = {
+        bool: lambda v: isinstance(v, bool),
+        int: lambda v: isinstance(v, int) and not isinstance(v, bool),
+        float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+        str: lambda v: isinstance(v, str),
+        list: lambda v: isinstance(v, list),
+    }[origin]
     if origin is float and isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
         value = float(value)  # YAML 1.2's 1e-4, which PyYAML (YAML 1.1) reads as a string
     if not ok(value):
@@ -353,6 +374,7 @@ def config_from_dict(data: dict, source: str = "<config>") -> TrainConfig:
 
 def config_to_dict(config: TrainConfig) -> dict:
     """Plain nested dict (tuples as lists), the inverse of :func:`config_from_dict`."""
+
     def plain(v):
         if isinstance(v, tuple):
             return [plain(x) for x in v]
@@ -382,8 +404,9 @@ def load_config(path, overrides: dict | None = None) -> TrainConfig:
         for p in parents:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise TrainConfigError(OVERRIDE_SOURCE, dotted, f"a field inside the section {p!r}",
-                                       f"{p} is not a section")
+                raise TrainConfigError(
+                    OVERRIDE_SOURCE, dotted, f"a field inside the section {p!r}", f"{p} is not a section"
+                )
         node[last] = value
     try:
         return config_from_dict(data, str(path))
@@ -420,10 +443,14 @@ def check_resume_overrides(overrides: dict) -> None:
     """Refuse a ``--set`` with ``--resume`` that would change the run rather than extend it, naming the field."""
     for key in overrides:
         if key not in RESUME_OVERRIDES:
-            raise TrainConfigError(OVERRIDE_SOURCE, key, f"with --resume only {', '.join(RESUME_OVERRIDES)} (they "
-                                   "extend the run; any other field would change what its checkpoints were trained "
-                                   "with)",
-                                   "a change of the run's config")
+            raise TrainConfigError(
+                OVERRIDE_SOURCE,
+                key,
+                f"with --resume only {', '.join(RESUME_OVERRIDES)} (they "
+                "extend the run; any other field would change what its checkpoints were trained "
+                "with)",
+                "a change of the run's config",
+            )
 
 
 def save_config(config: TrainConfig, path) -> Path:

@@ -43,8 +43,9 @@ def plot_training_curves(run_dir, out=None) -> Path | None:
     if not c["step"]:
         return None
     fig = new_figure((10.5, 3.0), 100)
-    for i, (key, label, log) in enumerate((("loss", "loss", True), ("grad_norm", "gradient norm (before clipping)",
-                                                                   True), ("lr", "learning rate", False))):
+    for i, (key, label, log) in enumerate(
+        (("loss", "loss", True), ("grad_norm", "gradient norm (before clipping)", True), ("lr", "learning rate", False))
+    ):
         ax = fig.add_subplot(1, 3, i + 1)
         ax.plot(c["step"], c[key], linewidth=1.2, color=f"C{i}", gid=f"curve:{key}")
         if log and all(v > 0 for v in c[key] if v == v):

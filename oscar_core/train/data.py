@@ -84,9 +84,13 @@ class TrainData:
                         raise
                     self.skipped.append({"clip": rec.id, "shard": str(cs.shard_of[rec.id]), "reason": str(exc)})
         if not self.clips:
-            raise ClipFormatError(", ".join(map(str, d.clips)), None, "clips",
-                                  f"at least one usable clip (sources {d.sources or 'any'}, >= {self.window} frames)",
-                                  f"none ({len(self.skipped)} skipped)")
+            raise ClipFormatError(
+                ", ".join(map(str, d.clips)),
+                None,
+                "clips",
+                f"at least one usable clip (sources {d.sources or 'any'}, >= {self.window} frames)",
+                f"none ({len(self.skipped)} skipped)",
+            )
         self.cached = self._choose_cached()
         if not self.cached:
             for c in self.clips:
@@ -102,10 +106,13 @@ class TrainData:
     def _check(self, cs: ClipSet, rec: ClipRecord) -> UsableClip:
         shard = cs.shard_of[rec.id]
         if rec.n_frames < self.window:
-            raise ClipFormatError(shard, rec.id, "n_frames", f"at least the window's {self.window} frames", rec.n_frames)
+            raise ClipFormatError(
+                shard, rec.id, "n_frames", f"at least the window's {self.window} frames", rec.n_frames
+            )
         if rec.embodiment not in self.registry.names():
-            raise ClipFormatError(shard, rec.id, "embodiment", f"an installed embodiment {self.registry.names()}",
-                                  repr(rec.embodiment))
+            raise ClipFormatError(
+                shard, rec.id, "embodiment", f"an installed embodiment {self.registry.names()}", repr(rec.embodiment)
+            )
         starts = cached_condition = None
         if "latents" in rec.files:
             starts, cached_condition = self._cached_starts(cs, rec)
@@ -120,8 +127,9 @@ class TrainData:
 
         path = cs.path(rec, "latents")
         if not path.is_file():
-            raise ClipFormatError(cs.shard_of[rec.id], rec.id, "files.latents", f"a file at {rec.files['latents']}",
-                                  "no such file")
+            raise ClipFormatError(
+                cs.shard_of[rec.id], rec.id, "files.latents", f"a file at {rec.files['latents']}", "no such file"
+            )
         with safe_open(str(path), "pt") as f:
             meta = f.metadata() or {}
             if int(meta.get("window", -1)) != self.window:
@@ -143,30 +151,49 @@ class TrainData:
                 except Exception as exc:  # noqa: BLE001 - any decoder failure is a bad file
                     raise ClipFormatError(shard, rec.id, f"files.{role}", "a readable video", str(exc)) from None
                 if info["frames"] != rec.n_frames:
-                    raise ClipFormatError(shard, rec.id, role, f"{rec.n_frames} frames (n_frames, the trajectory's)",
-                                          f"{info['frames']} frames")
+                    raise ClipFormatError(
+                        shard,
+                        rec.id,
+                        role,
+                        f"{rec.n_frames} frames (n_frames, the trajectory's)",
+                        f"{info['frames']} frames",
+                    )
                 if (info["width"], info["height"]) != (rec.width, rec.height):
-                    raise ClipFormatError(shard, rec.id, role, f"frames of {rec.width}x{rec.height}",
-                                          f"{info['width']}x{info['height']}")
+                    raise ClipFormatError(
+                        shard, rec.id, role, f"frames of {rec.width}x{rec.height}", f"{info['width']}x{info['height']}"
+                    )
 
     def _choose_cached(self) -> bool:
         mode = self.config.data.latents
         have = all(c.starts is not None and len(c.starts) for c in self.clips)
         if mode == "cached" and not have:
             bad = next(c for c in self.clips if c.starts is None or not len(c.starts))
-            raise ClipFormatError(bad.clipset.shard_of[bad.record.id], bad.record.id, "latents",
-                                  f"cached latents of {self.window}-frame windows at "
-                                  f"{self.size[0] // self.spatial}x{self.size[1] // self.spatial} (data.latents: cached)",
-                                  "none" if "latents" not in bad.record.files else "another window or size")
+            raise ClipFormatError(
+                bad.clipset.shard_of[bad.record.id],
+                bad.record.id,
+                "latents",
+                f"cached latents of {self.window}-frame windows at "
+                f"{self.size[0] // self.spatial}x{self.size[1] // self.spatial} (data.latents: cached)",
+                "none" if "latents" not in bad.record.files else "another window or size",
+            )
         return mode == "cached" or (mode == "auto" and have)
 
     # ------------------------------------------------------------------ planning
     def planner(self) -> StepPlanner:
         c, d, f = self.config, self.config.data, self.config.flow
         clips = [(u.record.source, u.record.n_frames, u.record.openness_array, u.starts) for u in self.clips]
-        return StepPlanner(clips, self.window, seed=c.seed, temperature=d.mixing_temperature, ramp=d.prior_ramp,
-                           uniform=d.prior_uniform, dropout=d.skeleton_dropout if is_video_condition(c.condition) else 0.0,
-                           shift=f.shift, logit_mean=f.logit_mean, logit_std=f.logit_std)
+        return StepPlanner(
+            clips,
+            self.window,
+            seed=c.seed,
+            temperature=d.mixing_temperature,
+            ramp=d.prior_ramp,
+            uniform=d.prior_uniform,
+            dropout=d.skeleton_dropout if is_video_condition(c.condition) else 0.0,
+            shift=f.shift,
+            logit_mean=f.logit_mean,
+            logit_std=f.logit_std,
+        )
 
     # ------------------------------------------------------------------ loading
     def embodiment(self, name: str):
@@ -208,10 +235,17 @@ class TrainData:
         # another condition video (mesh, capsules) is rendered and encoded here
         stored = condition == (u.cached_condition if self.cached else "skeleton")
         out: dict = {"skeleton": None, "actions": None}
-        need_traj = ((want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files)))
-                     or takes_actions(condition))
-        clip = cs.load(rec, start=item.start, frames=self.window, video=not self.cached,
-                       skeleton=want_skeleton and stored and not self.cached, registry=self.registry if need_traj else None)
+        need_traj = (
+            want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files))
+        ) or takes_actions(condition)
+        clip = cs.load(
+            rec,
+            start=item.start,
+            frames=self.window,
+            video=not self.cached,
+            skeleton=want_skeleton and stored and not self.cached,
+            registry=self.registry if need_traj else None,
+        )
         if self.cached:
             lat = clip.latents
             row = int(np.nonzero(lat["starts"].numpy() == item.start)[0][0])
@@ -226,23 +260,44 @@ class TrainData:
                 if clip.skeleton is not None:
                     skel = np.stack([fit_image(f, w, h, "crop") for f in clip.skeleton])
                 else:
-                    skel = render_skeleton_video(self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
-                                                 resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
+                    skel = render_skeleton_video(
+                        self.embodiment(rec.embodiment),
+                        clip.trajectory,
+                        clip.camera,
+                        (w, h),
+                        resize_mode="crop",
+                        camera_source=str(cs.path(rec, "camera")),
+                    )
                 out["skeleton"] = self._encode(skel, "on-the-fly encoding")
         if want_skeleton and not stored:
             from ..render.conditions import condition_video
 
-            video = condition_video(condition, self.embodiment(rec.embodiment), clip.trajectory, clip.camera, (w, h),
-                                    resize_mode="crop", camera_source=str(cs.path(rec, "camera")))
+            video = condition_video(
+                condition,
+                self.embodiment(rec.embodiment),
+                clip.trajectory,
+                clip.camera,
+                (w, h),
+                resize_mode="crop",
+                camera_source=str(cs.path(rec, "camera")),
+            )
             out["skeleton"] = self._encode(video, f"the {condition} condition video")
         if is_video_condition(condition) and item.drop:
-            out["skeleton"] = (self.black_latent() if self.config.data.unconditional_skeleton == "black_video"
-                               else torch.zeros_like(out["z0"]))
+            out["skeleton"] = (
+                self.black_latent()
+                if self.config.data.unconditional_skeleton == "black_video"
+                else torch.zeros_like(out["z0"])
+            )
         if clip.prompt_embeds is not None:
             pe = clip.prompt_embeds.float()
             if pe.shape[-1] != self.text_dim:
-                raise ClipFormatError(cs.shard_of[rec.id], rec.id, "prompt_embeds",
-                                      f"(L, {self.text_dim}) (the DiT's text dimension)", f"{tuple(pe.shape)}")
+                raise ClipFormatError(
+                    cs.shard_of[rec.id],
+                    rec.id,
+                    "prompt_embeds",
+                    f"(L, {self.text_dim}) (the DiT's text dimension)",
+                    f"{tuple(pe.shape)}",
+                )
             out["text"] = pe
         else:
             out["text"] = torch.zeros(1, self.text_dim)
@@ -256,8 +311,9 @@ class TrainData:
         """Stack the items of one micro-batch (prompts zero-padded to the longest)."""
         loaded = [self.load_item(it, condition) for it in items]
         L = max(x["text"].shape[0] for x in loaded)
-        text = torch.stack([torch.cat([x["text"], x["text"].new_zeros(L - x["text"].shape[0], self.text_dim)])
-                            for x in loaded])
+        text = torch.stack(
+            [torch.cat([x["text"], x["text"].new_zeros(L - x["text"].shape[0], self.text_dim)]) for x in loaded]
+        )
         skel = torch.stack([x["skeleton"] for x in loaded]) if is_video_condition(condition) else None
         acts = torch.stack([x["actions"] for x in loaded]) if takes_actions(condition) else None
         return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts)
@@ -269,7 +325,15 @@ class TrainData:
         embedded = sum("prompt_embeds" in u.record.files for u in self.clips)
         captioned = sum("prompt_embeds" not in u.record.files and bool(u.record.caption) for u in self.clips)
         # a clip without a stored prompt embedding trains on a zero text embedding (its caption is not encoded here)
-        prompts = {"embedded": embedded, "caption_only_zero_text": captioned,
-                   "none_zero_text": len(self.clips) - embedded - captioned}
-        return {"clips": len(self.clips), "skipped_clips": len(self.skipped), "sources": sources,
-                "latents": "cached" if self.cached else "on_the_fly", "prompts": prompts}
+        prompts = {
+            "embedded": embedded,
+            "caption_only_zero_text": captioned,
+            "none_zero_text": len(self.clips) - embedded - captioned,
+        }
+        return {
+            "clips": len(self.clips),
+            "skipped_clips": len(self.skipped),
+            "sources": sources,
+            "latents": "cached" if self.cached else "on_the_fly",
+            "prompts": prompts,
+        }

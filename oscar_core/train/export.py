@@ -50,14 +50,24 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     try:
-        records = [r for root in config.data.clips for r in ClipSet(root)
-                   if config.data.sources is None or r.source in config.data.sources]
+        records = [
+            r
+            for root in config.data.clips
+            for r in ClipSet(root)
+            if config.data.sources is None or r.source in config.data.sources
+        ]
         fps = Counter(r.fps for r in records).most_common(1)[0][0] if records else None
-        card = ModelCard(name=name or run_dir.name, chunk_frames=config.data.window, width=config.data.width,
-                         height=config.data.height, fps=fps,
-                         embodiments=tuple(sorted({r.embodiment for r in records})),
-                         base=base, unconditional_skeleton=config.data.unconditional_skeleton,
-                         condition=config.condition)
+        card = ModelCard(
+            name=name or run_dir.name,
+            chunk_frames=config.data.window,
+            width=config.data.width,
+            height=config.data.height,
+            fps=fps,
+            embodiments=tuple(sorted({r.embodiment for r in records})),
+            base=base,
+            unconditional_skeleton=config.data.unconditional_skeleton,
+            condition=config.condition,
+        )
         model = OscarWorldModel(transformer, vae, card)
         if records and not any("prompt_embeds" in r.files for r in records):
             # every clip trained on the zero text embedding (1, D): that is this model's empty prompt, stored so
@@ -71,4 +81,3 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
-

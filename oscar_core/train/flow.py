@@ -23,8 +23,9 @@ def shift_sigma(u, shift: float):
     return shift * u / (1.0 + (shift - 1.0) * u)
 
 
-def sample_sigmas(n: int, generator: torch.Generator, shift: float = 5.0, mean: float = 0.0,
-                  std: float = 1.0) -> torch.Tensor:
+def sample_sigmas(
+    n: int, generator: torch.Generator, shift: float = 5.0, mean: float = 0.0, std: float = 1.0
+) -> torch.Tensor:
     """(n,) float64 flow times σ in (0, 1): u = sigmoid(N(mean, std)), then shifted."""
     u = torch.sigmoid(torch.randn(n, generator=generator, dtype=torch.float64) * std + mean)
     return shift_sigma(u, shift)
@@ -66,8 +67,9 @@ def flow_inputs(z0: torch.Tensor, noise: torch.Tensor, sigma: torch.Tensor, cond
     frame 0 replaced by its clean latent under the condition mask.
     """
     if z0.ndim != 5 or noise.shape != z0.shape:
-        raise ValueError(f"z0, noise: expected equal (B, C, T, H, W) shapes, found {tuple(z0.shape)} and "
-                         f"{tuple(noise.shape)}")
+        raise ValueError(
+            f"z0, noise: expected equal (B, C, T, H, W) shapes, found {tuple(z0.shape)} and {tuple(noise.shape)}"
+        )
     b, _, t, h, w = z0.shape
     if sigma.shape != (b,):
         raise ValueError(f"sigma: expected shape ({b},), found {tuple(sigma.shape)}")
@@ -77,8 +79,13 @@ def flow_inputs(z0: torch.Tensor, noise: torch.Tensor, sigma: torch.Tensor, cond
     indicator[:, :, 0] = 1.0
     x = indicator * z0 + (1.0 - indicator) * noisy
     timestep = (indicator * cond_timestep + (1.0 - indicator) * s).float()
-    return FlowInputs(x=x, timestep=timestep, condition_mask=indicator.expand(b, 1, t, h, w),
-                      target=noise - z0, loss_mask=1.0 - indicator)
+    return FlowInputs(
+        x=x,
+        timestep=timestep,
+        condition_mask=indicator.expand(b, 1, t, h, w),
+        target=noise - z0,
+        loss_mask=1.0 - indicator,
+    )
 
 
 def flow_loss(pred: torch.Tensor, inputs: FlowInputs, reduction: str = "mean") -> torch.Tensor:

@@ -27,17 +27,23 @@ from .sampling import PlanItem
 __all__ = ["iter_batches", "micro_batches"]
 
 
-def micro_batches(plan: Callable[[int], list[PlanItem]], start: int, end: int, accum: int,
-                  micro_batch: int) -> Iterator[tuple[int, int, list[PlanItem]]]:
+def micro_batches(
+    plan: Callable[[int], list[PlanItem]], start: int, end: int, accum: int, micro_batch: int
+) -> Iterator[tuple[int, int, list[PlanItem]]]:
     """(step, k, items) of every micro-batch k < ``accum`` of steps [start, end); ``plan(step)`` is this process's share."""
     for step in range(start, end):
         mine = plan(step)
         for k in range(accum):
-            yield step, k, mine[k * micro_batch:(k + 1) * micro_batch]
+            yield step, k, mine[k * micro_batch : (k + 1) * micro_batch]
 
 
-def iter_batches(data: TrainData, schedule: Iterator[tuple[int, int, list[PlanItem]]], condition: str,
-                 workers: int = 0, prefetch: int = 2) -> Iterator[tuple[int, int, list[PlanItem], Batch]]:
+def iter_batches(
+    data: TrainData,
+    schedule: Iterator[tuple[int, int, list[PlanItem]]],
+    condition: str,
+    workers: int = 0,
+    prefetch: int = 2,
+) -> Iterator[tuple[int, int, list[PlanItem], Batch]]:
     """(step, k, items, batch) in ``schedule`` order; ``workers`` threads keep ``workers × prefetch`` batches in flight.
 
     An error while loading a batch is raised when that batch's turn comes (the

@@ -85,9 +85,14 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     sigma = torch.tensor([it.sigma for it in items], dtype=torch.float64)
     inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep)
     h, w = z0.shape[-2:]
-    kwargs = dict(hidden_states=inputs.x, timestep=inputs.timestep, encoder_hidden_states=batch.text.to(device),
-                  condition_mask=inputs.condition_mask, padding_mask=torch.zeros(1, 1, h, w, device=device),
-                  return_dict=False)
+    kwargs = dict(
+        hidden_states=inputs.x,
+        timestep=inputs.timestep,
+        encoder_hidden_states=batch.text.to(device),
+        condition_mask=inputs.condition_mask,
+        padding_mask=torch.zeros(1, 1, h, w, device=device),
+        return_dict=False,
+    )
     if is_video_condition(config.condition):
         kwargs["skeleton_latents"] = batch.skeleton.to(device)
     elif takes_actions(config.condition):
@@ -100,8 +105,9 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
 def build_optimizer(wrapped, config: TrainConfig) -> torch.optim.AdamW:
     """AdamW over ``wrapped``'s parameters with the config's ``optim`` section (the learning rate is set per step)."""
     o = config.optim
-    return torch.optim.AdamW(wrapped.parameters(), lr=o.lr, betas=tuple(o.betas), eps=o.eps,
-                             weight_decay=o.weight_decay)
+    return torch.optim.AdamW(
+        wrapped.parameters(), lr=o.lr, betas=tuple(o.betas), eps=o.eps, weight_decay=o.weight_decay
+    )
 
 
 def autocast_for(config: TrainConfig, device):
@@ -144,9 +150,17 @@ def _read_metrics(path: Path, upto: int) -> bytes:
     return "".join(k + "\n" for k in keep).encode()
 
 
-def train(config: TrainConfig | str | Path | None = None, *, resume=None, progress: bool = True,
-          stop_after: int | None = None, registry=None, export: bool | None = None,
-          source: str = "<config>", overrides: dict | None = None) -> TrainResult:
+def train(
+    config: TrainConfig | str | Path | None = None,
+    *,
+    resume=None,
+    progress: bool = True,
+    stop_after: int | None = None,
+    registry=None,
+    export: bool | None = None,
+    source: str = "<config>",
+    overrides: dict | None = None,
+) -> TrainResult:
     """Train a run; with ``resume`` (a run folder) continue it from its latest checkpoint.
 
     config: a TrainConfig or a YAML path (ignored when resuming: the run's
@@ -198,8 +212,12 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         ckpt = latest_checkpoint(run_dir)
         done = checkpoint_step(ckpt)
         if config.steps < done:
-            raise TrainConfigError(OVERRIDE_SOURCE if "steps" in (overrides or {}) else run_dir / CONFIG_FILE, "steps",
-                                   f"at least the latest checkpoint's step {done}", config.steps)
+            raise TrainConfigError(
+                OVERRIDE_SOURCE if "steps" in (overrides or {}) else run_dir / CONFIG_FILE,
+                "steps",
+                f"at least the latest checkpoint's step {done}",
+                config.steps,
+            )
     elif overrides:
         raise TrainConfigError(OVERRIDE_SOURCE, "overrides", "only with resume (pass them to load_config)", overrides)
     elif not isinstance(config, TrainConfig):
@@ -216,12 +234,20 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         require_wandb()
     run_dir = Path(config.run_dir) if resume is None else Path(resume)
     if resume is None and list_checkpoints(run_dir):
-        raise TrainConfigError(source, "run_dir", "a new run folder (continue an existing run with --resume RUN_DIR)",
-                               f"{run_dir} (holds checkpoints)")
+        raise TrainConfigError(
+            source,
+            "run_dir",
+            "a new run folder (continue an existing run with --resume RUN_DIR)",
+            f"{run_dir} (holds checkpoints)",
+        )
     per_rank, rem = divmod(config.batch_size, info.world * config.micro_batch)
     if rem or per_rank < 1:
-        raise TrainConfigError(source, "batch_size", f"a multiple of processes x micro_batch = "
-                               f"{info.world} x {config.micro_batch}", config.batch_size)
+        raise TrainConfigError(
+            source,
+            "batch_size",
+            f"a multiple of processes x micro_batch = {info.world} x {config.micro_batch}",
+            config.batch_size,
+        )
     accum = per_rank
     torch.manual_seed(config.seed)
 
@@ -267,21 +293,38 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         wb = WandbLog(run_dir, asdict(config), project=config.log.wandb_project, mode=config.log.wandb_mode)
     log = open(metrics_path, "a") if info.main else None
     if log and start == 0:
-        log.write(json.dumps({"step": 0, "event": "start", "world_size": info.world, "accumulation": accum,
-                              "parallel": config.parallel, "activation_checkpointing": checkpointing,
-                              "checkpointing_reason": why, "compile": config.model.compile,
-                              **data.summary(), "skipped": data.skipped,
-                              "mixing_weights": planner.weights}) + "\n")
+        log.write(
+            json.dumps(
+                {
+                    "step": 0,
+                    "event": "start",
+                    "world_size": info.world,
+                    "accumulation": accum,
+                    "parallel": config.parallel,
+                    "activation_checkpointing": checkpointing,
+                    "checkpointing_reason": why,
+                    "compile": config.model.compile,
+                    **data.summary(),
+                    "skipped": data.skipped,
+                    "mixing_weights": planner.weights,
+                }
+            )
+            + "\n"
+        )
         log.flush()
-    bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step",
-                       desc="train")
+    bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step", desc="train")
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
 
     def plan(step: int) -> list[PlanItem]:
         return StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
 
-    batches = iter_batches(data, micro_batches(plan, start, end, accum, config.micro_batch), config.condition,
-                           config.data.workers, config.data.prefetch)
+    batches = iter_batches(
+        data,
+        micro_batches(plan, start, end, accum, config.micro_batch),
+        config.condition,
+        config.data.workers,
+        config.data.prefetch,
+    )
     try:
         for step in range(start, end):
             lr = lr_at(step, o.lr, o.warmup_steps)
@@ -310,9 +353,16 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                 # figures of the whole global batch, not this rank's share: the plan is a function of (seed, step),
                 # so rank 0 recomputes it rather than gathering the other ranks' shares
                 whole = planner.plan(step, config.batch_size) if info.world > 1 else mine
-                record = {"step": done, "loss": loss_mean, "lr": lr, "grad_norm": grad_norm, "steps_per_s": rate,
-                          "elapsed_s": time.perf_counter() - t0, "sigma_mean": sum(i.sigma for i in whole) / len(whole),
-                          "skeleton_dropped": sum(i.drop for i in whole)}
+                record = {
+                    "step": done,
+                    "loss": loss_mean,
+                    "lr": lr,
+                    "grad_norm": grad_norm,
+                    "steps_per_s": rate,
+                    "elapsed_s": time.perf_counter() - t0,
+                    "sigma_mean": sum(i.sigma for i in whole) / len(whole),
+                    "skeleton_dropped": sum(i.drop for i in whole),
+                }
                 log.write(json.dumps(record) + "\n")
                 log.flush()
                 if tb is not None:

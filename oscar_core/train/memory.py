@@ -29,8 +29,17 @@ import torch
 
 from .config import CHECKPOINTING
 
-__all__ = ["ACT_BYTES_PER_TOKEN_PER_WIDTH", "CHECKPOINTING", "FREE_FRACTION", "MemoryEstimate", "choose_checkpointing",
-           "estimate_memory", "free_device_memory", "model_estimate", "tokens_per_clip"]
+__all__ = [
+    "ACT_BYTES_PER_TOKEN_PER_WIDTH",
+    "CHECKPOINTING",
+    "FREE_FRACTION",
+    "MemoryEstimate",
+    "choose_checkpointing",
+    "estimate_memory",
+    "free_device_memory",
+    "model_estimate",
+    "tokens_per_clip",
+]
 
 #: autograd-saved bytes per token per block per unit of hidden width, bf16 autocast (benchmarks/train.py: 332547 / 2048)
 ACT_BYTES_PER_TOKEN_PER_WIDTH = 332547 / 2048
@@ -62,8 +71,18 @@ def tokens_per_clip(window: int, width: int, height: int, patch=(1, 2, 2), tempo
     return (frames // patch[0]) * (height // spatial // patch[1]) * (width // spatial // patch[2])
 
 
-def estimate_memory(params: int, block_params: int, layers: int, hidden: int, tokens: int, *, micro_batch: int = 1,
-                    shards: int = 1, bf16_autocast: bool = True, fused_adamw: bool = False) -> MemoryEstimate:
+def estimate_memory(
+    params: int,
+    block_params: int,
+    layers: int,
+    hidden: int,
+    tokens: int,
+    *,
+    micro_batch: int = 1,
+    shards: int = 1,
+    bf16_autocast: bool = True,
+    fused_adamw: bool = False,
+) -> MemoryEstimate:
     """The step's memory per process in bytes (module docstring); ``shards``: processes sharing the state (FSDP)."""
     per_token_block = ACT_BYTES_PER_TOKEN_PER_WIDTH * hidden * (1 if bf16_autocast else 2)
     clips_tokens = tokens * micro_batch
@@ -73,7 +92,8 @@ def estimate_memory(params: int, block_params: int, layers: int, hidden: int, to
         optimizer_temporaries=0.0 if fused_adamw else 4 * params / shards,
         gathered=8 * block_params if shards > 1 else 0.0,
         activations_none=per_token_block * clips_tokens * layers,
-        activations_full=4 * hidden * clips_tokens * layers + per_token_block * clips_tokens)
+        activations_full=4 * hidden * clips_tokens * layers + per_token_block * clips_tokens,
+    )
 
 
 def free_device_memory(device) -> int | None:
@@ -96,12 +116,21 @@ def model_estimate(model, config, shards: int = 1, compression: tuple[int, int] 
     hidden = int(cfg.num_attention_heads) * int(cfg.attention_head_dim)
     d = config.data
     tokens = tokens_per_clip(d.window, d.width, d.height, tuple(cfg.patch_size), *compression)
-    return estimate_memory(params, block_params, len(blocks), hidden, tokens, micro_batch=config.micro_batch,
-                           shards=shards, bf16_autocast=config.model.dtype == "bfloat16")
+    return estimate_memory(
+        params,
+        block_params,
+        len(blocks),
+        hidden,
+        tokens,
+        micro_batch=config.micro_batch,
+        shards=shards,
+        bf16_autocast=config.model.dtype == "bfloat16",
+    )
 
 
-def choose_checkpointing(config, model, device, shards: int = 1,
-                         compression: tuple[int, int] = (4, 8)) -> tuple[str, str]:
+def choose_checkpointing(
+    config, model, device, shards: int = 1, compression: tuple[int, int] = (4, 8)
+) -> tuple[str, str]:
     """("none" or "full", why) for ``config``'s activation-checkpointing policy on ``device``.
 
     ``auto``: ``none`` on a non-CUDA device, else ``none`` when :func:`model_estimate`'s step without checkpointing fits in 90 % of
@@ -115,9 +144,13 @@ def choose_checkpointing(config, model, device, shards: int = 1,
         return "none", f"activation_checkpointing: auto: none on {torch.device(device).type} (not a GPU)"
     est = model_estimate(model, config, shards, compression)
     need, budget = est.total("none"), FREE_FRACTION * free
-    gib = 1024 ** 3
+    gib = 1024**3
     if need <= budget:
-        return "none", (f"activation_checkpointing: auto: none (a step needs ~{need / gib:.1f} GiB computed, "
-                        f"{free / gib:.1f} GiB free)")
-    return "full", (f"activation_checkpointing: auto: full (without it a step needs ~{need / gib:.1f} GiB computed, "
-                    f"more than 90 % of the {free / gib:.1f} GiB free; with it ~{est.total('full') / gib:.1f} GiB)")
+        return "none", (
+            f"activation_checkpointing: auto: none (a step needs ~{need / gib:.1f} GiB computed, "
+            f"{free / gib:.1f} GiB free)"
+        )
+    return "full", (
+        f"activation_checkpointing: auto: full (without it a step needs ~{need / gib:.1f} GiB computed, "
+        f"more than 90 % of the {free / gib:.1f} GiB free; with it ~{est.total('full') / gib:.1f} GiB)"
+    )

@@ -27,8 +27,9 @@ def transformer_config(spec, source: str = "<config>") -> dict:
     if path.is_dir():
         path = path / "config.json"
     if not path.is_file():
-        raise TrainConfigError(source, "model.transformer", "'tiny', 'cosmos-2b', a config.json (or its folder) "
-                               "or a mapping", repr(spec))
+        raise TrainConfigError(
+            source, "model.transformer", "'tiny', 'cosmos-2b', a config.json (or its folder) or a mapping", repr(spec)
+        )
     data = json.loads(path.read_text())
     return {k: v for k, v in data.items() if not k.startswith("_") and k not in ("action_frames", "action_dim")}
 
@@ -77,8 +78,12 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
         allowed = {"skeleton_embed.proj.weight"} | {k for k in model.state_dict() if k.startswith("action_embed")}
         bad_missing = [k for k in missing if k not in allowed]
         if bad_missing or unexpected:
-            raise TrainConfigError(source, "model.init", f"weights matching the transformer config ({init})",
-                                   f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}")
+            raise TrainConfigError(
+                source,
+                "model.init",
+                f"weights matching the transformer config ({init})",
+                f"missing {bad_missing[:5]}, unexpected {list(unexpected)[:5]}",
+            )
         # the keys the base lacks (PE_s, the action MLPs) keep their constructor init: zero outputs
     if not is_video_condition(config.condition):
         # PE_s is unused without a skeleton: frozen, it stays zero and DDP does not wait for its gradient
@@ -87,8 +92,9 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
     return model
 
 
-def prepare_for_training(model, config: TrainConfig, device, shards: int = 1,
-                         compression: tuple[int, int] = (4, 8)) -> tuple[str, str]:
+def prepare_for_training(
+    model, config: TrainConfig, device, shards: int = 1, compression: tuple[int, int] = (4, 8)
+) -> tuple[str, str]:
     """Apply the config's activation checkpointing (:func:`.memory.choose_checkpointing`) and ``model.compile``
     (``torch.compile`` of every transformer block, in place: parameter names and checkpoints stay the same) to a
     built transformer, before it moves to ``device``; returns (checkpointing chosen, why). compression: the VAE's
@@ -117,7 +123,9 @@ def _base_weights(init: str, source: str) -> dict:
         if (folder / "transformer").is_dir():
             folder = folder / "transformer"
     if not folder.is_dir():
-        raise TrainConfigError(source, "model.init", "a folder of transformer weights (safetensors)", f"{folder} (missing)")
+        raise TrainConfigError(
+            source, "model.init", "a folder of transformer weights (safetensors)", f"{folder} (missing)"
+        )
     return load_state_dict(folder)
 
 
@@ -137,7 +145,11 @@ def build_vae(config: TrainConfig, device="cpu", source: str = "<config>"):
     if (folder / "vae").is_dir():
         folder = folder / "vae"
     if not (folder / "config.json").is_file():
-        raise TrainConfigError(source, "model.vae", "'tiny', an AutoencoderKLWan folder or an OSCAR model folder",
-                               f"{spec} (no config.json)")
+        raise TrainConfigError(
+            source,
+            "model.vae",
+            "'tiny', an AutoencoderKLWan folder or an OSCAR model folder",
+            f"{spec} (no config.json)",
+        )
     vae = build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder)
     return VideoVAE(vae, device=device)

@@ -65,8 +65,12 @@ def wrap_model(model: torch.nn.Module, mode: str, info: DistInfo) -> torch.nn.Mo
         if mode == "fsdp":
             from .config import TrainConfigError
 
-            raise TrainConfigError("<config>", "parallel", "'fsdp' under a torchrun launch of several processes "
-                                   "(or 'none' / 'auto' for one process)", "'fsdp' in a single process")
+            raise TrainConfigError(
+                "<config>",
+                "parallel",
+                "'fsdp' under a torchrun launch of several processes (or 'none' / 'auto' for one process)",
+                "'fsdp' in a single process",
+            )
         return model
     if mode == "ddp":
         from torch.nn.parallel import DistributedDataParallel

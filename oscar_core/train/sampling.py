@@ -68,8 +68,9 @@ def trapezoid(d: np.ndarray, window: int, ramp: float) -> np.ndarray:
     return np.where((d >= 0) & (d < window), w, 0.0)
 
 
-def window_prior(openness: np.ndarray, window: int, ramp: float = 0.25, uniform: float = 0.0,
-                 starts: np.ndarray | None = None) -> np.ndarray:
+def window_prior(
+    openness: np.ndarray, window: int, ramp: float = 0.25, uniform: float = 0.0, starts: np.ndarray | None = None
+) -> np.ndarray:
     """Probabilities over window starts (sum 1).
 
     openness: (T, G); window: frames; starts: the allowed starts (default all
@@ -114,9 +115,20 @@ class StepPlanner:
     window: frames; the other arguments are the config's.
     """
 
-    def __init__(self, clips: list[tuple[str, int, np.ndarray, np.ndarray | None]], window: int, *, seed: int = 0,
-                 temperature: float = 3.0, ramp: float = 0.25, uniform: float = 0.0, dropout: float = 0.2,
-                 shift: float = 5.0, logit_mean: float = 0.0, logit_std: float = 1.0):
+    def __init__(
+        self,
+        clips: list[tuple[str, int, np.ndarray, np.ndarray | None]],
+        window: int,
+        *,
+        seed: int = 0,
+        temperature: float = 3.0,
+        ramp: float = 0.25,
+        uniform: float = 0.0,
+        dropout: float = 0.2,
+        shift: float = 5.0,
+        logit_mean: float = 0.0,
+        logit_std: float = 1.0,
+    ):
         if not clips:
             raise ValueError("StepPlanner: expected at least one usable clip, found none")
         self.window, self.seed, self.dropout = window, int(seed), float(dropout)
@@ -158,4 +170,4 @@ class StepPlanner:
         if len(items) % world:
             raise ValueError(f"batch_size: expected a multiple of the {world} processes, found {len(items)}")
         n = len(items) // world
-        return items[rank * n:(rank + 1) * n]
+        return items[rank * n : (rank + 1) * n]

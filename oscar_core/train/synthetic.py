@@ -19,10 +19,20 @@ from .clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 __all__ = ["write_toy_clipset"]
 
 
-def write_toy_clipset(root, clips: int = 4, frames: int = 33, width: int = 64, height: int = 48,
-                      sources: tuple[str, ...] = ("toy_a", "toy_b"), per_shard: int = 2, seed: int = 0,
-                      stored_skeleton: bool = False, prompt_dim: int | None = None, latents_vae=None,
-                      latents_window: int | None = None) -> Path:
+def write_toy_clipset(
+    root,
+    clips: int = 4,
+    frames: int = 33,
+    width: int = 64,
+    height: int = 48,
+    sources: tuple[str, ...] = ("toy_a", "toy_b"),
+    per_shard: int = 2,
+    seed: int = 0,
+    stored_skeleton: bool = False,
+    prompt_dim: int | None = None,
+    latents_vae=None,
+    latents_window: int | None = None,
+) -> Path:
     """Write ``clips`` clips of ``frames`` frames at ``width`` x ``height`` into clip set ``root``.
 
     Clip i has source ``sources[i % len(sources)]`` and id ``toy-<i>``.
@@ -58,9 +68,18 @@ def write_toy_clipset(root, clips: int = 4, frames: int = 33, width: int = 64, h
                 rgb = np.where(skel.any(-1, keepdims=True), skel, bg)
                 rgb = np.clip(rgb.astype(np.int16) + rng.integers(-4, 5, rgb.shape), 0, 255).astype(np.uint8)
                 op = clip_openness(emb, traj)
-                rec = ClipRecord(id=f"toy-{i}", source=sources[i % len(sources)], embodiment="toyarm", n_frames=frames,
-                                 fps=float(traj.fps), width=width, height=height, openness=tuple(map(tuple, op)),
-                                 files={}, caption="the toy arm picks up a cube")
+                rec = ClipRecord(
+                    id=f"toy-{i}",
+                    source=sources[i % len(sources)],
+                    embodiment="toyarm",
+                    n_frames=frames,
+                    fps=float(traj.fps),
+                    width=width,
+                    height=height,
+                    openness=tuple(map(tuple, op)),
+                    files={},
+                    caption="the toy arm picks up a cube",
+                )
                 extra = {}
                 if stored_skeleton:
                     extra["skeleton"] = skel
@@ -84,8 +103,8 @@ def _latents(vae, rgb: np.ndarray, skel: np.ndarray, window: int) -> dict:
     import torch
 
     starts = list(range(0, len(rgb) - window + 1))
-    video = torch.cat([vae.encode(vae.to_pixels(rgb[s:s + window])) for s in starts])
-    skeleton = torch.cat([vae.encode(vae.to_pixels(skel[s:s + window])) for s in starts])
+    video = torch.cat([vae.encode(vae.to_pixels(rgb[s : s + window])) for s in starts])
+    skeleton = torch.cat([vae.encode(vae.to_pixels(skel[s : s + window])) for s in starts])
     return {"video": video, "skeleton": skeleton, "starts": starts, "window": window, "vae": "tiny"}
 
 
@@ -95,5 +114,10 @@ def _random_latents(i: int, frames: int, width: int, height: int, window: int) -
     starts = list(range(0, frames - window + 1))
     g = torch.Generator().manual_seed(2000 + i)
     shape = (len(starts), 16, (window - 1) // 4 + 1, height // 8, width // 8)
-    return {"video": torch.randn(shape, generator=g), "skeleton": torch.randn(shape, generator=g), "starts": starts,
-            "window": window, "vae": "random"}
+    return {
+        "video": torch.randn(shape, generator=g),
+        "skeleton": torch.randn(shape, generator=g),
+        "starts": starts,
+        "window": window,
+        "vae": "random",
+    }

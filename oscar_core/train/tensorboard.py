@@ -23,8 +23,10 @@ def require_tensorboard():
     try:
         import tensorboard  # noqa: F401 - torch.utils.tensorboard needs it
     except ImportError:
-        raise ImportError('log.tensorboard: true needs the tensorboard package; install it with: '
-                          'pip install "oscar-wm[tensorboard]" (or set log.tensorboard: false)') from None
+        raise ImportError(
+            "log.tensorboard: true needs the tensorboard package; install it with: "
+            'pip install "oscar-wm[tensorboard]" (or set log.tensorboard: false)'
+        ) from None
     from torch.utils.tensorboard import SummaryWriter
 
     return SummaryWriter

@@ -30,8 +30,10 @@ def require_wandb():
     try:
         import wandb
     except ImportError:
-        raise ImportError('log.wandb: true needs the wandb package; install it with: pip install "oscar-wm[wandb]" '
-                          '(or set log.wandb: false)') from None
+        raise ImportError(
+            'log.wandb: true needs the wandb package; install it with: pip install "oscar-wm[wandb]" '
+            "(or set log.wandb: false)"
+        ) from None
     return wandb
 
 
@@ -46,8 +48,15 @@ class WandbLog:
         if not run_id:
             run_id = secrets.token_hex(8)
             atomic_write_bytes(id_file, (run_id + "\n").encode())
-        self.run = wandb.init(project=project, dir=str(run_dir), id=run_id, resume="allow", mode=mode,
-                              name=run_dir.resolve().name, config=config)
+        self.run = wandb.init(
+            project=project,
+            dir=str(run_dir),
+            id=run_id,
+            resume="allow",
+            mode=mode,
+            name=run_dir.resolve().name,
+            config=config,
+        )
 
     def write(self, record: dict) -> None:
         values = {f"train/{name}": float(record[name]) for name in SCALARS if record.get(name) is not None}

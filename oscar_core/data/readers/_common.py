@@ -28,8 +28,9 @@ def require(module: str, reader: str):
     try:
         return import_module(module)
     except ImportError:
-        raise ImportError(f"the {reader!r} dataset reader needs the Python package {module.split('.')[0]!r}: "
-                          f"{INSTALL_HINT}") from None
+        raise ImportError(
+            f"the {reader!r} dataset reader needs the Python package {module.split('.')[0]!r}: {INSTALL_HINT}"
+        ) from None
 
 
 def local_root(source: str, reader: str) -> Path:
@@ -42,13 +43,17 @@ def local_root(source: str, reader: str) -> Path:
     if "://" in text:
         protocol, _, rest = text.partition("://")
         if protocol != "file":
-            raise ValueError(f"{source}: the {reader!r} reader reads local folders (or file:// URLs); "
-                             f"mount or copy {protocol}:// data first (h5py and PyAV need local files)")
+            raise ValueError(
+                f"{source}: the {reader!r} reader reads local folders (or file:// URLs); "
+                f"mount or copy {protocol}:// data first (h5py and PyAV need local files)"
+            )
         text = rest
     root = Path(text)
     if not root.is_dir():
-        raise ValueError(f"{source}: expected a folder holding a {reader!r} dataset, found "
-                         f"{'a file' if root.exists() else 'nothing'}")
+        raise ValueError(
+            f"{source}: expected a folder holding a {reader!r} dataset, found "
+            f"{'a file' if root.exists() else 'nothing'}"
+        )
     return root
 
 
@@ -62,8 +67,13 @@ def episode_errors(episode_id: str, path: Any) -> Iterator[None]:
     except InputFileError as e:
         raise EpisodeError(episode_id, e.path, e.field, e.expected, e.found) from None
     except OSError as e:
-        raise EpisodeError(episode_id, getattr(e, "filename", None) or path, "<file>", "a readable file",
-                           f"{type(e).__name__}: {e.strerror or e}") from None
+        raise EpisodeError(
+            episode_id,
+            getattr(e, "filename", None) or path,
+            "<file>",
+            "a readable file",
+            f"{type(e).__name__}: {e.strerror or e}",
+        ) from None
 
 
 def read_json(path: Path, episode_id: str, what: str) -> Any:
@@ -85,13 +95,26 @@ def finite(a: Any, episode_id: str, path: Any, field: str, what: str) -> np.ndar
     bad = ~np.isfinite(arr)
     if bad.any():
         first = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise EpisodeError(episode_id, path, field, f"{what}, finite values",
-                           f"{int(bad.sum())} non-finite values (first at index {first})")
+        raise EpisodeError(
+            episode_id,
+            path,
+            field,
+            f"{what}, finite values",
+            f"{int(bad.sum())} non-finite values (first at index {first})",
+        )
     return arr
 
 
-def probe_video(episode_id: str, path: Path, n_frames: int, fps: float | None, *, start: float = 0.0,
-                field: str = "video", reader: str = "") -> VideoSource:
+def probe_video(
+    episode_id: str,
+    path: Path,
+    n_frames: int,
+    fps: float | None,
+    *,
+    start: float = 0.0,
+    field: str = "video",
+    reader: str = "",
+) -> VideoSource:
     """A :class:`VideoSource` for ``n_frames`` frames from ``start`` seconds, after checking the container.
 
     Demuxes (never decodes) the episode's time range: the file must exist,
@@ -108,9 +131,13 @@ def probe_video(episode_id: str, path: Path, n_frames: int, fps: float | None, *
             raise EpisodeError(episode_id, path, field, "a frame rate (from the dataset or the video)", "none")
         have = _count_packets(container, s, start, n_frames, fps)
     if have < n_frames:
-        raise EpisodeError(episode_id, path, field,
-                           f"{n_frames} frames at {fps:g} fps from {start:g} s (one per state frame)",
-                           f"{max(have, 0)} frames (truncated video?)")
+        raise EpisodeError(
+            episode_id,
+            path,
+            field,
+            f"{n_frames} frames at {fps:g} fps from {start:g} s (one per state frame)",
+            f"{max(have, 0)} frames (truncated video?)",
+        )
     return VideoSource(str(path), n_frames=int(n_frames), fps=fps, start=float(start))
 
 
@@ -136,8 +163,11 @@ def _count_packets(container, stream, start: float, n_frames: int, fps: float) -
 def video_header(episode_id: str, path: Path, field: str = "video", reader: str = "") -> tuple[float | None, int, int]:
     """(frame rate or None, width, height) of a video, from its header only; :class:`EpisodeError` if unreadable."""
     with _open_video(episode_id, Path(path), field, reader) as (_, s):
-        return (float(s.average_rate) if s.average_rate else None, int(s.codec_context.width),
-                int(s.codec_context.height))
+        return (
+            float(s.average_rate) if s.average_rate else None,
+            int(s.codec_context.width),
+            int(s.codec_context.height),
+        )
 
 
 @contextlib.contextmanager

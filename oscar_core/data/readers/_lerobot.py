@@ -74,8 +74,13 @@ def unreadable_table(ref) -> None:
     """Raise the :class:`EpisodeError` of a ref listed for an unreadable episode table (else nothing)."""
     reason = (ref.meta or {}).get("unreadable_table")
     if reason:
-        raise EpisodeError(ref.episode_id, ref.paths.get("states", "?"), "<file>",
-                           "a readable LeRobot episode table (meta/episodes); its episodes were not listed", reason)
+        raise EpisodeError(
+            ref.episode_id,
+            ref.paths.get("states", "?"),
+            "<file>",
+            "a readable LeRobot episode table (meta/episodes); its episodes were not listed",
+            reason,
+        )
 
 
 class LeRobotLayout:
@@ -96,7 +101,9 @@ class LeRobotLayout:
         self.info_path = info_path
         self.version = str(self.info.get("codebase_version", ""))
         if not (self.version.startswith("v3") or self.version.startswith("v2")):
-            raise ValueError(f"{info_path}: field 'codebase_version': expected 'v3.0' or 'v2.1', found {self.version!r}")
+            raise ValueError(
+                f"{info_path}: field 'codebase_version': expected 'v3.0' or 'v2.1', found {self.version!r}"
+            )
         self.features: dict[str, dict] = dict(self.info.get("features") or {})
         try:
             self.fps = float(self.info["fps"])
@@ -131,8 +138,10 @@ class LeRobotLayout:
         pq = require("pyarrow.parquet", self.reader)
         files = sorted((self.root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
         if not files:
-            raise ValueError(f"{self.root / 'meta' / 'episodes'}: expected chunk-XXX/file-YYY.parquet episode tables "
-                             f"(LeRobot v3.0), found none")
+            raise ValueError(
+                f"{self.root / 'meta' / 'episodes'}: expected chunk-XXX/file-YYY.parquet episode tables "
+                f"(LeRobot v3.0), found none"
+            )
         data_tpl = self.info.get("data_path") or V3_DATA
         video_tpl = self.info.get("video_path") or V3_VIDEO
         keys = self.video_keys
@@ -147,8 +156,10 @@ class LeRobotLayout:
                 want += [f"videos/{k}/{c}" for c in ("chunk_index", "file_index", "from_timestamp")]
             missing = [c for c in want if c not in schema.names]
             if missing:
-                raise ValueError(f"{path}: field '{missing[0]}': expected the LeRobot v3.0 episode columns {want}, "
-                                 f"found missing {missing}")
+                raise ValueError(
+                    f"{path}: field '{missing[0]}': expected the LeRobot v3.0 episode columns {want}, "
+                    f"found missing {missing}"
+                )
             try:
                 table = pq.read_table(path, columns=want).to_pydict()
             except Exception as e:  # noqa: BLE001 - a table whose footer reads but whose pages do not
@@ -156,15 +167,20 @@ class LeRobotLayout:
                 continue
             for i in range(len(table["episode_index"])):
                 row = {c: table[c][i] for c in want}
-                data = self.root / data_tpl.format(chunk_index=int(row["data/chunk_index"]),
-                                                   file_index=int(row["data/file_index"]))
+                data = self.root / data_tpl.format(
+                    chunk_index=int(row["data/chunk_index"]), file_index=int(row["data/file_index"])
+                )
                 videos = {}
                 for k in keys:
-                    vpath = self.root / video_tpl.format(video_key=k, chunk_index=int(row[f"videos/{k}/chunk_index"]),
-                                                         file_index=int(row[f"videos/{k}/file_index"]))
+                    vpath = self.root / video_tpl.format(
+                        video_key=k,
+                        chunk_index=int(row[f"videos/{k}/chunk_index"]),
+                        file_index=int(row[f"videos/{k}/file_index"]),
+                    )
                     videos[k] = (str(vpath), float(row[f"videos/{k}/from_timestamp"]))
-                yield EpisodeRow(int(row["episode_index"]), int(row["length"]), tuple(row["tasks"] or ()),
-                                 str(data), videos)
+                yield EpisodeRow(
+                    int(row["episode_index"]), int(row["length"]), tuple(row["tasks"] or ()), str(data), videos
+                )
 
     def _episodes_v21(self) -> Iterator[EpisodeRow]:
         path = self.root / "meta" / "episodes.jsonl"
@@ -182,19 +198,28 @@ class LeRobotLayout:
                     index, length = int(row["episode_index"]), int(row["length"])
                 except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
                     # one rejected row for this line (index: the line number); the other lines go on
-                    yield EpisodeRow(n, 0, (), str(path), {}, error=f"line {n}: expected {{episode_index, tasks, "
-                                                                      f"length}}, found {type(e).__name__}: {e}")
+                    yield EpisodeRow(
+                        n,
+                        0,
+                        (),
+                        str(path),
+                        {},
+                        error=f"line {n}: expected {{episode_index, tasks, length}}, found {type(e).__name__}: {e}",
+                    )
                     continue
                 chunk = index // chunks
                 data = self.root / data_tpl.format(episode_chunk=chunk, episode_index=index)
-                videos = {k: (str(self.root / video_tpl.format(episode_chunk=chunk, video_key=k, episode_index=index)), 0.0)
-                          for k in self.video_keys}
+                videos = {
+                    k: (str(self.root / video_tpl.format(episode_chunk=chunk, video_key=k, episode_index=index)), 0.0)
+                    for k in self.video_keys
+                }
                 yield EpisodeRow(index, length, tuple(row.get("tasks") or ()), str(data), videos)
 
     # ------------------------------------------------------------------ frames
 
-    def frames(self, episode_id: str, data_path: str, index: int, columns: list[str],
-               length: int | None = None) -> dict[str, np.ndarray]:
+    def frames(
+        self, episode_id: str, data_path: str, index: int, columns: list[str], length: int | None = None
+    ) -> dict[str, np.ndarray]:
         """The columns of one episode's rows, in frame order: column → (T, ...) array.
 
         length: the episode table's ``length`` (checked when given).
@@ -219,9 +244,14 @@ class LeRobotLayout:
         except Exception as e:  # noqa: BLE001 - as above: named as a broken parquet file
             raise EpisodeError(episode_id, path, "<file>", "a parquet file", f"{type(e).__name__}: {e}") from None
         if table.num_rows == 0 or (length is not None and table.num_rows != int(length)):
-            raise EpisodeError(episode_id, path, "episode_index",
-                               f"{length if length is not None else 'at least one'} rows of episode {index} "
-                               "(the episode table's length)", f"{table.num_rows} rows")
+            raise EpisodeError(
+                episode_id,
+                path,
+                "episode_index",
+                f"{length if length is not None else 'at least one'} rows of episode {index} "
+                "(the episode table's length)",
+                f"{table.num_rows} rows",
+            )
         out = {}
         order = None
         if "frame_index" in table.column_names:
@@ -231,7 +261,8 @@ class LeRobotLayout:
             try:
                 a = np.asarray(col, dtype=np.float64)
             except (TypeError, ValueError):
-                raise EpisodeError(episode_id, path, c, "numbers (one row of equal length per frame)",
-                                   "ragged or non-numeric cells") from None
+                raise EpisodeError(
+                    episode_id, path, c, "numbers (one row of equal length per frame)", "ragged or non-numeric cells"
+                ) from None
             out[c] = a if order is None else a[order]
         return out

@@ -85,9 +85,12 @@ def load_npy(path: str | Path) -> Any:
                 return np.load(f, allow_pickle=False)
             obj = _RestrictedUnpickler(f, encoding="latin1").load()
     except _Refused as e:
-        raise NpyPickleError(path, "pickle global", "only numpy arrays, dicts, lists and numbers "
-                             "(oscar_core.data.readers._npy.ALLOWED_GLOBALS)",
-                             f"{e.what}, which was refused (nothing from the file was imported or run)") from None
+        raise NpyPickleError(
+            path,
+            "pickle global",
+            "only numpy arrays, dicts, lists and numbers (oscar_core.data.readers._npy.ALLOWED_GLOBALS)",
+            f"{e.what}, which was refused (nothing from the file was imported or run)",
+        ) from None
     except Exception as e:  # noqa: BLE001 - truncated or corrupt file
         raise NpyPickleError(path, "<file>", "a readable .npy file", f"{type(e).__name__}: {e}") from None
     if isinstance(obj, np.ndarray) and obj.dtype.hasobject and obj.shape == ():

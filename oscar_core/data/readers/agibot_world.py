@@ -70,11 +70,23 @@ class AgiBotWorldReader(Reader):
             videos = root / "observations" / task / episode / "videos"
             names = sorted(p.stem for p in videos.glob("*.mp4"))
             cams = tuple([CAMERA] + [c for c in names if c != CAMERA])
-            yield EpisodeRef(f"agibot_world/{task}/{episode}", "agibot_world", self.name, "agibot_g1",
-                             {"root": str(root), "states": str(h5), "video": str(videos / f"{CAMERA}.mp4"),
-                              "calibration": str(root / "parameters" / task / episode / "parameters" / "camera")},
-                             n_frames=n, fps=None, task=tasks[task].get(episode), cameras=cams,
-                             meta={"task_id": task, "episode": episode, "camera": CAMERA})
+            yield EpisodeRef(
+                f"agibot_world/{task}/{episode}",
+                "agibot_world",
+                self.name,
+                "agibot_g1",
+                {
+                    "root": str(root),
+                    "states": str(h5),
+                    "video": str(videos / f"{CAMERA}.mp4"),
+                    "calibration": str(root / "parameters" / task / episode / "parameters" / "camera"),
+                },
+                n_frames=n,
+                fps=None,
+                task=tasks[task].get(episode),
+                cameras=cams,
+                meta={"task_id": task, "episode": episode, "camera": CAMERA},
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         require("h5py", self.name)
@@ -83,13 +95,19 @@ class AgiBotWorldReader(Reader):
         eid, h5 = ref.episode_id, Path(ref.paths["states"])
         cam = ref.meta.get("camera") or CAMERA
         if cam != CAMERA:
-            raise EpisodeError(eid, ref.paths["calibration"], "camera", f"{CAMERA!r} (the only calibrated view)", repr(cam))
+            raise EpisodeError(
+                eid, ref.paths["calibration"], "camera", f"{CAMERA!r} (the only calibrated view)", repr(cam)
+            )
         root, task, episode = Path(ref.paths["root"]), ref.meta["task_id"], ref.meta["episode"]
         for name in CAMERA_FILES:  # name the missing file before the adapter's loader does
-            folders = [root / "parameters" / task / episode / "parameters" / "camera",
-                       root / "parameters" / task / episode / "camera"]
+            folders = [
+                root / "parameters" / task / episode / "parameters" / "camera",
+                root / "parameters" / task / episode / "camera",
+            ]
             if not any((d / f"{name}.json").is_file() for d in folders):
-                raise EpisodeError(eid, folders[0] / f"{name}.json", "<file>", "the head camera calibration", "no such file")
+                raise EpisodeError(
+                    eid, folders[0] / f"{name}.json", "<file>", "the head camera calibration", "no such file"
+                )
             for d in folders:
                 if (d / f"{name}.json").is_file():
                     read_json(d / f"{name}.json", eid, "the head camera calibration")  # malformed → EpisodeError
@@ -104,8 +122,14 @@ class AgiBotWorldReader(Reader):
             finite(record[key], eid, h5, key, "joint / gripper values")
         n, m = len(record[STATE]), len(record[GRIPPER])
         if n != m:
-            raise EpisodeError(eid, h5, GRIPPER, f"{n} rows, one per state frame (state/joint/position); AgiBot World's "
-                               "known action/state length defect: episode rejected", f"{m} rows")
+            raise EpisodeError(
+                eid,
+                h5,
+                GRIPPER,
+                f"{n} rows, one per state frame (state/joint/position); AgiBot World's "
+                "known action/state length defect: episode rejected",
+                f"{m} rows",
+            )
         with episode_errors(eid, h5):
             traj, camera = from_agibot_world(record, source=str(h5))
         video = probe_video(eid, Path(ref.paths["video"]), len(traj), None, field=cam, reader=self.name)

@@ -73,10 +73,18 @@ class DroidRawReader(Reader):
                 paths[f"video:{c}"] = str(folder / "recordings" / "MP4" / f"{c.rsplit('_', 1)[0]}.mp4")
             if cams:
                 paths["video"] = paths[f"video:{cams[0]}"]  # the default camera's file
-            yield EpisodeRef(f"droid/{rel}", "droid", self.name, "franka_robotiq", paths,
-                             n_frames=int(n) if isinstance(n, (int, float)) else None, fps=15.0,
-                             task=meta.get("current_task") or None, cameras=cams,
-                             meta={"camera": cams[0] if cams else None, "success": meta.get("success")})
+            yield EpisodeRef(
+                f"droid/{rel}",
+                "droid",
+                self.name,
+                "franka_robotiq",
+                paths,
+                n_frames=int(n) if isinstance(n, (int, float)) else None,
+                fps=15.0,
+                task=meta.get("current_task") or None,
+                cameras=cams,
+                meta={"camera": cams[0] if cams else None, "success": meta.get("success")},
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         h5py = require("h5py", self.name)
@@ -84,11 +92,18 @@ class DroidRawReader(Reader):
 
         eid, h5 = ref.episode_id, Path(ref.paths["states"])
         if not ref.paths.get("metadata"):
-            raise EpisodeError(eid, h5.parent / "metadata_<uuid>.json", "<file>", "the episode metadata JSON", "no such file")
+            raise EpisodeError(
+                eid, h5.parent / "metadata_<uuid>.json", "<file>", "the episode metadata JSON", "no such file"
+            )
         cam = ref.meta.get("camera")
         if not cam or f"video:{cam}" not in ref.paths:
-            raise EpisodeError(eid, ref.paths["metadata"], "ext1_cam_serial",
-                               f"an external camera serial (cameras listed: {list(ref.cameras)})", repr(cam))
+            raise EpisodeError(
+                eid,
+                ref.paths["metadata"],
+                "ext1_cam_serial",
+                f"an external camera serial (cameras listed: {list(ref.cameras)})",
+                repr(cam),
+            )
         serial = cam.rsplit("_", 1)[0]
         if not h5.is_file():
             raise EpisodeError(eid, h5, "<file>", "trajectory.h5", "no such file")
@@ -104,11 +119,18 @@ class DroidRawReader(Reader):
         if K is None:
             K = ref.meta.get("intrinsics") or self.intrinsics.get(serial) or self.intrinsics.get(cam)
         if K is None:
-            raise EpisodeError(eid, h5, f"observation/camera_intrinsics/{cam}",
-                               "the camera matrix (or DroidRawReader(intrinsics={serial: (fx, fy, cx, cy)}))", "missing")
+            raise EpisodeError(
+                eid,
+                h5,
+                f"observation/camera_intrinsics/{cam}",
+                "the camera matrix (or DroidRawReader(intrinsics={serial: (fx, fy, cx, cy)}))",
+                "missing",
+            )
         n = len(record[JOINTS])
         if len(record[GRIPPER]) != n:
-            raise EpisodeError(eid, h5, GRIPPER, f"{n} rows, one per joint_positions row", f"{len(record[GRIPPER])} rows")
+            raise EpisodeError(
+                eid, h5, GRIPPER, f"{n} rows, one per joint_positions row", f"{len(record[GRIPPER])} rows"
+            )
         with episode_errors(eid, h5):
             traj, camera = from_droid(record, cam, intrinsics=K, image_size=self.image_size, source=str(h5))
         video = probe_video(eid, Path(ref.paths[f"video:{cam}"]), len(traj), DROID_FPS, field=cam, reader=self.name)

@@ -85,9 +85,18 @@ class EgoDexReader(Reader):
                     task = text.decode() if isinstance(text, bytes) else (str(text) if text is not None else None)
             except OSError:
                 pass  # reported by load_episode
-            yield EpisodeRef(f"egodex/{rel}", "egodex", self.name, "mano",
-                             {"states": str(h5), "video": str(h5.with_suffix(".mp4"))}, n_frames=n, fps=EGODEX_FPS,
-                             task=task or h5.parent.name.replace("_", " "), cameras=(CAMERA,), meta={"camera": CAMERA})
+            yield EpisodeRef(
+                f"egodex/{rel}",
+                "egodex",
+                self.name,
+                "mano",
+                {"states": str(h5), "video": str(h5.with_suffix(".mp4"))},
+                n_frames=n,
+                fps=EGODEX_FPS,
+                task=task or h5.parent.name.replace("_", " "),
+                cameras=(CAMERA,),
+                meta={"camera": CAMERA},
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         h5py = require("h5py", self.name)
@@ -99,8 +108,9 @@ class EgoDexReader(Reader):
         with episode_errors(eid, h5):
             with h5py.File(h5, "r") as f:
                 K = finite(_dataset(f, "camera/intrinsic", eid, h5), eid, h5, "camera/intrinsic", "a 3x3 camera matrix")
-                cam = finite(_dataset(f, "transforms/camera", eid, h5), eid, h5, "transforms/camera",
-                             "(T, 4, 4) camera poses")
+                cam = finite(
+                    _dataset(f, "transforms/camera", eid, h5), eid, h5, "transforms/camera", "(T, 4, 4) camera poses"
+                )
                 T = len(cam)
                 kp = np.empty((T, 2, 21, 3))
                 for h, side in enumerate(("left", "right")):
@@ -108,7 +118,9 @@ class EgoDexReader(Reader):
                         key = f"transforms/{joint}"
                         M = finite(_dataset(f, key, eid, h5), eid, h5, key, "(T, 4, 4) joint poses")
                         if M.shape != (T, 4, 4):
-                            raise EpisodeError(eid, h5, key, f"shape ({T}, 4, 4), as transforms/camera", f"shape {M.shape}")
+                            raise EpisodeError(
+                                eid, h5, key, f"shape ({T}, 4, 4), as transforms/camera", f"shape {M.shape}"
+                            )
                         kp[:, h, k] = M[:, :3, 3]
                         ckey = f"confidences/{joint}"
                         if self.min_confidence > 0 and ckey in f:
@@ -122,8 +134,9 @@ class EgoDexReader(Reader):
         rate, width, height = video_header(eid, Path(ref.paths["video"]), CAMERA, self.name)
         video = probe_video(eid, Path(ref.paths["video"]), T, rate or EGODEX_FPS, field=CAMERA, reader=self.name)
         try:
-            traj = trajectory_from_keypoints(kp, video.fps, camera_poses=cam, camera_convention=self.camera_convention,
-                                             source=str(h5))
+            traj = trajectory_from_keypoints(
+                kp, video.fps, camera_poses=cam, camera_convention=self.camera_convention, source=str(h5)
+            )
         except InputFileError as e:
             raise EpisodeError(eid, e.path, e.field, e.expected, e.found) from None
         except ValueError as e:  # the mano converter's plain errors name the field in the message

@@ -79,9 +79,15 @@ class EpicVitraReader(Reader):
             if parsed is None:
                 continue
             dataset, video, ep = parsed
-            yield EpisodeRef(f"epic_kitchens/{video}/{ep}", "epic_kitchens", self.name, "mano",
-                             {"states": str(npy), "video": str(_video_path(videos, video))}, cameras=(CAMERA,),
-                             meta={"dataset": dataset, "video_name": video, "camera": CAMERA})
+            yield EpisodeRef(
+                f"epic_kitchens/{video}/{ep}",
+                "epic_kitchens",
+                self.name,
+                "mano",
+                {"states": str(npy), "video": str(_video_path(videos, video))},
+                cameras=(CAMERA,),
+                meta={"dataset": dataset, "video_name": video, "camera": CAMERA},
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         from oscar_embodiments.mano.convert import egocentric_camera, trajectory_from_keypoints
@@ -97,8 +103,13 @@ class EpicVitraReader(Reader):
         frames = np.asarray(frames, dtype=np.int64).reshape(-1)
         T = len(frames)
         if T < 1 or (T > 1 and not (np.diff(frames) == 1).all()):
-            raise EpisodeError(eid, npy, "video_decode_frame", "consecutive frame indices of the raw video",
-                               f"{frames[:5].tolist()}… ({T} frames)")
+            raise EpisodeError(
+                eid,
+                npy,
+                "video_decode_frame",
+                "consecutive frame indices of the raw video",
+                f"{frames[:5].tolist()}… ({T} frames)",
+            )
         kp = np.full((T, 2, 21, 3), np.nan)
         for h, side in enumerate(("left", "right")):
             hand = _get(d, side, eid, npy)
@@ -107,14 +118,24 @@ class EpicVitraReader(Reader):
             joints = np.asarray(_get(hand, "joints_camspace", eid, npy, f"{side}.joints_camspace"), dtype=np.float64)
             kept = np.asarray(_get(hand, "kept_frames", eid, npy, f"{side}.kept_frames")).reshape(-1).astype(bool)
             if joints.shape != (T, 21, 3):
-                raise EpisodeError(eid, npy, f"{side}.joints_camspace", f"shape ({T}, 21, 3), one row per video_decode_frame",
-                                   f"shape {joints.shape}")
+                raise EpisodeError(
+                    eid,
+                    npy,
+                    f"{side}.joints_camspace",
+                    f"shape ({T}, 21, 3), one row per video_decode_frame",
+                    f"shape {joints.shape}",
+                )
             if kept.shape != (T,):
                 raise EpisodeError(eid, npy, f"{side}.kept_frames", f"shape ({T},)", f"shape {kept.shape}")
             bad = kept & ~np.isfinite(joints).all(axis=(1, 2))
             if bad.any():
-                raise EpisodeError(eid, npy, f"{side}.joints_camspace", "finite joints in every kept frame",
-                                   f"non-finite values in {int(bad.sum())} kept frames (first {int(np.argmax(bad))})")
+                raise EpisodeError(
+                    eid,
+                    npy,
+                    f"{side}.joints_camspace",
+                    "finite joints in every kept frame",
+                    f"non-finite values in {int(bad.sum())} kept frames (first {int(np.argmax(bad))})",
+                )
             kp[kept, h] = joints[kept]
         K = np.asarray(_get(d, "intrinsics", eid, npy), dtype=np.float64)
         if K.shape != (3, 3) or not np.isfinite(K).all():
@@ -152,8 +173,12 @@ def _task(d: dict) -> str | None:
 
 def _video_path(root: Path, video: str) -> Path:
     participant = video.split("_")[0]
-    for cand in (root / participant / "videos" / f"{video}.MP4", root / participant / "videos" / f"{video}.mp4",
-                 root / f"{video}.mp4", root / f"{video}.MP4"):
+    for cand in (
+        root / participant / "videos" / f"{video}.MP4",
+        root / participant / "videos" / f"{video}.mp4",
+        root / f"{video}.mp4",
+        root / f"{video}.MP4",
+    ):
         if cand.is_file():
             return cand
     return root / participant / "videos" / f"{video}.MP4"

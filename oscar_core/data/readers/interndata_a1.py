@@ -33,7 +33,12 @@ from ._lerobot import LeRobotLayout, unreadable_table
 
 __all__ = ["InternDataA1Reader"]
 
-COLUMNS = ("states.joint.position", "states.gripper.position", "head_camera_intrinsics", "head_camera_to_robot_extrinsics")
+COLUMNS = (
+    "states.joint.position",
+    "states.gripper.position",
+    "head_camera_intrinsics",
+    "head_camera_to_robot_extrinsics",
+)
 VIDEO = "images.rgb.head"
 
 
@@ -65,17 +70,29 @@ class InternDataA1Reader(Reader):
             for row in layout.episodes():
                 if row.error:  # one rejected row naming the broken table; the other tables' episodes go on
                     table = Path(row.data).relative_to(dataset).as_posix()
-                    yield EpisodeRef(f"interndata_a1/{rel}/{table}{row.error_id}", "interndata_a1", self.name, "franka",
-                                     {"root": str(dataset), "states": row.data}, fps=layout.fps,
-                                     meta={"unreadable_table": row.error})
+                    yield EpisodeRef(
+                        f"interndata_a1/{rel}/{table}{row.error_id}",
+                        "interndata_a1",
+                        self.name,
+                        "franka",
+                        {"root": str(dataset), "states": row.data},
+                        fps=layout.fps,
+                        meta={"unreadable_table": row.error},
+                    )
                     continue
                 video = row.videos.get(VIDEO)
-                yield EpisodeRef(f"interndata_a1/{rel}/{row.index}", "interndata_a1", self.name, "franka",
-                                 {"root": str(dataset), "data": row.data, "states": row.data, "video": video[0] if video else ""},
-                                 n_frames=row.length, fps=layout.fps, task=row.tasks[0] if row.tasks else None,
-                                 cameras=("head", "hand") if "images.rgb.hand" in layout.features else ("head",),
-                                 meta={"episode_index": row.index, "camera": "head",
-                                       "video_start": video[1] if video else 0.0})
+                yield EpisodeRef(
+                    f"interndata_a1/{rel}/{row.index}",
+                    "interndata_a1",
+                    self.name,
+                    "franka",
+                    {"root": str(dataset), "data": row.data, "states": row.data, "video": video[0] if video else ""},
+                    n_frames=row.length,
+                    fps=layout.fps,
+                    task=row.tasks[0] if row.tasks else None,
+                    cameras=("head", "hand") if "images.rgb.hand" in layout.features else ("head",),
+                    meta={"episode_index": row.index, "camera": "head", "video_start": video[1] if video else 0.0},
+                )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         from oscar_embodiments.franka.adapters import from_interndata
@@ -92,7 +109,16 @@ class InternDataA1Reader(Reader):
             finite(frames[c], eid, ref.paths["data"], c, "joint / gripper state")
         size = layout.image_size(VIDEO) or (640, 480)
         with episode_errors(eid, ref.paths["data"]):
-            traj, camera = from_interndata(frames, camera="head", fps=layout.fps, image_size=size, source=ref.paths["data"])
-        video = probe_video(eid, Path(ref.paths["video"]), len(traj), layout.fps, start=float(ref.meta.get("video_start", 0.0)),
-                            field=VIDEO, reader=self.name)
+            traj, camera = from_interndata(
+                frames, camera="head", fps=layout.fps, image_size=size, source=ref.paths["data"]
+            )
+        video = probe_video(
+            eid,
+            Path(ref.paths["video"]),
+            len(traj),
+            layout.fps,
+            start=float(ref.meta.get("video_start", 0.0)),
+            field=VIDEO,
+            reader=self.name,
+        )
         return Episode(ref, traj, camera, "head", video, ref.task)

@@ -58,9 +58,11 @@ def _profile(layout: LeRobotLayout) -> str:
     flat = str(names)
     if "arm_lift_joint" in flat or str(layout.info.get("robot_type", "")).lower() in ("hsr", "hsrb"):
         return "airoa_moma"
-    raise ValueError(f"{layout.info_path}: field 'features': expected a DROID ({', '.join(DROID_STATE)}) or "
-                     f"AIROA-MoMa (observation.state named with HSR joints) LeRobot dataset, found features "
-                     f"{sorted(f)[:12]} and robot_type {layout.info.get('robot_type')!r}")
+    raise ValueError(
+        f"{layout.info_path}: field 'features': expected a DROID ({', '.join(DROID_STATE)}) or "
+        f"AIROA-MoMa (observation.state named with HSR joints) LeRobot dataset, found features "
+        f"{sorted(f)[:12]} and robot_type {layout.info.get('robot_type')!r}"
+    )
 
 
 def _default_camera(profile: str, keys: list[str]) -> str | None:
@@ -96,17 +98,39 @@ class LeRobotReader(Reader):
         for row in layout.episodes():
             if row.error:  # one rejected row naming the broken table; the other tables' episodes go on
                 rel = Path(row.data).relative_to(root).as_posix()
-                yield EpisodeRef(f"{src}/{rel}{row.error_id}", src, self.name, emb, {"root": str(root), "states": row.data},
-                                 fps=layout.fps, cameras=cams, meta={"unreadable_table": row.error})
+                yield EpisodeRef(
+                    f"{src}/{rel}{row.error_id}",
+                    src,
+                    self.name,
+                    emb,
+                    {"root": str(root), "states": row.data},
+                    fps=layout.fps,
+                    cameras=cams,
+                    meta={"unreadable_table": row.error},
+                )
                 continue
             paths = {"root": str(root), "data": row.data, "states": row.data}
             if default in row.videos:
                 paths["video"] = row.videos[default][0]  # the default camera's (shared) file
             paths.update({f"video:{k}": p for k, (p, _) in row.videos.items()})
-            meta = {"profile": profile, "episode_index": row.index, "camera": default,
-                    "video_start": {k: s for k, (_, s) in row.videos.items()}}
-            yield EpisodeRef(f"{src}/{row.index}", src, self.name, emb, paths, n_frames=row.length, fps=layout.fps,
-                             task=row.tasks[0] if row.tasks else None, cameras=cams, meta=meta)
+            meta = {
+                "profile": profile,
+                "episode_index": row.index,
+                "camera": default,
+                "video_start": {k: s for k, (_, s) in row.videos.items()},
+            }
+            yield EpisodeRef(
+                f"{src}/{row.index}",
+                src,
+                self.name,
+                emb,
+                paths,
+                n_frames=row.length,
+                fps=layout.fps,
+                task=row.tasks[0] if row.tasks else None,
+                cameras=cams,
+                meta=meta,
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         unreadable_table(ref)
@@ -115,8 +139,13 @@ class LeRobotReader(Reader):
         profile = ref.meta.get("profile") or _profile(layout)
         cam = ref.meta.get("camera") or _default_camera(profile, layout.video_keys)
         if cam not in layout.video_keys:
-            raise EpisodeError(ref.episode_id, layout.info_path, "features", f"a video feature {cam!r}",
-                               f"video keys {layout.video_keys}")
+            raise EpisodeError(
+                ref.episode_id,
+                layout.info_path,
+                "features",
+                f"a video feature {cam!r}",
+                f"video keys {layout.video_keys}",
+            )
         index = int(ref.meta["episode_index"])
         data = ref.paths["data"]
         if profile == "droid":
@@ -125,7 +154,9 @@ class LeRobotReader(Reader):
             traj, camera = self._moma(ref, layout, data, index)
         vpath = ref.paths.get(f"video:{cam}")
         start = float((ref.meta.get("video_start") or {}).get(cam, 0.0))
-        video = probe_video(ref.episode_id, Path(vpath), len(traj), layout.fps, start=start, field=cam, reader=self.name)
+        video = probe_video(
+            ref.episode_id, Path(vpath), len(traj), layout.fps, start=start, field=cam, reader=self.name
+        )
         return Episode(ref, traj, camera, cam, video, ref.task)
 
     # ------------------------------------------------------------------ profiles
@@ -138,19 +169,30 @@ class LeRobotReader(Reader):
         cols = layout.frames(ref.episode_id, data, index, list(DROID_STATE) + [ext_col], ref.n_frames)
         for c in DROID_STATE:
             finite(cols[c], ref.episode_id, data, c, "joint / gripper state")
-        K = (ref.meta.get("intrinsics") or self.intrinsics.get(short) or self.intrinsics.get(cam)
-             or ((layout.features.get(cam) or {}).get("info") or {}).get("camera.intrinsics"))
+        K = (
+            ref.meta.get("intrinsics")
+            or self.intrinsics.get(short)
+            or self.intrinsics.get(cam)
+            or ((layout.features.get(cam) or {}).get("info") or {}).get("camera.intrinsics")
+        )
         if K is None:
-            raise EpisodeError(ref.episode_id, layout.info_path, f"intrinsics of {cam}",
-                               "(fx, fy, cx, cy) in pixels: DROID on the Hub publishes none; pass "
-                               "LeRobotReader(intrinsics={'" + short + "': (fx, fy, cx, cy)}) or ref.meta['intrinsics']",
-                               "none")
+            raise EpisodeError(
+                ref.episode_id,
+                layout.info_path,
+                f"intrinsics of {cam}",
+                "(fx, fy, cx, cy) in pixels: DROID on the Hub publishes none; pass "
+                "LeRobotReader(intrinsics={'" + short + "': (fx, fy, cx, cy)}) or ref.meta['intrinsics']",
+                "none",
+            )
         size = layout.image_size(cam) or (320, 180)
-        record = {"observation/joint_position": cols[DROID_STATE[0]],
-                  "observation/gripper_position": cols[DROID_STATE[1]]}
+        record = {
+            "observation/joint_position": cols[DROID_STATE[0]],
+            "observation/gripper_position": cols[DROID_STATE[1]],
+        }
         with episode_errors(ref.episode_id, data):
-            return from_droid(record, short, extrinsic=cols[ext_col], intrinsics=K, image_size=size,
-                              fps=layout.fps, source=data)
+            return from_droid(
+                record, short, extrinsic=cols[ext_col], intrinsics=K, image_size=size, fps=layout.fps, source=data
+            )
 
     def _moma(self, ref, layout, data, index):
         from oscar_embodiments.hsr.adapters import from_airoa_moma

@@ -43,18 +43,37 @@ class NpzReader(Reader):
                 with fs.open(meta_path, "rb") as f:
                     meta = json.loads(f.read())
             except (OSError, ValueError) as exc:
-                raise EpisodeError(f"{default_source}/{folder}", meta_path, "<file>", "a JSON object", str(exc)) from None
+                raise EpisodeError(
+                    f"{default_source}/{folder}", meta_path, "<file>", "a JSON object", str(exc)
+                ) from None
             if not isinstance(meta, dict) or not isinstance(meta.get("embodiment"), str):
-                raise EpisodeError(f"{default_source}/{folder}", meta_path, "embodiment", "an embodiment name",
-                                   repr(meta.get("embodiment") if isinstance(meta, dict) else meta))
+                raise EpisodeError(
+                    f"{default_source}/{folder}",
+                    meta_path,
+                    "embodiment",
+                    "an embodiment name",
+                    repr(meta.get("embodiment") if isinstance(meta, dict) else meta),
+                )
             src = str(meta.get("source") or default_source)
             names = set(posixpath.basename(p) for p in fs.ls(posixpath.dirname(meta_path), detail=False))
             video = "rgb.mkv" if "rgb.mkv" in names and "rgb.mp4" not in names else "rgb.mp4"
-            paths = {"trajectory": _fs.join(where, "trajectory.npz"), "camera": _fs.join(where, "camera.json"),
-                     "video": _fs.join(where, video), "episode": _fs.join(where, "episode.json")}
-            yield EpisodeRef(episode_id=f"{src}/{folder}", source=src, reader=self.name, embodiment=meta["embodiment"],
-                             paths=paths, n_frames=meta.get("n_frames"), fps=meta.get("fps"), task=meta.get("task"),
-                             cameras=(str(meta.get("camera") or "main"),))
+            paths = {
+                "trajectory": _fs.join(where, "trajectory.npz"),
+                "camera": _fs.join(where, "camera.json"),
+                "video": _fs.join(where, video),
+                "episode": _fs.join(where, "episode.json"),
+            }
+            yield EpisodeRef(
+                episode_id=f"{src}/{folder}",
+                source=src,
+                reader=self.name,
+                embodiment=meta["embodiment"],
+                paths=paths,
+                n_frames=meta.get("n_frames"),
+                fps=meta.get("fps"),
+                task=meta.get("task"),
+                cameras=(str(meta.get("camera") or "main"),),
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         from pathlib import Path
@@ -73,14 +92,30 @@ class NpzReader(Reader):
         try:
             traj = emb.check_trajectory(load_trajectory(local["trajectory"]))
         except OscarError as exc:
-            raise EpisodeError(ref.episode_id, ref.paths["trajectory"], getattr(exc, "field", "trajectory"),
-                               getattr(exc, "expected", "a valid trajectory"), getattr(exc, "found", str(exc))) from None
+            raise EpisodeError(
+                ref.episode_id,
+                ref.paths["trajectory"],
+                getattr(exc, "field", "trajectory"),
+                getattr(exc, "expected", "a valid trajectory"),
+                getattr(exc, "found", str(exc)),
+            ) from None
         try:
             cam = emb.load_camera(local["camera"])
             emb.check_camera(cam, str(local["camera"]))
         except OscarError as exc:
-            raise EpisodeError(ref.episode_id, ref.paths["camera"], getattr(exc, "field", "camera"),
-                               getattr(exc, "expected", "a valid camera"), getattr(exc, "found", str(exc))) from None
+            raise EpisodeError(
+                ref.episode_id,
+                ref.paths["camera"],
+                getattr(exc, "field", "camera"),
+                getattr(exc, "expected", "a valid camera"),
+                getattr(exc, "found", str(exc)),
+            ) from None
         video = VideoSource(str(local["video"]), n_frames=len(traj), fps=float(traj.fps))
-        return Episode(ref=ref, trajectory=traj, camera=cam, camera_name=ref.cameras[0] if ref.cameras else "main",
-                       video=video, task=ref.task)
+        return Episode(
+            ref=ref,
+            trajectory=traj,
+            camera=cam,
+            camera_name=ref.cameras[0] if ref.cameras else "main",
+            video=video,
+            task=ref.task,
+        )

@@ -48,8 +48,18 @@ __all__ = ["RH20TReader", "CONFIGS", "calib_tcp_quaternion"]
 
 #: cfg number → (embodiment, in-hand serial placing the base, tc_mat, align_mat_base), from configs.json
 CONFIGS: dict[int, tuple[str, str, list, list]] = {
-    5: ("franka", "104422070042", [[0, 1, 0, 0.033], [-1, 0, 0, -0.05], [0, 0, 1, 0.09], [0, 0, 0, 1]], np.eye(4).tolist()),
-    7: ("kuka", "135122075425", [[0, -1, 0, 0.035], [1, 0, 0, 0.055], [0, 0, 1, 0.20], [0, 0, 0, 1]], np.eye(4).tolist()),
+    5: (
+        "franka",
+        "104422070042",
+        [[0, 1, 0, 0.033], [-1, 0, 0, -0.05], [0, 0, 1, 0.09], [0, 0, 0, 1]],
+        np.eye(4).tolist(),
+    ),
+    7: (
+        "kuka",
+        "135122075425",
+        [[0, -1, 0, 0.035], [1, 0, 0, 0.055], [0, 0, 1, 0.20], [0, 0, 0, 1]],
+        np.eye(4).tolist(),
+    ),
 }
 #: every in-hand serial configs.json lists for the configuration (not offered as cameras)
 IN_HAND = {5: ("104422070042", "135122079702", "104422071090"), 7: ("135122075425", "135122070361", "104422071090")}
@@ -107,12 +117,23 @@ class RH20TReader(Reader):
             cams = tuple(s for s in serials if s not in IN_HAND[cfg])
             src = f"rh20t_cfg{cfg}"
             task = scene.name.split("_user_")[0]
-            yield EpisodeRef(f"{src}/{scene.name}", src, self.name, emb,
-                             {"scene": str(scene), "states": str(scene / "transformed" / "joint.npy"),
-                              "calibration": str(scene.parent / "calib"),
-                              "video": str(scene / f"cam_{cams[0]}" / "color.mp4") if cams else ""},
-                             n_frames=None, fps=None, task=None, cameras=cams,
-                             meta={"cfg": cfg, "camera": cams[0] if cams else None, "task_id": task})
+            yield EpisodeRef(
+                f"{src}/{scene.name}",
+                src,
+                self.name,
+                emb,
+                {
+                    "scene": str(scene),
+                    "states": str(scene / "transformed" / "joint.npy"),
+                    "calibration": str(scene.parent / "calib"),
+                    "video": str(scene / f"cam_{cams[0]}" / "color.mp4") if cams else "",
+                },
+                n_frames=None,
+                fps=None,
+                task=None,
+                cameras=cams,
+                meta={"cfg": cfg, "camera": cams[0] if cams else None, "task_id": task},
+            )
 
     def load_episode(self, ref: EpisodeRef, registry=None) -> Episode:
         eid, scene, cfg = ref.episode_id, Path(ref.paths["scene"]), int(ref.meta["cfg"])
@@ -127,15 +148,21 @@ class RH20TReader(Reader):
         meta = read_json(scene / "metadata.json", eid, "the scene metadata")
         calib_t = meta.get("calib") if isinstance(meta, dict) else None
         if calib_t in (None, -1):
-            raise EpisodeError(eid, scene / "metadata.json", "calib", "the timestamp of the scene's calibration", repr(calib_t))
+            raise EpisodeError(
+                eid, scene / "metadata.json", "calib", "the timestamp of the scene's calibration", repr(calib_t)
+            )
         calib = Path(ref.paths["calibration"]) / str(calib_t)
         intrinsics = _npy(calib / "intrinsics.npy", eid)
         extrinsics = _npy(calib / "extrinsics.npy", eid)
         tcp = _npy(calib / "tcp.npy", eid)
         joint = _npy(scene / "transformed" / "joint.npy", eid)
         gripper = _npy(scene / "transformed" / "gripper.npy", eid)
-        for name, d in (("intrinsics.npy", intrinsics), ("extrinsics.npy", extrinsics), ("joint.npy", joint),
-                        ("gripper.npy", gripper)):
+        for name, d in (
+            ("intrinsics.npy", intrinsics),
+            ("extrinsics.npy", extrinsics),
+            ("joint.npy", joint),
+            ("gripper.npy", gripper),
+        ):
             if not isinstance(d, dict):
                 raise EpisodeError(eid, name, "<file>", "a pickled dict keyed by camera serial", type(d).__name__)
         try:
@@ -143,24 +170,41 @@ class RH20TReader(Reader):
         except ValueError as e:
             raise EpisodeError(eid, calib / "tcp.npy", "<file>", "the calibration TCP (6 values)", str(e)) from None
         with episode_errors(eid, calib / "extrinsics.npy"):
-            E = rh20t_base_to_camera(extrinsics, serial, in_hand, tc_mat, calib_tcp, align, source=str(calib / "extrinsics.npy"))
+            E = rh20t_base_to_camera(
+                extrinsics, serial, in_hand, tc_mat, calib_tcp, align, source=str(calib / "extrinsics.npy")
+            )
         with episode_errors(eid, scene / "transformed" / "joint.npy"):
-            traj, camera = from_rh20t(joint, gripper, intrinsics, {serial: E}, serial, image_size=CALIB_SIZE,
-                                      source=str(scene / "transformed"))
+            traj, camera = from_rh20t(
+                joint,
+                gripper,
+                intrinsics,
+                {serial: E},
+                serial,
+                image_size=CALIB_SIZE,
+                source=str(scene / "transformed"),
+            )
         cam_dir = scene / f"cam_{serial}"
         mp4 = cam_dir / "color.mp4"
         rate, width, height = video_header(eid, mp4, serial, self.name)
         stamps = _npy(cam_dir / "timestamps.npy", eid)
         color = stamps.get("color") if isinstance(stamps, dict) else None
         if color is None:
-            raise EpisodeError(eid, cam_dir / "timestamps.npy", "color", "one timestamp (ms) per video frame", "missing")
+            raise EpisodeError(
+                eid, cam_dir / "timestamps.npy", "color", "one timestamp (ms) per video frame", "missing"
+            )
         color = [int(c) for c in color]
         ts = sorted(int(k) for k in joint[serial])  # the trajectory's frames (from_rh20t sorts them the same way)
-        if ts[0] not in color or color[color.index(ts[0]):color.index(ts[0]) + len(ts)] != ts:
-            raise EpisodeError(eid, cam_dir / "timestamps.npy", "color",
-                               f"the {len(ts)} joint timestamps of camera {serial} as consecutive video frames",
-                               f"{len(color)} video timestamps that do not contain them in order")
-        video = probe_video(eid, mp4, len(ts), rate, start=color.index(ts[0]) / (rate or 10.0), field=serial, reader=self.name)
+        if ts[0] not in color or color[color.index(ts[0]) : color.index(ts[0]) + len(ts)] != ts:
+            raise EpisodeError(
+                eid,
+                cam_dir / "timestamps.npy",
+                "color",
+                f"the {len(ts)} joint timestamps of camera {serial} as consecutive video frames",
+                f"{len(color)} video timestamps that do not contain them in order",
+            )
+        video = probe_video(
+            eid, mp4, len(ts), rate, start=color.index(ts[0]) / (rate or 10.0), field=serial, reader=self.name
+        )
         if (width, height) != CALIB_SIZE:
             camera = camera.resized(width, height)
         return Episode(ref, traj, camera, serial, video, ref.task)
