@@ -66,7 +66,7 @@ _EXPORTS = {
 
 if (
     TYPE_CHECKING
-):  # the same names, imported eagerly for type checkers only (tests/test_public_api.py keeps them in step)
+):  # the same names, imported eagerly for type checkers only (tests/project/test_public_api.py keeps them in step)
     from .camera import (
         Camera as Camera,
         Intrinsics as Intrinsics,

@@ -1,6 +1,13 @@
-"""Fixtures shared by several test modules."""
+"""Fixtures shared by several test modules, and ``tests/`` on ``sys.path`` so that every test folder imports the shared
+helpers: ``_paths`` (folders), ``_models`` (tiny world models, training configs), ``_studies`` (a small evaluation
+study), ``_datasets`` (raw episodes), ``_browser`` (headless Chromium)."""
+
+import sys
+from pathlib import Path
 
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 @pytest.fixture(scope="module")
@@ -27,3 +34,14 @@ def oscar_cache(tmp_path_factory):
     os.environ["OSCAR_CACHE"] = str(tmp_path_factory.mktemp("oscar-cache"))
     yield os.environ["OSCAR_CACHE"]
     os.environ.pop("OSCAR_CACHE", None)
+
+
+@pytest.fixture(scope="module")
+def tiny_model_dir(tmp_path_factory):
+    """A tiny world model (seed 0, skeleton scale 0.05, 5-frame chunks at 15 fps) exported in the oscar layout, once
+    per test module."""
+    from _models import export_tiny_world_model
+
+    return export_tiny_world_model(
+        tmp_path_factory.mktemp("m") / "tiny", skeleton_scale=0.05, name="tiny", chunk_frames=5, fps=15.0
+    )

@@ -5,7 +5,7 @@ costs seconds at start-up and pulls in matplotlib), and each frame's poses
 are computed on their own, so a frame's result never depends on how many
 frames are evaluated together. :class:`oscar_core.kinematics.fk_torch.ForwardKinematics`
 (torch) stays the path for GPUs and for plugins that override ``fk``; the two
-agree to ~1e-12 m (tests/test_render_stream.py).
+agree to ~1e-12 m (tests/render/test_render_stream.py).
 """
 
 from __future__ import annotations

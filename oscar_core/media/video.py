@@ -169,7 +169,7 @@ def rgb_to_yuv420p(frame: np.ndarray) -> np.ndarray:
 
     Luma is OpenCV's BT.601 limited-range conversion; chroma is the 2×2 mean of
     the frame (area-resized) converted to Cb/Cr. Agrees with swscale's RGB→yuv420p
-    to within 1 level of luma and a few of chroma (tests/test_render_stream.py).
+    to within 1 level of luma and a few of chroma (tests/render/test_render_stream.py).
     """
     import cv2
 

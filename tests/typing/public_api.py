@@ -1,7 +1,7 @@
 """Uses the flat public API (``from oscar_core import …``) as a user's script would. .ci/run type-checks it with mypy
 (settings in pyproject.toml). Each call's result is checked with ``assert_type``, which fails on a result of type
 Any: a name that the lazy ``oscar_core/__init__.py`` hid from type checkers would be Any.
-tests/test_public_api.py runs it.
+tests/project/test_public_api.py runs it.
 """
 
 from __future__ import annotations
