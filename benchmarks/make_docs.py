@@ -52,6 +52,14 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "The real command in a fresh process rolling out one chunk, timed from outside; `fixed_s` = "
         "wall − encode − sample − decode (imports, loading, writing).",
     ),
+    "threads": (
+        "Torch threads on a busy machine",
+        "benchmarks/threads.py",
+        "The bundled `oscar-toy` rollout (a fresh `oscar toyworld rollout` process per row) beside background "
+        "processes that each keep one core busy, with `--threads 1`, `--threads 2` and the automatic choice "
+        "(the cores idle by the 1-minute load average). Median wall seconds from spawn to exit and CPU seconds "
+        "of the process; `wall_vs_best` is the row's wall over the best row's (goal for `auto`: at most 1.10).",
+    ),
     "train": (
         "Training",
         "benchmarks/train.py",

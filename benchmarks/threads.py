@@ -14,8 +14,9 @@ the CPU seconds the process used (``resource.getrusage(RUSAGE_CHILDREN)``), and 
 mode's wall to the best mode's (the goal: at most 1.10).
 
 ``OSCAR_NUM_THREADS`` and ``OMP_NUM_THREADS`` are removed from the children's environment (they would
-override the choice). Writes ``benchmarks/results/threads.json`` (or ``--out``) with every run, the machine
-(CPU count, load averages before and after) and the table.
+override the choice). Writes ``benchmarks/results/threads.json`` (or ``--out``) with its provenance, every run, the
+machine (CPU count, load averages before and after) and the table; a copy in ``benchmarks/measured/`` is rendered
+into docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -34,6 +35,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import with_provenance
 
 REPO = Path(__file__).resolve().parents[1]
 MODES = ("1", "2", "auto")
@@ -171,17 +175,19 @@ def main(argv=None) -> int:
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(
         json.dumps(
-            {
-                "machine": {
-                    "cpus": os.cpu_count(),
-                    "processor": platform.processor(),
-                    "load_before": load_before,
-                    "load_after": os.getloadavg(),
-                },
-                "settings": {"busy": a.busy, "settle_s": a.settle, "repeats": a.repeats, "clips": a.clips},
-                "runs": runs,
-                "table": table,
-            },
+            with_provenance(
+                {
+                    "machine": {
+                        "cpus": os.cpu_count(),
+                        "processor": platform.processor(),
+                        "load_before": load_before,
+                        "load_after": os.getloadavg(),
+                    },
+                    "settings": {"busy": a.busy, "settle_s": a.settle, "repeats": a.repeats, "clips": a.clips},
+                    "runs": runs,
+                    "table": table,
+                }
+            ),
             indent=1,
         )
         + "\n"
