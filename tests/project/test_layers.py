@@ -239,6 +239,18 @@ def test_the_architecture_page_draws_every_floor():
     assert drawn == [name for name, _ in FLOORS][::-1]
 
 
+#: Test folders beside the floors' own: the command line, and checks of the repository as a whole (layers, docs,
+#: packaging, benchmarks); ``typing`` holds the type-checked example, ``golden`` folders the reference images.
+TEST_FOLDERS_BESIDE_FLOORS = {"cli", "project", "typing", "__pycache__"}
+
+
+def test_tests_are_organised_by_floor():
+    tests = REPO / "tests"
+    assert sorted(p.name for p in tests.glob("test_*.py")) == [], "a test module belongs in its floor's folder"
+    folders = {p.name for p in tests.iterdir() if p.is_dir()}
+    assert folders - {name for name, _ in FLOORS} - TEST_FOLDERS_BESIDE_FLOORS == set()
+
+
 def test_every_floor_names_something_that_exists():
     # a stale entry would let a new module of that name in unnoticed
     units = {unit_of(module) for module in module_files(PACKAGES)}
