@@ -244,14 +244,13 @@ def apply_threads(args) -> None:
 
 def main(argv=None) -> int:
     from ._util.interrupt import interrupted, noting_interrupts, report
-    from ._util.provenance import set_command
     from ._util.threads import passive_openmp
 
     passive_openmp()  # before anything loads torch (and its OpenMP runtime)
     parser = build_parser()
     args = parser.parse_args(argv)
-    set_command(sys.argv[1:] if argv is None else argv)  # what the report pages name as their command
-    set_command_line(["oscar", *(sys.argv[1:] if argv is None else argv)])  # the first line of run logs
+    # what report pages name as their command, and the first line of run logs
+    set_command_line(["oscar", *(sys.argv[1:] if argv is None else argv)])
     warnings.simplefilter("default")
     with noting_interrupts():
         try:

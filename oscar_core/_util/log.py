@@ -54,6 +54,7 @@ __all__ = [
     "log_result",
     "command_line",
     "set_command_line",
+    "recorded_command",
 ]
 
 ROOT = "oscar"
@@ -300,7 +301,12 @@ _COMMAND: list[str] | None = None  # the command being run (set_command_line), e
 def set_command_line(argv: list[str] | None) -> None:
     """Name the command this process runs now (``["oscar", "train", ...]``; None: ``sys.argv``) for run logs."""
     global _COMMAND
-    _COMMAND = None if argv is None else list(argv)
+    _COMMAND = None if argv is None else [str(a) for a in argv]
+
+
+def recorded_command() -> list[str] | None:
+    """The command :func:`set_command_line` named (``["oscar", "train", ...]``), or None outside a command."""
+    return None if _COMMAND is None else list(_COMMAND)
 
 
 def command_line(argv: list[str] | None = None) -> str:

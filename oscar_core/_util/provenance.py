@@ -1,8 +1,9 @@
 """What made an output: the command line, the date and oscar's version (shown on every report page).
 
-The ``oscar`` command records its arguments once (:func:`set_command`, called
-by :func:`oscar_core.cli.main`); library code asks :func:`provenance`. A page
-written through the Python API says so and names the script (``sys.argv``).
+The ``oscar`` command records its arguments once
+(:func:`oscar_core._util.log.set_command_line`, called by :func:`oscar_core.cli.main`; the run logs read the
+same record); library code asks :func:`provenance`. A page written through the Python API says so and names the
+script (``sys.argv``).
 """
 
 from __future__ import annotations
@@ -11,21 +12,16 @@ import shlex
 import sys
 import time
 
-__all__ = ["set_command", "command_line", "provenance"]
+from .log import recorded_command
 
-_command: list[str] | None = None
-
-
-def set_command(argv) -> None:
-    """Record the arguments of the running ``oscar`` command (without the program name)."""
-    global _command
-    _command = [str(a) for a in argv]
+__all__ = ["command_line", "provenance"]
 
 
 def command_line() -> str:
     """``oscar <args>`` as a shell would take it, or ``python API (<script args>)`` outside the command."""
-    if _command is not None:
-        return shlex.join(["oscar", *_command])
+    argv = recorded_command()
+    if argv is not None:
+        return shlex.join(argv)
     return f"python API ({shlex.join(sys.argv) or 'interactive'})"
 
 
