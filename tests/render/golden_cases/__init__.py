@@ -7,7 +7,8 @@ must differ by more than the tolerance: a moved joint or a changed gripper is ca
 Tolerance: RMS 1.5 on 0-255 over the image for every suite: enough for OpenCV anti-aliasing differences across
 builds (and, for the mesh and capsule rasterisers, which have no anti-aliasing, a few flipped silhouette pixels), far
 below what a nudge gives. Regenerate a suite (then look at the PNGs before committing) with
-``python -m pytest tests/render/test_goldens.py -k <suite> --oscar-regen-golden``.
+``python -m pytest tests/render/test_goldens.py -k <suite> --oscar-regen-golden`` (an embodiment's name also selects
+its images in the capsules and mesh suites; ``-k "franka and not robotiq"`` leaves franka_robotiq out).
 
 Importable from every test folder as ``render.golden_cases`` (tests/conftest.py puts tests/ on ``sys.path``), so the
 embodiments' own tests check the same configurations (within limits, near a limit).
