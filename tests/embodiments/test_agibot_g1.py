@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _paths import SHARED
+from render.golden_cases.agibot_g1 import CONFIGS as GOLDEN_CONFIGS
 
 from oscar_core import (
     Camera,
@@ -174,6 +175,17 @@ def test_head_camera_follows_the_head_joints(g1):
     body = [k for k, l in enumerate(g1.skeleton.links) if l != "head_link2"]
     assert np.allclose(before.points[:, body], after.points[:, body])  # only the head moved in the base frame
     assert not np.allclose(before.mount_pose, after.mount_pose)
+
+
+def test_golden_configs_are_within_limits_and_one_is_near_a_limit(g1):
+    """The configurations of the golden images (tests/render/golden_cases/agibot_g1.py)."""
+    lo, hi = g1.tree.limits()
+    keep = [g1.tree.joint_names.index(n) for n in JOINTS]
+    lo, hi = lo[keep], hi[keep]
+    for q, _ in GOLDEN_CONFIGS.values():
+        assert np.all((np.array(q) >= lo) & (np.array(q) <= hi))
+    q = np.array(GOLDEN_CONFIGS["limits_closed"][0])
+    assert np.min(np.minimum(q - lo, hi - q)) <= 0.02
 
 
 # --------------------------------------------------------------------------- the AgiBot World adapter

@@ -9,6 +9,7 @@ import importlib.metadata
 
 import numpy as np
 import pytest
+from render.golden_cases.franka import CONFIGS as GOLDEN_CONFIGS
 
 from oscar_core import (
     Camera,
@@ -108,6 +109,15 @@ def test_skeleton_leaves_out_only_coincident_links(franka):
     assert np.abs(poses[:, 0, :3, 3] - poses[:, 1, :3, 3]).max() < 1e-12  # link2 sits on link1
     assert np.abs(poses[:, 2, :3, 3] - poses[:, 3, :3, 3]).max() < 1e-12  # link6 sits on link5
     assert len(franka.edges) == len(franka.skeleton.links) - 1
+
+
+def test_golden_near_limits_config_is_within_limits(franka):
+    """The near-limits configuration of the golden images (tests/render/golden_cases/franka.py) is inside the
+    limits, less than 0.1 rad from one of them."""
+    lo, hi = franka.tree.limits()
+    q = np.array(GOLDEN_CONFIGS["near_limits_closed"][0])
+    assert np.all(q > lo[:7]) and np.all(q < hi[:7])
+    assert np.min(np.minimum(q - lo[:7], hi[:7] - q)) < 0.1
 
 
 # --------------------------------------------------------------------------- DROID

@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pytest
 from _paths import SHARED
+from render.golden_cases.hsr import CONFIGS as GOLDEN_CONFIGS, SUITE as GOLDEN
 
 from oscar_core import (
     Camera,
@@ -27,6 +28,7 @@ from oscar_core import (
     load_trajectory,
     render_skeleton_video,
 )
+from oscar_core.testing import compare_images
 from oscar_embodiments import hsr as plugin
 from oscar_embodiments.hsr import HAND_RANGE, HEAD_CAMERA_LINK, HSR, JOINTS, base_pose_from_xy_yaw
 from oscar_embodiments.hsr.adapters import AIROA_MOMA_FPS, AIROA_MOMA_STATE_NAMES, HEAD_INTRINSICS, from_airoa_moma
@@ -128,6 +130,28 @@ def test_base_pose_moves_the_whole_robot(hsr):
     R, t = pose[0, :3, :3], pose[0, :3, 3]
     assert np.allclose(moved.points[0], at_origin.points[0] @ R.T + t)
     assert np.allclose(moved.mount_pose[0], pose[0] @ at_origin.mount_pose[0])
+
+
+def test_base_pose_moves_the_external_view_but_not_the_head_view():
+    """Rendered as the golden images are (tests/render/golden_cases/hsr.py): the head camera rides on the robot."""
+    q, hand, _ = GOLDEN_CONFIGS["reach_half_open"]
+    views = {}
+    for name, pose in (("origin", (0.0, 0.0, 0.0)), ("moved", (0.3, -0.2, 0.4))):
+        views[name] = [GOLDEN.render(((q, hand, pose), camera)) for camera in ("head", "external")]
+    assert compare_images(views["origin"][0], views["moved"][0]) == 0.0
+    assert compare_images(views["origin"][1], views["moved"][1]) > GOLDEN.tol
+
+
+def test_golden_configs_are_within_limits_and_one_is_near_a_limit(hsr):
+    """The configurations of the golden images (tests/render/golden_cases/hsr.py)."""
+    lo, hi = hsr.tree.limits()
+    keep = [hsr.tree.joint_names.index(n) for n in JOINTS]
+    lo, hi = lo[keep], hi[keep]
+    for q, hand, _ in GOLDEN_CONFIGS.values():
+        assert np.all((np.array(q) >= lo) & (np.array(q) <= hi))
+        assert HAND_RANGE[0] <= hand <= HAND_RANGE[1]
+    q = np.array(GOLDEN_CONFIGS["limits_open"][0])
+    assert np.min(np.minimum(q - lo, hi - q)) <= 0.02
 
 
 def test_hand_signal(hsr):

@@ -20,6 +20,7 @@ import importlib.metadata
 
 import numpy as np
 import pytest
+from render.golden_cases.kuka import CONFIGS as GOLDEN_CONFIGS
 
 from oscar_core import (
     Camera,
@@ -165,6 +166,15 @@ def test_tool_length_is_a_xacro_argument():
 
     P = LongTool().fk(np.zeros((1, 8)), links=["lbr_iiwa_flange", "gripper_tcp"]).numpy()[0]
     assert P[1, 2, 3] - P[0, 2, 3] == pytest.approx(0.30)
+
+
+def test_golden_near_limits_config_is_within_limits(kuka):
+    """The near-limits configuration of the golden images (tests/render/golden_cases/kuka.py) is inside the
+    limits, less than 0.1 rad from one of them."""
+    lo, hi = kuka.tree.limits()
+    q = np.array(GOLDEN_CONFIGS["near_limits_closed"][0])
+    assert np.all(q > lo[:7]) and np.all(q < hi[:7])
+    assert np.min(np.minimum(q - lo[:7], hi[:7] - q)) < 0.1
 
 
 # --------------------------------------------------------------------------- RH20T cfg7

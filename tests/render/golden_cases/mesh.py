@@ -1,28 +1,27 @@
-"""Golden images of the mesh condition: the toy arm (primitives), franka (DAE meshes from
-example-robot-data) and a one-file plugin (SO-101, STL meshes from example-robot-data).
+"""Golden images of the mesh condition: the toy arm (primitives), franka (DAE meshes from example-robot-data) and a
+one-file plugin (SO-101, STL meshes from example-robot-data), one frame each at 512x288. A case is
+``(embodiment, joints in its order, gripper signal, camera name)``.
 
 Regenerate (then look at the PNGs before committing) with
-``python -m pytest tests/render/test_golden_mesh.py --oscar-regen-golden``.
-Tolerance: RMS 1.5 on 0-255 over the image, as for the skeleton goldens. The
-rasteriser has no anti-aliasing, so a build that rounds differently flips a
-few silhouette pixels (each ~100-200 levels): 1.5 allows ~150 such pixels of
-147,456, while a joint moved by 0.02 rad gives far more
-(test_mesh_golden_tolerance_detects_a_small_change).
+``python -m pytest tests/render/test_goldens.py -k mesh --oscar-regen-golden``.
+Tolerance: RMS 1.5 on 0-255 over the image, as for the skeleton goldens. The rasteriser has no anti-aliasing, so a
+build that rounds differently flips a few silhouette pixels (each ~100-200 levels): 1.5 allows ~150 such pixels of
+147,456, while a joint moved by 0.02 rad gives far more (test_tolerance_detects_a_small_change[mesh]).
 """
 
+import functools
 import sys
 
 import numpy as np
-import pytest
 from _paths import REPO
 
 from oscar_core import Camera, Intrinsics, Registry, Trajectory, load_camera, look_at, render_mesh_video
-from oscar_core.testing import compare_images
+
+from . import GoldenSuite
 
 sys.path.insert(0, str(REPO / "examples" / "oscar-toyarm"))
 from oscar_toyarm import ToyArm
 
-TOL = 1.5
 SIZE = (512, 288)
 CASES = {
     # name: (embodiment, joints in its order, gripper signal, camera name)
@@ -40,15 +39,12 @@ CASES = {
 }
 
 
-@pytest.fixture(scope="module")
-def embodiments():
+@functools.cache
+def _scene():
+    """The embodiments and the cameras, built on the first render."""
     reg = Registry(plugin_paths=[str(REPO / "examples" / "one-file" / "so101.py")])
-    return {"toyarm": ToyArm(), "franka": reg.get("franka"), "so101": reg.get("so101")}
-
-
-@pytest.fixture(scope="module")
-def cameras(embodiments):
-    return {
+    embodiments = {"toyarm": ToyArm(), "franka": reg.get("franka"), "so101": reg.get("so101")}
+    cameras = {
         "toy_front": Camera(
             Intrinsics(430.0, 430.0, 319.5, 179.5, 640, 360), look_at((1.05, -0.85, 0.7), (0.15, 0.0, 0.4))
         ),
@@ -61,23 +57,21 @@ def cameras(embodiments):
             Intrinsics(330.0, 330.0, 255.5, 143.5, 512, 288), look_at((0.5, -0.5, 0.4), (0.12, 0.0, 0.05))
         ),
     }
+    return embodiments, cameras
 
 
-def render_case(embodiments, cameras, name, joints=None):
-    emb_name, q, grip, cam = CASES[name]
+def render(case) -> np.ndarray:
+    emb_name, q, grip, cam = case
+    embodiments, cameras = _scene()
     emb = embodiments[emb_name]
-    traj = Trajectory(emb.joint_names, np.array([joints or q]), fps=10, gripper=np.array([[grip]]))
+    traj = Trajectory(emb.joint_names, np.array([q]), fps=10, gripper=np.array([[grip]]))
     return render_mesh_video(emb, traj, cameras[cam], SIZE)[0]
 
 
-@pytest.mark.parametrize("name", sorted(CASES))
-def test_mesh_golden(golden, embodiments, cameras, name):
-    golden.check(render_case(embodiments, cameras, name), f"mesh_{name}.png", tol=TOL)
-
-
-def test_mesh_golden_tolerance_detects_a_small_change(embodiments, cameras):
-    name = "franka_reach_closed_example"
-    base = render_case(embodiments, cameras, name)
-    q = list(CASES[name][1])
-    q[0] += 0.02
-    assert compare_images(render_case(embodiments, cameras, name, q), base) > TOL
+_BASE = CASES["franka_reach_closed_example"]
+SUITE = GoldenSuite(
+    "mesh",
+    dict(sorted(CASES.items())),
+    render,
+    nudged=[(_BASE, (_BASE[0], [_BASE[1][0] + 0.02, *_BASE[1][1:]], *_BASE[2:]))],  # 0.02 rad of joint 1
+)
