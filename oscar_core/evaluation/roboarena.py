@@ -175,7 +175,9 @@ def _yaml(path: Path):
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise RoboArenaError(path, "file", "valid YAML", str(exc).splitlines()[0]) from None
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise RoboArenaError(path, "file", "valid YAML", f"{getattr(exc, 'problem', None) or exc}{where}") from None
 
 
 def _binary(value, path: Path, fld: str) -> int:
