@@ -230,6 +230,8 @@ def test_not_a_dump_fails_up_front_and_rerun_is_safe(tmp_path, capsys):
     assert contents() == first
     assert oscar_main([*args, "--fps", "30"]) == 2  # other settings into the same folder: refused
     assert "expected output of the same inputs and settings" in capsys.readouterr().err
+    assert oscar_main([*args[:4], str(tmp_path / "o3"), "--model", "oscar-typo"]) == 2  # not a model: refused
+    assert "model 'oscar-typo': expected a zoo name" in capsys.readouterr().err
     assert oscar_main(["eval", "roboarena", str(dump), "--out", str(tmp_path / "o2"), "--embodiment", "toyarm"]) == 1
     rows = json.loads((tmp_path / "o2" / "rejected.json").read_text())
     assert {r["stage"] for r in rows} == {"calibration"} and len(rows) == len(GOOD)

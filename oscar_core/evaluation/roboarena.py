@@ -331,22 +331,22 @@ def _save_traj(traj, path: Path) -> None:
 
 
 def model_fps(model) -> float | None:
-    """The frame rate a world model's card states (a folder's ``oscar_model.json`` or a zoo entry), else None."""
+    """The frame rate a world model's card states (a folder's ``oscar_model.json`` or a zoo entry; nothing is
+    downloaded or loaded), else None; an unknown name raises ``oscar_zoo.UnknownModelError``."""
     if model is None:
         return None
-    p = Path(str(model)).expanduser()
-    if p.is_dir():
-        f = p / "oscar_model.json"
-        try:
-            return json.loads(f.read_text())["card"].get("fps") if f.is_file() else None
-        except (OSError, ValueError, KeyError, AttributeError):
-            raise RoboArenaError(f, "card.fps", "a model card JSON", "an unreadable file") from None
     import oscar_zoo
 
-    for spec in oscar_zoo.list_models():
-        if spec.name == str(model) or spec.repo_id == str(model):
-            return spec.fps
-    return None
+    got = oscar_zoo.resolve(model)
+    if got.folder is None:
+        return got.spec.fps if got.spec is not None else None
+    f = got.folder / "oscar_model.json"
+    if not f.is_file():
+        return None
+    try:
+        return json.loads(f.read_text())["card"].get("fps")
+    except (OSError, ValueError, KeyError, AttributeError):
+        raise RoboArenaError(f, "card.fps", "an OSCAR model card (JSON)", "an unreadable file") from None
 
 
 def _real_board(preferences: list[dict], policies: list[str]):
