@@ -161,6 +161,8 @@ def test_real_board_matches_the_closed_form_of_two_policies(tmp_path):
     assert board["tie_nu"] == pytest.approx(1 / math.sqrt(3), abs=1e-5)
     real = json.loads((out / "real.json").read_text())
     assert real["pi0"]["score"] == pytest.approx(1500 + 100 * math.log(3), abs=1e-4)
+    (tmp_path / "wm.json").write_text(json.dumps({"pi0": 0.2, "pali": 0.6}))  # real.json is eval policies' input
+    assert oscar_main(["eval", "policies", "--real", str(out / "real.json"), "--wm", str(tmp_path / "wm.json")]) == 0
 
 
 def test_resampling_against_analytic_trajectories():
