@@ -139,10 +139,13 @@ def build_parser() -> argparse.ArgumentParser:
     from .evaluation.cli import add_run_parser
     from .evaluation.cli_benchmark import add_benchmark_parser
     from .evaluation.cli_closed_loop import add_closed_loop_parser
+    from .evaluation.cli_roboarena import add_roboarena_parser
     from .metrics.cli import add_eval_parser
     from .model.cli import add_model_parsers
 
-    add_eval_parser(sub, extra_commands=(add_run_parser, add_benchmark_parser, add_closed_loop_parser))
+    add_eval_parser(
+        sub, extra_commands=(add_run_parser, add_benchmark_parser, add_closed_loop_parser, add_roboarena_parser)
+    )
     add_model_parsers(sub)
     from .data.cli import add_data_parser
     from .toyworld.cli import add_toyworld_parser

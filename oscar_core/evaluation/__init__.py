@@ -3,6 +3,7 @@
 * :mod:`oscar_core.evaluation.manifest` — the manifest (sessions × policies) and its checks.
 * :mod:`oscar_core.evaluation.loop` — rollouts (resumable), verdicts, preferences.
 * :mod:`oscar_core.evaluation.report` — ``report.json``, ``summary.md``, plots, contact sheets.
+* :mod:`oscar_core.evaluation.roboarena` — a RoboArena evaluation dump → a manifest and the real results.
 * :mod:`oscar_core.evaluation.cli` — the ``oscar eval run`` sub-command.
 
 Names are re-exported flat; submodules load on first use (no torch at import).
@@ -24,6 +25,9 @@ _EXPORTS = {
     "contact_sheet": "report",
     "format_summary": "report",
     "load_judge": "cli",
+    "convert_roboarena": "roboarena",
+    "RoboArenaError": "roboarena",
+    "RoboArenaResult": "roboarena",
 }
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

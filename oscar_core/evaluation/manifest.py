@@ -65,7 +65,7 @@ CELL_KEYS = (
 )
 REQUIRED = ("session", "policy", "task", "embodiment", "first_frame", "trajectory", "camera")
 PATH_KEYS = ("first_frame", "trajectory", "camera", "real_video", "prompt_embeds")
-TOP_KEYS = ("format", "policies", "defaults", "real_scores", "cells", "description")
+TOP_KEYS = ("format", "policies", "defaults", "real_scores", "real_preferences", "cells", "description")
 
 
 class ManifestError(MetricInputError):
@@ -109,6 +109,7 @@ class Manifest:
     cells: tuple[Cell, ...]
     size: tuple[int, int] | None = None
     real_scores: dict | None = None
+    real_preferences: tuple | None = None
 
     @property
     def sessions(self) -> list[str]:
@@ -214,6 +215,7 @@ def load_manifest(path) -> Manifest:
                 repr(sorted(real_scores) if isinstance(real_scores, dict) else real_scores),
             )
         real_scores = {p: finite_float(real_scores[p], str(path), f"real_scores.{p}") for p in policies}
+    real_prefs = _real_preferences(path, data.get("real_preferences"), policies, real_scores)
     rows = data.get("cells")
     if not isinstance(rows, list) or not rows:
         raise ManifestError(path, "cells", "a non-empty list of cells", repr(rows)[:80])
@@ -222,7 +224,39 @@ def load_manifest(path) -> Manifest:
     tasks: dict[str, tuple[str, int]] = {}
     for k, raw in enumerate(rows):
         cells.append(_cell(path, k, raw, defaults, policies, seen, tasks))
-    return Manifest(path=path, policies=tuple(policies), cells=tuple(cells), size=size, real_scores=real_scores)
+    return Manifest(
+        path=path,
+        policies=tuple(policies),
+        cells=tuple(cells),
+        size=size,
+        real_scores=real_scores,
+        real_preferences=real_prefs,
+    )
+
+
+def _real_preferences(path: Path, raw, policies: list, real_scores) -> tuple | None:
+    """The checked ``real_preferences`` as :class:`~oscar_core.metrics.bradley_terry.Preference` records."""
+    from ..metrics.bradley_terry import parse_preference
+
+    if raw is None:
+        return None
+    if real_scores is not None:
+        raise ManifestError(path, "real_preferences", "real_scores or real_preferences, not both", "both")
+    if not isinstance(raw, list) or not raw:
+        raise ManifestError(path, "real_preferences", "a non-empty list of {a, b, winner}", repr(raw)[:80])
+    out = []
+    for k, item in enumerate(raw):
+        where = f"{path}: real_preferences[{k}]"
+        if isinstance(item, dict):
+            extra = sorted(key for key in item if key not in ("a", "b", "winner", "session"))
+            if extra:
+                raise ManifestError(where, "keys", "a, b, winner and optionally session", f"unknown keys {extra}")
+        pref = parse_preference(item, source=where)
+        for key in ("a", "b"):
+            if getattr(pref, key) not in policies:
+                raise ManifestError(where, key, f"one of the manifest's policies {policies}", repr(getattr(pref, key)))
+        out.append(pref)
+    return tuple(out)
 
 
 def _cell(path: Path, k: int, raw, defaults: dict, policies: list, seen: dict, tasks: dict) -> Cell:

@@ -5,7 +5,9 @@
     mean partial progress, verdict counts, real score, Bradley–Terry Elo),
     ``comparison`` (MMRV in both forms, Spearman ρ, Pearson r, SISR_Δ, per-policy
     ranks; or ``comparison_error`` saying why there is none), ``bradley_terry``
-    (the board fitted to the pairwise preferences), ``cells`` (one row per cell:
+    (the board fitted to the pairwise preferences), ``real_bradley_terry`` (the
+    board fitted to the manifest's ``real_preferences``, which then ranks the
+    real side; ``real_bradley_terry_error`` says why there is none), ``cells`` (one row per cell:
     real outcome, verdict, reason, video), ``pairs`` (the pairwise verdicts),
     ``counts``, and the model, judge and sampler settings.
 ``OUT/summary.md``
@@ -81,6 +83,7 @@ def build_report(
             except MetricInputError as exc:
                 bt_error = str(exc)
         bt_warnings = [str(w.message) for w in caught if issubclass(w.category, BradleyTerryWarning)]
+    real_bt, real_bt_error, real_scores, real_label, real_fallback = _real_side(manifest)
     rows = {}
     for p in policies:
         real_eps = [c.real_success for c in manifest.cells if c.policy == p and c.real_success is not None]
@@ -90,7 +93,7 @@ def build_report(
             "cells": sum(c.policy == p for c in manifest.cells),
             "real_success_rate": float(np.mean(real_eps)) if real_eps else None,
             "real_episodes": real_eps,
-            "real_score": (manifest.real_scores or {}).get(p),
+            "real_score": (real_scores or {}).get(p),
             "wm_success_rate": w.get("success_rate"),
             "wm_episodes": w.get("episodes", []),
             "wm_mean_partial": w.get("mean_partial"),
@@ -119,9 +122,9 @@ def build_report(
         comparison = compare_policies(
             real_sr,
             wm_sr,
-            real_score=manifest.real_scores,
+            real_score=real_scores,
             wm_score=wm_elo,
-            real_score_label="real_scores",
+            real_score_label=real_label,
             wm_score_label=wm_label,
         )
     pair_rows = [v.to_dict() for v in pair_verdicts]
@@ -156,7 +159,12 @@ def build_report(
             "counts": counts,
             "policies": [rows[p] for p in policies],
             "comparison": (
-                {**comparison.to_dict(), "partial": _partial(cells, "cells"), "wm_ranking_fallback": wm_fallback}
+                {
+                    **comparison.to_dict(),
+                    "partial": _partial(cells, "cells"),
+                    "wm_ranking_fallback": wm_fallback,
+                    "real_ranking_fallback": real_fallback,
+                }
                 if comparison is not None
                 else None
             ),
@@ -167,10 +175,36 @@ def build_report(
                 else None
             ),
             "bradley_terry_error": bt_error,
+            "real_bradley_terry": real_bt.to_dict() if real_bt is not None else None,
+            "real_bradley_terry_error": real_bt_error,
             "cells": cells,
             "pairs": pair_rows,
         }
     )
+
+
+def _real_side(manifest: Manifest):
+    """``(board, error, scores, label, fallback)`` of the real side: the Bradley–Terry board of the manifest's
+    ``real_preferences`` ranks it (Elo rounded as the world model's); without preferences, ``real_scores``; a
+    degenerate or failed fit falls back to the success rates and ``fallback`` says so."""
+    from ..metrics.bradley_terry import world_model_ranking
+    from ..metrics.policy import BradleyTerryWarning, fit_bradley_terry
+
+    if not manifest.real_preferences:
+        return None, None, manifest.real_scores, "real_scores", None
+    bt, error = None, None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BradleyTerryWarning)
+        try:
+            bt = fit_bradley_terry(
+                manifest.real_preferences, policies=list(manifest.policies), source="real_preferences"
+            )
+        except MetricInputError as exc:
+            error = str(exc)
+    scores, label, fallback = world_model_ranking(bt, error)
+    if fallback is not None:
+        fallback = fallback.replace("the world model is", "the real side is")
+    return bt, error, scores, "real_bradley_terry_elo" if scores is not None else "success_rate", fallback
 
 
 def _not_judged_reason(status: str | None, error: str | None) -> str:
@@ -250,8 +284,9 @@ def format_summary(report: dict, sheets: dict[str, list[str]] | None = None) -> 
             "",
             f"Ranked by: real = {comp['ranked_by']['real']}, world model = {comp['ranked_by']['wm']}.",
         ]
-        if comp.get("wm_ranking_fallback"):
-            lines.append(f"\n{comp['wm_ranking_fallback'][0].upper()}{comp['wm_ranking_fallback'][1:]}.")
+        for key in ("wm_ranking_fallback", "real_ranking_fallback"):
+            if comp.get(key):
+                lines.append(f"\n{comp[key][0].upper()}{comp[key][1:]}.")
     bt = report["bradley_terry"]
     if bt is not None and bt.get("degenerate"):
         lines += [
@@ -273,6 +308,17 @@ def format_summary(report: dict, sheets: dict[str, list[str]] | None = None) -> 
         lines += [f"\nwarning: {w}" for w in bt.get("warnings", [])]
     elif report.get("bradley_terry_error"):
         lines += ["", f"No Bradley–Terry fit: {report['bradley_terry_error']}."]
+    real_bt = report.get("real_bradley_terry")
+    if real_bt is not None:
+        lines += ["", "## Bradley–Terry–Davidson (real pairwise preferences)", ""]
+        if real_bt.get("degenerate"):
+            lines.append(f"No ranking: {real_bt['degenerate']} ({real_bt['n_comparisons']} comparisons).")
+        else:
+            lines += ["| policy | Elo | ± std |", "|---|---|---|"]
+            lines += [f"| {b['policy']} | {b['elo']:.1f} | {b['elo_std']:.1f} |" for b in real_bt["board"]]
+            lines.append(f"\n{real_bt['n_comparisons']} comparisons, tie ν {real_bt['tie_nu']:.4f}")
+    elif report.get("real_bradley_terry_error"):
+        lines += ["", f"No Bradley–Terry fit of the real preferences: {report['real_bradley_terry_error']}."]
     bad = [c for c in report["cells"] if c["status"] not in (None, "ok")]
     if bad:
         lines += ["", "## Cells without a valid verdict", ""]
