@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _models import tiny_world_model
+from _paths import TOYARM_ASSETS
 
 from oscar_core.calibration.score import body_video, perturb_camera
 from oscar_core.camera.file import load_camera, save_camera
@@ -19,8 +21,6 @@ from oscar_core.media.video import write_video
 from oscar_core.plugin.registry import get_embodiment
 from oscar_core.trajectory import Trajectory
 
-REPO = Path(__file__).resolve().parents[1]
-ASSETS = REPO / "examples" / "oscar-toyarm" / "oscar_toyarm" / "assets"
 W, H, T = 64, 32, 6  # video size (pixels) and control steps per episode of the test dump
 
 # (session, {letter: (policy, binary, partial)}, preference): pi0 beats pali 3 times, loses once, ties twice
@@ -42,7 +42,7 @@ def isolated(tmp_path, monkeypatch):
 
 
 def _camera():
-    return load_camera(ASSETS / "example_camera.json").resized(W, H, "stretch")
+    return load_camera(TOYARM_ASSETS / "example_camera.json").resized(W, H, "stretch")
 
 
 def _metadata(policies: dict, preference) -> str:
@@ -60,7 +60,7 @@ def add_session(dump: Path, name: str, policies: dict, preference, offset: int =
     proprio_and_actions.npz; the videos show the toy arm's body rendered through ``camera`` (default: the one
     cams/<name>.json will hold), so a correct calibration scores high."""
     emb = get_embodiment("toyarm")
-    src = np.load(ASSETS / "example_trajectory.npz")
+    src = np.load(TOYARM_ASSETS / "example_trajectory.npz")
     sdir = dump / "evaluation_sessions" / name
     sdir.mkdir(parents=True)
     (sdir / "metadata.yaml").write_text(_metadata(policies, preference))
@@ -299,14 +299,8 @@ def judge(video, clip):
 def test_three_commands_to_a_finished_report(tmp_path):
     """roboarena -> calibrate score -> eval run, as subprocesses of the installed `oscar`, on a tiny model."""
     import oscar_zoo
-    from oscar_core.model import ModelCard, OscarWorldModel
-    from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
 
-    model = OscarWorldModel.from_modules(
-        build_tiny_transformer(seed=0, skeleton_scale=0.05),
-        build_tiny_vae(seed=0),
-        ModelCard(name="tiny", chunk_frames=5, fps=15.0),
-    )
+    model = tiny_world_model(skeleton_scale=0.05, name="tiny", chunk_frames=5, fps=15.0)
     model_dir = oscar_zoo.export(model, tmp_path / "tiny")
     dump, cams = make_dump(tmp_path)
     study, report_dir = tmp_path / "study", tmp_path / "eval_out"
