@@ -6,15 +6,17 @@ import shlex
 from pathlib import Path
 
 from oscar_core.cli import build_parser
-from oscar_core.train.config import load_config
+from oscar_core.train.config import load_config, parse_overrides
 
 REPO = Path(__file__).resolve().parents[1]
 HUMAN = {"clipsets/egodex", "clipsets/epic"}
 
 
-def _section_commands() -> list[list[str]]:
-    text = (REPO / "docs" / "training.md").read_text()
-    section = text.split("### Stage 1 → stage 2 on real data", 1)[1]
+def _section_commands(
+    page: str = "training.md", heading: str = "### Stage 1 → stage 2 on real data"
+) -> list[list[str]]:
+    text = (REPO / "docs" / page).read_text()
+    section = text.split(heading, 1)[1]
     block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
     joined = re.sub(r"\\\n\s*", " ", block)
     return [shlex.split(line) for line in joined.splitlines() if line.strip() and not line.lstrip().startswith("#")]
@@ -62,3 +64,15 @@ def _yaml(item: str):
     key, value = item.split("=", 1)
     assert key == "data.clips"
     return yaml.safe_load(value)
+
+
+def test_the_toy_robot_and_hand_commands_parse_and_their_overrides_make_a_valid_config():
+    commands = _section_commands("toyworld.md", "## Robot and hand clips in one training run")
+    parser = build_parser()
+    for argv in commands:
+        parser.parse_args(argv[1:])
+    train = next(c for c in commands if c[1] == "train" and "--set" in c)
+    sets = [train[i + 1] for i, a in enumerate(train) if a == "--set"]
+    config = load_config(REPO / train[2], parse_overrides(sets))
+    assert config.data.source_weights == {"toyworld": 1.0, "toyworld_hand": 1.0}
+    assert config.data.clips == ["clipsets/toyworld-latents", "clipsets/toyworld-hands-latents"]
