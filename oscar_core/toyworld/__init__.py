@@ -1,6 +1,7 @@
 """A procedural world small enough to train the whole OSCAR pipeline on a CPU.
 
 * :mod:`~oscar_core.toyworld.motion` — random reach / pick-and-place motions inside URDF limits, the carry rule;
+* :mod:`~oscar_core.toyworld.hand` — human-hand episodes (the ``mano`` plugin's keypoints), the hand's ball rules;
 * :mod:`~oscar_core.toyworld.scene` — floor, backdrop, lighting, colours, cameras that see the robot;
 * :mod:`~oscar_core.toyworld.raster` — z-buffered shaded capsules and spheres;
 * :mod:`~oscar_core.toyworld.episode` — one episode: motion + scene + camera → RGB frames + ground truth;
@@ -24,6 +25,11 @@ _EXPORTS = {
     "Motion": "motion",
     "joint_limits": "motion",
     "miss_start": "motion",
+    "is_hand": "motion",
+    "sample_hand_motion": "hand",
+    "hand_carry": "hand",
+    "hand_closed": "hand",
+    "push_object": "hand",
     "Scene": "scene",
     "sample_scene": "scene",
     "sample_camera": "scene",

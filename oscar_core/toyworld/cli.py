@@ -38,6 +38,8 @@ EXAMPLES = """examples:
       --seed 0 --out clipsets/toyworld
   oscar toyworld generate --embodiments toyarm,franka,kuka --episodes 400 --pick-miss 0.3 --seed 0 \\
       --out clipsets/toyworld-miss   (30 % of pick-and-place episodes miss the ball)
+  oscar toyworld generate --embodiments mano --episodes 400 --seed 0 --out clipsets/toyworld-hands
+      (human hands: the mano plugin's skeleton; they pick up or push the ball)
   oscar toyworld train-vae clipsets/toyworld --out runs/toyworld-vae --steps 2500 --batch 3 --window 9 --seed 0
   oscar toyworld reconstruct clipsets/toyworld --vae runs/toyworld-vae --out preds/vae
   oscar toyworld baseline clipsets/toyworld --out preds/first_frame
@@ -68,7 +70,11 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g = sub.add_parser(
         "generate", help="write toy-world episodes as a training clip set", epilog=EXAMPLES, formatter_class=fmt
     )
-    g.add_argument("--embodiments", required=True, help="comma-separated embodiment names (plugins included)")
+    g.add_argument(
+        "--embodiments",
+        required=True,
+        help="comma-separated embodiment names (plugins included; mano: human hands, source toyworld_hand)",
+    )
     g.add_argument("--episodes", type=count(1), required=True, help="episodes per embodiment")
     g.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels (default 64x64)")
     g.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17; 4k+1 for the VAE)")

@@ -16,7 +16,7 @@ from ..camera import Camera, project
 from ..kinematics.trajectory import Trajectory
 from ..plugin.embodiment import Embodiment
 from ..render.capsules import link_radii  # the capsule body's radii: the mesh condition of this world
-from .motion import Motion, check_supported, sample_motion
+from .motion import Motion, check_supported, is_hand, sample_motion
 from .raster import Canvas
 from .scene import EE_RGB, OBJECT_RGB, Scene, background, sample_camera, sample_scene
 
@@ -84,7 +84,7 @@ def render_world(
     pts = project(motion.points, cam)
     obj = project(motion.object, cam)
     ee = project(motion.ee, cam)
-    radii = link_radii(E, motion.scale)
+    radii = link_radii(E, motion.scale) if motion.link_radii is None else motion.link_radii
     R = motion.object_radius
     marker_r = 0.6 * R
     light = scene.light
@@ -103,10 +103,10 @@ def render_world(
         if draw_robot:
             for e, (a, b) in enumerate(edges):
                 za, zb = pts.depth[t, a], pts.depth[t, b]
-                if za <= 1e-3 or zb <= 1e-3:
+                if not (za > 1e-3 and zb > 1e-3):  # behind the camera, or NaN: a hand that is absent
                     continue
                 canvas.capsule(pts.uv[t, a], pts.uv[t, b], za, zb, radii[e], f, scene.link_colors[e], light, e)
-            if len(emb.grippers) and ee.depth[t] > 1e-3:
+            if motion.marker and len(emb.grippers) and ee.depth[t] > 1e-3:
                 canvas.sphere(ee.uv[t], ee.depth[t], marker_r, f, EE_RGB, light, E + 1)
         if obj.depth[t] > 1e-3:
             canvas.sphere(obj.uv[t], obj.depth[t], R, f, OBJECT_RGB, light, E)
@@ -200,17 +200,27 @@ def plan_episode(
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
 ) -> tuple[Motion, Scene, Camera]:
-    """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels).
+    """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels); a hand
+    embodiment (:func:`~oscar_core.toyworld.motion.is_hand`) gets a hand motion and skin-coloured capsules.
 
     pick_miss, miss_rng: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's ball is
     among the points the camera must see, like every ball)."""
-    check_supported(emb)
-    motion = sample_motion(emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng)
-    scene = sample_scene(rng, len(emb.edges), motion.scale)
+    from .hand import sample_hand_motion, sample_hand_scene
+
+    if is_hand(emb):  # a keypoint hand (docs/toyworld.md, "Hands"): no missed picks; the arm's shoulder at 0
+        motion = sample_hand_motion(emb, rng, frames, fps)
+        scene = sample_hand_scene(rng, len(emb.edges), motion.scale)
+        base_xy = np.zeros(2)
+    else:
+        check_supported(emb)
+        motion = sample_motion(emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng)
+        scene = sample_scene(rng, len(emb.edges), motion.scale)
+        base_xy = motion.points[0, 0, :2]
     R = motion.object_radius
     # everything that must be in view: skeleton points, the ball (its top and bottom), its resting place
-    seen = np.concatenate([motion.points.reshape(-1, 3), motion.object + [0, 0, R], motion.object - [0, 0, R]])
-    base_xy = motion.points[0, 0, :2]
+    pts = motion.points.reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(1)]  # an absent hand's points are NaN
+    seen = np.concatenate([pts, motion.object + [0, 0, R], motion.object - [0, 0, R]])
     camera = sample_camera(rng, seen, width, height, base_xy=base_xy, embodiment=emb.name)
     return motion, scene, camera
 

@@ -25,7 +25,8 @@ from .._util import stage as _stage
 from .._util.log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode, miss_rng
-from .motion import ToyWorldError, check_supported
+from .hand import HAND_MIN_FRAMES, HAND_SOURCE
+from .motion import ToyWorldError, check_supported, is_hand
 
 __all__ = ["SOURCE", "GenerateConfig", "clip_id", "generate_clipset", "split_of"]
 
@@ -73,7 +74,12 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
 
     embs = [registry.get(n) for n in cfg.embodiments]
     for e in embs:
-        check_supported(e)
+        check_supported(e, hands=True)
+        if is_hand(e) and cfg.frames < HAND_MIN_FRAMES:
+            raise ToyWorldError(
+                f"toyworld generate: --frames: expected at least {HAND_MIN_FRAMES} frames for a hand episode "
+                f"({e.name}), found {cfg.frames}"
+            )
     if cfg.episodes < 1:
         raise ValueError(f"toyworld generate: --episodes: expected at least 1, found {cfg.episodes}")
     if not (isinstance(cfg.pick_miss, (int, float)) and 0.0 <= cfg.pick_miss <= 1.0):
@@ -136,7 +142,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                     }
                     rec = ClipRecord(
                         id=clip_id(emb.name, i),
-                        source=SOURCE,
+                        source=HAND_SOURCE if is_hand(emb) else SOURCE,
                         embodiment=emb.name,
                         n_frames=cfg.frames,
                         fps=cfg.fps,
@@ -166,5 +172,11 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
     }
 
 
+_TASKS = {
+    "pick_place": "pick up the yellow ball and put it down elsewhere",
+    "push": "push the yellow ball along the floor",
+}
+
+
 def _task(kind: str) -> str:
-    return "pick up the yellow ball and put it down elsewhere" if kind == "pick_place" else "move the arm around"
+    return _TASKS.get(kind, "move the arm around")

@@ -42,6 +42,7 @@ from ..plugin.embodiment import Embodiment
 __all__ = [
     "ToyWorldError",
     "check_supported",
+    "is_hand",
     "joint_limits",
     "Motion",
     "sample_motion",
@@ -71,13 +72,24 @@ class ToyWorldError(OscarError, ValueError):
     """An embodiment or an input the toy world cannot use; the message says which and why."""
 
 
-def check_supported(emb: Embodiment) -> None:
-    """Raise :class:`ToyWorldError` unless ``emb`` computes its skeleton from a kinematic tree (URDF/xacro)."""
+def is_hand(emb: Embodiment) -> bool:
+    """True for a keypoint embodiment with the ``mano`` plugin's two-hand, 21-point skeleton (the toy world's
+    hands: :mod:`oscar_core.toyworld.hand`)."""
+    from oscar_embodiments.mano.topology import POINT_NAMES
+
+    return (not emb.uses_kinematic_tree()) and tuple(emb.skeleton.links) == POINT_NAMES
+
+
+def check_supported(emb: Embodiment, hands: bool = False) -> None:
+    """Raise :class:`ToyWorldError` unless ``emb`` computes its skeleton from a kinematic tree (URDF/xacro), or,
+    with ``hands``, is a hand with the ``mano`` plugin's skeleton (:func:`is_hand`)."""
     if not emb.uses_kinematic_tree():
+        if hands and is_hand(emb):
+            return
         raise ToyWorldError(
-            f"toyworld: embodiment {emb.name!r} reads its skeleton from keypoints (it overrides Embodiment.frames, "
-            f"as hands do); the toy world draws joint-space motions inside URDF limits and supports only "
-            f"kinematic-tree embodiments (urdf/xacro)"
+            f"toyworld: embodiment {emb.name!r} reads its skeleton from keypoints (it overrides Embodiment.frames); "
+            f"the toy world draws joint-space motions inside URDF limits for kinematic-tree embodiments (urdf/xacro)"
+            + (" and hands with the mano plugin's 2 x 21-point skeleton" if hands else "")
         )
     if len(emb.joint_names) == 0:
         raise ToyWorldError(f"toyworld: embodiment {emb.name!r} has no movable joints to move")
@@ -135,7 +147,9 @@ class Motion:
     signals); kind: "pick_place" or "reach"; points: (T, K, 3) skeleton
     points, metres; ee: (T, 3) end-effector, metres; object: (T, 3) ball
     centre, metres; attached: (T,) bool; object_radius: metres; scale:
-    the robot's reach, metres (sizes of everything else follow it).
+    the robot's reach, metres (sizes of everything else follow it);
+    link_radii: (E,) capsule radii, metres (None: :func:`~oscar_core.render.capsules.link_radii` of the
+    reach); marker: draw the end-effector marker (robots with a gripper; hands have none).
     """
 
     trajectory: Trajectory
@@ -147,6 +161,8 @@ class Motion:
     object_radius: float
     scale: float
     missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
+    link_radii: np.ndarray | None = None
+    marker: bool = True
 
 
 def miss_start(

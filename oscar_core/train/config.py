@@ -115,6 +115,9 @@ class DataSection:
     latents: str = "auto"
     # source-mixing temperature T: w_i ∝ n_frames_i^(1/T) (the paper: T = 3)
     mixing_temperature: float = 3.0
+    # explicit per-source weights {source: weight}, normalised, replacing the temperature rule; they must name every
+    # source of the clips (ours: the hand/robot ratio of docs/toyworld.md); null = the temperature rule
+    source_weights: dict[str, float] | None = None
     # trapezoid window prior: ramp width as a fraction of the window (ours; the paper gives none, docs/training.md)
     prior_ramp: float = 0.25
     # mixture weight of a uniform prior added to the trapezoid one (ours; 0 = the paper's pure trapezoid)
@@ -253,6 +256,11 @@ class TrainConfig:
             bad("data.unconditional_skeleton", f"one of {UNCONDITIONAL}", d.unconditional_skeleton)
         if not d.mixing_temperature > 0:
             bad("data.mixing_temperature", "a positive number", d.mixing_temperature)
+        for k, v in (d.source_weights or {}).items():
+            if not v > 0:
+                bad(f"data.source_weights.{k}", "a positive weight", v)
+        if d.source_weights is not None and not d.source_weights:
+            bad("data.source_weights", "a mapping {source: weight} with at least one source, or null", {})
         if not 0.0 < d.prior_ramp <= 0.5:
             bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
         if not 0.0 <= d.prior_uniform <= 1.0:
@@ -328,7 +336,14 @@ def _build(cls, data: Any, source: str, prefix: str):
 
 
 _EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
-_KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string", list: "a list"}
+_KINDS = {
+    bool: "true or false",
+    int: "an integer",
+    float: "a number",
+    str: "a string",
+    list: "a list",
+    dict: "a mapping",
+}
 
 
 def _typed(hint, value: Any, source: str, name: str) -> Any:
@@ -353,6 +368,7 @@ def _typed(hint, value: Any, source: str, name: str) -> Any:
         float: lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
         str: lambda v: isinstance(v, str),
         list: lambda v: isinstance(v, list),
+        dict: lambda v: isinstance(v, dict),
     }[origin]
     if origin is float and isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):
         value = float(value)  # YAML 1.2's 1e-4, which PyYAML (YAML 1.1) reads as a string
@@ -362,6 +378,11 @@ def _typed(hint, value: Any, source: str, name: str) -> Any:
     if origin is list and args:
         for i, item in enumerate(value):
             _typed(args[0], item, source, f"{name}[{i}]")
+    if origin is dict and args:
+        return {
+            _typed(args[0], k, source, f"{name} key"): _typed(args[1], v, source, f"{name}.{k}")
+            for k, v in value.items()
+        }
     if origin is float and not math.isfinite(value):
         raise TrainConfigError(source, name, "a finite number", repr(value))
     return float(value) if origin is float else value

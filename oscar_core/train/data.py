@@ -187,6 +187,7 @@ class TrainData:
             self.window,
             seed=c.seed,
             temperature=d.mixing_temperature,
+            weights=d.source_weights,
             ramp=d.prior_ramp,
             uniform=d.prior_uniform,
             dropout=d.skeleton_dropout if is_video_condition(c.condition) else 0.0,

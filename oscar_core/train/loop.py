@@ -186,6 +186,42 @@ def train(
     return result
 
 
+SOURCES_FILE = "sources.json"
+
+
+def write_sources(run_dir: Path, planner: StepPlanner, drawn: dict[str, int], steps: int, config: TrainConfig) -> Path:
+    """``RUN_DIR/sources.json`` (atomic): per source the configured weight, the items drawn by steps 1 .. ``steps``
+    and their fraction of all draws; ``mixing`` says which rule set the weights."""
+    total = sum(drawn.values())
+    explicit = config.data.source_weights is not None
+    doc = {
+        "steps": steps,
+        "draws": total,
+        "mixing": "source_weights" if explicit else f"mixing_temperature {config.data.mixing_temperature:g}",
+        "parent_run": config.parent_run,
+        "sources": {
+            s: {"weight": w, "drawn": drawn[s], "drawn_fraction": drawn[s] / total if total else None}
+            for s, w in planner.weights.items()
+        },
+    }
+    return atomic_write_bytes(run_dir / SOURCES_FILE, (json.dumps(doc, indent=1) + "\n").encode())
+
+
+def _check_source_weights(config: TrainConfig, data, source: str) -> None:
+    """Explicit ``data.source_weights`` must name exactly the sources of the clips (before anything is built)."""
+    named = config.data.source_weights
+    if named is None:
+        return
+    have = set(data.summary()["sources"])
+    if set(named) != have:
+        raise TrainConfigError(
+            source,
+            "data.source_weights",
+            f"a weight for every source of the clips ({', '.join(sorted(have))}) and no other",
+            f"{sorted(named)} (missing {sorted(have - set(named))}, unknown {sorted(set(named) - have)})",
+        )
+
+
 def _write_curves(run_dir: Path) -> None:
     """``RUN_DIR/curves.png`` (:mod:`oscar_core.train.curves`); skipped, with an INFO line, without matplotlib."""
     from .curves import plot_training_curves
@@ -254,6 +290,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     vae = build_vae(config, device=info.device, source=source)
     model = build_transformer(config, source)
     data = TrainData(config, vae, model.text_dim, registry)
+    _check_source_weights(config, data, source)
     planner: StepPlanner = data.planner()
     if config.parent_run and ckpt is None:
         load_weights(latest_checkpoint(config.parent_run), model, key="model")
@@ -312,6 +349,8 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             + "\n"
         )
         log.flush()
+    # items drawn per source so far (a resumed run replays the plan of the steps it has done)
+    drawn = planner.drawn(start, config.batch_size) if info.main else {}
     bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step", desc="train")
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
 
@@ -349,10 +388,13 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             rate = (done - done_at_t0) / max(time.perf_counter() - t0, 1e-9)
             bar.set_postfix(loss=f"{loss_mean:.4f}", lr=f"{lr:.2e}", refresh=False)
             bar.update(1)
-            if log and (done % config.log_every == 0 or done == end):
+            if log:
                 # figures of the whole global batch, not this rank's share: the plan is a function of (seed, step),
                 # so rank 0 recomputes it rather than gathering the other ranks' shares
                 whole = planner.plan(step, config.batch_size) if info.world > 1 else mine
+                for src, n in planner.source_counts(whole).items():
+                    drawn[src] += n
+            if log and (done % config.log_every == 0 or done == end):
                 record = {
                     "step": done,
                     "loss": loss_mean,
@@ -362,6 +404,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                     "elapsed_s": time.perf_counter() - t0,
                     "sigma_mean": sum(i.sigma for i in whole) / len(whole),
                     "skeleton_dropped": sum(i.drop for i in whole),
+                    "sources_drawn": dict(drawn),
                 }
                 log.write(json.dumps(record) + "\n")
                 log.flush()
@@ -371,6 +414,8 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                     wb.write(record)
             if done % config.save_every == 0 or done == end:
                 save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
+                if info.main:
+                    write_sources(run_dir, planner, drawn, done, config)
     finally:
         batches.close()
         bar.close()

@@ -31,11 +31,26 @@ from .flow import sample_sigmas
 __all__ = ["mixing_weights", "crossings", "trapezoid", "window_prior", "PlanItem", "StepPlanner"]
 
 
-def mixing_weights(frames_per_source: dict[str, int], temperature: float = 3.0) -> dict[str, float]:
-    """Source → probability, w_i ∝ n_frames_i^(1/T), normalised to sum 1 (sources sorted by name)."""
+def mixing_weights(
+    frames_per_source: dict[str, int], temperature: float = 3.0, explicit: dict[str, float] | None = None
+) -> dict[str, float]:
+    """Source → probability, w_i ∝ n_frames_i^(1/T), normalised to sum 1 (sources sorted by name).
+
+    explicit: per-source weights (any positive scale) used instead of the temperature rule; they must name
+    every source of ``frames_per_source`` and no other (a :class:`ValueError` names the difference).
+    """
     if not frames_per_source:
         raise ValueError("mixing_weights: expected at least one source, found none")
-    raw = {s: float(n) ** (1.0 / temperature) for s, n in sorted(frames_per_source.items())}
+    if explicit is not None:
+        have, named = set(frames_per_source), set(explicit)
+        if have != named:
+            raise ValueError(
+                f"data.source_weights: expected a weight for every source of the clips ({sorted(have)}) and no "
+                f"other, found {sorted(named)} (missing {sorted(have - named)}, unknown {sorted(named - have)})"
+            )
+        raw = {s: float(explicit[s]) for s in sorted(frames_per_source)}
+    else:
+        raw = {s: float(n) ** (1.0 / temperature) for s, n in sorted(frames_per_source.items())}
     total = sum(raw.values())
     return {s: v / total for s, v in raw.items()}
 
@@ -112,7 +127,8 @@ class StepPlanner:
     """Draws each step's global batch from (seed, step) alone.
 
     clips: per clip a (source, n_frames, openness (T, G), allowed starts or None);
-    window: frames; the other arguments are the config's.
+    window: frames; weights: explicit per-source weights (``data.source_weights``, instead of the
+    temperature rule); the other arguments are the config's.
     """
 
     def __init__(
@@ -122,6 +138,7 @@ class StepPlanner:
         *,
         seed: int = 0,
         temperature: float = 3.0,
+        weights: dict[str, float] | None = None,
         ramp: float = 0.25,
         uniform: float = 0.0,
         dropout: float = 0.2,
@@ -140,7 +157,8 @@ class StepPlanner:
             self.starts.append(s)
             self.priors.append(window_prior(op, window, ramp, uniform, s))
             frames[source] = frames.get(source, 0) + int(n)
-        self.weights = mixing_weights(frames, temperature)
+        self.weights = mixing_weights(frames, temperature, weights)
+        self.clip_sources = [c[0] for c in clips]
         self.sources = list(self.weights)
         self.source_p = np.array([self.weights[s] for s in self.sources])
         self.members = {s: np.array([i for i, c in enumerate(clips) if c[0] == s]) for s in self.sources}
@@ -163,6 +181,21 @@ class StepPlanner:
             drop = bool(rng.random() < self.dropout)
             items.append(PlanItem(clip, start, drop, float(sigmas[i]), int(rng.integers(2**62))))
         return items
+
+    def source_counts(self, items: list[PlanItem]) -> dict[str, int]:
+        """Source → how many of ``items`` were drawn from it (every source listed, zeros included)."""
+        out = dict.fromkeys(self.sources, 0)
+        for it in items:
+            out[self.clip_sources[it.clip]] += 1
+        return out
+
+    def drawn(self, steps: int, batch: int) -> dict[str, int]:
+        """Source → items drawn from it by optimiser steps 0 .. ``steps`` - 1 (replays the plan)."""
+        out = dict.fromkeys(self.sources, 0)
+        for step in range(steps):
+            for s, n in self.source_counts(self.plan(step, batch)).items():
+                out[s] += n
+        return out
 
     @staticmethod
     def rank_slice(items: list[PlanItem], rank: int, world: int) -> list[PlanItem]:

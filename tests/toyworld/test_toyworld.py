@@ -413,10 +413,11 @@ def test_an_out_of_tree_one_file_plugin_generates_clips(tmp_path, capsys):
     assert reg.get("stick").check_trajectory(clip.trajectory) is not None
 
 
-def test_cli_rejects_hands_and_unknown_embodiments(tmp_path, capsys):
-    rc = main(["toyworld", "generate", "--embodiments", "toyarm,mano", "--episodes", "1", "--out", str(tmp_path / "x")])
+def test_cli_rejects_too_short_hand_episodes_before_writing(tmp_path, capsys):
+    argv = ["toyworld", "generate", "--embodiments", "toyarm,mano", "--episodes", "1", "--frames", "7"]
+    rc = main(argv + ["--out", str(tmp_path / "x")])
     err = capsys.readouterr().err
-    assert rc == 2 and "'mano'" in err and "keypoints" in err
+    assert rc == 2 and "--frames: expected at least 9 frames for a hand episode (mano), found 7" in err
     assert not (tmp_path / "x").exists()  # rejected before anything is written
 
 

@@ -76,6 +76,9 @@ def test_exact_resume_is_bitwise(tmp_path, clipset):
     # the metrics of the resumed run continue the interrupted ones
     steps = [json.loads(l)["step"] for l in (Path(split.run_dir) / "metrics.jsonl").read_text().splitlines()]
     assert steps == [0, 1, 2, 3, 4]
+    # so do the draws per source: the resumed part replays the plan of the steps it had done
+    drawn = json.loads((Path(split.run_dir) / "sources.json").read_text())
+    assert drawn == json.loads((Path(straight.run_dir) / "sources.json").read_text()) and drawn["draws"] == 8
     # and the test can fail: a different seed gives different weights
     other = tiny_train_config(clipset, tmp_path / "other", steps=4, seed=1)
     train(other, progress=False)
