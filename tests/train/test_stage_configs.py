@@ -3,12 +3,12 @@ command of the documented sequence parses with the real command-line parser."""
 
 import re
 import shlex
-from pathlib import Path
+
+from _paths import REPO
 
 from oscar_core.cli import build_parser
 from oscar_core.train.config import load_config, parse_overrides
 
-REPO = Path(__file__).resolve().parents[1]
 HUMAN = {"clipsets/egodex", "clipsets/epic"}
 
 
