@@ -255,3 +255,13 @@ def test_capsule_rotations_turn_z_onto_the_segment():
     np.testing.assert_allclose(length, np.linalg.norm(d, axis=1), rtol=1e-12)
     z = Rotation.from_quat(q).apply([0.0, 0.0, 1.0])  # scipy: xyzw, as Rerun
     np.testing.assert_allclose(z * length[:, None], d, atol=1e-12)
+
+
+def test_without_save_or_spawn_the_recording_goes_to_the_current_folder(episode, tmp_path, capsys, monkeypatch):
+    emb, ep, d = episode
+    monkeypatch.chdir(tmp_path)
+    code, out, err = _view(["--embodiment", "franka", "--trajectory", d / "traj.npz"], capsys)
+    assert code == 0, err
+    assert out.strip() == f"wrote traj.rrd: {T} frames, 12 entities"  # no camera: no frustum, video or condition
+    t = _table(_store(tmp_path / "traj.rrd"), "/joints/**")
+    assert len(t) == T

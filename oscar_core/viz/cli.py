@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
+import re
 from pathlib import Path
 
 from .._util.arg_types import count
@@ -22,7 +22,8 @@ EPILOG = """examples:
   oscar view OUT --manifest manifest.json --cell S1/pi0 --save cell.rrd   (an `eval run` cell)
 
 --save writes a recording without a viewer (open it later: rerun FILE.rrd); --spawn starts
-the Rerun viewer. With neither, --save is required when there is no display. Needs
+the Rerun viewer. With neither, the recording is written to NAME.rrd in this folder (NAME: the
+trajectory's, clip's or cell's name). Needs
 pip install "oscar-wm[viz]". Exit status: 0 written, 2 bad input. See docs/viewing.md.
 """
 
@@ -47,7 +48,11 @@ def add_view_parser(sub) -> None:
     v.add_argument("--clip", help="clip id, when SOURCE is a clip set")
     v.add_argument("--manifest", help="the manifest of the `eval run` folder SOURCE")
     v.add_argument("--cell", help="SESSION/POLICY, a cell of --manifest")
-    output_option(v.add_argument("--save", metavar="FILE.rrd", help="write the recording to this file"))
+    output_option(
+        v.add_argument(
+            "--save", metavar="FILE.rrd", help="write the recording to this file (default without --spawn: NAME.rrd)"
+        )
+    )
     v.add_argument("--spawn", action="store_true", help="start the Rerun viewer and send the recording to it")
     v.add_argument(
         "--jpeg-quality",
@@ -96,10 +101,6 @@ def cmd_view(args) -> int:
 
     if args.jpeg_quality > 100:
         raise OscarError(f"--jpeg-quality: expected 0-100, found {args.jpeg_quality}")
-    if not args.save and not args.spawn:
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            raise OscarError("view: no display here; expected --save FILE.rrd (or --spawn where a viewer can open)")
-        args.spawn = True
     if args.save and Path(args.save).suffix != ".rrd":
         raise OscarError(f"--save: expected a file name ending in .rrd, found {args.save!r}")
     try:
@@ -107,6 +108,11 @@ def cmd_view(args) -> int:
     except ImportError as exc:
         raise OscarError(str(exc)) from None
     source = _source(args)
+    if not args.save and not args.spawn:  # the viewer opens only when asked: a recording in this folder
+        from .._util.outputs import check_writable
+
+        args.save = re.sub(r"[^A-Za-z0-9._-]+", "_", source.name) + ".rrd"
+        check_writable(args.save, "file")
     summary = write_recording(source, args.save, spawn=args.spawn, jpeg_quality=args.jpeg_quality or None)
     if args.json:
         from .sources import describe
