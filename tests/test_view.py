@@ -265,3 +265,32 @@ def test_without_save_or_spawn_the_recording_goes_to_the_current_folder(episode,
     assert out.strip() == f"wrote traj.rrd: {T} frames, 12 entities"  # no camera: no frustum, video or condition
     t = _table(_store(tmp_path / "traj.rrd"), "/joints/**")
     assert len(t) == T
+
+
+def test_meshes_sit_at_their_links_fk_poses(episode, tmp_path, capsys):
+    from oscar_core.render.mesh import mesh_geometry
+
+    emb, ep, d = episode
+    rrd = tmp_path / "mesh.rrd"
+    code, out, err = _view(
+        ["--embodiment", "franka", "--trajectory", d / "traj.npz", "--meshes", "--save", rrd], capsys
+    )
+    assert code == 0, err
+    store = _store(rrd)
+    geo = mesh_geometry(emb)
+    first = geo.links[0]
+    static = _table(store, f"/world/robot/meshes/{first.link}/0", index=None).to_pylist()[0]
+    got = np.asarray(static[f"/world/robot/meshes/{first.link}/0:Mesh3D:vertex_positions"])
+    np.testing.assert_allclose(got, first.vertices, atol=1e-6)  # float32, in the link's own frame
+    # the link's pose per frame, against the torch FK (pytorch-kinematics; the recording uses the NumPy FK)
+    traj = emb.check_trajectory(load_trajectory(d / "traj.npz"))
+    for link in geo.link_names[1:4]:
+        poses = _table(store, f"/world/robot/meshes/{link}")
+        assert poses.column("frame").to_pylist() == list(range(T))
+        t_col = np.asarray(_column(poses, f"/world/robot/meshes/{link}", "Transform3D", "translation"))[:, 0]
+        R_col = np.asarray(_column(poses, f"/world/robot/meshes/{link}", "Transform3D", "mat3x3"))[:, 0]
+        want = emb.fk(emb.full_configuration(traj), traj.base_pose, links=[link]).double().numpy()[:, 0]
+        np.testing.assert_allclose(t_col, want[:, :3, 3], atol=1e-6)
+        np.testing.assert_allclose(
+            R_col.reshape(T, 3, 3).transpose(0, 2, 1), want[:, :3, :3], atol=1e-6
+        )  # column-major

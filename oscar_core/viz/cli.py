@@ -60,6 +60,9 @@ def add_view_parser(sub) -> None:
         default=90,
         help="JPEG quality of the video frames, 1-100; 0 logs raw frames (exact, large) (default 90)",
     )
+    v.add_argument(
+        "--meshes", action="store_true", help="also show the robot's visual meshes (its URDF <visual> elements)"
+    )
     v.add_argument("--json", action="store_true", help="print what was logged as JSON")
     v.set_defaults(func=cmd_view)
 
@@ -113,7 +116,9 @@ def cmd_view(args) -> int:
 
         args.save = re.sub(r"[^A-Za-z0-9._-]+", "_", source.name) + ".rrd"
         check_writable(args.save, "file")
-    summary = write_recording(source, args.save, spawn=args.spawn, jpeg_quality=args.jpeg_quality or None)
+    summary = write_recording(
+        source, args.save, spawn=args.spawn, jpeg_quality=args.jpeg_quality or None, meshes=args.meshes
+    )
     if args.json:
         from .sources import describe
 

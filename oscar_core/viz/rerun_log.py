@@ -12,6 +12,8 @@ Entity paths (one per thing, as LeRobot's viewer does), on two timelines, ``fram
                                 0.8 × brightness (as ``oscar render --overlay`` blends it)
 ``world/robot/links``           the robot in 3D from the embodiment's FK: ``Capsules3D`` along the
                                 skeleton edges (radii of the capsule condition), metres
+``world/robot/meshes/<link>``    with ``meshes``: the link's visual meshes (``Mesh3D``, static, in the link's frame,
+                                ``<link>/<i>``) under its FK pose per frame (``Transform3D``)
 ``world/robot/points``          the skeleton points (``Points3D``, the skeleton's colours)
 ``world/robot/grippers``        the gripper indicator points
 ``joints/<joint>``              joint positions (``Scalars``): radians (revolute), metres (prismatic)
@@ -136,10 +138,36 @@ def _log_curves(rr, rec, source, frames) -> None:
             )
 
 
-def log_source(source, rec, *, jpeg_quality: int | None = None, progress=None) -> dict:
+def _log_meshes(rr, rec, source) -> list[str]:
+    """The embodiment's visual meshes (the mesh condition's, simplified as it does) under their FK poses."""
+    from ..render.mesh import mesh_geometry
+
+    emb, traj = source.embodiment, source.trajectory
+    geo = mesh_geometry(emb)
+    links = list(dict.fromkeys(geo.link_names))
+    poses = emb._link_poses(emb.full_configuration(traj), traj.base_pose, links)  # (T, L, 4, 4), the FK frames() uses
+    count: dict[str, int] = {}
+    for g in geo.links:
+        i = count[g.link] = count.get(g.link, -1) + 1
+        rec.log(
+            f"world/robot/meshes/{g.link}/{i}",
+            rr.Mesh3D(vertex_positions=g.vertices, triangle_indices=g.faces),
+            static=True,
+        )
+    for t in range(len(traj)):
+        _set_time(rec, t, float(traj.fps))
+        for k, link in enumerate(links):
+            M = poses[t, k]
+            rec.log(f"world/robot/meshes/{link}", rr.Transform3D(translation=M[:3, 3], mat3x3=M[:3, :3]))
+    return [f"world/robot/meshes/{link}" for link in links]
+
+
+def log_source(source, rec, *, jpeg_quality: int | None = None, meshes: bool = False, progress=None) -> dict:
     """Log ``source`` into the Rerun recording stream ``rec``; returns ``{"entities": [...], "frames": T}``.
 
     jpeg_quality: None logs raw RGB frames (exact; large); 1-100 logs JPEG-encoded frames.
+    meshes: also log the embodiment's visual meshes (:func:`oscar_core.render.mesh.mesh_geometry`; a
+    :class:`~oscar_core.errors.PluginError` when it has none).
     progress: an optional callable ``progress(t)`` called after each frame.
     """
     rr = require("rerun", "viz")
@@ -169,6 +197,8 @@ def log_source(source, rec, *, jpeg_quality: int | None = None, progress=None) -
     entities += [f"joints/{n}" for n in traj.joint_names]
     entities += [f"gripper/{n}" for n in emb.gripper_names if traj.gripper is not None]
     entities += [f"gripper_openness/{n}" for n in emb.gripper_names[: frames.openness.shape[1]]]
+    if meshes:
+        entities += _log_meshes(rr, rec, source)
     for t in range(T):
         _set_time(rec, t, fps)
         P = frames.points[t]
@@ -227,7 +257,9 @@ def blueprint(source):
     return rrb.Blueprint(rrb.Vertical(*views), collapse_panels=False)
 
 
-def write_recording(source, save=None, *, spawn: bool = False, jpeg_quality: int | None = 90, progress=None) -> dict:
+def write_recording(
+    source, save=None, *, spawn: bool = False, jpeg_quality: int | None = 90, meshes: bool = False, progress=None
+) -> dict:
     """Log ``source`` into a new recording and write it to ``save`` (an ``.rrd`` file, atomically) and/or send it
     to a newly spawned viewer (``spawn``). Returns :func:`log_source`'s summary plus ``"save"``."""
     rr = require("rerun", "viz")
@@ -246,7 +278,7 @@ def write_recording(source, save=None, *, spawn: bool = False, jpeg_quality: int
         sinks.append(rr.FileSink(str(tmp)))
     rec.set_sinks(*sinks, default_blueprint=layout)
     try:
-        summary = log_source(source, rec, jpeg_quality=jpeg_quality, progress=progress)
+        summary = log_source(source, rec, jpeg_quality=jpeg_quality, meshes=meshes, progress=progress)
         rec.flush()
         rec.disconnect()
         if tmp is not None:
