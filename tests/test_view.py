@@ -294,3 +294,27 @@ def test_meshes_sit_at_their_links_fk_poses(episode, tmp_path, capsys):
         np.testing.assert_allclose(
             R_col.reshape(T, 3, 3).transpose(0, 2, 1), want[:, :3, :3], atol=1e-6
         )  # column-major
+
+
+def test_a_moving_camera_has_a_pose_per_frame(episode, tmp_path, capsys):
+    from dataclasses import replace
+
+    emb, ep, d = episode
+    M = np.repeat(np.asarray(ep.camera.extrinsic)[None], T, axis=0)
+    M[:, 0, 3] += np.linspace(0.0, 0.1, T)  # a camera sliding 10 cm along the world x axis
+    moving = replace(ep.camera, extrinsic=M)
+    save_camera(moving, tmp_path / "moving.json")
+    rrd = tmp_path / "moving.rrd"
+    args = ["--embodiment", "franka", "--trajectory", d / "traj.npz", "--camera", tmp_path / "moving.json"]
+    code, out, err = _view([*args, "--save", rrd], capsys)
+    assert code == 0, err
+    poses = _table(_store(rrd), "/world/camera")
+    assert poses.column("frame").to_pylist() == list(range(T))
+    got = np.asarray(_column(poses, "/world/camera", "Transform3D", "translation"))[:, 0]
+    want = np.linalg.inv(moving.world_to_cv())[:, :3, 3]
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    assert np.ptp(got[:, 0]) == pytest.approx(0.1, abs=1e-6)
+    save_camera(replace(ep.camera, extrinsic=M[:5]), tmp_path / "five.json")
+    args[-1] = tmp_path / "five.json"
+    code, out, err = _view([*args, "--save", tmp_path / "five.rrd"], capsys)
+    assert code == 2 and "five.json: field 'extrinsic': expected 12 per-frame extrinsics" in err

@@ -80,20 +80,44 @@ def _image(rr, frame: np.ndarray, jpeg_quality: int | None):
     return img if jpeg_quality is None else img.compress(jpeg_quality=jpeg_quality)
 
 
-def _condition_frames(source, size):
-    """(T, H, W, 3) uint8 condition video at ``size`` (stored, else the skeleton rendered through the camera)."""
-    from ..media.video import read_video
-    from ..render.skeleton_video import fit_image, render_skeleton_video
+def _iter_frames(path, n: int):
+    """The first ``n`` frames of a video file or PNG folder, one (H, W, 3) uint8 RGB array at a time."""
+    from pathlib import Path
+
+    path = Path(path)
+    if path.is_dir():
+        import cv2
+
+        for f in sorted(path.glob("*.png"))[:n]:
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if img is None:
+                raise ValueError(f"{f}: not a readable PNG frame")
+            yield img[..., ::-1]
+        return
+    import av
+
+    with av.open(str(path)) as container:
+        for i, frame in enumerate(container.decode(video=0)):
+            if i >= n:
+                break
+            yield frame.to_ndarray(format="rgb24")
+
+
+def _iter_condition(source, size):
+    """The condition video at ``size``, frame by frame: the stored one (fitted to ``size``), else the skeleton
+    rendered through the camera chunk by chunk."""
+    from ..render.conditions import chunk_renderer
+    from ..render.skeleton_video import fit_image
 
     T = len(source.trajectory)
     if source.condition is not None:
-        cond = read_video(source.condition, max_frames=T)
-        if cond.shape[1:3] != (size[1], size[0]):
-            cond = np.stack([fit_image(f, size[0], size[1]) for f in cond])
-        return cond
-    return render_skeleton_video(
+        for f in _iter_frames(source.condition, T):
+            yield f if f.shape[:2] == (size[1], size[0]) else fit_image(f, *size)
+        return
+    for chunk in chunk_renderer("skeleton")(
         source.embodiment, source.trajectory, source.camera, tuple(size), camera_source=source.camera_source
-    )
+    ):
+        yield from chunk
 
 
 def _log_camera(rr, rec, source, size, fps: float, mount_pose) -> None:
@@ -171,7 +195,7 @@ def log_source(source, rec, *, jpeg_quality: int | None = None, meshes: bool = F
     progress: an optional callable ``progress(t)`` called after each frame.
     """
     rr = require("rerun", "viz")
-    from ..media.video import read_video
+    from ..media.video import video_info
     from ..render.skeleton_video import fit_image
 
     emb, traj, cam = source.embodiment, source.trajectory, source.camera
@@ -180,15 +204,17 @@ def log_source(source, rec, *, jpeg_quality: int | None = None, meshes: bool = F
     entities = []
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    rgb = read_video(source.rgb, max_frames=T) if source.rgb is not None else None
-    gen = read_video(source.generated, max_frames=T) if source.generated is not None else None
+    # videos are read (and the condition rendered) frame by frame: an episode never sits in memory whole
+    rgb = _iter_frames(source.rgb, T) if source.rgb is not None else None
+    gen = _iter_frames(source.generated, T) if source.generated is not None else None
     size = None
     if cam is not None:
-        base = rgb if rgb is not None else gen
-        size = (base.shape[2], base.shape[1]) if base is not None else (cam.intrinsics.width, cam.intrinsics.height)
+        base = source.rgb or source.generated
+        info = video_info(base) if base is not None else None
+        size = (info["width"], info["height"]) if info else (cam.intrinsics.width, cam.intrinsics.height)
         _log_camera(rr, rec, source, size, fps, frames.mount_pose)
         entities.append("world/camera")
-    cond = _condition_frames(source, size) if cam is not None else None
+    cond = _iter_condition(source, size) if cam is not None else None
 
     edges = emb.edge_index()
     radii = _radii(emb, len(edges))
@@ -213,16 +239,17 @@ def log_source(source, rec, *, jpeg_quality: int | None = None, meshes: bool = F
         if len(frames.gripper_points[t]):
             rec.log("world/robot/grippers", rr.Points3D(frames.gripper_points[t], radii=0.015))
         if rgb is not None:
-            real = rgb[t] if cam is None else fit_image(rgb[t], *size)
+            real = next(rgb)
+            real = real if cam is None or real.shape[:2] == (size[1], size[0]) else fit_image(real, *size)
             rec.log("world/camera/rgb" if cam is not None else "camera/rgb", _image(rr, real, jpeg_quality))
             if gen is not None:
                 rec.log("rollout/real", _image(rr, real, jpeg_quality))
         if cond is not None:
-            c = cond[t]
+            c = next(cond)
             alpha = np.round(CONDITION_ALPHA * c.max(axis=-1, keepdims=True).astype(np.float32)).astype(np.uint8)
             rec.log("world/camera/condition", rr.Image(np.concatenate([c, alpha], axis=-1), color_model="RGBA"))
         if gen is not None:
-            rec.log("rollout/generated", _image(rr, gen[t], jpeg_quality))
+            rec.log("rollout/generated", _image(rr, next(gen), jpeg_quality))
         if progress is not None:
             progress(t)
     entities += ["world/robot/links", "world/robot/points"]
