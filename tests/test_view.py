@@ -318,3 +318,17 @@ def test_a_moving_camera_has_a_pose_per_frame(episode, tmp_path, capsys):
     args[-1] = tmp_path / "five.json"
     code, out, err = _view([*args, "--save", tmp_path / "five.rrd"], capsys)
     assert code == 2 and "five.json: field 'extrinsic': expected 12 per-frame extrinsics" in err
+
+
+def test_a_rollout_written_as_png_frames(episode, tmp_path, capsys):
+    import cv2
+
+    emb, ep, d = episode
+    (tmp_path / "frames").mkdir()
+    for t, f in enumerate(ep.rgb[::-1]):  # oscar rollout --out frames/ writes one PNG per frame
+        cv2.imwrite(str(tmp_path / "frames" / f"{t:06d}.png"), f[..., ::-1])
+    rrd = tmp_path / "png.rrd"
+    args = ["--embodiment", "franka", "--trajectory", d / "traj.npz", "--camera", d / "cam.json"]
+    code, out, err = _view([*args, "--generated", tmp_path / "frames", "--save", rrd, "--jpeg-quality", "0"], capsys)
+    assert code == 0, err
+    np.testing.assert_array_equal(_images(_store(rrd), "/rollout/generated", (H, W, 3)), ep.rgb[::-1])
