@@ -332,3 +332,24 @@ def test_a_rollout_written_as_png_frames(episode, tmp_path, capsys):
     code, out, err = _view([*args, "--generated", tmp_path / "frames", "--save", rrd, "--jpeg-quality", "0"], capsys)
     assert code == 0, err
     np.testing.assert_array_equal(_images(_store(rrd), "/rollout/generated", (H, W, 3)), ep.rgb[::-1])
+
+
+def test_meshes_of_an_embodiment_without_visual_geometry_are_refused_first(tmp_path, capsys, monkeypatch):
+    from oscar_core.kinematics.trajectory import Trajectory
+
+    emb = get_embodiment("mano")  # keypoints, no URDF: no visual geometry
+    P = len(emb.skeleton.links)
+    kp = np.random.default_rng(0).normal(0, 0.05, (4, P, 3))
+    traj = Trajectory((), np.zeros((4, 0)), 10.0, gripper=np.zeros((4, len(emb.gripper_names))), keypoints=kp)
+    save_trajectory(traj, tmp_path / "hand.npz")
+    rrd = tmp_path / "hand.rrd"
+    code, out, err = _view(["--embodiment", "mano", "--trajectory", tmp_path / "hand.npz", "--save", rrd], capsys)
+    assert code == 0, err  # capsules of the keypoint skeleton
+
+    def no_recording(*a, **k):
+        raise AssertionError("a recording was opened before the input was refused")
+
+    monkeypatch.setattr(rr, "RecordingStream", no_recording)
+    code, out, err = _view(["--embodiment", "mano", "--trajectory", tmp_path / "hand.npz", "--meshes", "--save", tmp_path / "m.rrd"], capsys)  # fmt: skip
+    assert code == 2 and "has no visual geometry" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "m.rrd").exists() and not list(tmp_path.glob(".*.tmp"))

@@ -292,6 +292,10 @@ def write_recording(
     rr = require("rerun", "viz")
     if save is None and not spawn:
         raise ValueError("write_recording: give save=FILE.rrd, spawn=True, or both")
+    if meshes:  # an embodiment without visual geometry is refused before a file is opened
+        from ..render.mesh import mesh_geometry
+
+        mesh_geometry(source.embodiment)
     rec = rr.RecordingStream("oscar_view", recording_id=source.name)
     layout = blueprint(source)
     tmp = None
