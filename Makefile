@@ -6,7 +6,7 @@ PYTHON := $(VENV)/bin/python
 PIP := $(PYTHON) -m pip
 STAMP := $(VENV)/.oscar-installed
 OUT ?= demo_out
-EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray
+EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray,viz
 
 .PHONY: install venv demo test test-fast test-install lint bench bench-gpu clean
 

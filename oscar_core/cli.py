@@ -154,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_data_parser(sub)
     add_train_parser(sub)
     add_toyworld_parser(sub)
+    from .viz.cli import add_view_parser
+
+    add_view_parser(sub)
     for leaf in _leaves(p):
         _add_output_flags(leaf, argparse.SUPPRESS)
         leaf.set_defaults(

@@ -15,9 +15,12 @@ EPILOG = """examples:
       --intrinsics intrinsics.json --out cam.json
   oscar calibrate --embodiment franka --trajectory traj.npz --points points.json --size 1280x720 \\
       --estimate-intrinsics --out cam.json --video rgb.mp4 --overlay check.mp4 --json
+  oscar calibrate --embodiment franka --trajectory traj.npz --click rgb.mp4 --points points.json \
+      --intrinsics intrinsics.json --out cam.json      (click the points on a local web page first)
 
 The points file holds pixel positions of skeleton points per frame (docs/formats.md, "Calibration
-points"); --intrinsics is a camera JSON (its extrinsic, if any, is ignored) or an object with only
+points"); with --click VIDEO a page on 127.0.0.1 (its address is printed) shows a few
+frames of VIDEO, the clicks are written to --points, then the calibration runs; --intrinsics is a camera JSON (its extrinsic, if any, is ignored) or an object with only
 image_size, intrinsics and distortion. Exit status: 0 calibrated, 2 bad input (one line says why).
 See docs/calibration.md.
 """
@@ -37,7 +40,14 @@ def add_calibrate_parser(sub) -> None:
     c.add_argument("--embodiment", help="embodiment name (see `oscar embodiments`)")
     c.add_argument("--trajectory", help="trajectory .npz (docs/formats.md)")
     c.add_argument("--points", help="pixel positions of skeleton points per frame (.json)")
-    c.add_argument("--size", help="WIDTHxHEIGHT of the images the points were read on")
+    c.add_argument("--size", help="WIDTHxHEIGHT of the images the points were read on (with --click: the video's)")
+    c.add_argument(
+        "--click",
+        metavar="VIDEO",
+        help="click the points on frames of VIDEO in a local web page first; they are written to --points",
+    )
+    c.add_argument("--click-frames", type=count(1), default=4, help="frames shown for clicking (default 4)")
+    c.add_argument("--port", type=count(0), default=0, help="the click page's port on 127.0.0.1 (default: a free one)")
     how = c.add_mutually_exclusive_group()
     how.add_argument("--intrinsics", metavar="FILE", help="known intrinsics: a camera .json (kept fixed)")
     how.add_argument("--estimate-intrinsics", action="store_true", help="estimate fx, fy, cx, cy too (no distortion)")
@@ -112,7 +122,7 @@ def cmd_calibrate(args) -> int:
     missing = [
         f"--{n.replace('_', '-')}"
         for n in ("embodiment", "trajectory", "points", "size", "out")
-        if not getattr(args, n)
+        if not getattr(args, n) and not (n == "size" and args.click)
     ]
     if missing:
         raise OscarError(f"calibrate: expected {', '.join(missing)} (see oscar calibrate --help)")
@@ -120,13 +130,33 @@ def cmd_calibrate(args) -> int:
         raise OscarError("calibrate: expected --intrinsics FILE or --estimate-intrinsics")
     if bool(args.video) != bool(args.overlay):
         raise OscarError("calibrate: --video and --overlay go together (the overlay is drawn over the video)")
-    size = parse_size(args.size)
+    if args.click:
+        from .._util.outputs import check_writable
+        from ..media.video import video_info
+
+        check_writable(args.points, "file")
+        info = video_info(args.click)
+        size = (info["width"], info["height"])
+        if args.size and parse_size(args.size) != size:
+            raise OscarError(f"--size {args.size}: expected the size of --click {args.click}, {size[0]}x{size[1]}")
+    else:
+        size = parse_size(args.size)
     if args.overlay:
         check_output(args.overlay)
     emb = Registry(plugin_paths=args.plugin or ()).get(args.embodiment)
     traj = load_trajectory(args.trajectory)
-    points = load_points(args.points)
     intr = None if args.estimate_intrinsics else _intrinsics(args.intrinsics)
+    if args.click:
+        from .click import click_points_on_video
+
+        def ready(url):
+            print(f"click the points at {url} (then Save)", flush=True)
+
+        click_points_on_video(
+            emb, len(traj), args.click, args.points, count=args.click_frames, port=args.port, on_ready=ready
+        )
+        print(f"wrote {args.points}")
+    points = load_points(args.points)
     kwargs = {} if args.threshold is None else {"threshold_px": args.threshold}
     result = calibrate(emb, traj, points, size, intr, seed=args.seed, **kwargs)
     save_camera(result.camera, args.out)

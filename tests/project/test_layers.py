@@ -41,6 +41,7 @@ FLOORS: list[tuple[str, tuple[str, ...]]] = [
     ("data", ("data",)),
     ("evaluation", ("evaluation",)),
     ("toyworld", ("toyworld",)),
+    ("viz", ("viz",)),  # episodes, clips, rollouts and evaluation cells logged into Rerun
     ("cli", ("cli", "demo", "testing")),  # + every cli / cli_* / __main__ module of any folder
 ]
 
