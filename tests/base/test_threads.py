@@ -13,6 +13,11 @@ from oscar_core._util.threads import ThreadOversubscriptionWarning, check_thread
 
 @pytest.fixture
 def machine(monkeypatch):
+    """Stand in ``cores`` available cores at a 1-minute load of ``load``, with no thread count set in the
+    environment (a suite run under ``OMP_NUM_THREADS=1`` would otherwise decide every default)."""
+    for name in ("OSCAR_NUM_THREADS", "OMP_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+
     def set_machine(cores: int, load: float):
         monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cores)), raising=False)
         monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
