@@ -30,13 +30,13 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.arg_types import count, default_device, device_name, interval, number
+from .._util.arg_types import count, default_device, device_name, number
 from .._util.log import log_result, progress_bars_enabled, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
-from ..model.presets import SAMPLER_PRESETS
+from .cli_sampler import add_sampler_options
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
 
@@ -107,7 +107,7 @@ def _vlm_kwargs(args) -> dict:
 def cmd_eval_run(args) -> int:
     import torch
 
-    from ..model.sampler import resolve_sampler
+    from .cli_sampler import resolve_sampler_flags
     from .loop import card_sampler_of, run_evaluation
     from .manifest import load_manifest
 
@@ -137,17 +137,7 @@ def cmd_eval_run(args) -> int:
             pairwise = judge
     elif args.pairwise:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
-    options = dict(
-        steps=args.steps,
-        preset=args.preset,
-        guidance_interval=args.guidance_interval,
-        shift=args.shift,
-        guidance=args.guidance,
-        guidance_form=args.guidance_form,
-        defaults={"guidance_form": "standard"},
-    )
-    resolve_sampler(None, **options)  # the flags checked before the model is looked up
-    choice = resolve_sampler(card_sampler_of(args.model, args.revision), **options)
+    choice = resolve_sampler_flags(args, lambda: card_sampler_of(args.model, args.revision))
     sampler = choice.config
     print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "eval-run"):
@@ -223,16 +213,7 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
         "judge ran at high reasoning effort)",
     )
     r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
-    r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget (as oscar rollout --preset)")
-    r.add_argument(
-        "--guidance-interval", metavar="LO,HI", type=interval, help="guide only the steps with noise level in [LO, HI]"
-    )
-    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
-    r.add_argument(
-        "--guidance-form", choices=("standard", "diffusers"), help="default: the model card's, else standard"
-    )
+    add_sampler_options(r)
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
     r.add_argument(
         "--engine",
