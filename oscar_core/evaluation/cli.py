@@ -36,7 +36,7 @@ from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
-from .cli_sampler import add_sampler_options
+from .cli_options import add_engine_options, add_sampler_options
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
 
@@ -107,7 +107,7 @@ def _vlm_kwargs(args) -> dict:
 def cmd_eval_run(args) -> int:
     import torch
 
-    from .cli_sampler import resolve_sampler_flags
+    from .cli_options import resolve_sampler_flags
     from .loop import card_sampler_of, run_evaluation
     from .manifest import load_manifest
 
@@ -215,26 +215,10 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
     add_sampler_options(r)
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
-    r.add_argument(
-        "--engine",
-        choices=("local", "ray"),
-        default="local",
-        help="where rollouts run: this process (default), or Ray actors (a running cluster via "
-        'RAY_ADDRESS, else a local one), one model per GPU (pip install "oscar-wm[ray]")',
-    )
-    r.add_argument(
-        "--workers",
-        type=count(1),
-        default=1,
-        metavar="N",
-        help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)",
-    )
-    r.add_argument(
-        "--batch-cells",
-        type=count(1),
-        default=1,
-        metavar="N",
-        help="roll out up to N cells in one batch (same frame count and size; each video equals its "
+    add_engine_options(
+        r,
+        what="rollouts",
+        batch_help="roll out up to N cells in one batch (same frame count and size; each video equals its "
         "one-at-a-time rollout up to float rounding; default 1)",
     )
     threads_option(r, "torch CPU threads of the local rollouts")

@@ -18,7 +18,7 @@ from .._util.log import log_result, progress_bars_enabled, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
-from .cli_sampler import add_sampler_options
+from .cli_options import add_engine_options, add_sampler_options
 
 __all__ = ["add_closed_loop_parser", "cmd_closed_loop"]
 
@@ -48,7 +48,7 @@ def _policy_sources(items) -> dict:
 def cmd_closed_loop(args) -> int:
     import torch
 
-    from .cli_sampler import resolve_sampler_flags
+    from .cli_options import resolve_sampler_flags
     from .closed_loop import run_closed_loop
     from .closed_loop_manifest import load_closed_loop_manifest
     from .loop import card_sampler_of
@@ -171,27 +171,11 @@ def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
         default=10.0,
         help="frame rate of a --simulator world (a model's is its card's; default 10)",
     )
-    r.add_argument(
-        "--batch-cells",
-        type=count(1),
-        default=1,
-        metavar="N",
-        help="advance up to N cells in lock-step, one batched world-model call per chunk, their policy calls "
-        "on threads of their own (each video equals its one-at-a-time run up to float rounding; default 1)",
-    )
-    r.add_argument(
-        "--engine",
-        choices=("local", "ray"),
-        default="local",
-        help="where cells run: this process (default), or Ray actors, one world model each (a running "
-        'cluster via RAY_ADDRESS, else a local one; pip install "oscar-wm[ray]")',
-    )
-    r.add_argument(
-        "--workers",
-        type=count(1),
-        default=1,
-        metavar="N",
-        help="--engine ray: actors (one GPU each on CUDA; default 1)",
+    add_engine_options(
+        r,
+        what="cells",
+        batch_help="advance up to N cells in lock-step, one batched world-model call per chunk, their policy "
+        "calls on threads of their own (each video equals its one-at-a-time run up to float rounding; default 1)",
     )
     r.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto")

@@ -26,6 +26,7 @@ __all__ = [
     "PolicyPool",
     "cell_steps",
     "chunk_seed",
+    "drive",
     "generate_chunks",
     "open_cell",
     "run_cell",
@@ -131,35 +132,15 @@ class ModelWorld:
 
 def generate_chunks(model, inputs: list[dict], *, chunk_frames: int, sampler) -> list[np.ndarray]:
     """One chunk for each of ``inputs`` (:meth:`ModelWorld.chunk_inputs`): one ``rollout`` for one input, one
-    ``rollout_batch`` for several (each equal to its own rollout up to float rounding). Returns (L, H, W, 3) uint8
-    videos, the seed frame first."""
-    import warnings
+    ``rollout_batch`` for several (each equal to its own rollout up to float rounding; ``eval run``'s
+    :func:`~.rollout_engines.roll_out_cells` does the same). Returns (L, H, W, 3) uint8 videos, the seed frame
+    first."""
+    from .rollout_engines import roll_out_group
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # "trained at WxH": said once in the report instead
-        if len(inputs) == 1:
-            i = inputs[0]
-            return [
-                model.rollout(
-                    i["first"],
-                    i["video"],
-                    i["prompt"],
-                    chunk_frames=chunk_frames,
-                    sampler=sampler,
-                    seed=i["seed"],
-                    progress=False,
-                    keep_chunks=False,
-                ).frames
-            ]
-        return model.rollout_batch(
-            [i["first"] for i in inputs],
-            [i["video"] for i in inputs],
-            [i["prompt"] for i in inputs],
-            chunk_frames=chunk_frames,
-            sampler=sampler,
-            seeds=[i["seed"] for i in inputs],
-            progress=False,
-        )
+    group = [{**i, "actions": None} for i in inputs]
+    return roll_out_group(
+        model, group, sampler=sampler, chunk_frames=chunk_frames, seeds=[i["seed"] for i in inputs], progress=False
+    )
 
 
 @dataclass
@@ -300,37 +281,15 @@ def cell_steps(
     return CellRun(np.stack(frames[:T]), np.stack(q_frames[:T]), np.stack(g_frames[:T]), calls, fault, done, clipped)
 
 
-def run_cell(
-    world,
-    policy,
-    spec: PolicySpec,
-    emb,
-    *,
-    q0,
-    g0,
-    task: str,
-    horizon: int,
-    extras: dict | None = None,
-    replan_every: int | None = None,
-    timeout_s: float | None = None,
-) -> CellRun:
+def run_cell(world, policy, spec: PolicySpec, emb, **loop) -> CellRun:
     """Run one cell in ``world`` (module docstring, steps 1–5) and return what it did; a policy fault ends it with
-    a reason."""
-    steps = cell_steps(
-        world.first,
-        world.fps,
-        world.chunk,
-        policy,
-        spec,
-        emb,
-        q0=q0,
-        g0=g0,
-        task=task,
-        horizon=horizon,
-        extras=extras,
-        replan_every=replan_every,
-        timeout_s=timeout_s,
-    )
+    a reason. ``loop``: the keyword arguments of :func:`cell_steps` (q0, g0, task, horizon, extras, replan_every,
+    timeout_s)."""
+    return drive(cell_steps(world.first, world.fps, world.chunk, policy, spec, emb, **loop), world)
+
+
+def drive(steps, world) -> CellRun:
+    """Run a cell's :func:`cell_steps` generator to its end with ``world`` generating every chunk it asks for."""
     try:
         request = next(steps)
         while True:
@@ -463,10 +422,4 @@ def run_open_cell(cell: OpenCell, timeout) -> CellRun:
     """Run an opened cell in its own world, in this thread."""
     if isinstance(cell.policy, PolicyFault):
         return failed_to_load(cell)
-    steps = cell.steps(timeout)
-    try:
-        request = next(steps)
-        while True:
-            request = steps.send(cell.world.step(*request))
-    except StopIteration as stop:
-        return stop.value
+    return drive(cell.steps(timeout), cell.world)

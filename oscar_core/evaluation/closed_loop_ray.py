@@ -131,16 +131,13 @@ def run_on_ray(
         _ClosedLoopWorker,
         -(-len(pending) // batch_cells),
         workers=workers,
+        model_spec=model_spec,
+        revision=revision,
         device=device,
+        dtype=dtype,
+        plugin_paths=plugin_paths,
         log=log,
-        args=lambda gpu, share: (
-            model_spec,
-            revision,
-            "cuda" if gpu else str(device),
-            str(dtype).removeprefix("torch.") if dtype is not None else None,
-            tuple(plugin_paths),
-            simulator,
-        ),
+        extra=lambda share: (simulator,),
     )
     log(f"running {len(pending)} closed-loop cells on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     queue = [pending[i : i + batch_cells] for i in range(0, len(pending), batch_cells)]

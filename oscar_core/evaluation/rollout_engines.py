@@ -26,7 +26,15 @@ from ..metrics.common import MetricInputError
 from ..render.conditions import takes_actions
 from .manifest import Cell
 
-__all__ = ["cell_inputs", "cell_prompt", "ray_result", "roll_out_cells", "roll_out_on_ray", "start_ray_actors"]
+__all__ = [
+    "cell_inputs",
+    "cell_prompt",
+    "ray_result",
+    "roll_out_cells",
+    "roll_out_group",
+    "roll_out_on_ray",
+    "start_ray_actors",
+]
 
 
 def cell_prompt(cell: Cell):
@@ -96,8 +104,9 @@ def _batch_key(inputs: dict) -> tuple:
     return cond.shape, None if prompt is None else tuple(prompt.shape)
 
 
-def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
-    """Roll out a group of cells' inputs: one at a time for a group of one, else as one batch."""
+def roll_out_group(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
+    """Roll out a group of inputs (``first``, ``video``, ``prompt``, ``actions``): one ``rollout`` for a group of
+    one, else one ``rollout_batch``; (T, H, W, 3) uint8 videos."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
         if len(group) == 1:
@@ -141,7 +150,7 @@ def roll_out_cells(
 
     def flush():
         t0 = time.perf_counter()
-        videos = _roll_out(
+        videos = roll_out_group(
             model, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for c in group], progress=progress
         )
         seconds = (time.perf_counter() - t0) / len(group)
@@ -188,10 +197,12 @@ class _RolloutWorker:
         return out
 
 
-def start_ray_actors(cls, jobs: int, *, workers: int, device, log, args: Callable) -> tuple:
+def start_ray_actors(
+    cls, jobs: int, *, workers: int, model_spec, revision, device, dtype, plugin_paths, log, extra: Callable
+) -> tuple:
     """Start ``min(workers, jobs, free)`` Ray actors of ``cls`` (``num_gpus=1`` each on CUDA, else one CPU each),
-    joining a running cluster (``RAY_ADDRESS``) or starting a local one; ``args(gpu, share)`` gives each actor's
-    constructor arguments (share: jobs per actor). Returns ``(ray, actors, n, gpu)``; no free CPU/GPU for even one
+    joining a running cluster (``RAY_ADDRESS``) or starting a local one. Each actor is constructed with
+    ``(model_spec, revision, device, dtype name, plugin_paths, *extra(share))`` (share: jobs per actor). Returns ``(ray, actors, n, gpu)``; no free CPU/GPU for even one
     actor is an input error (an actor Ray cannot place would wait forever)."""
     from .._util.optional import require
 
@@ -214,7 +225,9 @@ def start_ray_actors(cls, jobs: int, *, workers: int, device, log, args: Callabl
         log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
     actor_cls = ray.remote(**resources)(cls)
     share = -(-jobs // n)  # jobs per worker
-    return ray, [actor_cls.remote(*args(gpu, share)) for _ in range(n)], n, gpu
+    dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
+    args = (model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths), *extra(share))
+    return ray, [actor_cls.remote(*args) for _ in range(n)], n, gpu
 
 
 def ray_result(ray, ref, model_spec):
@@ -254,17 +267,13 @@ def roll_out_on_ray(
         _RolloutWorker,
         len(pending),
         workers=workers,
+        model_spec=model_spec,
+        revision=revision,
         device=device,
+        dtype=dtype,
+        plugin_paths=plugin_paths,
         log=log,
-        args=lambda gpu, share: (
-            model_spec,
-            revision,
-            "cuda" if gpu else str(device),
-            str(dtype).removeprefix("torch.") if dtype is not None else None,
-            tuple(plugin_paths),
-            compile,
-            share,
-        ),
+        extra=lambda share: (compile, share),
     )
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, batch_cells=batch_cells)

@@ -1,4 +1,5 @@
-"""The sampler options shared by ``oscar eval run`` and ``oscar eval closed-loop``: one flag set, one resolution.
+"""The options shared by ``oscar eval run`` and ``oscar eval closed-loop``: the sampler flags (one flag set, one
+resolution) and where the cells run (:func:`add_engine_options`: ``--engine``, ``--workers``, ``--batch-cells``).
 
 :func:`add_sampler_options` adds ``--steps``, ``--preset``, ``--guidance-interval``, ``--shift``, ``--guidance``
 and ``--guidance-form``; :func:`resolve_sampler_flags` checks them before any model is looked up and resolves
@@ -13,7 +14,7 @@ from collections.abc import Callable
 from .._util.arg_types import count, interval, number
 from ..model.presets import SAMPLER_PRESETS
 
-__all__ = ["add_sampler_options", "resolve_sampler_flags"]
+__all__ = ["add_engine_options", "add_sampler_options", "resolve_sampler_flags"]
 
 
 def add_sampler_options(parser) -> None:
@@ -49,3 +50,23 @@ def resolve_sampler_flags(args, card_sampler: Callable[[], object] | None):
     )
     resolve_sampler(None, **options)  # the flags checked before the model is looked up
     return resolve_sampler(card_sampler() if card_sampler is not None else None, **options)
+
+
+def add_engine_options(parser, *, what: str, batch_help: str) -> None:
+    """Add ``--engine`` (local or ray), ``--workers`` and ``--batch-cells`` to ``parser``; ``what``: what runs
+    (e.g. "rollouts"), ``batch_help``: what a batch of N cells does."""
+    parser.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help=f"where {what} run: this process (default), or Ray actors (a running cluster via "
+        'RAY_ADDRESS, else a local one), one model per GPU (pip install "oscar-wm[ray]")',
+    )
+    parser.add_argument(
+        "--workers",
+        type=count(1),
+        default=1,
+        metavar="N",
+        help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)",
+    )
+    parser.add_argument("--batch-cells", type=count(1), default=1, metavar="N", help=batch_help)
