@@ -46,6 +46,14 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "its configuration (`expected_2b`, `computed_2b`: computed, not measured); with `--gpu` or "
         "`--measure`, each sampling preset measured on the device (`measured`).",
     ),
+    "closed_loop": (
+        "Closed-loop policy evaluation",
+        "benchmarks/closed_loop.py",
+        "Toy sessions x 2 image-based toy policies closed loop in `oscar-toy` (one torch thread), run one cell "
+        "at a time and with `--batch-cells N` in the same process: per closed-loop step (one chunk of one "
+        "cell) the milliseconds in the policy's calls, the action adapter (IK), the condition render and the "
+        "world model (a batched call shared among its cells), and cells per CPU-minute and per wall-minute.",
+    ),
     "cli_rollout": (
         "One `oscar rollout` end to end",
         "benchmarks/cli_rollout.py",

@@ -30,13 +30,13 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.arg_types import count, default_device, device_name, interval, number
+from .._util.arg_types import count, default_device, device_name, number
 from .._util.log import log_result, progress_bars_enabled, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
 from ..model.compile_policy import add_compile_options
-from ..model.presets import SAMPLER_PRESETS
+from .cli_options import add_engine_options, add_sampler_options
 
 __all__ = ["add_run_parser", "cmd_eval_run", "load_judge"]
 
@@ -107,7 +107,7 @@ def _vlm_kwargs(args) -> dict:
 def cmd_eval_run(args) -> int:
     import torch
 
-    from ..model.sampler import resolve_sampler
+    from .cli_options import resolve_sampler_flags
     from .loop import card_sampler_of, run_evaluation
     from .manifest import load_manifest
 
@@ -137,17 +137,7 @@ def cmd_eval_run(args) -> int:
             pairwise = judge
     elif args.pairwise:
         raise MetricInputError("--pairwise", "--judge", "a judge (vlm or module:attr)", "none")
-    options = dict(
-        steps=args.steps,
-        preset=args.preset,
-        guidance_interval=args.guidance_interval,
-        shift=args.shift,
-        guidance=args.guidance,
-        guidance_form=args.guidance_form,
-        defaults={"guidance_form": "standard"},
-    )
-    resolve_sampler(None, **options)  # the flags checked before the model is looked up
-    choice = resolve_sampler(card_sampler_of(args.model, args.revision), **options)
+    choice = resolve_sampler_flags(args, lambda: card_sampler_of(args.model, args.revision))
     sampler = choice.config
     print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "eval-run"):
@@ -223,37 +213,12 @@ def add_run_parser(sub) -> argparse.ArgumentParser:
         "judge ran at high reasoning effort)",
     )
     r.add_argument("--max-requests", type=count(0), help="VLM request budget for this run (default: unlimited)")
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
-    r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget (as oscar rollout --preset)")
-    r.add_argument(
-        "--guidance-interval", metavar="LO,HI", type=interval, help="guide only the steps with noise level in [LO, HI]"
-    )
-    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
-    r.add_argument(
-        "--guidance-form", choices=("standard", "diffusers"), help="default: the model card's, else standard"
-    )
+    add_sampler_options(r)
     r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's)")
-    r.add_argument(
-        "--engine",
-        choices=("local", "ray"),
-        default="local",
-        help="where rollouts run: this process (default), or Ray actors (a running cluster via "
-        'RAY_ADDRESS, else a local one), one model per GPU (pip install "oscar-wm[ray]")',
-    )
-    r.add_argument(
-        "--workers",
-        type=count(1),
-        default=1,
-        metavar="N",
-        help="--engine ray: actors, each loading the model once (one GPU each on CUDA; default 1)",
-    )
-    r.add_argument(
-        "--batch-cells",
-        type=count(1),
-        default=1,
-        metavar="N",
-        help="roll out up to N cells in one batch (same frame count and size; each video equals its "
+    add_engine_options(
+        r,
+        what="rollouts",
+        batch_help="roll out up to N cells in one batch (same frame count and size; each video equals its "
         "one-at-a-time rollout up to float rounding; default 1)",
     )
     threads_option(r, "torch CPU threads of the local rollouts")

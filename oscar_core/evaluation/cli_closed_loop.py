@@ -18,6 +18,7 @@ from .._util.log import log_result, progress_bars_enabled, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
+from .cli_options import add_engine_options, add_sampler_options
 
 __all__ = ["add_closed_loop_parser", "cmd_closed_loop"]
 
@@ -47,7 +48,7 @@ def _policy_sources(items) -> dict:
 def cmd_closed_loop(args) -> int:
     import torch
 
-    from ..model.sampler import resolve_sampler
+    from .cli_options import resolve_sampler_flags
     from .closed_loop import run_closed_loop
     from .closed_loop_manifest import load_closed_loop_manifest
     from .loop import card_sampler_of
@@ -68,15 +69,16 @@ def cmd_closed_loop(args) -> int:
         from .cli import load_judge
 
         judge = load_judge(args.judge)
-    options = dict(
-        steps=args.steps,
-        shift=args.shift,
-        guidance=args.guidance,
-        guidance_form=args.guidance_form,
-        defaults={"guidance_form": "standard"},
+    pairwise = None
+    if args.pairwise:
+        if judge is None or not hasattr(judge, "compare_many"):
+            raise MetricInputError(
+                "--pairwise", "--judge", "a judge with compare_many (module:attr)", type(judge).__name__
+            )
+        pairwise = judge
+    choice = resolve_sampler_flags(
+        args, None if simulator is not None else (lambda: card_sampler_of(args.model, args.revision))
     )
-    resolve_sampler(None, **options)  # the flags checked before the model is looked up
-    choice = resolve_sampler(None if simulator is not None else card_sampler_of(args.model, args.revision), **options)
     sampler = choice.config
     if simulator is None:
         print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
@@ -88,6 +90,7 @@ def cmd_closed_loop(args) -> int:
             revision=args.revision,
             simulator=simulator,
             judge=judge,
+            pairwise_judge=pairwise,
             sampler=sampler,
             chunk_frames=args.chunk_frames or (17 if simulator else None),
             fps=args.fps,
@@ -95,6 +98,9 @@ def cmd_closed_loop(args) -> int:
             policy_timeout=args.policy_timeout,
             retry_failed=args.retry_failed,
             policy_sources=sources,
+            batch_cells=args.batch_cells,
+            engine=args.engine,
+            workers=args.workers,
             device=args.device or default_device(),
             dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
             plugin_paths=getattr(args, "plugin", None) or (),
@@ -106,6 +112,8 @@ def cmd_closed_loop(args) -> int:
     else:
         print(Path(result.paths["summary"]).read_text())
         print(f"wrote {result.paths['report']}, {result.paths['summary']}")
+        if "html" in result.paths:
+            print(f"open {result.paths['html']} in a browser: the ranking, failures, latency and every cell's video")
     return 1 if result.counts["failed"] else 0
 
 
@@ -148,14 +156,12 @@ def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
     )
     r.add_argument("--retry-failed", action="store_true", help="redo cells recorded as failed")
     r.add_argument("--judge", default="none", help="success judge: none or module:attr / file.py:attr (default none)")
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35)")
-    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
     r.add_argument(
-        "--guidance-form",
-        choices=("standard", "diffusers"),
-        help="guidance form (default: the model card's, else standard)",
+        "--pairwise",
+        action="store_true",
+        help="pairwise preferences within sessions (the judge's compare_many) + Bradley-Terry",
     )
+    add_sampler_options(r)
     r.add_argument(
         "--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's; 17 for --simulator)"
     )
@@ -164,6 +170,12 @@ def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
         type=number(above=0.0),
         default=10.0,
         help="frame rate of a --simulator world (a model's is its card's; default 10)",
+    )
+    add_engine_options(
+        r,
+        what="cells",
+        batch_help="advance up to N cells in lock-step, one batched world-model call per chunk, their policy "
+        "calls on threads of their own (each video equals its one-at-a-time run up to float rounding; default 1)",
     )
     r.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto")

@@ -39,7 +39,6 @@ a failed one unless ``retry_failed``, and redoes a changed one, logging what cha
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import time
 from collections.abc import Callable
@@ -52,9 +51,19 @@ from .._util import stage as _stage
 from .._util.atomic import atomic_write_bytes, sweep_dead_temporaries
 from .._util.log import get_logger, progress_bar
 from ..metrics.common import MetricInputError
-from ..policy.loading import load_policy
-from ..policy.protocol import PolicyFault, PolicySpec, call_policy, check_answer
-from ..policy.spaces import ActionAdapter, resample
+from ..policy.protocol import PolicySpec
+from .closed_loop_cell import (
+    CellRun,
+    ModelWorld,
+    OpenCell,
+    PolicyPool,
+    cell_steps,
+    chunk_seed,
+    generate_chunks,
+    open_cell,
+    run_cell,
+    run_open_cell,
+)
 from .closed_loop_manifest import ClosedLoopManifest, Session, load_closed_loop_manifest
 from .closed_loop_report import VIEWS
 from .manifest import file_digest
@@ -68,7 +77,9 @@ __all__ = [
     "run_closed_loop",
     "run_cell",
     "cell_dir",
+    "cell_steps",
     "chunk_seed",
+    "generate_chunks",
 ]
 
 RECORD_VERSION = 1
@@ -77,225 +88,6 @@ _log = get_logger(__name__)
 
 def cell_dir(out: Path, session: str, policy: str) -> Path:
     return Path(out) / "cells" / session / policy
-
-
-def chunk_seed(seed: int, chunk: int) -> int:
-    """The noise seed of chunk ``chunk`` of a cell with seed ``seed`` (independent streams per chunk)."""
-    return int(np.random.SeedSequence([int(seed), int(chunk)]).generate_state(1)[0])
-
-
-class ModelWorld:
-    """The world model as a world: generates ``chunk`` new frames per :meth:`step` from its last frame.
-
-    model: an :class:`~oscar_core.model.OscarWorldModel` (or anything with ``rollout`` and ``card``);
-    first: (H, W, 3) uint8 at the rollout size; camera, emb: the session's; q0, g0: (J,), (G,) the robot's
-    state at the first frame; fps: the model's frame rate; chunk_frames: L = 4k+1 (L − 1 new frames per step).
-    """
-
-    name = "world-model"
-
-    def __init__(
-        self,
-        model,
-        *,
-        first,
-        camera,
-        camera_source: str,
-        emb,
-        q0,
-        g0,
-        fps: float,
-        chunk_frames: int,
-        size,
-        prompt,
-        sampler,
-        seed: int,
-    ):
-        self.model, self.first, self.camera, self.camera_source, self.emb = model, first, camera, camera_source, emb
-        self.fps, self.chunk_frames, self.chunk = float(fps), int(chunk_frames), int(chunk_frames) - 1
-        self.size, self.prompt, self.sampler, self.seed = tuple(size), prompt, sampler, seed
-        self.q, self.g = np.asarray(q0, float)[None], np.asarray(g0, float)[None]
-        self.last = first
-        self.steps = 0
-        self.condition: list[np.ndarray] = []
-
-    def _condition(self, q: np.ndarray, g: np.ndarray) -> np.ndarray:
-        from ..kinematics.trajectory import Trajectory
-
-        traj = Trajectory(
-            self.emb.joint_names, q, self.fps, g, self.emb.gripper_names or None, source="<closed-loop chunk>"
-        )
-        if hasattr(self.model, "rollout_inputs"):
-            return self.model.rollout_inputs(
-                traj, self.camera, self.emb, self.size, resize_mode="crop", camera_source=self.camera_source
-            )["skeleton"]
-        from ..render.conditions import condition_video, video_condition_of
-
-        return condition_video(
-            video_condition_of(self.model.card.condition),
-            self.emb,
-            traj,
-            self.camera,
-            self.size,
-            resize_mode="crop",
-            camera_source=self.camera_source,
-        )
-
-    def step(self, q: np.ndarray, gripper: np.ndarray) -> np.ndarray:
-        """(n, H, W, 3) uint8 new frames for joint positions ``q`` (n, J) and gripper signals (n, G), n = chunk."""
-        import warnings
-
-        q_win = np.concatenate([self.q[-1:], q])
-        g_win = np.concatenate([self.g[-1:], gripper])
-        cond = self._condition(q_win, g_win)
-        self.condition += [cond[0]] if not self.condition else []
-        self.condition += list(cond[1:])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "trained at WxH": said once in the report instead
-            frames = self.model.rollout(
-                self.last,
-                cond,
-                self.prompt,
-                chunk_frames=self.chunk_frames,
-                sampler=self.sampler,
-                seed=chunk_seed(self.seed, self.steps),
-                progress=False,
-                keep_chunks=False,
-            ).frames[1:]
-        self.q, self.g = np.concatenate([self.q, q]), np.concatenate([self.g, gripper])
-        self.last = frames[-1]
-        self.steps += 1
-        return frames
-
-    def outcome(self) -> dict:
-        return {}
-
-
-@dataclass
-class CellRun:
-    """What one cell did. frames: (T, H, W, 3) uint8; q: (T, J); gripper: (T, G) raw signals; calls: one dict
-    per policy call; fault: the reason the cell ended early, or None; done_by_policy: the policy said done."""
-
-    frames: np.ndarray
-    q: np.ndarray
-    gripper: np.ndarray
-    calls: list[dict]
-    fault: str | None = None
-    done_by_policy: bool = False
-    clipped: int = 0
-
-
-def _observation(
-    spec: PolicySpec, frame: np.ndarray, q: np.ndarray, closure: float, task: str, extras: dict
-) -> tuple[dict, str]:
-    """The observation dict under the policy's keys, and the SHA-256 of the image sent."""
-    import cv2
-
-    w, h = spec.image_size
-    image = frame if frame.shape[:2] == (h, w) else cv2.resize(frame, (w, h), interpolation=cv2.INTER_AREA)
-    image = np.ascontiguousarray(image, dtype=np.uint8)
-    obs = dict(extras)
-    keys = spec.keys
-    obs[keys["image"]] = image
-    obs[keys["wrist_image"]] = np.zeros_like(image)
-    obs[keys["joint_position"]] = np.asarray(q, dtype=np.float64).copy()
-    obs[keys["gripper_position"]] = np.array([closure], dtype=np.float64)
-    obs[keys["prompt"]] = task
-    return obs, hashlib.sha256(image.tobytes()).hexdigest()
-
-
-def _closure_to_signal(emb, closure: np.ndarray) -> np.ndarray:
-    """(n,) closure → (n, G) raw gripper signals (every gripper follows the one command)."""
-    from ..kinematics.workspace import openness_to_signal
-
-    openness = np.repeat((1.0 - np.asarray(closure, float))[:, None], len(emb.grippers), axis=1)
-    return openness_to_signal(emb, openness)
-
-
-def _signal_to_closure(emb, signal: np.ndarray) -> float:
-    if not len(emb.grippers):
-        return 0.0
-    return float(1.0 - emb.gripper_openness(np.asarray(signal, float)[None, :])[0, 0])
-
-
-def run_cell(
-    world,
-    policy,
-    spec: PolicySpec,
-    emb,
-    *,
-    q0,
-    g0,
-    task: str,
-    horizon: int,
-    extras: dict | None = None,
-    replan_every: int | None = None,
-    timeout_s: float | None = None,
-) -> CellRun:
-    """Run one cell (module docstring, steps 1–5) and return what it did; a policy fault ends it with a reason."""
-    adapter = ActionAdapter(emb, spec.action_space, spec.gripper, spec.control_hz)
-    K = int(replan_every or spec.actions_per_call)
-    timeout = float(timeout_s or spec.timeout_s)
-    fps, n = world.fps, world.chunk
-    frames = [world.first]
-    q_frames = [np.asarray(q0, float)]
-    g_frames = [np.asarray(g0, float)]
-    times, knots_q = [0.0], [np.asarray(q0, float)]
-    knots_c = [_signal_to_closure(emb, g0)]
-    calls: list[dict] = []
-    clipped = 0
-    fault, done = None, False
-    if hasattr(policy, "reset"):
-        try:
-            policy.reset()
-        except Exception as exc:  # noqa: BLE001 - a policy's own fault
-            fault = f"reset raised {type(exc).__name__}: {str(exc).strip()[:300]}"
-    while fault is None and not done and len(frames) < horizon:
-        end_t = (len(frames) - 1 + n) / fps  # the next chunk's last frame
-        while times[-1] < end_t - 1e-9:
-            obs, digest = _observation(spec, frames[-1], knots_q[-1], knots_c[-1], task, extras or {})
-            record = {"frame": len(frames) - 1, "image_sha256": digest, "t_s": round(times[-1], 6)}
-            try:
-                answer, seconds = call_policy(policy, obs, timeout)
-                record["latency_s"] = round(seconds, 6)
-                actions = check_answer(answer, width=adapter.width, min_horizon=K, bounds=adapter.bounds())
-            except PolicyFault as exc:
-                record["fault"] = exc.reason
-                calls.append(record)
-                fault = exc.reason
-                break
-            res = adapter.apply(actions[:K], knots_q[-1])
-            t0 = times[-1]
-            times += [t0 + (i + 1) / spec.control_hz for i in range(K)]
-            knots_q += list(res.q)
-            knots_c += list(res.closure)
-            clipped += res.clipped
-            record.update(
-                actions=actions.tolist(),
-                executed=K,
-                clipped=res.clipped,
-                ik_position_error_m=[None if np.isnan(v) else float(v) for v in res.ik_position_error],
-                ik_rotation_error_rad=[None if np.isnan(v) else float(v) for v in res.ik_rotation_error],
-            )
-            calls.append(record)
-            if isinstance(answer, dict) and answer.get("done") is True:
-                done = True
-                break
-        if fault is not None:
-            break
-        if done and times[-1] < end_t - 1e-9:  # done mid-chunk: hold the last pose to the chunk's end
-            times.append(end_t)
-            knots_q.append(knots_q[-1])
-            knots_c.append(knots_c[-1])
-        at = (len(frames) + np.arange(n)) / fps
-        qs, cs = resample(np.array(times), np.array(knots_q), np.array(knots_c), at)
-        gs = _closure_to_signal(emb, cs)
-        new = world.step(qs, gs)
-        frames += list(new)
-        q_frames += list(qs)
-        g_frames += list(gs)
-    T = min(len(frames), horizon)
-    return CellRun(np.stack(frames[:T]), np.stack(q_frames[:T]), np.stack(g_frames[:T]), calls, fault, done, clipped)
 
 
 @dataclass
@@ -347,6 +139,7 @@ def run_closed_loop(
     revision: str | None = None,
     simulator: Callable | None = None,
     judge=None,
+    pairwise_judge=None,
     sampler=None,
     chunk_frames: int | None = None,
     fps: float | None = None,
@@ -354,10 +147,14 @@ def run_closed_loop(
     policy_timeout: float | None = None,
     retry_failed: bool = False,
     policy_sources: dict | None = None,
+    batch_cells: int = 1,
+    engine: str = "local",
+    workers: int = 1,
     device="cpu",
     dtype=None,
     plugin_paths=(),
     progress: bool = False,
+    plot_formats=("png",),
     log: Callable[[str], None] | None = None,
 ) -> ClosedLoopResult:
     """Run every cell of ``manifest`` (a path or a loaded manifest) closed loop and write ``out``.
@@ -365,20 +162,28 @@ def run_closed_loop(
     The world: the world model ``model`` (loaded) or ``model_spec`` (``oscar_zoo.load``; loaded only if some cell
     must run); or ``simulator``, a factory ``(session, emb, camera, first, size, fps, chunk_frames) -> world``
     (then ``fps`` and ``chunk_frames`` are required). judge: a success judge (``judge_many``) run on every
-    finished cell's video, or None. replan_every: actions executed per call for every policy (default: each
+    finished cell's video, or None; pairwise_judge: ``compare_many`` on every two finished cells of a session
+    (preferences and their Bradley–Terry fit in the report), or None. replan_every: actions executed per call for every policy (default: each
     policy's ``actions_per_call``); policy_timeout: seconds per call for every policy (default: each policy's
     ``timeout_s``); retry_failed: redo cells recorded as failed; policy_sources: ``{name: source}`` replacing
-    the manifest's sources. Returns :class:`ClosedLoopResult`; writes ``OUT/report.json`` and
-    ``OUT/summary.md``.
+    the manifest's sources; batch_cells: cells advanced in lock-step, their chunks generated in one batched
+    world-model call (:mod:`.closed_loop_batch`; 1: one cell at a time); engine: ``"local"`` (this process) or
+    ``"ray"`` (``workers`` Ray actors, one world each, :mod:`.closed_loop_ray`; this process writes every file).
+    Returns :class:`ClosedLoopResult`; writes ``OUT/report.json``, ``OUT/summary.md`` and ``OUT/report.html``
+    (:mod:`.closed_loop_report`).
     """
     from ..model.sampler import SamplerConfig
     from ..plugin.registry import get_embodiment
 
     log = log or _log.info
     manifest = manifest if isinstance(manifest, ClosedLoopManifest) else load_closed_loop_manifest(manifest)
-    for name, value in (("replan_every", replan_every), ("chunk_frames", chunk_frames)):
+    for name, value in (("replan_every", replan_every), ("chunk_frames", chunk_frames), ("batch_cells", batch_cells)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise MetricInputError(name, "value", "an integer >= 1", repr(value))
+    if engine not in ("local", "ray"):
+        raise MetricInputError("engine", "value", "local or ray", repr(engine))
+    if engine == "ray" and model is not None:
+        raise MetricInputError("engine", "model", "a model spec (each Ray worker loads its own)", "a loaded model")
     if policy_timeout is not None and not policy_timeout > 0:
         raise MetricInputError("policy_timeout", "value", "a positive number of seconds", repr(policy_timeout))
     specs = list(manifest.policies)
@@ -443,8 +248,8 @@ def run_closed_loop(
             "size": manifest.size,
         }
     counts = {"cells": len(manifest.sessions) * len(specs), "done": 0, "reused": 0, "failed": 0, "retried": 0}
-    records: list[dict] = []
-    policies: dict[str, object] = {}
+    records: list[dict | None] = []
+    pending: list[tuple] = []
     bar = progress_bar(total=counts["cells"], desc="closed loop", unit="cell", enabled=progress)
     for s in manifest.sessions:
         sparts = _session_parts(s)
@@ -482,158 +287,194 @@ def run_closed_loop(
                     f"{s.session}/{spec.name}: redone, its inputs changed: "
                     + "; ".join(_stage.changes(rec.get("parts"), parts))
                 )
-            rec = _run_and_write(
-                out,
-                s,
-                spec,
-                embs[s.embodiment],
-                parts,
-                key,
-                policies=policies,
-                get_model=get_model,
-                simulator=simulator,
-                sampler=sampler,
-                size=manifest.size,
-                chunk_frames=chunk_frames,
-                fps=fps,
-                K=K,
-                timeout=policy_timeout,
-                log=log,
-            )
-            counts["done"] += 1
-            counts["failed"] += rec["status"] == "failed"
-            records.append(rec)
-            bar.update(1)
-    bar.close()
-    if judge is not None:
-        _judge(out, manifest, records, judge, progress, log)
-    from .closed_loop_report import build_closed_loop_report, write_closed_loop_report
+            pending.append((len(records), s, spec, parts, key, K))
+            records.append(None)
 
-    report = build_closed_loop_report(manifest, specs, records, counts, world_id, judge)
-    paths = write_closed_loop_report(out, report)
+    def finish(index: int, rec: dict) -> None:
+        counts["done"] += 1
+        counts["failed"] += rec["status"] == "failed"
+        records[index] = rec
+        bar.update(1)
+
+    pool = PolicyPool()
+    world_options = dict(
+        get_model=get_model,
+        simulator=simulator,
+        sampler=sampler,
+        size=manifest.size,
+        chunk_frames=chunk_frames,
+        fps=fps,
+    )
+
+    def open_job(job) -> OpenCell:
+        _, s, spec, parts, key, K = job
+        return open_cell(s, spec, embs[s.embodiment], parts, key, pool=pool, K=K, **world_options)
+
+    def write(cell: OpenCell, run: CellRun) -> dict:
+        return _write_cell(out, cell, run, pool=pool, log=log)
+
+    if engine == "ray" and pending:
+        from .closed_loop_ray import run_on_ray
+
+        run_on_ray(
+            pending,
+            finish,
+            write,
+            model_spec=model_spec,
+            revision=revision,
+            simulator=simulator,
+            device=device,
+            dtype=dtype,
+            workers=workers,
+            batch_cells=batch_cells,
+            timeout=policy_timeout,
+            plugin_paths=plugin_paths,
+            world_options={k: v for k, v in world_options.items() if k not in ("get_model", "simulator")},
+            log=log,
+        )
+    elif batch_cells > 1 and pending:
+        from .closed_loop_batch import run_lock_step
+
+        log(f"running {len(pending)} cells in lock-step, up to {batch_cells} at once")
+        run_lock_step(pending, open_job, finish, batch_cells=batch_cells, write=write, timeout=policy_timeout)
+    else:
+        for job in pending:
+            cell = open_job(job)
+            finish(job[0], write(cell, run_open_cell(cell, policy_timeout)))
+    bar.close()
+    report, paths = _report(
+        out, manifest, specs, records, counts, world_id, judge, pairwise_judge, progress, plot_formats, log
+    )
     return ClosedLoopResult(out, records, counts, report, paths)
 
 
-def _judge(out: Path, manifest: ClosedLoopManifest, records: list[dict], judge, progress: bool, log) -> None:
-    """Judge every finished cell's video; a valid verdict is stored in its record and reused while the judge's
-    description matches (as ``eval run`` does)."""
+def _clip(out: Path, r: dict, session: Session):
     from ..metrics.judge import JudgeClip
+
+    return JudgeClip(
+        name=f"{r['session']}/{r['policy']}",
+        video=out / r["video"],
+        instruction=session.task,
+        policy=r["policy"],
+        session=r["session"],
+        info=session.info,
+    )
+
+
+def _judge(out: Path, manifest: ClosedLoopManifest, records: list[dict], judge, progress: bool, log) -> list:
+    """Judge every finished cell's video; a valid verdict is stored in its record and reused while the judge's
+    description matches (as ``eval run`` does). Returns one :class:`~oscar_core.metrics.judge_records.SuccessVerdict`
+    per record (a failed cell's: :func:`~.closed_loop_report.failed_verdict`)."""
+    from ..metrics.judge_records import SuccessVerdict
+    from .closed_loop_report import failed_verdict
     from .loop import _judge_id
 
     jid = _judge_id(judge)
     by_name = {s.session: s for s in manifest.sessions}
-    todo = [
-        r
-        for r in records
-        if r["status"] == "ok" and not (isinstance(r.get("verdict"), dict) and r["verdict"].get("judge_id") == jid)
-    ]
-    if not todo:
-        return
-    log(f"judging {len(todo)} closed-loop videos")
-    clips = [
-        JudgeClip(
-            name=f"{r['session']}/{r['policy']}",
-            video=out / r["video"],
-            instruction=by_name[r["session"]].task,
-            policy=r["policy"],
-            session=r["session"],
-            info=by_name[r["session"]].info,
-        )
-        for r in todo
-    ]
-    for r, v in zip(todo, judge.judge_many(clips, progress=progress)):
-        if v.ok:
-            r["verdict"] = {"judge_id": jid, "binary": v.binary, "partial": v.partial, "reason": v.reason}
-            _write_json(out / r["dir"] / "record.json", r)
+    verdicts: list = [None] * len(records)
+    todo = []
+    for k, r in enumerate(records):
+        stored = r.get("verdict")
+        if r["status"] != "ok":
+            verdicts[k] = failed_verdict(r, by_name[r["session"]].task)
+        elif isinstance(stored, dict) and stored.get("judge_id") == jid and isinstance(stored.get("verdict"), dict):
+            v = dict(stored["verdict"])
+            v["attempt_errors"] = tuple(v.get("attempt_errors") or ())
+            verdicts[k] = SuccessVerdict(**v)
         else:
-            r["verdict"] = {"judge_id": None, "binary": None, "status": v.status, "error": v.error}
+            todo.append(k)
+    if todo:
+        log(f"judging {len(todo)} closed-loop videos")
+        clips = [_clip(out, records[k], by_name[records[k]["session"]]) for k in todo]
+        for k, v in zip(todo, judge.judge_many(clips, progress=progress)):
+            r = records[k]
+            verdicts[k] = v
+            if v.ok:
+                r["verdict"] = {
+                    "judge_id": jid,
+                    "binary": v.binary,
+                    "partial": v.partial,
+                    "reason": v.reason,
+                    "verdict": v.to_dict(),
+                }
+                _write_json(out / r["dir"] / "record.json", r)
+            else:
+                r["verdict"] = {"judge_id": None, "binary": None, "status": v.status, "error": v.error}
+    return verdicts
 
 
-def _run_and_write(
-    out: Path,
-    s: Session,
-    spec: PolicySpec,
-    emb,
-    parts: dict,
-    key: str,
-    *,
-    policies: dict,
-    get_model,
-    simulator,
-    sampler,
-    size,
-    chunk_frames,
-    fps,
-    K: int,
-    timeout,
-    log,
-) -> dict:
-    """Run one cell and write its files, the record last."""
-    from ..kinematics.trajectory import Trajectory, load_trajectory, save_trajectory
+def _pairwise(
+    out: Path, manifest: ClosedLoopManifest, records: list[dict], verdicts: list, judge, pairwise_judge, progress
+):
+    """The pairwise judge's verdicts on every two finished cells of a session (as ``eval run`` compares them)."""
+    from ..metrics.judge import pairs_by_session
+
+    by_name = {s.session: s for s in manifest.sessions}
+    ok = [k for k, r in enumerate(records) if r["status"] == "ok"]
+    pairs = pairs_by_session([_clip(out, records[k], by_name[records[k]["session"]]) for k in ok])
+    if not pairs:
+        return []
+    kwargs = {}
+    if getattr(pairwise_judge, "kind", None) == "programmatic" and judge is pairwise_judge:
+        kwargs["verdicts"] = [verdicts[k] for k in ok if verdicts[k] is not None]
+    return pairwise_judge.compare_many(pairs, progress=progress, **kwargs)
+
+
+def _report(out: Path, manifest, specs, records, counts, world_id, judge, pairwise_judge, progress, plot_formats, log):
+    """Judge, compare, and write the report (:mod:`.closed_loop_report`)."""
+    from ..metrics.judge import success_by_policy
+    from .closed_loop_report import build_closed_loop_report, eval_view, fidelity_intervals, write_closed_loop_report
+    from .report import build_report
+
+    verdicts = _judge(out, manifest, records, judge, progress, log) if judge is not None else [None] * len(records)
+    pair_verdicts = (
+        _pairwise(out, manifest, records, verdicts, judge, pairwise_judge, progress) if pairwise_judge else []
+    )
+    report = build_closed_loop_report(manifest, specs, records, counts, world_id, judge)
+    emanifest, erecords, everdicts = eval_view(manifest, specs, records, verdicts)
+    ecounts = {
+        "cells": counts["cells"],
+        "rollouts_done": counts["done"],
+        "rollouts_reused": counts["reused"],
+        "verdicts_done": sum(v is not None for v in everdicts),
+        "verdicts_reused": 0,
+        "verdicts_not_ok": sum(1 for v in everdicts if v is not None and not v.ok),
+    }
+    judged = [v for v in everdicts if v is not None]
+    report["eval"] = build_report(
+        emanifest,
+        erecords,
+        everdicts,
+        pair_verdicts,
+        success_by_policy(judged) if judge is not None else {},
+        counts=ecounts,
+        model=world_id.get("model") or world_id.get("name"),
+        judge=report["judge"],
+        pairwise_judge=(
+            pairwise_judge.describe() if pairwise_judge is not None and hasattr(pairwise_judge, "describe") else None
+        ),
+        sampler=world_id.get("sampler") or {},
+    )
+    report["intervals"] = fidelity_intervals(emanifest, everdicts) if report["eval"]["comparison"] else None
+    paths = write_closed_loop_report(
+        out, report, (emanifest, erecords), plot_formats=plot_formats, log=log, progress=progress
+    )
+    return report, paths
+
+
+def _write_cell(out: Path, cell: OpenCell, run: CellRun, *, pool: PolicyPool, log) -> dict:
+    """Write a finished cell's files (video, condition, trajectory, calls), the record last, atomically; returns
+    the record. The policy object goes back to ``pool`` unless the cell failed."""
+    from ..kinematics.trajectory import Trajectory, save_trajectory
     from ..media.video import write_video
-    from ..model.image import read_first_frame
-    from ..render.skeleton_video import fit_image
 
+    s, spec, emb, world = cell.session, cell.spec, cell.emb, cell.world
     folder = cell_dir(out, s.session, spec.name)
     folder.mkdir(parents=True, exist_ok=True)
-    camera = emb.load_camera(s.camera)
-    state = emb.check_trajectory(load_trajectory(s.initial_state))
-    q0, g0 = state.q[0], state.gripper[0]
-    first = read_first_frame(s.first_frame, camera, str(s.camera))
-    t0 = time.perf_counter()
-    if simulator is not None:
-        size = size or (first.shape[1], first.shape[0])
-        first = fit_image(first, size[0], size[1], "crop")
-        world = simulator(s, emb, camera, first, size, fps, chunk_frames)
-    else:
-        from .rollout_engines import cell_prompt
-
-        model = get_model()
-        card = model.card
-        size = size or ((card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0]))
-        first = fit_image(first, size[0], size[1], "crop")
-        world = ModelWorld(
-            model,
-            first=first,
-            camera=camera,
-            camera_source=str(s.camera),
-            emb=emb,
-            q0=q0,
-            g0=g0,
-            fps=float(card.fps or fps or 10.0),
-            chunk_frames=int(chunk_frames or card.chunk_frames),
-            size=size,
-            prompt=cell_prompt(s),
-            sampler=sampler,
-            seed=s.seed,
-        )
-    fault = None
-    if spec.name not in policies:
-        try:
-            policies[spec.name] = load_policy(spec.source)
-        except Exception as exc:  # noqa: BLE001 - a policy that cannot be loaded fails its cells, not the run
-            policies[spec.name] = PolicyFault(f"cannot load {spec.source}: {str(exc).strip()[:300]}")
-    policy = policies[spec.name]
-    if isinstance(policy, PolicyFault):
-        run = CellRun(first[None], q0[None], g0[None], [], policy.reason)
-    else:
-        run = run_cell(
-            world,
-            policy,
-            spec,
-            emb,
-            q0=q0,
-            g0=g0,
-            task=s.task,
-            horizon=s.horizon,
-            extras=s.extras,
-            replan_every=K,
-            timeout_s=timeout,
-        )
-    seconds = time.perf_counter() - t0
+    seconds = time.perf_counter() - cell.started
     fault = run.fault
-    if fault is not None:  # a timed-out call may still run, a remote connection may be broken: load it afresh
-        policies.pop(spec.name, None)
+    if fault is None:
+        pool.give(spec, cell.policy)
     rel = folder.relative_to(out)
     _write_json(folder / "calls.json", {"policy": spec.name, "session": s.session, "calls": run.calls})
     latencies = [c["latency_s"] for c in run.calls if "latency_s" in c]
@@ -641,8 +482,8 @@ def _run_and_write(
         "v": RECORD_VERSION,
         "session": s.session,
         "policy": spec.name,
-        "key": key,
-        "parts": parts,
+        "key": cell.key,
+        "parts": cell.parts,
         "dir": str(rel),
         "status": "failed" if fault else "ok",
         "reason": fault,
@@ -657,6 +498,11 @@ def _run_and_write(
             "max": float(np.max(latencies)) if latencies else None,
         },
         "ik_max_position_error_m": _max_ik(run.calls),
+        "timing_s": {
+            "policy": round(float(sum(latencies)), 6),
+            "adapter": round(float(sum(c.get("adapter_s", 0.0) for c in run.calls)), 6),
+            **{k.removesuffix("_s"): round(v, 6) for k, v in (getattr(world, "timing", None) or {}).items()},
+        },
         "outcome": None,
         "verdict": None,
         "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),

@@ -18,7 +18,9 @@ is the robot's joint positions and gripper signals at the first frame) and ``hor
 episode at the model's frame rate, the first frame included), and optionally ``prompt_embeds`` (the model's
 text embedding ``.safetensors``), ``seed`` (default 0), ``info`` (handed to programmatic judges),
 ``extras`` (an object added as it is to every observation sent to the policies, e.g. a camera matrix a toy
-policy needs) and ``simulator`` (a file a simulator world reads, e.g. the toy world's state). Any session key
+policy needs), ``simulator`` (a file a simulator world reads, e.g. the toy world's state) and ``real_success``
+(``{policy name: 0 or 1}``, the real outcome of that policy from this session, where known: the report then
+compares the world model's ranking with the real one). Any session key
 may be set once in ``defaults``; ``size`` (``WIDTHxHEIGHT``, multiples of 16, in ``defaults`` only) is the
 rollout size (default: the model card's). Relative paths are relative to the manifest's folder; every check
 runs before any work and an error names the session and the field.
@@ -49,6 +51,7 @@ SESSION_KEYS = (
     "info",
     "extras",
     "simulator",
+    "real_success",
 )
 REQUIRED = ("session", "task", "embodiment", "first_frame", "camera", "initial_state", "horizon")
 PATH_KEYS = ("first_frame", "camera", "initial_state", "prompt_embeds", "simulator")
@@ -72,6 +75,7 @@ class Session:
     info: dict = field(default_factory=dict, compare=False)
     extras: dict = field(default_factory=dict, compare=False)
     simulator: Path | None = None
+    real_success: dict = field(default_factory=dict, compare=False)
 
 
 @dataclass(frozen=True)
@@ -132,6 +136,14 @@ def load_closed_loop_manifest(path) -> ClosedLoopManifest:
             raise ManifestError(f"{path}: sessions[{k}]", "session", "unique session names", f"{s.session!r} again")
         seen.add(s.session)
         sessions.append(s)
+        unknown_policies = sorted(set(s.real_success) - set(names))
+        if unknown_policies:
+            raise ManifestError(
+                f"{path}: sessions[{k}] ({s.session!r})",
+                "real_success",
+                f"policy names among {names}",
+                unknown_policies,
+            )
     return ClosedLoopManifest(path, tuple(policies), tuple(sessions), size)
 
 
@@ -160,6 +172,9 @@ def _session(path: Path, k: int, raw, defaults: dict) -> Session:
     for key in ("info", "extras"):
         if not isinstance(merged.get(key, {}), dict):
             raise ManifestError(row, key, "an object", type(merged[key]).__name__)
+    real = merged.get("real_success", {})
+    if not isinstance(real, dict) or any(isinstance(v, (bool, float)) or v not in (0, 1) for v in real.values()):
+        raise ManifestError(row, "real_success", "an object {policy name: 0 or 1}", repr(real)[:80])
     paths = resolve_paths(path, row, merged, PATH_KEYS)
     return Session(
         session=merged["session"],
@@ -175,4 +190,5 @@ def _session(path: Path, k: int, raw, defaults: dict) -> Session:
         info=dict(merged.get("info", {})),
         extras=dict(merged.get("extras", {})),
         simulator=paths["simulator"],
+        real_success={str(k): int(v) for k, v in real.items()},
     )

@@ -1,10 +1,21 @@
-"""The report of a closed-loop run: ``OUT/report.json`` and ``OUT/summary.md``.
+"""The report of a closed-loop run: ``OUT/report.json``, ``OUT/summary.md`` and ``OUT/report.html``.
 
 Per policy: cells, cells that ran to the end (``ok``) and that failed (with their reasons), the success rate
 from the judge's verdicts on the videos (``success_rate``) and, in a simulator world, from the simulator's own
 outcome (``sim_success_rate``), mean and worst policy latency, clipped actions and the worst IK residual.
 Policies are ranked by success rate (the judge's, else the simulator's; failed cells count as failures, since
 a policy that crashes does not succeed). ``views`` says what each observation field received; one row per cell.
+
+``eval`` holds what ``oscar eval run``'s report holds for the same cells (:func:`eval_view` builds its inputs;
+:func:`~.report.build_report` computes it): the world model's success rates from the judge's verdicts (a
+failed cell is a failure, its reason the verdict's), pairwise preferences and their Bradley–Terry fit when a
+pairwise judge ran, and — where every policy has a real outcome in the manifest's ``real_success`` — the
+comparison with reality (MMRV, Spearman ρ, Pearson r, SISR_Δ; :func:`~oscar_core.metrics.policy.compare_policies`)
+with 95 % session-bootstrap intervals (``intervals``,
+:func:`~oscar_core.metrics.policy_seeds.session_intervals`). ``report.html`` is ``eval run``'s page
+(:func:`~.html.write_html_report`) over those cells, with a closed-loop section: the world, what every view
+received, the ranking with clipped actions and latency per policy and per cell, and the failed cells with their
+reasons.
 """
 
 from __future__ import annotations
@@ -17,7 +28,15 @@ import numpy as np
 from .._util.atomic import atomic_write_bytes
 from ..metrics.common import nan_to_none
 
-__all__ = ["VIEWS", "build_closed_loop_report", "write_closed_loop_report", "format_closed_loop_summary"]
+__all__ = [
+    "VIEWS",
+    "build_closed_loop_report",
+    "eval_view",
+    "failed_verdict",
+    "fidelity_intervals",
+    "write_closed_loop_report",
+    "format_closed_loop_summary",
+]
 
 
 #: What each observation field receives: the world generates one view (the session camera's).
@@ -80,6 +99,7 @@ def build_closed_loop_report(manifest, specs, records: list[dict], counts: dict,
             "success": (r.get("verdict") or {}).get("binary"),
             "judge_reason": (r.get("verdict") or {}).get("reason"),
             "sim_success": (r.get("outcome") or {}).get("success"),
+            "mean_latency_s": (r.get("latency_s") or {}).get("mean"),
             "video": r.get("video"),
             "dir": r["dir"],
         }
@@ -130,6 +150,28 @@ def format_closed_loop_summary(report: dict) -> str:
             f"{_fmt(p['mean_latency_s'], '.4f')} | {p['clipped_actions']} | "
             f"{_fmt(p['ik_max_position_error_m'], '.2e')} |"
         )
+    ev = report.get("eval") or {}
+    comp = ev.get("comparison")
+    if comp:
+        iv = report.get("intervals") or {}
+        lines += ["", "## World model against the real outcomes", ""]
+        for key, label in (
+            ("spearman_rho", "Spearman ρ"),
+            ("pearson_r", "Pearson r"),
+            ("mmrv", "MMRV"),
+            ("sisr_delta_pp", "SISR_Δ (pp)"),
+        ):
+            lo_hi = iv.get(key)
+            band = f" [{lo_hi[0]:.3f}, {lo_hi[1]:.3f}]" if lo_hi else ""
+            lines.append(f"- {label}: {_fmt(comp['metrics'].get(key), '.3f')}{band}")
+        if iv:
+            lines.append(f"- intervals: 95 % session bootstrap, {iv['resamples']} resamples")
+    elif ev.get("comparison_error"):
+        lines += ["", f"No comparison with real outcomes: {ev['comparison_error']}."]
+    bt = ev.get("bradley_terry")
+    if bt and bt.get("board"):
+        lines += ["", "## Pairwise preferences (Bradley–Terry)", ""]
+        lines += [f"- {b['policy']}: Elo {_fmt(b.get('elo'), '.1f')}" for b in bt["board"]]
     lines += ["", "## What the policy receives", ""]
     lines += [f"- `{k}`: {v}" for k, v in report["views"].items()]
     bad = [x for x in report["cells"] if x["status"] != "ok"]
@@ -139,10 +181,117 @@ def format_closed_loop_summary(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_closed_loop_report(out: Path, report: dict) -> dict:
-    """Write ``report.json`` and ``summary.md`` atomically; returns their paths."""
+def failed_verdict(rec: dict, task: str):
+    """The success verdict of a cell whose policy failed: a failure (a policy that crashes does not succeed),
+    its reason the fault."""
+    from ..metrics.judge_records import SuccessVerdict
+
+    return SuccessVerdict(
+        clip=f"{rec['session']}/{rec['policy']}",
+        policy=rec["policy"],
+        session=rec["session"],
+        instruction=task,
+        status="ok",
+        binary=0,
+        partial=0,
+        reason=f"the policy failed: {rec['reason']}",
+    )
+
+
+def eval_view(manifest, specs, records: list[dict], verdicts: list) -> tuple:
+    """The closed-loop cells as ``oscar eval run`` sees cells: ``(Manifest, records, verdicts)`` for
+    :func:`~.report.build_report` and :func:`~.report.write_report_media`.
+
+    One :class:`~.manifest.Cell` per record (its trajectory the integrated one, else the initial state; its
+    ``real_success`` the session's for that policy); records with ``video``, ``frames``, ``fps``, ``seconds``
+    (a failed cell's video path names the file it did not make); verdicts: the judge's, a failed cell's
+    :func:`failed_verdict` (None where nothing was judged).
+    """
+    from .manifest import Cell, Manifest
+
+    by_name = {s.session: s for s in manifest.sessions}
+    cells, erecords, everdicts = [], [], []
+    for k, rec in enumerate(records):
+        s = by_name[rec["session"]]
+        cells.append(
+            Cell(
+                session=s.session,
+                policy=rec["policy"],
+                task=s.task,
+                embodiment=s.embodiment,
+                first_frame=s.first_frame,
+                trajectory=Path(rec["trajectory"]) if rec.get("trajectory") else s.initial_state,
+                camera=s.camera,
+                row=k,
+                real_success=s.real_success.get(rec["policy"]),
+                prompt_embeds=s.prompt_embeds,
+                seed=s.seed,
+                info=s.info,
+            )
+        )
+        erecords.append(
+            {
+                "video": rec.get("video") or f"{rec['dir']}/video.mkv",
+                "frames": rec["frames"],
+                "fps": rec.get("fps"),
+                "seconds": rec.get("seconds"),
+                "cell": cells[-1].id,
+            }
+        )
+        v = verdicts[k] if k < len(verdicts) else None
+        everdicts.append(v if v is not None or rec["status"] == "ok" else None)
+    emanifest = Manifest(manifest.path, tuple(p.name for p in specs), tuple(cells), manifest.size, None)
+    return emanifest, erecords, everdicts
+
+
+def fidelity_intervals(emanifest, verdicts: list, resamples: int = 2000, seed: int = 0) -> dict | None:
+    """95 % session-bootstrap intervals of ρ, r, MMRV and SISR_Δ between the real outcomes and the world model's
+    verdicts, per (session, policy) (:func:`~oscar_core.metrics.policy_seeds.session_intervals`); None unless every
+    policy has a real outcome and a verdict."""
+    from ..metrics.policy_seeds import session_intervals
+
+    policies, sessions = list(emanifest.policies), emanifest.sessions
+    real = np.full((len(sessions), len(policies)), np.nan)
+    wm = np.full_like(real, np.nan)
+    for cell, v in zip(emanifest.cells, verdicts):
+        i, j = sessions.index(cell.session), policies.index(cell.policy)
+        if cell.real_success is not None:
+            real[i, j] = cell.real_success
+        if v is not None and v.ok:
+            wm[i, j] = v.binary
+    if len(policies) < 2 or np.isnan(real).all(0).any() or np.isnan(wm).all(0).any():
+        return None
+    return session_intervals(real, wm, resamples, seed)
+
+
+def write_closed_loop_report(
+    out: Path,
+    report: dict,
+    eval_inputs: tuple | None = None,
+    *,
+    plot_formats=("png",),
+    log=None,
+    progress: bool = False,
+) -> dict:
+    """Write ``report.json`` and ``summary.md`` atomically, and — given ``eval_inputs`` ((Manifest, records)
+    of :func:`eval_view`) — ``report.html`` with its media, contact sheets and plots; returns their paths."""
     out = Path(out)
-    paths = {"report": str(out / "report.json"), "summary": str(out / "summary.md")}
-    atomic_write_bytes(out / "report.json", (json.dumps(report, indent=1) + "\n").encode())
+    paths: dict = {}
+    if eval_inputs is not None and report.get("eval") is not None:
+        from .report import write_report_media
+
+        emanifest, erecords = eval_inputs
+        media, _ = write_report_media(
+            out,
+            report["eval"],
+            emanifest,
+            erecords,
+            plot_formats=plot_formats,
+            log=log,
+            html_options={"generator": "eval closed-loop", "closed_loop": report, "progress": progress},
+        )
+        paths.update(media)
+    paths.update(report=str(out / "report.json"), summary=str(out / "summary.md"))
+    atomic_write_bytes(out / "report.json", (json.dumps({**report, "files": paths}, indent=1) + "\n").encode())
     atomic_write_bytes(out / "summary.md", format_closed_loop_summary(report).encode())
     return paths

@@ -80,7 +80,16 @@ def _media(
 
 
 def write_html_report(
-    out, report: dict, manifest: Manifest, records: list[dict], *, plots=(), sheets=None, progress: bool = True
+    out,
+    report: dict,
+    manifest: Manifest,
+    records: list[dict],
+    *,
+    plots=(),
+    sheets=None,
+    progress: bool = True,
+    generator: str = "eval run",
+    closed_loop: dict | None = None,
 ) -> Path:
     """Write ``out/report.html`` (and its browser media) for ``report`` (:func:`~.report.build_report`).
 
@@ -89,7 +98,10 @@ def write_html_report(
     truncated is checked here and named on its card (and in a warning); a
     real video that cannot be read is dropped from its card, which says so.
     The page's script also names on its card any video the browser then fails
-    to play. Returns the page's path.
+    to play. generator: the command named on the page; closed_loop: a closed-loop run's own report
+    (:func:`~.closed_loop_report.build_closed_loop_report`), shown above the rankings: what the world generates
+    and what the other views receive, the ranking with per-cell clipped actions, failures with their reasons and
+    the policies' latency, and the fidelity figures' session intervals. Returns the page's path.
     """
     out = Path(out)
     cells_by_id = {c.id: c for c in manifest.cells}
@@ -142,8 +154,9 @@ def write_html_report(
     return render_page(
         out / "report.html",
         "eval_run.html.j2",
-        generator="eval run",
-        title=f"oscar eval run — {report['model']}",
+        generator=generator,
+        title=f"oscar {generator} — {report['model']}",
+        closed_loop=closed_loop,
         report=report,
         judge_text=judge_text,
         sessions=list(sessions.values()),

@@ -40,7 +40,15 @@ from .._util.log import get_logger
 from ..metrics.common import MetricInputError, nan_to_none
 from .manifest import Manifest
 
-__all__ = ["SHEET_FRAMES", "SHEET_HEIGHT", "build_report", "write_report", "contact_sheet", "format_summary"]
+__all__ = [
+    "SHEET_FRAMES",
+    "SHEET_HEIGHT",
+    "build_report",
+    "write_report",
+    "write_report_media",
+    "contact_sheet",
+    "format_summary",
+]
 
 _log = get_logger(__name__)
 
@@ -393,12 +401,35 @@ def write_report(
     plot_formats=("png",),
     log: Callable[[str], None] | None = None,
 ) -> dict:
-    """Write ``report.json``, ``summary.md``, the plots and the contact sheets; returns their paths.
+    """Write ``report.json``, ``summary.md``, the plots, the contact sheets and ``report.html``; returns their paths.
 
     Problems that do not stop the report (an unreadable real video, no
     matplotlib) are logged as warnings on the ``oscar`` logger and also passed
     to ``log`` if given.
     """
+    out = Path(out)
+    paths, sheets = write_report_media(out, report, manifest, records, plot_formats=plot_formats, log=log)
+    report_path = out / "report.json"
+    atomic_write_bytes(report_path, (json.dumps({**report, "files": paths}, indent=2) + "\n").encode())
+    summary = out / "summary.md"
+    atomic_write_bytes(summary, format_summary(report, sheets).encode())
+    paths["report"], paths["summary"] = str(report_path), str(summary)
+    return paths
+
+
+def write_report_media(
+    out: Path,
+    report: dict,
+    manifest: Manifest,
+    records: list[dict],
+    *,
+    plot_formats=("png",),
+    log: Callable[[str], None] | None = None,
+    html_options: dict | None = None,
+) -> tuple[dict, dict[str, list[str]]]:
+    """Write the contact sheets (of the cells whose video exists), the comparison plots and ``report.html``
+    (:func:`~.html.write_html_report`, given ``html_options`` too) for ``report`` (:func:`build_report`); returns
+    ``(paths, {session: names of its sheet's rows})``."""
 
     def warn(msg: str) -> None:
         _log.warning(msg)
@@ -422,8 +453,12 @@ def write_report(
                     real = load_video(cell.real_video)
                 except (MetricInputError, OSError, ValueError) as exc:
                     warn(f"contact sheet {session}: cannot read {cell.real_video}: {exc}")
+            if not (out / rec["video"]).is_file():  # a cell that made no video (a closed-loop policy's fault)
+                continue
             rows.append((load_video(out / rec["video"]), real))
             names.append(cell.policy + (" (+ real)" if real is not None else ""))
+        if not rows:
+            continue
         path = out / "contact_sheets" / f"{session}.png"
         _write_png(path, contact_sheet(rows))
         sheets[session] = names
@@ -453,12 +488,13 @@ def write_report(
     plots = [p for v in paths.get("plots", {}).values() for p in v]
     paths["html"] = str(
         write_html_report(
-            out, report, manifest, records, plots=plots, sheets={s: out / "contact_sheets" / f"{s}.png" for s in sheets}
+            out,
+            report,
+            manifest,
+            records,
+            plots=plots,
+            sheets={s: out / "contact_sheets" / f"{s}.png" for s in sheets},
+            **(html_options or {}),
         )
     )
-    report_path = out / "report.json"
-    atomic_write_bytes(report_path, (json.dumps({**report, "files": paths}, indent=2) + "\n").encode())
-    summary = out / "summary.md"
-    atomic_write_bytes(summary, format_summary(report, sheets).encode())
-    paths["report"], paths["summary"] = str(report_path), str(summary)
-    return paths
+    return paths, sheets

@@ -26,7 +26,15 @@ from ..metrics.common import MetricInputError
 from ..render.conditions import takes_actions
 from .manifest import Cell
 
-__all__ = ["cell_inputs", "cell_prompt", "roll_out_cells", "roll_out_on_ray"]
+__all__ = [
+    "cell_inputs",
+    "cell_prompt",
+    "ray_result",
+    "roll_out_cells",
+    "roll_out_group",
+    "roll_out_on_ray",
+    "start_ray_actors",
+]
 
 
 def cell_prompt(cell: Cell):
@@ -96,8 +104,9 @@ def _batch_key(inputs: dict) -> tuple:
     return cond.shape, None if prompt is None else tuple(prompt.shape)
 
 
-def _roll_out(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
-    """Roll out a group of cells' inputs: one at a time for a group of one, else as one batch."""
+def roll_out_group(model, group: list[dict], *, sampler, chunk_frames, seeds, progress) -> list[np.ndarray]:
+    """Roll out a group of inputs (``first``, ``video``, ``prompt``, ``actions``): one ``rollout`` for a group of
+    one, else one ``rollout_batch``; (T, H, W, 3) uint8 videos."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
         if len(group) == 1:
@@ -141,7 +150,7 @@ def roll_out_cells(
 
     def flush():
         t0 = time.perf_counter()
-        videos = _roll_out(
+        videos = roll_out_group(
             model, inputs, sampler=sampler, chunk_frames=chunk_frames, seeds=[c.seed for c in group], progress=progress
         )
         seconds = (time.perf_counter() - t0) / len(group)
@@ -188,6 +197,53 @@ class _RolloutWorker:
         return out
 
 
+def start_ray_actors(
+    cls, jobs: int, *, workers: int, model_spec, revision, device, dtype, plugin_paths, log, extra: Callable
+) -> tuple:
+    """Start ``min(workers, jobs, free)`` Ray actors of ``cls`` (``num_gpus=1`` each on CUDA, else one CPU each),
+    joining a running cluster (``RAY_ADDRESS``) or starting a local one. Each actor is constructed with
+    ``(model_spec, revision, device, dtype name, plugin_paths, *extra(share))`` (share: jobs per actor). Returns ``(ray, actors, n, gpu)``; no free CPU/GPU for even one
+    actor is an input error (an actor Ray cannot place would wait forever)."""
+    from .._util.optional import require
+
+    ray = require("ray", "ray")
+    if not ray.is_initialized():
+        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, ignore_reinit_error=True)
+    gpu = str(device).startswith("cuda")
+    resources = {"num_gpus": 1, "num_cpus": 0} if gpu else {"num_cpus": 1}
+    kind = "GPU" if gpu else "CPU"
+    free = int(ray.available_resources().get(kind, 0))
+    if free < 1:
+        raise MetricInputError(
+            "engine",
+            "ray",
+            f"a Ray cluster with a free {kind} for each worker",
+            f"no free {kind} (cluster: {ray.cluster_resources()})",
+        )
+    n = min(workers, jobs, free)
+    if n < min(workers, jobs):
+        log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
+    actor_cls = ray.remote(**resources)(cls)
+    share = -(-jobs // n)  # jobs per worker
+    dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
+    args = (model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths), *extra(share))
+    return ray, [actor_cls.remote(*args) for _ in range(n)], n, gpu
+
+
+def ray_result(ray, ref, model_spec):
+    """``ray.get(ref)``; a worker's fault is the run's, raised as an input error naming its cause (not Ray's
+    wrapper), or the worker's death (e.g. its model could not load)."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as exc:
+        cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
+        raise MetricInputError("engine", "ray", "every worker's cells", f"{type(cause).__name__}: {cause}") from None
+    except ray.exceptions.RayActorError as exc:
+        raise MetricInputError(
+            "engine", "ray", f"a worker that loads {model_spec}", str(exc).strip().splitlines()[-1][:2000]
+        ) from None
+
+
 def roll_out_on_ray(
     pending: list[tuple[int, Cell, str]],
     record: Callable,
@@ -207,34 +263,18 @@ def roll_out_on_ray(
 ) -> None:
     """Roll the ``pending`` cells ((index, cell, rollout key), manifest order) out on ``workers`` Ray actors and
     call ``record(index, cell, key, frames, fps, seconds, batch)`` for each as its group comes back."""
-    from .._util.optional import require
-
-    ray = require("ray", "ray")
-    if not ray.is_initialized():
-        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, ignore_reinit_error=True)
-    gpu = str(device).startswith("cuda")
-    resources = {"num_gpus": 1, "num_cpus": 0} if gpu else {"num_cpus": 1}
-    kind = "GPU" if gpu else "CPU"
-    free = int(ray.available_resources().get(kind, 0))  # an actor Ray cannot place would wait forever
-    if free < 1:
-        raise MetricInputError(
-            "engine",
-            "ray",
-            f"a Ray cluster with a free {kind} for each worker",
-            f"no free {kind} (cluster: {ray.cluster_resources()})",
-        )
-    n = min(workers, len(pending), free)
-    if n < min(workers, len(pending)):
-        log(f"the Ray cluster has {free} free {kind}(s): starting {n} worker(s) instead of {workers}")
-    actor_cls = ray.remote(**resources)(_RolloutWorker)
-    dtype_name = str(dtype).removeprefix("torch.") if dtype is not None else None
-    share = -(-len(pending) // n)  # cells per worker, for the compile policy
-    actors = [
-        actor_cls.remote(
-            model_spec, revision, "cuda" if gpu else str(device), dtype_name, tuple(plugin_paths), compile, share
-        )
-        for _ in range(n)
-    ]
+    ray, actors, n, gpu = start_ray_actors(
+        _RolloutWorker,
+        len(pending),
+        workers=workers,
+        model_spec=model_spec,
+        revision=revision,
+        device=device,
+        dtype=dtype,
+        plugin_paths=plugin_paths,
+        log=log,
+        extra=lambda share: (compile, share),
+    )
     log(f"rolling {len(pending)} cells out on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     options = dict(size=size, sampler=sampler, chunk_frames=chunk_frames, batch_cells=batch_cells)
     queue = [pending[i : i + batch_cells] for i in range(0, len(pending), batch_cells)]
@@ -252,17 +292,7 @@ def roll_out_on_ray(
         while in_flight:
             (ref,), _ = ray.wait(list(in_flight), num_returns=1)
             actor = in_flight.pop(ref)
-            try:
-                results = ray.get(ref)
-            except ray.exceptions.RayTaskError as exc:  # a worker's fault is the run's: its cause, not Ray's wrapper
-                cause = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
-                raise MetricInputError(
-                    "engine", "ray", "every worker's rollouts", f"{type(cause).__name__}: {cause}"
-                ) from None
-            except ray.exceptions.RayActorError as exc:  # the worker died, e.g. its model could not load
-                raise MetricInputError(
-                    "engine", "ray", f"a worker that loads {model_spec}", str(exc).strip().splitlines()[-1][:2000]
-                ) from None
+            results = ray_result(ray, ref, model_spec)
             submit(actor)
             for cell_id, frames, fps, seconds, batch in results:
                 k, cell, key = by_id[cell_id]

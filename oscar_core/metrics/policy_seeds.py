@@ -23,7 +23,15 @@ import numpy as np
 from .common import MetricInputError
 from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
 
-__all__ = ["cell_rates", "read_reports", "session_bootstrap", "summarize_runs"]
+__all__ = [
+    "FIGURES",
+    "cell_rates",
+    "read_reports",
+    "session_bootstrap",
+    "session_bootstrap_figures",
+    "session_intervals",
+    "summarize_runs",
+]
 
 
 def cell_rates(reports: list[dict]) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
@@ -61,14 +69,50 @@ def session_bootstrap(real: np.ndarray, wm: np.ndarray, resamples: int = 2000, s
     real, wm: (S, P) per-session success rates (NaN cells are left out of a policy's mean).
     A resample where either side's rates are all equal gives NaN (no ranking).
     """
+    return session_bootstrap_figures(real, wm, resamples, seed, figures=("spearman_rho",))["spearman_rho"]
+
+
+#: The figures :func:`session_bootstrap_figures` can resample: (function of (real rates, wm rates), needs a ranking
+#: on both sides — NaN for a resample where either side's rates are all equal).
+FIGURES = {
+    "spearman_rho": (spearman_rho, True),
+    "pearson_r": (pearson_r, True),
+    "mmrv": (mmrv_rank, False),
+    "sisr_delta_pp": (sisr_delta, False),
+}
+
+
+def session_bootstrap_figures(
+    real: np.ndarray, wm: np.ndarray, resamples: int = 2000, seed: int = 0, figures=tuple(FIGURES)
+) -> dict[str, np.ndarray]:
+    """``{figure: (resamples,) values}`` of the :data:`FIGURES` named, each computed on the per-policy mean rates
+    of the same sessions drawn with replacement (one draw per resample, shared by the figures).
+
+    real, wm: (S, P) per-session success rates (NaN cells are left out of a policy's mean).
+    """
     rng = np.random.default_rng(seed)
-    out = np.empty(int(resamples))
+    out = {f: np.empty(int(resamples)) for f in figures}
     with np.errstate(invalid="ignore"):
-        for k in range(len(out)):
+        for k in range(int(resamples)):
             idx = rng.integers(0, real.shape[0], real.shape[0])
             r, w = np.nanmean(real[idx], 0), np.nanmean(wm[idx], 0)
-            out[k] = spearman_rho(r, w) if np.ptp(r) > 0 and np.ptp(w) > 0 else np.nan
+            ranked = np.ptp(r) > 0 and np.ptp(w) > 0
+            for f in figures:
+                fn, needs_ranking = FIGURES[f]
+                out[f][k] = fn(r, w) if ranked or not needs_ranking else np.nan
     return out
+
+
+def session_intervals(real: np.ndarray, wm: np.ndarray, resamples: int = 2000, seed: int = 0) -> dict:
+    """95 % percentile intervals over sessions (:func:`session_bootstrap_figures`) of every figure in
+    :data:`FIGURES`: ``{figure: [lo, hi] or None}`` (None when no resample gave a value), plus ``resamples``
+    and ``seed``."""
+    boot = session_bootstrap_figures(real, wm, resamples, seed)
+    out: dict = {}
+    for f, vals in boot.items():
+        ok = vals[np.isfinite(vals)]
+        out[f] = [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None
+    return {**out, "resamples": int(resamples), "seed": int(seed)}
 
 
 def read_reports(folders) -> list[dict]:

@@ -7,7 +7,7 @@ from _paths import TOYARM_ASSETS
 
 from oscar_core import get_embodiment, load_camera, load_trajectory
 from oscar_core.evaluation.manifest import Cell
-from oscar_core.evaluation.rollout_engines import _roll_out, cell_inputs
+from oscar_core.evaluation.rollout_engines import cell_inputs, roll_out_group
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.render.mesh import render_mesh_video
 from oscar_core.render.skeleton_video import render_skeleton_video
@@ -32,7 +32,7 @@ def test_a_cell_of_a_mesh_model_is_conditioned_on_the_mesh(tmp_path):
 
         model.rollout = spy
         inputs = cell_inputs(model, cell, (64, 32), plugin_paths=())
-        (frames,) = _roll_out(
+        (frames,) = roll_out_group(
             model, [inputs], sampler=SamplerConfig(steps=1), chunk_frames=9, seeds=[cell.seed], progress=False
         )
         assert frames.shape == (9, 32, 64, 3)
