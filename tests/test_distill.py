@@ -265,3 +265,11 @@ def test_two_processes_distil_as_one(tmp_path, clipset, teacher, parallel):
     for key in ("model", "ema"):
         a, b = _weights(tmp_path / "one", key), _weights(tmp_path / "two", key)
         assert all(torch.allclose(a[k], b[k], atol=2e-6, rtol=1e-5) for k in a), key
+
+
+def test_the_toy_distillation_config_loads_and_names_the_bundled_teacher():
+    repo = Path(__file__).resolve().parents[1]
+    cfg = load_config(repo / "configs" / "train" / "toyworld-distill.yaml", {"data.clips": ["x"]})
+    assert (cfg.distill.steps, cfg.distill.substeps, cfg.distill.guidance) == (4, 2, None)
+    assert cfg.model.init == cfg.distill.teacher == "zoo/assets/oscar-toy"
+    assert (repo / cfg.distill.teacher / "oscar_model.json").is_file()
