@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from test_train_loop import tiny
 
 from oscar_core.model.sampler import flow_sigmas, model_calls
 from oscar_core.train.checkpoint import latest_checkpoint, list_checkpoints, load_weights
-from oscar_core.train.config import TrainConfigError, config_from_dict, load_config
+from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict, load_config
 from oscar_core.train.data import Batch
 from oscar_core.train.distill import Teacher, distill_loss, distill_target, student_step_index
 from oscar_core.train.loop import train
@@ -147,37 +148,16 @@ def clipset(tmp_path_factory):
     )
 
 
-def _cfg(clips, run_dir, **over) -> dict:
-    d = {
-        "run_dir": str(run_dir),
-        "steps": 2,
-        "batch_size": 2,
-        "micro_batch": 1,
-        "save_every": 2,
-        "log_every": 1,
-        "export": False,
-        "model": {"transformer": "tiny", "vae": "tiny"},
-        "data": {"clips": [str(clips)], "window": 9, "width": 32, "height": 32},
-        "optim": {"lr": 1e-3, "warmup_steps": 0, "grad_clip": 1.0, "ema_decay": 0.5},
-    }
-    for k, v in over.items():
-        node = d
-        *parents, last = k.split(".")
-        for p in parents:
-            node = node.setdefault(p, {})
-        node[last] = v
-    return d
-
-
 @pytest.fixture(scope="module")
 def teacher(tmp_path_factory, clipset):
     tmp = tmp_path_factory.mktemp("teacher")
-    return train(config_from_dict(_cfg(clipset, tmp / "run", export=True)), progress=False).export
+    return train(tiny(clipset, tmp / "run", steps=2, export=True), progress=False).export
 
 
 def _student(clips, teacher, run_dir, **over) -> dict:
-    over = {"steps": 4, "model.init": str(teacher), "distill.teacher": str(teacher), "distill.steps": 4, **over}
-    return _cfg(clips, run_dir, **over)
+    """A tiny distillation config (as a mapping) of 4 optimiser steps from ``teacher`` to a 4-step student."""
+    over = {"model.init": str(teacher), "distill.teacher": str(teacher), "distill.steps": 4, **over}
+    return config_to_dict(tiny(clips, run_dir, **over))
 
 
 def _weights(run_dir, key):
@@ -186,9 +166,8 @@ def _weights(run_dir, key):
 
 
 def test_a_distill_config_names_its_teacher_and_its_start(tmp_path, clipset, teacher):
-    bad = _cfg(clipset, tmp_path / "r", **{"distill.teacher": str(teacher)})
     with pytest.raises(TrainConfigError, match="model.init"):
-        config_from_dict(bad)
+        tiny(clipset, tmp_path / "r", **{"distill.teacher": str(teacher)})
     with pytest.raises(TrainConfigError, match="distill.steps"):
         config_from_dict(_student(clipset, teacher, tmp_path / "r", **{"distill.steps": 0}))
     with pytest.raises(TrainConfigError, match="distill.teacher"):
