@@ -172,6 +172,9 @@ def test_a_distill_config_names_its_teacher_and_its_start(tmp_path, clipset, tea
         config_from_dict(_student(clipset, teacher, tmp_path / "r", **{"distill.steps": 0}))
     with pytest.raises(TrainConfigError, match="distill.teacher"):
         train(config_from_dict(_student(clipset, tmp_path, tmp_path / "r2")), progress=False)
+    with pytest.raises(TrainConfigError, match="condition.*the teacher's condition 'skeleton'.*capsules"):
+        train(config_from_dict(_student(clipset, teacher, tmp_path / "r3", condition="capsules")), progress=False)
+    assert not (tmp_path / "r2").exists() and not (tmp_path / "r3").exists()  # refused before anything is written
 
 
 @pytest.mark.slow

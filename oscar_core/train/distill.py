@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity
+from .config import TrainConfigError
 from .data import Batch
 from .flow import flow_inputs, flow_loss
 from .sampling import PlanItem, item_noise
@@ -150,17 +151,20 @@ def distill_loss(
 
 
 def check_teacher(config, source: str = "<config>"):
-    """The teacher's folder (``distill.teacher``), checked to be an OSCAR model folder before anything is built."""
+    """The teacher's folder (``distill.teacher``), checked before anything is built: an OSCAR model folder whose
+    card's condition is the run's."""
     from pathlib import Path
 
-    from ..model.world_model import MODEL_FILE
-    from .config import TrainConfigError
+    from ..model.world_model import MODEL_FILE, read_card
 
     folder = Path(config.distill.teacher)
     if not (folder / MODEL_FILE).is_file():
         raise TrainConfigError(
             source, "distill.teacher", f"an OSCAR model folder ({MODEL_FILE})", f"{folder} (no {MODEL_FILE})"
         )
+    condition = read_card(folder).condition
+    if condition != config.condition:
+        raise TrainConfigError(source, "condition", f"the teacher's condition {condition!r}", repr(config.condition))
     return folder
 
 
@@ -172,8 +176,6 @@ def load_teacher(config, data, device, source: str = "<config>") -> Teacher:
 
     model = OscarWorldModel.from_pretrained(check_teacher(config, source), device=device, dtype=torch.float32)
     card = model.card
-    if card.condition != config.condition:
-        raise TrainConfigError(source, "condition", f"the teacher's condition {card.condition!r}", config.condition)
     rec = dict(card.sampler or {})
     guidance = config.distill.guidance
     if guidance is None:
