@@ -38,6 +38,7 @@ __all__ = [
     "FlowSection",
     "OptimSection",
     "LogSection",
+    "DistillSection",
     "TrainConfig",
     "load_config",
     "save_config",
@@ -186,6 +187,23 @@ class LogSection:
 
 
 @dataclass
+class DistillSection:
+    """A few-step student distilled from a teacher (oscar_core.train.distill, docs/distillation.md); off when
+    ``teacher`` is null."""
+
+    # the teacher: an OSCAR model folder (oscar_model.json); null: plain training. The student starts from
+    # model.init (set it to the teacher: Meng et al. 2023 initialise the student as the teacher)
+    teacher: str | None = None
+    # Euler steps the student samples a chunk in, on the flow.shift schedule (ours: 4, the issue's budget)
+    steps: int = 4
+    # teacher Euler steps per student step: 2 is one halving round of progressive distillation (Meng et al. 2023,
+    # Salimans & Ho 2022); 1 folds the guidance in at the same step count
+    substeps: int = 2
+    # the teacher's guidance weight w; null: the teacher card's recommendation (else the library's 6)
+    guidance: float | None = None
+
+
+@dataclass
 class TrainConfig:
     """A whole training run."""
 
@@ -222,6 +240,7 @@ class TrainConfig:
     flow: FlowSection = field(default_factory=FlowSection)
     optim: OptimSection = field(default_factory=OptimSection)
     log: LogSection = field(default_factory=LogSection)
+    distill: DistillSection = field(default_factory=DistillSection)
 
     def validate(self, source: str = "<config>") -> TrainConfig:
         """Raise :class:`TrainConfigError` naming the first bad field."""
@@ -297,10 +316,31 @@ class TrainConfig:
             bad("model.condition_init", "'zero' or 'default'", self.model.condition_init)
         if self.model.dtype not in ("float32", "bfloat16"):
             bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
+        ds = self.distill
+        if ds.teacher is not None:
+            for name in ("steps", "substeps"):
+                v = getattr(ds, name)
+                if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                    bad(f"distill.{name}", "a positive integer", v)
+            if ds.guidance is not None and ds.guidance < 0:
+                bad("distill.guidance", "a number >= 0 (or null: the teacher card's)", ds.guidance)
+            if self.condition not in ("skeleton", "mesh", "capsules"):
+                bad("condition", "a condition video (skeleton, mesh, capsules) when distilling", self.condition)
+            if not self.model.init:
+                bad("model.init", "the student's starting weights (the teacher's folder) when distilling", None)
+            if f.shift != 5.0:  # the sampler's Euler grid uses SamplerConfig.shift, 5 unless a rollout says otherwise
+                bad("flow.shift", "5.0 when distilling (the shift every sampler uses by default)", f.shift)
         return self
 
 
-_SECTIONS = {"model": ModelSection, "data": DataSection, "flow": FlowSection, "optim": OptimSection, "log": LogSection}
+_SECTIONS = {
+    "model": ModelSection,
+    "data": DataSection,
+    "flow": FlowSection,
+    "optim": OptimSection,
+    "log": LogSection,
+    "distill": DistillSection,
+}
 
 
 #: keys this loader no longer reads, by section prefix: what to write instead (the error's "expected")

@@ -8,6 +8,8 @@ frame rate, the starting weights (``base``) and ``unconditional_skeleton``
 and the run's ``condition``: a ``latent_action`` run's folder holds a
 ``LatentActionTransformer`` and loads (``oscar_zoo.load``) as an
 ``OscarWorldModel`` whose rollout is fed latent actions instead of a skeleton.
+A distillation run's export (``distill.teacher`` set) records the student's sampler in its card (its steps, no
+guidance: it is folded in) and an Euler scheduler, so every entry point samples it as it was trained.
 """
 
 from __future__ import annotations
@@ -57,6 +59,14 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
             if config.data.sources is None or r.source in config.data.sources
         ]
         fps = Counter(r.fps for r in records).most_common(1)[0][0] if records else None
+        sampler = scheduler = None
+        if config.distill.teacher is not None:
+            from ..model.world_model import read_card
+            from .distill import student_sampler
+
+            teacher_card = read_card(Path(config.distill.teacher))
+            form = (teacher_card.sampler or {}).get("guidance_form", "diffusers")
+            sampler, scheduler = student_sampler(config, form)
         card = ModelCard(
             name=name or run_dir.name,
             chunk_frames=config.data.window,
@@ -67,8 +77,9 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
             base=base,
             unconditional_skeleton=config.data.unconditional_skeleton,
             condition=config.condition,
+            sampler=sampler,
         )
-        model = OscarWorldModel(transformer, vae, card)
+        model = OscarWorldModel(transformer, vae, card, scheduler_config=scheduler)
         if records and not any("prompt_embeds" in r.files for r in records):
             # every clip trained on the zero text embedding (1, D): that is this model's empty prompt, stored so
             # that a rollout without a prompt uses what training used (and does not warn about zeros)

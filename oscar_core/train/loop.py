@@ -7,6 +7,8 @@ the rectified-flow MSE (:mod:`.flow`) averaged over its clips and divided by
 the number of micro-batches, so the summed (and, across processes,
 averaged) gradient is that of the mean loss over the global batch. Then
 gradient-norm clipping, AdamW at the warm-up learning rate, and the EMA.
+With a ``distill`` section the micro-batch loss is the distillation loss of :mod:`.distill` (a frozen
+teacher's guided multi-step target) instead; everything else is the same loop.
 """
 
 from __future__ import annotations
@@ -33,11 +35,12 @@ from .checkpoint import (
 )
 from .config import OVERRIDE_SOURCE, TrainConfig, TrainConfigError, check_resume_overrides, load_config, save_config
 from .data import Batch, TrainData
+from .distill import distill_loss
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
-from .sampling import PlanItem, StepPlanner
+from .sampling import PlanItem, StepPlanner, item_noise
 
 __all__ = [
     "CONFIG_FILE",
@@ -73,15 +76,10 @@ def lr_at(step: int, lr: float, warmup: int) -> float:
     return lr * min(1.0, (step + 1) / warmup)
 
 
-def _noise(items: list[PlanItem], shape) -> torch.Tensor:
-    """(B, *shape) float32 noise, item i drawn from its own seed (the same on any process count)."""
-    return torch.stack([torch.randn(shape, generator=torch.Generator().manual_seed(it.noise_seed)) for it in items])
-
-
 def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, device, autocast=None) -> torch.Tensor:
     """Rectified-flow loss (scalar, mean over the micro-batch) of ``model`` on one loaded micro-batch."""
     z0 = batch.z0.to(device, torch.float32)
-    noise = _noise(items, tuple(z0.shape[1:])).to(device)
+    noise = item_noise(items, tuple(z0.shape[1:])).to(device)
     sigma = torch.tensor([it.sigma for it in items], dtype=torch.float64)
     inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep)
     h, w = z0.shape[-2:]
@@ -260,6 +258,10 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         source = str(config)
         config = load_config(config)
     config.validate(source)
+    if config.distill.teacher is not None:
+        from .distill import check_teacher
+
+        check_teacher(config, source)  # before anything is built or written
     if config.log.tensorboard:
         from .tensorboard import require_tensorboard
 
@@ -292,6 +294,11 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     data = TrainData(config, vae, model.text_dim, registry)
     _check_source_weights(config, data, source)
     planner: StepPlanner = data.planner()
+    teacher = None
+    if config.distill.teacher is not None:
+        from .distill import load_teacher
+
+        teacher = load_teacher(config, data, info.device, source)
     if config.parent_run and ckpt is None:
         load_weights(latest_checkpoint(config.parent_run), model, key="model")
     shards = info.world if config.parallel == "fsdp" else 1
@@ -376,7 +383,10 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                 got_step, got_k, micro, batch = next(batches)
                 assert (got_step, got_k) == (step, k), "the loader hands out micro-batches in plan order"
                 with no_sync(wrapped, k == accum - 1):
-                    loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
+                    if teacher is None:
+                        loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
+                    else:
+                        loss = distill_loss(wrapped, teacher, batch, micro, config, info.device, autocast)
                     (loss / accum).backward()
                 loss_sum += float(loss.detach()) / accum
             grad_norm = apply_update(wrapped, model, optimizer, ema, config)

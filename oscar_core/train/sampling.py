@@ -28,7 +28,7 @@ import torch
 
 from .flow import sample_sigmas
 
-__all__ = ["mixing_weights", "crossings", "trapezoid", "window_prior", "PlanItem", "StepPlanner"]
+__all__ = ["mixing_weights", "crossings", "trapezoid", "window_prior", "PlanItem", "StepPlanner", "item_noise"]
 
 
 def mixing_weights(
@@ -204,3 +204,8 @@ class StepPlanner:
             raise ValueError(f"batch_size: expected a multiple of the {world} processes, found {len(items)}")
         n = len(items) // world
         return items[rank * n : (rank + 1) * n]
+
+
+def item_noise(items: list[PlanItem], shape) -> torch.Tensor:
+    """(B, *shape) float32 noise, item i drawn from its own seed (the same on any process count)."""
+    return torch.stack([torch.randn(shape, generator=torch.Generator().manual_seed(it.noise_seed)) for it in items])
