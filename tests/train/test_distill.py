@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from test_train_loop import tiny
+from _models import tiny_train_config
+from _paths import REPO
 
 from oscar_core.model.sampler import flow_sigmas, model_calls
 from oscar_core.train.checkpoint import latest_checkpoint, list_checkpoints, load_weights
@@ -151,13 +152,13 @@ def clipset(tmp_path_factory):
 @pytest.fixture(scope="module")
 def teacher(tmp_path_factory, clipset):
     tmp = tmp_path_factory.mktemp("teacher")
-    return train(tiny(clipset, tmp / "run", steps=2, export=True), progress=False).export
+    return train(tiny_train_config(clipset, tmp / "run", steps=2, export=True), progress=False).export
 
 
 def _student(clips, teacher, run_dir, **over) -> dict:
     """A tiny distillation config (as a mapping) of 4 optimiser steps from ``teacher`` to a 4-step student."""
     over = {"model.init": str(teacher), "distill.teacher": str(teacher), "distill.steps": 4, **over}
-    return config_to_dict(tiny(clips, run_dir, **over))
+    return config_to_dict(tiny_train_config(clips, run_dir, **over))
 
 
 def _weights(run_dir, key):
@@ -167,7 +168,7 @@ def _weights(run_dir, key):
 
 def test_a_distill_config_names_its_teacher_and_its_start(tmp_path, clipset, teacher):
     with pytest.raises(TrainConfigError, match="model.init"):
-        tiny(clipset, tmp_path / "r", **{"distill.teacher": str(teacher)})
+        tiny_train_config(clipset, tmp_path / "r", **{"distill.teacher": str(teacher)})
     with pytest.raises(TrainConfigError, match="distill.steps"):
         config_from_dict(_student(clipset, teacher, tmp_path / "r", **{"distill.steps": 0}))
     with pytest.raises(TrainConfigError, match="distill.teacher"):
@@ -250,7 +251,7 @@ def test_two_processes_distil_as_one(tmp_path, clipset, teacher, parallel):
 
 
 def test_the_toy_distillation_config_loads_and_names_the_bundled_teacher():
-    repo = Path(__file__).resolve().parents[1]
+    repo = REPO
     cfg = load_config(repo / "configs" / "train" / "toyworld-distill.yaml", {"data.clips": ["x"]})
     assert (cfg.distill.steps, cfg.distill.substeps, cfg.distill.guidance) == (4, 2, None)
     assert cfg.model.init == cfg.distill.teacher == "zoo/assets/oscar-toy"
