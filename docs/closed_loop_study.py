@@ -1,6 +1,7 @@
 """The toy-world closed-loop study of docs/closed-loop.md: its open-loop manifest, its table and its figure.
 
-    python docs/closed_loop_study.py openloop --sessions toy_cl/manifest.json --sim cl_sim --out openloop.json
+    python docs/closed_loop_study.py openloop --sessions toy_cl/manifest.json --sim cl_sim --out openloop.json \\
+        [--only toyarm-0000,franka-0000]
     python docs/closed_loop_study.py table --sessions toy_cl/manifest.json --sim cl_sim \\
         --wm cl_wm_s0 [--wm cl_wm_s0b ...] [--wm-seed1 cl_wm_s1 ...] [--openloop ol_wm ...] [--json table.json]
     python docs/closed_loop_study.py figure --sessions toy_cl/manifest.json --sim cl_sim --wm cl_wm_s0 \\
@@ -39,13 +40,15 @@ def _cells(folders) -> dict:
     return out
 
 
-def openloop_manifest(sessions: Path, sim: Path) -> dict:
-    """An ``oscar eval run`` manifest replaying ``sim``'s episodes of the sessions of ``sessions``."""
+def openloop_manifest(sessions: Path, sim: Path, only=None) -> dict:
+    """An ``oscar eval run`` manifest replaying ``sim``'s episodes of the sessions of ``sessions`` (or ``only``)."""
     man = json.loads(sessions.read_text())
     by = _cells([sim])
     root = sessions.parent
     cells = []
     for s in man["sessions"]:
+        if only and s["session"] not in only:
+            continue
         for p in man["policies"]:
             if (s["session"], p["name"]) not in by:
                 continue
@@ -188,6 +191,8 @@ def main(argv=None) -> int:
             p.add_argument("--wm", action="append", required=True, help="oscar-toy closed loop, seed 0, folder(s)")
             p.add_argument("--wm-seed1", action="append", default=[], help="oscar-toy closed loop, seed 1, folder(s)")
             p.add_argument("--openloop", action="append", default=[], help="oscar eval run folder(s) of the replay")
+        if name == "openloop":
+            p.add_argument("--only", help="comma-separated sessions (default: all)")
         if name == "figure":
             p.add_argument("--session", required=True)
             p.add_argument("--policy", required=True)
@@ -195,7 +200,7 @@ def main(argv=None) -> int:
         p.add_argument("--json", type=Path, help="table: also write it as JSON")
     a = ap.parse_args(argv)
     if a.cmd == "openloop":
-        man = openloop_manifest(a.sessions, Path(a.sim[0]))
+        man = openloop_manifest(a.sessions, Path(a.sim[0]), a.only.split(",") if a.only else None)
         a.out.write_text(json.dumps(man, indent=1) + "\n")
         print(f"wrote {a.out}: {len(man['cells'])} cells")
     elif a.cmd == "table":
