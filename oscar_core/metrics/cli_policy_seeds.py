@@ -28,14 +28,20 @@ def main(argv=None) -> int:
         "runs",
         nargs="+",
         metavar="RUN",
-        help="`oscar eval run` output folders, one per rollout seed, over the same manifest's cells",
+        help="`oscar eval run` output folders, one per rollout seed, over the same manifest's cells "
+        "(or `oscar eval closed-loop` folders, one per noise seed, with --truth)",
+    )
+    parser.add_argument(
+        "--truth",
+        metavar="SIM_RUN",
+        help="closed-loop runs: the same manifest's `oscar eval closed-loop --simulator` folder (the real outcomes)",
     )
     parser.add_argument("--resamples", type=count(1), default=2000, help="session bootstrap resamples (2000)")
     parser.add_argument("--seed", type=count(0), default=0, help="bootstrap seed (0)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = parser.parse_args(argv)
     try:
-        s = summarize_runs(args.runs, args.resamples, args.seed)
+        s = summarize_runs(args.runs, args.resamples, args.seed, args.truth)
     except MetricInputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

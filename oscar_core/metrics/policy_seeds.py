@@ -11,6 +11,11 @@ sessions were drawn.
 ``report.json`` of ``oscar eval run`` folders (one per seed, same manifest
 cells) and prints the per-policy rates, ρ, its 95 % session interval,
 P(ρ ≥ 0.8), Pearson r, MMRV and SISR_Δ.
+
+Closed-loop runs (``oscar eval closed-loop``, one folder per noise seed: the manifest's ``seed``) are read the
+same way with ``--truth SIM_RUN``, the same manifest run in a simulator (``--simulator toy``): a cell's real
+outcome is the simulator's ``sim_success``, its world-model verdict the judge's ``success``, and a cell that
+failed (a policy fault) counts as a failure, as the closed-loop report ranks it (:func:`closed_loop_cells`).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
 __all__ = [
     "FIGURES",
     "cell_rates",
+    "closed_loop_cells",
     "read_reports",
     "session_bootstrap",
     "session_bootstrap_figures",
@@ -139,13 +145,64 @@ def read_reports(folders) -> list[dict]:
     return reports
 
 
-def summarize_runs(folders, resamples: int = 2000, seed: int = 0) -> dict:
-    """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed).
+CLOSED_LOOP = "oscar-closed-loop-report"
+
+
+def closed_loop_cells(report: dict, truth: dict, source: str = "run") -> dict:
+    """An ``oscar eval closed-loop`` report as the cells :func:`cell_rates` reads, its real outcomes from ``truth``.
+
+    report: a world model's closed-loop report; truth: the same manifest's closed-loop report in a simulator.
+    Per cell: ``real_success`` = the truth cell's ``sim_success`` (None where the simulator's cell failed);
+    ``wm_success`` = the judge's verdict (0/1), 0 for a cell that failed, None for one not judged.
+    A cell of ``report`` missing from ``truth`` is a :class:`MetricInputError` naming it.
+    """
+    real = {(c["session"], c["policy"]): c.get("sim_success") for c in truth["cells"]}
+    cells = []
+    for c in report["cells"]:
+        key = (c["session"], c["policy"])
+        if key not in real:
+            raise MetricInputError(source, "cells", "cells the --truth run holds", f"{key[0]}/{key[1]} not in it")
+        wm = 0 if c.get("status") == "failed" else c.get("success")
+        cells.append(
+            {
+                "cell": f"{key[0]}/{key[1]}",
+                "session": key[0],
+                "policy": key[1],
+                "real_success": real[key],
+                "wm_success": None if wm is None else int(wm),
+            }
+        )
+    return {"cells": cells}
+
+
+def _with_truth(folders, reports: list[dict], truth) -> list[dict]:
+    """Closed-loop reports converted against the ``truth`` run; eval-run reports unchanged (none may mix)."""
+    kinds = {rep.get("format") == CLOSED_LOOP for rep in reports}
+    if kinds == {False}:
+        if truth is not None:
+            raise MetricInputError(str(truth), "--truth", "closed-loop runs to compare with", "eval-run reports")
+        return reports
+    if len(kinds) > 1:
+        raise MetricInputError(", ".join(map(str, folders)), "format", "runs of one kind", "eval-run and closed-loop")
+    if truth is None:
+        raise MetricInputError(
+            str(folders[0]), "--truth", "the simulator's closed-loop run of the same manifest", "none"
+        )
+    (sim,) = read_reports([truth])
+    if sim.get("format") != CLOSED_LOOP or not any(c.get("sim_success") is not None for c in sim["cells"]):
+        raise MetricInputError(str(truth), "sim_success", "a closed-loop run in a simulator", "no simulator outcome")
+    return [closed_loop_cells(rep, sim, str(f)) for f, rep in zip(folders, reports)]
+
+
+def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) -> dict:
+    """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed), or for
+    ``oscar eval closed-loop`` folders (one per noise seed) against ``truth``, the simulator's run of the same
+    manifest (:func:`closed_loop_cells`).
 
     ``judged`` gives, per run, the cells with a world-model verdict out of its cells: a run with fewer is
     partial, and its missing cells leave those cells' seed averages on fewer seeds (``complete`` is False).
     """
-    reports = read_reports(folders)
+    reports = _with_truth(folders, read_reports(folders), truth)
     try:
         sessions, policies, real, wm = cell_rates(reports)
     except (KeyError, ValueError) as exc:
@@ -158,6 +215,7 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0) -> dict:
     ok = boot[np.isfinite(boot)]
     return {
         "runs": [str(f) for f in folders],
+        "truth": None if truth is None else str(truth),
         "sessions": len(sessions),
         "policies": policies,
         "real_success": r.tolist(),

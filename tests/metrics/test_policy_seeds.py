@@ -129,3 +129,71 @@ def test_the_module_command_still_runs_as_documented(tmp_path):
         [sys.executable, "-m", "oscar_core.metrics.policy_seeds", "--help"], capture_output=True, text=True, timeout=120
     )
     assert usage.returncode == 0 and usage.stdout.startswith("usage: python -m oscar_core.metrics.policy_seeds")
+
+
+def closed_loop_report(success_of, sessions=6, sim=False, status_of=lambda s, j: "ok"):
+    """An ``oscar eval closed-loop`` report; in a simulator (sim=True) ``sim_success`` is success_of's value."""
+    cells = []
+    for s in range(sessions):
+        for j, p in enumerate(POLICIES):
+            v = success_of(s, j)
+            cells.append(
+                {
+                    "session": f"s{s}",
+                    "policy": p,
+                    "status": status_of(s, j),
+                    "success": None if sim else v,
+                    "sim_success": v if sim else None,
+                }
+            )
+    return {"format": "oscar-closed-loop-report", "cells": cells}
+
+
+def write_runs(tmp_path, reports):
+    folders = []
+    for name, rep in reports.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "report.json").write_text(json.dumps(rep))
+        folders.append(str(tmp_path / name))
+    return folders
+
+
+def test_closed_loop_runs_take_their_real_outcomes_from_the_simulator_run(tmp_path, capsys):
+    truth = lambda s, j: int(s % 3 >= j)  # noqa: E731
+    sim, wm0, wm1 = write_runs(
+        tmp_path,
+        {
+            "sim": closed_loop_report(truth, sim=True),
+            # seed 0 agrees except policy c of session 5 (a failed cell: counts as a failure, real 1)
+            "wm0": closed_loop_report(truth, status_of=lambda s, j: "failed" if (s, j) == (5, 2) else "ok"),
+            # seed 1 says every cell succeeded
+            "wm1": closed_loop_report(lambda s, j: 1),
+        },
+    )
+    s = summarize_runs([wm0, wm1], resamples=200, truth=sim)
+    assert s["real_success"] == pytest.approx([1.0, 2 / 3, 1 / 3]) and s["truth"] == sim
+    # per policy, over 6 sessions: the mean of seed 0's rate and seed 1's (all ones)
+    assert s["wm_success"] == pytest.approx([1.0, (4 / 6 + 1) / 2, (1 / 6 + 1) / 2])
+    assert s["spearman_rho"] == pytest.approx(1.0) and s["complete"] is True
+    assert main([wm0, wm1, "--truth", sim, "--resamples", "50"]) == 0
+    assert "Spearman +1.000" in capsys.readouterr().out
+
+
+def test_closed_loop_runs_without_a_usable_truth_are_refused_before_any_work(tmp_path, capsys):
+    sim, wm, ev = write_runs(
+        tmp_path,
+        {
+            "sim": closed_loop_report(lambda s, j: 1, sessions=2, sim=True),
+            "wm": closed_loop_report(lambda s, j: 1, sessions=3),
+            "ev": report(lambda s, j: 1),
+        },
+    )
+    assert main([wm]) == 2
+    assert "field '--truth': expected the simulator's closed-loop run" in capsys.readouterr().err
+    assert main([wm, "--truth", sim]) == 2
+    assert "s2/a not in it" in capsys.readouterr().err
+    assert main([wm, "--truth", wm]) == 2  # a world model's run holds no simulator outcome
+    assert "no simulator outcome" in capsys.readouterr().err
+    assert main([wm, ev, "--truth", sim]) == 2
+    assert "eval-run and closed-loop" in capsys.readouterr().err
+    assert main([ev, "--truth", sim]) == 2
