@@ -112,8 +112,8 @@ def test_toyworld_generate_help_keeps_its_examples_with_their_continuation_lines
     with pytest.raises(SystemExit):
         main(["toyworld", "generate", "--help"])
     out = capsys.readouterr().out
-    assert out.count("  oscar toyworld generate --embodiments") == 2
-    assert "--seed 0 --out clipsets/toyworld\n" in out and "miss the ball" in out
+    assert out.count("  oscar toyworld generate --embodiments") == 3  # robots, misses, human hands
+    assert "--seed 0 --out clipsets/toyworld\n" in out and "miss the ball" in out and "(human hands:" in out
     assert "oscar toyworld eval" not in out and "oscar toyworld train-vae" not in out
     with pytest.raises(SystemExit):
         main(["toyworld", "--help"])  # the group still lists them all
