@@ -10,6 +10,7 @@ from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
 from oscar_core.train.config import TrainConfig, config_from_dict, load_config
 from oscar_core.train.models import build_transformer
+from oscar_core.train.synthetic import write_toy_clipset
 
 
 def tiny_world_model(
@@ -34,6 +35,14 @@ def export_tiny_world_model(folder: Path, **kwargs) -> Path:
     import oscar_zoo
 
     return oscar_zoo.export(tiny_world_model(**kwargs), folder)
+
+
+def tiny_clipset(folder: Path, clips: int = 3) -> Path:
+    """A toy clip set that fits :func:`tiny_train_config`: ``clips`` clips of 13 frames at 32x32 with cached latents
+    (a seeded random VAE, 9-frame windows) and 48-dim prompt embeddings; returns its folder."""
+    return write_toy_clipset(
+        folder, clips=clips, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
+    )
 
 
 def tiny_train_config(clips, run_dir, **over) -> TrainConfig:

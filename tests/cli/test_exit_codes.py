@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from _datasets import write_episode
+from _models import tiny_clipset
 from _paths import TOYARM_ASSETS
 
 from oscar_core._util.interrupt import message, output_of
@@ -131,18 +132,7 @@ def test_ctrl_c_in_training_names_the_run_and_how_to_resume(tmp_path):
 
     import yaml
 
-    from oscar_core.train.synthetic import write_toy_clipset
-
-    clips = write_toy_clipset(
-        tmp_path / "clips",
-        clips=2,
-        frames=13,
-        width=32,
-        height=32,
-        latents_vae="random",
-        latents_window=9,
-        prompt_dim=48,
-    )
+    clips = tiny_clipset(tmp_path / "clips", clips=2)
     run = tmp_path / "run"
     cfg = {
         "run_dir": str(run),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from _models import tiny_train_config
+from _models import tiny_clipset, tiny_train_config
 from _paths import REPO
 
 from oscar_core.model.sampler import flow_sigmas, model_calls
@@ -25,7 +25,6 @@ from oscar_core.train.distill import Teacher, distill_loss, distill_target, stud
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_transformer
 from oscar_core.train.sampling import PlanItem, item_noise
-from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -144,9 +143,7 @@ def test_distill_loss_gradient_reaches_the_student_only():
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
     root = tmp_path_factory.mktemp("clips") / "toy"
-    return write_toy_clipset(
-        root, clips=3, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
-    )
+    return tiny_clipset(root, clips=3)
 
 
 @pytest.fixture(scope="module")

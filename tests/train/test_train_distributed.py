@@ -8,28 +8,19 @@ import sys
 import pytest
 import torch
 import yaml
+from _models import tiny_clipset
 
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
 from oscar_core.train.config import load_config
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_transformer
-from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
-    return write_toy_clipset(
-        tmp_path_factory.mktemp("clips") / "toy",
-        clips=3,
-        frames=13,
-        width=32,
-        height=32,
-        latents_vae="random",
-        latents_window=9,
-        prompt_dim=48,
-    )
+    return tiny_clipset(tmp_path_factory.mktemp("clips") / "toy", clips=3)
 
 
 def _port() -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from _models import tiny_train_config, tiny_world_model
+from _models import tiny_clipset, tiny_train_config, tiny_world_model
 from _paths import REPO
 
 import oscar_zoo
@@ -20,7 +20,6 @@ from oscar_core.model.sampler import SamplerConfig
 from oscar_core.model.world_model import MODEL_FILE, ModelCard
 from oscar_core.plugin.registry import Registry
 from oscar_core.train.loop import train
-from oscar_core.train.synthetic import write_toy_clipset
 
 STEPS = SamplerConfig(steps=2)  # action_guidance None: the conditional branch alone
 pytestmark = [
@@ -39,9 +38,7 @@ def toyarm():
 def exported(tmp_path_factory):
     """A 2-step tiny latent-action run (9-frame windows, 32x32), exported."""
     root = tmp_path_factory.mktemp("la")
-    clips = write_toy_clipset(
-        root / "clips", clips=3, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
-    )
+    clips = tiny_clipset(root / "clips", clips=3)
     cfg = tiny_train_config(clips, root / "run", steps=2, export=True, condition="latent_action")
     return train(cfg, progress=False).export
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from _models import tiny_train_config, trained_weights
+from _models import tiny_clipset, tiny_train_config, trained_weights
 from _paths import REPO
 
 from oscar_core.model.errors import CheckpointIntegrityError
@@ -25,9 +25,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
     root = tmp_path_factory.mktemp("clips") / "toy"
-    return write_toy_clipset(
-        root, clips=3, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
-    )
+    return tiny_clipset(root, clips=3)
 
 
 # ---------------------------------------------------------------------- learning

@@ -4,7 +4,7 @@ the exported card says so, and rollouts render the mesh for such a model."""
 import numpy as np
 import pytest
 import torch
-from _models import tiny_train_config
+from _models import tiny_clipset, tiny_train_config
 
 import oscar_zoo
 from oscar_core.camera import load_camera
@@ -16,7 +16,6 @@ from oscar_core.train.clips import ClipSet
 from oscar_core.train.data import TrainData
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_vae
-from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = [
     pytest.mark.filterwarnings("ignore:no prompt embedding:UserWarning"),
@@ -27,16 +26,7 @@ pytestmark = [
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
     """Toy-arm clips with cached latents (of the video and of the *skeleton*)."""
-    return write_toy_clipset(
-        tmp_path_factory.mktemp("mesh") / "clips",
-        clips=2,
-        frames=13,
-        width=32,
-        height=32,
-        latents_vae="random",
-        latents_window=9,
-        prompt_dim=48,
-    )
+    return tiny_clipset(tmp_path_factory.mktemp("mesh") / "clips", clips=2)
 
 
 def test_the_mesh_latent_is_the_vae_encoding_of_the_mesh_video(tmp_path, clips):

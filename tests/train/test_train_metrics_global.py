@@ -10,11 +10,11 @@ import sys
 import pytest
 import torch
 import yaml
+from _models import tiny_clipset
 
 from oscar_core.train.config import load_config
 from oscar_core.train.loop import train
 from oscar_core.train.sampling import StepPlanner
-from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = pytest.mark.slow
 
@@ -52,16 +52,7 @@ def _steps(run_dir):
 
 
 def test_two_processes_log_the_global_batch(tmp_path):
-    clips = write_toy_clipset(
-        tmp_path / "clips",
-        clips=3,
-        frames=13,
-        width=32,
-        height=32,
-        latents_vae="random",
-        latents_window=9,
-        prompt_dim=48,
-    )
+    clips = tiny_clipset(tmp_path / "clips", clips=3)
     one_cfg = _config(tmp_path, clips, "one")
     n = torch.get_num_threads()
     torch.set_num_threads(1)

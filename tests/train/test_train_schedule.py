@@ -3,12 +3,12 @@ lr / warmup (not 0), and the EMA after each step is decay * EMA + (1 - decay) * 
 
 import pytest
 import torch
+from _models import tiny_clipset
 
 from oscar_core.train.checkpoint import list_checkpoints, load_weights
 from oscar_core.train.config import config_from_dict, load_config
 from oscar_core.train.loop import lr_at, train
 from oscar_core.train.models import build_transformer
-from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -22,9 +22,7 @@ def test_warmup_is_linear_from_the_first_step():
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     root = tmp_path_factory.mktemp("schedule")
-    clips = write_toy_clipset(
-        root / "clips", clips=2, frames=13, width=32, height=32, latents_vae="random", latents_window=9, prompt_dim=48
-    )
+    clips = tiny_clipset(root / "clips", clips=2)
     cfg = config_from_dict(
         {
             "run_dir": str(root / "run"),

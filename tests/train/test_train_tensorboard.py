@@ -5,25 +5,15 @@ import sys
 
 import pytest
 import torch
-from _models import tiny_train_config
+from _models import tiny_clipset, tiny_train_config
 
 from oscar_core.train.config import TrainConfigError
 from oscar_core.train.loop import train
-from oscar_core.train.synthetic import write_toy_clipset
 
 
 @pytest.fixture(scope="module")
 def clipset(tmp_path_factory):
-    return write_toy_clipset(
-        tmp_path_factory.mktemp("tb") / "toy",
-        clips=2,
-        frames=13,
-        width=32,
-        height=32,
-        latents_vae="random",
-        latents_window=9,
-        prompt_dim=48,
-    )
+    return tiny_clipset(tmp_path_factory.mktemp("tb") / "toy", clips=2)
 
 
 def test_scalars_equal_the_metrics_file(tmp_path, clipset):
