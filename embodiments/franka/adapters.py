@@ -1,5 +1,8 @@
 """Dataset adapters for the Franka Panda: stored state → oscar ``Trajectory`` + ``Camera``.
 
+One module on purpose: DROID, RH20T and InternData-A1 adapters share its field lookup, unit, rotation and
+camera checks (the private helpers at the top); it passed 600 lines only when the tree was formatted.
+
 Every adapter is a pure-numpy function. It takes the arrays a dataset stores
 (already read from disk by the caller: h5py groups, ``np.load(...).item()``
 dicts, pandas columns all work, since only ``[]`` lookups and ``np.asarray``

@@ -1,5 +1,8 @@
 """``dedup``: semantic deduplication — SigLIP visual candidates, verified by trajectory distance, merged by union-find.
 
+One module on purpose: its three steps are one fingerprinted stage that shares its settings, manifest columns
+and record format; it passed 600 lines only when the tree was formatted.
+
 1. **Embed** (a sharded stage, :class:`EmbedStage`): per live episode, the SigLIP
    image embedding of 5 uniformly sampled frames (each frame's pooled
    embedding L2-normalised, averaged, normalised again), and the skeleton's

@@ -1,4 +1,9 @@
-"""The OSCAR paper (Sec. "Policy Evaluation", Appendix "VLM success scoring")
+"""VLM judges of rollouts: success per rollout and pairwise preferences within a session.
+
+One module on purpose: both judges share the settings, video hashing, frame sampling and worker loop of
+``_BaseJudge`` (their HTTP client is judge_client.py); it passed 600 lines only when the tree was formatted.
+
+The OSCAR paper (Sec. "Policy Evaluation", Appendix "VLM success scoring")
 scores every rollout with a vision-language model that stands in for a human
 RoboArena rater: 32 frames sampled uniformly from the generated video go to
 the model in temporal order together with the task instruction, and the model

@@ -1,5 +1,8 @@
 """The OSCAR world model as one object: DiT + VAE + text fallback + model card.
 
+One module on purpose: the card and the object whose loading, saving and rollouts share its device, dtype and
+card; it passed 600 lines only when the tree was formatted.
+
 A saved model is a folder (the layout the zoo expects on the Hub)::
 
     oscar_model.json                         format tag + ModelCard
