@@ -210,27 +210,29 @@ def psnr_db(a: torch.Tensor, b: torch.Tensor) -> float:
     return float("inf") if mse == 0 else 10.0 * np.log10(4.0 / mse)
 
 
-def toy_vae_cut(model, latent: torch.Tensor, full_video: torch.Tensor, repeats: int, device) -> dict:
-    """Decode of the whole chunk against the chunk's end alone (:data:`END_DECODES`), on the toy VAE: milliseconds,
-    FLOPs and the PSNR of the last pixel frame against the whole decode's."""
+def toy_vae_cut(model, latent: torch.Tensor, full_video: torch.Tensor, repeats: int, device) -> list[dict]:
+    """Decode of the whole chunk against the chunk's end alone (:data:`END_DECODES`), on the toy VAE: one record per
+    decode with its milliseconds, FLOPs and the PSNR of its last pixel frame against the whole decode's."""
     vae = model.vae
     variants = {"whole chunk": latent, **{name: latent[:, :, -k:] for name, k in END_DECODES}}
-    out = {}
+    out = []
     for name, z in variants.items():
         timing = time_parts({name: lambda z=z: vae.decode(z)}, repeats, device)
         video = vae.decode(z)
-        last = video[:, :, -1]
-        out[name] = {
-            "latent_frames": int(z.shape[2]),
-            "pixel_frames": int(video.shape[2]),
-            "wall_ms": 1e3 * timing["wall_s"][name],
-            "cpu_ms": 1e3 * timing["cpu_s"][name],
-            "flops": flops_of(lambda z=z: vae.decode(z)),
-            "last_frame_psnr_db": min(psnr_db(last, full_video[:, :, -1]), 100.0),
-        }
-    whole = out["whole chunk"]
-    for row in out.values():
-        row["wall_vs_whole"] = row["wall_ms"] / whole["wall_ms"]
+        out.append(
+            {
+                "decode": name,
+                "latent_frames": int(z.shape[2]),
+                "pixel_frames": int(video.shape[2]),
+                "cpu_ms": 1e3 * timing["cpu_s"][name],
+                "wall_ms": 1e3 * timing["wall_s"][name],
+                "mflop": flops_of(lambda z=z: vae.decode(z)) / 1e6,
+                "last_frame_psnr_db": min(psnr_db(video[:, :, -1], full_video[:, :, -1]), 100.0),
+            }
+        )
+    for row in out:
+        row["cpu_vs_whole"] = row["cpu_ms"] / out[0]["cpu_ms"]
+        row["mflop_vs_whole"] = row["mflop"] / out[0]["mflop"]
     return out
 
 
@@ -347,6 +349,7 @@ def measure_row(name: str, model, options: dict, inputs: dict, args, device) -> 
         "toy_cpu_ms": {p: 1e3 * cpu[p] for p in PARTS},
         "toy_wall_ms_per_chunk": 1e3 * sum(wall.values()),
         "toy_cpu_ms_per_chunk": 1e3 * sum(cpu.values()),
+        "toy_vae_share_of_cpu": sum(cpu[p] for p in VAE_PARTS) / sum(cpu.values()),
         "toy_vae_share_of_wall": sum(wall[p] for p in VAE_PARTS) / sum(wall.values()),
         "_state": state,
     }
@@ -354,24 +357,26 @@ def measure_row(name: str, model, options: dict, inputs: dict, args, device) -> 
 
 def print_table(rows: list[dict], cut: dict) -> None:
     print(
-        f"{'row':24s} {'evals':>5s} {'toy MFLOP':>10s} {'toy ms (cpu)':>13s} {'render':>7s} {'enc':>6s} {'DiT':>7s} "
+        f"{'row':24s} {'evals':>5s} {'toy MFLOP':>10s} {'CPU ms (wall)':>13s} {'render':>7s} {'enc':>6s} {'DiT':>7s} "
         f"{'dec':>6s} {'VAE%':>5s} {'2B TFLOP':>8s} {'H200 fps*':>9s} {'H100 fps*':>9s} {'eager*':>6s} {'VAE% H200*':>10s}"
     )
     for r in rows:
-        w, c = r["toy_wall_ms"], r["computed_2b"]
+        w, c = r["toy_cpu_ms"], r["computed_2b"]
         print(
             f"{r['row']:24s} {r['dit_evaluations']:5d} {r['toy_mflop_dit_per_chunk'] + r['toy_mflop_vae_per_chunk']:10.0f} "
-            f"{r['toy_wall_ms_per_chunk']:6.0f} ({r['toy_cpu_ms_per_chunk']:4.0f}) {w['render']:7.1f} "
+            f"{r['toy_cpu_ms_per_chunk']:6.0f} ({r['toy_wall_ms_per_chunk']:5.0f}) {w['render']:7.1f} "
             f"{w['encode_first'] + w['encode_condition']:6.1f} {w['dit']:7.1f} {w['decode']:6.1f} "
-            f"{100 * r['toy_vae_share_of_wall']:5.1f} {c['tflop_dit_per_chunk']:8.0f} {c['h200']['frames_per_s']:9.1f} "
+            f"{100 * r['toy_vae_share_of_cpu']:5.1f} {c['tflop_dit_per_chunk']:8.0f} {c['h200']['frames_per_s']:9.1f} "
             f"{c['h100']['frames_per_s']:9.1f} {c['h100_eager']['frames_per_s']:6.1f} {100 * c['h200']['vae_share']:10.1f}"
         )
+    print("toy: one chunk, median CPU ms per part (render, VAE encodes, DiT, VAE decode) and the VAE's share of them")
     print("* computed for the 2B at 81 frames, 512x288 (80 new frames per chunk), VAE included; not measured")
-    print("\nDecode of a chunk's end only (toy VAE, measured; 2B: FLOP ratio counted on the meta device):")
-    for name, v in cut["toy"].items():
+    print("\nDecode of a chunk's end only (toy VAE measured; 2B: FLOPs counted on the meta device, seconds computed):")
+    for toy, big in zip(cut["toy_measured"], cut["student_2b_computed"]):
         print(
-            f"  {name:22s} {v['wall_ms']:7.1f} ms ({v['wall_vs_whole']:.2f} of the whole)  last frame "
-            f"{v['last_frame_psnr_db']:5.1f} dB vs the whole decode's   2B decode FLOPs x{cut['flop_ratio_2b'][name]:.3f}"
+            f"  {toy['decode']:22s} toy {toy['cpu_ms']:6.1f} CPU ms ({toy['cpu_vs_whole']:.2f} of the whole), last "
+            f"frame {toy['last_frame_psnr_db']:5.1f} dB vs the whole decode's | 2B decode x{big['flop_ratio']:.3f} "
+            f"FLOPs: student {big['h200_frames_per_s']:.1f} frames/s on an H200*, VAE {100 * big['h200_vae_share']:.0f} %"
         )
 
 
@@ -403,20 +408,26 @@ def main(argv=None) -> int:
         row["computed_2b"] = computed_2b(row["dit_evaluations"], ref)
         rows.append(row)
         print(
-            f"measured {name}: {row['dit_evaluations']} DiT evaluations, {row['toy_wall_ms_per_chunk']:.0f} ms",
+            f"measured {name}: {row['dit_evaluations']} DiT evaluations, {row['toy_cpu_ms_per_chunk']:.0f} CPU ms",
             flush=True,
         )
     state = rows[3]["_state"]  # the student at its card's steps
-    toy = toy_vae_cut(student, state["latent"], state["video"], args.repeats, device)
     flops2b = vae_decode_flops_2b()
-    ratio = {k: v / flops2b["whole chunk"] for k, v in flops2b.items()}
+    computed = []
+    for name, flops in flops2b.items():
+        ratio = flops / flops2b["whole chunk"]
+        c = computed_2b(rows[3]["dit_evaluations"], ref, decode_ratio=ratio)
+        computed.append(
+            {
+                "decode": name,
+                "tflop_decode": flops / 1e12,
+                "flop_ratio": ratio,
+                **{f"{card}_{k}": v for card in ref["throughputs"] for k, v in c[card].items()},
+            }
+        )
     cut = {
-        "toy": toy,
-        "tflop_decode_2b": {k: v / 1e12 for k, v in flops2b.items()},
-        "flop_ratio_2b": ratio,
-        "student_2b_with_last_frame_decode": {
-            name: computed_2b(rows[3]["dit_evaluations"], ref, decode_ratio=ratio[name]) for name in ratio
-        },
+        "toy_measured": toy_vae_cut(student, state["latent"], state["video"], args.repeats, device),
+        "student_2b_computed": computed,
     }
     for r in rows:
         r.pop("_state")

@@ -46,6 +46,16 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "its configuration (`expected_2b`, `computed_2b`: computed, not measured); with `--gpu` or "
         "`--measure`, each sampling preset measured on the device (`measured`).",
     ),
+    "distill_speed": (
+        "Teacher, `fast` and the few-step student",
+        "benchmarks/distill_speed.py",
+        "One 17-frame 64x64 chunk of `oscar-toy` (one thread) for the teacher at `--preset paper`, its card's "
+        "sampler and `--preset fast`, and the distilled student at 4, 2 and 1 steps: DiT evaluations counted on "
+        "the real transformer (equal to `model_calls`), FLOPs counted by `torch.utils.flop_counter`, median CPU and "
+        "wall milliseconds per part (condition render, VAE encodes, DiT, VAE decode); `computed_2b`: the 2B at 81 "
+        "frames, 512x288, on one H200 / H100 from those evaluations (computed, not measured); `vae_cut`: decoding "
+        "only a chunk's end (toy VAE measured, 2B FLOP ratio counted).",
+    ),
     "closed_loop": (
         "Closed-loop policy evaluation",
         "benchmarks/closed_loop.py",
