@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .frame_metrics import METRICS, MOTION_THRESHOLD, MOVED_OBJECT_SHIFT_PX, PSNR_CAP, motion_mask
 from .locate import EE_TARGET, OBJECT_TARGET, position_errors
+from .per_chunk import add_paired_chunks, chunk_metrics, chunk_rows, format_chunks
 
 __all__ = [
     "PSNR_CAP",
@@ -43,14 +45,6 @@ __all__ = [
     "moved_object_error",
     "MOVED_OBJECT_SHIFT_PX",
 ]
-
-PSNR_CAP = 100.0
-METRICS = ("psnr_db", "ssim", "motion_iou", "ee_error_px", "object_error_px", "moved_object_error_px")
-#: a pixel "moved" at frame t when its grey level differs from frame 0's by more than this (0-255 scale)
-MOTION_THRESHOLD = 24.0
-#: the true ball "has moved" at frame t when its centroid is more than this from frame 0's (pixels; about one
-#: ball radius at 64 x 64)
-MOVED_OBJECT_SHIFT_PX = 3.0
 
 
 def moved_object_error(
@@ -74,18 +68,6 @@ def moved_object_error(
     if not moved.any():
         return {"error_px": float("nan"), "frames": 0}
     return {"error_px": float(errors["per_frame"][moved].mean()), "frames": int(moved.sum())}
-
-
-def motion_mask(video: np.ndarray, threshold: float = MOTION_THRESHOLD) -> np.ndarray:
-    """(T − 1, H, W) bool: pixels whose grey level (mean of RGB) changed from frame 0 by more than ``threshold``.
-
-    video: (T, H, W, 3), uint8 (or any integer type) or float, 0-255. The rule is applied exactly, as
-    |ΔR + ΔG + ΔB| > 3 · threshold: in integers for integer frames, in float64 otherwise (a float32 mean
-    rounds, and would count some changes of exactly ``threshold`` levels whose sums are not multiples of 3).
-    """
-    v = np.asarray(video)
-    s = v.astype(np.int64 if np.issubdtype(v.dtype, np.integer) else np.float64).sum(-1)
-    return np.abs(s[1:] - s[:1]) > 3 * threshold
 
 
 def motion_iou(pred: np.ndarray, gt: np.ndarray, threshold: float = MOTION_THRESHOLD) -> float:
@@ -157,8 +139,6 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>", chunk
         "moved_object_frames": moved["frames"],
     }
     if chunk_frames is not None:
-        from .per_chunk import chunk_metrics
-
         out["chunks"] = chunk_metrics(pred, gt, chunk_frames)
     return out
 
@@ -260,8 +240,6 @@ def evaluate_conditions(
         row["clips"] = len(per)
         row["moved_object_clips"] = sum(1 for m in per.values() if m.get("moved_object_frames", 0))
         if per_chunk is not None:
-            from .per_chunk import chunk_rows
-
             row["chunks"] = chunk_rows(per)
         rows[name] = row
         clips[name] = per
@@ -310,8 +288,6 @@ def add_paired(table: dict, reference: str, resamples: int = 2000, seed: int = 0
         },
     }
     if table.get("per_chunk"):
-        from .per_chunk import add_paired_chunks
-
         add_paired_chunks(table, reference, resamples, seed)
     return table
 
@@ -364,8 +340,6 @@ def format_table(table: dict) -> str:
     paired = format_paired(table)
     text = "\n".join(lines) + ("\n" + paired if paired else "")
     if table.get("per_chunk"):
-        from .per_chunk import format_chunks
-
         text += "\n" + format_chunks(table)
     return text
 

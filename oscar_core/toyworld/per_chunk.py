@@ -10,7 +10,7 @@ so errors carried from chunk to chunk show up as quality falling with k
 Per chunk, over that chunk's frames only (:func:`chunk_metrics`): PSNR and
 SSIM (frame means, capped as :func:`oscar_core.toyworld.evaluate.evaluate_clip`
 caps), motion IoU (the changed-from-frame-0 masks of
-:func:`~oscar_core.toyworld.evaluate.motion_mask` pooled over the chunk's
+:func:`~oscar_core.toyworld.frame_metrics.motion_mask` pooled over the chunk's
 frames), end-effector and object errors (pixels, mean over the chunk's frames
 that show the target in the truth; NaN when none does) and the moved-object
 error (over the chunk's frames where the true ball has left its frame-0
@@ -21,6 +21,8 @@ range of frames.
 from __future__ import annotations
 
 import numpy as np
+
+from .frame_metrics import METRICS, MOVED_OBJECT_SHIFT_PX, PSNR_CAP, motion_mask
 
 __all__ = ["chunk_windows", "chunk_metrics", "chunk_rows", "add_paired_chunks", "format_chunks"]
 
@@ -47,11 +49,10 @@ def chunk_metrics(pred: np.ndarray, gt: np.ndarray, chunk_frames: int) -> list[d
     """One dict of metrics per chunk (see the module): pred, gt (T, H, W, 3) uint8 of the same shape.
 
     Each dict holds ``frames`` ([first, last], inclusive) and the keys of
-    :data:`oscar_core.toyworld.evaluate.METRICS` (PSNR in dB, SSIM and motion IoU in [0, 1], errors in
+    :data:`oscar_core.toyworld.frame_metrics.METRICS` (PSNR in dB, SSIM and motion IoU in [0, 1], errors in
     pixels).
     """
     from ..metrics import psnr, ssim
-    from .evaluate import MOVED_OBJECT_SHIFT_PX, PSNR_CAP, motion_mask
     from .locate import EE_TARGET, OBJECT_TARGET, position_errors
 
     pred, gt = np.asarray(pred), np.asarray(gt)
@@ -92,8 +93,6 @@ def _finite_mean(values) -> float:
 
 def chunk_rows(clips: dict[str, dict]) -> list[dict]:
     """Row means per chunk index over the clips (clip id → metrics with ``chunks``) that reach that chunk."""
-    from .evaluate import METRICS
-
     n = max((len(m["chunks"]) for m in clips.values()), default=0)
     rows = []
     for k in range(n):
@@ -110,7 +109,6 @@ def add_paired_chunks(table: dict, reference: str, resamples: int = 2000, seed: 
     both scored (:func:`oscar_core.metrics.paired.paired_difference`). Needs ``table["paired"]`` (from
     :func:`~oscar_core.toyworld.evaluate.add_paired`) and per-chunk clips. Returns the table."""
     from ..metrics.paired import paired_difference
-    from .evaluate import METRICS
 
     def by_chunk(per: dict, k: int) -> dict:
         return {cid: m["chunks"][k] for cid, m in per.items() if len(m["chunks"]) > k}
