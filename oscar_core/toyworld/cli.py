@@ -48,6 +48,8 @@ EXAMPLES = """examples:
   oscar toyworld eval --gt clipsets/toyworld --pred true=preds/true --pred shuffled=preds/shuffled \\
       --pred vae=preds/vae --pred first_frame=preds/first_frame --out table.json --plot table.png
       (also writes table.html: the table and rollouts under each condition beside the truth)
+  oscar toyworld eval --gt clipsets/long --pred teacher=preds/teacher --pred student=preds/student \\
+      --paired teacher --per-chunk 17 --out drift.json   (97-frame rollouts: metrics per 17-frame chunk)
   oscar toyworld package runs/toyworld/export --out my-toy --table table.json
   oscar toyworld policy-eval --embodiments toyarm,franka,kuka --sessions 10 --seed 0 --out toy_policies
   oscar toyworld carry toy_policies/manifest.json toy_eval/ --json toy_eval/carry.json
@@ -325,6 +327,14 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
         help="also give every other row minus row NAME per metric over the "
         "clips both scored, with a 95 %% paired bootstrap interval (2000 resamples of the clips, seed 0)",
     )
+    e.add_argument(
+        "--per-chunk",
+        type=count(2),
+        metavar="CHUNK_FRAMES",
+        help="also score each chunk of a long rollout made in chunks of CHUNK_FRAMES frames, the seed frame "
+        "included (17 for oscar-toy: frames 1-16, 17-32, ...): quality against chunk index, paired per chunk "
+        "with --paired",
+    )
     output_option(e.add_argument("--out", help="write the table as JSON here"), "file")
     output_option(e.add_argument("--plot", help="write a PNG bar chart of the table here"), "file")
     output_option(
@@ -523,7 +533,7 @@ def cmd_eval(args) -> int:
     conditions = parse_pred_args(args.pred)
     if args.paired is not None and args.paired not in conditions:
         raise ValueError(f"--paired {args.paired}: expected the name of a --pred row ({', '.join(conditions)})")
-    table = evaluate_conditions(args.gt, conditions, split=args.split, clips_mode=args.clips)
+    table = evaluate_conditions(args.gt, conditions, split=args.split, clips_mode=args.clips, per_chunk=args.per_chunk)
     if args.paired is not None:
         add_paired(table, args.paired)
     if args.out:

@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .frame_metrics import METRICS, MOTION_THRESHOLD, MOVED_OBJECT_SHIFT_PX, PSNR_CAP, motion_mask
 from .locate import EE_TARGET, OBJECT_TARGET, position_errors
+from .per_chunk import add_paired_chunks, chunk_metrics, chunk_rows, format_chunks
 
 __all__ = [
     "PSNR_CAP",
@@ -43,14 +45,6 @@ __all__ = [
     "moved_object_error",
     "MOVED_OBJECT_SHIFT_PX",
 ]
-
-PSNR_CAP = 100.0
-METRICS = ("psnr_db", "ssim", "motion_iou", "ee_error_px", "object_error_px", "moved_object_error_px")
-#: a pixel "moved" at frame t when its grey level differs from frame 0's by more than this (0-255 scale)
-MOTION_THRESHOLD = 24.0
-#: the true ball "has moved" at frame t when its centroid is more than this from frame 0's (pixels; about one
-#: ball radius at 64 x 64)
-MOVED_OBJECT_SHIFT_PX = 3.0
 
 
 def moved_object_error(
@@ -74,18 +68,6 @@ def moved_object_error(
     if not moved.any():
         return {"error_px": float("nan"), "frames": 0}
     return {"error_px": float(errors["per_frame"][moved].mean()), "frames": int(moved.sum())}
-
-
-def motion_mask(video: np.ndarray, threshold: float = MOTION_THRESHOLD) -> np.ndarray:
-    """(T − 1, H, W) bool: pixels whose grey level (mean of RGB) changed from frame 0 by more than ``threshold``.
-
-    video: (T, H, W, 3), uint8 (or any integer type) or float, 0-255. The rule is applied exactly, as
-    |ΔR + ΔG + ΔB| > 3 · threshold: in integers for integer frames, in float64 otherwise (a float32 mean
-    rounds, and would count some changes of exactly ``threshold`` levels whose sums are not multiples of 3).
-    """
-    v = np.asarray(video)
-    s = v.astype(np.int64 if np.issubdtype(v.dtype, np.integer) else np.float64).sum(-1)
-    return np.abs(s[1:] - s[:1]) > 3 * threshold
 
 
 def motion_iou(pred: np.ndarray, gt: np.ndarray, threshold: float = MOTION_THRESHOLD) -> float:
@@ -128,8 +110,11 @@ def find_prediction(folder, clip_id: str) -> Path | None:
     return None
 
 
-def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> dict:
-    """Metrics of one generated clip against its ground truth; both (T, H, W, 3) uint8."""
+def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>", chunk_frames: int | None = None) -> dict:
+    """Metrics of one generated clip against its ground truth; both (T, H, W, 3) uint8.
+
+    chunk_frames: also ``chunks``, the metrics of each chunk of a rollout in chunks of this many frames
+    (:func:`oscar_core.toyworld.per_chunk.chunk_metrics`)."""
     from ..metrics import psnr, ssim
 
     pred, gt = np.asarray(pred), np.asarray(gt)
@@ -142,7 +127,7 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
     ee = position_errors(pred, gt, EE_TARGET)
     ob = position_errors(pred, gt, OBJECT_TARGET)
     moved = moved_object_error(pred, gt, errors=ob)
-    return {
+    out = {
         "psnr_db": float(p.mean()),
         "ssim": float(s.mean()),
         "motion_iou": motion_iou(pred, gt),
@@ -153,13 +138,20 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>") -> di
         "moved_object_error_px": moved["error_px"],
         "moved_object_frames": moved["frames"],
     }
+    if chunk_frames is not None:
+        out["chunks"] = chunk_metrics(pred, gt, chunk_frames)
+    return out
 
 
 CLIP_MODES = ("same", "common", "each")
 
 
 def evaluate_conditions(
-    gt_clipset, conditions: dict[str, str], split: str | None = None, clips_mode: str = "same"
+    gt_clipset,
+    conditions: dict[str, str],
+    split: str | None = None,
+    clips_mode: str = "same",
+    per_chunk: int | None = None,
 ) -> dict:
     """The table: one row per condition (name → folder of generated videos).
 
@@ -173,11 +165,18 @@ def evaluate_conditions(
     the condition and the clips it lacks or adds; "common" scores every row
     over the clips all conditions have; "each" scores each row over its own
     clips and marks the table (``same_clips`` false, the rows' clip counts).
+    per_chunk: the chunk length (frames, seed included) of the rollouts; every clip's metrics then also
+    hold ``chunks`` and every row ``chunks``, its means per chunk index
+    (:mod:`oscar_core.toyworld.per_chunk`: quality against chunk index, the drift of a long rollout).
     Returns a JSON-ready dict with ``rows`` (condition → mean metrics, clip
-    count), ``clips`` (condition → clip id → metrics) and ``same_clips``.
+    count), ``clips`` (condition → clip id → metrics), ``same_clips`` and ``per_chunk``.
     """
     if clips_mode not in CLIP_MODES:
         raise ValueError(f"clips_mode: expected one of {CLIP_MODES}, found {clips_mode!r}")
+    if per_chunk is not None and per_chunk < 2:
+        raise ValueError(
+            f"--per-chunk: expected a chunk of at least 2 frames (the seed and one new), found {per_chunk}"
+        )
     from ..metrics.video import load_video
     from ..train.clips import ClipSet
 
@@ -236,10 +235,12 @@ def evaluate_conditions(
             r = by_id[rid]
             if r.id not in cache:
                 cache[r.id] = owner[r.id].load(r, skeleton=False).rgb
-            per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path))
+            per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path), per_chunk)
         row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
         row["clips"] = len(per)
         row["moved_object_clips"] = sum(1 for m in per.values() if m.get("moved_object_frames", 0))
+        if per_chunk is not None:
+            row["chunks"] = chunk_rows(per)
         rows[name] = row
         clips[name] = per
     roots = [str(c.root) for c in sets]
@@ -248,6 +249,7 @@ def evaluate_conditions(
         "split": split,
         "metrics": list(METRICS),
         "same_clips": len({frozenset(v) for v in clips.values()}) <= 1,
+        "per_chunk": per_chunk,
         "rows": rows,
         "clips": clips,
     }
@@ -267,7 +269,8 @@ def _nanmean(values) -> float:
 def add_paired(table: dict, reference: str, resamples: int = 2000, seed: int = 0) -> dict:
     """Add ``table["paired"]``: every other row minus the ``reference`` row, per metric, over the clips both
     scored (:func:`oscar_core.metrics.paired.paired_difference`: mean and 95 % percentile-bootstrap interval,
-    ``resamples`` resamples of the clips, seeded). Returns the table."""
+    ``resamples`` resamples of the clips, seeded); per chunk index too when the table has per-chunk rows
+    (:func:`oscar_core.toyworld.per_chunk.add_paired_chunks`). Returns the table."""
     from ..metrics.paired import paired_difference
 
     if reference not in table["rows"]:
@@ -284,6 +287,8 @@ def add_paired(table: dict, reference: str, resamples: int = 2000, seed: int = 0
             if name != reference
         },
     }
+    if table.get("per_chunk"):
+        add_paired_chunks(table, reference, resamples, seed)
     return table
 
 
@@ -333,7 +338,10 @@ def format_table(table: dict) -> str:
     if table.get("same_clips") is False:
         lines.append("\nnot comparable: the rows are means over different clips (see the clips column)")
     paired = format_paired(table)
-    return "\n".join(lines) + ("\n" + paired if paired else "")
+    text = "\n".join(lines) + ("\n" + paired if paired else "")
+    if table.get("per_chunk"):
+        text += "\n" + format_chunks(table)
+    return text
 
 
 def plot_table(table: dict, path) -> Path:
