@@ -60,9 +60,11 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "Closed-loop policy evaluation",
         "benchmarks/closed_loop.py",
         "Toy sessions x 2 image-based toy policies closed loop in `oscar-toy` (one torch thread), run one cell "
-        "at a time and with `--batch-cells N` in the same process: per closed-loop step (one chunk of one "
-        "cell) the milliseconds in the policy's calls, the action adapter (IK), the condition render and the "
-        "world model (a batched call shared among its cells), and cells per CPU-minute and per wall-minute.",
+        "at a time and with `--batch-cells N` for each N given, interleaved in the same process: cells per "
+        "CPU-minute and per wall-minute, and per closed-loop step (one chunk of one cell) the CPU milliseconds of "
+        "the policy's calls, the action adapter (IK), the condition render, the VAE encodes, the DiT, the VAE "
+        "decode, the cell's writes, the report and the rest (`cpu_ms_per_step`), beside the wall milliseconds "
+        "from the cells' records.",
     ),
     "cli_rollout": (
         "One `oscar rollout` end to end",

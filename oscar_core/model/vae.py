@@ -11,7 +11,8 @@ pixel frame 0, hence frame counts of the form 4k + 1.
 
 Memory options (for GPUs): tiling and slicing (diffusers' own), and CPU
 offload — the VAE waits on the CPU and visits ``device`` only to encode or
-decode.
+decode. On the CPU its 3-D convolutions run through oneDNN at every batch size
+(:mod:`.cpu_conv`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .cpu_conv import use_onednn_conv3d
 from .errors import ModelInputError
 from .weights import build_strict, cast_model, load_state_dict, read_config
 
@@ -79,6 +81,7 @@ class VideoVAE:
             )
         cast_model(vae, "cpu" if offload else self.device, dtype)
         vae.eval()
+        use_onednn_conv3d(vae)  # one clip on the CPU as fast per clip as a batch (cpu_conv.py)
 
     # ------------------------------------------------------------------ options
     def enable_tiling(self, **kwargs) -> None:

@@ -1,0 +1,77 @@
+"""benchmarks/closed_loop.py: its CPU split per part and the rows it sums over interleaved rounds."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import threading
+import time
+import types
+
+import pytest
+from _paths import REPO
+
+
+@pytest.fixture
+def bench(monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    spec = importlib.util.spec_from_file_location("bench_closed_loop", REPO / "benchmarks" / "closed_loop.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _burn(seconds: float) -> None:
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
+
+
+def test_cpu_split_sums_each_part_in_every_thread_and_restores_the_functions(bench, monkeypatch):
+    fake = types.ModuleType("fake_parts")
+
+    class Worker:
+        def work(self, seconds):
+            _burn(seconds)
+            return "done"
+
+    fake.burn, fake.Worker = _burn, Worker
+    monkeypatch.setitem(sys.modules, "fake_parts", fake)
+    monkeypatch.setattr(bench, "CPU_PARTS", {"burn": ("fake_parts", "burn"), "work": ("fake_parts", "Worker.work")})
+    totals = {}
+    with bench.cpu_split(totals):
+        fake.burn(0.05)
+        thread = threading.Thread(target=fake.burn, args=(0.1,))
+        thread.start()
+        thread.join()
+        assert Worker().work(0.08) == "done"
+        time.sleep(0.05)  # waiting is no CPU time of any part
+    assert fake.burn is _burn and "work" in vars(Worker) and Worker.work.__name__ == "work"
+    assert totals["burn"] == pytest.approx(0.15, abs=0.03)
+    assert totals["work"] == pytest.approx(0.08, abs=0.02)
+    fake.burn(0.01)
+    assert totals["burn"] == pytest.approx(0.15, abs=0.03)  # unwrapped: no longer counted
+
+
+def test_rows_sum_the_rounds_and_the_rest_is_other(bench):
+    def run(cells, cpu, parts):
+        return {
+            "batch_cells": 4,
+            "cells": cells,
+            "steps": 2 * cells,
+            "failed": 0,
+            "wall_s": 2 * cpu,
+            "cpu_s": cpu,
+            "wall_ms": {p: 10.0 * cells for p in bench.PARTS},
+            "cpu_parts_s": parts,
+        }
+
+    row = bench._sum_rounds([run(8, 30.0, {"dit": 12.0, "vae_decode": 6.0}), run(8, 34.0, {"dit": 14.0})])
+    assert (row["cells"], row["steps"], row["rounds"]) == (16, 32, 2)
+    assert row["cells_per_cpu_minute"] == pytest.approx(16 / (64.0 / 60))
+    assert row["cells_per_wall_minute"] == pytest.approx(16 / (128.0 / 60))
+    per_step = row["cpu_ms_per_step"]
+    assert per_step["dit"] == pytest.approx(26_000 / 32) and per_step["vae_decode"] == pytest.approx(6_000 / 32)
+    assert per_step["total"] == pytest.approx(64_000 / 32)
+    assert per_step["other"] == pytest.approx((64_000 - 32_000) / 32)
+    assert row["model_wall_ms_per_step"] == pytest.approx(160 / 32)
