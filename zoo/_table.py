@@ -26,6 +26,9 @@ fps it expects. What could not be verified is left as None, never guessed:
   package, loaded offline): the toy world's model (docs/toyworld.md), a 1.8 M
   parameter DiT and 0.69 M parameter VAE trained on this project's CPU; the
   sha256 of every file it ships is pinned here.
+* ``oscar-toy-fast`` (bundled, ``zoo/assets/oscar-toy-fast``): ``oscar-toy``
+  distilled to a 4-step student (docs/distillation.md): 4 Euler steps of one
+  conditional branch per chunk, guidance folded in; the teacher's VAE.
 
 File hashes that are None are still checked for integrity after download:
 the safetensors structure of every weight file (partial/corrupted files),
@@ -185,6 +188,48 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
                 text_encoder_id=None,
                 notes="bundled: a small DiT + VAE trained on the procedural toy world on a CPU; not a model of real robots",
                 bundled="assets/oscar-toy",
+            ),
+            CheckpointSpec(
+                name="oscar-toy-fast",
+                repo_id="",
+                revision=None,
+                kind="oscar",
+                license="Apache-2.0",
+                paper="a 4-step student of oscar-toy by guided progressive distillation (docs/distillation.md)",
+                embodiments=("franka", "kuka", "toyarm"),
+                chunk_frames=17,
+                width=64,
+                height=64,
+                fps=10.0,
+                files=(
+                    FileSpec("README.md", "0c83a68884a65d61ef14bb6085a32839748013230e9455793d377b3e26d2c328"),
+                    FileSpec("oscar_manifest.json", "5cbdd54b131b5765ff890fd30108f9de4b1df0d4beee8ea60edd27cfb66bf579"),
+                    FileSpec("oscar_model.json", "baaab37b75233e128edfff6a4f52aa0566699bfbb4f700c705caf61b5a159efc"),
+                    FileSpec(
+                        "scheduler/scheduler_config.json",
+                        "b3416cc4dcce0bc0b4f85b5581e89b5c713c61cb60bc638b71b83f24a81d78af",
+                    ),
+                    FileSpec(
+                        "text/empty_prompt_embeds.safetensors",
+                        "315a414f568f65357cd9dd70dab0b3a573913300961246539db4ecbb13f595d2",
+                    ),
+                    FileSpec(
+                        "transformer/config.json",
+                        "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad",
+                    ),
+                    FileSpec(
+                        "transformer/diffusion_pytorch_model.safetensors",
+                        "9a8dcf5e3381ec04dee6f5a022050481c094d1d62d9e1c56b3092e249bae1dd2",
+                    ),
+                    FileSpec("vae/config.json", "750a9a1fad8678bcda27b417ac2aff7fe00779bbbd795af652fcdaee18daa9d6"),
+                    FileSpec(
+                        "vae/diffusion_pytorch_model.safetensors",
+                        "1b3bb605c1316222e8c9e93249756185ee0c3493037905d546cc76c3819efa31",
+                    ),
+                ),
+                text_encoder_id=None,
+                notes="bundled: oscar-toy distilled to 4 DiT evaluations per chunk (guidance folded in); not a model of real robots",
+                bundled="assets/oscar-toy-fast",
             ),
         ),
         key=lambda spec: spec.name,
