@@ -188,7 +188,13 @@ def test_registry_names_cannot_shadow_the_table():
     with pytest.raises(ValueError, match="no '/'"):
         oscar_zoo.register("me/x", "me/x")
     spec = oscar_zoo.register("mine", "me/x", "main", chunk_frames=9)
-    assert [s.name for s in oscar_zoo.list_models()] == ["cosmos-predict2.5-2b", "mine", "oscar-2b", "oscar-toy", "oscar-toy-fast"]
+    assert [s.name for s in oscar_zoo.list_models()] == [
+        "cosmos-predict2.5-2b",
+        "mine",
+        "oscar-2b",
+        "oscar-toy",
+        "oscar-toy-fast",
+    ]
     assert spec.source == str(oscar_zoo.registry_path()) and oscar_zoo.unregister("mine")
 
 
