@@ -157,7 +157,7 @@ def test_zoo_list_and_pull(capsys, tmp_path, model_dir, monkeypatch):
     assert "zywu2115/OSCAR-2B@main (unpinned)" in out
     code, out, _ = run(capsys, "zoo", "list", "--json")
     names = [m["name"] for m in json.loads(out)["models"]]
-    assert names == ["cosmos-predict2.5-2b", "oscar-2b", "oscar-toy"]
+    assert names == ["cosmos-predict2.5-2b", "oscar-2b", "oscar-toy", "oscar-toy-fast"]
     with MockHub() as hub:
         hub.add_folder("me/tiny", model_dir)
         monkeypatch.setenv("HF_ENDPOINT", hub.url)  # read when the command runs, not at import
