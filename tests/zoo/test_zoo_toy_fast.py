@@ -53,5 +53,7 @@ def test_the_student_ships_its_teachers_vae_and_empty_prompt():
     pins = {f.path: f.sha256 for f in teacher.files}
     shared = [f for f in student.files if f.path.startswith(("vae/", "text/"))]
     assert len(shared) == 3 and all(pins[f.path] == f.sha256 for f in shared)
+    size = sum(f.stat().st_size for f in oscar_zoo.pull("oscar-toy-fast").rglob("*") if f.is_file())
+    assert size < 20e6, f"oscar-toy-fast is {size / 1e6:.1f} MB"
     weights = "transformer/diffusion_pytorch_model.safetensors"
     assert {f.path: f.sha256 for f in student.files}[weights] != pins[weights]  # distilled, not a copy
