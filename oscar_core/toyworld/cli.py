@@ -312,7 +312,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     e.add_argument(
         "--split",
         default=None,
-        help="only clips of this meta.split (e.g. heldout; default: every clip that has a prediction)",
+        help="only clips of this meta.split (e.g. heldout; 'all', as the default: every clip that has a prediction)",
     )
     e.add_argument(
         "--clips",
@@ -533,7 +533,8 @@ def cmd_eval(args) -> int:
     conditions = parse_pred_args(args.pred)
     if args.paired is not None and args.paired not in conditions:
         raise ValueError(f"--paired {args.paired}: expected the name of a --pred row ({', '.join(conditions)})")
-    table = evaluate_conditions(args.gt, conditions, split=args.split, clips_mode=args.clips, per_chunk=args.per_chunk)
+    split = None if args.split == "all" else args.split  # 'all' means what it means to rollout and baseline
+    table = evaluate_conditions(args.gt, conditions, split=split, clips_mode=args.clips, per_chunk=args.per_chunk)
     if args.paired is not None:
         add_paired(table, args.paired)
     if args.out:

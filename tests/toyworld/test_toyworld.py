@@ -342,6 +342,10 @@ def test_cli_eval_writes_json_and_plot(tmp_path, small_set, capsys):
     assert main(["toyworld", "eval", "--gt", str(small_set.root), "--pred", f"ff={tmp_path / 'ff'}", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)["rows"]["ff"]
     assert row["clips"] == len(small_set) and row["psnr_db"] < 100 and row["ee_error_px"] > 0
+    # --split all means every clip, as it does to rollout and baseline (not a split named "all")
+    args = ["toyworld", "eval", "--gt", str(small_set.root), "--pred", f"ff={tmp_path / 'ff'}", "--json"]
+    assert main([*args, "--split", "all"]) == 0
+    assert json.loads(capsys.readouterr().out)["rows"]["ff"]["clips"] == len(small_set)
 
 
 # ------------------------------------------------------------------ any plugin, through the CLI
