@@ -25,9 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .frame_metrics import METRICS, MOTION_THRESHOLD, MOVED_OBJECT_SHIFT_PX, PSNR_CAP, motion_mask
-from .locate import EE_TARGET, OBJECT_TARGET, position_errors
-from .per_chunk import add_paired_chunks, chunk_metrics, chunk_rows, format_chunks
+from .frame_metrics import (
+    METRICS,
+    MOTION_THRESHOLD,
+    MOVED_OBJECT_SHIFT_PX,
+    PSNR_CAP,
+    frame_series,
+    mask_iou,
+    motion_mask,
+    moved_frames,
+)
+from .locate import OBJECT_TARGET, position_errors
+from .per_chunk import add_paired_chunks, check_chunk_frames, chunk_rows, format_chunks, split_by_chunk
 
 __all__ = [
     "PSNR_CAP",
@@ -62,9 +71,7 @@ def moved_object_error(
     """
     if errors is None:
         errors = position_errors(pred, gt, OBJECT_TARGET)
-    gp = errors["gt_px"]
-    with np.errstate(invalid="ignore"):
-        moved = np.linalg.norm(gp - gp[0], axis=1) > min_shift  # False where either centroid is NaN
+    moved = moved_frames(errors["gt_px"], min_shift)  # False where either centroid is NaN
     if not moved.any():
         return {"error_px": float("nan"), "frames": 0}
     return {"error_px": float(errors["per_frame"][moved].mean()), "frames": int(moved.sum())}
@@ -76,9 +83,7 @@ def motion_iou(pred: np.ndarray, gt: np.ndarray, threshold: float = MOTION_THRES
     Where the robot and the ball moved, and nothing else: colour-free, so it
     scores a model whose VAE renders grey. NaN when neither video changes.
     """
-    a, b = motion_mask(pred, threshold), motion_mask(gt, threshold)
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else float("nan")
+    return mask_iou(motion_mask(pred, threshold), motion_mask(gt, threshold))
 
 
 _SUFFIXES = (".mp4", ".mkv", ".npy")
@@ -114,23 +119,19 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>", chunk
     """Metrics of one generated clip against its ground truth; both (T, H, W, 3) uint8.
 
     chunk_frames: also ``chunks``, the metrics of each chunk of a rollout in chunks of this many frames
-    (:func:`oscar_core.toyworld.per_chunk.chunk_metrics`)."""
-    from ..metrics import psnr, ssim
-
+    (:func:`oscar_core.toyworld.per_chunk.chunk_metrics`), from the same per-frame series."""
     pred, gt = np.asarray(pred), np.asarray(gt)
     if pred.shape != gt.shape or pred.dtype != np.uint8:
         raise ValueError(
             f"{where}: expected a uint8 video of shape {gt.shape} (the ground truth's), found {pred.dtype} {pred.shape}"
         )
-    p = np.minimum(psnr(pred, gt, n_frames=None), PSNR_CAP)
-    s = ssim(pred, gt, n_frames=None)
-    ee = position_errors(pred, gt, EE_TARGET)
-    ob = position_errors(pred, gt, OBJECT_TARGET)
+    series = frame_series(pred, gt)
+    ee, ob = series["ee"], series["object"]
     moved = moved_object_error(pred, gt, errors=ob)
     out = {
-        "psnr_db": float(p.mean()),
-        "ssim": float(s.mean()),
-        "motion_iou": motion_iou(pred, gt),
+        "psnr_db": float(series["psnr"].mean()),
+        "ssim": float(series["ssim"].mean()),
+        "motion_iou": mask_iou(series["motion_pred"], series["motion_gt"]),
         "ee_error_px": ee["error_px"],
         "object_error_px": ob["error_px"],
         "ee_found": ee["found"],
@@ -139,7 +140,7 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>", chunk
         "moved_object_frames": moved["frames"],
     }
     if chunk_frames is not None:
-        out["chunks"] = chunk_metrics(pred, gt, chunk_frames)
+        out["chunks"] = split_by_chunk(series, chunk_frames)
     return out
 
 
@@ -173,10 +174,8 @@ def evaluate_conditions(
     """
     if clips_mode not in CLIP_MODES:
         raise ValueError(f"clips_mode: expected one of {CLIP_MODES}, found {clips_mode!r}")
-    if per_chunk is not None and per_chunk < 2:
-        raise ValueError(
-            f"--per-chunk: expected a chunk of at least 2 frames (the seed and one new), found {per_chunk}"
-        )
+    if per_chunk is not None:
+        check_chunk_frames(per_chunk)  # before any clip is read
     from ..metrics.video import load_video
     from ..train.clips import ClipSet
 

@@ -22,9 +22,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from .frame_metrics import METRICS, MOVED_OBJECT_SHIFT_PX, PSNR_CAP, motion_mask
+from .frame_metrics import METRICS, frame_series, mask_iou, moved_frames
 
-__all__ = ["chunk_windows", "chunk_metrics", "chunk_rows", "add_paired_chunks", "format_chunks"]
+__all__ = [
+    "check_chunk_frames",
+    "chunk_windows",
+    "chunk_metrics",
+    "split_by_chunk",
+    "chunk_rows",
+    "add_paired_chunks",
+    "format_chunks",
+]
+
+
+def check_chunk_frames(chunk_frames: int) -> None:
+    """Raise ValueError unless a chunk holds at least 2 frames (the seed and one new)."""
+    if chunk_frames < 2:
+        raise ValueError(
+            f"--per-chunk: expected a chunk of at least 2 frames (the seed and one new), found {chunk_frames}"
+        )
 
 
 def chunk_windows(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
@@ -34,10 +50,7 @@ def chunk_windows(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
     seed frame included (17 for ``oscar-toy``). ``[(1, 16), (17, 32), …]`` for 17; the last window ends at
     ``n_frames − 1`` (a rollout's last chunk is cut there).
     """
-    if chunk_frames < 2:
-        raise ValueError(
-            f"--per-chunk: expected a chunk of at least 2 frames (the seed and one new), found {chunk_frames}"
-        )
+    check_chunk_frames(chunk_frames)
     if n_frames < 2:
         raise ValueError(f"--per-chunk: expected a video of at least 2 frames, found {n_frames}")
     step = chunk_frames - 1
@@ -52,34 +65,30 @@ def chunk_metrics(pred: np.ndarray, gt: np.ndarray, chunk_frames: int) -> list[d
     :data:`oscar_core.toyworld.frame_metrics.METRICS` (PSNR in dB, SSIM and motion IoU in [0, 1], errors in
     pixels).
     """
-    from ..metrics import psnr, ssim
-    from .locate import EE_TARGET, OBJECT_TARGET, position_errors
-
     pred, gt = np.asarray(pred), np.asarray(gt)
     if pred.shape != gt.shape:
         raise ValueError(f"per-chunk metrics: expected a prediction of shape {gt.shape}, found {pred.shape}")
-    p = np.minimum(psnr(pred, gt, n_frames=None), PSNR_CAP)
-    s = ssim(pred, gt, n_frames=None)
-    mp, mg = motion_mask(pred), motion_mask(gt)  # (T − 1, H, W): row t − 1 is frame t
-    ee = position_errors(pred, gt, EE_TARGET)["per_frame"]
-    ob = position_errors(pred, gt, OBJECT_TARGET)
-    gp = ob["gt_px"]
-    with np.errstate(invalid="ignore"):
-        moved = np.linalg.norm(gp - gp[0], axis=1) > MOVED_OBJECT_SHIFT_PX
+    return split_by_chunk(frame_series(pred, gt), chunk_frames)
+
+
+def split_by_chunk(series: dict, chunk_frames: int) -> list[dict]:
+    """:func:`chunk_metrics` from a clip's per-frame series
+    (:func:`oscar_core.toyworld.frame_metrics.frame_series`), as the whole-clip table computed it."""
+    p, s, mp, mg = series["psnr"], series["ssim"], series["motion_pred"], series["motion_gt"]
+    ee, ob = series["ee"]["per_frame"], series["object"]["per_frame"]
+    moved = moved_frames(series["object"]["gt_px"])
     out = []
-    for a, b in chunk_windows(len(gt), chunk_frames):
+    for a, b in chunk_windows(len(p), chunk_frames):
         w = slice(a, b + 1)
-        union = np.logical_or(mp[a - 1 : b], mg[a - 1 : b]).sum()
-        inter = np.logical_and(mp[a - 1 : b], mg[a - 1 : b]).sum()
         out.append(
             {
                 "frames": [a, b],
                 "psnr_db": float(p[w].mean()),
                 "ssim": float(s[w].mean()),
-                "motion_iou": float(inter / union) if union else float("nan"),
+                "motion_iou": mask_iou(mp[a - 1 : b], mg[a - 1 : b]),
                 "ee_error_px": _finite_mean(ee[w]),
-                "object_error_px": _finite_mean(ob["per_frame"][w]),
-                "moved_object_error_px": _finite_mean(ob["per_frame"][w][moved[w]]),
+                "object_error_px": _finite_mean(ob[w]),
+                "moved_object_error_px": _finite_mean(ob[w][moved[w]]),
             }
         )
     return out
