@@ -143,12 +143,18 @@ def chunk_parts(model, inputs: dict, sampler, seed: int = 0):
         state["condition"] = vae.encode(VideoVAE.to_pixels(state["skeleton"]))
 
     def dit():
-        uncond = None
-        if model.card.unconditional_skeleton == "black_video":
-            uncond = vae.encode(VideoVAE.to_pixels(np.zeros_like(state["skeleton"])))
+        if "uncond" not in state:  # a rollout encodes the black video once per chunk size, not per chunk
+            black = model.card.unconditional_skeleton == "black_video"
+            state["uncond"] = vae.encode(VideoVAE.to_pixels(np.zeros_like(state["skeleton"]))) if black else None
         g = torch.Generator().manual_seed(seed)
         state["latent"] = sample_chunk(
-            model.transformer, state["first"], state["condition"], prompt.to(device), sampler, g, uncond_skeleton=uncond
+            model.transformer,
+            state["first"],
+            state["condition"],
+            prompt.to(device),
+            sampler,
+            g,
+            uncond_skeleton=state["uncond"],
         )
 
     def decode():
