@@ -52,7 +52,7 @@ bench: install
 	$(PYTHON) benchmarks/cli_rollout.py --model oscar-toy
 	$(PYTHON) benchmarks/render_scale.py
 	$(PYTHON) benchmarks/train.py
-	$(PYTHON) benchmarks/distill_speed.py
+	$(PYTHON) benchmarks/distill_speed.py --student zoo/assets/oscar-toy-fast
 
 # the GPU measurements (CUDA, random-weights 2B) run in the machine's own python3 (BASE_PYTHON) with its CUDA build
 # of torch, not in .venv/ (whose torch is the pinned CPU build); oscar must be installed there. Each line is one job
@@ -67,7 +67,7 @@ bench-gpu:
 		--json benchmarks/measured/cli_rollout_gpu.json
 	$(BASE_PYTHON) benchmarks/train.py --step-table --step-size 2b --device cuda --step-repeats 3 \
 		--json benchmarks/measured/train_step_gpu.json
-	$(BASE_PYTHON) benchmarks/distill_speed.py --device cuda --dtype bfloat16 --json benchmarks/measured/distill_speed_gpu.json
+	$(BASE_PYTHON) benchmarks/distill_speed.py --device cuda --dtype bfloat16 --student zoo/assets/oscar-toy-fast --json benchmarks/measured/distill_speed_gpu.json
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

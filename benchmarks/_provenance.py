@@ -50,7 +50,8 @@ def commit() -> str:
 
 def machine(device: str | None = None, gpu: str | None = None) -> dict:
     """The processor, CPU count, 1-minute load average (when the result is written), Python and (if imported) torch
-    version; the GPU's name when ``gpu`` is given or ``device`` is CUDA and torch is imported."""
+    version; the GPU's name when ``gpu`` is given, or when torch is imported and ``device`` is CUDA or the process
+    has initialised CUDA."""
     out = {
         "processor": platform.processor() or platform.machine(),
         "system": platform.system(),
@@ -61,8 +62,10 @@ def machine(device: str | None = None, gpu: str | None = None) -> dict:
     torch = sys.modules.get("torch")
     if torch is not None:
         out["torch"] = torch.__version__
-        if gpu is None and device is not None and str(device).startswith("cuda") and torch.cuda.is_available():
-            gpu = torch.cuda.get_device_name(torch.device(device))
+        on_cuda = device is not None and str(device).startswith("cuda")
+        if gpu is None and torch.cuda.is_available() and (on_cuda or torch.cuda.is_initialized()):
+            # a script whose --device is the CPU may still have measured on the GPU (rollout.py --measure cuda)
+            gpu = torch.cuda.get_device_name(torch.device(device) if on_cuda else torch.cuda.current_device())
     if gpu:
         out["gpu"] = gpu
     return out

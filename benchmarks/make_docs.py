@@ -46,6 +46,13 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "its configuration (`expected_2b`, `computed_2b`: computed, not measured); with `--gpu` or "
         "`--measure`, each sampling preset measured on the device (`measured`).",
     ),
+    "rollout_paper": (
+        "World-model rollout, both presets eager (a stopped run)",
+        "benchmarks/rollout.py",
+        "`make bench-gpu`'s rollout line as it stood, stopped by its time limit while compiling (`complete`: "
+        "false): the eager rows of `--preset paper` and `fast`, the VAE's chunk work and the FLOP counts; the "
+        "compiled rows are in `rollout_gpu.json`.",
+    ),
     "distill_speed": (
         "Teacher, `fast` and the few-step student",
         "benchmarks/distill_speed.py",

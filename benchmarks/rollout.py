@@ -280,8 +280,9 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
     the preset's UniPC steps at w = 6, decode). FLOPs are counted once per preset on the eager model
     (``torch.utils.flop_counter``); MFU = counted FLOPs / (seconds x the device's dense bf16 peak).
 
-    ``checkpoint(out)`` is called with the results so far after each variant and after the VAE variants, so a
-    run stopped by a time limit keeps what it measured.
+    ``checkpoint(out)`` is called with the results so far after the FLOP counts and the VAE's chunk work, after
+    each preset's row and after the VAE variants (measured last), so a run stopped by a time limit keeps what it
+    measured.
     """
     from oscar_core.model.compile_policy import compile_transformer
     from oscar_core.model.presets import SAMPLER_PRESETS
@@ -370,8 +371,7 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
     for p in presets:
         out["flops"][f"chunk_{p}"] = count_flops(chunk_fn(configs[p]))
     out["vae"] = measure(vae_work, args.repeats, device)
-    if args.vae_variants:
-        out["vae_variants"] = measure_vae_variants(vae, first, condition, args.repeats, device)
+    checkpoint(out)
     variants = ["eager"] + (["compiled"] if args.compile else [])
     for variant in variants:
         if variant == "compiled":
@@ -409,6 +409,10 @@ def measure_real(args, checkpoint=lambda out: None) -> dict:
                 "mfu_chunk": out["flops"][f"chunk_{p}"] / (chunk_s * peak * 1e12) if peak else None,
             }
             out["presets"].append(row)
+            checkpoint(out)
+    if args.vae_variants:  # after the DiT's rows: a run stopped by a time limit keeps those first
+        out["vae_variants"] = measure_vae_variants(vae, first, condition, args.repeats, device)
+        checkpoint(out)
     return out
 
 

@@ -540,11 +540,15 @@ def _compare(rows: list[dict]) -> list[dict]:
     return out
 
 
-def step_table(size: str, device: str, variants, warmup: int, repeats: int, tolerance: float | None) -> dict:
+def step_table(
+    size: str, device: str, variants, warmup: int, repeats: int, tolerance: float | None, checkpoint=None
+) -> dict:
     """The four (or the chosen) variants, each in a fresh process of this script, their table and the check.
 
     A fresh process per variant: its memory starts clean (with glibc told to give freed memory back, see
-    ``_peak_memory``), and its compile starts cold (an empty inductor cache of its own)."""
+    ``_peak_memory``), and its compile starts cold (an empty inductor cache of its own). ``checkpoint(table)``,
+    if given, is called with the table of the variants so far after each one that leaves a measured row, so a
+    run stopped by a time limit keeps them."""
     import subprocess as sp
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -582,6 +586,15 @@ def step_table(size: str, device: str, variants, warmup: int, repeats: int, tole
         if proc.returncode:
             raise RuntimeError(f"step table, variant {name}: failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
         rows.append(json.loads(out.read_text()))
+        print(f"step table: {name}: {json.dumps(rows[-1])}", flush=True)
+        if checkpoint is not None and any(not r.get("out_of_memory") for r in rows):
+            checkpoint(summarise_step_rows(size, device, rows, tolerance))
+    return summarise_step_rows(size, device, rows, tolerance)
+
+
+def summarise_step_rows(size: str, device: str, rows: list[dict], tolerance: float | None) -> dict:
+    """The step table of measured variant ``rows`` (the first measured one is the reference): their first-step
+    agreement against ``tolerance`` (default by dtype) and which ran out of memory."""
     measured = [r for r in rows if not r.get("out_of_memory")]
     if not measured:
         raise RuntimeError(
@@ -781,17 +794,28 @@ def _step_main(args, ap) -> int:
         ap.error(f"--step-variants: expected a comma list among {', '.join(names)}, found {args.step_variants!r}")
     if args.step_repeats < 1 or args.step_warmup < 0:
         ap.error("--step-repeats: expected >= 1 and --step-warmup >= 0")
+    path = args.json or REPO / "benchmarks" / "results" / "train_step.json"
+
+    def result(table: dict, complete: bool) -> dict:
+        return {
+            "machine": platform.processor() or platform.machine(),
+            "cpus": os.cpu_count(),
+            "torch": torch.__version__,
+            "complete": complete,
+            "step_table": table,
+        }
+
     table = step_table(
-        args.step_size, device, [names[v] for v in chosen], args.step_warmup, args.step_repeats, args.step_tolerance
+        args.step_size,
+        device,
+        [names[v] for v in chosen],
+        args.step_warmup,
+        args.step_repeats,
+        args.step_tolerance,
+        checkpoint=lambda partial: _write(result(partial, False), path, quiet=True, device=device, provenance=True),
     )
-    result = {
-        "machine": platform.processor() or platform.machine(),
-        "cpus": os.cpu_count(),
-        "torch": torch.__version__,
-        "step_table": table,
-    }
     print_step_table(table)
-    _write(result, args.json or REPO / "benchmarks" / "results" / "train_step.json", device=device)
+    _write(result(table, True), path, device=device)
     if table["disagreeing"]:
         worst = {c["variant"]: c["max_diff"] for c in table["agreement"]}
         print(
@@ -804,15 +828,16 @@ def _step_main(args, ap) -> int:
     return 0
 
 
-def _write(result: dict, path, quiet: bool = False, device: str | None = None) -> int:
-    """Write ``result`` as JSON; a top-level result (not ``quiet``: a child's row is) gets the provenance block."""
+def _write(result: dict, path, quiet: bool = False, device: str | None = None, provenance: bool | None = None) -> int:
+    """Write ``result`` as JSON; a top-level result (``provenance``; by default: not ``quiet``, since a child's row
+    is quiet) gets the provenance block; ``quiet`` prints nothing."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))  # benchmarks/: also when a test loads this file
     from _provenance import with_provenance
 
     from oscar_core._util.atomic import atomic_write_bytes
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    data = result if quiet else with_provenance(result, device)
+    data = with_provenance(result, device) if (not quiet if provenance is None else provenance) else result
     out = atomic_write_bytes(Path(path), (json.dumps(data, indent=2) + "\n").encode())
     if not quiet:
         print(f"\nwrote {out}")

@@ -29,6 +29,8 @@ def onednn_available() -> bool:
 
 
 def _fast(conv: nn.Conv3d, x: torch.Tensor, weight: torch.Tensor, bias) -> bool:
+    if torch.compiler.is_compiling():
+        return False  # inductor has no fake-tensor rule for aten.mkldnn_convolution; it picks its own kernel
     if x.device.type != "cpu" or x.dtype != torch.float32 or weight.dtype != torch.float32:
         return False
     if not torch.backends.mkldnn.enabled or conv.padding_mode != "zeros" or isinstance(conv.padding, str):

@@ -81,3 +81,18 @@ def test_the_vae_decodes_one_clip_on_onednn_and_as_in_a_batch():
         batch = vae.decode(lat)
     assert "aten::mkldnn_convolution" in ops  # (its 1x1 layers keep PyTorch's path)
     torch.testing.assert_close(alone, batch, rtol=0, atol=1e-5)
+
+
+def test_a_compiled_module_falls_back_to_the_plain_convolution_and_matches():
+    """torch.compile traces the layer with fake tensors, for which aten.mkldnn_convolution has no rule: while
+    compiling, the layer takes PyTorch's own path (the compiled VAE of ``benchmarks/rollout.py --vae-variants``); inductor, as they compile it."""
+    conv = _conv()
+    x = torch.randn(1, 8, 5, 12, 12)
+    use_onednn_conv3d(conv)
+    with torch.no_grad():
+        want = nn.functional.conv3d(x, conv.weight, conv.bias, 1, 1)
+        got = torch.compile(
+            conv,
+            dynamic=False,
+        )(x)
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
