@@ -99,6 +99,14 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
         help="fraction in [0, 1] of pick-and-place episodes whose ball lies out of the gripper's reach "
         "(it closes beside the ball, lifts, and the ball stays); default 0 (sets as before)",
     )
+    g.add_argument(
+        "--pick-open",
+        type=number(0.0, 1.0),
+        default=0.0,
+        metavar="F",
+        help="fraction in [0, 1] of the other pick-and-place episodes whose gripper never closes (the arm "
+        "passes through the grasp, lifts and carries with open fingers, and the ball stays); default 0",
+    )
     threads_option(g, "torch threads for forward kinematics")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
@@ -408,6 +416,7 @@ def cmd_generate(args) -> int:
         args.supersample,
         not args.no_skeleton,
         args.pick_miss,
+        args.pick_open,
     )
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))

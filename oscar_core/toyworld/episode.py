@@ -141,19 +141,24 @@ class Episode:
     render: RenderResult
     meta: dict = field(default_factory=dict)
 
-    def ground_truth(self, miss_fields: bool = False) -> dict:
+    def ground_truth(self, miss_fields: bool = False, open_field: bool = False) -> dict:
         """JSON-ready ground truth (the ``meta.toyworld`` of a clip record; docs/formats.md).
 
         miss_fields: also write ``missed`` (a pick_place episode whose ball lay out of reach) and ``grabbed``
-        (the ball attached on some frame); the generator writes them for sets made with ``pick_miss`` > 0 only,
-        so a default set's records stay byte-identical to those written before the option existed.
+        (the ball attached on some frame); open_field: also ``never_closed`` (one whose gripper stayed open) and
+        ``grabbed``. The generator writes them for sets made with ``pick_miss`` (``pick_open``) > 0 only, so the
+        records of a set made without the option stay byte-identical to those written before it existed.
         """
         r, m = self.render, self.motion
 
         def rows(a):
             return [[round(float(x), 3) for x in row] for row in a]
 
-        extra = {"missed": bool(m.missed), "grabbed": bool(np.any(m.attached))} if miss_fields else {}
+        extra = {"missed": bool(m.missed)} if miss_fields else {}
+        if open_field:
+            extra["never_closed"] = bool(m.never_closed)
+        if miss_fields or open_field:
+            extra["grabbed"] = bool(np.any(m.attached))
         return {
             "kind": m.kind,
             "ee_px": rows(r.ee_px),
@@ -199,12 +204,13 @@ def plan_episode(
     fps: float = 10.0,
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
+    pick_open: float = 0.0,
 ) -> tuple[Motion, Scene, Camera]:
     """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels); a hand
     embodiment (:func:`~oscar_core.toyworld.motion.is_hand`) gets a hand motion and skin-coloured capsules.
 
-    pick_miss, miss_rng: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's ball is
-    among the points the camera must see, like every ball)."""
+    pick_miss, miss_rng, pick_open: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's
+    ball is among the points the camera must see, like every ball)."""
     from .hand import sample_hand_motion, sample_hand_scene
 
     if is_hand(emb):  # a keypoint hand (docs/toyworld.md, "Hands"): no missed picks; the arm's shoulder at 0
@@ -213,7 +219,7 @@ def plan_episode(
         base_xy = np.zeros(2)
     else:
         check_supported(emb)
-        motion = sample_motion(emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng)
+        motion = sample_motion(emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng, pick_open=pick_open)
         scene = sample_scene(rng, len(emb.edges), motion.scale)
         base_xy = motion.points[0, 0, :2]
     R = motion.object_radius
@@ -235,9 +241,10 @@ def make_episode(
     ss: int = 2,
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
+    pick_open: float = 0.0,
 ) -> Episode:
     """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``
-    (``pick_miss``, ``miss_rng``: :func:`plan_episode`)."""
-    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng)
+    (``pick_miss``, ``miss_rng``, ``pick_open``: :func:`plan_episode`)."""
+    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng, pick_open)
     render = render_world(emb, motion, scene, camera, ss=ss)
     return Episode(emb.name, motion.trajectory, camera, render.rgb, motion, scene, render)

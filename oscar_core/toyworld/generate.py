@@ -48,6 +48,7 @@ class GenerateConfig:
     supersample: int = 2
     skeleton: bool = True  # also store the skeleton video (rendered at the RGB size)
     pick_miss: float = 0.0  # fraction of pick_place episodes whose ball lies out of reach (motion.miss_start)
+    pick_open: float = 0.0  # fraction of the other pick_place episodes whose gripper never closes
 
 
 def clip_id(embodiment: str, index: int) -> str:
@@ -84,6 +85,8 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         raise ValueError(f"toyworld generate: --episodes: expected at least 1, found {cfg.episodes}")
     if not (isinstance(cfg.pick_miss, (int, float)) and 0.0 <= cfg.pick_miss <= 1.0):
         raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
+    if not (isinstance(cfg.pick_open, (int, float)) and 0.0 <= cfg.pick_open <= 1.0):
+        raise ToyWorldError(f"toyworld generate: --pick-open: expected a fraction in [0, 1], found {cfg.pick_open!r}")
     # what every episode depends on besides (seed, embodiment, index): a re-run with other settings into the same
     # folder would mix episodes of two kinds; more episodes or embodiments only add shards, so they are left out
     parts = {
@@ -98,6 +101,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         "supersample": cfg.supersample,
         "skeleton": cfg.skeleton,
         "pick_miss": cfg.pick_miss,
+        **({"pick_open": cfg.pick_open} if cfg.pick_open > 0 else {}),  # absent: a set made before the option
     }
     writer = ClipSetWriter(out)  # first: a set of another format is refused before anything is recorded
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
@@ -128,6 +132,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                         ss=cfg.supersample,
                         pick_miss=cfg.pick_miss,
                         miss_rng=miss_rng(cfg.seed, emb.name, i),
+                        pick_open=cfg.pick_open,
                     )
                     skel = None
                     if cfg.skeleton:
@@ -138,7 +143,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                         "seed": cfg.seed,
                         "episode": i,
                         "split": split_of(i),
-                        "toyworld": ep.ground_truth(cfg.pick_miss > 0),
+                        "toyworld": ep.ground_truth(cfg.pick_miss > 0, cfg.pick_open > 0),
                     }
                     rec = ClipRecord(
                         id=clip_id(emb.name, i),

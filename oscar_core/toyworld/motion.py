@@ -20,6 +20,12 @@ motion whose ball lies away from the grasp, so the gripper closes beside it,
 lifts and places nothing while the ball stays where it lay. Whether an
 episode misses and where its ball lies come from a second generator, so
 ``pick_miss = 0`` draws nothing from it and leaves every episode as it was.
+
+Open picks (``pick_open`` > 0): a pick-and-place motion whose gripper never
+closes; the arm reaches the ball, lifts, carries and places with open fingers,
+and the ball stays where it lay (the carry rule attaches it only on closing).
+Drawn from the same second generator after the miss (a missed pick is never
+also open), only when ``pick_open`` > 0, so a set made without it is unchanged.
 """
 
 from __future__ import annotations
@@ -161,6 +167,7 @@ class Motion:
     object_radius: float
     scale: float
     missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
+    never_closed: bool = False  # a pick_place motion whose gripper stayed open (an open pick, module docstring)
     link_radii: np.ndarray | None = None
     marker: bool = True
 
@@ -192,6 +199,7 @@ def sample_motion(
     n_candidates: int = 768,
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
+    pick_open: float = 0.0,
 ) -> Motion:
     """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
     reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses.
@@ -201,12 +209,16 @@ def sample_motion(
     (default: a copy of ``rng``'s bit generator jumped far ahead, which leaves ``rng``'s stream as it was),
     never from ``rng``, and only when ``pick_miss`` > 0: the same ``rng`` gives the same robot motion for
     every ``pick_miss``, and with the same ``miss_rng`` an episode that misses at F misses at every F' > F.
+    pick_open: probability in [0, 1] that a pick-and-place motion that did not miss keeps its gripper open
+    throughout (the joint motion unchanged; the ball stays), drawn from ``miss_rng`` after the miss.
     """
     check_supported(emb)
     if frames < 5:
         raise ToyWorldError(f"toyworld: --frames: expected at least 5 frames, found {frames}")
     if not (isinstance(pick_miss, (int, float)) and 0.0 <= pick_miss <= 1.0):
         raise ToyWorldError(f"toyworld: --pick-miss: expected a fraction in [0, 1], found {pick_miss!r}")
+    if not (isinstance(pick_open, (int, float)) and 0.0 <= pick_open <= 1.0):
+        raise ToyWorldError(f"toyworld: --pick-open: expected a fraction in [0, 1], found {pick_open!r}")
     lo, hi = joint_limits(emb)
     J = len(lo)
     q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
@@ -226,7 +238,7 @@ def sample_motion(
     G = len(emb.grippers)
     T = frames
     kind = "reach"
-    missed = False
+    missed = never_closed = False
     if G and T >= 9 and len(grasp) >= 2 and len(high) >= 1 and rng.uniform() < pick_place_prob:
         g = int(rng.choice(grasp))
         d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
@@ -254,12 +266,17 @@ def sample_motion(
             if close_at > 0:
                 openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
             obj0 = np.array([ee[g, 0], ee[g, 1], R])
-            if pick_miss > 0:
+            if pick_miss > 0 or pick_open > 0:
                 mrng = miss_rng if miss_rng is not None else np.random.Generator(rng.bit_generator.jumped())
-                missed = bool(mrng.uniform() < pick_miss)
-                xy = miss_start(mrng, ee[g, :2], base[:2], R, scale)  # drawn either way: F only picks who misses
-                if missed:
-                    obj0 = np.array([xy[0], xy[1], R])
+                if pick_miss > 0:
+                    missed = bool(mrng.uniform() < pick_miss)
+                    xy = miss_start(mrng, ee[g, :2], base[:2], R, scale)  # drawn either way: F only picks who misses
+                    if missed:
+                        obj0 = np.array([xy[0], xy[1], R])
+                if pick_open > 0 and not missed:
+                    never_closed = bool(mrng.uniform() < pick_open)
+                    if never_closed:
+                        openness[:, 0] = 1.0
     if kind == "reach":
         n_keys = int(rng.integers(3, 5))
         keys = q[rng.choice(valid, size=n_keys)]
@@ -287,4 +304,4 @@ def sample_motion(
         obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=GRAB_RADII * R)
     else:
         obj, attached = np.repeat(obj0[None], T, 0), np.zeros(T, dtype=bool)
-    return Motion(traj, kind, points, ee_t, obj, attached, R, scale, missed)
+    return Motion(traj, kind, points, ee_t, obj, attached, R, scale, missed, never_closed=never_closed)
