@@ -160,16 +160,20 @@ def truth_as(truth: dict) -> dict:
     return {k: (f, {**c, "success": c.get("sim_success")}) for k, (f, c) in truth.items()}
 
 
-def figure(sessions: Path, sim, wm, wm_seed1, openloop, session: str, policy: str, scale: int = 2, gap: int = 3):
-    """(rows·(64·scale + gap), 7·(64·scale + gap), 3) uint8: the cell's frames, one run per row (docstring)."""
+def figure(
+    sessions: Path, sim, wm, wm_seed1, openloop, session: str, policy: str, scale: int = 2, gap: int = 3, also=()
+):
+    """(rows·(64·scale + gap), 7·(64·scale + gap), 3) uint8: the cell's frames, one row per run and policy
+    (``policy``: comma-separated; ``also``: more run folders, a row each, after the others; docstring)."""
     from oscar_core.media.video import read_video
 
     rows = []
-    for folders in (sim, wm, wm_seed1, openloop):
+    keys = [(folders, p) for folders in (sim, wm, wm_seed1, openloop, *[[f] for f in also]) for p in policy.split(",")]
+    for folders, pol in keys:
         cells = _cells(folders)
-        if (session, policy) not in cells:
+        if (session, pol) not in cells:
             continue
-        f, c = cells[session, policy]
+        f, c = cells[session, pol]
         video = read_video(f / c["video"])
         tiles = [np.repeat(np.repeat(video[i], scale, 0), scale, 1) for i in FRAMES]
         h, w = tiles[0].shape[:2]
@@ -195,7 +199,8 @@ def main(argv=None) -> int:
             p.add_argument("--only", help="comma-separated sessions (default: all)")
         if name == "figure":
             p.add_argument("--session", required=True)
-            p.add_argument("--policy", required=True)
+            p.add_argument("--policy", required=True, help="a policy, or several, comma-separated (a row each)")
+            p.add_argument("--also", action="append", default=[], help="another run folder: its rows come last")
         p.add_argument("--out", type=Path, help="openloop: manifest; figure: PNG")
         p.add_argument("--json", type=Path, help="table: also write it as JSON")
     a = ap.parse_args(argv)
@@ -212,7 +217,7 @@ def main(argv=None) -> int:
     else:
         import cv2
 
-        img = figure(a.sessions, a.sim, a.wm, a.wm_seed1, a.openloop, a.session, a.policy)
+        img = figure(a.sessions, a.sim, a.wm, a.wm_seed1, a.openloop, a.session, a.policy, also=a.also)
         cv2.imwrite(str(a.out), img[..., ::-1])
         print(f"wrote {a.out}: {img.shape[1]}x{img.shape[0]}")
     return 0
