@@ -201,6 +201,11 @@ class DistillSection:
     substeps: int = 2
     # the teacher's guidance weight w; null: the teacher card's recommendation (else the library's 6)
     guidance: float | None = None
+    # self forcing (ours; Huang et al. 2025's train-test fix): the fraction of items whose first frame is the
+    # student's own, as in a long rollout: the student samples the chunk that ends at the item's first frame (the
+    # window data.window - 1 frames earlier, in distill.steps Euler steps from its clean first frame), the VAE
+    # decodes it and re-encodes its last frame. Only items with such a window in their clip qualify. 0: off
+    self_forcing: float = 0.0
 
 
 @dataclass
@@ -324,6 +329,9 @@ class TrainConfig:
                     bad(f"distill.{name}", "a positive integer", v)
             if ds.guidance is not None and ds.guidance < 0:
                 bad("distill.guidance", "a number >= 0 (or null: the teacher card's)", ds.guidance)
+            sf = ds.self_forcing
+            if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not 0.0 <= sf <= 1.0:
+                bad("distill.self_forcing", "a fraction in [0, 1]", sf)
             if self.condition not in ("skeleton", "mesh", "capsules"):
                 bad("condition", "a condition video (skeleton, mesh, capsules) when distilling", self.condition)
             if not self.model.init:

@@ -308,6 +308,16 @@ class TrainData:
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
         return out
 
+    def has_window(self, clip: int, start: int) -> bool:
+        """Whether clip ``clip`` (an index into :attr:`clips`) has a training window at frame ``start``: a cached
+        window start (cached latents), else any start whose window fits in the clip."""
+        u = self.clips[clip]
+        if start < 0:
+            return False
+        if self.cached:
+            return u.starts is not None and bool((u.starts == start).any())
+        return start + self.window <= u.record.n_frames
+
     def batch(self, items: list[PlanItem], condition: str) -> Batch:
         """Stack the items of one micro-batch (prompts zero-padded to the longest)."""
         loaded = [self.load_item(it, condition) for it in items]

@@ -17,6 +17,16 @@ stages written for the rectified flow of :mod:`.flow` and the Euler sampler of `
   v* = (z − z') / (σ_i − σ_{i+1}). K = 2 is their halving round; with a student as the next teacher the rounds
   repeat (8 → 4 → 2 → 1). K = 1 is pure guidance distillation at the student's step count.
 
+**Self forcing** (``distill.self_forcing``; the train-test gap of Huang, Li, He, Zhou, Shechtman, "Self Forcing",
+arXiv 2506.08009, 2025): a student distilled as above only ever starts from a clean first frame of the data, while
+chunk k ≥ 2 of a long rollout starts from a frame it made itself. For a chosen item (a function of its noise seed)
+the student first samples, without gradients and in its own ``steps`` Euler steps, the chunk that ends at the
+item's first frame (the clip's window ``data.window − 1`` frames earlier, from that window's clean first frame and
+condition); the VAE decodes it and re-encodes its last frame, exactly as a rollout chains chunks, and that latent
+replaces the item's first frame for the student and the teacher alike. The loss stays the regression to the guided
+teacher above (theirs is distribution matching over the whole rollout): what carries over is the context the
+student is trained from.
+
 Which student step a training item serves follows its flow time σ from the plan (the interval
 σ_i ≥ σ > σ_{i+1} that holds it), so the steps are weighted as training weights noise levels, and every target is
 a function of (seed, step) alone: resume and any process count see the same targets.
@@ -29,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity
+from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity, sample_chunk
 from .config import TrainConfigError
 from .data import Batch
 from .flow import flow_inputs, flow_loss
@@ -40,6 +50,9 @@ __all__ = [
     "student_step_index",
     "distill_target",
     "distill_loss",
+    "self_forced",
+    "self_force",
+    "check_self_forcing",
     "check_teacher",
     "load_teacher",
     "student_sampler",
@@ -150,6 +163,85 @@ def distill_loss(
     return flow_loss(pred, replace(inputs, target=target))
 
 
+_CHOICE_SALT = 0x5F0C  # seeds derived from an item's noise seed: whether it is self-forced, its context's noise
+_CONTEXT_SALT = 0xC0DE
+
+
+def self_forced(item: PlanItem, fraction: float) -> bool:
+    """Whether ``item`` is trained from the student's own first frame: a uniform draw from its noise seed below
+    ``fraction`` (so every process count and a resumed run choose the same items)."""
+    if fraction <= 0.0:
+        return False
+    if fraction >= 1.0:
+        return True
+    g = torch.Generator().manual_seed(item.noise_seed ^ _CHOICE_SALT)
+    return float(torch.rand((), generator=g)) < fraction
+
+
+def self_force(student, data, batch: Batch, items: list[PlanItem], config, device, autocast=None) -> tuple[Batch, int]:
+    """(``batch`` with the first latent frame of its self-forced items replaced, how many were replaced).
+
+    For item k chosen by :func:`self_forced` whose clip has a window at ``start − (window − 1)`` (``data``, a
+    :class:`~.data.TrainData`, says), the student samples that window from its clean first frame and its condition
+    (``distill.steps`` Euler steps, no guidance, noise from the item's seed), the VAE decodes the (B, C, T', h, w)
+    latent to (B, 3, window, H, W) pixels clamped to [−1, 1], and the encoded last frame (B, C, 1, h, w) becomes
+    item k's first latent frame. No gradient flows through it.
+    """
+    d = config.distill
+    back = config.data.window - 1
+    chosen = [
+        k for k, it in enumerate(items) if self_forced(it, d.self_forcing) and data.has_window(it.clip, it.start - back)
+    ]
+    if not chosen:
+        return batch, 0
+    context = [replace(items[k], start=items[k].start - back, drop=False) for k in chosen]
+    prev = data.batch(context, config.condition)
+    sampler = SamplerConfig(
+        steps=d.steps,
+        shift=config.flow.shift,
+        guidance=None,
+        solver="euler",
+        cond_timestep=config.flow.cond_timestep,
+    )
+    generators = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
+    with torch.no_grad(), autocast or contextlib.nullcontext():
+        latent = sample_chunk(
+            student,
+            prev.z0[:, :, :1].to(device, torch.float32),
+            prev.skeleton.to(device, torch.float32),
+            prev.text.to(device),
+            sampler,
+            generators=generators,
+        )
+    with torch.no_grad():
+        video = data.vae.decode(latent.float()).clamp(-1.0, 1.0)
+        first = data.vae.encode(video[:, :, -1:]).to(batch.z0.dtype).cpu()
+    z0 = batch.z0.clone()
+    z0[chosen, :, :1] = first
+    return replace(batch, z0=z0), len(chosen)
+
+
+def check_self_forcing(config, data, source: str = "<config>") -> int:
+    """How many of ``data``'s clips hold a window with the window ``data.window − 1`` frames before it (what a
+    self-forced item needs); a :class:`TrainConfigError` when ``distill.self_forcing`` is on and none does."""
+    if config.distill.self_forcing <= 0:
+        return 0
+    back = config.data.window - 1
+    n = 0
+    for k, u in enumerate(data.clips):
+        starts = u.starts if data.cached and u.starts is not None else [back]
+        n += any(data.has_window(k, int(s)) and data.has_window(k, int(s) - back) for s in starts)
+    if n == 0:
+        raise TrainConfigError(
+            source,
+            "distill.self_forcing",
+            f"clips with two windows {back} frames apart (at least {2 * back + 1} frames"
+            + (", cached at both starts)" if data.cached else ")"),
+            f"none among {len(data.clips)} clips",
+        )
+    return n
+
+
 def check_teacher(config, source: str = "<config>"):
     """The teacher's folder (``distill.teacher``), checked before anything is built: an OSCAR model folder whose
     card's condition is the run's."""
@@ -174,7 +266,9 @@ def load_teacher(config, data, device, source: str = "<config>") -> Teacher:
     skeleton is its card's (a black-video latent comes from ``data``, a :class:`~.data.TrainData`)."""
     from ..model.world_model import OscarWorldModel
 
-    model = OscarWorldModel.from_pretrained(check_teacher(config, source), device=device, dtype=torch.float32)
+    folder = check_teacher(config, source)
+    check_self_forcing(config, data, source)
+    model = OscarWorldModel.from_pretrained(folder, device=device, dtype=torch.float32)
     card = model.card
     rec = dict(card.sampler or {})
     guidance = config.distill.guidance

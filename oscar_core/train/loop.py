@@ -35,7 +35,7 @@ from .checkpoint import (
 )
 from .config import OVERRIDE_SOURCE, TrainConfig, TrainConfigError, check_resume_overrides, load_config, save_config
 from .data import Batch, TrainData
-from .distill import distill_loss
+from .distill import distill_loss, self_force
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
@@ -360,6 +360,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     drawn = planner.drawn(start, config.batch_size) if info.main else {}
     bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step", desc="train")
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
+    forced = 0  # items of this rank trained from the student's own first frame (self forcing), since the last log
 
     def plan(step: int) -> list[PlanItem]:
         return StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
@@ -386,6 +387,9 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                     if teacher is None:
                         loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
                     else:
+                        if config.distill.self_forcing > 0:
+                            batch, n_forced = self_force(model, data, batch, micro, config, info.device, autocast)
+                            forced += n_forced
                         loss = distill_loss(wrapped, teacher, batch, micro, config, info.device, autocast)
                     (loss / accum).backward()
                 loss_sum += float(loss.detach()) / accum
@@ -416,6 +420,9 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                     "skeleton_dropped": sum(i.drop for i in whole),
                     "sources_drawn": dict(drawn),
                 }
+                if teacher is not None and config.distill.self_forcing > 0:
+                    record["self_forced"] = forced  # this rank's, since the previous record
+                    forced = 0
                 log.write(json.dumps(record) + "\n")
                 log.flush()
                 if tb is not None:

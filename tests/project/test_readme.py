@@ -117,5 +117,5 @@ def test_the_tour_runs_as_printed(tmp_path):
         )
         # a newcomer's first commands print no warning (progress and timing lines are fine)
         assert not re.search(r"(?i)warn", proc.stderr), f"README tour: {command} warned:\n{proc.stderr[-3000:]}"
-    for made in ("skeleton.mp4", "toy_rollout.mp4", "toy_eval/report.html", "toy_eval/report.json"):
+    for made in ("skeleton.mp4", "toy_rollout.mp4", "cl_wm/report.html", "cl_sim/report.json", "toy_eval/report.html"):
         assert (tmp_path / made).is_file(), f"README tour: {made} was not written"

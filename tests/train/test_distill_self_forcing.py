@@ -1,0 +1,160 @@
+"""Self forcing in distillation (oscar_core.train.distill.self_force): a chosen item's first latent frame is the
+student's own, made as a long rollout makes it — the student samples the window that ends at the item's first
+frame in its own Euler steps (checked against an Euler loop written here on a DiT whose velocity is known in
+closed form), the VAE decodes it and re-encodes its last frame; items without such a window are left alone; the
+choice is a function of the item's seed; a self-forced tiny run resumes bitwise and trains differently."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from _models import tiny_train_config
+
+from oscar_core.model.sampler import flow_sigmas
+from oscar_core.train.checkpoint import latest_checkpoint, load_weights
+from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict, load_config
+from oscar_core.train.data import TrainData
+from oscar_core.train.distill import _CONTEXT_SALT, self_force, self_forced
+from oscar_core.train.loop import train
+from oscar_core.train.models import build_transformer, build_vae
+from oscar_core.train.sampling import PlanItem
+from oscar_core.train.synthetic import write_toy_clipset
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
+
+
+class _FieldStudent(torch.nn.Module):
+    """A student with a velocity known in closed form, v = λ x + β S + γ x[:, :, :1] + δ t (S the condition
+    latent, t the timestep); its text projection is the identity."""
+
+    dtype = torch.float32
+
+    def __init__(self, lam=0.3, beta=0.7, gamma=0.4, delta=0.2):
+        super().__init__()
+        self.anchor = torch.nn.Parameter(torch.zeros(()))  # where the sampler looks for the device
+        self.lam, self.beta, self.gamma, self.delta = lam, beta, gamma, delta
+
+    def project_text(self, text):
+        return text
+
+    def forward(self, hidden_states, timestep, encoder_hidden_states, condition_mask, padding_mask, **kw):
+        x, s = hidden_states, kw["skeleton_latents"]
+        return (self.lam * x + self.beta * s + self.gamma * x[:, :, :1] + self.delta * timestep,)
+
+
+@pytest.fixture(scope="module")
+def long_clips(tmp_path_factory):
+    """Two 17-frame clips at 32x32 with seeded latents of every 9-frame window (starts 0..8)."""
+    root = tmp_path_factory.mktemp("sf") / "clips"
+    return write_toy_clipset(root, clips=2, frames=17, width=32, height=32, latents_vae="random", latents_window=9)
+
+
+def _config(clips, run_dir, **over):
+    return tiny_train_config(clips, run_dir, **{"distill.steps": 3, "distill.self_forcing": 1.0, **over})
+
+
+def _euler_by_hand(f: _FieldStudent, first, skel, noise, steps, shift=5.0):
+    """The student's chunk from ``first`` (B, C, 1, h, w): Euler on flow_sigmas(steps, shift), frame 0 clean."""
+    x = noise.double().clone()
+    x[:, :, :1] = first.double()
+    sig = flow_sigmas(steps, shift).tolist()
+    for s_now, s_next in zip(sig[:-1], sig[1:]):
+        t = torch.full_like(x[:, :1], s_now)
+        t[:, :, :1] = 1e-4
+        v = f.lam * x + f.beta * skel.double() + f.gamma * x[:, :, :1] + f.delta * t
+        x[:, :, 1:] += (s_next - s_now) * v[:, :, 1:]
+    return x.float()
+
+
+def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previous_chunk(tmp_path, long_clips):
+    config = _config(long_clips, tmp_path / "run", **{"model.transformer": "tiny"})
+    vae = build_vae(config)
+    data = TrainData(config, vae, text_dim=48)
+    assert data.cached and data.has_window(0, 8) and data.has_window(0, 0) and not data.has_window(0, 9)
+    items = [PlanItem(0, 8, False, 0.7, 101), PlanItem(1, 3, False, 0.4, 102), PlanItem(1, 8, False, 0.2, 103)]
+    batch = data.batch(items, "skeleton")
+    student = _FieldStudent()
+    forced, n = self_force(student, data, batch, items, config, "cpu")
+    assert n == 2  # the item at frame 3 has no window 8 frames before it
+
+    # by hand: item k's previous window (start − 8) sampled in 3 Euler steps from its own clean first frame
+    prev = data.batch([PlanItem(0, 0, False, 0.7, 101), PlanItem(1, 0, False, 0.2, 103)], "skeleton")
+    noise = torch.cat(
+        [
+            torch.randn((1, *prev.z0.shape[1:]), generator=torch.Generator().manual_seed(seed ^ _CONTEXT_SALT))
+            for seed in (101, 103)
+        ]
+    )
+    chunk = _euler_by_hand(student, prev.z0[:, :, :1], prev.skeleton, noise, steps=3)
+    pixels = vae.decode(chunk).clamp(-1, 1)  # (2, 3, 9, 32, 32)
+    expected = vae.encode(pixels[:, :, -1:])
+    torch.testing.assert_close(forced.z0[0, :, :1], expected[0], rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(forced.z0[2, :, :1], expected[1], rtol=1e-4, atol=1e-4)
+    # everything else is the data's: the later latent frames, the unchosen item, the condition and the text
+    assert torch.equal(forced.z0[:, :, 1:], batch.z0[:, :, 1:]) and torch.equal(forced.z0[1], batch.z0[1])
+    assert torch.equal(forced.skeleton, batch.skeleton) and torch.equal(forced.text, batch.text)
+    # the test can fail: the data's own first frame, or the first frame of the chunk (not its last), differ
+    assert not torch.allclose(forced.z0[0, :, :1], batch.z0[0, :, :1], atol=1e-2)
+    assert not torch.allclose(expected, vae.encode(pixels[:, :, :1]), atol=1e-2)
+    # off: the batch comes back untouched
+    again, none = self_force(
+        student, data, batch, items, _config(long_clips, tmp_path / "r", **{"distill.self_forcing": 0.0}), "cpu"
+    )
+    assert none == 0 and again is batch
+
+
+def test_which_items_are_self_forced_depends_on_their_seed_alone():
+    items = [PlanItem(0, 0, False, 0.5, seed) for seed in range(2000)]
+    half = [self_forced(it, 0.5) for it in items]
+    assert half == [self_forced(it, 0.5) for it in items]
+    assert 0.45 < np.mean(half) < 0.55
+    assert 0.2 < np.mean([self_forced(it, 0.25) for it in items]) < 0.3
+    assert not any(self_forced(it, 0.0) for it in items) and all(self_forced(it, 1.0) for it in items)
+
+
+@pytest.mark.parametrize(
+    "bad, expected",
+    [(-0.1, r"a fraction in \[0, 1\]"), (1.5, r"a fraction in \[0, 1\]"), (True, "a number"), ("half", "a number")],
+)
+def test_self_forcing_is_a_fraction(tmp_path, long_clips, bad, expected):
+    with pytest.raises(TrainConfigError, match=rf"distill\.self_forcing.*{expected}"):
+        _config(long_clips, tmp_path / "r", **{"distill.self_forcing": bad, "distill.teacher": str(tmp_path)})
+
+
+def test_clips_too_short_for_a_previous_window_are_refused_before_anything_is_written(tmp_path):
+    short = write_toy_clipset(
+        tmp_path / "short", clips=2, frames=13, width=32, height=32, latents_vae="random", latents_window=9
+    )
+    teacher = train(tiny_train_config(short, tmp_path / "teacher", steps=1, export=True), progress=False).export
+    config = _config(short, tmp_path / "student", **{"model.init": str(teacher), "distill.teacher": str(teacher)})
+    with pytest.raises(TrainConfigError, match=r"distill\.self_forcing.*at least 17 frames.*none among 2 clips"):
+        train(config, progress=False)
+    assert not (tmp_path / "student").exists()
+
+
+def _weights(run_dir, key="model"):
+    model = build_transformer(load_config(Path(run_dir) / "config.yaml"))
+    return load_weights(latest_checkpoint(run_dir), model, key=key).state_dict()
+
+
+@pytest.mark.slow
+def test_a_self_forced_distillation_resumes_bitwise_and_trains_otherwise_than_without(tmp_path, long_clips):
+    teacher = train(tiny_train_config(long_clips, tmp_path / "teacher", steps=2, export=True), progress=False).export
+    common = {"model.init": str(teacher), "distill.teacher": str(teacher), "batch_size": 4, "micro_batch": 2}
+    straight = _config(long_clips, tmp_path / "straight", **common)
+    train(straight, progress=False)
+    split = config_from_dict(config_to_dict(_config(long_clips, tmp_path / "split", **common)))
+    assert train(split, progress=False, stop_after=2).step == 2
+    train(resume=split.run_dir, progress=False)
+    for key in ("model", "ema"):
+        a, b = _weights(straight.run_dir, key), _weights(split.run_dir, key)
+        assert all(torch.equal(a[k], b[k]) for k in a), key
+    rows = [json.loads(line) for line in (Path(straight.run_dir) / "metrics.jsonl").read_text().splitlines()]
+    forced = [r["self_forced"] for r in rows if "self_forced" in r]
+    assert len(forced) == 4 and sum(forced) > 0  # log_every 1: items trained from their own frame, per step
+    plain = _config(long_clips, tmp_path / "plain", **common, **{"distill.self_forcing": 0.0})
+    train(plain, progress=False)
+    a, b = _weights(straight.run_dir), _weights(plain.run_dir)
+    assert not all(torch.equal(a[k], b[k]) for k in a)  # the student's own first frames change what it learns
