@@ -2,14 +2,20 @@
 student's own, made as a long rollout makes it — the student samples the window that ends at the item's first
 frame in its own Euler steps (checked against an Euler loop written here on a DiT whose velocity is known in
 closed form), the VAE decodes it and re-encodes its last frame; items without such a window are left alone; the
-choice is a function of the item's seed; a self-forced tiny run resumes bitwise and trains differently."""
+choice is a function of the item's seed; a self-forced tiny run resumes bitwise, trains differently and gives
+the same weights on 1 and 2 processes."""
 
 import json
+import os
+import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 from _models import tiny_train_config
 
 from oscar_core.model.sampler import flow_sigmas
@@ -158,3 +164,23 @@ def test_a_self_forced_distillation_resumes_bitwise_and_trains_otherwise_than_wi
     train(plain, progress=False)
     a, b = _weights(straight.run_dir), _weights(plain.run_dir)
     assert not all(torch.equal(a[k], b[k]) for k in a)  # the student's own first frames change what it learns
+
+
+@pytest.mark.slow
+def test_two_processes_self_force_as_one(tmp_path, long_clips):
+    teacher = train(tiny_train_config(long_clips, tmp_path / "teacher", steps=2, export=True), progress=False).export
+    common = {"model.init": str(teacher), "distill.teacher": str(teacher), "steps": 2, "batch_size": 4}
+    one = _config(long_clips, tmp_path / "one", **common)
+    train(one, progress=False)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    path = tmp_path / "two.yaml"
+    path.write_text(yaml.safe_dump(config_to_dict(_config(long_clips, tmp_path / "two", parallel="ddp", **common))))
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1"]
+    cmd += ["--master-port", str(port), "-m", "oscar_core.train", str(path), "--no-progress"]
+    out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    for key in ("model", "ema"):
+        a, b = _weights(tmp_path / "one", key), _weights(tmp_path / "two", key)
+        assert all(torch.allclose(a[k], b[k], atol=2e-6, rtol=1e-5) for k in a), key
