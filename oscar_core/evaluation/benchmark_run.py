@@ -70,7 +70,8 @@ def rollout_clip(
         acts = model.rollout_inputs(clip.trajectory, clip.camera, emb)["actions"][: frames - 1]
         video = model.rollout(first, None, embeds, actions=acts, **options)
     else:  # the card's condition video: the stored skeleton, or the mesh / capsules rendered
-        cond = clipset.condition_video(source, clip, registry, video_condition_of(model.card.condition))[:frames]
+        name = video_condition_of(model.card.condition)
+        cond = clipset.condition_video(source, clip, registry, name, model.card.condition_style)[:frames]
         video = model.rollout(first, cond, embeds, **options)
     seconds = time.perf_counter() - t0
     return np.asarray(video.frames if hasattr(video, "frames") else video).astype(np.uint8), seconds

@@ -95,6 +95,7 @@ class ModelWorld:
             self.size,
             resize_mode="crop",
             camera_source=self.camera_source,
+            style=getattr(self.model.card, "condition_style", None),
         )
 
     def chunk_inputs(self, q: np.ndarray, gripper: np.ndarray) -> dict:

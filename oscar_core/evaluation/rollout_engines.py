@@ -85,6 +85,7 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
                 size,
                 resize_mode="crop",
                 camera_source=str(cell.camera),
+                style=getattr(card, "condition_style", None),
             )
         }
     first = fit_image(first, size[0], size[1], "crop")

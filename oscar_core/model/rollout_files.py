@@ -224,6 +224,7 @@ def run_rollout(
         (width, height),
         resize_mode=r.resize,
         camera_source=r.camera,
+        style=model.card.condition_style,
     )
     first = fit_image(first, width, height, r.resize)
     timings["render"] = time.perf_counter() - t0

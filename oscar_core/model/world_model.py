@@ -30,7 +30,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from .._util.log import get_logger
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, takes_actions
+from ..errors import OscarError
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style, takes_actions
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
 from .errors import CheckpointLayoutError, ModelInputError
 from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
@@ -68,6 +69,9 @@ class ModelCard:
     baseline: a ``LatentActionTransformer`` fed (chunk_frames − 1, 14)
     end-effector actions per chunk) or ``"none"`` (text and first frame
     only; its PE_s is zero, so a skeleton fed to it changes nothing).
+    condition_style: how its condition video is drawn, a mapping of
+    :class:`~oscar_core.render.raster.SkeletonStyle` fields (sizes in pixels at 288 px of height; e.g. a larger
+    gripper indicator), as it was trained; every rollout draws the condition so. None: the default look.
     sampler: the sampler settings the model is meant to be rolled out with (a mapping of
     :data:`~oscar_core.model.sampler.CARD_SAMPLER_KEYS`: steps, guidance, guidance_form, preset); every
     entry point uses them where its caller gives none (:func:`~oscar_core.model.sampler.resolve_sampler`);
@@ -85,6 +89,7 @@ class ModelCard:
     license: str | None = None
     unconditional_skeleton: str = "zero_latent"
     condition: ConditionName = "skeleton"
+    condition_style: dict | None = None
     sampler: dict | None = None
 
     def __post_init__(self):
@@ -96,6 +101,11 @@ class ModelCard:
             )
         if self.condition not in CONDITIONS:
             raise ModelInputError(f"model card condition: expected one of {CONDITIONS}, found {self.condition!r}")
+        try:
+            condition_style(self.condition_style, "model card condition_style")
+        except OscarError as e:
+            raise ModelInputError(str(e)) from None
+        object.__setattr__(self, "condition_style", dict(self.condition_style) if self.condition_style else None)
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
         object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
 
@@ -592,7 +602,14 @@ class OscarWorldModel:
         name = video_condition_of(self.card.condition)
         return {
             "skeleton": condition_video(
-                name, embodiment, trajectory, camera, size, resize_mode=resize_mode, camera_source=camera_source
+                name,
+                embodiment,
+                trajectory,
+                camera,
+                size,
+                resize_mode=resize_mode,
+                camera_source=camera_source,
+                style=self.card.condition_style,
             )
         }
 

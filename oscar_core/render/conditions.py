@@ -42,6 +42,8 @@ __all__ = [
     "video_renderer",
     "renderer",
     "condition_video",
+    "condition_style",
+    "condition_key",
     "video_condition_of",
 ]
 
@@ -135,10 +137,47 @@ def video_renderer(name: str) -> Callable:
     return renderer(name).render_video
 
 
+def condition_style(style, source: str = "condition_style"):
+    """The :class:`~oscar_core.render.raster.SkeletonStyle` of a card's or a config's ``condition_style`` (a mapping
+    of style fields, e.g. ``{"gripper_radius_open": 27}``, sizes in pixels at 288 px of height; None: the default
+    look, returned as None); an :class:`OscarError` names ``source``'s key, what was expected and what was found."""
+    from .raster import SkeletonStyle
+
+    if style is None or isinstance(style, SkeletonStyle):
+        return style
+    try:
+        return SkeletonStyle.from_overrides(style, source)
+    except ValueError as e:
+        raise OscarError(str(e)) from None
+
+
+def condition_key(name: str, style=None) -> str:
+    """What a cached condition latent encodes, as one string: the condition ``name``, followed by its style's
+    fields (sorted JSON) when ``style`` (a mapping) changes the look."""
+    import json
+
+    return name if not style else f"{name} {json.dumps(style, sort_keys=True)}"
+
+
 def condition_video(
-    name: str, embodiment, trajectory, camera, size, *, resize_mode: str = "crop", camera_source: str = "<camera>"
+    name: str,
+    embodiment,
+    trajectory,
+    camera,
+    size,
+    *,
+    resize_mode: str = "crop",
+    camera_source: str = "<camera>",
+    style=None,
 ):
-    """(T, H, W, 3) uint8 condition video ``name`` of ``trajectory`` seen by ``camera`` at ``size`` (width, height)."""
+    """(T, H, W, 3) uint8 condition video ``name`` of ``trajectory`` seen by ``camera`` at ``size`` (width, height),
+    drawn in ``style`` (a ``condition_style`` mapping, a ``SkeletonStyle``, or None: the default look)."""
     return video_renderer(name)(
-        embodiment, trajectory, camera, size, resize_mode=resize_mode, camera_source=camera_source
+        embodiment,
+        trajectory,
+        camera,
+        size,
+        resize_mode=resize_mode,
+        camera_source=camera_source,
+        style=condition_style(style),
     )

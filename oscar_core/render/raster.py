@@ -16,7 +16,7 @@ continuously, at any resolution.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
@@ -86,6 +86,44 @@ class SkeletonStyle:
     gripper_color_closed: tuple[int, int, int] = (255, 0, 0)
     reference_height: int = 288
     antialias: bool = True
+
+    @classmethod
+    def from_overrides(cls, overrides, source: str = "condition_style") -> SkeletonStyle:
+        """The default style with ``overrides`` (a mapping of field name → value, e.g. ``{"gripper_radius_open":
+        27}``; None or empty: the default) applied; a ``ValueError`` names ``source``'s key, what was expected and
+        what was found. Sizes must be finite numbers > 0 (``line_width`` and ``point_radius`` ≥ 0), colours three
+        integers in [0, 255]."""
+        if overrides is None:
+            return cls()
+        if not isinstance(overrides, dict):
+            raise ValueError(f"{source}: expected a mapping of SkeletonStyle fields, found {overrides!r}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(overrides) - known)
+        if unknown:
+            raise ValueError(f"{source}: expected keys among {sorted(known)}, found unknown keys {unknown}")
+        out = {}
+        for key, value in overrides.items():
+            where = f"{source}.{key}"
+            if key.startswith("gripper_color"):
+                ok = (
+                    isinstance(value, (list, tuple))
+                    and len(value) == 3
+                    and all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c <= 255 for c in value)
+                )
+                if not ok:
+                    raise ValueError(f"{where}: expected three integers in [0, 255] (RGB), found {value!r}")
+                value = tuple(value)
+            elif key == "antialias":
+                if not isinstance(value, bool):
+                    raise ValueError(f"{where}: expected true or false, found {value!r}")
+            else:
+                least = 0.0 if key in ("line_width", "point_radius") else None
+                number = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                if not number or (value < least if least is not None else value <= 0):
+                    bound = ">= 0" if least is not None else "> 0"
+                    raise ValueError(f"{where}: expected a finite number {bound}, found {value!r}")
+            out[key] = value
+        return cls(**out)
 
     def scale_for(self, width: int, height: int) -> float:
         """Size multiplier for a (width, height) image: min(width, height) / reference_height.

@@ -75,6 +75,7 @@ def cache_latents(
     registry=None,
     log: Callable[[str], None] = print,
     condition: str = "skeleton",
+    condition_style: dict | None = None,
 ) -> CacheSummary:
     """Write ``OUT``: the clip set ``SRC`` with cached latents of ``window``-frame windows.
 
@@ -86,7 +87,8 @@ def cache_latents(
     per VAE call (the toy VAE encodes 4x faster per clip at 16 than at 1;
     memory grows with it: 8 windows of 81 frames at 512x288 are ~1.2 GB of
     float32 pixels); condition: the condition video whose latents go in the
-    condition stream (:data:`oscar_core.render.conditions.CONDITIONS`). Returns a
+    condition stream (:data:`oscar_core.render.conditions.CONDITIONS`), drawn in ``condition_style`` (a mapping of
+    style fields, the training config's ``condition_style``; None: the default look). Returns a
     :class:`CacheSummary`.
     """
     import hashlib
@@ -97,11 +99,13 @@ def cache_latents(
     from .._util import stage as _stage
     from ..model.vae import check_frame_count
     from ..plugin.registry import Registry
-    from ..render.conditions import check_condition
+    from ..render.conditions import check_condition, condition_key, condition_style as check_style
     from .clips import Clip, ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")
     check_condition(condition, "--condition")
+    check_style(condition_style, "--condition-style")
+    key = condition_key(condition, condition_style)  # what the condition latents encode, as the trainer compares it
     if batch < 1:
         raise ValueError(f"batch: expected >= 1, found {batch}")
     stride = int(stride or window)
@@ -122,6 +126,7 @@ def cache_latents(
         "stride": stride,
         "split": split,
         "condition": condition,
+        **({"condition_style": condition_style} if condition_style else {}),  # a set made without it keeps its print
     }
     writer = ClipSetWriter(out)  # first: a cache of another format is refused before anything is recorded
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
@@ -142,7 +147,7 @@ def cache_latents(
         for rec in recs:
             clip = source.load(rec, registry=registry)
             starts = window_starts(rec.n_frames, window, stride)
-            skel = source.condition_video(rec, clip, registry, condition) if len(starts) else None
+            skel = source.condition_video(rec, clip, registry, condition, condition_style) if len(starts) else None
             loaded.append((rec, clip, starts))
             windows += [(len(loaded) - 1, "video", clip.rgb[s : s + window]) for s in starts]
             windows += [(len(loaded) - 1, "skeleton", skel[s : s + window]) for s in starts]
@@ -169,7 +174,7 @@ def cache_latents(
                             "starts": starts,
                             "window": window,
                             "vae": vae_name,
-                            "condition": condition,
+                            "condition": key,
                         },
                     )
                     cached += 1

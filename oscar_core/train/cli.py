@@ -13,6 +13,7 @@ import os
 from .._util.arg_types import count
 from .._util.outputs import output_option
 from .._util.threads import threads_option
+from ..errors import OscarError
 from ..render.conditions import CONDITIONS
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
@@ -52,6 +53,13 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         default="skeleton",
         help="with --cache-latents: the condition video cached beside the video (default skeleton; "
         "mesh or capsules for a model trained on those)",
+    )
+    p.add_argument(
+        "--condition-style",
+        metavar="JSON",
+        help="with --cache-latents: how the condition video is drawn, a JSON mapping of skeleton style fields "
+        "(sizes in pixels at 288 px of height), the training config's condition_style, e.g. "
+        '\'{"gripper_radius_open": 27, "gripper_radius_closed": 14}\' (default: the standard look)',
     )
     output_option(
         p.add_argument(
@@ -187,6 +195,18 @@ def _cache_latents(args) -> int:
     for flag in ("vae", "window", "out"):
         if getattr(args, flag) is None:
             raise TrainConfigError("<command line>", f"--{flag}", "given with --cache-latents", "missing")
+    style = None
+    if args.condition_style is not None:
+        from ..render.conditions import condition_style
+
+        try:
+            style = json.loads(args.condition_style)
+            condition_style(style, "--condition-style")
+        except (ValueError, OscarError) as e:
+            found = f"{args.condition_style!r} ({e})"
+            raise TrainConfigError(
+                "<command line>", "--condition-style", "a JSON mapping of style fields", found
+            ) from None
     config = TrainConfig()
     config.model.vae = args.vae
     vae = build_vae(config, source="--vae")
@@ -200,6 +220,7 @@ def _cache_latents(args) -> int:
         batch=args.batch,
         log=(lambda _m: None) if args.json else print,
         condition=args.condition,
+        condition_style=style,
     )
     print(
         json.dumps(asdict(summary))

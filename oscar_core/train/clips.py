@@ -529,11 +529,14 @@ class ClipSet:
             camera_source=str(self.path(rec, "camera")),
         )
 
-    def condition_video(self, rec: ClipRecord, clip: Clip, registry, condition: str = "skeleton") -> np.ndarray:
+    def condition_video(
+        self, rec: ClipRecord, clip: Clip, registry, condition: str = "skeleton", style: dict | None = None
+    ) -> np.ndarray:
         """(T, H, W, 3) uint8 condition video ``condition`` (:mod:`oscar_core.render.conditions`) of a loaded ``clip``:
-        for the skeleton :meth:`skeleton_video` (its stored one, else rendered), for another condition rendered
-        at the clip's size from its trajectory and camera through ``registry``'s embodiment."""
-        if condition == "skeleton":
+        for the skeleton in the default look :meth:`skeleton_video` (its stored one, else rendered), else rendered
+        at the clip's size from its trajectory and camera through ``registry``'s embodiment, in ``style`` (a
+        ``condition_style`` mapping; None: the default look)."""
+        if condition == "skeleton" and not style:
             return self.skeleton_video(rec, clip, registry)
         from ..render.conditions import condition_video
 
@@ -544,6 +547,7 @@ class ClipSet:
             clip.camera,
             (rec.width, rec.height),
             camera_source=str(self.path(rec, "camera")),
+            style=style,
         )
 
     def load(

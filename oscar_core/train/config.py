@@ -219,6 +219,11 @@ class TrainConfig:
     # skeleton's edges with fingers: the toy world's robot body, a mesh for robots without meshes), "latent_action" (the paper's
     # ablation), "none" (text only)
     condition: str = "skeleton"
+    # how the condition video is drawn, a mapping of SkeletonStyle fields (oscar_core.render.raster; sizes in pixels
+    # at 288 px of height), e.g. {gripper_radius_open: 27, gripper_radius_closed: 14} for a gripper indicator that
+    # shows at a 64-px toy's latent resolution; null: the default look. Written into the export's card, so every
+    # rollout draws the condition as training did; cached condition latents record it and must match
+    condition_style: dict | None = None
     # warm start from another run's latest checkpoint (stage 2 names the stage-1 run), or null
     parent_run: str | None = None
     # seed of every random draw (windows, timesteps, noise, dropout)
@@ -255,6 +260,13 @@ class TrainConfig:
 
         if self.condition not in CONDITIONS:
             bad("condition", f"one of {CONDITIONS}", self.condition)
+        if self.condition_style is not None:
+            from ..render.conditions import condition_style
+
+            try:
+                condition_style(self.condition_style)
+            except OscarError as e:
+                raise TrainConfigError(source, "condition_style", "a mapping of SkeletonStyle fields", str(e)) from None
         if self.parallel not in PARALLEL_MODES:
             bad("parallel", f"one of {PARALLEL_MODES}", self.parallel)
         if self.activation_checkpointing not in CHECKPOINTING:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..render.conditions import is_video_condition, takes_actions
+from ..render.conditions import condition_key, is_video_condition, takes_actions
 from .clips import ClipFormatError, ClipRecord, ClipSet
 from .config import TrainConfig
 from .sampling import PlanItem, StepPlanner
@@ -234,7 +234,9 @@ class TrainData:
         want_skeleton = is_video_condition(condition) and not item.drop
         # stored skeleton videos are skeletons, and cached condition latents encode the condition they record:
         # another condition video (mesh, capsules) is rendered and encoded here
-        stored = condition == (u.cached_condition if self.cached else "skeleton")
+        stored = condition_key(condition, self.config.condition_style) == (
+            u.cached_condition if self.cached else "skeleton"
+        )
         out: dict = {"skeleton": None, "actions": None}
         need_traj = (
             want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files))
@@ -281,6 +283,7 @@ class TrainData:
                 (w, h),
                 resize_mode="crop",
                 camera_source=str(cs.path(rec, "camera")),
+                style=self.config.condition_style,
             )
             out["skeleton"] = self._encode(video, f"the {condition} condition video")
         if is_video_condition(condition) and item.drop:

@@ -254,9 +254,18 @@ def check_teacher(config, source: str = "<config>"):
         raise TrainConfigError(
             source, "distill.teacher", f"an OSCAR model folder ({MODEL_FILE})", f"{folder} (no {MODEL_FILE})"
         )
-    condition = read_card(folder).condition
-    if condition != config.condition:
-        raise TrainConfigError(source, "condition", f"the teacher's condition {condition!r}", repr(config.condition))
+    card = read_card(folder)
+    if card.condition != config.condition:
+        raise TrainConfigError(
+            source, "condition", f"the teacher's condition {card.condition!r}", repr(config.condition)
+        )
+    if (card.condition_style or None) != (config.condition_style or None):
+        raise TrainConfigError(
+            source,
+            "condition_style",
+            f"the teacher's condition_style {card.condition_style!r}",
+            repr(config.condition_style),
+        )
     return folder
 
 

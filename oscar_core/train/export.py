@@ -77,6 +77,7 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
             base=base,
             unconditional_skeleton=config.data.unconditional_skeleton,
             condition=config.condition,
+            condition_style=config.condition_style,
             sampler=sampler,
         )
         model = OscarWorldModel(transformer, vae, card, scheduler_config=scheduler)
