@@ -233,7 +233,8 @@ class TrainData:
         w, h = self.size
         want_skeleton = is_video_condition(condition) and not item.drop
         # stored skeleton videos are skeletons, and cached condition latents encode the condition they record:
-        # another condition video (mesh, capsules) is rendered and encoded here
+        # another condition video (mesh, capsules), or one of another look (condition_style), is rendered and
+        # encoded here
         stored = condition_key(condition, self.config.condition_style) == (
             u.cached_condition if self.cached else "skeleton"
         )

@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity, sample_chunk
+from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity
 from .config import TrainConfigError
 from .data import Batch
 from .flow import flow_inputs, flow_loss
@@ -192,33 +192,70 @@ def self_force(student, data, batch: Batch, items: list[PlanItem], config, devic
     chosen = [
         k for k, it in enumerate(items) if self_forced(it, d.self_forcing) and data.has_window(it.clip, it.start - back)
     ]
+    context = [replace(items[k], start=items[k].start - back, drop=False) for k in chosen]
+    if _any_rank_samples(bool(chosen), config) and not chosen:
+        # FSDP2 gathers the student's weights in every forward, so each process must sample when any does: a rank
+        # with nothing to self-force samples its first item's own window and throws the result away
+        context = [replace(items[0], drop=False)]
+    if not context:
+        return batch, 0
+    prev = data.batch(context, config.condition)
+    with torch.no_grad(), autocast or contextlib.nullcontext():
+        latent = _student_chunk(student, prev, context, d.steps, config.flow, device)
     if not chosen:
         return batch, 0
-    context = [replace(items[k], start=items[k].start - back, drop=False) for k in chosen]
-    prev = data.batch(context, config.condition)
-    sampler = SamplerConfig(
-        steps=d.steps,
-        shift=config.flow.shift,
-        guidance=None,
-        solver="euler",
-        cond_timestep=config.flow.cond_timestep,
-    )
-    generators = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
-    with torch.no_grad(), autocast or contextlib.nullcontext():
-        latent = sample_chunk(
-            student,
-            prev.z0[:, :, :1].to(device, torch.float32),
-            prev.skeleton.to(device, torch.float32),
-            prev.text.to(device),
-            sampler,
-            generators=generators,
-        )
     with torch.no_grad():
         video = data.vae.decode(latent.float()).clamp(-1.0, 1.0)
         first = data.vae.encode(video[:, :, -1:]).to(batch.z0.dtype).cpu()
     z0 = batch.z0.clone()
     z0[chosen, :, :1] = first
     return replace(batch, z0=z0), len(chosen)
+
+
+def _student_chunk(student, prev: Batch, context: list[PlanItem], steps: int, flow, device) -> torch.Tensor:
+    """(B, C, T', h, w) float32: the student's chunk of each ``prev`` window from its clean first latent frame, as the
+    sampler makes it (``steps`` Euler steps on ``flow_sigmas(steps, flow.shift)``, the conditional branch alone,
+    frame 0 held clean at timestep ``flow.cond_timestep``), from noise drawn from each context item's seed. The
+    student is called whole (its forward projects the prompt), so a sharded student gathers its weights."""
+    z0 = prev.z0.to(device, torch.float32)
+    b, c, t, h, w = z0.shape
+    noise = torch.cat(
+        [
+            torch.randn((1, c, t, h, w), generator=torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT))
+            for it in context
+        ]
+    ).to(device)
+    inputs = flow_inputs(z0, noise, torch.ones(b, device=device), flow.cond_timestep)  # σ = 1: noise, frame 0 clean
+    indicator = 1.0 - inputs.loss_mask
+    text, skeleton = prev.text.to(device), prev.skeleton.to(device, torch.float32)
+    padding = torch.zeros(1, 1, h, w, device=device)
+    sigmas = flow_sigmas(steps, flow.shift).tolist()
+    x = inputs.x
+    for s_now, s_next in zip(sigmas[:-1], sigmas[1:]):
+        timestep = indicator * flow.cond_timestep + (1.0 - indicator) * s_now
+        v = student(
+            hidden_states=x,
+            timestep=timestep,
+            encoder_hidden_states=text,
+            condition_mask=inputs.condition_mask,
+            padding_mask=padding,
+            skeleton_latents=skeleton,
+            return_dict=False,
+        )[0].float()
+        x = x + (s_next - s_now) * v * (1.0 - indicator)
+    return x
+
+
+def _any_rank_samples(mine: bool, config) -> bool:
+    """Whether any process of a sharded (FSDP2) run has an item to self-force this micro-batch (``mine`` for one
+    process, or a run without sharded weights, where each process samples on its own)."""
+    import torch.distributed as dist
+
+    if config.parallel != "fsdp" or not (dist.is_available() and dist.is_initialized()):
+        return mine
+    flag = torch.tensor([int(mine)])
+    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+    return bool(flag.item())
 
 
 def check_self_forcing(config, data, source: str = "<config>") -> int:

@@ -388,7 +388,9 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                         loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
                     else:
                         if config.distill.self_forcing > 0:
-                            batch, n_forced = self_force(model, data, batch, micro, config, info.device, autocast)
+                            # FSDP2's student gathers its shards in its forward; DDP's wrapper would sync buffers
+                            student = wrapped if config.parallel == "fsdp" else model
+                            batch, n_forced = self_force(student, data, batch, micro, config, info.device, autocast)
                             forced += n_forced
                         loss = distill_loss(wrapped, teacher, batch, micro, config, info.device, autocast)
                     (loss / accum).backward()

@@ -18,14 +18,14 @@ import torch
 import yaml
 from _models import tiny_train_config
 
-from oscar_core.model.sampler import flow_sigmas
+from oscar_core.model.sampler import SamplerConfig, flow_sigmas, sample_chunk
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
 from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict, load_config
 from oscar_core.train.data import TrainData
-from oscar_core.train.distill import _CONTEXT_SALT, self_force, self_forced
+from oscar_core.train.distill import _CONTEXT_SALT, _student_chunk, self_force, self_forced
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_transformer, build_vae
-from oscar_core.train.sampling import PlanItem
+from oscar_core.train.sampling import PlanItem, StepPlanner
 from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -52,9 +52,9 @@ class _FieldStudent(torch.nn.Module):
 
 @pytest.fixture(scope="module")
 def long_clips(tmp_path_factory):
-    """Two 17-frame clips at 32x32 with seeded latents of every 9-frame window (starts 0..8)."""
+    """Two 21-frame clips at 32x32 with seeded latents of every 9-frame window (starts 0..12)."""
     root = tmp_path_factory.mktemp("sf") / "clips"
-    return write_toy_clipset(root, clips=2, frames=17, width=32, height=32, latents_vae="random", latents_window=9)
+    return write_toy_clipset(root, clips=2, frames=21, width=32, height=32, latents_vae="random", latents_window=9)
 
 
 def _config(clips, run_dir, **over):
@@ -78,7 +78,7 @@ def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previ
     config = _config(long_clips, tmp_path / "run", **{"model.transformer": "tiny"})
     vae = build_vae(config)
     data = TrainData(config, vae, text_dim=48)
-    assert data.cached and data.has_window(0, 8) and data.has_window(0, 0) and not data.has_window(0, 9)
+    assert data.cached and data.has_window(0, 12) and data.has_window(0, 0) and not data.has_window(0, 13)
     items = [PlanItem(0, 8, False, 0.7, 101), PlanItem(1, 3, False, 0.4, 102), PlanItem(1, 8, False, 0.2, 103)]
     batch = data.batch(items, "skeleton")
     student = _FieldStudent()
@@ -109,6 +109,23 @@ def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previ
         student, data, batch, items, _config(long_clips, tmp_path / "r", **{"distill.self_forcing": 0.0}), "cpu"
     )
     assert none == 0 and again is batch
+
+
+def test_the_students_context_chunk_is_what_its_sampler_makes(tmp_path, long_clips):
+    """On the real (tiny) DiT: the context chunk equals ``sample_chunk`` with the student's card settings (Euler,
+    no guidance) and the same noise, i.e. the chunk a rollout of the exported student would make."""
+    config = _config(long_clips, tmp_path / "run")
+    data = TrainData(config, build_vae(config), text_dim=48)
+    student = build_transformer(config).eval()
+    context = [PlanItem(0, 0, False, 0.5, 7), PlanItem(1, 4, False, 0.5, 8)]
+    prev = data.batch(context, "skeleton")
+    got = _student_chunk(student, prev, context, 3, config.flow, "cpu")
+    sampler = SamplerConfig(steps=3, shift=config.flow.shift, guidance=None, solver="euler")
+    gens = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
+    with torch.no_grad():
+        want = sample_chunk(student, prev.z0[:, :, :1], prev.skeleton, prev.text, sampler, generators=gens)
+    torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-4)
+    assert not torch.allclose(got[:, :, 1:], prev.z0[:, :, 1:], atol=1e-2)  # a sample, not the data
 
 
 def test_which_items_are_self_forced_depends_on_their_seed_alone():
@@ -167,16 +184,25 @@ def test_a_self_forced_distillation_resumes_bitwise_and_trains_otherwise_than_wi
 
 
 @pytest.mark.slow
-def test_two_processes_self_force_as_one(tmp_path, long_clips):
+@pytest.mark.parametrize("parallel", ["ddp", "fsdp"])
+def test_two_processes_self_force_as_one(tmp_path, long_clips, parallel):
     teacher = train(tiny_train_config(long_clips, tmp_path / "teacher", steps=2, export=True), progress=False).export
     common = {"model.init": str(teacher), "distill.teacher": str(teacher), "steps": 2, "batch_size": 4}
     one = _config(long_clips, tmp_path / "one", **common)
+    # the case that needs care under FSDP2: in one micro-step a process has items to self-force, the other none
+    data = TrainData(one, build_vae(one), text_dim=48)
+    counts = [
+        [data.has_window(it.clip, it.start - 8) for it in StepPlanner.rank_slice(data.planner().plan(step, 4), rank, 2)]
+        for step in range(2)
+        for rank in range(2)
+    ]
+    assert any(any(a) != any(b) for a, b in zip(counts[0::2], counts[1::2])), counts
     train(one, progress=False)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     path = tmp_path / "two.yaml"
-    path.write_text(yaml.safe_dump(config_to_dict(_config(long_clips, tmp_path / "two", parallel="ddp", **common))))
+    path.write_text(yaml.safe_dump(config_to_dict(_config(long_clips, tmp_path / "two", parallel=parallel, **common))))
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1"]
     cmd += ["--master-port", str(port), "-m", "oscar_core.train", str(path), "--no-progress"]
     out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
