@@ -67,7 +67,7 @@ def cmd_run(args) -> int:
     import oscar_zoo
 
     from .._util.stage import model_identity
-    from ..model.sampler import resolve_sampler
+    from ..model.card_sampler import resolve_sampler
     from ..plugin.registry import Registry
     from .benchmark_run import run_benchmark
     from .benchmark_set import load_benchmark_set

@@ -37,7 +37,7 @@ def add_sampler_options(parser) -> None:
 def resolve_sampler_flags(args, card_sampler: Callable[[], object] | None):
     """The :class:`~oscar_core.model.sampler.SamplerChoice` of the flags in ``args`` over ``card_sampler()`` (the
     model card's sampler, looked up only after the flags passed their checks; None: no card)."""
-    from ..model.sampler import resolve_sampler
+    from ..model.card_sampler import resolve_sampler
 
     options = dict(
         steps=args.steps,

@@ -298,7 +298,7 @@ def _start(manifest, out, model, settings: EvaluationSettings, log) -> _Run:
     if settings.sampler is not None:
         sampler = settings.sampler
     else:  # the card's recommended settings over the library's defaults
-        from ..model.sampler import resolve_sampler
+        from ..model.card_sampler import resolve_sampler
 
         card_sampler = (
             getattr(getattr(model, "card", None), "sampler", None)

@@ -143,8 +143,8 @@ def run_rollout(
     from ..plugin.registry import get_embodiment
     from ..render.conditions import condition_video, takes_actions, video_condition_of
     from ..render.skeleton_video import fit_image
+    from .card_sampler import resolve_sampler
     from .image import read_first_frame
-    from .sampler import resolve_sampler
 
     r = request
     timings = {"startup": startup} if startup is not None else {}

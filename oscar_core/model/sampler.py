@@ -1,7 +1,8 @@
 """Rectified-flow sampling of one chunk, conditioned on the first frame and a skeleton.
 
-One module on purpose: both solvers, the guidance forms and intervals, and the card/flag resolution share one
-σ schedule and one guided velocity; it passed 600 lines only when the tree was formatted.
+The settings (:class:`SamplerConfig`, :func:`apply_preset`) live in :mod:`oscar_core.model.sampler_config` and
+the model card's recommended settings (:func:`resolve_sampler`, :func:`check_card_sampler`) in
+:mod:`oscar_core.model.card_sampler`; this module re-exports both.
 
 Flow convention (paper eq. 1): z_σ = (1 − σ) z_0 + σ ε, the model predicts the
 velocity v = ε − z_0, and sampling integrates dz/dσ = v from σ = 1 (noise) to
@@ -67,15 +68,22 @@ it never trained. The two branches always run as two forwards.
 
 from __future__ import annotations
 
-import math
-import numbers
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable
 
 import torch
 
+from .card_sampler import (  # CARD, DEFAULT, GIVEN: its module constants, importable from here as before
+    CARD as CARD,
+    CARD_SAMPLER_KEYS,
+    DEFAULT as DEFAULT,
+    GIVEN as GIVEN,
+    SamplerChoice,
+    check_card_sampler,
+    resolve_sampler,
+)
 from .errors import ModelInputError
 from .presets import SAMPLER_PRESETS
+from .sampler_config import GUIDANCE_FORMS, SOLVERS, SamplerConfig, apply_preset
 
 __all__ = [
     "SamplerConfig",
@@ -96,101 +104,6 @@ __all__ = [
     "resolve_sampler",
     "step_sigmas",
 ]
-
-GUIDANCE_FORMS = ("standard", "diffusers")
-SOLVERS = ("unipc", "euler")
-
-
-@dataclass(frozen=True)
-class SamplerConfig:
-    """Sampler settings.
-
-    steps: solver steps (model evaluations per branch) per chunk;
-    shift: schedule shift s (the paper trains with 5);
-    guidance: w, or None for the conditional branch alone (no second branch);
-    guidance_form: "standard" or "diffusers" (module docstring);
-    batched_cfg: one forward of batch 2B for both branches;
-    cond_timestep: timestep fed for the clean first latent frame (diffusers' 1e-4);
-    fps: passed to the DiT's RoPE (None, as the Cosmos 2.5 pipeline does);
-    solver: "unipc", "euler", or None for the checkpoint's choice (its
-        scheduler config; "unipc" when it has none);
-    scheduler_config: a ``UniPCMultistepScheduler`` config (dict) that
-        replaces the default flow-sigma one (a checkpoint's ``scheduler/``);
-    action_guidance: latent-action models only: w over the actions
-        (unconditional branch: no action tokens), None (default): the
-        conditional branch alone (module docstring);
-    guidance_interval: (lo, hi) noise levels, 0 <= lo <= hi <= 1: guidance
-        only at steps with lo <= σ <= hi, the conditional branch alone at the
-        others; None (default): every step.
-    """
-
-    steps: int = 35
-    shift: float = 5.0
-    guidance: float | None = 6.0
-    guidance_form: str = "diffusers"
-    batched_cfg: bool = True
-    cond_timestep: float = 1e-4
-    fps: float | None = None
-    solver: str | None = None
-    scheduler_config: dict | None = None
-    action_guidance: float | None = None
-    guidance_interval: tuple[float, float] | None = None
-
-    def __post_init__(self):
-        if self.guidance_interval is not None:
-            iv = self.guidance_interval
-            ok = (
-                isinstance(iv, (tuple, list))
-                and len(iv) == 2
-                and all(_finite(v) for v in iv)
-                and 0.0 <= float(iv[0]) <= float(iv[1]) <= 1.0
-            )
-            if not ok:
-                raise ModelInputError(
-                    f"guidance_interval: expected (lo, hi) noise levels with 0 <= lo <= hi <= 1, found {iv!r}"
-                )
-            object.__setattr__(self, "guidance_interval", (float(iv[0]), float(iv[1])))
-        steps = self.steps
-        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
-            raise ModelInputError(f"sampler steps: expected an integer >= 1, found {steps!r}")
-        if not _finite(self.shift) or not self.shift > 0:
-            raise ModelInputError(f"sampler shift: expected a positive finite number, found {self.shift!r}")
-        for name in ("guidance", "action_guidance"):
-            w = getattr(self, name)
-            if w is not None and (not _finite(w) or w < 0):
-                raise ModelInputError(
-                    f"sampler {name}: expected a finite number >= 0 (or None: the conditional "
-                    f"branch alone), found {w!r}"
-                )
-        if not _finite(self.cond_timestep) or self.cond_timestep < 0:
-            raise ModelInputError(f"sampler cond_timestep: expected a finite number >= 0, found {self.cond_timestep!r}")
-        if self.guidance_form not in GUIDANCE_FORMS:
-            raise ModelInputError(f"guidance_form: expected one of {GUIDANCE_FORMS}, found {self.guidance_form!r}")
-        if self.solver is not None and self.solver not in SOLVERS:
-            raise ModelInputError(
-                f"sampler solver: expected one of {SOLVERS} (or None: the checkpoint's), found {self.solver!r}"
-            )
-
-    @property
-    def resolved_solver(self) -> str:
-        """The solver that runs: ``solver``, else "unipc"."""
-        return self.solver or "unipc"
-
-
-def _finite(x) -> bool:
-    """A real number (not a bool), neither NaN nor infinite."""
-    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def apply_preset(config: SamplerConfig, name: str | None) -> SamplerConfig:
-    """``config`` with the fields of preset ``name`` (None: unchanged); an unknown name is an error."""
-    if name is None:
-        return config
-    if name not in SAMPLER_PRESETS:
-        raise ModelInputError(f"sampler preset: expected one of {sorted(SAMPLER_PRESETS)}, found {name!r}")
-    from dataclasses import replace
-
-    return replace(config, **SAMPLER_PRESETS[name])
 
 
 def step_sigmas(config: SamplerConfig) -> list[float]:
@@ -497,108 +410,3 @@ def sample_chunk(
     x = integrate(velocity, noise, config, progress)
     x[:, :, :1] = clean[:, :, :1]
     return x
-
-
-# ------------------------------------------------------------------ recommended settings of a model card
-
-#: the sampler settings a model card may recommend (``ModelCard.sampler``), each a :func:`resolve_sampler` option
-CARD_SAMPLER_KEYS = ("steps", "guidance", "guidance_form", "preset")
-#: where a setting came from, by priority (highest first)
-GIVEN, CARD, DEFAULT = "given", "model card", "library default"
-
-
-def check_card_sampler(value, source: str = "model card sampler") -> dict | None:
-    """``value`` (a card's ``sampler``: a mapping of :data:`CARD_SAMPLER_KEYS`, or None) checked, as a plain dict;
-    a :class:`ModelInputError` names the key, what was expected and what was found."""
-    if value is None:
-        return None
-    if not isinstance(value, Mapping):
-        raise ModelInputError(f"{source}: expected a mapping of {', '.join(CARD_SAMPLER_KEYS)}, found {value!r}")
-    unknown = sorted(set(value) - set(CARD_SAMPLER_KEYS))
-    if unknown:
-        raise ModelInputError(f"{source}: expected keys among {', '.join(CARD_SAMPLER_KEYS)}, found {unknown}")
-    out = dict(value)
-    if "steps" in out and (
-        isinstance(out["steps"], bool) or not isinstance(out["steps"], numbers.Integral) or out["steps"] < 1
-    ):
-        raise ModelInputError(f"{source}.steps: expected an integer >= 1, found {out['steps']!r}")
-    if "guidance" in out and out["guidance"] is not None and (not _finite(out["guidance"]) or out["guidance"] < 0):
-        raise ModelInputError(f"{source}.guidance: expected a finite number >= 0, found {out['guidance']!r}")
-    if "guidance_form" in out and out["guidance_form"] not in GUIDANCE_FORMS:
-        raise ModelInputError(
-            f"{source}.guidance_form: expected one of {GUIDANCE_FORMS}, found {out['guidance_form']!r}"
-        )
-    if "preset" in out and out["preset"] is not None and out["preset"] not in SAMPLER_PRESETS:
-        raise ModelInputError(
-            f"{source}.preset: expected one of {sorted(SAMPLER_PRESETS)} or null, found {out['preset']!r}"
-        )
-    return out
-
-
-@dataclass(frozen=True)
-class SamplerChoice:
-    """A sampler and where each recommended setting came from: ``sources[key]`` is ``"given"`` (a flag or
-    argument), ``"model card"`` or ``"library default"`` for each of :data:`CARD_SAMPLER_KEYS` (steps set by a
-    preset: ``"preset fast (given)"``)."""
-
-    config: SamplerConfig
-    sources: dict
-    preset: str | None = None
-
-    def describe(self, given: str = "given") -> str:
-        """One line, e.g. ``steps 20 (model card), guidance 3 (model card), guidance form diffusers (model card),
-        preset none (library default)``; ``given`` names the explicit source (``"flag"`` on the command line)."""
-        c = self.config
-        values = {
-            "steps": c.steps,
-            "guidance": "none" if c.guidance is None else f"{c.guidance:g}",
-            "guidance_form": c.guidance_form,
-            "preset": self.preset or "none",
-        }
-        return ", ".join(
-            f"{k.replace('_', ' ')} {values[k]} ({self.sources[k].replace(GIVEN, given)})" for k in CARD_SAMPLER_KEYS
-        )
-
-
-def resolve_sampler(
-    card_sampler=None,
-    *,
-    steps: int | None = None,
-    guidance: float | None = None,
-    guidance_form: str | None = None,
-    preset: str | None = None,
-    guidance_interval: tuple[float, float] | None = None,
-    defaults=None,
-    **fields,
-) -> SamplerChoice:
-    """The sampler an entry point runs: each of steps, guidance, guidance form and preset from the caller when
-    given (not None), else from the model card's recommendation ``card_sampler`` (``ModelCard.sampler``), else
-    the library default (35 steps, guidance 6, the diffusers form, no preset; ``defaults`` overrides these per
-    entry point). A preset sets steps and the guidance interval; steps given at the same or a higher level
-    (caller over card over default) replace the preset's. ``guidance_interval`` given replaces the preset's;
-    ``fields`` (shift, solver, batched_cfg, action_guidance, ...) go to :class:`SamplerConfig` as they are.
-    """
-    from dataclasses import replace
-
-    rank = {GIVEN: 2, CARD: 1, DEFAULT: 0}
-    lib = {"steps": 35, "guidance": 6.0, "guidance_form": "diffusers", "preset": None, **dict(defaults or {})}
-    card = check_card_sampler(card_sampler) or {}
-    asked = {"steps": steps, "guidance": guidance, "guidance_form": guidance_form, "preset": preset}
-    value, sources = {}, {}
-    for key in CARD_SAMPLER_KEYS:
-        if asked[key] is not None:
-            value[key], sources[key] = asked[key], GIVEN
-        elif key in card:
-            value[key], sources[key] = card[key], CARD
-        else:
-            value[key], sources[key] = lib[key], DEFAULT
-    config = apply_preset(
-        SamplerConfig(guidance=value["guidance"], guidance_form=value["guidance_form"], **fields), value["preset"]
-    )
-    if value["preset"] is not None and rank[sources["preset"]] > rank[sources["steps"]]:
-        sources["steps"] = f"preset {value['preset']} ({sources['preset']})"
-    else:
-        config = replace(config, steps=value["steps"])
-    if guidance_interval is not None:
-        config = replace(config, guidance_interval=guidance_interval)
-    return SamplerChoice(config, sources, value["preset"])

@@ -33,9 +33,10 @@ from .._util.log import get_logger
 from ..errors import OscarError
 from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style, takes_actions
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
+from .card_sampler import check_card_sampler, resolve_sampler
 from .errors import CheckpointLayoutError, ModelInputError
 from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
-from .sampler import SamplerConfig, check_card_sampler, resolve_sampler
+from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
 from .transformer import OscarTransformer3DModel
 from .vae import VideoVAE, check_frame_count, load_vae_folder

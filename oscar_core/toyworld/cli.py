@@ -486,7 +486,7 @@ def cmd_rollout(args) -> int:
     import oscar_zoo
 
     from .._util.stage import model_identity
-    from ..model.sampler import resolve_sampler
+    from ..model.card_sampler import resolve_sampler
     from .rollouts import write_rollouts
 
     model = oscar_zoo.load(args.model)

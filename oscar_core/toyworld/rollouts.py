@@ -84,7 +84,7 @@ def sampler_for_card(
     """A ``SamplerConfig``: the given steps / guidance / form / preset, else the card's recommended ones
     (``card.sampler``), else the library's defaults (35 steps, guidance 6 in the diffusers form at every step);
     :func:`oscar_core.model.sampler.resolve_sampler`."""
-    from ..model.sampler import resolve_sampler
+    from ..model.card_sampler import resolve_sampler
 
     return resolve_sampler(
         getattr(card, "sampler", None),
