@@ -1,7 +1,7 @@
 """The OSCAR world model as one object: DiT + VAE + text fallback + model card.
 
-One module on purpose: the card and the object whose loading, saving and rollouts share its device, dtype and
-card; it passed 600 lines only when the tree was formatted.
+The model card (:class:`ModelCard`, :func:`read_card`, ``FORMAT``) lives in :mod:`oscar_core.model.card` and is
+re-exported here.
 
 A saved model is a folder (the layout the zoo expects on the Hub)::
 
@@ -22,7 +22,7 @@ manifest's hashes unless told not to.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,98 +30,27 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from .._util.log import get_logger
-from ..errors import OscarError
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style, takes_actions
+from ..render.conditions import takes_actions
 from ._files import EMPTY_PROMPT_FILE, MODEL_FILE, SCHEDULER_FILE
-from .card_sampler import check_card_sampler, resolve_sampler
+from .card import (
+    CONDITIONS as CONDITIONS,
+    FORMAT,
+    UNCONDITIONAL_SKELETONS as UNCONDITIONAL_SKELETONS,
+    ModelCard,
+    read_card,
+)
+from .card_sampler import resolve_sampler
 from .errors import CheckpointLayoutError, ModelInputError
-from .manifest import MANIFEST_NAME, read_manifest, verify_files, write_manifest
+from .manifest import read_manifest, verify_files, write_manifest
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
 from .transformer import OscarTransformer3DModel
-from .vae import VideoVAE, check_frame_count, load_vae_folder
+from .vae import VideoVAE, load_vae_folder
 from .weights import cast_model, check_safetensors
 
 __all__ = ["FORMAT", "MODEL_FILE", "ModelCard", "OscarWorldModel", "read_card"]
 
-FORMAT = "oscar-world-model"
 _log = get_logger(__name__)
-UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
-
-
-@dataclass(frozen=True)
-class ModelCard:
-    """What a checkpoint expects and where it came from.
-
-    chunk_frames: frames per generated chunk (4k+1; the paper trains on 81);
-    width, height: resolution in pixels it was trained at (None: unknown);
-    fps: frame rate of its training videos (None: unknown);
-    embodiments: embodiment names (oscar plugins) it was trained on;
-    text_encoder_id: names the encoder whose embeddings it takes (cache key);
-    base: the checkpoint it was fine-tuned from; license: SPDX id or name;
-    unconditional_skeleton: what the skeleton stream was replaced with when
-    training dropped it (the paper's "replaced with zeros"), so that the
-    sampler's unconditional branch sees the same thing: ``"zero_latent"`` (a
-    zero skeleton latent) or ``"black_video"`` (the VAE latent of an all-black
-    skeleton video).
-    condition: what the model is conditioned on besides the first frame and
-    the text: ``"skeleton"`` (the skeleton video; cards written before this
-    field load as skeleton), ``"latent_action"`` (the paper's latent-action
-    baseline: a ``LatentActionTransformer`` fed (chunk_frames − 1, 14)
-    end-effector actions per chunk) or ``"none"`` (text and first frame
-    only; its PE_s is zero, so a skeleton fed to it changes nothing).
-    condition_style: how its condition video is drawn, a mapping of
-    :class:`~oscar_core.render.raster.SkeletonStyle` fields (sizes in pixels at 288 px of height; e.g. a larger
-    gripper indicator), as it was trained; every rollout draws the condition so. None: the default look.
-    sampler: the sampler settings the model is meant to be rolled out with (a mapping of
-    :data:`~oscar_core.model.sampler.CARD_SAMPLER_KEYS`: steps, guidance, guidance_form, preset); every
-    entry point uses them where its caller gives none (:func:`~oscar_core.model.sampler.resolve_sampler`);
-    None: the library's defaults.
-    """
-
-    name: str | None = None
-    chunk_frames: int = 81
-    width: int | None = None
-    height: int | None = None
-    fps: float | None = None
-    embodiments: tuple[str, ...] = ()
-    text_encoder_id: str | None = None
-    base: str | None = None
-    license: str | None = None
-    unconditional_skeleton: str = "zero_latent"
-    condition: ConditionName = "skeleton"
-    condition_style: dict | None = None
-    sampler: dict | None = None
-
-    def __post_init__(self):
-        check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
-        if self.unconditional_skeleton not in UNCONDITIONAL_SKELETONS:
-            raise ModelInputError(
-                f"model card unconditional_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, "
-                f"found {self.unconditional_skeleton!r}"
-            )
-        if self.condition not in CONDITIONS:
-            raise ModelInputError(f"model card condition: expected one of {CONDITIONS}, found {self.condition!r}")
-        try:
-            condition_style(self.condition_style, "model card condition_style")
-        except OscarError as e:
-            raise ModelInputError(str(e)) from None
-        object.__setattr__(self, "condition_style", dict(self.condition_style) if self.condition_style else None)
-        object.__setattr__(self, "embodiments", tuple(self.embodiments))
-        object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["embodiments"] = list(self.embodiments)
-        return d
-
-    @classmethod
-    def from_dict(cls, data: dict, source="<card>") -> ModelCard:
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise CheckpointLayoutError(source, "card", f"keys among {sorted(known)}", f"unknown keys {unknown}")
-        return cls(**data)
 
 
 @dataclass(eq=False)
@@ -344,7 +273,7 @@ class OscarWorldModel:
         return empty_prompt_embeds(dim), "ZERO text embedding (no empty-prompt embedding available)"
 
     def recommended_sampler(self, **given) -> SamplerConfig:
-        """The sampler of a rollout given no ``sampler``: :func:`~oscar_core.model.sampler.resolve_sampler` of the
+        """The sampler of a rollout given no ``sampler``: :func:`~oscar_core.model.card_sampler.resolve_sampler` of the
         card's recommended settings (``card.sampler``) under ``given`` options, logged at INFO with where each
         setting came from."""
         choice = resolve_sampler(self.card.sampler, **given)
@@ -636,26 +565,3 @@ class OscarWorldModel:
         h, w = np.asarray(first_frame).shape[:2]
         inputs = self.rollout_inputs(trajectory, camera, embodiment, size or (w, h), resize_mode=resize_mode)
         return self.rollout(first_frame, inputs["skeleton"], prompt_embeds, actions=inputs.get("actions"), **options)
-
-
-def read_card(folder: Path) -> ModelCard:
-    """The :class:`ModelCard` of an OSCAR model folder (its ``oscar_model.json``), without loading weights."""
-    path = folder / MODEL_FILE
-    if not path.is_file():
-        found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"
-        raise CheckpointLayoutError(
-            folder,
-            MODEL_FILE,
-            f"an OSCAR model folder ({MODEL_FILE}, transformer/, vae/, {MANIFEST_NAME})",
-            found or "an empty folder",
-        )
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as exc:
-        raise CheckpointLayoutError(path, "JSON", "a JSON object", f"unreadable JSON ({exc})") from None
-    if data.get("format") != FORMAT:
-        raise CheckpointLayoutError(path, "format", repr(FORMAT), repr(data.get("format")))
-    try:
-        return ModelCard.from_dict(data.get("card") or {}, path)
-    except (TypeError, ModelInputError) as exc:
-        raise CheckpointLayoutError(path, "card", "a valid model card", str(exc)) from None

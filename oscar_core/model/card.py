@@ -1,0 +1,122 @@
+"""The model card of an OSCAR model folder: :class:`ModelCard` (what a checkpoint expects and where it came from:
+chunk frames, resolution in pixels, fps, embodiments, text encoder, condition, recommended sampler settings) and
+:func:`read_card`, which reads it from the folder's ``oscar_model.json`` (``{"format": FORMAT, "format_version": 1,
+"card": {...}}``) without loading weights. Re-exported by :mod:`oscar_core.model.world_model`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from ..errors import OscarError
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style
+from ._files import MODEL_FILE
+from .card_sampler import check_card_sampler
+from .errors import CheckpointLayoutError, ModelInputError
+from .manifest import MANIFEST_NAME
+from .vae import check_frame_count
+
+__all__ = ["FORMAT", "ModelCard", "read_card"]
+
+FORMAT = "oscar-world-model"
+UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
+
+
+@dataclass(frozen=True)
+class ModelCard:
+    """What a checkpoint expects and where it came from.
+
+    chunk_frames: frames per generated chunk (4k+1; the paper trains on 81);
+    width, height: resolution in pixels it was trained at (None: unknown);
+    fps: frame rate of its training videos (None: unknown);
+    embodiments: embodiment names (oscar plugins) it was trained on;
+    text_encoder_id: names the encoder whose embeddings it takes (cache key);
+    base: the checkpoint it was fine-tuned from; license: SPDX id or name;
+    unconditional_skeleton: what the skeleton stream was replaced with when
+    training dropped it (the paper's "replaced with zeros"), so that the
+    sampler's unconditional branch sees the same thing: ``"zero_latent"`` (a
+    zero skeleton latent) or ``"black_video"`` (the VAE latent of an all-black
+    skeleton video).
+    condition: what the model is conditioned on besides the first frame and
+    the text: ``"skeleton"`` (the skeleton video; cards written before this
+    field load as skeleton), ``"latent_action"`` (the paper's latent-action
+    baseline: a ``LatentActionTransformer`` fed (chunk_frames − 1, 14)
+    end-effector actions per chunk) or ``"none"`` (text and first frame
+    only; its PE_s is zero, so a skeleton fed to it changes nothing).
+    condition_style: how its condition video is drawn, a mapping of
+    :class:`~oscar_core.render.raster.SkeletonStyle` fields (sizes in pixels at 288 px of height; e.g. a larger
+    gripper indicator), as it was trained; every rollout draws the condition so. None: the default look.
+    sampler: the sampler settings the model is meant to be rolled out with (a mapping of
+    :data:`~oscar_core.model.card_sampler.CARD_SAMPLER_KEYS`: steps, guidance, guidance_form, preset); every
+    entry point uses them where its caller gives none (:func:`~oscar_core.model.card_sampler.resolve_sampler`);
+    None: the library's defaults.
+    """
+
+    name: str | None = None
+    chunk_frames: int = 81
+    width: int | None = None
+    height: int | None = None
+    fps: float | None = None
+    embodiments: tuple[str, ...] = ()
+    text_encoder_id: str | None = None
+    base: str | None = None
+    license: str | None = None
+    unconditional_skeleton: str = "zero_latent"
+    condition: ConditionName = "skeleton"
+    condition_style: dict | None = None
+    sampler: dict | None = None
+
+    def __post_init__(self):
+        check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
+        if self.unconditional_skeleton not in UNCONDITIONAL_SKELETONS:
+            raise ModelInputError(
+                f"model card unconditional_skeleton: expected one of {UNCONDITIONAL_SKELETONS}, "
+                f"found {self.unconditional_skeleton!r}"
+            )
+        if self.condition not in CONDITIONS:
+            raise ModelInputError(f"model card condition: expected one of {CONDITIONS}, found {self.condition!r}")
+        try:
+            condition_style(self.condition_style, "model card condition_style")
+        except OscarError as e:
+            raise ModelInputError(str(e)) from None
+        object.__setattr__(self, "condition_style", dict(self.condition_style) if self.condition_style else None)
+        object.__setattr__(self, "embodiments", tuple(self.embodiments))
+        object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["embodiments"] = list(self.embodiments)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict, source="<card>") -> ModelCard:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise CheckpointLayoutError(source, "card", f"keys among {sorted(known)}", f"unknown keys {unknown}")
+        return cls(**data)
+
+
+def read_card(folder: Path) -> ModelCard:
+    """The :class:`ModelCard` of an OSCAR model folder (its ``oscar_model.json``), without loading weights."""
+    path = folder / MODEL_FILE
+    if not path.is_file():
+        found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"
+        raise CheckpointLayoutError(
+            folder,
+            MODEL_FILE,
+            f"an OSCAR model folder ({MODEL_FILE}, transformer/, vae/, {MANIFEST_NAME})",
+            found or "an empty folder",
+        )
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as exc:
+        raise CheckpointLayoutError(path, "JSON", "a JSON object", f"unreadable JSON ({exc})") from None
+    if data.get("format") != FORMAT:
+        raise CheckpointLayoutError(path, "format", repr(FORMAT), repr(data.get("format")))
+    try:
+        return ModelCard.from_dict(data.get("card") or {}, path)
+    except (TypeError, ModelInputError) as exc:
+        raise CheckpointLayoutError(path, "card", "a valid model card", str(exc)) from None
