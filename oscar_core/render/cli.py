@@ -124,7 +124,7 @@ def _size(text):
 
 
 def _specs(args):
-    from .batch import EpisodeSpec, read_manifest, specs_from_folder
+    from .batch_specs import EpisodeSpec, read_manifest, specs_from_folder
 
     if args.manifest and args.trajectories:
         raise OscarError("render: give --manifest or --trajectories, not both")
