@@ -2,7 +2,9 @@
 
 Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code). Heavy imports happen inside the
-commands.
+commands. The policy-evaluation sub-commands (``policy-eval``,
+``closed-loop-sessions``, ``carry``) live in :mod:`oscar_core.toyworld.cli_policies`;
+this module adds them to the parser and re-exports their commands.
 """
 
 from __future__ import annotations
@@ -13,10 +15,16 @@ import sys
 from pathlib import Path
 
 from .._util.arg_types import count, interval, number
-from .._util.log import get_logger, log_result, run_log
+from .._util.log import log_result, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..model.presets import SAMPLER_PRESETS
+from .cli_policies import (
+    add_policy_parsers,
+    cmd_carry,
+    cmd_closed_loop_sessions as cmd_closed_loop_sessions,
+    cmd_policy_eval,
+)
 
 __all__ = [
     "add_toyworld_parser",
@@ -30,7 +38,6 @@ __all__ = [
     "cmd_carry",
 ]
 
-_log = get_logger(__name__)
 
 EXAMPLES = """examples:
   oscar toyworld example --out toy_example     (first_frame.png, trajectory.npz, camera.json for oscar rollout)
@@ -264,38 +271,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
     k.set_defaults(func=cmd_package)
-    pe = sub.add_parser(
-        "policy-eval",
-        help="scripted pick-and-place policies: write an `oscar eval run` manifest with their real outcomes",
-        epilog=EXAMPLES,
-        formatter_class=fmt,
-    )
-    _add_policy_eval_arguments(pe)
-    pe.set_defaults(func=cmd_policy_eval)
-    cl = sub.add_parser(
-        "closed-loop-sessions",
-        help="toy sessions and image-based policies: write an `oscar eval closed-loop` manifest",
-        epilog=EXAMPLES,
-        formatter_class=fmt,
-    )
-    cl.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
-    cl.add_argument("--sessions", type=count(1), required=True, help="sessions per embodiment")
-    cl.add_argument("--seed", type=count(0), default=0, help="session i of embodiment e depends on (seed, e, i) only")
-    cl.add_argument("--horizon", type=count(2), default=49, help="frames per episode, the first included (default 49)")
-    cl.add_argument("--policies", help="comma-separated toy policies (default: exact,noisy,late,never_closes,random)")
-    output_option(
-        cl.add_argument("--out", required=True, help="folder for manifest.json and the session folders"), "folder"
-    )
-    cl.set_defaults(func=cmd_closed_loop_sessions)
-    cy = sub.add_parser(
-        "carry",
-        help="where the generated ball goes: per-cell judge internals of an `oscar eval "
-        "run` on a policy-eval manifest, per policy against the real grab",
-        epilog=EXAMPLES,
-        formatter_class=fmt,
-    )
-    _add_carry_arguments(cy)
-    cy.set_defaults(func=cmd_carry)
+    add_policy_parsers(sub, EXAMPLES)
 
     e = sub.add_parser(
         "eval",
@@ -558,127 +534,4 @@ def cmd_eval(args) -> int:
     print(json.dumps(table, indent=2) if args.json else format_table(table))
     if html and not args.no_html and not args.json:
         print(f"wrote {html}")
-    return 0
-
-
-def _add_policy_eval_arguments(p) -> None:
-    """The options of ``oscar toyworld policy-eval`` (on the argparse parser ``p``)."""
-    p.add_argument("--embodiments", required=True, help="comma-separated embodiment names with a gripper")
-    p.add_argument("--sessions", type=count(1), required=True, help="sessions (scenes) per embodiment")
-    p.add_argument(
-        "--seed", type=count(0), default=0, help="seed: session i of embodiment e depends on (seed, e, i) only"
-    )
-    output_option(
-        p.add_argument(
-            "--out", required=True, help="folder for manifest.json, policy_eval.json and the session folders"
-        ),
-        "folder",
-    )
-    p.add_argument("--size", default="64x64", help="WIDTHxHEIGHT pixels, multiples of 16 (default 64x64)")
-    p.add_argument("--frames", type=count(1), default=17, help="frames per episode (default 17: one oscar-toy chunk)")
-    p.add_argument("--fps", type=number(above=0.0), default=10.0, help="frame rate of the trajectories (default 10)")
-    p.add_argument(
-        "--supersample", type=count(1), default=2, help="anti-aliasing factor of the real renders (default 2)"
-    )
-    p.add_argument("--json", action="store_true", help="print the summary (without per-episode rows) as JSON")
-
-
-def cmd_policy_eval(args) -> int:
-    """``oscar toyworld policy-eval``: write the manifest (:func:`~oscar_core.toyworld.policy_eval.write_policy_eval`)
-    and print the true success rate per policy."""
-    from ..plugin.registry import Registry
-    from ..render.skeleton_video import parse_size
-    from .policy_eval import SUCCESS_RADII, write_policy_eval
-
-    w, h = parse_size(args.size)
-    names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())
-    if not names:
-        raise ValueError("--embodiments: expected comma-separated embodiment names, found none")
-    summary = write_policy_eval(
-        args.out,
-        names,
-        args.sessions,
-        seed=args.seed,
-        width=w,
-        height=h,
-        frames=args.frames,
-        fps=args.fps,
-        supersample=args.supersample,
-        registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
-        progress=_log.info,
-    )
-    if args.json:
-        print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
-        return 0
-    print(
-        f"{args.out}/manifest.json: {len(summary['rows'])} cells, {args.sessions} sessions x "
-        f"{len(names)} embodiments; true success rate per policy (ball grabbed and moved >= "
-        f"{SUCCESS_RADII:g} ball radii):"
-    )
-    for p, v in summary["policies"].items():
-        per = ", ".join(f"{e} {r:.2f}" for e, r in v["by_embodiment"].items())
-        print(f"  {p:<8} aim sigma {v['aim_sigma_radii']:.2f} R: {v['success_rate']:.2f}  ({per})")
-    return 0
-
-
-def _add_carry_arguments(p) -> None:
-    p.add_argument("manifest", help="manifest.json of oscar toyworld policy-eval (policy_eval.json beside it)")
-    p.add_argument("eval_out", help="the --out folder of oscar eval run on that manifest (its rollouts)")
-    output_option(
-        p.add_argument("--json", default=None, help="also write every row and the summary to this JSON file"), "file"
-    )
-
-
-def cmd_carry(args) -> int:
-    """``oscar toyworld carry``: print the per-policy table of :func:`~oscar_core.toyworld.carry.carry_table` (and
-    write its rows and summary as JSON on request)."""
-    from .._util.atomic import atomic_write_bytes
-    from .carry import carry_table
-
-    table = carry_table(args.manifest, args.eval_out)
-    summary, rows = table["summary"], table["rows"]
-
-    def f(x) -> str:
-        return "n/a" if x is None else f"{x:.2f}"
-
-    print(
-        "| policy | cells | real SR | WM SR | real grabs | WM ball left start: grabbed / missed | "
-        "WM success: grabbed / missed | blob to place (R) | blob to end-effector end (R) |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|")
-    for p, s in summary.items():
-        print(
-            f"| {p} | {s['cells']} | {f(s['real_sr'])} | {f(s['wm_sr'])} | {s['grabbed']} | "
-            f"{f(s['left_if_grabbed'])} / {f(s['left_if_missed'])} | {f(s['success_if_grabbed'])} / "
-            f"{f(s['success_if_missed'])} | {f(s['blob_to_place'])} | {f(s['blob_to_ee_end'])} |"
-        )
-    if args.json:
-        atomic_write_bytes(Path(args.json), (json.dumps({"summary": summary, "rows": rows}, indent=1) + "\n").encode())
-    return 0
-
-
-def cmd_closed_loop_sessions(args) -> int:
-    """``oscar toyworld closed-loop-sessions``: write toy sessions and a closed-loop manifest."""
-    from ..plugin.registry import Registry
-    from .closed_loop import write_closed_loop_sessions
-    from .image_policies import POLICIES
-
-    names = [n.strip() for n in args.embodiments.split(",") if n.strip()]
-    pols = [p.strip() for p in args.policies.split(",") if p.strip()] if args.policies else None
-    bad = [p for p in pols or () if p not in POLICIES]
-    if not names or bad:
-        raise ValueError(
-            f"--embodiments/--policies: expected embodiment names and toy policies among "
-            f"{list(POLICIES)}, found {names} / {bad}"
-        )
-    path = write_closed_loop_sessions(
-        args.out,
-        names,
-        args.sessions,
-        seed=args.seed,
-        horizon=args.horizon,
-        policies=pols,
-        registry=Registry(plugin_paths=getattr(args, "plugin", None) or ()),
-    )
-    print(f"wrote {path}: {args.sessions} sessions x {len(names)} embodiments")
     return 0
