@@ -321,6 +321,7 @@ def sample_chunk(
     actions: torch.Tensor | None = None,
     latent_frames: int | None = None,
     generators=None,
+    project_once: bool = True,
 ) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
@@ -337,6 +338,9 @@ def sample_chunk(
     actions: (B, window − 1, 14) latent actions of the chunk, for a
         ``LatentActionTransformer``: then ``skeleton_latent`` is None and
         ``latent_frames`` (T, the chunk's latent frames) gives the length.
+    project_once: project the prompt once per chunk (``transformer.project_text``); False hands it to every
+        forward unprojected, for a model whose forward must run whole (FSDP2 gathers the projection's weights
+        there).
     """
     device = next(transformer.parameters()).device
     if actions is not None:
@@ -364,7 +368,7 @@ def sample_chunk(
     if text.shape[0] not in (1, b):
         raise ModelInputError(f"text: expected batch 1 or {b}, found shape {tuple(text.shape)}")
     # the prompt is the same at every step: project it once (where the projection lives), not per step
-    text = transformer.project_text(text).to(device).expand(b, -1, -1)
+    text = (transformer.project_text(text) if project_once else text).to(device).expand(b, -1, -1)
     skeleton_latent = skeleton_latent.to(device)
     if uncond_skeleton is not None:
         uncond_skeleton = uncond_skeleton.to(device)
@@ -401,7 +405,7 @@ def sample_chunk(
             mask,
             padding,
             step_config,
-            text_projected=True,
+            text_projected=project_once,
             uncond_skeleton=uncond_skeleton,
             actions=actions,
         )

@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity
+from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity, sample_chunk
 from .config import TrainConfigError
 from .data import Batch
 from .flow import flow_inputs, flow_loss
@@ -200,8 +200,25 @@ def self_force(student, data, batch: Batch, items: list[PlanItem], config, devic
     if not context:
         return batch, 0
     prev = data.batch(context, config.condition)
+    # the student's own sampler (its card's settings: Euler, no guidance); called whole, so FSDP2 gathers its shards
+    sampler = SamplerConfig(
+        steps=d.steps,
+        shift=config.flow.shift,
+        guidance=None,
+        solver="euler",
+        cond_timestep=config.flow.cond_timestep,
+    )
+    generators = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
     with torch.no_grad(), autocast or contextlib.nullcontext():
-        latent = _student_chunk(student, prev, context, d.steps, config.flow, device)
+        latent = sample_chunk(
+            student,
+            prev.z0[:, :, :1].to(device, torch.float32),
+            prev.skeleton.to(device, torch.float32),
+            prev.text.to(device),
+            sampler,
+            generators=generators,
+            project_once=False,
+        )
     if not chosen:
         return batch, 0
     with torch.no_grad():
@@ -210,40 +227,6 @@ def self_force(student, data, batch: Batch, items: list[PlanItem], config, devic
     z0 = batch.z0.clone()
     z0[chosen, :, :1] = first
     return replace(batch, z0=z0), len(chosen)
-
-
-def _student_chunk(student, prev: Batch, context: list[PlanItem], steps: int, flow, device) -> torch.Tensor:
-    """(B, C, T', h, w) float32: the student's chunk of each ``prev`` window from its clean first latent frame, as the
-    sampler makes it (``steps`` Euler steps on ``flow_sigmas(steps, flow.shift)``, the conditional branch alone,
-    frame 0 held clean at timestep ``flow.cond_timestep``), from noise drawn from each context item's seed. The
-    student is called whole (its forward projects the prompt), so a sharded student gathers its weights."""
-    z0 = prev.z0.to(device, torch.float32)
-    b, c, t, h, w = z0.shape
-    noise = torch.cat(
-        [
-            torch.randn((1, c, t, h, w), generator=torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT))
-            for it in context
-        ]
-    ).to(device)
-    inputs = flow_inputs(z0, noise, torch.ones(b, device=device), flow.cond_timestep)  # σ = 1: noise, frame 0 clean
-    indicator = 1.0 - inputs.loss_mask
-    text, skeleton = prev.text.to(device), prev.skeleton.to(device, torch.float32)
-    padding = torch.zeros(1, 1, h, w, device=device)
-    sigmas = flow_sigmas(steps, flow.shift).tolist()
-    x = inputs.x
-    for s_now, s_next in zip(sigmas[:-1], sigmas[1:]):
-        timestep = indicator * flow.cond_timestep + (1.0 - indicator) * s_now
-        v = student(
-            hidden_states=x,
-            timestep=timestep,
-            encoder_hidden_states=text,
-            condition_mask=inputs.condition_mask,
-            padding_mask=padding,
-            skeleton_latents=skeleton,
-            return_dict=False,
-        )[0].float()
-        x = x + (s_next - s_now) * v * (1.0 - indicator)
-    return x
 
 
 def _any_rank_samples(mine: bool, config) -> bool:

@@ -22,7 +22,7 @@ from oscar_core.model.sampler import SamplerConfig, flow_sigmas, sample_chunk
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
 from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict, load_config
 from oscar_core.train.data import TrainData
-from oscar_core.train.distill import _CONTEXT_SALT, _student_chunk, self_force, self_forced
+from oscar_core.train.distill import _CONTEXT_SALT, self_force, self_forced
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_transformer, build_vae
 from oscar_core.train.sampling import PlanItem, StepPlanner
@@ -111,21 +111,22 @@ def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previ
     assert none == 0 and again is batch
 
 
-def test_the_students_context_chunk_is_what_its_sampler_makes(tmp_path, long_clips):
-    """On the real (tiny) DiT: the context chunk equals ``sample_chunk`` with the student's card settings (Euler,
-    no guidance) and the same noise, i.e. the chunk a rollout of the exported student would make."""
+def test_the_prompt_projected_in_each_forward_samples_as_projected_once(tmp_path, long_clips):
+    """On the real (tiny) DiT: ``sample_chunk(..., project_once=False)`` (how a self-forced context chunk is made, so
+    that a sharded student runs whole) equals the rollout's sampler, which projects the prompt once."""
     config = _config(long_clips, tmp_path / "run")
     data = TrainData(config, build_vae(config), text_dim=48)
     student = build_transformer(config).eval()
-    context = [PlanItem(0, 0, False, 0.5, 7), PlanItem(1, 4, False, 0.5, 8)]
-    prev = data.batch(context, "skeleton")
-    got = _student_chunk(student, prev, context, 3, config.flow, "cpu")
+    prev = data.batch([PlanItem(0, 0, False, 0.5, 7), PlanItem(1, 4, False, 0.5, 8)], "skeleton")
     sampler = SamplerConfig(steps=3, shift=config.flow.shift, guidance=None, solver="euler")
-    gens = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
-    with torch.no_grad():
-        want = sample_chunk(student, prev.z0[:, :, :1], prev.skeleton, prev.text, sampler, generators=gens)
-    torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-4)
-    assert not torch.allclose(got[:, :, 1:], prev.z0[:, :, 1:], atol=1e-2)  # a sample, not the data
+    runs = []
+    for once in (True, False):
+        gens = [torch.Generator().manual_seed(seed) for seed in (7, 8)]
+        with torch.no_grad():
+            first, skel = prev.z0[:, :, :1], prev.skeleton
+            runs.append(sample_chunk(student, first, skel, prev.text, sampler, generators=gens, project_once=once))
+    torch.testing.assert_close(runs[0], runs[1], rtol=1e-4, atol=1e-4)
+    assert not torch.allclose(runs[0][:, :, 1:], prev.z0[:, :, 1:], atol=1e-2)  # a sample, not the data
 
 
 def test_which_items_are_self_forced_depends_on_their_seed_alone():
