@@ -71,7 +71,8 @@ def rollout_clip(
         video = model.rollout(first, None, embeds, actions=acts, **options)
     else:  # the card's condition video: the stored skeleton, or the mesh / capsules rendered
         name = video_condition_of(model.card.condition)
-        cond = clipset.condition_video(source, clip, registry, name, model.card.condition_style)[:frames]
+        style = getattr(model.card, "condition_style", None)  # a card of any model with rollout(), or an oscar card
+        cond = clipset.condition_video(source, clip, registry, name, style)[:frames]
         video = model.rollout(first, cond, embeds, **options)
     seconds = time.perf_counter() - t0
     return np.asarray(video.frames if hasattr(video, "frames") else video).astype(np.uint8), seconds
