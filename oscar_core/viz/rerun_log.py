@@ -103,6 +103,17 @@ def _iter_frames(path, n: int):
             yield frame.to_ndarray(format="rgb24")
 
 
+def _iter_frames_at(path, indices):
+    """Frames ``indices`` (non-decreasing ints) of a video file or PNG folder, one (H, W, 3) array per index:
+    a frame shown at several trajectory frames is yielded again, a skipped one is decoded and dropped."""
+    frames = _iter_frames(path, int(indices[-1]) + 1)
+    i, frame = -1, None
+    for want in indices:
+        while i < want:
+            frame, i = next(frames), i + 1
+        yield frame
+
+
 def _iter_condition(source, size):
     """The condition video at ``size``, frame by frame: the stored one (fitted to ``size``), else the skeleton
     rendered through the camera chunk by chunk."""
@@ -205,7 +216,9 @@ def log_source(source, rec, *, jpeg_quality: int | None = None, meshes: bool = F
 
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     # videos are read (and the condition rendered) frame by frame: an episode never sits in memory whole
-    rgb = _iter_frames(source.rgb, T) if source.rgb is not None else None
+    rgb = None
+    if source.rgb is not None:  # the real video by time: its frame nearest to each trajectory frame
+        rgb = _iter_frames_at(source.rgb, source.rgb_frames or range(T))
     gen = _iter_frames(source.generated, T) if source.generated is not None else None
     size = None
     if cam is not None:

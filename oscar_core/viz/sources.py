@@ -24,9 +24,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputFileError, OscarError
 
-__all__ = ["ViewSource", "episode_source", "clip_source", "closed_loop_source", "eval_run_source", "describe"]
+__all__ = [
+    "ViewSource",
+    "frames_by_time",
+    "episode_source",
+    "clip_source",
+    "closed_loop_source",
+    "eval_run_source",
+    "describe",
+]
 
 
 @dataclass(frozen=True)
@@ -37,7 +47,8 @@ class ViewSource:
     camera: the calibration or None (then no frustum and no rendered condition); rgb: the real video
     (file or PNG folder) or None; generated: a generated video (a rollout) or None; condition: a stored
     condition video or None (then it is rendered from trajectory and camera); frames: {role: frame count}
-    of each video, every one at least T.
+    of each video; rgb_frames: (T,) the real video's frame shown at each trajectory frame, nearest in time
+    (:func:`frames_by_time`), or None.
     """
 
     name: str
@@ -49,6 +60,25 @@ class ViewSource:
     generated: Path | None = None
     condition: Path | None = None
     frames: dict | None = None
+    rgb_frames: tuple | None = None
+
+
+#: Two frame rates closer than this (relative) are the same rate: a container stores a rational
+#: approximation of the rate it was written at, and a video at its trajectory's rate is read frame for frame.
+SAME_RATE = 1e-3
+
+
+def frames_by_time(video_fps, fps: float, T: int) -> np.ndarray:
+    """The video frame shown at each of ``T`` trajectory frames: (T,) int, frame ``round(t / fps * video_fps)``.
+
+    The trajectory's frame t is at t / ``fps`` seconds, the video's frame i at i / ``video_fps`` seconds, both
+    from the episode's start; the nearest video frame in time is shown (ties to the earlier). A video of
+    unknown rate (a PNG folder) or at the trajectory's rate (within :data:`SAME_RATE`) is read frame for frame.
+    """
+    t = np.arange(T)
+    if video_fps is None or abs(float(video_fps) / float(fps) - 1.0) <= SAME_RATE:
+        return t
+    return np.ceil(t * float(video_fps) / float(fps) - 0.5).astype(int)
 
 
 def _file(path, what: str) -> Path:
@@ -58,11 +88,11 @@ def _file(path, what: str) -> Path:
     return p
 
 
-def _frames_of(path: Path, role: str) -> int:
+def _video_info(path: Path, role: str) -> dict:
     from ..media.video import video_info
 
     try:
-        return int(video_info(path)["frames"])
+        return video_info(path)
     except (ValueError, OSError) as exc:
         raise InputFileError(path, role, "a readable video or folder of PNG frames", str(exc)) from None
 
@@ -81,7 +111,10 @@ def episode_source(
     """A :class:`ViewSource` from files: ``embodiment`` is an installed embodiment's name; ``trajectory`` a
     ``.npz``; ``camera`` a camera JSON; ``video`` / ``generated`` / ``condition`` videos (files or PNG folders).
 
-    Every video must hold at least the trajectory's T frames (the first T are shown).
+    The generated and condition videos are at the trajectory's rate and must hold at least its T frames (the
+    first T are shown). The real video is shown by time (:func:`frames_by_time`): at another rate than the
+    trajectory's (a RoboArena camera at 15 fps beside a trajectory resampled to 16 or 10 fps) the frame nearest
+    in time is shown, and the video must last as long as the trajectory.
     """
     from ..kinematics.trajectory import load_trajectory
     from ..plugin.registry import Registry
@@ -97,18 +130,24 @@ def episode_source(
         cam = emb.load_camera(paths["camera"])
         emb.check_camera(cam, str(paths["camera"]))
         cam.check_frames(len(traj), str(paths["camera"]))
-    frames = {}
+    frames, rgb_frames = {}, None
     for role in ("video", "generated", "condition"):
         if role in paths:
-            n = _frames_of(paths[role], role)
-            if n < len(traj):
+            info = _video_info(paths[role], role)
+            n = int(info["frames"])
+            at = frames_by_time(info["fps"], traj.fps, len(traj)) if role == "video" else np.arange(len(traj))
+            if n <= at[-1]:
+                span = "" if at[-1] == len(traj) - 1 else f" at {info['fps']:g} fps to cover {len(traj) / traj.fps:g} s"
                 raise InputFileError(
                     paths[role],
                     "frames",
-                    f"at least {len(traj)} frames (the length of {paths['trajectory']})",
+                    f"at least {at[-1] + 1} frames{span} (the length of {paths['trajectory']}, "
+                    f"{len(traj)} frames at {float(traj.fps):g} fps)",
                     f"{n} frames",
                 )
             frames[role] = n
+            if role == "video":
+                rgb_frames = tuple(int(i) for i in at)
     if condition is not None and cam is None:
         raise OscarError(f"{paths['condition']}: a condition video is shown over the camera's view; give a camera too")
     return ViewSource(
@@ -121,6 +160,7 @@ def episode_source(
         generated=paths.get("generated"),
         condition=paths.get("condition"),
         frames=frames,
+        rgb_frames=rgb_frames,
     )
 
 

@@ -210,6 +210,56 @@ def test_an_eval_run_cell(episode, tmp_path, capsys):
     assert code == 2 and "field 'cells'" in err and "['s1/pi0']" in err and "'s1/pi1'" in err
 
 
+@pytest.mark.parametrize("fps, n", [(16.0, 31), (10.0, 20)])
+def test_an_eval_run_cells_real_video_is_shown_by_time(tmp_path, capsys, fps, n):
+    """A RoboArena cell: the real camera at 15 fps, 30 frames (1.933 s); the trajectory resampled to ``fps``
+    (``n`` frames over the same 1.933 s). Each trajectory frame shows the real frame nearest in time."""
+    from oscar_core.evaluation.roboarena import resample_joints
+    from oscar_core.trajectory import Trajectory
+
+    emb = get_embodiment("franka")
+    ep = make_episode(emb, episode_rng(0, "franka", 0), W, H, 30)
+    src = emb.check_trajectory(ep.trajectory)
+    times = np.arange(30) / 15.0
+    q, at = resample_joints(np.concatenate([src.q, src.gripper], axis=1), times, fps)
+    assert len(q) == n
+    J = len(src.joint_names)
+    traj = Trajectory(src.joint_names, q[:, :J], fps, gripper=q[:, J:], gripper_names=src.gripper_names)
+    save_trajectory(traj, tmp_path / "traj.npz")
+    save_camera(ep.camera, tmp_path / "cam.json")
+    real = np.zeros((30, H, W, 3), np.uint8)
+    real[:] = (np.arange(30) * 8)[:, None, None, None]  # frame i is grey level 8 i: which frame is shown is read back
+    write_video(tmp_path / "real.mkv", real, 15.0)
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "first.png"), real[0])
+    manifest = {
+        "format": "oscar-eval-manifest", "policies": ["pi0"],
+        "defaults": {"embodiment": "franka", "camera": "cam.json"},
+        "cells": [{"session": "s1", "policy": "pi0", "task": "reach", "first_frame": "first.png",
+                   "trajectory": "traj.npz", "real_video": "real.mkv"}],
+    }  # fmt: skip
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    (tmp_path / "run" / "rollouts" / "s1").mkdir(parents=True)
+    write_video(tmp_path / "run" / "rollouts" / "s1" / "pi0.mkv", ep.rgb[:1].repeat(n, axis=0), fps)
+    rrd = tmp_path / "run.rrd"
+    args = [tmp_path / "run", "--manifest", tmp_path / "manifest.json", "--cell", "s1/pi0", "--save", rrd]
+    code, out, err = _view([*args, "--jpeg-quality", "0"], capsys)
+    assert code == 0, err
+    shown = _images(_store(rrd), "/rollout/real", (H, W, 3))[:, 0, 0, 0] // 8
+    assert len(shown) == n
+    from fractions import Fraction as F
+
+    # the real frame nearest in time, in exact arithmetic (a tie, as at 10 fps, goes to the earlier frame)
+    want = [min(range(30), key=lambda i: abs(F(i, 15) - F(t) / F(fps))) for t in range(n)]
+    assert shown.tolist() == want
+    assert np.abs(shown / 15.0 - np.arange(n) / fps).max() <= 0.5 / 15.0 + 1e-9
+
+    write_video(tmp_path / "real.mkv", real[:20], 15.0)  # 1.27 s of video for a 1.93 s trajectory
+    code, out, err = _view(args, capsys)
+    assert code == 2 and "real.mkv: field 'frames': expected at least 29 frames at 15 fps" in err, err
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
