@@ -24,7 +24,7 @@ import numpy as np
 from ..policy.protocol import PolicyFault
 from .closed_loop_cell import ModelWorld, OpenCell, failed_to_load, generate_chunks
 
-__all__ = ["run_lock_step"]
+__all__ = ["generate_together", "run_lock_step"]
 
 
 @dataclass
@@ -53,28 +53,31 @@ def _batch_key(world: ModelWorld, inputs: dict) -> tuple:
     return id(world.model), world.chunk_frames, inputs["video"].shape, None if prompt is None else tuple(prompt.shape)
 
 
-def generate_together(slots: list[_Slot]) -> int:
-    """Generate the requested chunk of every slot: the world-model ones in batches of one key, the others by
-    their world's ``step``. Returns the number of world-model calls made."""
+def generate_together(requests: list[tuple]) -> list[np.ndarray]:
+    """Generate the requested chunk of every ``(world, (q, gripper))`` pair: the world-model ones
+    (:class:`ModelWorld`) in one batched call per key (model, chunk length, condition and prompt shapes), the others
+    by their world's ``step``. Returns each pair's (n, H, W, 3) uint8 new frames, in order; each world has taken
+    its chunk (``accept``). A batched call's seconds are shared among its worlds' ``timing``."""
+    out: list = [None] * len(requests)
     groups: dict[tuple, list] = {}
-    for slot in slots:
-        world = slot.cell.world
+    for k, (world, request) in enumerate(requests):
         if isinstance(world, ModelWorld):
-            inputs = world.chunk_inputs(*slot.request)
-            groups.setdefault(_batch_key(world, inputs), []).append((slot, inputs))
+            inputs = world.chunk_inputs(*request)
+            groups.setdefault(_batch_key(world, inputs), []).append((k, inputs))
         else:
-            slot.frames = world.step(*slot.request)
+            out[k] = world.step(*request)
     for group in groups.values():
-        world0 = group[0][0].cell.world
+        world0 = requests[group[0][0]][0]
         t0 = time.perf_counter()
         videos = generate_chunks(
             world0.model, [i for _, i in group], chunk_frames=world0.chunk_frames, sampler=world0.sampler
         )
         share = (time.perf_counter() - t0) / len(group)
-        for (slot, inputs), video in zip(group, videos):
-            slot.cell.world.timing["model_s"] += share
-            slot.frames = slot.cell.world.accept(*slot.request, inputs, video)
-    return len(groups)
+        for (k, inputs), video in zip(group, videos):
+            world, request = requests[k]
+            world.timing["model_s"] += share
+            out[k] = world.accept(*request, inputs, video)
+    return out
 
 
 def run_lock_step(
@@ -110,6 +113,6 @@ def run_lock_step(
             if ended and waiting:
                 continue  # the next waiting cells join before the batch's next chunk
             if active:
-                generate_together(active)
-                for slot in active:
-                    slot.request = None
+                new = generate_together([(slot.cell.world, slot.request) for slot in active])
+                for slot, frames in zip(active, new):
+                    slot.frames, slot.request = frames, None

@@ -8,7 +8,6 @@ cells on Ray actors, both from the pieces here.
 
 from __future__ import annotations
 
-import hashlib
 import time
 from dataclasses import dataclass
 
@@ -16,8 +15,8 @@ import numpy as np
 
 from ..policy.loading import load_policy
 from ..policy.protocol import PolicyFault, PolicySpec, call_policy, check_answer
-from ..policy.spaces import ActionAdapter, resample
 from .closed_loop_manifest import Session
+from .closed_loop_step import CellState
 
 __all__ = [
     "CellRun",
@@ -29,6 +28,7 @@ __all__ = [
     "drive",
     "generate_chunks",
     "open_cell",
+    "open_world",
     "run_cell",
     "run_open_cell",
 ]
@@ -158,39 +158,6 @@ class CellRun:
     clipped: int = 0
 
 
-def _observation(
-    spec: PolicySpec, frame: np.ndarray, q: np.ndarray, closure: float, task: str, extras: dict
-) -> tuple[dict, str]:
-    """The observation dict under the policy's keys, and the SHA-256 of the image sent."""
-    import cv2
-
-    w, h = spec.image_size
-    image = frame if frame.shape[:2] == (h, w) else cv2.resize(frame, (w, h), interpolation=cv2.INTER_AREA)
-    image = np.ascontiguousarray(image, dtype=np.uint8)
-    obs = dict(extras)
-    keys = spec.keys
-    obs[keys["image"]] = image
-    obs[keys["wrist_image"]] = np.zeros_like(image)
-    obs[keys["joint_position"]] = np.asarray(q, dtype=np.float64).copy()
-    obs[keys["gripper_position"]] = np.array([closure], dtype=np.float64)
-    obs[keys["prompt"]] = task
-    return obs, hashlib.sha256(image.tobytes()).hexdigest()
-
-
-def _closure_to_signal(emb, closure: np.ndarray) -> np.ndarray:
-    """(n,) closure → (n, G) raw gripper signals (every gripper follows the one command)."""
-    from ..kinematics.workspace import openness_to_signal
-
-    openness = np.repeat((1.0 - np.asarray(closure, float))[:, None], len(emb.grippers), axis=1)
-    return openness_to_signal(emb, openness)
-
-
-def _signal_to_closure(emb, signal: np.ndarray) -> float:
-    if not len(emb.grippers):
-        return 0.0
-    return float(1.0 - emb.gripper_openness(np.asarray(signal, float)[None, :])[0, 0])
-
-
 def cell_steps(
     first,
     fps: float,
@@ -215,45 +182,33 @@ def cell_steps(
     :class:`CellRun`. :func:`run_cell` drives it with one world; the lock-step driver
     (:mod:`.closed_loop_batch`) drives many at once and batches their chunks.
     """
-    adapter = ActionAdapter(emb, spec.action_space, spec.gripper, spec.control_hz)
+    state = CellState(first, fps, chunk, spec, emb, q0=q0, g0=g0, horizon=horizon)
     K = int(replan_every or spec.actions_per_call)
     timeout = float(timeout_s or spec.timeout_s)
-    fps, n = float(fps), int(chunk)
-    frames = [first]
-    q_frames = [np.asarray(q0, float)]
-    g_frames = [np.asarray(g0, float)]
-    times, knots_q = [0.0], [np.asarray(q0, float)]
-    knots_c = [_signal_to_closure(emb, g0)]
+    bounds = state.adapter.bounds()
     calls: list[dict] = []
-    clipped = 0
     fault, done = None, False
     if hasattr(policy, "reset"):
         try:
             policy.reset()
         except Exception as exc:  # noqa: BLE001 - a policy's own fault
             fault = f"reset raised {type(exc).__name__}: {str(exc).strip()[:300]}"
-    while fault is None and not done and len(frames) < horizon:
-        end_t = (len(frames) - 1 + n) / fps  # the next chunk's last frame
-        while times[-1] < end_t - 1e-9:
-            obs, digest = _observation(spec, frames[-1], knots_q[-1], knots_c[-1], task, extras or {})
-            record = {"frame": len(frames) - 1, "image_sha256": digest, "t_s": round(times[-1], 6)}
+    while fault is None and not done and not state.finished:
+        while not state.covered:
+            obs, digest = state.observe(task, extras or {})
+            record = {"frame": state.frame_index, "image_sha256": digest, "t_s": round(state.times[-1], 6)}
             try:
                 answer, seconds = call_policy(policy, obs, timeout)
                 record["latency_s"] = round(seconds, 6)
-                actions = check_answer(answer, width=adapter.width, min_horizon=K, bounds=adapter.bounds())
+                actions = check_answer(answer, width=state.adapter.width, min_horizon=K, bounds=bounds)
             except PolicyFault as exc:
                 record["fault"] = exc.reason
                 calls.append(record)
                 fault = exc.reason
                 break
             t_adapt = time.perf_counter()
-            res = adapter.apply(actions[:K], knots_q[-1])
+            res = state.execute(actions[:K])
             record["adapter_s"] = round(time.perf_counter() - t_adapt, 6)
-            t0 = times[-1]
-            times += [t0 + (i + 1) / spec.control_hz for i in range(K)]
-            knots_q += list(res.q)
-            knots_c += list(res.closure)
-            clipped += res.clipped
             record.update(
                 actions=actions.tolist(),
                 executed=K,
@@ -267,19 +222,12 @@ def cell_steps(
                 break
         if fault is not None:
             break
-        if done and times[-1] < end_t - 1e-9:  # done mid-chunk: hold the last pose to the chunk's end
-            times.append(end_t)
-            knots_q.append(knots_q[-1])
-            knots_c.append(knots_c[-1])
-        at = (len(frames) + np.arange(n)) / fps
-        qs, cs = resample(np.array(times), np.array(knots_q), np.array(knots_c), at)
-        gs = _closure_to_signal(emb, cs)
+        if done:  # done mid-chunk: hold the last pose to the chunk's end
+            state.hold()
+        qs, gs = state.chunk_request()
         new = yield qs, gs
-        frames += list(new)
-        q_frames += list(qs)
-        g_frames += list(gs)
-    T = min(len(frames), horizon)
-    return CellRun(np.stack(frames[:T]), np.stack(q_frames[:T]), np.stack(g_frames[:T]), calls, fault, done, clipped)
+        state.accept(qs, gs, new)
+    return CellRun(*state.paths(), calls, fault, done, state.clipped)
 
 
 def run_cell(world, policy, spec: PolicySpec, emb, **loop) -> CellRun:
@@ -359,6 +307,47 @@ class PolicyPool:
             self.free.setdefault(spec.name, []).append(policy)
 
 
+def open_world(s: Session, emb, *, get_model, simulator, sampler, size, chunk_frames, fps):
+    """Read a session's inputs and build its world: returns ``(world, q0, g0)``, the world (the simulator
+    factory's, or a :class:`ModelWorld` of ``get_model()``) and the robot's first joint positions (J,) and gripper
+    signals (G,) from frame 0 of ``initial_state``. size: (width, height) or None (the card's, else the first
+    frame's); chunk_frames, fps: None for the model card's."""
+    from ..kinematics.trajectory import load_trajectory
+    from ..model.image import read_first_frame
+    from ..render.skeleton_video import fit_image
+
+    camera = emb.load_camera(s.camera)
+    state = emb.check_trajectory(load_trajectory(s.initial_state))
+    q0, g0 = state.q[0], state.gripper[0]
+    first = read_first_frame(s.first_frame, camera, str(s.camera))
+    if simulator is not None:
+        size = size or (first.shape[1], first.shape[0])
+        first = fit_image(first, size[0], size[1], "crop")
+        return simulator(s, emb, camera, first, size, fps, chunk_frames), q0, g0
+    from .rollout_engines import cell_prompt
+
+    model = get_model()
+    card = model.card
+    size = size or ((card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0]))
+    first = fit_image(first, size[0], size[1], "crop")
+    world = ModelWorld(
+        model,
+        first=first,
+        camera=camera,
+        camera_source=str(s.camera),
+        emb=emb,
+        q0=q0,
+        g0=g0,
+        fps=float(card.fps or fps or 10.0),
+        chunk_frames=int(chunk_frames or card.chunk_frames),
+        size=size,
+        prompt=cell_prompt(s),
+        sampler=sampler,
+        seed=s.seed,
+    )
+    return world, q0, g0
+
+
 def open_cell(
     s: Session,
     spec: PolicySpec,
@@ -375,42 +364,11 @@ def open_cell(
     fps,
     K: int,
 ) -> OpenCell:
-    """Read a cell's session inputs, build its world and take its policy object."""
-    from ..kinematics.trajectory import load_trajectory
-    from ..model.image import read_first_frame
-    from ..render.skeleton_video import fit_image
-
+    """Read a cell's session inputs, build its world (:func:`open_world`) and take its policy object."""
     t0 = time.perf_counter()
-    camera = emb.load_camera(s.camera)
-    state = emb.check_trajectory(load_trajectory(s.initial_state))
-    q0, g0 = state.q[0], state.gripper[0]
-    first = read_first_frame(s.first_frame, camera, str(s.camera))
-    if simulator is not None:
-        size = size or (first.shape[1], first.shape[0])
-        first = fit_image(first, size[0], size[1], "crop")
-        world = simulator(s, emb, camera, first, size, fps, chunk_frames)
-    else:
-        from .rollout_engines import cell_prompt
-
-        model = get_model()
-        card = model.card
-        size = size or ((card.width, card.height) if card.width and card.height else (first.shape[1], first.shape[0]))
-        first = fit_image(first, size[0], size[1], "crop")
-        world = ModelWorld(
-            model,
-            first=first,
-            camera=camera,
-            camera_source=str(s.camera),
-            emb=emb,
-            q0=q0,
-            g0=g0,
-            fps=float(card.fps or fps or 10.0),
-            chunk_frames=int(chunk_frames or card.chunk_frames),
-            size=size,
-            prompt=cell_prompt(s),
-            sampler=sampler,
-            seed=s.seed,
-        )
+    world, q0, g0 = open_world(
+        s, emb, get_model=get_model, simulator=simulator, sampler=sampler, size=size, chunk_frames=chunk_frames, fps=fps
+    )
     return OpenCell(s, spec, emb, parts, key, world, pool.take(spec), q0, g0, K, t0)
 
 
