@@ -111,6 +111,7 @@ def _intrinsics(path):
 
 
 def cmd_calibrate(args) -> int:
+    from .._util.outputs import check_writable
     from ..camera import save_camera
     from ..kinematics.trajectory import load_trajectory
     from ..media.video import check_output
@@ -131,7 +132,6 @@ def cmd_calibrate(args) -> int:
     if bool(args.video) != bool(args.overlay):
         raise OscarError("calibrate: --video and --overlay go together (the overlay is drawn over the video)")
     if args.click:
-        from .._util.outputs import check_writable
         from ..media.video import video_info
 
         check_writable(args.points, "file")
@@ -143,8 +143,11 @@ def cmd_calibrate(args) -> int:
         size = parse_size(args.size)
     if args.overlay:
         check_output(args.overlay)
+    check_writable(args.out, "file")
     emb = Registry(plugin_paths=args.plugin or ()).get(args.embodiment)
     traj = load_trajectory(args.trajectory)
+    if args.overlay:  # the video the overlay is drawn over is checked before anything is fitted or written
+        _check_video_length(args.video, len(traj), args.trajectory)
     intr = None if args.estimate_intrinsics else _intrinsics(args.intrinsics)
     if args.click:
         from .click import click_points_on_video
@@ -159,21 +162,36 @@ def cmd_calibrate(args) -> int:
     points = load_points(args.points)
     kwargs = {} if args.threshold is None else {"threshold_px": args.threshold}
     result = calibrate(emb, traj, points, size, intr, seed=args.seed, **kwargs)
-    save_camera(result.camera, args.out)
     report = result.to_dict()
     report["out"] = str(args.out)
-    if args.overlay:
+    if args.overlay:  # the overlay first: a run that fails while drawing it leaves no camera behind
         from ..render.overlay import write_overlay
 
         path, frames, _, _ = write_overlay(
             emb, traj, result.camera, args.video, args.overlay, size=size, camera_source=str(args.out)
         )
         report["overlay"] = str(path)
+    save_camera(result.camera, args.out)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
     _print_report(result, args)
     return 0
+
+
+def _check_video_length(video, frames: int, trajectory) -> None:
+    """``video`` (the overlay's background) is readable and holds at least the trajectory's ``frames`` frames."""
+    from ..errors import InputFileError
+    from ..media.video import video_info
+
+    try:
+        n = int(video_info(video)["frames"])
+    except (OSError, ValueError) as exc:
+        raise InputFileError(video, "video", "a readable video or folder of PNG frames", str(exc)) from None
+    if n < frames:
+        raise InputFileError(
+            video, "frames", f"at least {frames} frames (the length of {trajectory}, for --overlay)", f"{n} frames"
+        )
 
 
 def _print_report(result, args) -> None:

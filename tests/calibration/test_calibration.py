@@ -347,3 +347,24 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, change, expect):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and expect in err
     assert not (tmp_path / "cam.json").exists()
+
+
+def test_cli_refuses_a_short_overlay_video_before_fitting_or_writing(tmp_path, capsys, monkeypatch):
+    from oscar_core import write_video
+    from oscar_core.calibration import pnp
+
+    emb, traj, cam = _inputs(tmp_path)
+    write_video(tmp_path / "short.mkv", np.zeros((len(traj) - 3, SIZE[1], SIZE[0], 3), np.uint8), traj.fps)
+    fitted, fit = [], pnp.calibrate
+    monkeypatch.setattr(pnp, "calibrate", lambda *a, **k: fitted.append(1) or fit(*a, **k))
+    argv = ["calibrate", "--embodiment", "kuka", "--size", "640x480"]
+    for k, v in (("--trajectory", "traj.npz"), ("--points", "points.json"), ("--intrinsics", "intr.json"),
+                 ("--out", "cam.json"), ("--video", "short.mkv"), ("--overlay", "check.mkv")):  # fmt: skip
+        argv += [k, str(tmp_path / v)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert (
+        f"short.mkv: field 'frames': expected at least {len(traj)} frames" in err and f"{len(traj) - 3} frames" in err
+    )
+    assert fitted == [] and not (tmp_path / "cam.json").exists() and not (tmp_path / "check.mkv").exists()
