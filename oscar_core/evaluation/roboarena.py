@@ -54,6 +54,7 @@ import numpy as np
 from .._util.atomic import atomic_output, atomic_write_bytes
 from .._util.log import get_logger
 from ..errors import InputFileError, OscarError
+from ..policy.spaces import resample_joints  # kept importable from here: it was this module's before the fold
 
 __all__ = [
     "CARD_URL",
@@ -136,31 +137,6 @@ class RoboArenaResult:
             f"{self.preferences} A/B preferences); {len(self.rejected)} left out ({left}): "
             f"{self.paths.get('rejected', self.out / 'rejected.json')}"
         )
-
-
-# --------------------------------------------------------------------------- resampling
-
-
-def resample_joints(values: np.ndarray, times: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Resample (T, D) ``values`` known at increasing ``times`` (T,) seconds to a uniform ``fps`` grid.
-
-    The grid starts at ``times[0]`` and holds every ``times[0] + k / fps`` up to ``times[-1]`` (floor, with
-    1e-9 s of slack); each column is linear between its knots. Returns ((N, D) values, (N,) times).
-    """
-    values = np.asarray(values, dtype=np.float64)
-    times = np.asarray(times, dtype=np.float64)
-    if values.ndim != 2 or len(values) != len(times) or len(times) < 1:
-        raise ValueError(f"resample_joints: expected (T, D) values with T = len(times), found {values.shape}")
-    if not (np.isfinite(fps) and fps > 0):
-        raise ValueError(f"resample_joints: expected fps > 0, found {fps!r}")
-    if len(times) > 1 and not np.all(np.diff(times) > 0):
-        raise ValueError("resample_joints: expected strictly increasing times")
-    n = int(np.floor((times[-1] - times[0]) * fps + 1e-9)) + 1
-    at = times[0] + np.arange(n) / fps
-    if values.shape[1] == 0:
-        return np.zeros((n, 0)), at
-    out = np.stack([np.interp(at, times, values[:, j]) for j in range(values.shape[1])], axis=1)
-    return out, at
 
 
 # --------------------------------------------------------------------------- reading one session

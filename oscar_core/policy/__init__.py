@@ -29,6 +29,7 @@ _EXPORTS = {
     "ActionAdapter": "spaces",
     "AdapterResult": "spaces",
     "resample": "spaces",
+    "resample_joints": "spaces",
     "EndEffectorIK": "ik",
     "IKResult": "ik",
 }

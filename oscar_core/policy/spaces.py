@@ -26,7 +26,9 @@ The gripper column is the closure in [0, 1] (1 = closed, DROID's ``gripper_posit
 clipped to [0, 1] (a clip is counted), ``binary`` thresholds it at 0.5.
 
 :func:`resample` turns the path (knots at the control rate) into frames at the model's rate: joints linearly
-between knots, the gripper held at its latest knot.
+between knots, the gripper held at its latest knot. :func:`resample_joints` puts a recorded episode (every
+column continuous, timestamps possibly uneven) on a uniform frame grid; both read the knots with the same
+per-column linear interpolation.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from scipy.spatial.transform import Rotation
 from ..kinematics.workspace import joint_limits
 from .protocol import ACTION_SPACES, GRIPPER_MODES, absurd_bounds, action_width
 
-__all__ = ["AdapterResult", "ActionAdapter", "resample"]
+__all__ = ["AdapterResult", "ActionAdapter", "resample", "resample_joints"]
 
 
 @dataclass
@@ -129,11 +131,38 @@ class ActionAdapter:
         return AdapterResult(out, closure, int(clipped.sum()), ep, er)
 
 
+def _interpolate_columns(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """(N, D) values of each column of ``values`` (M, D), known at increasing ``times`` (M,) seconds, read at
+    ``at`` (N,) seconds: linear between knots, the nearest knot's value outside them."""
+    if values.shape[1] == 0:
+        return np.zeros((len(at), 0))
+    return np.stack([np.interp(at, times, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
 def resample(times: np.ndarray, q: np.ndarray, closure: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Joint positions and gripper closure at times ``at`` (N,) seconds from knots ``times`` (M,) increasing,
     ``q`` (M, J), ``closure`` (M,): joints linear between knots, the gripper held at the latest knot at or before
     each time; times outside the knots take the nearest knot's values. Returns (N, J) and (N,)."""
     times, at = np.asarray(times, float), np.asarray(at, float)
-    qs = np.stack([np.interp(at, times, q[:, j]) for j in range(q.shape[1])], axis=1)
+    qs = _interpolate_columns(times, np.asarray(q, float), at)
     idx = np.clip(np.searchsorted(times, at + 1e-9, side="right") - 1, 0, len(times) - 1)
     return qs, np.asarray(closure, float)[idx]
+
+
+def resample_joints(values: np.ndarray, times: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Resample (T, D) ``values`` known at increasing ``times`` (T,) seconds to a uniform ``fps`` grid.
+
+    The grid starts at ``times[0]`` and holds every ``times[0] + k / fps`` up to ``times[-1]`` (floor, with
+    1e-9 s of slack); each column is linear between its knots. Returns ((N, D) values, (N,) times).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    if values.ndim != 2 or len(values) != len(times) or len(times) < 1:
+        raise ValueError(f"resample_joints: expected (T, D) values with T = len(times), found {values.shape}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"resample_joints: expected fps > 0, found {fps!r}")
+    if len(times) > 1 and not np.all(np.diff(times) > 0):
+        raise ValueError("resample_joints: expected strictly increasing times")
+    n = int(np.floor((times[-1] - times[0]) * fps + 1e-9)) + 1
+    at = times[0] + np.arange(n) / fps
+    return _interpolate_columns(times, values, at), at

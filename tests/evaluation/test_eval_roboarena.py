@@ -16,7 +16,7 @@ from oscar_core.calibration.score import body_video, perturb_camera
 from oscar_core.camera.file import load_camera, save_camera
 from oscar_core.cli import main as oscar_main
 from oscar_core.evaluation import ManifestError, load_manifest
-from oscar_core.evaluation.roboarena import RoboArenaError, convert_roboarena, read_session, resample_joints
+from oscar_core.evaluation.roboarena import RoboArenaError, convert_roboarena, read_session
 from oscar_core.media.video import write_video
 from oscar_core.plugin.registry import get_embodiment
 from oscar_core.trajectory import Trajectory
@@ -163,23 +163,6 @@ def test_real_board_matches_the_closed_form_of_two_policies(tmp_path):
     assert real["pi0"]["score"] == pytest.approx(1500 + 100 * math.log(3), abs=1e-4)
     (tmp_path / "wm.json").write_text(json.dumps({"pi0": 0.2, "pali": 0.6}))  # real.json is eval policies' input
     assert oscar_main(["eval", "policies", "--real", str(out / "real.json"), "--wm", str(tmp_path / "wm.json")]) == 0
-
-
-def test_resampling_against_analytic_trajectories():
-    t = np.arange(31) / 15.0  # 2 s at 15 Hz
-    lin = np.stack([0.3 * t - 1.0, -2.0 * t], axis=1)
-    out, at = resample_joints(lin, t, 16.0)
-    assert len(at) == 33 and at[-1] == pytest.approx(2.0)  # every 1/16 s within [0, 2]
-    np.testing.assert_allclose(out, np.stack([0.3 * at - 1.0, -2.0 * at], axis=1), atol=1e-12)  # linear: exact
-    sine = np.sin(3.0 * t)[:, None]
-    out, at = resample_joints(sine, t, 16.0)
-    # linear interpolation error <= h^2 / 8 * max|f''| = (1/15)^2 / 8 * 9
-    bound = (1 / 15) ** 2 / 8 * 9
-    err = np.abs(out[:, 0] - np.sin(3.0 * at)).max()
-    assert err <= bound and err > bound / 10
-    out, at = resample_joints(sine, t, 4.0)  # fewer frames: 0, 0.25, ..., 2.0
-    np.testing.assert_allclose(at, np.arange(9) / 4.0)
-    np.testing.assert_allclose(out[::4, 0], np.sin(3.0 * at[::4]), atol=1e-15)  # on knots (0, 1, 2 s): exact
 
 
 def test_resampled_trajectory_in_the_study(tmp_path):
