@@ -228,3 +228,52 @@ def test_resampling_against_analytic_trajectories():
     from oscar_core.evaluation import roboarena
 
     assert roboarena.resample_joints is resample_joints  # the name RoboArena's conversion used keeps working
+
+
+def test_ee_delta_rotation_is_composed_in_the_base_frame(franka):
+    """An ``ee_delta`` row (dxyz, drotvec): the new orientation is Rot(drotvec) · R, the rotation about the base
+    frame's axes (docs/closed-loop.md), not R · Rot(drotvec) (about the end-effector's own axes)."""
+    ad = ActionAdapter(franka, "ee_delta")
+    q0 = _mid(ad) + np.array([0.3, 0.2, -0.2, -0.4, 0.3, 0.5, 0.4])  # a pose whose frame is far from the base's
+    T0 = ad.ik.pose(q0)
+    dr = np.array([0.0, 0.0, 0.2])  # 0.2 rad about the base's z
+    dp = np.array([0.01, 0.0, -0.01])
+    res = ad.apply(np.concatenate([dp, dr, [0.0]])[None], q0)
+    T1 = ad.ik.pose(res.q[0])
+    base = Rotation.from_rotvec(dr).as_matrix() @ T0[:3, :3]
+    body = T0[:3, :3] @ Rotation.from_rotvec(dr).as_matrix()
+    assert Rotation.from_matrix(body @ base.T).magnitude() > 0.05  # the two readings differ on this pose
+    assert Rotation.from_matrix(T1[:3, :3] @ base.T).magnitude() < 1e-3
+    np.testing.assert_allclose(T1[:3, 3], T0[:3, 3] + dp, atol=1e-3)
+    assert res.ik_position_error[0] < 1e-3 and res.ik_rotation_error[0] < 1e-3
+
+
+def test_ik_restarts_keep_the_lowest_residual_solve(franka, monkeypatch):
+    """A first solve that ends far away is repeated from fixed configurations; the solve kept is the one with the
+    smallest residual, whichever restart it came from (here the second of four, the later ones worse)."""
+    ik = EndEffectorIK(franka)
+    residuals = iter([(0.5, 0.0), (0.2, 0.0), (0.01, 0.002), (0.3, 0.0), (0.05, 0.0)])
+    from oscar_core.policy.ik import IKResult
+
+    calls = []
+
+    def fake(q0, position, rotvec=None):
+        ep, er = next(residuals)
+        calls.append(ep)
+        return IKResult(np.full(len(ik.lo), float(len(calls))), ep, er, 10)
+
+    monkeypatch.setattr(ik, "_solve", fake)
+    best = ik.solve(_mid(ik), np.zeros(3), restarts=4)
+    assert len(calls) == 5  # none reached 1 mm: every restart ran
+    assert (best.position_error, best.rotation_error) == (0.01, 0.002) and best.q[0] == 3.0
+
+    # and on the real solver: the kept answer is the best of the solves it ran, checked by FK
+    ik = EndEffectorIK(franka)
+    far = np.array([0.9, 0.6, 0.2])  # beyond the arm's reach: every solve ends away from it
+    got = []
+    real = EndEffectorIK._solve.__get__(ik)
+    monkeypatch.setattr(ik, "_solve", lambda *a, **k: got.append(real(*a, **k)) or got[-1])
+    best = ik.solve(_mid(ik) + 0.3, far, restarts=4)
+    assert len(got) == 5
+    assert best.position_error == min(r.position_error for r in got)
+    assert best.position_error == pytest.approx(np.linalg.norm(ik.pose(best.q)[:3, 3] - far), abs=1e-9)
