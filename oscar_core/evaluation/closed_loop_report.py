@@ -4,7 +4,8 @@ Per policy: cells, cells that ran to the end (``ok``) and that failed (with thei
 from the judge's verdicts on the videos (``success_rate``) and, in a simulator world, from the simulator's own
 outcome (``sim_success_rate``), mean and worst policy latency, clipped actions and the worst IK residual.
 Policies are ranked by success rate (the judge's, else the simulator's; failed cells count as failures, since
-a policy that crashes does not succeed). ``views`` says what each observation field received; one row per cell.
+a policy that crashes does not succeed): ``ranking`` lists them best first and ``ranks`` gives each its rank, equal
+rates sharing one (1, 1, 3). ``views`` says what each observation field received; one row per cell.
 
 ``eval`` holds what ``oscar eval run``'s report holds for the same cells (:func:`eval_view` builds its inputs;
 :func:`~.report.build_report` computes it): the world model's success rates from the judge's verdicts (a
@@ -32,6 +33,7 @@ __all__ = [
     "VIEWS",
     "build_closed_loop_report",
     "eval_view",
+    "competition_ranks",
     "failed_verdict",
     "fidelity_intervals",
     "write_closed_loop_report",
@@ -86,7 +88,7 @@ def build_closed_loop_report(manifest, specs, records: list[dict], counts: dict,
         if all(r["success_rate"] is not None for r in rows)
         else ("sim_success_rate" if all(r["sim_success_rate"] is not None for r in rows) else None)
     )
-    ranking = sorted(rows, key=lambda r: -(r[by] if by else 0.0)) if by else []
+    ranking = sorted(rows, key=lambda r: -r[by]) if by else []
     cells = [
         {
             "session": r["session"],
@@ -115,10 +117,17 @@ def build_closed_loop_report(manifest, specs, records: list[dict], counts: dict,
             "counts": counts,
             "ranked_by": by,
             "ranking": [r["policy"] for r in ranking],
+            "ranks": competition_ranks({r["policy"]: r[by] for r in ranking}) if by else {},
             "policies": rows,
             "cells": cells,
         }
     )
+
+
+def competition_ranks(scores: dict) -> dict:
+    """``{policy: rank}`` for ``{policy: score}``, higher first; equal scores share a rank and the next rank skips
+    over them (1, 1, 3: two policies at 1.000 are both first, the one below them third)."""
+    return {name: 1 + sum(other > v for other in scores.values()) for name, v in scores.items()}
 
 
 def _fmt(v, spec: str) -> str:
@@ -142,10 +151,10 @@ def format_closed_loop_summary(report: dict) -> str:
     ]
     order = report["ranking"] or [p["policy"] for p in report["policies"]]
     by_name = {p["policy"]: p for p in report["policies"]}
-    for k, name in enumerate(order):
+    for name in order:
         p = by_name[name]
         lines.append(
-            f"| {k + 1 if report['ranking'] else '-'} | {name} | {p['cells']} | {p['failed']} | "
+            f"| {report['ranks'].get(name, '-')} | {name} | {p['cells']} | {p['failed']} | "
             f"{_fmt(p['success_rate'], '.3f')} | {_fmt(p['sim_success_rate'], '.3f')} | "
             f"{_fmt(p['mean_latency_s'], '.4f')} | {p['clipped_actions']} | "
             f"{_fmt(p['ik_max_position_error_m'], '.2e')} |"

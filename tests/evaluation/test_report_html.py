@@ -436,3 +436,33 @@ def test_the_filters_keep_only_the_chosen_cells(eval_report):
             assert hidden == ["s1"]
         finally:
             ctx.close()
+
+
+def test_closed_loop_page_ranks_as_the_summary_ties_shared(tmp_path):
+    """The simulator run of the README's tour: exact and late succeed, noisy, never_closes and random fail. The
+    page's rank column, read back in the browser, equals report.json's ranks and summary.md's: 1, 1, 3, 3, 3."""
+    require_browser()
+    from oscar_core.evaluation.closed_loop import run_closed_loop
+    from oscar_core.toyworld.closed_loop import toy_simulator, write_closed_loop_sessions
+
+    manifest = write_closed_loop_sessions(tmp_path / "sessions", ["toyarm"], 1, seed=0, horizon=49)
+    out = tmp_path / "cl_sim"
+    res = run_closed_loop(manifest, out, simulator=toy_simulator, fps=10.0, chunk_frames=17)
+    rates = {p["policy"]: p["sim_success_rate"] for p in res.report["policies"]}
+    assert rates == {"exact": 1.0, "late": 1.0, "noisy": 0.0, "never_closes": 0.0, "random": 0.0}
+    expected = {"exact": 1, "late": 1, "noisy": 3, "never_closes": 3, "random": 3}
+    assert res.report["ranks"] == expected
+    check = open_page(
+        out / "report.html",
+        tmp_path / "page.png",
+        select={"rows": "#closed-loop-policies tr[data-policy]", "ranks": "#closed-loop-policies [data-field=rank]"},
+    )
+    page = {row["data"]["policy"]: int(rank["text"]) for row, rank in zip(check.texts["rows"], check.texts["ranks"])}
+    assert page == expected
+    summary = (out / "summary.md").read_text()
+    table = [
+        line.split("|")
+        for line in summary.splitlines()
+        if line.startswith("| ") and line.split("|")[2].strip() in expected
+    ]
+    assert {cols[2].strip(): int(cols[1]) for cols in table} == expected
