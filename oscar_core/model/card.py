@@ -14,9 +14,9 @@ from ..errors import OscarError
 from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style
 from ._files import MODEL_FILE
 from .card_sampler import check_card_sampler
+from .chunks import check_frame_count
 from .errors import CheckpointLayoutError, ModelInputError
 from .manifest import MANIFEST_NAME
-from .vae import check_frame_count
 
 __all__ = ["FORMAT", "ModelCard", "read_card"]
 

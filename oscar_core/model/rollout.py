@@ -33,7 +33,6 @@ gets rows [start, start + L − 1), the (L − 1, 14) window its trainer saw.
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -42,9 +41,10 @@ import torch
 from tqdm.auto import tqdm
 
 from .._util.log import progress_bars_enabled
+from .chunks import chunk_plan  # kept importable from here, where it was before chunks.py
 from .errors import ModelInputError
 from .sampler import SamplerConfig, sample_chunk
-from .vae import VideoVAE, check_frame_count
+from .vae import VideoVAE
 
 __all__ = ["RolloutResult", "chunk_plan", "rollout", "iter_rollout", "rollout_batch", "UNCONDITIONAL_SKELETONS"]
 
@@ -93,28 +93,6 @@ class _Clock:
             if self.cuda:
                 torch.cuda.synchronize()
             self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
-
-
-def chunk_plan(num_frames: int, chunk_frames: int, temporal: int = 4) -> list[int]:
-    """Start frame of each chunk of ``chunk_frames`` covering ``num_frames`` (overlap of one frame)."""
-    check_frame_count(chunk_frames, temporal, what="chunk_frames")
-    if chunk_frames < 1 + temporal:
-        raise ModelInputError(
-            f"chunk_frames: expected at least {1 + temporal} (one frame to predict beyond the "
-            f"seed), found {chunk_frames}"
-        )
-    if num_frames < chunk_frames:
-        shorter = (max(num_frames - 1, 0) // temporal) * temporal + 1
-        hint = (
-            f"; use chunk_frames={shorter} (--chunk-frames {shorter}) or a longer trajectory"
-            if shorter >= 1 + temporal
-            else "; use a longer trajectory"
-        )
-        raise ModelInputError(
-            f"trajectory: expected at least one chunk of {chunk_frames} frames, found {num_frames} frames{hint}"
-        )
-    count = math.ceil((num_frames - 1) / (chunk_frames - 1))
-    return [c * (chunk_frames - 1) for c in range(count)]
 
 
 def _check_first(first_frame, spatial: int) -> np.ndarray:

@@ -20,22 +20,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .chunks import check_frame_count  # kept importable from here, where it was before chunks.py
 from .cpu_conv import use_onednn_conv3d
 from .errors import ModelInputError
 from .weights import build_strict, cast_model, load_state_dict, read_config
 
 __all__ = ["VideoVAE", "check_frame_count", "load_vae_folder"]
-
-
-def check_frame_count(frames: int, temporal: int = 4, what: str = "video") -> int:
-    """Raise unless ``frames`` = temporal·k + 1 (k ≥ 0); returns the latent frame count k + 1."""
-    if frames < 1 or (frames - 1) % temporal:
-        lower = (max(frames - 1, 0) // temporal) * temporal + 1
-        raise ModelInputError(
-            f"{what}: expected a frame count of the form {temporal}k+1 (1, 5, 9, ..., 81, ...), "
-            f"found {frames} (nearest valid: {lower} or {lower + temporal})"
-        )
-    return (frames - 1) // temporal + 1
 
 
 def load_vae_folder(folder, device="cpu"):

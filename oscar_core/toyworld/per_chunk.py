@@ -1,7 +1,7 @@
 """Quality against chunk index: the toy-world metrics of a long rollout, split by the chunk that made each frame.
 
 An autoregressive rollout of ``T`` frames in chunks of ``C`` frames
-(:func:`oscar_core.model.rollout.chunk_plan`: one frame of overlap) makes
+(:func:`oscar_core.model.chunks.chunk_plan`: one frame of overlap) makes
 frames ``[1 + (C − 1)(k − 1), (C − 1) k]`` (inclusive, clipped to ``T − 1``)
 in chunk k = 1, 2, …; chunk k starts from the last frame chunk k − 1 made,
 so errors carried from chunk to chunk show up as quality falling with k
@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model.chunks import chunk_windows
 from .frame_metrics import METRICS, frame_series, mask_iou, moved_frames
 
 __all__ = [
     "check_chunk_frames",
-    "chunk_windows",
+    "chunk_windows",  # from model/chunks.py, beside the rollout's chunk_plan
     "chunk_metrics",
     "split_by_chunk",
     "chunk_rows",
@@ -41,21 +42,6 @@ def check_chunk_frames(chunk_frames: int) -> None:
         raise ValueError(
             f"--per-chunk: expected a chunk of at least 2 frames (the seed and one new), found {chunk_frames}"
         )
-
-
-def chunk_windows(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
-    """The frames each chunk of a rollout makes: [(first, last)] inclusive, chunk 1 first.
-
-    n_frames: frames of the video, the first (given) one included; chunk_frames: frames per chunk, the
-    seed frame included (17 for ``oscar-toy``). ``[(1, 16), (17, 32), …]`` for 17; the last window ends at
-    ``n_frames − 1`` (a rollout's last chunk is cut there).
-    """
-    check_chunk_frames(chunk_frames)
-    if n_frames < 2:
-        raise ValueError(f"--per-chunk: expected a video of at least 2 frames, found {n_frames}")
-    step = chunk_frames - 1
-    count = -(-(n_frames - 1) // step)
-    return [(1 + step * k, min(step * (k + 1), n_frames - 1)) for k in range(count)]
 
 
 def chunk_metrics(pred: np.ndarray, gt: np.ndarray, chunk_frames: int) -> list[dict]:
@@ -78,6 +64,9 @@ def split_by_chunk(series: dict, chunk_frames: int) -> list[dict]:
     ee, ob = series["ee"]["per_frame"], series["object"]["per_frame"]
     moved = moved_frames(series["object"]["gt_px"])
     out = []
+    check_chunk_frames(chunk_frames)
+    if len(p) < 2:
+        raise ValueError(f"--per-chunk: expected a video of at least 2 frames, found {len(p)}")
     for a, b in chunk_windows(len(p), chunk_frames):
         w = slice(a, b + 1)
         out.append(

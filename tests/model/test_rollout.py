@@ -11,6 +11,7 @@ from oscar_core.model import (
     OscarWorldModel,
     SamplerConfig,
     chunk_plan,
+    chunk_windows,
     flow_sigmas,
     guided_velocity,
     sample_chunk,
@@ -138,6 +139,23 @@ def test_first_latent_frame_is_clean_at_every_step_and_at_the_end():
 
 
 # --------------------------------------------------------------------------- rollout
+
+
+@pytest.mark.parametrize("frames,chunk", [(97, 17), (17, 17), (25, 9), (30, 9), (5, 5), (81, 81), (100, 13)])
+def test_chunk_windows_are_the_frames_each_rollout_chunk_makes(frames, chunk):
+    starts = chunk_plan(frames, chunk)  # the rollout's own plan: chunk c starts (seed frame) at starts[c]
+    want = [(s + 1, min(s + chunk - 1, frames - 1)) for s in starts]
+    assert chunk_windows(frames, chunk) == want
+    covered = [t for a, b in want for t in range(a, b + 1)]
+    assert covered == list(range(1, frames))  # every generated frame once, frame 0 in none
+
+
+def test_chunk_windows_of_a_97_frame_rollout_in_17_frame_chunks():
+    assert chunk_windows(97, 17) == [(1, 16), (17, 32), (33, 48), (49, 64), (65, 80), (81, 96)]
+    with pytest.raises(ModelInputError, match="chunk_frames: expected at least 2 frames"):
+        chunk_windows(97, 1)
+    with pytest.raises(ModelInputError, match="video: expected at least 2 frames"):
+        chunk_windows(1, 17)
 
 
 def test_chunk_plan_covers_any_length():

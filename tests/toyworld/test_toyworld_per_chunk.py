@@ -7,31 +7,23 @@ import pytest
 from _models import tiny_world_model
 
 from oscar_core.cli import main
-from oscar_core.model.rollout import chunk_plan
 from oscar_core.model.sampler import SamplerConfig
 from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.evaluate import PSNR_CAP, evaluate_conditions
 from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
-from oscar_core.toyworld.per_chunk import chunk_metrics, chunk_windows
+from oscar_core.toyworld.per_chunk import chunk_metrics
 from oscar_core.toyworld.rollouts import write_rollouts
 from oscar_core.train.clips import ClipSet
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
-@pytest.mark.parametrize("frames,chunk", [(97, 17), (17, 17), (25, 9), (30, 9), (5, 5), (81, 81), (100, 13)])
-def test_chunk_windows_are_the_frames_each_rollout_chunk_makes(frames, chunk):
-    starts = chunk_plan(frames, chunk)  # the rollout's own plan: chunk c starts (seed frame) at starts[c]
-    want = [(s + 1, min(s + chunk - 1, frames - 1)) for s in starts]
-    assert chunk_windows(frames, chunk) == want
-    covered = [t for a, b in want for t in range(a, b + 1)]
-    assert covered == list(range(1, frames))  # every generated frame once, frame 0 in none
-
-
-def test_chunk_windows_of_a_97_frame_rollout_in_17_frame_chunks():
-    assert chunk_windows(97, 17) == [(1, 16), (17, 32), (33, 48), (49, 64), (65, 80), (81, 96)]
+def test_per_chunk_refuses_a_one_frame_chunk_or_video_naming_the_flag():
+    # the windows are the rollout's (tests/model/test_rollout.py); the flag's own messages stay here
     with pytest.raises(ValueError, match="--per-chunk: expected a chunk of at least 2 frames"):
-        chunk_windows(97, 1)
+        chunk_metrics(np.zeros((9, 16, 16, 3), np.uint8), np.zeros((9, 16, 16, 3), np.uint8), 1)
+    with pytest.raises(ValueError, match="--per-chunk: expected a video of at least 2 frames"):
+        chunk_metrics(np.zeros((1, 16, 16, 3), np.uint8), np.zeros((1, 16, 16, 3), np.uint8), 17)
 
 
 def test_per_chunk_psnr_and_motion_iou_of_a_known_error():
