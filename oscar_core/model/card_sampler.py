@@ -15,7 +15,14 @@ from .errors import ModelInputError
 from .presets import SAMPLER_PRESETS
 from .sampler_config import GUIDANCE_FORMS, SamplerConfig, _finite, apply_preset
 
-__all__ = ["CARD_SAMPLER_KEYS", "SamplerChoice", "check_card_sampler", "resolve_sampler"]
+__all__ = [
+    "CARD_SAMPLER_KEYS",
+    "SamplerChoice",
+    "check_card_sampler",
+    "resolve_sampler",
+    "sampler_with_scheduler",
+    "sampler_of_card",
+]
 
 #: the sampler settings a model card may recommend (``ModelCard.sampler``), each a :func:`resolve_sampler` option
 CARD_SAMPLER_KEYS = ("steps", "guidance", "guidance_form", "preset")
@@ -118,3 +125,27 @@ def resolve_sampler(
     if guidance_interval is not None:
         config = replace(config, guidance_interval=guidance_interval)
     return SamplerChoice(config, sources, value["preset"])
+
+
+def sampler_with_scheduler(sampler: SamplerConfig, scheduler_config: dict | None) -> SamplerConfig:
+    """``sampler`` with a checkpoint's choices filled in from its scheduler config (``scheduler_config.json``, or
+    None): a solver left open (``solver=None``) becomes Euler for a ``FlowMatchEulerDiscreteScheduler`` and UniPC
+    otherwise; UniPC takes the checkpoint's ``UniPCMultistepScheduler`` config when ``sampler`` gives none."""
+    from dataclasses import replace
+
+    cfg = scheduler_config or {}
+    unipc = dict(cfg) if cfg.get("_class_name") == "UniPCMultistepScheduler" else None
+    if sampler.solver is not None:
+        if sampler.solver == "unipc" and sampler.scheduler_config is None and unipc is not None:
+            return replace(sampler, scheduler_config=unipc)
+        return sampler
+    if cfg.get("_class_name") == "FlowMatchEulerDiscreteScheduler":
+        return replace(sampler, solver="euler")
+    return replace(sampler, solver="unipc", scheduler_config=sampler.scheduler_config or unipc)
+
+
+def sampler_of_card(card_sampler, scheduler_config: dict | None = None, **given) -> SamplerConfig:
+    """The sampler a checkpoint describes: :func:`resolve_sampler` of its card's ``sampler`` under the ``given``
+    options (none: the card's recommendation, else the library defaults), its solver from ``scheduler_config``
+    (:func:`sampler_with_scheduler`)."""
+    return sampler_with_scheduler(resolve_sampler(card_sampler, **given).config, scheduler_config)

@@ -39,7 +39,7 @@ from .card import (
     ModelCard,
     read_card,
 )
-from .card_sampler import resolve_sampler
+from .card_sampler import resolve_sampler, sampler_with_scheduler
 from .errors import CheckpointLayoutError, ModelInputError
 from .manifest import read_manifest, verify_files, write_manifest
 from .sampler import SamplerConfig
@@ -281,21 +281,9 @@ class OscarWorldModel:
         return choice.config
 
     def sampler_for(self, sampler: SamplerConfig) -> SamplerConfig:
-        """``sampler`` with the checkpoint's choices filled in: solver (and UniPC config) from its scheduler."""
-        from dataclasses import replace
-
-        if sampler.solver is not None:
-            if sampler.solver == "unipc" and sampler.scheduler_config is None and self._unipc_config() is not None:
-                return replace(sampler, scheduler_config=self._unipc_config())
-            return sampler
-        cls = (self.scheduler_config or {}).get("_class_name")
-        if cls == "FlowMatchEulerDiscreteScheduler":
-            return replace(sampler, solver="euler")
-        return replace(sampler, solver="unipc", scheduler_config=sampler.scheduler_config or self._unipc_config())
-
-    def _unipc_config(self) -> dict | None:
-        cfg = self.scheduler_config or {}
-        return dict(cfg) if cfg.get("_class_name") == "UniPCMultistepScheduler" else None
+        """``sampler`` with the checkpoint's choices filled in: solver (and UniPC config) from its scheduler
+        (:func:`~oscar_core.model.card_sampler.sampler_with_scheduler`)."""
+        return sampler_with_scheduler(sampler, self.scheduler_config)
 
     def set_compile(self, mode: str = "auto", *, cells: int = 1) -> OscarWorldModel:
         """Set :attr:`compile_mode` and :attr:`compile_cells` (rollouts of this size the job runs); returns self."""

@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from ..model.card_sampler import sampler_of_card
 from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity, sample_chunk
 from .config import TrainConfigError
 from .data import Batch
@@ -200,14 +201,9 @@ def self_force(student, data, batch: Batch, items: list[PlanItem], config, devic
     if not context:
         return batch, 0
     prev = data.batch(context, config.condition)
-    # the student's own sampler (its card's settings: Euler, no guidance); called whole, so FSDP2 gathers its shards
-    sampler = SamplerConfig(
-        steps=d.steps,
-        shift=config.flow.shift,
-        guidance=None,
-        solver="euler",
-        cond_timestep=config.flow.cond_timestep,
-    )
+    # the student's own sampler, read from the description its export writes (student_sampler) as a rollout of the
+    # exported student reads it: Euler, distill.steps, no guidance; called whole, so FSDP2 gathers its shards
+    sampler = sampler_of_card(*student_sampler(config), cond_timestep=config.flow.cond_timestep)
     generators = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
     with torch.no_grad(), autocast or contextlib.nullcontext():
         latent = sample_chunk(

@@ -17,11 +17,12 @@ import yaml
 from _models import tiny_clipset, tiny_train_config
 from _paths import REPO
 
+from oscar_core.model.card_sampler import sampler_of_card
 from oscar_core.model.sampler import flow_sigmas, model_calls
 from oscar_core.train.checkpoint import latest_checkpoint, list_checkpoints, load_weights
 from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict, load_config
 from oscar_core.train.data import Batch
-from oscar_core.train.distill import Teacher, distill_loss, distill_target, student_step_index
+from oscar_core.train.distill import Teacher, distill_loss, distill_target, student_sampler, student_step_index
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_transformer
 from oscar_core.train.sampling import PlanItem, item_noise
@@ -202,6 +203,8 @@ def test_distillation_resumes_bitwise_and_exports_a_four_call_student_that_reloa
     sampler = student.sampler_for(student.recommended_sampler())
     assert (sampler.resolved_solver, sampler.steps, sampler.guidance) == ("euler", 4, None)
     assert model_calls(sampler) == 4
+    # the same sampler self forcing gives the student in training: both read the one description (student_sampler)
+    assert sampler == sampler_of_card(*student_sampler(straight))
     calls = []
     forward = student.transformer.forward
 
