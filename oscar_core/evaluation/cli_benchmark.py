@@ -15,11 +15,11 @@ import json
 import sys
 from pathlib import Path
 
-from .._util.arg_types import count, default_device, device, interval, number
+from .._util.arg_types import count, default_device, device, number
 from .._util.log import log_result, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
-from ..model.presets import SAMPLER_PRESETS
+from .cli_options import add_sampler_options
 
 __all__ = ["add_benchmark_parser"]
 
@@ -67,23 +67,21 @@ def cmd_run(args) -> int:
     import oscar_zoo
 
     from .._util.stage import model_identity
-    from ..model.card_sampler import resolve_sampler
     from ..plugin.registry import Registry
     from .benchmark_run import run_benchmark
     from .benchmark_set import load_benchmark_set
+    from .cli_options import resolve_sampler_flags
 
     bench = load_benchmark_set(args.set)  # a bad set file fails before the model loads
     dtype = getattr(torch, args.dtype) if args.dtype else None
-    model = oscar_zoo.load(args.model, device=args.device or default_device(), dtype=dtype)
-    choice = resolve_sampler(
-        model.card.sampler,
-        steps=args.steps,
-        preset=args.preset,
-        guidance_interval=args.guidance_interval,
-        guidance=args.guidance,
-        guidance_form=args.guidance_form,
-        defaults={"guidance_form": "standard"},
-    )
+    loaded = []
+
+    def card_sampler():  # called once the sampler flags passed their checks
+        loaded.append(oscar_zoo.load(args.model, device=args.device or default_device(), dtype=dtype))
+        return loaded[0].card.sampler
+
+    choice = resolve_sampler_flags(args, card_sampler)
+    model = loaded[0]
     sampler = choice.config
     print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     with run_log(args.out, "benchmark-run"):
@@ -208,18 +206,7 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
         r.add_argument("--out", required=True, help="folder for <clip id>.npy predictions (re-running resumes)"),
         "folder",
     )
-    r.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
-    r.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget preset")
-    r.add_argument(
-        "--guidance-interval", metavar="LO,HI", type=interval, help="guide only the steps with noise level in [LO, HI]"
-    )
-    r.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
-    r.add_argument(
-        "--guidance-form",
-        choices=("standard", "diffusers"),
-        help="v_u + w(v_c - v_u) (standard) or v_c + w(v_c - v_u) (diffusers); default: the model "
-        "card's, else standard",
-    )
+    add_sampler_options(r)  # the flags of eval run and closed-loop, --shift among them (cli_options.py)
     r.add_argument("--seed", type=count(0), default=0, help="noise seed (default 0)")
     r.add_argument(
         "--prompt",

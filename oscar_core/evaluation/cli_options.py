@@ -1,10 +1,17 @@
-"""The options shared by ``oscar eval run`` and ``oscar eval closed-loop``: the sampler flags (one flag set, one
-resolution) and where the cells run (:func:`add_engine_options`: ``--engine``, ``--workers``, ``--batch-cells``).
+"""The options shared by ``oscar eval run``, ``oscar eval closed-loop`` and ``oscar eval benchmark run``: the sampler
+flags (one flag set, one resolution: the same flags give the same sampler under every eval command) and where the
+cells run (:func:`add_engine_options`: ``--engine``, ``--workers``, ``--batch-cells``).
 
 :func:`add_sampler_options` adds ``--steps``, ``--preset``, ``--guidance-interval``, ``--shift``, ``--guidance``
 and ``--guidance-form``; :func:`resolve_sampler_flags` checks them before any model is looked up and resolves
 them over the model card's sampler (:func:`oscar_core.model.sampler.resolve_sampler`: a flag beats the card,
 the card beats the defaults).
+
+``--shift`` is among them for all three (default 5, the shift the paper and Cosmos train with, and
+:class:`~oscar_core.model.sampler_config.SamplerConfig`'s): a model trained on another schedule shift is sampled
+on its own by saying so, and a benchmark row's fingerprint records the shift it ran with. The flag sets the Euler
+grid and UniPC's flow shift; a checkpoint whose scheduler config is a ``UniPCMultistepScheduler`` keeps that
+config's own ``flow_shift`` (the model card holds no shift).
 """
 
 from __future__ import annotations
@@ -24,7 +31,13 @@ def add_sampler_options(parser) -> None:
     parser.add_argument(
         "--guidance-interval", metavar="LO,HI", type=interval, help="guide only the steps with noise level in [LO, HI]"
     )
-    parser.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    parser.add_argument(
+        "--shift",
+        type=number(above=0.0),
+        default=5.0,
+        help="flow schedule shift (default 5, the paper's training shift); a checkpoint's own UniPC scheduler "
+        "config keeps its flow_shift",
+    )
     parser.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
     parser.add_argument(
         "--guidance-form",

@@ -356,3 +356,31 @@ def test_cli_end_to_end_with_the_bundled_toy_model(tmp_path, capsys, monkeypatch
     assert 5.0 < row["psnr"] < 100.0 and 0.0 < row["ssim"] < 1.0 and row["frames_per_s"] > 0
     assert row["lpips"] is None and "lpips" in table["missing"]
     assert (tmp_path / "table.md").read_text().startswith("Averaged over 2 embodiments (2 clips, first 17 frames)")
+
+
+SAMPLER_FLAGS = ("steps", "preset", "guidance_interval", "shift", "guidance", "guidance_form")
+
+
+def test_eval_commands_share_one_sampler_flag_set(capsys):
+    from oscar_core.cli import build_parser
+    from oscar_core.evaluation.cli_options import resolve_sampler_flags
+
+    parser = build_parser()
+    heads = {
+        "run": ["eval", "run", "m.json", "--model", "x", "--out", "o"],
+        "closed-loop": ["eval", "closed-loop", "m.json", "--model", "x", "--out", "o"],
+        "benchmark run": ["eval", "benchmark", "run", "s.json", "--model", "x", "--out", "o"],
+    }
+    flags = ["--steps", "7", "--guidance-interval", "0.2,0.8", "--shift", "3", "--guidance", "2", "--guidance-form"]
+    parsed = {name: parser.parse_args(head + flags + ["diffusers"]) for name, head in heads.items()}
+    values = {name: tuple(getattr(a, f) for f in SAMPLER_FLAGS) for name, a in parsed.items()}
+    assert len(set(values.values())) == 1, values
+    defaults = {name: tuple(getattr(parser.parse_args(h), f) for f in SAMPLER_FLAGS) for name, h in heads.items()}
+    assert len(set(defaults.values())) == 1 and defaults["run"][3] == 5.0, defaults
+    # the shift reaches the sampler of a benchmark run, over a card that recommends other steps
+    cfg = resolve_sampler_flags(parsed["benchmark run"], lambda: {"steps": 20, "guidance": 6.0}).config
+    assert (cfg.steps, cfg.shift, cfg.guidance, cfg.guidance_interval) == (7, 3.0, 2.0, (0.2, 0.8))
+    for head in heads.values():  # the same checks: a shift must be positive
+        with pytest.raises(SystemExit):
+            parser.parse_args(head + ["--shift", "0"])
+    assert "expected a number > 0" in capsys.readouterr().err
