@@ -226,6 +226,233 @@ def _unordered_groups(n_groups: int, labels: np.ndarray, edges: list[tuple[int, 
     return None
 
 
+def _policy_names(prefs: list[Preference], policies, source: str) -> list[str]:
+    """The policies in fit order: ``policies`` as given (checked unique and covering every preference), or by
+    default the order of first appearance in the ``a`` column and then the ``b`` column."""
+    if policies is None:
+        names: list[str] = []
+        seen = set()
+        for col in ("a", "b"):
+            for p in prefs:
+                name = getattr(p, col)
+                if name not in seen:
+                    seen.add(name)
+                    names.append(name)
+        return names
+    names = [str(p) for p in policies]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise MetricInputError("policies", "policy names", "unique names", f"duplicates {dup}")
+    known = set(names)
+    for k, p in enumerate(prefs):
+        for col in ("a", "b"):
+            if getattr(p, col) not in known:
+                raise MetricInputError(
+                    p.where or f"{source}[{k}]", col, f"one of the policies {names}", repr(getattr(p, col))
+                )
+    return names
+
+
+def _comparison_arrays(
+    prefs: list[Preference], names: list[str], source: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(i_idx, j_idx, outcome)``, each (M,) int64 for M preferences: the indices into ``names`` of each
+    comparison's ``a`` and ``b`` and its outcome (2 a preferred, 1 tie, 0 b preferred). Raises
+    :class:`MetricInputError` for fewer than two policies or a listed policy with no comparisons."""
+    n = len(names)
+    if n < 2:
+        raise MetricInputError(source, "policies", "comparisons between at least 2 policies", f"{n} policies {names}")
+    idx = {name: k for k, name in enumerate(names)}
+    i_idx = np.array([idx[p.a] for p in prefs], dtype=np.int64)
+    j_idx = np.array([idx[p.b] for p in prefs], dtype=np.int64)
+    outcome = np.array([p.outcome for p in prefs], dtype=np.int64)
+    counts = np.bincount(i_idx, minlength=n) + np.bincount(j_idx, minlength=n)
+    unused = [names[k] for k in range(n) if counts[k] == 0]
+    if unused:
+        raise MetricInputError(
+            source, "policies", "at least one comparison for every listed policy", f"no comparisons for {unused}"
+        )
+    return i_idx, j_idx, outcome
+
+
+def _beats_or_ties_graph(
+    names: list[str], i_idx: np.ndarray, j_idx: np.ndarray, outcome: np.ndarray, source: str
+) -> tuple[int, np.ndarray, list[tuple[int, int]]]:
+    """Checks the comparison graph is connected (else :class:`MetricInputError`) and warns
+    (:class:`BradleyTerryWarning`, attributed to the caller of :func:`fit_bradley_terry`) when the
+    "beats or ties" graph is not strongly connected, i.e. the maximum-likelihood scores are infinite
+    (Ford 1957, with ties as two-way links).
+
+    Returns ``(n_strong, strong_labels, edges)``: the number of strongly connected groups, each policy's
+    group label ((N,) int), and the graph's edges as (winner-or-tier, loser-or-tier) index pairs.
+    """
+    n = len(names)
+    n_comp, labels = _components(n, list(zip(i_idx.tolist(), j_idx.tolist())), strong=False)
+    if n_comp > 1:
+        groups = [[names[k] for k in range(n) if labels[k] == c] for c in range(n_comp)]
+        raise MetricInputError(
+            source,
+            "comparison graph",
+            "every policy linked to every other through comparisons",
+            f"{n_comp} separate groups {groups}",
+        )
+    edges = []
+    for a, b, o in zip(i_idx.tolist(), j_idx.tolist(), outcome.tolist()):
+        if o >= 1:
+            edges.append((a, b))
+        if o <= 1:
+            edges.append((b, a))
+    n_strong, strong_labels = _components(n, edges, strong=True)
+    if n_strong > 1:
+        groups = [[names[k] for k in range(n) if strong_labels[k] == c] for c in range(n_strong)]
+        warnings.warn(
+            f"{source}: some policies never lose (or never win) against the others, so their "
+            f"maximum-likelihood Bradley-Terry scores are infinite; groups {groups}. The reported scores "
+            f"grow with max_iters.",
+            BradleyTerryWarning,
+            stacklevel=3,
+        )
+    return n_strong, strong_labels, edges
+
+
+def _davidson_objective(n: int, i_idx: np.ndarray, j_idx: np.ndarray, outcome: np.ndarray):
+    """The Davidson negative log-likelihood of M comparisons among ``n`` policies, as a function of the
+    free parameters ``x`` ((n,): θ_0 … θ_{n−2}, then φ = log ν; the last policy's θ is 0). The function
+    returns ``(nll, grad, hess)``: a float in nats, (n,) and (n, n), each probability floored at 1e-12."""
+    ref = n - 1
+    free = np.r_[np.arange(n - 1), n]  # free θ's, then φ (index n in the full vector)
+    k_rows = np.arange(len(outcome))
+    A = np.zeros((len(outcome), n + 1))
+    B = np.zeros((len(outcome), n + 1))
+    A[k_rows, i_idx] = 1.0
+    B[k_rows, j_idx] = 1.0
+    T = 0.5 * A + 0.5 * B
+    T[:, n] = 1.0
+    V_obs = np.where((outcome == 2)[:, None], A, np.where((outcome == 0)[:, None], B, T))
+    log_floor = math.log(1e-12)
+
+    def nll_grad_hess(x: np.ndarray):
+        theta = np.zeros(n)
+        theta[:ref] = x[:ref]
+        phi = x[-1]
+        ti, tj = theta[i_idx], theta[j_idx]
+        logits = np.stack([ti, tj, math.log(2.0) + phi + 0.5 * (ti + tj)], axis=1)
+        m = logits.max(axis=1, keepdims=True)
+        log_z = m[:, 0] + np.log(np.exp(logits - m).sum(axis=1))
+        logp = logits - log_z[:, None]
+        p = np.exp(logp)
+        obs = np.where(outcome == 2, 0, np.where(outcome == 0, 1, 2))
+        nll = float(-np.maximum(logp[k_rows, obs], log_floor).sum())
+        p_i, p_j, p_t = p[:, 0:1], p[:, 1:2], p[:, 2:3]
+        v_bar = p_i * A + p_j * B + p_t * T
+        grad = (v_bar - V_obs).sum(axis=0)
+        hess = A.T @ (p_i * A) + B.T @ (p_j * B) + T.T @ (p_t * T) - v_bar.T @ v_bar
+        return nll, grad[free], hess[np.ix_(free, free)]
+
+    return nll_grad_hess
+
+
+def _newton_minimise(
+    nll_grad_hess, n_params: int, n_comparisons: int, max_iters: int, tol: float, hess_ridge: float
+) -> tuple[np.ndarray, int, bool]:
+    """Newton steps with an Armijo line search on ``nll_grad_hess`` from θ = 0, ν = 0.5, φ (the last of the
+    ``n_params`` parameters) clipped to ±:data:`PHI_BOUND`, as described in :func:`fit_bradley_terry`.
+    Returns ``(params, iterations, converged)``: the (n_params,) parameters reached, the steps taken and
+    whether a stopping test below ``tol`` was met."""
+    params = np.zeros(n_params)
+    params[-1] = math.log(0.5)
+    eye = np.eye(n_params)
+    converged, iterations = False, 0
+    while iterations < max_iters:
+        iterations += 1
+        nll, grad, hess = nll_grad_hess(params)
+        # φ held at its clip bound while the likelihood pushes it further out (e.g. no ties at all:
+        # the MLE of ν is 0) — project that coordinate out, so the θ's still converge
+        at_bound = (params[-1] <= -PHI_BOUND and grad[-1] > 0) or (params[-1] >= PHI_BOUND and grad[-1] < 0)
+        if at_bound:
+            grad = grad.copy()
+            grad[-1] = 0.0
+        if float(np.abs(grad).max()) < tol:
+            converged = True
+            break
+        hess_reg = hess + hess_ridge * eye
+        if at_bound:
+            hess_reg[-1, :] = hess_reg[:, -1] = 0.0
+            hess_reg[-1, -1] = 1.0
+        try:
+            step = np.linalg.solve(hess_reg, grad)
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(hess_reg, grad, rcond=None)[0]
+        if not np.all(np.isfinite(step)):
+            break
+        step_inf = float(np.abs(step).max())
+        if step_inf < tol:
+            converged = True
+            break
+        directional = float(grad @ step)
+        alpha, accepted = 1.0, False
+        while alpha >= 1e-8:
+            cand = params - alpha * step
+            cand[-1] = float(np.clip(cand[-1], -PHI_BOUND, PHI_BOUND))
+            if nll_grad_hess(cand)[0] <= nll - 1e-4 * alpha * directional:
+                params, accepted = cand, True
+                break
+            alpha *= 0.5
+        if not accepted:
+            # no decrease possible: at the optimum to float precision, or stuck
+            converged = float(np.abs(grad).max()) < 1e-6 * max(1, n_comparisons)
+            break
+        if alpha * step_inf < tol:
+            converged = True
+            break
+    return params, iterations, converged
+
+
+def _centred_scores(params: np.ndarray, hess: np.ndarray, hess_ridge: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta, std)``, each (N,): the mean-centred scores from the (N,) fitted parameters (N−1 free θ's
+    then φ), and their standard errors from the (N, N) Hessian there (``C Σ Cᵀ``, see
+    :func:`fit_bradley_terry`); a non-finite error is reported as 0."""
+    n = len(params)
+    ref = n - 1
+    cov = np.linalg.pinv(hess + hess_ridge * np.eye(n), rcond=1e-12)
+    theta = np.zeros(n)
+    theta[:ref] = params[:ref]
+    theta -= theta.mean()
+    cov_ref = np.zeros((n, n))
+    cov_ref[:ref, :ref] = cov[:ref, :ref]
+    center = np.eye(n) - np.full((n, n), 1.0 / n)
+    std = np.sqrt(np.clip(np.diag(center @ cov_ref @ center.T), 0.0, None))
+    std = np.nan_to_num(std, nan=0.0, posinf=0.0, neginf=0.0)
+    return theta, std
+
+
+def _degenerate_reason(
+    outcome: np.ndarray,
+    phi: float,
+    n_strong: int,
+    strong_labels: np.ndarray,
+    edges: list[tuple[int, int]],
+    names: list[str],
+    converged: bool,
+    iterations: int,
+) -> str | None:
+    """Why the fitted scores do not rank the policies (a sentence), or None when they do."""
+    if np.all(outcome == 1):
+        return "every comparison is a tie, so the preferences do not order the policies"
+    if phi >= PHI_BOUND:
+        return (
+            f"the tie parameter reached the optimiser's bound (nu = e^{PHI_BOUND:g}): almost every comparison is a tie"
+        )
+    if n_strong > 1 and (undetermined := _unordered_groups(n_strong, strong_labels, edges, names)):
+        return (
+            f"the preferences leave the order of the groups {undetermined} undetermined (and the "
+            f"maximum-likelihood scores are infinite)"
+        )
+    if not converged and n_strong == 1:  # with infinite scores (a strict order of groups) it cannot converge
+        return f"the fit did not converge in {iterations} steps"
+    return None
+
+
 def fit_bradley_terry(
     preferences,
     *,
@@ -273,144 +500,11 @@ def fit_bradley_terry(
     when the Newton iteration stops without converging.
     """
     prefs = [parse_preference(p, f"{source}[{k}]") for k, p in enumerate(preferences)]
-    if policies is None:
-        names: list[str] = []
-        seen = set()
-        for col in ("a", "b"):
-            for p in prefs:
-                name = getattr(p, col)
-                if name not in seen:
-                    seen.add(name)
-                    names.append(name)
-    else:
-        names = [str(p) for p in policies]
-        if len(set(names)) != len(names):
-            dup = sorted({n for n in names if names.count(n) > 1})
-            raise MetricInputError("policies", "policy names", "unique names", f"duplicates {dup}")
-        known = set(names)
-        for k, p in enumerate(prefs):
-            for col in ("a", "b"):
-                if getattr(p, col) not in known:
-                    raise MetricInputError(
-                        p.where or f"{source}[{k}]", col, f"one of the policies {names}", repr(getattr(p, col))
-                    )
-    n = len(names)
-    if n < 2:
-        raise MetricInputError(source, "policies", "comparisons between at least 2 policies", f"{n} policies {names}")
-    idx = {name: k for k, name in enumerate(names)}
-    i_idx = np.array([idx[p.a] for p in prefs], dtype=np.int64)
-    j_idx = np.array([idx[p.b] for p in prefs], dtype=np.int64)
-    y = np.array([p.outcome for p in prefs], dtype=np.int64)
-    counts = np.bincount(i_idx, minlength=n) + np.bincount(j_idx, minlength=n)
-    unused = [names[k] for k in range(n) if counts[k] == 0]
-    if unused:
-        raise MetricInputError(
-            source, "policies", "at least one comparison for every listed policy", f"no comparisons for {unused}"
-        )
-    n_comp, labels = _components(n, list(zip(i_idx.tolist(), j_idx.tolist())), strong=False)
-    if n_comp > 1:
-        groups = [[names[k] for k in range(n) if labels[k] == c] for c in range(n_comp)]
-        raise MetricInputError(
-            source,
-            "comparison graph",
-            "every policy linked to every other through comparisons",
-            f"{n_comp} separate groups {groups}",
-        )
-    # "beats or ties" graph: the MLE is finite iff it is strongly connected (Ford 1957, with ties as two-way links)
-    edges = []
-    for a, b, o in zip(i_idx.tolist(), j_idx.tolist(), y.tolist()):
-        if o >= 1:
-            edges.append((a, b))
-        if o <= 1:
-            edges.append((b, a))
-    n_strong, slabels = _components(n, edges, strong=True)
-    if n_strong > 1:
-        groups = [[names[k] for k in range(n) if slabels[k] == c] for c in range(n_strong)]
-        warnings.warn(
-            f"{source}: some policies never lose (or never win) against the others, so their "
-            f"maximum-likelihood Bradley-Terry scores are infinite; groups {groups}. The reported scores "
-            f"grow with max_iters.",
-            BradleyTerryWarning,
-            stacklevel=2,
-        )
-
-    ref = n - 1
-    free = np.r_[np.arange(n - 1), n]  # free θ's, then φ (index n in the full vector)
-    n_params = n
-    k_rows = np.arange(len(prefs))
-    A = np.zeros((len(prefs), n + 1))
-    B = np.zeros((len(prefs), n + 1))
-    A[k_rows, i_idx] = 1.0
-    B[k_rows, j_idx] = 1.0
-    T = 0.5 * A + 0.5 * B
-    T[:, n] = 1.0
-    V_obs = np.where((y == 2)[:, None], A, np.where((y == 0)[:, None], B, T))
-    log_floor = math.log(1e-12)
-
-    def nll_grad_hess(x: np.ndarray):
-        theta = np.zeros(n)
-        theta[:ref] = x[:ref]
-        phi = x[-1]
-        ti, tj = theta[i_idx], theta[j_idx]
-        logits = np.stack([ti, tj, math.log(2.0) + phi + 0.5 * (ti + tj)], axis=1)
-        m = logits.max(axis=1, keepdims=True)
-        log_z = m[:, 0] + np.log(np.exp(logits - m).sum(axis=1))
-        logp = logits - log_z[:, None]
-        p = np.exp(logp)
-        obs = np.where(y == 2, 0, np.where(y == 0, 1, 2))
-        nll = float(-np.maximum(logp[k_rows, obs], log_floor).sum())
-        p_i, p_j, p_t = p[:, 0:1], p[:, 1:2], p[:, 2:3]
-        v_bar = p_i * A + p_j * B + p_t * T
-        grad = (v_bar - V_obs).sum(axis=0)
-        hess = A.T @ (p_i * A) + B.T @ (p_j * B) + T.T @ (p_t * T) - v_bar.T @ v_bar
-        return nll, grad[free], hess[np.ix_(free, free)]
-
-    params = np.zeros(n_params)
-    params[-1] = math.log(0.5)
-    eye = np.eye(n_params)
-    converged, iterations = False, 0
-    while iterations < max_iters:
-        iterations += 1
-        nll, grad, hess = nll_grad_hess(params)
-        # φ held at its clip bound while the likelihood pushes it further out (e.g. no ties at all:
-        # the MLE of ν is 0) — project that coordinate out, so the θ's still converge
-        at_bound = (params[-1] <= -PHI_BOUND and grad[-1] > 0) or (params[-1] >= PHI_BOUND and grad[-1] < 0)
-        if at_bound:
-            grad = grad.copy()
-            grad[-1] = 0.0
-        if float(np.abs(grad).max()) < tol:
-            converged = True
-            break
-        hess_reg = hess + hess_ridge * eye
-        if at_bound:
-            hess_reg[-1, :] = hess_reg[:, -1] = 0.0
-            hess_reg[-1, -1] = 1.0
-        try:
-            step = np.linalg.solve(hess_reg, grad)
-        except np.linalg.LinAlgError:
-            step = np.linalg.lstsq(hess_reg, grad, rcond=None)[0]
-        if not np.all(np.isfinite(step)):
-            break
-        step_inf = float(np.abs(step).max())
-        if step_inf < tol:
-            converged = True
-            break
-        directional = float(grad @ step)
-        alpha, accepted = 1.0, False
-        while alpha >= 1e-8:
-            cand = params - alpha * step
-            cand[-1] = float(np.clip(cand[-1], -PHI_BOUND, PHI_BOUND))
-            if nll_grad_hess(cand)[0] <= nll - 1e-4 * alpha * directional:
-                params, accepted = cand, True
-                break
-            alpha *= 0.5
-        if not accepted:
-            # no decrease possible: at the optimum to float precision, or stuck
-            converged = float(np.abs(grad).max()) < 1e-6 * max(1, len(prefs))
-            break
-        if alpha * step_inf < tol:
-            converged = True
-            break
+    names = _policy_names(prefs, policies, source)
+    i_idx, j_idx, outcome = _comparison_arrays(prefs, names, source)
+    n_strong, strong_labels, edges = _beats_or_ties_graph(names, i_idx, j_idx, outcome, source)
+    nll_grad_hess = _davidson_objective(len(names), i_idx, j_idx, outcome)
+    params, iterations, converged = _newton_minimise(nll_grad_hess, len(names), len(prefs), max_iters, tol, hess_ridge)
     if not converged and n_strong == 1:
         warnings.warn(
             f"{source}: the Bradley-Terry Newton iteration stopped after {iterations} steps without "
@@ -418,32 +512,8 @@ def fit_bradley_terry(
             BradleyTerryWarning,
             stacklevel=2,
         )
-
     final_nll, _, final_hess = nll_grad_hess(params)
-    cov = np.linalg.pinv(final_hess + hess_ridge * eye, rcond=1e-12)
-    theta = np.zeros(n)
-    theta[:ref] = params[:ref]
-    theta -= theta.mean()
-    cov_ref = np.zeros((n, n))
-    cov_ref[:ref, :ref] = cov[:ref, :ref]
-    center = np.eye(n) - np.full((n, n), 1.0 / n)
-    std = np.sqrt(np.clip(np.diag(center @ cov_ref @ center.T), 0.0, None))
-    std = np.nan_to_num(std, nan=0.0, posinf=0.0, neginf=0.0)
-    if np.all(y == 1):
-        degenerate = "every comparison is a tie, so the preferences do not order the policies"
-    elif params[-1] >= PHI_BOUND:
-        degenerate = (
-            f"the tie parameter reached the optimiser's bound (nu = e^{PHI_BOUND:g}): almost every comparison is a tie"
-        )
-    elif n_strong > 1 and (undetermined := _unordered_groups(n_strong, slabels, edges, names)):
-        degenerate = (
-            f"the preferences leave the order of the groups {undetermined} undetermined (and the "
-            f"maximum-likelihood scores are infinite)"
-        )
-    elif not converged and n_strong == 1:  # with infinite scores (a strict order of groups) it cannot converge
-        degenerate = f"the fit did not converge in {iterations} steps"
-    else:
-        degenerate = None
+    theta, std = _centred_scores(params, final_hess, hess_ridge)
     return BradleyTerryResult(
         policies=tuple(names),
         theta=theta,
@@ -453,7 +523,9 @@ def fit_bradley_terry(
         log_likelihood=-final_nll,
         iterations=iterations,
         converged=converged,
-        degenerate=degenerate,
+        degenerate=_degenerate_reason(
+            outcome, float(params[-1]), n_strong, strong_labels, edges, names, converged, iterations
+        ),
     )
 
 
