@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from _paths import TOYARM_ASSETS
 from _studies import POLICIES, WM, make_study
 
 import oscar_zoo
@@ -570,6 +571,51 @@ def test_ray_engine_gives_the_local_run_and_resumes(tmp_path, tiny_model_dir):
             sampler=SamplerConfig(steps=2),
             log=lambda m: None,
         )
+
+
+@pytest.mark.slow
+def test_ray_engine_resumed_after_some_cells_files_each_result_under_its_own_cell(tmp_path, tiny_model_dir):
+    """A run with cells 1, 2 and 4 of 6 finished, resumed on Ray: the three left are rolled out there, each video
+    and record under its own cell (equal to the local run's video of that cell), the finished ones untouched."""
+    pytest.importorskip("ray", reason='ray is not installed (pip install "oscar-wm[ray]")')
+    import shutil
+
+    from oscar_core.evaluation.loop import record_path, video_path
+    from oscar_core.media.video import read_video
+    from oscar_core.model import SamplerConfig
+
+    manifest = make_study(tmp_path / "study")
+    data = json.loads(manifest.read_text())
+    for i, c in enumerate(data["cells"]):  # a length of its own per cell (5, 9, ..., 25 frames): a video names its cell
+        traj = dict(np.load(manifest.parent / c["trajectory"]))
+        src = np.load(TOYARM_ASSETS / "example_trajectory.npz")
+        traj.update(q=src["q"][i : i + 5 + 4 * i], gripper=src["gripper"][i : i + 5 + 4 * i])
+        np.savez(manifest.parent / c["trajectory"], **traj)
+    data["cells"][0].pop("real_video")  # five frames long
+    manifest.write_text(json.dumps(data))
+    cells = load_manifest(manifest).cells
+    kwargs = dict(model_spec=str(tiny_model_dir), sampler=SamplerConfig(steps=2), log=lambda m: None)
+    local = run_evaluation(manifest, tmp_path / "local", **kwargs)
+    assert local.report["counts"]["rollouts_done"] == 6
+    shutil.copytree(tmp_path / "local", tmp_path / "resumed")
+    out = tmp_path / "resumed"
+    left = [cells[0], cells[3], cells[5]]  # not a prefix: the pending cells are not the manifest's first ones
+    for c in left:
+        record_path(out, c).unlink()
+    kept = {c.id: record_path(out, c).read_bytes() for c in cells if c not in left}
+    videos = [read_video(video_path(tmp_path / "local", c)).astype(int) for c in cells]
+    assert [len(v) for v in videos] == [5 + 4 * i for i in range(6)]
+    res = run_evaluation(manifest, out, engine="ray", workers=2, batch_cells=2, **kwargs)
+    assert res.report["counts"]["rollouts_done"] == 3 and res.report["counts"]["rollouts_reused"] == 3
+    for c, want in zip(cells, videos):
+        rec = json.loads(record_path(out, c).read_text())
+        assert (rec["cell"], rec["session"], rec["policy"]) == (c.id, c.session, c.policy)
+        assert rec["video"] == str(video_path(out, c).relative_to(out))
+        got = read_video(video_path(out, c)).astype(int)
+        assert got.shape == want.shape and np.abs(got - want).max() <= 1, c.id
+        if c.id in kept:
+            assert record_path(out, c).read_bytes() == kept[c.id]
+    assert [r["cell"] for r in res.report["cells"]] == [c.id for c in cells]
 
 
 def test_eval_run_compiles_once_for_all_cells_weighed_over_the_job(tmp_path, tiny_model_dir, monkeypatch):
