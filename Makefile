@@ -6,7 +6,8 @@ PYTHON := $(VENV)/bin/python
 PIP := $(PYTHON) -m pip
 STAMP := $(VENV)/.oscar-installed
 OUT ?= demo_out
-EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray,viz
+# every extra the tests need (make test passes --strict-extras: a test skipped for a missing one fails)
+EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray,viz,policy
 
 .PHONY: install venv demo test test-fast test-install lint bench bench-gpu clean
 
@@ -31,10 +32,10 @@ demo: install
 	$(PYTHON) -m oscar_core.cli demo --out $(OUT)
 
 test: install
-	$(PYTHON) -m pytest -q
+	$(PYTHON) -m pytest -q --strict-extras
 
 test-fast: install
-	$(PYTHON) -m pytest -q -m "not slow and not install"
+	$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install"
 
 # a real install into a fresh virtual environment (downloads dependencies)
 test-install: install

@@ -1,6 +1,7 @@
 """Fixtures shared by several test modules, and ``tests/`` on ``sys.path`` so that every test folder imports the shared
 helpers: ``_paths`` (folders), ``_models`` (tiny world models, training configs), ``_studies`` (a small evaluation
-study), ``_datasets`` (raw episodes), ``_browser`` (headless Chromium)."""
+study), ``_datasets`` (raw episodes), ``_browser`` (headless Chromium); and the ``--strict-extras`` option
+(``_strict_extras``)."""
 
 import sys
 from pathlib import Path
@@ -8,6 +9,9 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+# --strict-extras (make test, CI): a skip for a missing package of oscar's own extras fails (tests/_strict_extras.py)
+from _strict_extras import pytest_addoption, pytest_configure, pytest_runtest_makereport  # noqa: F401
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,8 @@
 """``python -m oscar_core.policy.serve module:attr [--host H] [--port P]``: serve a policy over openpi's
-websocket protocol (:func:`oscar_core.policy.remote.serve_policy`), a fresh policy object per connection."""
+websocket protocol (:func:`oscar_core.policy.remote.serve_policy`), a fresh policy object per connection.
+
+A policy that cannot be loaded (a typo in its path, a missing class) or a missing ``policy`` extra is one line
+on stderr, ``error: …``, and exit code 2, before anything listens."""
 
 from __future__ import annotations
 
@@ -7,7 +10,7 @@ import argparse
 import sys
 
 from .loading import load_policy
-from .remote import serve_policy
+from .protocol import PolicySpecError
 
 __all__ = ["main"]
 
@@ -24,7 +27,17 @@ def main(argv=None) -> int:
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
     args = p.parse_args(argv)
-    load_policy(args.policy)  # fail before listening when the policy cannot be loaded
+    try:
+        from .._util.optional import require
+
+        require("msgpack", "policy")
+        require("websockets", "policy")
+        from .remote import serve_policy
+
+        load_policy(args.policy)  # fail before listening when the policy cannot be loaded
+    except (ImportError, PolicySpecError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
     def ready(port: int) -> None:
         print(f"listening on ws://{args.host}:{port}", flush=True)

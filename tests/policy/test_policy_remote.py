@@ -137,3 +137,23 @@ def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path):
         policy_sources={"exact": f"ws://127.0.0.1:{port}"},
     )
     assert all(r["status"] == "failed" and r["reason"].startswith("cannot load ws://") for r in res.records)
+
+
+@pytest.mark.parametrize(
+    "target, found",
+    [
+        ("oscar_core.toyworld.image_polices:ExactPolicy", "No module named 'oscar_core.toyworld.image_polices'"),
+        ("oscar_core.toyworld.image_policies:Exact", "has no attribute 'Exact'"),
+        ("no_such_file.py:Policy", "no such file"),
+    ],
+)
+def test_serve_a_typo_is_one_line_and_exit_2(target, found):
+    proc = subprocess.run(
+        [sys.executable, "-m", "oscar_core.policy.serve", target, "--port", "0"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and proc.stderr.startswith(f"error: {target}: field 'policy'"), proc.stderr
+    assert found in proc.stderr
