@@ -137,6 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     from .evaluation.cli import add_run_parser
+    from .evaluation.cli_action_following import add_action_following_parser
     from .evaluation.cli_benchmark import add_benchmark_parser
     from .evaluation.cli_closed_loop import add_closed_loop_parser
     from .evaluation.cli_roboarena import add_roboarena_parser
@@ -144,7 +145,14 @@ def build_parser() -> argparse.ArgumentParser:
     from .model.cli import add_model_parsers
 
     add_eval_parser(
-        sub, extra_commands=(add_run_parser, add_benchmark_parser, add_closed_loop_parser, add_roboarena_parser)
+        sub,
+        extra_commands=(
+            add_run_parser,
+            add_benchmark_parser,
+            add_closed_loop_parser,
+            add_roboarena_parser,
+            add_action_following_parser,
+        ),
     )
     add_model_parsers(sub)
     from .data.cli import add_data_parser

@@ -19,6 +19,7 @@ from .._util.log import log_result, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..model.presets import SAMPLER_PRESETS
+from .cli_counterfactual import add_counterfactual_parser
 from .cli_policies import (
     add_policy_parsers,
     cmd_carry,
@@ -62,6 +63,7 @@ EXAMPLES = """examples:
   oscar toyworld carry toy_policies/manifest.json toy_eval/ --json toy_eval/carry.json
   oscar toyworld closed-loop-sessions --embodiments toyarm,franka,kuka --sessions 10 --out toy_cl
       (then: oscar eval closed-loop toy_cl/manifest.json --model oscar-toy --out cl_wm/)
+  oscar toyworld action-following --model oscar-toy --quick --seed 0 --out af_toy
 """
 
 
@@ -272,6 +274,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
     k.set_defaults(func=cmd_package)
     add_policy_parsers(sub, EXAMPLES)
+    add_counterfactual_parser(sub)
 
     e = sub.add_parser(
         "eval",

@@ -18,7 +18,16 @@ import numpy as np
 
 from .scene import EE_HUE, OBJECT_HUE
 
-__all__ = ["ColorTarget", "EE_TARGET", "OBJECT_TARGET", "color_mask", "locate", "position_errors"]
+__all__ = [
+    "ColorTarget",
+    "EE_TARGET",
+    "OBJECT_TARGET",
+    "BALL_TARGET",
+    "ball_position",
+    "color_mask",
+    "locate",
+    "position_errors",
+]
 
 
 @dataclass(frozen=True)
@@ -35,6 +44,8 @@ class ColorTarget:
 
 EE_TARGET = ColorTarget("end_effector", EE_HUE)
 OBJECT_TARGET = ColorTarget("object", OBJECT_HUE)
+#: The ball in generated frames: at least 3 pixels of its colour (the judge's rule: a stray pixel is not a ball).
+BALL_TARGET = ColorTarget("object", OBJECT_HUE, min_pixels=3.0)
 
 
 def color_mask(frames: np.ndarray, target: ColorTarget) -> np.ndarray:
@@ -66,6 +77,12 @@ def locate(frames: np.ndarray, target: ColorTarget) -> tuple[np.ndarray, np.ndar
     pos = np.stack([cx, cy], axis=1)
     pos[n < target.min_pixels] = np.nan
     return pos, n
+
+
+def ball_position(frames: np.ndarray) -> np.ndarray:
+    """(T, 2) pixels: the centroid of the ball's colour in each of ``frames`` (T, H, W, 3) uint8, NaN where fewer
+    than 3 pixels show it (:data:`BALL_TARGET`); the locator of ``oscar eval action-following``'s toy sets."""
+    return locate(frames, BALL_TARGET)[0]
 
 
 def position_errors(pred: np.ndarray, gt: np.ndarray, target: ColorTarget) -> dict:

@@ -1,0 +1,476 @@
+"""The action-following benchmark: does a world model's outcome change exactly when one decision of the arm does?
+
+:func:`run_action_following` takes a manifest of counterfactual sets (:mod:`.action_following_manifest`: one first
+frame, one trajectory, variants that change one decision, the true outcome of each), and for every set
+
+1. rolls every variant out through the model's public path — ``model.rollout_inputs(trajectory, camera,
+   embodiment, size)`` and then ``model.rollout(first, inputs["skeleton"], prompt, **every other key of the
+   inputs)`` — so any model type works (skeleton, mesh, latent actions, or a condition added later as another key);
+   when the inputs hold the condition video alone and the model has ``rollout_batch``, the variants of a set go in
+   one batch (each video equal to its own rollout up to float rounding). Every variant of a set uses the same
+   noise seed, so the variants differ only by their decision;
+2. judges each video (``--judge module:attr``: the verdict, 0/1) and, with true frames, judges those too (the
+   judge's own error on this set);
+3. with a ``locator`` (``module:attr``: frames (T, H, W, 3) uint8 → (T, 2) pixels, NaN where not found; the toy
+   world's is :func:`oscar_core.toyworld.locate.ball_position`) and true frames: the object's end error (last
+   frame) and per chunk of the rollout PSNR and the object error, in ball radii (pixels / ``info.ball_radius_px``;
+   pixels when the set's ``info`` has no radius). A chunk's frames are ``[1 + (L − 1)(k − 1), (L − 1)k]``; a frame
+   where the truth shows the object and the model does not counts as the image diagonal (losing the object is never
+   better than misplacing it);
+4. writes ``sets/<set>.json`` atomically (a killed run resumes: a finished set is kept), and the model's videos
+   under ``videos/<set>/<variant>.mp4``.
+
+Then :func:`~.action_following_scores.score_records` makes the scores, written as ``report.json`` and
+``summary.md``. The folder's ``fingerprint.json`` holds what the records depend on (the manifest's bytes, the
+model, the sampler, the seed, the chunk length, the judge and its version, the locator): a re-run under other
+settings is refused (:class:`~oscar_core._util.stage.StageChanged`), never mixed.
+
+Checked before any model loads (:func:`check_sets`), each a :class:`~oscar_core.metrics.common.MetricInputError`
+naming the manifest and the field: the judge can read every set's ``info`` (it is run on a still video of the
+first frame: a judge that raises there cannot judge the set), every set is a whole number of the model's chunks,
+and the first frame and the true videos are the model's size and the trajectory's length.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._util.log import get_logger
+from ..metrics.common import MetricInputError
+from .action_following_manifest import ActionFollowingManifest, CounterfactualSet, load_action_following
+from .action_following_scores import format_summary, paired_scores, score_records
+
+__all__ = [
+    "ActionFollowingSettings",
+    "ActionFollowingResult",
+    "check_sets",
+    "load_locator",
+    "roll_out_variants",
+    "run_action_following",
+    "REPORT_VERSION",
+]
+
+_log = get_logger(__name__)
+REPORT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ActionFollowingSettings:
+    """How the benchmark runs. model_spec / revision: what ``oscar_zoo.load`` loads when no model object is given;
+    sampler: a :class:`~oscar_core.model.SamplerConfig` (None: the card's); seed: the noise seed of every variant;
+    chunk_frames: None = the card's; device, dtype: where the model runs; plugin_paths: extra embodiment plugins;
+    resamples, bootstrap_seed: the intervals' bootstrap; progress: progress bars."""
+
+    model_spec: str | None = None
+    revision: str | None = None
+    sampler: object = None
+    seed: int = 0
+    chunk_frames: int | None = None
+    device: str = "cpu"
+    dtype: object = None
+    plugin_paths: tuple = ()
+    resamples: int = 2000
+    bootstrap_seed: int = 0
+    progress: bool = False
+
+
+@dataclass
+class ActionFollowingResult:
+    report: dict
+    records: list[dict]
+    paths: dict
+
+
+def load_locator(spec: str | None):
+    """The locator function of ``module:attr`` (or ``file.py:attr``), or None."""
+    if spec is None:
+        return None
+    from .._util.user_code import import_attr
+
+    try:
+        fn = import_attr(spec, "locator")
+    except (ValueError, FileNotFoundError, ImportError, AttributeError) as exc:
+        raise MetricInputError(spec, "locator", "an importable module:attr", f"{type(exc).__name__}: {exc}") from None
+    if not callable(fn):
+        raise MetricInputError(spec, "locator", "a function (frames) -> (T, 2) pixels", type(fn).__name__)
+    return fn
+
+
+def _set_inputs(s: CounterfactualSet, plugin_paths):
+    from ..model.image import read_first_frame
+    from ..plugin.registry import get_embodiment
+
+    emb = get_embodiment(s.embodiment, plugin_paths)
+    camera = emb.load_camera(s.camera)
+    first = read_first_frame(s.first_frame, camera, str(s.camera))
+    return emb, camera, first
+
+
+def _judge_one(judge, video: np.ndarray, s: CounterfactualSet, name: str):
+    from ..metrics.judge_records import JudgeClip
+
+    clip = JudgeClip(f"{s.set}/{name}", video, s.task or "the task", policy=name, session=s.set, info=s.info)
+    return judge.judge_many([clip])[0]
+
+
+def check_sets(manifest: ActionFollowingManifest, judge, card, chunk_frames: int | None, plugin_paths=()) -> None:
+    """The checks made before any model loads (module docstring); ``card``: the model's card (chunk length and
+    size; None: no size check), ``chunk_frames``: overrides the card's."""
+    from ..media.video import video_info
+
+    L = int(chunk_frames or getattr(card, "chunk_frames", 0) or 0)
+    size = (getattr(card, "width", None), getattr(card, "height", None))
+    for s in manifest.sets:
+        where = f"sets[{s.row}]"
+        T = s.frames
+        if L >= 2 and ((T - 1) % (L - 1) or T < L):
+            raise MetricInputError(
+                manifest.path,
+                f"{where}.trajectory",
+                f"1 + n x {L - 1} frames (a whole number of the model's {L}-frame chunks)",
+                f"{T} frames",
+            )
+        emb, camera, first = _set_inputs(s, plugin_paths)
+        h, w = first.shape[:2]
+        if size[0] and size[1] and (w, h) != tuple(size):
+            raise MetricInputError(
+                manifest.path, f"{where}.first_frame", f"{size[0]}x{size[1]} (the model's size)", f"{w}x{h}"
+            )
+        for j, v in enumerate(s.variants):
+            if v.video is None:
+                continue
+            vi = video_info(v.video)
+            if (vi["width"], vi["height"]) != (w, h) or vi["frames"] != T:
+                raise MetricInputError(
+                    manifest.path,
+                    f"{where}.variants[{j}].video",
+                    f"{T} frames of {w}x{h} (the trajectory's length, the first frame's size)",
+                    f"{vi['frames']} frames of {vi['width']}x{vi['height']}",
+                )
+        if judge is not None:
+            verdict = _judge_one(judge, np.stack([first, first]), s, "<check>")
+            if verdict.status == "error":
+                raise MetricInputError(
+                    manifest.path,
+                    f"{where}.info",
+                    "what the judge reads (it failed on a still first frame)",
+                    verdict.error,
+                )
+
+
+def _rollout_one(model, first, inputs: dict, prompt, options: dict) -> np.ndarray:
+    rest = {k: v for k, v in inputs.items() if k != "skeleton"}
+    if rest.get("actions", 0) is None:  # a skeleton model's dict may say "no actions" explicitly
+        rest.pop("actions")
+    res = model.rollout(first, inputs.get("skeleton"), prompt, progress=False, **options, **rest)
+    return np.asarray(getattr(res, "frames", res))
+
+
+def roll_out_variants(
+    model, first, inputs: list[dict], prompt, *, sampler, seed: int, chunk_frames
+) -> list[np.ndarray]:
+    """(T, H, W, 3) uint8 videos of one set's variants: one ``rollout_batch`` when every input is the condition video
+    alone (its other keys None) and the model has one, else one ``rollout`` per variant with every key of its inputs
+    (module docstring); all with noise ``seed``."""
+    import warnings
+
+    options = {"sampler": sampler, "seed": seed}
+    if chunk_frames:
+        options["chunk_frames"] = chunk_frames
+    video_only = all(
+        inp.get("skeleton") is not None and all(v is None for k, v in inp.items() if k != "skeleton") for inp in inputs
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "trained at WxH": the size was checked before the model loaded
+        if video_only and len(inputs) > 1 and hasattr(model, "rollout_batch"):
+            out = model.rollout_batch(
+                [first] * len(inputs),
+                [inp["skeleton"] for inp in inputs],
+                prompt,
+                sampler=sampler,
+                seeds=[seed] * len(inputs),
+                **({"chunk_frames": chunk_frames} if chunk_frames else {}),
+            )
+            return [np.asarray(v) for v in out]
+        return [_rollout_one(model, first, inp, prompt, options) for inp in inputs]
+
+
+def _unit(info: dict) -> tuple[float, str]:
+    r = info.get("ball_radius_px")
+    if isinstance(r, (int, float)) and not isinstance(r, bool) and r > 0:
+        return float(r), "ball radii"
+    return 1.0, "px"
+
+
+def _object_errors(pred_px: np.ndarray, true_px: np.ndarray, diag: float) -> np.ndarray:
+    """(T,) error per frame in pixels: NaN where the truth shows no object, ``diag`` where the model shows none."""
+    shown = np.isfinite(true_px[:, 0])
+    found = np.isfinite(pred_px[:, 0])
+    err = np.full(len(true_px), np.nan)
+    both = shown & found
+    err[both] = np.linalg.norm(pred_px[both] - true_px[both], axis=1)
+    err[shown & ~found] = diag
+    return err
+
+
+def _finite_or_none(x):
+    return None if x is None or not np.isfinite(x) else round(float(x), 4)
+
+
+def score_variant(video: np.ndarray, truth: np.ndarray | None, locator, info: dict, chunk: int) -> dict:
+    """The truth-dependent numbers of one variant's video (T, H, W, 3) uint8 against its true frames ``truth`` (or
+    None): ``end_error`` (object, last frame), ``end_note`` (why it is None) and ``chunks`` (per chunk of ``chunk``
+    new frames: ``psnr_db``, ``object_error``), distances in :func:`_unit`'s unit."""
+    from ..metrics.video import psnr
+
+    if truth is None:
+        return {"end_error": None, "end_note": "no true frames", "chunks": []}
+    scale, _ = _unit(info)
+    T, H, W = truth.shape[:3]
+    p = np.minimum(psnr(video, truth, n_frames=None), 100.0)
+    err = None
+    note = "no locator"
+    if locator is not None:
+        pp = np.asarray(locator(video), dtype=np.float64)
+        tp = np.asarray(locator(truth), dtype=np.float64)
+        err = _object_errors(pp, tp, float(np.hypot(H, W))) / scale
+        if not np.isfinite(tp[-1, 0]):
+            note = "the true last frame shows no object"
+        elif not np.isfinite(pp[-1, 0]):
+            note = "the model's last frame shows no object"
+        else:
+            note = None
+    chunks = []
+    for k in range(1, (T - 1) // chunk + 1):
+        lo, hi = 1 + chunk * (k - 1), chunk * k + 1
+        oe = err[lo:hi] if err is not None else np.array([np.nan])
+        chunks.append(
+            {
+                "psnr_db": round(float(np.mean(p[lo:hi])), 4),
+                "object_error": _finite_or_none(np.nanmean(oe) if np.isfinite(oe).any() else np.nan),
+            }
+        )
+    end = None if note is not None else _finite_or_none(err[-1])
+    return {"end_error": end, "end_note": note, "chunks": chunks}
+
+
+def _fingerprint_parts(manifest, settings, model_identity, sampler, chunk, judge, locator_spec) -> dict:
+    from .._util import stage as _stage
+
+    describe = judge.describe() if hasattr(judge, "describe") else {"name": type(judge).__name__}
+    return {
+        "stage": "eval-action-following",
+        "format": _stage.FORMAT_VERSION,
+        "report_version": REPORT_VERSION,
+        "manifest_sha256": hashlib.sha256(Path(manifest.path).read_bytes()).hexdigest(),
+        "model": model_identity,
+        "sampler": asdict(sampler)
+        if sampler is not None and hasattr(sampler, "__dataclass_fields__")
+        else str(sampler),
+        "seed": settings.seed,
+        "chunk_frames": chunk,
+        "judge": describe,
+        "locator": locator_spec,
+    }
+
+
+def _record_path(out: Path, sid: str) -> Path:
+    return out / "sets" / f"{sid.replace('/', '_')}.json"
+
+
+def run_action_following(
+    manifest,
+    out,
+    *,
+    judge,
+    model=None,
+    settings: ActionFollowingSettings | None = None,
+    locator: str | None = None,
+    paired: str | Path | None = None,
+    log=None,
+) -> ActionFollowingResult:
+    """Run the benchmark (module docstring) into ``out``; returns the report, the per-set records and the paths.
+
+    manifest: a path or a loaded :class:`~.action_following_manifest.ActionFollowingManifest`; judge: an object with
+    ``judge_many`` (:func:`oscar_core.evaluation.cli.load_judge`); model: a loaded model (else
+    ``settings.model_spec`` is loaded after the checks); locator: ``module:attr`` (default: the manifest's);
+    paired: another run's folder on the same manifest: the report adds this run minus it, paired by set.
+    """
+    from .._util import stage as _stage
+    from .._util.atomic import atomic_write_bytes
+    from .._util.log import progress_bar
+
+    log = log or _log.info
+    settings = settings or ActionFollowingSettings()
+    if not isinstance(manifest, ActionFollowingManifest):
+        manifest = load_action_following(manifest, settings.plugin_paths)
+    locator_spec = locator or manifest.locator
+    locate_fn = load_locator(locator_spec)
+    other = None
+    if paired is not None:
+        other_path = Path(paired) / "report.json"
+        if not other_path.is_file():
+            raise MetricInputError(
+                other_path, "<file>", "the report.json of another action-following run", "no such file"
+            )
+        other = json.loads(other_path.read_text())
+    card = getattr(model, "card", None)
+    if model is None:
+        if settings.model_spec is None:
+            raise MetricInputError("model", "model", "a world model or a model spec (zoo name or folder)", "none")
+        card = _read_card(settings.model_spec, settings.revision)
+    sampler = settings.sampler
+    if sampler is None:
+        from ..model.card_sampler import resolve_sampler
+
+        sampler = resolve_sampler(getattr(card, "sampler", None)).config
+    chunk = int(settings.chunk_frames or getattr(card, "chunk_frames", 0) or 17)
+    check_sets(manifest, judge, card, chunk, settings.plugin_paths)
+    out = Path(out)
+    identity = (
+        _stage.model_identity(settings.model_spec, settings.revision)
+        if model is None
+        else getattr(model, "identity", None) or getattr(card, "name", None) or type(model).__name__
+    )
+    parts = _fingerprint_parts(manifest, settings, identity, sampler, chunk, judge, locator_spec)
+    _stage.check_stage(out, parts, redo="use another --out for these settings, or delete the folder to redo it")
+    (out / "sets").mkdir(parents=True, exist_ok=True)
+    records, todo = {}, []
+    for s in manifest.sets:
+        p = _record_path(out, s.set)
+        if p.is_file():
+            records[s.set] = json.loads(p.read_text())
+        else:
+            todo.append(s)
+    log(f"action following: {len(manifest.sets)} sets, {len(records)} already done, {len(todo)} to roll out")
+    t0, c0 = time.perf_counter(), time.process_time()
+    if todo and model is None:
+        import oscar_zoo
+
+        model = oscar_zoo.load(settings.model_spec, settings.revision, device=settings.device, dtype=settings.dtype)
+    bar = progress_bar(total=len(todo), desc="action-following sets", unit="set", enabled=settings.progress)
+    for s in todo:
+        rec = _run_set(model, s, judge, locate_fn, sampler, settings, chunk, out)
+        atomic_write_bytes(_record_path(out, s.set), (json.dumps(rec, indent=1) + "\n").encode())
+        records[s.set] = rec
+        bar.update(1)
+        log(
+            f"{s.set}: {sum(v['verdict'] == v['outcome'] for v in rec['variants'])} of {len(rec['variants'])} verdicts = truth"
+        )
+    bar.close()
+    ordered = [records[s.set] for s in manifest.sets]
+    kw = {"resamples": settings.resamples, "seed": settings.bootstrap_seed}
+    report = {
+        "format": "oscar-action-following-report",
+        "version": REPORT_VERSION,
+        "manifest": str(manifest.path),
+        "model": settings.model_spec if settings.model_spec else identity,
+        "judge": getattr(judge, "name", type(judge).__name__),
+        "sampler": _describe_sampler(sampler),
+        "seed": settings.seed,
+        "chunk_frames": chunk,
+        "locator": locator_spec,
+        "unit": _unit(manifest.sets[0].info)[1],
+        "scores": score_records(ordered, **kw),
+        "timing": {
+            "wall_s": round(time.perf_counter() - t0, 2),
+            "cpu_s": round(time.process_time() - c0, 2),
+            "sets_run": len(todo),
+            "sets_reused": len(manifest.sets) - len(todo),
+        },
+    }
+    if other is not None:
+        report["paired"] = {"against": str(paired), **paired_scores(ordered, other.get("records", []), **kw)}
+    report["records"] = ordered
+    paths = {"report": str(out / "report.json"), "summary": str(out / "summary.md")}
+    atomic_write_bytes(out / "report.json", (json.dumps(report, indent=1) + "\n").encode())
+    atomic_write_bytes(out / "summary.md", format_summary(report).encode())
+    return ActionFollowingResult(report, ordered, paths)
+
+
+def _describe_sampler(sampler) -> str:
+    if sampler is None:
+        return "the model's"
+    g = getattr(sampler, "guidance", None)
+    return f"{getattr(sampler, 'steps', '?')} steps, guidance {g} ({getattr(sampler, 'guidance_form', '?')})"
+
+
+def _read_card(spec: str, revision):
+    import oscar_zoo
+
+    from ..model.world_model import MODEL_FILE, read_card
+
+    folder = Path(oscar_zoo.pull(spec, revision))
+    if not (folder / MODEL_FILE).is_file():
+        return None
+    return read_card(folder)
+
+
+def _prompt(s: CounterfactualSet):
+    if s.prompt_embeds is None:
+        return None
+    from types import SimpleNamespace
+
+    from .rollout_engines import cell_prompt
+
+    return cell_prompt(SimpleNamespace(prompt_embeds=s.prompt_embeds))  # eval run's rule for the file
+
+
+def _run_set(model, s: CounterfactualSet, judge, locate_fn, sampler, settings, chunk: int, out: Path) -> dict:
+    from ..media.video import read_video, write_video
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    emb, camera, first = _set_inputs(s, settings.plugin_paths)
+    h, w = first.shape[:2]
+    if hasattr(model, "rollout_inputs"):
+        inputs = [
+            model.rollout_inputs(v.trajectory, camera, emb, (w, h), resize_mode="crop", camera_source=str(s.camera))
+            for v in s.variants
+        ]
+    else:  # any model with rollout(first, skeleton, prompt, ...): the card's condition video
+        from ..render.conditions import condition_video, video_condition_of
+
+        inputs = [
+            {
+                "skeleton": condition_video(
+                    video_condition_of(model.card.condition), emb, v.trajectory, camera, (w, h), resize_mode="crop"
+                )
+            }
+            for v in s.variants
+        ]
+    videos = roll_out_variants(
+        model, first, inputs, _prompt(s), sampler=sampler, seed=settings.seed, chunk_frames=settings.chunk_frames
+    )
+    rows = []
+    for v, video in zip(s.variants, videos):
+        video = np.asarray(video)
+        vd = out / "videos" / s.set.replace("/", "_")
+        vd.mkdir(parents=True, exist_ok=True)
+        write_video(vd / f"{v.name}.mp4", video, float(v.trajectory.fps))
+        verdict = _judge_one(judge, video, s, v.name)
+        truth = read_video(v.video) if v.video is not None else None
+        truth_verdict = _judge_one(judge, truth, s, v.name + "/truth") if truth is not None else None
+        row = {
+            "name": v.name,
+            "outcome": v.outcome,
+            "verdict": verdict.binary if verdict.status == "ok" else None,
+            "reason": verdict.reason if verdict.status == "ok" else verdict.error,
+            "truth_verdict": truth_verdict.binary
+            if truth_verdict is not None and truth_verdict.status == "ok"
+            else None,
+            **score_variant(video, truth, locate_fn, s.info, chunk - 1),
+        }
+        rows.append(row)
+    return {
+        "set": s.set,
+        "embodiment": s.embodiment,
+        "variants": rows,
+        "wall_s": round(time.perf_counter() - t0, 3),
+        "cpu_s": round(time.process_time() - c0, 3),
+    }
