@@ -9,7 +9,7 @@ OUT ?= demo_out
 # every extra the tests need (make test passes --strict-extras: a test skipped for a missing one fails)
 EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray,viz,policy
 
-.PHONY: install venv demo test test-fast test-install lint bench bench-gpu clean
+.PHONY: install venv demo test test-fast test-install lint docs bench bench-gpu clean
 
 install: $(STAMP)
 
@@ -46,6 +46,10 @@ lint: install
 	$(PYTHON) -m ruff format --check .
 	$(PYTHON) -m ruff check .
 	$(PYTHON) -m mypy
+
+# docs/benchmarks.md from the measured JSON in benchmarks/measured/ (the record); a test fails while they disagree
+docs: install
+	$(PYTHON) benchmarks/make_docs.py
 
 bench: install
 	$(PYTHON) benchmarks/render.py
