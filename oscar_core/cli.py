@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 from ._util.log import cli_output, set_command_line
 from ._util.outputs import check_writable, output_kind, output_option
@@ -91,7 +93,130 @@ def cmd_demo(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _add_embodiments(sub) -> None:
+    e = sub.add_parser(
+        "embodiments",
+        help=COMMANDS["embodiments"][0],
+        epilog="example: oscar embodiments --json",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+    e.set_defaults(func=cmd_embodiments)
+
+
+def _add_demo(sub) -> None:
+    d = sub.add_parser("demo", help=COMMANDS["demo"][0])
+    output_option(d.add_argument("--out", default="demo_out", help="output folder (default demo_out)"), "folder")
+    d.add_argument("--size", default="512x288", help="output WIDTHxHEIGHT (default 512x288)")
+    d.add_argument(
+        "--toy-model",
+        default="oscar-toy",
+        help="toy-world model rolled out on a held-out episode (default oscar-toy, bundled)",
+    )
+    d.add_argument("--no-toy-world", action="store_true", help="skip the toy-world rollout")
+    d.set_defaults(func=cmd_demo)
+
+
+def _add_render(sub) -> None:
+    from .render.cli import add_render_parser
+
+    add_render_parser(sub)
+
+
+def _add_calibrate(sub) -> None:
+    from .calibration.cli import add_calibrate_parser
+
+    add_calibrate_parser(sub)
+
+
+def _add_eval(sub) -> None:
+    from .evaluation.cli import add_run_parser
+    from .evaluation.cli_action_following import add_action_following_parser
+    from .evaluation.cli_benchmark import add_benchmark_parser
+    from .evaluation.cli_closed_loop import add_closed_loop_parser
+    from .evaluation.cli_roboarena import add_roboarena_parser
+    from .metrics.cli import add_eval_parser
+
+    add_eval_parser(
+        sub,
+        extra_commands=(
+            add_run_parser,
+            add_benchmark_parser,
+            add_closed_loop_parser,
+            add_roboarena_parser,
+            add_action_following_parser,
+        ),
+    )
+
+
+def _add_model(sub) -> None:
+    from .model.cli import add_model_parsers
+
+    add_model_parsers(sub)
+
+
+def _add_data(sub) -> None:
+    from .data.cli import add_data_parser
+
+    add_data_parser(sub)
+
+
+def _add_train(sub) -> None:
+    from .train.cli import add_train_parser
+
+    add_train_parser(sub)
+
+
+def _add_toyworld(sub) -> None:
+    from .toyworld.cli import add_toyworld_parser
+
+    add_toyworld_parser(sub)
+
+
+def _add_view(sub) -> None:
+    from .viz.cli import add_view_parser
+
+    add_view_parser(sub)
+
+
+#: The top-level commands in the order ``oscar --help`` lists them: name -> (the line ``oscar --help`` shows, the
+#: function that adds the command's parser). Only the parser of the command being run is built, so ``oscar --help``
+#: and a command's start import none of the other commands' modules (the rollout's diffusers, the data pipeline's
+#: readers). Commands added by one function (``rollout``, ``zoo``, ``encode-prompt``) stand together.
+#: tests/cli/test_cli_lazy.py keeps each line equal to the help its parser declares.
+COMMANDS: dict[str, tuple[str, Callable[[Any], None]]] = {
+    "embodiments": ("list installed embodiments", _add_embodiments),
+    "render": (
+        "render skeleton (or mesh) condition videos from trajectories (one, or many with a worker pool)",
+        _add_render,
+    ),
+    "calibrate": (
+        "estimate a fixed camera from skeleton points on video frames (PnP); `calibrate score`: how well a camera "
+        "lines the robot up with a video",
+        _add_calibrate,
+    ),
+    "demo": (
+        "render every embodiment's bundled example and roll the toy world model out (MP4s + contact sheet)",
+        _add_demo,
+    ),
+    "eval": ("evaluate world-model videos or policy rankings", _add_eval),
+    "rollout": ("roll the world model out along a trajectory (skeleton-conditioned)", _add_model),
+    "zoo": ("named world-model checkpoints: list, pull", _add_model),
+    "encode-prompt": ("compute (and cache) the text embedding of a prompt", _add_model),
+    "data": ("data pipeline: ingest, filter, dedup, caption, export, stats", _add_data),
+    "train": ("train the world model (the paper's fine-tuning recipe)", _add_train),
+    "toyworld": ("the procedural toy world: generate clips, train its VAE, evaluate", _add_toyworld),
+    "view": ("open an episode, a clip, a rollout or an eval cell in Rerun (or write an .rrd)", _add_view),
+}
+
+#: ``build_parser(only=ALL)``: every command's parser built.
+ALL = None
+
+
+def build_parser(only: str | None = ALL, *, stubs: bool = False) -> argparse.ArgumentParser:
+    """The ``oscar`` parser. ``only``: the one command whose parser is built (with the others of its group); every
+    other command is a stand-in with its help line only, which takes any arguments. ``stubs``: every command a
+    stand-in (enough for ``oscar --help`` and to find which command a command line runs). Default: all built."""
     p = argparse.ArgumentParser(
         prog="oscar",
         description="Skeleton videos for any robot body, and the OSCAR world model.",
@@ -106,65 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_output_flags(p, None)
     sub = p.add_subparsers(dest="command", required=True)
-
-    e = sub.add_parser(
-        "embodiments",
-        help="list installed embodiments",
-        epilog="example: oscar embodiments --json",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    e.add_argument("--json", action="store_true", help="machine-readable output")
-    e.set_defaults(func=cmd_embodiments)
-
-    from .render.cli import add_render_parser
-
-    add_render_parser(sub)
-    from .calibration.cli import add_calibrate_parser
-
-    add_calibrate_parser(sub)
-
-    d = sub.add_parser(
-        "demo", help="render every embodiment's bundled example and roll the toy world model out (MP4s + contact sheet)"
-    )
-    output_option(d.add_argument("--out", default="demo_out", help="output folder (default demo_out)"), "folder")
-    d.add_argument("--size", default="512x288", help="output WIDTHxHEIGHT (default 512x288)")
-    d.add_argument(
-        "--toy-model",
-        default="oscar-toy",
-        help="toy-world model rolled out on a held-out episode (default oscar-toy, bundled)",
-    )
-    d.add_argument("--no-toy-world", action="store_true", help="skip the toy-world rollout")
-    d.set_defaults(func=cmd_demo)
-
-    from .evaluation.cli import add_run_parser
-    from .evaluation.cli_action_following import add_action_following_parser
-    from .evaluation.cli_benchmark import add_benchmark_parser
-    from .evaluation.cli_closed_loop import add_closed_loop_parser
-    from .evaluation.cli_roboarena import add_roboarena_parser
-    from .metrics.cli import add_eval_parser
-    from .model.cli import add_model_parsers
-
-    add_eval_parser(
-        sub,
-        extra_commands=(
-            add_run_parser,
-            add_benchmark_parser,
-            add_closed_loop_parser,
-            add_roboarena_parser,
-            add_action_following_parser,
-        ),
-    )
-    add_model_parsers(sub)
-    from .data.cli import add_data_parser
-    from .toyworld.cli import add_toyworld_parser
-    from .train.cli import add_train_parser
-
-    add_data_parser(sub)
-    add_train_parser(sub)
-    add_toyworld_parser(sub)
-    from .viz.cli import add_view_parser
-
-    add_view_parser(sub)
+    built = set()
+    for name, (help_line, add) in COMMANDS.items():
+        if stubs or (only is not ALL and COMMANDS.get(only, (None, None))[1] is not add):
+            sub.add_parser(name, help=help_line, add_help=False)  # a stand-in: never the command that runs
+        elif add not in built:
+            built.add(add)
+            add(sub)
     for leaf in _leaves(p):
         _add_output_flags(leaf, argparse.SUPPRESS)
         leaf.set_defaults(
@@ -175,6 +248,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     own_examples(p)  # a sub-command's --help shows its own examples, not its group's
     return p
+
+
+def command_of(argv: list[str]) -> str:
+    """The top-level command ``argv`` runs (``oscar -q render ...`` -> ``render``), read by a parser of stand-ins
+    (no command's module imported). ``oscar --help`` prints the help and exits here; a missing or unknown command
+    is argparse's usual error (exit 2)."""
+    return build_parser(stubs=True).parse_known_args(argv)[0].command
 
 
 def check_outputs(args) -> None:
@@ -261,10 +341,11 @@ def main(argv=None) -> int:
     from ._util.threads import passive_openmp
 
     passive_openmp()  # before anything loads torch (and its OpenMP runtime)
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(only=command_of(argv))
     args = parser.parse_args(argv)
     # what report pages name as their command, and the first line of run logs
-    set_command_line(["oscar", *(sys.argv[1:] if argv is None else argv)])
+    set_command_line(["oscar", *argv])
     warnings.simplefilter("default")
     with noting_interrupts():
         try:
