@@ -7,7 +7,7 @@ PIP := $(PYTHON) -m pip
 STAMP := $(VENV)/.oscar-installed
 OUT ?= demo_out
 # every extra the tests need (make test passes --strict-extras: a test skipped for a missing one fails)
-EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray,viz,policy
+EXTRAS := dev,mano,mesh,data,judge,text,tensorboard,ray,viz,policy,gym
 
 .PHONY: install venv demo test test-fast test-install lint docs bench bench-gpu clean
 

@@ -142,3 +142,8 @@ if (
 
 _names, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = _names + ["__version__"]
+
+# the toy world's Gymnasium ids (oscar/ToySim-v0, oscar/ToyWorldModel-v0), registered once gymnasium is imported
+from ._util.gym_ids import install as _install_gym_ids  # noqa: E402
+
+_install_gym_ids()

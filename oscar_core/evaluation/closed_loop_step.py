@@ -85,6 +85,9 @@ class CellState:
         self.times, self.knots_q = [0.0], [np.asarray(q0, float)]
         self.knots_c = [signal_to_closure(emb, g0)]
         self.clipped = 0
+        # knot n after the last hold is at hold_t + n / control_hz: the same float whether actions come one or K
+        # at a time (a running sum t + 1/hz would drift in the last bits)
+        self._hold_t, self._since_hold = 0.0, 0
 
     @property
     def finished(self) -> bool:
@@ -114,8 +117,9 @@ class CellState:
         """Append ``actions`` (K, D) of the declared space, executed from the end of the path at the control
         rate, to the commanded path; returns what the adapter did (joint positions, clips, IK residuals)."""
         res = self.adapter.apply(actions, self.knots_q[-1])
-        t0 = self.times[-1]
-        self.times += [t0 + (i + 1) / self.spec.control_hz for i in range(len(res.q))]
+        n0, hz = self._since_hold, self.spec.control_hz
+        self.times += [self._hold_t + (n0 + i + 1) / hz for i in range(len(res.q))]
+        self._since_hold += len(res.q)
         self.knots_q += list(res.q)
         self.knots_c += list(res.closure)
         self.clipped += res.clipped
@@ -125,6 +129,7 @@ class CellState:
         """Hold the last pose to the next chunk's end (a policy that said ``done`` mid-chunk)."""
         if not self.covered:
             self.times.append(self.chunk_end)
+            self._hold_t, self._since_hold = self.chunk_end, 0
             self.knots_q.append(self.knots_q[-1])
             self.knots_c.append(self.knots_c[-1])
 

@@ -41,6 +41,7 @@ FLOORS: list[tuple[str, tuple[str, ...]]] = [
     ("data", ("data",)),
     ("evaluation", ("evaluation",)),
     ("toyworld", ("toyworld",)),
+    ("envs", ("envs",)),  # Gymnasium environments over the closed loop (the world model or the toy simulator)
     ("viz", ("viz",)),  # episodes, clips, rollouts and evaluation cells logged into Rerun
     ("cli", ("cli", "demo", "testing")),  # + every cli / cli_* / __main__ module of any folder
 ]
