@@ -298,7 +298,7 @@ class PolicyPool:
         if self.free.get(spec.name):
             return self.free[spec.name].pop()
         try:
-            return load_policy(spec.source)
+            return load_policy(spec.source, keys=spec.keys)
         except Exception as exc:  # noqa: BLE001 - a policy that cannot be loaded fails its cells, not the run
             return PolicyFault(f"cannot load {spec.source}: {str(exc).strip()[:300]}")
 

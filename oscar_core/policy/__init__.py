@@ -5,6 +5,7 @@
 * :mod:`oscar_core.policy.spaces` — action spaces → joint positions, resampling to a model's frame rate;
 * :mod:`oscar_core.policy.loading` — a policy from ``module:attr``, an entry point or ``ws://host:port``;
 * :mod:`oscar_core.policy.remote`, :mod:`oscar_core.policy.serve` — openpi's websocket protocol, client and server;
+* :mod:`oscar_core.policy.lerobot` — LeRobot policies (``select_action``) behind the protocol, ``lerobot:`` sources;
 * :mod:`oscar_core.policy.ik` — damped-least-squares IK on the project's forward kinematics.
 
 Names are re-exported flat; submodules load on first use. See docs/closed-loop.md.
@@ -30,6 +31,8 @@ _EXPORTS = {
     "AdapterResult": "spaces",
     "resample": "spaces",
     "resample_joints": "spaces",
+    "LeRobotPolicy": "lerobot",
+    "LeRobotMappingError": "lerobot",
     "EndEffectorIK": "ik",
     "IKResult": "ik",
 }

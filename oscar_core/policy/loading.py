@@ -1,5 +1,6 @@
-"""Where a policy comes from: ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry point, or
-``ws://host:port`` (openpi's websocket protocol, :class:`~oscar_core.policy.remote.WebsocketPolicy`).
+"""Where a policy comes from: ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry point,
+``ws://host:port`` (openpi's websocket protocol, :class:`~oscar_core.policy.remote.WebsocketPolicy`), or
+``lerobot:PATH_OR_REPO`` (a LeRobot policy, :class:`~oscar_core.policy.lerobot.LeRobotPolicy`).
 
 A class is instantiated with no arguments, an object with ``infer`` is used as it is, a plain function
 ``obs -> dict`` is wrapped so it has ``infer``.
@@ -27,9 +28,11 @@ class _FunctionPolicy:
         return self.fn(obs)
 
 
-def load_policy(source: str):
-    """A policy object from ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry-point name, or
-    ``ws://host:port`` (a :class:`~oscar_core.policy.remote.WebsocketPolicy`, connected here).
+def load_policy(source: str, keys=None):
+    """A policy object from ``module:attr``, ``path/to/file.py:attr``, an ``oscar.policies`` entry-point name,
+    ``ws://host:port`` (a :class:`~oscar_core.policy.remote.WebsocketPolicy`, connected here), or
+    ``lerobot:PATH_OR_REPO[?mapping]`` (:func:`~oscar_core.policy.lerobot.load_lerobot_policy`; ``keys``: the
+    observation keys the loop sends it, the declaration's).
 
     A class is instantiated with no arguments; an object with ``infer`` is returned as it is; a function is
     wrapped. Raises :class:`PolicySpecError` naming ``source`` when nothing usable is found.
@@ -38,6 +41,10 @@ def load_policy(source: str):
         from .remote import WebsocketPolicy
 
         return WebsocketPolicy(source)
+    if source.startswith("lerobot:"):
+        from .lerobot import load_lerobot_policy
+
+        return load_lerobot_policy(source, keys=keys)
     try:
         if ":" in source:
             obj = import_attr(source, "policy")
