@@ -233,9 +233,10 @@ def _write_curves(run_dir: Path) -> None:
         _log.info("training curves: %s", path)
 
 
-def _train(config, resume, progress, stop_after, registry, source, info: DistInfo, overrides=None):
-
-    # ------------------------------------------------------------------ build
+def _checked_config(config, resume, overrides, source: str):
+    """The run's config, checked before anything is built or written: ``(config, source, ckpt)`` with the
+    config read from ``resume/config.yaml`` (with ``overrides``) or from a YAML path, the source that names it
+    in errors, and the checkpoint to resume from (None for a new run)."""
     ckpt = None
     if resume is not None:
         run_dir = Path(resume)
@@ -270,6 +271,11 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         from .wandb_log import require_wandb
 
         require_wandb()
+    return config, source, ckpt
+
+
+def _checked_run_dir(config: TrainConfig, resume, source: str) -> Path:
+    """The run folder: ``resume``, or ``config.run_dir`` when it holds no checkpoints yet."""
     run_dir = Path(config.run_dir) if resume is None else Path(resume)
     if resume is None and list_checkpoints(run_dir):
         raise TrainConfigError(
@@ -278,6 +284,11 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             "a new run folder (continue an existing run with --resume RUN_DIR)",
             f"{run_dir} (holds checkpoints)",
         )
+    return run_dir
+
+
+def _accumulation_steps(config: TrainConfig, info: DistInfo, source: str) -> int:
+    """Micro-batches per optimiser step on each process: batch_size / (processes × micro_batch), a whole number ≥ 1."""
     per_rank, rem = divmod(config.batch_size, info.world * config.micro_batch)
     if rem or per_rank < 1:
         raise TrainConfigError(
@@ -286,9 +297,35 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             f"a multiple of processes x micro_batch = {info.world} x {config.micro_batch}",
             config.batch_size,
         )
-    accum = per_rank
-    torch.manual_seed(config.seed)
+    return per_rank
 
+
+@dataclass
+class _Run:
+    """What the loop trains, built once: the bare ``model`` and its parallel ``wrapped`` form, AdamW, the fp32
+    ``ema`` (parameter name → tensor), the clips and their step planner, the frozen distillation ``teacher``
+    (or None), the optimiser steps already done (``start``), micro-batches per step, the activation
+    checkpointing chosen and why, and the forward's autocast context (or None)."""
+
+    run_dir: Path
+    model: torch.nn.Module
+    wrapped: torch.nn.Module
+    optimizer: torch.optim.AdamW
+    ema: dict
+    data: TrainData
+    planner: StepPlanner
+    teacher: object
+    start: int
+    accum: int
+    checkpointing: object
+    checkpointing_reason: str
+    autocast: object
+
+
+def _build_run(config: TrainConfig, ckpt, registry, source: str, info: DistInfo, run_dir: Path, accum: int) -> _Run:
+    """Seeds torch, builds the VAE, transformer, data, teacher and optimiser on ``info.device`` and loads the
+    parent run's weights or the checkpoint ``ckpt`` being resumed."""
+    torch.manual_seed(config.seed)
     vae = build_vae(config, device=info.device, source=source)
     model = build_transformer(config, source)
     data = TrainData(config, vae, model.text_dim, registry)
@@ -307,22 +344,78 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     _log.info("%s%s", why, "; model.compile: every DiT block compiled" if config.model.compile else "")
     model.to(info.device)
     wrapped = wrap_model(model, config.parallel, info)
-    o = config.optim
     optimizer = build_optimizer(wrapped, config)
     ema = {n: p.detach().clone().float() for n, p in model.named_parameters()}
     start = 0
     if ckpt is not None:
         start = load_checkpoint(ckpt, wrapped, optimizer, ema, info)
+    return _Run(run_dir, model, wrapped, optimizer, ema, data, planner, teacher, start, accum, checkpointing, why, None)
+
+
+def _train(config, resume, progress, stop_after, registry, source, info: DistInfo, overrides=None):
+    """build → (resume) → the loop of :func:`_train_steps`; returns ``(TrainResult, config)``."""
+    config, source, ckpt = _checked_config(config, resume, overrides, source)
+    run_dir = _checked_run_dir(config, resume, source)
+    accum = _accumulation_steps(config, info, source)
+    run = _build_run(config, ckpt, registry, source, info, run_dir, accum)
     metrics_path = run_dir / METRICS_FILE
     if info.main:
         run_dir.mkdir(parents=True, exist_ok=True)
         if resume is None or overrides:
             save_config(config, run_dir / CONFIG_FILE)
-        atomic_write_bytes(metrics_path, _read_metrics(metrics_path, start))
-    autocast = autocast_for(config, info.device)
-
-    # ------------------------------------------------------------------ loop
+        atomic_write_bytes(metrics_path, _read_metrics(metrics_path, run.start))
+    run.autocast = autocast_for(config, info.device)
     end = config.steps if stop_after is None else min(config.steps, stop_after)
+    last_loss = _train_steps(config, run, info, end, progress)
+    return TrainResult(run_dir, end, last_loss, None), config
+
+
+def _start_record(config: TrainConfig, run: _Run, info: DistInfo) -> dict:
+    """The metrics line of step 0 (``event: start``): processes, accumulation, parallelism, the data's summary."""
+    return {
+        "step": 0,
+        "event": "start",
+        "world_size": info.world,
+        "accumulation": run.accum,
+        "parallel": config.parallel,
+        "activation_checkpointing": run.checkpointing,
+        "checkpointing_reason": run.checkpointing_reason,
+        "compile": config.model.compile,
+        **run.data.summary(),
+        "skipped": run.data.skipped,
+        "mixing_weights": run.planner.weights,
+    }
+
+
+def _accumulate_gradients(config: TrainConfig, run: _Run, info: DistInfo, step: int, batches) -> tuple[float, int]:
+    """Zeroes the gradients and backpropagates the ``run.accum`` micro-batches of optimiser step ``step`` (the
+    all-reduce only on the last). Returns ``(loss, forced)``: this process's mean loss over them and the items
+    it trained from the student's own first frame (self forcing; 0 without it)."""
+    run.optimizer.zero_grad(set_to_none=True)
+    loss_sum, forced = 0.0, 0
+    for k in range(run.accum):
+        got_step, got_k, micro, batch = next(batches)
+        assert (got_step, got_k) == (step, k), "the loader hands out micro-batches in plan order"
+        with no_sync(run.wrapped, k == run.accum - 1):
+            if run.teacher is None:
+                loss = step_loss(run.wrapped, batch, micro, config, info.device, run.autocast)
+            else:
+                if config.distill.self_forcing > 0:
+                    # FSDP2's student gathers its shards in its forward; DDP's wrapper would sync buffers
+                    student = run.wrapped if config.parallel == "fsdp" else run.model
+                    batch, n_forced = self_force(student, run.data, batch, micro, config, info.device, run.autocast)
+                    forced += n_forced
+                loss = distill_loss(run.wrapped, run.teacher, batch, micro, config, info.device, run.autocast)
+            (loss / run.accum).backward()
+        loss_sum += float(loss.detach()) / run.accum
+    return loss_sum, forced
+
+
+def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progress: bool) -> float | None:
+    """Optimiser steps ``run.start`` .. ``end`` − 1: step, log (metrics.jsonl, TensorBoard, W&B, the progress
+    bar), save a checkpoint every ``save_every`` steps and at ``end``. Returns the last step's loss (None when no
+    step was taken)."""
+    run_dir, planner, start, o = run.run_dir, run.planner, run.start, config.optim
     tb = None
     if info.main and config.log.tensorboard:
         from .tensorboard import TensorBoardLog
@@ -335,26 +428,9 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         from .wandb_log import WandbLog
 
         wb = WandbLog(run_dir, asdict(config), project=config.log.wandb_project, mode=config.log.wandb_mode)
-    log = open(metrics_path, "a") if info.main else None
+    log = open(run_dir / METRICS_FILE, "a") if info.main else None
     if log and start == 0:
-        log.write(
-            json.dumps(
-                {
-                    "step": 0,
-                    "event": "start",
-                    "world_size": info.world,
-                    "accumulation": accum,
-                    "parallel": config.parallel,
-                    "activation_checkpointing": checkpointing,
-                    "checkpointing_reason": why,
-                    "compile": config.model.compile,
-                    **data.summary(),
-                    "skipped": data.skipped,
-                    "mixing_weights": planner.weights,
-                }
-            )
-            + "\n"
-        )
+        log.write(json.dumps(_start_record(config, run, info)) + "\n")
         log.flush()
     # items drawn per source so far (a resumed run replays the plan of the steps it has done)
     drawn = planner.drawn(start, config.batch_size) if info.main else {}
@@ -366,8 +442,8 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
         return StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
 
     batches = iter_batches(
-        data,
-        micro_batches(plan, start, end, accum, config.micro_batch),
+        run.data,
+        micro_batches(plan, start, end, run.accum, config.micro_batch),
         config.condition,
         config.data.workers,
         config.data.prefetch,
@@ -375,27 +451,12 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
     try:
         for step in range(start, end):
             lr = lr_at(step, o.lr, o.warmup_steps)
-            for g in optimizer.param_groups:
+            for g in run.optimizer.param_groups:
                 g["lr"] = lr
             mine = plan(step)
-            optimizer.zero_grad(set_to_none=True)
-            loss_sum = 0.0
-            for k in range(accum):
-                got_step, got_k, micro, batch = next(batches)
-                assert (got_step, got_k) == (step, k), "the loader hands out micro-batches in plan order"
-                with no_sync(wrapped, k == accum - 1):
-                    if teacher is None:
-                        loss = step_loss(wrapped, batch, micro, config, info.device, autocast)
-                    else:
-                        if config.distill.self_forcing > 0:
-                            # FSDP2's student gathers its shards in its forward; DDP's wrapper would sync buffers
-                            student = wrapped if config.parallel == "fsdp" else model
-                            batch, n_forced = self_force(student, data, batch, micro, config, info.device, autocast)
-                            forced += n_forced
-                        loss = distill_loss(wrapped, teacher, batch, micro, config, info.device, autocast)
-                    (loss / accum).backward()
-                loss_sum += float(loss.detach()) / accum
-            grad_norm = apply_update(wrapped, model, optimizer, ema, config)
+            loss_sum, n_forced = _accumulate_gradients(config, run, info, step, batches)
+            forced += n_forced
+            grad_norm = apply_update(run.wrapped, run.model, run.optimizer, run.ema, config)
             loss_mean = all_reduce_mean(loss_sum, info)
             last_loss = loss_mean
             done = step + 1
@@ -422,7 +483,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                     "skeleton_dropped": sum(i.drop for i in whole),
                     "sources_drawn": dict(drawn),
                 }
-                if teacher is not None and config.distill.self_forcing > 0:
+                if run.teacher is not None and config.distill.self_forcing > 0:
                     record["self_forced"] = forced  # this rank's, since the previous record
                     forced = 0
                 log.write(json.dumps(record) + "\n")
@@ -432,7 +493,7 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
                 if wb is not None:
                     wb.write(record)
             if done % config.save_every == 0 or done == end:
-                save_checkpoint(run_dir, done, wrapped, optimizer, ema, info, config.keep_last)
+                save_checkpoint(run_dir, done, run.wrapped, run.optimizer, run.ema, info, config.keep_last)
                 if info.main:
                     write_sources(run_dir, planner, drawn, done, config)
     finally:
@@ -444,4 +505,4 @@ def _train(config, resume, progress, stop_after, registry, source, info: DistInf
             tb.close()
         if wb is not None:
             wb.close()
-    return TrainResult(run_dir, end, last_loss, None), config
+    return last_loss
