@@ -106,7 +106,11 @@ def cmd_closed_loop(args) -> int:
             plugin_paths=getattr(args, "plugin", None) or (),
             progress=not args.no_progress and progress_bars_enabled(),
         )
-        log_result(f"wrote {result.paths['report']}; failed cells: {result.counts['failed']}")
+        jf = result.report["judge_failures"]
+        log_result(
+            f"wrote {result.paths['report']}; failed cells: {result.counts['failed']}"
+            + (f"; the judge could not judge {len(jf)} cells" if jf else "")
+        )
     if args.json:
         print(json.dumps({**result.report, "files": result.paths}, indent=1))
     else:
@@ -114,7 +118,13 @@ def cmd_closed_loop(args) -> int:
         print(f"wrote {result.paths['report']}, {result.paths['summary']}")
         if "html" in result.paths:
             print(f"open {result.paths['html']} in a browser: the ranking, failures, latency and every cell's video")
-    return 1 if result.counts["failed"] else 0
+    if jf:
+        print(
+            f"error: the judge could not judge {len(jf)} of {result.counts['cells'] - result.counts['failed']} "
+            f"finished cells, so their success is unknown; first: {jf[0]['cell']}: {jf[0]['error']}",
+            file=sys.stderr,
+        )
+    return 1 if result.counts["failed"] or jf else 0
 
 
 def add_closed_loop_parser(sub) -> argparse.ArgumentParser:

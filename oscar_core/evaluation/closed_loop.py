@@ -80,6 +80,7 @@ __all__ = [
     "cell_steps",
     "chunk_seed",
     "generate_chunks",
+    "judge_failures",
 ]
 
 RECORD_VERSION = 1
@@ -430,7 +431,10 @@ def _report(out: Path, manifest, specs, records, counts, world_id, judge, pairwi
     pair_verdicts = (
         _pairwise(out, manifest, records, verdicts, judge, pairwise_judge, progress) if pairwise_judge else []
     )
-    report = build_closed_loop_report(manifest, specs, records, counts, world_id, judge)
+    failures = judge_failures(records, verdicts) if judge is not None else []
+    for f in failures:
+        _log.error("the judge could not judge %s: %s", f["cell"], f["error"])
+    report = build_closed_loop_report(manifest, specs, records, counts, world_id, judge, failures)
     emanifest, erecords, everdicts = eval_view(manifest, specs, records, verdicts)
     ecounts = {
         "cells": counts["cells"],
@@ -460,6 +464,18 @@ def _report(out: Path, manifest, specs, records, counts, world_id, judge, pairwi
         out, report, (emanifest, erecords), plot_formats=plot_formats, log=log, progress=progress
     )
     return report, paths
+
+
+def judge_failures(records: list[dict], verdicts: list) -> list[dict]:
+    """The finished cells the judge could not judge: ``[{"cell", "status", "error"}]`` (a verdict that is not
+    ``ok``: the judge raised, or its answer could not be read). A run with any fails (exit 1): its success rates
+    would silently leave those cells out."""
+    out = []
+    for r, v in zip(records, verdicts):
+        if r["status"] == "ok" and (v is None or not v.ok):
+            error = "no verdict" if v is None else (v.error or v.reason or v.status)
+            out.append({"cell": f"{r['session']}/{r['policy']}", "status": getattr(v, "status", None), "error": error})
+    return out
 
 
 def _write_cell(out: Path, cell: OpenCell, run: CellRun, *, pool: PolicyPool, log) -> dict:

@@ -56,8 +56,11 @@ def _mean(vals):
     return float(np.mean(vals)) if vals else None
 
 
-def build_closed_loop_report(manifest, specs, records: list[dict], counts: dict, world: dict, judge) -> dict:
-    """Everything ``report.json`` holds (module docstring)."""
+def build_closed_loop_report(
+    manifest, specs, records: list[dict], counts: dict, world: dict, judge, judge_failures: list | None = None
+) -> dict:
+    """Everything ``report.json`` holds (module docstring); judge_failures: the finished cells the judge could not
+    judge (:func:`~.closed_loop.judge_failures`), kept under ``judge_failures``."""
     rows = []
     for spec in specs:
         mine = [r for r in records if r["policy"] == spec.name]
@@ -116,12 +119,23 @@ def build_closed_loop_report(manifest, specs, records: list[dict], counts: dict,
             "views": VIEWS,
             "counts": counts,
             "ranked_by": by,
+            "unranked_why": None if by else _unranked_why(rows, judge, judge_failures or []),
+            "judge_failures": judge_failures or [],
             "ranking": [r["policy"] for r in ranking],
             "ranks": competition_ranks({r["policy"]: r[by] for r in ranking}) if by else {},
             "policies": rows,
             "cells": cells,
         }
     )
+
+
+def _unranked_why(rows: list[dict], judge, failures: list) -> str:
+    """Why no policy is ranked, as a sentence."""
+    if failures:
+        return f"the judge could not judge {len(failures)} of {sum(r['ok'] for r in rows)} finished cells"
+    if judge is None:
+        return "no judge ran (--judge) and the world has no outcome of its own"
+    return "some policy has no success figure"
 
 
 def competition_ranks(scores: dict) -> dict:
@@ -143,8 +157,19 @@ def format_closed_loop_summary(report: dict) -> str:
         f"- manifest: `{report['manifest']}`",
         f"- world: `{json.dumps(report['world'])}`",
         f"- cells: {c['cells']} (run {c['done']}, reused {c['reused']}, failed {c['failed']})",
-        f"- ranked by: {report['ranked_by'] or 'nothing (no success figures)'}",
+        f"- ranked by: {report['ranked_by'] or 'nothing: ' + report['unranked_why']}",
         "",
+    ]
+    jf = report.get("judge_failures") or []
+    if jf:
+        lines += [
+            f"**FAILED: the judge could not judge {len(jf)} of {c['cells'] - c['failed']} finished cells**; "
+            "their success is unknown:",
+            "",
+            *[f"- `{f['cell']}`: {f['error']}" for f in jf],
+            "",
+        ]
+    lines += [
         "| rank | policy | cells | failed | success rate | sim success rate | mean latency (s) | clipped | "
         "worst IK residual (m) |",
         "|---|---|---|---|---|---|---|---|---|",

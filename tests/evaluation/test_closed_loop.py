@@ -271,3 +271,29 @@ def test_manifest_errors_name_the_field(toy, tmp_path):
         text=True,
     )
     assert proc.returncode == 2 and "action_space" in proc.stderr and "'torque'" in proc.stderr
+
+
+def test_a_judge_that_cannot_judge_fails_the_run_loudly(toy, tmp_path):
+    """Sessions without the judge's ``info``: exit 1, the reason on stderr, in summary.md, report.json and the log."""
+    data = json.loads(_variant(toy, "no_info", horizon=17).read_text())
+    for s in data["sessions"]:
+        s.pop("info", None)
+    data["defaults"].pop("info", None)
+    m = toy.parent / "no_info.json"
+    m.write_text(json.dumps(data))
+    out = tmp_path / "no_info"
+    judge = "oscar_core.toyworld.judge:ball_moved"
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--judge", judge, "--out", str(out)]
+    proc = subprocess.run(cmd + ["--no-progress"], capture_output=True, text=True)
+    assert proc.returncode == 1, proc.stderr
+    why = "expected 'px_to_floor_radii'"
+    assert "error: the judge could not judge 4 of 4 finished cells" in proc.stderr and why in proc.stderr
+    summary = (out / "summary.md").read_text()
+    assert "FAILED: the judge could not judge 4 of 4 finished cells" in summary
+    assert summary.count(why) == 4
+    report = json.loads((out / "report.json").read_text())
+    assert [f["cell"] for f in report["judge_failures"]] == [
+        f"{s}/{p}" for s in ("toyarm-0000", "toyarm-0001") for p in ("exact", "never_closes")
+    ]
+    (log,) = (out / "logs").glob("*.log")
+    assert log.read_text().count("ERROR oscar.evaluation.closed_loop: the judge could not judge") == 4
