@@ -320,6 +320,14 @@ def run_action_following(
                 other_path, "<file>", "the report.json of another action-following run", "no such file"
             )
         other = json.loads(other_path.read_text())
+        mine = hashlib.sha256(Path(manifest.path).read_bytes()).hexdigest()
+        if other.get("manifest_sha256") != mine:
+            raise MetricInputError(
+                other_path,
+                "manifest_sha256",
+                f"a run on the same sets as this one ({manifest.path}, sha256 {mine[:12]}…)",
+                f"{str(other.get('manifest_sha256'))[:12]}… ({other.get('manifest')})",
+            )
     card = getattr(model, "card", None)
     if model is None:
         if settings.model_spec is None:
@@ -370,6 +378,7 @@ def run_action_following(
         "format": "oscar-action-following-report",
         "version": REPORT_VERSION,
         "manifest": str(manifest.path),
+        "manifest_sha256": parts["manifest_sha256"],
         "model": settings.model_spec if settings.model_spec else identity,
         "judge": getattr(judge, "name", type(judge).__name__),
         "sampler": _describe_sampler(sampler),

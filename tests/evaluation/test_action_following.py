@@ -98,6 +98,27 @@ def test_a_model_copying_the_simulator_scores_100_and_one_always_moving_the_frac
     assert s["variants"]["stay_open"]["agreement"]["value"] == 0.0
     assert s["variants"]["stay_open"]["agreement"]["ci_undefined"].startswith("an interval needs at least 2 sets")
     assert "nan" not in (tmp_path / "moves" / "summary.md").read_text().lower()
+    # paired on the same sets: always moving minus copying, per set: decision accuracy -100 pp, pairwise -100 pp
+    settings = ActionFollowingSettings(resamples=200)
+    paired = run_action_following(
+        sets,
+        tmp_path / "moves_all",
+        judge=_judge(),
+        model=StandIn(sets, "moves"),
+        settings=settings,
+        paired=tmp_path / "copy",
+    ).report["paired"]
+    assert paired["decision_accuracy"]["value"] == -1.0 and paired["pairwise"]["value"] == -1.0
+    assert "-100.0 pp" in (tmp_path / "moves_all" / "summary.md").read_text()
+    with pytest.raises(MetricInputError, match="manifest_sha256.*a run on the same sets"):
+        run_action_following(
+            sets,
+            tmp_path / "refused",
+            judge=_judge(),
+            model=StandIn(sets, "moves"),
+            settings=settings,
+            paired=tmp_path / "moves",
+        )
 
 
 def test_scores_by_hand_and_paired_differences():
