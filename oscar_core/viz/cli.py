@@ -17,9 +17,10 @@ EPILOG = """examples:
   oscar view --embodiment franka --trajectory traj.npz --camera cam.json --video rgb.mp4 \\
       --generated rollout.mp4 --spawn                      (a rollout beside the real video)
   oscar view CLIPSET --clip franka-000003 --save clip.rrd  (a clip of a clip set)
-  oscar view OUT/cells/S1/pi0 --embodiment franka --camera cam.json --save cell.rrd
+  oscar view OUT/cells/S1/pi0 --manifest manifest.json --save cell.rrd
                                                            (an `eval closed-loop` cell folder)
-  oscar view OUT --manifest manifest.json --cell S1/pi0 --save cell.rrd   (an `eval run` cell)
+  oscar view OUT --manifest manifest.json --cell S1/pi0 --save cell.rrd
+                                          (a cell of an `eval run` or `eval closed-loop` folder)
 
 --save writes a recording without a viewer (open it later: rerun FILE.rrd); --spawn starts
 the Rerun viewer. With neither, the recording is written to NAME.rrd in this folder (NAME: the
@@ -46,7 +47,11 @@ def add_view_parser(sub) -> None:
     v.add_argument("--generated", help="a generated video (a rollout) shown beside the real one")
     v.add_argument("--condition", help="a stored condition video (default: the skeleton rendered through --camera)")
     v.add_argument("--clip", help="clip id, when SOURCE is a clip set")
-    v.add_argument("--manifest", help="the manifest of the `eval run` folder SOURCE")
+    v.add_argument(
+        "--manifest",
+        help="the manifest SOURCE was made from: an `eval run` manifest, or a closed-loop manifest (the session's "
+        "embodiment and camera; --embodiment / --camera replace them)",
+    )
     v.add_argument("--cell", help="SESSION/POLICY, a cell of --manifest")
     output_option(
         v.add_argument(
@@ -69,7 +74,14 @@ def add_view_parser(sub) -> None:
 
 def _source(args):
     from ..plugin.registry import Registry
-    from .sources import clip_source, closed_loop_source, episode_source, eval_run_source
+    from .sources import (
+        clip_source,
+        closed_loop_cell_source,
+        closed_loop_source,
+        episode_source,
+        eval_run_source,
+        is_closed_loop_manifest,
+    )
 
     reg = Registry(plugin_paths=args.plugin or ())
     src = Path(args.source) if args.source else None
@@ -80,15 +92,33 @@ def _source(args):
             raise OscarError(f"{src}: a clip set; expected --clip ID")
         return clip_source(src, args.clip, registry=reg)
     if src is not None and (src / "record.json").exists():
+        if args.manifest:  # the closed-loop manifest the run was made from: the session's embodiment and camera
+            return closed_loop_cell_source(
+                src, args.manifest, embodiment=args.embodiment, camera=args.camera, registry=reg
+            )
         missing = [f"--{n}" for n in ("embodiment", "camera") if not getattr(args, n)]
         if missing:
-            raise OscarError(f"{src}: an `eval closed-loop` cell; expected {' and '.join(missing)} (from its manifest)")
+            raise OscarError(
+                f"{src}: an `eval closed-loop` cell; expected --manifest FILE (the closed-loop manifest), "
+                f"or {' and '.join(missing)}"
+            )
         return closed_loop_source(src, args.embodiment, args.camera, registry=reg)
     if src is not None:
         if not (args.manifest and args.cell):
             raise OscarError(
                 f"{src}: not a clip set (no oscar_clips.json) nor a closed-loop cell (no record.json); "
-                "for an `eval run` folder expected --manifest FILE and --cell SESSION/POLICY"
+                "for an `eval run` or `eval closed-loop` folder expected --manifest FILE and --cell SESSION/POLICY"
+            )
+        if is_closed_loop_manifest(args.manifest):
+            session, sep, policy = args.cell.partition("/")
+            if not sep:
+                raise OscarError(f"--cell: expected SESSION/POLICY, found {args.cell!r}")
+            return closed_loop_cell_source(
+                src / "cells" / session / policy,
+                args.manifest,
+                embodiment=args.embodiment,
+                camera=args.camera,
+                registry=reg,
             )
         return eval_run_source(src, args.manifest, args.cell, registry=reg)
     missing = [f"--{n}" for n in ("embodiment", "trajectory") if not getattr(args, n)]

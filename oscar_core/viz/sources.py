@@ -9,7 +9,8 @@ project writes:
   a camera JSON, an embodiment name; ``generated`` for a rollout's video);
 - :func:`clip_source`: one clip of a clip set (docs/formats.md, "Training clips");
 - :func:`closed_loop_source`: a cell folder of ``oscar eval closed-loop``
-  (``video.mkv``, ``condition.mkv``, ``trajectory.npz``, ``record.json``);
+  (``video.mkv``, ``condition.mkv``, ``trajectory.npz``, ``record.json``), its embodiment and camera given, or
+  read from its session in the closed-loop manifest (:func:`closed_loop_cell_source`);
 - :func:`eval_run_source`: one (session, policy) cell of an ``oscar eval run``
   output folder, read through its manifest.
 
@@ -34,6 +35,8 @@ __all__ = [
     "episode_source",
     "clip_source",
     "closed_loop_source",
+    "closed_loop_cell_source",
+    "is_closed_loop_manifest",
     "eval_run_source",
     "describe",
 ]
@@ -197,8 +200,8 @@ def _read_record(path: Path) -> dict:
 
 def closed_loop_source(folder, embodiment: str, camera, *, registry=None) -> ViewSource:
     """A cell folder of ``oscar eval closed-loop`` (``OUT/cells/<session>/<policy>/``): the generated video, the
-    condition video the model saw and the integrated trajectory; the camera and embodiment come from its manifest
-    and are given here."""
+    condition video the model saw and the integrated trajectory; the camera and embodiment are its session's in
+    the closed-loop manifest, given here (:func:`closed_loop_cell_source` reads them from the manifest)."""
     folder = Path(folder)
     rec = _read_record(_file(folder / "record.json", "record.json"))
     if rec.get("status") != "ok":
@@ -215,6 +218,42 @@ def closed_loop_source(folder, embodiment: str, camera, *, registry=None) -> Vie
         registry=registry,
         name=f"{rec.get('session')}/{rec.get('policy')}",
     )
+
+
+def is_closed_loop_manifest(path) -> bool:
+    """Whether the JSON file ``path`` declares itself a closed-loop manifest (``"format":
+    "oscar-closed-loop-manifest"``); a file that cannot be read is not one (its own loader says why)."""
+    from ..evaluation.closed_loop_manifest import FORMAT
+
+    try:
+        import json
+
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and doc.get("format") == FORMAT
+
+
+def closed_loop_cell_source(folder, manifest, *, embodiment=None, camera=None, registry=None) -> ViewSource:
+    """A cell folder of ``oscar eval closed-loop`` with the embodiment and camera of its session in ``manifest``
+    (the closed-loop manifest the run was made from; paths in it resolve from its folder). ``embodiment`` or
+    ``camera`` given here replace the session's."""
+    from ..evaluation.closed_loop_manifest import load_closed_loop_manifest
+
+    folder = Path(folder)
+    rec = _read_record(_file(folder / "record.json", "record.json"))
+    man = load_closed_loop_manifest(_file(manifest, "manifest"))
+    found = [s for s in man.sessions if s.session == rec.get("session")]
+    if not found:
+        names = [s.session for s in man.sessions][:10]
+        raise InputFileError(
+            manifest,
+            "sessions",
+            f"the session of {folder / 'record.json'} (sessions: {names})",
+            repr(rec.get("session")),
+        )
+    s = found[0]
+    return closed_loop_source(folder, embodiment or s.embodiment, camera or s.camera, registry=registry)
 
 
 def eval_run_source(run, manifest, cell: str, *, registry=None) -> ViewSource:

@@ -185,6 +185,44 @@ def test_a_closed_loop_cell_folder(episode, tmp_path, capsys):
     assert code == 2 and "record.json: field 'status': expected 'ok'" in err and "found 'failed'" in err
 
 
+def test_a_closed_loop_cell_takes_its_camera_from_the_closed_loop_manifest(episode, tmp_path, capsys):
+    """``--manifest`` a closed-loop manifest: the cell's embodiment and camera are its session's (paths resolved
+    from the manifest's folder), for the cell folder and for OUT --cell SESSION/POLICY alike."""
+    emb, ep, d = episode
+    import cv2
+
+    cell = tmp_path / "out" / "cells" / "s1" / "pi0"
+    cell.mkdir(parents=True)
+    save_trajectory(ep.trajectory, cell / "trajectory.npz")
+    write_video(cell / "video.mkv", ep.rgb[::-1].copy(), 10.0)
+    (cell / "record.json").write_text(json.dumps({"session": "s1", "policy": "pi0", "status": "ok"}))
+    m = tmp_path / "study"
+    m.mkdir()
+    cv2.imwrite(str(m / "first.png"), ep.rgb[0][..., ::-1])
+    save_camera(ep.camera, m / "cam.json")
+    save_trajectory(ep.trajectory, m / "state.npz")
+    manifest = {
+        "format": "oscar-closed-loop-manifest",
+        "policies": [{"name": "pi0", "policy": "oscar_core.toyworld.image_policies:ExactPolicy"}],
+        "sessions": [{"session": "s1", "task": "reach", "embodiment": "franka", "first_frame": "first.png",
+                      "camera": "cam.json", "initial_state": "state.npz", "horizon": T}],
+    }  # fmt: skip
+    (m / "manifest.json").write_text(json.dumps(manifest))
+    cam_to_world = np.linalg.inv(ep.camera.world_to_cv())
+    for source in ([cell], [tmp_path / "out", "--cell", "s1/pi0"]):
+        rrd = tmp_path / "cl.rrd"
+        code, out, err = _view([*source, "--manifest", m / "manifest.json", "--save", rrd, "--jpeg-quality", "0", "--json"], capsys)  # fmt: skip
+        assert code == 0, err
+        assert json.loads(out)["camera"] == str(m / "cam.json") and json.loads(out)["embodiment"] == "franka"
+        store = _store(rrd)
+        static = _table(store, "/world/camera", index=None).to_pylist()[0]
+        np.testing.assert_allclose(static["/world/camera:Transform3D:translation"][0], cam_to_world[:3, 3], atol=1e-6)
+        cond = _images(store, "/world/camera/condition", (H, W, 4))[..., :3]
+        np.testing.assert_array_equal(cond, render_skeleton_video(emb, emb.check_trajectory(ep.trajectory), ep.camera))
+    code, out, err = _view([cell, "--save", tmp_path / "x.rrd"], capsys)
+    assert code == 2 and "expected --manifest FILE (the closed-loop manifest), or --embodiment and --camera" in err
+
+
 def test_an_eval_run_cell(episode, tmp_path, capsys):
     emb, ep, d = episode
     import cv2
