@@ -18,7 +18,7 @@ its :class:`EpisodeResult` and the others go on.
 Resuming: with ``resume=True``, after each rendered episode a record
 ``.<output name>.oscar-render.json`` is written beside the output with the episode's fingerprint — the sha256 of
 its trajectory and camera files, its embodiment, size, fps, resize,
-format and condition (skeleton, mesh or capsules), the encoder settings (preset, crf, yuv), strictness, FK device kind,
+format and condition (skeleton, mesh or capsules) and its style when one is given, the encoder settings (preset, crf, yuv), strictness, FK device kind,
 plugin paths and a format version (threads and chunk size are left out: they
 do not change the frames). ``render_many(resume=True)`` (``oscar render``
 batches by default; ``--no-resume`` redoes everything) skips an episode whose
@@ -74,7 +74,9 @@ class RenderOptions:
     (None: 1 with several workers, else automatic); strict: frames where the camera
     sees nothing of the robot are an error; chunk_frames: frames per streamed chunk;
     device: torch device for FK ("cpu" uses NumPy); plugin_paths: one-file plugins;
-    condition: the condition video of episodes that do not name one ("skeleton", "mesh" or "capsules").
+    condition: the condition video of episodes that do not name one ("skeleton", "mesh" or "capsules");
+    condition_style: how a skeleton is drawn, a mapping of :class:`~oscar_core.render.raster.SkeletonStyle` fields
+    (a model card's ``condition_style``; None: the standard look); an episode of another condition is refused.
     """
 
     preset: str | None = None
@@ -86,6 +88,7 @@ class RenderOptions:
     device: str = "cpu"
     plugin_paths: tuple[str, ...] = ()
     condition: str = "skeleton"
+    condition_style: dict | None = None
 
 
 @dataclass
@@ -139,12 +142,14 @@ def render_episode(
     """
     from ..kinematics.trajectory import load_trajectory
     from ..media.video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output
-    from .conditions import check_condition, chunk_renderer
+    from .conditions import check_condition, chunk_renderer, style_for
     from .renderer import DEFAULT_CHUNK_FRAMES, RenderStats
 
     t0 = time.perf_counter()
+    condition = check_condition(spec.condition or options.condition, "condition")
+    style = style_for(condition, options.condition_style)
     check_output(spec.out, format=spec.format)  # suffix and folder, before reading anything
-    iter_chunks = chunk_renderer(check_condition(spec.condition or options.condition, "condition"))
+    iter_chunks = chunk_renderer(condition)
     registry = registry if registry is not None else _registry(options.plugin_paths)
     emb = registry.get(spec.embodiment)
     traj = load_trajectory(spec.trajectory)
@@ -169,6 +174,7 @@ def render_episode(
                 traj,
                 cam,
                 size,
+                style=style,
                 resize_mode=spec.resize,
                 device=options.device,
                 camera_source=str(spec.camera),
@@ -257,6 +263,8 @@ def episode_parts(spec: EpisodeSpec, options: RenderOptions) -> dict:
         "strict": options.strict,
         "device": str(options.device).split(":")[0],
         "plugin_paths": list(options.plugin_paths),
+        # only when given, so records written before the option keep matching
+        **({"condition_style": options.condition_style} if options.condition_style else {}),
     }
 
 
@@ -355,7 +363,8 @@ def render_many(
     Errors of one episode (bad input, unwritable output, a strict empty view)
     are recorded in its result; the others go on. Problems with the batch as a
     whole (two episodes writing the same output, an output under a file) raise
-    :class:`OutputPathError` before anything is rendered.
+    :class:`OutputPathError` before anything is rendered, and so does a bad ``options.condition_style``
+    (:class:`OscarError`).
     resume: skip an episode whose output and record match its fingerprint
     (its result has ``skipped=True``) and write each rendered episode's
     record (without ``resume`` no record is read or written).
@@ -373,6 +382,10 @@ def render_many(
 
         check_main_guard(f"render_many(workers={workers})")
     specs = list(specs)
+    if options.condition_style is not None:  # a bad style is the batch's fault, not each episode's
+        from .conditions import condition_style
+
+        condition_style(options.condition_style)
     _prepare_outputs(specs)
     if workers > 1 and options.threads is None:
         from dataclasses import replace

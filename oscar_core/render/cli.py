@@ -18,6 +18,7 @@ EPILOG = """examples:
   oscar render ... --out skel.mkv              (lossless FFV1)
   oscar render ... --condition mesh --out mesh.mp4   (the robot's URDF visual geometry instead of the skeleton)
   oscar render ... --out frames/               (PNG frames; or --format png)
+  oscar render ... --condition-style '{"gripper_radius_open": 27}' --out bold.mp4   (a model card's condition_style)
   oscar render --manifest episodes.jsonl --workers 2 --json
   oscar render --embodiment franka --trajectories trajs/ --out videos/ --size 512x288 --workers 2
 
@@ -64,6 +65,13 @@ def add_render_parser(sub) -> None:
         help="condition video: the skeleton (default), the robot's visual geometry (mesh; "
         "needs <visual> elements and the mesh extra: docs/mesh-condition.md) or capsules along "
         "the skeleton with fingers (capsules; any kinematic tree)",
+    )
+    r.add_argument(
+        "--condition-style",
+        metavar="JSON",
+        help="how the skeleton is drawn, a JSON mapping of skeleton style fields (sizes in pixels at 288 px of "
+        "height), as a model card's condition_style, e.g. '{\"gripper_radius_open\": 27}' (default: the standard "
+        "look; the skeleton condition only)",
     )
     r.add_argument("--size", help="output WIDTHxHEIGHT, e.g. 512x288 (default: the calibration's image size)")
     r.add_argument(
@@ -173,6 +181,7 @@ def _specs(args):
 
 def _options(args):
     from .batch import RenderOptions
+    from .conditions import parse_condition_style
 
     return RenderOptions(
         preset=args.preset,
@@ -182,6 +191,7 @@ def _options(args):
         device=args.device,
         plugin_paths=tuple(args.plugin or ()),
         condition=args.condition,
+        condition_style=parse_condition_style(args.condition_style),
     )
 
 
@@ -231,6 +241,7 @@ def _render_overlay(args, spec) -> int:
     """One video blended over real frames (checks a calibration); output checked first."""
     from ..kinematics.trajectory import load_trajectory
     from .batch import _registry
+    from .conditions import parse_condition_style
     from .overlay import write_overlay
 
     emb = _registry(tuple(args.plugin or ())).get(spec.embodiment)
@@ -243,6 +254,7 @@ def _render_overlay(args, spec) -> int:
         args.overlay,
         spec.out,
         condition=args.condition,
+        style=parse_condition_style(args.condition_style),
         size=spec.size,
         resize_mode=spec.resize,
         alpha=args.alpha,

@@ -43,6 +43,8 @@ __all__ = [
     "renderer",
     "condition_video",
     "condition_style",
+    "parse_condition_style",
+    "style_for",
     "condition_key",
     "video_condition_of",
 ]
@@ -149,6 +151,31 @@ def condition_style(style, source: str = "condition_style"):
         return SkeletonStyle.from_overrides(style, source)
     except ValueError as e:
         raise OscarError(str(e)) from None
+
+
+def parse_condition_style(text: str | None, source: str = "--condition-style"):
+    """The JSON text of a ``--condition-style`` flag decoded (None: not given), for every command that takes the flag
+    (``oscar train --cache-latents``, ``oscar render``); an :class:`OscarError` naming ``source`` when it is no JSON.
+    Its fields are checked once, by the library call the command makes (:func:`style_for`, before any work)."""
+    import json
+
+    if text is None:
+        return None
+    try:
+        return json.loads(text)
+    except ValueError as e:
+        raise OscarError(f"{source}: expected a JSON mapping of style fields, found {text!r} ({e})") from None
+
+
+def style_for(name: str, style, source: str = "condition_style"):
+    """:func:`condition_style` of ``style`` for condition video ``name``: a style draws the skeleton only, so a
+    style given with another condition (mesh, capsules: their looks are their own) is an :class:`OscarError`
+    naming ``source``."""
+    if style is not None and name != DEFAULT_CONDITION:
+        raise OscarError(
+            f"{source}: expected the skeleton condition (a style draws the skeleton), found condition {name!r}"
+        )
+    return condition_style(style, source)
 
 
 def condition_key(name: str, style=None) -> str:

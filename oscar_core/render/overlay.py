@@ -19,6 +19,7 @@ def write_overlay(
     out,
     *,
     condition: str = "skeleton",
+    style=None,
     size: tuple[int, int] | None = None,
     resize_mode: str = "crop",
     alpha: float = 0.8,
@@ -35,13 +36,15 @@ def write_overlay(
     (:func:`oscar_core.render.skeleton_video.overlay_skeleton`), chunk by chunk, into ``out``.
 
     size: output (width, height) pixels (None: the video's); the real frames are fitted to it exactly as
-    the calibration is (``resize_mode``). fps: output frame rate (None: the trajectory's). The output path
-    is checked before anything is rendered. Returns (path written, frames, (width, height), fps).
+    the calibration is (``resize_mode``). fps: output frame rate (None: the trajectory's). style: how the skeleton
+    is drawn (a ``condition_style`` mapping; None: the standard look). The output path and the style are checked
+    before anything is rendered. Returns (path written, frames, (width, height), fps).
     """
     from ..media.video import DEFAULT_PRESET, DEFAULT_YUV, VideoWriter, check_output, read_video, video_info
-    from .conditions import chunk_renderer
+    from .conditions import chunk_renderer, style_for
     from .skeleton_video import fit_image, overlay_skeleton
 
+    style = style_for(condition, style)
     check_output(out, format=format)
     if size is None:
         info = video_info(rgb_video)
@@ -61,6 +64,7 @@ def write_overlay(
             traj,
             camera,
             tuple(size),
+            style=style,
             resize_mode=resize_mode,
             device=device,
             camera_source=camera_source,

@@ -99,12 +99,12 @@ def cache_latents(
     from .._util import stage as _stage
     from ..model.vae import check_frame_count
     from ..plugin.registry import Registry
-    from ..render.conditions import check_condition, condition_key, condition_style as check_style
+    from ..render.conditions import check_condition, condition_key, style_for
     from .clips import Clip, ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")
     check_condition(condition, "--condition")
-    check_style(condition_style, "--condition-style")
+    style_for(condition, condition_style, "--condition-style")  # the one check of the style (fields, condition)
     key = condition_key(condition, condition_style)  # what the condition latents encode, as the trainer compares it
     if batch < 1:
         raise ValueError(f"batch: expected >= 1, found {batch}")

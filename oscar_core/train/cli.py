@@ -13,7 +13,6 @@ import os
 from .._util.arg_types import count
 from .._util.outputs import output_option
 from .._util.threads import threads_option
-from ..errors import OscarError
 from ..render.conditions import CONDITIONS
 
 __all__ = ["add_train_parser", "cmd_train", "build_train_parser"]
@@ -195,18 +194,9 @@ def _cache_latents(args) -> int:
     for flag in ("vae", "window", "out"):
         if getattr(args, flag) is None:
             raise TrainConfigError("<command line>", f"--{flag}", "given with --cache-latents", "missing")
-    style = None
-    if args.condition_style is not None:
-        from ..render.conditions import condition_style
+    from ..render.conditions import parse_condition_style
 
-        try:
-            style = json.loads(args.condition_style)
-            condition_style(style, "--condition-style")
-        except (ValueError, OscarError) as e:
-            found = f"{args.condition_style!r} ({e})"
-            raise TrainConfigError(
-                "<command line>", "--condition-style", "a JSON mapping of style fields", found
-            ) from None
+    style = parse_condition_style(args.condition_style)  # decoded here, checked by cache_latents before any work
     config = TrainConfig()
     config.model.vae = args.vae
     vae = build_vae(config, source="--vae")

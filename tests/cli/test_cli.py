@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from _paths import TOYARM_ASSETS
 
+from oscar_core import load_trajectory, save_trajectory
 from oscar_core.cli import main
 from oscar_core.media.video import read_video, write_video
 
@@ -110,6 +111,17 @@ def test_overlay_blends_over_real_video(tmp_path, capsys):
     assert out.shape == (81, 360, 640, 3)
     skeleton_px = np.any(out != rgb, axis=-1)
     assert 0.001 < skeleton_px.mean() < 0.2  # the skeleton changes a few pixels; the rest is the real frame
+    # --condition-style reaches the overlay: a gripper indicator 3x larger covers more of the real frame (9 frames)
+    save_trajectory(load_trajectory(TRAJ).time_slice(0, 9), tmp_path / "short.npz")
+    args = ["render", "--embodiment", "toyarm", "--trajectory", tmp_path / "short.npz", "--camera", CAM]
+    args += ["--overlay", tmp_path / "rgb.mkv"]
+    bold = '{"gripper_radius_open": 27, "gripper_radius_closed": 12}'
+    changed = []
+    for name, style in (("plain", []), ("bold", ["--condition-style", bold])):
+        code, _, err = run(capsys, *args, "--out", tmp_path / f"{name}.mkv", *style)
+        assert code == 0, err
+        changed.append(np.any(read_video(tmp_path / f"{name}.mkv") != rgb[:9], axis=-1).mean())
+    assert changed[1] > 1.2 * changed[0], changed
 
 
 def test_overlay_too_short(tmp_path, capsys):

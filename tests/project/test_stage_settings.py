@@ -378,6 +378,7 @@ RENDER_CHANGES = {
     "strict": lambda p: ({}, {"strict": True}),
     "device": None,  # one device here: checked on the parts only
     "plugin_paths": _one_file_plugin,
+    "condition_style": lambda p: ({}, {"condition_style": {"gripper_radius_open": 27}}),  # a part only when given
 }
 
 
@@ -385,7 +386,10 @@ def test_batch_render_covers_every_fingerprinted_setting(tmp_path):
     from oscar_core.render.batch import RenderOptions, episode_parts
 
     _render_inputs(tmp_path)
-    assert set(episode_parts(_render_spec(tmp_path), RenderOptions())) == set(RENDER_CHANGES)
+    styled = RenderOptions(condition_style={"gripper_radius_open": 27})
+    assert set(episode_parts(_render_spec(tmp_path), styled)) == set(RENDER_CHANGES)
+    # without a style the parts are those records written before the option had (they keep matching)
+    assert set(episode_parts(_render_spec(tmp_path), RenderOptions())) == set(RENDER_CHANGES) - {"condition_style"}
 
 
 @pytest.mark.parametrize("key", sorted(RENDER_CHANGES))

@@ -454,3 +454,42 @@ def test_render_episode_reports_warnings_instead_of_printing_them(tmp_path, recw
     r = render_episode(EpisodeSpec("toyarm", str(tmp_path / "over.npz"), str(CAM), str(tmp_path / "o.mkv"), (64, 36)))
     assert r.ok and r.frames == 3 and any("JointLimitWarning" in w and "beyond its limits" in w for w in r.warnings)
     assert len(recwarn) == 0
+
+
+def test_render_draws_the_condition_style_and_refuses_a_bad_one_before_writing(tmp_path, capsys):
+    from oscar_core.render.raster import SkeletonStyle
+
+    traj = short_traj(tmp_path, "t.npz")
+    bold = {"gripper_radius_open": 27, "gripper_radius_closed": 14}
+    base = ["render", "--embodiment", "toyarm", "--trajectory", traj, "--camera", CAM, "--size", "64x36"]
+    code, out, err = run(capsys, *base, "--out", tmp_path / "bold.mkv", "--condition-style", json.dumps(bold))
+    assert code == 0, err
+    want = render_skeleton_video(
+        get_embodiment("toyarm"), load_trajectory(traj), load_camera(CAM), (64, 36), style=SkeletonStyle(**bold)
+    )
+    got = read_video(tmp_path / "bold.mkv")
+    np.testing.assert_array_equal(got, want)  # FFV1 is lossless
+    assert (got != direct(traj, (64, 36))).any()  # the style changed the picture
+    # the same style through a batch (the fingerprint holds it: a batch in another style renders again)
+    folder = tmp_path / "trajs"
+    folder.mkdir()
+    save_trajectory(load_trajectory(traj), folder / "a.npz")
+    (folder / "camera.json").write_text(Path(CAM).read_text())
+    batch = ["render", "--embodiment", "toyarm", "--trajectories", folder, "--size", "64x36", "--format", "mkv"]
+    assert run(capsys, *batch, "--out", tmp_path / "videos")[0] == 0
+    assert run(capsys, *batch, "--out", tmp_path / "videos", "--condition-style", json.dumps(bold))[0] == 0
+    np.testing.assert_array_equal(read_video(tmp_path / "videos" / "a.mkv"), want)
+    for bad, message in [
+        ("{not json", "--condition-style: expected a JSON mapping of style fields"),
+        ('{"gripper_radius_open": -2}', "condition_style.gripper_radius_open: expected a finite number > 0"),
+        ('{"size": 1}', "found unknown keys ['size']"),
+    ]:
+        for args in (base + ["--out", tmp_path / "bad.mkv"], batch + ["--out", tmp_path / "bad"]):
+            code, out, err = run(capsys, *args, "--condition-style", bad)
+            assert code == 2 and message in err and err.count("\n") == 1, err
+        assert not (tmp_path / "bad.mkv").exists() and not (tmp_path / "bad").exists()
+    # a style draws the skeleton: another condition with a style is refused, nothing written
+    code, out, err = run(
+        capsys, *base, "--out", tmp_path / "m.mkv", "--condition", "capsules", "--condition-style", "{}"
+    )
+    assert code == 2 and "expected the skeleton condition" in err and not (tmp_path / "m.mkv").exists()

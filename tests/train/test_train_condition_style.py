@@ -165,3 +165,11 @@ def test_the_cache_command_takes_a_json_style_and_refuses_a_bad_one(tmp_path, so
         assert main([*base, "--out", str(tmp_path / "bad"), "--condition-style", bad]) == 2
         assert "--condition-style" in capsys.readouterr().err
         assert not (tmp_path / "bad").exists()
+
+
+def test_a_style_with_another_condition_is_refused_before_the_cache_writes(tmp_path, source):
+    # a style draws the skeleton; mesh and capsules have their own looks (the renderer would get the wrong style)
+    with pytest.raises(OscarError, match="expected the skeleton condition .*found condition 'capsules'"):
+        cache_latents(source, tmp_path / "c", _vae(), window=9, log=lambda m: None, condition="capsules",
+                      condition_style=BOLD)  # fmt: skip
+    assert not (tmp_path / "c").exists()
