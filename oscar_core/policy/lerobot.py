@@ -195,7 +195,7 @@ def load_lerobot_policy(source: str, keys=None) -> LeRobotPolicy:
         from lerobot.policies.factory import get_policy_class
     except ImportError as exc:
         raise ImportError(
-            f"{source}: lerobot is needed here and is not installed ({exc}); install it with: pip install lerobot "
+            f"lerobot is needed here and is not installed ({exc}); install it with: pip install lerobot "
             "(it pins torch < 2.11 and torchvision)"
         ) from None
     config = PreTrainedConfig.from_pretrained(where)
