@@ -190,14 +190,8 @@ def cmd_sample_dataset(args) -> int:
     return 0
 
 
-def add_data_parser(sub) -> None:
-    """Register ``oscar data <stage>`` on the top-level sub-parser collection."""
-    fmt = argparse.RawDescriptionHelpFormatter
-    d = sub.add_parser(
-        "data", help="data pipeline: ingest, filter, dedup, caption, export, stats", epilog=EXAMPLE, formatter_class=fmt
-    )
-    ds = d.add_subparsers(dest="data_command", required=True)
-
+def _add_data_sample_dataset_parser(ds, fmt) -> None:
+    """Register ``oscar data sample-dataset`` and its options on ``ds``."""
     p = ds.add_parser(
         "sample-dataset",
         help="write a small LeRobot v3.0 dataset (7 episodes, one shared MP4) to try the pipeline offline",
@@ -210,6 +204,9 @@ def add_data_parser(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the summary (with each episode's expected fate) as JSON")
     p.set_defaults(func=cmd_sample_dataset)
 
+
+def _add_data_ingest_parser(ds, fmt) -> None:
+    """Register ``oscar data ingest`` and its options on ``ds``."""
     p = ds.add_parser(
         "ingest",
         help="list a dataset's episodes into a manifest and probe each one",
@@ -229,6 +226,9 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_ingest)
 
+
+def _add_data_filter_parser(ds, fmt) -> None:
+    """Register ``oscar data filter`` and its options on ``ds``."""
     p = ds.add_parser(
         "filter",
         help="length, static camera, meaningful action, visible skeleton, joint spikes "
@@ -248,6 +248,9 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_filter)
 
+
+def _add_data_dedup_parser(ds, fmt) -> None:
+    """Register ``oscar data dedup`` and its options on ``ds``."""
     p = ds.add_parser(
         "dedup",
         help="SigLIP (or motion) candidates (cosine > 0.95) verified by trajectory RMS, one kept per group",
@@ -275,6 +278,9 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_dedup)
 
+
+def _add_data_caption_parser(ds, fmt) -> None:
+    """Register ``oscar data caption`` and its options on ``ds``."""
     p = ds.add_parser(
         "caption",
         help="captions from an OpenAI-compatible VLM endpoint (cached, retried, budgeted)",
@@ -293,6 +299,9 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_caption)
 
+
+def _add_data_export_parser(ds, fmt) -> None:
+    """Register ``oscar data export`` and its options on ``ds``."""
     p = ds.add_parser(
         "export",
         help="live episodes as training clips (docs/formats.md, Training clips)",
@@ -313,6 +322,9 @@ def add_data_parser(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_export)
 
+
+def _add_data_stats_parser(ds, fmt) -> None:
+    """Register ``oscar data stats`` and its options on ``ds``."""
     p = ds.add_parser(
         "stats",
         help="the paper's Table 1 for a run: public vs kept, rejections per filter",
@@ -331,3 +343,19 @@ def add_data_parser(sub) -> None:
         help="do not write RUN/stats.html (the funnel with thumbnails of rejected episodes per reason)",
     )
     p.set_defaults(func=cmd_stats)
+
+
+def add_data_parser(sub) -> None:
+    """Register ``oscar data <stage>`` on the top-level sub-parser collection."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    d = sub.add_parser(
+        "data", help="data pipeline: ingest, filter, dedup, caption, export, stats", epilog=EXAMPLE, formatter_class=fmt
+    )
+    ds = d.add_subparsers(dest="data_command", required=True)
+    _add_data_sample_dataset_parser(ds, fmt)
+    _add_data_ingest_parser(ds, fmt)
+    _add_data_filter_parser(ds, fmt)
+    _add_data_dedup_parser(ds, fmt)
+    _add_data_caption_parser(ds, fmt)
+    _add_data_export_parser(ds, fmt)
+    _add_data_stats_parser(ds, fmt)

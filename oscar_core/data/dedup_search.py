@@ -75,6 +75,91 @@ def pca_projection(x: np.ndarray, dim: int, sample: int = 20000, seed: int = 0) 
     return mean.astype(np.float32), np.ascontiguousarray(v[:, ::-1][:, :dim], dtype=np.float32)
 
 
+def _contractive_projection(x: np.ndarray, reduce_dim: int | None, seed: int) -> np.ndarray:
+    """x (N, D) float32 projected onto its top ``reduce_dim`` principal directions ((N, reduce_dim) float32,
+    :func:`pca_projection`), or ``x`` itself when D <= reduce_dim or ``reduce_dim`` is None."""
+    n, d = x.shape
+    if reduce_dim is None or d <= reduce_dim:
+        return x
+    mean, basis = pca_projection(x, int(reduce_dim), seed=seed)
+    z = np.empty((n, basis.shape[1]), np.float32)
+    for s in range(0, n, 65536):
+        np.matmul(x[s : s + 65536] - mean, basis, out=z[s : s + 65536])
+    return z
+
+
+def _kmeans_centroids(faiss, z: np.ndarray, k: int, train_per_list: int, niter: int, seed: int) -> np.ndarray:
+    """(k, R) float32 k-means centroids of the rows of z (N, R), trained on at most ``train_per_list`` (≥ 39)
+    sampled rows per list."""
+    n, r = z.shape
+    rng = np.random.default_rng(seed)
+    m = min(n, max(39, train_per_list) * k)
+    train = z if m >= n else z[np.sort(rng.choice(n, m, replace=False))]
+    km = faiss.Kmeans(r, k, niter=niter, seed=seed, verbose=False)
+    km.train(np.ascontiguousarray(train))
+    return km.centroids
+
+
+def _list_rows(faiss, z: np.ndarray, centroids: np.ndarray, probes: int):
+    """Which rows belong to and which probe each of the k lists. Returns ``(member_order, member_start,
+    query_order, query_start)``: the members of list l are ``member_order[member_start[l]:member_start[l + 1]]``
+    (rows whose nearest centroid is l) and its queries ``query_order[query_start[l]:query_start[l + 1]]`` (rows
+    with l among their ``probes`` nearest centroids); the starts are (k + 1,)."""
+    k = len(centroids)
+    quant = faiss.IndexFlatL2(z.shape[1])
+    quant.add(centroids)
+    _, probe = quant.search(z, probes)  # (n, probes) nearest lists, nearest first
+    own = probe[:, 0]
+    member_order = np.argsort(own, kind="stable")
+    member_start = np.searchsorted(own[member_order], np.arange(k + 1))
+    flat = probe.ravel()
+    query_order = np.argsort(flat, kind="stable")
+    query_start = np.searchsorted(flat[query_order], np.arange(k + 1))
+    query_order //= probes
+    return member_order, member_start, query_order, query_start
+
+
+def _augmented_rows(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(qa, ma)``, each (N, R + 2): rows with qa_i · ma_j = 2 z_i · z_j − |z_i|² − |z_j|² = −|z_i − z_j|², so one
+    matrix product gives a block of negated squared distances."""
+    sq = np.einsum("ij,ij->i", z, z)[:, None]
+    qa = np.hstack([z, sq, np.ones_like(sq)])
+    ma = np.hstack([2.0 * z, -np.ones_like(sq), -sq])
+    return qa, ma
+
+
+def _block_pairs(qa, ma, lists, radius: float, block: int) -> np.ndarray:
+    """(P, 2) int64 unique pairs i < j of a list's query and member within squared distance ``radius``, per list
+    of ``lists`` (:func:`_list_rows`) in products of at most ``block`` entries."""
+    member_order, member_start, query_order, query_start = lists
+    n = len(qa)
+    found = []
+    for lst in range(len(member_start) - 1):
+        mem = member_order[member_start[lst] : member_start[lst + 1]]
+        if not len(mem):
+            continue
+        qry = query_order[query_start[lst] : query_start[lst + 1]]
+        mt = np.ascontiguousarray(ma[mem].T)
+        step = max(1, block // len(mem))
+        for s in range(0, len(qry), step):
+            q = qry[s : s + step]
+            qi, mj = np.nonzero(qa[q] @ mt > -radius)
+            a, b = q[qi], mem[mj]
+            keep = a != b
+            found.append(np.minimum(a[keep], b[keep]) * n + np.maximum(a[keep], b[keep]))
+    keys = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+    return np.stack([keys // n, keys % n], axis=1)
+
+
+def _exact_check(x: np.ndarray, pairs: np.ndarray, threshold: float) -> np.ndarray:
+    """The pairs ((P, 2) int64) whose full rows of x (unit, (N, D)) have cosine > ``threshold``."""
+    ok = np.zeros(len(pairs), bool)
+    for s in range(0, len(pairs), 65536):
+        p = pairs[s : s + 65536]
+        ok[s : s + 65536] = np.einsum("ij,ij->i", x[p[:, 0]], x[p[:, 1]]) > threshold
+    return pairs[ok]
+
+
 def candidate_pairs(
     emb: np.ndarray,
     threshold: float = 0.95,
@@ -128,7 +213,7 @@ def candidate_pairs(
         clock[0] = now
 
     x = np.ascontiguousarray(emb, dtype=np.float32)
-    n, d = x.shape
+    n = len(x)
     if n < 2:
         return np.zeros((0, 2), np.int64)
     if nlist is None and n < exact_below:
@@ -136,63 +221,17 @@ def candidate_pairs(
     k = int(nlist or max(1, round(4 * np.sqrt(n))))
     k = max(1, min(k, n // 39 if n >= 78 else 1))  # faiss wants >= 39 training points per list
     probes = max(1, min(int(nprobe), k))
-    # 1. contractive projection
-    if reduce_dim is not None and d > reduce_dim:
-        mean, basis = pca_projection(x, int(reduce_dim), seed=seed)
-        z = np.empty((n, basis.shape[1]), np.float32)
-        for s in range(0, n, 65536):
-            np.matmul(x[s : s + 65536] - mean, basis, out=z[s : s + 65536])
-    else:
-        z = x
-    r = z.shape[1]
+    z = _contractive_projection(x, reduce_dim, seed)  # 1.
     lap("project")
-    # 2. k-means lists and each row's probes
-    rng = np.random.default_rng(seed)
-    m = min(n, max(39, train_per_list) * k)
-    train = z if m >= n else z[np.sort(rng.choice(n, m, replace=False))]
-    km = faiss.Kmeans(r, k, niter=niter, seed=seed, verbose=False)
-    km.train(np.ascontiguousarray(train))
+    centroids = _kmeans_centroids(faiss, z, k, train_per_list, niter, seed)  # 2.
     lap("kmeans")
-    quant = faiss.IndexFlatL2(r)
-    quant.add(km.centroids)
-    _, probe = quant.search(z, probes)  # (n, probes) nearest lists, nearest first
-    own = probe[:, 0]
-    member_order = np.argsort(own, kind="stable")
-    member_start = np.searchsorted(own[member_order], np.arange(k + 1))
-    flat = probe.ravel()
-    query_order = np.argsort(flat, kind="stable")
-    query_start = np.searchsorted(flat[query_order], np.arange(k + 1))
-    query_order //= probes
-    # augmented rows: qa_i . ma_j = 2 z_i . z_j - |z_i|^2 - |z_j|^2 = -|z_i - z_j|^2, one product per block
-    sq = np.einsum("ij,ij->i", z, z)[:, None]
-    qa = np.hstack([z, sq, np.ones_like(sq)])
-    ma = np.hstack([2.0 * z, -np.ones_like(sq), -sq])
-    if z is not x:
-        del z
+    lists = _list_rows(faiss, z, centroids, probes)
+    qa, ma = _augmented_rows(z)
+    del z  # the projected copy (x itself stays)
     radius = (2.0 - 2.0 * float(threshold)) * (1 + 1e-4) + 1e-5  # squared, a hair wider than exact: rechecked below
     lap("assign")
-    # 3. dense blocks per list
-    found = []
-    for lst in range(k):
-        mem = member_order[member_start[lst] : member_start[lst + 1]]
-        if not len(mem):
-            continue
-        qry = query_order[query_start[lst] : query_start[lst + 1]]
-        mt = np.ascontiguousarray(ma[mem].T)
-        step = max(1, block // len(mem))
-        for s in range(0, len(qry), step):
-            q = qry[s : s + step]
-            qi, mj = np.nonzero(qa[q] @ mt > -radius)
-            a, b = q[qi], mem[mj]
-            keep = a != b
-            found.append(np.minimum(a[keep], b[keep]) * n + np.maximum(a[keep], b[keep]))
-    keys = np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
-    pairs = np.stack([keys // n, keys % n], axis=1)
+    pairs = _block_pairs(qa, ma, lists, radius, block)  # 3.
     lap("blocks")
-    # 4. exact check on the full vectors
-    ok = np.zeros(len(pairs), bool)
-    for s in range(0, len(pairs), 65536):
-        p = pairs[s : s + 65536]
-        ok[s : s + 65536] = np.einsum("ij,ij->i", x[p[:, 0]], x[p[:, 1]]) > threshold
+    pairs = _exact_check(x, pairs, threshold)  # 4.
     lap("check")
-    return pairs[ok]
+    return pairs

@@ -278,6 +278,91 @@ def check_workers_see(url: str, engine: EngineName, workers: int | None) -> None
         )
 
 
+def _check_plan(stage_url: str, plan: dict[str, list], shard_size: int) -> None:
+    """Records ``plan`` (shard name → row ids) in ``stage_url/plan.json`` on the first run; on a later run
+    ValueError when the recorded plan is another one."""
+    plan_url = _fs.join(stage_url, "plan.json")
+    if _fs.exists(plan_url):
+        old = json.loads(_fs.read_bytes(plan_url))
+        if old.get("shards") != plan:
+            raise ValueError(
+                f"{plan_url}: expected the plan of this input (same episodes, same --shard-size), found "
+                f"another run's plan; use a new output folder or delete this stage's folder"
+            )
+    else:
+        _fs.write_bytes_atomic(plan_url, json.dumps({"shards": plan, "shard_size": shard_size}).encode())
+
+
+def _run_pool(fn, tasks, stage_url: str, n_workers: int, bar) -> list[tuple[str, int, bool]]:
+    """:func:`run_shard` of every ``(name, rows)`` task in a pool of ``n_workers`` processes, in completion order;
+    Ctrl-C stops the pool at once."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from .._util.interrupt import stop_pool
+    from .._util.main_guard import check_main_guard
+
+    check_main_guard(f"run_sharded(workers={n_workers})")  # a script's unguarded top level would run again
+    results = []
+    with ProcessPoolExecutor(
+        n_workers,
+        mp_context=_pool_context(),
+        initializer=_stage.worker_initializer,
+        initargs=(os.getpid(), _worker_init),
+    ) as pool:
+        try:
+            futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
+            for fut in as_completed(futures):
+                results.append(fut.result())
+                bar.update(1)
+        except KeyboardInterrupt:  # stop now rather than run the rest of the queue first
+            stop_pool(pool)
+            raise
+    return results
+
+
+def _run_tasks(
+    fn,
+    tasks,
+    stage_url: str,
+    engine: EngineName,
+    workers: int | None,
+    progress: bool,
+    label: str,
+    n_plan: int,
+    n_skipped: int,
+) -> list[tuple[str, int, bool]]:
+    """Runs the ``(name, rows)`` shard tasks on ``engine`` with a progress bar; returns ``(name, rows written,
+    finished)`` per shard. ``n_plan`` and ``n_skipped`` (shards in the plan, done earlier) are for the log line."""
+    from .._util.log import progress_bar
+    from .._util.threads import check_threads, default_threads
+
+    bar = progress_bar(total=len(tasks), desc=label, unit="shard", enabled=progress)
+    if workers:
+        check_threads(workers, "--workers")
+    n_workers = min(workers or default_threads(), len(tasks))  # default: the cores idle now, one thread each
+    _log.info(
+        "%s: %d shards of %d to do (%d done earlier), engine %s, %d worker(s)",
+        label,
+        len(tasks),
+        n_plan,
+        n_skipped,
+        engine,
+        n_workers,
+    )
+    results: list[tuple[str, int, bool]] = []
+    if engine == "ray":
+        results = _run_ray(fn, tasks, stage_url, n_workers)
+        bar.update(len(results))
+    elif n_workers <= 1:
+        for name, shard_rows in tasks:
+            results.append(run_shard(fn, shard_rows, stage_url, name))
+            bar.update(1)
+    else:
+        results = _run_pool(fn, tasks, stage_url, n_workers, bar)
+    bar.close()
+    return results
+
+
 def run_sharded(
     fn: Callable,
     rows: list[dict],
@@ -315,16 +400,7 @@ def run_sharded(
         run_changes = use_fingerprint(stage_url, parts)
     else:
         run_changes = []
-    plan_url = _fs.join(stage_url, "plan.json")
-    if _fs.exists(plan_url):
-        old = json.loads(_fs.read_bytes(plan_url))
-        if old.get("shards") != plan:
-            raise ValueError(
-                f"{plan_url}: expected the plan of this input (same episodes, same --shard-size), found "
-                f"another run's plan; use a new output folder or delete this stage's folder"
-            )
-    else:
-        _fs.write_bytes_atomic(plan_url, json.dumps({"shards": plan, "shard_size": shard_size}).encode())
+    _check_plan(stage_url, plan, shard_size)
     by_id = {r["id"]: r for r in rows}
     done = {n[:-5] for n in _fs.listdir(_fs.join(stage_url, "completions")) if n.endswith(".json")}
     run = StageRun(stage_url)
@@ -332,54 +408,10 @@ def run_sharded(
     todo = [n for n in plan if n not in done]
     run.skipped = [n for n in plan if n in done]
     tasks = [(n, [by_id[i] for i in plan[n]]) for n in todo]
-    results: list[tuple[str, int, bool]] = []
-    if tasks:
-        from .._util.log import progress_bar
-
-        bar = progress_bar(total=len(tasks), desc=desc or stage_url, unit="shard", enabled=progress)
-        from .._util.threads import check_threads, default_threads
-
-        if workers:
-            check_threads(workers, "--workers")
-        n_workers = min(workers or default_threads(), len(tasks))  # default: the cores idle now, one thread each
-        _log.info(
-            "%s: %d shards of %d to do (%d done earlier), engine %s, %d worker(s)",
-            desc or stage_url,
-            len(tasks),
-            len(plan),
-            len(run.skipped),
-            engine,
-            n_workers,
-        )
-        if engine == "ray":
-            results = _run_ray(fn, tasks, stage_url, n_workers)
-            bar.update(len(results))
-        elif n_workers <= 1:
-            for name, shard_rows in tasks:
-                results.append(run_shard(fn, shard_rows, stage_url, name))
-                bar.update(1)
-        else:
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
-            from .._util.interrupt import stop_pool
-            from .._util.main_guard import check_main_guard
-
-            check_main_guard(f"run_sharded(workers={n_workers})")  # a script's unguarded top level would run again
-            with ProcessPoolExecutor(
-                n_workers,
-                mp_context=_pool_context(),
-                initializer=_stage.worker_initializer,
-                initargs=(os.getpid(), _worker_init),
-            ) as pool:
-                try:
-                    futures = [pool.submit(run_shard, fn, shard_rows, stage_url, name) for name, shard_rows in tasks]
-                    for fut in as_completed(futures):
-                        results.append(fut.result())
-                        bar.update(1)
-                except KeyboardInterrupt:  # stop now rather than run the rest of the queue first
-                    stop_pool(pool)
-                    raise
-        bar.close()
+    label = desc or stage_url
+    results = (
+        _run_tasks(fn, tasks, stage_url, engine, workers, progress, label, len(plan), len(run.skipped)) if tasks else []
+    )
     for name, _, ok in results:
         (run.processed if ok else run.incomplete).append(name)
     run.processed.sort()
@@ -387,12 +419,12 @@ def run_sharded(
     if run.incomplete:
         _log.warning(
             "%s: %d shard(s) unfinished (%s); run the stage again",
-            desc or stage_url,
+            label,
             len(run.incomplete),
             ", ".join(run.incomplete[:5]),
         )
     elif tasks:
-        _log.info("%s: %d shards done -> %s", desc or stage_url, len(run.processed), stage_url)
+        _log.info("%s: %d shards done -> %s", label, len(run.processed), stage_url)
     if not run.incomplete:
         run.table = write_stage_manifest(stage_url, list(plan))
     return run

@@ -72,40 +72,9 @@ def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return (40 + 150 * img).astype(np.uint8)
 
 
-def write_sample_dataset(
-    out, *, frames: int = 80, size: tuple[int, int] = (192, 108), seed: int = 0, registry=None
-) -> dict:
-    """Write the dataset of the module docstring to ``out`` (a new or empty folder); returns a summary
-    (``expected``: episode id → ``kept`` or the rejection column the pipeline gives it).
-
-    frames: length of the normal episodes (≥ 70, the length filter's default);
-    size: video (width, height), 16:9 like the example camera. Deterministic in ``seed``.
-    """
-    pa = require("pyarrow", "data")
-    import pyarrow.parquet as pq
-    from scipy.spatial.transform import Rotation
-
-    from oscar_embodiments.franka.adapters import from_droid
-
-    from .. import load_camera
-    from ..media.video import write_video
-    from ..plugin.registry import Registry
-    from ..render.skeleton_video import render_skeleton_video
-
-    out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        raise ValueError(f"{out}: expected a new or empty folder for the sample dataset, found files in it")
-    reg = registry if registry is not None else Registry()
-    emb = reg.get("franka_robotiq")
-    assets = Path(__import__("oscar_embodiments.franka", fromlist=["x"]).__file__).parent / "assets"
-    example = np.load(assets / "example_trajectory_robotiq.npz")
-    cam0 = load_camera(assets / "example_camera_robotiq.json")
-    w, h = size
-    cam = cam0.resized(w, h, mode="crop")
-    k = cam.intrinsics
-    intrinsics = [float(k.fx), float(k.fy), float(k.cx), float(k.cy)]
-    pose = np.asarray(cam0.camera_to_world if hasattr(cam0, "camera_to_world") else cam0.extrinsic, dtype=float)
-    extrinsic = list(pose[:3, 3]) + list(Rotation.from_matrix(pose[:3, :3]).as_euler("xyz"))
+def _episode_plan(example, frames: int, seed: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """``(task, q, gripper)`` per episode, in :data:`EXPECTED`'s order: q (T, 7) radians, gripper (T, 1) in [0, 1],
+    drawn from the example motion ``example`` (``q``, ``gripper``) and deterministic in ``seed``."""
     rng = np.random.default_rng(seed)
     plan = []
     base = [_motion(example["q"], example["gripper"], np.random.default_rng([seed, e]), frames) for e in range(4)]
@@ -115,8 +84,28 @@ def write_sample_dataset(
         ("still", *_motion(example["q"], example["gripper"], np.random.default_rng([seed, 11]), frames, still=True))
     )
     plan.append(("copy-of-0", base[0][0] + 0.0005 * rng.standard_normal(base[0][0].shape), base[0][1]))
+    return plan
+
+
+def _camera_fields(cam0, size: tuple[int, int]) -> tuple[list[float], list[float]]:
+    """``(intrinsics, extrinsic)`` of the example camera cropped to ``size`` (width, height) pixels:
+    ``[fx, fy, cx, cy]`` pixels and DROID's ``[x, y, z, rx, ry, rz]`` (metres, xyz Euler radians)."""
+    from scipy.spatial.transform import Rotation
+
+    w, h = size
+    k = cam0.resized(w, h, mode="crop").intrinsics
+    intrinsics = [float(k.fx), float(k.fy), float(k.cx), float(k.cy)]
+    pose = np.asarray(cam0.camera_to_world if hasattr(cam0, "camera_to_world") else cam0.extrinsic, dtype=float)
+    extrinsic = list(pose[:3, 3]) + list(Rotation.from_matrix(pose[:3, :3]).as_euler("xyz"))
+    return intrinsics, extrinsic
+
+
+def _info_json(plan, intrinsics: list[float], size: tuple[int, int]) -> dict:
+    """``meta/info.json`` of the dataset: LeRobot v3.0 with DROID's feature names, the camera's intrinsics in the
+    video feature's ``info``."""
+    w, h = size
     feat = lambda shape, dtype="float32": {"dtype": dtype, "shape": shape, "names": None}  # noqa: E731
-    info = {
+    return {
         "codebase_version": "v3.0",
         "robot_type": "franka",
         "fps": FPS,
@@ -146,7 +135,18 @@ def write_sample_dataset(
             },
         },
     }
-    cols = {
+
+
+def _episode_rows(plan, emb, intrinsics, extrinsic, size: tuple[int, int], seed: int):
+    """Draws every episode of ``plan`` and lays out its rows. Returns ``(columns, episodes, frames)``: the frame
+    table's columns (name → list, one entry per frame of all episodes), one dict per episode for
+    ``meta/episodes`` and the shared video's (N, H, W, 3) uint8 frames."""
+    from oscar_embodiments.franka.adapters import from_droid
+
+    from ..render.skeleton_video import render_skeleton_video
+
+    w, h = size
+    cols: dict[str, list] = {
         k: []
         for k in (
             "observation.state.joint_position",
@@ -197,7 +197,17 @@ def write_sample_dataset(
             }
         )
         start, t0 = start + T, t0 + T / FPS
+    return cols, episodes, np.concatenate(video)
+
+
+def _write_dataset(out: Path, cols: dict, episodes: list[dict], video: np.ndarray, info: dict) -> None:
+    """Writes the two parquet tables, the shared MP4 and ``meta/info.json`` (the last) under ``out``."""
     import io
+
+    pa = require("pyarrow", "data")
+    import pyarrow.parquet as pq
+
+    from ..media.video import write_video
 
     for table, path in (
         (pa.table(cols), out / "data" / "chunk-000" / "file-000.parquet"),
@@ -209,8 +219,35 @@ def write_sample_dataset(
         atomic_write_bytes(path, buf.getvalue())
     vdir = out / "videos" / VIDEO_KEY / "chunk-000"
     vdir.mkdir(parents=True, exist_ok=True)
-    write_video(vdir / "file-000.mp4", np.concatenate(video), FPS)
+    write_video(vdir / "file-000.mp4", video, FPS)
     atomic_write_bytes(out / "meta" / "info.json", (json.dumps(info, indent=2) + "\n").encode())
+
+
+def write_sample_dataset(
+    out, *, frames: int = 80, size: tuple[int, int] = (192, 108), seed: int = 0, registry=None
+) -> dict:
+    """Write the dataset of the module docstring to ``out`` (a new or empty folder); returns a summary
+    (``expected``: episode id → ``kept`` or the rejection column the pipeline gives it).
+
+    frames: length of the normal episodes (≥ 70, the length filter's default);
+    size: video (width, height), 16:9 like the example camera. Deterministic in ``seed``.
+    """
+    require("pyarrow", "data")  # before anything is written
+    from .. import load_camera
+    from ..plugin.registry import Registry
+
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out}: expected a new or empty folder for the sample dataset, found files in it")
+    reg = registry if registry is not None else Registry()
+    emb = reg.get("franka_robotiq")
+    assets = Path(__import__("oscar_embodiments.franka", fromlist=["x"]).__file__).parent / "assets"
+    example = np.load(assets / "example_trajectory_robotiq.npz")
+    intrinsics, extrinsic = _camera_fields(load_camera(assets / "example_camera_robotiq.json"), size)
+    plan = _episode_plan(example, frames, seed)
+    info = _info_json(plan, intrinsics, size)
+    cols, episodes, video = _episode_rows(plan, emb, intrinsics, extrinsic, size, seed)
+    _write_dataset(out, cols, episodes, video, info)
     return {
         "dataset": str(out),
         "reader": "lerobot",
