@@ -69,4 +69,8 @@ def test_the_check_notices_an_install_into_the_system_python(tmp_path):
 
 def test_ci_calls_the_readmes_commands():
     ci = (REPO / ".ci" / "run").read_text()
-    assert "make test\n" in ci and "make lint\n" in ci and "make demo" in ci
+    assert "make test\n" in ci and "make lint\n" in ci and "make test-install\n" in ci
+    # the demo runs once, in the install test, from the installed wheel (`make demo`'s command there)
+    assert "make demo" not in ci
+    install = (REPO / "tests" / "project" / "test_install_venv.py").read_text()
+    assert '"oscar_core.cli", "demo"' in install
