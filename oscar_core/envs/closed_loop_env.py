@@ -203,10 +203,8 @@ class ClosedLoopEnv(gym.Env):
             chunk_frames=self._chunk_frames,
             fps=self._fps,
         )
-        lo, hi = (
-            self.observation_space[self.policy_spec.keys["joint_position"]].low,
-            self.observation_space[self.policy_spec.keys["joint_position"]].high,
-        )
+        joints = self.observation_space[self.policy_spec.keys["joint_position"]]
+        lo, hi = joints.low, joints.high
         if np.any(q0 < lo) or np.any(q0 > hi):
             j = int(np.argmax((q0 < lo) | (q0 > hi)))
             raise OscarError(
@@ -223,9 +221,8 @@ class ClosedLoopEnv(gym.Env):
 
     def step(self, action):
         info = self.act(action)
-        while self.chunk_request() is not None:
-            q, g = self.chunk_request()
-            self.state.accept(q, g, self.world.step(q, g))
+        while (request := self.chunk_request()) is not None:  # every chunk the path now covers
+            self.state.accept(*request, self.world.step(*request))
         return self.finish(info)
 
     def render(self):

@@ -196,3 +196,19 @@ def test_toy_env_removes_its_session_folder_on_close():
     assert (folder / "toyarm-0000" / "first.png").is_file()
     env.close()
     assert not folder.exists()
+
+
+def test_the_vector_env_resets_an_ended_episode_on_the_next_step():
+    """Gymnasium's next-step autoreset: the step after ``terminated`` resets that episode and ignores its action."""
+    vec = gymnasium.make_vec("oscar/ToySim-v0", num_envs=2, sessions=1, horizon=17)
+    obs, info = vec.reset(seed=0)
+    assert obs["observation/joint_position"].shape == (2, 4) and list(info["frame"]) == [0, 0]
+    action = np.tile([0.3, 0.0, 0.2, 0.0], (2, 1))
+    for step in range(16):  # 16 actions at 10 Hz cover the one chunk of 16 new frames
+        obs, reward, term, trunc, info = vec.step(action)
+        assert list(term) == [step == 15] * 2 and not trunc.any()
+    assert list(info["frame"]) == [16, 16] and "verdict" in info and list(info["_verdict"]) == [True, True]
+    obs, reward, term, trunc, info = vec.step(action)
+    assert list(info["frame"]) == [0, 0] and list(reward) == [0.0, 0.0] and not term.any()
+    assert vec.unwrapped.world_model_calls == 1  # the simulator's one chunk, both episodes in one round
+    vec.close()
