@@ -2,8 +2,9 @@
 
 Registered under ``oscar eval`` by :func:`add_closed_loop_parser`; the loop is
 :func:`oscar_core.evaluation.closed_loop.run_closed_loop`, the manifest
-:mod:`oscar_core.evaluation.closed_loop_manifest`. ``--simulator toy`` runs the same cells in the toy world's
-simulator (ground truth) instead of a world model.
+:mod:`oscar_core.evaluation.closed_loop_manifest`. ``--simulator NAME`` runs the same cells in a simulator
+registered under the entry point group ``oscar.simulators`` (:mod:`oscar_core.evaluation.simulators`; the toy world
+registers ``toy``, its ground truth) instead of a world model.
 """
 
 from __future__ import annotations
@@ -56,10 +57,12 @@ def cmd_closed_loop(args) -> int:
     manifest = load_closed_loop_manifest(args.manifest)  # every row checked before anything else
     sources = _policy_sources(args.policy)
     simulator = None
-    if args.simulator == "toy":
-        from ..toyworld.closed_loop import toy_simulator
+    if args.simulator is not None:
+        from .simulators import load_simulator
 
-        simulator = toy_simulator
+        simulator = load_simulator(
+            args.simulator
+        )  # a plugin (entry point group oscar.simulators), e.g. the toy world's
     elif args.model is None:
         raise MetricInputError(
             "--model", "value", "a world model (zoo name, Hub id or folder), or --simulator toy", "none"
@@ -141,7 +144,12 @@ def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("manifest", help="closed-loop manifest JSON (docs/closed-loop.md)")
     r.add_argument("--model", help="world model: zoo name, Hub id owner/name, or folder")
     r.add_argument("--revision", help="Hub revision overriding the zoo's pinned one")
-    r.add_argument("--simulator", choices=("toy",), help="run in the toy world's simulator instead of a model")
+    r.add_argument(
+        "--simulator",
+        metavar="NAME",
+        help="run in an installed simulator instead of a model (entry point group oscar.simulators; the toy world's: "
+        "toy)",
+    )
     output_option(
         r.add_argument("--out", required=True, help="run folder (created; re-running resumes in it)"), "folder"
     )
