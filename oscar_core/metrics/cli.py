@@ -203,25 +203,8 @@ def _plot_formats(spec: str) -> list[str]:
     return formats
 
 
-def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
-    """Add ``eval`` (``video``, ``policies``, ``judge``, ``pairwise``, ``weights``) to a sub-parser collection.
-
-    ``extra_commands``: functions called with ``eval``'s own sub-parser collection to add more sub-commands
-    (the top-level CLI adds ``run`` from :mod:`oscar_core.evaluation.cli`).
-    """
-    from .judge import DEFAULT_JUDGE_FRAMES, DEFAULT_PAIRWISE_FRAMES  # standard library + numpy only
-
-    ev = subparsers.add_parser(
-        "eval",
-        help="evaluate world-model videos or policy rankings",
-        description="Evaluate world-model rollouts: video quality against ground truth, "
-        "policy rankings against real-robot results, and VLM judges of "
-        "rollouts (success per clip, pairwise preferences).",
-        epilog=VIDEO_EXAMPLES + "\n" + POLICY_EXAMPLES + "\n" + JUDGE_EXAMPLES + "\n" + PAIRWISE_EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    sub = ev.add_subparsers(dest="eval_command", required=True)
-
+def _add_eval_video_parser(sub) -> None:
+    """Register ``oscar eval video`` and its options on ``sub``."""
     v = sub.add_parser(
         "video",
         help="PSNR, SSIM, LPIPS, tLPIPS, latent L2, FVD, FID",
@@ -260,6 +243,9 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
     output_option(v.add_argument("--out", metavar="FILE", help="also write the JSON results here"), "file")
     v.set_defaults(func=cmd_eval_video)
 
+
+def _add_eval_policies_parser(sub) -> None:
+    """Register ``oscar eval policies`` and its options on ``sub``."""
     p = sub.add_parser(
         "policies",
         help="MMRV, Spearman rho, Pearson r, SISR_delta, Bradley-Terry",
@@ -280,6 +266,11 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
         "--plot-format", default="png", metavar="FMTS", help="comma-separated plot formats: png, pdf, svg (default png)"
     )
     p.set_defaults(func=cmd_eval_policies)
+
+
+def _add_eval_judge_parser(sub) -> None:
+    """Register ``oscar eval judge`` and its options on ``sub``."""
+    from .judge import DEFAULT_JUDGE_FRAMES  # standard library + numpy only
 
     j = sub.add_parser(
         "judge",
@@ -302,6 +293,11 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
         "template",
     )
     j.set_defaults(func=cmd_eval_judge)
+
+
+def _add_eval_pairwise_parser(sub) -> None:
+    """Register ``oscar eval pairwise`` and its options on ``sub``."""
+    from .judge import DEFAULT_PAIRWISE_FRAMES  # standard library + numpy only
 
     pw = sub.add_parser(
         "pairwise",
@@ -334,9 +330,9 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
     )
     pw.set_defaults(func=cmd_eval_pairwise)
 
-    for add_command in extra_commands:
-        add_command(sub)
 
+def _add_eval_weights_parser(sub) -> None:
+    """Register ``oscar eval weights`` and its options on ``sub``."""
     w = sub.add_parser(
         "weights",
         help="fetch the standard metric networks (I3D, Inception, LPIPS) into a cache",
@@ -372,6 +368,31 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
     wl.add_argument("--cache", metavar="DIR", help="cache folder")
     wl.add_argument("--json", action="store_true", help="machine-readable output")
     wl.set_defaults(func=cmd_eval_weights_list)
+
+
+def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
+    """Add ``eval`` (``video``, ``policies``, ``judge``, ``pairwise``, ``weights``) to a sub-parser collection.
+
+    ``extra_commands``: functions called with ``eval``'s own sub-parser collection to add more sub-commands
+    (the top-level CLI adds ``run`` from :mod:`oscar_core.evaluation.cli`).
+    """
+    ev = subparsers.add_parser(
+        "eval",
+        help="evaluate world-model videos or policy rankings",
+        description="Evaluate world-model rollouts: video quality against ground truth, "
+        "policy rankings against real-robot results, and VLM judges of "
+        "rollouts (success per clip, pairwise preferences).",
+        epilog=VIDEO_EXAMPLES + "\n" + POLICY_EXAMPLES + "\n" + JUDGE_EXAMPLES + "\n" + PAIRWISE_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = ev.add_subparsers(dest="eval_command", required=True)
+    _add_eval_video_parser(sub)
+    _add_eval_policies_parser(sub)
+    _add_eval_judge_parser(sub)
+    _add_eval_pairwise_parser(sub)
+    for add_command in extra_commands:
+        add_command(sub)
+    _add_eval_weights_parser(sub)
     return ev
 
 
