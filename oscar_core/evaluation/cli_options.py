@@ -26,7 +26,12 @@ __all__ = ["add_engine_options", "add_sampler_options", "resolve_sampler_flags"]
 
 def add_sampler_options(parser) -> None:
     """Add the sampler flags to ``parser``."""
-    parser.add_argument("--steps", type=count(1), help="denoising steps per chunk (default 35, or the preset's)")
+    parser.add_argument(
+        "--steps",
+        type=count(1),
+        help="denoising steps per chunk (default: the --preset's when given, else the model card's, e.g. 20 for "
+        "oscar-toy, else 35)",
+    )
     parser.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget (as oscar rollout --preset)")
     parser.add_argument(
         "--guidance-interval", metavar="LO,HI", type=interval, help="guide only the steps with noise level in [LO, HI]"

@@ -84,6 +84,23 @@ __all__ = [
     "read_tasks",
 ]
 
+#: ``oscar eval --help``: one example per sub-command (each sub-command's ``--help`` shows its own, more).
+EVAL_EXAMPLES = """examples:
+  oscar eval video preds/ gts/ --frames 49 --json --out video_metrics.json
+  oscar eval policies --real real.json --wm wm.json --preferences prefs.jsonl
+  oscar eval judge --videos rollouts/ --tasks tasks.json --out judge.json --wm-out wm.json
+  oscar eval pairwise --videos rollouts/ --tasks tasks.json --out pairwise.json --preferences-out prefs.jsonl
+  oscar eval run manifest.json --model oscar-2b --out eval_out/ --judge vlm --pairwise
+  oscar eval closed-loop toy_cl/manifest.json --model oscar-toy --out cl_wm/ \\
+      --judge oscar_core.toyworld.judge:ball_moved
+  oscar eval roboarena DataDump_02-03-2026/ --out study/ --calibration cams/
+  oscar eval action-following my_sets.json --model oscar-2b --judge my_judges.py:cube_in_bin --out af_2b
+  oscar eval benchmark build clips/droid clips/rh20t --out bench.json --total 200
+  oscar eval weights pull
+
+Each sub-command's --help shows its own examples (oscar eval closed-loop --help, ...).
+"""
+
 VIDEO_EXAMPLES = """examples:
   oscar eval video pred.mp4 gt.mp4
   oscar eval video preds/ gts/ --frames 49 --json --out video_metrics.json
@@ -382,7 +399,7 @@ def add_eval_parser(subparsers, extra_commands=()) -> argparse.ArgumentParser:
         description="Evaluate world-model rollouts: video quality against ground truth, "
         "policy rankings against real-robot results, and VLM judges of "
         "rollouts (success per clip, pairwise preferences).",
-        epilog=VIDEO_EXAMPLES + "\n" + POLICY_EXAMPLES + "\n" + JUDGE_EXAMPLES + "\n" + PAIRWISE_EXAMPLES,
+        epilog=EVAL_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = ev.add_subparsers(dest="eval_command", required=True)

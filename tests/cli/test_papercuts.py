@@ -201,3 +201,50 @@ def test_a_short_row_is_labelled_beside_its_frames_and_its_panels_named_under_th
         assert (plain[y + 20 : y + H, x : x + 90] > 100).sum() == 0  # nothing there without panels
     with pytest.raises(ValueError, match="expected 2 panel lists"):
         contact_sheet([tall, short], panels=[None])
+
+
+def _groups(parser):
+    for action in [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]:
+        yield parser, action
+        for child in {id(c): c for c in action.choices.values()}.values():
+            yield from _groups(child)
+
+
+def _matches_prog(command: str, prog: str) -> bool:
+    return command == prog or command.startswith(prog + " ")
+
+
+def test_oscar_eval_help_has_one_examples_block_with_every_sub_command():
+    """``oscar eval --help``: one examples block (not one per sub-command stacked) with an example of each of its
+    sub-commands, closed-loop included; every other group with examples has at most one block too."""
+    from oscar_core._util.cli_examples import example_command
+    from oscar_core.cli import build_parser
+
+    seen = False
+    for group, action in _groups(build_parser()):
+        epilog = group.epilog or ""
+        assert epilog.count("examples:") <= 1, (group.prog, epilog.count("examples:"))
+        if group.prog == "oscar eval":
+            seen = True
+            shown = [c for c in map(example_command, epilog.splitlines()) if c]
+            missing = [n for n in action.choices if not any(_matches_prog(c, f"oscar eval {n}") for c in shown)]
+            assert not missing, missing
+    assert seen
+
+
+@pytest.mark.parametrize("command", [["eval", "run"], ["eval", "closed-loop"], ["eval", "benchmark", "run"]])
+def test_eval_steps_default_is_the_model_cards_and_the_help_says_so(command):
+    """No --steps: the card's steps (oscar-toy's card recommends 20), and --steps' help names the card as the
+    default (it said 35, the library's fallback)."""
+    from oscar_core.cli import build_parser
+    from oscar_core.evaluation.cli_options import resolve_sampler_flags
+
+    parser = build_parser()
+    leaf = parser
+    for word in command:
+        leaf = next(a for a in leaf._actions if isinstance(a, argparse._SubParsersAction)).choices[word]
+    steps = next(a for a in leaf._actions if "--steps" in a.option_strings)
+    assert "the model card's" in steps.help and "default 35" not in steps.help
+    args = argparse.Namespace(**{a.dest: a.default for a in leaf._actions if a.dest != "help"})
+    assert resolve_sampler_flags(args, lambda: {"steps": 20}).config.steps == 20
+    assert resolve_sampler_flags(args, lambda: None).config.steps == 35
