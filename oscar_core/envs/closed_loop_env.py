@@ -307,7 +307,8 @@ def run_policy(env: ClosedLoopEnv, policy, *, replan_every: int | None = None, s
     optional ``reset()``): every ``replan_every`` steps (default the declaration's ``actions_per_call``) the
     policy is called on the latest observation and its first rows are stepped one by one, as ``oscar eval
     closed-loop`` executes them. Returns ``frames`` (T, H, W, 3), ``q`` (T, J), ``gripper`` (T, G), ``reward``,
-    ``info`` (the last step's) and ``calls``. A bad answer raises :class:`~oscar_core.policy.protocol.PolicyFault`."""
+    ``info`` (the last step's) and ``calls``. A bad answer raises :class:`~oscar_core.policy.protocol.PolicyFault`;
+    an answer's ``"done": true`` is ignored (the episode ends at the horizon only)."""
     K = int(replan_every or env.policy_spec.actions_per_call)
     obs, info = env.reset(seed=seed, options=options)
     if hasattr(policy, "reset"):
