@@ -68,7 +68,8 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
 
     registry: an :class:`~oscar_core.plugin.registry.Registry` (plugins included).
     A progress bar counts episodes (:func:`oscar_core._util.log.progress_bar`);
-    each finished shard is logged at INFO and passed to ``progress`` if given.
+    each shard, written or already there, is logged at INFO with its own count of episodes and passed to
+    ``progress`` if given.
     Unsupported embodiments are rejected before anything is written.
     """
     from ..render.skeleton_video import render_skeleton_video
@@ -118,6 +119,10 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
             if writer.shard_done(name):
                 skipped += hi - lo
                 bar.update(hi - lo)
+                msg = f"{name}: {_episodes(hi - lo)} already there"
+                _log.info(msg)
+                if progress:
+                    progress(msg)
                 continue
             with writer.shard(name) as shard:
                 for i in range(lo, hi):
@@ -162,7 +167,7 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                     shard.add(Clip(rec, rgb=ep.rgb, trajectory=ep.trajectory, camera=ep.camera, skeleton=skel))
                     done += 1
                     bar.update(1)
-            msg = f"{name}: {hi - lo} episodes ({done} new, {skipped} already there)"
+            msg = f"{name}: {_episodes(hi - lo)} written"  # this shard's own count (the run's are in the summary)
             _log.info(msg)
             if progress:
                 progress(msg)
@@ -175,6 +180,10 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         "render_s": render_s,
         "episodes_per_s": done / wall if done and wall > 0 else None,
     }
+
+
+def _episodes(n: int) -> str:
+    return f"{n} episode" if n == 1 else f"{n} episodes"
 
 
 _TASKS = {

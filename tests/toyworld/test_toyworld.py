@@ -53,8 +53,10 @@ def test_episode_is_a_function_of_seed_embodiment_and_index():
 def test_generate_is_deterministic_and_resumes_by_shard(tmp_path):
     cfg = GenerateConfig(("toyarm",), episodes=3, width=32, height=32, frames=5, seed=7, shard_size=2)
     generate_clipset(cfg, tmp_path / "a", REG)
-    s = generate_clipset(cfg, tmp_path / "b", REG)
+    messages = []
+    s = generate_clipset(cfg, tmp_path / "b", REG, progress=messages.append)
     assert s["episodes_written"] == 3
+    assert messages == ["shard-toyarm-000000: 2 episodes written", "shard-toyarm-000001: 1 episode written"]
 
     def index(root):
         return sorted((p.relative_to(root).as_posix(), p.read_text()) for p in root.glob("shard-*/clips.jsonl"))
@@ -63,8 +65,11 @@ def test_generate_is_deterministic_and_resumes_by_shard(tmp_path):
     # kill one shard (and leave a stale temporary folder): a re-run rebuilds just that shard, identically
     shutil.rmtree(tmp_path / "b" / "shard-toyarm-000001")
     (tmp_path / "b" / ".shard-toyarm-000001.x.tmp").mkdir()
-    s = generate_clipset(cfg, tmp_path / "b", REG)
+    messages = []
+    s = generate_clipset(cfg, tmp_path / "b", REG, progress=messages.append)
     assert (s["episodes_written"], s["episodes_skipped"]) == (1, 2)
+    # each shard's line counts its own episodes, not the run's so far
+    assert messages == ["shard-toyarm-000000: 2 episodes already there", "shard-toyarm-000001: 1 episode written"]
     assert not list((tmp_path / "b").glob(".shard-*"))
     assert index(tmp_path / "a") == index(tmp_path / "b")
     A, B = ClipSet(tmp_path / "a"), ClipSet(tmp_path / "b")
