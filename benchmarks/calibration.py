@@ -1,7 +1,7 @@
 """Calibration accuracy against clicking noise, and the calibration score's separation of right from wrong cameras.
 
     python benchmarks/calibration.py pnp   [--seeds 10] [--json benchmarks/results/calibration_pnp.json]
-    python benchmarks/calibration.py score [--episodes 6] [--json benchmarks/results/calibration_score.json]
+    python benchmarks/calibration.py score [--episodes 6] [--size 160x120] [--json benchmarks/results/calibration_score.json]
 
 ``pnp``: for franka and kuka, ``--seeds`` synthetic problems each
 (:func:`oscar_core.calibration.synthetic.problem`): a random smooth trajectory (49 frames
@@ -14,12 +14,13 @@ estimated, the focal length error (%) and principal point error (px): median and
 maximum over the seeds. The naive way, in the same run: RANSAC PnP alone (OpenCV's
 ``solvePnPRansac`` with its own refinement on its inliers), no least squares over all frames.
 
-``score``: toy-world episodes (:mod:`oscar_core.toyworld`, seed 0, 160x120, 24 frames)
+``score``: toy-world episodes (:mod:`oscar_core.toyworld`, seed 0, ``--size`` (default 160x120), 24 frames)
 of toyarm, franka and kuka with their true cameras; the score of the true camera and of
 cameras moved by 2, 5, 10 cm along each of the camera's axes and turned by 2, 5 degrees
 about each axis
 (:func:`oscar_core.calibration.score.perturb_camera`). Reports the mean score per
-perturbation and the fraction of episodes where the true camera scores higher.
+perturbation (with its range over the episodes) and the fraction of episodes where the true camera scores higher,
+and the CPU seconds beside the wall time.
 
 Prints a table and writes JSON.
 """
@@ -138,14 +139,16 @@ def main() -> None:
     ap.add_argument("part", choices=("pnp", "score"))
     ap.add_argument("--seeds", type=int, default=10, help="pnp: synthetic problems per embodiment")
     ap.add_argument("--episodes", type=int, default=6, help="score: toy-world episodes per embodiment")
+    ap.add_argument("--size", default="160x120", help="score: WIDTHxHEIGHT of the toy-world videos (default 160x120)")
     ap.add_argument("--json", help="output JSON (default benchmarks/results/calibration_<part>.json)")
     args = ap.parse_args()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     if args.part == "pnp":
         res = bench_pnp(args.seeds)
         print_pnp(res)
     else:
-        res = bench_score(args.episodes)
+        w, h = (int(v) for v in args.size.lower().split("x"))
+        res = bench_score(args.episodes, (w, h))
         print_score(res)
     res["meta"] = {
         "command": f"python benchmarks/calibration.py {args.part}",
@@ -154,6 +157,8 @@ def main() -> None:
         "machine": platform.platform(),
         "cpus": os.cpu_count(),
         "wall_s": time.perf_counter() - t0,
+        "cpu_s": time.process_time() - c0,
+        "load_1min": os.getloadavg()[0],
     }
     out = Path(args.json or Path(__file__).parent / "results" / f"calibration_{args.part}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -183,7 +188,7 @@ def perturbations():
     return out
 
 
-def bench_score(episodes: int) -> dict:
+def bench_score(episodes: int, size=TOY_SIZE) -> dict:
     from oscar_core.calibration.score import calibration_score, perturb_camera
     from oscar_core.toyworld.episode import episode_rng, make_episode
 
@@ -192,7 +197,7 @@ def bench_score(episodes: int) -> dict:
     for name in ("toyarm", "franka", "kuka"):
         emb = reg.get(name)
         for i in range(episodes):
-            ep = make_episode(emb, episode_rng(0, name, i), *TOY_SIZE, TOY_FRAMES, 10.0)
+            ep = make_episode(emb, episode_rng(0, name, i), *size, TOY_FRAMES, 10.0)
             t0 = time.perf_counter()
             true = calibration_score(ep.rgb, emb, ep.trajectory, ep.camera).score
             seconds = time.perf_counter() - t0
@@ -208,6 +213,7 @@ def bench_score(episodes: int) -> dict:
             "camera": "true",
             "mean": float(np.mean([r["true"] for r in runs])),
             "min": float(np.min([r["true"] for r in runs])),
+            "max": float(np.max([r["true"] for r in runs])),
             "true_higher": None,
         }
     ]
@@ -218,6 +224,7 @@ def bench_score(episodes: int) -> dict:
             {
                 "camera": label,
                 "mean": float(v.mean()),
+                "min": float(v.min()),
                 "max": float(v.max()),
                 "true_higher": float((t > v).mean()),
                 "margin_min": float((t - v).min()),
@@ -227,17 +234,20 @@ def bench_score(episodes: int) -> dict:
         "rows": rows,
         "runs": runs,
         "episodes": len(runs),
+        "size": list(size),
         "seconds_per_score": float(np.median([r["seconds"] for r in runs])),
     }
 
 
 def print_score(res: dict) -> None:
-    print(f"{'camera':<18}{'mean score':>11}{'true higher':>13}{'min margin':>12}")
+    print(f"{'camera':<18}{'mean score':>11}{'range':>14}{'true higher':>13}{'min margin':>12}")
     for r in res["rows"]:
         higher = "" if r["true_higher"] is None else f"{100 * r['true_higher']:.0f} %"
         margin = "" if r["true_higher"] is None else f"{r['margin_min']:+.3f}"
-        print(f"{r['camera']:<18}{r['mean']:>11.3f}{higher:>13}{margin:>12}")
-    print(f"{res['episodes']} episodes, {res['seconds_per_score']:.2f} s per score")
+        span = f"{r['min']:.2f}-{r['max']:.2f}"
+        print(f"{r['camera']:<18}{r['mean']:>11.3f}{span:>14}{higher:>13}{margin:>12}")
+    w, h = res["size"]
+    print(f"{res['episodes']} episodes at {w}x{h}, {res['seconds_per_score']:.2f} s per score")
 
 
 if __name__ == "__main__":
