@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from ._util.lazy import lazy_exports
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"  # also in pyproject.toml; CHANGELOG.md's top version (tests/project/test_public_api.py)
 
 _EXPORTS = {
     # plugin contract
@@ -62,11 +62,16 @@ _EXPORTS = {
     "TrajectoryError": "errors",
     "OutputPathError": "errors",
     "PluginError": "errors",
+    # deprecations (docs/api.md)
+    "OscarDeprecationWarning": "_util.deprecation",
 }
 
 if (
     TYPE_CHECKING
 ):  # the same names, imported eagerly for type checkers only (tests/project/test_public_api.py keeps them in step)
+    from ._util.deprecation import (
+        OscarDeprecationWarning as OscarDeprecationWarning,
+    )
     from .camera import (
         Camera as Camera,
         Intrinsics as Intrinsics,

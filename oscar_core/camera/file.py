@@ -69,6 +69,7 @@ from typing import Any
 import numpy as np
 
 from oscar_core._util.atomic import atomic_write_bytes
+from oscar_core._util.deprecation import warn_deprecated
 from oscar_core.errors import CameraFileError
 
 from .extrinsics import read_extrinsic, read_matrix, read_number, short_repr
@@ -214,3 +215,22 @@ def save_camera(camera: Camera, path: str | os.PathLike) -> None:
     """
     text = json.dumps(camera_to_dict(camera), indent=2, allow_nan=False) + "\n"
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+# --------------------------------------------------------------------------- deprecated methods (0.1.0's names)
+def _deprecated_from_dict(cls, d: Mapping, source: str = "<dict>", defaults: Any = None) -> Camera:
+    """Deprecated since 0.2.0 (removed in 0.3.0): :func:`camera_from_dict`."""
+    warn_deprecated("Camera.from_dict", "oscar_core.camera.camera_from_dict(d)", "0.2.0", "0.3.0")
+    return camera_from_dict(d, source, defaults)
+
+
+def _deprecated_to_dict(self) -> dict:
+    """Deprecated since 0.2.0 (removed in 0.3.0): :func:`camera_to_dict`."""
+    warn_deprecated("Camera.to_dict", "oscar_core.camera.camera_to_dict(camera)", "0.2.0", "0.3.0")
+    return camera_to_dict(self)
+
+
+# The camera file format lives here, above the Camera class (oscar_core.camera's modules form one line), so the
+# methods it had in 0.1.0 are attached here; every public path to Camera (oscar_core, oscar_core.camera) loads this.
+Camera.from_dict = classmethod(_deprecated_from_dict)  # type: ignore[attr-defined]
+Camera.to_dict = _deprecated_to_dict  # type: ignore[attr-defined]

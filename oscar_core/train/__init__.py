@@ -7,6 +7,7 @@ See docs/training.md.
 
 from __future__ import annotations
 
+from .._util.deprecation import Deprecated
 from .._util.lazy import lazy_exports
 
 _EXPORTS = {
@@ -32,4 +33,10 @@ _EXPORTS = {
     "write_toy_clipset": "synthetic",
 }
 
-__all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+#: names this package exported in 0.1.0 that moved (CHANGELOG.md, "Deprecated")
+_DEPRECATED = {
+    name: Deprecated("oscar_core.model.latent_action", name, f"oscar_core.model.{name}", "0.2.0", "0.3.0")
+    for name in ("LatentActionTransformer", "latent_actions")
+}
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, _DEPRECATED)
