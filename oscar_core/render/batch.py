@@ -341,6 +341,33 @@ def _prepare_outputs(specs: Sequence[EpisodeSpec]) -> None:
             raise OutputPathError(s.out, f"cannot make folder {parent}: {exc.strerror or exc}") from None
 
 
+def _render_in_pool(specs, options: RenderOptions, todo: list[int], workers: int, done) -> None:
+    """Renders the episodes ``todo`` (indices into ``specs``) in a pool of at most ``workers`` processes, handing
+    each result to ``done`` as it completes; a worker that dies fails its episode only, Ctrl-C stops the pool."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ctx = _pool_context(specs, options)
+    with ProcessPoolExecutor(
+        max_workers=min(workers, len(todo)),
+        mp_context=ctx,
+        initializer=_stage.worker_initializer,
+        initargs=(os.getpid(), _init_worker),
+    ) as pool:
+        try:
+            futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
+            for fut in as_completed(futures):
+                try:
+                    done(fut.result())
+                except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
+                    i = futures[fut]
+                    done(EpisodeResult(i, specs[i], False, error=f"worker process failed: {type(exc).__name__}: {exc}"))
+        except KeyboardInterrupt:  # stop now rather than render the rest of the queue first
+            from .._util.interrupt import stop_pool
+
+            stop_pool(pool)
+            raise
+
+
 def render_many(
     specs: Iterable[EpisodeSpec],
     options: RenderOptions = RenderOptions(),
@@ -433,32 +460,7 @@ def render_many(
             for i in todo:
                 done(_safe_render(i, specs[i], options, registry))
         else:
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
-            ctx = _pool_context(specs, options)
-            with ProcessPoolExecutor(
-                max_workers=min(workers, len(todo)),
-                mp_context=ctx,
-                initializer=_stage.worker_initializer,
-                initargs=(os.getpid(), _init_worker),
-            ) as pool:
-                try:
-                    futures = {pool.submit(_safe_render, i, specs[i], options): i for i in todo}
-                    for fut in as_completed(futures):
-                        try:
-                            done(fut.result())
-                        except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS (out of memory)
-                            i = futures[fut]
-                            done(
-                                EpisodeResult(
-                                    i, specs[i], False, error=f"worker process failed: {type(exc).__name__}: {exc}"
-                                )
-                            )
-                except KeyboardInterrupt:  # stop now rather than render the rest of the queue first
-                    from .._util.interrupt import stop_pool
-
-                    stop_pool(pool)
-                    raise
+            _render_in_pool(specs, options, todo, workers, done)
     finally:
         if bar is not None:
             bar.close()

@@ -254,6 +254,97 @@ def _color_tuples(colors, n: int, what: str) -> list[tuple[int, int, int]]:
 # ------------------------------------------------------------------------- drawing
 
 
+def _checked_drawing_inputs(uv, visible, edges, size):
+    """``(uv, visible, edges, width, height)`` as arrays of :func:`rasterise`'s shapes ((T, K, 2) float64, (T, K)
+    bool, (E, 2) int64) and the output size in pixels; ValueError naming the argument for a wrong shape or index."""
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[-1] != 2:
+        raise ValueError(f"uv must have shape (T, K, 2), got {uv.shape}")
+    T, K = uv.shape[:2]
+    visible = np.asarray(visible, dtype=bool)
+    if visible.shape != (T, K):
+        raise ValueError(f"visible must have shape {(T, K)}, got {visible.shape}")
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2) if np.size(edges) else np.zeros((0, 2), np.int64)
+    if edges.shape[0] and (edges.min() < 0 or edges.max() >= K):
+        raise ValueError(f"edges index out of range for K={K} points")
+    width, height = (int(s) for s in size)
+    if width <= 0 or height <= 0:
+        raise ValueError(f"size must be positive (width, height), got {size}")
+    return uv, visible, edges, width, height
+
+
+def _blank_frames(out: np.ndarray | None, shape: tuple[int, int, int, int]) -> np.ndarray:
+    """Black (T, H, W, 3) uint8 frames of ``shape``: a new array (checked to fit in memory), or ``out`` zeroed."""
+    if out is None:
+        from .._util.memory import check_fits
+
+        check_fits(
+            shape, 1, "the skeleton video (T, H, W, 3) uint8", "use a smaller --size (or render fewer frames at a time)"
+        )
+        return np.zeros(shape, dtype=np.uint8)
+    if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(
+            f"out must be a C-contiguous uint8 array of shape {shape}, "
+            f"got {out.dtype} {out.shape} (contiguous={out.flags.c_contiguous})"
+        )
+    out[...] = 0
+    return out
+
+
+def _edge_endpoints(uv, usable, edges, segments):
+    """``(p0, p1, ok)``: each edge's endpoints (T, E, 2) float pixels and whether it can be drawn (T, E) bool, from
+    ``uv`` and ``usable`` ((T, K) bool), or from :func:`rasterise`'s ``segments`` when given."""
+    T, E = uv.shape[0], edges.shape[0]
+    if segments is None:
+        return uv[:, edges[:, 0]], uv[:, edges[:, 1]], usable[:, edges[:, 0]] & usable[:, edges[:, 1]]
+    p0, p1 = (np.asarray(a, dtype=np.float64) for a in segments[:2])
+    seg_ok = np.asarray(segments[2], dtype=bool)
+    if p0.shape != (T, E, 2) or p1.shape != (T, E, 2) or seg_ok.shape != (T, E):
+        raise ValueError(
+            f"segments must be (T, E, 2), (T, E, 2), (T, E) arrays with T={T}, E={E}, "
+            f"got {p0.shape}, {p1.shape}, {seg_ok.shape}"
+        )
+    return p0, p1, seg_ok & np.isfinite(p0).all(-1) & np.isfinite(p1).all(-1)
+
+
+def _draw_edges(frames, p0, p1, seg_ok, ecol, width_px: float, aa: bool, line_type, width: int, height: int):
+    """Draws every edge that can be drawn into ``frames`` (T views (H, W, 3) uint8): clipped in float to the image
+    plus a margin, as capsule polygons ``width_px`` pixels wide (a 1-pixel anti-aliased line when thinner than
+    the capsule's calibrated range), in fixed point. p0, p1: (T, E, 2) float pixels; seg_ok: (T, E) bool."""
+    T = len(frames)
+    lo = np.array([0.0, 0.0])
+    hi = np.array([width - 1.0, height - 1.0])
+    thin = aa and width_px < 0.5 * (_THIN_LINE_WIDTH + _CAPSULE_CAL[0, 0])
+    half = 0.0 if thin else _capsule_half_width(width_px, aa)
+    margin = half + 4.0
+    p0 = np.where(seg_ok[..., None], p0, 0.0)
+    p1 = np.where(seg_ok[..., None], p1, 0.0)
+    clip_ok, c0, c1 = clip_segments(p0, p1, lo - margin, hi + margin)
+    seg_ok = seg_ok & clip_ok
+    idx = [np.flatnonzero(r).tolist() for r in seg_ok]
+    if thin:
+        a = _to_fixed(np.where(seg_ok[..., None], c0, 0.0)).tolist()
+        b = _to_fixed(np.where(seg_ok[..., None], c1, 0.0)).tolist()
+        for t in range(T):
+            img, at, bt = frames[t], a[t], b[t]
+            for e in idx[t]:
+                cv2.line(img, at[e], bt[e], ecol[e], 1, line_type, _SHIFT)
+        return
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        d = p1 - p0
+        length = np.hypot(d[..., 0], d[..., 1])
+        direction = d / length[..., None]
+    good_dir = np.isfinite(direction).all(-1) & (length > 0)
+    direction = np.where(good_dir[..., None], direction, np.array([1.0, 0.0]))
+    n_cap = max(2, _polygon_vertex_count(half) // 2 + 1)
+    verts = _capsule_vertices(c0, c1, direction, half, n_cap)
+    verts = _to_fixed(np.where(seg_ok[..., None, None], verts, 0.0))
+    for t in range(T):
+        img, vt = frames[t], verts[t]
+        for e in idx[t]:
+            cv2.fillConvexPoly(img, vt[e], ecol[e], line_type, _SHIFT)
+
+
 def rasterise(
     uv,
     visible,
@@ -291,38 +382,12 @@ def rasterise(
 
     Returns (T, H, W, 3) uint8 RGB frames.
     """
-    uv = np.asarray(uv, dtype=np.float64)
-    if uv.ndim != 3 or uv.shape[-1] != 2:
-        raise ValueError(f"uv must have shape (T, K, 2), got {uv.shape}")
+    uv, visible, edges, width, height = _checked_drawing_inputs(uv, visible, edges, size)
     T, K = uv.shape[:2]
-    visible = np.asarray(visible, dtype=bool)
-    if visible.shape != (T, K):
-        raise ValueError(f"visible must have shape {(T, K)}, got {visible.shape}")
-    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2) if np.size(edges) else np.zeros((0, 2), np.int64)
     E = edges.shape[0]
-    if E and (edges.min() < 0 or edges.max() >= K):
-        raise ValueError(f"edges index out of range for K={K} points")
-    width, height = (int(s) for s in size)
-    if width <= 0 or height <= 0:
-        raise ValueError(f"size must be positive (width, height), got {size}")
     ecol = _color_tuples(edge_colors, E, "edge_colors")
     pcol = _color_tuples(point_colors, K, "point_colors")
-
-    shape = (T, height, width, 3)
-    if out is None:
-        from .._util.memory import check_fits
-
-        check_fits(
-            shape, 1, "the skeleton video (T, H, W, 3) uint8", "use a smaller --size (or render fewer frames at a time)"
-        )
-        out = np.zeros(shape, dtype=np.uint8)
-    else:
-        if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
-            raise ValueError(
-                f"out must be a C-contiguous uint8 array of shape {shape}, "
-                f"got {out.dtype} {out.shape} (contiguous={out.flags.c_contiguous})"
-            )
-        out[...] = 0
+    out = _blank_frames(out, (T, height, width, 3))
     if T == 0:
         return out
 
@@ -331,54 +396,11 @@ def rasterise(
     line_type = cv2.LINE_AA if aa else cv2.LINE_8
     usable = visible & np.isfinite(uv).all(-1)
     frames = list(out)  # contiguous (H, W, 3) views, one per frame
-    lo = np.array([0.0, 0.0])
-    hi = np.array([width - 1.0, height - 1.0])
 
     # ---- edges: clip in float, build capsule polygons, convert to fixed point.
     if E and style.line_width > 0:
-        width_px = max(1.0, style.line_width * scale)
-        thin = aa and width_px < 0.5 * (_THIN_LINE_WIDTH + _CAPSULE_CAL[0, 0])
-        half = 0.0 if thin else _capsule_half_width(width_px, aa)
-        margin = half + 4.0
-        if segments is None:
-            p0 = uv[:, edges[:, 0]]
-            p1 = uv[:, edges[:, 1]]
-            seg_ok = usable[:, edges[:, 0]] & usable[:, edges[:, 1]]
-        else:
-            p0, p1 = (np.asarray(a, dtype=np.float64) for a in segments[:2])
-            seg_ok = np.asarray(segments[2], dtype=bool)
-            if p0.shape != (T, E, 2) or p1.shape != (T, E, 2) or seg_ok.shape != (T, E):
-                raise ValueError(
-                    f"segments must be (T, E, 2), (T, E, 2), (T, E) arrays with T={T}, E={E}, "
-                    f"got {p0.shape}, {p1.shape}, {seg_ok.shape}"
-                )
-            seg_ok = seg_ok & np.isfinite(p0).all(-1) & np.isfinite(p1).all(-1)
-        p0 = np.where(seg_ok[..., None], p0, 0.0)
-        p1 = np.where(seg_ok[..., None], p1, 0.0)
-        clip_ok, c0, c1 = clip_segments(p0, p1, lo - margin, hi + margin)
-        seg_ok &= clip_ok
-        idx = [np.flatnonzero(r).tolist() for r in seg_ok]
-        if thin:
-            a = _to_fixed(np.where(seg_ok[..., None], c0, 0.0)).tolist()
-            b = _to_fixed(np.where(seg_ok[..., None], c1, 0.0)).tolist()
-            for t in range(T):
-                img, at, bt = frames[t], a[t], b[t]
-                for e in idx[t]:
-                    cv2.line(img, at[e], bt[e], ecol[e], 1, line_type, _SHIFT)
-        else:
-            with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-                d = p1 - p0
-                length = np.hypot(d[..., 0], d[..., 1])
-                direction = d / length[..., None]
-            good_dir = np.isfinite(direction).all(-1) & (length > 0)
-            direction = np.where(good_dir[..., None], direction, np.array([1.0, 0.0]))
-            n_cap = max(2, _polygon_vertex_count(half) // 2 + 1)
-            verts = _capsule_vertices(c0, c1, direction, half, n_cap)
-            verts = _to_fixed(np.where(seg_ok[..., None, None], verts, 0.0))
-            for t in range(T):
-                img, vt = frames[t], verts[t]
-                for e in idx[t]:
-                    cv2.fillConvexPoly(img, vt[e], ecol[e], line_type, _SHIFT)
+        p0, p1, seg_ok = _edge_endpoints(uv, usable, edges, segments)
+        _draw_edges(frames, p0, p1, seg_ok, ecol, max(1.0, style.line_width * scale), aa, line_type, width, height)
 
     # ---- dots at usable points that touch the image.
     if K and style.point_radius > 0:
