@@ -188,17 +188,26 @@ SOURCES_FILE = "sources.json"
 
 
 def write_sources(run_dir: Path, planner: StepPlanner, drawn: dict[str, int], steps: int, config: TrainConfig) -> Path:
-    """``RUN_DIR/sources.json`` (atomic): per source the configured weight, the items drawn by steps 1 .. ``steps``
-    and their fraction of all draws; ``mixing`` says which rule set the weights."""
+    """``RUN_DIR/sources.json`` (atomic): per source ``configured_weight`` (the config's ``data.source_weights``
+    value as written, any positive scale; None under the temperature rule), ``normalised_weight`` (the probability
+    a draw takes that source: the configured weights over their sum, or the temperature rule's), the items
+    ``drawn`` by steps 1 .. ``steps`` and their ``drawn_fraction`` of all draws; ``mixing`` says which rule set
+    the weights."""
     total = sum(drawn.values())
     explicit = config.data.source_weights is not None
+    configured = dict(config.data.source_weights or {})
     doc = {
         "steps": steps,
         "draws": total,
         "mixing": "source_weights" if explicit else f"mixing_temperature {config.data.mixing_temperature:g}",
         "parent_run": config.parent_run,
         "sources": {
-            s: {"weight": w, "drawn": drawn[s], "drawn_fraction": drawn[s] / total if total else None}
+            s: {
+                "configured_weight": configured.get(s) if explicit else None,
+                "normalised_weight": w,
+                "drawn": drawn[s],
+                "drawn_fraction": drawn[s] / total if total else None,
+            }
             for s, w in planner.weights.items()
         },
     }

@@ -100,7 +100,8 @@ def test_stage_two_on_toy_robot_and_hand_clips_warm_starts_and_logs_its_draws(tm
     stage1 = _config(toy_hand_robot, tmp_path / "s1", **{"data.sources": ["toyworld"]})
     train(stage1, progress=False)
     s1 = json.loads((tmp_path / "s1" / "sources.json").read_text())
-    assert s1["sources"] == {"toyworld": {"weight": 1.0, "drawn": 4, "drawn_fraction": 1.0}}
+    one = {"configured_weight": None, "normalised_weight": 1.0, "drawn": 4, "drawn_fraction": 1.0}
+    assert s1["sources"] == {"toyworld": one}  # the temperature rule: nothing configured
 
     weights = {"toyworld": 1.0, "toyworld_hand": 3.0}
     # lr ~ 0: the stage-2 weights stay the parent's, so the warm start is visible in them
@@ -117,8 +118,10 @@ def test_stage_two_on_toy_robot_and_hand_clips_warm_starts_and_logs_its_draws(tm
     assert doc["draws"] == 40 and doc["mixing"] == "source_weights" and doc["parent_run"] == str(tmp_path / "s1")
     drawn = {s: v["drawn"] for s, v in doc["sources"].items()}
     assert_binomial(drawn, {"toyworld": 0.25, "toyworld_hand": 0.75})
-    for v in doc["sources"].values():
+    for name, v in doc["sources"].items():
         assert v["drawn_fraction"] == v["drawn"] / 40
+        assert v["configured_weight"] == weights[name]  # as written in the config (1 : 3) ...
+        assert v["normalised_weight"] == weights[name] / 4.0  # ... and as drawn (0.25 : 0.75)
     lines = [json.loads(x) for x in (tmp_path / "s2" / "metrics.jsonl").read_text().splitlines()]
     assert lines[-1]["sources_drawn"] == drawn and lines[0]["mixing_weights"] == {
         "toyworld": 0.25,
