@@ -63,6 +63,83 @@ def _weights_digest(module) -> str:
     return h.hexdigest()
 
 
+def _vae_digest_name(vae) -> str:
+    """The default ``vae_name``: ``config-sha256:`` and the first 16 hex digits of the sha256 of the VAE's config."""
+    import hashlib
+    import json
+
+    cfg = json.dumps(dict(vae.vae.config), sort_keys=True, default=str)
+    return "config-sha256:" + hashlib.sha256(cfg.encode()).hexdigest()[:16]
+
+
+def _clips_by_shard(source, split: str | None) -> dict[Path, list]:
+    """The records of ``source`` (a ClipSet) by the shard file holding them, those of ``split`` only when given."""
+    by_shard: dict[Path, list] = {}
+    for rec in source:
+        if split is not None and rec.meta.get("split") != split:
+            continue
+        by_shard.setdefault(source.shard_of[rec.id], []).append(rec)
+    return by_shard
+
+
+def _encode_shard(source, recs, vae, registry, window: int, stride: int, batch: int, condition, condition_style):
+    """Reads the clips ``recs`` of one shard and encodes every window of both streams, ``batch`` windows per VAE
+    call. Returns ``(loaded, encoded)``: ``(rec, clip, starts)`` per clip (starts: (N,) int64 frame indices) and,
+    per (clip index, ``"video"`` | ``"skeleton"``), the list of its windows' normalised latents, each (C, T', H', W')."""
+    import torch
+
+    loaded, windows = [], []
+    for rec in recs:
+        clip = source.load(rec, registry=registry)
+        starts = window_starts(rec.n_frames, window, stride)
+        skel = source.condition_video(rec, clip, registry, condition, condition_style) if len(starts) else None
+        loaded.append((rec, clip, starts))
+        windows += [(len(loaded) - 1, "video", clip.rgb[s : s + window]) for s in starts]
+        windows += [(len(loaded) - 1, "skeleton", skel[s : s + window]) for s in starts]
+    encoded: dict[tuple[int, str], list] = {}
+    with torch.no_grad():
+        for i in range(0, len(windows), batch):
+            part = windows[i : i + batch]
+            z = vae.encode(vae.to_pixels(np.stack([w for _, _, w in part])))
+            for (k, role, _), zk in zip(part, z):
+                encoded.setdefault((k, role), []).append(zk)
+    return loaded, encoded
+
+
+def _write_shard(writer, shard_name: str, loaded, encoded, window: int, vae_name: str, key) -> tuple[int, int]:
+    """Writes one shard of ``OUT``: each clip of ``loaded``, with its latents from ``encoded`` when it has windows
+    (see :func:`_encode_shard`). Returns ``(cached, too_short)``: the clips written with and without latents."""
+    import torch
+
+    from .clips import Clip
+
+    cached = short = 0
+    with writer.shard(shard_name) as sw:
+        for k, (rec, clip, starts) in enumerate(loaded):
+            if len(starts):
+                clip = Clip(
+                    rec,
+                    rgb=clip.rgb,
+                    trajectory=clip.trajectory,
+                    camera=clip.camera,
+                    skeleton=clip.skeleton,
+                    prompt_embeds=clip.prompt_embeds,
+                    latents={
+                        "video": torch.stack(encoded[k, "video"]).float(),
+                        "skeleton": torch.stack(encoded[k, "skeleton"]).float(),
+                        "starts": starts,
+                        "window": window,
+                        "vae": vae_name,
+                        "condition": key,
+                    },
+                )
+                cached += 1
+            else:
+                short += 1
+            sw.add(clip)
+    return cached, short
+
+
 def cache_latents(
     src,
     out,
@@ -91,16 +168,11 @@ def cache_latents(
     style fields, the training config's ``condition_style``; None: the default look). Returns a
     :class:`CacheSummary`.
     """
-    import hashlib
-    import json
-
-    import torch
-
     from .._util import stage as _stage
     from ..model.vae import check_frame_count
     from ..plugin.registry import Registry
     from ..render.conditions import check_condition, condition_key, style_for
-    from .clips import Clip, ClipSet, ClipSetWriter
+    from .clips import ClipSet, ClipSetWriter
 
     check_frame_count(window, what="window")
     check_condition(condition, "--condition")
@@ -113,9 +185,7 @@ def cache_latents(
     if Path(out).resolve() == source.root.resolve():
         raise ValueError(f"{out}: expected an output folder other than the source clip set")
     registry = registry if registry is not None else Registry()
-    if not vae_name:
-        cfg = json.dumps(dict(vae.vae.config), sort_keys=True, default=str)
-        vae_name = "config-sha256:" + hashlib.sha256(cfg.encode()).hexdigest()[:16]
+    vae_name = vae_name or _vae_digest_name(vae)
     parts = {
         "stage": "latent-cache",
         "format": _stage.FORMAT_VERSION,
@@ -131,56 +201,17 @@ def cache_latents(
     writer = ClipSetWriter(out)  # first: a cache of another format is refused before anything is recorded
     _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
     writer.remove_stale()
-    by_shard: dict[Path, list] = {}
-    for rec in source:
-        if split is not None and rec.meta.get("split") != split:
-            continue
-        by_shard.setdefault(source.shard_of[rec.id], []).append(rec)
     t0 = time.perf_counter()
     written = kept = cached = short = 0
-    for shard, recs in sorted(by_shard.items()):
+    for shard, recs in sorted(_clips_by_shard(source, split).items()):
         if writer.shard_done(shard.name):
             kept += 1
             continue
         # read every clip of the shard, encode all windows of both streams in batches, then write the clips
-        loaded, windows = [], []
-        for rec in recs:
-            clip = source.load(rec, registry=registry)
-            starts = window_starts(rec.n_frames, window, stride)
-            skel = source.condition_video(rec, clip, registry, condition, condition_style) if len(starts) else None
-            loaded.append((rec, clip, starts))
-            windows += [(len(loaded) - 1, "video", clip.rgb[s : s + window]) for s in starts]
-            windows += [(len(loaded) - 1, "skeleton", skel[s : s + window]) for s in starts]
-        encoded: dict[tuple[int, str], list] = {}
-        with torch.no_grad():
-            for i in range(0, len(windows), batch):
-                part = windows[i : i + batch]
-                z = vae.encode(vae.to_pixels(np.stack([w for _, _, w in part])))
-                for (k, role, _), zk in zip(part, z):
-                    encoded.setdefault((k, role), []).append(zk)
-        with writer.shard(shard.name) as sw:
-            for k, (rec, clip, starts) in enumerate(loaded):
-                if len(starts):
-                    clip = Clip(
-                        rec,
-                        rgb=clip.rgb,
-                        trajectory=clip.trajectory,
-                        camera=clip.camera,
-                        skeleton=clip.skeleton,
-                        prompt_embeds=clip.prompt_embeds,
-                        latents={
-                            "video": torch.stack(encoded[k, "video"]).float(),
-                            "skeleton": torch.stack(encoded[k, "skeleton"]).float(),
-                            "starts": starts,
-                            "window": window,
-                            "vae": vae_name,
-                            "condition": key,
-                        },
-                    )
-                    cached += 1
-                else:
-                    short += 1
-                sw.add(clip)
+        loaded, encoded = _encode_shard(source, recs, vae, registry, window, stride, batch, condition, condition_style)
+        shard_cached, shard_short = _write_shard(writer, shard.name, loaded, encoded, window, vae_name, key)
+        cached += shard_cached
+        short += shard_short
         written += 1
         log(f"{shard.name}: {len(recs)} clips ({cached} cached so far, {time.perf_counter() - t0:.0f} s)")
     return CacheSummary(str(out), written, kept, cached, short, round(time.perf_counter() - t0, 1))
