@@ -62,9 +62,80 @@ keyed by prompt and encoder revision; `oscar rollout --prompt` reads it there.
 _DTYPES = ("float32", "bfloat16", "float16")
 
 
-def add_model_parsers(subparsers) -> None:
-    """Add ``rollout`` and ``zoo {list,pull}`` to an ``argparse`` sub-parser set."""
-    fmt = argparse.RawDescriptionHelpFormatter
+def _add_rollout_sampler_options(r) -> None:
+    """``oscar rollout``'s sampler options: chunk length, steps, preset, solver, shift, guidance and seed."""
+    r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
+    r.add_argument(
+        "--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35, or the preset's)"
+    )
+    r.add_argument(
+        "--preset",
+        choices=sorted(SAMPLER_PRESETS),
+        help="sampling budget: paper (35 steps, guidance at every "
+        "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md); default: "
+        "the model card's, else none",
+    )
+    r.add_argument(
+        "--guidance-interval",
+        metavar="LO,HI",
+        type=interval,
+        help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch",
+    )
+    r.add_argument(
+        "--solver",
+        choices=("unipc", "euler"),
+        help="unipc (2nd order, as Cosmos/diffusers) or euler (default: the checkpoint's scheduler, else unipc)",
+    )
+    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    r.add_argument(
+        "--guidance",
+        type=number(0.0),
+        help="skeleton guidance w (default: the model card's, else 6, the "
+        "paper's; 0 with --guidance-form diffusers or 1 with standard = conditional branch only)",
+    )
+    r.add_argument(
+        "--guidance-form",
+        choices=("diffusers", "standard"),
+        help="diffusers (Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); standard: v_u + "
+        "w(v_c - v_u) (default: the model card's, else diffusers)",
+    )
+    r.add_argument(
+        "--action-guidance",
+        type=number(0.0),
+        help="latent-action models: guidance w over the actions "
+        "(unconditional branch: no action tokens; default: none, the conditional branch only)",
+    )
+    r.add_argument(
+        "--two-pass-cfg",
+        action="store_true",
+        help="run the two guidance branches as two forwards (less memory) instead of one batched forward",
+    )
+    r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
+
+
+def _add_rollout_device_options(r) -> None:
+    """``oscar rollout``'s device, precision and memory options (and the output frame rate)."""
+    r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
+    r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
+    threads_option(r)
+    r.set_defaults(_resumes=False)  # one video, written whole: Ctrl-C keeps nothing and a rerun starts over
+    r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
+    from .compile_policy import add_compile_options
+
+    add_compile_options(r)
+    r.add_argument("--vae-tiling", action="store_true", help="tile VAE encode/decode (GPU memory)")
+    r.add_argument("--vae-slicing", action="store_true", help="VAE one batch element at a time")
+    r.add_argument("--offload-vae", action="store_true", help="keep the VAE on the CPU between uses")
+    r.add_argument(
+        "--offload-text",
+        action="store_true",
+        help="keep the DiT's text projection on the CPU (the prompt is projected once per chunk)",
+    )
+    r.add_argument("--offline", action="store_true", help="use only the local Hub cache (like HF_HUB_OFFLINE=1)")
+
+
+def _add_rollout_parser(subparsers, fmt) -> None:
+    """Register ``oscar rollout`` and its options on ``subparsers``."""
     r = subparsers.add_parser(
         "rollout",
         help="roll the world model out along a trajectory (skeleton-conditioned)",
@@ -119,74 +190,15 @@ def add_model_parsers(subparsers) -> None:
         default="crop",
         help="how camera and first frame are fitted to --size (default: centre crop)",
     )
-    r.add_argument("--chunk-frames", type=count(1), help="frames per chunk, 4k+1 (default: the model's, e.g. 81)")
-    r.add_argument(
-        "--steps", type=count(1), help="denoising steps per chunk (default: the model card's, else 35, or the preset's)"
-    )
-    r.add_argument(
-        "--preset",
-        choices=sorted(SAMPLER_PRESETS),
-        help="sampling budget: paper (35 steps, guidance at every "
-        "step) or fast (fewer steps, guidance on part of the noise range; docs/world-model.md); default: "
-        "the model card's, else none",
-    )
-    r.add_argument(
-        "--guidance-interval",
-        metavar="LO,HI",
-        type=interval,
-        help="guide only the steps with noise level in [LO, HI]; the others run the conditional branch",
-    )
-    r.add_argument(
-        "--solver",
-        choices=("unipc", "euler"),
-        help="unipc (2nd order, as Cosmos/diffusers) or euler (default: the checkpoint's scheduler, else unipc)",
-    )
-    r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
-    r.add_argument(
-        "--guidance",
-        type=number(0.0),
-        help="skeleton guidance w (default: the model card's, else 6, the "
-        "paper's; 0 with --guidance-form diffusers or 1 with standard = conditional branch only)",
-    )
-    r.add_argument(
-        "--guidance-form",
-        choices=("diffusers", "standard"),
-        help="diffusers (Ho & Salimans, NVIDIA's Cosmos code): v_c + w(v_c - v_u); standard: v_u + "
-        "w(v_c - v_u) (default: the model card's, else diffusers)",
-    )
-    r.add_argument(
-        "--action-guidance",
-        type=number(0.0),
-        help="latent-action models: guidance w over the actions "
-        "(unconditional branch: no action tokens; default: none, the conditional branch only)",
-    )
-    r.add_argument(
-        "--two-pass-cfg",
-        action="store_true",
-        help="run the two guidance branches as two forwards (less memory) instead of one batched forward",
-    )
-    r.add_argument("--seed", type=count(0), default=0, help="noise seed (same seed, same video)")
-    r.add_argument("--fps", type=number(above=0.0), help="output frame rate (default: the trajectory's)")
-    r.add_argument("--device", type=device, help="torch device (default: cuda when available, else cpu)")
-    threads_option(r)
-    r.set_defaults(_resumes=False)  # one video, written whole: Ctrl-C keeps nothing and a rerun starts over
-    r.add_argument("--dtype", choices=_DTYPES, help="DiT dtype (default: bfloat16 on CUDA, else float32)")
-    from .compile_policy import add_compile_options
-
-    add_compile_options(r)
-    r.add_argument("--vae-tiling", action="store_true", help="tile VAE encode/decode (GPU memory)")
-    r.add_argument("--vae-slicing", action="store_true", help="VAE one batch element at a time")
-    r.add_argument("--offload-vae", action="store_true", help="keep the VAE on the CPU between uses")
-    r.add_argument(
-        "--offload-text",
-        action="store_true",
-        help="keep the DiT's text projection on the CPU (the prompt is projected once per chunk)",
-    )
-    r.add_argument("--offline", action="store_true", help="use only the local Hub cache (like HF_HUB_OFFLINE=1)")
+    _add_rollout_sampler_options(r)
+    _add_rollout_device_options(r)
     r.add_argument("--no-progress", action="store_true", help="no progress bars")
     r.add_argument("--json", action="store_true", help="print a machine-readable summary")
     r.set_defaults(func=cmd_rollout)
 
+
+def _add_zoo_parser(subparsers, fmt) -> None:
+    """Register ``oscar zoo`` and its options on ``subparsers``."""
     z = subparsers.add_parser(
         "zoo", help="named world-model checkpoints: list, pull", epilog=ZOO_EXAMPLES, formatter_class=fmt
     )
@@ -220,6 +232,9 @@ def add_model_parsers(subparsers) -> None:
     zc.add_argument("--json", action="store_true", help="machine-readable output")
     zc.set_defaults(func=cmd_zoo_convert)
 
+
+def _add_encode_prompt_parser(subparsers, fmt) -> None:
+    """Register ``oscar encode-prompt`` and its options on ``subparsers``."""
     e = subparsers.add_parser(
         "encode-prompt",
         help="compute (and cache) the text embedding of a prompt",
@@ -243,6 +258,14 @@ def add_model_parsers(subparsers) -> None:
     e.add_argument("--offline", action="store_true", help="only the local Hub cache")
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e.set_defaults(func=cmd_encode_prompt)
+
+
+def add_model_parsers(subparsers) -> None:
+    """Add ``rollout``, ``zoo {list,pull,convert}`` and ``encode-prompt`` to an ``argparse`` sub-parser set."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    _add_rollout_parser(subparsers, fmt)
+    _add_zoo_parser(subparsers, fmt)
+    _add_encode_prompt_parser(subparsers, fmt)
 
 
 # --------------------------------------------------------------------------- zoo

@@ -113,47 +113,9 @@ def _notify_log(message: str) -> None:
     (_log.warning if message.startswith("warning: ") else _log.info)(message)
 
 
-def run_rollout(
-    request: RolloutRequest,
-    *,
-    notify: Callable[[str], None] | None = None,
-    startup: float | None = None,
-    given: str = "request",
-) -> RolloutFilesResult:
-    """Roll ``request.model`` out along ``request.trajectory`` from ``request.first_frame`` and write the videos.
-
-    Steps: read the inputs (embodiment, trajectory, camera, first frame) and the sampler options, check the
-    outputs and the memory the condition video needs, load the model (``oscar_zoo.load``), render the card's
-    condition video at the rollout size, embed the prompt, roll out chunk by chunk while writing ``out`` (and
-    the side-by-side: rollout | condition over rollout) as chunks arrive. notify: called with each message a
-    person should see (default: logged), among them the sampler settings used and where each came from
-    (``given``: what to call the request's own values, e.g. "flag"; the model card; the library default).
-    startup: seconds the process spent before this call (counted in the summary's timings). Raises an :class:`~oscar_core.errors.OscarError` naming the file or option for bad
-    input, before any weights load.
-    """
-    t_start = time.perf_counter()
-    say = notify or _notify_log
-    import numpy as np
-    import torch
-
-    import oscar_zoo
-
-    from .._util.devices import default_device
-    from ..kinematics.trajectory import load_trajectory
-    from ..plugin.registry import get_embodiment
-    from ..render.conditions import condition_video, takes_actions, video_condition_of
-    from ..render.skeleton_video import fit_image
-    from .card_sampler import resolve_sampler
-    from .image import read_first_frame
-
-    r = request
-    timings = {"startup": startup} if startup is not None else {}
-    timings["import"] = time.perf_counter() - t_start
-    emb = get_embodiment(r.embodiment, r.plugin_paths or ())
-    traj = load_trajectory(r.trajectory)
-    camera = emb.load_camera(r.camera)
-    first = read_first_frame(r.first_frame, camera, r.camera)
-    sampler_options = dict(
+def _sampler_options(r: RolloutRequest) -> dict:
+    """The request's sampler options as :func:`~oscar_core.model.card_sampler.resolve_sampler` takes them."""
+    return dict(
         steps=r.steps,
         preset=r.preset,
         guidance_interval=r.guidance_interval,
@@ -164,8 +126,12 @@ def run_rollout(
         solver=r.solver,
         action_guidance=r.action_guidance,
     )
-    resolve_sampler(None, **sampler_options)  # the given options checked before any weights load
-    # the outputs are checked before any weights load (gigabytes for the 2B): a typo costs a second, not minutes
+
+
+def _check_outputs(r: RolloutRequest, n_frames: int) -> str | Path | None:
+    """Checks the output paths and that the condition video of ``n_frames`` frames at ``--size`` fits in memory,
+    before any weights load (gigabytes for the 2B: a typo costs a second, not minutes). Returns the side-by-side
+    path (None with ``no_side_by_side``)."""
     from ..media.video import check_output
     from ..render.skeleton_video import parse_size
 
@@ -175,7 +141,7 @@ def run_rollout(
         from .._util.memory import check_fits
 
         check_fits(
-            (len(traj), size[1], size[0], 3),
+            (n_frames, size[1], size[0], 3),
             1,
             "the skeleton video (T, H, W, 3) uint8 at --size",
             "use a smaller --size",
@@ -183,8 +149,14 @@ def run_rollout(
     side_path = None if r.no_side_by_side else (r.side_by_side or side_by_side_path(r.out))
     if side_path is not None:
         check_output(side_path)
-    device = r.device or default_device()
-    dtype = getattr(torch, r.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
+    return side_path
+
+
+def _load_model(r: RolloutRequest, device, dtype, say: Callable[[str], None], timings: dict):
+    """The world model of ``r.model`` on ``device`` in ``dtype``, with the request's compile and VAE memory
+    settings; adds diffusers' import to ``timings["import"]`` and sets ``timings["load"]`` (seconds)."""
+    import oscar_zoo
+
     report: list[str] = []
     t0 = time.perf_counter()
     if _loads_without_network(r):  # online, diffusers' import waits until the Hub has answered (OSCAR_HUB_TIMEOUT)
@@ -210,70 +182,53 @@ def run_rollout(
         model.enable_vae_tiling()
     if r.vae_slicing:
         model.enable_vae_slicing()
-    choice = resolve_sampler(model.card.sampler, **sampler_options)
-    sampler = choice.config
-    say(f"sampler: {choice.describe(given)}")
-    width, height = rollout_size(r, model.card, camera)
-    # the card's condition video (the skeleton, or the mesh / capsules for a model trained on those)
-    t0 = time.perf_counter()
-    skeleton = condition_video(
+    return model
+
+
+def _condition_and_first_frame(r: RolloutRequest, model, emb, traj, camera, first, size: tuple[int, int]):
+    """``(condition, first)`` at the rollout ``size`` (width, height): the card's condition video (the skeleton, or
+    the mesh / capsules for a model trained on those), (T, H, W, 3) uint8, and the first frame fitted to it."""
+    from ..render.conditions import condition_video, video_condition_of
+    from ..render.skeleton_video import fit_image
+
+    condition = condition_video(
         video_condition_of(model.card.condition),
         emb,
         traj,
         camera,
-        (width, height),
+        size,
         resize_mode=r.resize,
         camera_source=r.camera,
         style=model.card.condition_style,
     )
-    first = fit_image(first, width, height, r.resize)
-    timings["render"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    prompt, text_source = prompt_embeds_for(r, model, device)
-    timings["text"] = time.perf_counter() - t0
-    say(f"text: {text_source}")
-    if prompt is None and model.empty_prompt is None:
-        prompt = torch.zeros(1, 1, model.transformer.text_dim)
-    if model.card.fps and abs(model.card.fps - traj.fps) > 1e-6:
-        say(
-            f"warning: {r.trajectory} is at {traj.fps:g} fps but the model was trained at {model.card.fps:g} fps; "
-            "resample the trajectory for faithful motion speed"
-        )
-    from .rollout import RolloutResult
+    return condition, fit_image(first, size[0], size[1], r.resize)
 
-    fps = r.fps or traj.fps
-    result = RolloutResult(frames=np.empty(0, np.uint8))
-    latent_action = takes_actions(model.card.condition)
-    t0 = time.perf_counter()
-    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
-    timings["render"] += time.perf_counter() - t0
-    t0 = time.perf_counter()
-    chunks = model.iter_rollout(
-        first,
-        None if latent_action else skeleton,
-        prompt,
-        chunk_frames=r.chunk_frames,
-        sampler=sampler,
-        seed=r.seed,
-        progress=r.progress,
-        result=result,
-        actions=actions,
-    )
-    # torch.compile's set-up when the policy compiles (mostly inductor's imports, ~1.5 s on a CPU; 0 eager); the
-    # compile itself runs inside the first chunk's sample
-    timings["compile"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out, side_out, count = _write_streams(chunks, skeleton, r.out, side_path, fps)
-    streamed = time.perf_counter() - t0
-    timings.update({k: result.timings.get(k, 0.0) for k in ("encode", "sample", "decode")})
-    timings["write"] = max(streamed - sum(result.timings.values()), 0.0)  # what streaming added beyond the model
-    timings["wall"] = time.perf_counter() - t_start + (startup or 0.0)
+
+def _rollout_summary(
+    r: RolloutRequest,
+    model,
+    choice,
+    out,
+    count: int,
+    size,
+    fps: float,
+    n_chunks: int,
+    text_source,
+    device,
+    timings: dict,
+) -> dict:
+    """The ``oscar rollout --json`` object: what was written (``count`` frames of ``size`` (width, height) at
+    ``fps``), the sampler and where its settings came from, the model's condition, dtype and device, and
+    ``timings`` in seconds (rounded to ms)."""
+    import torch
+
+    sampler = choice.config
     summary = {
         "rollout": str(out),
         "frames": count,
-        "size": [width, height],
+        "size": list(size),
         "fps": fps,
-        "chunks": len(result.starts),
+        "chunks": n_chunks,
         "model": r.model,
         "seed": r.seed,
         "text": text_source,
@@ -291,8 +246,101 @@ def run_rollout(
     }
     if str(device).startswith("cuda"):  # which GPU the timings were measured on
         summary["device_name"] = torch.cuda.get_device_name(torch.device(device))
+    return summary
+
+
+def run_rollout(
+    request: RolloutRequest,
+    *,
+    notify: Callable[[str], None] | None = None,
+    startup: float | None = None,
+    given: str = "request",
+) -> RolloutFilesResult:
+    """Roll ``request.model`` out along ``request.trajectory`` from ``request.first_frame`` and write the videos.
+
+    Steps: read the inputs (embodiment, trajectory, camera, first frame) and the sampler options, check the
+    outputs and the memory the condition video needs, load the model (``oscar_zoo.load``), render the card's
+    condition video at the rollout size, embed the prompt, roll out chunk by chunk while writing ``out`` (and
+    the side-by-side: rollout | condition over rollout) as chunks arrive. notify: called with each message a
+    person should see (default: logged), among them the sampler settings used and where each came from
+    (``given``: what to call the request's own values, e.g. "flag"; the model card; the library default).
+    startup: seconds the process spent before this call (counted in the summary's timings). Raises an :class:`~oscar_core.errors.OscarError` naming the file or option for bad
+    input, before any weights load.
+    """
+    t_start = time.perf_counter()
+    say = notify or _notify_log
+    import numpy as np
+    import torch
+
+    from .._util.devices import default_device
+    from ..kinematics.trajectory import load_trajectory
+    from ..plugin.registry import get_embodiment
+    from ..render.conditions import takes_actions
+    from .card_sampler import resolve_sampler
+    from .image import read_first_frame
+    from .rollout import RolloutResult
+
+    r = request
+    timings = {"startup": startup} if startup is not None else {}
+    timings["import"] = time.perf_counter() - t_start
+    emb = get_embodiment(r.embodiment, r.plugin_paths or ())
+    traj = load_trajectory(r.trajectory)
+    camera = emb.load_camera(r.camera)
+    first = read_first_frame(r.first_frame, camera, r.camera)
+    resolve_sampler(None, **_sampler_options(r))  # the given options checked before any weights load
+    side_path = _check_outputs(r, len(traj))
+    device = r.device or default_device()
+    dtype = getattr(torch, r.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))
+    model = _load_model(r, device, dtype, say, timings)
+    choice = resolve_sampler(model.card.sampler, **_sampler_options(r))
+    say(f"sampler: {choice.describe(given)}")
+    width, height = rollout_size(r, model.card, camera)
+    t0 = time.perf_counter()
+    skeleton, first = _condition_and_first_frame(r, model, emb, traj, camera, first, (width, height))
+    timings["render"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    prompt, text_source = prompt_embeds_for(r, model, device)
+    timings["text"] = time.perf_counter() - t0
+    say(f"text: {text_source}")
+    if prompt is None and model.empty_prompt is None:
+        prompt = torch.zeros(1, 1, model.transformer.text_dim)
+    if model.card.fps and abs(model.card.fps - traj.fps) > 1e-6:
+        say(
+            f"warning: {r.trajectory} is at {traj.fps:g} fps but the model was trained at {model.card.fps:g} fps; "
+            "resample the trajectory for faithful motion speed"
+        )
+    fps = r.fps or traj.fps
+    result = RolloutResult(frames=np.empty(0, np.uint8))
+    latent_action = takes_actions(model.card.condition)
+    t0 = time.perf_counter()
+    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
+    timings["render"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    chunks = model.iter_rollout(
+        first,
+        None if latent_action else skeleton,
+        prompt,
+        chunk_frames=r.chunk_frames,
+        sampler=choice.config,
+        seed=r.seed,
+        progress=r.progress,
+        result=result,
+        actions=actions,
+    )
+    # torch.compile's set-up when the policy compiles (mostly inductor's imports, ~1.5 s on a CPU; 0 eager); the
+    # compile itself runs inside the first chunk's sample
+    timings["compile"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out, side_out, count = _write_streams(chunks, skeleton, r.out, side_path, fps)
+    streamed = time.perf_counter() - t0
+    timings.update({k: result.timings.get(k, 0.0) for k in ("encode", "sample", "decode")})
+    timings["write"] = max(streamed - sum(result.timings.values()), 0.0)  # what streaming added beyond the model
+    timings["wall"] = time.perf_counter() - t_start + (startup or 0.0)
+    summary = _rollout_summary(
+        r, model, choice, out, count, (width, height), fps, len(result.starts), text_source, device, timings
+    )
     if latent_action:
-        summary["guidance"] = {"action_w": sampler.action_guidance, "form": sampler.guidance_form}
+        summary["guidance"] = {"action_w": choice.config.action_guidance, "form": choice.config.guidance_form}
     if side_out is not None:
         summary["side_by_side"] = str(side_out)
     return RolloutFilesResult(Path(str(out)), None if side_out is None else Path(str(side_out)), summary, timings)

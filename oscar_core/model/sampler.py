@@ -307,6 +307,48 @@ def _action_guided_velocity(
     return v_cond + w * (v_cond - v_uncond)
 
 
+def _checked_chunk_inputs(first_latent, skeleton_latent, text, actions, latent_frames, device):
+    """Checks the shapes :func:`sample_chunk` takes and returns ``(skeleton_latent, actions)``: with ``actions``
+    ((B, window − 1, 14), moved to ``device`` as float32) an empty (B, 0, T, H, W) skeleton latent that only
+    carries the shape (T = ``latent_frames``); without, the given (B, C_s, T, H, W) skeleton latent."""
+    if actions is not None:
+        if skeleton_latent is not None or latent_frames is None:
+            raise ModelInputError(
+                "sample_chunk: with actions, expected skeleton_latent=None and latent_frames set, "
+                f"found skeleton_latent={'a tensor' if skeleton_latent is not None else None}, "
+                f"latent_frames={latent_frames}"
+            )
+        b, _, _, h, w = first_latent.shape
+        t = int(latent_frames)
+        if actions.ndim != 3 or actions.shape[0] != b:
+            raise ModelInputError(f"actions: expected (B={b}, window - 1, 14), found {tuple(actions.shape)}")
+        actions = actions.to(device, torch.float32)
+        skeleton_latent = first_latent.new_empty((b, 0, t, h, w))  # shape only; never fed to the model
+    elif skeleton_latent is None:
+        raise ModelInputError("sample_chunk: expected a skeleton latent (or actions), found neither")
+    b, _, t, h, w = skeleton_latent.shape
+    c = first_latent.shape[1]
+    if first_latent.shape != (b, c, 1, h, w):
+        raise ModelInputError(
+            f"first_latent: expected shape {(b, c, 1, h, w)} (one frame of the skeleton "
+            f"latent's size), found {tuple(first_latent.shape)}"
+        )
+    if text.shape[0] not in (1, b):
+        raise ModelInputError(f"text: expected batch 1 or {b}, found shape {tuple(text.shape)}")
+    return skeleton_latent, actions
+
+
+def _initial_noise(shape: tuple[int, ...], generator, generators, device) -> torch.Tensor:
+    """Standard normal noise of ``shape`` (B, C, T, H, W) float32 on ``device``, drawn on the CPU from ``generator``,
+    or item by item from ``generators`` (one per batch item)."""
+    if generators is not None:
+        if len(generators) != shape[0]:
+            raise ModelInputError(f"generators: expected one per batch item ({shape[0]}), found {len(generators)}")
+        noise = torch.cat([torch.randn((1, *shape[1:]), generator=g, dtype=torch.float32) for g in generators])
+        return noise.to(device)
+    return torch.randn(shape, generator=generator, dtype=torch.float32).to(device)
+
+
 @torch.no_grad()
 def sample_chunk(
     transformer,
@@ -343,43 +385,18 @@ def sample_chunk(
         there).
     """
     device = next(transformer.parameters()).device
-    if actions is not None:
-        if skeleton_latent is not None or latent_frames is None:
-            raise ModelInputError(
-                "sample_chunk: with actions, expected skeleton_latent=None and latent_frames set, "
-                f"found skeleton_latent={'a tensor' if skeleton_latent is not None else None}, "
-                f"latent_frames={latent_frames}"
-            )
-        b, _, _, h, w = first_latent.shape
-        t = int(latent_frames)
-        if actions.ndim != 3 or actions.shape[0] != b:
-            raise ModelInputError(f"actions: expected (B={b}, window - 1, 14), found {tuple(actions.shape)}")
-        actions = actions.to(device, torch.float32)
-        skeleton_latent = first_latent.new_empty((b, 0, t, h, w))  # shape only; never fed to the model
-    elif skeleton_latent is None:
-        raise ModelInputError("sample_chunk: expected a skeleton latent (or actions), found neither")
+    skeleton_latent, actions = _checked_chunk_inputs(
+        first_latent, skeleton_latent, text, actions, latent_frames, device
+    )
     b, _, t, h, w = skeleton_latent.shape
     c = first_latent.shape[1]
-    if first_latent.shape != (b, c, 1, h, w):
-        raise ModelInputError(
-            f"first_latent: expected shape {(b, c, 1, h, w)} (one frame of the skeleton "
-            f"latent's size), found {tuple(first_latent.shape)}"
-        )
-    if text.shape[0] not in (1, b):
-        raise ModelInputError(f"text: expected batch 1 or {b}, found shape {tuple(text.shape)}")
     # the prompt is the same at every step: project it once (where the projection lives), not per step
     text = (transformer.project_text(text) if project_once else text).to(device).expand(b, -1, -1)
     skeleton_latent = skeleton_latent.to(device)
     if uncond_skeleton is not None:
         uncond_skeleton = uncond_skeleton.to(device)
 
-    if generators is not None:
-        if len(generators) != b:
-            raise ModelInputError(f"generators: expected one per batch item ({b}), found {len(generators)}")
-        noise = torch.cat([torch.randn((1, c, t, h, w), generator=g, dtype=torch.float32) for g in generators])
-        noise = noise.to(device)
-    else:
-        noise = torch.randn((b, c, t, h, w), generator=generator, dtype=torch.float32).to(device)
+    noise = _initial_noise((b, c, t, h, w), generator, generators, device)
     clean = torch.zeros_like(noise)
     clean[:, :, :1] = first_latent.to(device, torch.float32)
     indicator = torch.zeros(b, 1, t, 1, 1, device=device)
