@@ -67,17 +67,8 @@ EXAMPLES = """examples:
 """
 
 
-def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
-    fmt = argparse.RawDescriptionHelpFormatter
-    tw = subparsers.add_parser(
-        "toyworld",
-        help="the procedural toy world: generate clips, train its VAE, evaluate",
-        description="A procedural world small enough to train OSCAR on a CPU.",
-        epilog=EXAMPLES,
-        formatter_class=fmt,
-    )
-    sub = tw.add_subparsers(dest="toyworld_command", required=True)
-
+def _add_toyworld_generate_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld generate`` and its options on ``sub``."""
     g = sub.add_parser(
         "generate", help="write toy-world episodes as a training clip set", epilog=EXAMPLES, formatter_class=fmt
     )
@@ -120,6 +111,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
 
+
+def _add_toyworld_example_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld example`` and its options on ``sub``."""
     x = sub.add_parser(
         "example",
         help="write a first frame, trajectory and camera of one toy-world episode: "
@@ -146,6 +140,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     x.add_argument("--json", action="store_true", help="print the summary as JSON")
     x.set_defaults(func=cmd_example)
 
+
+def _add_toyworld_train_vae_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld train-vae`` and its options on ``sub``."""
     v = sub.add_parser(
         "train-vae", help="train the toy world's AutoencoderKLWan on a clip set", epilog=EXAMPLES, formatter_class=fmt
     )
@@ -177,6 +174,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     )
     v.set_defaults(func=cmd_train_vae)
 
+
+def _add_toyworld_reconstruct_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld reconstruct`` and its options on ``sub``."""
     r = sub.add_parser(
         "reconstruct",
         help="write the VAE's reconstructions of clips (the table's VAE ceiling)",
@@ -193,6 +193,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     threads_option(r, "torch threads")
     r.set_defaults(func=cmd_reconstruct)
 
+
+def _add_toyworld_baseline_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld baseline`` and its options on ``sub``."""
     b = sub.add_parser(
         "baseline",
         help="write model-free reference predictions (first frame repeated)",
@@ -210,6 +213,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     b.add_argument("--limit", type=count(1), help="at most this many clips, every k-th")
     b.set_defaults(func=cmd_baseline)
 
+
+def _add_toyworld_rollout_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld rollout`` and its options on ``sub``."""
     o = sub.add_parser(
         "rollout",
         help="roll a world model out on every clip of a split (true / shuffled / zero "
@@ -258,6 +264,9 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     threads_option(o, "torch threads")
     o.set_defaults(func=cmd_rollout)
 
+
+def _add_toyworld_package_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld package`` and its options on ``sub``."""
     k = sub.add_parser(
         "package",
         help="turn an exported toy-world run into a shippable model folder (card, "
@@ -273,9 +282,10 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     k.add_argument("--training", help="JSON file of training facts for the model card (commands, steps, wall time)")
     k.add_argument("--table", help="JSON file written by `oscar toyworld eval --out` (the measured table)")
     k.set_defaults(func=cmd_package)
-    add_policy_parsers(sub, EXAMPLES)
-    add_counterfactual_parser(sub)
 
+
+def _add_toyworld_eval_parser(sub, fmt) -> None:
+    """Register ``oscar toyworld eval`` and its options on ``sub``."""
     e = sub.add_parser(
         "eval",
         help="PSNR, SSIM, end-effector and object errors of generated videos",
@@ -336,6 +346,29 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     e.add_argument("--html-clips", type=int, default=12, help="clips shown on the page (default 12, every k-th)")
     e.add_argument("--json", action="store_true", help="print JSON instead of a table")
     e.set_defaults(func=cmd_eval)
+
+
+def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``oscar toyworld`` and its sub-commands on ``subparsers``; returns the ``toyworld`` parser."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    tw = subparsers.add_parser(
+        "toyworld",
+        help="the procedural toy world: generate clips, train its VAE, evaluate",
+        description="A procedural world small enough to train OSCAR on a CPU.",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
+    sub = tw.add_subparsers(dest="toyworld_command", required=True)
+    _add_toyworld_generate_parser(sub, fmt)
+    _add_toyworld_example_parser(sub, fmt)
+    _add_toyworld_train_vae_parser(sub, fmt)
+    _add_toyworld_reconstruct_parser(sub, fmt)
+    _add_toyworld_baseline_parser(sub, fmt)
+    _add_toyworld_rollout_parser(sub, fmt)
+    _add_toyworld_package_parser(sub, fmt)
+    add_policy_parsers(sub, EXAMPLES)
+    add_counterfactual_parser(sub)
+    _add_toyworld_eval_parser(sub, fmt)
     return tw
 
 

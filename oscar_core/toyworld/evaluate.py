@@ -147,6 +147,78 @@ def evaluate_clip(pred: np.ndarray, gt: np.ndarray, where: str = "<pred>", chunk
 CLIP_MODES = ("same", "common", "each")
 
 
+def _ground_truth_clips(sets, split: str | None):
+    """``(records, owner)``: the clips of the clip sets ``sets`` (of ``split`` when given) and, per clip id, the
+    set holding it; ValueError when two sets hold one id."""
+    recs, owner = [], {}
+    for c in sets:
+        for r in c:
+            if split is None or r.meta.get("split") == split:
+                if r.id in owner:
+                    raise ValueError(f"--gt: clip id {r.id!r} is in both {owner[r.id].root} and {c.root}")
+                owner[r.id] = c
+                recs.append(r)
+    return recs, owner
+
+
+def _predictions(conditions: dict[str, str], recs, sets, split: str | None) -> dict[str, dict[str, Path]]:
+    """Condition → clip id → its prediction's path, for every clip of ``recs`` with one in the condition's folder;
+    an error naming the folder when it is missing or holds none."""
+    found: dict[str, dict[str, Path]] = {}  # before any scoring
+    for name, folder in conditions.items():
+        if not Path(folder).is_dir():
+            raise FileNotFoundError(f"--pred {name}={folder}: no such folder")
+        found[name] = {r.id: p for r in recs if (p := find_prediction(folder, r.id)) is not None}
+        if not found[name]:
+            raise ValueError(
+                f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
+                f"{', '.join(str(c.root) for c in sets)}" + (f" (split {split!r})" if split else "") + ", found none"
+            )
+    return found
+
+
+def _same_clips(found: dict[str, dict[str, Path]], clips_mode: str) -> dict[str, dict[str, Path]]:
+    """The predictions to score under ``clips_mode`` (see :func:`evaluate_conditions`): ``found`` as it is
+    ("same", when every condition has the same clips, else ValueError naming the differences; "each"), or
+    cut to the clips every condition has ("common")."""
+    ids = {name: set(got) for name, got in found.items()}
+    common = set.intersection(*ids.values()) if ids else set()
+    same = all(v == common for v in ids.values())
+    if not same and clips_mode == "same":
+        first = next(iter(ids))
+        diffs = []
+        for name, v in ids.items():
+            if v != ids[first]:
+                lacks, extra = sorted(ids[first] - v), sorted(v - ids[first])
+                diffs.append(
+                    f"--pred {name} has {len(v)} clips against {len(ids[first])} of --pred {first}"
+                    + (f", lacking {_few(lacks)}" if lacks else "")
+                    + (f", adding {_few(extra)}" if extra else "")
+                )
+        raise ValueError(
+            "the rows would be means over different clips: "
+            + "; ".join(diffs)
+            + f"; expected predictions for the same clips, or --clips common (score the {len(common)} "
+            "clips all have) or --clips each (score each row over its own clips, marked)"
+        )
+    if clips_mode == "common":
+        if not common:
+            raise ValueError(f"--clips common: expected clips every condition has, found none ({', '.join(ids)})")
+        found = {name: {i: p for i, p in got.items() if i in common} for name, got in found.items()}
+    return found
+
+
+def _condition_row(per: dict[str, dict], per_chunk: int | None) -> dict:
+    """One row of the table: the means of the clips' metrics ``per`` (clip id → metrics; NaN-skipping), the clip
+    count, the clips where the ball moved and, with ``per_chunk``, the means per chunk index."""
+    row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
+    row["clips"] = len(per)
+    row["moved_object_clips"] = sum(1 for m in per.values() if m.get("moved_object_frames", 0))
+    if per_chunk is not None:
+        row["chunks"] = chunk_rows(per)
+    return row
+
+
 def evaluate_conditions(
     gt_clipset,
     conditions: dict[str, str],
@@ -183,48 +255,9 @@ def evaluate_conditions(
         g if isinstance(g, ClipSet) else ClipSet(g)
         for g in (gt_clipset if isinstance(gt_clipset, (list, tuple)) else [gt_clipset])
     ]
-    recs, owner = [], {}
-    for c in sets:
-        for r in c:
-            if split is None or r.meta.get("split") == split:
-                if r.id in owner:
-                    raise ValueError(f"--gt: clip id {r.id!r} is in both {owner[r.id].root} and {c.root}")
-                owner[r.id] = c
-                recs.append(r)
-    found: dict[str, dict[str, Path]] = {}  # condition → clip id → prediction, before any scoring
-    for name, folder in conditions.items():
-        if not Path(folder).is_dir():
-            raise FileNotFoundError(f"--pred {name}={folder}: no such folder")
-        found[name] = {r.id: p for r in recs if (p := find_prediction(folder, r.id)) is not None}
-        if not found[name]:
-            raise ValueError(
-                f"--pred {name}={folder}: expected videos named <clip id>.mp4/.mkv/.npy for clips of "
-                f"{', '.join(str(c.root) for c in sets)}" + (f" (split {split!r})" if split else "") + ", found none"
-            )
-    ids = {name: set(got) for name, got in found.items()}
-    common = set.intersection(*ids.values()) if ids else set()
-    same = all(v == common for v in ids.values())
-    if not same and clips_mode == "same":
-        first = next(iter(ids))
-        diffs = []
-        for name, v in ids.items():
-            if v != ids[first]:
-                lacks, extra = sorted(ids[first] - v), sorted(v - ids[first])
-                diffs.append(
-                    f"--pred {name} has {len(v)} clips against {len(ids[first])} of --pred {first}"
-                    + (f", lacking {_few(lacks)}" if lacks else "")
-                    + (f", adding {_few(extra)}" if extra else "")
-                )
-        raise ValueError(
-            "the rows would be means over different clips: "
-            + "; ".join(diffs)
-            + f"; expected predictions for the same clips, or --clips common (score the {len(common)} "
-            "clips all have) or --clips each (score each row over its own clips, marked)"
-        )
-    if clips_mode == "common":
-        if not common:
-            raise ValueError(f"--clips common: expected clips every condition has, found none ({', '.join(ids)})")
-        found = {name: {i: p for i, p in got.items() if i in common} for name, got in found.items()}
+    recs, owner = _ground_truth_clips(sets, split)
+    found = _predictions(conditions, recs, sets, split)
+    found = _same_clips(found, clips_mode)
     rows, clips = {}, {}
     cache: dict[str, np.ndarray] = {}
     by_id = {r.id: r for r in recs}
@@ -235,12 +268,7 @@ def evaluate_conditions(
             if r.id not in cache:
                 cache[r.id] = owner[r.id].load(r, skeleton=False).rgb
             per[r.id] = evaluate_clip(load_video(path), cache[r.id], str(path), per_chunk)
-        row = {k: _nanmean([m[k] for m in per.values()]) for k in METRICS + ("ee_found", "object_found")}
-        row["clips"] = len(per)
-        row["moved_object_clips"] = sum(1 for m in per.values() if m.get("moved_object_frames", 0))
-        if per_chunk is not None:
-            row["chunks"] = chunk_rows(per)
-        rows[name] = row
+        rows[name] = _condition_row(per, per_chunk)
         clips[name] = per
     roots = [str(c.root) for c in sets]
     return {

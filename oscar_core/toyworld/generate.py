@@ -63,17 +63,9 @@ def split_of(index: int) -> str:
 _log = get_logger(__name__)
 
 
-def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str], None] | None = None) -> dict:
-    """Generate (or resume) the clip set at ``out``; returns a summary with timings.
-
-    registry: an :class:`~oscar_core.plugin.registry.Registry` (plugins included).
-    A progress bar counts episodes (:func:`oscar_core._util.log.progress_bar`);
-    each shard, written or already there, is logged at INFO with its own count of episodes and passed to
-    ``progress`` if given.
-    Unsupported embodiments are rejected before anything is written.
-    """
-    from ..render.skeleton_video import render_skeleton_video
-
+def _checked_embodiments(cfg: GenerateConfig, registry) -> list:
+    """The embodiments of ``cfg`` from ``registry``, with ``cfg``'s settings checked before anything is written:
+    each embodiment supported (hands need ``HAND_MIN_FRAMES``), at least one episode, fractions in [0, 1]."""
     embs = [registry.get(n) for n in cfg.embodiments]
     for e in embs:
         check_supported(e, hands=True)
@@ -88,9 +80,14 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
     if not (isinstance(cfg.pick_open, (int, float)) and 0.0 <= cfg.pick_open <= 1.0):
         raise ToyWorldError(f"toyworld generate: --pick-open: expected a fraction in [0, 1], found {cfg.pick_open!r}")
-    # what every episode depends on besides (seed, embodiment, index): a re-run with other settings into the same
-    # folder would mix episodes of two kinds; more episodes or embodiments only add shards, so they are left out
-    parts = {
+    return embs
+
+
+def _stage_parts(cfg: GenerateConfig) -> dict:
+    """The clip set's fingerprint parts: what every episode depends on besides (seed, embodiment, index). A re-run
+    with other settings into the same folder would mix episodes of two kinds; more episodes or embodiments only
+    add shards, so they are left out."""
+    return {
         "stage": "toyworld-generate",
         "format": _stage.FORMAT_VERSION,
         "seed": cfg.seed,
@@ -104,8 +101,67 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
         "pick_miss": cfg.pick_miss,
         **({"pick_open": cfg.pick_open} if cfg.pick_open > 0 else {}),  # absent: a set made before the option
     }
+
+
+def _episode_clip(cfg: GenerateConfig, emb, i: int):
+    """``(clip, seconds)``: episode ``i`` of ``emb`` as a :class:`Clip` (its RGB video, trajectory, camera and, with
+    ``cfg.skeleton``, the skeleton video; the ground truth in ``meta["toyworld"]``), and the seconds spent making
+    and rendering it."""
+    from ..render.skeleton_video import render_skeleton_video
+
+    r0 = time.perf_counter()
+    ep = make_episode(
+        emb,
+        episode_rng(cfg.seed, emb.name, i),
+        cfg.width,
+        cfg.height,
+        cfg.frames,
+        cfg.fps,
+        ss=cfg.supersample,
+        pick_miss=cfg.pick_miss,
+        miss_rng=miss_rng(cfg.seed, emb.name, i),
+        pick_open=cfg.pick_open,
+    )
+    skel = None
+    if cfg.skeleton:
+        skel = render_skeleton_video(emb, ep.trajectory, ep.camera)
+    render_s = time.perf_counter() - r0
+    openness = clip_openness(emb, ep.trajectory)
+    meta = {
+        "seed": cfg.seed,
+        "episode": i,
+        "split": split_of(i),
+        "toyworld": ep.ground_truth(cfg.pick_miss > 0, cfg.pick_open > 0),
+    }
+    rec = ClipRecord(
+        id=clip_id(emb.name, i),
+        source=HAND_SOURCE if is_hand(emb) else SOURCE,
+        embodiment=emb.name,
+        n_frames=cfg.frames,
+        fps=cfg.fps,
+        width=cfg.width,
+        height=cfg.height,
+        openness=tuple(tuple(float(v) for v in row) for row in openness),
+        files={},
+        caption=None,
+        task=_task(ep.motion.kind),
+        meta=meta,
+    )
+    return Clip(rec, rgb=ep.rgb, trajectory=ep.trajectory, camera=ep.camera, skeleton=skel), render_s
+
+
+def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str], None] | None = None) -> dict:
+    """Generate (or resume) the clip set at ``out``; returns a summary with timings.
+
+    registry: an :class:`~oscar_core.plugin.registry.Registry` (plugins included).
+    A progress bar counts episodes (:func:`oscar_core._util.log.progress_bar`);
+    each shard, written or already there, is logged at INFO with its own count of episodes and passed to
+    ``progress`` if given.
+    Unsupported embodiments are rejected before anything is written.
+    """
+    embs = _checked_embodiments(cfg, registry)
     writer = ClipSetWriter(out)  # first: a set of another format is refused before anything is recorded
-    _stage.check_stage(out, parts, redo=f"use another --out for these settings, or delete {out} to redo it")
+    _stage.check_stage(out, _stage_parts(cfg), redo=f"use another --out for these settings, or delete {out} to redo it")
     writer.remove_stale()
     done = skipped = 0
     t0 = time.perf_counter()
@@ -126,45 +182,9 @@ def generate_clipset(cfg: GenerateConfig, out, registry, progress: Callable[[str
                 continue
             with writer.shard(name) as shard:
                 for i in range(lo, hi):
-                    r0 = time.perf_counter()
-                    ep = make_episode(
-                        emb,
-                        episode_rng(cfg.seed, emb.name, i),
-                        cfg.width,
-                        cfg.height,
-                        cfg.frames,
-                        cfg.fps,
-                        ss=cfg.supersample,
-                        pick_miss=cfg.pick_miss,
-                        miss_rng=miss_rng(cfg.seed, emb.name, i),
-                        pick_open=cfg.pick_open,
-                    )
-                    skel = None
-                    if cfg.skeleton:
-                        skel = render_skeleton_video(emb, ep.trajectory, ep.camera)
-                    render_s += time.perf_counter() - r0
-                    openness = clip_openness(emb, ep.trajectory)
-                    meta = {
-                        "seed": cfg.seed,
-                        "episode": i,
-                        "split": split_of(i),
-                        "toyworld": ep.ground_truth(cfg.pick_miss > 0, cfg.pick_open > 0),
-                    }
-                    rec = ClipRecord(
-                        id=clip_id(emb.name, i),
-                        source=HAND_SOURCE if is_hand(emb) else SOURCE,
-                        embodiment=emb.name,
-                        n_frames=cfg.frames,
-                        fps=cfg.fps,
-                        width=cfg.width,
-                        height=cfg.height,
-                        openness=tuple(tuple(float(v) for v in row) for row in openness),
-                        files={},
-                        caption=None,
-                        task=_task(ep.motion.kind),
-                        meta=meta,
-                    )
-                    shard.add(Clip(rec, rgb=ep.rgb, trajectory=ep.trajectory, camera=ep.camera, skeleton=skel))
+                    clip, clip_s = _episode_clip(cfg, emb, i)
+                    render_s += clip_s
+                    shard.add(clip)
                     done += 1
                     bar.update(1)
             msg = f"{name}: {_episodes(hi - lo)} written"  # this shard's own count (the run's are in the summary)

@@ -190,6 +190,113 @@ def miss_start(
     return cand[ok[0] if len(ok) else int(np.argmax(from_base))]
 
 
+@dataclass
+class _CandidatePoses:
+    """Random joint poses of one embodiment and what the motion picks from them.
+
+    q: (N, J) radians; ee: (N, 3) end-effector positions in metres; base: (3,) the base's position; scale: the
+    arm's reach in metres; radius: the ball's radius in metres; valid: indices of poses above the floor (and
+    away from the base when any are); grasp: valid poses with the end effector at the ball's height; high:
+    valid poses well above it.
+    """
+
+    q: np.ndarray
+    ee: np.ndarray
+    base: np.ndarray
+    scale: float
+    radius: float
+    valid: np.ndarray
+    grasp: np.ndarray
+    high: np.ndarray
+
+
+def _candidate_poses(emb: Embodiment, rng: np.random.Generator, n_candidates: int) -> _CandidatePoses:
+    """``n_candidates`` poses drawn uniformly within the joint limits from ``rng``, sorted into the sets a motion
+    picks its key poses from."""
+    lo, hi = joint_limits(emb)
+    J = len(lo)
+    q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
+    pts, ee = open_fk(emb, q)
+    base = pts[:, 0].mean(0)
+    scale = reach_of(pts, ee)
+    R = 0.09 * scale  # a ball about 7 pixels across at 64 x 64
+    above = (pts[..., 2].min(1) >= -0.02 * scale) & (ee[:, 2] >= R)
+    far = np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale
+    valid = np.flatnonzero(above & far)
+    if len(valid) == 0:
+        valid = np.flatnonzero(above)
+    if len(valid) == 0:
+        valid = np.argsort(-pts[..., 2].min(1))[:8]  # least-bad poses: the floor hides what is under it
+    grasp = valid[np.abs(ee[valid, 2] - 2 * R) <= 0.6 * R]
+    high = valid[ee[valid, 2] >= 2 * R + 0.25 * scale]
+    return _CandidatePoses(q, ee, base, scale, R, valid, grasp, high)
+
+
+def _pick_place(poses: _CandidatePoses, rng, T: int, G: int, pick_miss: float, miss_rng, pick_open: float):
+    """A pick-and-place through the poses, or None when no place pose lies far enough from the grasp (then the
+    draws from ``rng`` made so far stand and the motion is a reach). Returns ``(q, openness, ball, missed,
+    never_closed)``: (T, J) radians, (T, G) openness in [0, 1], the ball's (3,) start in metres, and whether the
+    grasp misses the ball or the gripper stays open (both drawn as :func:`sample_motion` says)."""
+    q, ee, grasp, high, R, scale = poses.q, poses.ee, poses.grasp, poses.high, poses.radius, poses.scale
+    g = int(rng.choice(grasp))
+    d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
+    far_enough = grasp[d >= 0.2 * scale]
+    if not len(far_enough):
+        return None
+    p = int(rng.choice(far_enough))
+    mid = (q[g] + q[p]) / 2
+    lift = int(high[np.argmin(np.linalg.norm(q[high] - mid, axis=1))])
+    start = int(rng.choice(high)) if rng.uniform() < 0.7 else int(rng.choice(poses.valid))
+    end = int(rng.choice(high))
+    a = int(round((T - 1) * rng.uniform(0.28, 0.38)))
+    hold = a + max(1, int(round(0.1 * (T - 1))))
+    b = int(round((T - 1) * rng.uniform(0.72, 0.8)))
+    b = min(max(b, hold + 2), T - 2)
+    release = min(b + max(1, int(round(0.08 * (T - 1)))), T - 1)
+    times = np.array([0, a, hold, (hold + b) // 2, b, release, T - 1])
+    keys = q[[start, g, g, lift, p, p, end]]
+    times, keep = np.unique(times, return_index=True)
+    keys = keys[keep]
+    qt = min_jerk(keys, times, T)
+    openness = np.ones((T, G))
+    close_at = (a + hold) // 2 if hold > a + 1 else hold
+    openness[close_at:release, 0] = 0.0
+    if close_at > 0:
+        openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
+    obj0 = np.array([ee[g, 0], ee[g, 1], R])
+    missed = never_closed = False
+    if pick_miss > 0 or pick_open > 0:
+        mrng = miss_rng if miss_rng is not None else np.random.Generator(rng.bit_generator.jumped())
+        if pick_miss > 0:
+            missed = bool(mrng.uniform() < pick_miss)
+            xy = miss_start(mrng, ee[g, :2], poses.base[:2], R, scale)  # drawn either way: F only picks who misses
+            if missed:
+                obj0 = np.array([xy[0], xy[1], R])
+        if pick_open > 0 and not missed:
+            never_closed = bool(mrng.uniform() < pick_open)
+            if never_closed:
+                openness[:, 0] = 1.0
+    return qt, openness, obj0, missed, never_closed
+
+
+def _reach(poses: _CandidatePoses, rng, T: int, G: int):
+    """A reach through 3 or 4 random valid poses, each gripper switching open/closed at most once, the ball
+    somewhere on the floor in the workspace. Returns ``(q, openness, ball)``: (T, J) radians, (T, G) in [0, 1],
+    (3,) metres."""
+    n_keys = int(rng.integers(3, 5))
+    keys = poses.q[rng.choice(poses.valid, size=n_keys)]
+    times = np.unique(np.round(np.linspace(0, T - 1, n_keys)).astype(int))
+    qt = min_jerk(keys[: len(times)], times, T)
+    openness = np.ones((T, G))
+    for i in range(G):
+        if rng.uniform() < 0.6:
+            t0 = int(rng.integers(1, T - 1))
+            openness[t0:, i] = 0.0 if rng.uniform() < 0.5 else 1.0
+            openness[:t0, i] = 1.0 - openness[t0, i]
+    k = int(rng.choice(poses.valid))
+    return qt, openness, np.array([poses.ee[k, 0], poses.ee[k, 1], poses.radius])
+
+
 def sample_motion(
     emb: Embodiment,
     rng: np.random.Generator,
@@ -219,78 +326,20 @@ def sample_motion(
         raise ToyWorldError(f"toyworld: --pick-miss: expected a fraction in [0, 1], found {pick_miss!r}")
     if not (isinstance(pick_open, (int, float)) and 0.0 <= pick_open <= 1.0):
         raise ToyWorldError(f"toyworld: --pick-open: expected a fraction in [0, 1], found {pick_open!r}")
-    lo, hi = joint_limits(emb)
-    J = len(lo)
-    q = lo + rng.uniform(0, 1, (n_candidates, J)) * (hi - lo)
-    pts, ee = open_fk(emb, q)
-    base = pts[:, 0].mean(0)
-    scale = reach_of(pts, ee)
-    R = 0.09 * scale  # a ball about 7 pixels across at 64 x 64
-    above = (pts[..., 2].min(1) >= -0.02 * scale) & (ee[:, 2] >= R)
-    far = np.linalg.norm(ee[:, :2] - base[:2], axis=1) >= 0.25 * scale
-    valid = np.flatnonzero(above & far)
-    if len(valid) == 0:
-        valid = np.flatnonzero(above)
-    if len(valid) == 0:
-        valid = np.argsort(-pts[..., 2].min(1))[:8]  # least-bad poses: the floor hides what is under it
-    grasp = valid[np.abs(ee[valid, 2] - 2 * R) <= 0.6 * R]
-    high = valid[ee[valid, 2] >= 2 * R + 0.25 * scale]
+    poses = _candidate_poses(emb, rng, n_candidates)
     G = len(emb.grippers)
     T = frames
     kind = "reach"
     missed = never_closed = False
-    if G and T >= 9 and len(grasp) >= 2 and len(high) >= 1 and rng.uniform() < pick_place_prob:
-        g = int(rng.choice(grasp))
-        d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
-        far_enough = grasp[d >= 0.2 * scale]
-        if len(far_enough):
-            kind = "pick_place"
-            p = int(rng.choice(far_enough))
-            mid = (q[g] + q[p]) / 2
-            lift = int(high[np.argmin(np.linalg.norm(q[high] - mid, axis=1))])
-            start = int(rng.choice(high)) if rng.uniform() < 0.7 else int(rng.choice(valid))
-            end = int(rng.choice(high))
-            a = int(round((T - 1) * rng.uniform(0.28, 0.38)))
-            hold = a + max(1, int(round(0.1 * (T - 1))))
-            b = int(round((T - 1) * rng.uniform(0.72, 0.8)))
-            b = min(max(b, hold + 2), T - 2)
-            release = min(b + max(1, int(round(0.08 * (T - 1)))), T - 1)
-            times = np.array([0, a, hold, (hold + b) // 2, b, release, T - 1])
-            keys = q[[start, g, g, lift, p, p, end]]
-            times, keep = np.unique(times, return_index=True)
-            keys = keys[keep]
-            qt = min_jerk(keys, times, T)
-            openness = np.ones((T, G))
-            close_at = (a + hold) // 2 if hold > a + 1 else hold
-            openness[close_at:release, 0] = 0.0
-            if close_at > 0:
-                openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
-            obj0 = np.array([ee[g, 0], ee[g, 1], R])
-            if pick_miss > 0 or pick_open > 0:
-                mrng = miss_rng if miss_rng is not None else np.random.Generator(rng.bit_generator.jumped())
-                if pick_miss > 0:
-                    missed = bool(mrng.uniform() < pick_miss)
-                    xy = miss_start(mrng, ee[g, :2], base[:2], R, scale)  # drawn either way: F only picks who misses
-                    if missed:
-                        obj0 = np.array([xy[0], xy[1], R])
-                if pick_open > 0 and not missed:
-                    never_closed = bool(mrng.uniform() < pick_open)
-                    if never_closed:
-                        openness[:, 0] = 1.0
-    if kind == "reach":
-        n_keys = int(rng.integers(3, 5))
-        keys = q[rng.choice(valid, size=n_keys)]
-        times = np.unique(np.round(np.linspace(0, T - 1, n_keys)).astype(int))
-        qt = min_jerk(keys[: len(times)], times, T)
-        openness = np.ones((T, G))
-        for i in range(G):
-            if rng.uniform() < 0.6:
-                t0 = int(rng.integers(1, T - 1))
-                openness[t0:, i] = 0.0 if rng.uniform() < 0.5 else 1.0
-                openness[:t0, i] = 1.0 - openness[t0, i]
-        # the object lies somewhere on the floor in the workspace
-        k = int(rng.choice(valid))
-        obj0 = np.array([ee[k, 0], ee[k, 1], R])
+    picked = None
+    if G and T >= 9 and len(poses.grasp) >= 2 and len(poses.high) >= 1 and rng.uniform() < pick_place_prob:
+        picked = _pick_place(poses, rng, T, G, pick_miss, miss_rng, pick_open)
+    if picked is not None:
+        kind = "pick_place"
+        qt, openness, obj0, missed, never_closed = picked
+    else:
+        qt, openness, obj0 = _reach(poses, rng, T, G)
+    R, scale = poses.radius, poses.scale
     traj = Trajectory(
         emb.joint_names,
         qt,

@@ -436,6 +436,123 @@ def _png_bytes(img: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
+def _visible_session(emb, i: int, seed: int, width: int, height: int, frames: int, fps: float, policies, supersample):
+    """``(session, renders, attempt)``: session ``i`` of ``emb`` planned from (seed, embodiment, i, attempt) with its
+    episodes rendered, at the first attempt whose camera sees the ball at the start and the end of every episode
+    (:data:`MAX_ATTEMPTS` at most, else :class:`ToyWorldError`)."""
+    from .episode import render_world
+
+    names = [p.name for p in policies]
+    for attempt in range(MAX_ATTEMPTS):
+        try:
+            s = plan_session(
+                emb,
+                session_rng(seed, emb.name, i, attempt),
+                width,
+                height,
+                frames,
+                fps,
+                policies,
+                {n: session_rng(seed, emb.name, i, attempt, n) for n in names},
+            )
+        except ValueError as exc:  # no camera sees it all: draw the session again
+            if isinstance(exc, ToyWorldError) or attempt == MAX_ATTEMPTS - 1:
+                raise
+            continue
+        renders = [render_world(emb, ep.motion, s.scene, s.camera, ss=supersample) for ep in s.episodes]
+        if _outcome_visible(s, renders):
+            break
+        if attempt == MAX_ATTEMPTS - 1:
+            raise ToyWorldError(
+                f"toyworld policy-eval: {emb.name} session {i}: expected a camera that sees "
+                f"the ball at the start and the end of every episode, found none in "
+                f"{MAX_ATTEMPTS} attempts"
+            )
+    return s, renders, attempt
+
+
+def _write_session(out: Path, name: str, emb, s, renders, attempt: int, fps: float) -> tuple[list[dict], list[dict]]:
+    """Writes session ``name``'s folder under ``out`` (first.png, camera.json, per policy its trajectory and real
+    video). Returns ``(cells, rows)``: its manifest cells (what the world model is given, nothing about the
+    outcome) and its summary rows (the true outcome; errors in ball radii)."""
+    from .._util.atomic import atomic_write_bytes
+    from ..camera import save_camera
+    from ..kinematics.trajectory import save_trajectory
+    from ..media.video import write_video
+
+    folder = out / name
+    folder.mkdir(exist_ok=True)
+    save_camera(s.camera, folder / "camera.json")
+    R = s.radius
+    Hm = floor_homography(s.camera, R, R)
+    first = renders[0].rgb[0]
+    start_px = renders[0].object_px[0]
+    r_px = _radius_px(s)
+    atomic_write_bytes(folder / "first.png", _png_bytes(first))
+    cells, rows = [], []
+    for ep, render in zip(s.episodes, renders):
+        if not np.array_equal(first, render.rgb[0]):
+            raise AssertionError(f"{name}: policy {ep.policy.name!r} starts from a different first frame")
+        save_trajectory(ep.motion.trajectory, folder / f"{ep.policy.name}.npz")
+        write_video(folder / f"{ep.policy.name}_real.mkv", render.rgb, fps)
+        info = {
+            "ball_start_px": [round(float(v), 3) for v in start_px],
+            "ball_radius_px": round(r_px, 3),
+            "px_to_floor_radii": [[float(v) for v in row] for row in Hm],
+            "success_radii": SUCCESS_RADII,
+        }  # nothing about the outcome or the policy
+        cells.append(
+            {
+                "session": name,
+                "policy": ep.policy.name,
+                "embodiment": emb.name,
+                "first_frame": f"{name}/first.png",
+                "trajectory": f"{name}/{ep.policy.name}.npz",
+                "camera": f"{name}/camera.json",
+                "real_success": ep.success,
+                "real_video": f"{name}/{ep.policy.name}_real.mkv",
+                "info": info,
+            }
+        )
+        rows.append(
+            {
+                "session": name,
+                "embodiment": emb.name,
+                "policy": ep.policy.name,
+                "attempt": attempt,
+                "real_success": ep.success,
+                "grabbed": ep.grabbed,
+                "displacement_radii": round(ep.displacement, 3),
+                "aim_error_radii": [round(float(v), 3) for v in ep.aim_error],
+                "grasp_error_radii": [round(float(v), 3) for v in ep.grasp_error],
+            }
+        )
+    return cells, rows
+
+
+def _policy_eval_summary(rows, policies, embs, seed: int, sessions: int, frames: int, width: int, height: int) -> dict:
+    """``policy_eval.json``: the settings, every row, and per policy its aim noise (ball radii) and true success
+    rate, overall and per embodiment."""
+    summary = {
+        "seed": seed,
+        "sessions": sessions,
+        "embodiments": [e.name for e in embs],
+        "frames": frames,
+        "size": [width, height],
+        "success_radii": SUCCESS_RADII,
+        "grab_radii": GRAB_RADII,
+        "policies": {p.name: {"aim_sigma_radii": p.aim_sigma} for p in policies},
+        "rows": rows,
+    }
+    for p in [p.name for p in policies]:
+        mine = [r for r in rows if r["policy"] == p]
+        summary["policies"][p]["success_rate"] = float(np.mean([r["real_success"] for r in mine]))
+        summary["policies"][p]["by_embodiment"] = {
+            e.name: float(np.mean([r["real_success"] for r in mine if r["embodiment"] == e.name])) for e in embs
+        }
+    return summary
+
+
 def write_policy_eval(
     out,
     embodiments,
@@ -459,11 +576,7 @@ def write_policy_eval(
     it all) is re-drawn with the next attempt number (recorded in the summary).
     """
     from .._util.atomic import atomic_write_bytes
-    from ..camera import save_camera
-    from ..kinematics.trajectory import save_trajectory
-    from ..media.video import write_video
     from ..plugin.registry import Registry
-    from .episode import render_world
 
     if sessions < 1:
         raise ValueError(f"toyworld policy-eval: --sessions: expected at least 1, found {sessions}")
@@ -486,78 +599,11 @@ def write_policy_eval(
     cells, rows = [], []
     for emb in embs:
         for i in range(sessions):
-            for attempt in range(MAX_ATTEMPTS):
-                try:
-                    s = plan_session(
-                        emb,
-                        session_rng(seed, emb.name, i, attempt),
-                        width,
-                        height,
-                        frames,
-                        fps,
-                        policies,
-                        {n: session_rng(seed, emb.name, i, attempt, n) for n in names},
-                    )
-                except ValueError as exc:  # no camera sees it all: draw the session again
-                    if isinstance(exc, ToyWorldError) or attempt == MAX_ATTEMPTS - 1:
-                        raise
-                    continue
-                renders = [render_world(emb, ep.motion, s.scene, s.camera, ss=supersample) for ep in s.episodes]
-                if _outcome_visible(s, renders):
-                    break
-                if attempt == MAX_ATTEMPTS - 1:
-                    raise ToyWorldError(
-                        f"toyworld policy-eval: {emb.name} session {i}: expected a camera that sees "
-                        f"the ball at the start and the end of every episode, found none in "
-                        f"{MAX_ATTEMPTS} attempts"
-                    )
+            s, renders, attempt = _visible_session(emb, i, seed, width, height, frames, fps, policies, supersample)
             name = f"{emb.name}-{i:04d}"
-            folder = out / name
-            folder.mkdir(exist_ok=True)
-            save_camera(s.camera, folder / "camera.json")
-            R = s.radius
-            Hm = floor_homography(s.camera, R, R)
-            first = renders[0].rgb[0]
-            start_px = renders[0].object_px[0]
-            r_px = _radius_px(s)
-            atomic_write_bytes(folder / "first.png", _png_bytes(first))
-            for ep, render in zip(s.episodes, renders):
-                if not np.array_equal(first, render.rgb[0]):
-                    raise AssertionError(f"{name}: policy {ep.policy.name!r} starts from a different first frame")
-                save_trajectory(ep.motion.trajectory, folder / f"{ep.policy.name}.npz")
-                write_video(folder / f"{ep.policy.name}_real.mkv", render.rgb, fps)
-                info = {
-                    "ball_start_px": [round(float(v), 3) for v in start_px],
-                    "ball_radius_px": round(r_px, 3),
-                    "px_to_floor_radii": [[float(v) for v in row] for row in Hm],
-                    "success_radii": SUCCESS_RADII,
-                }  # nothing about the outcome or the policy
-                cells.append(
-                    {
-                        "session": name,
-                        "policy": ep.policy.name,
-                        "embodiment": emb.name,
-                        "first_frame": f"{name}/first.png",
-                        "trajectory": f"{name}/{ep.policy.name}.npz",
-                        "camera": f"{name}/camera.json",
-                        "real_success": ep.success,
-                        "real_video": f"{name}/{ep.policy.name}_real.mkv",
-                        "info": info,
-                    }
-                )
-                rows.append(
-                    {
-                        "session": name,
-                        "embodiment": emb.name,
-                        "policy": ep.policy.name,
-                        "attempt": attempt,
-                        "real_success": ep.success,
-                        "grabbed": ep.grabbed,
-                        "displacement_radii": round(ep.displacement, 3),
-                        "aim_error_radii": [round(float(v), 3) for v in ep.aim_error],
-                        "grasp_error_radii": [round(float(v), 3) for v in ep.grasp_error],
-                    }
-                )
+            session_cells, session_rows = _write_session(out, name, emb, s, renders, attempt, fps)
+            cells += session_cells
+            rows += session_rows
             (progress or _log.info)(f"{name}: " + ", ".join(f"{ep.policy.name} {ep.success}" for ep in s.episodes))
     manifest = {
         "format": "oscar-eval-manifest",
@@ -570,22 +616,6 @@ def write_policy_eval(
         "cells": cells,
     }
     atomic_write_bytes(out / "manifest.json", (json.dumps(manifest, indent=1) + "\n").encode())
-    summary = {
-        "seed": seed,
-        "sessions": sessions,
-        "embodiments": [e.name for e in embs],
-        "frames": frames,
-        "size": [width, height],
-        "success_radii": SUCCESS_RADII,
-        "grab_radii": GRAB_RADII,
-        "policies": {p.name: {"aim_sigma_radii": p.aim_sigma} for p in policies},
-        "rows": rows,
-    }
-    for p in names:
-        mine = [r for r in rows if r["policy"] == p]
-        summary["policies"][p]["success_rate"] = float(np.mean([r["real_success"] for r in mine]))
-        summary["policies"][p]["by_embodiment"] = {
-            e.name: float(np.mean([r["real_success"] for r in mine if r["embodiment"] == e.name])) for e in embs
-        }
+    summary = _policy_eval_summary(rows, policies, embs, seed, sessions, frames, width, height)
     atomic_write_bytes(out / "policy_eval.json", (json.dumps(summary, indent=1) + "\n").encode())
     return summary

@@ -180,6 +180,50 @@ def _latent_stats(vae, frames: np.ndarray, batch: int = 4) -> tuple[list[float],
     return z.mean(1).tolist(), z.std(1).clamp_min(1e-4).tolist()
 
 
+def _new_or_initial_vae(cfg: VAETrainConfig):
+    """``(vae, config)``: the VAE to train (``cfg.init``'s weights, or a new ``AutoencoderKLWan`` of the toy config
+    with ``cfg.base_dim`` and ``cfg.config``) and its config fields."""
+    from diffusers import AutoencoderKLWan
+
+    if cfg.init:
+        vae = load_toy_vae(cfg.init)
+        return vae, {k: vae.config[k] for k in TOY_VAE_CONFIG}
+    config = {**TOY_VAE_CONFIG, "base_dim": cfg.base_dim, **cfg.config}
+    return AutoencoderKLWan(**config), config
+
+
+def _training_batch(train: np.ndarray, rng: np.random.Generator, cfg: VAETrainConfig):
+    """``cfg.batch`` random ``cfg.window``-frame windows of the (N, T, H, W, 3) uint8 clips, half of them flipped
+    left-right, as a (B, 3, window, H, W) float32 tensor in [-1, 1]."""
+    import torch
+
+    N, T = train.shape[:2]
+    idx = rng.integers(0, N, cfg.batch)
+    starts = rng.integers(0, T - cfg.window + 1, cfg.batch)
+    clip = np.stack([train[i, s : s + cfg.window] for i, s in zip(idx, starts)])
+    flip = rng.uniform(size=cfg.batch) < 0.5  # horizontal flips: more views for free
+    clip[flip] = clip[flip][:, :, :, ::-1]
+    return torch.from_numpy(np.ascontiguousarray(clip)).permute(0, 4, 1, 2, 3).float().div(127.5).sub(1.0)
+
+
+def _vae_loss(vae, x, cfg: VAETrainConfig):
+    """``(loss, mse, kl)`` of the VAE on the batch x (B, 3, T, H, W) in [-1, 1]: the reconstruction MSE, the KL per
+    latent element times ``cfg.kl``, and the optional foreground (moving pixels) and chroma terms."""
+    import torch
+
+    post = vae.encode(x).latent_dist
+    y = vae.decode(post.sample() if cfg.sample_posterior else post.mode()).sample
+    err = (y - x) ** 2
+    rec = torch.mean(err)
+    kl = 0.5 * torch.mean(post.mean**2 + post.var - 1.0 - post.logvar)  # per latent element
+    loss = rec + cfg.kl * kl
+    if cfg.foreground:
+        loss = loss + cfg.foreground * torch.mean(moving_pixels(x) * err)
+    if cfg.chroma:
+        loss = loss + cfg.chroma * torch.mean(((y - y.mean(1, keepdim=True)) - (x - x.mean(1, keepdim=True))) ** 2)
+    return loss, rec, kl
+
+
 def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | None = None) -> dict:
     """Train, evaluate and save; returns the card (also written to ``OUT/vae_card.json``).
 
@@ -188,7 +232,6 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     """
     log = log or _log.info
     import torch
-    from diffusers import AutoencoderKLWan
 
     from ..model.vae import check_frame_count
 
@@ -207,12 +250,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     N, T = train.shape[:2]
     if T < cfg.window:
         raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
-    if cfg.init:
-        vae = load_toy_vae(cfg.init)
-        config = {k: vae.config[k] for k in TOY_VAE_CONFIG}
-    else:
-        config = {**TOY_VAE_CONFIG, "base_dim": cfg.base_dim, **cfg.config}
-        vae = AutoencoderKLWan(**config)
+    vae, config = _new_or_initial_vae(cfg)
     n_params = sum(p.numel() for p in vae.parameters())
     opt = torch.optim.AdamW(vae.parameters(), lr=cfg.lr, weight_decay=0.0)
     sched = torch.optim.lr_scheduler.LambdaLR(
@@ -241,22 +279,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     stopped = "steps"
     bar = progress_bar(total=cfg.steps, desc="toyworld train-vae", unit="step")
     while step < cfg.steps:
-        idx = rng.integers(0, N, cfg.batch)
-        starts = rng.integers(0, T - cfg.window + 1, cfg.batch)
-        clip = np.stack([train[i, s : s + cfg.window] for i, s in zip(idx, starts)])
-        flip = rng.uniform(size=cfg.batch) < 0.5  # horizontal flips: more views for free
-        clip[flip] = clip[flip][:, :, :, ::-1]
-        x = torch.from_numpy(np.ascontiguousarray(clip)).permute(0, 4, 1, 2, 3).float().div(127.5).sub(1.0)
-        post = vae.encode(x).latent_dist
-        y = vae.decode(post.sample() if cfg.sample_posterior else post.mode()).sample
-        err = (y - x) ** 2
-        rec = torch.mean(err)
-        kl = 0.5 * torch.mean(post.mean**2 + post.var - 1.0 - post.logvar)  # per latent element
-        loss = rec + cfg.kl * kl
-        if cfg.foreground:
-            loss = loss + cfg.foreground * torch.mean(moving_pixels(x) * err)
-        if cfg.chroma:
-            loss = loss + cfg.chroma * torch.mean(((y - y.mean(1, keepdim=True)) - (x - x.mean(1, keepdim=True))) ** 2)
+        loss, rec, kl = _vae_loss(vae, _training_batch(train, rng, cfg), cfg)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(vae.parameters(), 1.0)
