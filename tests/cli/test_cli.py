@@ -13,6 +13,15 @@ from oscar_core.media.video import read_video, write_video
 TRAJ, CAM = TOYARM_ASSETS / "example_trajectory.npz", TOYARM_ASSETS / "example_camera.json"
 
 
+def short_trajectory(folder, frames: int = 9):
+    """The first ``frames`` frames of the bundled example (an overlay's cost grows with its frames; what it
+    checks does not)."""
+    src = np.load(TRAJ)
+    path = folder / f"first{frames}.npz"
+    np.savez(path, **{k: src[k][:frames] if k in ("q", "gripper") else src[k] for k in src.files})
+    return path
+
+
 def run(capsys, *args):
     code = main([str(a) for a in args])
     out, err = capsys.readouterr()
@@ -90,7 +99,7 @@ def test_render_mp4_lossless_and_png(tmp_path, capsys):
 
 def test_overlay_blends_over_real_video(tmp_path, capsys):
     rng = np.random.default_rng(0)
-    rgb = np.broadcast_to(rng.integers(40, 200, (1, 360, 640, 3), dtype=np.uint8), (81, 360, 640, 3))
+    rgb = np.broadcast_to(rng.integers(40, 200, (1, 360, 640, 3), dtype=np.uint8), (9, 360, 640, 3))
     write_video(tmp_path / "rgb.mkv", rgb, 15)
     code, _, err = run(
         capsys,
@@ -98,7 +107,7 @@ def test_overlay_blends_over_real_video(tmp_path, capsys):
         "--embodiment",
         "toyarm",
         "--trajectory",
-        TRAJ,
+        short_trajectory(tmp_path),
         "--camera",
         CAM,
         "--out",
@@ -108,7 +117,7 @@ def test_overlay_blends_over_real_video(tmp_path, capsys):
     )
     assert code == 0, err
     out = read_video(tmp_path / "check.mkv")
-    assert out.shape == (81, 360, 640, 3)
+    assert out.shape == (9, 360, 640, 3)
     skeleton_px = np.any(out != rgb, axis=-1)
     assert 0.001 < skeleton_px.mean() < 0.2  # the skeleton changes a few pixels; the rest is the real frame
     # --condition-style reaches the overlay: a gripper indicator 3x larger covers more of the real frame (9 frames)
@@ -125,14 +134,14 @@ def test_overlay_blends_over_real_video(tmp_path, capsys):
 
 
 def test_overlay_too_short(tmp_path, capsys):
-    write_video(tmp_path / "short.mkv", np.zeros((10, 360, 640, 3), np.uint8), 15)
+    write_video(tmp_path / "short.mkv", np.zeros((8, 360, 640, 3), np.uint8), 15)
     code, _, err = run(
         capsys,
         "render",
         "--embodiment",
         "toyarm",
         "--trajectory",
-        TRAJ,
+        short_trajectory(tmp_path),
         "--camera",
         CAM,
         "--out",
@@ -140,7 +149,7 @@ def test_overlay_too_short(tmp_path, capsys):
         "--overlay",
         tmp_path / "short.mkv",
     )
-    assert code == 2 and "short.mkv" in err and "at least 81 frames" in err
+    assert code == 2 and "short.mkv" in err and "at least 9 frames" in err
 
 
 @pytest.mark.parametrize(
@@ -177,9 +186,12 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys, case):
 
 
 def test_demo_writes_videos_and_contact_sheet(tmp_path, capsys):
-    code, out, err = run(capsys, "demo", "--out", tmp_path / "demo")
+    # the toy world's row is run_demo's (tests/toyworld/test_toyworld_rollouts.py, with a tiny model; CI's make demo
+    # with oscar-toy): here the command's own part, every embodiment's video and the sheet
+    code, out, err = run(capsys, "demo", "--out", tmp_path / "demo", "--no-toy-world")
     assert code == 0, err
     summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert "toy_world" not in summary and not (tmp_path / "demo" / "toyworld_rollout.mp4").exists()
     names = {v["embodiment"] for v in summary["videos"]}
     assert "toyarm" in names
     assert read_video(tmp_path / "demo" / "toyarm.mp4").shape == (81, 288, 512, 3)
@@ -195,17 +207,18 @@ def test_overlay_frames_are_fitted_like_the_calibration(tmp_path, capsys):
     from oscar_core.render.skeleton_video import fit_image
 
     # a frame whose left and right thirds differ, so a stretch and a crop give different pixels
-    rgb = np.zeros((81, 360, 640, 3), np.uint8)
+    rgb = np.zeros((9, 360, 640, 3), np.uint8)
     rgb[:, :, :213] = (200, 40, 40)
     rgb[:, :, 427:] = (40, 40, 200)
     write_video(tmp_path / "rgb.mkv", rgb, 15)
+    traj = short_trajectory(tmp_path)
     code, _, err = run(
         capsys,
         "render",
         "--embodiment",
         "toyarm",
         "--trajectory",
-        TRAJ,
+        traj,
         "--camera",
         CAM,
         "--out",
@@ -216,7 +229,7 @@ def test_overlay_frames_are_fitted_like_the_calibration(tmp_path, capsys):
         "320x240",
     )
     assert code == 0, err
-    skeleton = render_skeleton_video(get_embodiment("toyarm"), load_trajectory(TRAJ), load_camera(CAM), (320, 240))
+    skeleton = render_skeleton_video(get_embodiment("toyarm"), load_trajectory(traj), load_camera(CAM), (320, 240))
     fitted = np.stack([fit_image(f, 320, 240, "crop") for f in rgb])
     np.testing.assert_array_equal(read_video(tmp_path / "check.mkv"), overlay_skeleton(skeleton, fitted))
     assert not np.array_equal(fitted[0], fit_image(rgb[0], 320, 240, "stretch"))

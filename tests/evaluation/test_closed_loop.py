@@ -23,6 +23,16 @@ from oscar_core.toyworld.closed_loop import toy_simulator, write_closed_loop_ses
 
 OSCAR = [sys.executable, "-m", "oscar_core.cli"]
 
+
+def oscar(capsys, args: list) -> tuple[int, str, str]:
+    """``oscar ARGS`` in this process (exit code, stdout, stderr): a fresh process only where one is killed."""
+    from oscar_core.cli import main
+
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
 BAD_POLICIES = '''
 import time
 import numpy as np
@@ -128,11 +138,11 @@ def test_velocity_commands_integrate_through_the_loop(toy, tmp_path):
         assert [c["frame"] for c in calls] == [0, 0, 16, 16]  # two calls per 16-frame chunk, each on the latest frame
 
 
-def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
+def test_world_model_frames_received_equal_the_rollout(toy, tmp_path, capsys, one_thread):
     """Every image a policy was sent is the generated frame at its call (hashes), never the simulator's."""
     m = _variant(toy, "short", horizon=17)
     out = tmp_path / "wm"
-    cmd = OSCAR + [
+    cmd = [
         "eval",
         "closed-loop",
         str(m),
@@ -148,8 +158,8 @@ def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
         "oscar_core.toyworld.judge:ball_moved",
         "--no-progress",
     ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
-    assert proc.returncode == 0, proc.stderr
+    code, _, err = oscar(capsys, cmd)
+    assert code == 0, err
     report = json.loads((out / "report.json").read_text())
     assert report["counts"]["done"] == 4 and report["ranked_by"] == "success_rate"
     run_closed_loop(m, tmp_path / "sim", simulator=toy_simulator, fps=10.0, chunk_frames=9)  # the real frames
@@ -171,7 +181,7 @@ def test_world_model_frames_received_equal_the_rollout(toy, tmp_path):
     assert later >= 4  # calls on generated frames exist (8 frames per chunk, 8 actions per call)
 
 
-def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
+def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path, capsys):
     folder = toy.parent.parent
     specs = [
         _joint_spec("line", "Line", folder),
@@ -183,7 +193,7 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
     ]
     m = _variant(toy, "bad", horizon=33, policies=specs)
     out = tmp_path / "bad"
-    cmd = OSCAR + [
+    cmd = [
         "eval",
         "closed-loop",
         str(m),
@@ -196,9 +206,9 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
         "--no-progress",
         "--json",
     ]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    assert proc.returncode == 1, proc.stderr
-    report = json.loads(proc.stdout[proc.stdout.index("{") :])
+    code, stdout, err = oscar(capsys, cmd)
+    assert code == 1, err
+    report = json.loads(stdout[stdout.index("{") :])
     reasons = {(c["session"], c["policy"]): c["reason"] for c in report["cells"]}
     for s in ("toyarm-0000", "toyarm-0001"):
         assert reasons[(s, "line")] is None
@@ -213,23 +223,23 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path):
         rec = json.loads((out / "cells" / "toyarm-0000" / name / "record.json").read_text())
         assert rec["status"] == "failed" and "video" not in rec
     # a re-run reuses failed cells; --retry-failed redoes exactly them
-    again = subprocess.run(cmd, capture_output=True, text=True)
-    counts = json.loads(again.stdout[again.stdout.index("{") :])["counts"]
-    assert again.returncode == 1 and counts["done"] == 0 and counts["reused"] == 12
-    retry = subprocess.run(cmd + ["--retry-failed"], capture_output=True, text=True)
-    counts = json.loads(retry.stdout[retry.stdout.index("{") :])["counts"]
+    code, stdout, _ = oscar(capsys, cmd)
+    counts = json.loads(stdout[stdout.index("{") :])["counts"]
+    assert code == 1 and counts["done"] == 0 and counts["reused"] == 12
+    _, stdout, _ = oscar(capsys, cmd + ["--retry-failed"])
+    counts = json.loads(stdout[stdout.index("{") :])["counts"]
     assert counts["done"] == 10 and counts["retried"] == 10 and counts["reused"] == 2
 
 
-def test_kill_and_resume_and_fingerprint(toy, tmp_path):
+def test_kill_and_resume_and_fingerprint(toy, tmp_path, capsys, monkeypatch):
     folder = toy.parent.parent
     m = _variant(
         toy, "slowish", horizon=33, policies=[_joint_spec("a", "Slow", folder), _joint_spec("b", "Slow", folder)]
     )
     out = tmp_path / "resume"
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--no-progress"]
+    cmd = ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--no-progress"]
     env = {**os.environ, "SLOW_POLICY_S": "0.3"}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(OSCAR + cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     first = out / "cells" / "toyarm-0000" / "a" / "record.json"
     deadline = time.time() + 120
     while not first.exists() and time.time() < deadline:
@@ -238,42 +248,35 @@ def test_kill_and_resume_and_fingerprint(toy, tmp_path):
     proc.wait()
     assert first.exists()
     before = first.read_bytes()
-    done = subprocess.run(cmd + ["--json"], env=env, capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
-    counts = json.loads(done.stdout[done.stdout.index("{") :])["counts"]
+    monkeypatch.setenv("SLOW_POLICY_S", "0.3")  # the resumed runs in this process
+    code, stdout, err = oscar(capsys, cmd + ["--json"])
+    assert code == 0, err
+    counts = json.loads(stdout[stdout.index("{") :])["counts"]
     assert counts["reused"] >= 1 and counts["reused"] + counts["done"] == 4
     assert first.read_bytes() == before  # the finished cell was not redone
     assert not list(out.rglob("*.tmp*")) and not list(out.rglob(".*.tmp*"))
     # a changed setting is noticed: every cell redone
-    changed = subprocess.run(cmd + ["--json", "--replan-every", "4"], env=env, capture_output=True, text=True)
-    counts = json.loads(changed.stdout[changed.stdout.index("{") :])["counts"]
+    _, stdout, _ = oscar(capsys, cmd + ["--json", "--replan-every", "4"])
+    counts = json.loads(stdout[stdout.index("{") :])["counts"]
     assert counts["done"] == 4 and counts["reused"] == 0
 
 
-def test_manifest_errors_name_the_field(toy, tmp_path):
+def test_manifest_errors_name_the_field(toy, tmp_path, capsys):
     data = json.loads(toy.read_text())
     data["sessions"][1]["horizon"] = 1
     bad = toy.parent / "bad_fields.json"  # beside the session folders its paths name
     bad.write_text(json.dumps(data))
-    proc = subprocess.run(
-        OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 2
-    assert "sessions[1] ('toyarm-0001'): field 'horizon': expected an integer >= 2" in proc.stderr
+    code, _, err = oscar(capsys, ["eval", "closed-loop", bad, "--simulator", "toy", "--out", tmp_path / "o"])
+    assert code == 2
+    assert "sessions[1] ('toyarm-0001'): field 'horizon': expected an integer >= 2" in err
     data = json.loads(toy.read_text())
     data["policies"][0]["action_space"] = "torque"
     bad.write_text(json.dumps(data))
-    proc = subprocess.run(
-        OSCAR + ["eval", "closed-loop", str(bad), "--simulator", "toy", "--out", str(tmp_path / "o")],
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 2 and "action_space" in proc.stderr and "'torque'" in proc.stderr
+    code, _, err = oscar(capsys, ["eval", "closed-loop", bad, "--simulator", "toy", "--out", tmp_path / "o"])
+    assert code == 2 and "action_space" in err and "'torque'" in err
 
 
-def test_a_judge_that_cannot_judge_fails_the_run_loudly(toy, tmp_path):
+def test_a_judge_that_cannot_judge_fails_the_run_loudly(toy, tmp_path, capsys):
     """Sessions without the judge's ``info``: exit 1, the reason on stderr, in summary.md, report.json and the log."""
     data = json.loads(_variant(toy, "no_info", horizon=17).read_text())
     for s in data["sessions"]:
@@ -283,11 +286,11 @@ def test_a_judge_that_cannot_judge_fails_the_run_loudly(toy, tmp_path):
     m.write_text(json.dumps(data))
     out = tmp_path / "no_info"
     judge = "oscar_core.toyworld.judge:ball_moved"
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--judge", judge, "--out", str(out)]
-    proc = subprocess.run(cmd + ["--no-progress"], capture_output=True, text=True)
-    assert proc.returncode == 1, proc.stderr
+    cmd = ["eval", "closed-loop", m, "--simulator", "toy", "--judge", judge, "--out", out, "--no-progress"]
+    code, _, err = oscar(capsys, cmd)
+    assert code == 1, err
     why = "expected 'px_to_floor_radii'"
-    assert "error: the judge could not judge 4 of 4 finished cells" in proc.stderr and why in proc.stderr
+    assert "error: the judge could not judge 4 of 4 finished cells" in err and why in err
     summary = (out / "summary.md").read_text()
     assert "FAILED: the judge could not judge 4 of 4 finished cells" in summary
     assert summary.count(why) == 4
