@@ -6,9 +6,6 @@ capsule raster (a second implementation of the same bodies), frames are independ
 CLI, the trainer's cache and the rollout pick the condition up by name.
 """
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 import torch
@@ -150,11 +147,10 @@ def test_render_cli_draws_capsules_for_a_robot_without_meshes(tmp_path, registry
     save_trajectory(ep.trajectory, tmp_path / "t.npz")
     save_camera(ep.camera, tmp_path / "c.json")
     out = tmp_path / "caps.mkv"
-    r = subprocess.run(
+    from oscar_core.cli import main
+
+    code = main(
         [
-            sys.executable,
-            "-m",
-            "oscar_core.cli",
             "render",
             "--embodiment",
             "kuka",
@@ -166,11 +162,9 @@ def test_render_cli_draws_capsules_for_a_robot_without_meshes(tmp_path, registry
             str(out),
             "--condition",
             "capsules",
-        ],
-        capture_output=True,
-        text=True,
+        ]
     )
-    assert r.returncode == 0, r.stderr
+    assert code == 0
     from oscar_core.media.video import read_video
 
     got = read_video(out)

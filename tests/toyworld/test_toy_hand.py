@@ -1,9 +1,6 @@
 """Hands in the toy world: the closed rule, grasp / carry / release and push against hand-computed positions,
 deterministic episodes whose skeleton is the mano plugin's rendering, and named refusals."""
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -176,13 +173,14 @@ def test_keypoint_embodiments_other_than_hands_are_refused_by_name():
         check_supported(Dots(), hands=True)
 
 
-def test_cli_names_a_too_short_hand_episode(tmp_path):
-    r = subprocess.run(
-        [sys.executable, "-m", "oscar_core.cli", "toyworld", "generate", "--embodiments", "mano"]
-        + ["--episodes", "1", "--frames", "7", "--size", "32x32", "--out", str(tmp_path / "o")],
-        capture_output=True,
-        text=True,
+def test_cli_names_a_too_short_hand_episode(tmp_path, capsys):
+    from oscar_core.cli import main
+
+    code = main(
+        ["toyworld", "generate", "--embodiments", "mano"]
+        + ["--episodes", "1", "--frames", "7", "--size", "32x32", "--out", str(tmp_path / "o")]
     )
-    assert r.returncode == 2, r.stderr
-    assert "--frames: expected at least 9 frames for a hand episode (mano), found 7" in r.stderr
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "--frames: expected at least 9 frames for a hand episode (mano), found 7" in err
     assert not (tmp_path / "o").exists()  # before anything is written

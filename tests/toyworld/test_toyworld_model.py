@@ -40,16 +40,17 @@ def toy():
     return oscar_zoo.load("oscar-toy")
 
 
-def test_in_the_zoo_bundled_and_pinned():
+def test_in_the_zoo_bundled_and_pinned(capsys):
     spec = next(s for s in oscar_zoo.list_models() if s.name == "oscar-toy")
     assert spec.bundled and spec.files and all(f.sha256 for f in spec.files)
     folder = oscar_zoo.pull("oscar-toy")
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
     assert size < 20e6, f"oscar-toy is {size / 1e6:.1f} MB"
     assert (folder / "README.md").is_file()
-    out = subprocess.run(
-        [sys.executable, "-m", "oscar_core.cli", "zoo", "list"], capture_output=True, text=True, check=True
-    ).stdout
+    from oscar_core.cli import main
+
+    assert main(["zoo", "list"]) == 0
+    out = capsys.readouterr().out
     assert "oscar-toy" in out and "bundled with oscar-wm" in out
 
 
