@@ -18,7 +18,7 @@ frame, one trajectory, variants that change one decision, the true outcome of ea
    where the truth shows the object and the model does not counts as the image diagonal (losing the object is never
    better than misplacing it);
 4. writes ``sets/<set>.json`` atomically (a killed run resumes: a finished set is kept), and the model's videos
-   under ``videos/<set>/<variant>.mp4``.
+   under ``videos/<set>/<variant>.mp4`` (``.mkv``, lossless, for an odd width or height).
 
 Then :func:`~.action_following_scores.score_records` makes the scores, written as ``report.json`` and
 ``summary.md``. The folder's ``fingerprint.json`` holds what the records depend on (the manifest's bytes, the
@@ -461,7 +461,8 @@ def _run_set(model, s: CounterfactualSet, judge, locate_fn, sampler, settings, c
         video = np.asarray(video)
         vd = out / "videos" / s.set.replace("/", "_")
         vd.mkdir(parents=True, exist_ok=True)
-        write_video(vd / f"{v.name}.mp4", video, float(v.trajectory.fps))
+        ext = "mp4" if video.shape[1] % 2 == 0 and video.shape[2] % 2 == 0 else "mkv"  # H.264 needs even sizes
+        write_video(vd / f"{v.name}.{ext}", video, float(v.trajectory.fps))
         verdict = _judge_one(judge, video, s, v.name)
         truth = read_video(v.video) if v.video is not None else None
         truth_verdict = _judge_one(judge, truth, s, v.name + "/truth") if truth is not None else None
