@@ -34,6 +34,15 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "its configuration (`expected_2b`, `computed_2b`: computed, not measured); with `--gpu` or "
         "`--measure`, each sampling preset measured on the device (`measured`).",
     ),
+    "action_following": (
+        "Action following, the quick set",
+        "benchmarks/action_following.py",
+        "`oscar toyworld action-following --model oscar-toy --quick` as a user runs it (a fresh process, one torch "
+        "thread): 9 counterfactual toy sets x 6 variants, 97 frames = 6 chunks, 10 sampler steps. Decision accuracy "
+        "and the pairwise rate with 95 % bootstrap intervals over sets, per-variant verdict agreement and ball end "
+        "error (ball radii), per-chunk PSNR and ball error, and the wall and CPU seconds of the whole command "
+        "(set generation included) with the load average before and after (docs/action-following.md).",
+    ),
     "cli_rollout": (
         "One `oscar rollout` end to end",
         "benchmarks/cli_rollout.py",

@@ -17,7 +17,7 @@ frame, one trajectory, variants that change one decision, the true outcome of ea
    pixels when the set's ``info`` has no radius). A chunk's frames are ``[1 + (L − 1)(k − 1), (L − 1)k]``; a frame
    where the truth shows the object and the model does not counts as the image diagonal (losing the object is never
    better than misplacing it);
-4. writes ``sets/<set>.json`` atomically (a killed run resumes: a finished set is kept), and the model's videos
+4. writes ``records/<set>.json`` atomically (a killed run resumes: a finished set is kept), and the model's videos
    under ``videos/<set>/<variant>.mp4`` (``.mkv``, lossless, for an odd width or height).
 
 Then :func:`~.action_following_scores.score_records` makes the scores, written as ``report.json`` and
@@ -281,7 +281,7 @@ def _fingerprint_parts(manifest, settings, model_identity, sampler, chunk, judge
 
 
 def _record_path(out: Path, sid: str) -> Path:
-    return out / "sets" / f"{sid.replace('/', '_')}.json"
+    return out / "records" / f"{sid.replace('/', '_')}.json"
 
 
 def run_action_following(
@@ -348,7 +348,7 @@ def run_action_following(
     )
     parts = _fingerprint_parts(manifest, settings, identity, sampler, chunk, judge, locator_spec)
     _stage.check_stage(out, parts, redo="use another --out for these settings, or delete the folder to redo it")
-    (out / "sets").mkdir(parents=True, exist_ok=True)
+    (out / "records").mkdir(parents=True, exist_ok=True)
     records, todo = {}, []
     for s in manifest.sets:
         p = _record_path(out, s.set)

@@ -203,7 +203,7 @@ def test_resume_keeps_finished_sets_and_other_settings_are_refused(sets, tmp_pat
     out = tmp_path / "run"
     first = _run(sets, out, model)
     assert model.calls == 12 and first.report["timing"]["sets_run"] == 2
-    (out / "sets" / "toyarm-0001.json").unlink()  # as if killed after the first set
+    (out / "records" / "toyarm-0001.json").unlink()  # as if killed after the first set
     again = _run(sets, out, model)
     assert model.calls == 18 and again.report["timing"] == {**again.report["timing"], "sets_run": 1, "sets_reused": 1}
     assert again.report["scores"] == first.report["scores"]
