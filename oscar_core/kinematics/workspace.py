@@ -2,21 +2,49 @@
 
 Shared by the toy world (motions, policies: :mod:`oscar_core.toyworld`), the capsule body
 (:mod:`oscar_core.render.capsules`, whose sizes follow the reach) and the benchmark protocol's
-forward-window check. Units: radians / metres for joints, metres in the world.
+forward-window check. Units: radians / metres for joints, metres in the world. ``emb`` is any object with the
+members of :class:`Embodiment` (a plugin's :class:`oscar_core.plugin.embodiment.Embodiment` is one).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
 from .trajectory import Trajectory
 
-if TYPE_CHECKING:  # annotations only: the plugin contract is the floor above kinematics
-    from ..plugin.embodiment import Embodiment
+__all__ = ["Embodiment", "joint_limits", "openness_to_signal", "end_effector", "ee_points", "open_fk", "reach_of"]
 
-__all__ = ["joint_limits", "openness_to_signal", "end_effector", "ee_points", "open_fk", "reach_of"]
+
+class _Gripper(Protocol):
+    @property
+    def signal_range(self) -> tuple[float, float]: ...
+
+    @property
+    def closed_at(self) -> str: ...
+
+
+class Embodiment(Protocol):
+    """What these functions read of a robot: the members of :class:`oscar_core.plugin.embodiment.Embodiment` they
+    use (read-only), declared here so that kinematics, the floor below the plugin contract, needs nothing from it."""
+
+    @property
+    def tree(self) -> Any:
+        """The kinematic tree: ``limits()`` → (lower, upper) arrays over ``tree.joint_names``."""
+
+    @property
+    def joint_names(self) -> Sequence[str]: ...
+
+    @property
+    def grippers(self) -> Sequence[_Gripper]: ...
+
+    @property
+    def gripper_names(self) -> Sequence[str]: ...
+
+    def frames(self, traj: Trajectory) -> Any:
+        """Skeleton ``points`` (T, K, 3) and ``gripper_points`` (T, G, 3), metres, of ``traj``."""
 
 
 def joint_limits(emb: Embodiment, shrink: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
