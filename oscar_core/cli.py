@@ -155,6 +155,12 @@ def _add_model(sub) -> None:
     add_model_parsers(sub)
 
 
+def _add_zoo(sub) -> None:
+    from oscar_zoo.cli import add_zoo_parsers
+
+    add_zoo_parsers(sub)
+
+
 def _add_data(sub) -> None:
     from .data.cli import add_data_parser
 
@@ -182,7 +188,7 @@ def _add_view(sub) -> None:
 #: The top-level commands in the order ``oscar --help`` lists them: name -> (the line ``oscar --help`` shows, the
 #: function that adds the command's parser). Only the parser of the command being run is built, so ``oscar --help``
 #: and a command's start import none of the other commands' modules (the rollout's diffusers, the data pipeline's
-#: readers). Commands added by one function (``rollout``, ``zoo``, ``encode-prompt``) stand together.
+#: readers). Commands added by one function (``zoo`` and ``encode-prompt``) stand together.
 #: tests/cli/test_cli_lazy.py keeps each line equal to the help its parser declares.
 COMMANDS: dict[str, tuple[str, Callable[[Any], None]]] = {
     "embodiments": ("list installed embodiments", _add_embodiments),
@@ -201,8 +207,8 @@ COMMANDS: dict[str, tuple[str, Callable[[Any], None]]] = {
     ),
     "eval": ("evaluate world-model videos or policy rankings", _add_eval),
     "rollout": ("roll the world model out along a trajectory (skeleton-conditioned)", _add_model),
-    "zoo": ("named world-model checkpoints: list, pull", _add_model),
-    "encode-prompt": ("compute (and cache) the text embedding of a prompt", _add_model),
+    "zoo": ("named world-model checkpoints: list, pull", _add_zoo),
+    "encode-prompt": ("compute (and cache) the text embedding of a prompt", _add_zoo),
     "data": ("data pipeline: ingest, filter, dedup, caption, export, stats", _add_data),
     "train": ("train the world model (the paper's fine-tuning recipe)", _add_train),
     "toyworld": ("the procedural toy world: generate clips, train its VAE, evaluate", _add_toyworld),

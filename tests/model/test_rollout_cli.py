@@ -16,6 +16,7 @@ from oscar_core.media.video import read_video
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.model.cli import add_model_parsers, side_by_side_path
 from oscar_core.model.tiny import build_tiny_transformer, build_tiny_vae
+from oscar_zoo.cli import add_zoo_parsers
 from oscar_zoo.testing import MockHub
 
 TRAJ, CAM = (
@@ -25,9 +26,11 @@ TRAJ, CAM = (
 
 
 def run(capsys, *argv):
-    """What `oscar` does once the lead wires add_model_parsers into oscar_core.cli."""
+    """What `oscar` does with the commands of add_model_parsers (rollout) and add_zoo_parsers (zoo, encode-prompt)."""
     parser = argparse.ArgumentParser(prog="oscar")
-    add_model_parsers(parser.add_subparsers(dest="command", required=True))
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_model_parsers(sub)
+    add_zoo_parsers(sub)
     args = parser.parse_args([str(a) for a in argv])
     try:
         code = args.func(args)
