@@ -2,14 +2,18 @@
 top level of oscar_core holds only the modules named here.
 
 The floors are read from the folders: every package folder of oscar_core (and the two sibling import packages
-oscar_zoo and oscar_embodiments) belongs to exactly one floor of ``FLOORS``, and a module's floor is its folder's.
-Two rules name modules instead of folders: a module called ``cli``, ``cli_*`` or ``__main__`` in any folder is on
-the top floor (argument parsing and printing), and the few modules at oscar_core's top level are listed one by one
-(``TOP_LEVEL``) -- a new top-level module or a new folder with no floor fails the test.
+oscar_zoo and oscar_embodiments) belongs to exactly one floor of ``FLOORS``, and a module's floor is its folder's --
+a sub-command's ``cli``, ``cli_*`` or ``__main__`` module included: it may import its own floor and those below,
+so ``oscar eval closed-loop`` (evaluation) does not reach up into the toy world, nor ``oscar rollout`` (model) into
+the zoo. The few modules at oscar_core's top level are listed one by one (``TOP_LEVEL``); ``oscar_core.cli`` (which
+assembles every sub-command), ``demo`` and ``testing`` are the top floor. A new top-level module or a new folder
+with no floor fails the test.
 
 Every ``import`` is read from the source (including imports inside functions, which are real dependencies even when
-deferred; only imports under ``if TYPE_CHECKING:`` are left out) and resolved to the module it names. The checker is
-tested on a made-up package too, so a broken checker cannot pass silently.
+deferred) and resolved to the module it names. Imports under ``if TYPE_CHECKING:`` count for the floors too (a type
+in a signature is a dependency of the interface: ``kinematics.workspace`` once named the plugin's ``Embodiment``
+that way) but not for loops (they never run). The checker is tested on a made-up package too, so a broken checker
+cannot pass silently.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ FLOORS: list[tuple[str, tuple[str, ...]]] = [
     ("toyworld", ("toyworld",)),
     ("envs", ("envs",)),  # Gymnasium environments over the closed loop (the world model or the toy simulator)
     ("viz", ("viz",)),  # episodes, clips, rollouts and evaluation cells logged into Rerun
-    ("cli", ("cli", "demo", "testing")),  # + every cli / cli_* / __main__ module of any folder
+    ("cli", ("cli", "demo", "testing")),  # oscar_core.cli assembles the sub-commands; each folder's cli is its own
 ]
 
 #: The only modules allowed at oscar_core's top level (everything else lives in a folder of ``FLOORS``).
@@ -82,9 +86,8 @@ def unit_of(module: str, root: str = "oscar_core") -> str:
 
 
 def layer_of(module: str, floors=FLOORS, root: str = "oscar_core") -> int:
-    """Index of ``module``'s floor in ``floors`` (0 = bottom); KeyError if its folder is on no floor."""
-    if is_cli(module):
-        return len(floors) - 1
+    """Index of ``module``'s floor in ``floors`` (0 = bottom): its folder's (a sub-command's cli module too); KeyError
+    if its folder is on no floor."""
     unit = unit_of(module, root)
     for index, (_, units) in enumerate(floors):
         if unit in units:
@@ -120,9 +123,11 @@ def module_files(packages: dict[str, Path]) -> dict[str, Path]:
     return out
 
 
-def import_graph(packages: dict[str, Path]) -> dict[str, set[str]]:
+def import_graph(packages: dict[str, Path], annotations: bool = False) -> dict[str, set[str]]:
     """{module: modules of ``packages`` it imports}, with relative imports resolved and names of
-    submodules (``from pkg import mod``) counted as imports of those submodules."""
+    submodules (``from pkg import mod``) counted as imports of those submodules; ``annotations``: imports under
+    ``if TYPE_CHECKING:`` too (they name types, and never run), but for a package's ``__init__``, where they mirror
+    the lazy flat API for type checkers (at run time its exports are strings, :mod:`oscar_core._util.lazy`)."""
     files = module_files(packages)
     graph: dict[str, set[str]] = {m: set() for m in files}
 
@@ -131,21 +136,21 @@ def import_graph(packages: dict[str, Path]) -> dict[str, set[str]]:
             name = name.rpartition(".")[0]
         return name or None
 
-    def runtime_nodes(tree):
-        """Every node but those under ``if TYPE_CHECKING:`` (annotations only, never imported at run time)."""
+    def runtime_nodes(tree, typed: bool):
+        """Every node; without ``typed``, not those under ``if TYPE_CHECKING:`` (never imported at run time)."""
         todo = [tree]
         while todo:
             node = todo.pop()
             yield node
             for child in ast.iter_child_nodes(node):
-                if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                if not typed and isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
                     todo.extend(child.orelse)
                 else:
                     todo.append(child)
 
     for module, path in files.items():
         is_package = path.name == "__init__.py"
-        for node in runtime_nodes(ast.parse(path.read_text(), str(path))):
+        for node in runtime_nodes(ast.parse(path.read_text(), str(path)), annotations and not is_package):
             targets = []
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
@@ -226,6 +231,12 @@ def graph():
     return import_graph(PACKAGES)
 
 
+@pytest.fixture(scope="module")
+def typed_graph():
+    """The graph with the imports under ``if TYPE_CHECKING:``: what the floors are checked on."""
+    return import_graph(PACKAGES, annotations=True)
+
+
 def test_every_module_is_on_a_floor(graph):
     for module in graph:
         layer_of(module)
@@ -259,8 +270,8 @@ def test_every_floor_names_something_that_exists():
     assert {unit for _, names in FLOORS for unit in names} <= units
 
 
-def test_no_lower_layer_imports_a_higher_one(graph):
-    assert upward_imports(graph) == []
+def test_no_lower_layer_imports_a_higher_one(typed_graph):
+    assert upward_imports(typed_graph) == []
 
 
 def test_no_import_loops(graph):
@@ -273,10 +284,10 @@ def test_only_the_top_cli_assembles_sub_commands(graph):
     assert {"oscar_core.metrics.cli", "oscar_core.evaluation.cli", "oscar_core.data.cli"} <= graph["oscar_core.cli"]
 
 
-def test_allowed_upward_imports_still_exist(graph):
+def test_allowed_upward_imports_still_exist(typed_graph):
     # a stale exception would let the same upward import come back unnoticed elsewhere
     for module, target in ALLOWED_UPWARD:
-        assert target in graph[module], f"{module} no longer imports {target}: drop it from ALLOWED_UPWARD"
+        assert target in typed_graph[module], f"{module} no longer imports {target}: drop it from ALLOWED_UPWARD"
 
 
 def make_package(root: Path, files: dict[str, str]) -> Path:
@@ -290,10 +301,12 @@ def test_the_checker_finds_an_upward_import_a_loop_and_a_cli_reaching_sideways(t
     pkg = make_package(
         tmp_path / "pkg",
         {
-            "__init__.py": "",
+            "__init__.py": "if TYPE_CHECKING:\n    from .high.b import B\n",  # a lazy flat API's names: not counted
             "cli.py": "from .high import cli\n",
             "low/__init__.py": "",
             "low/a.py": "def f():\n    from ..high.b import g\n",  # upward, deferred in a function
+            "low/cli.py": "from ..high import b\n",  # a sub-command's cli reaching above its folder's floor
+            "low/typed.py": "if TYPE_CHECKING:\n    from ..high.b import B\n",  # upward in an annotation only
             "high/__init__.py": "",
             "high/b.py": "from ..low import a\n",  # closes a loop a -> b -> a
             "high/cli.py": "from ..side.cli import x\n",  # one sub-CLI importing another
@@ -303,19 +316,29 @@ def test_the_checker_finds_an_upward_import_a_loop_and_a_cli_reaching_sideways(t
     )
     floors = [("low", ("low", "__init__")), ("high", ("high", "side")), ("cli", ("cli",))]
     g = import_graph({"pkg": pkg})
-    assert g["pkg.low.a"] == {"pkg.high.b"} and g["pkg.side.cli"] == {"pkg.low.a"}
-    # the floor comes from the folder; a cli module is on the top floor whatever its folder
-    assert [layer_of(m, floors, "pkg") for m in ("pkg", "pkg.low.a", "pkg.side", "pkg.high.cli", "pkg.cli")] == [
+    assert g["pkg.low.a"] == {"pkg.high.b"} and g["pkg.side.cli"] == {"pkg.low.a"} and g["pkg.low.typed"] == set()
+    typed = import_graph({"pkg": pkg}, annotations=True)
+    assert typed["pkg.side.cli"] == {"pkg.low.a", "pkg.high", "pkg.high.b"} and typed["pkg.low.typed"] == {"pkg.high.b"}
+    # the floor comes from the folder, a sub-command's cli module included; the package's own cli is the top
+    assert [layer_of(m, floors, "pkg") for m in ("pkg", "pkg.low.a", "pkg.low.cli", "pkg.high.cli", "pkg.cli")] == [
+        0,
         0,
         0,
         1,
         2,
-        2,
     ]
-    assert upward_imports(g, floors, {}, "pkg") == ["pkg.low.a (low) imports pkg.high.b (high)"]
-    assert upward_imports(g, floors, {("pkg.low.a", "pkg.high.b"): "reason"}, "pkg") == []
-    # the same import is allowed once both folders share a floor: the rule is the folders' order, nothing else
-    assert upward_imports(g, [("all", ("low", "high", "side", "__init__")), ("cli", ("cli",))], {}, "pkg") == []
+    assert upward_imports(g, floors, {}, "pkg") == [
+        "pkg.low.a (low) imports pkg.high.b (high)",
+        "pkg.low.cli (low) imports pkg.high (high)",
+        "pkg.low.cli (low) imports pkg.high.b (high)",
+    ]
+    assert upward_imports(typed, floors, {("pkg.low.a", "pkg.high.b"): "reason"}, "pkg") == [
+        "pkg.low.cli (low) imports pkg.high (high)",
+        "pkg.low.cli (low) imports pkg.high.b (high)",
+        "pkg.low.typed (low) imports pkg.high.b (high)",
+    ]
+    # the same imports are allowed once the folders share a floor: the rule is the folders' order, nothing else
+    assert upward_imports(typed, [("all", ("low", "high", "side", "__init__")), ("cli", ("cli",))], {}, "pkg") == []
     assert cycles(g) == [["pkg.high.b", "pkg.low.a"]]
     assert sub_cli_imports(g, top="pkg.cli") == ["pkg.high.cli imports pkg.side.cli"]
 
