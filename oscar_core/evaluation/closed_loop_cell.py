@@ -75,19 +75,22 @@ class ModelWorld:
         self.condition: list[np.ndarray] = []
         self.timing = {"render_s": 0.0, "model_s": 0.0}  # seconds spent rendering conditions / in the model
 
-    def _condition(self, q: np.ndarray, g: np.ndarray) -> np.ndarray:
+    def _condition(self, q: np.ndarray, g: np.ndarray) -> dict:
+        """The model's inputs for a chunk's poses: ``video`` (L, H, W, 3) uint8 and, for a model with a gripper
+        signal, ``gripper`` (L, G) openness (else None)."""
         from ..kinematics.trajectory import Trajectory
 
         traj = Trajectory(
             self.emb.joint_names, q, self.fps, g, self.emb.gripper_names or None, source="<closed-loop chunk>"
         )
         if hasattr(self.model, "rollout_inputs"):
-            return self.model.rollout_inputs(
+            inputs = self.model.rollout_inputs(
                 traj, self.camera, self.emb, self.size, resize_mode="crop", camera_source=self.camera_source
-            )["skeleton"]
+            )
+            return {"video": inputs["skeleton"], "gripper": inputs.get("gripper")}
         from ..render.conditions import condition_video, video_condition_of
 
-        return condition_video(
+        video = condition_video(
             video_condition_of(self.model.card.condition),
             self.emb,
             traj,
@@ -97,15 +100,17 @@ class ModelWorld:
             camera_source=self.camera_source,
             style=getattr(self.model.card, "condition_style", None),
         )
+        return {"video": video, "gripper": None}
 
     def chunk_inputs(self, q: np.ndarray, gripper: np.ndarray) -> dict:
         """The world model's inputs for the next chunk, for joint positions ``q`` (n, J) and gripper signals
         (n, G), n = chunk: ``first`` (H, W, 3) uint8 the last generated frame, ``video`` (L, H, W, 3) uint8 the
-        condition video from the last pose on, ``prompt``, ``seed`` (this chunk's, :func:`chunk_seed`)."""
+        condition video from the last pose on, ``gripper`` (L, G) openness or None (a model with a gripper
+        signal), ``prompt``, ``seed`` (this chunk's, :func:`chunk_seed`)."""
         t0 = time.perf_counter()
         cond = self._condition(np.concatenate([self.q[-1:], q]), np.concatenate([self.g[-1:], gripper]))
         self.timing["render_s"] += time.perf_counter() - t0
-        return {"first": self.last, "video": cond, "prompt": self.prompt, "seed": chunk_seed(self.seed, self.steps)}
+        return {"first": self.last, **cond, "prompt": self.prompt, "seed": chunk_seed(self.seed, self.steps)}
 
     def accept(self, q: np.ndarray, gripper: np.ndarray, inputs: dict, frames: np.ndarray) -> np.ndarray:
         """Take the chunk generated from ``inputs`` (:meth:`chunk_inputs`): frames (L, H, W, 3) uint8, its first

@@ -93,6 +93,7 @@ def cell_inputs(model, cell: Cell, size, plugin_paths) -> dict:
         "first": first,
         "video": cond.get("skeleton"),
         "actions": cond.get("actions"),
+        "gripper": cond.get("gripper"),
         "prompt": cell_prompt(cell),
         "fps": float(traj.fps),
     }
@@ -112,7 +113,8 @@ def roll_out_group(model, group: list[dict], *, sampler, chunk_frames, seeds, pr
         warnings.simplefilter("ignore")  # "trained at WxH" is reported once in the run's summary instead
         if len(group) == 1:
             g = group[0]
-            extra = {} if g["actions"] is None else {"actions": g["actions"]}  # a latent-action model's input
+            # a latent-action model's input, or a gripper-signal model's second input
+            extra = {k: g[k] for k in ("actions", "gripper") if g.get(k) is not None}
             return [
                 model.rollout(
                     g["first"],
@@ -134,6 +136,7 @@ def roll_out_group(model, group: list[dict], *, sampler, chunk_frames, seeds, pr
             sampler=sampler,
             seeds=seeds,
             progress=progress,
+            **({"grippers": [g["gripper"] for g in group]} if group[0].get("gripper") is not None else {}),
         )
 
 

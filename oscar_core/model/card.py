@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from ..errors import OscarError
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style, is_video_condition
 from ._files import MODEL_FILE
 from .card_sampler import check_card_sampler
 from .chunks import check_frame_count
@@ -52,6 +52,9 @@ class ModelCard:
     :data:`~oscar_core.model.card_sampler.CARD_SAMPLER_KEYS`: steps, guidance, guidance_form, preset); every
     entry point uses them where its caller gives none (:func:`~oscar_core.model.card_sampler.resolve_sampler`);
     None: the library's defaults.
+    gripper_signal: the DiT also takes the gripper's openness per latent frame, appended to the condition latent
+    (:mod:`~oscar_core.model.gripper_signal`); every rollout passes it (``rollout_inputs`` gives it as
+    ``"gripper"``). False: the gripper is seen only as the indicator drawn in the condition video.
     """
 
     name: str | None = None
@@ -67,6 +70,7 @@ class ModelCard:
     condition: ConditionName = "skeleton"
     condition_style: dict | None = None
     sampler: dict | None = None
+    gripper_signal: bool = False
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
@@ -82,6 +86,13 @@ class ModelCard:
         except OscarError as e:
             raise ModelInputError(str(e)) from None
         object.__setattr__(self, "condition_style", dict(self.condition_style) if self.condition_style else None)
+        if not isinstance(self.gripper_signal, bool):
+            raise ModelInputError(f"model card gripper_signal: expected true or false, found {self.gripper_signal!r}")
+        if self.gripper_signal and not is_video_condition(self.condition):
+            raise ModelInputError(
+                f"model card gripper_signal: expected a condition video beside it (skeleton, mesh, capsules), "
+                f"found condition {self.condition!r}"
+            )
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
         object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
 

@@ -143,6 +143,27 @@ def _check_inputs(first_frame, skeleton, spatial: int):
     return first, skel
 
 
+def _check_grippers(grippers, total: int, padded_len: int) -> list[np.ndarray] | None:
+    """B (padded_len, G) float64 openness arrays, each padded with its last row like the condition video, or None.
+
+    grippers: None, or B (T, G) openness arrays in [0, 1] (1 = open) of the condition videos' T frames."""
+    if grippers is None:
+        return None
+    out = []
+    for i, g in enumerate(grippers):
+        a = np.asarray(g, dtype=np.float64)
+        a = a[:, None] if a.ndim == 1 else a
+        if a.ndim != 2 or len(a) != total:
+            raise ModelInputError(
+                f"gripper signal {i}: expected (T={total}, G) openness (one row per condition frame), "
+                f"found shape {np.asarray(g).shape}"
+            )
+        if padded_len > total:
+            a = np.concatenate([a, np.repeat(a[-1:], padded_len - total, axis=0)])
+        out.append(a)
+    return out
+
+
 class _UncondSkeletons:
     """The unconditional branch's skeleton latent per chunk size, computed once (``"black_video"``) or None."""
 
@@ -180,6 +201,7 @@ def iter_rollout(
     keep_chunks: bool = False,
     actions=None,
     num_frames: int | None = None,
+    gripper=None,
 ):
     """Like :func:`rollout`, but yields each chunk's new frames as soon as they are decoded.
 
@@ -187,11 +209,13 @@ def iter_rollout(
     rollout (chunk 0 whole, later chunks without their seed frame, the last
     one cut at T). ``result``, when given, receives ``starts`` (and
     ``chunks``/``seeds`` with ``keep_chunks``). With ``actions`` (a
-    latent-action model; module docstring) ``skeleton`` is None.
+    latent-action model; module docstring) ``skeleton`` is None. ``gripper``: (T, G) openness of a model with
+    a gripper signal (:mod:`oscar_core.model.gripper_signal`), else None.
     """
     patch = int(transformer.config.patch_size[1])
+    grips = None
     if actions is not None:
-        if skeleton is not None:
+        if skeleton is not None or gripper is not None:
             raise ModelInputError("rollout: expected a skeleton video or actions, found both")
         first = _check_first(first_frame, vae.spatial * patch)
         acts, total, starts = _check_actions(actions, num_frames, chunk_frames, vae.temporal)
@@ -201,6 +225,7 @@ def iter_rollout(
         total = len(skel)
         starts = chunk_plan(total, chunk_frames, vae.temporal)
         padded_len = starts[-1] + chunk_frames
+        grips = _check_grippers(None if gripper is None else [gripper], total, padded_len)
         if padded_len > total:
             skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
     uncond = _UncondSkeletons(vae, uncond_skeleton)
@@ -225,6 +250,7 @@ def iter_rollout(
         results,
         keep_chunks,
         timings=result.timings if result is not None else None,
+        grippers=grips,
     ):
         yield frames[0]
 
@@ -246,13 +272,15 @@ def _chunks(
     results: list | None,
     keep_chunks: bool,
     timings: dict | None = None,
+    grippers: list | None = None,
 ):
     """The chunk loop of B rollouts sharing one chunk plan: yields, per chunk, B arrays (N_c, H, W, 3) uint8.
 
     firsts: B (H, W, 3) seed frames; skels: B padded (≥ starts[-1] + L, H, W, 3) condition videos, or None with
     ``acts`` (N, F) for one latent-action rollout; generators: one CPU generator per rollout (its noise);
     results: None or B RolloutResult receiving chunks and seeds with ``keep_chunks``; timings: None or a dict
-    receiving the encode / sample / decode seconds (:class:`RolloutResult`).
+    receiving the encode / sample / decode seconds (:class:`RolloutResult`); grippers: None or B padded
+    (≥ starts[-1] + L, G) openness arrays, appended to the condition latent (:mod:`.gripper_signal`).
     """
     b = len(firsts)
     clock = _Clock(timings, next(transformer.parameters()).device if timings is not None else "cpu")
@@ -290,6 +318,10 @@ def _chunks(
                     with clock("encode"):
                         skeleton_latent = vae.encode(VideoVAE.to_pixels(window))
                         uncond_latent = uncond.get(chunk_frames, height, width)
+                    if grippers is not None:
+                        skeleton_latent, uncond_latent = _add_gripper_signal(
+                            skeleton_latent, uncond_latent, [g[start : start + chunk_frames] for g in grippers], vae
+                        )
                     with clock("sample"):
                         latent = sample_chunk(
                             transformer,
@@ -319,6 +351,18 @@ def _chunks(
         outer.close()
 
 
+def _add_gripper_signal(skeleton_latent, uncond_latent, windows: list, vae: VideoVAE):
+    """(condition latent, unconditional latent or None) with the windows' gripper features appended; the
+    unconditional branch gets zero features ("no information", as in training's dropped condition)."""
+    from .gripper_signal import batch_features, with_gripper_channels
+
+    feats = batch_features(windows, vae.temporal)
+    cond = with_gripper_channels(skeleton_latent, feats)
+    if uncond_latent is not None:
+        uncond_latent = with_gripper_channels(uncond_latent, torch.zeros_like(feats[:1]))
+    return cond, uncond_latent
+
+
 @torch.no_grad()
 def rollout_batch(
     transformer,
@@ -332,13 +376,15 @@ def rollout_batch(
     seeds=None,
     progress: bool = False,
     uncond_skeleton: str = "zero_latent",
+    grippers=None,
 ) -> list[np.ndarray]:
     """B rollouts in one batch: each equals :func:`rollout` of its own inputs and seed, up to float rounding.
 
     first_frames: B (H, W, 3) uint8 images; skeletons: B (T, H, W, 3) uint8 condition videos, all of the same
     length and size (one chunk plan); prompt_embeds: (1 or B, L, D); seeds: B integers (default 0 each).
     Every model call and VAE pass runs on the batch; each rollout's noise comes from its own generator, so a
-    rollout does not depend on its batch mates. Returns B (T, H, W, 3) uint8 videos.
+    rollout does not depend on its batch mates. grippers: None, or B (T, G) openness arrays (a model with a
+    gripper signal). Returns B (T, H, W, 3) uint8 videos.
     """
     b = len(first_frames)
     if b == 0 or len(skeletons) != b:
@@ -360,6 +406,9 @@ def rollout_batch(
         np.concatenate([s, np.repeat(s[-1:], padded_len - total, axis=0)]) if padded_len > total else s
         for _, s in pairs
     ]
+    if grippers is not None and len(grippers) != b:
+        raise ModelInputError(f"rollout_batch: expected {b} gripper signals, found {len(grippers)}")
+    grips = _check_grippers(grippers, total, padded_len)
     if prompt_embeds.shape[0] not in (1, b):
         raise ModelInputError(f"prompt_embeds: expected batch 1 or {b}, found shape {tuple(prompt_embeds.shape)}")
     generators = [torch.Generator(device="cpu").manual_seed(s) for s in seeds]
@@ -380,6 +429,7 @@ def rollout_batch(
         _UncondSkeletons(vae, uncond_skeleton),
         None,
         False,
+        grippers=grips,
     ):
         for i, f in enumerate(frames):
             pieces[i].append(f)
@@ -402,6 +452,7 @@ def rollout(
     uncond_skeleton: str = "zero_latent",
     actions=None,
     num_frames: int | None = None,
+    gripper=None,
 ) -> RolloutResult:
     """Roll the world model out along a skeleton video.
 
@@ -416,6 +467,8 @@ def rollout(
     actions: for a latent-action model, (≥ T − 1, 14) features instead of a
         skeleton video (then ``skeleton`` is None; ``num_frames`` T, default
         len(actions) + 1; module docstring).
+    gripper: (T, G) openness in [0, 1] per condition frame for a model with a gripper signal
+        (:mod:`oscar_core.model.gripper_signal`), else None.
     returns: RolloutResult with T frames.
     """
     result = RolloutResult(frames=np.empty(0, np.uint8))
@@ -435,6 +488,7 @@ def rollout(
             keep_chunks=keep_chunks,
             actions=actions,
             num_frames=num_frames,
+            gripper=gripper,
         )
     )
     result.frames = np.concatenate(pieces, axis=0)

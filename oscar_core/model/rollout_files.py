@@ -314,6 +314,11 @@ def run_rollout(
     latent_action = takes_actions(model.card.condition)
     t0 = time.perf_counter()
     actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
+    gripper = None
+    if getattr(model.card, "gripper_signal", False):  # the trajectory's openness beside its skeleton video
+        from .gripper_signal import trajectory_openness
+
+        gripper = trajectory_openness(emb, traj)
     timings["render"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     chunks = model.iter_rollout(
@@ -326,6 +331,7 @@ def run_rollout(
         progress=r.progress,
         result=result,
         actions=actions,
+        gripper=gripper,
     )
     # torch.compile's set-up when the policy compiles (mostly inductor's imports, ~1.5 s on a CPU; 0 eager); the
     # compile itself runs inside the first chunk's sample

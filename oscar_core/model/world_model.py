@@ -41,6 +41,7 @@ from .card import (
 )
 from .card_sampler import resolve_sampler, sampler_with_scheduler
 from .errors import CheckpointLayoutError, ModelInputError
+from .gripper_signal import trajectory_openness
 from .manifest import read_manifest, verify_files, write_manifest
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
@@ -340,18 +341,21 @@ class OscarWorldModel:
         progress: bool = True,
         keep_chunks: bool = True,
         actions=None,
+        gripper=None,
     ):
         """Autoregressive rollout (see :func:`oscar_core.model.rollout.rollout`); chunk length from the card by default.
 
         A latent-action model takes ``actions`` (T − 1, 14) (``latent_actions``
         of the trajectory) and ``skeleton=None``; :meth:`rollout_trajectory`
-        builds either input from a trajectory.
+        builds either input from a trajectory. A model whose card has ``gripper_signal`` also takes ``gripper``
+        (T, G) openness per condition frame (``rollout_inputs`` gives it).
         """
         from .rollout import rollout
 
         sampler = self.recommended_sampler() if sampler is None else sampler
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
+        self._check_gripper(gripper is not None)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
         if self.card.width and self.card.height:
             h, w = first_frame.shape[:2]
@@ -377,7 +381,21 @@ class OscarWorldModel:
             uncond_skeleton=self.card.unconditional_skeleton,
             actions=actions,
             num_frames=num_frames,
+            gripper=gripper,
         )
+
+    def _check_gripper(self, given: bool) -> None:
+        """A gripper signal is given exactly when the card says the model takes one."""
+        if given != bool(self.card.gripper_signal):
+            raise ModelInputError(
+                f"rollout: model {self.card.name or ''} "
+                + (
+                    "takes a gripper signal (card gripper_signal): expected gripper (T, G) openness "
+                    "(rollout_inputs builds it), found none"
+                    if self.card.gripper_signal
+                    else "takes no gripper signal (card gripper_signal false): expected gripper=None, found one"
+                )
+            )
 
     def rollout_batch(
         self,
@@ -389,18 +407,21 @@ class OscarWorldModel:
         sampler: SamplerConfig | None = None,
         seeds=None,
         progress: bool = False,
+        grippers=None,
     ) -> list:
         """B rollouts in one batch (see :func:`oscar_core.model.rollout.rollout_batch`): B (T, H, W, 3) uint8 videos,
         each equal to :meth:`rollout` of its own inputs and seed up to float rounding.
 
         prompt_embeds: None (the card's empty prompt for all), one (1, L, D) tensor, or a list of B (1, L, D) /
-        None; condition videos of one length and size. Skeleton- and mesh-conditioned models only.
+        None; condition videos of one length and size; grippers: B (T, G) openness arrays for a model with a
+        gripper signal, else None. Skeleton- and mesh-conditioned models only.
         """
         from .rollout import rollout_batch
 
         sampler = self.recommended_sampler() if sampler is None else sampler
         if takes_actions(self.card.condition):
             raise ModelInputError("rollout_batch: latent-action models roll out one at a time (rollout)")
+        self._check_gripper(grippers is not None)
         if isinstance(prompt_embeds, (list, tuple)):
             embeds = [self.prompt_embeds(e) for e in prompt_embeds]
             if len({tuple(e.shape) for e in embeds}) != 1:
@@ -424,6 +445,7 @@ class OscarWorldModel:
             seeds=seeds,
             progress=progress,
             uncond_skeleton=self.card.unconditional_skeleton,
+            grippers=grippers,
         )
 
     def iter_rollout(
@@ -438,6 +460,7 @@ class OscarWorldModel:
         progress: bool = True,
         result=None,
         actions=None,
+        gripper=None,
     ):
         """Stream a rollout: yields each chunk's new uint8 frames (see :func:`oscar_core.model.rollout.iter_rollout`)."""
         from .rollout import iter_rollout
@@ -445,6 +468,7 @@ class OscarWorldModel:
         sampler = self.recommended_sampler() if sampler is None else sampler
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
+        self._check_gripper(gripper is not None)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
         return iter_rollout(
             self.transformer,
@@ -460,6 +484,7 @@ class OscarWorldModel:
             result=result,
             actions=actions,
             num_frames=num_frames,
+            gripper=gripper,
         )
 
     def _rollout_actions(self, skeleton, actions, chunk: int):
@@ -502,11 +527,13 @@ class OscarWorldModel:
         resize_mode: str = "crop",
         camera_source: str = "<camera>",
     ) -> dict:
-        """What this model's rollout is conditioned on, from a trajectory: ``{"skeleton": ...}`` or ``{"actions": ...}``.
+        """What this model's rollout is conditioned on, from a trajectory: ``{"skeleton": ...}`` or ``{"actions": ...}``
+        — every key is a keyword of :meth:`rollout` but ``skeleton``, its second argument.
 
         skeleton: (T, H, W, 3) uint8 video rendered at ``size`` (width, height)
         pixels (None: the card's size, else the camera's); actions: (T − 1, 14)
-        float64 ``latent_actions(embodiment, trajectory)`` (latent-action models).
+        float64 ``latent_actions(embodiment, trajectory)`` (latent-action models); gripper: (T, G) float64
+        openness in [0, 1] (1 = open) of the trajectory's grippers, only for a card with ``gripper_signal``.
         """
         if takes_actions(self.card.condition):
             from .latent_action import latent_actions
@@ -518,7 +545,7 @@ class OscarWorldModel:
             size = (self.card.width, self.card.height)
         # the card's condition video (skeleton, mesh or capsules) goes in the skeleton stream
         name = video_condition_of(self.card.condition)
-        return {
+        inputs = {
             "skeleton": condition_video(
                 name,
                 embodiment,
@@ -530,6 +557,9 @@ class OscarWorldModel:
                 style=self.card.condition_style,
             )
         }
+        if self.card.gripper_signal:
+            inputs["gripper"] = trajectory_openness(embodiment, trajectory)
+        return inputs
 
     def rollout_trajectory(
         self,
@@ -552,4 +582,5 @@ class OscarWorldModel:
         """
         h, w = np.asarray(first_frame).shape[:2]
         inputs = self.rollout_inputs(trajectory, camera, embodiment, size or (w, h), resize_mode=resize_mode)
-        return self.rollout(first_frame, inputs["skeleton"], prompt_embeds, actions=inputs.get("actions"), **options)
+        extra = {k: v for k, v in inputs.items() if k != "skeleton" and v is not None}
+        return self.rollout(first_frame, inputs["skeleton"], prompt_embeds, **extra, **options)

@@ -70,6 +70,7 @@ def toy_rollout_demo(
             seed=seed,
             progress=False,
             keep_chunks=False,
+            **_gripper_input(m, emb, ep.trajectory),
         )
         wall = time.perf_counter() - t0
     finally:
@@ -84,3 +85,12 @@ def toy_rollout_demo(
         "psnr_db": round(score, 2),
         "model": m.card.name,
     }
+
+
+def _gripper_input(model, emb, trajectory) -> dict:
+    """``{"gripper": (T, G) openness}`` for a model whose card takes a gripper signal, else ``{}``."""
+    if not getattr(model.card, "gripper_signal", False):
+        return {}
+    from ..model.gripper_signal import trajectory_openness
+
+    return {"gripper": trajectory_openness(emb, trajectory)}

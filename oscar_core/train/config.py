@@ -29,7 +29,7 @@ from typing import Any
 
 from .._util.inputs import read_text_file
 from ..errors import OscarError
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, is_video_condition
 
 __all__ = [
     "TrainConfigError",
@@ -93,6 +93,10 @@ class ModelSection:
     # torch.compile every DiT block (ours: faster steps on a GPU after a compile of about a minute; the weights,
     # checkpoints and their keys are the same); docs/training.md
     compile: bool = False
+    # the DiT also takes the gripper's openness per latent frame, appended to the condition latent and embedded by
+    # PE_s (ours: the skeleton's gripper indicator covers 1-2 latent cells at 64 px and a model trained on it moved
+    # the ball whether or not the gripper closed; oscar_core/model/gripper_signal.py). The export's card records it.
+    gripper_signal: bool = False
     # compute dtype of the forward: "float32" on CPU (issue), "bfloat16" autocast on GPU (Cosmos trains in bf16)
     dtype: str = "float32"
 
@@ -331,6 +335,14 @@ class TrainConfig:
             bad("log.wandb_project", "a project name", self.log.wandb_project)
         if self.model.condition_init not in ("zero", "default"):
             bad("model.condition_init", "'zero' or 'default'", self.model.condition_init)
+        if not isinstance(self.model.gripper_signal, bool):
+            bad("model.gripper_signal", "true or false", self.model.gripper_signal)
+        if self.model.gripper_signal and not is_video_condition(self.condition):
+            bad(
+                "model.gripper_signal",
+                "a condition video beside it (condition: skeleton, mesh or capsules)",
+                f"condition {self.condition!r}",
+            )
         if self.model.dtype not in ("float32", "bfloat16"):
             bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
         ds = self.distill

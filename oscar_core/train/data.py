@@ -293,6 +293,8 @@ class TrainData:
                 if self.config.data.unconditional_skeleton == "black_video"
                 else torch.zeros_like(out["z0"])
             )
+        if is_video_condition(condition) and self.config.model.gripper_signal:
+            out["skeleton"] = self._with_gripper(out["skeleton"], rec, item)
         if clip.prompt_embeds is not None:
             pe = clip.prompt_embeds.float()
             if pe.shape[-1] != self.text_dim:
@@ -311,6 +313,25 @@ class TrainData:
 
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
         return out
+
+    def _with_gripper(self, condition: torch.Tensor, rec, item: PlanItem) -> torch.Tensor:
+        """(C + C_g, T', h, w): the window's gripper features (:mod:`oscar_core.model.gripper_signal`) appended to
+        its condition latent (C, T', h, w); zeros for a dropped condition, as the sampler's unconditional branch."""
+        from ..model.gripper_signal import gripper_features, with_gripper_channels
+        from .models import VAE_TEMPORAL
+
+        frames = (condition.shape[1] - 1) * VAE_TEMPORAL + 1
+        if frames != self.window:
+            raise ValueError(
+                f"gripper signal: expected condition latents of {self.window}-frame windows "
+                f"({(self.window - 1) // VAE_TEMPORAL + 1} latent frames), found {condition.shape[1]}"
+            )
+        feats = torch.from_numpy(
+            gripper_features(rec.openness_array[item.start : item.start + self.window], VAE_TEMPORAL)
+        )
+        if item.drop:
+            feats = torch.zeros_like(feats)
+        return with_gripper_channels(condition[None], feats[None])[0]
 
     def has_window(self, clip: int, start: int) -> bool:
         """Whether clip ``clip`` (an index into :attr:`clips`) has a training window at frame ``start``: a cached

@@ -10,7 +10,11 @@ import torch
 from ..render.conditions import is_video_condition, takes_actions
 from .config import TrainConfig, TrainConfigError
 
-__all__ = ["build_transformer", "build_vae", "transformer_config", "prepare_for_training"]
+__all__ = ["build_transformer", "build_vae", "transformer_config", "prepare_for_training", "VAE_TEMPORAL"]
+
+#: The temporal compression of every VAE the trainer builds (WAN 2.1 and the toy VAE: 4 frames per latent frame
+#: after the first); the gripper signal's channel count depends on it, and the data loader checks it.
+VAE_TEMPORAL = 4
 
 
 def transformer_config(spec, source: str = "<config>") -> dict:
@@ -46,6 +50,11 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
     if takes_actions(config.condition):
         cls = LatentActionTransformer
         args.update(action_frames=config.data.window - 1, action_dim=14)
+    if m.gripper_signal:
+        from ..model.gripper_signal import gripper_channels
+
+        latent = int(args.get("out_channels", 16))
+        args["skeleton_channels"] = latent + gripper_channels(VAE_TEMPORAL)
     init = m.init
     if init is None:
         torch.manual_seed(m.seed)  # diffusers' default init draws from the global generator
@@ -74,6 +83,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
         base = _base_weights(init, source)
         torch.manual_seed(m.seed)
         model = cls(**args)
+        base = _widen_condition_embedder(base, model)
         missing, unexpected = model.load_state_dict(base, strict=False)
         allowed = {"skeleton_embed.proj.weight"} | {k for k in model.state_dict() if k.startswith("action_embed")}
         bad_missing = [k for k in missing if k not in allowed]
@@ -110,6 +120,20 @@ def prepare_for_training(
         for block in model.transformer_blocks:
             block.compile(dynamic=False)
     return policy, why
+
+
+def _widen_condition_embedder(base: dict, model) -> dict:
+    """A base without the gripper signal's channels, fine-tuned with them: PE_s's weight gets zero columns for the
+    new input channels (channel-major: CosmosPatchEmbed flattens (C, p_t, p_h, p_w)), so at step 0 the model is
+    the base model whatever the gripper does. Other shapes are left to the strict check."""
+    key = "skeleton_embed.proj.weight"
+    old, new = base.get(key), model.state_dict().get(key)
+    if old is None or new is None or old.shape == new.shape:
+        return base
+    if old.shape[0] != new.shape[0] or old.shape[1] > new.shape[1]:
+        return base
+    pad = old.new_zeros(old.shape[0], new.shape[1] - old.shape[1])
+    return {**base, key: torch.cat([old, pad], dim=1)}
 
 
 def _base_weights(init: str, source: str) -> dict:
