@@ -21,8 +21,12 @@ kinematics): reach the grasp point 2R above the floor over the ball by step 14, 
 
 Graded skill (:data:`POLICIES`): ``exact``; ``noisy`` (the perceived ball moved by an error drawn per episode,
 N(0, (1.5 R)²) per horizontal axis); ``late`` (closes 1–6 steps late, drawn per episode, mostly after the
-lift has started); ``never_closes``; ``random`` (random reachable waypoints and gripper). Per-episode draws
-come from a generator seeded by the first image's bytes, so a run is repeatable.
+lift has started); ``never_closes``; ``random`` (random reachable waypoints and gripper). Two more look at the
+ball on every call, so what they do depends on the frames the world shows them after the grasp: ``retry`` (aims
+as ``noisy``, checks once the lift is done whether the ball came along and, if it still lies where it was, opens
+and tries again once, from a new aim) and ``retry_far`` (the same with twice the aiming error); they need
+sessions long enough for a second attempt (97 frames: ``--horizon 97``). Per-episode draws come from a generator
+seeded by the first image's bytes, so a run is repeatable.
 """
 
 from __future__ import annotations
@@ -44,6 +48,9 @@ __all__ = [
     "LatePolicy",
     "NeverClosesPolicy",
     "RandomPolicy",
+    "RetryPolicy",
+    "RetryFarPolicy",
+    "CLASSIC",
     "policy_specs",
     "perceive_ball",
 ]
@@ -114,6 +121,7 @@ class ToyPickPlace:
 
     def reset(self) -> None:
         self.step = 0
+        self.t0 = 0  # the step the current attempt started at (a retrying policy starts again later)
         self.ball = None
         self.rng = None
         self.aim = np.zeros(2)
@@ -139,15 +147,12 @@ class ToyPickPlace:
         q = np.asarray(obs["observation/joint_position"], float)
         ee = self.ik.pose(q)[:3, 3]
         close_at = 16 + self.delay
-        if self.step < close_at - 2:  # look for the ball until the gripper is about to close
-            seen = perceive_ball(
-                np.asarray(obs["observation/exterior_image_1_left"]),
-                obs["toy/intrinsics"],
-                obs["toy/world_to_cv"],
-                self.R,
-            )
+        if self.step - self.t0 < close_at - 2:  # look for the ball until the gripper is about to close
+            seen = self._look(obs)
             if seen is not None:
                 self.ball = seen
+        else:
+            self._after_grasp(obs)
         m = _PLACE.search(str(obs.get("prompt", "")))
         if self.ball is None or m is None:  # nothing to aim at: hold still, gripper open
             acts = np.tile(np.append(ee, 0.0), (HORIZON, 1))
@@ -156,18 +161,29 @@ class ToyPickPlace:
         self.step += EXECUTED
         return {"actions": acts}
 
+    def _look(self, obs: dict) -> np.ndarray | None:
+        """The ball's centre (3,) metres as perceived in this observation's image, or None."""
+        return perceive_ball(
+            np.asarray(obs["observation/exterior_image_1_left"]), obs["toy/intrinsics"], obs["toy/world_to_cv"], self.R
+        )
+
+    def _after_grasp(self, obs: dict) -> None:
+        """What a policy does on a call after its gripper has started to close (this one: nothing, it does not
+        look again)."""
+
     def _plan(self, ee: np.ndarray, place_xy: np.ndarray, close_at: int) -> np.ndarray:
         R, lift = self.R, 2 * self.R + 0.25 * self.scale
         grasp = np.array([self.ball[0] + self.aim[0], self.ball[1] + self.aim[1], 2 * R])
         place = np.array([place_xy[0], place_xy[1], 2 * R])
+        t0 = self.t0
         keys = [
-            (14, grasp),
-            (17, grasp),
-            (26, grasp + [0, 0, lift]),
-            (35, place + [0, 0, lift]),
-            (40, place),
-            (41, place),
-            (48, place + [0, 0, lift]),
+            (t0 + 14, grasp),
+            (t0 + 17, grasp),
+            (t0 + 26, grasp + [0, 0, lift]),
+            (t0 + 35, place + [0, 0, lift]),
+            (t0 + 40, place),
+            (t0 + 41, place),
+            (t0 + 48, place + [0, 0, lift]),
         ]
         out = np.empty((HORIZON, 4))
         for i in range(HORIZON):
@@ -180,7 +196,7 @@ class ToyPickPlace:
                         start_t, start_p = keys[k - 1]
                     pos = _min_jerk(start_p, target, (t - start_t) / max(end_t - start_t, 1))
                     break
-            closed = self.closes and close_at <= t < 41
+            closed = self.closes and t0 + close_at <= t < t0 + 41
             out[i] = np.append(pos, 1.0 if closed else 0.0)
         return out
 
@@ -207,6 +223,42 @@ class NeverClosesPolicy(ToyPickPlace):
     closes = False
 
 
+class RetryPolicy(ToyPickPlace):
+    """Aims as ``noisy`` does, looks at the ball on every call, and once the lift should have taken the ball
+    along (:attr:`verify_after` steps into the attempt) checks: a ball still lying within :attr:`retry_radii`
+    ball radii of where it was is a missed grasp, so the gripper opens and a new attempt starts from there (a
+    new aim drawn), up to :attr:`retries` times. Its success depends on what it sees after the grasp: in a
+    world model, on whether the generated ball stayed or came along."""
+
+    aim_sigma_radii = 1.5
+    retries = 1
+    verify_after = 32  # steps: the lift ends at 26; with 16-frame chunks the call at 32 sees frame 32
+    retry_radii = 1.0
+
+    def reset(self) -> None:
+        super().reset()
+        self.left = self.retries
+        self.checked = False
+
+    def _after_grasp(self, obs: dict) -> None:
+        if self.checked or self.left <= 0 or self.ball is None or self.step - self.t0 < self.verify_after:
+            return
+        self.checked = True
+        seen = self._look(obs)
+        if seen is None or np.linalg.norm(seen[:2] - self.ball[:2]) > self.retry_radii * self.R:
+            return  # gone from where it lay: carried (or pushed away); go on with the place
+        self.left -= 1
+        self.t0, self.checked, self.ball = self.step, False, seen
+        self.aim = self.rng.normal(0.0, self.aim_sigma_radii, 2) * self.R
+
+
+class RetryFarPolicy(RetryPolicy):
+    """:class:`RetryPolicy` with an aim twice as poor (3 ball radii per axis): it misses most first attempts
+    and needs its retry."""
+
+    aim_sigma_radii = 3.0
+
+
 class RandomPolicy(ToyPickPlace):
     """Random reachable end-effector waypoints and a random gripper."""
 
@@ -230,9 +282,14 @@ POLICIES = {
     "late": f"{__name__}:LatePolicy",
     "never_closes": f"{__name__}:NeverClosesPolicy",
     "random": f"{__name__}:RandomPolicy",
+    "retry": f"{__name__}:RetryPolicy",
+    "retry_far": f"{__name__}:RetryFarPolicy",
 }
+#: The policies of the closed-loop sessions before the re-perceiving ones were added (their default list).
+CLASSIC = ("exact", "noisy", "late", "never_closes", "random")
 
 
 def policy_specs(names=None) -> list[dict]:
-    """Closed-loop manifest entries of the toy policies ``names`` (default: all, best first)."""
-    return [{"name": n, "policy": POLICIES[n], **SPEC} for n in (names or POLICIES)]
+    """Closed-loop manifest entries of the toy policies ``names`` (default: the :data:`CLASSIC` five, best first;
+    the re-perceiving ones are asked for by name)."""
+    return [{"name": n, "policy": POLICIES[n], **SPEC} for n in (names or CLASSIC)]
