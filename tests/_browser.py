@@ -67,6 +67,8 @@ _PLAY_ALL = """async () => {
       r.frames = v.getVideoPlaybackQuality().totalVideoFrames - f0;
       r.played = !v.paused && (r.frames > 0 || v.currentTime !== t0);
       r.readyState = v.readyState; r.width = v.videoWidth; r.height = v.videoHeight;
+      const box = v.getBoundingClientRect();
+      r.shown_width = box.width; r.shown_height = box.height; r.controls = v.controls;
     } catch (e) { r.error = String(e); }
     if (v.error) r.error = 'MediaError ' + v.error.code + ' ' + (v.error.message || '');
     v.pause();
@@ -92,7 +94,8 @@ _IMAGES = """async () => {
 class PageCheck:
     """What a page did in the browser."""
 
-    videos: list = field(default_factory=list)  # one dict per <video>: src, played, error, readyState, width
+    videos: list = field(default_factory=list)  # per <video>: src, played, error, readyState, width, height,
+    # shown_width, shown_height (CSS px on the page), controls (the player's controls shown)
     images: list = field(default_factory=list)  # one dict per <img>: src, ok, width
     problems: list = field(default_factory=list)  # console errors, page errors, failed requests, bad videos
     texts: dict = field(default_factory=dict)  # selector → list of text contents (see :func:`open_page`)

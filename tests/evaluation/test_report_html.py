@@ -335,6 +335,21 @@ def test_toyworld_eval_page_plays_and_matches_the_table(toy_report, tmp_path):
     keep_screenshot(check, "report-toyworld-eval.png")
 
 
+@pytest.mark.parametrize("page", ["eval_report", "toy_report"])
+def test_small_videos_are_shown_large_and_sharp_with_no_controls_over_them(page, request, tmp_path):
+    """A small rollout (32x16 in eval run's page, 64x64 in the toy world's) is shown at a whole multiple of its
+    size, at least 256 px wide, its aspect kept, with no player controls drawn over the frame."""
+    folder = request.getfixturevalue(page)
+    html = folder / ("report.html" if page == "eval_report" else "table.html")
+    check = open_page(html, tmp_path / "videos.png")
+    assert check.problems == [] and check.videos
+    for v in check.videos:
+        assert v["controls"] is False, v["src"]
+        k = v["shown_width"] / v["width"]
+        assert v["shown_width"] >= 256 and k == int(k), (v["src"], v["width"], v["shown_width"])
+        assert v["shown_height"] == pytest.approx(k * v["height"], abs=1), v["src"]
+
+
 def test_toyworld_eval_page_names_its_model_and_what_made_it(toy_report, tmp_path):
     from oscar_core._util.stage import model_identity
 
