@@ -49,6 +49,14 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "The real command in a fresh process rolling out one chunk, timed from outside; `fixed_s` = "
         "wall − encode − sample − decode (imports, loading, writing).",
     ),
+    "startup": (
+        "Start-up: `oscar` commands and a toy rollout's imports",
+        "benchmarks/startup.py",
+        "Fresh processes timed from outside (median CPU and wall seconds, modules held at exit): `oscar --help`, "
+        "`oscar rollout --help`, `oscar zoo list`, and what `oscar rollout` of `oscar-toy` imports before reading "
+        "weights, beside `import torch` and `import torch, torch._dynamo` (diffusers imports both whatever is asked "
+        "of it); `before` rows: an older commit measured in the same run, alternating with this one.",
+    ),
     "distill_speed": (
         "Teacher, `fast` and the few-step student",
         "benchmarks/distill_speed.py",
@@ -163,6 +171,13 @@ HEADLINES: tuple[Headline, ...] = (
         "`oscar rollout` of one `oscar-toy` chunk (17 frames 64x64), whole command",
         "cli_rollout.json",
         "rows[mode=never].cpu_s",
+        "CPU s",
+    ),
+    Headline("`oscar --help`", "startup.json", "rows[checkout=this,what=oscar --help].cpu_s", "CPU s"),
+    Headline(
+        "A toy rollout's imports (torch, diffusers' DiT and VAE)",
+        "startup.json",
+        "rows[checkout=this,what=toy rollout imports].cpu_s",
         "CPU s",
     ),
     Headline(

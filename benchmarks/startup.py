@@ -16,7 +16,7 @@ Rows:
 
 ``--before PATH``: the same rows run in another checkout (a ``git worktree`` of an older commit, with its
 ``oscar_embodiments``/``oscar_zoo`` links), alternating with this one repeat by repeat so a change of load hits
-both; its rows are labelled with its commit (the two floors run here only). The machine's 1-minute load average is in the provenance block.
+both; its rows are labelled ``before`` with its commit (the two floors run here only). The machine's 1-minute load average is in the provenance block.
 """
 
 from __future__ import annotations
@@ -94,6 +94,7 @@ def measure(checkouts: dict[str, Path], repeats: int) -> list[dict]:
     return [
         {
             "checkout": name,
+            "commit": commit_of(checkouts[name]),
             "what": label,
             "repeats": repeats,
             "cpu_s": round(statistics.median(c for _, c, _ in r), 3),
@@ -106,10 +107,10 @@ def measure(checkouts: dict[str, Path], repeats: int) -> list[dict]:
 
 
 def print_table(rows: list[dict]) -> None:
-    print(f"{'checkout':<20} {'what':<30} {'CPU s':>7} {'wall s':>7} {'wall max':>9} {'modules':>8}")
+    print(f"{'checkout':<22} {'what':<30} {'CPU s':>7} {'wall s':>7} {'wall max':>9} {'modules':>8}")
     for r in sorted(rows, key=lambda r: (list(ROWS).index(r["what"]), r["checkout"])):
         print(
-            f"{r['checkout']:<20} {r['what']:<30} {r['cpu_s']:>7.3f} {r['wall_s']:>7.3f} "
+            f"{r['checkout'] + ' ' + r['commit']:<22} {r['what']:<30} {r['cpu_s']:>7.3f} {r['wall_s']:>7.3f} "
             f"{r['wall_s_max']:>9.3f} {r['modules']:>8}"
         )
 
@@ -122,11 +123,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.repeats < 1:
         ap.error(f"--repeats: expected at least 1, found {args.repeats}")
-    checkouts = {f"this ({commit_of(REPO)})": REPO}
+    checkouts = {"this": REPO}
     if args.before is not None:
         if not (args.before / "oscar_core" / "cli.py").is_file():
             ap.error(f"--before {args.before}: expected a checkout of oscar (oscar_core/cli.py), found none")
-        checkouts[f"before ({commit_of(args.before)})"] = args.before.resolve()
+        checkouts["before"] = args.before.resolve()
     rows = measure(checkouts, args.repeats)
     print_table(rows)
     if args.json:
