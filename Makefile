@@ -55,6 +55,7 @@ bench: install
 	$(PYTHON) benchmarks/render.py
 	$(PYTHON) benchmarks/rollout.py
 	$(PYTHON) benchmarks/cli_rollout.py --model oscar-toy
+	$(PYTHON) benchmarks/startup.py
 	$(PYTHON) benchmarks/render_scale.py
 	$(PYTHON) benchmarks/train.py
 	$(PYTHON) benchmarks/distill_speed.py --student zoo/assets/oscar-toy-fast
