@@ -9,6 +9,9 @@ Encoding takes the posterior's mode (the pipeline's "argmax"), so it is
 deterministic. The VAE is causal in time: latent frame 0 depends only on
 pixel frame 0, hence frame counts of the form 4k + 1.
 
+A tiny decoder (:mod:`.tiny_decoder`, the TAEHV design, ``taew2_1`` weights for the 2B model's latents) can take
+over :meth:`VideoVAE.decode` (:meth:`VideoVAE.use_tiny_decoder`); off by default: the full decoder decodes.
+
 Memory options (for GPUs): tiling and slicing (diffusers' own), and CPU
 offload — the VAE waits on the CPU and visits ``device`` only to encode or
 decode. On the CPU its 3-D convolutions run through oneDNN at every batch size
@@ -69,6 +72,7 @@ class VideoVAE:
                 f"VAE config: expected latents_mean/latents_std of length z_dim = {self.z_dim}, "
                 f"found {self.mean.shape[1]} / {self.std.shape[1]}"
             )
+        self.tiny = None  # a TinyVideoDecoder that decodes instead of the full decoder (use_tiny_decoder)
         cast_model(vae, "cpu" if offload else self.device, dtype)
         vae.eval()
         use_onednn_conv3d(vae)  # one clip on the CPU as fast per clip as a batch (cpu_conv.py)
@@ -81,6 +85,27 @@ class VideoVAE:
     def enable_slicing(self) -> None:
         """Encode/decode one batch element at a time."""
         self.vae.enable_slicing()
+
+    def use_tiny_decoder(self, weights) -> None:
+        """Decode with a tiny decoder from now on (:mod:`.tiny_decoder`): ``weights`` a safetensors file of
+        ``decoder.*`` tensors (``taew2_1``'s key names and shapes) or a loaded ``TinyDecoderNet``; None goes back
+        to the full decoder. Encoding is unchanged."""
+        from .tiny_decoder import TinyDecoderNet, TinyVideoDecoder, load_tiny_decoder
+
+        if weights is None:
+            self.tiny = None
+            return
+        net = weights if isinstance(weights, TinyDecoderNet) else load_tiny_decoder(weights)
+        if net.latent_channels != self.z_dim:
+            raise ModelInputError(
+                f"tiny decoder: expected {self.z_dim} latent channels (the VAE's z_dim), found {net.latent_channels}"
+            )
+        if net.time_factor != self.temporal or net.space_factor != self.spatial:
+            raise ModelInputError(
+                f"tiny decoder: expected x{self.temporal} in time and x{self.spatial} in space (the VAE's), "
+                f"found x{net.time_factor} and x{net.space_factor}"
+            )
+        self.tiny = TinyVideoDecoder(net, self.mean, self.std, self.device, self.dtype)
 
     # ------------------------------------------------------------------ shapes
     def latent_shape(self, frames: int, height: int, width: int) -> tuple[int, int, int, int]:
@@ -140,9 +165,12 @@ class VideoVAE:
 
     @torch.no_grad()
     def decode(self, latents: torch.Tensor) -> torch.Tensor:
-        """Normalised latents (B, z, T', H', W') → pixels (B, 3, 4(T'-1)+1, 8H', 8W') float32 in [-1, 1]."""
+        """Normalised latents (B, z, T', H', W') → pixels (B, 3, 4(T'-1)+1, 8H', 8W') float32 in [-1, 1] (by the tiny
+        decoder after :meth:`use_tiny_decoder`)."""
         if latents.ndim != 5 or latents.shape[1] != self.z_dim:
             raise ModelInputError(f"latents: expected (B, {self.z_dim}, T, H, W), found shape {tuple(latents.shape)}")
+        if self.tiny is not None:
+            return self.tiny.decode(latents)
         z = latents.float() * self.std.to(latents.device) + self.mean.to(latents.device)
         self._on_device()
         try:
