@@ -1,7 +1,7 @@
 """Closed-loop policy evaluation on the toy model: where a step's CPU time goes, and cells per CPU-minute at batch 1 vs N.
 
     python benchmarks/closed_loop.py [--sessions 4] [--horizon 33] [--steps 10] [--batch 4 [8 ...]] [--repeats 1]
-                                     [--json benchmarks/results/closed_loop.json]
+                                     [--no-vae-probe] [--probe-repeats 3] [--json benchmarks/results/closed_loop.json]
 
 The cells: ``--sessions`` toyarm sessions (``oscar toyworld closed-loop-sessions``, 64x64) x 2 image-based toy
 policies (``exact``, ``never_closes``: ``ee_position`` through IK, 8 actions per call at 10 Hz), ``--horizon``
@@ -16,7 +16,23 @@ the policy's calls, the action adapter (IK), the condition render, the VAE encod
 video), the DiT's denoising loop, the VAE decode, writing the cell's files, the report, and the rest (``other``:
 the loop itself, thread hand-offs, the interpreter); the wall milliseconds per step from each cell's record
 (``timing_s``: policy, adapter, render, model — a batched call's time shared among its cells) stay beside it.
-It checks that every batch's videos agree with batch 1's within one uint8 level. Prints a table, writes JSON.
+It checks that every batch's videos agree with batch 1's within one uint8 level.
+
+The latency a policy sees per chunk: the wall and thread-CPU milliseconds of each world step, from a cell's chunk
+request to its frames (condition render, VAE encodes, DiT, VAE decode): ``ModelWorld.step`` one cell at a time,
+``generate_together`` in lock-step (every policy of the batch waits on the whole call; its CPU is also given per
+chunk).
+
+The VAE probe (``--no-vae-probe`` skips it) measures, on one chunk of ``oscar-toy``'s VAE (17 frames at 64x64,
+thread CPU, best of ``--probe-repeats``), what could leave the policy's critical path: the full decode; the decode
+of the last latent frame alone and whether it equals the full decode's last frames (the WAN decoder is causal and
+carries a cache of each convolution's last two input frames, so it does not); whether decoding the first k latent
+frames gives the full decode's first 4(k-1)+1 frames bit for bit, and what each further latent frame costs; the
+condition encode (17 frames) and the seed encode (1 frame) at batch 1 and per clip at batch 4, and the decode per
+clip at batch 4; the share of the decode spent in the WAN RMS norm (``F.normalize`` over channels) and what a
+sum-of-squares norm would change (CPU and the largest difference in pixels and uint8 levels); and the decode by
+the tiny decoder (``oscar_core/model/tiny_decoder.py``, ``taew2_1``'s widths, random weights: its speed only).
+Prints a table, writes JSON.
 """
 
 from __future__ import annotations
@@ -54,11 +70,53 @@ CPU_PARTS = {
 }
 
 
+#: the world steps a policy waits on: (module, attribute) -> how many chunks one call generates
+WORLD_STEPS = {
+    ("oscar_core.evaluation.closed_loop_cell", "ModelWorld.step"): lambda args: 1,
+    ("oscar_core.evaluation.closed_loop_batch", "generate_together"): lambda args: len(args[0]),
+}
+
+
+def _patch(module: str, attr: str, make):
+    """Replace ``module.attr`` (``Class.method`` allowed) by ``make(fn)``; returns the undo triple."""
+    import importlib
+
+    owner = importlib.import_module(module)
+    *path, name = attr.split(".")
+    for p in path:
+        owner = getattr(owner, p)
+    fn = getattr(owner, name)
+    setattr(owner, name, make(fn))
+    return owner, name, fn
+
+
+@contextlib.contextmanager
+def world_latency(calls: list):
+    """Append ``(wall s, thread CPU s, chunks)`` of every :data:`WORLD_STEPS` call to ``calls``."""
+    undo = []
+
+    def timed(count, fn):
+        def wrapper(*args, **kwargs):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                calls.append((time.perf_counter() - t0, time.thread_time() - c0, count(args)))
+
+        return wrapper
+
+    for (module, attr), count in WORLD_STEPS.items():
+        undo.append(_patch(module, attr, lambda fn, count=count: timed(count, fn)))
+    try:
+        yield calls
+    finally:
+        for owner, name, fn in undo:
+            setattr(owner, name, fn)
+
+
 @contextlib.contextmanager
 def cpu_split(totals: dict):
     """Add the thread CPU seconds of every call of each :data:`CPU_PARTS` function to ``totals[part]``."""
-    import importlib
-
     lock = threading.Lock()
     undo = []
 
@@ -74,13 +132,7 @@ def cpu_split(totals: dict):
         return wrapper
 
     for part, (module, attr) in CPU_PARTS.items():
-        owner = importlib.import_module(module)
-        *path, name = attr.split(".")
-        for p in path:
-            owner = getattr(owner, p)
-        fn = getattr(owner, name)
-        setattr(owner, name, timed(part, fn))
-        undo.append((owner, name, fn))
+        undo.append(_patch(module, attr, lambda fn, part=part: timed(part, fn)))
     try:
         yield totals
     finally:
@@ -92,7 +144,8 @@ def _run(manifest, out, model, sampler, batch: int) -> dict:
     from oscar_core.evaluation.closed_loop import run_closed_loop
 
     cpu_parts: dict = {}
-    with cpu_split(cpu_parts):
+    world_calls: list = []
+    with cpu_split(cpu_parts), world_latency(world_calls):
         t0, c0 = time.perf_counter(), time.process_time()
         res = run_closed_loop(manifest, out, model=model, sampler=sampler, batch_cells=batch, log=lambda m: None)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -107,6 +160,7 @@ def _run(manifest, out, model, sampler, batch: int) -> dict:
         "cpu_s": cpu,
         "wall_ms": {p: 1e3 * sum(r["timing_s"].get(p, 0.0) for r in res.records) for p in PARTS},
         "cpu_parts_s": cpu_parts,
+        "world_calls": world_calls,
         "records": res.records,
     }
 
@@ -133,7 +187,122 @@ def _sum_rounds(runs: list[dict]) -> dict:
         },
     }
     row.update({f"{p}_wall_ms_per_step": sum(r["wall_ms"][p] for r in runs) / steps for p in PARTS})
+    calls = [c for r in runs for c in r["world_calls"]]
+    row["policy_visible"] = {
+        "world_calls": len(calls),
+        "wall_ms_per_call": 1e3 * sum(c[0] for c in calls) / max(len(calls), 1),
+        "cpu_ms_per_call": 1e3 * sum(c[1] for c in calls) / max(len(calls), 1),
+        "cpu_ms_per_chunk": 1e3 * sum(c[1] for c in calls) / max(sum(c[2] for c in calls), 1),
+    }
     return row
+
+
+def _best_cpu(fn, repeats: int):
+    """(result of the last call, best thread-CPU ms, best wall ms) of ``repeats`` calls of ``fn``."""
+    cpu, wall, out = [], [], None
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        out = fn()
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return out, 1e3 * min(cpu), 1e3 * min(wall)
+
+
+@contextlib.contextmanager
+def _sum_of_squares_rms_norm():
+    """The WAN RMS norm with ``x / max(sqrt(sum_c x^2), eps)`` in place of ``F.normalize`` (float32 only)."""
+    from diffusers.models.autoencoders import autoencoder_kl_wan as wan
+
+    original = wan.WanRMS_norm.forward
+
+    def forward(self, x):
+        dim = 1 if self.channel_first else -1
+        norm = (x * x).sum(dim, keepdim=True).sqrt_().clamp_min_(1e-12)
+        return (x / norm) * self.scale * self.gamma + self.bias
+
+    wan.WanRMS_norm.forward = forward
+    try:
+        yield
+    finally:
+        wan.WanRMS_norm.forward = original
+
+
+def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
+    """What of the VAE could leave the policy's critical path, on one chunk ``frames`` (L, H, W, 3) uint8
+    (module docstring). CPU and wall in milliseconds, best of ``repeats``."""
+    from diffusers.models.autoencoders import autoencoder_kl_wan as wan
+
+    from oscar_core.model.vae import VideoVAE
+
+    vae = model.vae
+    pixels = VideoVAE.to_pixels(frames)  # (1, 3, L, H, W)
+    latent, enc_cpu, enc_wall = _best_cpu(lambda: vae.encode(pixels), repeats)
+    _, seed_cpu, _ = _best_cpu(lambda: vae.encode(pixels[:, :, :1]), repeats)
+    full, dec_cpu, dec_wall = _best_cpu(lambda: vae.decode(latent), repeats)
+    n = latent.shape[2]
+    last, last_cpu, _ = _best_cpu(lambda: vae.decode(latent[:, :, -1:]), repeats)
+    prefix_cpu, prefix_equal = [], True
+    for k in range(1, n):
+        out, c, _ = _best_cpu(lambda k=k: vae.decode(latent[:, :, :k]), repeats)
+        prefix_cpu.append(c)
+        prefix_equal &= bool(torch.equal(out, full[:, :, : out.shape[2]]))
+    prefix_cpu.append(dec_cpu)
+    four_p, four_l = torch.cat([pixels] * 4), torch.cat([latent] * 4)
+    _, enc4_cpu, _ = _best_cpu(lambda: vae.encode(four_p), repeats)
+    _, seed4_cpu, _ = _best_cpu(lambda: vae.encode(four_p[:, :, :1]), repeats)
+    _, dec4_cpu, _ = _best_cpu(lambda: vae.decode(four_l), repeats)
+    norm_cpu = [0.0]
+    original = wan.WanRMS_norm.forward
+
+    def counted(self, x):
+        c0 = time.thread_time()
+        try:
+            return original(self, x)
+        finally:
+            norm_cpu[0] += time.thread_time() - c0
+
+    wan.WanRMS_norm.forward = counted
+    try:
+        _, dec_counted_cpu, _ = _best_cpu(lambda: vae.decode(latent), 1)
+    finally:
+        wan.WanRMS_norm.forward = original
+    with _sum_of_squares_rms_norm():
+        fast, fast_cpu, _ = _best_cpu(lambda: vae.decode(latent), repeats)
+    from oscar_core.model.tiny_decoder import TinyDecoderNet
+
+    up = [s_ <= vae.spatial for s_ in (2, 4, 8)]  # the VAE's spatial factor: x2 per stage while it lasts
+    torch.manual_seed(0)
+    tiny = TinyDecoderNet(latent_channels=vae.z_dim, space_upscale=tuple(up))  # taew2_1's widths, random weights
+    vae.use_tiny_decoder(tiny)
+    try:
+        _, tiny_cpu, _ = _best_cpu(lambda: vae.decode(latent), repeats)
+    finally:
+        vae.use_tiny_decoder(None)
+    u8 = VideoVAE.to_uint8
+    return {
+        "chunk": list(frames.shape),
+        "latent": list(latent.shape),
+        "repeats": repeats,
+        "decode_cpu_ms": dec_cpu,
+        "decode_wall_ms": dec_wall,
+        "decode_last_latent_frame_alone_cpu_ms": last_cpu,
+        "last_alone_equals_full": bool(torch.equal(last[:, :, -1], full[:, :, -1])),
+        "last_alone_max_abs_diff": float((last[:, :, -1] - full[:, :, -1]).abs().max()),
+        "last_alone_max_uint8_diff": int(np.abs(u8(last[:, :, -1:]).astype(int) - u8(full[:, :, -1:])).max()),
+        "prefix_decodes_bit_identical": prefix_equal,
+        "decode_cpu_ms_by_latent_frames": prefix_cpu,
+        "encode_condition_cpu_ms": enc_cpu,
+        "encode_condition_wall_ms": enc_wall,
+        "encode_seed_cpu_ms": seed_cpu,
+        "batch4_encode_condition_cpu_ms_per_clip": enc4_cpu / 4,
+        "batch4_encode_seed_cpu_ms_per_clip": seed4_cpu / 4,
+        "batch4_decode_cpu_ms_per_clip": dec4_cpu / 4,
+        "rms_norm_share_of_decode": norm_cpu[0] * 1e3 / dec_counted_cpu,
+        "sum_of_squares_norm_decode_cpu_ms": fast_cpu,
+        "sum_of_squares_norm_max_abs_diff": float((fast - full).abs().max()),
+        "sum_of_squares_norm_max_uint8_diff": int(np.abs(u8(fast).astype(int) - u8(full)).max()),
+        "tiny_decoder_cpu_ms": tiny_cpu,
+    }
 
 
 def main() -> int:
@@ -143,6 +312,8 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--batch", type=int, nargs="+", default=[4], help="lock-step batch sizes beside batch 1")
     ap.add_argument("--repeats", type=int, default=1, help="interleaved rounds of every batch size")
+    ap.add_argument("--no-vae-probe", action="store_true", help="skip the VAE probe (module docstring)")
+    ap.add_argument("--probe-repeats", type=int, default=3, help="best of this many calls in the VAE probe")
     ap.add_argument("--json", default="benchmarks/results/closed_loop.json")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -175,6 +346,11 @@ def main() -> int:
                     a = read_video(Path(tmp) / "r0b1" / ra["video"]).astype(int)
                     v = read_video(Path(tmp) / f"r0b{b}" / rb["video"]).astype(int)
                     diff = max(diff, int(np.abs(a - v).max()))
+        probe = None
+        if not args.no_vae_probe:  # on the first chunk of the first cell's video: frames the world model made
+            first = next(r for r in runs[1][0]["records"] if r["status"] == "ok")
+            video = read_video(Path(tmp) / "r0b1" / first["video"])[: model.card.chunk_frames]
+            probe = vae_probe(model, np.ascontiguousarray(video), args.probe_repeats)
     rows = [_sum_rounds(runs[b]) for b in sizes]
     speedups = [
         {
@@ -195,6 +371,21 @@ def main() -> int:
     for sp in speedups:
         print(f"batch {sp['batch_cells']} / batch 1, cells per CPU-minute: {sp['cells_per_cpu_minute']:.2f}x")
     print(f"videos differ from batch 1's by at most {diff} uint8 level")
+    print("policy-visible latency per chunk (world step, request to frames):")
+    for r in rows:
+        pv = r["policy_visible"]
+        print(
+            f"  batch {r['batch_cells']}: {pv['wall_ms_per_call']:.0f} wall ms, {pv['cpu_ms_per_call']:.0f} CPU ms per call"
+            f" ({pv['cpu_ms_per_chunk']:.0f} CPU ms per chunk, {pv['world_calls']} calls)"
+        )
+    if probe is not None:
+        print(
+            f"VAE probe, one chunk {probe['chunk']} -> latent {probe['latent']}, thread CPU ms (best of {probe['repeats']}):"
+        )
+        for key, value in probe.items():
+            if key not in ("chunk", "latent", "repeats"):
+                shown = [round(v, 1) for v in value] if isinstance(value, list) else value
+                print(f"  {key}: {round(shown, 3) if isinstance(shown, float) else shown}")
     out = with_provenance(
         {
             "model": "oscar-toy",
@@ -208,6 +399,7 @@ def main() -> int:
             "rows": rows,
             "speedup_vs_batch_1": speedups,
             "max_uint8_diff": diff,
+            "vae_probe": probe,
         }
     )
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)

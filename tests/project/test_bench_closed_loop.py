@@ -64,6 +64,7 @@ def test_rows_sum_the_rounds_and_the_rest_is_other(bench):
             "cpu_s": cpu,
             "wall_ms": {p: 10.0 * cells for p in bench.PARTS},
             "cpu_parts_s": parts,
+            "world_calls": [(1.0, 0.5, 1), (3.0, 1.5, 4)],  # (wall s, CPU s, chunks) of each world step
         }
 
     row = bench._sum_rounds([run(8, 30.0, {"dit": 12.0, "vae_decode": 6.0}), run(8, 34.0, {"dit": 14.0})])
@@ -75,3 +76,36 @@ def test_rows_sum_the_rounds_and_the_rest_is_other(bench):
     assert per_step["total"] == pytest.approx(64_000 / 32)
     assert per_step["other"] == pytest.approx((64_000 - 32_000) / 32)
     assert row["model_wall_ms_per_step"] == pytest.approx(160 / 32)
+    visible = row["policy_visible"]
+    assert visible["world_calls"] == 4
+    assert visible["wall_ms_per_call"] == pytest.approx(2000) and visible["cpu_ms_per_call"] == pytest.approx(1000)
+    assert visible["cpu_ms_per_chunk"] == pytest.approx(4000 / 10)
+
+
+def test_world_latency_times_each_world_step_and_counts_its_chunks(bench, monkeypatch):
+    fake = types.ModuleType("fake_world")
+
+    class World:
+        def step(self, q, gripper):
+            _burn(0.05)
+            return "frames"
+
+    def together(requests):
+        _burn(0.02 * len(requests))
+        return ["frames"] * len(requests)
+
+    fake.World, fake.together = World, together
+    monkeypatch.setitem(sys.modules, "fake_world", fake)
+    monkeypatch.setattr(
+        bench,
+        "WORLD_STEPS",
+        {("fake_world", "World.step"): lambda args: 1, ("fake_world", "together"): lambda args: len(args[0])},
+    )
+    calls = []
+    with bench.world_latency(calls):
+        assert World().step(None, None) == "frames"
+        assert fake.together([1, 2, 3]) == ["frames"] * 3
+    assert fake.together is together and World.step.__name__ == "step"
+    assert [c[2] for c in calls] == [1, 3]
+    assert calls[0][1] == pytest.approx(0.05, abs=0.02) and calls[1][1] == pytest.approx(0.06, abs=0.02)
+    assert all(wall >= cpu * 0.9 for wall, cpu, _ in calls)
