@@ -251,6 +251,7 @@ def run_closed_loop(
     counts = {"cells": len(manifest.sessions) * len(specs), "done": 0, "reused": 0, "failed": 0, "retried": 0}
     records: list[dict | None] = []
     pending: list[tuple] = []
+    reused_failed: list[str] = []
     bar = progress_bar(total=counts["cells"], desc="closed loop", unit="cell", enabled=progress)
     for s in manifest.sessions:
         sparts = _session_parts(s)
@@ -279,6 +280,7 @@ def run_closed_loop(
                 if rec["status"] == "failed" and not retry_failed:
                     counts["reused"] += 1
                     counts["failed"] += 1
+                    reused_failed.append(f"{s.session}/{spec.name}")
                     records.append(rec)
                     bar.update(1)
                     continue
@@ -297,7 +299,15 @@ def run_closed_loop(
         records[index] = rec
         bar.update(1)
 
+    if reused_failed:
+        _log.warning(
+            "reused %d failed cell(s) of an earlier run as they are (%s); --retry-failed redoes them",
+            len(reused_failed),
+            ", ".join(reused_failed[:5]) + (", …" if len(reused_failed) > 5 else ""),
+        )
     pool = PolicyPool()
+    # every policy with a cell to run is loaded (or connected) now, before any model loads or cell runs
+    pool.preload(list({job[2].name: job[2] for job in pending}.values()))
     world_options = dict(
         get_model=get_model,
         simulator=simulator,
@@ -344,7 +354,18 @@ def run_closed_loop(
             finish(job[0], write(cell, run_open_cell(cell, policy_timeout)))
     bar.close()
     report, paths = _report(
-        out, manifest, specs, records, counts, world_id, judge, pairwise_judge, progress, plot_formats, log
+        out,
+        manifest,
+        specs,
+        records,
+        counts,
+        world_id,
+        judge,
+        pairwise_judge,
+        progress,
+        plot_formats,
+        log,
+        reused_failed,
     )
     return ClosedLoopResult(out, records, counts, report, paths)
 
@@ -421,7 +442,20 @@ def _pairwise(
     return pairwise_judge.compare_many(pairs, progress=progress, **kwargs)
 
 
-def _report(out: Path, manifest, specs, records, counts, world_id, judge, pairwise_judge, progress, plot_formats, log):
+def _report(
+    out: Path,
+    manifest,
+    specs,
+    records,
+    counts,
+    world_id,
+    judge,
+    pairwise_judge,
+    progress,
+    plot_formats,
+    log,
+    reused_failed=(),
+):
     """Judge, compare, and write the report (:mod:`.closed_loop_report`)."""
     from ..metrics.judge import success_by_policy
     from .closed_loop_report import build_closed_loop_report, eval_view, fidelity_intervals, write_closed_loop_report
@@ -434,7 +468,9 @@ def _report(out: Path, manifest, specs, records, counts, world_id, judge, pairwi
     failures = judge_failures(records, verdicts) if judge is not None else []
     for f in failures:
         _log.error("the judge could not judge %s: %s", f["cell"], f["error"])
-    report = build_closed_loop_report(manifest, specs, records, counts, world_id, judge, failures)
+    report = build_closed_loop_report(
+        manifest, specs, records, counts, world_id, judge, failures, reused_failed=list(reused_failed)
+    )
     emanifest, erecords, everdicts = eval_view(manifest, specs, records, verdicts)
     ecounts = {
         "cells": counts["cells"],

@@ -19,6 +19,7 @@ from .closed_loop_manifest import Session
 from .closed_loop_step import CellState
 
 __all__ = [
+    "LOAD_FAULT",
     "CellRun",
     "ModelWorld",
     "OpenCell",
@@ -27,11 +28,21 @@ __all__ = [
     "chunk_seed",
     "drive",
     "generate_chunks",
+    "never_loaded",
     "open_cell",
     "open_world",
     "run_cell",
     "run_open_cell",
 ]
+
+
+#: How the reason of a cell whose policy could not be loaded begins (:meth:`PolicyPool.take`).
+LOAD_FAULT = "cannot load "
+
+
+def never_loaded(record: dict) -> bool:
+    """The cell failed because its policy could not be loaded (it never acted)."""
+    return record.get("status") == "failed" and str(record.get("reason") or "").startswith(LOAD_FAULT)
 
 
 def chunk_seed(seed: int, chunk: int) -> int:
@@ -305,7 +316,26 @@ class PolicyPool:
         try:
             return load_policy(spec.source, keys=spec.keys)
         except Exception as exc:  # noqa: BLE001 - a policy that cannot be loaded fails its cells, not the run
-            return PolicyFault(f"cannot load {spec.source}: {str(exc).strip()[:300]}")
+            return PolicyFault(f"{LOAD_FAULT}{spec.source}: {str(exc).strip()[:300]}")
+
+    def preload(self, specs) -> None:
+        """Load (or connect) one object of every policy in ``specs`` and keep it for the first cell; raises
+        :class:`~oscar_core.policy.loading.PolicyLoadError` with one line per policy that cannot be, so a run
+        stops before any model loads or cell runs."""
+        from ..policy.loading import PolicyLoadError
+
+        bad = []
+        for spec in specs:
+            try:
+                self.give(spec, load_policy(spec.source))
+            except Exception as exc:  # noqa: BLE001 - each named on its line
+                text = str(exc).strip()[:300]
+                bad.append(
+                    f"policy {spec.name!r} cannot be loaded: "
+                    + (text if spec.source in text else f"{spec.source}: {text}")
+                )
+        if bad:
+            raise PolicyLoadError(bad)
 
     def give(self, spec: PolicySpec, policy) -> None:
         if policy is not None and not isinstance(policy, PolicyFault):

@@ -22,16 +22,19 @@ policy needs), ``simulator`` (a file a simulator world reads, e.g. the toy world
 (``{policy name: 0 or 1}``, the real outcome of that policy from this session, where known: the report then
 compares the world model's ranking with the real one). Any session key
 may be set once in ``defaults``; ``size`` (``WIDTHxHEIGHT``, multiples of 16, in ``defaults`` only) is the
-rollout size (default: the model card's). Relative paths are relative to the manifest's folder; every check
+rollout size (default: the model card's). Relative paths — a policy's ``file.py:attr`` too — are relative to
+the manifest's folder; every check
 runs before any work and an error names the session and the field.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..policy.loading import resolve_policy_source
 from ..policy.protocol import PolicySpec, PolicySpecError
 from .manifest import _NAME, ManifestError, _size, resolve_paths
 
@@ -111,7 +114,8 @@ def load_closed_loop_manifest(path) -> ClosedLoopManifest:
     policies = []
     for k, raw in enumerate(raw_policies):
         try:
-            policies.append(PolicySpec.from_dict(raw, source=f"{path}: policies[{k}]"))
+            spec = PolicySpec.from_dict(raw, source=f"{path}: policies[{k}]")
+            policies.append(dataclasses.replace(spec, source=resolve_policy_source(spec.source, path.parent)))
         except PolicySpecError as exc:
             raise ManifestError(f"{path}: policies[{k}]", "policy", "a valid policy declaration", str(exc)) from None
     names = [p.name for p in policies]

@@ -57,17 +57,35 @@ def _mean(vals):
 
 
 def build_closed_loop_report(
-    manifest, specs, records: list[dict], counts: dict, world: dict, judge, judge_failures: list | None = None
+    manifest,
+    specs,
+    records: list[dict],
+    counts: dict,
+    world: dict,
+    judge,
+    judge_failures: list | None = None,
+    *,
+    reused_failed: list | None = None,
 ) -> dict:
     """Everything ``report.json`` holds (module docstring); judge_failures: the finished cells the judge could not
-    judge (:func:`~.closed_loop.judge_failures`), kept under ``judge_failures``."""
+    judge (:func:`~.closed_loop.judge_failures`), kept under ``judge_failures``; reused_failed: the failed cells
+    reused from an earlier run (``--retry-failed`` redoes them), kept under ``reused_failed``."""
+    from .closed_loop_cell import never_loaded
+
+    simulator = world.get("kind") == "simulator"
     rows = []
     for spec in specs:
         mine = [r for r in records if r["policy"] == spec.name]
         ok = [r for r in mine if r["status"] == "ok"]
         verdicts = [(r.get("verdict") or {}).get("binary") for r in mine]
         judged = [v if r["status"] == "ok" else 0 for v, r in zip(verdicts, mine)]
-        sim = [((r.get("outcome") or {}).get("success") if r["status"] == "ok" else 0) for r in mine]
+        # only a simulator has outcomes of its own: a world model's failed cell is no simulator failure
+        sim = (
+            [((r.get("outcome") or {}).get("success") if r["status"] == "ok" else 0) for r in mine] if simulator else []
+        )
+        ik = [r["ik_max_position_error_m"] for r in mine if r.get("ik_max_position_error_m") is not None]
+        latencies = [(r.get("latency_s") or {}).get("max") for r in mine]
+        loaded = not mine or not all(never_loaded(r) for r in mine)
         rows.append(
             {
                 "policy": spec.name,
@@ -77,21 +95,25 @@ def build_closed_loop_report(
                 "cells": len(mine),
                 "ok": len(ok),
                 "failed": len(mine) - len(ok),
+                "loaded": loaded,
                 "success_rate": _mean(judged) if judge is not None and all(v is not None for v in judged) else None,
                 "sim_success_rate": _mean(sim) if sim and all(v is not None for v in sim) else None,
                 "mean_latency_s": _mean([(r.get("latency_s") or {}).get("mean") for r in mine]),
-                "max_latency_s": max([(r.get("latency_s") or {}).get("max") or 0.0 for r in mine], default=None),
+                "max_latency_s": max([v for v in latencies if v is not None], default=None),
                 "clipped_actions": int(sum(r.get("clipped_actions") or 0 for r in mine)),
-                "ik_max_position_error_m": max([r.get("ik_max_position_error_m") or 0.0 for r in mine], default=None),
+                "ik_max_position_error_m": max(ik, default=None),
                 "fault_reasons": sorted({r["reason"] for r in mine if r["reason"]}),
             }
         )
+    for r in rows:
+        r["why_not"] = _why_not(r, judge, simulator)
+    ranked = [r for r in rows if r["loaded"]]
     by = (
         "success_rate"
-        if all(r["success_rate"] is not None for r in rows)
-        else ("sim_success_rate" if all(r["sim_success_rate"] is not None for r in rows) else None)
+        if ranked and all(r["success_rate"] is not None for r in ranked)
+        else ("sim_success_rate" if ranked and all(r["sim_success_rate"] is not None for r in ranked) else None)
     )
-    ranking = sorted(rows, key=lambda r: -r[by]) if by else []
+    ranking = sorted(ranked, key=lambda r: -r[by]) if by else []
     cells = [
         {
             "session": r["session"],
@@ -121,6 +143,8 @@ def build_closed_loop_report(
             "ranked_by": by,
             "unranked_why": None if by else _unranked_why(rows, judge, judge_failures or []),
             "judge_failures": judge_failures or [],
+            "never_loaded": [r["policy"] for r in rows if not r["loaded"]],
+            "reused_failed": list(reused_failed or []),
             "ranking": [r["policy"] for r in ranking],
             "ranks": competition_ranks({r["policy"]: r[by] for r in ranking}) if by else {},
             "policies": rows,
@@ -129,8 +153,32 @@ def build_closed_loop_report(
     )
 
 
+def _why_not(row: dict, judge, simulator: bool) -> dict:
+    """Per figure of a policy's row that is undefined, why (a few words for the table)."""
+    why = {}
+    if not row["loaded"]:
+        why["rank"] = "not ranked: the policy never loaded"
+    if row["success_rate"] is None:
+        why["success_rate"] = "no judge ran" if judge is None else "not judged (see the judge's failures)"
+    if row["sim_success_rate"] is None:
+        why["sim_success_rate"] = (
+            "no simulator (a world model has no outcome of its own)" if not simulator else "no outcome"
+        )
+    if row["mean_latency_s"] is None:
+        why["mean_latency_s"] = why["max_latency_s"] = "no policy call answered"
+    if row["ik_max_position_error_m"] is None:
+        why["ik_max_position_error_m"] = (
+            f"no IK: {row['action_space']} actions are joint positions"
+            if row["action_space"].startswith("joint")
+            else "no IK solved (no call answered)"
+        )
+    return why
+
+
 def _unranked_why(rows: list[dict], judge, failures: list) -> str:
     """Why no policy is ranked, as a sentence."""
+    if not any(r["loaded"] for r in rows):
+        return "no policy loaded"
     if failures:
         return f"the judge could not judge {len(failures)} of {sum(r['ok'] for r in rows)} finished cells"
     if judge is None:
@@ -148,6 +196,13 @@ def _fmt(v, spec: str) -> str:
     return "n/a" if v is None else format(v, spec)
 
 
+def _figure(row: dict, key: str, spec: str) -> str:
+    """A policy row's figure formatted, or — undefined — the words saying why (``why_not``)."""
+    if row[key] is not None:
+        return format(row[key], spec)
+    return (row.get("why_not") or {}).get(key, "n/a")
+
+
 def format_closed_loop_summary(report: dict) -> str:
     """``summary.md``: the per-policy table, what the views received, the failed cells."""
     c = report["counts"]
@@ -156,7 +211,13 @@ def format_closed_loop_summary(report: dict) -> str:
         "",
         f"- manifest: `{report['manifest']}`",
         f"- world: `{json.dumps(report['world'])}`",
-        f"- cells: {c['cells']} (run {c['done']}, reused {c['reused']}, failed {c['failed']})",
+        f"- cells: {c['cells']} (run {c['done']}, reused {c['reused']}, failed {c['failed']})"
+        + (
+            f"; {len(report['reused_failed'])} failed cells reused from an earlier run as they are: "
+            "--retry-failed redoes them"
+            if report.get("reused_failed")
+            else ""
+        ),
         f"- ranked by: {report['ranked_by'] or 'nothing: ' + report['unranked_why']}",
         "",
     ]
@@ -174,15 +235,16 @@ def format_closed_loop_summary(report: dict) -> str:
         "worst IK residual (m) |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    order = report["ranking"] or [p["policy"] for p in report["policies"]]
     by_name = {p["policy"]: p for p in report["policies"]}
+    order = report["ranking"] + [p["policy"] for p in report["policies"] if p["policy"] not in report["ranking"]]
     for name in order:
         p = by_name[name]
+        rank = report["ranks"].get(name, (p.get("why_not") or {}).get("rank", "-"))
         lines.append(
-            f"| {report['ranks'].get(name, '-')} | {name} | {p['cells']} | {p['failed']} | "
-            f"{_fmt(p['success_rate'], '.3f')} | {_fmt(p['sim_success_rate'], '.3f')} | "
-            f"{_fmt(p['mean_latency_s'], '.4f')} | {p['clipped_actions']} | "
-            f"{_fmt(p['ik_max_position_error_m'], '.2e')} |"
+            f"| {rank} | {name} | {p['cells']} | {p['failed']} | "
+            f"{_figure(p, 'success_rate', '.3f')} | {_figure(p, 'sim_success_rate', '.3f')} | "
+            f"{_figure(p, 'mean_latency_s', '.4f')} | {p['clipped_actions']} | "
+            f"{_figure(p, 'ik_max_position_error_m', '.2e')} |"
         )
     ev = report.get("eval") or {}
     comp = ev.get("comparison")

@@ -56,12 +56,27 @@ def main(argv=None) -> int:
             "policy: real / world model: "
             + ", ".join(f"{p} {r:.2f} / {w:.3f}" for p, r, w in zip(s["policies"], s["real_success"], s["wm_success"]))
         )
-        ci = s["spearman_ci95"]
+        why = s["undefined"]
+
+        def figure(key: str, text) -> str:
+            return text(s[key]) if s[key] is not None else f"undefined ({why[key]})"
+
         print(
-            f"Spearman {s['spearman_rho']:+.3f}"
-            + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
-            + f", P(rho >= 0.8) {s['p_rho_at_least_0_8']}, Pearson {s['pearson_r']:+.3f}, MMRV {s['mmrv']:.3f}, "
-            f"SISR {s['sisr_delta_pp']:.2f} pp"
+            "Spearman "
+            + figure("spearman_rho", lambda v: f"{v:+.3f}")
+            + (
+                f" [{s['spearman_ci95'][0]:+.2f}, {s['spearman_ci95'][1]:+.2f}]"
+                if s["spearman_ci95"]
+                else (f", no interval ({why['spearman_ci95']})" if s["spearman_rho"] is not None else "")
+            )
+        )
+        print("P(rho >= 0.8) " + figure("p_rho_at_least_0_8", lambda v: f"{v:.3f}"))
+        print("Pearson " + figure("pearson_r", lambda v: f"{v:+.3f}"))
+        print(
+            "MMRV "
+            + figure("mmrv", lambda v: f"{v:.3f}")
+            + ", SISR "
+            + figure("sisr_delta_pp", lambda v: f"{v:.2f} pp")
         )
     if not s["complete"]:
         print(

@@ -37,6 +37,7 @@ __all__ = [
     "session_bootstrap_figures",
     "session_intervals",
     "summarize_runs",
+    "undefined_reasons",
 ]
 
 
@@ -194,12 +195,45 @@ def _with_truth(folders, reports: list[dict], truth) -> list[dict]:
     return [closed_loop_cells(rep, sim, str(f)) for f, rep in zip(folders, reports)]
 
 
+def _equal(rates: np.ndarray) -> bool:
+    finite = rates[np.isfinite(rates)]
+    return finite.size > 0 and bool(np.all(finite == finite[0]))
+
+
+def undefined_reasons(real: np.ndarray, wm: np.ndarray, n_sessions: int, n_finite: int, resamples: int) -> dict:
+    """Why each figure of :func:`summarize_runs` would be undefined, as a sentence: ``{figure: reason}`` for
+    ρ / r (fewer than two policies, or one side's rates all equal), the interval and P(ρ ≥ 0.8) (one session,
+    or no resample with a defined ρ), MMRV and SISR_Δ (no policy). real, wm: (P,) per-policy rates."""
+    p = int(np.isfinite(real).sum() if real.size else 0)
+    if p < 2:
+        corr = f"{p} policy with a real rate: a correlation needs at least 2"
+    elif _equal(real):
+        corr = f"the real rates are all equal ({real[np.isfinite(real)][0]:.3f}), so they rank nothing"
+    elif _equal(wm):
+        corr = f"the world model's rates are all equal ({wm[np.isfinite(wm)][0]:.3f}), so they rank nothing"
+    else:
+        corr = "a side has no rates"
+    if n_sessions < 2:
+        boot = f"{n_sessions} session: resampling the sessions needs at least 2"
+    else:
+        boot = f"no resample of the {n_sessions} sessions (of {resamples}) gave a defined rho: {corr}"
+    return {
+        "spearman_rho": corr,
+        "pearson_r": corr,
+        "spearman_ci95": boot,
+        "p_rho_at_least_0_8": boot,
+        "mmrv": "no policy with rates on both sides",
+        "sisr_delta_pp": "no policy with rates on both sides",
+    }
+
+
 def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) -> dict:
     """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed), or for
     ``oscar eval closed-loop`` folders (one per noise seed) against ``truth``, the simulator's run of the same
     manifest (:func:`closed_loop_cells`).
 
-    ``judged`` gives, per run, the cells with a world-model verdict out of its cells: a run with fewer is
+    A figure that is undefined (ρ of equal rates, an interval over one session) is None and ``undefined`` maps
+    it to a sentence saying why (:func:`undefined_reasons`). ``judged`` gives, per run, the cells with a world-model verdict out of its cells: a run with fewer is
     partial, and its missing cells leave those cells' seed averages on fewer seeds (``complete`` is False).
     """
     reports = _with_truth(folders, read_reports(folders), truth)
@@ -212,7 +246,17 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) ->
     judged = [[sum(c.get("wm_success") is not None for c in rep["cells"]), len(rep["cells"])] for rep in reports]
     r, w = np.nanmean(real, 0), np.nanmean(wm, 0)
     boot = session_bootstrap(real, wm, resamples, seed)
-    ok = boot[np.isfinite(boot)]
+    # one session resampled is that session every time: no interval, however many resamples
+    ok = boot[np.isfinite(boot)] if len(sessions) >= 2 else boot[:0]
+    figures = {
+        "spearman_rho": spearman_rho(r, w),
+        "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
+        "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
+        "pearson_r": pearson_r(r, w),
+        "mmrv": mmrv_rank(r, w),
+        "sisr_delta_pp": sisr_delta(r, w),
+    }
+    why = undefined_reasons(r, w, len(sessions), ok.size, resamples)
     return {
         "runs": [str(f) for f in folders],
         "truth": None if truth is None else str(truth),
@@ -220,12 +264,11 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) ->
         "policies": policies,
         "real_success": r.tolist(),
         "wm_success": w.tolist(),
-        "spearman_rho": spearman_rho(r, w),
-        "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
-        "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
-        "pearson_r": pearson_r(r, w),
-        "mmrv": mmrv_rank(r, w),
-        "sisr_delta_pp": sisr_delta(r, w),
+        # an undefined figure is None (never NaN), and ``undefined`` says why
+        **{k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in figures.items()},
+        "undefined": {
+            k: why[k] for k, v in figures.items() if v is None or (isinstance(v, float) and not np.isfinite(v))
+        },
         "judged": judged,
         "complete": all(j == n for j, n in judged),
         "resamples": resamples,

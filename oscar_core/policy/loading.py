@@ -11,11 +11,32 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import importlib.util
+from pathlib import Path
 
 from .._util.user_code import import_attr
+from ..errors import OscarError
 from .protocol import ENTRY_POINT_GROUP, PolicySpecError
 
-__all__ = ["load_policy"]
+__all__ = ["PolicyLoadError", "load_policy", "resolve_policy_source"]
+
+
+class PolicyLoadError(OscarError):
+    """Policies that cannot be loaded (or connected), found before any work: ``lines`` holds one line per policy;
+    the message prints each on a line of its own starting ``error:`` under the CLI (exit 2)."""
+
+    def __init__(self, lines: list[str]):
+        self.lines = list(lines)
+        super().__init__("\nerror: ".join(self.lines))
+
+
+def resolve_policy_source(source: str, folder) -> str:
+    """``source`` with a relative ``path/to/file.py:attr`` made absolute against ``folder`` (a manifest's folder,
+    as its session files are); every other source (``module:attr``, an entry point, ``ws://…``, an absolute
+    path) unchanged."""
+    target, sep, attr = source.rpartition(":")
+    if not sep or not target.endswith(".py") or source.startswith(("ws://", "wss://")) or Path(target).is_absolute():
+        return source
+    return f"{(Path(folder) / target).resolve()}:{attr}"
 
 
 class _FunctionPolicy:

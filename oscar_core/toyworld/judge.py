@@ -30,8 +30,8 @@ one smeared or blank generated frame decides nothing:
    ``info.success_radii`` (3).
 
 ``partial`` = the median distance of the compact blob as a percentage of
-``success_radii`` (capped at 100; 0 where no compact blob is found). The
-reason names every number. Real renders (the simulator's) must keep 100 %
+``success_radii`` (capped at 100; 0 where no compact blob is found or the
+ball did not leave its start). The reason names every number. Real renders (the simulator's) must keep 100 %
 agreement: :func:`agreement_with_real`. :func:`ball_reading` returns the
 per-frame internals (the diagnosis in docs/evaluation.md reads them).
 
@@ -39,7 +39,9 @@ Version 1 (before 2026-11-25) took the centroid of all yellow pixels in the
 last frame showing any: generated smears moved that centroid 3–11 radii where
 the ball stayed. Version 2 (same day) needed the compact ball in half the tail
 frames, which failed one real render in 120 (the ball under the gripper in 3
-of the last 4 frames).
+of the last 4 frames). Version 4 (2026-11-29) gives a ball that did not leave
+its start partial 0 (version 3 gave a copy of it far away partial 100) and a
+reason that says the far blob is a copy; every binary verdict is unchanged.
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ __all__ = [
     "ball_reading",
 ]
 
-VERSION = "3"
+VERSION = "4"
 #: The ball's colour target for generated frames: at least 3 pixels (a stray yellowish pixel is not a ball).
 BALL = ColorTarget(
     "object", OBJECT_TARGET.hue, OBJECT_TARGET.hue_tol, OBJECT_TARGET.min_sat, OBJECT_TARGET.min_val, min_pixels=3.0
@@ -241,10 +243,20 @@ def ball_moved(video: np.ndarray, clip) -> dict:
         )
         return {"binary": 0, "partial": 0, "reason": f"no compact ball in the last frame: {why}; {stay}"}
     d = r["distance"]
+    if not r["left"]:
+        # the ball is still at its start: a compact blob elsewhere is a second ball, not this one carried there
+        blob = (
+            f"the compact yellow blob {d:.2f} ball radii away is a copy, not the ball moved"
+            if d > START_DISK_RADII
+            else f"the compact ball blob lies {d:.2f} ball radii from its start"
+        )
+        return {
+            "binary": 0,
+            "partial": 0,
+            "reason": f"the ball did not leave its start: {stay} (a move leaves at most {LEFT_FRACTION:.0%}); {blob}",
+        }
     partial = int(min(100, round(100 * d / need)))
     where = f"compact ball blob {d:.2f} ball radii (median) from its start; {stay}; success needs {need:g}"
-    if not r["left"]:
-        return {"binary": 0, "partial": partial, "reason": f"the ball did not leave its start: {where}"}
     return {"binary": int(d >= need), "partial": partial, "reason": where}
 
 

@@ -189,7 +189,6 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path, capsys):
         _joint_spec("shape", "WrongShape", folder),
         _joint_spec("raises", "Raises", folder),
         _joint_spec("slow", "Slow", folder),
-        _joint_spec("missing", "NoSuchClass", folder),
     ]
     m = _variant(toy, "bad", horizon=33, policies=specs)
     out = tmp_path / "bad"
@@ -216,8 +215,7 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path, capsys):
         assert "shape (H, 5), found (8, 3)" in reasons[(s, "shape")]
         assert reasons[(s, "raises")] == "infer raised RuntimeError: lost the gripper"
         assert "within 0.5 s" in reasons[(s, "slow")]
-        assert "cannot load" in reasons[(s, "missing")] and "NoSuchClass" in reasons[(s, "missing")]
-    assert report["counts"]["failed"] == 10
+    assert report["counts"]["failed"] == 8
     assert not list(out.rglob("*.tmp*"))
     for name in ("nan", "raises"):  # a failed cell keeps its calls and reason, and no video
         rec = json.loads((out / "cells" / "toyarm-0000" / name / "record.json").read_text())
@@ -225,10 +223,10 @@ def test_bad_policies_fail_their_cells_only_and_retry(toy, tmp_path, capsys):
     # a re-run reuses failed cells; --retry-failed redoes exactly them
     code, stdout, _ = oscar(capsys, cmd)
     counts = json.loads(stdout[stdout.index("{") :])["counts"]
-    assert code == 1 and counts["done"] == 0 and counts["reused"] == 12
+    assert code == 1 and counts["done"] == 0 and counts["reused"] == 10
     _, stdout, _ = oscar(capsys, cmd + ["--retry-failed"])
     counts = json.loads(stdout[stdout.index("{") :])["counts"]
-    assert counts["done"] == 10 and counts["retried"] == 10 and counts["reused"] == 2
+    assert counts["done"] == 8 and counts["retried"] == 8 and counts["reused"] == 2
 
 
 def test_kill_and_resume_and_fingerprint(toy, tmp_path, capsys, monkeypatch):
@@ -300,3 +298,88 @@ def test_a_judge_that_cannot_judge_fails_the_run_loudly(toy, tmp_path, capsys):
     ]
     (log,) = (out / "logs").glob("*.log")
     assert log.read_text().count("ERROR oscar.evaluation.closed_loop: the judge could not judge") == 4
+
+
+def test_policies_resolve_from_the_manifest_and_load_before_the_model(toy, tmp_path):
+    """A policy's file.py:attr is found beside the manifest, whatever the working folder; policies that cannot be
+    loaded are one line each and exit 2 before the world model loads or any cell runs."""
+    data = json.loads(_variant(toy, "rel", horizon=17).read_text())
+    line = _joint_spec("line", "Line", toy.parent.parent)
+    data["policies"] = [{**line, "policy": "../bad_policies.py:Line"}]  # relative to the manifest's folder
+    m = toy.parent / "relative.json"
+    m.write_text(json.dumps(data))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}  # this checkout's oscar_core
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(tmp_path / "rel"), "--json"]
+    proc = subprocess.run(cmd + ["--no-progress"], capture_output=True, text=True, cwd=elsewhere, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout[proc.stdout.index("{") :])["counts"]["done"] == 2
+    data["policies"] += [
+        {**line, "name": "nofile", "policy": "no_such_policies.py:Line"},
+        {**line, "name": "noclass", "policy": "../bad_policies.py:NoSuchClass"},
+    ]
+    m.write_text(json.dumps(data))
+    out = tmp_path / "missing"
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--model", "oscar-toy", "--out", str(out)]
+    proc = subprocess.run(cmd + ["--no-progress", "-v"], capture_output=True, text=True, cwd=elsewhere, env=env)
+    assert proc.returncode == 2, proc.stderr
+    errors = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
+    assert len(errors) == 2, proc.stderr
+    assert errors[0].startswith("error: policy 'nofile' cannot be loaded: ")
+    assert str(toy.parent / "no_such_policies.py") in errors[0] and "no such file" in errors[0]
+    assert errors[1].startswith("error: policy 'noclass' cannot be loaded: ") and "NoSuchClass" in errors[1]
+    assert "loading world model" not in proc.stderr and not (out / "cells").exists()
+
+
+def test_a_policy_that_never_loaded_is_not_ranked_and_a_reused_failure_says_so(toy, tmp_path):
+    """A cell recorded as 'cannot load' by an earlier run is reused as it is, with a line naming --retry-failed;
+    its policy, never loaded, is not ranked."""
+    m = _variant(toy, "reuse", horizon=17)
+    out = tmp_path / "reuse"
+    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--no-progress"]
+    assert subprocess.run(cmd, capture_output=True, text=True).returncode == 0
+    for s in ("toyarm-0000", "toyarm-0001"):  # as an earlier run that could not load never_closes left them
+        path = out / "cells" / s / "never_closes" / "record.json"
+        rec = json.loads(path.read_text())
+        rec.update(status="failed", reason="cannot load my_policy.py:Policy: no such file", video=None)
+        path.write_text(json.dumps(rec))
+    proc = subprocess.run(cmd + ["--json"], capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert "reused 2 failed cell(s) of an earlier run as they are" in proc.stderr
+    assert "--retry-failed redoes them" in proc.stderr
+    report = json.loads(proc.stdout[proc.stdout.index("{") :])
+    assert report["ranking"] == ["exact"] and report["ranks"] == {"exact": 1}
+    assert report["never_loaded"] == ["never_closes"]
+    summary = (out / "summary.md").read_text()
+    assert "2 failed cells reused from an earlier run as they are: --retry-failed redoes them" in summary
+    assert "| not ranked: the policy never loaded | never_closes |" in summary
+
+
+def test_undefined_report_figures_say_why(toy):
+    """A world model's failed cell is no simulator failure (no 'simulator SR 0.000'); a joint-space policy has no
+    IK residual (not 0.00e+00); a policy whose calls never answered has no latency. Each says why in summary.md."""
+    from oscar_core.evaluation.closed_loop_manifest import load_closed_loop_manifest
+    from oscar_core.evaluation.closed_loop_report import build_closed_loop_report, format_closed_loop_summary
+    from oscar_core.policy.protocol import PolicySpec
+
+    manifest = load_closed_loop_manifest(toy)
+    specs = [PolicySpec.from_dict(_joint_spec("line", "Line", toy.parent.parent))]
+    records = [
+        {"session": s, "policy": "line", "status": "failed", "reason": "infer raised RuntimeError: x", "frames": 1,
+         "calls": 1, "clipped_actions": 0, "latency_s": {"mean": None, "max": None}, "ik_max_position_error_m": None,
+         "outcome": None, "verdict": None, "dir": f"cells/{s}/line"}
+        for s in ("toyarm-0000", "toyarm-0001")
+    ]  # fmt: skip
+    counts = {"cells": 2, "done": 2, "reused": 0, "failed": 2, "retried": 0}
+    report = build_closed_loop_report(manifest, specs, records, counts, {"kind": "world-model"}, None)
+    (row,) = report["policies"]
+    assert row["sim_success_rate"] is None and row["ik_max_position_error_m"] is None and row["max_latency_s"] is None
+    assert report["ranking"] == [] and "no judge ran" in report["unranked_why"]
+    table = next(line for line in format_closed_loop_summary(report).splitlines() if line.startswith("| - | line |"))
+    assert "0.000" not in table and "0.00e+00" not in table and "n/a" not in table, table
+    assert "no simulator (a world model has no outcome of its own)" in table
+    assert "no IK: joint_velocity actions are joint positions" in table and "no policy call answered" in table
+    assert "no judge ran" in table
+    sim = build_closed_loop_report(manifest, specs, records, counts, {"kind": "simulator"}, None)
+    assert sim["policies"][0]["sim_success_rate"] == 0.0  # in a simulator a failed cell is a failure

@@ -197,3 +197,31 @@ def test_closed_loop_runs_without_a_usable_truth_are_refused_before_any_work(tmp
     assert main([wm, ev, "--truth", sim]) == 2
     assert "eval-run and closed-loop" in capsys.readouterr().err
     assert main([ev, "--truth", sim]) == 2
+
+
+def test_undefined_figures_are_sentences_never_nan_or_none(tmp_path, capsys):
+    """The tour's last line on one session where the world model judges every cell a failure: ρ and r of equal
+    rates and a one-session interval are undefined, each printed as a sentence saying why; the JSON holds None
+    with the reason, never NaN."""
+    f = tmp_path / "run"
+    f.mkdir()
+    (f / "report.json").write_text(json.dumps(report(lambda s, j: 0, sessions=1, real_of=lambda s, j: int(j == 0))))
+    s = summarize_runs([f], resamples=50)
+    assert s["spearman_rho"] is None and s["pearson_r"] is None and s["p_rho_at_least_0_8"] is None
+    assert s["mmrv"] is not None and s["spearman_ci95"] is None
+    assert "rates are all equal (0.000)" in s["undefined"]["spearman_rho"]
+    assert "1 session" in s["undefined"]["p_rho_at_least_0_8"]
+    assert main([str(f), "--resamples", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out.lower() and "None" not in out
+    assert "Spearman undefined (the world model's rates are all equal (0.000), so they rank nothing)" in out
+    assert "P(rho >= 0.8) undefined (1 session: resampling the sessions needs at least 2)" in out
+    assert main([str(f), "--resamples", "50", "--json"]) == 0
+    assert "NaN" not in capsys.readouterr().out
+    # one session that ranks: ρ is defined, its interval is not (one session resampled is itself)
+    (f / "report.json").write_text(
+        json.dumps(report(lambda s, j: int(j == 0), sessions=1, real_of=lambda s, j: int(j == 0)))
+    )
+    assert main([str(f), "--resamples", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "Spearman +1.000, no interval (1 session" in out and "[+1.00, +1.00]" not in out

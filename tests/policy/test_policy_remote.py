@@ -17,6 +17,7 @@ pytest.importorskip("msgpack")
 
 from oscar_core.evaluation.closed_loop import run_closed_loop
 from oscar_core.media.video import read_video
+from oscar_core.policy.loading import PolicyLoadError
 from oscar_core.policy.remote import pack, unpack
 from oscar_core.toyworld.closed_loop import toy_simulator, write_closed_loop_sessions
 
@@ -128,15 +129,17 @@ def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path):
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    res = run_closed_loop(
-        m,
-        tmp_path / "refused",
-        simulator=toy_simulator,
-        fps=10.0,
-        chunk_frames=17,
-        policy_sources={"exact": f"ws://127.0.0.1:{port}"},
-    )
-    assert all(r["status"] == "failed" and r["reason"].startswith("cannot load ws://") for r in res.records)
+    # nobody listens from the start: the run stops before any cell, one line naming the policy
+    with pytest.raises(PolicyLoadError, match=rf"^policy 'exact' cannot be loaded: ws://127.0.0.1:{port}: ") as err:
+        run_closed_loop(
+            m,
+            tmp_path / "refused",
+            simulator=toy_simulator,
+            fps=10.0,
+            chunk_frames=17,
+            policy_sources={"exact": f"ws://127.0.0.1:{port}"},
+        )
+    assert len(err.value.lines) == 1 and not (tmp_path / "refused" / "cells").exists()
 
 
 @pytest.mark.parametrize(
