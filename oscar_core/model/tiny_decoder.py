@@ -41,6 +41,7 @@ import torch
 from torch import nn
 
 from .errors import CheckpointLayoutError
+from .weights import check_safetensors
 
 __all__ = ["TinyDecoderNet", "TinyVideoDecoder", "load_tiny_decoder", "TAEW2_1_WIDTHS"]
 
@@ -143,6 +144,7 @@ def load_tiny_decoder(path, net: TinyDecoderNet | None = None) -> TinyDecoderNet
         raise CheckpointLayoutError(path, "tiny decoder", "a .safetensors file of decoder weights", path.name)
     if not path.is_file():
         raise CheckpointLayoutError(path, "tiny decoder", "a weights file", "no such file")
+    check_safetensors(path)  # a truncated or garbled file: CheckpointIntegrityError before any tensor is read
     net = net if net is not None else TinyDecoderNet()
     stored = {k: v for k, v in load_file(str(path)).items() if k.startswith("decoder.")}
     want = net.state_dict()

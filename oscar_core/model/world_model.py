@@ -124,17 +124,27 @@ class OscarWorldModel:
         offload_vae: bool = False,
         offload_text: bool = False,
         verify: bool = True,
+        tiny_decoder=None,
     ) -> OscarWorldModel:
         """Load a folder written by :meth:`save_pretrained` (safetensors only, keys matched strictly).
 
         verify: check every file against ``oscar_manifest.json`` (sha256) and
         the structure of every safetensors file before loading.
+        tiny_decoder: a safetensors file of tiny-decoder weights (``taew2_1``'s
+        key names, :mod:`.tiny_decoder`) that then decodes instead of the full
+        VAE decoder; None (the default): the full decoder. Checked before the
+        model's weights are read.
         """
         from .._util.devices import check_device
 
         check_device(device, ModelInputError)  # before reading anything: safetensors would fail with a traceback
         folder = Path(folder)
         card = read_card(folder)
+        tiny = None
+        if tiny_decoder is not None:
+            from .tiny_decoder import load_tiny_decoder
+
+            tiny = load_tiny_decoder(tiny_decoder)
         if verify:
             manifest = read_manifest(folder)
             if manifest is not None:
@@ -166,6 +176,8 @@ class OscarWorldModel:
             offload_vae=offload_vae,
             offload_text=offload_text,
         )
+        if tiny is not None:
+            model.vae.use_tiny_decoder(tiny)
         if (folder / SCHEDULER_FILE).is_file():
             try:
                 model.scheduler_config = json.loads((folder / SCHEDULER_FILE).read_text())

@@ -7,9 +7,9 @@ import torch
 from safetensors.torch import save_file
 
 from oscar_core.model import ModelInputError, VideoVAE
-from oscar_core.model.errors import CheckpointLayoutError
+from oscar_core.model.errors import CheckpointIntegrityError, CheckpointLayoutError
 from oscar_core.model.tiny import build_tiny_vae
-from oscar_core.model.tiny_decoder import TinyDecoderNet, load_tiny_decoder
+from oscar_core.model.tiny_decoder import TinyDecoderNet, TinyVideoDecoder, load_tiny_decoder
 
 
 def _taew2_1_decoder_shapes(grow0_rows: int = 256) -> dict:
@@ -133,3 +133,26 @@ def test_video_vae_decodes_with_the_tiny_decoder_only_when_asked():
     assert torch.equal(vae.decode(z), full)
     with pytest.raises(ModelInputError, match=r"expected x4 in time and x8 in space .* found x4 and x4"):
         vae.use_tiny_decoder(TinyDecoderNet(space_upscale=(True, True, False), widths=(16, 8, 8, 8)))
+
+
+def test_from_pretrained_takes_a_tiny_decoder_file_and_defaults_to_the_full_decoder(tmp_path):
+    from _models import tiny_world_model
+
+    from oscar_core.model import OscarWorldModel
+
+    tiny_world_model(seed=0, chunk_frames=5).save_pretrained(tmp_path / "model")
+    torch.manual_seed(2)
+    net = TinyDecoderNet(widths=(16, 8, 8, 8))
+    save_file({k: v.contiguous() for k, v in net.state_dict().items()}, str(tmp_path / "tiny.safetensors"))
+    default = OscarWorldModel.from_pretrained(tmp_path / "model")
+    assert default.vae.tiny is None
+    with pytest.raises(CheckpointLayoutError, match=r"decoder\.1\.weight: expected shape \(256, 16, 3, 3\)"):
+        OscarWorldModel.from_pretrained(tmp_path / "model", tiny_decoder=tmp_path / "tiny.safetensors")
+    (tmp_path / "cut.safetensors").write_bytes((tmp_path / "tiny.safetensors").read_bytes()[:-10])
+    with pytest.raises(CheckpointIntegrityError):
+        load_tiny_decoder(tmp_path / "cut.safetensors", TinyDecoderNet(widths=(16, 8, 8, 8)))
+    full = TinyDecoderNet()
+    save_file({k: v.contiguous() for k, v in full.state_dict().items()}, str(tmp_path / "taew2_1.safetensors"))
+    fast = OscarWorldModel.from_pretrained(tmp_path / "model", tiny_decoder=tmp_path / "taew2_1.safetensors")
+    z = torch.randn(1, 16, 2, 4, 8)
+    torch.testing.assert_close(fast.vae.decode(z), TinyVideoDecoder(full, fast.vae.mean, fast.vae.std).decode(z))
