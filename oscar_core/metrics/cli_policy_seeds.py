@@ -38,10 +38,23 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--resamples", type=count(1), default=2000, help="session bootstrap resamples (2000)")
     parser.add_argument("--seed", type=count(0), default=0, help="bootstrap seed (0)")
+    parser.add_argument(
+        "--pair",
+        action="append",
+        metavar="A,B",
+        help="two policies whose cell-by-cell separation to report (repeatable; default: the truth's best and worst)",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = parser.parse_args(argv)
+    pairs = None
+    if args.pair:
+        pairs = [tuple(x.strip() for x in p.split(",")) for p in args.pair]
+        bad = [p for p in args.pair if len(p.split(",")) != 2]
+        if bad:
+            print(f"error: --pair: expected two policy names A,B, found {bad[0]!r}", file=sys.stderr)
+            return 2
     try:
-        s = summarize_runs(args.runs, args.resamples, args.seed, args.truth)
+        s = summarize_runs(args.runs, args.resamples, args.seed, args.truth, pairs=pairs)
     except MetricInputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -78,6 +91,7 @@ def main(argv=None) -> int:
             + ", SISR "
             + figure("sisr_delta_pp", lambda v: f"{v:.2f} pp")
         )
+        _print_cells(s["cells"])
     if not s["complete"]:
         print(
             "warning: PARTIAL: some runs judged fewer cells than they hold (judged cells per run: "
@@ -87,6 +101,31 @@ def main(argv=None) -> int:
         )
         return 1
     return 0
+
+
+def _print_cells(c: dict) -> None:
+    """The cell-by-cell lines: agreement and κ with their intervals, then each pair's separation, undefined ones in
+    words."""
+
+    def ci(key: str, fmt: str) -> str:
+        v = c.get(key)
+        return f" [{v[0]:{fmt}}, {v[1]:{fmt}}]" if v else f", no interval ({c.get('ci95_why') or 'none defined'})"
+
+    agree = "undefined (no cell judged by both)" if c["agreement"] is None else f"{c['agreement']:.3f}"
+    agree += ci("agreement_ci95", ".2f") if c["agreement"] is not None else ""
+    kappa = (
+        f"{c['kappa']:+.3f}{ci('kappa_ci95', '+.2f')}" if c["kappa"] is not None else f"undefined ({c['kappa_why']})"
+    )
+    print(f"cells: verdict = truth in {agree} of {c['cells_judged']} cells; Cohen's kappa {kappa}")
+    for name, p in c["pairs"].items():
+        if p["separated"] is None:
+            print(f"{name}: undefined ({p['why']})")
+            continue
+        interval = f" [{p['ci95'][0]:.2f}, {p['ci95'][1]:.2f}]" if p.get("ci95") else ""
+        print(
+            f"{name}: told apart the right way round in {p['separated']:.3f}{interval} of the "
+            f"{p['sessions']} sessions the truth tells them apart"
+        )
 
 
 if __name__ == "__main__":

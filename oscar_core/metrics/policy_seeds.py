@@ -227,11 +227,25 @@ def undefined_reasons(real: np.ndarray, wm: np.ndarray, n_sessions: int, n_finit
     }
 
 
-def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) -> dict:
+def default_pairs(policies: list[str], real_rates: np.ndarray) -> list[tuple[str, str]]:
+    """The pair whose separation the summary reports when none is asked for: the truth's best and worst policy
+    (none when fewer than two policies have a real rate or they are all equal)."""
+    ok = [i for i in range(len(policies)) if np.isfinite(real_rates[i])]
+    if len(ok) < 2 or _equal(real_rates):
+        return []
+    best = max(ok, key=lambda i: real_rates[i])
+    worst = min(ok, key=lambda i: real_rates[i])
+    return [(policies[best], policies[worst])]
+
+
+def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None, pairs=None) -> dict:
     """The summary :func:`main` prints, as a dict, for ``oscar eval run`` output folders (one per seed), or for
     ``oscar eval closed-loop`` folders (one per noise seed) against ``truth``, the simulator's run of the same
     manifest (:func:`closed_loop_cells`).
 
+    ``cells``: cell by cell (:func:`~oscar_core.metrics.cell_agreement.agreement_summary`), the agreement of the
+    verdicts with the real outcomes, Cohen's κ and, for each (policy, policy) of ``pairs`` (default: the truth's best
+    and worst, :func:`default_pairs`), how often the world model separates them the right way round.
     A figure that is undefined (ρ of equal rates, an interval over one session) is None and ``undefined`` maps
     it to a sentence saying why (:func:`undefined_reasons`). ``judged`` gives, per run, the cells with a world-model verdict out of its cells: a run with fewer is
     partial, and its missing cells leave those cells' seed averages on fewer seeds (``complete`` is False).
@@ -257,6 +271,10 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) ->
         "sisr_delta_pp": sisr_delta(r, w),
     }
     why = undefined_reasons(r, w, len(sessions), ok.size, resamples)
+    from .cell_agreement import agreement_summary
+
+    pairs = default_pairs(policies, r) if pairs is None else [tuple(p) for p in pairs]
+    cells = agreement_summary(real, wm, policies, pairs, resamples, seed)
     return {
         "runs": [str(f) for f in folders],
         "truth": None if truth is None else str(truth),
@@ -269,6 +287,7 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None) ->
         "undefined": {
             k: why[k] for k, v in figures.items() if v is None or (isinstance(v, float) and not np.isfinite(v))
         },
+        "cells": cells,
         "judged": judged,
         "complete": all(j == n for j, n in judged),
         "resamples": resamples,

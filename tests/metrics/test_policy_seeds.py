@@ -225,3 +225,25 @@ def test_undefined_figures_are_sentences_never_nan_or_none(tmp_path, capsys):
     assert main([str(f), "--resamples", "50"]) == 0
     out = capsys.readouterr().out
     assert "Spearman +1.000, no interval (1 session" in out and "[+1.00, +1.00]" not in out
+
+
+def test_closed_loop_summary_says_cell_by_cell_whether_the_verdicts_follow_the_truth(tmp_path, capsys):
+    # truth: policy a always succeeds, c never, b in half the sessions; the world model says every cell succeeded
+    truth = lambda s, j: int(j == 0 or (j == 1 and s % 2 == 0))  # noqa: E731
+    sim, wm = write_runs(
+        tmp_path, {"sim": closed_loop_report(truth, sim=True), "wm": closed_loop_report(lambda s, j: 1)}
+    )
+    s = summarize_runs([wm], resamples=100, truth=sim)
+    cells = s["cells"]
+    # 18 cells, 9 real successes: a copy of "always 1" agrees on those 9
+    assert cells["agreement"] == pytest.approx(9 / 18) and cells["cells_judged"] == 18
+    assert cells["kappa"] == pytest.approx(0.0)  # p_o = 1/2 = p_e: no better than chance
+    pair = cells["pairs"][f"{POLICIES[0]} vs {POLICIES[2]}"]  # the truth's best and worst, told apart in 0 of 6
+    assert pair["separated"] == 0.0 and pair["sessions"] == 6
+    assert main([wm, "--truth", sim, "--resamples", "50", "--pair", f"{POLICIES[0]},{POLICIES[1]}"]) == 0
+    out = capsys.readouterr().out
+    assert "cells: verdict = truth in 0.500" in out
+    assert (
+        f"{POLICIES[0]} vs {POLICIES[1]}: told apart the right way round in 0.000" in out and "of the 3 sessions" in out
+    )
+    assert main([wm, "--truth", sim, "--pair", "a"]) == 2
