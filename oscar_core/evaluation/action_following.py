@@ -284,6 +284,54 @@ def _record_path(out: Path, sid: str) -> Path:
     return out / "records" / f"{sid.replace('/', '_')}.json"
 
 
+def _paired_report(paired, manifest) -> dict | None:
+    """The report.json of the run ``paired`` (a folder) to compare with, checked to be on the same sets (the
+    manifest's sha256); None without ``paired``."""
+    if paired is None:
+        return None
+    other_path = Path(paired) / "report.json"
+    if not other_path.is_file():
+        raise MetricInputError(other_path, "<file>", "the report.json of another action-following run", "no such file")
+    other = json.loads(other_path.read_text())
+    mine = hashlib.sha256(Path(manifest.path).read_bytes()).hexdigest()
+    if other.get("manifest_sha256") != mine:
+        raise MetricInputError(
+            other_path,
+            "manifest_sha256",
+            f"a run on the same sets as this one ({manifest.path}, sha256 {mine[:12]}…)",
+            f"{str(other.get('manifest_sha256'))[:12]}… ({other.get('manifest')})",
+        )
+    return other
+
+
+def _card_and_sampler(model, settings):
+    """``(card, sampler)``: the model card (the loaded model's, else read for ``settings.model_spec`` without
+    loading weights) and the sampler settings (``settings.sampler``, else the card's recommendation)."""
+    card = getattr(model, "card", None)
+    if model is None:
+        if settings.model_spec is None:
+            raise MetricInputError("model", "model", "a world model or a model spec (zoo name or folder)", "none")
+        card = _read_card(settings.model_spec, settings.revision)
+    sampler = settings.sampler
+    if sampler is None:
+        from ..model.card_sampler import resolve_sampler
+
+        sampler = resolve_sampler(getattr(card, "sampler", None)).config
+    return card, sampler
+
+
+def _recorded_sets(out: Path, manifest):
+    """``(records, todo)``: the records already written under ``out`` (set → record) and the sets still to run."""
+    records, todo = {}, []
+    for s in manifest.sets:
+        p = _record_path(out, s.set)
+        if p.is_file():
+            records[s.set] = json.loads(p.read_text())
+        else:
+            todo.append(s)
+    return records, todo
+
+
 def run_action_following(
     manifest,
     out,
@@ -312,32 +360,8 @@ def run_action_following(
         manifest = load_action_following(manifest, settings.plugin_paths)
     locator_spec = locator or manifest.locator
     locate_fn = load_locator(locator_spec)
-    other = None
-    if paired is not None:
-        other_path = Path(paired) / "report.json"
-        if not other_path.is_file():
-            raise MetricInputError(
-                other_path, "<file>", "the report.json of another action-following run", "no such file"
-            )
-        other = json.loads(other_path.read_text())
-        mine = hashlib.sha256(Path(manifest.path).read_bytes()).hexdigest()
-        if other.get("manifest_sha256") != mine:
-            raise MetricInputError(
-                other_path,
-                "manifest_sha256",
-                f"a run on the same sets as this one ({manifest.path}, sha256 {mine[:12]}…)",
-                f"{str(other.get('manifest_sha256'))[:12]}… ({other.get('manifest')})",
-            )
-    card = getattr(model, "card", None)
-    if model is None:
-        if settings.model_spec is None:
-            raise MetricInputError("model", "model", "a world model or a model spec (zoo name or folder)", "none")
-        card = _read_card(settings.model_spec, settings.revision)
-    sampler = settings.sampler
-    if sampler is None:
-        from ..model.card_sampler import resolve_sampler
-
-        sampler = resolve_sampler(getattr(card, "sampler", None)).config
+    other = _paired_report(paired, manifest)
+    card, sampler = _card_and_sampler(model, settings)
     chunk = int(settings.chunk_frames or getattr(card, "chunk_frames", 0) or 17)
     check_sets(manifest, judge, card, chunk, settings.plugin_paths)
     out = Path(out)
@@ -349,13 +373,7 @@ def run_action_following(
     parts = _fingerprint_parts(manifest, settings, identity, sampler, chunk, judge, locator_spec)
     _stage.check_stage(out, parts, redo="use another --out for these settings, or delete the folder to redo it")
     (out / "records").mkdir(parents=True, exist_ok=True)
-    records, todo = {}, []
-    for s in manifest.sets:
-        p = _record_path(out, s.set)
-        if p.is_file():
-            records[s.set] = json.loads(p.read_text())
-        else:
-            todo.append(s)
+    records, todo = _recorded_sets(out, manifest)
     log(f"action following: {len(manifest.sets)} sets, {len(records)} already done, {len(todo)} to roll out")
     t0, c0 = time.perf_counter(), time.process_time()
     if todo and model is None:
