@@ -145,21 +145,8 @@ def cmd_table(args) -> int:
     return 0
 
 
-def add_benchmark_parser(sub) -> argparse.ArgumentParser:
-    """Add ``benchmark`` (``build``, ``run``, ``table``) to the ``oscar eval`` sub-parsers."""
-    fmt = argparse.RawDescriptionHelpFormatter
-    b = sub.add_parser(
-        "benchmark",
-        help="the paper's benchmark: build a set from clip sets, roll models out, table",
-        description="The paper's evaluation protocol on your clips: choose a set (forward-window "
-        "check, k-means near-duplicate removal, sqrt(N) quotas), roll any model out on "
-        "every clip, report PSNR, SSIM, LPIPS, tLPIPS, FVD, FID, latent L2 and frames/s "
-        "per embodiment and averaged.",
-        epilog=EXAMPLES,
-        formatter_class=fmt,
-    )
-    bs = b.add_subparsers(dest="benchmark_command", required=True)
-
+def _add_benchmark_build_parser(bs, fmt) -> None:
+    """Register ``oscar eval benchmark build`` and its options on ``bs``."""
     g = bs.add_parser(
         "build", help="choose the evaluation clips by the paper's rules", epilog=EXAMPLES, formatter_class=fmt
     )
@@ -197,6 +184,9 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--json", action="store_true", help="print counts, quotas and fingerprint as JSON")
     g.set_defaults(func=cmd_build)
 
+
+def _add_benchmark_run_parser(bs, fmt) -> None:
+    """Register ``oscar eval benchmark run`` and its options on ``bs``."""
     r = bs.add_parser(
         "run", help="roll a model out on every clip of a set (resumable)", epilog=EXAMPLES, formatter_class=fmt
     )
@@ -224,6 +214,9 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     threads_option(r)
     r.set_defaults(func=cmd_run)
 
+
+def _add_benchmark_table_parser(bs, fmt) -> None:
+    """Register ``oscar eval benchmark table`` and its options on ``bs``."""
     t = bs.add_parser(
         "table", help="the paper's table over a set: one row per model", epilog=EXAMPLES, formatter_class=fmt
     )
@@ -256,4 +249,23 @@ def add_benchmark_parser(sub) -> argparse.ArgumentParser:
     )
     t.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
     t.set_defaults(func=cmd_table)
+
+
+def add_benchmark_parser(sub) -> argparse.ArgumentParser:
+    """Add ``benchmark`` (``build``, ``run``, ``table``) to the ``oscar eval`` sub-parsers."""
+    fmt = argparse.RawDescriptionHelpFormatter
+    b = sub.add_parser(
+        "benchmark",
+        help="the paper's benchmark: build a set from clip sets, roll models out, table",
+        description="The paper's evaluation protocol on your clips: choose a set (forward-window "
+        "check, k-means near-duplicate removal, sqrt(N) quotas), roll any model out on "
+        "every clip, report PSNR, SSIM, LPIPS, tLPIPS, FVD, FID, latent L2 and frames/s "
+        "per embodiment and averaged.",
+        epilog=EXAMPLES,
+        formatter_class=fmt,
+    )
+    bs = b.add_subparsers(dest="benchmark_command", required=True)
+    _add_benchmark_build_parser(bs, fmt)
+    _add_benchmark_run_parser(bs, fmt)
+    _add_benchmark_table_parser(bs, fmt)
     return b
