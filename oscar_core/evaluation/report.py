@@ -59,26 +59,12 @@ SHEET_HEIGHT = 96
 _BAR = 4
 
 
-def build_report(
-    manifest: Manifest,
-    records: list[dict],
-    verdicts: Sequence,
-    pair_verdicts: Sequence,
-    wm: dict,
-    *,
-    counts: dict,
-    model,
-    judge,
-    pairwise_judge,
-    sampler: dict,
-) -> dict:
-    """Everything ``report.json`` holds (module docstring)."""
-    from ..metrics.bradley_terry import world_model_ranking
+def _pairwise_fit(pair_verdicts: Sequence, policies: list[str]):
+    """``(bt, error, warnings)``: the Bradley-Terry fit of the pairwise verdicts' preferences (None without
+    verdicts or with no valid one, then ``error`` says why) and the fit's :class:`BradleyTerryWarning` messages."""
     from ..metrics.judge import preferences_from_verdicts
-    from ..metrics.policy import BradleyTerryWarning, compare_policies, fit_bradley_terry
+    from ..metrics.policy import BradleyTerryWarning, fit_bradley_terry
 
-    policies = list(manifest.policies)
-    real_sr = manifest.real_success_rates()
     bt, bt_error, bt_warnings = None, None, []
     prefs = preferences_from_verdicts(pair_verdicts)
     if pair_verdicts:
@@ -91,51 +77,65 @@ def build_report(
             except MetricInputError as exc:
                 bt_error = str(exc)
         bt_warnings = [str(w.message) for w in caught if issubclass(w.category, BradleyTerryWarning)]
-    real_bt, real_bt_error, real_scores, real_label, real_fallback = _real_side(manifest)
-    rows = {}
-    for p in policies:
-        real_eps = [c.real_success for c in manifest.cells if c.policy == p and c.real_success is not None]
-        w = wm.get(p, {})
-        rows[p] = {
-            "policy": p,
-            "cells": sum(c.policy == p for c in manifest.cells),
-            "real_success_rate": float(np.mean(real_eps)) if real_eps else None,
-            "real_episodes": real_eps,
-            "real_score": (real_scores or {}).get(p),
-            "wm_success_rate": w.get("success_rate"),
-            "wm_episodes": w.get("episodes", []),
-            "wm_mean_partial": w.get("mean_partial"),
-            "judged": w.get("judged", 0),
-            "not_judged": w.get("not_judged", 0),
-            "bt_elo": bt.scores("elo")[p] if bt is not None and bt.degenerate is None else None,
-        }
-    comparison, comparison_error, wm_fallback = None, None, None
+    return bt, bt_error, bt_warnings
+
+
+def _policy_row(manifest: Manifest, p: str, w: dict, real_scores: dict | None, bt) -> dict:
+    """Policy ``p``'s row: its cells, real and world-model success (rates in [0, 1] and per episode), the real
+    ranking score, the judge's counts and its Bradley-Terry Elo (None when the fit is degenerate or absent)."""
+    real_eps = [c.real_success for c in manifest.cells if c.policy == p and c.real_success is not None]
+    return {
+        "policy": p,
+        "cells": sum(c.policy == p for c in manifest.cells),
+        "real_success_rate": float(np.mean(real_eps)) if real_eps else None,
+        "real_episodes": real_eps,
+        "real_score": (real_scores or {}).get(p),
+        "wm_success_rate": w.get("success_rate"),
+        "wm_episodes": w.get("episodes", []),
+        "wm_mean_partial": w.get("mean_partial"),
+        "judged": w.get("judged", 0),
+        "not_judged": w.get("not_judged", 0),
+        "bt_elo": bt.scores("elo")[p] if bt is not None and bt.degenerate is None else None,
+    }
+
+
+def _ranking_comparison(policies, rows, real_sr, judge, pairwise_judge, bt, bt_error, real_scores, real_label):
+    """``(comparison, error, wm_fallback)``: the real and world-model rankings compared
+    (:func:`~oscar_core.metrics.policy.compare_policies`), or None and why not; ``wm_fallback`` says when the world
+    model is ranked by success rates instead of its Bradley-Terry fit."""
+    from ..metrics.bradley_terry import world_model_ranking
+    from ..metrics.policy import compare_policies
+
     wm_sr = {p: rows[p]["wm_success_rate"] for p in policies}
     if len(policies) < 2:
-        comparison_error = "fewer than 2 policies"
-    elif real_sr is None:
+        return None, "fewer than 2 policies", None
+    if real_sr is None:
         missing = [p for p in policies if rows[p]["real_success_rate"] is None]
-        comparison_error = f"no real outcome (real_success) for policies {missing}"
-    elif judge is None:
-        comparison_error = "no success judge"
-    elif any(v is None for v in wm_sr.values()):
+        return None, f"no real outcome (real_success) for policies {missing}", None
+    if judge is None:
+        return None, "no success judge", None
+    if any(v is None for v in wm_sr.values()):
         missing = [p for p, v in wm_sr.items() if v is None]
-        comparison_error = f"no valid world-model verdict for policies {missing}"
-    else:
-        # one ranking rule with `oscar eval policies`: tied Elo (to ELO_TIE_DECIMALS) are tied ranks, and a
-        # degenerate fit or no fit at all falls back to success rates, saying so
-        wm_elo, wm_label, wm_fallback = (
-            world_model_ranking(bt, bt_error) if pairwise_judge is not None else (None, "success_rate", None)
-        )
-        comparison = compare_policies(
-            real_sr,
-            wm_sr,
-            real_score=real_scores,
-            wm_score=wm_elo,
-            real_score_label=real_label,
-            wm_score_label=wm_label,
-        )
-    pair_rows = [v.to_dict() for v in pair_verdicts]
+        return None, f"no valid world-model verdict for policies {missing}", None
+    # one ranking rule with `oscar eval policies`: tied Elo (to ELO_TIE_DECIMALS) are tied ranks, and a
+    # degenerate fit or no fit at all falls back to success rates, saying so
+    wm_elo, wm_label, wm_fallback = (
+        world_model_ranking(bt, bt_error) if pairwise_judge is not None else (None, "success_rate", None)
+    )
+    comparison = compare_policies(
+        real_sr,
+        wm_sr,
+        real_score=real_scores,
+        wm_score=wm_elo,
+        real_score_label=real_label,
+        wm_score_label=wm_label,
+    )
+    return comparison, None, wm_fallback
+
+
+def _cell_rows(manifest: Manifest, records: list[dict], verdicts: Sequence) -> list[dict]:
+    """One row per cell: the real outcome, the judge's verdict on the rollout (None where there is none) and the
+    rollout's video, frames and seconds."""
     by_cell = {v.clip: v for v in verdicts if v is not None}
     cells = []
     for cell, rec in zip(manifest.cells, records):
@@ -157,6 +157,33 @@ def build_report(
                 "rollout_seconds": rec.get("seconds"),
             }
         )
+    return cells
+
+
+def build_report(
+    manifest: Manifest,
+    records: list[dict],
+    verdicts: Sequence,
+    pair_verdicts: Sequence,
+    wm: dict,
+    *,
+    counts: dict,
+    model,
+    judge,
+    pairwise_judge,
+    sampler: dict,
+) -> dict:
+    """Everything ``report.json`` holds (module docstring)."""
+    policies = list(manifest.policies)
+    real_sr = manifest.real_success_rates()
+    bt, bt_error, bt_warnings = _pairwise_fit(pair_verdicts, policies)
+    real_bt, real_bt_error, real_scores, real_label, real_fallback = _real_side(manifest)
+    rows = {p: _policy_row(manifest, p, wm.get(p, {}), real_scores, bt) for p in policies}
+    comparison, comparison_error, wm_fallback = _ranking_comparison(
+        policies, rows, real_sr, judge, pairwise_judge, bt, bt_error, real_scores, real_label
+    )
+    pair_rows = [v.to_dict() for v in pair_verdicts]
+    cells = _cell_rows(manifest, records, verdicts)
     return nan_to_none(
         {
             "manifest": str(manifest.path),
