@@ -281,36 +281,7 @@ class TrainConfig:
                 bad(name, "a positive integer", v)
         if self.batch_size % self.micro_batch:
             bad("micro_batch", f"a divisor of batch_size {self.batch_size}", self.micro_batch)
-        d = self.data
-        if not isinstance(d.window, int) or d.window < 5 or (d.window - 1) % 4:
-            bad("data.window", "a frame count 4k+1 >= 5 (e.g. 9, 17, 81)", d.window)
-        for name in ("width", "height"):
-            v = getattr(d, name)
-            if not isinstance(v, int) or v < 16 or v % 16:
-                bad(f"data.{name}", "a positive multiple of 16 pixels (VAE x8, patch x2)", v)
-        if d.latents not in LATENT_MODES:
-            bad("data.latents", f"one of {LATENT_MODES}", d.latents)
-        if not 0.0 <= d.skeleton_dropout <= 1.0:
-            bad("data.skeleton_dropout", "a probability in [0, 1]", d.skeleton_dropout)
-        if d.unconditional_skeleton not in UNCONDITIONAL:
-            bad("data.unconditional_skeleton", f"one of {UNCONDITIONAL}", d.unconditional_skeleton)
-        if not d.mixing_temperature > 0:
-            bad("data.mixing_temperature", "a positive number", d.mixing_temperature)
-        for k, v in (d.source_weights or {}).items():
-            if not v > 0:
-                bad(f"data.source_weights.{k}", "a positive weight", v)
-        if d.source_weights is not None and not d.source_weights:
-            bad("data.source_weights", "a mapping {source: weight} with at least one source, or null", {})
-        if not 0.0 < d.prior_ramp <= 0.5:
-            bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
-        if not 0.0 <= d.prior_uniform <= 1.0:
-            bad("data.prior_uniform", "a fraction in [0, 1]", d.prior_uniform)
-        if not isinstance(d.workers, int) or isinstance(d.workers, bool) or d.workers < 0:
-            bad("data.workers", "an integer >= 0 (0: load in the training loop)", d.workers)
-        if not isinstance(d.prefetch, int) or isinstance(d.prefetch, bool) or d.prefetch < 1:
-            bad("data.prefetch", "a positive integer (micro-batches loaded ahead per worker)", d.prefetch)
-        if not isinstance(d.clips, list) or not d.clips:
-            bad("data.clips", "a non-empty list of clip-set folders", d.clips)
+        _check_data_section(self.data, bad)
         f = self.flow
         if not f.shift > 0:
             bad("flow.shift", "a positive number", f.shift)
@@ -325,44 +296,88 @@ class TrainConfig:
             bad("optim.grad_clip", "a positive number (the max gradient norm)", o.grad_clip)
         if o.warmup_steps < 0:
             bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
-        if not isinstance(self.log.tensorboard, bool):
-            bad("log.tensorboard", "true or false", self.log.tensorboard)
-        if not isinstance(self.log.wandb, bool):
-            bad("log.wandb", "true or false", self.log.wandb)
-        if self.log.wandb_mode not in ("offline", "online", "disabled"):
-            bad("log.wandb_mode", "offline, online or disabled", self.log.wandb_mode)
-        if not isinstance(self.log.wandb_project, str) or not self.log.wandb_project:
-            bad("log.wandb_project", "a project name", self.log.wandb_project)
-        if self.model.condition_init not in ("zero", "default"):
-            bad("model.condition_init", "'zero' or 'default'", self.model.condition_init)
-        if not isinstance(self.model.gripper_signal, bool):
-            bad("model.gripper_signal", "true or false", self.model.gripper_signal)
-        if self.model.gripper_signal and not is_video_condition(self.condition):
-            bad(
-                "model.gripper_signal",
-                "a condition video beside it (condition: skeleton, mesh or capsules)",
-                f"condition {self.condition!r}",
-            )
-        if self.model.dtype not in ("float32", "bfloat16"):
-            bad("model.dtype", "'float32' or 'bfloat16'", self.model.dtype)
-        ds = self.distill
-        if ds.teacher is not None:
-            for name in ("steps", "substeps"):
-                v = getattr(ds, name)
-                if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                    bad(f"distill.{name}", "a positive integer", v)
-            if ds.guidance is not None and ds.guidance < 0:
-                bad("distill.guidance", "a number >= 0 (or null: the teacher card's)", ds.guidance)
-            sf = ds.self_forcing
-            if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not 0.0 <= sf <= 1.0:
-                bad("distill.self_forcing", "a fraction in [0, 1]", sf)
-            if self.condition not in ("skeleton", "mesh", "capsules"):
-                bad("condition", "a condition video (skeleton, mesh, capsules) when distilling", self.condition)
-            if not self.model.init:
-                bad("model.init", "the student's starting weights (the teacher's folder) when distilling", None)
-            if f.shift != 5.0:  # the sampler's Euler grid uses SamplerConfig.shift, 5 unless a rollout says otherwise
-                bad("flow.shift", "5.0 when distilling (the shift every sampler uses by default)", f.shift)
+        _check_log_and_model_sections(self, bad)
+        _check_distill_section(self, bad)
         return self
+
+
+def _check_data_section(d: DataSection, bad) -> None:
+    """The ``data`` section's checks; ``bad(name, expected, found)`` raises for the first bad field."""
+    if not isinstance(d.window, int) or d.window < 5 or (d.window - 1) % 4:
+        bad("data.window", "a frame count 4k+1 >= 5 (e.g. 9, 17, 81)", d.window)
+    for name in ("width", "height"):
+        v = getattr(d, name)
+        if not isinstance(v, int) or v < 16 or v % 16:
+            bad(f"data.{name}", "a positive multiple of 16 pixels (VAE x8, patch x2)", v)
+    if d.latents not in LATENT_MODES:
+        bad("data.latents", f"one of {LATENT_MODES}", d.latents)
+    if not 0.0 <= d.skeleton_dropout <= 1.0:
+        bad("data.skeleton_dropout", "a probability in [0, 1]", d.skeleton_dropout)
+    if d.unconditional_skeleton not in UNCONDITIONAL:
+        bad("data.unconditional_skeleton", f"one of {UNCONDITIONAL}", d.unconditional_skeleton)
+    if not d.mixing_temperature > 0:
+        bad("data.mixing_temperature", "a positive number", d.mixing_temperature)
+    for k, v in (d.source_weights or {}).items():
+        if not v > 0:
+            bad(f"data.source_weights.{k}", "a positive weight", v)
+    if d.source_weights is not None and not d.source_weights:
+        bad("data.source_weights", "a mapping {source: weight} with at least one source, or null", {})
+    if not 0.0 < d.prior_ramp <= 0.5:
+        bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
+    if not 0.0 <= d.prior_uniform <= 1.0:
+        bad("data.prior_uniform", "a fraction in [0, 1]", d.prior_uniform)
+    if not isinstance(d.workers, int) or isinstance(d.workers, bool) or d.workers < 0:
+        bad("data.workers", "an integer >= 0 (0: load in the training loop)", d.workers)
+    if not isinstance(d.prefetch, int) or isinstance(d.prefetch, bool) or d.prefetch < 1:
+        bad("data.prefetch", "a positive integer (micro-batches loaded ahead per worker)", d.prefetch)
+    if not isinstance(d.clips, list) or not d.clips:
+        bad("data.clips", "a non-empty list of clip-set folders", d.clips)
+
+
+def _check_log_and_model_sections(config: TrainConfig, bad) -> None:
+    """The ``log`` and ``model`` sections' checks; ``bad(name, expected, found)`` raises for the first bad field."""
+    if not isinstance(config.log.tensorboard, bool):
+        bad("log.tensorboard", "true or false", config.log.tensorboard)
+    if not isinstance(config.log.wandb, bool):
+        bad("log.wandb", "true or false", config.log.wandb)
+    if config.log.wandb_mode not in ("offline", "online", "disabled"):
+        bad("log.wandb_mode", "offline, online or disabled", config.log.wandb_mode)
+    if not isinstance(config.log.wandb_project, str) or not config.log.wandb_project:
+        bad("log.wandb_project", "a project name", config.log.wandb_project)
+    if config.model.condition_init not in ("zero", "default"):
+        bad("model.condition_init", "'zero' or 'default'", config.model.condition_init)
+    if not isinstance(config.model.gripper_signal, bool):
+        bad("model.gripper_signal", "true or false", config.model.gripper_signal)
+    if config.model.gripper_signal and not is_video_condition(config.condition):
+        bad(
+            "model.gripper_signal",
+            "a condition video beside it (condition: skeleton, mesh or capsules)",
+            f"condition {config.condition!r}",
+        )
+    if config.model.dtype not in ("float32", "bfloat16"):
+        bad("model.dtype", "'float32' or 'bfloat16'", config.model.dtype)
+
+
+def _check_distill_section(config: TrainConfig, bad) -> None:
+    """The ``distill`` section's checks (only with a teacher); ``bad(name, expected, found)`` raises for the first
+    bad field."""
+    ds, f = config.distill, config.flow
+    if ds.teacher is not None:
+        for name in ("steps", "substeps"):
+            v = getattr(ds, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                bad(f"distill.{name}", "a positive integer", v)
+        if ds.guidance is not None and ds.guidance < 0:
+            bad("distill.guidance", "a number >= 0 (or null: the teacher card's)", ds.guidance)
+        sf = ds.self_forcing
+        if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not 0.0 <= sf <= 1.0:
+            bad("distill.self_forcing", "a fraction in [0, 1]", sf)
+        if config.condition not in ("skeleton", "mesh", "capsules"):
+            bad("condition", "a condition video (skeleton, mesh, capsules) when distilling", config.condition)
+        if not config.model.init:
+            bad("model.init", "the student's starting weights (the teacher's folder) when distilling", None)
+        if f.shift != 5.0:  # the sampler's Euler grid uses SamplerConfig.shift, 5 unless a rollout says otherwise
+            bad("flow.shift", "5.0 when distilling (the shift every sampler uses by default)", f.shift)
 
 
 _SECTIONS = {
