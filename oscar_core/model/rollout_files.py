@@ -204,6 +204,18 @@ def _condition_and_first_frame(r: RolloutRequest, model, emb, traj, camera, firs
     return condition, fit_image(first, size[0], size[1], r.resize)
 
 
+def _per_frame_inputs(model, emb, traj, camera, latent_action: bool):
+    """``(actions, gripper)``: the latent actions of a latent-action model (else None) and, for a model that takes
+    the gripper's openness beside its condition video, the trajectory's openness per frame (else None)."""
+    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
+    gripper = None
+    if getattr(model.card, "gripper_signal", False):  # the trajectory's openness beside its skeleton video
+        from .gripper_signal import trajectory_openness
+
+        gripper = trajectory_openness(emb, traj)
+    return actions, gripper
+
+
 def _rollout_summary(
     r: RolloutRequest,
     model,
@@ -313,12 +325,7 @@ def run_rollout(
     result = RolloutResult(frames=np.empty(0, np.uint8))
     latent_action = takes_actions(model.card.condition)
     t0 = time.perf_counter()
-    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
-    gripper = None
-    if getattr(model.card, "gripper_signal", False):  # the trajectory's openness beside its skeleton video
-        from .gripper_signal import trajectory_openness
-
-        gripper = trajectory_openness(emb, traj)
+    actions, gripper = _per_frame_inputs(model, emb, traj, camera, latent_action)
     timings["render"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     chunks = model.iter_rollout(
