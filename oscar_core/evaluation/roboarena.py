@@ -342,6 +342,52 @@ def _real_board(preferences: list[dict], policies: list[str]):
     return bt, bt.degenerate
 
 
+def _session_folders(dump: Path, view: str, calibration, min_score) -> list[Path]:
+    """The dump's session folders, sorted, with the options checked: :class:`RoboArenaError` for a folder that
+    is not a RoboArena dump or holds no session, an unknown view, a missing calibration folder, or
+    ``min_score`` without one."""
+    root = dump / "evaluation_sessions"
+    if not root.is_dir():
+        found = "no such folder" if dump.is_dir() else "no such dump folder"
+        raise RoboArenaError(
+            dump,
+            "evaluation_sessions",
+            f"a RoboArena dump: global_metadata.yaml and evaluation_sessions/<session>/metadata.yaml ({CARD_URL})",
+            found,
+        )
+    folders = sorted(p for p in root.iterdir() if p.is_dir())
+    if not folders:
+        raise RoboArenaError(root, "sessions", "at least one <session>/ folder", "none")
+    if view not in VIEWS:
+        raise RoboArenaError("--view", "view", f"one of {list(VIEWS)}", repr(view))
+    if calibration is not None and not Path(calibration).is_dir():
+        raise RoboArenaError(calibration, "--calibration", "a folder of <session>.json cameras", "no such folder")
+    if min_score is not None and calibration is None:
+        raise RoboArenaError("--min-score", "--calibration", "a calibration folder to score", "none")
+    return folders
+
+
+def _write_real_side(out: Path, cells: list[dict], prefs: list[dict], result: RoboArenaResult) -> None:
+    """Writes ``real.json`` (per policy its real success rate, episodes, mean partial success and, with a
+    Bradley-Terry board, its Elo) and ``real_board.json`` (the board fitted to the real preferences, or why
+    there is none), recording the paths and the board's error in ``result``."""
+    bt, board_error = _real_board(prefs, result.policies)
+    result.board_error = board_error
+    elo = bt.ranking_scores() if bt is not None else None
+    real = {}
+    for p in result.policies:
+        eps = [c["real_success"] for c in cells if c["policy"] == p]
+        parts = [c["info"]["real_partial"] for c in cells if c["policy"] == p]
+        real[p] = {"success_rate": float(np.mean(eps)), "episodes": eps, "mean_partial": float(np.mean(parts))}
+        if elo is not None:
+            real[p]["score"] = elo[p]
+    result.paths["real"] = _write_json(out / "real.json", real)
+    result.paths["real_board"] = _write_json(
+        out / "real_board.json",
+        {"board": bt.to_dict() if bt is not None else None, "error": board_error, "preferences": prefs},
+    )
+
+
 def convert_roboarena(
     dump,
     out,
@@ -377,24 +423,7 @@ def convert_roboarena(
     from ..plugin.registry import get_embodiment
 
     dump, out = Path(dump), Path(out)
-    root = dump / "evaluation_sessions"
-    if not root.is_dir():
-        found = "no such folder" if dump.is_dir() else "no such dump folder"
-        raise RoboArenaError(
-            dump,
-            "evaluation_sessions",
-            f"a RoboArena dump: global_metadata.yaml and evaluation_sessions/<session>/metadata.yaml ({CARD_URL})",
-            found,
-        )
-    folders = sorted(p for p in root.iterdir() if p.is_dir())
-    if not folders:
-        raise RoboArenaError(root, "sessions", "at least one <session>/ folder", "none")
-    if view not in VIEWS:
-        raise RoboArenaError("--view", "view", f"one of {list(VIEWS)}", repr(view))
-    if calibration is not None and not Path(calibration).is_dir():
-        raise RoboArenaError(calibration, "--calibration", "a folder of <session>.json cameras", "no such folder")
-    if min_score is not None and calibration is None:
-        raise RoboArenaError("--min-score", "--calibration", "a calibration folder to score", "none")
+    folders = _session_folders(dump, view, calibration, min_score)
     fps = float(fps) if fps is not None else float(model_fps(model) or DEFAULT_FPS)
     if not (np.isfinite(fps) and fps > 0):
         raise RoboArenaError("--fps", "fps", "a positive frame rate", repr(fps))
@@ -441,21 +470,7 @@ def convert_roboarena(
     )
     if not cells:
         return result
-    bt, board_error = _real_board(prefs, result.policies)
-    result.board_error = board_error
-    elo = bt.ranking_scores() if bt is not None else None
-    real = {}
-    for p in result.policies:
-        eps = [c["real_success"] for c in cells if c["policy"] == p]
-        parts = [c["info"]["real_partial"] for c in cells if c["policy"] == p]
-        real[p] = {"success_rate": float(np.mean(eps)), "episodes": eps, "mean_partial": float(np.mean(parts))}
-        if elo is not None:
-            real[p]["score"] = elo[p]
-    result.paths["real"] = _write_json(out / "real.json", real)
-    result.paths["real_board"] = _write_json(
-        out / "real_board.json",
-        {"board": bt.to_dict() if bt is not None else None, "error": board_error, "preferences": prefs},
-    )
+    _write_real_side(out, cells, prefs, result)
     manifest = {
         "format": "oscar-eval-manifest",
         "description": f"RoboArena dump {dump.name}: {len(result.accepted)} sessions, view {view}, {fps:g} fps",
@@ -469,47 +484,88 @@ def convert_roboarena(
     return result
 
 
+def _episode_frames_and_trajectories(session, emb, fps: float, source_fps: float, gripper_names):
+    """``(firsts, trajectories)`` per episode letter: its first (H, W, 3) uint8 frame and ``(source, resampled)``
+    trajectories (joints in radians, gripper in [0, 1]; the source at its own times, the other at ``fps``).
+    Raises an OscarError, OSError or ValueError for an episode that cannot be read."""
+    from ..media.video import read_video
+    from ..trajectory import Trajectory
+
+    J = len(emb.joint_names)
+    firsts, trajs = {}, {}
+    for ep in session.episodes:
+        first = read_video(ep.video, max_frames=1)
+        if len(first) == 0:
+            raise RoboArenaError(ep.video, "frames", "at least one frame", "none")
+        firsts[ep.letter] = first[0]
+        src = Trajectory(
+            emb.joint_names,
+            ep.q,
+            source_fps,
+            gripper=ep.gripper,
+            gripper_names=gripper_names or None,
+            timestamps=ep.times,
+            source=str(ep.folder / NPZ_NAME),
+        )
+        src = emb.check_trajectory(src)
+        q, at = resample_joints(np.concatenate([ep.q, ep.gripper], axis=1), ep.times, fps)
+        res = Trajectory(
+            emb.joint_names,
+            q[:, :J],
+            fps,
+            gripper=q[:, J:],
+            gripper_names=gripper_names or None,
+            timestamps=at,
+            source=str(ep.folder / NPZ_NAME),
+        )
+        trajs[ep.letter] = (src, res)
+    return firsts, trajs
+
+
+def _write_session(out: Path, name: str, session, cam_path: Path, firsts, trajs, cells: list, prefs: list) -> None:
+    """Writes a kept session's files under ``out/sessions/<name>/`` (camera, first frames, source and resampled
+    trajectories) and appends its cells and its preference (if any) to ``cells`` and ``prefs``."""
+    sdir = out / "sessions" / name
+    sdir.mkdir(parents=True, exist_ok=True)
+    with atomic_output(sdir / "camera.json") as tmp:
+        shutil.copyfile(cam_path, tmp)
+    for ep in session.episodes:
+        _write_png(sdir / f"{ep.policy}_first.png", firsts[ep.letter])
+        src, res = trajs[ep.letter]
+        _save_traj(src, sdir / f"{ep.policy}_source.npz")
+        _save_traj(res, sdir / f"{ep.policy}.npz")
+        cells.append(
+            {
+                "session": name,
+                "policy": ep.policy,
+                "task": session.task,
+                "first_frame": f"sessions/{name}/{ep.policy}_first.png",
+                "trajectory": f"sessions/{name}/{ep.policy}.npz",
+                "camera": f"sessions/{name}/camera.json",
+                "real_success": ep.binary_success,
+                "real_video": _rel(ep.video, out),
+                "info": {"real_partial": ep.partial_success, "letter": ep.letter},
+            }
+        )
+    if session.preference is not None:
+        by = {e.letter: e.policy for e in session.episodes}
+        winner = {"A": "a", "B": "b", "TIE": "tie"}[session.preference]
+        prefs.append({"session": name, "a": by["A"], "b": by["B"], "winner": winner})
+
+
 def _convert_session(
     folder, out, view, fps, emb, J, G, gripper_names, calibration, min_score, source_fps, cells, prefs, scores
 ) -> dict | None:
     """Write one session's files and append its cells and preference; a dict ``{stage, reason}`` if left out."""
     from ..camera.file import load_camera
-    from ..media.video import read_video
-    from ..trajectory import Trajectory
 
     name = folder.name
     try:
         session = read_session(folder, view=view, joints=J, grippers=G, source_fps=source_fps)
     except OscarError as exc:
         return {"stage": "layout", "reason": str(exc)}
-    firsts, trajs = {}, {}
     try:
-        for ep in session.episodes:
-            first = read_video(ep.video, max_frames=1)
-            if len(first) == 0:
-                raise RoboArenaError(ep.video, "frames", "at least one frame", "none")
-            firsts[ep.letter] = first[0]
-            src = Trajectory(
-                emb.joint_names,
-                ep.q,
-                source_fps,
-                gripper=ep.gripper,
-                gripper_names=gripper_names or None,
-                timestamps=ep.times,
-                source=str(ep.folder / NPZ_NAME),
-            )
-            src = emb.check_trajectory(src)
-            q, at = resample_joints(np.concatenate([ep.q, ep.gripper], axis=1), ep.times, fps)
-            res = Trajectory(
-                emb.joint_names,
-                q[:, :J],
-                fps,
-                gripper=q[:, J:],
-                gripper_names=gripper_names or None,
-                timestamps=at,
-                source=str(ep.folder / NPZ_NAME),
-            )
-            trajs[ep.letter] = (src, res)
+        firsts, trajs = _episode_frames_and_trajectories(session, emb, fps, source_fps, gripper_names)
     except (OscarError, OSError, ValueError) as exc:
         return {"stage": "layout", "reason": str(exc).splitlines()[0]}
     if calibration is None:
@@ -545,30 +601,5 @@ def _convert_session(
                 "reason": f"calibration score {shown} below --min-score {min_score:g} ({ep.video.name}, {cam_path})",
                 "score": scores[name],
             }
-    sdir = out / "sessions" / name
-    sdir.mkdir(parents=True, exist_ok=True)
-    with atomic_output(sdir / "camera.json") as tmp:
-        shutil.copyfile(cam_path, tmp)
-    for ep in session.episodes:
-        _write_png(sdir / f"{ep.policy}_first.png", firsts[ep.letter])
-        src, res = trajs[ep.letter]
-        _save_traj(src, sdir / f"{ep.policy}_source.npz")
-        _save_traj(res, sdir / f"{ep.policy}.npz")
-        cells.append(
-            {
-                "session": name,
-                "policy": ep.policy,
-                "task": session.task,
-                "first_frame": f"sessions/{name}/{ep.policy}_first.png",
-                "trajectory": f"sessions/{name}/{ep.policy}.npz",
-                "camera": f"sessions/{name}/camera.json",
-                "real_success": ep.binary_success,
-                "real_video": _rel(ep.video, out),
-                "info": {"real_partial": ep.partial_success, "letter": ep.letter},
-            }
-        )
-    if session.preference is not None:
-        by = {e.letter: e.policy for e in session.episodes}
-        winner = {"A": "a", "B": "b", "TIE": "tie"}[session.preference]
-        prefs.append({"session": name, "a": by["A"], "b": by["B"], "winner": winner})
+    _write_session(out, name, session, cam_path, firsts, trajs, cells, prefs)
     return None
