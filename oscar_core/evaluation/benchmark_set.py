@@ -64,6 +64,135 @@ def _caption_vector(cs, rec, text: str) -> np.ndarray:
     return rules.text_embedding(rec.caption or rec.task)
 
 
+def _candidate_clips(sets, split: str | None):
+    """``(records, owner)``: the clips of the clip sets (of ``split`` when given) and the set holding each id;
+    :class:`BenchmarkSetError` for an id in two sets or no clip at all."""
+    recs, owner = [], {}
+    for cs in sets:
+        for r in cs:
+            if split is not None and r.meta.get("split") != split:
+                continue
+            if r.id in owner:
+                raise BenchmarkSetError(
+                    f"clip id {r.id!r} is in both {owner[r.id].root} and {cs.root}: expected ids "
+                    "unique across the clip sets of one benchmark"
+                )
+            owner[r.id] = cs
+            recs.append(r)
+    if not recs:
+        raise BenchmarkSetError(
+            f"{', '.join(str(c.root) for c in sets)}: expected clips"
+            + (f" with meta.split == {split!r}" if split else "")
+            + ", found none"
+        )
+    return recs, owner
+
+
+def _forward_window_pass(recs, owner, registry, frames: int, margin: float):
+    """The forward-window rule: ``(passed, motion, dropped)``, the clips whose end effector stays ``margin``
+    pixels inside the image for ``frames`` frames, their motion magnitude (clip id → end-effector path over the
+    image diagonal) and one dropped row per other clip."""
+    dropped, passed, motion = [], [], {}
+    for r in progress_bar(recs, desc="benchmark: forward window", unit="clip"):
+        if r.n_frames < frames:
+            dropped.append({"id": r.id, "rule": "forward_window", "reason": f"{r.n_frames} frames < horizon {frames}"})
+            continue
+        clip = owner[r.id].load(r, frames=frames, video=False, skeleton=False, registry=registry)
+        emb = registry.get(r.embodiment)
+        cam = clip.camera
+        if (cam.intrinsics.width, cam.intrinsics.height) != (r.width, r.height):
+            cam = cam.resized(r.width, r.height)
+        uv, front = rules.end_effector_pixels(emb, emb.check_trajectory(clip.trajectory), cam)
+        out_at = rules.forward_window(uv, front, r.width, r.height, frames, margin)
+        if out_at is not None:
+            dropped.append(
+                {
+                    "id": r.id,
+                    "rule": "forward_window",
+                    "reason": f"end effector outside the image at frame {out_at}",
+                    "frame": out_at,
+                }
+            )
+            continue
+        motion[r.id] = rules.motion_magnitude(uv, frames, r.width, r.height)
+        passed.append(r)
+    return passed, motion, dropped
+
+
+def _choose_in_group(g: str, members: list, x: np.ndarray, q: int, clusters: int | None, seed: int):
+    """``(chosen, dropped)``: group ``g``'s representatives (``members`` sorted by id, features x (N, D)) for its
+    quota ``q`` — one per k-means cluster, then a seeded draw down to the quota when ``clusters`` is larger —
+    and a dropped row (dedup or quota) for every other member."""
+    dropped = []
+    k = q if clusters is None else min(clusters, len(members))
+    keep = rules.kmeans_representatives(x, k, seed=seed)
+    kept = set(keep)
+    for i, r in enumerate(members):
+        if i in kept:
+            continue
+        twin = next((members[j].id for j in keep if np.allclose(x[i], x[j], rtol=0, atol=1e-9)), None)
+        if clusters is None and twin is None:  # the quota's k-means picked another clip of its cluster
+            dropped.append(
+                {
+                    "id": r.id,
+                    "rule": "quota",
+                    "reason": f"not the representative of its k-means cluster (quota {q} = {k} clusters in {g})",
+                }
+            )
+        else:
+            dropped.append(
+                {
+                    "id": r.id,
+                    "rule": "dedup",
+                    "reason": f"near-duplicate: not the representative of "
+                    f"its k-means cluster ({k} clusters in {g})" + (f"; same features as {twin}" if twin else ""),
+                }
+            )
+    if len(keep) > q:  # --clusters larger than the quota: a seeded random draw of the representatives
+        rng = np.random.default_rng([seed, len(g)] + list(g.encode()))
+        order = [keep[i] for i in rng.permutation(len(keep))]
+        for i in order[q:]:
+            dropped.append({"id": members[i].id, "rule": "quota", "reason": f"beyond the quota {q} of {g}"})
+        keep = sorted(order[:q])
+    return [members[i] for i in keep], dropped
+
+
+def _set_document(chosen, owner, motion, sets, settings, counts, corpus, by_group, quotas, dropped) -> dict:
+    """The benchmark set's JSON: its fingerprint (format, settings, clip sets, chosen clips), settings, counts,
+    quotas per group, the chosen clips (with their motion) and every dropped clip with its rule and reason."""
+    clips = [
+        {
+            "clipset": str(owner[r.id].root.resolve()),
+            "id": r.id,
+            "embodiment": r.embodiment,
+            "source": r.source,
+            "n_frames": r.n_frames,
+            "motion": round(motion[r.id], 6),
+        }
+        for r in chosen
+    ]
+    parts = {
+        "format": SET_FORMAT,
+        "format_version": _stage.FORMAT_VERSION,
+        "settings": settings,
+        "clipsets": [str(c.root.resolve()) for c in sets],
+        "clips": [[c["clipset"], c["id"]] for c in clips],
+    }
+    return {
+        "format": SET_FORMAT,
+        "format_version": _stage.FORMAT_VERSION,
+        "fingerprint": _stage.fingerprint(parts),
+        "settings": settings,
+        "clipsets": parts["clipsets"],
+        "counts": counts,
+        "quotas": {
+            g: {"corpus": corpus[g], "passed": len(by_group.get(g, [])), "quota": quotas[g]} for g in sorted(corpus)
+        },
+        "clips": clips,
+        "dropped": sorted(dropped, key=lambda d: d["id"]),
+    }
+
+
 def build_benchmark_set(
     clipsets,
     out,
@@ -96,51 +225,11 @@ def build_benchmark_set(
         raise ValueError(f"--text: expected one of {TEXT_MODES}, found {text!r}")
     registry = registry if registry is not None else Registry()
     sets = [ClipSet(p) for p in clipsets]
-    recs, owner = [], {}
-    for cs in sets:
-        for r in cs:
-            if split is not None and r.meta.get("split") != split:
-                continue
-            if r.id in owner:
-                raise BenchmarkSetError(
-                    f"clip id {r.id!r} is in both {owner[r.id].root} and {cs.root}: expected ids "
-                    "unique across the clip sets of one benchmark"
-                )
-            owner[r.id] = cs
-            recs.append(r)
-    if not recs:
-        raise BenchmarkSetError(
-            f"{', '.join(str(c.root) for c in sets)}: expected clips"
-            + (f" with meta.split == {split!r}" if split else "")
-            + ", found none"
-        )
+    recs, owner = _candidate_clips(sets, split)
     corpus: dict[str, int] = {}
     for r in recs:
         corpus[_group(r)] = corpus.get(_group(r), 0) + 1
-    dropped, passed, motion = [], [], {}
-    for r in progress_bar(recs, desc="benchmark: forward window", unit="clip"):
-        if r.n_frames < frames:
-            dropped.append({"id": r.id, "rule": "forward_window", "reason": f"{r.n_frames} frames < horizon {frames}"})
-            continue
-        clip = owner[r.id].load(r, frames=frames, video=False, skeleton=False, registry=registry)
-        emb = registry.get(r.embodiment)
-        cam = clip.camera
-        if (cam.intrinsics.width, cam.intrinsics.height) != (r.width, r.height):
-            cam = cam.resized(r.width, r.height)
-        uv, front = rules.end_effector_pixels(emb, emb.check_trajectory(clip.trajectory), cam)
-        out_at = rules.forward_window(uv, front, r.width, r.height, frames, margin)
-        if out_at is not None:
-            dropped.append(
-                {
-                    "id": r.id,
-                    "rule": "forward_window",
-                    "reason": f"end effector outside the image at frame {out_at}",
-                    "frame": out_at,
-                }
-            )
-            continue
-        motion[r.id] = rules.motion_magnitude(uv, frames, r.width, r.height)
-        passed.append(r)
+    passed, motion, dropped = _forward_window_pass(recs, owner, registry, frames, margin)
     by_group: dict[str, list] = {}
     for r in passed:
         by_group.setdefault(_group(r), []).append(r)
@@ -157,38 +246,9 @@ def build_benchmark_set(
     )
     chosen = []
     for g in sorted(by_group):
-        members, x, q = by_group[g], feats[g], quotas[g]
-        k = q if clusters is None else min(clusters, len(members))
-        keep = rules.kmeans_representatives(x, k, seed=seed)
-        kept = set(keep)
-        for i, r in enumerate(members):
-            if i in kept:
-                continue
-            twin = next((members[j].id for j in keep if np.allclose(x[i], x[j], rtol=0, atol=1e-9)), None)
-            if clusters is None and twin is None:  # the quota's k-means picked another clip of its cluster
-                dropped.append(
-                    {
-                        "id": r.id,
-                        "rule": "quota",
-                        "reason": f"not the representative of its k-means cluster (quota {q} = {k} clusters in {g})",
-                    }
-                )
-            else:
-                dropped.append(
-                    {
-                        "id": r.id,
-                        "rule": "dedup",
-                        "reason": f"near-duplicate: not the representative of "
-                        f"its k-means cluster ({k} clusters in {g})" + (f"; same features as {twin}" if twin else ""),
-                    }
-                )
-        if len(keep) > q:  # --clusters larger than the quota: a seeded random draw of the representatives
-            rng = np.random.default_rng([seed, len(g)] + list(g.encode()))
-            order = [keep[i] for i in rng.permutation(len(keep))]
-            for i in order[q:]:
-                dropped.append({"id": members[i].id, "rule": "quota", "reason": f"beyond the quota {q} of {g}"})
-            keep = sorted(order[:q])
-        chosen += [members[i] for i in keep]
+        group_chosen, group_dropped = _choose_in_group(g, by_group[g], feats[g], quotas[g], clusters, seed)
+        chosen += group_chosen
+        dropped += group_dropped
     counts = {
         "candidates": len(recs),
         **{rule: sum(1 for d in dropped if d["rule"] == rule) for rule in ("forward_window", "dedup", "quota")},
@@ -217,37 +277,7 @@ def build_benchmark_set(
         "text": text,
         "feature": "caption embedding + end-effector path / image diagonal",
     }
-    clips = [
-        {
-            "clipset": str(owner[r.id].root.resolve()),
-            "id": r.id,
-            "embodiment": r.embodiment,
-            "source": r.source,
-            "n_frames": r.n_frames,
-            "motion": round(motion[r.id], 6),
-        }
-        for r in chosen
-    ]
-    parts = {
-        "format": SET_FORMAT,
-        "format_version": _stage.FORMAT_VERSION,
-        "settings": settings,
-        "clipsets": [str(c.root.resolve()) for c in sets],
-        "clips": [[c["clipset"], c["id"]] for c in clips],
-    }
-    data = {
-        "format": SET_FORMAT,
-        "format_version": _stage.FORMAT_VERSION,
-        "fingerprint": _stage.fingerprint(parts),
-        "settings": settings,
-        "clipsets": parts["clipsets"],
-        "counts": counts,
-        "quotas": {
-            g: {"corpus": corpus[g], "passed": len(by_group.get(g, [])), "quota": quotas[g]} for g in sorted(corpus)
-        },
-        "clips": clips,
-        "dropped": sorted(dropped, key=lambda d: d["id"]),
-    }
+    data = _set_document(chosen, owner, motion, sets, settings, counts, corpus, by_group, quotas, dropped)
     atomic_write_bytes(out, (json.dumps(data, indent=1) + "\n").encode())
     _log.info("benchmark set %s: %d clips of %d candidates", out, len(chosen), len(recs))
     return data
