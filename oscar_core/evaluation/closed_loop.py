@@ -131,6 +131,236 @@ def _session_parts(s: Session) -> dict:
     }
 
 
+def _check_run_options(replan_every, chunk_frames, batch_cells, engine, model, policy_timeout) -> None:
+    """:class:`MetricInputError` naming the option for a count below 1, an unknown engine, a loaded model with
+    Ray (each worker loads its own) or a timeout that is not a positive number of seconds."""
+    for name, value in (("replan_every", replan_every), ("chunk_frames", chunk_frames), ("batch_cells", batch_cells)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise MetricInputError(name, "value", "an integer >= 1", repr(value))
+    if engine not in ("local", "ray"):
+        raise MetricInputError("engine", "value", "local or ray", repr(engine))
+    if engine == "ray" and model is not None:
+        raise MetricInputError("engine", "model", "a model spec (each Ray worker loads its own)", "a loaded model")
+    if policy_timeout is not None and not policy_timeout > 0:
+        raise MetricInputError("policy_timeout", "value", "a positive number of seconds", repr(policy_timeout))
+
+
+def _policy_specs(manifest, policy_sources, replan_every, log) -> list[PolicySpec]:
+    """The policies to run: the manifest's, their sources replaced or added by ``policy_sources``; logs each
+    policy whose answers must hold more actions than it says it gives."""
+    specs = list(manifest.policies)
+    for name, src in (policy_sources or {}).items():
+        known = [p.name for p in specs]
+        if name in known:
+            specs[known.index(name)] = dataclasses.replace(specs[known.index(name)], source=src)
+        else:
+            specs.append(PolicySpec(name=name, source=src))
+    for spec in specs:
+        if replan_every is not None and replan_every > spec.actions_per_call:
+            log(
+                f"policy {spec.name}: replan_every {replan_every} > its actions_per_call {spec.actions_per_call}: "
+                "its answers must hold at least that many actions"
+            )
+    return specs
+
+
+def _check_world_given(simulator, model, model_spec, fps, chunk_frames) -> None:
+    """:class:`MetricInputError` without a world (model, model spec or simulator), or for a simulator without both
+    ``fps`` and ``chunk_frames``."""
+    if simulator is None and model is None and model_spec is None:
+        raise MetricInputError("model", "model", "a world model, a model spec or a simulator", "none")
+    if simulator is not None and (fps is None or chunk_frames is None):
+        raise MetricInputError(
+            "simulator", "fps/chunk_frames", "both given for a simulator world", f"{fps}/{chunk_frames}"
+        )
+
+
+def _embodiments(manifest, plugin_paths) -> dict:
+    """Every session's embodiment by name; :class:`MetricInputError` naming the session row for one not installed."""
+    from ..plugin.registry import get_embodiment
+
+    embs = {}
+    for s in manifest.sessions:
+        try:
+            embs[s.embodiment] = get_embodiment(s.embodiment, plugin_paths)
+        except (KeyError, ValueError, Exception) as exc:  # noqa: BLE001 - named in the error
+            raise MetricInputError(
+                f"{manifest.path}: sessions[{s.row}]",
+                "embodiment",
+                "an installed embodiment (oscar embodiments)",
+                f"{s.embodiment!r}: {exc}",
+            ) from None
+    return embs
+
+
+def _world_identity(simulator, model, model_spec, revision, sampler, fps, chunk_frames, size) -> dict:
+    """What every cell's output depends on about the world: the simulator (its identity, fps, chunk frames) or
+    the world model (its pinned identity, sampler settings, chunk frames), and the rollout size."""
+    if simulator is not None:
+        world_id = {
+            "kind": "simulator",
+            "name": getattr(simulator, "identity", repr(simulator)),
+            "fps": fps,
+            "chunk_frames": chunk_frames,
+            "size": size,
+        }
+    else:
+        world_id = {
+            "kind": "world-model",
+            "model": _stage.model_identity(model_spec, revision) if model_spec else f"object:{type(model).__name__}",
+            "sampler": dataclasses.asdict(sampler),
+            "chunk_frames": chunk_frames,
+            "size": size,
+        }
+    return world_id
+
+
+def _plan_cells(out: Path, manifest, specs, world_id: dict, replan_every, retry_failed: bool, counts, bar, log):
+    """``(records, pending, reused_failed)``: one record per (session, policy) cell in order — the recorded one
+    where its key (a fingerprint of world, session, replan interval and policy) matches and its video is intact, or
+    a failed one kept without ``retry_failed``; None for a cell to run —, the cells to run as
+    ``(index, session, spec, parts, key, replan_every)`` and the ``session/policy`` names of the failed cells kept.
+    Counts reused, failed and retried cells in ``counts``."""
+    records: list[dict | None] = []
+    pending: list[tuple] = []
+    reused_failed: list[str] = []
+    for s in manifest.sessions:
+        sparts = _session_parts(s)
+        for spec in specs:
+            folder = cell_dir(out, s.session, spec.name)
+            K = int(replan_every or spec.actions_per_call)
+            parts = {
+                "v": RECORD_VERSION,
+                "world": world_id,
+                "session": sparts,
+                "replan_every": K,
+                "policy": {k: v for k, v in spec.to_dict().items() if k != "timeout_s"},
+            }
+            key = _stage.fingerprint(parts)
+            rec = _read_record(folder / "record.json")
+            if rec is not None and rec.get("key") == key:
+                if (
+                    rec["status"] == "ok"
+                    and (folder / "video.mkv").is_file()
+                    and rec.get("video_sha256") == file_digest(folder / "video.mkv")
+                ):
+                    counts["reused"] += 1
+                    records.append(rec)
+                    bar.update(1)
+                    continue
+                if rec["status"] == "failed" and not retry_failed:
+                    counts["reused"] += 1
+                    counts["failed"] += 1
+                    reused_failed.append(f"{s.session}/{spec.name}")
+                    records.append(rec)
+                    bar.update(1)
+                    continue
+                counts["retried"] += rec["status"] == "failed"
+            elif rec is not None:
+                log(
+                    f"{s.session}/{spec.name}: redone, its inputs changed: "
+                    + "; ".join(_stage.changes(rec.get("parts"), parts))
+                )
+            pending.append((len(records), s, spec, parts, key, K))
+            records.append(None)
+    return records, pending, reused_failed
+
+
+def _run_cells(
+    pending,
+    records,
+    counts,
+    bar,
+    out,
+    embs,
+    pool,
+    world_options,
+    ray_options,
+    *,
+    engine,
+    batch_cells,
+    policy_timeout,
+    log,
+):
+    """Runs the pending cells: on Ray actors, in lock-step batches of ``batch_cells`` or one at a time. Each cell's
+    written record goes into ``records`` at its index, counted in ``counts`` (done, failed) and on ``bar``."""
+
+    def finish(index: int, rec: dict) -> None:
+        counts["done"] += 1
+        counts["failed"] += rec["status"] == "failed"
+        records[index] = rec
+        bar.update(1)
+
+    def open_job(job) -> OpenCell:
+        _, s, spec, parts, key, K = job
+        return open_cell(s, spec, embs[s.embodiment], parts, key, pool=pool, K=K, **world_options)
+
+    def write(cell: OpenCell, run: CellRun) -> dict:
+        return _write_cell(out, cell, run, pool=pool, log=log)
+
+    if engine == "ray" and pending:
+        from .closed_loop_ray import run_on_ray
+
+        run_on_ray(
+            pending,
+            finish,
+            write,
+            batch_cells=batch_cells,
+            timeout=policy_timeout,
+            world_options={k: v for k, v in world_options.items() if k not in ("get_model", "simulator")},
+            log=log,
+            **ray_options,
+        )
+    elif batch_cells > 1 and pending:
+        from .closed_loop_batch import run_lock_step
+
+        log(f"running {len(pending)} cells in lock-step, up to {batch_cells} at once")
+        run_lock_step(pending, open_job, finish, batch_cells=batch_cells, write=write, timeout=policy_timeout)
+    else:
+        for job in pending:
+            cell = open_job(job)
+            finish(job[0], write(cell, run_open_cell(cell, policy_timeout)))
+
+
+def _model_loader(model, model_spec, revision, device, dtype, log) -> Callable:
+    """A function returning the world model: ``model``, or ``model_spec`` loaded (``oscar_zoo.load``) on its first
+    call only, so a run whose every cell is reused loads nothing."""
+    loaded = {"model": model}
+
+    def get_model():
+        if loaded["model"] is None:
+            import oscar_zoo
+
+            log(f"loading world model {model_spec}")
+            loaded["model"] = oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)
+        return loaded["model"]
+
+    return get_model
+
+
+def _prepared_out(out) -> Path:
+    """The output folder, made, with the temporaries a killed run left in it and its cell folders swept."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for folder in (out, *sorted(out.glob("cells/*/*"))):
+        sweep_dead_temporaries(folder)
+    return out
+
+
+def _preloaded_policies(pending, reused_failed: list[str]) -> PolicyPool:
+    """Warns about the failed cells kept as they are, then loads (or connects) every policy with a cell to run,
+    before any model loads or cell runs; returns the pool holding them."""
+    if reused_failed:
+        _log.warning(
+            "reused %d failed cell(s) of an earlier run as they are (%s); --retry-failed redoes them",
+            len(reused_failed),
+            ", ".join(reused_failed[:5]) + (", …" if len(reused_failed) > 5 else ""),
+        )
+    pool = PolicyPool()
+    pool.preload(list({job[2].name: job[2] for job in pending}.values()))
+    return pool
+
+
 def run_closed_loop(
     manifest,
     out,
@@ -174,140 +404,24 @@ def run_closed_loop(
     (:mod:`.closed_loop_report`).
     """
     from ..model.sampler import SamplerConfig
-    from ..plugin.registry import get_embodiment
 
     log = log or _log.info
     manifest = manifest if isinstance(manifest, ClosedLoopManifest) else load_closed_loop_manifest(manifest)
-    for name, value in (("replan_every", replan_every), ("chunk_frames", chunk_frames), ("batch_cells", batch_cells)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise MetricInputError(name, "value", "an integer >= 1", repr(value))
-    if engine not in ("local", "ray"):
-        raise MetricInputError("engine", "value", "local or ray", repr(engine))
-    if engine == "ray" and model is not None:
-        raise MetricInputError("engine", "model", "a model spec (each Ray worker loads its own)", "a loaded model")
-    if policy_timeout is not None and not policy_timeout > 0:
-        raise MetricInputError("policy_timeout", "value", "a positive number of seconds", repr(policy_timeout))
-    specs = list(manifest.policies)
-    for name, src in (policy_sources or {}).items():
-        known = [p.name for p in specs]
-        if name in known:
-            specs[known.index(name)] = dataclasses.replace(specs[known.index(name)], source=src)
-        else:
-            specs.append(PolicySpec(name=name, source=src))
-    for spec in specs:
-        if replan_every is not None and replan_every > spec.actions_per_call:
-            log(
-                f"policy {spec.name}: replan_every {replan_every} > its actions_per_call {spec.actions_per_call}: "
-                "its answers must hold at least that many actions"
-            )
-    if simulator is None and model is None and model_spec is None:
-        raise MetricInputError("model", "model", "a world model, a model spec or a simulator", "none")
-    if simulator is not None and (fps is None or chunk_frames is None):
-        raise MetricInputError(
-            "simulator", "fps/chunk_frames", "both given for a simulator world", f"{fps}/{chunk_frames}"
-        )
-    embs = {}
-    for s in manifest.sessions:
-        try:
-            embs[s.embodiment] = get_embodiment(s.embodiment, plugin_paths)
-        except (KeyError, ValueError, Exception) as exc:  # noqa: BLE001 - named in the error
-            raise MetricInputError(
-                f"{manifest.path}: sessions[{s.row}]",
-                "embodiment",
-                "an installed embodiment (oscar embodiments)",
-                f"{s.embodiment!r}: {exc}",
-            ) from None
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    for folder in (out, *sorted(out.glob("cells/*/*"))):
-        sweep_dead_temporaries(folder)
+    _check_run_options(replan_every, chunk_frames, batch_cells, engine, model, policy_timeout)
+    specs = _policy_specs(manifest, policy_sources, replan_every, log)
+    _check_world_given(simulator, model, model_spec, fps, chunk_frames)
+    embs = _embodiments(manifest, plugin_paths)
+    out = _prepared_out(out)
     sampler = sampler or SamplerConfig()
-    loaded = {"model": model}
-
-    def get_model():
-        if loaded["model"] is None:
-            import oscar_zoo
-
-            log(f"loading world model {model_spec}")
-            loaded["model"] = oscar_zoo.load(model_spec, revision, device=device, dtype=dtype)
-        return loaded["model"]
-
-    if simulator is not None:
-        world_id = {
-            "kind": "simulator",
-            "name": getattr(simulator, "identity", repr(simulator)),
-            "fps": fps,
-            "chunk_frames": chunk_frames,
-            "size": manifest.size,
-        }
-    else:
-        world_id = {
-            "kind": "world-model",
-            "model": _stage.model_identity(model_spec, revision) if model_spec else f"object:{type(model).__name__}",
-            "sampler": dataclasses.asdict(sampler),
-            "chunk_frames": chunk_frames,
-            "size": manifest.size,
-        }
+    get_model = _model_loader(model, model_spec, revision, device, dtype, log)
+    world_id = _world_identity(simulator, model, model_spec, revision, sampler, fps, chunk_frames, manifest.size)
     counts = {"cells": len(manifest.sessions) * len(specs), "done": 0, "reused": 0, "failed": 0, "retried": 0}
-    records: list[dict | None] = []
-    pending: list[tuple] = []
-    reused_failed: list[str] = []
     bar = progress_bar(total=counts["cells"], desc="closed loop", unit="cell", enabled=progress)
-    for s in manifest.sessions:
-        sparts = _session_parts(s)
-        for spec in specs:
-            folder = cell_dir(out, s.session, spec.name)
-            K = int(replan_every or spec.actions_per_call)
-            parts = {
-                "v": RECORD_VERSION,
-                "world": world_id,
-                "session": sparts,
-                "replan_every": K,
-                "policy": {k: v for k, v in spec.to_dict().items() if k != "timeout_s"},
-            }
-            key = _stage.fingerprint(parts)
-            rec = _read_record(folder / "record.json")
-            if rec is not None and rec.get("key") == key:
-                if (
-                    rec["status"] == "ok"
-                    and (folder / "video.mkv").is_file()
-                    and rec.get("video_sha256") == file_digest(folder / "video.mkv")
-                ):
-                    counts["reused"] += 1
-                    records.append(rec)
-                    bar.update(1)
-                    continue
-                if rec["status"] == "failed" and not retry_failed:
-                    counts["reused"] += 1
-                    counts["failed"] += 1
-                    reused_failed.append(f"{s.session}/{spec.name}")
-                    records.append(rec)
-                    bar.update(1)
-                    continue
-                counts["retried"] += rec["status"] == "failed"
-            elif rec is not None:
-                log(
-                    f"{s.session}/{spec.name}: redone, its inputs changed: "
-                    + "; ".join(_stage.changes(rec.get("parts"), parts))
-                )
-            pending.append((len(records), s, spec, parts, key, K))
-            records.append(None)
+    records, pending, reused_failed = _plan_cells(
+        out, manifest, specs, world_id, replan_every, retry_failed, counts, bar, log
+    )
 
-    def finish(index: int, rec: dict) -> None:
-        counts["done"] += 1
-        counts["failed"] += rec["status"] == "failed"
-        records[index] = rec
-        bar.update(1)
-
-    if reused_failed:
-        _log.warning(
-            "reused %d failed cell(s) of an earlier run as they are (%s); --retry-failed redoes them",
-            len(reused_failed),
-            ", ".join(reused_failed[:5]) + (", …" if len(reused_failed) > 5 else ""),
-        )
-    pool = PolicyPool()
-    # every policy with a cell to run is loaded (or connected) now, before any model loads or cell runs
-    pool.preload(list({job[2].name: job[2] for job in pending}.values()))
+    pool = _preloaded_policies(pending, reused_failed)
     world_options = dict(
         get_model=get_model,
         simulator=simulator,
@@ -317,41 +431,17 @@ def run_closed_loop(
         fps=fps,
     )
 
-    def open_job(job) -> OpenCell:
-        _, s, spec, parts, key, K = job
-        return open_cell(s, spec, embs[s.embodiment], parts, key, pool=pool, K=K, **world_options)
-
-    def write(cell: OpenCell, run: CellRun) -> dict:
-        return _write_cell(out, cell, run, pool=pool, log=log)
-
-    if engine == "ray" and pending:
-        from .closed_loop_ray import run_on_ray
-
-        run_on_ray(
-            pending,
-            finish,
-            write,
-            model_spec=model_spec,
-            revision=revision,
-            simulator=simulator,
-            device=device,
-            dtype=dtype,
-            workers=workers,
-            batch_cells=batch_cells,
-            timeout=policy_timeout,
-            plugin_paths=plugin_paths,
-            world_options={k: v for k, v in world_options.items() if k not in ("get_model", "simulator")},
-            log=log,
-        )
-    elif batch_cells > 1 and pending:
-        from .closed_loop_batch import run_lock_step
-
-        log(f"running {len(pending)} cells in lock-step, up to {batch_cells} at once")
-        run_lock_step(pending, open_job, finish, batch_cells=batch_cells, write=write, timeout=policy_timeout)
-    else:
-        for job in pending:
-            cell = open_job(job)
-            finish(job[0], write(cell, run_open_cell(cell, policy_timeout)))
+    ray_options = dict(
+        model_spec=model_spec,
+        revision=revision,
+        simulator=simulator,
+        device=device,
+        dtype=dtype,
+        workers=workers,
+        plugin_paths=plugin_paths,
+    )
+    run = dict(engine=engine, batch_cells=batch_cells, policy_timeout=policy_timeout, log=log)
+    _run_cells(pending, records, counts, bar, out, embs, pool, world_options, ray_options, **run)
     bar.close()
     report, paths = _report(
         out,
