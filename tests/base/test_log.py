@@ -122,7 +122,7 @@ def _generate(tmp_path, *flags):
 def test_cli_flags_control_the_console_and_the_job_keeps_a_log(tmp_path, capsys):
     assert _generate(tmp_path / "a") == 0
     cap = capsys.readouterr()
-    assert cap.err.count("shard-toyarm-000000: 1 episodes") == 1  # INFO on stderr, once (no doubled handler)
+    assert cap.err.count("shard-toyarm-000000: 1 episode written") == 1  # INFO on stderr, once (no doubled handler)
     assert "episodes written" in cap.out and "shard-" not in cap.out  # results on stdout, progress on stderr
     logs = list((tmp_path / "a" / "logs").glob("toyworld-generate-*.log"))
     assert len(logs) == 1 and "INFO oscar.toyworld.generate: shard-toyarm-000001" in logs[0].read_text()
