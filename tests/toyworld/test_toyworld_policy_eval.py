@@ -110,8 +110,11 @@ def test_ball_moved_known_answers():
     clip = _judge_clip()
     moved = ball_moved(_disc_video([(10, 10)] * 5 + [(18, 10)] * 4), clip)  # 8 px = 4 radii
     assert moved["binary"] == 1 and moved["partial"] == 100, moved
-    short = ball_moved(_disc_video([(10, 10)] * 5 + [(13, 10)] * 4), clip)  # 3 px = 1.5 radii = 50 %
-    assert short["binary"] == 0 and short["partial"] == 50, short
+    short = ball_moved(_disc_video([(10, 10)] * 5 + [(15, 10)] * 4), clip)  # 5 px = 2.5 radii = 83 %
+    assert short["binary"] == 0 and short["partial"] == 83, short
+    # 3 px = 1.5 radii: most of the ball still covers its start disk, so it did not leave (version 4: partial 0)
+    nudged = ball_moved(_disc_video([(10, 10)] * 5 + [(13, 10)] * 4), clip)
+    assert nudged["binary"] == 0 and nudged["partial"] == 0 and "did not leave its start" in nudged["reason"], nudged
     still = ball_moved(_disc_video([(10, 10)] * 9), clip)
     assert still["binary"] == 0 and still["partial"] == 0
     gone = _disc_video([(10, 10)] * 9)
