@@ -81,11 +81,12 @@ def _add_policy_eval_arguments(p) -> None:
 
 
 def cmd_policy_eval(args) -> int:
-    """``oscar toyworld policy-eval``: write the manifest (:func:`~oscar_core.toyworld.policy_eval.write_policy_eval`)
+    """``oscar toyworld policy-eval``: write the manifest (:func:`~oscar_core.toyworld.policy_eval_write.write_policy_eval`)
     and print the true success rate per policy."""
     from ..plugin.registry import Registry
     from ..render.skeleton_video import parse_size
-    from .policy_eval import SUCCESS_RADII, write_policy_eval
+    from .policy_eval import SUCCESS_RADII
+    from .policy_eval_write import write_policy_eval
 
     w, h = parse_size(args.size)
     names = tuple(n.strip() for n in args.embodiments.split(",") if n.strip())

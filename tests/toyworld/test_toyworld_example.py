@@ -20,7 +20,8 @@ from oscar_core.media.video import read_video, write_video
 from oscar_core.model.image import read_first_frame, read_image
 from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.motion import ToyWorldError
-from oscar_core.toyworld.policy_eval import plan_session, policy_eval_refusal, session_rng, write_policy_eval
+from oscar_core.toyworld.policy_eval import plan_session, policy_eval_refusal, session_rng
+from oscar_core.toyworld.policy_eval_write import write_policy_eval
 from oscar_core.train.clips import ClipSet
 
 #: The two commands of the example, as docs/toyworld.md (and the README) print them.

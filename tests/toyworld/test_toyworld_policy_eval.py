@@ -25,8 +25,8 @@ from oscar_core.toyworld.policy_eval import (
     floor_homography,
     plan_session,
     session_rng,
-    write_policy_eval,
 )
+from oscar_core.toyworld.policy_eval_write import write_policy_eval
 
 # an expert aims within 0.3 ball radii (the grab distance is 2.2); "never" aims 50 radii away
 SURE = (Policy("expert", 0.3), Policy("never", 50.0))
