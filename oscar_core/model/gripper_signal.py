@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..plugin.openness import trajectory_openness  # the clip records' signal, so rollouts see what training saw
 from .errors import ModelInputError
 
 __all__ = [
@@ -39,16 +40,6 @@ GRIPPER_SLOTS = 2
 def gripper_channels(temporal: int) -> int:
     """Channels the signal adds to the condition latent for a VAE of temporal factor ``temporal``."""
     return GRIPPER_SLOTS * int(temporal)
-
-
-def trajectory_openness(embodiment, trajectory) -> np.ndarray:
-    """(T, G) float64 openness in [0, 1] (1 = open) of a trajectory's grippers, through the embodiment's own
-    gripper rule (raw signal → openness); (T, 0) for a body without grippers or a trajectory without signals."""
-    traj = embodiment.check_trajectory(trajectory)
-    frames = len(traj.q)
-    if traj.gripper is None or not len(embodiment.grippers):
-        return np.zeros((frames, 0))
-    return np.asarray(embodiment.gripper_openness(np.asarray(traj.gripper, dtype=np.float64), traj.source), float)
 
 
 def gripper_features(openness, temporal: int) -> np.ndarray:

@@ -197,10 +197,9 @@ def clip_openness(embodiment, trajectory) -> np.ndarray:
     Robots: gripper openness from the raw gripper signal; embodiments that read
     keypoints (hands) compute it in their ``frames`` (normalised fingertip flexion).
     """
-    traj = embodiment.check_trajectory(trajectory)
-    if embodiment.uses_kinematic_tree():
-        return np.asarray(embodiment.gripper_openness(traj.gripper, traj.source), dtype=np.float64)
-    return np.asarray(embodiment.frames(traj).openness, dtype=np.float64)
+    from ..plugin.openness import trajectory_openness
+
+    return trajectory_openness(embodiment, trajectory)
 
 
 def _read_marker(path: Path) -> dict:
