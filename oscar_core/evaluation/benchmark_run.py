@@ -73,10 +73,9 @@ def rollout_clip(
         name = video_condition_of(model.card.condition)
         style = getattr(model.card, "condition_style", None)  # a card of any model with rollout(), or an oscar card
         cond = clipset.condition_video(source, clip, registry, name, style)[:frames]
-        if getattr(model.card, "gripper_signal", False):  # the same trajectory's openness beside its video
-            from ..model.gripper_signal import trajectory_openness
+        from ..model.gripper_signal import gripper_input
 
-            options["gripper"] = trajectory_openness(emb, clip.trajectory)[:frames]
+        options.update(gripper_input(model.card, emb, clip.trajectory, frames))  # the same trajectory's openness
         video = model.rollout(first, cond, embeds, **options)
     seconds = time.perf_counter() - t0
     return np.asarray(video.frames if hasattr(video, "frames") else video).astype(np.uint8), seconds

@@ -31,6 +31,7 @@ __all__ = [
     "with_gripper_channels",
     "batch_features",
     "trajectory_openness",
+    "gripper_input",
 ]
 
 #: Grippers a signal has room for (two arms); a robot with more uses its first two.
@@ -40,6 +41,15 @@ GRIPPER_SLOTS = 2
 def gripper_channels(temporal: int) -> int:
     """Channels the signal adds to the condition latent for a VAE of temporal factor ``temporal``."""
     return GRIPPER_SLOTS * int(temporal)
+
+
+def gripper_input(card, embodiment, trajectory, frames: int | None = None) -> dict:
+    """The rollout keyword a model's card asks for beside its condition video: ``{"gripper": (T, G) openness}``
+    (:func:`trajectory_openness`, its first ``frames`` rows when given) for a card with ``gripper_signal``, else
+    ``{}`` (any card: one without the field takes no signal)."""
+    if not getattr(card, "gripper_signal", False):
+        return {}
+    return {"gripper": trajectory_openness(embodiment, trajectory)[:frames]}
 
 
 def gripper_features(openness, temporal: int) -> np.ndarray:

@@ -207,13 +207,10 @@ def _condition_and_first_frame(r: RolloutRequest, model, emb, traj, camera, firs
 def _per_frame_inputs(model, emb, traj, camera, latent_action: bool):
     """``(actions, gripper)``: the latent actions of a latent-action model (else None) and, for a model that takes
     the gripper's openness beside its condition video, the trajectory's openness per frame (else None)."""
-    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
-    gripper = None
-    if getattr(model.card, "gripper_signal", False):  # the trajectory's openness beside its skeleton video
-        from .gripper_signal import trajectory_openness
+    from .gripper_signal import gripper_input
 
-        gripper = trajectory_openness(emb, traj)
-    return actions, gripper
+    actions = model.rollout_inputs(traj, camera, emb)["actions"] if latent_action else None
+    return actions, gripper_input(model.card, emb, traj).get("gripper")
 
 
 def _rollout_summary(

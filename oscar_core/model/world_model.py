@@ -41,7 +41,7 @@ from .card import (
 )
 from .card_sampler import resolve_sampler, sampler_with_scheduler
 from .errors import CheckpointLayoutError, ModelInputError
-from .gripper_signal import trajectory_openness
+from .gripper_signal import gripper_input
 from .manifest import read_manifest, verify_files, write_manifest
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
@@ -569,9 +569,7 @@ class OscarWorldModel:
                 style=self.card.condition_style,
             )
         }
-        if self.card.gripper_signal:
-            inputs["gripper"] = trajectory_openness(embodiment, trajectory)
-        return inputs
+        return {**inputs, **gripper_input(self.card, embodiment, trajectory)}
 
     def rollout_trajectory(
         self,

@@ -47,6 +47,7 @@ def toy_rollout_demo(
 
     from ..media.video import write_video
     from ..metrics import psnr
+    from ..model.gripper_signal import gripper_input
     from ..plugin.registry import Registry
     from ..render.skeleton_video import render_skeleton_video
     from .episode import episode_rng, make_episode
@@ -70,7 +71,7 @@ def toy_rollout_demo(
             seed=seed,
             progress=False,
             keep_chunks=False,
-            **_gripper_input(m, emb, ep.trajectory),
+            **gripper_input(m.card, emb, ep.trajectory),
         )
         wall = time.perf_counter() - t0
     finally:
@@ -85,12 +86,3 @@ def toy_rollout_demo(
         "psnr_db": round(score, 2),
         "model": m.card.name,
     }
-
-
-def _gripper_input(model, emb, trajectory) -> dict:
-    """``{"gripper": (T, G) openness}`` for a model whose card takes a gripper signal, else ``{}``."""
-    if not getattr(model.card, "gripper_signal", False):
-        return {}
-    from ..model.gripper_signal import trajectory_openness
-
-    return {"gripper": trajectory_openness(emb, trajectory)}
