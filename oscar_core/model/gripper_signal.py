@@ -88,8 +88,8 @@ def batch_features(openness_list, temporal: int) -> torch.Tensor:
 
 def with_gripper_channels(latent: torch.Tensor, features: torch.Tensor | None) -> torch.Tensor:
     """The condition latent (B, C, T', h, w) with the gripper features (B, C_g, T') appended as channels constant
-    over the image: (B, C + C_g, T', h, w). ``features`` None appends zeros (the unconditional branch) — then the
-    number of channels to add must be known, so None is refused; pass zeros of the right shape instead."""
+    over the image: (B, C + C_g, T', h, w). The unconditional branch passes zero features; None is refused (the
+    number of channels to add would be unknown)."""
     if features is None:
         raise ModelInputError("gripper signal: expected features (B, C_g, T'), found None")
     b, _, t, h, w = latent.shape

@@ -158,10 +158,14 @@ def _check_grippers(grippers, total: int, padded_len: int) -> list[np.ndarray] |
                 f"gripper signal {i}: expected (T={total}, G) openness (one row per condition frame), "
                 f"found shape {np.asarray(g).shape}"
             )
-        if padded_len > total:
-            a = np.concatenate([a, np.repeat(a[-1:], padded_len - total, axis=0)])
-        out.append(a)
+        out.append(_hold_last(a, padded_len))
     return out
+
+
+def _hold_last(a: np.ndarray, length: int) -> np.ndarray:
+    """``a`` (T, ...) extended to ``length`` rows by repeating its last row (a robot holding its last pose over a
+    chunk plan's padding); ``a`` itself when it is long enough."""
+    return a if length <= len(a) else np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
 
 
 class _UncondSkeletons:
@@ -226,8 +230,7 @@ def iter_rollout(
         starts = chunk_plan(total, chunk_frames, vae.temporal)
         padded_len = starts[-1] + chunk_frames
         grips = _check_grippers(None if gripper is None else [gripper], total, padded_len)
-        if padded_len > total:
-            skel = np.concatenate([skel, np.repeat(skel[-1:], padded_len - total, axis=0)])
+        skel = _hold_last(skel, padded_len)
     uncond = _UncondSkeletons(vae, uncond_skeleton)
     generator = torch.Generator(device="cpu").manual_seed(int(seed))
     if result is not None:
@@ -402,10 +405,7 @@ def rollout_batch(
     total = len(pairs[0][1])
     starts = chunk_plan(total, chunk_frames, vae.temporal)
     padded_len = starts[-1] + chunk_frames
-    skels = [
-        np.concatenate([s, np.repeat(s[-1:], padded_len - total, axis=0)]) if padded_len > total else s
-        for _, s in pairs
-    ]
+    skels = [_hold_last(s, padded_len) for _, s in pairs]
     if grippers is not None and len(grippers) != b:
         raise ModelInputError(f"rollout_batch: expected {b} gripper signals, found {len(grippers)}")
     grips = _check_grippers(grippers, total, padded_len)
