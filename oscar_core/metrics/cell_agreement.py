@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .common import percentile_interval
+
 __all__ = ["cell_agreement", "cohen_kappa", "pair_separation", "agreement_summary"]
 
 
@@ -61,11 +63,6 @@ def pair_separation(real: np.ndarray, wm: np.ndarray, a: int, b: int) -> tuple[f
     return float(np.mean(same_way)), n, None
 
 
-def _interval(values: list[float]) -> list[float] | None:
-    ok = np.asarray([v for v in values if v is not None and np.isfinite(v)], float)
-    return [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None
-
-
 def agreement_summary(
     real: np.ndarray, wm: np.ndarray, policies: list[str], pairs=(), resamples: int = 2000, seed: int = 0
 ) -> dict:
@@ -109,8 +106,8 @@ def agreement_summary(
         kap.append(cohen_kappa(r, w)[0])
         for a, b in wanted:
             seps[f"{a} vs {b}"].append(pair_separation(r, w, index[a], index[b])[0])
-    out["agreement_ci95"], out["kappa_ci95"] = _interval(agree), _interval(kap)
+    out["agreement_ci95"], out["kappa_ci95"] = percentile_interval(agree), percentile_interval(kap)
     out["ci95_why"] = None if out["kappa_ci95"] is not None else "κ is undefined in every resample"
     for k, vals in seps.items():
-        out["pairs"][k]["ci95"] = _interval(vals)
+        out["pairs"][k]["ci95"] = percentile_interval(vals)
     return out

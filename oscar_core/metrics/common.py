@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import InputFileError
 
-__all__ = ["MetricInputError", "align_policy_values", "finite_float", "nan_to_none"]
+__all__ = ["MetricInputError", "align_policy_values", "finite_float", "nan_to_none", "percentile_interval"]
 
 
 class MetricInputError(InputFileError):
@@ -32,6 +32,14 @@ def finite_float(value, source: str, field: str) -> float:
     if not math.isfinite(out):
         raise MetricInputError(source, field, "a finite number", repr(out))
     return out
+
+
+def percentile_interval(values) -> list[float] | None:
+    """The 95 % percentile interval ``[2.5th, 97.5th]`` of a bootstrap's values, leaving out the undefined ones
+    (None, NaN); None when no value is defined."""
+    ok = np.asarray([v for v in np.ravel(np.asarray(values, dtype=object)) if v is not None], dtype=float)
+    ok = ok[np.isfinite(ok)]
+    return [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None
 
 
 def nan_to_none(value):

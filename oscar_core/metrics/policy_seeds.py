@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import MetricInputError
+from .common import MetricInputError, percentile_interval
 from .policy import mmrv_rank, pearson_r, sisr_delta, spearman_rho
 
 __all__ = [
@@ -117,8 +117,7 @@ def session_intervals(real: np.ndarray, wm: np.ndarray, resamples: int = 2000, s
     boot = session_bootstrap_figures(real, wm, resamples, seed)
     out: dict = {}
     for f, vals in boot.items():
-        ok = vals[np.isfinite(vals)]
-        out[f] = [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None
+        out[f] = percentile_interval(vals)
     return {**out, "resamples": int(resamples), "seed": int(seed)}
 
 
@@ -264,7 +263,7 @@ def summarize_runs(folders, resamples: int = 2000, seed: int = 0, truth=None, pa
     ok = boot[np.isfinite(boot)] if len(sessions) >= 2 else boot[:0]
     figures = {
         "spearman_rho": spearman_rho(r, w),
-        "spearman_ci95": [float(np.percentile(ok, 2.5)), float(np.percentile(ok, 97.5))] if ok.size else None,
+        "spearman_ci95": percentile_interval(ok),
         "p_rho_at_least_0_8": float(np.mean(ok >= 0.8)) if ok.size else None,
         "pearson_r": pearson_r(r, w),
         "mmrv": mmrv_rank(r, w),
