@@ -156,7 +156,7 @@ def _add_toyworld_train_vae_parser(sub, fmt) -> None:
             "--" + name.replace("_", "-"), type=int, default=getattr(d, name), help=f"default {getattr(d, name)}"
         )
     threads_option(v, "torch threads")
-    for name in ("lr", "kl", "chroma", "foreground", "max_minutes"):
+    for name in ("lr", "kl", "chroma", "foreground", "ball", "max_minutes"):
         v.add_argument(
             "--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}"
         )
@@ -456,6 +456,7 @@ def cmd_train_vae(args) -> int:
         kl=args.kl,
         chroma=args.chroma,
         foreground=args.foreground,
+        ball=args.ball,
         seed=args.seed,
         threads=args.threads,
         base_dim=args.base_dim,

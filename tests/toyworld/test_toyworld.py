@@ -541,6 +541,56 @@ def test_foreground_weight_changes_the_update_and_only_through_moving_pixels(tmp
     monkeypatch.setattr(vt, "moving_pixels", lambda x: torch.zeros_like(x[:, :1]))
     masked = weights("masked", foreground=10.0)
     assert all(torch.equal(plain[k], masked[k]) for k in plain)
+    # --ball: the same rule through the ball's pixels
+    ball = weights("ball", ball=50.0)
+    assert any(not torch.equal(plain[k], ball[k]) for k in plain)
+    monkeypatch.setattr(vt, "ball_pixels", lambda x: torch.zeros_like(x[:, :1]))
+    assert all(torch.equal(plain[k], v) for k, v in weights("ball-masked", ball=50.0).items())
+
+
+def _yellow_disc_frames(centres, size=16, r=2.0):
+    """(T, size, size, 3) uint8: grey floor with a ball of the toy's object hue at each (x, y) centre (None: none)."""
+    import colorsys
+
+    from oscar_core.toyworld.scene import OBJECT_HUE
+
+    rgb = np.array(colorsys.hsv_to_rgb(OBJECT_HUE / 360.0, 0.9, 0.9)) * 255
+    frames = np.full((len(centres), size, size, 3), 90, np.uint8)
+    ys, xs = np.mgrid[0:size, 0:size]
+    for f, c in zip(frames, centres):
+        if c is not None:
+            f[(xs - c[0]) ** 2 + (ys - c[1]) ** 2 <= r * r] = rgb.astype(np.uint8)
+    return frames
+
+
+def test_ball_pixels_marks_the_ball_and_its_rim_only():
+    import torch
+
+    from oscar_core.toyworld.vae_train import ball_pixels
+
+    frames = _yellow_disc_frames([(8, 8), None])
+    x = torch.from_numpy(frames).permute(3, 0, 1, 2).unsqueeze(0).float().div(127.5).sub(1.0)
+    m = ball_pixels(x)
+    assert m.shape == (1, 1, 2, 16, 16)
+    ys, xs = np.mgrid[0:16, 0:16]
+    disc = (xs - 8) ** 2 + (ys - 8) ** 2 <= 4
+    ring = np.zeros_like(disc)  # the disc grown by one pixel in each of the 8 directions (a 3 x 3 dilation)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            ring |= np.roll(np.roll(disc, dy, 0), dx, 1)
+    got = m[0, 0, 0].numpy() > 0
+    assert np.array_equal(got, ring)
+    assert m[0, 0, 1].sum() == 0  # no ball, no weight
+
+
+def test_ball_kept_counts_frames_whose_ball_is_found_near_the_truth():
+    from oscar_core.toyworld.vae_train import ball_kept
+
+    truth = _yellow_disc_frames([(5, 5), (8, 8), (10, 10), None])
+    pred = _yellow_disc_frames([(5, 5), (9, 8), None, (3, 3)])  # kept, 1 px off (kept), lost; no truth ball
+    assert ball_kept(pred, truth) == pytest.approx(2 / 3)
+    assert ball_kept(pred, truth, tol_px=0.5) == pytest.approx(1 / 3)
+    assert ball_kept(truth[3:], truth[3:]) is None
 
 
 def test_chroma_ratio_on_known_colours():
