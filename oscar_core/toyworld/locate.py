@@ -24,6 +24,7 @@ __all__ = [
     "OBJECT_TARGET",
     "BALL_TARGET",
     "ball_position",
+    "ball_mask",
     "color_mask",
     "locate",
     "position_errors",
@@ -83,6 +84,13 @@ def ball_position(frames: np.ndarray) -> np.ndarray:
     """(T, 2) pixels: the centroid of the ball's colour in each of ``frames`` (T, H, W, 3) uint8, NaN where fewer
     than 3 pixels show it (:data:`BALL_TARGET`); the locator of ``oscar eval action-following``'s toy sets."""
     return locate(frames, BALL_TARGET)[0]
+
+
+def ball_mask(frames: np.ndarray) -> np.ndarray:
+    """(T, H, W) bool: the pixels of the ball's reserved colour in ``frames`` (T, H, W, 3) uint8 RGB; the toy
+    world's focus mask for training (``data.focus_mask: oscar_core.toyworld.locate:ball_mask``,
+    :mod:`oscar_core.train.focus`)."""
+    return color_mask(frames, OBJECT_TARGET)
 
 
 def position_errors(pred: np.ndarray, gt: np.ndarray, target: ColorTarget) -> dict:

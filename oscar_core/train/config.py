@@ -142,6 +142,10 @@ class DataSection:
     workers: int = 0
     # micro-batches each worker keeps loaded ahead (ours; as torch DataLoader's prefetch_factor)
     prefetch: int = 2
+    # ours: a function (frames (T, H, W, 3) uint8) -> (T, H, W) bool, as module:attr or path/to/file.py:attr, that
+    # marks the pixels whose latent cells flow.focus_weight weighs more (oscar_core.train.focus; the toy world's
+    # ball: oscar_core.toyworld.locate:ball_mask); null = none
+    focus_mask: str | None = None
 
 
 @dataclass
@@ -155,6 +159,9 @@ class FlowSection:
     logit_std: float = 1.0
     # timestep fed for the clean conditioning frame (the sampler's and diffusers' 1e-4)
     cond_timestep: float = 1e-4
+    # ours: extra loss weight w on the latent cells data.focus_mask touches (their elements weigh 1 + w, the rest
+    # 1; oscar_core.train.focus); 0 = the plain loss
+    focus_weight: float = 0.0
 
 
 @dataclass
@@ -287,6 +294,11 @@ class TrainConfig:
             bad("flow.shift", "a positive number", f.shift)
         if not f.logit_std > 0:
             bad("flow.logit_std", "a positive number", f.logit_std)
+        f = self.flow
+        if isinstance(f.focus_weight, bool) or not isinstance(f.focus_weight, (int, float)) or not f.focus_weight >= 0:
+            bad("flow.focus_weight", "a number >= 0", f.focus_weight)
+        if f.focus_weight > 0 and self.data.focus_mask is None:
+            bad("data.focus_mask", "a mask function (module:attr) when flow.focus_weight > 0", None)
         o = self.optim
         if not o.lr > 0:
             bad("optim.lr", "a positive number", o.lr)
@@ -332,6 +344,8 @@ def _check_data_section(d: DataSection, bad) -> None:
         bad("data.prefetch", "a positive integer (micro-batches loaded ahead per worker)", d.prefetch)
     if not isinstance(d.clips, list) or not d.clips:
         bad("data.clips", "a non-empty list of clip-set folders", d.clips)
+    if d.focus_mask is not None and (not isinstance(d.focus_mask, str) or ":" not in d.focus_mask):
+        bad("data.focus_mask", "module:attr or path/to/file.py:attr of a mask function, or null", d.focus_mask)
 
 
 def _check_log_and_model_sections(config: TrainConfig, bad) -> None:

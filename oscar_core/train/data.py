@@ -45,12 +45,14 @@ class UsableClip:
 @dataclass
 class Batch:
     """One micro-batch. z0: (B, C, T', h, w); skeleton: (B, C_s, T', h, w) or None; text: (B, L, D);
-    actions: (B, window − 1, 14) or None."""
+    actions: (B, window − 1, 14) or None; focus: (B, 1, T', h, w) in {0, 1}, the latent cells of the focus mask
+    (``data.focus_mask``), or None."""
 
     z0: torch.Tensor
     skeleton: torch.Tensor | None
     text: torch.Tensor
     actions: torch.Tensor | None
+    focus: torch.Tensor | None = None
 
 
 class TrainData:
@@ -70,6 +72,12 @@ class TrainData:
         self.window, self.size = d.window, (d.width, d.height)
         # spatial compression of cached latents: the VAE's when one is given (the toy world's is 4), else WAN's 8
         self.spatial = int(getattr(vae, "spatial", 8)) if vae is not None else 8
+        # the focus mask's function (oscar_core.train.focus), imported before any clip is read; None = no focus
+        self.focus_mask = None
+        if d.focus_mask is not None and config.flow.focus_weight:
+            from .focus import load_focus_mask
+
+            self.focus_mask = load_focus_mask(d.focus_mask)
         self.skipped: list[dict] = []
         self.clips: list[UsableClip] = []
         for root in d.clips:
@@ -246,7 +254,7 @@ class TrainData:
             rec,
             start=item.start,
             frames=self.window,
-            video=not self.cached,
+            video=not self.cached or self.focus_mask is not None,
             skeleton=want_skeleton and stored and not self.cached,
             registry=self.registry if need_traj else None,
         )
@@ -295,6 +303,8 @@ class TrainData:
             )
         if is_video_condition(condition) and self.config.model.gripper_signal:
             out["skeleton"] = self._with_gripper(out["skeleton"], rec, item)
+        if self.focus_mask is not None:
+            out["focus"] = self._focus(clip.rgb, out["z0"], rec)
         if clip.prompt_embeds is not None:
             pe = clip.prompt_embeds.float()
             if pe.shape[-1] != self.text_dim:
@@ -313,6 +323,23 @@ class TrainData:
 
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
         return out
+
+    def _focus(self, rgb: np.ndarray, z0: torch.Tensor, rec) -> torch.Tensor:
+        """(1, T', h, w): the latent cells of z0 that ``data.focus_mask`` marks in the window's frames (fitted to the
+        training size as the frames the latents encode)."""
+        from ..render.skeleton_video import fit_image
+        from .focus import latent_focus
+        from .models import VAE_TEMPORAL
+
+        w, h = self.size
+        frames = np.stack([fit_image(f, w, h, "crop") for f in rgb])
+        mask = np.asarray(self.focus_mask(frames))
+        if mask.shape != frames.shape[:3]:
+            raise ValueError(
+                f"data.focus_mask {self.config.data.focus_mask}: expected a (T, H, W) mask of {rec.id}'s window "
+                f"{frames.shape[:3]}, found {mask.shape}"
+            )
+        return latent_focus(mask, tuple(z0.shape[1:]), VAE_TEMPORAL)
 
     def _with_gripper(self, condition: torch.Tensor, rec, item: PlanItem) -> torch.Tensor:
         """(C + C_g, T', h, w): the window's gripper features (:mod:`oscar_core.model.gripper_signal`) appended to
@@ -352,7 +379,8 @@ class TrainData:
         )
         skel = torch.stack([x["skeleton"] for x in loaded]) if is_video_condition(condition) else None
         acts = torch.stack([x["actions"] for x in loaded]) if takes_actions(condition) else None
-        return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts)
+        focus = torch.stack([x["focus"] for x in loaded]) if self.focus_mask is not None else None
+        return Batch(torch.stack([x["z0"] for x in loaded]), skel, text, acts, focus)
 
     def summary(self) -> dict:
         sources: dict[str, int] = {}

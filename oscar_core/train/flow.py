@@ -88,14 +88,20 @@ def flow_inputs(z0: torch.Tensor, noise: torch.Tensor, sigma: torch.Tensor, cond
     )
 
 
-def flow_loss(pred: torch.Tensor, inputs: FlowInputs, reduction: str = "mean") -> torch.Tensor:
+def flow_loss(
+    pred: torch.Tensor, inputs: FlowInputs, reduction: str = "mean", weight: torch.Tensor | None = None
+) -> torch.Tensor:
     """MSE between the predicted velocity (B, C, T, H, W) and ε − z_0 on latent frames ≥ 1.
 
     Per sample: the mean over the C·(T−1)·H·W loss elements; ``reduction``
     "mean" averages the samples, "none" returns (B,). The conditioning frame
     contributes exactly zero (its error is multiplied by 0, gradient included).
+    weight: (B, 1, T, H, W) per-cell weights (the focus weights, :mod:`oscar_core.train.focus`) multiplying each
+    element's squared error before the same mean; None = 1 everywhere.
     """
     err = (pred.float() - inputs.target.float()).square() * inputs.loss_mask
+    if weight is not None:
+        err = err * weight.to(err.dtype)
     b, c, t, h, w = err.shape
     per_sample = err.sum(dim=(1, 2, 3, 4)) / (c * (t - 1) * h * w)
     return per_sample.mean() if reduction == "mean" else per_sample

@@ -97,7 +97,10 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
         kwargs["actions"] = batch.actions.to(device)
     with autocast or contextlib.nullcontext():
         pred = model(**kwargs)[0]
-    return flow_loss(pred, inputs)
+    weight = None
+    if batch.focus is not None and config.flow.focus_weight:
+        weight = 1.0 + config.flow.focus_weight * batch.focus.to(device, torch.float32)
+    return flow_loss(pred, inputs, weight=weight)
 
 
 def build_optimizer(wrapped, config: TrainConfig) -> torch.optim.AdamW:
