@@ -159,6 +159,9 @@ class FlowSection:
     logit_std: float = 1.0
     # timestep fed for the clean conditioning frame (the sampler's and diffusers' 1e-4)
     cond_timestep: float = 1e-4
+    # ours, against drift: the conditioning frame is fed noised at sigma_c ~ U(0, cond_noise_max) per sample, its
+    # timestep then sigma_c (oscar_core.train.flow); 0 = always clean (the paper's and Cosmos' recipe)
+    cond_noise_max: float = 0.0
     # ours: extra loss weight w on the latent cells data.focus_mask touches (their elements weigh 1 + w, the rest
     # 1; oscar_core.train.focus); 0 = the plain loss
     focus_weight: float = 0.0
@@ -299,6 +302,9 @@ class TrainConfig:
             bad("flow.focus_weight", "a number >= 0", f.focus_weight)
         if f.focus_weight > 0 and self.data.focus_mask is None:
             bad("data.focus_mask", "a mask function (module:attr) when flow.focus_weight > 0", None)
+        cn = self.flow.cond_noise_max
+        if isinstance(cn, bool) or not isinstance(cn, (int, float)) or not 0.0 <= cn <= 1.0:
+            bad("flow.cond_noise_max", "a noise level in [0, 1]", cn)
         o = self.optim
         if not o.lr > 0:
             bad("optim.lr", "a positive number", o.lr)

@@ -6,6 +6,11 @@
 * The first latent frame is the clean conditioning frame: it is fed clean, the
   condition mask marks it, its timestep is ``cond_timestep`` (1e-4), and it is
   excluded from the loss (MSE over latent frames 1..T'−1, uniform weight).
+* Ours, against drift (``flow.cond_noise_max``): the conditioning frame may be fed noised,
+  (1 − σ_c) z_0 + σ_c ε with σ_c per sample, its timestep then σ_c (at least ``cond_timestep``), so the model
+  learns to continue from a first frame that is not exactly the truth — as its own generated last frame is when
+  a rollout chains chunks (noise augmentation of the context, as GameNGen trains it). The sampler feeds it
+  clean (σ_c = 0, inside the trained range).
 """
 
 from __future__ import annotations
@@ -60,11 +65,19 @@ class FlowInputs:
     loss_mask: torch.Tensor
 
 
-def flow_inputs(z0: torch.Tensor, noise: torch.Tensor, sigma: torch.Tensor, cond_timestep: float = 1e-4) -> FlowInputs:
+def flow_inputs(
+    z0: torch.Tensor,
+    noise: torch.Tensor,
+    sigma: torch.Tensor,
+    cond_timestep: float = 1e-4,
+    cond_sigma: torch.Tensor | None = None,
+) -> FlowInputs:
     """Noise clean latents ``z0`` (B, C, T, H, W) with ``noise`` (same shape) at per-sample ``sigma`` (B,).
 
     Exactly the sampler's conventions: z_σ = (1 − σ) z_0 + σ ε on frames ≥ 1,
     frame 0 replaced by its clean latent under the condition mask.
+    cond_sigma: (B,) noise levels of the conditioning frame (module docstring): frame 0 is then
+    (1 − σ_c) z_0 + σ_c ε (ε: ``noise``'s frame 0) at timestep max(σ_c, cond_timestep); None = clean.
     """
     if z0.ndim != 5 or noise.shape != z0.shape:
         raise ValueError(
@@ -77,8 +90,15 @@ def flow_inputs(z0: torch.Tensor, noise: torch.Tensor, sigma: torch.Tensor, cond
     noisy = (1.0 - s) * z0 + s * noise
     indicator = torch.zeros(b, 1, t, 1, 1, dtype=z0.dtype, device=z0.device)
     indicator[:, :, 0] = 1.0
-    x = indicator * z0 + (1.0 - indicator) * noisy
-    timestep = (indicator * cond_timestep + (1.0 - indicator) * s).float()
+    first, first_t = z0, torch.full((b, 1, 1, 1, 1), cond_timestep, dtype=z0.dtype, device=z0.device)
+    if cond_sigma is not None:
+        if cond_sigma.shape != (b,):
+            raise ValueError(f"cond_sigma: expected shape ({b},), found {tuple(cond_sigma.shape)}")
+        sc = cond_sigma.to(z0.dtype).view(b, 1, 1, 1, 1)
+        first = (1.0 - sc) * z0 + sc * noise
+        first_t = torch.clamp(sc, min=cond_timestep)
+    x = indicator * first + (1.0 - indicator) * noisy
+    timestep = (indicator * first_t + (1.0 - indicator) * s).float()
     return FlowInputs(
         x=x,
         timestep=timestep,

@@ -40,7 +40,7 @@ from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
-from .sampling import PlanItem, StepPlanner, item_noise
+from .sampling import PlanItem, StepPlanner, item_cond_sigma, item_noise
 
 __all__ = [
     "CONFIG_FILE",
@@ -81,7 +81,10 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     z0 = batch.z0.to(device, torch.float32)
     noise = item_noise(items, tuple(z0.shape[1:])).to(device)
     sigma = torch.tensor([it.sigma for it in items], dtype=torch.float64)
-    inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep)
+    cond_sigma = None
+    if config.flow.cond_noise_max:
+        cond_sigma = item_cond_sigma(items, config.flow.cond_noise_max).to(device)
+    inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep, cond_sigma)
     h, w = z0.shape[-2:]
     kwargs = dict(
         hidden_states=inputs.x,

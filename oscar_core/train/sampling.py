@@ -28,7 +28,16 @@ import torch
 
 from .flow import sample_sigmas
 
-__all__ = ["mixing_weights", "crossings", "trapezoid", "window_prior", "PlanItem", "StepPlanner", "item_noise"]
+__all__ = [
+    "mixing_weights",
+    "crossings",
+    "trapezoid",
+    "window_prior",
+    "PlanItem",
+    "StepPlanner",
+    "item_noise",
+    "item_cond_sigma",
+]
 
 
 def mixing_weights(
@@ -209,3 +218,10 @@ class StepPlanner:
 def item_noise(items: list[PlanItem], shape) -> torch.Tensor:
     """(B, *shape) float32 noise, item i drawn from its own seed (the same on any process count)."""
     return torch.stack([torch.randn(shape, generator=torch.Generator().manual_seed(it.noise_seed)) for it in items])
+
+
+def item_cond_sigma(items: list[PlanItem], max_sigma: float) -> torch.Tensor:
+    """(B,) float64 noise levels of the conditioning frame, item i's U(0, max_sigma) drawn from a stream of its own
+    noise seed apart from its noise (the same on any process count)."""
+    gens = [torch.Generator().manual_seed((it.noise_seed + 0x5EED) % 2**63) for it in items]
+    return torch.tensor([float(torch.rand((), generator=g, dtype=torch.float64)) * max_sigma for g in gens])
