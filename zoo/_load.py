@@ -78,6 +78,7 @@ def load(
     verify: bool = True,
     native_file: str | None = None,
     report: list | None = None,
+    tiny_decoder=None,
 ) -> OscarWorldModel:
     """Load a world model by zoo name, Hub id or folder (arguments as :func:`pull`).
 
@@ -94,6 +95,9 @@ def load(
     vae_dtype: the VAE's (default: dtype); offload_vae: keep the VAE on the
     CPU between encode/decode calls; offload_text: keep the DiT's text
     projection on the CPU (see ``OscarWorldModel.from_modules``).
+    tiny_decoder: a tiny decoder's safetensors file to decode with instead of the full VAE decoder; None: the
+    card's choice (its ``tiny_decoder``, else the full decoder); False: the full decoder
+    (``OscarWorldModel.from_pretrained``).
     """
     from oscar_core._util.devices import check_device
     from oscar_core.model.errors import ModelInputError
@@ -112,6 +116,8 @@ def load(
         native_file=native_file,
     )
     options = dict(device=device, dtype=dtype, vae_dtype=vae_dtype, offload_vae=offload_vae, offload_text=offload_text)
+    if tiny_decoder is not None:
+        options["tiny_decoder"] = tiny_decoder
     card = None if got.layout.kind == "oscar" else _card_from_spec(resolved.spec)
     model, layout = load_folder(got.folder, got.layout, card, verify=False, **options)  # fetch() verified it
     if report is not None:

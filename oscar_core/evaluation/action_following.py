@@ -65,7 +65,9 @@ class ActionFollowingSettings:
     """How the benchmark runs. model_spec / revision: what ``oscar_zoo.load`` loads when no model object is given;
     sampler: a :class:`~oscar_core.model.SamplerConfig` (None: the card's); seed: the noise seed of every variant;
     chunk_frames: None = the card's; device, dtype: where the model runs; plugin_paths: extra embodiment plugins;
-    resamples, bootstrap_seed: the intervals' bootstrap; progress: progress bars."""
+    resamples, bootstrap_seed: the intervals' bootstrap; progress: progress bars; tiny_decoder: the decoder of the
+    model loaded from ``model_spec`` (None: its card's; False: the full decoder; a tiny decoder's file), recorded
+    in the run's fingerprint when given."""
 
     model_spec: str | None = None
     revision: str | None = None
@@ -78,6 +80,7 @@ class ActionFollowingSettings:
     resamples: int = 2000
     bootstrap_seed: int = 0
     progress: bool = False
+    tiny_decoder: object = None
 
 
 @dataclass
@@ -277,7 +280,17 @@ def _fingerprint_parts(manifest, settings, model_identity, sampler, chunk, judge
         "chunk_frames": chunk,
         "judge": describe,
         "locator": locator_spec,
+        **_decoder_part(settings.tiny_decoder),
     }
+
+
+def _decoder_part(tiny_decoder) -> dict:
+    """``{"decoder": ...}`` when a decoder was chosen, else empty (a run that chooses none keeps its fingerprint)."""
+    if tiny_decoder is None:
+        return {}
+    from ..model.decoder_options import decoder_identity
+
+    return {"decoder": decoder_identity(tiny_decoder)}
 
 
 def _record_path(out: Path, sid: str) -> Path:
@@ -379,7 +392,13 @@ def run_action_following(
     if todo and model is None:
         import oscar_zoo
 
-        model = oscar_zoo.load(settings.model_spec, settings.revision, device=settings.device, dtype=settings.dtype)
+        model = oscar_zoo.load(
+            settings.model_spec,
+            settings.revision,
+            device=settings.device,
+            dtype=settings.dtype,
+            tiny_decoder=settings.tiny_decoder,
+        )
     bar = progress_bar(total=len(todo), desc="action-following sets", unit="set", enabled=settings.progress)
     for s in todo:
         rec = _run_set(model, s, judge, locate_fn, sampler, settings, chunk, out)

@@ -18,7 +18,7 @@ from .._util.log import log_result, progress_bars_enabled, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
-from .cli_options import add_sampler_options
+from .cli_options import add_decoder_options, add_sampler_options
 
 __all__ = ["add_action_following_parser", "cmd_action_following"]
 
@@ -35,6 +35,7 @@ EXAMPLES = """examples:
 def cmd_action_following(args) -> int:
     import torch
 
+    from ..model.decoder_options import decoder_choice
     from .action_following import ActionFollowingSettings, run_action_following
     from .action_following_manifest import load_action_following
     from .cli import load_judge
@@ -46,6 +47,7 @@ def cmd_action_following(args) -> int:
     if args.paired is not None and not (Path(args.paired) / "report.json").is_file():
         raise MetricInputError(args.paired, "--paired", "another action-following run's folder (report.json)", "none")
     choice = resolve_sampler_flags(args, lambda: card_sampler_of(args.model, args.revision))
+    decoder = decoder_choice(args)  # checked before any model is looked up
     print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     settings = ActionFollowingSettings(
         model_spec=args.model,
@@ -57,6 +59,7 @@ def cmd_action_following(args) -> int:
         dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
         plugin_paths=tuple(getattr(args, "plugin", None) or ()),
         progress=not args.no_progress and progress_bars_enabled(),
+        tiny_decoder=decoder,
     )
     with run_log(args.out, "eval-action-following"):
         result = run_action_following(
@@ -97,6 +100,7 @@ def add_action_following_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--paired", help="another run's folder on the same manifest: report this run minus it, per set")
     r.add_argument("--seed", type=count(0), default=0, help="noise seed of every variant (default 0)")
     add_sampler_options(r)
+    add_decoder_options(r)
     r.add_argument("--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's)")
     r.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto")

@@ -19,7 +19,7 @@ from .._util.log import log_result, progress_bars_enabled, run_log
 from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..metrics.common import MetricInputError
-from .cli_options import add_engine_options, add_sampler_options
+from .cli_options import add_decoder_options, add_engine_options, add_sampler_options
 
 __all__ = ["add_closed_loop_parser", "cmd_closed_loop"]
 
@@ -49,6 +49,7 @@ def _policy_sources(items) -> dict:
 def cmd_closed_loop(args) -> int:
     import torch
 
+    from ..model.decoder_options import decoder_choice
     from .cli_options import resolve_sampler_flags
     from .closed_loop import run_closed_loop
     from .closed_loop_manifest import load_closed_loop_manifest
@@ -82,6 +83,7 @@ def cmd_closed_loop(args) -> int:
     choice = resolve_sampler_flags(
         args, None if simulator is not None else (lambda: card_sampler_of(args.model, args.revision))
     )
+    decoder = decoder_choice(args)  # checked before any model is looked up
     sampler = choice.config
     if simulator is None:
         print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
@@ -106,6 +108,7 @@ def cmd_closed_loop(args) -> int:
             workers=args.workers,
             device=args.device or default_device(),
             dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
+            tiny_decoder=decoder,
             plugin_paths=getattr(args, "plugin", None) or (),
             progress=not args.no_progress and progress_bars_enabled(),
         )
@@ -180,6 +183,7 @@ def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
         help="pairwise preferences within sessions (the judge's compare_many) + Bradley-Terry",
     )
     add_sampler_options(r)
+    add_decoder_options(r)
     r.add_argument(
         "--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's; 17 for --simulator)"
     )

@@ -21,7 +21,15 @@ from collections.abc import Callable
 from .._util.arg_types import count, interval, number
 from ..model.presets import SAMPLER_PRESETS
 
-__all__ = ["add_engine_options", "add_sampler_options", "resolve_sampler_flags"]
+__all__ = ["add_decoder_options", "add_engine_options", "add_sampler_options", "resolve_sampler_flags"]
+
+
+def add_decoder_options(parser) -> None:
+    """Add ``--tiny-decoder FILE`` / ``--full-decoder`` (:mod:`oscar_core.model.decoder_options`, which ``oscar
+    rollout`` uses too); read them with its ``decoder_choice(args)``."""
+    from ..model.decoder_options import add_decoder_options as add
+
+    add(parser)
 
 
 def add_sampler_options(parser) -> None:

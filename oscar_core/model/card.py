@@ -55,6 +55,10 @@ class ModelCard:
     gripper_signal: the DiT also takes the gripper's openness per latent frame, appended to the condition latent
     (:mod:`~oscar_core.model.gripper_signal`); every rollout passes it (``rollout_inputs`` gives it as
     ``"gripper"``). False: the gripper is seen only as the indicator drawn in the condition video.
+    tiny_decoder: a safetensors file of tiny-decoder weights inside the model folder (a relative path such as
+    ``"tiny_decoder.safetensors"``, :mod:`~oscar_core.model.tiny_decoder`) that decodes instead of the full VAE
+    decoder whenever the model is loaded (``from_pretrained(tiny_decoder=False)`` or ``--full-decoder`` turn it
+    off). None: the full decoder.
     """
 
     name: str | None = None
@@ -71,6 +75,7 @@ class ModelCard:
     condition_style: dict | None = None
     sampler: dict | None = None
     gripper_signal: bool = False
+    tiny_decoder: str | None = None
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
@@ -93,12 +98,15 @@ class ModelCard:
                 f"model card gripper_signal: expected a condition video beside it (skeleton, mesh, capsules), "
                 f"found condition {self.condition!r}"
             )
+        _check_tiny_decoder_name(self.tiny_decoder)
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
         object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["embodiments"] = list(self.embodiments)
+        if d["tiny_decoder"] is None:
+            del d["tiny_decoder"]  # a card without one is written as before it existed (same bytes, same hashes)
         return d
 
     @classmethod
@@ -110,8 +118,22 @@ class ModelCard:
         return cls(**data)
 
 
+def _check_tiny_decoder_name(name) -> None:
+    """The card's ``tiny_decoder``: None, or a relative path inside the model folder ending in ``.safetensors``."""
+    if name is None:
+        return
+    ok = isinstance(name, str) and name.endswith(".safetensors")
+    parts = Path(name).parts if ok else ()
+    if not ok or not parts or Path(name).is_absolute() or ".." in parts:
+        raise ModelInputError(
+            f"model card tiny_decoder: expected a .safetensors file inside the model folder (a relative path), "
+            f"found {name!r}"
+        )
+
+
 def read_card(folder: Path) -> ModelCard:
-    """The :class:`ModelCard` of an OSCAR model folder (its ``oscar_model.json``), without loading weights."""
+    """The :class:`ModelCard` of an OSCAR model folder (its ``oscar_model.json``), without loading weights. A card
+    whose ``tiny_decoder`` names a file the folder lacks is refused here, before any weights are read."""
     path = folder / MODEL_FILE
     if not path.is_file():
         found = ", ".join(sorted(p.name for p in folder.iterdir())) if folder.is_dir() else "no such folder"
@@ -128,6 +150,11 @@ def read_card(folder: Path) -> ModelCard:
     if data.get("format") != FORMAT:
         raise CheckpointLayoutError(path, "format", repr(FORMAT), repr(data.get("format")))
     try:
-        return ModelCard.from_dict(data.get("card") or {}, path)
+        card = ModelCard.from_dict(data.get("card") or {}, path)
     except (TypeError, ModelInputError) as exc:
         raise CheckpointLayoutError(path, "card", "a valid model card", str(exc)) from None
+    if card.tiny_decoder is not None and not (folder / card.tiny_decoder).is_file():
+        raise CheckpointLayoutError(
+            path, "card.tiny_decoder", f"a file of the model folder {folder}", f"no file {card.tiny_decoder}"
+        )
+    return card

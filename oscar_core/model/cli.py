@@ -112,6 +112,9 @@ def _add_rollout_device_options(r) -> None:
         help="keep the DiT's text projection on the CPU (the prompt is projected once per chunk)",
     )
     r.add_argument("--offline", action="store_true", help="use only the local Hub cache (like HF_HUB_OFFLINE=1)")
+    from .decoder_options import add_decoder_options
+
+    add_decoder_options(r)
 
 
 def _add_rollout_parser(subparsers, fmt) -> None:
@@ -189,6 +192,7 @@ def cmd_rollout(args) -> int:
     """``oscar rollout``: the options as a :class:`~oscar_core.model.rollout_files.RolloutRequest`, then
     :func:`~oscar_core.model.rollout_files.run_rollout`, then the summary."""
     startup = _seconds_since_process_start()
+    from .decoder_options import decoder_choice
     from .rollout_files import run_rollout
 
     request = RolloutRequest(
@@ -228,6 +232,7 @@ def cmd_rollout(args) -> int:
         offload_vae=args.offload_vae,
         offload_text=args.offload_text,
         offline=args.offline,
+        tiny_decoder=decoder_choice(args),
         progress=not args.no_progress,
         plugin_paths=tuple(getattr(args, "plugin", None) or ()),
     )

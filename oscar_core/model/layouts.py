@@ -147,7 +147,8 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
     """Load a local checkpoint folder of any layout as an ``OscarWorldModel``; returns (model, layout).
 
     card: ModelCard for layouts that carry none (diffusers, cosmos-native);
-    options: ``OscarWorldModel.from_modules`` options (device, dtype, ...).
+    options: ``OscarWorldModel.from_modules`` options (device, dtype, ...), and ``tiny_decoder``
+    (``OscarWorldModel.from_pretrained``'s: a file, or False).
     ``layout.report`` says what was found (skeleton embedder, scheduler).
     """
     from .world_model import ModelCard, OscarWorldModel
@@ -159,6 +160,11 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
         layout.report.append(f"layout: oscar ({folder})")
         return model, layout
     report = layout.report
+    tiny = options.pop("tiny_decoder", None)
+    if tiny is not None and tiny is not False:
+        from .tiny_decoder import load_tiny_decoder
+
+        tiny = load_tiny_decoder(tiny)  # checked before the weights are read, as from_pretrained does
     if layout.kind == "diffusers":
         from .transformer import OscarTransformer3DModel
 
@@ -181,6 +187,8 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
     else:
         raise CheckpointLayoutError(folder, "layout", " or ".join(LAYOUTS), repr(layout.kind))
     model = OscarWorldModel.from_modules(transformer, _vae(folder), card or ModelCard(), None, **options)
+    if tiny is not None and tiny is not False:
+        model.vae.use_tiny_decoder(tiny)
     scheduler = folder / SCHEDULER_CONFIG
     if scheduler.is_file():
         try:

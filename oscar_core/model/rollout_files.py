@@ -92,6 +92,7 @@ class RolloutRequest:
     offload_vae: bool = False
     offload_text: bool = False
     offline: bool = False
+    tiny_decoder: object = None  # None: the card's decoder; False: the full decoder; a path: that tiny decoder
     progress: bool = True
     plugin_paths: tuple[str, ...] = ()
 
@@ -173,6 +174,7 @@ def _load_model(r: RolloutRequest, device, dtype, say: Callable[[str], None], ti
         local_files_only=True if r.offline else None,
         native_file=r.native_file,
         report=report,
+        tiny_decoder=r.tiny_decoder,
     )
     timings["load"] = time.perf_counter() - t0
     for line in report:
@@ -248,6 +250,7 @@ def _rollout_summary(
         "preset": choice.preset,
         "sampler_sources": dict(choice.sources),
         "condition": model.card.condition,
+        "decoder": "full" if model.vae.tiny is None else "tiny",
         "compile": model.compile_reason,
         "dtype": str(next(model.transformer.parameters()).dtype),
         "device": str(device),
@@ -286,6 +289,7 @@ def run_rollout(
     from ..plugin.registry import get_embodiment
     from ..render.conditions import takes_actions
     from .card_sampler import resolve_sampler
+    from .decoder_options import check_decoder_choice
     from .image import read_first_frame
     from .rollout import RolloutResult
 
@@ -297,6 +301,7 @@ def run_rollout(
     camera = emb.load_camera(r.camera)
     first = read_first_frame(r.first_frame, camera, r.camera)
     resolve_sampler(None, **_sampler_options(r))  # the given options checked before any weights load
+    check_decoder_choice(r.tiny_decoder)
     side_path = _check_outputs(r, len(traj))
     device = r.device or default_device()
     dtype = getattr(torch, r.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))

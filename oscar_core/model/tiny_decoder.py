@@ -35,6 +35,7 @@ normalised latents of :class:`~oscar_core.model.vae.VideoVAE` and undoes the nor
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import torch
@@ -43,10 +44,21 @@ from torch import nn
 from .errors import CheckpointLayoutError
 from .weights import check_safetensors
 
-__all__ = ["TinyDecoderNet", "TinyVideoDecoder", "load_tiny_decoder", "TAEW2_1_WIDTHS"]
+__all__ = [
+    "TinyDecoderNet",
+    "TinyVideoDecoder",
+    "load_tiny_decoder",
+    "architecture_metadata",
+    "TAEW2_1_WIDTHS",
+    "ARCHITECTURE_KEY",
+]
 
 #: channel widths of the ``taew2_1`` decoder's three stages and its last convolution
 TAEW2_1_WIDTHS = (256, 128, 64, 64)
+#: the safetensors metadata key under which a file written by oscar keeps its decoder's shape (a JSON object of
+#: TinyDecoderNet's arguments); a file without it (the published ``taew2_1``) is read at ``taew2_1``'s shape
+ARCHITECTURE_KEY = "oscar_tiny_decoder"
+_ARCH_FIELDS = ("latent_channels", "space_upscale", "time_upscale", "widths")
 
 
 def _conv3(n_in: int, n_out: int, bias: bool = True) -> nn.Conv2d:
@@ -131,9 +143,45 @@ class TinyDecoderNet(nn.Module):
         return x[:, self.frames_to_trim :]
 
 
+def architecture_metadata(net: TinyDecoderNet) -> dict[str, str]:
+    """The safetensors metadata that records ``net``'s shape (read back by :func:`load_tiny_decoder`)."""
+    arch = {
+        "latent_channels": net.latent_channels,
+        "space_upscale": [bool(v) for v in net.space_upscale],
+        "time_upscale": [bool(v) for v in net.time_upscale],
+        "widths": [int(v) for v in net.widths],
+    }
+    return {ARCHITECTURE_KEY: json.dumps(arch)}
+
+
+def _net_from_metadata(path: Path) -> TinyDecoderNet:
+    """The net the file's metadata describes (``taew2_1``'s shape when it has none); CheckpointLayoutError naming the
+    file and the field on a malformed description."""
+    from safetensors import safe_open
+
+    with safe_open(str(path), "pt") as f:
+        meta = f.metadata() or {}
+    if ARCHITECTURE_KEY not in meta:
+        return TinyDecoderNet()
+    field = f"metadata {ARCHITECTURE_KEY}"
+    expected = f"a JSON object of {list(_ARCH_FIELDS)} (three booleans per upscale, four widths)"
+    try:
+        arch = json.loads(meta[ARCHITECTURE_KEY])
+        ok = isinstance(arch, dict) and set(arch) == set(_ARCH_FIELDS)
+        ok = ok and all(len(arch[k]) == 3 and all(isinstance(v, bool) for v in arch[k]) for k in _ARCH_FIELDS[1:3])
+        ok = ok and len(arch["widths"]) == 4 and all(isinstance(v, int) and v > 0 for v in arch["widths"])
+        ok = ok and isinstance(arch["latent_channels"], int) and arch["latent_channels"] > 0
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:
+        raise CheckpointLayoutError(path, field, expected, repr(meta[ARCHITECTURE_KEY])[:120])
+    return TinyDecoderNet(**{k: tuple(v) if isinstance(v, list) else v for k, v in arch.items()})
+
+
 def load_tiny_decoder(path, net: TinyDecoderNet | None = None) -> TinyDecoderNet:
-    """A :class:`TinyDecoderNet` (``taew2_1``'s shape unless ``net`` is given) with the ``decoder.*`` tensors of the
-    safetensors file ``path``; other keys (the checkpoint's ``encoder.*``) are ignored. A time-grow weight stored
+    """A :class:`TinyDecoderNet` with the ``decoder.*`` tensors of the safetensors file ``path``, of the shape its
+    metadata records (:data:`ARCHITECTURE_KEY`, written by oscar's training) or else ``taew2_1``'s, unless ``net``
+    is given; other keys (the checkpoint's ``encoder.*``) are ignored. A time-grow weight stored
     with more output channels than the layer has (trained at a larger stride) keeps its last ones (the last output
     frame's). Raises CheckpointLayoutError naming the file and the key on a missing, unexpected or misshapen
     tensor. Pickle files are refused (safetensors only)."""
@@ -145,7 +193,7 @@ def load_tiny_decoder(path, net: TinyDecoderNet | None = None) -> TinyDecoderNet
     if not path.is_file():
         raise CheckpointLayoutError(path, "tiny decoder", "a weights file", "no such file")
     check_safetensors(path)  # a truncated or garbled file: CheckpointIntegrityError before any tensor is read
-    net = net if net is not None else TinyDecoderNet()
+    net = net if net is not None else _net_from_metadata(path)
     stored = {k: v for k, v in load_file(str(path)).items() if k.startswith("decoder.")}
     want = net.state_dict()
     missing = sorted(set(want) - set(stored))

@@ -132,8 +132,10 @@ class OscarWorldModel:
         the structure of every safetensors file before loading.
         tiny_decoder: a safetensors file of tiny-decoder weights (``taew2_1``'s
         key names, :mod:`.tiny_decoder`) that then decodes instead of the full
-        VAE decoder; None (the default): the full decoder. Checked before the
-        model's weights are read.
+        VAE decoder; None (the default): the card's ``tiny_decoder`` (a file
+        in the folder) if it names one, else the full decoder; False: the
+        full decoder whatever the card says. Checked before the model's
+        weights are read.
         """
         from .._util.devices import check_device
 
@@ -141,7 +143,9 @@ class OscarWorldModel:
         folder = Path(folder)
         card = read_card(folder)
         tiny = None
-        if tiny_decoder is not None:
+        if tiny_decoder is None and card.tiny_decoder is not None:
+            tiny_decoder = folder / card.tiny_decoder
+        if tiny_decoder is not None and tiny_decoder is not False:
             from .tiny_decoder import load_tiny_decoder
 
             tiny = load_tiny_decoder(tiny_decoder)
@@ -230,6 +234,8 @@ class OscarWorldModel:
         if self.empty_prompt is not None:
             (folder / "text").mkdir(exist_ok=True)
             save_file({"prompt_embeds": self.empty_prompt.detach().cpu().contiguous()}, str(folder / EMPTY_PROMPT_FILE))
+        if card.tiny_decoder is not None:
+            self._save_tiny_decoder(folder / card.tiny_decoder)
         (folder / MODEL_FILE).write_text(
             json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()}, indent=2) + "\n"
         )
@@ -241,6 +247,23 @@ class OscarWorldModel:
 
             (folder / "README.md").write_text(default_model_card(card.to_dict()))
         return folder
+
+    def _save_tiny_decoder(self, path: Path) -> None:
+        """Write the tiny decoder in use to ``path`` (the card's ``tiny_decoder``), its shape in the metadata."""
+        from safetensors.torch import save
+
+        from .._util.atomic import atomic_write_bytes
+        from .tiny_decoder import architecture_metadata
+
+        if self.vae.tiny is None:
+            raise ModelInputError(
+                f"model card tiny_decoder: names {path.name}, but this model decodes with the full decoder "
+                "(load one with vae.use_tiny_decoder, or save with a card without tiny_decoder)"
+            )
+        net = self.vae.tiny.net
+        tensors = {k: v.detach().float().cpu().contiguous() for k, v in net.state_dict().items()}
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(path, save(tensors, metadata=architecture_metadata(net)))
 
     # ------------------------------------------------------------------ use
     @property

@@ -65,6 +65,9 @@ def add_counterfactual_parser(sub, epilog: str = "") -> argparse.ArgumentParser:
     a.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
     a.add_argument("--guidance-form", choices=("standard", "diffusers"), help="default: the model card's")
     a.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
+    from ..model.decoder_options import add_decoder_options
+
+    add_decoder_options(a)
     threads_option(a, "torch CPU threads of the world model")
     a.add_argument("--no-progress", action="store_true", help="no progress bars")
     a.add_argument("--json", action="store_true", help="print the report JSON (without the per-set records)")
@@ -79,6 +82,7 @@ def cmd_action_following(args) -> int:
     from ..evaluation.loop import card_sampler_of
     from ..metrics.programmatic import ProgrammaticJudge
     from ..model.card_sampler import resolve_sampler
+    from ..model.decoder_options import decoder_choice
     from ..plugin.registry import Registry
     from .counterfactual import QUICK, write_counterfactual_sets
     from .judge import VERSION, ball_moved
@@ -101,6 +105,7 @@ def cmd_action_following(args) -> int:
         defaults={"guidance_form": "standard"},
     )
     resolve_sampler(None, **options)  # the flags checked before the model is looked up
+    decoder = decoder_choice(args)
     card = _card(args.model)
     choice = resolve_sampler(card_sampler_of(args.model), **options)
     L = int(card.chunk_frames) if card is not None and card.chunk_frames else 17
@@ -134,6 +139,7 @@ def cmd_action_following(args) -> int:
             device=args.device or default_device(),
             plugin_paths=tuple(getattr(args, "plugin", None) or ()),
             progress=progress,
+            tiny_decoder=decoder,
         )
         result = run_action_following(manifest, args.out, judge=judge, settings=settings, paired=args.paired)
         log_result(f"wrote {result.paths['report']}")
