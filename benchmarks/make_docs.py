@@ -54,8 +54,11 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "benchmarks/startup.py",
         "Fresh processes timed from outside (median CPU and wall seconds, modules held at exit): `oscar --help`, "
         "`oscar rollout --help`, `oscar zoo list`, and what `oscar rollout` of `oscar-toy` imports before reading "
-        "weights, beside `import torch` and `import torch, torch._dynamo` (diffusers imports both whatever is asked "
-        "of it); `before` rows: an older commit measured in the same run, alternating with this one.",
+        "weights, beside three floors: `import torch`, `import torch, torch._dynamo` (diffusers imports both whatever "
+        "is asked of it) and diffusers' DiT and VAE classes imported from their own modules with no oscar code (they "
+        "bring transformers and scipy too); `by_package`: the toy row's import time per top-level package from one "
+        "`python -X importtime` process (self times, the importer's wall clock); `before` rows: an older commit "
+        "measured in the same run, alternating with this one.",
     ),
     "distill_speed": (
         "Teacher, `fast` and the few-step student",

@@ -11,8 +11,16 @@ Rows:
 - ``oscar --help``, ``oscar rollout --help``, ``oscar zoo list --json``: the command as a user types it;
 - ``toy rollout imports``: what ``oscar rollout`` of the bundled ``oscar-toy`` imports before it reads weights (the
   command module, ``rollout_files``, ``world_model`` with diffusers' Cosmos DiT and WAN VAE, and torch);
-- ``import torch`` and ``import torch + torch._dynamo``: reference floors (diffusers imports ``torch._dynamo`` from
-  ``diffusers.utils`` whatever submodule is asked for, so a rollout through diffusers pays both).
+- ``import torch``, ``import torch + torch._dynamo`` and ``diffusers' DiT + VAE classes`` (torch, then
+  ``CosmosTransformer3DModel`` and ``AutoencoderKLWan`` from their own modules, no oscar code): reference floors.
+  diffusers imports ``torch._dynamo`` from ``diffusers.utils`` whatever submodule is asked for, and its model base
+  classes bring transformers (its quantization config) and scipy (the schedulers, through the single-file loader),
+  so the toy row cannot fall below the third floor while the rollout's models are diffusers' classes; the toy row
+  minus that floor is what oscar's own modules add.
+
+After the repeats, one more process of the toy row runs under ``python -X importtime``; its self times summed per
+top-level package (``by_package`` in the JSON: seconds as the importer's clock saw them, wall time inside the
+process, and each package's share of their sum) say where a toy rollout's import goes.
 
 ``--before PATH``: the same rows run in another checkout (a ``git worktree`` of an older commit, with its
 ``oscar_embodiments``/``oscar_zoo`` links), alternating with this one repeat by repeat so a change of load hits
@@ -24,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import resource
 import statistics
 import subprocess
@@ -34,7 +43,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 #: rows run in this checkout only (the same code in any checkout of oscar)
-FLOORS = ("import torch", "import torch + torch._dynamo")
+FLOORS = ("import torch", "import torch + torch._dynamo", "diffusers' DiT + VAE classes")
+#: the row whose imports are broken down per top-level package (``by_package``)
+TOY = "toy rollout imports"
 
 #: label -> the Python code of the process (``main`` is oscar's CLI entry; SystemExit from --help is the command
 #: ending, as in the console script)
@@ -45,14 +56,21 @@ ROWS: dict[str, str] = {
     "oscar --help": CLI.format(argv=["--help"]),
     "oscar rollout --help": CLI.format(argv=["rollout", "--help"]),
     "oscar zoo list --json": CLI.format(argv=["zoo", "list", "--json"]),
-    "toy rollout imports": (
+    TOY: (
         "import oscar_core.cli, oscar_core.model.cli, oscar_core.model.rollout_files\n"
         "import torch\n"
         "from oscar_core.model.world_model import OscarWorldModel"
     ),
     "import torch": "import torch",
     "import torch + torch._dynamo": "import torch, torch._dynamo",
+    "diffusers' DiT + VAE classes": (
+        "import torch\n"
+        "from diffusers.models.transformers.transformer_cosmos import CosmosTransformer3DModel\n"
+        "from diffusers.models.autoencoders.autoencoder_kl_wan import AutoencoderKLWan"
+    ),
 }
+#: one line of ``python -X importtime``: self and cumulative microseconds, then the module indented by its depth
+IMPORTTIME_LINE = re.compile(r"import time:\s+(\d+) \|\s+(\d+) \|\s*(\S+)")
 
 
 def run_once(code: str, cwd: Path) -> tuple[float, float, int]:
@@ -73,6 +91,54 @@ def run_once(code: str, cwd: Path) -> tuple[float, float, int]:
         raise SystemExit(f"startup: {code!r} in {cwd} exited {proc.returncode}: {proc.stderr.strip()[-500:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return wall, cpu, int(proc.stderr.strip().splitlines()[-1])
+
+
+def by_package(importtime: str, top: int = 10) -> list[dict]:
+    """``python -X importtime``'s report (its stderr) summed per top-level package: one record per package, the
+    ``top`` largest by self time then ``other``, each with ``self_s`` (seconds; the importer's own clock, wall time
+    in the process), ``share`` of the sum and the number of ``modules``. Self times, not cumulative ones, so each
+    module counts once, under its own package (``torch._dynamo`` under ``torch``)."""
+    seconds: dict[str, float] = {}
+    modules: dict[str, int] = {}
+    for line in importtime.splitlines():
+        m = IMPORTTIME_LINE.match(line)
+        if m is None:  # the header line and anything else the process wrote
+            continue
+        package = m.group(3).split(".")[0]
+        seconds[package] = seconds.get(package, 0.0) + int(m.group(1)) / 1e6
+        modules[package] = modules.get(package, 0) + 1
+    total = sum(seconds.values())
+    ranked = sorted(seconds, key=lambda p: (-seconds[p], p))
+    rows = [(p, seconds[p], modules[p]) for p in ranked[:top]]
+    rest = ranked[top:]
+    if rest:
+        rows.append(("other", sum(seconds[p] for p in rest), sum(modules[p] for p in rest)))
+    return [
+        {"package": p, "self_s": round(s, 3), "share": round(s / total, 3) if total else 0.0, "modules": n}
+        for p, s, n in rows
+    ]
+
+
+def importtime_of(code: str, cwd: Path) -> str:
+    """The ``-X importtime`` report of one fresh interpreter running ``code`` in ``cwd``."""
+    proc = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", PROBE.format(code=code)],
+        cwd=cwd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"},
+    )
+    if proc.returncode != 0:
+        raise SystemExit(f"startup: -X importtime {code!r} in {cwd} exited {proc.returncode}")
+    return proc.stderr
+
+
+def print_packages(packages: list[dict]) -> None:
+    print(f"\n{TOY}, self time per top-level package (-X importtime, one process):")
+    print(f"{'package':<22} {'self s':>7} {'share':>6} {'modules':>8}")
+    for p in packages:
+        print(f"{p['package']:<22} {p['self_s']:>7.3f} {p['share']:>6.1%} {p['modules']:>8}")
 
 
 def commit_of(checkout: Path) -> str:
@@ -130,6 +196,8 @@ def main(argv=None) -> int:
         checkouts["before"] = args.before.resolve()
     rows = measure(checkouts, args.repeats)
     print_table(rows)
+    packages = by_package(importtime_of(ROWS[TOY], REPO))
+    print_packages(packages)
     if args.json:
         sys.path.insert(0, str(REPO / "benchmarks"))
         sys.path.insert(0, str(REPO))
@@ -137,7 +205,7 @@ def main(argv=None) -> int:
 
         from oscar_core._util.atomic import atomic_write_bytes
 
-        result = with_provenance({"benchmark": "startup", "rows": rows})
+        result = with_provenance({"benchmark": "startup", "rows": rows, "by_package": packages})
         print(f"wrote {atomic_write_bytes(args.json, (json.dumps(result, indent=2) + chr(10)).encode())}")
     return 0
 

@@ -34,6 +34,8 @@ def imported_by(code: str) -> set[str]:
         "from oscar_core.cli import main; main(['--help'])",
         "from oscar_core.cli import main; main(['rollout', '--help'])",
         "from oscar_core.cli import main; main(['zoo', 'list', '--json'])",
+        # what `oscar rollout` imports before it loads the world model (diffusers, torch) for a run
+        "import oscar_core.cli, oscar_core.model.cli, oscar_core.model.rollout_files",
     ],
 )
 def test_help_and_light_commands_import_nothing_heavy(code):
