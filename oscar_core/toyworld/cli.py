@@ -1,4 +1,4 @@
-"""The ``oscar toyworld`` sub-commands: ``example``, ``generate``, ``train-vae``, ``reconstruct``, ``baseline`` and ``eval``.
+"""The ``oscar toyworld`` sub-commands: ``example``, ``generate``, ``train-vae``, ``train-tiny-decoder``, ``reconstruct``, ``baseline`` and ``eval``.
 
 Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code). Heavy imports happen inside the
@@ -26,6 +26,7 @@ from .cli_policies import (
     cmd_closed_loop_sessions as cmd_closed_loop_sessions,
     cmd_policy_eval,
 )
+from .cli_tiny_decoder import add_tiny_decoder_parser
 
 __all__ = [
     "add_toyworld_parser",
@@ -49,6 +50,7 @@ EXAMPLES = """examples:
   oscar toyworld generate --embodiments mano --episodes 400 --seed 0 --out clipsets/toyworld-hands
       (human hands: the mano plugin's skeleton; they pick up or push the ball)
   oscar toyworld train-vae clipsets/toyworld --out runs/toyworld-vae --steps 2500 --batch 3 --window 9 --seed 0
+  oscar toyworld train-tiny-decoder clipsets/toyworld-latents --vae oscar-toy --out runs/toy-tiny-decoder --seed 0
   oscar toyworld reconstruct clipsets/toyworld --vae runs/toyworld-vae --out preds/vae
   oscar toyworld baseline clipsets/toyworld --out preds/first_frame
   oscar toyworld rollout clipsets/toyworld --model oscar-toy --condition true --out preds/true
@@ -362,6 +364,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     _add_toyworld_generate_parser(sub, fmt)
     _add_toyworld_example_parser(sub, fmt)
     _add_toyworld_train_vae_parser(sub, fmt)
+    add_tiny_decoder_parser(sub)
     _add_toyworld_reconstruct_parser(sub, fmt)
     _add_toyworld_baseline_parser(sub, fmt)
     _add_toyworld_rollout_parser(sub, fmt)
