@@ -300,7 +300,7 @@ def test_a_judge_that_cannot_judge_fails_the_run_loudly(toy, tmp_path, capsys):
     assert log.read_text().count("ERROR oscar.evaluation.closed_loop: the judge could not judge") == 4
 
 
-def test_policies_resolve_from_the_manifest_and_load_before_the_model(toy, tmp_path):
+def test_policies_resolve_from_the_manifest_and_load_before_the_model(toy, tmp_path, capsys, monkeypatch):
     """A policy's file.py:attr is found beside the manifest, whatever the working folder; policies that cannot be
     loaded are one line each and exit 2 before the world model loads or any cell runs."""
     data = json.loads(_variant(toy, "rel", horizon=17).read_text())
@@ -310,45 +310,45 @@ def test_policies_resolve_from_the_manifest_and_load_before_the_model(toy, tmp_p
     m.write_text(json.dumps(data))
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}  # this checkout's oscar_core
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(tmp_path / "rel"), "--json"]
-    proc = subprocess.run(cmd + ["--no-progress"], capture_output=True, text=True, cwd=elsewhere, env=env)
-    assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout[proc.stdout.index("{") :])["counts"]["done"] == 2
+    monkeypatch.chdir(elsewhere)  # neither the manifest's folder nor its parent
+    args = ["eval", "closed-loop", m, "--simulator", "toy", "--out", tmp_path / "rel", "--json", "--no-progress"]
+    code, out, err = oscar(capsys, args)
+    assert code == 0, err
+    assert json.loads(out[out.index("{") :])["counts"]["done"] == 2
     data["policies"] += [
         {**line, "name": "nofile", "policy": "no_such_policies.py:Line"},
         {**line, "name": "noclass", "policy": "../bad_policies.py:NoSuchClass"},
     ]
     m.write_text(json.dumps(data))
-    out = tmp_path / "missing"
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--model", "oscar-toy", "--out", str(out)]
-    proc = subprocess.run(cmd + ["--no-progress", "-v"], capture_output=True, text=True, cwd=elsewhere, env=env)
-    assert proc.returncode == 2, proc.stderr
-    errors = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
-    assert len(errors) == 2, proc.stderr
+    missing = tmp_path / "missing"
+    args = ["eval", "closed-loop", m, "--model", "oscar-toy", "--out", missing, "--no-progress", "-v"]
+    code, out, err = oscar(capsys, args)
+    assert code == 2, err
+    errors = [x for x in err.splitlines() if x.startswith("error:")]
+    assert len(errors) == 2, err
     assert errors[0].startswith("error: policy 'nofile' cannot be loaded: ")
     assert str(toy.parent / "no_such_policies.py") in errors[0] and "no such file" in errors[0]
     assert errors[1].startswith("error: policy 'noclass' cannot be loaded: ") and "NoSuchClass" in errors[1]
-    assert "loading world model" not in proc.stderr and not (out / "cells").exists()
+    assert "loading world model" not in err and not (missing / "cells").exists()
 
 
-def test_a_policy_that_never_loaded_is_not_ranked_and_a_reused_failure_says_so(toy, tmp_path):
+def test_a_policy_that_never_loaded_is_not_ranked_and_a_reused_failure_says_so(toy, tmp_path, capsys):
     """A cell recorded as 'cannot load' by an earlier run is reused as it is, with a line naming --retry-failed;
     its policy, never loaded, is not ranked."""
     m = _variant(toy, "reuse", horizon=17)
     out = tmp_path / "reuse"
-    cmd = OSCAR + ["eval", "closed-loop", str(m), "--simulator", "toy", "--out", str(out), "--no-progress"]
-    assert subprocess.run(cmd, capture_output=True, text=True).returncode == 0
+    args = ["eval", "closed-loop", m, "--simulator", "toy", "--out", out, "--no-progress"]
+    assert oscar(capsys, args)[0] == 0
     for s in ("toyarm-0000", "toyarm-0001"):  # as an earlier run that could not load never_closes left them
         path = out / "cells" / s / "never_closes" / "record.json"
         rec = json.loads(path.read_text())
         rec.update(status="failed", reason="cannot load my_policy.py:Policy: no such file", video=None)
         path.write_text(json.dumps(rec))
-    proc = subprocess.run(cmd + ["--json"], capture_output=True, text=True)
-    assert proc.returncode == 1
-    assert "reused 2 failed cell(s) of an earlier run as they are" in proc.stderr
-    assert "--retry-failed redoes them" in proc.stderr
-    report = json.loads(proc.stdout[proc.stdout.index("{") :])
+    code, stdout, err = oscar(capsys, [*args, "--json"])
+    assert code == 1
+    assert "reused 2 failed cell(s) of an earlier run as they are" in err
+    assert "--retry-failed redoes them" in err
+    report = json.loads(stdout[stdout.index("{") :])
     assert report["ranking"] == ["exact"] and report["ranks"] == {"exact": 1}
     assert report["never_loaded"] == ["never_closes"]
     summary = (out / "summary.md").read_text()
