@@ -15,6 +15,7 @@ def bench():
     return module
 
 
+@pytest.mark.slow  # end to end: a model exported and measured in an `oscar rollout` process (12 CPU s)
 def test_tiny_never_one_repeat_on_cpu(bench, tmp_path, capsys):
     out = tmp_path / "result.json"
     code = bench.main(
@@ -43,6 +44,7 @@ def test_tiny_never_one_repeat_on_cpu(bench, tmp_path, capsys):
     assert "never" in table and "fixed" in table and f"{row['wall_s']:.2f}" in table
 
 
+@pytest.mark.slow  # end to end: an `oscar rollout` process that imports the model stack, then refuses (8 CPU s)
 def test_a_failing_rollout_process_fails_the_benchmark(bench, tmp_path, capsys):
     out = tmp_path / "result.json"
     code = bench.main(
