@@ -20,10 +20,14 @@ frame, one trajectory, variants that change one decision, the true outcome of ea
 4. writes ``records/<set>.json`` atomically (a killed run resumes: a finished set is kept), and the model's videos
    under ``videos/<set>/<variant>.mp4`` (``.mkv``, lossless, for an odd width or height).
 
+With ``settings.ceiling`` (:mod:`.action_following_ceiling`) step 1 is the autoencoder ceiling instead: each
+variant's video is the model's VAE reconstruction of its true frames, chunk by chunk as the rollout decodes them;
+only the VAE is loaded, every variant must have true frames, and steps 2–4 are the same.
+
 Then :func:`~.action_following_scores.score_records` makes the scores, written as ``report.json`` and
 ``summary.md``. The folder's ``fingerprint.json`` holds what the records depend on (the manifest's bytes, the
-model, the sampler, the seed, the chunk length, the judge and its version, the locator): a re-run under other
-settings is refused (:class:`~oscar_core._util.stage.StageChanged`), never mixed.
+model, the sampler, the seed, the chunk length, the judge and its version, the locator; a ceiling run adds its
+``mode``): a re-run under other settings is refused (:class:`~oscar_core._util.stage.StageChanged`), never mixed.
 
 Checked before any model loads (:func:`check_sets`), each a :class:`~oscar_core.metrics.common.MetricInputError`
 naming the manifest and the field: the judge can read every set's ``info`` (it is run on a still video of the
@@ -43,6 +47,7 @@ import numpy as np
 
 from .._util.log import get_logger
 from ..metrics.common import MetricInputError
+from .action_following_ceiling import CEILING, ROLLOUT, check_true_videos
 from .action_following_manifest import ActionFollowingManifest, CounterfactualSet, load_action_following
 from .action_following_scores import format_summary, paired_scores, score_records
 
@@ -67,7 +72,9 @@ class ActionFollowingSettings:
     chunk_frames: None = the card's; device, dtype: where the model runs; plugin_paths: extra embodiment plugins;
     resamples, bootstrap_seed: the intervals' bootstrap; progress: progress bars; tiny_decoder: the decoder of the
     model loaded from ``model_spec`` (None: its card's; False: the full decoder; a tiny decoder's file), recorded
-    in the run's fingerprint when given."""
+    in the run's fingerprint when given; ceiling: score the model's VAE reconstruction of each variant's true frames
+    instead of its rollout (:mod:`.action_following_ceiling`; no sampler, no noise seed, only the VAE loaded, its
+    decoder chosen as ``tiny_decoder`` says)."""
 
     model_spec: str | None = None
     revision: str | None = None
@@ -81,6 +88,7 @@ class ActionFollowingSettings:
     bootstrap_seed: int = 0
     progress: bool = False
     tiny_decoder: object = None
+    ceiling: bool = False
 
 
 @dataclass
@@ -267,7 +275,7 @@ def _fingerprint_parts(manifest, settings, model_identity, sampler, chunk, judge
     from .._util import stage as _stage
 
     describe = judge.describe() if hasattr(judge, "describe") else {"name": type(judge).__name__}
-    return {
+    parts = {
         "stage": "eval-action-following",
         "format": _stage.FORMAT_VERSION,
         "report_version": REPORT_VERSION,
@@ -282,6 +290,9 @@ def _fingerprint_parts(manifest, settings, model_identity, sampler, chunk, judge
         "locator": locator_spec,
         **_decoder_part(settings.tiny_decoder),
     }
+    if settings.ceiling:  # only here: the folders of rollout runs keep their fingerprints
+        parts.update(mode=CEILING, sampler=None, seed=None)
+    return parts
 
 
 def _decoder_part(tiny_decoder) -> dict:
@@ -326,6 +337,8 @@ def _card_and_sampler(model, settings):
             raise MetricInputError("model", "model", "a world model or a model spec (zoo name or folder)", "none")
         card = _read_card(settings.model_spec, settings.revision)
     sampler = settings.sampler
+    if settings.ceiling:
+        return card, None  # no sampling
     if sampler is None:
         from ..model.card_sampler import resolve_sampler
 
@@ -374,6 +387,8 @@ def run_action_following(
     locator_spec = locator or manifest.locator
     locate_fn = load_locator(locator_spec)
     other = _paired_report(paired, manifest)
+    if settings.ceiling:
+        check_true_videos(manifest)
     card, sampler = _card_and_sampler(model, settings)
     chunk = int(settings.chunk_frames or getattr(card, "chunk_frames", 0) or 17)
     check_sets(manifest, judge, card, chunk, settings.plugin_paths)
@@ -389,7 +404,17 @@ def run_action_following(
     records, todo = _recorded_sets(out, manifest)
     log(f"action following: {len(manifest.sets)} sets, {len(records)} already done, {len(todo)} to roll out")
     t0, c0 = time.perf_counter(), time.process_time()
-    if todo and model is None:
+    if todo and model is None and settings.ceiling:
+        from .action_following_ceiling import load_ceiling_vae
+
+        model = load_ceiling_vae(
+            settings.model_spec,
+            settings.revision,
+            device=settings.device,
+            dtype=settings.dtype,
+            tiny_decoder=settings.tiny_decoder,
+        )
+    elif todo and model is None:
         import oscar_zoo
 
         model = oscar_zoo.load(
@@ -417,9 +442,10 @@ def run_action_following(
         "manifest": str(manifest.path),
         "manifest_sha256": parts["manifest_sha256"],
         "model": settings.model_spec if settings.model_spec else identity,
+        "mode": CEILING if settings.ceiling else ROLLOUT,
         "judge": getattr(judge, "name", type(judge).__name__),
-        "sampler": _describe_sampler(sampler),
-        "seed": settings.seed,
+        "sampler": "none (no sampling)" if settings.ceiling else _describe_sampler(sampler),
+        "seed": None if settings.ceiling else settings.seed,
         "chunk_frames": chunk,
         "locator": locator_spec,
         "unit": _unit(manifest.sets[0].info)[1],
@@ -468,10 +494,8 @@ def _prompt(s: CounterfactualSet):
     return cell_prompt(SimpleNamespace(prompt_embeds=s.prompt_embeds))  # eval run's rule for the file
 
 
-def _run_set(model, s: CounterfactualSet, judge, locate_fn, sampler, settings, chunk: int, out: Path) -> dict:
-    from ..media.video import read_video, write_video
-
-    t0, c0 = time.perf_counter(), time.process_time()
+def _roll_out_set(model, s: CounterfactualSet, sampler, settings) -> list[np.ndarray]:
+    """The model's (T, H, W, 3) uint8 rollout of every variant of ``s`` from its first frame (module docstring)."""
     emb, camera, first = _set_inputs(s, settings.plugin_paths)
     h, w = first.shape[:2]
     if hasattr(model, "rollout_inputs"):
@@ -490,18 +514,30 @@ def _run_set(model, s: CounterfactualSet, judge, locate_fn, sampler, settings, c
             }
             for v in s.variants
         ]
-    videos = roll_out_variants(
+    return roll_out_variants(
         model, first, inputs, _prompt(s), sampler=sampler, seed=settings.seed, chunk_frames=settings.chunk_frames
     )
+
+
+def _run_set(model, s: CounterfactualSet, judge, locate_fn, sampler, settings, chunk: int, out: Path) -> dict:
+    from ..media.video import read_video, write_video
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    truths = [read_video(v.video) if v.video is not None else None for v in s.variants]
+    if settings.ceiling:
+        from .action_following_ceiling import reconstruct_variants, vae_of
+
+        videos = reconstruct_variants(vae_of(model), truths, chunk)
+    else:
+        videos = _roll_out_set(model, s, sampler, settings)
     rows = []
-    for v, video in zip(s.variants, videos):
+    for v, video, truth in zip(s.variants, videos, truths):
         video = np.asarray(video)
         vd = out / "videos" / s.set.replace("/", "_")
         vd.mkdir(parents=True, exist_ok=True)
         ext = "mp4" if video.shape[1] % 2 == 0 and video.shape[2] % 2 == 0 else "mkv"  # H.264 needs even sizes
         write_video(vd / f"{v.name}.{ext}", video, float(v.trajectory.fps))
         verdict = _judge_one(judge, video, s, v.name)
-        truth = read_video(v.video) if v.video is not None else None
         truth_verdict = _judge_one(judge, truth, s, v.name + "/truth") if truth is not None else None
         row = {
             "name": v.name,

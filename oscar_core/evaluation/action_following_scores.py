@@ -221,11 +221,18 @@ def format_statistic(s: dict, fmt: str = "{:.3f}", scale: float = 1.0, unit: str
 def format_summary(report: dict) -> str:
     """The markdown summary of a report (``report.json``'s dict: ``scores``, ``model``, ``settings``, ...)."""
     s = report["scores"]
+    mode = str(report.get("mode", ""))
+    ceiling = mode.startswith("ceiling")
+    how = (
+        f"{mode} (no transformer, no sampling: the best any DiT with this autoencoder can score)"
+        if ceiling
+        else f"sampler {report.get('sampler', '?')}; seed {report.get('seed', '?')}"
+    )
     lines = [
-        f"# Action following: {report.get('model', '?')}",
+        f"# Action following: {report.get('model', '?')}" + (" — autoencoder ceiling" if ceiling else ""),
         "",
         f"{s['sets']} counterfactual sets from `{report.get('manifest', '?')}`; judge `{report.get('judge', '?')}`; "
-        f"sampler {report.get('sampler', '?')}; seed {report.get('seed', '?')}. Intervals: 95 % bootstrap over sets.",
+        f"{how}. Intervals: 95 % bootstrap over sets.",
         "",
         "| score | value [95 % interval] |",
         "|---|---|",

@@ -26,6 +26,8 @@ EXAMPLES = """examples:
   oscar toyworld action-following --model oscar-toy --quick --seed 0 --out af_toy     (toy sets made and scored)
   oscar eval action-following af_toy/sets/manifest.json --model runs/toy49/export --out af_toy49 \\
       --judge oscar_core.toyworld.judge:ball_moved --steps 10 --guidance 3 --guidance-form diffusers --paired af_toy
+  oscar eval action-following af_toy/sets/manifest.json --model oscar-toy --ceiling \
+      --judge oscar_core.toyworld.judge:ball_moved --out af_toy_ceiling   (the VAE's reconstruction of the true frames)
   oscar eval action-following my_sets.json --model oscar-2b --judge my_judges.py:cube_in_bin --out af_2b \\
       --device cuda --dtype bfloat16
   (re-running the same command resumes: finished sets are kept)
@@ -46,13 +48,21 @@ def cmd_action_following(args) -> int:
     judge = load_judge(args.judge)
     if args.paired is not None and not (Path(args.paired) / "report.json").is_file():
         raise MetricInputError(args.paired, "--paired", "another action-following run's folder (report.json)", "none")
-    choice = resolve_sampler_flags(args, lambda: card_sampler_of(args.model, args.revision))
     decoder = decoder_choice(args)  # checked before any model is looked up
-    print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
+    if args.ceiling:
+        from .action_following_ceiling import CEILING, check_true_videos
+
+        check_true_videos(manifest)  # before the model's card is even read
+        sampler = None
+        print(f"mode: {CEILING} (only the model's VAE is loaded; sampler flags and --seed unused)", file=sys.stderr)
+    else:
+        choice = resolve_sampler_flags(args, lambda: card_sampler_of(args.model, args.revision))
+        sampler = choice.config
+        print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     settings = ActionFollowingSettings(
         model_spec=args.model,
         revision=args.revision,
-        sampler=choice.config,
+        sampler=sampler,
         seed=args.seed,
         chunk_frames=args.chunk_frames,
         device=args.device or default_device(),
@@ -60,6 +70,7 @@ def cmd_action_following(args) -> int:
         plugin_paths=tuple(getattr(args, "plugin", None) or ()),
         progress=not args.no_progress and progress_bars_enabled(),
         tiny_decoder=decoder,
+        ceiling=args.ceiling,
     )
     with run_log(args.out, "eval-action-following"):
         result = run_action_following(
@@ -96,6 +107,12 @@ def add_action_following_parser(sub) -> argparse.ArgumentParser:
     )
     output_option(
         r.add_argument("--out", required=True, help="run folder (created; re-running resumes in it)"), "folder"
+    )
+    r.add_argument(
+        "--ceiling",
+        action="store_true",
+        help="the autoencoder ceiling: score the model's VAE reconstruction of every variant's true frames (chunk "
+        "by chunk as its rollout decodes) instead of its rollouts; needs every variant's video; loads only the VAE",
     )
     r.add_argument("--paired", help="another run's folder on the same manifest: report this run minus it, per set")
     r.add_argument("--seed", type=count(0), default=0, help="noise seed of every variant (default 0)")

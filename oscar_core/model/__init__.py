@@ -26,6 +26,7 @@ _EXPORTS = {
     "chunk_plan": "chunks",
     "chunk_windows": "chunks",
     "iter_rollout": "rollout",
+    "reconstruct_rollout": "rollout",
     "integrate": "sampler",
     "unipc_scheduler": "sampler",
     "TextEncoder": "text_encoder",

@@ -6,9 +6,9 @@ with the user's first frame; chunk c > 0 with the last decoded frame of
 chunk c − 1, re-encoded by the VAE (a latent frame of a chunk's end covers
 four pixel frames, so it cannot be reused as a first-frame latent). The
 output keeps chunk 0 whole and drops frame 0 of every later chunk (it is the
-seed again), so no frame is duplicated, then cuts the video to T frames. The
-skeleton video of the last chunk is padded with its last frame when the
-chunks overrun T. Latent frame k of a chunk is conditioned on latent frame k
+seed again), so no frame is duplicated, then cuts the video to T frames
+(:func:`_new_frames`). The skeleton video of the last chunk is padded with its
+last frame when the chunks overrun T. Latent frame k of a chunk is conditioned on latent frame k
 of the VAE latent of that chunk's own skeleton frames.
 
 Memory at real sizes: each chunk is decoded, clamped to [-1, 1] and turned
@@ -16,6 +16,10 @@ into uint8 frames at once; :func:`iter_rollout` yields them chunk by chunk, so
 a writer can stream them to disk while the next chunk is sampled, and the
 float video of a chunk is dropped unless ``keep_chunks``. The seed of the
 next chunk is the clamped last frame.
+
+:func:`reconstruct_rollout` is the autoencoder's ceiling of a rollout: the true
+frames cut into the same chunk plan, each chunk encoded and decoded by the VAE,
+and assembled by the same rule — the best any DiT with this VAE can decode.
 
 The unconditional guidance branch sees ``uncond_skeleton``: ``"zero_latent"``
 (zeros) or ``"black_video"`` (the VAE latent of an all-black skeleton video of
@@ -46,7 +50,15 @@ from .errors import ModelInputError
 from .sampler import SamplerConfig, sample_chunk
 from .vae import VideoVAE
 
-__all__ = ["RolloutResult", "chunk_plan", "rollout", "iter_rollout", "rollout_batch", "UNCONDITIONAL_SKELETONS"]
+__all__ = [
+    "RolloutResult",
+    "chunk_plan",
+    "rollout",
+    "iter_rollout",
+    "rollout_batch",
+    "reconstruct_rollout",
+    "UNCONDITIONAL_SKELETONS",
+]
 
 UNCONDITIONAL_SKELETONS = ("zero_latent", "black_video")
 
@@ -166,6 +178,14 @@ def _hold_last(a: np.ndarray, length: int) -> np.ndarray:
     """``a`` (T, ...) extended to ``length`` rows by repeating its last row (a robot holding its last pose over a
     chunk plan's padding); ``a`` itself when it is long enough."""
     return a if length <= len(a) else np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
+
+
+def _new_frames(video: torch.Tensor, index: int, total: int, emitted: int) -> np.ndarray:
+    """(B, N, H, W, 3) uint8: the frames chunk ``index`` adds to a rollout of ``total`` frames of which ``emitted``
+    are out, from its decoded video (B, 3, L, H, W) in [-1, 1] — all L for chunk 0, the L − 1 after its seed frame
+    for a later chunk (the seed is the previous chunk's last frame), cut at ``total``."""
+    new = video if index == 0 else video[:, :, 1:]
+    return VideoVAE.to_uint8(new)[:, : total - emitted]
 
 
 class _UncondSkeletons:
@@ -342,9 +362,8 @@ def _chunks(
                 for i, res in enumerate(results):
                     res.chunks.append(video[i : i + 1])
                     res.seeds.append(seed_pixels[i : i + 1])
-            new = video if index == 0 else video[:, :, 1:]
             with clock("decode"):
-                frames = VideoVAE.to_uint8(new)[:, : total - emitted]
+                frames = _new_frames(video, index, total, emitted)
             emitted += frames.shape[1]
             seed_pixels = video[:, :, -1:].clone()  # clamped: the re-encoded seed is a valid image
             del video, latent
@@ -493,3 +512,31 @@ def rollout(
     )
     result.frames = np.concatenate(pieces, axis=0)
     return result
+
+
+@torch.no_grad()
+def reconstruct_rollout(vae: VideoVAE, frames, *, chunk_frames: int = 81) -> np.ndarray:
+    """The autoencoder's ceiling of a rollout: (T, H, W, 3) uint8 true frames → (T, H, W, 3) uint8, what the VAE
+    makes of them chunk by chunk exactly as a rollout of T frames decodes its chunks.
+
+    The chunk plan is the rollout's (:func:`chunk_plan`: chunk c is frames [c(L − 1), c(L − 1) + L), the frames
+    held at the last one past T); each chunk of true frames is encoded and decoded by ``vae`` (clamped to
+    [-1, 1]) and the pieces are put together by the rollout's own rule (:func:`_new_frames`: chunk 0 whole, then
+    each later chunk without its first frame, cut at T). A world model whose DiT predicted every chunk's latent
+    exactly (the VAE's encoding of the true frames) would roll out this video; so no DiT with this VAE does better
+    on a score of the frames. chunk_frames: L = 4k + 1. Deterministic: the VAE encodes to its posterior's mode.
+    """
+    video = np.asarray(frames)
+    if video.dtype != np.uint8 or video.ndim != 4 or video.shape[-1] != 3:
+        raise ModelInputError(f"frames: expected (T, H, W, 3) uint8 RGB, found {video.dtype} {video.shape}")
+    total = len(video)
+    starts = chunk_plan(total, chunk_frames, vae.temporal)
+    padded = _hold_last(video, starts[-1] + chunk_frames)
+    pieces, emitted = [], 0
+    for index, start in enumerate(starts):
+        window = VideoVAE.to_pixels(padded[start : start + chunk_frames])  # (1, 3, L, H, W)
+        decoded = vae.decode(vae.encode(window)).cpu().clamp_(-1.0, 1.0)
+        piece = _new_frames(decoded, index, total, emitted)[0]
+        emitted += len(piece)
+        pieces.append(piece)
+    return np.concatenate(pieces, axis=0)

@@ -3,7 +3,8 @@ benchmark on them (:mod:`oscar_core.toyworld.counterfactual`, :mod:`oscar_core.e
 
 The sets are made for the model: its card's size and ``--chunks`` of its chunk length (1 + chunks x (L − 1)
 frames), into ``OUT/sets`` (kept on a re-run); the benchmark writes ``OUT/report.json`` and ``OUT/summary.md``
-with the toy world's judge (:func:`~oscar_core.toyworld.judge.ball_moved`) and ball locator.
+with the toy world's judge (:func:`~oscar_core.toyworld.judge.ball_moved`) and ball locator; ``--ceiling`` scores
+the model's VAE reconstruction of the true frames instead of its rollouts (the autoencoder ceiling).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ QUICK_STEPS = 10
 EXAMPLES = """examples:
   oscar toyworld action-following --model oscar-toy --quick --seed 0 --out af_toy
   oscar toyworld action-following --model runs/toy49/export --quick --seed 0 --out af_toy49 --paired af_toy
+  oscar toyworld action-following --model oscar-toy --quick --seed 0 --ceiling --out af_toy_ceiling
+      (the autoencoder ceiling: the VAE's reconstruction of the true frames, scored the same way)
   oscar toyworld action-following --model oscar-toy --sets 10 --seed 1 --steps 20 --out af_toy_full
   (re-running the same command resumes: finished sets are kept)
 """
@@ -56,6 +59,12 @@ def add_counterfactual_parser(sub, epilog: str = "") -> argparse.ArgumentParser:
     )
     output_option(
         a.add_argument("--out", required=True, help="run folder (sets/ inside; re-running resumes)"), "folder"
+    )
+    a.add_argument(
+        "--ceiling",
+        action="store_true",
+        help="the autoencoder ceiling: score the model's VAE reconstruction of every variant's true frames (chunk "
+        "by chunk as its rollout decodes) instead of its rollouts; loads only the VAE, no sampling",
     )
     a.add_argument("--paired", help="another run's folder on the same sets: report this run minus it, per set")
     a.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the card's; --quick: 10)")
@@ -117,7 +126,12 @@ def cmd_action_following(args) -> int:
             registry.get(n)
     except (OscarError, KeyError) as exc:
         raise ToyWorldError(f"--embodiments: {exc}") from None
-    print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
+    if args.ceiling:
+        from ..evaluation.action_following_ceiling import CEILING
+
+        print(f"mode: {CEILING} (only the model's VAE is loaded; sampler flags unused)", file=sys.stderr)
+    else:
+        print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
     progress = not args.no_progress and progress_bars_enabled()
     with run_log(args.out, "toyworld-action-following"):
         manifest = write_counterfactual_sets(
@@ -134,12 +148,13 @@ def cmd_action_following(args) -> int:
         judge = ProgrammaticJudge(ball_moved, name="oscar_core.toyworld.judge:ball_moved", version=VERSION)
         settings = ActionFollowingSettings(
             model_spec=args.model,
-            sampler=choice.config,
+            sampler=None if args.ceiling else choice.config,
             seed=args.seed,
             device=args.device or default_device(),
             plugin_paths=tuple(getattr(args, "plugin", None) or ()),
             progress=progress,
             tiny_decoder=decoder,
+            ceiling=args.ceiling,
         )
         result = run_action_following(manifest, args.out, judge=judge, settings=settings, paired=args.paired)
         log_result(f"wrote {result.paths['report']}")
