@@ -26,7 +26,7 @@ EXAMPLES = """examples:
   oscar toyworld action-following --model oscar-toy --quick --seed 0 --out af_toy     (toy sets made and scored)
   oscar eval action-following af_toy/sets/manifest.json --model runs/toy49/export --out af_toy49 \\
       --judge oscar_core.toyworld.judge:ball_moved --steps 10 --guidance 3 --guidance-form diffusers --paired af_toy
-  oscar eval action-following af_toy/sets/manifest.json --model oscar-toy --ceiling \
+  oscar eval action-following af_toy/sets/manifest.json --model oscar-toy --ceiling \\
       --judge oscar_core.toyworld.judge:ball_moved --out af_toy_ceiling   (the VAE's reconstruction of the true frames)
   oscar eval action-following my_sets.json --model oscar-2b --judge my_judges.py:cube_in_bin --out af_2b \\
       --device cuda --dtype bfloat16

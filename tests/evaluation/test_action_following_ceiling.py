@@ -167,3 +167,49 @@ def test_a_set_without_true_frames_is_refused_before_any_model_loads(sets, tmp_p
     err = [line for line in capsys.readouterr().err.strip().splitlines() if line.startswith("error:")]
     assert len(err) == 1 and str(bad) in err[0] and "'sets[0].variants[3].video'" in err[0], err
     assert "true frames" in err[0]
+
+
+def test_the_toy_command_runs_the_ceiling_of_oscar_toy_from_its_vae_alone(sets, tmp_path, monkeypatch, capsys):
+    import shutil
+
+    import oscar_zoo
+    from oscar_core.cli import main
+    from oscar_core.model.transformer import OscarTransformer3DModel
+
+    out = tmp_path / "af"
+    shutil.copytree(sets.parent, out / "sets")  # the same sets the command makes (kept: not made again)
+    monkeypatch.setattr(oscar_zoo, "load", lambda *a, **k: pytest.fail("the whole model was loaded"))
+    monkeypatch.setattr(
+        OscarTransformer3DModel, "load_strict", classmethod(lambda *a, **k: pytest.fail("the DiT was read"))
+    )
+    args = ["toyworld", "action-following", "--model", "oscar-toy", "--sets", "1", "--embodiments", "toyarm"]
+    args += ["--chunks", "2", "--seed", "0", "--ceiling", "--out", str(out), "--threads", "1", "--json"]
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["mode"] == CEILING and report["chunk_frames"] == 17 and report["model"] == "oscar-toy"
+    s = report["scores"]
+    assert s["sets"] == 1 and len(s["chunks"]) == 2 and s["judge_failures"] == 0
+    assert all(v["judge_on_truth"] == {"agree": 1, "of": 1} for v in s["variants"].values())
+
+
+def test_the_ceilings_vae_decodes_as_the_loaded_model_does(tmp_path):
+    """The card's tiny decoder decodes the ceiling as it decodes the rollout; False: the full decoder."""
+    import torch
+
+    from oscar_core.evaluation.action_following_ceiling import load_ceiling_vae
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny_decoder import TinyDecoderNet
+
+    model = tiny_world_model(chunk_frames=5)
+    torch.manual_seed(0)
+    model.vae.use_tiny_decoder(TinyDecoderNet(widths=(16, 8, 8, 8)).eval())  # x8 in space, x4 in time
+    folder = model.save_pretrained(tmp_path / "m", ModelCard(chunk_frames=5, tiny_decoder="tiny.safetensors"))
+    z = torch.randn(1, 16, 2, 4, 8)
+    loaded = OscarWorldModel.from_pretrained(folder)
+    assert loaded.vae.tiny is not None
+    tiny = load_ceiling_vae(str(folder))
+    torch.testing.assert_close(tiny.decode(z), loaded.vae.decode(z), rtol=0, atol=0)
+    full = load_ceiling_vae(str(folder), tiny_decoder=False)
+    assert full.tiny is None
+    torch.testing.assert_close(full.decode(z), tiny_world_model(chunk_frames=5).vae.decode(z), rtol=0, atol=0)
+    assert not torch.allclose(full.decode(z), tiny.decode(z))
