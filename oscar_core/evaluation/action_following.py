@@ -358,6 +358,31 @@ def _recorded_sets(out: Path, manifest):
     return records, todo
 
 
+def _load_model(settings: ActionFollowingSettings):
+    """What the run needs of ``settings.model_spec``: its VAE alone for the ceiling
+    (:func:`~.action_following_ceiling.load_ceiling_vae`), else the whole world model (``oscar_zoo.load``); both
+    on ``settings.device`` in ``settings.dtype``, decoding with ``settings.tiny_decoder``'s choice."""
+    if settings.ceiling:
+        from .action_following_ceiling import load_ceiling_vae
+
+        return load_ceiling_vae(
+            settings.model_spec,
+            settings.revision,
+            device=settings.device,
+            dtype=settings.dtype,
+            tiny_decoder=settings.tiny_decoder,
+        )
+    import oscar_zoo
+
+    return oscar_zoo.load(
+        settings.model_spec,
+        settings.revision,
+        device=settings.device,
+        dtype=settings.dtype,
+        tiny_decoder=settings.tiny_decoder,
+    )
+
+
 def run_action_following(
     manifest,
     out,
@@ -404,26 +429,8 @@ def run_action_following(
     records, todo = _recorded_sets(out, manifest)
     log(f"action following: {len(manifest.sets)} sets, {len(records)} already done, {len(todo)} to roll out")
     t0, c0 = time.perf_counter(), time.process_time()
-    if todo and model is None and settings.ceiling:
-        from .action_following_ceiling import load_ceiling_vae
-
-        model = load_ceiling_vae(
-            settings.model_spec,
-            settings.revision,
-            device=settings.device,
-            dtype=settings.dtype,
-            tiny_decoder=settings.tiny_decoder,
-        )
-    elif todo and model is None:
-        import oscar_zoo
-
-        model = oscar_zoo.load(
-            settings.model_spec,
-            settings.revision,
-            device=settings.device,
-            dtype=settings.dtype,
-            tiny_decoder=settings.tiny_decoder,
-        )
+    if todo and model is None:
+        model = _load_model(settings)
     bar = progress_bar(total=len(todo), desc="action-following sets", unit="set", enabled=settings.progress)
     for s in todo:
         rec = _run_set(model, s, judge, locate_fn, sampler, settings, chunk, out)
