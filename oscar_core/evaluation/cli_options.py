@@ -51,6 +51,13 @@ def add_sampler_options(parser) -> None:
         help="flow schedule shift (default 5, the paper's training shift); a checkpoint's own UniPC scheduler "
         "config keeps its flow_shift",
     )
+    parser.add_argument(
+        "--cond-noise",
+        type=number(0.0),
+        default=0.0,
+        help="feed each chunk's conditioning frame noised at this level in [0, 1) (default 0: clean), for a model "
+        "trained with flow.cond_noise_max at least this",
+    )
     parser.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
     parser.add_argument(
         "--guidance-form",
@@ -70,6 +77,7 @@ def resolve_sampler_flags(args, card_sampler: Callable[[], object] | None):
         preset=args.preset,
         guidance_interval=args.guidance_interval,
         shift=args.shift,
+        cond_noise=args.cond_noise,
         guidance=args.guidance,
         guidance_form=args.guidance_form,
         defaults={"guidance_form": "standard"},

@@ -68,6 +68,13 @@ def _add_rollout_sampler_options(r) -> None:
     )
     r.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
     r.add_argument(
+        "--cond-noise",
+        type=number(0.0),
+        default=0.0,
+        help="conditioning frame fed noised at this level in [0, 1) (default 0: clean; for a model trained with "
+        "flow.cond_noise_max)",
+    )
+    r.add_argument(
         "--guidance",
         type=number(0.0),
         help="skeleton guidance w (default: the model card's, else 6, the "
@@ -218,6 +225,7 @@ def cmd_rollout(args) -> int:
         guidance_interval=args.guidance_interval,
         solver=args.solver,
         shift=args.shift,
+        cond_noise=args.cond_noise,
         guidance=args.guidance,
         guidance_form=args.guidance_form,
         action_guidance=getattr(args, "action_guidance", None),

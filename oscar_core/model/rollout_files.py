@@ -50,7 +50,7 @@ class RolloutRequest:
     (None: :func:`side_by_side_path`; ``no_side_by_side``: none). size: ``"WIDTHxHEIGHT"``, multiples of 16 (None:
     the model's, else the camera's). Sampler: ``steps``, ``guidance`` w, ``guidance_form`` and ``preset``
     (None: the model card's recommendation, else the library's 35 steps, guidance 6, diffusers form, no preset:
-    :func:`~oscar_core.model.sampler.resolve_sampler`), ``guidance_interval`` (lo, hi), ``solver``, ``shift``,
+    :func:`~oscar_core.model.sampler.resolve_sampler`), ``guidance_interval`` (lo, hi), ``solver``, ``shift``, ``cond_noise``,
     ``action_guidance`` (latent-action models), ``two_pass_cfg``. fps: output frame rate (None: the
     trajectory's). device / dtype: None chooses (CUDA when available; bfloat16 on CUDA, else float32).
     plugin_paths: plugin files or folders to load besides the installed ones.
@@ -78,6 +78,7 @@ class RolloutRequest:
     guidance_interval: tuple[float, float] | None = None
     solver: str | None = None
     shift: float = 5.0
+    cond_noise: float = 0.0
     guidance: float | None = None
     guidance_form: Literal["diffusers", "standard"] | None = None
     action_guidance: float | None = None
@@ -121,6 +122,7 @@ def _sampler_options(r: RolloutRequest) -> dict:
         preset=r.preset,
         guidance_interval=r.guidance_interval,
         shift=r.shift,
+        cond_noise=r.cond_noise,
         guidance=r.guidance,
         guidance_form=r.guidance_form,
         batched_cfg=not r.two_pass_cfg,

@@ -399,6 +399,10 @@ def sample_chunk(
     noise = _initial_noise((b, c, t, h, w), generator, generators, device)
     clean = torch.zeros_like(noise)
     clean[:, :, :1] = first_latent.to(device, torch.float32)
+    seed_frame, cond_t = clean, config.cond_timestep  # what the model is fed at frame 0, and its timestep
+    if config.cond_noise:  # the noised conditioning frame (SamplerConfig.cond_noise); frame 0 of `noise` is unused else
+        seed_frame = (1.0 - config.cond_noise) * clean + config.cond_noise * noise
+        cond_t = max(config.cond_noise, config.cond_timestep)
     indicator = torch.zeros(b, 1, t, 1, 1, device=device)
     indicator[:, :, 0] = 1.0
     mask = indicator.expand(b, 1, t, h, w)
@@ -410,8 +414,8 @@ def sample_chunk(
     unguided = replace(config, guidance=None, action_guidance=None)  # the conditional branch alone
 
     def velocity(x: torch.Tensor, sigma: float) -> torch.Tensor:
-        model_in = mask * clean + (1.0 - mask) * x
-        timestep = indicator * config.cond_timestep + (1.0 - indicator) * sigma
+        model_in = mask * seed_frame + (1.0 - mask) * x
+        timestep = indicator * cond_t + (1.0 - indicator) * sigma
         step_config = config if guided_at(config, float(sigma)) else unguided
         v = guided_velocity(
             transformer,

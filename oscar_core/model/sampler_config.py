@@ -40,6 +40,11 @@ class SamplerConfig:
     guidance_interval: (lo, hi) noise levels, 0 <= lo <= hi <= 1: guidance
         only at steps with lo <= σ <= hi, the conditional branch alone at the
         others; None (default): every step.
+    cond_noise: ours: the noise level σ_c in [0, 1) at which the conditioning
+        frame is fed, (1 − σ_c) z_0 + σ_c ε with ε the chunk's initial noise at
+        frame 0 and timestep σ_c (at least ``cond_timestep``), for a model trained
+        with ``flow.cond_noise_max`` ≥ σ_c; 0 (default): clean, as the paper.
+        The chunk's returned frame 0 is the clean latent either way.
     """
 
     steps: int = 35
@@ -53,6 +58,7 @@ class SamplerConfig:
     scheduler_config: dict | None = None
     action_guidance: float | None = None
     guidance_interval: tuple[float, float] | None = None
+    cond_noise: float = 0.0
 
     def __post_init__(self):
         if self.guidance_interval is not None:
@@ -82,6 +88,8 @@ class SamplerConfig:
                 )
         if not _finite(self.cond_timestep) or self.cond_timestep < 0:
             raise ModelInputError(f"sampler cond_timestep: expected a finite number >= 0, found {self.cond_timestep!r}")
+        if not _finite(self.cond_noise) or not 0.0 <= self.cond_noise < 1.0:
+            raise ModelInputError(f"sampler cond_noise: expected a noise level in [0, 1), found {self.cond_noise!r}")
         if self.guidance_form not in GUIDANCE_FORMS:
             raise ModelInputError(f"guidance_form: expected one of {GUIDANCE_FORMS}, found {self.guidance_form!r}")
         if self.solver is not None and self.solver not in SOLVERS:

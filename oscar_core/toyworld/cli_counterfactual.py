@@ -71,6 +71,13 @@ def add_counterfactual_parser(sub, epilog: str = "") -> argparse.ArgumentParser:
     a.add_argument("--preset", choices=sorted(SAMPLER_PRESETS), help="sampling budget (as oscar rollout --preset)")
     a.add_argument("--guidance-interval", metavar="LO,HI", type=interval, help="guide only noise levels in [LO, HI]")
     a.add_argument("--shift", type=number(above=0.0), default=5.0, help="flow schedule shift (default 5)")
+    a.add_argument(
+        "--cond-noise",
+        type=number(0.0),
+        default=0.0,
+        help="conditioning frame fed noised at this level in [0, 1) (default 0: clean; for a model trained with "
+        "flow.cond_noise_max)",
+    )
     a.add_argument("--guidance", type=number(0.0), help="skeleton guidance w (default: the model card's, else 6)")
     a.add_argument("--guidance-form", choices=("standard", "diffusers"), help="default: the model card's")
     a.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
@@ -109,6 +116,7 @@ def cmd_action_following(args) -> int:
         preset=args.preset,
         guidance_interval=args.guidance_interval,
         shift=args.shift,
+        cond_noise=args.cond_noise,
         guidance=args.guidance,
         guidance_form=args.guidance_form,
         defaults={"guidance_form": "standard"},

@@ -451,3 +451,23 @@ def test_rollout_batch_equals_one_at_a_time():
     assert not np.array_equal(batch[0], batch[1])  # each item its own inputs and noise
     with pytest.raises(Exception, match="one length and size"):
         model.rollout_batch(firsts[:2], [skels[0], skels[1][:9]], sampler=config)
+
+
+@pytest.mark.parametrize("solver", ["euler", "unipc"])
+def test_a_noised_conditioning_frame_is_fed_at_its_level_and_returned_clean(solver):
+    """SamplerConfig.cond_noise: every call sees frame 0 as (1 - s) first + s noise[0] at timestep s; the frames
+    after it start from the same noise as without it; the returned frame 0 is the clean seed latent."""
+    spy, plain_spy = _Spy(), _Spy()
+    out, first, _, noise = _chunk(spy, SamplerConfig(steps=4, solver=solver, guidance=None, cond_noise=0.3))
+    plain, *_ = _chunk(plain_spy, SamplerConfig(steps=4, solver=solver, guidance=None))
+    want = 0.7 * first + 0.3 * noise[:, :, :1]
+    for call, base in zip(spy.calls, plain_spy.calls):
+        torch.testing.assert_close(call["x"][:, :, :1], want)
+        assert torch.all(call["t"][:, :, 0] == 0.3)
+        assert torch.equal(call["x"][:, :, 1:], base["x"][:, :, 1:]) and torch.equal(
+            call["t"][:, :, 1:], base["t"][:, :, 1:]
+        )
+    assert torch.equal(out[:, :, :1], first) and torch.equal(out, plain)  # a zero-velocity model ignores frame 0
+    for bad in (1.0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="cond_noise"):
+            SamplerConfig(cond_noise=bad)
