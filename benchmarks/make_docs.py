@@ -80,6 +80,16 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "decode, the cell's writes, the report and the rest (`cpu_ms_per_step`), beside the wall milliseconds "
         "from the cells' records.",
     ),
+    "tiny_decoder": (
+        "The toy tiny decoder against the full VAE decoder",
+        "benchmarks/tiny_decoder.py",
+        "`oscar-toy`'s bundled tiny decoder (`tiny_decoder.safetensors`, `oscar toyworld train-tiny-decoder`) and "
+        "its full VAE decoder, one torch thread, in one run: CPU and wall milliseconds per 17-frame 64x64 chunk "
+        "(best of N at batch 1, and per chunk in the batched decodes of the verdict part); PSNR and motion IoU of "
+        "the tiny decode against the full decode (and of both against the true frames) on held-out windows of "
+        "toy clips; and the toy judge's verdict (`ball_moved`) on both decoders' videos of the same latents of "
+        "counterfactual sets rolled out by `oscar-toy` (docs/world-model.md).",
+    ),
     "render": (
         "Skeleton rendering",
         "benchmarks/render.py",

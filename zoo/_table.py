@@ -165,12 +165,16 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
                 height=64,
                 fps=10.0,
                 files=(
-                    FileSpec("README.md", "4e53a322a63d8fdb419512a6ec402f5d3af54d6a25f331db99a0aab2258abe0a"),
+                    FileSpec("README.md", "cfc27b59a274acacdca023f464ff613a2ca4b3cae5fdd3ba892636f4b34afe20"),
                     FileSpec("oscar_manifest.json", "dd458a47bb259834d8d43d7d5f1a766ecd0f0ea0a5199a1a5f4a5333611b4452"),
                     FileSpec("oscar_model.json", "506281c49863b31a8483dfc7492317bc7ddb2f27064744c844102a0762c8cf23"),
                     FileSpec(
                         "text/empty_prompt_embeds.safetensors",
                         "315a414f568f65357cd9dd70dab0b3a573913300961246539db4ecbb13f595d2",
+                    ),
+                    FileSpec(
+                        "tiny_decoder.safetensors",
+                        "a6363dd2681f473165bed864390897dcb22fd9eac5dfb52902bad922b6051f36",
                     ),
                     FileSpec(
                         "transformer/config.json", "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"

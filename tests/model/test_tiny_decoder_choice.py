@@ -249,3 +249,16 @@ def test_a_run_s_fingerprint_records_a_chosen_decoder_only(tmp_path):
     assert _decoder_part(None) == {} and _decoder_part(path) == {"decoder": f"tiny-sha256:{digest}"}
     assert _decoder_identity(None, None) == {} and _decoder_identity(None, False) == {"decoder": "full"}
     assert _decoder_identity(object(), path) == {}  # a simulator has no decoder
+
+
+def test_the_bundled_toy_tiny_decoder_fits_oscar_toy_and_is_off_by_default():
+    from oscar_core.model.vae import VideoVAE, load_vae_folder
+
+    folder = oscar_zoo.pull("oscar-toy")  # bundled: every file's sha256 pinned in the table, the tiny decoder's too
+    assert read_card(folder).tiny_decoder is None  # the card does not choose it
+    net = load_tiny_decoder(folder / "tiny_decoder.safetensors")  # its shape from the file's metadata
+    assert net.widths == (32, 32, 16, 16) and (net.space_factor, net.time_factor) == (4, 4)
+    vae = VideoVAE(load_vae_folder(folder / "vae"))
+    vae.use_tiny_decoder(net)
+    out = vae.decode(torch.zeros(1, 16, 5, 16, 16))
+    assert out.shape == (1, 3, 17, 64, 64) and out.min() >= -1 and out.max() <= 1
