@@ -297,7 +297,6 @@ class TrainConfig:
             bad("flow.shift", "a positive number", f.shift)
         if not f.logit_std > 0:
             bad("flow.logit_std", "a positive number", f.logit_std)
-        f = self.flow
         if isinstance(f.focus_weight, bool) or not isinstance(f.focus_weight, (int, float)) or not f.focus_weight >= 0:
             bad("flow.focus_weight", "a number >= 0", f.focus_weight)
         if f.focus_weight > 0 and self.data.focus_mask is None:
