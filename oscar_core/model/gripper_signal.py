@@ -32,6 +32,7 @@ __all__ = [
     "batch_features",
     "trajectory_openness",
     "gripper_input",
+    "check_gripper_given",
 ]
 
 #: Grippers a signal has room for (two arms); a robot with more uses its first two.
@@ -99,3 +100,18 @@ def with_gripper_channels(latent: torch.Tensor, features: torch.Tensor | None) -
         )
     planes = features.to(latent.device, latent.dtype)[:, :, :, None, None].expand(-1, -1, -1, h, w)
     return torch.cat([latent, planes], dim=1)
+
+
+def check_gripper_given(card, given: bool) -> None:
+    """A rollout of the model ``card`` describes is given a gripper signal exactly when the card says the model takes
+    one (``card.gripper_signal``); ModelInputError otherwise."""
+    if given != bool(card.gripper_signal):
+        raise ModelInputError(
+            f"rollout: model {card.name or ''} "
+            + (
+                "takes a gripper signal (card gripper_signal): expected gripper (T, G) openness "
+                "(rollout_inputs builds it), found none"
+                if card.gripper_signal
+                else "takes no gripper signal (card gripper_signal false): expected gripper=None, found one"
+            )
+        )

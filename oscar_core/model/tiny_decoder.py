@@ -49,6 +49,7 @@ __all__ = [
     "TinyVideoDecoder",
     "load_tiny_decoder",
     "architecture_metadata",
+    "save_tiny_decoder",
     "TAEW2_1_WIDTHS",
     "ARCHITECTURE_KEY",
 ]
@@ -152,6 +153,19 @@ def architecture_metadata(net: TinyDecoderNet) -> dict[str, str]:
         "widths": [int(v) for v in net.widths],
     }
     return {ARCHITECTURE_KEY: json.dumps(arch)}
+
+
+def save_tiny_decoder(net: TinyDecoderNet, path) -> None:
+    """Write ``net``'s weights (float32, CPU) to the safetensors file ``path``, its shape in the metadata
+    (:func:`architecture_metadata`), atomically; the parent folder is created."""
+    from safetensors.torch import save
+
+    from .._util.atomic import atomic_write_bytes
+
+    path = Path(path)
+    tensors = {k: v.detach().float().cpu().contiguous() for k, v in net.state_dict().items()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, save(tensors, metadata=architecture_metadata(net)))
 
 
 def _net_from_metadata(path: Path) -> TinyDecoderNet:

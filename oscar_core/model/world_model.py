@@ -41,7 +41,7 @@ from .card import (
 )
 from .card_sampler import resolve_sampler, sampler_with_scheduler
 from .errors import CheckpointLayoutError, ModelInputError
-from .gripper_signal import gripper_input
+from .gripper_signal import check_gripper_given, gripper_input
 from .manifest import read_manifest, verify_files, write_manifest
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
@@ -235,7 +235,14 @@ class OscarWorldModel:
             (folder / "text").mkdir(exist_ok=True)
             save_file({"prompt_embeds": self.empty_prompt.detach().cpu().contiguous()}, str(folder / EMPTY_PROMPT_FILE))
         if card.tiny_decoder is not None:
-            self._save_tiny_decoder(folder / card.tiny_decoder)
+            if self.vae.tiny is None:
+                raise ModelInputError(
+                    f"model card tiny_decoder: names {card.tiny_decoder}, but this model decodes with the full "
+                    "decoder (load one with vae.use_tiny_decoder, or save with a card without tiny_decoder)"
+                )
+            from .tiny_decoder import save_tiny_decoder
+
+            save_tiny_decoder(self.vae.tiny.net, folder / card.tiny_decoder)
         (folder / MODEL_FILE).write_text(
             json.dumps({"format": FORMAT, "format_version": 1, "card": card.to_dict()}, indent=2) + "\n"
         )
@@ -247,23 +254,6 @@ class OscarWorldModel:
 
             (folder / "README.md").write_text(default_model_card(card.to_dict()))
         return folder
-
-    def _save_tiny_decoder(self, path: Path) -> None:
-        """Write the tiny decoder in use to ``path`` (the card's ``tiny_decoder``), its shape in the metadata."""
-        from safetensors.torch import save
-
-        from .._util.atomic import atomic_write_bytes
-        from .tiny_decoder import architecture_metadata
-
-        if self.vae.tiny is None:
-            raise ModelInputError(
-                f"model card tiny_decoder: names {path.name}, but this model decodes with the full decoder "
-                "(load one with vae.use_tiny_decoder, or save with a card without tiny_decoder)"
-            )
-        net = self.vae.tiny.net
-        tensors = {k: v.detach().float().cpu().contiguous() for k, v in net.state_dict().items()}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(path, save(tensors, metadata=architecture_metadata(net)))
 
     # ------------------------------------------------------------------ use
     @property
@@ -390,7 +380,7 @@ class OscarWorldModel:
         sampler = self.recommended_sampler() if sampler is None else sampler
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
-        self._check_gripper(gripper is not None)
+        check_gripper_given(self.card, gripper is not None)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
         if self.card.width and self.card.height:
             h, w = first_frame.shape[:2]
@@ -419,19 +409,6 @@ class OscarWorldModel:
             gripper=gripper,
         )
 
-    def _check_gripper(self, given: bool) -> None:
-        """A gripper signal is given exactly when the card says the model takes one."""
-        if given != bool(self.card.gripper_signal):
-            raise ModelInputError(
-                f"rollout: model {self.card.name or ''} "
-                + (
-                    "takes a gripper signal (card gripper_signal): expected gripper (T, G) openness "
-                    "(rollout_inputs builds it), found none"
-                    if self.card.gripper_signal
-                    else "takes no gripper signal (card gripper_signal false): expected gripper=None, found one"
-                )
-            )
-
     def rollout_batch(
         self,
         first_frames,
@@ -456,7 +433,7 @@ class OscarWorldModel:
         sampler = self.recommended_sampler() if sampler is None else sampler
         if takes_actions(self.card.condition):
             raise ModelInputError("rollout_batch: latent-action models roll out one at a time (rollout)")
-        self._check_gripper(grippers is not None)
+        check_gripper_given(self.card, grippers is not None)
         if isinstance(prompt_embeds, (list, tuple)):
             embeds = [self.prompt_embeds(e) for e in prompt_embeds]
             if len({tuple(e.shape) for e in embeds}) != 1:
@@ -503,7 +480,7 @@ class OscarWorldModel:
         sampler = self.recommended_sampler() if sampler is None else sampler
         chunk = int(chunk_frames or self.card.chunk_frames)
         actions, num_frames = self._rollout_actions(skeleton, actions, chunk)
-        self._check_gripper(gripper is not None)
+        check_gripper_given(self.card, gripper is not None)
         self._prepare_compile(num_frames if skeleton is None else len(skeleton), chunk, sampler)
         return iter_rollout(
             self.transformer,

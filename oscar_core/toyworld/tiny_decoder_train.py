@@ -218,11 +218,7 @@ def train_tiny_decoder(
 
 
 def _save(net, out: Path, card: dict) -> None:
-    from safetensors.torch import save
+    from ..model.tiny_decoder import save_tiny_decoder
 
-    from ..model.tiny_decoder import architecture_metadata
-
-    out.mkdir(parents=True, exist_ok=True)
-    tensors = {k: v.detach().contiguous() for k, v in net.state_dict().items()}
-    atomic_write_bytes(out / "tiny_decoder.safetensors", save(tensors, metadata=architecture_metadata(net)))
+    save_tiny_decoder(net, out / "tiny_decoder.safetensors")
     atomic_write_bytes(out / "tiny_decoder_card.json", (json.dumps(card, indent=1) + "\n").encode())
