@@ -150,13 +150,13 @@ def moving_pixels(x, threshold: float = 0.1):
 
 def ball_pixels(x):
     """(B, 1, T, H, W) float mask of the ball's pixels in ``x`` ((B, 3, T, H, W) in [-1, 1]): the toy world's
-    reserved object colour (:data:`~oscar_core.toyworld.locate.OBJECT_TARGET`), dilated by one pixel in space."""
+    reserved object colour (:func:`~oscar_core.toyworld.locate.ball_mask`), dilated by one pixel in space."""
     import torch
 
-    from .locate import OBJECT_TARGET, color_mask
+    from .locate import ball_mask
 
     u8 = ((x.detach().clamp(-1, 1) + 1.0) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 4, 1).cpu().numpy()
-    mask = torch.from_numpy(color_mask(u8, OBJECT_TARGET)).float().unsqueeze(1).to(x.device)
+    mask = torch.from_numpy(ball_mask(u8)).float().unsqueeze(1).to(x.device)
     return torch.nn.functional.max_pool3d(mask, (1, 3, 3), stride=1, padding=(0, 1, 1))
 
 
