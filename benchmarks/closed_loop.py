@@ -1,12 +1,17 @@
 """Closed-loop policy evaluation on the toy model: where a step's CPU time goes, and cells per CPU-minute at batch 1 vs N.
 
-    python benchmarks/closed_loop.py [--sessions 4] [--horizon 33] [--steps 10] [--batch 4 [8 ...]] [--repeats 1]
+    python benchmarks/closed_loop.py [--model oscar-toy] [--tiny-decoder FILE | --full-decoder] [--sessions 4]
+                                     [--horizon 33] [--steps N] [--guidance W] [--batch 4 [8 ...]] [--repeats 1]
                                      [--no-vae-probe] [--probe-repeats 3] [--json benchmarks/results/closed_loop.json]
+
+``--model`` is a zoo name or a model folder (``oscar-toy-fast``: the distilled 4-step student); its card's
+recommended sampler runs unless ``--steps`` / ``--guidance`` replace its figures (the 2026-11-29 table in
+docs/closed-loop.md ran ``oscar-toy`` with ``--steps 10``). The decoder is the card's choice, a ``--tiny-decoder``
+file, or ``--full-decoder``.
 
 The cells: ``--sessions`` toyarm sessions (``oscar toyworld closed-loop-sessions``, 64x64) x 2 image-based toy
 policies (``exact``, ``never_closes``: ``ee_position`` through IK, 8 actions per call at 10 Hz), ``--horizon``
-frames (17-frame chunks of ``oscar-toy``, 16 new frames per step), ``--steps`` denoising steps, guidance 3 in the
-diffusers form, one torch thread (``OMP_NUM_THREADS=1``). The same cells run in one process, into fresh folders,
+frames (17-frame chunks, 16 new frames per step), the model's sampler, one torch thread (``OMP_NUM_THREADS=1``). The same cells run in one process, into fresh folders,
 one at a time (``batch_cells=1``, the naive way) and in lock-step at each ``--batch`` (one batched world-model
 call per chunk), the batch sizes interleaved (1, N, M, 1, N, M, ... for ``--repeats`` rounds) so that a change in
 the machine's load falls on all of them alike. Cells per CPU-minute is cells / (process CPU seconds / 60), beside
@@ -66,7 +71,7 @@ CPU_PARTS = {
     "dit": ("oscar_core.model.rollout", "sample_chunk"),
     "vae_decode": ("oscar_core.model.vae", "VideoVAE.decode"),
     "write": ("oscar_core.evaluation.closed_loop", "_write_cell"),
-    "report": ("oscar_core.evaluation.closed_loop", "_report"),
+    "report": ("oscar_core.evaluation.closed_loop", "judge_and_report"),
 }
 
 
@@ -305,11 +310,28 @@ def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
     }
 
 
+def _sampler(model, steps: int | None, guidance: float | None):
+    """The sampler the card recommends (the library's defaults where it is silent), with ``steps`` and ``guidance``
+    replacing its own where given."""
+    from oscar_core.model.card_sampler import sampler_of_card
+
+    return sampler_of_card(model.card.sampler, model.scheduler_config, steps=steps, guidance=guidance)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sessions", type=int, default=4)
     ap.add_argument("--horizon", type=int, default=33)
-    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--model", default="oscar-toy", help="zoo name or model folder (default oscar-toy)")
+    ap.add_argument("--steps", type=int, default=None, help="denoising steps (default: the card's)")
+    ap.add_argument("--guidance", type=float, default=None, help="guidance, diffusers form (default: the card's)")
+    decoder = ap.add_mutually_exclusive_group()
+    decoder.add_argument(
+        "--tiny-decoder", default=None, help="decode with this tiny decoder file (model/tiny_decoder.py)"
+    )
+    decoder.add_argument(
+        "--full-decoder", action="store_true", help="the full VAE decoder even if the card names a tiny one"
+    )
     ap.add_argument("--batch", type=int, nargs="+", default=[4], help="lock-step batch sizes beside batch 1")
     ap.add_argument("--repeats", type=int, default=1, help="interleaved rounds of every batch size")
     ap.add_argument("--no-vae-probe", action="store_true", help="skip the VAE probe (module docstring)")
@@ -320,11 +342,11 @@ def main() -> int:
 
     import oscar_zoo
     from oscar_core.media.video import read_video
-    from oscar_core.model import SamplerConfig
     from oscar_core.toyworld.closed_loop import write_closed_loop_sessions
 
-    model = oscar_zoo.load("oscar-toy")
-    sampler = SamplerConfig(steps=args.steps, guidance=3.0, guidance_form="diffusers")
+    tiny = False if args.full_decoder else args.tiny_decoder
+    model = oscar_zoo.load(args.model, tiny_decoder=tiny)
+    sampler = _sampler(model, args.steps, args.guidance)
     with tempfile.TemporaryDirectory() as tmp:
         manifest = write_closed_loop_sessions(
             Path(tmp) / "sessions",
@@ -388,13 +410,14 @@ def main() -> int:
                 print(f"  {key}: {round(shown, 3) if isinstance(shown, float) else shown}")
     out = with_provenance(
         {
-            "model": "oscar-toy",
+            "model": args.model,
+            "decoder": "tiny" if model.vae.tiny is not None else "full",
             "threads": 1,
             "sessions": args.sessions,
             "policies": ["exact", "never_closes"],
             "horizon": args.horizon,
-            "steps": args.steps,
-            "guidance": "3, diffusers form",
+            "steps": sampler.steps,
+            "guidance": f"{sampler.guidance}, {sampler.guidance_form} form",
             "repeats": args.repeats,
             "rows": rows,
             "speedup_vs_batch_1": speedups,

@@ -109,3 +109,14 @@ def test_world_latency_times_each_world_step_and_counts_its_chunks(bench, monkey
     assert [c[2] for c in calls] == [1, 3]
     assert calls[0][1] == pytest.approx(0.05, abs=0.02) and calls[1][1] == pytest.approx(0.06, abs=0.02)
     assert all(wall >= cpu * 0.9 for wall, cpu, _ in calls)
+
+
+def test_every_timed_function_exists_where_the_benchmark_patches_it(bench):
+    """A renamed or moved function would make the benchmark fail at its first run (as `_report` once did)."""
+    targets = [*bench.CPU_PARTS.values(), *bench.WORLD_STEPS]
+    for module, attr in targets:
+        owner = importlib.import_module(module)
+        for part in attr.split("."):
+            assert hasattr(owner, part), f"{module}.{attr}: no {part!r}"
+            owner = getattr(owner, part)
+        assert callable(owner), f"{module}.{attr} is not callable"
