@@ -30,6 +30,10 @@ from .sampling import PlanItem, StepPlanner
 
 __all__ = ["TrainData", "Batch", "UsableClip"]
 
+#: bytes of focus masks (one bool per latent cell) a run keeps between draws of the same window: the toy world's
+#: whole cache is a few MB of them; a 2B run's windows (21 x 36 x 64 cells) keep the first ~5,000 windows drawn
+FOCUS_MEMO_BYTES = 256 * 2**20
+
 
 @dataclass
 class UsableClip:
@@ -78,6 +82,10 @@ class TrainData:
             from .focus import load_focus_mask
 
             self.focus_mask = load_focus_mask(d.focus_mask)
+        # the focus cells of each window already seen, (clip, start) -> (1, T', h, w) bool; a window's mask is a
+        # function of its frames alone, so a cached-latent run decodes each window's video once, not every draw
+        self._focus_memo: dict[tuple[int, int], torch.Tensor] = {}
+        self._focus_memo_bytes = 0
         self.skipped: list[dict] = []
         self.clips: list[UsableClip] = []
         for root in d.clips:
@@ -250,11 +258,12 @@ class TrainData:
         need_traj = (
             want_skeleton and (not stored or (not self.cached and "skeleton" not in rec.files))
         ) or takes_actions(condition)
+        focus_known = (item.clip, item.start) in self._focus_memo
         clip = cs.load(
             rec,
             start=item.start,
             frames=self.window,
-            video=not self.cached or self.focus_mask is not None,
+            video=not self.cached or (self.focus_mask is not None and not focus_known),
             skeleton=want_skeleton and stored and not self.cached,
             registry=self.registry if need_traj else None,
         )
@@ -304,7 +313,7 @@ class TrainData:
         if is_video_condition(condition) and self.config.model.gripper_signal:
             out["skeleton"] = self._with_gripper(out["skeleton"], rec, item)
         if self.focus_mask is not None:
-            out["focus"] = self._focus(clip.rgb, out["z0"], rec)
+            out["focus"] = self._window_focus(item, clip, out["z0"], rec)
         if clip.prompt_embeds is not None:
             pe = clip.prompt_embeds.float()
             if pe.shape[-1] != self.text_dim:
@@ -323,6 +332,18 @@ class TrainData:
 
             out["actions"] = torch.from_numpy(latent_actions(self.embodiment(rec.embodiment), clip.trajectory)).float()
         return out
+
+    def _window_focus(self, item: PlanItem, clip, z0: torch.Tensor, rec) -> torch.Tensor:
+        """(1, T', h, w) float32: the window's focus cells, from the memo or computed from its frames and kept (up to
+        :data:`FOCUS_MEMO_BYTES` of masks; beyond, computed on every draw)."""
+        key = (item.clip, item.start)
+        cells = self._focus_memo.get(key)
+        if cells is None:
+            cells = self._focus(clip.rgb, z0, rec).bool()
+            if self._focus_memo_bytes + cells.numel() <= FOCUS_MEMO_BYTES:
+                self._focus_memo[key] = cells
+                self._focus_memo_bytes += cells.numel()
+        return cells.float()
 
     def _focus(self, rgb: np.ndarray, z0: torch.Tensor, rec) -> torch.Tensor:
         """(1, T', h, w): the latent cells of z0 that ``data.focus_mask`` marks in the window's frames (fitted to the

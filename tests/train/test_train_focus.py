@@ -139,3 +139,26 @@ def test_the_training_step_weighs_the_focus_cells(source):
         plain = step_loss(model, replace(batch, focus=None), items, cfg, "cpu")
         unfocused = step_loss(model, replace(batch, focus=torch.zeros_like(batch.focus)), items, cfg, "cpu")
     assert unfocused == plain and focused > plain
+
+
+def test_a_window_drawn_again_reuses_its_focus_cells_without_reading_its_video(source, monkeypatch):
+    from oscar_core.train.clips import ClipSet
+
+    cfg = _config(source, **{"data.focus_mask": f"{source / 'user_mask.py'}:mask", "flow.focus_weight": 10.0})
+    data = TrainData(cfg, VideoVAE(build_tiny_vae(0)), 48)
+    items = [PlanItem(clip=0, start=0, drop=False, sigma=0.5, noise_seed=0), PlanItem(1, 8, False, 0.5, 0)]
+    first = data.batch(items, "skeleton").focus
+    loads, calls = [], []
+    real_load, real_mask = ClipSet.load, data.focus_mask
+    monkeypatch.setattr(
+        ClipSet, "load", lambda self, rec, **kw: loads.append(kw["video"]) or real_load(self, rec, **kw)
+    )
+    data.focus_mask = lambda frames: calls.append(1) or real_mask(frames)
+    again = data.batch(items, "skeleton").focus
+    assert torch.equal(first, again) and not calls and loads == [False, False]  # the memo: no video, no mask call
+    monkeypatch.setattr("oscar_core.train.data.FOCUS_MEMO_BYTES", 0)
+    fresh = TrainData(cfg, VideoVAE(build_tiny_vae(0)), 48)
+    fresh.focus_mask = data.focus_mask
+    loads.clear()
+    assert torch.equal(fresh.batch(items, "skeleton").focus, first) and calls and loads == [True, True]
+    assert torch.equal(fresh.batch(items, "skeleton").focus, first) and loads == [True] * 4  # no room: every draw
