@@ -10,11 +10,13 @@ velocity v = ε − z_0, and sampling integrates dz/dσ = v from σ = 1 (noise) 
 1000 σ). Two solvers (``SamplerConfig.solver``):
 
 * ``"unipc"`` (default; what Cosmos-Predict2.5 and diffusers' pipeline use):
-  diffusers' ``UniPCMultistepScheduler`` (second order, predictor-corrector)
-  with flow sigmas, ``prediction_type="flow_prediction"`` and
-  ``flow_shift = shift``, or the checkpoint's own scheduler config
+  multistep UniPC (second order, predictor-corrector) on flow sigmas with
+  ``flow_shift = shift``, or with the checkpoint's own scheduler config
   (``SamplerConfig.scheduler_config``, read from a diffusers ``scheduler/``
-  folder);
+  folder). oscar's own solver (:mod:`oscar_core.model.unipc`, the numbers of
+  diffusers' ``UniPCMultistepScheduler``) runs it; a checkpoint config asking
+  for what that solver does not do (Karras sigmas, dynamic shifting, ...: its
+  module docstring lists them) runs on diffusers' class, imported only then;
 * ``"euler"``: first-order Euler on the shifted schedule
   σ' = s·σ / (1 + (s − 1)·σ), σ = linspace(1, 0, steps + 1).
 
@@ -134,23 +136,31 @@ def flow_sigmas(steps: int, shift: float = 5.0) -> torch.Tensor:
 
 
 def unipc_scheduler(config: SamplerConfig):
-    """diffusers' ``UniPCMultistepScheduler`` for ``config``: its ``scheduler_config`` or flow sigmas + shift."""
+    """The UniPC solver for ``config``: flow sigmas with ``config.shift``, or its ``scheduler_config``.
+
+    Returns oscar's :class:`~oscar_core.model.unipc.FlowUniPC` for the default and for every checkpoint config whose
+    settings it supports (:func:`~oscar_core.model.unipc.solver_for_config`), else diffusers'
+    ``UniPCMultistepScheduler`` built from that config (diffusers is imported only then). Both have
+    ``set_timesteps(steps, device=)``, float32 ``sigmas`` and ``timesteps``; :func:`integrate` steps either.
+    Raises ModelInputError for a config that is not a rectified-flow one.
+    """
+    from .unipc import FlowUniPC, solver_for_config
+
+    if config.scheduler_config is None:
+        return FlowUniPC(shift=float(config.shift))
+    cfg = {k: v for k, v in dict(config.scheduler_config).items() if not k.startswith("_")}
+    flow, prediction = cfg.get("use_flow_sigmas", False), cfg.get("prediction_type", "epsilon")
+    if not flow or prediction != "flow_prediction":
+        raise ModelInputError(
+            "scheduler config: expected use_flow_sigmas=True and prediction_type="
+            f"'flow_prediction' (a rectified-flow model), found use_flow_sigmas={flow}, prediction_type={prediction!r}"
+        )
+    own = solver_for_config(cfg)
+    if own is not None:
+        return own
     from diffusers import UniPCMultistepScheduler
 
-    if config.scheduler_config is not None:
-        cfg = {k: v for k, v in dict(config.scheduler_config).items() if not k.startswith("_")}
-        scheduler = UniPCMultistepScheduler.from_config(cfg)
-        if not scheduler.config.use_flow_sigmas or scheduler.config.prediction_type != "flow_prediction":
-            raise ModelInputError(
-                "scheduler config: expected use_flow_sigmas=True and prediction_type="
-                f"'flow_prediction' (a rectified-flow model), found use_flow_sigmas="
-                f"{scheduler.config.use_flow_sigmas}, prediction_type="
-                f"{scheduler.config.prediction_type!r}"
-            )
-        return scheduler
-    return UniPCMultistepScheduler(
-        use_flow_sigmas=True, prediction_type="flow_prediction", flow_shift=float(config.shift)
-    )
+    return UniPCMultistepScheduler.from_config(cfg)
 
 
 def integrate(
@@ -161,6 +171,8 @@ def integrate(
     velocity: (z float32 of x's shape, σ float) → velocity of the same shape;
     returns z at σ = 0 (float32). One velocity call per step.
     """
+    from .unipc import FlowUniPC
+
     x = x.float()
     if config.resolved_solver == "euler":
         sigmas = flow_sigmas(config.steps, config.shift).tolist()
@@ -169,11 +181,13 @@ def integrate(
             if progress is not None:
                 progress.update(1)
         return x
-    scheduler = unipc_scheduler(config)
-    scheduler.set_timesteps(int(config.steps), device=x.device)
-    for i, t in enumerate(scheduler.timesteps):
-        sigma = float(scheduler.sigmas[i])  # the pipeline's sigma_t: what the model is fed
-        x = scheduler.step(velocity(x, sigma).float(), t, x, return_dict=False)[0].float()
+    solver = unipc_scheduler(config)
+    solver.set_timesteps(int(config.steps), device=x.device)
+    own = isinstance(solver, FlowUniPC)
+    for i, t in enumerate(solver.timesteps):
+        sigma = float(solver.sigmas[i])  # the schedule's float32 level: what the model is fed
+        v = velocity(x, sigma).float()
+        x = (solver.step(v, x) if own else solver.step(v, t, x, return_dict=False)[0]).float()
         if progress is not None:
             progress.update(1)
     return x

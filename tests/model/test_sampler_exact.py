@@ -59,11 +59,11 @@ def test_euler_recovers_the_exact_solution_to_first_order():
     assert _error("unipc", 35) < e35 / 5  # and UniPC is far closer for the same number of model calls
 
 
-def test_default_unipc_is_diffusers_flow_scheduler_with_shift():
+def test_default_unipc_is_oscars_flow_solver_with_shift():
+    from oscar_core.model.unipc import FlowUniPC
+
     sched = unipc_scheduler(SamplerConfig(shift=5.0))
-    cfg = sched.config
-    assert cfg.use_flow_sigmas and cfg.prediction_type == "flow_prediction" and cfg.flow_shift == 5.0
-    assert cfg.solver_order == 2
+    assert isinstance(sched, FlowUniPC) and sched.shift == 5.0 and sched.order == 2 and sched.variant == "bh2"
     sched.set_timesteps(4)
     s = np.linspace(1, 1 / 1000, 5)[:-1]
     expected = 5 * s / (1 + 4 * s)

@@ -3,11 +3,14 @@ was written to reproduce (installed with oscar; imported here, never by the solv
 trajectory on known velocity fields, which scheduler configs take which path, the toy model's chunk, and what the
 solver does where diffusers' class fails (a NaN last step with bh1, a long schedule)."""
 
+import subprocess
+import sys
+
 import pytest
 import torch
 from diffusers import UniPCMultistepScheduler
 
-from oscar_core.model import sample_chunk, sampler as sampler_mod
+from oscar_core.model import ModelInputError, SamplerConfig, sample_chunk, sampler as sampler_mod
 from oscar_core.model.unipc import FlowUniPC, flow_schedule, solver_for_config
 
 STEPS = (1, 2, 3, 4, 10, 20, 35)
@@ -172,6 +175,34 @@ def test_configs_take_the_path_their_settings_allow():
         {"solver_order": "2"},
     ):
         assert solver_for_config({**saved, **unsupported}) is None, unsupported
+
+
+def test_unipc_scheduler_is_ours_unless_the_checkpoint_asks_for_more():
+    assert isinstance(sampler_mod.unipc_scheduler(SamplerConfig(shift=3.0)), FlowUniPC)
+    assert sampler_mod.unipc_scheduler(SamplerConfig(shift=3.0)).shift == 3.0
+    checkpoint = {"_class_name": "UniPCMultistepScheduler", **FLOW, "flow_shift": 2.0}
+    assert sampler_mod.unipc_scheduler(SamplerConfig(scheduler_config=checkpoint)).shift == 2.0
+    assert isinstance(sampler_mod.unipc_scheduler(SamplerConfig(scheduler_config={**checkpoint, **KARRAS})), FlowUniPC)
+    betas = {**checkpoint, "use_karras_sigmas": True}  # Karras bounds from the betas: diffusers' class
+    assert isinstance(sampler_mod.unipc_scheduler(SamplerConfig(scheduler_config=betas)), UniPCMultistepScheduler)
+    velocity = lambda z, sigma: -0.5 * z + sigma  # noqa: E731
+    out = sampler_mod.integrate(velocity, torch.ones(1, 2, 3), SamplerConfig(steps=6, scheduler_config=betas))
+    assert out.dtype == torch.float32 and bool(torch.isfinite(out).all())
+    with pytest.raises(ModelInputError, match="expected use_flow_sigmas=True"):
+        sampler_mod.unipc_scheduler(SamplerConfig(scheduler_config={"prediction_type": "flow_prediction"}))
+
+
+@pytest.mark.slow
+def test_integrating_with_unipc_imports_no_diffusers():
+    code = (
+        "import sys, torch\n"
+        "from oscar_core.model.sampler import SamplerConfig, integrate\n"
+        "integrate(lambda z, s: 0.5 * z, torch.ones(1, 2, 3), SamplerConfig(steps=4, guidance=None))\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('diffusers', 'transformers')))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"
 
 
 #: the toy chunk below as diffusers' scheduler made it on main before oscar's solver (commit cdb675b, CPU):
