@@ -52,10 +52,10 @@ class ModelConfig(Mapping):
         return len(self._values)
 
     def __getattr__(self, key: str) -> Any:
-        try:
-            return self._values[key]
-        except KeyError:
-            raise AttributeError(f"model config has no setting {key!r}") from None
+        values = self.__dict__.get("_values", {})  # absent while copy/pickle rebuild the object: no recursion
+        if key not in values:
+            raise AttributeError(f"model config has no setting {key!r}")
+        return values[key]
 
     def __setattr__(self, key: str, value: Any) -> None:
         raise AttributeError(f"model config is read-only (tried to set {key!r})")

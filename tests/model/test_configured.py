@@ -121,3 +121,15 @@ def test_parse_shard_size(text, expected):
 def test_parse_shard_size_refuses_nonsense(bad):
     with pytest.raises(ModelInputError, match="max_shard_size"):
         parse_shard_size(bad)
+
+
+def test_a_model_deep_copies_and_pickles_with_its_config():
+    """copy.deepcopy (train-vae keeps a copy of the best weights) and pickle rebuild the config object without
+    calling its constructor; reading its settings then must not recurse."""
+    import copy
+    import pickle
+
+    model = Child(6, extra=3)
+    for twin in (copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
+        assert dict(twin.config) == dict(model.config) and twin.config.extra == 3
+        assert all(torch.equal(a, b) for a, b in zip(twin.state_dict().values(), model.state_dict().values()))
