@@ -216,27 +216,25 @@ def _best_cpu(fn, repeats: int):
 @contextlib.contextmanager
 def _sum_of_squares_rms_norm():
     """The WAN RMS norm with ``x / max(sqrt(sum_c x^2), eps)`` in place of ``F.normalize`` (float32 only)."""
-    from diffusers.models.autoencoders import autoencoder_kl_wan as wan
+    from oscar_core.model import wan_vae as wan
 
-    original = wan.WanRMS_norm.forward
+    original = wan.RMSNorm.forward
 
     def forward(self, x):
-        dim = 1 if self.channel_first else -1
-        norm = (x * x).sum(dim, keepdim=True).sqrt_().clamp_min_(1e-12)
-        return (x / norm) * self.scale * self.gamma + self.bias
+        norm = (x * x).sum(1, keepdim=True).sqrt_().clamp_min_(1e-12)
+        return (x / norm) * self.scale * self.gamma
 
-    wan.WanRMS_norm.forward = forward
+    wan.RMSNorm.forward = forward
     try:
         yield
     finally:
-        wan.WanRMS_norm.forward = original
+        wan.RMSNorm.forward = original
 
 
 def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
     """What of the VAE could leave the policy's critical path, on one chunk ``frames`` (L, H, W, 3) uint8
     (module docstring). CPU and wall in milliseconds, best of ``repeats``."""
-    from diffusers.models.autoencoders import autoencoder_kl_wan as wan
-
+    from oscar_core.model import wan_vae as wan
     from oscar_core.model.vae import VideoVAE
 
     vae = model.vae
@@ -257,7 +255,7 @@ def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
     _, seed4_cpu, _ = _best_cpu(lambda: vae.encode(four_p[:, :, :1]), repeats)
     _, dec4_cpu, _ = _best_cpu(lambda: vae.decode(four_l), repeats)
     norm_cpu = [0.0]
-    original = wan.WanRMS_norm.forward
+    original = wan.RMSNorm.forward
 
     def counted(self, x):
         c0 = time.thread_time()
@@ -266,11 +264,11 @@ def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
         finally:
             norm_cpu[0] += time.thread_time() - c0
 
-    wan.WanRMS_norm.forward = counted
+    wan.RMSNorm.forward = counted
     try:
         _, dec_counted_cpu, _ = _best_cpu(lambda: vae.decode(latent), 1)
     finally:
-        wan.WanRMS_norm.forward = original
+        wan.RMSNorm.forward = original
     with _sum_of_squares_rms_norm():
         fast, fast_cpu, _ = _best_cpu(lambda: vae.decode(latent), repeats)
     from oscar_core.model.tiny_decoder import TinyDecoderNet

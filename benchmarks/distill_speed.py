@@ -244,10 +244,10 @@ def toy_vae_cut(model, latent: torch.Tensor, full_video: torch.Tensor, repeats: 
 
 def vae_decode_flops_2b(frames: int = 81, width: int = 512, height: int = 288) -> dict:
     """FLOPs of the WAN 2.1 VAE's decode of a whole 2B chunk and of its last 1 / 2 latent frames (meta device)."""
-    from diffusers import AutoencoderKLWan
+    from oscar_core.model.wan_vae import WanVAE
 
     with torch.device("meta"):
-        vae = AutoencoderKLWan()  # diffusers' defaults are the WAN 2.1 VAE's configuration
+        vae = WanVAE()  # its defaults (diffusers' AutoencoderKLWan's) are the WAN 2.1 VAE's configuration
     t = (frames - 1) // 4 + 1
     out = {}
     for name, k in (("whole chunk", t), *END_DECODES):

@@ -147,12 +147,13 @@ def _dit_inputs(batch, frames, width, height, device, dtype):
 
 def computed_2b(steps: int = 35, frames: int = 81, width: int = 512, height: int = 288) -> dict:
     """FLOPs of one guided step and one chunk of the 2B model, counted on the meta device (no memory used)."""
-    from diffusers import AutoencoderKLWan
     from torch.utils.flop_counter import FlopCounterMode
+
+    from oscar_core.model.wan_vae import WanVAE
 
     with torch.device("meta"):
         model = OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG)
-        vae = AutoencoderKLWan()  # diffusers' defaults are the WAN 2.1 VAE's configuration
+        vae = WanVAE()  # its defaults (diffusers' AutoencoderKLWan's) are the WAN 2.1 VAE's configuration
     with FlopCounterMode(display=False) as fc, torch.no_grad():
         model(**_dit_inputs(2, frames, width, height, "meta", torch.float32))
     step = fc.get_total_flops()
@@ -441,7 +442,7 @@ def vae_chunk_work(vae, first: torch.Tensor, condition: torch.Tensor):
 def measure_vae_variants(vae, first: torch.Tensor, condition: torch.Tensor, repeats: int, device) -> list[dict]:
     """The VAE's work per chunk (seed and condition encodes, one decode) under each of :data:`VAE_VARIANTS`.
 
-    channels_last: 5-D convolutions in ``torch.channels_last_3d``; tiling: diffusers' spatial tiling (engages
+    channels_last: 5-D convolutions in ``torch.channels_last_3d``; tiling: the VAE's spatial tiling (engages
     only above its 256-pixel tile); compiled: ``torch.compile`` of the encoder and decoder modules. Each row
     gives seconds, its share against eager, and how far its decoded frames are from eager's (max |difference|
     in [-1, 1] pixels and PSNR in dB; None when equal). A variant that fails is a row with its reason. The VAE

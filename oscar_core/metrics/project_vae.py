@@ -3,7 +3,7 @@
 :func:`load_project_vae` finds a checkpoint through :func:`oscar_zoo.pull`
 (zoo name, Hub id or folder) — by default **only in the local cache**, so
 evaluating never starts a multi-GB download — builds its ``vae/``
-(``AutoencoderKLWan``, safetensors only, keys matched strictly by
+(:class:`oscar_core.model.wan_vae.WanVAE`, diffusers' ``AutoencoderKLWan`` layout, safetensors only, keys matched strictly by
 :func:`oscar_core.model.vae.load_vae_folder`) without the DiT, and returns the
 encoder :func:`~oscar_core.metrics.video.latent_l2` calls: (1, 3, T, H, W) in
 [-1, 1] with T = 4k+1 → normalised latents, exactly what the world model sees
@@ -30,9 +30,7 @@ def load_project_vae(
     from ..model.vae import VideoVAE, load_vae_folder
 
     folder = Path(spec) if Path(spec).is_dir() else oscar_zoo.pull(spec, revision, local_files_only=not download)
-    vae = load_vae_folder(
-        folder / "vae"
-    )  # strict, and no hint about `accelerate` (diffusers' from_pretrained logs one)
+    vae = load_vae_folder(folder / "vae")  # strict; oscar's own Wan VAE
     wrapped = VideoVAE(vae, device=device)
 
     def encode(x):

@@ -1,7 +1,7 @@
 """Tiny configurations of the real classes, for tests, examples and benchmarks on a CPU.
 
 They use the same classes as the 2B model (``OscarTransformer3DModel``,
-``AutoencoderKLWan``) with a few layers and small widths, so every code path
+:class:`~.wan_vae.WanVAE`) with a few layers and small widths, so every code path
 (RoPE, learnable positions, cross-attention projection, padding mask,
 causal VAE with 4x time / 8x space compression) runs in milliseconds.
 Weights are random (seeded): outputs mean nothing, but they are exact
@@ -103,27 +103,27 @@ def build_tiny_transformer(seed: int = 0, skeleton_scale: float | None = None, *
 
 
 def build_tiny_vae(seed: int = 0, **overrides):
-    """A tiny ``AutoencoderKLWan`` with seeded default-initialised weights."""
-    from diffusers import AutoencoderKLWan
+    """A tiny :class:`~.wan_vae.WanVAE` with seeded default-initialised weights (the same tensors as diffusers'
+    ``AutoencoderKLWan`` draws for the seed: tests/model/test_wan_vae.py)."""
+    from .wan_vae import WanVAE
 
-    torch.manual_seed(seed)  # diffusers/torch default init draws from the global generator
-    return AutoencoderKLWan(**{**TINY_VAE_CONFIG, **overrides}).eval()
+    torch.manual_seed(seed)  # torch's default init draws from the global generator
+    return WanVAE(**{**TINY_VAE_CONFIG, **overrides}).eval()
 
 
 def build_random_2b(device="cpu", dtype: torch.dtype = torch.bfloat16, seed: int = 0):
-    """(transformer, vae): the 2B DiT (:data:`COSMOS_2B_TRANSFORMER_CONFIG`) and the WAN 2.1 VAE (diffusers'
-    ``AutoencoderKLWan`` defaults) with random default-initialised weights, in eval mode, for speed and memory
+    """(transformer, vae): the 2B DiT (:data:`COSMOS_2B_TRANSFORMER_CONFIG`) and the WAN 2.1 VAE (:class:`WanVAE`'s
+    defaults, diffusers' ``AutoencoderKLWan``'s) with random default-initialised weights, in eval mode, for speed and memory
     measurements. Both are initialised directly in ``dtype`` on ``device`` (no float32 copy of 2 B parameters on
     the host; a minute on a CPU, seconds on a GPU)."""
-    from diffusers import AutoencoderKLWan
-
     from .transformer import OscarTransformer3DModel
+    from .wan_vae import WanVAE
 
     torch.manual_seed(seed)
     default = torch.get_default_dtype()
     torch.set_default_dtype(dtype)
     try:
         with torch.device(device):
-            return OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).eval(), AutoencoderKLWan().eval()
+            return OscarTransformer3DModel(**COSMOS_2B_TRANSFORMER_CONFIG).eval(), WanVAE().eval()
     finally:
         torch.set_default_dtype(default)

@@ -12,7 +12,10 @@ pixel frame 0, hence frame counts of the form 4k + 1.
 A tiny decoder (:mod:`.tiny_decoder`, the TAEHV design, ``taew2_1`` weights for the 2B model's latents) can take
 over :meth:`VideoVAE.decode` (:meth:`VideoVAE.use_tiny_decoder`); off by default: the full decoder decodes.
 
-Memory options (for GPUs): tiling and slicing (diffusers' own), and CPU
+The network is :class:`~.wan_vae.WanVAE`, oscar's own implementation of the Wan VAE (diffusers'
+``AutoencoderKLWan``'s keys, config and numbers; no diffusers import on this path).
+
+Memory options (for GPUs): spatial tiling and batch slicing, and CPU
 offload — the VAE waits on the CPU and visits ``device`` only to encode or
 decode. On the CPU its 3-D convolutions run through oneDNN at every batch size
 (:mod:`.cpu_conv`).
@@ -26,31 +29,26 @@ import torch
 from .chunks import check_frame_count  # kept importable from here, where it was before chunks.py
 from .cpu_conv import use_onednn_conv3d
 from .errors import ModelInputError
-from .weights import build_strict, cast_model, load_state_dict, read_config
+from .wan_vae import WanVAE
+from .weights import cast_model
 
 __all__ = ["VideoVAE", "check_frame_count", "load_vae_folder"]
 
 
-def load_vae_folder(folder, device="cpu"):
-    """The ``AutoencoderKLWan`` of a diffusers ``vae/`` folder, built by oscar's strict loader.
+def load_vae_folder(folder, device="cpu") -> WanVAE:
+    """The :class:`~.wan_vae.WanVAE` of a diffusers-layout ``vae/`` folder, built by oscar's strict loader.
 
-    config.json must name ``AutoencoderKLWan``; the safetensors weights must
-    match its tensors exactly (CheckpointLayoutError naming the folder and the
-    keys otherwise). device: where the weights are read to (a GPU skips the
-    host copy). Unlike diffusers' ``from_pretrained`` it needs no
-    ``accelerate`` and logs no hint about it. Returns the model in eval mode.
+    config.json must name ``AutoencoderKLWan`` and hold only settings WanVAE computes; the safetensors weights must
+    match its tensors exactly (CheckpointLayoutError naming the folder and the keys or the field otherwise).
+    device: where the weights are read to (a GPU skips the host copy). Returns the model in eval mode.
     """
-    from diffusers import AutoencoderKLWan
-
-    return build_strict(
-        AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder, device=device), folder
-    )
+    return WanVAE.from_folder(folder, device=device)
 
 
 class VideoVAE:
-    """Wraps an ``AutoencoderKLWan``: normalised latents in, [-1, 1] pixels out.
+    """Wraps a :class:`~.wan_vae.WanVAE`: normalised latents in, [-1, 1] pixels out.
 
-    vae: the diffusers model (its config gives z_dim, latents_mean/std and the
+    vae: the VAE network (its config gives z_dim, latents_mean/std and the
         compression factors: 2^sum(temperal_downsample) in time, 2^len(...) in space).
     device: where encode/decode run; dtype: the VAE's compute dtype.
     offload: keep the VAE on the CPU between calls (GPU memory saver).
@@ -79,7 +77,7 @@ class VideoVAE:
 
     # ------------------------------------------------------------------ options
     def enable_tiling(self, **kwargs) -> None:
-        """Spatial tiling of encode/decode (diffusers' ``enable_tiling``; less memory, slight seams)."""
+        """Spatial tiling of encode/decode (:meth:`.wan_vae.WanVAE.enable_tiling`; less memory, slight seams)."""
         self.vae.enable_tiling(**kwargs)
 
     def enable_slicing(self) -> None:

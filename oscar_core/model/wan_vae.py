@@ -214,8 +214,9 @@ class Resample(nn.Module):
     """x2 down- or upsampling in space, optionally in time (module docstring).
 
     mode: ``"down2d"``, ``"down3d"``, ``"up2d"``, ``"up3d"``; out_dim: the width after an upsampling conv.
-    Shapes (first chunk / later chunks): down3d (B, C, T, H, W) → (B, C, 1 / T/2, H/2, W/2); up3d → (B, out_dim,
-    1 / 2T, 2H, 2W); the 2d modes keep T.
+    Shapes: down3d (B, C, T, H, W) → (B, C, T', H/2, W/2) with T' = T for the first chunk (frame 0 alone) and T/2
+    after; up3d → (B, out_dim, T', 2H, 2W) with T' = T for the first chunk (one latent frame) and 2T after; the 2d
+    modes keep T.
     """
 
     def __init__(self, dim: int, mode: str, out_dim: int | None = None) -> None:

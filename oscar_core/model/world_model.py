@@ -8,7 +8,7 @@ A saved model is a folder (the layout the zoo expects on the Hub)::
     oscar_model.json                         format tag + ModelCard
     transformer/config.json                  OscarTransformer3DModel
     transformer/diffusion_pytorch_model.safetensors   (or an index + shards)
-    vae/config.json                          AutoencoderKLWan
+    vae/config.json                          AutoencoderKLWan (oscar's WanVAE reads and writes it)
     vae/diffusion_pytorch_model.safetensors
     text/empty_prompt_embeds.safetensors     optional: the encoder's embedding of ""
     scheduler/scheduler_config.json          optional: the UniPC (or Euler) scheduler the sampler uses
@@ -90,7 +90,7 @@ class OscarWorldModel:
         offload_vae: bool = False,
         offload_text: bool = False,
     ) -> OscarWorldModel:
-        """Assemble from an OscarTransformer3DModel and an AutoencoderKLWan (moved to device/dtype).
+        """Assemble from an OscarTransformer3DModel and a WanVAE (moved to device/dtype).
 
         dtype None: bfloat16 on CUDA (the fast default), else the modules' own dtype.
         Memory options (GPU): ``dtype=torch.bfloat16``; ``offload_vae`` keeps the

@@ -1,4 +1,5 @@
-"""Train a small ``AutoencoderKLWan`` (the class the real pipeline uses) on toy-world frames.
+"""Train a small Wan VAE (:class:`~oscar_core.model.wan_vae.WanVAE`, the class the world model uses; saved in
+diffusers' ``AutoencoderKLWan`` layout) on toy-world frames.
 
 Seeded and single-threaded by default. The data are 5-frame windows (1 + 4:
 one latent frame for the first pixel frame, one for the next four, as the
@@ -181,7 +182,7 @@ def ball_kept(pred: np.ndarray, truth: np.ndarray, tol_px: float = 2.0) -> float
 def vae_psnr(vae, frames: np.ndarray, batch: int = 4) -> tuple[float, np.ndarray]:
     """Mean PSNR (dB, over clips and frames) of decode(encode(clip)) through ``VideoVAE``; and the reconstructions.
 
-    vae: an ``AutoencoderKLWan``; frames: (N, T, H, W, 3) uint8 with T = 4k + 1.
+    vae: a ``WanVAE``; frames: (N, T, H, W, 3) uint8 with T = 4k + 1.
     """
     import torch
 
@@ -217,15 +218,15 @@ def _latent_stats(vae, frames: np.ndarray, batch: int = 4) -> tuple[list[float],
 
 
 def _new_or_initial_vae(cfg: VAETrainConfig):
-    """``(vae, config)``: the VAE to train (``cfg.init``'s weights, or a new ``AutoencoderKLWan`` of the toy config
-    with ``cfg.base_dim`` and ``cfg.config``) and its config fields."""
-    from diffusers import AutoencoderKLWan
+    """``(vae, config)``: the VAE to train (``cfg.init``'s weights, or a new :class:`~oscar_core.model.wan_vae.WanVAE`
+    of the toy config with ``cfg.base_dim`` and ``cfg.config``) and its config fields."""
+    from ..model.wan_vae import WanVAE
 
     if cfg.init:
         vae = load_toy_vae(cfg.init)
         return vae, {k: vae.config[k] for k in TOY_VAE_CONFIG}
     config = {**TOY_VAE_CONFIG, "base_dim": cfg.base_dim, **cfg.config}
-    return AutoencoderKLWan(**config), config
+    return WanVAE(**config), config
 
 
 def _training_batch(train: np.ndarray, rng: np.random.Generator, cfg: VAETrainConfig):
@@ -369,9 +370,12 @@ def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, 
     import os
     import shutil
 
+    from ..model.configured import ModelConfig
+
     final = copy.deepcopy(vae).eval()
     mean, std = _latent_stats(final, train[:: max(1, len(train) // 32)][:32])  # 32 clips spread over the set
-    final.register_to_config(latents_mean=mean, latents_std=std)
+    # settings the network does not compute with (VideoVAE normalises latents by them): a new config, same weights
+    final.config = ModelConfig({**final.config, "latents_mean": mean, "latents_std": std})
     out.mkdir(parents=True, exist_ok=True)
     tmp = out / ".vae.tmp"
     if tmp.exists():
@@ -400,17 +404,14 @@ def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, 
 
 
 def load_toy_vae(folder):
-    """The trained ``AutoencoderKLWan`` from ``FOLDER/vae`` (or ``FOLDER`` itself), loaded strictly from safetensors."""
-    from diffusers import AutoencoderKLWan
-
-    from ..model.weights import build_strict, load_state_dict, read_config
+    """The trained :class:`~oscar_core.model.wan_vae.WanVAE` from ``FOLDER/vae`` (or ``FOLDER`` itself), loaded
+    strictly from safetensors."""
+    from ..model.vae import load_vae_folder
 
     folder = Path(folder)
     if (folder / "vae").is_dir():
         folder = folder / "vae"
-    return build_strict(
-        AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder
-    ).eval()
+    return load_vae_folder(folder).eval()
 
 
 def write_reconstructions(

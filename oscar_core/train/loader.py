@@ -9,9 +9,10 @@ step)), so N workers give exactly the batches of 0 workers (tested).
 
 Threads, not processes: the VAE runs where the model does (a GPU cannot be
 shared by forked workers), nothing is pickled, and video decoding, file
-reads and the renderer's tensor work release the GIL. The VAE itself is one
-module with a causal-convolution cache on it (``AutoencoderKLWan``), so its
-encodes are serialised by a lock in :class:`~oscar_core.train.data.TrainData`;
+reads and the renderer's tensor work release the GIL. The VAE's encodes are
+serialised by a lock in :class:`~oscar_core.train.data.TrainData` (diffusers'
+VAE kept its causal-convolution cache on the module; oscar's ``WanVAE`` keeps
+it per call, so the lock now only keeps one encode on the cores at a time);
 what overlaps is reading, decoding, rendering and the training step.
 """
 

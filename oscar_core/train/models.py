@@ -161,9 +161,7 @@ def build_vae(config: TrainConfig, device="cpu", source: str = "<config>"):
     spec = config.model.vae
     if spec == "tiny":
         return VideoVAE(build_tiny_vae(config.model.seed), device=device)
-    from diffusers import AutoencoderKLWan
-
-    from ..model.weights import build_strict, load_state_dict, read_config
+    from ..model.vae import load_vae_folder
 
     folder = Path(spec)
     if (folder / "vae").is_dir():
@@ -175,5 +173,4 @@ def build_vae(config: TrainConfig, device="cpu", source: str = "<config>"):
             "'tiny', an AutoencoderKLWan folder or an OSCAR model folder",
             f"{spec} (no config.json)",
         )
-    vae = build_strict(AutoencoderKLWan, read_config(folder, ("AutoencoderKLWan",)), load_state_dict(folder), folder)
-    return VideoVAE(vae, device=device)
+    return VideoVAE(load_vae_folder(folder), device=device)

@@ -211,3 +211,47 @@ def test_settings_it_does_not_compute_are_refused_naming_the_file_and_field(tmp_
         WanVAE.from_folder(tmp_path / "vae")
     with pytest.raises(CheckpointLayoutError, match=rf"config\.json: {field}: expected"):
         WanVAE.from_config(config)
+
+
+def test_the_vae_path_imports_no_diffusers():
+    """load_vae_folder + VideoVAE encode and decode in a fresh interpreter: no diffusers (nor transformers) module."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, torch\n"
+        "from oscar_core.model.vae import VideoVAE, load_vae_folder\n"
+        f"vae = VideoVAE(load_vae_folder({str(TOY_VAE)!r}))\n"
+        "vae.decode(vae.encode(torch.zeros(1, 3, 5, 64, 64)))\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'diffusers', 'transformers', 'scipy'}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"
+
+
+def test_a_toy_rollout_is_the_same_video_with_the_reference_vae(monkeypatch, tmp_path):
+    """oscar-toy rolls out one chunk of a toy episode bit for bit as it did with diffusers' VAE in the model."""
+    import numpy as np
+
+    import oscar_zoo
+    from oscar_core.model.cpu_conv import use_onednn_conv3d
+    from oscar_core.model.sampler import SamplerConfig
+    from oscar_core.plugin.registry import Registry
+    from oscar_core.render.skeleton_video import render_skeleton_video
+    from oscar_core.toyworld.episode import episode_rng, make_episode
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "empty-cache"))
+    monkeypatch.setenv("OSCAR_ZOO_REGISTRY", str(tmp_path / "zoo.json"))
+    toy = oscar_zoo.load("oscar-toy")
+    assert isinstance(toy.vae.vae, WanVAE)
+    emb = Registry().get("franka")
+    ep = make_episode(emb, episode_rng(0, "franka", 9), 64, 64, 17)
+    skeleton = render_skeleton_video(emb, ep.trajectory, ep.camera)
+    sampler = SamplerConfig(steps=2, guidance=3.0)
+    ours = toy.rollout(ep.rgb[0], skeleton, sampler=sampler, progress=False).frames
+    ref = build_strict(Reference, read_config(TOY_VAE, ("AutoencoderKLWan",)), load_state_dict(TOY_VAE), TOY_VAE)
+    use_onednn_conv3d(ref)  # as VideoVAE sets up the VAE it wraps
+    toy.vae.vae = ref
+    np.testing.assert_array_equal(ours, toy.rollout(ep.rgb[0], skeleton, sampler=sampler, progress=False).frames)
