@@ -60,6 +60,15 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "`python -X importtime` process (self times, the importer's wall clock); `before` rows: an older commit "
         "measured in the same run, alternating with this one.",
     ),
+    "wan_vae": (
+        "The Wan VAE: oscar's own class against diffusers'",
+        "benchmarks/wan_vae.py",
+        "Import and load of the VAE path in fresh processes (oscar's `load_vae_folder` of the oscar-toy `vae/`, "
+        "diffusers' `AutoencoderKLWan` on the same folder, `import torch` as the floor; median CPU and wall "
+        "seconds), and one 17-frame 64x64 toy chunk encoded and decoded by both classes in one process on one "
+        "thread with oneDNN convolutions (best CPU and wall ms, the classes alternating; `max_abs_diff` 0 = "
+        "bit-identical).",
+    ),
     "distill_speed": (
         "Teacher, `fast` and the few-step student",
         "benchmarks/distill_speed.py",

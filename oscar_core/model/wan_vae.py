@@ -307,7 +307,7 @@ class ResidualDownStage(nn.Module):
         self.downsampler = Resample(out_dim, "down3d" if down_t else "down2d") if down_s else None
 
     def forward(self, x: torch.Tensor, cache: FrameCache) -> torch.Tensor:
-        skip = x.clone()
+        skip = x  # nothing below writes into x
         for block in self.resnets:
             x = block(x, cache)
         if self.downsampler is not None:
@@ -350,7 +350,7 @@ class ResidualUpStage(nn.Module):
         self.upsampler = Resample(out_dim, "up3d" if up_t else "up2d", out_dim=out_dim) if up_s else None
 
     def forward(self, x: torch.Tensor, cache: FrameCache, first_chunk: bool = False) -> torch.Tensor:
-        skip = x.clone()
+        skip = x  # nothing below writes into x
         for block in self.resnets:
             x = block(x, cache)
         if self.upsampler is None:

@@ -1,0 +1,171 @@
+"""oscar's Wan VAE (``oscar_core.model.wan_vae.WanVAE``) against diffusers' ``AutoencoderKLWan``, in the same run.
+
+    python benchmarks/wan_vae.py [--repeats 5] [--json benchmarks/measured/wan_vae.json]
+
+``imports``: fresh interpreters from the repository root (OMP_NUM_THREADS=1), alternating row by row each repeat,
+median CPU seconds (user + system of the child, ``resource.getrusage``) and wall seconds:
+
+- ``import torch``: the floor under both;
+- ``oscar: VideoVAE + load oscar-toy vae/``: what a rollout's VAE path imports and loads now
+  (``oscar_core.model.vae.load_vae_folder``);
+- ``diffusers: AutoencoderKLWan + load oscar-toy vae/``: the same folder through diffusers' class (oscar's strict
+  loader, as ``load_vae_folder`` did before it had its own class).
+
+``compute``: in this process, one torch thread, both classes loaded from ``zoo/assets/oscar-toy/vae`` with their 3-D
+convolutions on oneDNN (as ``VideoVAE`` runs them), one 17-frame 64x64 toy chunk (a rendered toyarm episode):
+``encode`` (posterior mode) and ``decode`` (of the reference's latents); best thread-CPU and wall milliseconds of
+``--repeats``, the two classes alternating; ``max_abs_diff`` between their outputs (0.0: bit-identical).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))
+sys.path.insert(0, str(REPO))
+
+from _provenance import with_provenance  # noqa: E402
+
+TOY_VAE = REPO / "zoo" / "assets" / "oscar-toy" / "vae"
+LOAD = "load_vae_folder({path!r})"
+IMPORT_ROWS = {
+    "import torch": "import torch",
+    "oscar: VideoVAE + load oscar-toy vae/": (
+        f"from oscar_core.model.vae import VideoVAE, load_vae_folder\n{LOAD.format(path=str(TOY_VAE))}"
+    ),
+    "diffusers: AutoencoderKLWan + load oscar-toy vae/": (
+        "from diffusers.models.autoencoders.autoencoder_kl_wan import AutoencoderKLWan\n"
+        "from oscar_core.model.weights import build_strict, load_state_dict, read_config\n"
+        f"f = {str(TOY_VAE)!r}\n"
+        "build_strict(AutoencoderKLWan, read_config(f, ('AutoencoderKLWan',)), load_state_dict(f), f)"
+    ),
+}
+
+
+def run_once(code: str) -> tuple[float, float]:
+    """(CPU s, wall s) of one fresh interpreter running ``code`` in the repository root."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise SystemExit(f"wan_vae: {code!r} exited {proc.returncode}: {proc.stderr.strip()[-400:]}")
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
+
+
+def measure_imports(repeats: int) -> list[dict]:
+    """One record per :data:`IMPORT_ROWS` row: median CPU and wall seconds of ``repeats`` fresh processes."""
+    runs: dict[str, list[tuple[float, float]]] = {name: [] for name in IMPORT_ROWS}
+    for _ in range(repeats):
+        for name, code in IMPORT_ROWS.items():
+            runs[name].append(run_once(code))
+    return [
+        {
+            "what": name,
+            "cpu_s": round(statistics.median(c for c, _ in runs[name]), 3),
+            "wall_s": round(statistics.median(w for _, w in runs[name]), 3),
+        }
+        for name in IMPORT_ROWS
+    ]
+
+
+def _best(fn, repeats: int) -> tuple[object, float, float]:
+    """(last result, best thread-CPU ms, best wall ms) of ``repeats`` calls of ``fn``."""
+    cpu, wall, out = [], [], None
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        out = fn()
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return out, 1e3 * min(cpu), 1e3 * min(wall)
+
+
+def _toy_chunk():
+    """(1, 3, 17, 64, 64) pixels in [-1, 1] of a rendered toyarm episode."""
+    from oscar_core.model.vae import VideoVAE
+    from oscar_core.plugin.registry import Registry
+    from oscar_core.toyworld.episode import episode_rng, make_episode
+
+    ep = make_episode(Registry().get("toyarm"), episode_rng(0, "toyarm", 9), 64, 64, 17, ss=1)
+    return VideoVAE.to_pixels(ep.rgb)
+
+
+def measure_compute(repeats: int) -> list[dict]:
+    """Encode and decode of one toy chunk by both classes (module docstring); one record per (class, part)."""
+    import torch
+    from diffusers.models.autoencoders.autoencoder_kl_wan import AutoencoderKLWan
+
+    from oscar_core.model.cpu_conv import use_onednn_conv3d
+    from oscar_core.model.wan_vae import WanVAE
+    from oscar_core.model.weights import build_strict, load_state_dict, read_config
+
+    torch.set_num_threads(1)
+    reference = build_strict(
+        AutoencoderKLWan, read_config(TOY_VAE, ("AutoencoderKLWan",)), load_state_dict(TOY_VAE), TOY_VAE
+    )
+    models = {"oscar WanVAE": WanVAE.from_folder(TOY_VAE), "diffusers AutoencoderKLWan": reference}
+    for model in models.values():
+        use_onednn_conv3d(model)
+    x = _toy_chunk()
+    with torch.no_grad():
+        z = reference.encode(x).latent_dist.mode()
+        want = {"encode": z, "decode": reference.decode(z).sample}
+        parts = {"encode": lambda m: m.encode(x).latent_dist.mode(), "decode": lambda m: m.decode(z).sample}
+        best: dict[tuple[str, str], list] = {}
+        for _ in range(repeats):  # alternate the classes so a change of load hits both
+            for name, model in models.items():
+                for part, fn in parts.items():
+                    out, cpu, wall = _best(lambda fn=fn, model=model: fn(model), 1)
+                    rec = best.setdefault((name, part), [out, cpu, wall])
+                    rec[1], rec[2] = min(rec[1], cpu), min(rec[2], wall)
+    return [
+        {
+            "vae": name,
+            "part": part,
+            "cpu_ms": round(cpu, 1),
+            "wall_ms": round(wall, 1),
+            "max_abs_diff": float((out - want[part]).abs().max()),
+        }
+        for (name, part), (out, cpu, wall) in best.items()
+    ]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--json", type=Path, default=REPO / "benchmarks" / "measured" / "wan_vae.json")
+    args = ap.parse_args(argv)
+    if args.repeats < 1:
+        print(f"wan_vae: --repeats: expected at least 1, found {args.repeats}", file=sys.stderr)
+        return 2
+    load = os.getloadavg()[0]
+    imports = measure_imports(args.repeats)
+    compute = measure_compute(args.repeats)
+    print(f"{'import (fresh process)':<52} {'CPU s':>7} {'wall s':>7}")
+    for r in imports:
+        print(f"{r['what']:<52} {r['cpu_s']:>7.2f} {r['wall_s']:>7.2f}")
+    print(f"\n{'toy chunk, 17 x 64 x 64, one thread':<40} {'CPU ms':>8} {'wall ms':>8} {'max |diff|':>11}")
+    for r in compute:
+        print(f"{r['vae'] + ' ' + r['part']:<40} {r['cpu_ms']:>8.1f} {r['wall_ms']:>8.1f} {r['max_abs_diff']:>11.3g}")
+    result = {"repeats": args.repeats, "load_1min": [load, os.getloadavg()[0]], "imports": imports, "compute": compute}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.json.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(with_provenance(result), indent=2) + "\n")
+    tmp.replace(args.json)
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
