@@ -15,6 +15,17 @@ is within ``grab_distance`` of the ball's centre, then keeps its offset from
 the end-effector while the gripper stays closed; when the gripper opens it
 drops to the floor below where it was (z = R, same x, y) on that frame.
 
+Pushing (``carry_object(..., push_contact=c)``, off by default; :data:`PUSH_CONTACT_RADII` is the toy world's
+contact distance): the end-effector is a solid sphere and the ball stays on the floor. On a frame where the gripper
+is open and holds nothing, the end-effector is moved from the previous frame's position in straight sub-steps of
+at most c / 4; after each sub-step that brings it closer to the ball's centre and closer than c (3-D), the ball
+slides along the floor (z = R) away from it, along the horizontal line from the end-effector's foot to the ball's
+centre (straight below it: the sub-step's horizontal direction, else +x), to exactly distance c (horizontal
+distance sqrt(c² − dz²), dz the end-effector's height above the ball's centre). It then stays where it was left.
+Only a hand moving *into* the ball pushes: one at rest or moving away leaves it (the first frame never changes,
+and a ball just released under the open gripper is not shoved sideways). Closed fingers that hold nothing pass through the ball as without pushing (the
+grab rule is unchanged), so pushing changes nothing for a gripper that never opens near the ball.
+
 Missed picks (``pick_miss`` > 0, :func:`miss_start`): a pick-and-place
 motion whose ball lies away from the grasp, so the gripper closes beside it,
 lifts and places nothing while the ball stays where it lay. Whether an
@@ -58,6 +69,7 @@ __all__ = [
     "ee_points",
     "miss_start",
     "GRAB_RADII",
+    "PUSH_CONTACT_RADII",
     "MISS_NEAR_RADII",
     "MISS_FAR_RADII",
     "MISS_NEAR_FRACTION",
@@ -66,6 +78,9 @@ __all__ = [
 OPEN_THRESHOLD = 0.5
 #: The carry rule's grab distance, ball radii.
 GRAB_RADII = 2.2
+#: The push rule's contact distance, ball radii: the ball's radius plus the end-effector marker's (0.6 ball radii,
+#: the magenta sphere :func:`~oscar_core.toyworld.episode.render_world` draws), so a push starts when they touch.
+PUSH_CONTACT_RADII = 1.6
 #: A missed pick's ball: horizontal distance from the grasp end-effector, ball radii, in the near band (just
 #: outside the grab distance: it teaches the threshold) with probability MISS_NEAR_FRACTION, else the far band.
 #: The end-effector grasps 1.4-2.6 radii above the floor, so every miss is more than GRAB_RADII away in 3-D.
@@ -117,14 +132,25 @@ def min_jerk(keys: np.ndarray, times: np.ndarray, T: int) -> np.ndarray:
 
 
 def carry_object(
-    ee: np.ndarray, openness: np.ndarray, start: np.ndarray, radius: float, grab_distance: float
+    ee: np.ndarray,
+    openness: np.ndarray,
+    start: np.ndarray,
+    radius: float,
+    grab_distance: float,
+    *,
+    push_contact: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Object positions under the attachment rule of the module docstring.
 
     ee: (T, 3) end-effector, metres; openness: (T,) of the gripper that
     grabs, in [0, 1]; start: (3,) the ball's centre at frame 0 (z = radius).
+    push_contact: None (default) for no pushing (the ball moves only when grabbed), else the push rule's
+    contact distance in metres (> 0; the toy world's is :data:`PUSH_CONTACT_RADII` x ``radius``).
     Returns positions (T, 3) metres and attached (T,) bool.
     """
+    if push_contact is not None:
+        _check_push_contact(push_contact)
+        return _carry_and_push(ee, openness, start, radius, grab_distance, float(push_contact))
     T = len(ee)
     pos = np.empty((T, 3))
     attached = np.zeros(T, dtype=bool)
@@ -136,6 +162,70 @@ def carry_object(
         if offset is not None and not closed:  # release: drop to the floor below
             offset = None
             p = np.array([p[0], p[1], radius])
+        if offset is None and closed and was_open and np.linalg.norm(ee[t] - p) <= grab_distance:
+            offset = p - ee[t]
+        if offset is not None:
+            p = ee[t] + offset
+            attached[t] = True
+        pos[t] = p
+    return pos, attached
+
+
+def _check_push_contact(push_contact) -> None:
+    if isinstance(push_contact, bool) or not isinstance(push_contact, (int, float, np.floating)):
+        raise ToyWorldError(
+            f"toyworld carry rule: push_contact: expected a contact distance in metres > 0 or None (no pushing), "
+            f"found {push_contact!r}"
+        )
+    if not (np.isfinite(push_contact) and push_contact > 0):
+        raise ToyWorldError(
+            f"toyworld carry rule: push_contact: expected a finite contact distance in metres > 0, found {push_contact}"
+        )
+
+
+def _push_out(p: np.ndarray, c: np.ndarray, was: np.ndarray, contact: float, step_xy: np.ndarray) -> np.ndarray:
+    """The ball's centre ``p`` (3,) after the end-effector moves from ``was`` to ``c`` (3,): unchanged unless it
+    came closer and is closer than ``contact`` (metres), else slid along the floor to exactly ``contact`` from ``c``
+    (module docstring). step_xy: (2,) the sub-step's horizontal motion, the direction used when ``c`` is straight
+    above the ball."""
+    dz = float(c[2] - p[2])
+    near = float(np.linalg.norm(p - c))
+    if abs(dz) >= contact or near >= contact or near >= np.linalg.norm(p - was):
+        return p
+    reach = float(np.sqrt(contact * contact - dz * dz))
+    d = p[:2] - c[:2]
+    dist = float(np.linalg.norm(d))
+    if dist > 1e-12:
+        u = d / dist
+    elif np.linalg.norm(step_xy) > 1e-12:
+        u = step_xy / np.linalg.norm(step_xy)
+    else:
+        u = np.array([1.0, 0.0])
+    return np.array([c[0] + reach * u[0], c[1] + reach * u[1], p[2]])
+
+
+def _carry_and_push(ee, openness, start, radius: float, grab_distance: float, contact: float):
+    """:func:`carry_object` with the push rule (module docstring); same release and grab steps."""
+    ee = np.asarray(ee, dtype=np.float64)
+    T = len(ee)
+    pos = np.empty((T, 3))
+    attached = np.zeros(T, dtype=bool)
+    p = np.asarray(start, dtype=np.float64).copy()
+    offset = None
+    for t in range(T):
+        closed = openness[t] < OPEN_THRESHOLD
+        was_open = t == 0 or openness[t - 1] >= OPEN_THRESHOLD
+        if offset is not None and not closed:  # release: drop to the floor below
+            offset = None
+            p = np.array([p[0], p[1], radius])
+        if offset is None and not closed:  # an open gripper holding nothing pushes
+            prev = ee[max(t - 1, 0)]
+            step = ee[t] - prev
+            n = max(1, int(np.ceil(np.linalg.norm(step) / (0.25 * contact))))
+            was = prev
+            for c in prev + step * (np.arange(1, n + 1) / n)[:, None]:
+                p = _push_out(p, c, was, contact, step[:2])
+                was = c
         if offset is None and closed and was_open and np.linalg.norm(ee[t] - p) <= grab_distance:
             offset = p - ee[t]
         if offset is not None:
