@@ -2,7 +2,8 @@
 benchmark on them (:mod:`oscar_core.toyworld.counterfactual`, :mod:`oscar_core.evaluation.action_following`).
 
 The sets are made for the model: its card's size and ``--chunks`` of its chunk length (1 + chunks x (L − 1)
-frames), into ``OUT/sets`` (kept on a re-run); the benchmark writes ``OUT/report.json`` and ``OUT/summary.md``
+frames), into ``OUT/sets`` (kept on a re-run; ``--push``: with the simulator's push rule and the ``open_push``
+variant); the benchmark writes ``OUT/report.json`` and ``OUT/summary.md``
 with the toy world's judge (:func:`~oscar_core.toyworld.judge.ball_moved`) and ball locator; ``--ceiling`` scores
 the model's VAE reconstruction of the true frames instead of its rollouts (the autoencoder ceiling).
 """
@@ -31,6 +32,8 @@ EXAMPLES = """examples:
   oscar toyworld action-following --model oscar-toy --quick --seed 0 --ceiling --out af_toy_ceiling
       (the autoencoder ceiling: the VAE's reconstruction of the true frames, scored the same way)
   oscar toyworld action-following --model oscar-toy --sets 10 --seed 1 --steps 20 --out af_toy_full
+  oscar toyworld action-following --model oscar-toy --quick --seed 0 --push --out af_toy_push
+      (the simulator pushes the ball with an open gripper; a seventh variant, open_push, sweeps through it)
   (re-running the same command resumes: finished sets are kept)
 """
 
@@ -65,6 +68,13 @@ def add_counterfactual_parser(sub, epilog: str = "") -> argparse.ArgumentParser:
         action="store_true",
         help="the autoencoder ceiling: score the model's VAE reconstruction of every variant's true frames (chunk "
         "by chunk as its rollout decodes) instead of its rollouts; loads only the VAE, no sampling",
+    )
+    a.add_argument(
+        "--push",
+        action="store_true",
+        help="the toy simulator's push rule on for every variant (an open gripper moving into the ball shoves it "
+        "along the floor) and the open_push variant (the open gripper sweeps through the ball); off by default, "
+        "so sets made without it are unchanged; recorded in the sets' manifest",
     )
     a.add_argument("--paired", help="another run's folder on the same sets: report this run minus it, per set")
     a.add_argument("--steps", type=count(1), help="denoising steps per chunk (default: the card's; --quick: 10)")
@@ -152,6 +162,7 @@ def cmd_action_following(args) -> int:
             frames=1 + args.chunks * (L - 1),
             registry=registry,
             progress=progress,
+            push=args.push,
         )
         judge = ProgrammaticJudge(ball_moved, name="oscar_core.toyworld.judge:ball_moved", version=VERSION)
         settings = ActionFollowingSettings(
