@@ -45,7 +45,7 @@ from ._cosmos_layers import (
 from ._resize import resize_padding_mask
 from .configured import ConfiguredModule
 from .errors import CheckpointLayoutError, ModelInputError
-from .weights import CONFIG_NAME
+from .weights import CONFIG_NAME, build_strict, cast_model, load_state_dict, read_config
 
 __all__ = ["CosmosDiT", "DiTOutput", "check_cosmos_config"]
 
@@ -156,6 +156,23 @@ class CosmosDiT(ConfiguredModule):
         """Build from a config mapping; unimplemented settings refused first, naming ``source``."""
         check_cosmos_config(config, source)
         return super().from_config(config, source)
+
+    @classmethod
+    def load_strict(cls, folder, device=None, dtype: torch.dtype | None = None):
+        """Load a model folder (config.json + safetensors) written for this class; every key must match.
+
+        config.json's ``_class_name`` must be this class's ``config_class_name``; settings are checked before
+        any weight is read. dtype: cast to it, the learnt positions kept in float32.
+        """
+        config = read_config(folder, (cls.config_class_name,))
+        check_cosmos_config(config, Path(folder) / CONFIG_NAME)
+        model = build_strict(cls, config, load_state_dict(folder, device=device or "cpu"), folder)
+        return cast_model(model, device, dtype)
+
+    @classmethod
+    def from_pretrained(cls, folder, device=None, dtype: torch.dtype | None = None, torch_dtype=None):
+        """:meth:`load_strict` under diffusers' name (a local folder only; ``torch_dtype`` as diffusers spells it)."""
+        return cls.load_strict(folder, device=device, dtype=dtype or torch_dtype)
 
     @property
     def dtype(self) -> torch.dtype:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from diffusers.configuration_utils import register_to_config
 from torch import nn
 
 from .errors import ModelInputError
@@ -119,7 +118,8 @@ class LatentActionTransformer(OscarTransformer3DModel):
     action_dim: 14. Other arguments are ``OscarTransformer3DModel``'s.
     """
 
-    @register_to_config
+    config_class_name = "LatentActionTransformer"
+
     def __init__(
         self,
         in_channels: int = 16,
@@ -146,7 +146,7 @@ class LatentActionTransformer(OscarTransformer3DModel):
         action_frames: int = 80,
         action_dim: int = ACTION_DIM,
     ) -> None:
-        # diffusers' ConfigMixin needs every argument spelled out (a **kwargs pass-through is not saved)
+        # every argument spelled out: the outermost constructor's signature is the saved config
         super().__init__(
             in_channels=in_channels,
             out_channels=out_channels,

@@ -287,7 +287,7 @@ def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
     CPU, and an offloaded VAE is read to the CPU. The reads themselves are redirected to the CPU (no GPU here)."""
     import safetensors.torch
 
-    from oscar_core.model import transformer as transformer_module, world_model
+    from oscar_core.model import cosmos_dit, world_model
 
     folder = _model().save_pretrained(tmp_path / "m")
     original, asked = safetensors.torch.load_file, []
@@ -297,7 +297,7 @@ def test_weights_are_read_straight_onto_the_gpu(monkeypatch, tmp_path):
         return original(path, device="cpu")
 
     monkeypatch.setattr(safetensors.torch, "load_file", load_file)
-    monkeypatch.setattr(transformer_module, "cast_model", lambda model, device=None, dtype=None: model)
+    monkeypatch.setattr(cosmos_dit, "cast_model", lambda model, device=None, dtype=None: model)
     monkeypatch.setattr(world_model, "cast_model", lambda model, device=None, dtype=None: model)
     monkeypatch.setattr(world_model, "VideoVAE", lambda vae, device, dtype, offload: vae)
     monkeypatch.setattr("oscar_core._util.devices.device_problem", lambda device: None)  # as if this machine had CUDA
