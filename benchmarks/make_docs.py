@@ -69,6 +69,15 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "thread with oneDNN convolutions (best CPU and wall ms, the classes alternating; `max_abs_diff` 0 = "
         "bit-identical).",
     ),
+    "cosmos_dit": (
+        "The Cosmos DiT: oscar's own class against diffusers'",
+        "benchmarks/cosmos_dit.py",
+        "Import and load of the DiT path in fresh processes (oscar's `OscarTransformer3DModel.load_strict` of the "
+        "oscar-toy `transformer/`, diffusers' `CosmosTransformer3DModel` with the same weights less PE_s, "
+        "`import torch` as the floor; median CPU and wall seconds), and one guided step's DiT call of a toy chunk "
+        "(batch 2, 5 x 16 x 16 latent) by both classes in one process on one thread (best CPU and wall ms, the "
+        "classes alternating; `max_abs_diff` 0 = bit-identical).",
+    ),
     "distill_speed": (
         "Teacher, `fast` and the few-step student",
         "benchmarks/distill_speed.py",
