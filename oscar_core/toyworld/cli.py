@@ -109,6 +109,12 @@ def _add_toyworld_generate_parser(sub, fmt) -> None:
         help="fraction in [0, 1] of the other pick-and-place episodes whose gripper never closes (the arm "
         "passes through the grasp, lifts and carries with open fingers, and the ball stays); default 0",
     )
+    g.add_argument(
+        "--push",
+        action="store_true",
+        help="an open gripper moving into the ball pushes it along the floor (robots; recorded in the set); "
+        "default off (sets as before)",
+    )
     threads_option(g, "torch threads for forward kinematics")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
     g.set_defaults(func=cmd_generate)
@@ -432,6 +438,7 @@ def cmd_generate(args) -> int:
         not args.no_skeleton,
         args.pick_miss,
         args.pick_open,
+        args.push,
     )
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))

@@ -205,12 +205,13 @@ def plan_episode(
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
     pick_open: float = 0.0,
+    push: bool = False,
 ) -> tuple[Motion, Scene, Camera]:
     """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels); a hand
     embodiment (:func:`~oscar_core.toyworld.motion.is_hand`) gets a hand motion and skin-coloured capsules.
 
-    pick_miss, miss_rng, pick_open: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's
-    ball is among the points the camera must see, like every ball)."""
+    pick_miss, miss_rng, pick_open, push: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's
+    ball is among the points the camera must see, like every ball; a hand has its own push and ignores ``push``)."""
     from .hand import sample_hand_motion, sample_hand_scene
 
     if is_hand(emb):  # a keypoint hand (docs/toyworld.md, "Hands"): no missed picks; the arm's shoulder at 0
@@ -219,7 +220,9 @@ def plan_episode(
         base_xy = np.zeros(2)
     else:
         check_supported(emb)
-        motion = sample_motion(emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng, pick_open=pick_open)
+        motion = sample_motion(
+            emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng, pick_open=pick_open, push=push
+        )
         scene = sample_scene(rng, len(emb.edges), motion.scale)
         base_xy = motion.points[0, 0, :2]
     R = motion.object_radius
@@ -242,9 +245,10 @@ def make_episode(
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
     pick_open: float = 0.0,
+    push: bool = False,
 ) -> Episode:
     """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``
-    (``pick_miss``, ``miss_rng``, ``pick_open``: :func:`plan_episode`)."""
-    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng, pick_open)
+    (``pick_miss``, ``miss_rng``, ``pick_open``, ``push``: :func:`plan_episode`)."""
+    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng, pick_open, push)
     render = render_world(emb, motion, scene, camera, ss=ss)
     return Episode(emb.name, motion.trajectory, camera, render.rgb, motion, scene, render)

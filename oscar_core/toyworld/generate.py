@@ -12,7 +12,9 @@ visible areas, the attachment flags and the episode kind; ``meta.split`` is
 ``"heldout"`` for every tenth episode (index % 10 == 9) and ``"train"`` otherwise.
 With ``pick_miss`` > 0 a fraction of the pick-and-place episodes miss the ball
 (:func:`~oscar_core.toyworld.motion.miss_start`) and the ground truth adds
-``missed`` and ``grabbed``; the default 0 writes exactly what it wrote before.
+``missed`` and ``grabbed``; the default 0 writes exactly what it wrote before. With ``push`` the robots' balls move
+under the push rule as well (:func:`~oscar_core.toyworld.motion.carry_object`; hands have their own push), recorded
+as ``push_contact_radii`` in the fingerprint and in every record's ground truth (absent without it).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from .._util.log import get_logger, progress_bar
 from ..train.clips import Clip, ClipRecord, ClipSetWriter, clip_openness
 from .episode import episode_rng, make_episode, miss_rng
 from .hand import HAND_MIN_FRAMES, HAND_SOURCE
-from .motion import ToyWorldError, check_supported, is_hand
+from .motion import PUSH_CONTACT_RADII, ToyWorldError, check_supported, is_hand
 
 __all__ = ["SOURCE", "GenerateConfig", "clip_id", "generate_clipset", "split_of"]
 
@@ -49,6 +51,7 @@ class GenerateConfig:
     skeleton: bool = True  # also store the skeleton video (rendered at the RGB size)
     pick_miss: float = 0.0  # fraction of pick_place episodes whose ball lies out of reach (motion.miss_start)
     pick_open: float = 0.0  # fraction of the other pick_place episodes whose gripper never closes
+    push: bool = False  # an open gripper pushes the ball (motion.carry_object's push rule); False: sets as before
 
 
 def clip_id(embodiment: str, index: int) -> str:
@@ -80,6 +83,8 @@ def _checked_embodiments(cfg: GenerateConfig, registry) -> list:
         raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
     if not (isinstance(cfg.pick_open, (int, float)) and 0.0 <= cfg.pick_open <= 1.0):
         raise ToyWorldError(f"toyworld generate: --pick-open: expected a fraction in [0, 1], found {cfg.pick_open!r}")
+    if not isinstance(cfg.push, bool):
+        raise ToyWorldError(f"toyworld generate: --push: expected True or False, found {cfg.push!r}")
     return embs
 
 
@@ -100,6 +105,7 @@ def _stage_parts(cfg: GenerateConfig) -> dict:
         "skeleton": cfg.skeleton,
         "pick_miss": cfg.pick_miss,
         **({"pick_open": cfg.pick_open} if cfg.pick_open > 0 else {}),  # absent: a set made before the option
+        **({"push_contact_radii": PUSH_CONTACT_RADII} if cfg.push else {}),  # absent: made without pushing
     }
 
 
@@ -121,6 +127,7 @@ def _episode_clip(cfg: GenerateConfig, emb, i: int):
         pick_miss=cfg.pick_miss,
         miss_rng=miss_rng(cfg.seed, emb.name, i),
         pick_open=cfg.pick_open,
+        push=cfg.push,
     )
     skel = None
     if cfg.skeleton:
@@ -133,6 +140,8 @@ def _episode_clip(cfg: GenerateConfig, emb, i: int):
         "split": split_of(i),
         "toyworld": ep.ground_truth(cfg.pick_miss > 0, cfg.pick_open > 0),
     }
+    if cfg.push and not is_hand(emb):
+        meta["toyworld"]["push_contact_radii"] = PUSH_CONTACT_RADII
     rec = ClipRecord(
         id=clip_id(emb.name, i),
         source=HAND_SOURCE if is_hand(emb) else SOURCE,

@@ -37,6 +37,10 @@ closes; the arm reaches the ball, lifts, carries and places with open fingers,
 and the ball stays where it lay (the carry rule attaches it only on closing).
 Drawn from the same second generator after the miss (a missed pick is never
 also open), only when ``pick_open`` > 0, so a set made without it is unchanged.
+
+Pushing (``push=True`` in :func:`sample_motion`, off by default): the ball moves under the push rule as well
+(:data:`PUSH_CONTACT_RADII` ball radii), so an open gripper that comes down on it or sweeps through it shoves it;
+it draws nothing, so the same generator gives the same arm motion either way.
 """
 
 from __future__ import annotations
@@ -397,6 +401,7 @@ def sample_motion(
     pick_miss: float = 0.0,
     miss_rng: np.random.Generator | None = None,
     pick_open: float = 0.0,
+    push: bool = False,
 ) -> Motion:
     """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
     reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses.
@@ -408,6 +413,7 @@ def sample_motion(
     every ``pick_miss``, and with the same ``miss_rng`` an episode that misses at F misses at every F' > F.
     pick_open: probability in [0, 1] that a pick-and-place motion that did not miss keeps its gripper open
     throughout (the joint motion unchanged; the ball stays), drawn from ``miss_rng`` after the miss.
+    push: the ball also moves under the push rule (module docstring); draws nothing.
     """
     check_supported(emb)
     if frames < 5:
@@ -416,6 +422,8 @@ def sample_motion(
         raise ToyWorldError(f"toyworld: --pick-miss: expected a fraction in [0, 1], found {pick_miss!r}")
     if not (isinstance(pick_open, (int, float)) and 0.0 <= pick_open <= 1.0):
         raise ToyWorldError(f"toyworld: --pick-open: expected a fraction in [0, 1], found {pick_open!r}")
+    if not isinstance(push, bool):
+        raise ToyWorldError(f"toyworld: --push: expected True or False, found {push!r}")
     poses = _candidate_poses(emb, rng, n_candidates)
     G = len(emb.grippers)
     T = frames
@@ -440,7 +448,8 @@ def sample_motion(
     )
     points, ee_t = ee_points(emb, traj)
     if G:
-        obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=GRAB_RADII * R)
+        contact = PUSH_CONTACT_RADII * R if push else None
+        obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=GRAB_RADII * R, push_contact=contact)
     else:
         obj, attached = np.repeat(obj0[None], T, 0), np.zeros(T, dtype=bool)
     return Motion(traj, kind, points, ee_t, obj, attached, R, scale, missed, never_closed=never_closed)

@@ -301,3 +301,51 @@ def test_the_command_passes_push_to_the_sets(monkeypatch, tmp_path):
     assert main([*base, "--out", str(tmp_path / "a"), "--push"]) == 2
     assert main([*base, "--out", str(tmp_path / "b")]) == 2
     assert seen == [True, False]
+
+
+def _motion(name, i, **kw):
+    from oscar_core.toyworld.episode import episode_rng, miss_rng
+    from oscar_core.toyworld.motion import sample_motion
+
+    emb = get_embodiment(name)
+    return sample_motion(emb, episode_rng(0, name, i), 17, miss_rng=miss_rng(0, name, i), **kw)
+
+
+def test_training_motions_with_pushing_move_the_arm_the_same_and_an_open_pick_pushes_its_ball():
+    pushed = 0
+    for name in ("toyarm", "kuka"):
+        for i in range(4):
+            plain, push = _motion(name, i, pick_open=1.0), _motion(name, i, pick_open=1.0, push=True)
+            np.testing.assert_array_equal(push.trajectory.q, plain.trajectory.q)  # pushing draws nothing
+            np.testing.assert_array_equal(push.trajectory.gripper, plain.trajectory.gripper)
+            assert not push.attached.any() or push.kind != "pick_place"
+            if push.kind == "pick_place":  # the open gripper comes down on the ball: it is nudged aside
+                np.testing.assert_array_equal(plain.object, np.repeat(plain.object[:1], 17, 0))
+                moved = np.linalg.norm(push.object[-1, :2] - push.object[0, :2]) / push.object_radius
+                assert 0 < moved and push.object[-1, 2] == pytest.approx(push.object_radius)
+                pushed += 1
+            closed = _motion(name, i, push=True)
+            if closed.kind == "pick_place":  # a closing gripper still grabs and carries
+                assert closed.attached.any()
+    assert pushed >= 3
+    with pytest.raises(ToyWorldError, match="--push: expected True or False"):
+        _motion("toyarm", 0, push="yes")
+
+
+def test_generate_records_pushing_and_keeps_the_fingerprint_without_it(tmp_path):
+    from oscar_core.plugin.registry import default_registry
+    from oscar_core.toyworld.generate import GenerateConfig, generate_clipset
+
+    reg = default_registry()
+
+    def made(out, **kw):
+        generate_clipset(GenerateConfig(("toyarm",), 1, 32, 32, 9, seed=1, skeleton=False, **kw), out, reg)
+        rec = json.loads((out / "shard-toyarm-000000" / "clips.jsonl").read_text().splitlines()[0])
+        return json.loads((out / "fingerprint.json").read_text())["parts"], rec["meta"]["toyworld"]
+
+    parts, gt = made(tmp_path / "plain")
+    assert "push_contact_radii" not in parts and "push_contact_radii" not in gt
+    parts, gt = made(tmp_path / "push", push=True)
+    assert parts["push_contact_radii"] == gt["push_contact_radii"] == PUSH_CONTACT_RADII
+    with pytest.raises(ToyWorldError, match="--push: expected True or False"):
+        generate_clipset(GenerateConfig(("toyarm",), 1, push=1), tmp_path / "bad", reg)
