@@ -3,10 +3,6 @@ as computed by hand, a tiny distillation run that resumes bitwise, exports a car
 per chunk and no unconditional branch, and rolls out identically after a reload; 1 vs 2 processes under torchrun."""
 
 import json
-import os
-import socket
-import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -16,6 +12,7 @@ import torch
 import yaml
 from _models import tiny_clipset, tiny_train_config
 from _paths import REPO
+from _torchrun import train_under_torchrun
 
 from oscar_core.model.card_sampler import sampler_of_card
 from oscar_core.model.sampler import flow_sigmas, model_calls
@@ -227,26 +224,27 @@ def test_distillation_resumes_bitwise_and_exports_a_four_call_student_that_reloa
     assert np.array_equal(again.rollout(first, skeleton, prompt, progress=False, seed=3).frames, out.frames)
 
 
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+@pytest.fixture(scope="module")
+def distilled_two_ways(tmp_path_factory, clipset, teacher):
+    """Run folders of the same 2-step distillation in this process ("one") and on 2 gloo processes under DDP and
+    FSDP2 ("ddp", "fsdp"), the two trained by one torchrun launch (tests/_torchrun.py)."""
+    tmp = tmp_path_factory.mktemp("distil_two_ways")
+    common = {"steps": 2, "batch_size": 4, "save_every": 2, "data.skeleton_dropout": 0.5}
+    train(config_from_dict(_student(clipset, teacher, tmp / "one", **common)), progress=False)
+    paths = []
+    for mode in ("ddp", "fsdp"):
+        paths.append(tmp / f"{mode}.yaml")
+        paths[-1].write_text(yaml.safe_dump(_student(clipset, teacher, tmp / mode, parallel=mode, **common)))
+    out = train_under_torchrun(paths)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return tmp
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("parallel", ["ddp", "fsdp"])
-def test_two_processes_distil_as_one(tmp_path, clipset, teacher, parallel):
-    common = {"steps": 2, "batch_size": 4, "save_every": 2, "data.skeleton_dropout": 0.5}
-    one = config_from_dict(_student(clipset, teacher, tmp_path / "one", **common))
-    train(one, progress=False)
-    path = tmp_path / "two.yaml"
-    path.write_text(yaml.safe_dump(_student(clipset, teacher, tmp_path / "two", parallel=parallel, **common)))
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1"]
-    cmd += ["--master-port", str(_port()), "-m", "oscar_core.train", str(path), "--no-progress"]
-    out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
-    assert out.returncode == 0, out.stderr[-3000:]
+def test_two_processes_distil_as_one(distilled_two_ways, parallel):
     for key in ("model", "ema"):
-        a, b = _weights(tmp_path / "one", key), _weights(tmp_path / "two", key)
+        a, b = _weights(distilled_two_ways / "one", key), _weights(distilled_two_ways / parallel, key)
         assert all(torch.allclose(a[k], b[k], atol=2e-6, rtol=1e-5) for k in a), key
 
 

@@ -6,10 +6,6 @@ choice is a function of the item's seed; a self-forced tiny run resumes bitwise,
 the same weights on 1 and 2 processes."""
 
 import json
-import os
-import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +13,7 @@ import pytest
 import torch
 import yaml
 from _models import tiny_train_config
+from _torchrun import train_under_torchrun
 
 from oscar_core.model.sampler import SamplerConfig, flow_sigmas, sample_chunk
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
@@ -184,12 +181,14 @@ def test_a_self_forced_distillation_resumes_bitwise_and_trains_otherwise_than_wi
     assert not all(torch.equal(a[k], b[k]) for k in a)  # the student's own first frames change what it learns
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("parallel", ["ddp", "fsdp"])
-def test_two_processes_self_force_as_one(tmp_path, long_clips, parallel):
-    teacher = train(tiny_train_config(long_clips, tmp_path / "teacher", steps=2, export=True), progress=False).export
+@pytest.fixture(scope="module")
+def self_forced_two_ways(tmp_path_factory, long_clips):
+    """Run folders of the same 2-step self-forced distillation in this process ("one") and on 2 gloo processes under
+    DDP and FSDP2 ("ddp", "fsdp"), the two trained by one torchrun launch (tests/_torchrun.py)."""
+    tmp = tmp_path_factory.mktemp("self_forced_two_ways")
+    teacher = train(tiny_train_config(long_clips, tmp / "teacher", steps=2, export=True), progress=False).export
     common = {"model.init": str(teacher), "distill.teacher": str(teacher), "steps": 2, "batch_size": 4}
-    one = _config(long_clips, tmp_path / "one", **common)
+    one = _config(long_clips, tmp / "one", **common)
     # the case that needs care under FSDP2: in one micro-step a process has items to self-force, the other none
     data = TrainData(one, build_vae(one), text_dim=48)
     counts = [
@@ -199,15 +198,18 @@ def test_two_processes_self_force_as_one(tmp_path, long_clips, parallel):
     ]
     assert any(any(a) != any(b) for a, b in zip(counts[0::2], counts[1::2])), counts
     train(one, progress=False)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    path = tmp_path / "two.yaml"
-    path.write_text(yaml.safe_dump(config_to_dict(_config(long_clips, tmp_path / "two", parallel=parallel, **common))))
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1"]
-    cmd += ["--master-port", str(port), "-m", "oscar_core.train", str(path), "--no-progress"]
-    out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300)
+    paths = []
+    for mode in ("ddp", "fsdp"):
+        paths.append(tmp / f"{mode}.yaml")
+        paths[-1].write_text(yaml.safe_dump(config_to_dict(_config(long_clips, tmp / mode, parallel=mode, **common))))
+    out = train_under_torchrun(paths)
     assert out.returncode == 0, out.stderr[-3000:]
+    return tmp
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("parallel", ["ddp", "fsdp"])
+def test_two_processes_self_force_as_one(self_forced_two_ways, parallel):
     for key in ("model", "ema"):
-        a, b = _weights(tmp_path / "one", key), _weights(tmp_path / "two", key)
+        a, b = _weights(self_forced_two_ways / "one", key), _weights(self_forced_two_ways / parallel, key)
         assert all(torch.allclose(a[k], b[k], atol=2e-6, rtol=1e-5) for k in a), key
