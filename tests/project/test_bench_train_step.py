@@ -19,9 +19,6 @@ What is asserted cannot flake on a shared machine:
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 import torch
@@ -31,23 +28,26 @@ SCRIPT = REPO / "benchmarks" / "train.py"
 VARIANTS = ["none", "full", "none+compile", "full+compile"]
 
 
-def run(tmp_path, *args, timeout=900):
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    return subprocess.run(
-        [sys.executable, str(SCRIPT), "--step-table", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=timeout,
-        check=False,
-    )
+def step_table(capsys, monkeypatch, *args) -> tuple[int, str]:
+    """``benchmarks/train.py --step-table ARGS`` with its parent in this process (it only starts a fresh process per
+    variant, which measures, and writes the table; its own process would only add an import of torch and oscar):
+    the exit code (returned, or an argparse SystemExit) and stderr. One thread per variant, as the table is run."""
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    threads = torch.get_num_threads()  # main sets one thread for the process
+    try:
+        code = _bench_module().main(["--step-table", *args])
+    except SystemExit as exc:
+        code = exc.code
+    finally:
+        torch.set_num_threads(threads)
+    return code, capsys.readouterr().err
 
 
 @pytest.mark.slow
-def test_step_table_tiny_cpu(tmp_path):
+def test_step_table_tiny_cpu(tmp_path, capsys, monkeypatch):
     out = tmp_path / "step.json"
-    proc = run(tmp_path, "--step-size", "tiny", "--step-repeats", "2", "--json", str(out))
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    code, err = step_table(capsys, monkeypatch, "--step-size", "tiny", "--step-repeats", "2", "--json", str(out))
+    assert code == 0, err[-3000:]
     t = json.loads(out.read_text())["step_table"]
     assert [r["variant"] for r in t["variants"]] == VARIANTS
     assert t["size"] == "tiny" and t["device"] == "cpu" and t["dtype"] == "float32" and t["disagreeing"] == []
@@ -81,11 +81,12 @@ def test_step_table_tiny_cpu(tmp_path):
 
 
 @pytest.mark.slow
-def test_step_table_disagreement_exits_nonzero_naming_variants(tmp_path):
+def test_step_table_disagreement_exits_nonzero_naming_variants(tmp_path, capsys, monkeypatch):
     # a negative tolerance: every variant "disagrees" (eager only, so no compile: quick)
     out = tmp_path / "step.json"
-    proc = run(
-        tmp_path,
+    code, err = step_table(
+        capsys,
+        monkeypatch,
         "--step-size",
         "tiny",
         "--step-variants",
@@ -97,40 +98,29 @@ def test_step_table_disagreement_exits_nonzero_naming_variants(tmp_path):
         "--json",
         str(out),
     )
-    assert proc.returncode == 1
-    assert "FAILED" in proc.stderr and "none (" in proc.stderr and "full (" in proc.stderr
+    assert code == 1
+    assert "FAILED" in err and "none (" in err and "full (" in err
     t = json.loads(out.read_text())["step_table"]  # the measurements are written all the same
     assert t["disagreeing"] == ["none", "full"]
 
 
-def refused(capsys, *args) -> tuple[int, str]:
-    """``benchmarks/train.py --step-table ARGS`` in this process: its exit code (returned, or an argparse
-    SystemExit) and stderr. A refusal happens before any work, so a fresh process would only add an import."""
-    threads = torch.get_num_threads()  # main sets one thread for the process
-    try:
-        code = _bench_module().main(["--step-table", *args])
-    except SystemExit as exc:
-        code = exc.code
-    finally:
-        torch.set_num_threads(threads)
-    return code, capsys.readouterr().err
-
-
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without CUDA")
-def test_cuda_refused_without_cuda(tmp_path, capsys):
-    code, err = refused(capsys, "--step-size", "2b", "--device", "cuda", "--json", str(tmp_path / "x.json"))
+def test_cuda_refused_without_cuda(tmp_path, capsys, monkeypatch):
+    code, err = step_table(
+        capsys, monkeypatch, "--step-size", "2b", "--device", "cuda", "--json", str(tmp_path / "x.json")
+    )
     assert code == 2
     assert "CUDA is not available" in err and not (tmp_path / "x.json").exists()
 
 
-def test_2b_refused_on_cpu(tmp_path, capsys):
-    code, err = refused(capsys, "--step-size", "2b", "--json", str(tmp_path / "x.json"))
+def test_2b_refused_on_cpu(tmp_path, capsys, monkeypatch):
+    code, err = step_table(capsys, monkeypatch, "--step-size", "2b", "--json", str(tmp_path / "x.json"))
     assert code == 2
     assert "--device cuda" in err and not (tmp_path / "x.json").exists()
 
 
-def test_unknown_variant_refused(tmp_path, capsys):
-    code, err = refused(capsys, "--step-size", "tiny", "--step-variants", "none,half")
+def test_unknown_variant_refused(tmp_path, capsys, monkeypatch):
+    code, err = step_table(capsys, monkeypatch, "--step-size", "tiny", "--step-variants", "none,half")
     assert code == 2 and "--step-variants" in err and "half" in err
 
 
