@@ -3,7 +3,7 @@ model.compile false/true, exercised on the CPU at the tiny size.
 
 What is asserted cannot flake on a shared machine:
 
-* the four variants' first-step losses and gradient norms agree (the same seed and batch; checkpointing changes
+* the variants' first-step losses and gradient norms agree (the same seed and batch; checkpointing changes
   memory, not arithmetic — eager none and full agree to the last bit here, single-threaded — and compile within
   the float32 tolerance);
 * ``full`` saves fewer activation bytes than ``none``: a *count* of the storages autograd saves in one forward
@@ -43,13 +43,22 @@ def step_table(capsys, monkeypatch, *args) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+def test_the_step_variants_are_the_four_with_the_eager_reference_first():
+    bench = _bench_module()
+    assert [bench.variant_name(c, k) for c, k in bench.STEP_VARIANTS] == VARIANTS
+
+
 @pytest.mark.slow
 def test_step_table_tiny_cpu(tmp_path, capsys, monkeypatch):
+    # none+compile left out: compiled against eager without checkpointing is test_compiled_step_equals_eager's case
+    # (tests/train/test_train_memory.py, per-parameter gradients), and each compile costs ~40 CPU s here
     out = tmp_path / "step.json"
-    code, err = step_table(capsys, monkeypatch, "--step-size", "tiny", "--step-repeats", "2", "--json", str(out))
+    chosen = ["none", "full", "full+compile"]
+    args = ["--step-size", "tiny", "--step-repeats", "2", "--step-variants", ",".join(chosen), "--json", str(out)]
+    code, err = step_table(capsys, monkeypatch, *args)
     assert code == 0, err[-3000:]
     t = json.loads(out.read_text())["step_table"]
-    assert [r["variant"] for r in t["variants"]] == VARIANTS
+    assert [r["variant"] for r in t["variants"]] == chosen
     assert t["size"] == "tiny" and t["device"] == "cpu" and t["dtype"] == "float32" and t["disagreeing"] == []
     for r in t["variants"]:
         assert r["activation_checkpointing"] == r["variant"].split("+")[0]
