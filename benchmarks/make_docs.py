@@ -52,11 +52,13 @@ ABOUT: dict[str, tuple[str, str, str]] = {
     "startup": (
         "Start-up: `oscar` commands and a toy rollout's imports",
         "benchmarks/startup.py",
-        "Fresh processes timed from outside (median CPU and wall seconds, modules held at exit): `oscar --help`, "
-        "`oscar rollout --help`, `oscar zoo list`, and what `oscar rollout` of `oscar-toy` imports before reading "
-        "weights, beside three floors: `import torch`, `import torch, torch._dynamo` (diffusers imports both whatever "
-        "is asked of it) and diffusers' DiT and VAE classes imported from their own modules with no oscar code (they "
-        "bring transformers and scipy too); `by_package`: the toy row's import time per top-level package from one "
+        "Fresh processes timed from outside (median CPU and wall seconds, modules held at exit, and which of "
+        "diffusers, transformers and torch._dynamo they held): `oscar --help`, `oscar rollout --help`, `oscar zoo "
+        "list`, and what `oscar rollout` of `oscar-toy` imports before reading weights (oscar's own DiT, VAE and "
+        "UniPC), beside three floors: `import torch`, `import torch, torch._dynamo` and diffusers' DiT and VAE "
+        "classes imported from their own modules with no oscar code (what the toy row cost while its models were "
+        "diffusers' classes: they bring torch._dynamo, transformers and scipy); `by_package`: the toy row's import "
+        "time per top-level package from one "
         "`python -X importtime` process (self times, the importer's wall clock); `before` rows: an older commit "
         "measured in the same run, alternating with this one.",
     ),
@@ -206,7 +208,7 @@ HEADLINES: tuple[Headline, ...] = (
     ),
     Headline("`oscar --help`", "startup.json", "rows[checkout=this,what=oscar --help].cpu_s", "CPU s"),
     Headline(
-        "A toy rollout's imports (torch, diffusers' DiT and VAE)",
+        "A toy rollout's imports (torch, oscar's DiT, VAE and UniPC)",
         "startup.json",
         "rows[checkout=this,what=toy rollout imports].cpu_s",
         "CPU s",

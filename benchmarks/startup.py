@@ -4,19 +4,21 @@
 
 Each row runs a fresh interpreter ``--repeats`` times from the repository root (the checkout's own code comes
 first on sys.path) and reports the median wall seconds from spawn to exit and the median CPU seconds (user + system)
-of the process, from ``resource.getrusage(RUSAGE_CHILDREN)``, beside the number of modules it ended up holding.
+of the process, from ``resource.getrusage(RUSAGE_CHILDREN)``, beside the number of modules it ended up holding and
+which of the heavy imports diffusers, transformers and torch._dynamo it held (``heavy``: their names, or "none").
 Rows:
 
 - ``python -c pass``: the interpreter and site packages alone (the floor under every command);
 - ``oscar --help``, ``oscar rollout --help``, ``oscar zoo list --json``: the command as a user types it;
 - ``toy rollout imports``: what ``oscar rollout`` of the bundled ``oscar-toy`` imports before it reads weights (the
-  command module, ``rollout_files``, ``world_model`` with diffusers' Cosmos DiT and WAN VAE, and torch);
+  command module, ``rollout_files``, ``world_model`` with oscar's own Cosmos DiT, Wan VAE and UniPC solver, and
+  torch);
 - ``import torch``, ``import torch + torch._dynamo`` and ``diffusers' DiT + VAE classes`` (torch, then
   ``CosmosTransformer3DModel`` and ``AutoencoderKLWan`` from their own modules, no oscar code): reference floors.
   diffusers imports ``torch._dynamo`` from ``diffusers.utils`` whatever submodule is asked for, and its model base
-  classes bring transformers (its quantization config) and scipy (the schedulers, through the single-file loader),
-  so the toy row cannot fall below the third floor while the rollout's models are diffusers' classes; the toy row
-  minus that floor is what oscar's own modules add.
+  classes bring transformers (its quantization config) and scipy (the schedulers, through the single-file loader);
+  the third floor is what the toy row cost while the rollout's models were diffusers' classes (the naive way,
+  measured in the same run), and the toy row minus ``import torch`` is what oscar's own modules add.
 
 After the repeats, one more process of the toy row runs under ``python -X importtime``; its self times summed per
 top-level package (``by_package`` in the JSON: seconds as the importer's clock saw them, wall time inside the
@@ -49,7 +51,13 @@ TOY = "toy rollout imports"
 
 #: label -> the Python code of the process (``main`` is oscar's CLI entry; SystemExit from --help is the command
 #: ending, as in the console script)
-PROBE = "import sys\n{code}\nprint(len(sys.modules), file=sys.stderr)\n"
+PROBE = (
+    "import json, sys\n{code}\n"
+    "heavy = sorted({{h for h in HEAVY for m in sys.modules if m == h or m.startswith(h + '.')}})\n"
+    "print(json.dumps([len(sys.modules), heavy]), file=sys.stderr)\n"
+)
+#: the imports a toy rollout no longer needs (tests/model/test_rollout_imports.py keeps them out of its path)
+HEAVY = ("diffusers", "transformers", "torch._dynamo")
 CLI = "from oscar_core.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass"
 ROWS: dict[str, str] = {
     "python -c pass": "pass",
@@ -73,12 +81,18 @@ ROWS: dict[str, str] = {
 IMPORTTIME_LINE = re.compile(r"import time:\s+(\d+) \|\s+(\d+) \|\s*(\S+)")
 
 
-def run_once(code: str, cwd: Path) -> tuple[float, float, int]:
-    """(wall s, CPU s, modules held at the end) of one fresh interpreter running ``code`` in ``cwd``."""
+def probe(code: str) -> str:
+    """The program a row's process runs: ``code``, then its module count and heavy imports as JSON on stderr."""
+    return PROBE.replace("HEAVY", repr(HEAVY)).format(code=code)
+
+
+def run_once(code: str, cwd: Path) -> tuple[float, float, int, list[str]]:
+    """(wall s, CPU s, modules held at the end, heavy imports held) of one fresh interpreter running ``code`` in
+    ``cwd``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-c", PROBE.format(code=code)],
+        [sys.executable, "-c", probe(code)],
         cwd=cwd,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -90,7 +104,8 @@ def run_once(code: str, cwd: Path) -> tuple[float, float, int]:
     if proc.returncode != 0:
         raise SystemExit(f"startup: {code!r} in {cwd} exited {proc.returncode}: {proc.stderr.strip()[-500:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return wall, cpu, int(proc.stderr.strip().splitlines()[-1])
+    modules, heavy = json.loads(proc.stderr.strip().splitlines()[-1])
+    return wall, cpu, int(modules), list(heavy)
 
 
 def by_package(importtime: str, top: int = 10) -> list[dict]:
@@ -122,7 +137,7 @@ def by_package(importtime: str, top: int = 10) -> list[dict]:
 def importtime_of(code: str, cwd: Path) -> str:
     """The ``-X importtime`` report of one fresh interpreter running ``code`` in ``cwd``."""
     proc = subprocess.run(
-        [sys.executable, "-X", "importtime", "-c", PROBE.format(code=code)],
+        [sys.executable, "-X", "importtime", "-c", probe(code)],
         cwd=cwd,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -150,7 +165,7 @@ def commit_of(checkout: Path) -> str:
 
 def measure(checkouts: dict[str, Path], repeats: int) -> list[dict]:
     """One row per (checkout, probe): medians over ``repeats``, the checkouts alternating within each repeat."""
-    runs: dict[tuple[str, str], list[tuple[float, float, int]]] = {}
+    runs: dict[tuple[str, str], list[tuple[float, float, int, list[str]]]] = {}
     for _ in range(repeats):
         for label, code in ROWS.items():
             for name, path in checkouts.items():
@@ -163,21 +178,22 @@ def measure(checkouts: dict[str, Path], repeats: int) -> list[dict]:
             "commit": commit_of(checkouts[name]),
             "what": label,
             "repeats": repeats,
-            "cpu_s": round(statistics.median(c for _, c, _ in r), 3),
-            "wall_s": round(statistics.median(w for w, _, _ in r), 3),
-            "wall_s_max": round(max(w for w, _, _ in r), 3),
+            "cpu_s": round(statistics.median(run[1] for run in r), 3),
+            "wall_s": round(statistics.median(run[0] for run in r), 3),
+            "wall_s_max": round(max(run[0] for run in r), 3),
             "modules": r[-1][2],
+            "heavy": ", ".join(r[-1][3]) or "none",
         }
         for (name, label), r in runs.items()
     ]
 
 
 def print_table(rows: list[dict]) -> None:
-    print(f"{'checkout':<22} {'what':<30} {'CPU s':>7} {'wall s':>7} {'wall max':>9} {'modules':>8}")
+    print(f"{'checkout':<22} {'what':<30} {'CPU s':>7} {'wall s':>7} {'wall max':>9} {'modules':>8}  heavy imports")
     for r in sorted(rows, key=lambda r: (list(ROWS).index(r["what"]), r["checkout"])):
         print(
             f"{r['checkout'] + ' ' + r['commit']:<22} {r['what']:<30} {r['cpu_s']:>7.3f} {r['wall_s']:>7.3f} "
-            f"{r['wall_s_max']:>9.3f} {r['modules']:>8}"
+            f"{r['wall_s_max']:>9.3f} {r['modules']:>8}  {r['heavy']}"
         )
 
 

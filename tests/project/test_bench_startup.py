@@ -42,3 +42,11 @@ def test_packages_past_the_top_are_summed_as_other(bench):
     rows = bench.by_package(REPORT, top=2)
     assert [r["package"] for r in rows] == ["torch", "sympy", "other"]
     assert rows[-1] == {"package": "other", "self_s": 0.105, "share": 0.149, "modules": 3}
+
+
+def test_each_process_reports_its_module_count_and_the_heavy_imports_it_holds(bench):
+    # a stand-in module named like a submodule of diffusers: counted as diffusers, without importing it
+    code = "import types\nsys.modules['diffusers.utils'] = types.ModuleType('diffusers.utils')"
+    _, _, modules, heavy = bench.run_once(code, REPO)
+    assert heavy == ["diffusers"] and modules > 10
+    assert bench.run_once("pass", REPO)[3] == []
