@@ -165,7 +165,7 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
                 height=64,
                 fps=10.0,
                 files=(
-                    FileSpec("README.md", "cfc27b59a274acacdca023f464ff613a2ca4b3cae5fdd3ba892636f4b34afe20"),
+                    FileSpec("README.md", "387c6787bd0a9b86387b2f704810227394c5b47051c9fb823a51b3bc3699d42a"),
                     FileSpec("oscar_manifest.json", "dd458a47bb259834d8d43d7d5f1a766ecd0f0ea0a5199a1a5f4a5333611b4452"),
                     FileSpec("oscar_model.json", "506281c49863b31a8483dfc7492317bc7ddb2f27064744c844102a0762c8cf23"),
                     FileSpec(
@@ -174,7 +174,7 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
                     ),
                     FileSpec(
                         "tiny_decoder.safetensors",
-                        "a6363dd2681f473165bed864390897dcb22fd9eac5dfb52902bad922b6051f36",
+                        "f62aafbbad3c6bf7d6107c21ae461b847432638f8feca67fca67294659ded303",
                     ),
                     FileSpec(
                         "transformer/config.json", "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"
