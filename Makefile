@@ -34,8 +34,10 @@ demo: install
 test: install
 	$(PYTHON) -m pytest -q --strict-extras
 
+# the fast tests in parallel, one worker per core (pytest-xdist; TEST_WORKERS=0 runs them in this process)
+TEST_WORKERS ?= auto
 test-fast: install
-	$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install"
+	$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install" -n $(TEST_WORKERS)
 
 # a real install into a fresh virtual environment (downloads dependencies)
 test-install: install

@@ -8,11 +8,13 @@ demo`` and ``make test`` create ``VENV`` first, and every pip install and every 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
+import tomllib
 from _paths import REPO
 
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
@@ -74,3 +76,13 @@ def test_ci_calls_the_readmes_commands():
     assert "make demo" not in ci
     install = (REPO / "tests" / "project" / "test_install_venv.py").read_text()
     assert '"oscar_core.cli", "demo"' in install
+
+
+def test_test_fast_runs_in_parallel_with_xdist_from_the_dev_extra():
+    makefile = (REPO / "Makefile").read_text()
+    recipe = re.search(r"^test-fast: install\n\t(.*)$", makefile, re.M).group(1)
+    assert "-n $(TEST_WORKERS)" in recipe and re.search(r"^TEST_WORKERS \?= auto$", makefile, re.M)
+    test_recipe = re.search(r"^test: install\n\t(.*)$", makefile, re.M).group(1)
+    assert " -n " not in test_recipe  # CI's run stays in one process
+    dev = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"]["dev"]
+    assert any(req.startswith("pytest-xdist") for req in dev)
