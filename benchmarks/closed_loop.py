@@ -216,7 +216,7 @@ def _best_cpu(fn, repeats: int):
 @contextlib.contextmanager
 def _sum_of_squares_rms_norm():
     """The WAN RMS norm with ``x / max(sqrt(sum_c x^2), eps)`` in place of ``F.normalize`` (float32 only)."""
-    from oscar_core.model import wan_vae as wan
+    from oscar_core.model import _wan_vae_layers as wan
 
     original = wan.RMSNorm.forward
 
@@ -234,7 +234,7 @@ def _sum_of_squares_rms_norm():
 def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
     """What of the VAE could leave the policy's critical path, on one chunk ``frames`` (L, H, W, 3) uint8
     (module docstring). CPU and wall in milliseconds, best of ``repeats``."""
-    from oscar_core.model import wan_vae as wan
+    from oscar_core.model import _wan_vae_layers as wan
     from oscar_core.model.vae import VideoVAE
 
     vae = model.vae
