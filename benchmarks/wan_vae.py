@@ -159,10 +159,10 @@ def main(argv=None) -> int:
     for r in compute:
         print(f"{r['vae'] + ' ' + r['part']:<40} {r['cpu_ms']:>8.1f} {r['wall_ms']:>8.1f} {r['max_abs_diff']:>11.3g}")
     result = {"repeats": args.repeats, "load_1min": [load, os.getloadavg()[0]], "imports": imports, "compute": compute}
+    from oscar_core._util.atomic import atomic_write_bytes
+
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.json.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(with_provenance(result), indent=2) + "\n")
-    tmp.replace(args.json)
+    atomic_write_bytes(args.json, (json.dumps(with_provenance(result), indent=2) + "\n").encode())
     print(f"\nwrote {args.json}")
     return 0
 
