@@ -110,6 +110,15 @@ def _add_toyworld_generate_parser(sub, fmt) -> None:
         "passes through the grasp, lifts and carries with open fingers, and the ball stays); default 0",
     )
     g.add_argument(
+        "--pick-timing",
+        type=number(0.0, 1.0),
+        default=0.0,
+        metavar="F",
+        help="fraction in [0, 1] of the picks that neither miss nor stay open whose gripper closes early (before "
+        "reaching the ball: it passes over it closed) or late (after leaving it), half each; the ball stays; "
+        "default 0 (sets as before)",
+    )
+    g.add_argument(
         "--push",
         action="store_true",
         help="an open gripper moving into the ball pushes it along the floor (robots; recorded in the set); "
@@ -439,6 +448,7 @@ def cmd_generate(args) -> int:
         args.pick_miss,
         args.pick_open,
         args.push,
+        args.pick_timing,
     )
     with run_log(args.out, "toyworld-generate"):
         summary = generate_clipset(cfg, args.out, _registry(args))

@@ -67,7 +67,15 @@ import numpy as np
 
 from .._util.log import get_logger
 from ..evaluation.variant_transforms import VariantError, apply_transforms
-from .motion import GRAB_RADII, PUSH_CONTACT_RADII, Motion, ToyWorldError, carry_object, ee_points
+from .motion import (
+    GRAB_RADII,
+    PUSH_CONTACT_RADII,
+    Motion,
+    ToyWorldError,
+    carry_object,
+    decision_margin,
+    ee_points,
+)
 
 __all__ = [
     "VARIANTS",
@@ -125,8 +133,8 @@ def variants_of(push: bool) -> tuple[str, ...]:
 
 def margin(frames: int) -> int:
     """Frames between a decision and the grab-distance boundary (close early / late) and the half-width of a miss's
-    full shift: 5 % of the episode, at least 2."""
-    return max(2, int(round(0.05 * (frames - 1))))
+    full shift: :func:`~oscar_core.toyworld.motion.decision_margin`, the rule mistimed training picks use too."""
+    return decision_margin(frames)
 
 
 @dataclasses.dataclass

@@ -141,13 +141,14 @@ class Episode:
     render: RenderResult
     meta: dict = field(default_factory=dict)
 
-    def ground_truth(self, miss_fields: bool = False, open_field: bool = False) -> dict:
+    def ground_truth(self, miss_fields: bool = False, open_field: bool = False, timing_field: bool = False) -> dict:
         """JSON-ready ground truth (the ``meta.toyworld`` of a clip record; docs/formats.md).
 
         miss_fields: also write ``missed`` (a pick_place episode whose ball lay out of reach) and ``grabbed``
         (the ball attached on some frame); open_field: also ``never_closed`` (one whose gripper stayed open) and
-        ``grabbed``. The generator writes them for sets made with ``pick_miss`` (``pick_open``) > 0 only, so the
-        records of a set made without the option stay byte-identical to those written before it existed.
+        ``grabbed``; timing_field: also ``mistimed`` ("early" / "late" / None: a close moved off the ball) and
+        ``grabbed``. The generator writes them for sets made with ``pick_miss`` (``pick_open``, ``pick_timing``) > 0
+        only, so the records of a set made without the option stay byte-identical to those written before it existed.
         """
         r, m = self.render, self.motion
 
@@ -157,7 +158,9 @@ class Episode:
         extra = {"missed": bool(m.missed)} if miss_fields else {}
         if open_field:
             extra["never_closed"] = bool(m.never_closed)
-        if miss_fields or open_field:
+        if timing_field:
+            extra["mistimed"] = m.mistimed
+        if miss_fields or open_field or timing_field:
             extra["grabbed"] = bool(np.any(m.attached))
         return {
             "kind": m.kind,
@@ -206,11 +209,12 @@ def plan_episode(
     miss_rng: np.random.Generator | None = None,
     pick_open: float = 0.0,
     push: bool = False,
+    pick_timing: float = 0.0,
 ) -> tuple[Motion, Scene, Camera]:
     """Sample the motion, the scene and a camera that sees it all (``width`` x ``height`` pixels); a hand
     embodiment (:func:`~oscar_core.toyworld.motion.is_hand`) gets a hand motion and skin-coloured capsules.
 
-    pick_miss, miss_rng, pick_open, push: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's
+    pick_miss, miss_rng, pick_open, push, pick_timing: as in :func:`~oscar_core.toyworld.motion.sample_motion` (a missed pick's
     ball is among the points the camera must see, like every ball; a hand has its own push and ignores ``push``)."""
     from .hand import sample_hand_motion, sample_hand_scene
 
@@ -221,7 +225,15 @@ def plan_episode(
     else:
         check_supported(emb)
         motion = sample_motion(
-            emb, rng, frames, fps, pick_miss=pick_miss, miss_rng=miss_rng, pick_open=pick_open, push=push
+            emb,
+            rng,
+            frames,
+            fps,
+            pick_miss=pick_miss,
+            miss_rng=miss_rng,
+            pick_open=pick_open,
+            push=push,
+            pick_timing=pick_timing,
         )
         scene = sample_scene(rng, len(emb.edges), motion.scale)
         base_xy = motion.points[0, 0, :2]
@@ -246,9 +258,12 @@ def make_episode(
     miss_rng: np.random.Generator | None = None,
     pick_open: float = 0.0,
     push: bool = False,
+    pick_timing: float = 0.0,
 ) -> Episode:
     """Sample motion, scene and camera, and render one episode of ``frames`` frames at ``width`` x ``height``
-    (``pick_miss``, ``miss_rng``, ``pick_open``, ``push``: :func:`plan_episode`)."""
-    motion, scene, camera = plan_episode(emb, rng, width, height, frames, fps, pick_miss, miss_rng, pick_open, push)
+    (``pick_miss``, ``miss_rng``, ``pick_open``, ``push``, ``pick_timing``: :func:`plan_episode`)."""
+    motion, scene, camera = plan_episode(
+        emb, rng, width, height, frames, fps, pick_miss, miss_rng, pick_open, push, pick_timing=pick_timing
+    )
     render = render_world(emb, motion, scene, camera, ss=ss)
     return Episode(emb.name, motion.trajectory, camera, render.rgb, motion, scene, render)

@@ -12,7 +12,8 @@ visible areas, the attachment flags and the episode kind; ``meta.split`` is
 ``"heldout"`` for every tenth episode (index % 10 == 9) and ``"train"`` otherwise.
 With ``pick_miss`` > 0 a fraction of the pick-and-place episodes miss the ball
 (:func:`~oscar_core.toyworld.motion.miss_start`) and the ground truth adds
-``missed`` and ``grabbed``; the default 0 writes exactly what it wrote before. With ``push`` the robots' balls move
+``missed`` and ``grabbed``; the default 0 writes exactly what it wrote before. ``pick_open`` (gripper never closes)
+and ``pick_timing`` (it closes early or late, off the ball) add ``never_closed`` and ``mistimed`` the same way. With ``push`` the robots' balls move
 under the push rule as well (:func:`~oscar_core.toyworld.motion.carry_object`; hands have their own push), recorded
 as ``push_contact_radii`` in the fingerprint and in every record's ground truth (absent without it).
 """
@@ -52,6 +53,7 @@ class GenerateConfig:
     pick_miss: float = 0.0  # fraction of pick_place episodes whose ball lies out of reach (motion.miss_start)
     pick_open: float = 0.0  # fraction of the other pick_place episodes whose gripper never closes
     push: bool = False  # an open gripper pushes the ball (motion.carry_object's push rule); False: sets as before
+    pick_timing: float = 0.0  # fraction of the on-ball picks whose gripper closes early or late (motion docstring)
 
 
 def clip_id(embodiment: str, index: int) -> str:
@@ -83,6 +85,10 @@ def _checked_embodiments(cfg: GenerateConfig, registry) -> list:
         raise ToyWorldError(f"toyworld generate: --pick-miss: expected a fraction in [0, 1], found {cfg.pick_miss!r}")
     if not (isinstance(cfg.pick_open, (int, float)) and 0.0 <= cfg.pick_open <= 1.0):
         raise ToyWorldError(f"toyworld generate: --pick-open: expected a fraction in [0, 1], found {cfg.pick_open!r}")
+    if not (isinstance(cfg.pick_timing, (int, float)) and 0.0 <= cfg.pick_timing <= 1.0):
+        raise ToyWorldError(
+            f"toyworld generate: --pick-timing: expected a fraction in [0, 1], found {cfg.pick_timing!r}"
+        )
     if not isinstance(cfg.push, bool):
         raise ToyWorldError(f"toyworld generate: --push: expected True or False, found {cfg.push!r}")
     return embs
@@ -105,6 +111,7 @@ def _stage_parts(cfg: GenerateConfig) -> dict:
         "skeleton": cfg.skeleton,
         "pick_miss": cfg.pick_miss,
         **({"pick_open": cfg.pick_open} if cfg.pick_open > 0 else {}),  # absent: a set made before the option
+        **({"pick_timing": cfg.pick_timing} if cfg.pick_timing > 0 else {}),  # the same
         **({"push_contact_radii": PUSH_CONTACT_RADII} if cfg.push else {}),  # absent: made without pushing
     }
 
@@ -128,6 +135,7 @@ def _episode_clip(cfg: GenerateConfig, emb, i: int):
         miss_rng=miss_rng(cfg.seed, emb.name, i),
         pick_open=cfg.pick_open,
         push=cfg.push,
+        pick_timing=cfg.pick_timing,
     )
     skel = None
     if cfg.skeleton:
@@ -138,7 +146,7 @@ def _episode_clip(cfg: GenerateConfig, emb, i: int):
         "seed": cfg.seed,
         "episode": i,
         "split": split_of(i),
-        "toyworld": ep.ground_truth(cfg.pick_miss > 0, cfg.pick_open > 0),
+        "toyworld": ep.ground_truth(cfg.pick_miss > 0, cfg.pick_open > 0, cfg.pick_timing > 0),
     }
     if cfg.push and not is_hand(emb):
         meta["toyworld"]["push_contact_radii"] = PUSH_CONTACT_RADII

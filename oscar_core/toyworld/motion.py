@@ -38,6 +38,16 @@ and the ball stays where it lay (the carry rule attaches it only on closing).
 Drawn from the same second generator after the miss (a missed pick is never
 also open), only when ``pick_open`` > 0, so a set made without it is unchanged.
 
+Mistimed picks (``pick_timing`` > 0): a pick-and-place motion that neither misses nor stays open, whose gripper
+closes at the wrong time: **early**, :func:`decision_margin` frames before the end-effector first comes within
+the grab distance of the ball (it passes over the ball with closed fingers), or **late**, as many frames after it
+has left it (it stays open through the grasp); either way the arm motion is the same and the ball stays where it
+lay. Which episodes, and which side (half each), come from the same second generator after the open draw, only
+when ``pick_timing`` > 0; a side the plan has no room for gives way to the other, and a plan with room for neither
+keeps its on-time close (``Motion.mistimed`` is then None). The counterfactual benchmark's ``close_early`` and
+``close_late`` variants (:mod:`oscar_core.toyworld.counterfactual`) are made by the same rule, so data made with
+it shows the model the decision the benchmark asks about.
+
 Pushing (``push=True`` in :func:`sample_motion`, off by default): the ball moves under the push rule as well
 (:data:`PUSH_CONTACT_RADII` ball radii), so an open gripper that comes down on it or sweeps through it shoves it;
 it draws nothing, so the same generator gives the same arm motion either way.
@@ -72,6 +82,8 @@ __all__ = [
     "openness_to_signal",
     "ee_points",
     "miss_start",
+    "decision_margin",
+    "mistimed_openness",
     "GRAB_RADII",
     "PUSH_CONTACT_RADII",
     "MISS_NEAR_RADII",
@@ -262,8 +274,61 @@ class Motion:
     scale: float
     missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
     never_closed: bool = False  # a pick_place motion whose gripper stayed open (an open pick, module docstring)
+    mistimed: str | None = (
+        None  # "early" / "late": a pick_place motion whose gripper closed off the ball (module docstring)
+    )
     link_radii: np.ndarray | None = None
     marker: bool = True
+
+
+def decision_margin(frames: int) -> int:
+    """Frames between a mistimed close and the grab-distance boundary (close early / late), and the half-width of a
+    counterfactual miss's full shift: 5 % of a ``frames``-frame episode, at least 2."""
+    return max(2, int(round(0.05 * (frames - 1))))
+
+
+def mistimed_openness(
+    openness: np.ndarray, ee: np.ndarray, ball: np.ndarray, radius: float, side: str
+) -> np.ndarray | None:
+    """The first gripper's openness with its close moved off the ball (module docstring, "Mistimed picks"), or
+    None when the plan has no room for ``side`` ("early" or "late").
+
+    openness: (T, G) in [0, 1], the on-time plan (closed from its close frame to its release); ee: (T, 3) metres,
+    the end-effector's path; ball: (3,) metres, the ball's centre; radius: metres. Early: closed from
+    :func:`decision_margin` frames before the end-effector first comes within the grab distance, through the
+    release. Late: open until as many frames after it leaves the grab distance, closed from then to the release.
+    The frame before a close is 0.6 open (fingers on the way), as in the plan."""
+    o = np.asarray(openness, dtype=np.float64)
+    T = len(o)
+    closed = np.flatnonzero(o[:, 0] < OPEN_THRESHOLD)
+    if not len(closed):
+        return None
+    close_at = int(closed[0])
+    reopen = np.flatnonzero(o[close_at:, 0] >= OPEN_THRESHOLD)
+    release = close_at + int(reopen[0]) if len(reopen) else T
+    inside = np.linalg.norm(np.asarray(ee) - np.asarray(ball), axis=1) <= GRAB_RADII * radius
+    if not inside[close_at]:
+        return None
+    m = decision_margin(T)
+    out = o.copy()
+    if side == "early":
+        at = int(np.argmax(inside)) - m  # every frame before the first inside one is outside
+        if at < 2:
+            return None
+        out[at:release, 0] = 0.0
+    elif side == "late":
+        left = np.flatnonzero(~inside[close_at:])
+        if not len(left):
+            return None
+        at = close_at + int(left[0]) + m
+        if at >= release - 1 or inside[at:release].any():  # a close back inside the grab distance would grab
+            return None
+        out[:at, 0] = 1.0
+        out[at:release, 0] = 0.0
+    else:
+        raise ValueError(f"mistimed_openness: side: expected 'early' or 'late', found {side!r}")
+    out[at - 1, 0] = 0.6
+    return out
 
 
 def miss_start(
@@ -326,11 +391,14 @@ def _candidate_poses(emb: Embodiment, rng: np.random.Generator, n_candidates: in
     return _CandidatePoses(q, ee, base, scale, R, valid, grasp, high)
 
 
-def _pick_place(poses: _CandidatePoses, rng, T: int, G: int, pick_miss: float, miss_rng, pick_open: float):
+def _pick_place(
+    poses: _CandidatePoses, rng, T: int, G: int, pick_miss: float, miss_rng, pick_open: float, pick_timing: float
+):
     """A pick-and-place through the poses, or None when no place pose lies far enough from the grasp (then the
     draws from ``rng`` made so far stand and the motion is a reach). Returns ``(q, openness, ball, missed,
-    never_closed)``: (T, J) radians, (T, G) openness in [0, 1], the ball's (3,) start in metres, and whether the
-    grasp misses the ball or the gripper stays open (both drawn as :func:`sample_motion` says)."""
+    never_closed, timing)``: (T, J) radians, (T, G) openness in [0, 1], the ball's (3,) start in metres, whether the
+    grasp misses the ball or the gripper stays open, and the side ("early" / "late") its close is to be moved to or
+    None (all drawn as :func:`sample_motion` says; the move itself needs the end-effector's path)."""
     q, ee, grasp, high, R, scale = poses.q, poses.ee, poses.grasp, poses.high, poses.radius, poses.scale
     g = int(rng.choice(grasp))
     d = np.linalg.norm(ee[grasp, :2] - ee[g, :2], axis=1)
@@ -359,7 +427,8 @@ def _pick_place(poses: _CandidatePoses, rng, T: int, G: int, pick_miss: float, m
         openness[close_at - 1, 0] = 0.6  # one in-between frame: fingers on the way
     obj0 = np.array([ee[g, 0], ee[g, 1], R])
     missed = never_closed = False
-    if pick_miss > 0 or pick_open > 0:
+    timing = None
+    if pick_miss > 0 or pick_open > 0 or pick_timing > 0:
         mrng = miss_rng if miss_rng is not None else np.random.Generator(rng.bit_generator.jumped())
         if pick_miss > 0:
             missed = bool(mrng.uniform() < pick_miss)
@@ -370,7 +439,11 @@ def _pick_place(poses: _CandidatePoses, rng, T: int, G: int, pick_miss: float, m
             never_closed = bool(mrng.uniform() < pick_open)
             if never_closed:
                 openness[:, 0] = 1.0
-    return qt, openness, obj0, missed, never_closed
+        if pick_timing > 0:  # both drawn either way: F only picks who is mistimed
+            who, early = mrng.uniform() < pick_timing, mrng.uniform() < 0.5
+            if who and not (missed or never_closed):
+                timing = "early" if early else "late"
+    return qt, openness, obj0, missed, never_closed, timing
 
 
 def _reach(poses: _CandidatePoses, rng, T: int, G: int):
@@ -402,6 +475,7 @@ def sample_motion(
     miss_rng: np.random.Generator | None = None,
     pick_open: float = 0.0,
     push: bool = False,
+    pick_timing: float = 0.0,
 ) -> Motion:
     """A smooth random motion of ``frames`` frames: pick-and-place (when the robot has a gripper, can
     reach the floor and ``frames`` >= 9) with probability ``pick_place_prob``, else reaching through random poses.
@@ -414,6 +488,8 @@ def sample_motion(
     pick_open: probability in [0, 1] that a pick-and-place motion that did not miss keeps its gripper open
     throughout (the joint motion unchanged; the ball stays), drawn from ``miss_rng`` after the miss.
     push: the ball also moves under the push rule (module docstring); draws nothing.
+    pick_timing: probability in [0, 1] that a pick-and-place motion that neither missed nor stayed open closes its
+    gripper early or late (module docstring, "Mistimed picks"), drawn from ``miss_rng`` after the open draw.
     """
     check_supported(emb)
     if frames < 5:
@@ -422,6 +498,8 @@ def sample_motion(
         raise ToyWorldError(f"toyworld: --pick-miss: expected a fraction in [0, 1], found {pick_miss!r}")
     if not (isinstance(pick_open, (int, float)) and 0.0 <= pick_open <= 1.0):
         raise ToyWorldError(f"toyworld: --pick-open: expected a fraction in [0, 1], found {pick_open!r}")
+    if not (isinstance(pick_timing, (int, float)) and 0.0 <= pick_timing <= 1.0):
+        raise ToyWorldError(f"toyworld: --pick-timing: expected a fraction in [0, 1], found {pick_timing!r}")
     if not isinstance(push, bool):
         raise ToyWorldError(f"toyworld: --push: expected True or False, found {push!r}")
     poses = _candidate_poses(emb, rng, n_candidates)
@@ -429,27 +507,35 @@ def sample_motion(
     T = frames
     kind = "reach"
     missed = never_closed = False
-    picked = None
+    picked = timing = mistimed = None
     if G and T >= 9 and len(poses.grasp) >= 2 and len(poses.high) >= 1 and rng.uniform() < pick_place_prob:
-        picked = _pick_place(poses, rng, T, G, pick_miss, miss_rng, pick_open)
+        picked = _pick_place(poses, rng, T, G, pick_miss, miss_rng, pick_open, pick_timing)
     if picked is not None:
         kind = "pick_place"
-        qt, openness, obj0, missed, never_closed = picked
+        qt, openness, obj0, missed, never_closed, timing = picked
     else:
         qt, openness, obj0 = _reach(poses, rng, T, G)
     R, scale = poses.radius, poses.scale
-    traj = Trajectory(
-        emb.joint_names,
-        qt,
-        fps,
-        openness_to_signal(emb, openness),
-        emb.gripper_names or None,
-        source=f"<toyworld {emb.name}>",
-    )
+
+    def trajectory(o):
+        signal = openness_to_signal(emb, o)
+        return Trajectory(emb.joint_names, qt, fps, signal, emb.gripper_names or None, source=f"<toyworld {emb.name}>")
+
+    traj = trajectory(openness)
     points, ee_t = ee_points(emb, traj)
+    if timing is not None:  # the close moves off the ball: the side drawn, else the other, else none
+        for side in (timing, "late" if timing == "early" else "early"):
+            moved = mistimed_openness(openness, ee_t, obj0, R, side)
+            if moved is not None:
+                openness, mistimed = moved, side
+                traj = trajectory(openness)
+                points, ee_t = ee_points(emb, traj)
+                break
     if G:
         contact = PUSH_CONTACT_RADII * R if push else None
         obj, attached = carry_object(ee_t, openness[:, 0], obj0, R, grab_distance=GRAB_RADII * R, push_contact=contact)
     else:
         obj, attached = np.repeat(obj0[None], T, 0), np.zeros(T, dtype=bool)
-    return Motion(traj, kind, points, ee_t, obj, attached, R, scale, missed, never_closed=never_closed)
+    return Motion(
+        traj, kind, points, ee_t, obj, attached, R, scale, missed, never_closed=never_closed, mistimed=mistimed
+    )
