@@ -2,7 +2,8 @@
 
     python benchmarks/closed_loop.py [--model oscar-toy] [--tiny-decoder FILE | --full-decoder] [--sessions 4]
                                      [--horizon 33] [--steps N] [--guidance W] [--batch 4 [8 ...]] [--repeats 1]
-                                     [--no-vae-probe] [--probe-repeats 3] [--json benchmarks/results/closed_loop.json]
+                                     [--compare-norms] [--no-vae-probe] [--probe-repeats 3]
+                                     [--json benchmarks/results/closed_loop.json]
 
 ``--model`` is a zoo name or a model folder (``oscar-toy-fast``: the distilled 4-step student); its card's
 recommended sampler runs unless ``--steps`` / ``--guidance`` replace its figures (the 2026-11-29 table in
@@ -21,7 +22,10 @@ the policy's calls, the action adapter (IK), the condition render, the VAE encod
 video), the DiT's denoising loop, the VAE decode, writing the cell's files, the report, and the rest (``other``:
 the loop itself, thread hand-offs, the interpreter); the wall milliseconds per step from each cell's record
 (``timing_s``: policy, adapter, render, model — a batched call's time shared among its cells) stay beside it.
-It checks that every batch's videos agree with batch 1's within one uint8 level.
+It checks that every batch's videos agree with batch 1's within one uint8 level. ``--compare-norms`` runs each batch
+size twice per round, the VAE's RMS norm as it is (``sums``: ``channel_norm_by_sums`` where that is bit-identical)
+and through ``F.normalize`` (the reference's operation), alternating, one row each, and checks that batch 1's videos
+are the same frames bit for bit with either.
 
 The latency a policy sees per chunk: the wall and thread-CPU milliseconds of each world step, from a cell's chunk
 request to its frames (condition render, VAE encodes, DiT, VAE decode): ``ModelWorld.step`` one cell at a time,
@@ -34,8 +38,10 @@ of the last latent frame alone and whether it equals the full decode's last fram
 carries a cache of each convolution's last two input frames, so it does not); whether decoding the first k latent
 frames gives the full decode's first 4(k-1)+1 frames bit for bit, and what each further latent frame costs; the
 condition encode (17 frames) and the seed encode (1 frame) at batch 1 and per clip at batch 4, and the decode per
-clip at batch 4; the share of the decode spent in the WAN RMS norm (``F.normalize`` over channels) and what a
-sum-of-squares norm would change (CPU and the largest difference in pixels and uint8 levels); and the decode by
+clip at batch 4; the share of the decode spent in the WAN RMS norm, and the decode and condition encode with the
+norm as it is (from sums of squares where that is bit-identical: ``channel_norm_by_sums``) and through
+``F.normalize`` (the reference's operation), the two alternating, with the largest difference between their outputs
+(0: bit-identical); and the decode by
 the tiny decoder (``oscar_core/model/tiny_decoder.py``, ``taew2_1``'s widths, random weights: its speed only).
 Prints a table, writes JSON.
 """
@@ -59,9 +65,13 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1]))  # this checkout's oscar_core, as wan_vae.py measures
 from _provenance import with_provenance  # noqa: E402
+from _wan_norm import f_normalize_rms_norm  # noqa: E402
 
 PARTS = ("policy", "adapter", "render", "model")
+#: the VAE's RMS norm paths ``--compare-norms`` runs: as it is (sums of squares where bit-identical), F.normalize
+NORMS = {"sums": contextlib.nullcontext, "F.normalize": f_normalize_rms_norm}
 #: the CPU split: part -> (module, attribute) of the function whose calls it sums
 CPU_PARTS = {
     "policy": ("oscar_core.evaluation.closed_loop_cell", "call_policy"),
@@ -213,24 +223,6 @@ def _best_cpu(fn, repeats: int):
     return out, 1e3 * min(cpu), 1e3 * min(wall)
 
 
-@contextlib.contextmanager
-def _sum_of_squares_rms_norm():
-    """The WAN RMS norm with ``x / max(sqrt(sum_c x^2), eps)`` in place of ``F.normalize`` (float32 only)."""
-    from oscar_core.model import _wan_vae_layers as wan
-
-    original = wan.RMSNorm.forward
-
-    def forward(self, x):
-        norm = (x * x).sum(1, keepdim=True).sqrt_().clamp_min_(1e-12)
-        return (x / norm) * self.scale * self.gamma
-
-    wan.RMSNorm.forward = forward
-    try:
-        yield
-    finally:
-        wan.RMSNorm.forward = original
-
-
 def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
     """What of the VAE could leave the policy's critical path, on one chunk ``frames`` (L, H, W, 3) uint8
     (module docstring). CPU and wall in milliseconds, best of ``repeats``."""
@@ -269,8 +261,15 @@ def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
         _, dec_counted_cpu, _ = _best_cpu(lambda: vae.decode(latent), 1)
     finally:
         wan.RMSNorm.forward = original
-    with _sum_of_squares_rms_norm():
-        fast, fast_cpu, _ = _best_cpu(lambda: vae.decode(latent), repeats)
+    ref_dec, ref_enc, ref_dec_cpu, ref_enc_cpu, cur_dec_cpu, cur_enc_cpu = None, None, [], [], [], []
+    for _ in range(repeats):  # the RMS norm's two paths alternating, so a change of load falls on both
+        with f_normalize_rms_norm():
+            ref_dec, c, _ = _best_cpu(lambda: vae.decode(latent), 1)
+            ref_dec_cpu.append(c)
+            ref_enc, c, _ = _best_cpu(lambda: vae.encode(pixels), 1)
+            ref_enc_cpu.append(c)
+        cur_dec_cpu.append(_best_cpu(lambda: vae.decode(latent), 1)[1])
+        cur_enc_cpu.append(_best_cpu(lambda: vae.encode(pixels), 1)[1])
     from oscar_core.model.tiny_decoder import TinyDecoderNet
 
     up = [s_ <= vae.spatial for s_ in (2, 4, 8)]  # the VAE's spatial factor: x2 per stage while it lasts
@@ -301,9 +300,12 @@ def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
         "batch4_encode_seed_cpu_ms_per_clip": seed4_cpu / 4,
         "batch4_decode_cpu_ms_per_clip": dec4_cpu / 4,
         "rms_norm_share_of_decode": norm_cpu[0] * 1e3 / dec_counted_cpu,
-        "sum_of_squares_norm_decode_cpu_ms": fast_cpu,
-        "sum_of_squares_norm_max_abs_diff": float((fast - full).abs().max()),
-        "sum_of_squares_norm_max_uint8_diff": int(np.abs(u8(fast).astype(int) - u8(full)).max()),
+        "rms_norm_alternating_decode_cpu_ms": min(cur_dec_cpu),
+        "rms_norm_alternating_encode_condition_cpu_ms": min(cur_enc_cpu),
+        "f_normalize_norm_decode_cpu_ms": min(ref_dec_cpu),
+        "f_normalize_norm_encode_condition_cpu_ms": min(ref_enc_cpu),
+        "f_normalize_norm_decode_max_abs_diff": float((ref_dec - full).abs().max()),
+        "f_normalize_norm_encode_max_abs_diff": float((ref_enc - latent).abs().max()),
         "tiny_decoder_cpu_ms": tiny_cpu,
     }
 
@@ -332,6 +334,11 @@ def main() -> int:
     )
     ap.add_argument("--batch", type=int, nargs="+", default=[4], help="lock-step batch sizes beside batch 1")
     ap.add_argument("--repeats", type=int, default=1, help="interleaved rounds of every batch size")
+    ap.add_argument(
+        "--compare-norms",
+        action="store_true",
+        help="run every batch size also with the VAE's RMS norm through F.normalize, alternating (module docstring)",
+    )
     ap.add_argument("--no-vae-probe", action="store_true", help="skip the VAE probe (module docstring)")
     ap.add_argument("--probe-repeats", type=int, default=3, help="best of this many calls in the VAE probe")
     ap.add_argument("--json", default="benchmarks/results/closed_loop.json")
@@ -355,47 +362,70 @@ def main() -> int:
             policies=["exact", "never_closes"],
         )
         sizes = [1, *[b for b in args.batch if b != 1]]
-        runs: dict[int, list] = {b: [] for b in sizes}
+        norms = list(NORMS) if args.compare_norms else ["sums"]
+        runs: dict[tuple[int, str], list] = {(b, n): [] for b in sizes for n in norms}
         for k in range(args.repeats):
             for b in sizes:
-                runs[b].append(_run(manifest, Path(tmp) / f"r{k}b{b}", model, sampler, b))
-        diff = 0
-        for b in sizes[1:]:
-            for ra, rb in zip(runs[1][0]["records"], runs[b][0]["records"]):
+                for n in norms:  # the norms alternate within each batch size, the batch sizes within each round
+                    with NORMS[n]():
+                        runs[b, n].append(_run(manifest, Path(tmp) / f"r{k}b{b}{n}", model, sampler, b))
+        diff = 0  # every run's videos against batch 1's with the norm as it is
+        for b, n in list(runs)[1:]:
+            for ra, rb in zip(runs[1, "sums"][0]["records"], runs[b, n][0]["records"]):
                 if ra["status"] == rb["status"] == "ok":
-                    a = read_video(Path(tmp) / "r0b1" / ra["video"]).astype(int)
-                    v = read_video(Path(tmp) / f"r0b{b}" / rb["video"]).astype(int)
+                    a = read_video(Path(tmp) / "r0b1sums" / ra["video"]).astype(int)
+                    v = read_video(Path(tmp) / f"r0b{b}{n}" / rb["video"]).astype(int)
                     diff = max(diff, int(np.abs(a - v).max()))
+        same_with_f_normalize = None
+        if args.compare_norms:  # bit for bit: the norms' batch-1 videos are the same files' frames
+            pairs = zip(runs[1, "sums"][0]["records"], runs[1, "F.normalize"][0]["records"])
+            same_with_f_normalize = all(
+                np.array_equal(
+                    read_video(Path(tmp) / "r0b1sums" / ra["video"]),
+                    read_video(Path(tmp) / "r0b1F.normalize" / rb["video"]),
+                )
+                for ra, rb in pairs
+                if ra["status"] == rb["status"] == "ok"
+            )
         probe = None
         if not args.no_vae_probe:  # on the first chunk of the first cell's video: frames the world model made
-            first = next(r for r in runs[1][0]["records"] if r["status"] == "ok")
-            video = read_video(Path(tmp) / "r0b1" / first["video"])[: model.card.chunk_frames]
+            first = next(r for r in runs[1, "sums"][0]["records"] if r["status"] == "ok")
+            video = read_video(Path(tmp) / "r0b1sums" / first["video"])[: model.card.chunk_frames]
             probe = vae_probe(model, np.ascontiguousarray(video), args.probe_repeats)
-    rows = [_sum_rounds(runs[b]) for b in sizes]
+    rows = [{**_sum_rounds(runs[key]), "rms_norm": key[1]} for key in runs]
+    base = {r["rms_norm"]: r for r in rows if r["batch_cells"] == 1}
     speedups = [
         {
             "batch_cells": r["batch_cells"],
-            "cells_per_cpu_minute": r["cells_per_cpu_minute"] / rows[0]["cells_per_cpu_minute"],
-            "cells_per_wall_minute": r["cells_per_wall_minute"] / rows[0]["cells_per_wall_minute"],
+            "rms_norm": r["rms_norm"],
+            "cells_per_cpu_minute": r["cells_per_cpu_minute"] / base[r["rms_norm"]]["cells_per_cpu_minute"],
+            "cells_per_wall_minute": r["cells_per_wall_minute"] / base[r["rms_norm"]]["cells_per_wall_minute"],
         }
-        for r in rows[1:]
+        for r in rows
+        if r["batch_cells"] != 1
     ]
     cols = [*CPU_PARTS, "other", "total"]
-    print(f"{'batch':>5s} {'cells':>5s} {'cells/CPU-min':>13s} {'cells/wall-min':>14s}  CPU ms per step:")
-    print(" " * 41 + "".join(f" {c:>10s}" for c in cols))
+    print(f"{'batch':>5s} {'norm':>11s} {'cells':>5s} {'cells/CPU-min':>13s} {'cells/wall-min':>14s}  CPU ms per step:")
+    print(" " * 53 + "".join(f" {c:>10s}" for c in cols))
     for r in rows:
         print(
-            f"{r['batch_cells']:5d} {r['cells']:5d} {r['cells_per_cpu_minute']:13.2f} {r['cells_per_wall_minute']:14.2f}"
-            + "".join(f" {r['cpu_ms_per_step'][c]:10.1f}" for c in cols)
+            f"{r['batch_cells']:5d} {r['rms_norm']:>11s} {r['cells']:5d} {r['cells_per_cpu_minute']:13.2f}"
+            f" {r['cells_per_wall_minute']:14.2f}" + "".join(f" {r['cpu_ms_per_step'][c]:10.1f}" for c in cols)
         )
     for sp in speedups:
-        print(f"batch {sp['batch_cells']} / batch 1, cells per CPU-minute: {sp['cells_per_cpu_minute']:.2f}x")
+        print(
+            f"batch {sp['batch_cells']} / batch 1 ({sp['rms_norm']} norm), cells per CPU-minute:"
+            f" {sp['cells_per_cpu_minute']:.2f}x"
+        )
     print(f"videos differ from batch 1's by at most {diff} uint8 level")
+    if same_with_f_normalize is not None:
+        print(f"batch 1's videos bit-identical with the F.normalize norm: {same_with_f_normalize}")
     print("policy-visible latency per chunk (world step, request to frames):")
     for r in rows:
         pv = r["policy_visible"]
         print(
-            f"  batch {r['batch_cells']}: {pv['wall_ms_per_call']:.0f} wall ms, {pv['cpu_ms_per_call']:.0f} CPU ms per call"
+            f"  batch {r['batch_cells']} ({r['rms_norm']} norm): {pv['wall_ms_per_call']:.0f} wall ms,"
+            f" {pv['cpu_ms_per_call']:.0f} CPU ms per call"
             f" ({pv['cpu_ms_per_chunk']:.0f} CPU ms per chunk, {pv['world_calls']} calls)"
         )
     if probe is not None:
@@ -420,6 +450,7 @@ def main() -> int:
             "rows": rows,
             "speedup_vs_batch_1": speedups,
             "max_uint8_diff": diff,
+            "videos_bit_identical_with_f_normalize_norm": same_with_f_normalize,
             "vae_probe": probe,
         }
     )

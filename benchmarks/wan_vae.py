@@ -14,7 +14,10 @@ median CPU seconds (user + system of the child, ``resource.getrusage``) and wall
 ``compute``: in this process, one torch thread, both classes loaded from ``zoo/assets/oscar-toy/vae`` with their 3-D
 convolutions on oneDNN (as ``VideoVAE`` runs them), one 17-frame 64x64 toy chunk (a rendered toyarm episode):
 ``encode`` (posterior mode) and ``decode`` (of the reference's latents); best thread-CPU and wall milliseconds of
-``--repeats``, the two classes alternating; ``max_abs_diff`` between their outputs (0.0: bit-identical).
+``--repeats``, the classes alternating; ``max_abs_diff`` between their outputs (0.0: bit-identical). oscar's class
+runs twice: as it is (its RMS norm from sums of squares where that is bit-identical,
+``oscar_core.model._wan_vae_layers.channel_norm_by_sums``) and with its RMS norm through ``F.normalize`` (the
+reference's operation, ``oscar WanVAE, F.normalize norm``), so the norm's share shows in the same run.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 sys.path.insert(0, str(REPO))
 
 from _provenance import with_provenance  # noqa: E402
+from _wan_norm import f_normalize_rms_norm  # noqa: E402
 
 TOY_VAE = REPO / "zoo" / "assets" / "oscar-toy" / "vae"
 LOAD = "load_vae_folder({path!r})"
@@ -102,7 +106,10 @@ def _toy_chunk():
 
 
 def measure_compute(repeats: int) -> list[dict]:
-    """Encode and decode of one toy chunk by both classes (module docstring); one record per (class, part)."""
+    """Encode and decode of one toy chunk by both classes, oscar's with either RMS norm (module docstring); one record
+    per (row, part)."""
+    import contextlib
+
     import torch
     from diffusers.models.autoencoders.autoencoder_kl_wan import AutoencoderKLWan
 
@@ -114,9 +121,14 @@ def measure_compute(repeats: int) -> list[dict]:
     reference = build_strict(
         AutoencoderKLWan, read_config(TOY_VAE, ("AutoencoderKLWan",)), load_state_dict(TOY_VAE), TOY_VAE
     )
-    models = {"oscar WanVAE": WanVAE.from_folder(TOY_VAE), "diffusers AutoencoderKLWan": reference}
-    for model in models.values():
-        use_onednn_conv3d(model)
+    ours = WanVAE.from_folder(TOY_VAE)
+    #: name -> (model, the context its calls run in)
+    models = {
+        "oscar WanVAE": (ours, contextlib.nullcontext),
+        "oscar WanVAE, F.normalize norm": (ours, f_normalize_rms_norm),
+        "diffusers AutoencoderKLWan": (reference, contextlib.nullcontext),
+    }
+    use_onednn_conv3d(ours), use_onednn_conv3d(reference)
     x = _toy_chunk()
     with torch.no_grad():
         z = reference.encode(x).latent_dist.mode()
@@ -124,9 +136,10 @@ def measure_compute(repeats: int) -> list[dict]:
         parts = {"encode": lambda m: m.encode(x).latent_dist.mode(), "decode": lambda m: m.decode(z).sample}
         best: dict[tuple[str, str], list] = {}
         for _ in range(repeats):  # alternate the classes so a change of load hits both
-            for name, model in models.items():
+            for name, (model, context) in models.items():
                 for part, fn in parts.items():
-                    out, cpu, wall = _best(lambda fn=fn, model=model: fn(model), 1)
+                    with context():
+                        out, cpu, wall = _best(lambda fn=fn, model=model: fn(model), 1)
                     rec = best.setdefault((name, part), [out, cpu, wall])
                     rec[1], rec[2] = min(rec[1], cpu), min(rec[2], wall)
     return [
@@ -155,9 +168,9 @@ def main(argv=None) -> int:
     print(f"{'import (fresh process)':<52} {'CPU s':>7} {'wall s':>7}")
     for r in imports:
         print(f"{r['what']:<52} {r['cpu_s']:>7.2f} {r['wall_s']:>7.2f}")
-    print(f"\n{'toy chunk, 17 x 64 x 64, one thread':<40} {'CPU ms':>8} {'wall ms':>8} {'max |diff|':>11}")
+    print(f"\n{'toy chunk, 17 x 64 x 64, one thread':<48} {'CPU ms':>8} {'wall ms':>8} {'max |diff|':>11}")
     for r in compute:
-        print(f"{r['vae'] + ' ' + r['part']:<40} {r['cpu_ms']:>8.1f} {r['wall_ms']:>8.1f} {r['max_abs_diff']:>11.3g}")
+        print(f"{r['vae'] + ' ' + r['part']:<48} {r['cpu_ms']:>8.1f} {r['wall_ms']:>8.1f} {r['max_abs_diff']:>11.3g}")
     result = {"repeats": args.repeats, "load_1min": [load, os.getloadavg()[0]], "imports": imports, "compute": compute}
     from oscar_core._util.atomic import atomic_write_bytes
 

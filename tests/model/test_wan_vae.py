@@ -167,7 +167,9 @@ def test_bfloat16_matches_the_reference():
         assert torch.equal(ours.decode(z).sample, ref.decode(z).sample)
 
 
-def test_the_toy_vae_folder_loads_strictly_and_codes_a_toy_clip_as_the_reference():
+def test_the_toy_vae_folder_loads_strictly_and_codes_a_toy_clip_as_the_reference(monkeypatch):
+    """Bit for bit, with the RMS norm's sum-of-squares path taken (64x64 pixels: test_wan_vae_norm.py)."""
+    from oscar_core.model import _wan_vae_layers as layers
     from oscar_core.model.cpu_conv import use_onednn_conv3d
     from oscar_core.model.vae import VideoVAE
     from oscar_core.plugin.registry import Registry
@@ -179,10 +181,14 @@ def test_the_toy_vae_folder_loads_strictly_and_codes_a_toy_clip_as_the_reference
     emb = Registry().get("toyarm")
     clip = make_episode(emb, episode_rng(0, "toyarm", 9), 64, 64, 9, ss=1).rgb
     x = VideoVAE.to_pixels(clip)
+    sums = []
+    norm_by_sums = layers.channel_norm_by_sums
+    monkeypatch.setattr(layers, "channel_norm_by_sums", lambda t: sums.append(t.shape) or norm_by_sums(t))
     with torch.no_grad():
         z = ref.encode(x).latent_dist.mode()
         assert torch.equal(ours.encode(x).latent_dist.mode(), z)
         assert torch.equal(ours.decode(z).sample, ref.decode(z).sample)
+    assert len(sums) > 10
 
 
 def test_folders_written_by_either_library_load_in_the_other(tmp_path):

@@ -16,7 +16,7 @@ def _bench():
     return module
 
 
-def test_compute_rows_cover_both_classes_and_both_parts_and_agree():
+def test_compute_rows_cover_both_classes_both_norms_and_both_parts_and_agree():
     import torch
 
     threads = torch.get_num_threads()
@@ -25,9 +25,27 @@ def test_compute_rows_cover_both_classes_and_both_parts_and_agree():
     finally:
         torch.set_num_threads(threads)
     assert {(r["vae"], r["part"]) for r in rows} == {
-        (v, p) for v in ("oscar WanVAE", "diffusers AutoencoderKLWan") for p in ("encode", "decode")
+        (v, p)
+        for v in ("oscar WanVAE", "oscar WanVAE, F.normalize norm", "diffusers AutoencoderKLWan")
+        for p in ("encode", "decode")
     }
     assert all(r["max_abs_diff"] == 0.0 and r["cpu_ms"] > 0 for r in rows)
+
+
+def test_the_f_normalize_row_turns_the_sum_of_squares_norm_off_and_back_on(monkeypatch):
+    import torch
+
+    from oscar_core.model import _wan_vae_layers as layers
+
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    from _wan_norm import f_normalize_rms_norm
+
+    x = torch.ones(1, 16, 2, 32, 32)
+    with torch.no_grad():
+        assert layers._sum_norm_applies(x)
+        with f_normalize_rms_norm():
+            assert not layers._sum_norm_applies(x)
+        assert layers._sum_norm_applies(x)
 
 
 def test_zero_repeats_are_refused(tmp_path, capsys):
