@@ -13,13 +13,20 @@ median CPU seconds (user + system of the child, ``resource.getrusage``) and wall
 
 ``compute``: in this process, one torch thread, both classes holding the oscar-toy transformer's weights, one guided
 step's DiT call of a toy chunk (batch 2, 16 x 5 x 16 x 16 latent, per-frame timesteps, no skeleton, so both compute
-the same function); best thread-CPU and wall milliseconds of ``--repeats``, the two classes alternating;
-``max_abs_diff`` between their outputs (0.0: bit-identical).
+the same function); best thread-CPU and wall milliseconds of ``--repeats``, the classes alternating;
+``max_abs_diff`` between their outputs (0.0: bit-identical). oscar's class runs twice: as it is (its rotary tables
+kept per grid, device and fps) and with the tables made afresh in every call (``RoPE tables made every call``, as
+before they were kept).
+
+``rope``: the rotary tables alone (``RotaryPositions``), made afresh and kept, best thread-CPU ms of ``--repeats``
+x 10 calls: the toy grid (5 x 8 x 8 tokens, head 32) and the 2B model's grid for 81 frames at 512 x 288 (21 x 18 x 32
+tokens, head 128, its ``rope_scale``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -111,8 +118,51 @@ def _toy_step_inputs() -> dict:
     )
 
 
+@contextlib.contextmanager
+def rope_made_every_call():
+    """Inside: oscar's ``RotaryPositions`` computes its tables afresh in every call (its way before it kept them)."""
+    from oscar_core.model._cosmos_layers import RotaryPositions
+
+    forward = RotaryPositions.forward
+    RotaryPositions.forward = lambda self, grid, device, fps=None: self.tables(grid, device, fps)
+    try:
+        yield
+    finally:
+        RotaryPositions.forward = forward
+
+
+def measure_rope(repeats: int) -> list[dict]:
+    """The rotary tables alone, made and kept, at the toy grid and the 2B grid (module docstring)."""
+    import torch
+
+    from oscar_core.model._cosmos_layers import RotaryPositions
+    from oscar_core.model.tiny import COSMOS_2B_TRANSFORMER_CONFIG as BIG
+
+    torch.set_num_threads(1)
+    cases = {
+        "toy, 5 x 8 x 8 tokens": (RotaryPositions(32, (8, 8, 8), (1.0, 1.0, 1.0)), (5, 8, 8)),
+        "2B, 21 x 18 x 32 tokens": (
+            RotaryPositions(BIG["attention_head_dim"], (128, 120, 120), tuple(BIG["rope_scale"])),
+            (21, 18, 32),
+        ),
+    }
+    rows = []
+    for name, (rope, grid) in cases.items():
+        best = {"made": float("inf"), "kept": float("inf")}
+        for _ in range(repeats):
+            for how in best:
+                with rope_made_every_call() if how == "made" else contextlib.nullcontext():
+                    c0 = time.thread_time()
+                    for _ in range(10):
+                        rope(grid, torch.device("cpu"), 10.0)
+                    best[how] = min(best[how], 1e3 * (time.thread_time() - c0) / 10)
+        rows.append({"grid": name, "made_cpu_ms": round(best["made"], 3), "kept_cpu_ms": round(best["kept"], 3)})
+    return rows
+
+
 def measure_compute(repeats: int) -> list[dict]:
-    """One DiT call by both classes (module docstring); one record per class."""
+    """One DiT call by both classes, oscar's with its rotary tables kept and made every call (module docstring);
+    one record per row."""
     import torch
 
     from oscar_core.model._resize import install_torchvision_free_resize
@@ -120,18 +170,22 @@ def measure_compute(repeats: int) -> list[dict]:
 
     install_torchvision_free_resize()
     torch.set_num_threads(1)
+    ours = OscarTransformer3DModel.load_strict(TOY_DIT)
+    #: name -> (model, the context its calls run in)
     models = {
-        "oscar OscarTransformer3DModel": OscarTransformer3DModel.load_strict(TOY_DIT),
-        "diffusers CosmosTransformer3DModel": load_reference(TOY_DIT),
+        "oscar OscarTransformer3DModel": (ours, contextlib.nullcontext),
+        "oscar OscarTransformer3DModel, RoPE tables made every call": (ours, rope_made_every_call),
+        "diffusers CosmosTransformer3DModel": (load_reference(TOY_DIT), contextlib.nullcontext),
     }
     kwargs = _toy_step_inputs()
     best: dict[str, list] = {}
     with torch.no_grad():
-        want = models["diffusers CosmosTransformer3DModel"](**kwargs)[0]
-        for _ in range(repeats):  # alternate the classes so a change of load hits both
-            for name, model in models.items():
-                t0, c0 = time.perf_counter(), time.thread_time()
-                out = model(**kwargs)[0]
+        want = models["diffusers CosmosTransformer3DModel"][0](**kwargs)[0]
+        for _ in range(repeats):  # alternate the rows so a change of load hits all
+            for name, (model, context) in models.items():
+                with context():
+                    t0, c0 = time.perf_counter(), time.thread_time()
+                    out = model(**kwargs)[0]
                 cpu, wall = 1e3 * (time.thread_time() - c0), 1e3 * (time.perf_counter() - t0)
                 rec = best.setdefault(name, [out, cpu, wall])
                 rec[1], rec[2] = min(rec[1], cpu), min(rec[2], wall)
@@ -157,13 +211,23 @@ def main(argv=None) -> int:
     load = os.getloadavg()[0]
     imports = measure_imports(args.repeats)
     compute = measure_compute(args.repeats)
+    rope = measure_rope(args.repeats)
     print(f"{'import (fresh process)':<66} {'CPU s':>7} {'wall s':>7}")
     for r in imports:
         print(f"{r['what']:<66} {r['cpu_s']:>7.2f} {r['wall_s']:>7.2f}")
-    print(f"\n{'toy DiT call, batch 2 x 320 tokens, one thread':<46} {'CPU ms':>8} {'wall ms':>8} {'max |diff|':>11}")
+    print(f"\n{'toy DiT call, batch 2 x 320 tokens, one thread':<60} {'CPU ms':>8} {'wall ms':>8} {'max |diff|':>11}")
     for r in compute:
-        print(f"{r['dit']:<46} {r['cpu_ms']:>8.1f} {r['wall_ms']:>8.1f} {r['max_abs_diff']:>11.3g}")
-    result = {"repeats": args.repeats, "load_1min": [load, os.getloadavg()[0]], "imports": imports, "compute": compute}
+        print(f"{r['dit']:<60} {r['cpu_ms']:>8.1f} {r['wall_ms']:>8.1f} {r['max_abs_diff']:>11.3g}")
+    print(f"\n{'RoPE tables, CPU ms per call':<30} {'made':>8} {'kept':>8}")
+    for r in rope:
+        print(f"{r['grid']:<30} {r['made_cpu_ms']:>8.3f} {r['kept_cpu_ms']:>8.3f}")
+    result = {
+        "repeats": args.repeats,
+        "load_1min": [load, os.getloadavg()[0]],
+        "imports": imports,
+        "compute": compute,
+        "rope": rope,
+    }
     from oscar_core._util.atomic import atomic_write_bytes
 
     args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,9 @@ M timesteps (B, or B T' for one timestep per latent frame).
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections import OrderedDict
 
 import torch
 import torch.nn.functional as F
@@ -38,6 +40,9 @@ __all__ = [
 ROPE_BASE_FPS = 24
 #: RoPE base period before the NTK rescaling by ``rope_scale``
 ROPE_THETA = 10000.0
+#: rotary tables a :class:`RotaryPositions` keeps, the least recently used dropped first (a rollout calls the DiT
+#: with one grid, device and fps at every step; a few more cover a chunk size or fps changing within a session)
+ROPE_TABLES_KEPT = 4
 #: period of the slowest sinusoid of the timestep features
 TIME_PERIOD = 10000.0
 
@@ -101,6 +106,11 @@ class RotaryPositions(nn.Module):
     period ``10000 * rope_scale ** (d / (d - 2))``. Positions are token indices; with ``fps`` the time index
     is counted in frames of 24 fps (``index / fps * 24``). The angles are laid out [t, h, w, t, h, w] so the
     two halves of a head rotate together (:func:`apply_rotary`). No parameters.
+
+    The tables depend on nothing but (grid, device, fps), so the last :data:`ROPE_TABLES_KEPT` are kept and returned
+    again (the same tensors: callers must not write into them); they are made outside inference mode and without
+    autograd, so tables first made in a rollout serve a training step too. Moving the module (``.to``) drops them;
+    under ``torch.compile`` they are computed in the graph as before.
     """
 
     def __init__(self, head_dim: int, max_grid: tuple[int, int, int], rope_scale: tuple[float, float, float]):
@@ -108,6 +118,7 @@ class RotaryPositions(nn.Module):
         self.dims = _axis_dims(head_dim)
         self.thetas = tuple(ROPE_THETA * float(s) ** (d / (d - 2)) for s, d in zip(rope_scale, self.dims))
         self.longest = max(max_grid)
+        self._tables: OrderedDict[tuple, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
 
     def forward(self, grid: tuple[int, int, int], device, fps: float | None = None):
         if max(grid) > self.longest:
@@ -115,6 +126,26 @@ class RotaryPositions(nn.Module):
                 f"latent grid: expected at most {self.longest} tokens along each axis (max_size / patch_size "
                 f"of the model's config), found {tuple(grid)}"
             )
+        if torch.compiler.is_compiling() or not isinstance(fps, (int, float, type(None))):
+            return self.tables(grid, device, fps)
+        key = (tuple(int(n) for n in grid), torch.device(device), None if fps is None else float(fps))
+        kept = self._tables.get(key)
+        if kept is not None:
+            with contextlib.suppress(KeyError):  # another thread may have dropped it meanwhile
+                self._tables.move_to_end(key)
+            return kept
+        with torch.inference_mode(False), torch.no_grad():
+            made = self._tables[key] = self.tables(grid, device, fps)
+        while len(self._tables) > ROPE_TABLES_KEPT:
+            self._tables.popitem(last=False)
+        return made
+
+    def _apply(self, fn, *args, **kwargs):
+        self._tables.clear()  # .to(device / dtype) and friends: tables of the old placement are not kept
+        return super()._apply(fn, *args, **kwargs)
+
+    def tables(self, grid: tuple[int, int, int], device, fps: float | None = None):
+        """(cos, sin) of the angles of ``grid``, each (T' H' W', head_dim) float32, computed afresh."""
         positions = [torch.arange(n, dtype=torch.float32, device=device) for n in grid]
         if fps is not None:
             positions[0] = positions[0] / fps * ROPE_BASE_FPS
