@@ -135,6 +135,21 @@ def test_video_vae_decodes_with_the_tiny_decoder_only_when_asked():
         vae.use_tiny_decoder(TinyDecoderNet(space_upscale=(True, True, False), widths=(16, 8, 8, 8)))
 
 
+def test_a_batch_is_decoded_clip_by_clip_on_the_cpu_with_each_clips_own_decode():
+    torch.manual_seed(2)
+    net = TinyDecoderNet(widths=(16, 8, 8, 8)).eval()
+    decoder = TinyVideoDecoder(net, torch.zeros(1, 16, 1, 1, 1), torch.ones(1, 16, 1, 1, 1))
+    z = torch.randn(3, 16, 2, 4, 4)
+    batches = []
+    forward = net.forward
+    net.forward = lambda x: batches.append(x.shape[0]) or forward(x)
+    together = decoder.decode(z)
+    assert batches == [1, 1, 1]
+    alone = [decoder.decode(z[i : i + 1]) for i in range(3)]
+    assert together.shape == (3, 3, 5, 32, 32)
+    assert all(torch.equal(together[i : i + 1], a) for i, a in enumerate(alone))
+
+
 def test_from_pretrained_takes_a_tiny_decoder_file_and_defaults_to_the_full_decoder(tmp_path):
     from _models import tiny_world_model
 
