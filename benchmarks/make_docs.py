@@ -93,12 +93,15 @@ ABOUT: dict[str, tuple[str, str, str]] = {
     "closed_loop": (
         "Closed-loop policy evaluation",
         "benchmarks/closed_loop.py",
-        "Toy sessions x 2 image-based toy policies closed loop in `oscar-toy` (one torch thread), run one cell "
-        "at a time and with `--batch-cells N` for each N given, interleaved in the same process: cells per "
-        "CPU-minute and per wall-minute, and per closed-loop step (one chunk of one cell) the CPU milliseconds of "
-        "the policy's calls, the action adapter (IK), the condition render, the VAE encodes, the DiT, the VAE "
-        "decode, the cell's writes, the report and the rest (`cpu_ms_per_step`), beside the wall milliseconds "
-        "from the cells' records.",
+        "Toy sessions x 2 image-based toy policies closed loop (one torch thread) in `oscar-toy` at 10 steps with "
+        "the full decoder (teacher), in `oscar-toy-fast` (the 4-step student) with the full decoder, and in the "
+        "student with the bundled tiny decoder; each run one cell at a time and with `--batch-cells N` for each N "
+        "given, interleaved in the same process: cells per CPU-minute and per wall-minute, per closed-loop step "
+        "(one chunk of one cell) the CPU milliseconds of the policy's calls, the action adapter (IK), the "
+        "condition render, the VAE encodes, the DiT, the VAE decode, the cell's writes, the report and the rest "
+        "(`cpu_ms_per_step`), beside the wall milliseconds from the cells' records, and the latency a policy sees "
+        "per chunk (`policy_visible`: wall and CPU ms of each world step, request to frames); the student run "
+        "also probes the VAE on one generated chunk (`vae_probe`, docs/closed-loop.md).",
     ),
     "tiny_decoder": (
         "The toy tiny decoder against the full VAE decoder",
@@ -147,6 +150,9 @@ ABOUT: dict[str, tuple[str, str, str]] = {
 RUNS: dict[str, tuple[str, str]] = {
     "rollout_paper_gpu": ("rollout", "GPU, stopped run"),
     "train_step_gpu": ("train", "GPU"),
+    "closed_loop": ("closed_loop", "CPU, teacher"),
+    "closed_loop_student": ("closed_loop", "CPU, student"),
+    "closed_loop_student_tiny": ("closed_loop", "CPU, student + tiny decoder"),
 }
 
 
@@ -230,6 +236,18 @@ HEADLINES: tuple[Headline, ...] = (
         "closed_loop.json",
         "rows[batch_cells=4].cells_per_cpu_minute",
         "cells/CPU-min",
+    ),
+    Headline(
+        "Closed-loop step, 4-step student + tiny decoder, one cell at a time (one thread)",
+        "closed_loop_student_tiny.json",
+        "rows[batch_cells=1].cpu_ms_per_step.total",
+        "CPU ms",
+    ),
+    Headline(
+        "… the latency a policy sees per chunk",
+        "closed_loop_student_tiny.json",
+        "rows[batch_cells=1].policy_visible.cpu_ms_per_chunk",
+        "CPU ms",
     ),
     Headline(
         "Skeleton video, franka 512x288, FK to pixels (one thread)",
