@@ -76,6 +76,15 @@ bench-gpu:
 	$(BASE_PYTHON) benchmarks/train.py --step-table --step-size 2b --device cuda --step-repeats 3 \
 		--json benchmarks/measured/train_step_gpu.json
 	$(BASE_PYTHON) benchmarks/distill_speed.py --device cuda --dtype bfloat16 --student zoo/assets/oscar-toy-fast --json benchmarks/measured/distill_speed_gpu.json
+	# the 2B closed-loop step (random weights, bf16): policy-visible latency per chunk and cells per GPU-hour for the
+	# teacher (35 guided steps), --preset fast and a 4-step sampler without guidance, full VAE and tiny decoder
+	for sampler in "teacher:" "fast:--preset fast" "4step:--steps 4 --no-guidance"; do \
+		for decoder in "full:--full-decoder" "tiny:--tiny-decoder random"; do \
+			$(BASE_PYTHON) benchmarks/closed_loop.py --size 2b --device cuda --sessions 2 --horizon 161 --batch 4 \
+				--no-vae-probe $${sampler#*:} $${decoder#*:} \
+				--json benchmarks/measured/closed_loop_2b_$${sampler%%:*}_$${decoder%%:*}_gpu.json || exit 1; \
+		done; \
+	done
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

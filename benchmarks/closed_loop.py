@@ -1,14 +1,24 @@
 """Closed-loop policy evaluation on the toy model: where a step's CPU time goes, and cells per CPU-minute at batch 1 vs N.
 
-    python benchmarks/closed_loop.py [--model oscar-toy] [--tiny-decoder FILE | --full-decoder] [--sessions 4]
-                                     [--horizon 33] [--steps N] [--guidance W] [--batch 4 [8 ...]] [--repeats 1]
+    python benchmarks/closed_loop.py [--model oscar-toy | --size tiny|2b] [--device cpu|cuda]
+                                     [--tiny-decoder FILE|random | --full-decoder] [--sessions 4] [--horizon 33]
+                                     [--steps N] [--guidance W | --no-guidance] [--preset fast]
+                                     [--batch 4 [8 ...]] [--repeats 1]
                                      [--compare-norms] [--no-vae-probe] [--probe-repeats 3]
                                      [--json benchmarks/results/closed_loop.json]
 
 ``--model`` is a zoo name or a model folder (``oscar-toy-fast``: the distilled 4-step student); its card's
 recommended sampler runs unless ``--steps`` / ``--guidance`` replace its figures (the 2026-11-29 table in
-docs/closed-loop.md ran ``oscar-toy`` with ``--steps 10``). The decoder is the card's choice, a ``--tiny-decoder``
-file, or ``--full-decoder``.
+docs/closed-loop.md ran ``oscar-toy`` with ``--steps 10``); ``--preset`` a sampler preset, ``--no-guidance`` the
+conditional branch alone (a few-step student's way). The decoder is the card's choice, a ``--tiny-decoder`` file
+(``random``: ``taew2_1``'s widths with random weights, for speed only), or ``--full-decoder``.
+
+``--size`` replaces ``--model`` by a random-weights model built in the process: ``tiny`` (oscar_core.model.tiny, 17
+frames at 64x64, float32) or ``2b`` (the Cosmos-Predict2.5-2B DiT configuration and the WAN 2.1 VAE, bfloat16, 81-frame
+chunks at 512x288: ``make bench-gpu`` runs it with ``--device cuda``); the sessions are drawn at the model card's size.
+Its frames are noise, so only the speed means anything. On ``--device cuda`` each row also gives cells per GPU-hour
+(cells / wall hours of the run: the GPU is held for the wall time) and the thread-CPU split counts the host's work
+only (kernel launches, copies), not the GPU's.
 
 The cells: ``--sessions`` toyarm sessions (``oscar toyworld closed-loop-sessions``, 64x64) x 2 image-based toy
 policies (``exact``, ``never_closes``: ``ee_position`` through IK, 8 actions per call at 10 Hz), ``--horizon``
@@ -310,12 +320,40 @@ def vae_probe(model, frames: np.ndarray, repeats: int) -> dict:
     }
 
 
-def _sampler(model, steps: int | None, guidance: float | None):
-    """The sampler the card recommends (the library's defaults where it is silent), with ``steps`` and ``guidance``
-    replacing its own where given."""
+def _sampler(model, steps: int | None, guidance: float | None, preset: str | None = None, no_guidance: bool = False):
+    """The sampler the card recommends (the library's defaults where it is silent), with ``steps``, ``guidance`` and
+    ``preset`` replacing its own where given; ``no_guidance``: the conditional branch alone."""
+    from dataclasses import replace
+
     from oscar_core.model.card_sampler import sampler_of_card
 
-    return sampler_of_card(model.card.sampler, model.scheduler_config, steps=steps, guidance=guidance)
+    sampler = sampler_of_card(model.card.sampler, model.scheduler_config, steps=steps, guidance=guidance, preset=preset)
+    return replace(sampler, guidance=None) if no_guidance else sampler
+
+
+def random_world_model(size: str, device: str):
+    """A random-weights world model (module docstring): ``tiny`` or ``2b``, on ``device``."""
+    from oscar_core.model import ModelCard, OscarWorldModel
+    from oscar_core.model.tiny import build_random_2b, build_tiny_transformer, build_tiny_vae
+
+    if size == "tiny":
+        card = ModelCard(name="bench-tiny", chunk_frames=17, width=64, height=64, fps=10.0)
+        transformer, vae = build_tiny_transformer(seed=0, skeleton_scale=0.05), build_tiny_vae(seed=0)
+        return OscarWorldModel.from_modules(transformer, vae, card, device=device, dtype=torch.float32)
+    transformer, vae = build_random_2b(device, torch.bfloat16)
+    card = ModelCard(name="bench-2b", chunk_frames=81, width=512, height=288, fps=10.0)
+    return OscarWorldModel.from_modules(transformer, vae, card, device=device, dtype=torch.bfloat16)
+
+
+def use_random_tiny_decoder(model) -> None:
+    """Decode with a tiny decoder at ``taew2_1``'s widths and random weights (its speed only)."""
+    from oscar_core.model.tiny_decoder import TinyDecoderNet
+
+    vae = model.vae
+    torch.manual_seed(0)
+    vae.use_tiny_decoder(
+        TinyDecoderNet(latent_channels=vae.z_dim, space_upscale=tuple(f <= vae.spatial for f in (2, 4, 8)))
+    )
 
 
 def main() -> int:
@@ -323,11 +361,18 @@ def main() -> int:
     ap.add_argument("--sessions", type=int, default=4)
     ap.add_argument("--horizon", type=int, default=33)
     ap.add_argument("--model", default="oscar-toy", help="zoo name or model folder (default oscar-toy)")
+    ap.add_argument("--size", choices=("tiny", "2b"), default=None, help="a random-weights model instead of --model")
+    ap.add_argument("--device", default="cpu", help="where the world model runs (default cpu)")
     ap.add_argument("--steps", type=int, default=None, help="denoising steps (default: the card's)")
-    ap.add_argument("--guidance", type=float, default=None, help="guidance, diffusers form (default: the card's)")
+    ap.add_argument("--preset", choices=("paper", "fast"), default=None, help="a sampler preset (default: the card's)")
+    guidance = ap.add_mutually_exclusive_group()
+    guidance.add_argument("--guidance", type=float, default=None, help="guidance, diffusers form (default: the card's)")
+    guidance.add_argument("--no-guidance", action="store_true", help="the conditional branch alone")
     decoder = ap.add_mutually_exclusive_group()
     decoder.add_argument(
-        "--tiny-decoder", default=None, help="decode with this tiny decoder file (model/tiny_decoder.py)"
+        "--tiny-decoder",
+        default=None,
+        help="decode with this tiny decoder file (model/tiny_decoder.py); 'random': taew2_1's widths, random weights",
     )
     decoder.add_argument(
         "--full-decoder", action="store_true", help="the full VAE decoder even if the card names a tiny one"
@@ -350,14 +395,21 @@ def main() -> int:
     from oscar_core.toyworld.closed_loop import write_closed_loop_sessions
 
     tiny = False if args.full_decoder else args.tiny_decoder
-    model = oscar_zoo.load(args.model, tiny_decoder=tiny)
-    sampler = _sampler(model, args.steps, args.guidance)
+    if args.size is not None:
+        model = random_world_model(args.size, args.device)
+    else:
+        model = oscar_zoo.load(args.model, device=args.device, tiny_decoder=None if tiny == "random" else tiny)
+    if tiny == "random":
+        use_random_tiny_decoder(model)
+    sampler = _sampler(model, args.steps, args.guidance, args.preset, args.no_guidance)
     with tempfile.TemporaryDirectory() as tmp:
         manifest = write_closed_loop_sessions(
             Path(tmp) / "sessions",
             ["toyarm"],
             args.sessions,
             seed=0,
+            width=model.card.width or 64,
+            height=model.card.height or 64,
             horizon=args.horizon,
             policies=["exact", "never_closes"],
         )
@@ -393,6 +445,9 @@ def main() -> int:
             video = read_video(Path(tmp) / "r0b1sums" / first["video"])[: model.card.chunk_frames]
             probe = vae_probe(model, np.ascontiguousarray(video), args.probe_repeats)
     rows = [{**_sum_rounds(runs[key]), "rms_norm": key[1]} for key in runs]
+    if args.device.startswith("cuda"):
+        for r in rows:
+            r["cells_per_gpu_hour"] = r["cells"] / (r["wall_s"] / 3600.0)
     base = {r["rms_norm"]: r for r in rows if r["batch_cells"] == 1}
     speedups = [
         {
@@ -427,6 +482,7 @@ def main() -> int:
             f"  batch {r['batch_cells']} ({r['rms_norm']} norm): {pv['wall_ms_per_call']:.0f} wall ms,"
             f" {pv['cpu_ms_per_call']:.0f} CPU ms per call"
             f" ({pv['cpu_ms_per_chunk']:.0f} CPU ms per chunk, {pv['world_calls']} calls)"
+            + (f", {r['cells_per_gpu_hour']:.0f} cells per GPU-hour" if "cells_per_gpu_hour" in r else "")
         )
     if probe is not None:
         print(
@@ -438,14 +494,20 @@ def main() -> int:
                 print(f"  {key}: {round(shown, 3) if isinstance(shown, float) else shown}")
     out = with_provenance(
         {
-            "model": args.model,
-            "decoder": "tiny" if model.vae.tiny is not None else "full",
+            "model": f"random {args.size}" if args.size else args.model,
+            "device": args.device,
+            "device_name": torch.cuda.get_device_name() if args.device.startswith("cuda") else None,
+            "dtype": str(next(model.transformer.parameters()).dtype).removeprefix("torch."),
+            "decoder": ("tiny, random weights" if tiny == "random" else "tiny")
+            if model.vae.tiny is not None
+            else "full",
             "threads": 1,
             "sessions": args.sessions,
             "policies": ["exact", "never_closes"],
             "horizon": args.horizon,
             "steps": sampler.steps,
             "guidance": f"{sampler.guidance}, {sampler.guidance_form} form",
+            "guidance_interval": sampler.guidance_interval,
             "repeats": args.repeats,
             "rows": rows,
             "speedup_vs_batch_1": speedups,

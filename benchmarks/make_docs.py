@@ -153,6 +153,11 @@ RUNS: dict[str, tuple[str, str]] = {
     "closed_loop": ("closed_loop", "CPU, teacher"),
     "closed_loop_student": ("closed_loop", "CPU, student"),
     "closed_loop_student_tiny": ("closed_loop", "CPU, student + tiny decoder"),
+    **{
+        f"closed_loop_2b_{sampler}_{decoder}_gpu": ("closed_loop", f"GPU, 2B {sampler}, {words}")
+        for sampler in ("teacher", "fast", "4step")
+        for decoder, words in (("full", "full VAE"), ("tiny", "tiny decoder"))
+    },
 }
 
 

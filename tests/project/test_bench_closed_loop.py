@@ -120,3 +120,36 @@ def test_every_timed_function_exists_where_the_benchmark_patches_it(bench):
             assert hasattr(owner, part), f"{module}.{attr}: no {part!r}"
             owner = getattr(owner, part)
         assert callable(owner), f"{module}.{attr} is not callable"
+
+
+def test_samplers_the_gpu_table_names(bench):
+    """teacher (the card's, else the library's 35 guided steps), `fast` (its preset) and a 4-step sampler without
+    guidance, as `make bench-gpu` asks for them."""
+    model = bench.random_world_model("tiny", "cpu")
+    teacher = bench._sampler(model, None, None)
+    fast = bench._sampler(model, None, None, preset="fast")
+    four = bench._sampler(model, 4, None, no_guidance=True)
+    assert (teacher.steps, teacher.guidance) == (35, 6.0)
+    assert (fast.steps, fast.guidance_interval) == (12, (0.0, 0.8))
+    assert (four.steps, four.guidance) == (4, None)
+
+
+@pytest.mark.slow
+def test_a_random_weights_model_runs_closed_loop_with_a_random_tiny_decoder(bench, tmp_path, monkeypatch):
+    """The path `make bench-gpu` takes for the 2B (--size, --device, --tiny-decoder random, --no-guidance), on the
+    CPU with the tiny configuration: one chunk per cell, batch 1 and 2."""
+    import json
+
+    out = tmp_path / "closed_loop.json"
+    argv = ["closed_loop.py", "--size", "tiny", "--device", "cpu", "--sessions", "1", "--horizon", "17"]
+    argv += ["--batch", "2", "--steps", "2", "--no-guidance", "--tiny-decoder", "random", "--no-vae-probe"]
+    monkeypatch.setattr(sys, "argv", [*argv, "--json", str(out)])
+    assert bench.main() == 0
+    result = json.loads(out.read_text())
+    assert (result["model"], result["device"], result["dtype"]) == ("random tiny", "cpu", "float32")
+    assert result["decoder"] == "tiny, random weights" and result["steps"] == 2
+    assert result["guidance"].startswith("None")
+    rows = {r["batch_cells"]: r for r in result["rows"]}
+    assert set(rows) == {1, 2} and all(r["cells"] == 2 and r["failed"] == 0 for r in rows.values())
+    assert rows[1]["policy_visible"]["world_calls"] == 2 and rows[2]["policy_visible"]["world_calls"] == 1
+    assert "cells_per_gpu_hour" not in rows[1]  # only on CUDA
