@@ -2,6 +2,7 @@
 
     python benchmarks/distill_speed.py [--student FOLDER] [--repeats 5] [--device cpu|cuda] [--dtype float32|bfloat16]
                                        [--json benchmarks/results/distill_speed.json]
+    python benchmarks/distill_speed.py --closed-loop-2b-only --json benchmarks/measured/distill_speed.json
 
 Rows: the teacher (the bundled ``oscar-toy``) at ``--preset paper`` (35 UniPC steps, guidance every step), at its
 card's sampler (20 steps, guidance 3) and at ``--preset fast`` (12 steps, guidance at σ ≤ 0.8); the student
@@ -42,6 +43,21 @@ pixel frame) or the last two or three (the last frame with one or two latent fra
 measured on the toy VAE (milliseconds, and the PSNR of the last frame against the full decode's), and their FLOP
 ratio to the full decode is counted at the 2B size on the meta device (WAN 2.1 VAE, 21 latent frames of 64x36),
 giving the 2B chunk's computed seconds with that decode.
+
+The 2B closed-loop step (``closed_loop_2b``, computed): what ``oscar eval closed-loop`` asks of the 2B per chunk with a
+4-step sampler without guidance (4 DiT evaluations): the VAE encode of the seed frame (1 frame: the session's first
+frame in a cell's first chunk, the last generated frame after that, so nothing to cache past chunk 0), the full VAE
+encode of the chunk's 81-frame condition video (every chunk; nothing of it is cached), and the decode, by the full
+WAN 2.1 decoder or by the tiny decoder (``oscar_core.model.tiny_decoder.TinyDecoderNet`` at ``taew2_1``'s widths).
+Every part's FLOPs are counted at the 2B's shapes on the meta device. No record splits the H200's measured 2.1 s of
+VAE into encode and decode, so each VAE part gets the share of a card's VAE seconds that its FLOPs have of the VAE's
+(the decode: 0.624 by FLOPs, against 0.620 measured on one H100, eager); the tiny decoder is ASSUMED to run at the
+FLOP rate the full VAE ran at on that card (H200: 162.5 TFLOP in 2.1 s, 77 TFLOP/s), not measured. Rows: the full
+VAE, the tiny decoder, and the tiny decoder with no condition encode at all (the most any caching of the condition
+could save); per card the seconds, frames/s, the VAE's share and whether the targets (>= 60 frames/s, VAE <= 40 %)
+are met, and the largest condition encode (seconds, share of today's) with which the tiny-decoder step would meet
+both. ``--closed-loop-2b-only`` counts and computes these rows alone (seconds, no model run) and adds them to the
+``--json`` file, whose measured fields stay as they were; the section keeps its own provenance.
 """
 
 from __future__ import annotations
@@ -62,7 +78,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _provenance import with_provenance  # noqa: E402
+from _provenance import provenance, with_provenance  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 GPU_JSON = REPO / "benchmarks" / "measured" / "rollout_gpu.json"
@@ -86,6 +102,9 @@ H200_VAE_S = 2.1  # VAE encode x2 + decode of one 81-frame 512x288 chunk, same H
 PEAK_BF16 = {"H100 SXM": 989.4, "H200": 989.4}  # dense BF16 tensor-core peaks (NVIDIA datasheets), TFLOP/s
 NEW_FRAMES = 80  # new frames per 81-frame chunk of the 2B
 GOAL_FPS = 25.0
+#: the 2B closed-loop step's targets: frames/s computed on one H200 and the VAE's largest share of the step
+CLOSED_LOOP_TARGETS = {"frames_per_s": 60.0, "vae_share": 0.40}
+CLOSED_LOOP_EVALUATIONS = 4  # a 4-step sampler without guidance: one DiT evaluation per step
 #: decodes of a chunk's end alone: (name, latent frames from the end)
 END_DECODES = (("last latent frame", 1), ("last 2 latent frames", 2), ("last 3 latent frames", 3))
 
@@ -259,11 +278,27 @@ def vae_decode_flops_2b(frames: int = 81, width: int = 512, height: int = 288) -
 # --------------------------------------------------------------------------- the 2B, computed
 
 
+def paper_eager_row() -> tuple[dict, Path]:
+    """The ``--preset paper`` eager chunk measured on the GPU, and its file: ``rollout_gpu.json`` when its run measured
+    that preset, else ``rollout_paper_gpu.json`` (the run that did, when the last ``rollout_gpu.json`` measured
+    ``fast`` alone). ValueError naming both files when neither holds it."""
+    for path in (GPU_JSON, GPU_JSON.with_name("rollout_paper_gpu.json")):
+        if path.is_file():
+            rows = json.loads(path.read_text()).get("measured", {}).get("presets", [])
+            hits = [r for r in rows if r.get("preset") == "paper" and r.get("variant", "eager") == "eager"]
+            if hits:
+                return hits[0], path
+    raise ValueError(
+        f"{GPU_JSON} and rollout_paper_gpu.json beside it: expected a measured.presets record of the paper preset, "
+        "eager (benchmarks/rollout.py --gpu), found none"
+    )
+
+
 def gpu_reference() -> dict:
     """The 2B figures this benchmark computes from: FLOPs of one evaluation and the H100's eager measurement
     (``benchmarks/measured/rollout_gpu.json``), the H200 throughput and VAE seconds (constants above)."""
     m = json.loads(GPU_JSON.read_text())["measured"]
-    paper = next(p for p in m["presets"] if p["preset"] == "paper")
+    paper, paper_file = paper_eager_row()
     eval_flops = m["flops"]["step_conditional"]
     h100_step = m["steps"]["conditional_eager"]["median_ms"] / 1e3
     encode, decode = paper["seconds_parts"]["encode"], paper["seconds_parts"]["decode"]
@@ -289,7 +324,8 @@ def gpu_reference() -> dict:
             "h200": "computed: 576 TFLOP/s compiled and 2.1 s VAE per chunk, measured on one H200 (docs/world-model.md)",
             "h100": "computed, assumed: the H200 figures x H100/H200 dense BF16 peak (989.4/989.4 TFLOP/s)",
             "h100_eager": f"computed from {GPU_JSON.relative_to(REPO)}: eager conditional step "
-            f"{h100_step:.3f} s, VAE encode {encode:.2f} s + decode {decode:.2f} s (one H100)",
+            f"{h100_step:.3f} s; from {paper_file.relative_to(REPO)}: VAE encode {encode:.2f} s + decode "
+            f"{decode:.2f} s of the paper preset, eager (one H100)",
             "decode_share_of_vae": "the decode's share of the VAE seconds, from the H100 eager measurement",
         },
     }
@@ -309,6 +345,157 @@ def computed_2b(evaluations: int, ref: dict, decode_ratio: float = 1.0) -> dict:
             "vae_share": vae / (dit + vae),
         }
     return out
+
+
+# --------------------------------------------------------------------------- the 2B closed-loop step, computed
+
+
+def closed_loop_flops_2b(frames: int = 81, width: int = 512, height: int = 288) -> dict:
+    """FLOPs of the VAE's work in one closed-loop step of the 2B, counted on the meta device: ``encode_seed`` (one
+    frame), ``encode_condition`` (the chunk's ``frames``-frame condition video), ``decode`` (the WAN 2.1 decoder, the
+    chunk's (frames - 1) / 4 + 1 latent frames) and ``tiny_decode`` (the tiny decoder at ``taew2_1``'s widths, the same
+    latents)."""
+    from oscar_core.model.tiny_decoder import TinyDecoderNet
+    from oscar_core.model.wan_vae import WanVAE
+
+    with torch.device("meta"):
+        vae = WanVAE()  # its defaults (diffusers' AutoencoderKLWan's) are the WAN 2.1 VAE's configuration
+        tiny = TinyDecoderNet()  # taew2_1's widths, the module oscar loads taew2_1 into
+    t = (frames - 1) // 4 + 1
+    z = torch.zeros(1, 16, t, height // 8, width // 8, device="meta")
+    return {
+        "encode_seed": flops_of(lambda: vae.encode(torch.zeros(1, 3, 1, height, width, device="meta"))),
+        "encode_condition": flops_of(lambda: vae.encode(torch.zeros(1, 3, frames, height, width, device="meta"))),
+        "decode": flops_of(lambda: vae.decode(z)),
+        "tiny_decode": flops_of(lambda: tiny(z.permute(0, 2, 1, 3, 4))),  # TinyDecoderNet takes (N, T', z, h, w)
+    }
+
+
+def _step_seconds(dit_s: float, vae_s: float) -> dict:
+    total = dit_s + vae_s
+    return {
+        "seconds_per_chunk": total,
+        "vae_seconds": vae_s,
+        "frames_per_s": NEW_FRAMES / total,
+        "vae_share": vae_s / total,
+        "meets_targets": bool(
+            NEW_FRAMES / total >= CLOSED_LOOP_TARGETS["frames_per_s"]
+            and vae_s / total <= CLOSED_LOOP_TARGETS["vae_share"]
+        ),
+    }
+
+
+def closed_loop_2b(ref: dict, flops: dict, evaluations: int = CLOSED_LOOP_EVALUATIONS) -> dict:
+    """The 2B closed-loop step computed on each card of ``ref`` (:func:`gpu_reference`) from ``flops``
+    (:func:`closed_loop_flops_2b`): each VAE part's seconds are its FLOP share of the card's VAE seconds (the card's
+    VAE FLOP rate), the DiT's are ``evaluations`` x the FLOPs of one over the card's throughput. Returns
+    ``vae_split`` (the FLOPs and the split), ``rows`` (full VAE; tiny decoder; tiny decoder without a condition encode)
+    and ``condition_encode_budget`` (per card, the largest condition encode with which the tiny-decoder step meets
+    :data:`CLOSED_LOOP_TARGETS`)."""
+    tf = {k: v / 1e12 for k, v in flops.items()}
+    vae_tflop = tf["encode_seed"] + tf["encode_condition"] + tf["decode"]
+    variants = (
+        ("full VAE", "WAN 2.1 decoder", tf["encode_condition"], tf["decode"]),
+        ("tiny decoder", "tiny decoder (taew2_1 widths)", tf["encode_condition"], tf["tiny_decode"]),
+        ("tiny decoder, no condition encode (bound)", "tiny decoder (taew2_1 widths)", 0.0, tf["tiny_decode"]),
+    )
+    rows = []
+    for name, decoder, encode_condition, decode in variants:
+        row = {
+            "step": name,
+            "decoder": decoder,
+            "dit_evaluations": evaluations,
+            "tflop_dit": evaluations * ref["tflop_per_evaluation"],
+            "tflop_encode_seed": tf["encode_seed"],
+            "tflop_encode_condition": encode_condition,
+            "tflop_decode": decode,
+        }
+        for card, t in ref["throughputs"].items():
+            rate = vae_tflop / t["vae_s"]  # TFLOP/s: the card's VAE seconds over the VAE's FLOPs
+            dit = row["tflop_dit"] / t["tflops"]
+            vae = (tf["encode_seed"] + encode_condition + decode) / rate
+            row.update({f"{card}_{k}": v for k, v in _step_seconds(dit, vae).items()})
+        rows.append(row)
+    budget = {}
+    for card, t in ref["throughputs"].items():
+        rate = vae_tflop / t["vae_s"]
+        dit = evaluations * ref["tflop_per_evaluation"] / t["tflops"]
+        # VAE / (DiT + VAE) <= share  <=>  VAE <= DiT * share / (1 - share); 80 / (DiT + VAE) >= fps
+        vae_max = min(
+            dit * CLOSED_LOOP_TARGETS["vae_share"] / (1.0 - CLOSED_LOOP_TARGETS["vae_share"]),
+            NEW_FRAMES / CLOSED_LOOP_TARGETS["frames_per_s"] - dit,
+        )
+        encode_max = vae_max - (tf["encode_seed"] + tf["tiny_decode"]) / rate
+        budget[card] = {
+            "condition_encode_s_max": encode_max,
+            "condition_encode_now_s": tf["encode_condition"] / rate,
+            "fraction_of_now": encode_max / (tf["encode_condition"] / rate),
+        }
+    return {
+        "targets": dict(CLOSED_LOOP_TARGETS),
+        "vae_split": {
+            "tflop_encode_seed": tf["encode_seed"],
+            "tflop_encode_condition": tf["encode_condition"],
+            "tflop_decode": tf["decode"],
+            "tflop_vae_counted": vae_tflop,
+            "tflop_vae_reference": ref["tflop_vae_per_chunk"],
+            "tflop_tiny_decode": tf["tiny_decode"],
+            "tiny_decode_vs_decode": tf["tiny_decode"] / tf["decode"],
+            "decode_share_by_flops": tf["decode"] / vae_tflop,
+            "decode_share_measured_h100_eager": ref["throughputs"]["h100_eager"]["decode_share_of_vae"]
+            if "h100_eager" in ref["throughputs"]
+            else None,
+            "seed_encode_share_of_vae": tf["encode_seed"] / vae_tflop,
+            "note": "no record splits the H200's 2.1 s of VAE into encode and decode: each VAE part is given its FLOP "
+            "share of a card's VAE seconds; the tiny decoder is assumed to run at the FLOP rate the full VAE ran at on "
+            "that card (not measured)",
+        },
+        "rows": rows,
+        "condition_encode_budget": budget,
+    }
+
+
+def print_closed_loop(cl: dict) -> None:
+    """The 2B closed-loop rows on each card (computed), and the condition encode the targets leave room for."""
+    split, cards = cl["vae_split"], list(cl["condition_encode_budget"])
+    measured = split["decode_share_measured_h100_eager"]
+    print(
+        f"\n2B closed-loop step, {cl['rows'][0]['dit_evaluations']} DiT evaluations, computed: each VAE part its FLOP "
+        f"share of the card's VAE seconds (decode {split['decode_share_by_flops']:.3f} by FLOPs"
+        + (f", {measured:.3f} measured on one H100" if measured is not None else "")
+        + f"); tiny decoder {split['tflop_tiny_decode']:.2f} TFLOP = {100 * split['tiny_decode_vs_decode']:.1f} % of "
+        "the decode's, assumed at the VAE's FLOP rate"
+    )
+    print(f"  {'step':42s} {'TFLOP enc':>9s} {'dec':>7s}" + "".join(f" {c + ' s, fps, VAE%':>24s}" for c in cards))
+    for r in cl["rows"]:
+        print(
+            f"  {r['step']:42s} {r['tflop_encode_seed'] + r['tflop_encode_condition']:9.2f} {r['tflop_decode']:7.2f}"
+            + "".join(
+                f" {r[c + '_seconds_per_chunk']:8.3f} {r[c + '_frames_per_s']:7.1f} {100 * r[c + '_vae_share']:7.1f}"
+                for c in cards
+            )
+        )
+    t = cl["targets"]
+    for card, b in cl["condition_encode_budget"].items():
+        print(
+            f"  {card}: >= {t['frames_per_s']:g} frames/s with the VAE <= {100 * t['vae_share']:g} % needs the tiny "
+            f"decoder and a condition encode of at most {b['condition_encode_s_max']:.3f} s, "
+            f"{100 * b['fraction_of_now']:.0f} % of today's {b['condition_encode_now_s']:.3f} s"
+        )
+
+
+def add_closed_loop_2b(path: Path) -> dict:
+    """Count, compute and add ``closed_loop_2b`` (with its own provenance) to the benchmark JSON at ``path``, every
+    other field as it was, from the file's own ``reference_2b`` (the figures its ``computed_2b`` rows used); written
+    atomically. Returns the section."""
+    from oscar_core._util.atomic import atomic_write_bytes
+
+    data = json.loads(path.read_text())
+    ref = data.get("reference_2b") or gpu_reference()  # the reference the file's computed_2b rows were computed from
+    cl = closed_loop_2b(ref, closed_loop_flops_2b())
+    data["closed_loop_2b"] = {"provenance": provenance(), **cl}
+    atomic_write_bytes(path, (json.dumps(data, indent=2) + "\n").encode())
+    return cl
 
 
 # --------------------------------------------------------------------------- main
@@ -394,7 +581,24 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cpu", help="cpu or cuda (the toy model; the 2B rows are computed)")
     ap.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
     ap.add_argument("--json", default="benchmarks/results/distill_speed.json")
+    ap.add_argument(
+        "--closed-loop-2b-only",
+        action="store_true",
+        help="count and compute the 2B closed-loop rows only and add them to the existing --json file (its other "
+        "fields unchanged; no model runs)",
+    )
     args = ap.parse_args(argv)
+    if args.closed_loop_2b_only:
+        path = Path(args.json)
+        try:
+            rows = json.loads(path.read_text()).get("rows") if path.is_file() else None
+        except ValueError:
+            rows = None
+        if not rows:
+            ap.error(f"--closed-loop-2b-only: {path}: expected a JSON file written by this benchmark, found none")
+        print_closed_loop(add_closed_loop_2b(path))
+        print(f"wrote {path}")
+        return 0
     if args.repeats < 1 or args.threads < 1:
         ap.error(f"--repeats and --threads: expected integers >= 1, found {args.repeats} and {args.threads}")
     if args.student and not (Path(args.student) / "oscar_model.json").is_file():
@@ -438,6 +642,8 @@ def main(argv=None) -> int:
     for r in rows:
         r.pop("_state")
     print_table(rows, cut)
+    closed_loop = closed_loop_2b(ref, closed_loop_flops_2b())
+    print_closed_loop(closed_loop)
     out = with_provenance(
         {
             "settings": {
@@ -454,6 +660,7 @@ def main(argv=None) -> int:
             "reference_2b": ref,
             "rows": rows,
             "vae_cut": cut,
+            "closed_loop_2b": closed_loop,
         },
         device=str(device),
     )
