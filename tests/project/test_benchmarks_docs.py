@@ -116,6 +116,32 @@ def test_the_headline_table_reads_each_figure_from_its_file(tmp_path, monkeypatc
     assert "## World-model rollout\n" in page and "## Skeleton rendering\n" in page
 
 
+def test_a_headline_from_a_section_with_its_own_provenance_gives_that_section_s_date(tmp_path, monkeypatch):
+    write_fixtures(tmp_path)
+    data = json.loads((tmp_path / "rollout.json").read_text())
+    data["added"] = {"provenance": {**PROV_CPU, "date": "2026-02-09T00:00:00+00:00"}, "fps": 61.5}
+    (tmp_path / "rollout.json").write_text(json.dumps(data))
+    module = make_docs()
+    H = module.Headline
+    monkeypatch.setattr(
+        module,
+        "HEADLINES",
+        (
+            H("added later", "rollout.json", "added.fps", "frames/s", kind="computed", provenance="added.provenance"),
+            H("the file's own", "rollout.json", "added.fps", "frames/s", kind="computed"),
+        ),
+    )
+    head = module.render_page(tmp_path).split("\n## ")[0]
+    assert "| added later | 61.5 | frames/s | computed | 2 CPUs, load 3.5 | 2026-02-09 |" in head
+    assert "| the file's own | 61.5 | frames/s | computed | 2 CPUs, load 3.5 | 2026-01-02 |" in head
+    monkeypatch.setattr(module, "HEADLINES", (H("x", "rollout.json", "added.fps", "s", provenance="added.nowhere"),))
+    with pytest.raises(
+        module.HeadlineError,
+        match=r"rollout\.json: headline 'x' reads its provenance at added\.nowhere: no field 'nowhere'",
+    ):
+        module.render_page(tmp_path)
+
+
 def test_a_headline_the_file_does_not_hold_is_an_error_naming_file_and_path(tmp_path, monkeypatch, capsys):
     write_fixtures(tmp_path)
     module = make_docs()
