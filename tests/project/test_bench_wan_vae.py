@@ -52,3 +52,35 @@ def test_zero_repeats_are_refused(tmp_path, capsys):
     assert _bench().main(["--repeats", "0", "--json", str(tmp_path / "out.json")]) == 2
     assert "--repeats: expected at least 1, found 0" in capsys.readouterr().err
     assert not (tmp_path / "out.json").exists()
+
+
+def test_encode_variants_state_their_difference_and_put_the_model_back(monkeypatch):
+    import torch
+
+    mod = _bench()
+    seen = []  # (turned on?, 5-D weights in channels-last after the call)
+    real = mod._channels_last
+
+    def spy(model, on):
+        real(model, on)
+        last = [p for p in model.parameters() if p.ndim == 5 and not p.is_contiguous()]
+        seen.append((on, sum(p.is_contiguous(memory_format=torch.channels_last_3d) for p in last)))
+
+    monkeypatch.setattr(mod, "_channels_last", spy)
+    threads = torch.get_num_threads()
+    try:
+        rows = mod.measure_encode_variants(1, ("as it is", "channels-last"))
+    finally:
+        torch.set_num_threads(threads)
+    assert [r["variant"] for r in rows] == ["as it is", "channels-last"]
+    as_is, last = rows
+    assert as_is["max_abs_diff"] == 0.0 and as_is["cpu_vs_as_it_is"] == 1.0 and as_is["cpu_ms"] > 0
+    assert last["max_abs_diff"] < 1e-4  # not bit-identical on oneDNN: the tolerance the JSON states
+    on = [i for i, (turned_on, n) in enumerate(seen) if turned_on]
+    assert on and all(seen[i][1] > 0 for i in on)  # the weights really were channels-last
+    assert all(seen[i + 1] == (False, 0) for i in on)  # and contiguous again right after
+
+
+def test_encode_variants_only_needs_an_existing_file(tmp_path, capsys):
+    assert _bench().main(["--encode-variants-only", "--json", str(tmp_path / "none.json")]) == 2
+    assert "none.json: expected a file this benchmark wrote, found none" in capsys.readouterr().err
