@@ -69,7 +69,9 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "diffusers' `AutoencoderKLWan` on the same folder, `import torch` as the floor; median CPU and wall "
         "seconds), and one 17-frame 64x64 toy chunk encoded and decoded by both classes in one process on one "
         "thread with oneDNN convolutions (best CPU and wall ms, the classes alternating; `max_abs_diff` 0 = "
-        "bit-identical).",
+        "bit-identical); `encode_variants`: oscar's encode of the same chunk as it is, channels-last and under "
+        "`torch.compile` (first call = the compile), `max_abs_diff` against the encode as it is (added by "
+        "`--encode-variants-only` with its own provenance).",
     ),
     "cosmos_dit": (
         "The Cosmos DiT: oscar's own class against diffusers'",
