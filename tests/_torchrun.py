@@ -11,7 +11,6 @@ started against torchrun's store after the first was closed waits forever)."""
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -22,11 +21,10 @@ _REPO = Path(__file__).resolve().parent.parent
 def train_under_torchrun(configs, nproc: int = 2, timeout: float = 300) -> subprocess.CompletedProcess:
     """Train each config (paths to YAML files) in turn on ``nproc`` gloo processes of one ``torchrun`` launch;
     returns the finished launcher (its ``returncode``: 0 when every run finished)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", str(nproc), "--master-addr"]
-    cmd += ["127.0.0.1", "--master-port", str(port), __file__, *map(str, configs)]
+    # --standalone: torchrun's own store listens on a port the OS picks and the workers meet there; a port picked
+    # here and closed before torchrun binds it could be taken meanwhile by a launch of another test worker
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", str(nproc)]
+    cmd += [__file__, *map(str, configs)]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout, check=False)
 
