@@ -40,6 +40,17 @@ def oscar_cache(tmp_path_factory):
     os.environ.pop("OSCAR_CACHE", None)
 
 
+@pytest.fixture
+def refused_port():
+    """A loopback TCP port (int) that refuses every connection for the whole test: a socket bound to it that does not
+    listen. Held, not closed: a port closed after the OS picked it could be taken by another test worker meanwhile."""
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        yield held.getsockname()[1]
+
+
 @pytest.fixture(scope="module")
 def tiny_model_dir(tmp_path_factory):
     """A tiny world model (seed 0, skeleton scale 0.05, 5-frame chunks at 15 fps) exported in the oscar layout, once

@@ -485,7 +485,7 @@ def test_bad_input_is_reported_before_any_request(server, tmp_path, monkeypatch)
     assert v.ok and server.bodies[-1]["model"] == "env-model" and "authorization" not in server.headers[-1]
 
 
-def test_sampling_fields_and_unreachable_server(server, tmp_path):
+def test_sampling_fields_and_unreachable_server(server, tmp_path, refused_port):
     judge = _judge(server, tmp_path, temperature=0.0, max_tokens=64, extra_body={"reasoning_effort": "high"})
     assert judge.judge(JudgeClip("x", _video(0), "valid x")).ok
     body = server.bodies[-1]
@@ -500,7 +500,7 @@ def test_sampling_fields_and_unreachable_server(server, tmp_path):
     # (test_refused_connections_after_answers_stay_per_clip_errors)
     from oscar_core.metrics import JudgeEndpointUnreachable
 
-    dead = SuccessJudge(base_url=_refusing_url(), model=MODEL, timeout=1, max_attempts=2, backoff=0.01)
+    dead = SuccessJudge(base_url=_refusing_url(refused_port), model=MODEL, timeout=1, max_attempts=2, backoff=0.01)
     with pytest.raises(JudgeEndpointUnreachable):
         dead.judge(JudgeClip("x", _video(0), "valid x"))
     assert dead.client.requests_sent == 2
@@ -951,21 +951,22 @@ def test_retry_after_reads_seconds_and_http_dates():
     assert _retry_after({}, now) is None and _retry_after(None, now) is None
 
 
-def _refusing_url() -> str:
-    import socket
-
-    with socket.socket() as s:  # a port that was free a moment ago: connections to it are refused
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+def _refusing_url(port: int) -> str:
+    """The judge endpoint on ``port`` (the ``refused_port`` fixture: connections to it are refused)."""
     return f"http://127.0.0.1:{port}/v1"
 
 
-def test_an_endpoint_that_refuses_every_connection_stops_the_run(tmp_path):
+def test_an_endpoint_that_refuses_every_connection_stops_the_run(tmp_path, refused_port):
     from oscar_core.metrics import JudgeEndpointUnreachable
 
     clips = [JudgeClip(f"s0/p{k}", _video(k, frames=4), "put the cup in the bowl") for k in range(6)]
     judge = SuccessJudge(
-        base_url=_refusing_url(), model=MODEL, max_attempts=3, backoff=0.0, concurrency=2, cache_dir=tmp_path / "cache"
+        base_url=_refusing_url(refused_port),
+        model=MODEL,
+        max_attempts=3,
+        backoff=0.0,
+        concurrency=2,
+        cache_dir=tmp_path / "cache",
     )
     t0 = time.monotonic()
     with pytest.raises(
@@ -981,24 +982,24 @@ def test_an_endpoint_that_refuses_every_connection_stops_the_run(tmp_path):
     assert judge.client.requests_sent == sent and not list((tmp_path / "cache").glob("*.json"))
 
 
-def test_refused_connections_after_answers_stay_per_clip_errors(server, tmp_path):
+def test_refused_connections_after_answers_stay_per_clip_errors(server, tmp_path, refused_port):
     # the endpoint answered before: a later refusal is one clip's error, not the end of the run
     judge = SuccessJudge(base_url=server.url, model=MODEL, max_attempts=2, backoff=0.0)
     ok = judge.judge_many([JudgeClip("a", _video(1, frames=4), "valid a")])
     assert ok[0].status == "ok"
-    judge.client._sdk = judge.client._sdk.with_options(base_url=_refusing_url())
+    judge.client._sdk = judge.client._sdk.with_options(base_url=_refusing_url(refused_port))
     (bad,) = judge.judge_many([JudgeClip("b", _video(2, frames=4), "valid b")])
     assert bad.status == "error" and "connection" in bad.error
 
 
-def test_eval_judge_exits_non_zero_naming_the_unreachable_endpoint(tmp_path, capsys):
+def test_eval_judge_exits_non_zero_naming_the_unreachable_endpoint(tmp_path, capsys, refused_port):
     from oscar_core.cli import main
 
     root = tmp_path / "rollouts" / "s1"
     root.mkdir(parents=True)
     np.save(root / "p0.npy", _video(0, frames=4))
     (tmp_path / "tasks.json").write_text(json.dumps({"s1": "put the cup in the bowl"}))
-    url = _refusing_url()
+    url = _refusing_url(refused_port)
     code = main(
         [
             "eval",

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -106,7 +105,7 @@ def test_served_policy_gives_the_same_cells_as_in_process(sessions, tmp_path):
         assert [c["image_sha256"] for c in ca] == [c["image_sha256"] for c in cb]
 
 
-def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path):
+def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path, refused_port):
     (tmp_path / "failing.py").write_text(FAILING)
     data = json.loads(sessions.read_text())
     data["policies"][0]["action_space"] = "joint_position"
@@ -126,10 +125,7 @@ def test_server_error_refusal_and_death_fail_the_cell(sessions, tmp_path):
     first, second = (r["reason"] for r in res.records)
     assert first.startswith("infer raised ConnectionClosed"), first  # the connection dropped mid-episode
     assert second.startswith("cannot load ws://"), second  # nobody listens any more
-    with socket.socket() as s:  # a port nobody listens on
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    # nobody listens from the start: the run stops before any cell, one line naming the policy
+    port = refused_port  # nobody listens from the start: the run stops before any cell, one line naming the policy
     with pytest.raises(PolicyLoadError, match=rf"^policy 'exact' cannot be loaded: ws://127.0.0.1:{port}: ") as err:
         run_closed_loop(
             m,

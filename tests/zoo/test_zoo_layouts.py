@@ -336,22 +336,14 @@ class _Hanging:
         self.sock.close()
 
 
-def _refused_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return f"http://127.0.0.1:{port}"
-
-
-def test_refused_hub_fails_at_once_with_the_offline_hint():
+def test_refused_hub_fails_at_once_with_the_offline_hint(refused_port):
     t0 = time.monotonic()
     with pytest.raises(
         HubUnreachableError,
         match=r"cannot reach the Hub \(http://127.0.0.1:\d+: .*\); set "
         r"HF_HUB_OFFLINE=1 to use the cache",
     ):
-        oscar_zoo.pull("oscar-2b", endpoint=_refused_port())
+        oscar_zoo.pull("oscar-2b", endpoint=f"http://127.0.0.1:{refused_port}")
     assert time.monotonic() - t0 < 5
 
 
@@ -379,13 +371,13 @@ def test_offline_reads_the_cache_with_no_request_and_never_a_layout_complaint(tm
 
 
 @pytest.mark.slow
-def test_cli_reports_an_unreachable_hub_in_seconds(tmp_path):
+def test_cli_reports_an_unreachable_hub_in_seconds(tmp_path, refused_port):
     import subprocess
     import sys
 
     env = {
         "HF_HUB_CACHE": str(tmp_path / "c"),
-        "HF_ENDPOINT": _refused_port(),
+        "HF_ENDPOINT": f"http://127.0.0.1:{refused_port}",
         "PATH": "/usr/bin:/bin",
         "OSCAR_ZOO_REGISTRY": str(tmp_path / "r.json"),
         "HOME": str(tmp_path),
