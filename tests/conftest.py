@@ -1,7 +1,7 @@
 """Fixtures shared by several test modules, and ``tests/`` on ``sys.path`` so that every test folder imports the shared
 helpers: ``_paths`` (folders), ``_models`` (tiny world models, training configs), ``_studies`` (a small evaluation
 study), ``_datasets`` (raw episodes), ``_browser`` (headless Chromium); and the ``--strict-extras`` option
-(``_strict_extras``)."""
+(``_strict_extras``); the order of the test files on pytest-xdist workers (``_file_order``)."""
 
 import sys
 from pathlib import Path
@@ -10,7 +10,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+# on an xdist worker (make test, make test-fast): the files that hold slow tests first (tests/_file_order.py);
 # --strict-extras (make test, CI): a skip for a missing package of oscar's own extras fails (tests/_strict_extras.py)
+from _file_order import pytest_collection_modifyitems  # noqa: F401
 from _strict_extras import pytest_addoption, pytest_configure, pytest_runtest_makereport  # noqa: F401
 
 
