@@ -31,13 +31,18 @@ $(STAMP): $(PYTHON) pyproject.toml examples/oscar-toyarm/pyproject.toml requirem
 demo: install
 	$(PYTHON) -m oscar_core.cli demo --out $(OUT)
 
-test: install
-	$(PYTHON) -m pytest -q --strict-extras
-
-# the fast tests in parallel, one worker per core (pytest-xdist; TEST_WORKERS=0 runs them in this process)
+# both test targets run on every core, one pytest-xdist worker per core (TEST_WORKERS=0: in this process); a worker
+# takes a whole test file at a time (a module's fixtures are built once), the files that hold slow tests first
+# (tests/conftest.py orders them; --no-loadscope-reorder keeps that order)
 TEST_WORKERS ?= auto
+XDIST := -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+
+test: install
+	$(PYTHON) -m pytest -q --strict-extras $(XDIST)
+
+# the tests not marked slow
 test-fast: install
-	$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install" -n $(TEST_WORKERS)
+	$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install" $(XDIST)
 
 # a real install into a fresh virtual environment (downloads dependencies)
 test-install: install

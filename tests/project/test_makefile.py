@@ -8,7 +8,6 @@ demo`` and ``make test`` create ``VENV`` first, and every pip install and every 
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -20,11 +19,11 @@ from _paths import REPO
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 
 
-def dry_run(target: str, venv: Path) -> list[str]:
+def dry_run(target: str, venv: Path, *settings: str) -> list[str]:
     # a clean environment: under `make test` this make is a sub-make, which would print its directory and inherit flags
     env = {k: v for k, v in os.environ.items() if k not in ("MAKELEVEL", "MAKEFLAGS", "MFLAGS")}
     proc = subprocess.run(
-        ["make", "--no-print-directory", "-n", target, f"VENV={venv}"],
+        ["make", "--no-print-directory", "-n", target, f"VENV={venv}", *settings],
         cwd=REPO,
         env=env,
         capture_output=True,
@@ -78,11 +77,15 @@ def test_ci_calls_the_readmes_commands():
     assert '"oscar_core.cli", "demo"' in install
 
 
-def test_test_fast_runs_in_parallel_with_xdist_from_the_dev_extra():
-    makefile = (REPO / "Makefile").read_text()
-    recipe = re.search(r"^test-fast: install\n\t(.*)$", makefile, re.M).group(1)
-    assert "-n $(TEST_WORKERS)" in recipe and re.search(r"^TEST_WORKERS \?= auto$", makefile, re.M)
-    test_recipe = re.search(r"^test: install\n\t(.*)$", makefile, re.M).group(1)
-    assert " -n " not in test_recipe  # CI's run stays in one process
+@pytest.mark.parametrize("target", ["test", "test-fast"])
+def test_both_test_targets_run_in_parallel_with_xdist_from_the_dev_extra(tmp_path, target):
+    """CI's ``make test`` and ``make test-fast`` share one worker setting: a pytest-xdist worker per core, whole files
+    at a time in the order tests/conftest.py sorts them; ``TEST_WORKERS=0`` runs them in make's own process."""
+    venv = tmp_path / "venv"
+    command = dry_run(target, venv)[-1]
+    assert command.startswith(f"{venv}/bin/python -m pytest -q --strict-extras")
+    assert command.endswith(" -n auto --dist loadfile --no-loadscope-reorder"), command
+    assert dry_run(target, venv, "TEST_WORKERS=0")[-1].endswith(" -n 0 --dist loadfile --no-loadscope-reorder")
+    assert ('-m "not slow' in command) == (target == "test-fast")  # make test runs the slow tests too
     dev = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"]["dev"]
     assert any(req.startswith("pytest-xdist") for req in dev)
