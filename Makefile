@@ -33,16 +33,18 @@ demo: install
 
 # both test targets run on every core, one pytest-xdist worker per core (TEST_WORKERS=0: in this process); a worker
 # takes a whole test file at a time (a module's fixtures are built once), the files that hold slow tests first
-# (tests/conftest.py orders them; --no-loadscope-reorder keeps that order)
+# (tests/conftest.py orders them; --no-loadscope-reorder keeps that order). Each worker's torch uses one thread unless
+# OMP_NUM_THREADS says otherwise: a worker per core with torch's default of a thread per core would oversubscribe.
 TEST_WORKERS ?= auto
 XDIST := -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+TEST_ENV := $(if $(filter 0,$(TEST_WORKERS)),,OMP_NUM_THREADS=$${OMP_NUM_THREADS:-1} )
 
 test: install
-	$(PYTHON) -m pytest -q --strict-extras $(XDIST)
+	$(TEST_ENV)$(PYTHON) -m pytest -q --strict-extras $(XDIST)
 
 # the tests not marked slow
 test-fast: install
-	$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install" $(XDIST)
+	$(TEST_ENV)$(PYTHON) -m pytest -q --strict-extras -m "not slow and not install" $(XDIST)
 
 # a real install into a fresh virtual environment (downloads dependencies)
 test-install: install

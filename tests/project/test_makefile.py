@@ -8,6 +8,7 @@ demo`` and ``make test`` create ``VENV`` first, and every pip install and every 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -58,7 +59,8 @@ def test_set_up_commands_create_and_use_the_project_venv(tmp_path, target):
     assert any(line.startswith("python3 -m venv " + str(venv)) for line in lines), lines
     assert any(line.startswith(f"{venv}/bin/python -m pip install") for line in lines)
     assert outside_the_venv(lines, venv) == []
-    assert lines[-1].startswith(f"{venv}/bin/python -m ")  # the target's own command, in the venv
+    own = re.sub(r"^OMP_NUM_THREADS=\S+ ", "", lines[-1])  # the test targets set torch's threads first
+    assert own.startswith(f"{venv}/bin/python -m ")  # the target's own command, in the venv
 
 
 def test_the_check_notices_an_install_into_the_system_python(tmp_path):
@@ -83,9 +85,12 @@ def test_both_test_targets_run_in_parallel_with_xdist_from_the_dev_extra(tmp_pat
     at a time in the order tests/conftest.py sorts them; ``TEST_WORKERS=0`` runs them in make's own process."""
     venv = tmp_path / "venv"
     command = dry_run(target, venv)[-1]
-    assert command.startswith(f"{venv}/bin/python -m pytest -q --strict-extras")
+    # one torch thread per worker unless the caller's OMP_NUM_THREADS says otherwise (a worker per core already)
+    assert command.startswith(f"OMP_NUM_THREADS=${{OMP_NUM_THREADS:-1}} {venv}/bin/python -m pytest -q --strict-extras")
     assert command.endswith(" -n auto --dist loadfile --no-loadscope-reorder"), command
-    assert dry_run(target, venv, "TEST_WORKERS=0")[-1].endswith(" -n 0 --dist loadfile --no-loadscope-reorder")
+    serial = dry_run(target, venv, "TEST_WORKERS=0")[-1]
+    assert serial.startswith(f"{venv}/bin/python -m pytest") and "OMP_NUM_THREADS" not in serial  # torch's default
+    assert serial.endswith(" -n 0 --dist loadfile --no-loadscope-reorder")
     assert ('-m "not slow' in command) == (target == "test-fast")  # make test runs the slow tests too
     dev = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"]["dev"]
     assert any(req.startswith("pytest-xdist") for req in dev)
