@@ -14,7 +14,10 @@ library load in both: ``config.json`` (``_class_name`` plus the constructor's ar
 * ``model.save_pretrained(folder, max_shard_size=...)``: every file written atomically (temporary, then rename).
 
 The subclass sets ``config_class_name`` (the ``_class_name`` written) and takes its settings as keyword arguments
-(positional ones are allowed but recorded by name).
+(positional ones are allowed but recorded by name). A subclass whose constructor ends in ``**kwargs`` states only
+its own new settings and passes the rest on with ``super().__init__(**kwargs)``: its recorded settings are its
+parent's (in the parent's order, defaults as the parent declares them) followed by its own, and ``**kwargs`` takes
+nothing else, so an unknown setting is still refused. ``inspect.signature(Cls)`` shows the merged settings.
 """
 
 from __future__ import annotations
@@ -83,13 +86,35 @@ def parse_shard_size(size: str | int) -> int:
     raise ModelInputError(f"max_shard_size: expected bytes or a size such as '10GB' or '200KB', found {size!r}")
 
 
-def _bound_config(init, args: tuple, kwargs: dict) -> dict[str, Any]:
+_VARIADIC = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
+
+
+def _recorded_signature(cls: type, init) -> inspect.Signature:
+    """The settings ``cls``'s constructor ``init`` records: its own signature, or, when it takes ``**kwargs``, the
+    settings of the next constructor in the MRO (what ``super().__init__(**kwargs)`` calls) followed by its own new
+    ones; a setting it restates keeps the parent's place and takes its own default. ``*args`` / ``**kwargs`` are
+    left out of the result, so binding it refuses an unknown setting."""
+    own = inspect.signature(init)
+    params = list(own.parameters.values())
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params):
+        return own
+    mine = {p.name: p for p in params[1:] if p.kind not in _VARIADIC}
+    parent_init = next(c.__dict__["__init__"] for c in cls.__mro__[1:] if "__init__" in c.__dict__)
+    parent = list(inspect.signature(parent_init).parameters.values())[1:]
+    merged = [
+        p.replace(default=mine[p.name].default, annotation=mine[p.name].annotation) if p.name in mine else p
+        for p in parent
+        if p.kind not in _VARIADIC
+    ]
+    merged += [p for name, p in mine.items() if name not in {q.name for q in parent}]
+    return own.replace(parameters=[params[0], *merged])
+
+
+def _bound_config(signature: inspect.Signature, args: tuple, kwargs: dict) -> dict[str, Any]:
     """The constructor's arguments by name, defaults filled in (``self``, ``*args``, ``**kwargs`` left out)."""
-    signature = inspect.signature(init)
     bound = signature.bind(None, *args, **kwargs)
     bound.apply_defaults()
-    kinds = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
-    names = [p.name for p in list(signature.parameters.values())[1:] if p.kind not in kinds]
+    names = [p.name for p in list(signature.parameters.values())[1:] if p.kind not in _VARIADIC]
     return {name: bound.arguments[name] for name in names}
 
 
@@ -135,16 +160,21 @@ class ConfiguredModule(torch.nn.Module):
         if "__init__" not in cls.__dict__:
             return
         init = cls.__dict__["__init__"]
+        signature = _recorded_signature(cls, init)
+        merged = signature != inspect.signature(init)
 
         def recording_init(self, *args, **kw):
             if not hasattr(self, "_config_recording"):  # the outermost constructor records (a subclass's wins)
                 object.__setattr__(self, "_config_recording", True)
                 torch.nn.Module.__init__(self)
-                self.config = ModelConfig(_bound_config(init, args, kw))
+                self.config = ModelConfig(_bound_config(signature, args, kw))
+            if merged:  # positional settings passed by name, so the parent's reach it through **kwargs
+                bound = signature.bind(None, *args, **kw).arguments
+                args, kw = (), {k: v for k, v in list(bound.items())[1:]}
             init(self, *args, **kw)
 
         recording_init.__doc__, recording_init.__name__ = init.__doc__, "__init__"
-        recording_init.__signature__ = inspect.signature(init)  # type: ignore[attr-defined]
+        recording_init.__signature__ = signature  # type: ignore[attr-defined]
         cls.__init__ = recording_init  # type: ignore[method-assign]
 
     def __init__(self) -> None:
@@ -162,8 +192,7 @@ class ConfiguredModule(torch.nn.Module):
     def config_keys(cls) -> list[str]:
         """The settings the constructor takes, in order."""
         params = list(inspect.signature(cls.__init__).parameters.values())[1:]
-        kinds = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
-        return [p.name for p in params if p.kind not in kinds]
+        return [p.name for p in params if p.kind not in _VARIADIC]
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], source: str | Path = CONFIG_NAME):

@@ -21,6 +21,8 @@ them random or zero by accident): at step 0 the model is the base model.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 from torch import nn
@@ -120,56 +122,9 @@ class LatentActionTransformer(OscarTransformer3DModel):
 
     config_class_name = "LatentActionTransformer"
 
-    def __init__(
-        self,
-        in_channels: int = 16,
-        out_channels: int = 16,
-        num_attention_heads: int = 32,
-        attention_head_dim: int = 128,
-        num_layers: int = 28,
-        mlp_ratio: float = 4.0,
-        text_embed_dim: int = 1024,
-        adaln_lora_dim: int = 256,
-        max_size: tuple[int, int, int] = (128, 240, 240),
-        patch_size: tuple[int, int, int] = (1, 2, 2),
-        rope_scale: tuple[float, float, float] = (2.0, 1.0, 1.0),
-        concat_padding_mask: bool = True,
-        extra_pos_embed_type: str | None = "learnable",
-        use_crossattn_projection: bool = False,
-        crossattn_proj_in_channels: int = 1024,
-        encoder_hidden_states_channels: int = 1024,
-        controlnet_block_every_n: int | None = None,
-        img_context_dim_in: int | None = None,
-        img_context_num_tokens: int = 256,
-        img_context_dim_out: int = 2048,
-        skeleton_channels: int | None = None,
-        action_frames: int = 80,
-        action_dim: int = ACTION_DIM,
-    ) -> None:
-        # every argument spelled out: the outermost constructor's signature is the saved config
-        super().__init__(
-            in_channels=in_channels,
-            out_channels=out_channels,
-            num_attention_heads=num_attention_heads,
-            attention_head_dim=attention_head_dim,
-            num_layers=num_layers,
-            mlp_ratio=mlp_ratio,
-            text_embed_dim=text_embed_dim,
-            adaln_lora_dim=adaln_lora_dim,
-            max_size=max_size,
-            patch_size=patch_size,
-            rope_scale=rope_scale,
-            concat_padding_mask=concat_padding_mask,
-            extra_pos_embed_type=extra_pos_embed_type,
-            use_crossattn_projection=use_crossattn_projection,
-            crossattn_proj_in_channels=crossattn_proj_in_channels,
-            encoder_hidden_states_channels=encoder_hidden_states_channels,
-            controlnet_block_every_n=controlnet_block_every_n,
-            img_context_dim_in=img_context_dim_in,
-            img_context_num_tokens=img_context_num_tokens,
-            img_context_dim_out=img_context_dim_out,
-            skeleton_channels=skeleton_channels,
-        )
+    def __init__(self, *, action_frames: int = 80, action_dim: int = ACTION_DIM, **kwargs: Any) -> None:
+        # kwargs: OscarTransformer3DModel's settings, recorded from its signature (see configured.py)
+        super().__init__(**kwargs)
         hidden = self.config.num_attention_heads * self.config.attention_head_dim
         flat = int(action_frames) * int(action_dim)
         self.action_embed_d = _mlp(flat, 4 * hidden, hidden)

@@ -26,6 +26,7 @@ H, W) velocity.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -51,54 +52,12 @@ class OscarTransformer3DModel(CosmosDiT):
 
     config_class_name = "OscarTransformer3DModel"
 
-    def __init__(
-        self,
-        in_channels: int = 16,
-        out_channels: int = 16,
-        num_attention_heads: int = 32,
-        attention_head_dim: int = 128,
-        num_layers: int = 28,
-        mlp_ratio: float = 4.0,
-        text_embed_dim: int = 1024,
-        adaln_lora_dim: int = 256,
-        max_size: tuple[int, int, int] = (128, 240, 240),
-        patch_size: tuple[int, int, int] = (1, 2, 2),
-        rope_scale: tuple[float, float, float] = (2.0, 1.0, 1.0),
-        concat_padding_mask: bool = True,
-        extra_pos_embed_type: str | None = "learnable",
-        use_crossattn_projection: bool = False,
-        crossattn_proj_in_channels: int = 1024,
-        encoder_hidden_states_channels: int = 1024,
-        controlnet_block_every_n: int | None = None,
-        img_context_dim_in: int | None = None,
-        img_context_num_tokens: int = 256,
-        img_context_dim_out: int = 2048,
-        skeleton_channels: int | None = None,
-    ) -> None:
-        super().__init__(
-            in_channels=in_channels,
-            out_channels=out_channels,
-            num_attention_heads=num_attention_heads,
-            attention_head_dim=attention_head_dim,
-            num_layers=num_layers,
-            mlp_ratio=mlp_ratio,
-            text_embed_dim=text_embed_dim,
-            adaln_lora_dim=adaln_lora_dim,
-            max_size=max_size,
-            patch_size=patch_size,
-            rope_scale=rope_scale,
-            concat_padding_mask=concat_padding_mask,
-            extra_pos_embed_type=extra_pos_embed_type,
-            use_crossattn_projection=use_crossattn_projection,
-            crossattn_proj_in_channels=crossattn_proj_in_channels,
-            encoder_hidden_states_channels=encoder_hidden_states_channels,
-            controlnet_block_every_n=controlnet_block_every_n,
-            img_context_dim_in=img_context_dim_in,
-            img_context_num_tokens=img_context_num_tokens,
-            img_context_dim_out=img_context_dim_out,
-        )
-        hidden_size = num_attention_heads * attention_head_dim
-        self.skeleton_embed = PatchEmbed(self.skeleton_in_channels, hidden_size, tuple(patch_size), bias=False)
+    def __init__(self, *, skeleton_channels: int | None = None, **kwargs: Any) -> None:
+        # kwargs: CosmosDiT's settings, recorded from its signature (see configured.py)
+        super().__init__(**kwargs)
+        hidden_size = self.config.num_attention_heads * self.config.attention_head_dim
+        patch = tuple(self.config.patch_size)
+        self.skeleton_embed = PatchEmbed(self.skeleton_in_channels, hidden_size, patch, bias=False)
         with torch.no_grad():
             self.skeleton_embed.proj.weight.zero_()
 

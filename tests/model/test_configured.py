@@ -1,5 +1,6 @@
 """ConfiguredModule: constructor arguments as config, diffusers-layout folders written atomically and read strictly."""
 
+import inspect
 import json
 
 import pytest
@@ -42,6 +43,46 @@ def test_subclass_records_its_own_signature():
     model = Child(width=6, extra=3)
     assert dict(model.config) == {"width": 6, "depth": 2, "scales": (1, 2), "extra": 3}
     assert Child.config_keys() == ["width", "depth", "scales", "extra"]
+
+
+class FoldedChild(Base):
+    """Child's settings, stating only its own new one; the rest reach Base through **kwargs."""
+
+    config_class_name = "ChildNet"
+
+    def __init__(self, *, extra: int | None = None, **kwargs):
+        super().__init__(**kwargs)
+        self.extra = torch.nn.Linear(self.config.width, extra or self.config.width, bias=False)
+
+
+class FoldedGrandchild(FoldedChild):
+    """Restates one parent setting with another default and adds one more."""
+
+    def __init__(self, *, depth: int = 5, tag: str = "x", **kwargs):
+        super().__init__(depth=depth, **kwargs)
+
+
+def test_subclass_with_kwargs_records_its_parents_settings_as_a_spelled_out_one_does():
+    for kwargs in ({}, {"width": 6, "extra": 3}, {"scales": (4,), "depth": 1}):
+        folded, spelled = FoldedChild(**kwargs), Child(**kwargs)
+        assert list(folded.config.items()) == list(spelled.config.items())
+        assert list(folded.state_dict()) == list(spelled.state_dict())
+    assert FoldedChild.config_keys() == Child.config_keys() == ["width", "depth", "scales", "extra"]
+    assert list(inspect.signature(FoldedChild).parameters) == ["width", "depth", "scales", "extra"]
+    assert dict(FoldedChild(7, 3).config) == {"width": 7, "depth": 3, "scales": (1, 2), "extra": None}
+    grand = FoldedGrandchild(width=2)
+    assert list(grand.config.items()) == [("width", 2), ("depth", 5), ("scales", (1, 2)), ("extra", None), ("tag", "x")]
+    assert len(grand.layers) == 5
+
+
+def test_subclass_with_kwargs_still_refuses_unknown_settings():
+    with pytest.raises(CheckpointLayoutError, match="colour") as err:
+        FoldedChild.from_config({"width": 5, "extra": 2, "colour": "red"}, source="some/config.json")
+    assert "width, depth, scales, extra" in str(err.value)
+    with pytest.raises(TypeError, match="colour"):
+        FoldedChild(colour="red")
+    with pytest.raises(TypeError, match="colour"):
+        FoldedGrandchild(colour="red")
 
 
 def test_from_config_drops_private_keys_and_refuses_unknown_ones():

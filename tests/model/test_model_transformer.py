@@ -1,6 +1,7 @@
 """The OSCAR DiT: zero-init equivalence with Cosmos, the summed skeleton tokens, loading base weights."""
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -9,10 +10,12 @@ from diffusers.models.transformers import transformer_cosmos
 
 from oscar_core.model import CheckpointLayoutError, ModelInputError, OscarTransformer3DModel
 from oscar_core.model._resize import _SHIM
+from oscar_core.model.latent_action import LatentActionTransformer
 from oscar_core.model.tiny import TINY_TRANSFORMER_CONFIG, build_tiny_transformer
 from oscar_core.model.weights import meta_tensors
 
 B, T, H, W = 2, 3, 4, 8
+TOY_FOLDER = Path(__file__).resolve().parents[2] / "zoo" / "assets" / "oscar-toy" / "transformer"
 
 
 @pytest.fixture
@@ -161,3 +164,57 @@ def test_bad_skeleton_shape_is_a_clear_error():
     kwargs, skel = _inputs()
     with pytest.raises(ModelInputError, match="skeleton_latents: expected shape"):
         model(**kwargs, skeleton_latents=skel[:, :, :2])
+
+
+# The Cosmos settings and defaults as the constructors spelled them out before the subclasses took **kwargs
+# (diffusers' CosmosTransformer3DModel's, in its order).
+COSMOS_DEFAULTS = {
+    "in_channels": 16,
+    "out_channels": 16,
+    "num_attention_heads": 32,
+    "attention_head_dim": 128,
+    "num_layers": 28,
+    "mlp_ratio": 4.0,
+    "text_embed_dim": 1024,
+    "adaln_lora_dim": 256,
+    "max_size": (128, 240, 240),
+    "patch_size": (1, 2, 2),
+    "rope_scale": (2.0, 1.0, 1.0),
+    "concat_padding_mask": True,
+    "extra_pos_embed_type": "learnable",
+    "use_crossattn_projection": False,
+    "crossattn_proj_in_channels": 1024,
+    "encoder_hidden_states_channels": 1024,
+    "controlnet_block_every_n": None,
+    "img_context_dim_in": None,
+    "img_context_num_tokens": 256,
+    "img_context_dim_out": 2048,
+}
+OSCAR_DEFAULTS = {**COSMOS_DEFAULTS, "skeleton_channels": None}
+LATENT_ACTION_DEFAULTS = {**OSCAR_DEFAULTS, "action_frames": 80, "action_dim": 14}
+
+
+@pytest.mark.parametrize(
+    ("cls", "defaults"),
+    [(OscarTransformer3DModel, OSCAR_DEFAULTS), (LatentActionTransformer, LATENT_ACTION_DEFAULTS)],
+)
+def test_subclass_configs_are_the_cosmos_settings_plus_their_own(tmp_path, cls, defaults):
+    with torch.device("meta"):  # the full-size defaults: 2B parameters, so no storage
+        assert list(cls().config.items()) == list(defaults.items())
+    assert cls.config_keys() == list(defaults)
+    shipped = json.loads((TOY_FOLDER / "config.json").read_text())
+    settings = {k: v for k, v in shipped.items() if not k.startswith("_")}
+    model = cls.from_config(settings)
+    assert list(model.config) == list(defaults) and dict(model.config) == {**defaults, **settings}
+    model.save_pretrained(tmp_path / "m")
+    written = json.loads((tmp_path / "m" / "config.json").read_text())
+    assert {k: v for k, v in written.items() if k != "_diffusers_version"} == {
+        **{k: list(v) if isinstance(v, tuple) else v for k, v in defaults.items()},
+        **settings,
+        "_class_name": cls.config_class_name,
+    }
+    with pytest.raises(CheckpointLayoutError, match="colour") as err:
+        cls.from_config({**settings, "colour": "red"}, source="some/config.json")
+    assert f"only settings {cls.__name__} takes ({', '.join(defaults)})" in str(err.value)
+    with pytest.raises(TypeError, match="colour"):
+        cls(colour="red")
