@@ -75,6 +75,7 @@ from .motion import (
     carry_object,
     decision_margin,
     ee_points,
+    grab_window,
 )
 
 __all__ = [
@@ -254,12 +255,9 @@ def _variant_transforms(emb, base, ee: np.ndarray, ball: np.ndarray, R: float, r
     close_at = int(closed[0])
     after = np.flatnonzero(o[close_at:] >= 0.5)
     release = close_at + int(after[0]) if len(after) else T
-    inside = np.linalg.norm(ee - ball, axis=1) <= GRAB_RADII * R
-    enter = int(np.argmax(inside))
-    out_after = np.flatnonzero(~inside[close_at:])
-    if not inside[close_at] or not len(out_after):
+    inside, enter, leave = grab_window(ee, ball, R, close_at)
+    if not inside[close_at] or leave is None:
         raise _Redraw("the plan does not close within the grab distance, or never leaves it")
-    leave = close_at + int(out_after[0])
     m = margin(T)
     early, late = enter - m, leave + m
     if early < 1 or late >= release - 1 or close_at - m - 1 < 1:

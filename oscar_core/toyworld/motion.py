@@ -83,6 +83,7 @@ __all__ = [
     "ee_points",
     "miss_start",
     "decision_margin",
+    "grab_window",
     "mistimed_openness",
     "GRAB_RADII",
     "PUSH_CONTACT_RADII",
@@ -274,9 +275,8 @@ class Motion:
     scale: float
     missed: bool = False  # a pick_place motion whose ball lay out of the gripper's reach (module docstring)
     never_closed: bool = False  # a pick_place motion whose gripper stayed open (an open pick, module docstring)
-    mistimed: str | None = (
-        None  # "early" / "late": a pick_place motion whose gripper closed off the ball (module docstring)
-    )
+    # "early" / "late": a pick_place motion whose gripper closed off the ball (module docstring, "Mistimed picks")
+    mistimed: str | None = None
     link_radii: np.ndarray | None = None
     marker: bool = True
 
@@ -285,6 +285,17 @@ def decision_margin(frames: int) -> int:
     """Frames between a mistimed close and the grab-distance boundary (close early / late), and the half-width of a
     counterfactual miss's full shift: 5 % of a ``frames``-frame episode, at least 2."""
     return max(2, int(round(0.05 * (frames - 1))))
+
+
+def grab_window(ee: np.ndarray, ball: np.ndarray, radius: float, close_at: int) -> tuple[np.ndarray, int, int | None]:
+    """Where the end-effector is within the carry rule's grab distance of the ball, around a close on ``close_at``.
+
+    ee: (T, 3) metres; ball: (3,) metres, its centre; radius: metres. Returns ``(inside, enter, leave)``: (T,) bool,
+    the first frame inside (0 when none is), and the first frame outside after ``close_at`` (None when it never
+    leaves)."""
+    inside = np.linalg.norm(np.asarray(ee) - np.asarray(ball), axis=1) <= GRAB_RADII * radius
+    left = np.flatnonzero(~inside[close_at:])
+    return inside, int(np.argmax(inside)), close_at + int(left[0]) if len(left) else None
 
 
 def mistimed_openness(
@@ -306,21 +317,20 @@ def mistimed_openness(
     close_at = int(closed[0])
     reopen = np.flatnonzero(o[close_at:, 0] >= OPEN_THRESHOLD)
     release = close_at + int(reopen[0]) if len(reopen) else T
-    inside = np.linalg.norm(np.asarray(ee) - np.asarray(ball), axis=1) <= GRAB_RADII * radius
+    inside, enter, leave = grab_window(ee, ball, radius, close_at)
     if not inside[close_at]:
         return None
     m = decision_margin(T)
     out = o.copy()
     if side == "early":
-        at = int(np.argmax(inside)) - m  # every frame before the first inside one is outside
+        at = enter - m  # every frame before the first inside one is outside
         if at < 2:
             return None
         out[at:release, 0] = 0.0
     elif side == "late":
-        left = np.flatnonzero(~inside[close_at:])
-        if not len(left):
+        if leave is None:
             return None
-        at = close_at + int(left[0]) + m
+        at = leave + m
         if at >= release - 1 or inside[at:release].any():  # a close back inside the grab distance would grab
             return None
         out[:at, 0] = 1.0
