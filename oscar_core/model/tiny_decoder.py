@@ -41,6 +41,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ._taehv_blocks import MemoryBlock, conv3, read_prefixed_tensors, run_with_memory
 from .errors import CheckpointLayoutError
 from .weights import check_safetensors
 
@@ -62,27 +63,9 @@ ARCHITECTURE_KEY = "oscar_tiny_decoder"
 _ARCH_FIELDS = ("latent_channels", "space_upscale", "time_upscale", "widths")
 
 
-def _conv3(n_in: int, n_out: int, bias: bool = True) -> nn.Conv2d:
-    return nn.Conv2d(n_in, n_out, 3, padding=1, bias=bias)
-
-
 class _SoftClamp(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return 3.0 * torch.tanh(x / 3.0)
-
-
-class _MemoryBlock(nn.Module):
-    """``relu(conv([x_t, x_{t-1}]) + skip(x_t))`` on (N*T, C, H, W) frames (the memory is passed in)."""
-
-    def __init__(self, n_in: int, n_out: int):
-        super().__init__()
-        self.conv = nn.Sequential(
-            _conv3(2 * n_in, n_out), nn.ReLU(), _conv3(n_out, n_out), nn.ReLU(), _conv3(n_out, n_out)
-        )
-        self.skip = nn.Identity() if n_in == n_out else nn.Conv2d(n_in, n_out, 1, bias=False)
-
-    def forward(self, x: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
-        return torch.relu(self.conv(torch.cat([x, previous], dim=1)) + self.skip(x))
 
 
 class _TimeGrow(nn.Module):
@@ -115,15 +98,15 @@ class TinyDecoderNet(nn.Module):
         self.latent_channels = int(latent_channels)
         self.space_upscale, self.time_upscale, self.widths = tuple(space_upscale), tuple(time_upscale), tuple(widths)
         w = widths
-        layers: list[nn.Module] = [_SoftClamp(), _conv3(latent_channels, w[0]), nn.ReLU()]
+        layers: list[nn.Module] = [_SoftClamp(), conv3(latent_channels, w[0]), nn.ReLU()]
         for stage in range(3):
-            layers += [_MemoryBlock(w[stage], w[stage]) for _ in range(3)]
+            layers += [MemoryBlock(w[stage], w[stage]) for _ in range(3)]
             layers += [
                 nn.Upsample(scale_factor=2 if space_upscale[stage] else 1),
                 _TimeGrow(w[stage], 2 if time_upscale[stage] else 1),
-                _conv3(w[stage], w[stage + 1], bias=False),
+                conv3(w[stage], w[stage + 1], bias=False),
             ]
-        layers += [nn.ReLU(), _conv3(w[3], 3)]
+        layers += [nn.ReLU(), conv3(w[3], 3)]
         self.decoder = nn.Sequential(*layers)
         self.time_factor = 2 ** sum(bool(t) for t in time_upscale)
         self.space_factor = 2 ** sum(bool(s) for s in space_upscale)
@@ -131,15 +114,7 @@ class TinyDecoderNet(nn.Module):
 
     def forward(self, latents: torch.Tensor) -> torch.Tensor:
         n, t, c, h, w = latents.shape
-        x = latents.reshape(n * t, c, h, w)
-        for layer in self.decoder:
-            if isinstance(layer, _MemoryBlock):
-                frames = x.shape[0] // n
-                seq = x.reshape(n, frames, *x.shape[1:])
-                previous = torch.cat([torch.zeros_like(seq[:, :1]), seq[:, :-1]], dim=1).reshape(x.shape)
-                x = layer(x, previous)
-            else:
-                x = layer(x)
+        x = run_with_memory(self.decoder, latents.reshape(n * t, c, h, w), n)
         x = x.reshape(n, x.shape[0] // n, *x.shape[1:]).clamp_(0.0, 1.0)
         return x[:, self.frames_to_trim :]
 
@@ -199,8 +174,6 @@ def load_tiny_decoder(path, net: TinyDecoderNet | None = None) -> TinyDecoderNet
     with more output channels than the layer has (trained at a larger stride) keeps its last ones (the last output
     frame's). Raises CheckpointLayoutError naming the file and the key on a missing, unexpected or misshapen
     tensor. Pickle files are refused (safetensors only)."""
-    from safetensors.torch import load_file
-
     path = Path(path)
     if path.suffix != ".safetensors":
         raise CheckpointLayoutError(path, "tiny decoder", "a .safetensors file of decoder weights", path.name)
@@ -208,15 +181,8 @@ def load_tiny_decoder(path, net: TinyDecoderNet | None = None) -> TinyDecoderNet
         raise CheckpointLayoutError(path, "tiny decoder", "a weights file", "no such file")
     check_safetensors(path)  # a truncated or garbled file: CheckpointIntegrityError before any tensor is read
     net = net if net is not None else _net_from_metadata(path)
-    stored = {k: v for k, v in load_file(str(path)).items() if k.startswith("decoder.")}
     want = net.state_dict()
-    missing = sorted(set(want) - set(stored))
-    extra = sorted(set(stored) - set(want))
-    if missing or extra:
-        found = [f"missing {missing[:5]}" if missing else "", f"unexpected {extra[:5]}" if extra else ""]
-        raise CheckpointLayoutError(
-            path, "decoder.* tensors", f"the tiny decoder's {len(want)}", "; ".join(f for f in found if f)
-        )
+    stored = read_prefixed_tensors(path, "decoder.", want, "the tiny decoder")
     for key, tensor in want.items():
         value = stored[key]
         grow = key.endswith(".conv.weight") and isinstance(net.decoder[int(key.split(".")[1])], _TimeGrow)

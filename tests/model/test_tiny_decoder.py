@@ -81,14 +81,15 @@ def test_missing_and_misshapen_tensors_are_named(tmp_path):
 def _frame_by_frame(net: TinyDecoderNet, z: torch.Tensor) -> torch.Tensor:
     """A second implementation: one frame at a time through the layers, each memory block holding the input it
     saw one frame earlier (zeros at first), a time-grow splitting a frame into its output frames in channel order."""
-    from oscar_core.model.tiny_decoder import _MemoryBlock, _TimeGrow
+    from oscar_core.model._taehv_blocks import MemoryBlock
+    from oscar_core.model.tiny_decoder import _TimeGrow
 
     memory: dict[int, torch.Tensor] = {}
 
     def run(x: torch.Tensor, start: int) -> list[torch.Tensor]:
         for i in range(start, len(net.decoder)):
             layer = net.decoder[i]
-            if isinstance(layer, _MemoryBlock):
+            if isinstance(layer, MemoryBlock):
                 previous = memory.get(i, torch.zeros_like(x))
                 memory[i] = x
                 x = layer(x, previous)
