@@ -11,10 +11,16 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from ..errors import OscarError
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, ConditionName, condition_style, is_video_condition
+from ..render.conditions import (
+    MODEL_CONDITIONS as CONDITIONS,
+    ConditionName,
+    condition_style,
+    is_video_condition,
+    takes_actions,
+)
 from ._files import MODEL_FILE
 from .card_sampler import check_card_sampler
-from .chunks import check_frame_count
+from .chunks import check_context_frames, check_frame_count
 from .errors import CheckpointLayoutError, ModelInputError
 from .manifest import MANIFEST_NAME
 
@@ -59,6 +65,11 @@ class ModelCard:
     ``"tiny_decoder.safetensors"``, :mod:`~oscar_core.model.tiny_decoder`) that decodes instead of the full VAE
     decoder whenever the model is loaded (``from_pretrained(tiny_decoder=False)`` or ``--full-decoder`` turn it
     off). None: the full decoder.
+    context_frames: pixel frames (4k + 1: 1, 5, ...; k + 1 latent frames, fewer than the chunk's) each chunk after
+    the first is conditioned on: the previous chunk's last ``context_frames`` decoded frames, re-encoded and kept
+    clean by the sampler (:mod:`~oscar_core.model.chunks` has the chunk plan). The first chunk of a rollout has the
+    given first frame alone (a 1-frame context, which training serves with ``flow.context_dropout``). A card
+    without it reads as 1 (one frame: every model before the field) and is written without it.
     """
 
     name: str | None = None
@@ -76,6 +87,7 @@ class ModelCard:
     sampler: dict | None = None
     gripper_signal: bool = False
     tiny_decoder: str | None = None
+    context_frames: int = 1
 
     def __post_init__(self):
         check_frame_count(int(self.chunk_frames), what="model card chunk_frames")
@@ -99,6 +111,12 @@ class ModelCard:
                 f"found condition {self.condition!r}"
             )
         _check_tiny_decoder_name(self.tiny_decoder)
+        check_context_frames(self.context_frames, int(self.chunk_frames), what="model card context_frames")
+        if self.context_frames != 1 and takes_actions(self.condition):
+            raise ModelInputError(
+                f"model card context_frames: expected 1 for a latent-action model (condition {self.condition!r}), "
+                f"found {self.context_frames}"
+            )
         object.__setattr__(self, "embodiments", tuple(self.embodiments))
         object.__setattr__(self, "sampler", check_card_sampler(self.sampler, "model card sampler"))
 
@@ -107,6 +125,8 @@ class ModelCard:
         d["embodiments"] = list(self.embodiments)
         if d["tiny_decoder"] is None:
             del d["tiny_decoder"]  # a card without one is written as before it existed (same bytes, same hashes)
+        if d["context_frames"] == 1:
+            del d["context_frames"]  # likewise: a one-frame card keeps its bytes
         return d
 
     @classmethod
