@@ -25,6 +25,9 @@ First frame, as in diffusers' Cosmos 2.5 pipeline: at every step latent frame
 mask marks it, its timestep is a tiny constant (1e-4), and its predicted
 velocity is replaced by the true one, ε − z_0 (so the Euler path of frame 0
 is the exact straight line and ends at z_0).
+A longer context (the card's ``context_frames``: 4k + 1 pixel frames, n = k + 1
+latent frames) is handled the same way: ``first_latent`` then holds n clean
+latent frames and all n are overwritten, masked and given the true velocity.
 
 Guidance over the skeleton: the unconditional branch is the same call with
 the unconditional skeleton latent: zeros (``"zero_latent"``) or the VAE
@@ -342,10 +345,11 @@ def _checked_chunk_inputs(first_latent, skeleton_latent, text, actions, latent_f
         raise ModelInputError("sample_chunk: expected a skeleton latent (or actions), found neither")
     b, _, t, h, w = skeleton_latent.shape
     c = first_latent.shape[1]
-    if first_latent.shape != (b, c, 1, h, w):
+    n = first_latent.shape[2] if first_latent.ndim == 5 else 0
+    if first_latent.shape != (b, c, n, h, w) or not 1 <= n < t:
         raise ModelInputError(
-            f"first_latent: expected shape {(b, c, 1, h, w)} (one frame of the skeleton "
-            f"latent's size), found {tuple(first_latent.shape)}"
+            f"first_latent: expected shape {(b, c, 'n', h, w)} with 1 <= n < {t} (the context's latent frames, "
+            f"fewer than the chunk's, at the skeleton latent's size), found {tuple(first_latent.shape)}"
         )
     if text.shape[0] not in (1, b):
         raise ModelInputError(f"text: expected batch 1 or {b}, found shape {tuple(text.shape)}")
@@ -381,7 +385,8 @@ def sample_chunk(
 ) -> torch.Tensor:
     """Denoise one chunk; returns its clean latent (B, C, T, H, W) float32 with frame 0 = ``first_latent``.
 
-    first_latent: (B, C, 1, H, W) normalised clean latent of the seed frame.
+    first_latent: (B, C, n, H, W) normalised clean latent of the seed frame (n = 1), or of the chunk's context
+        (n ≥ 2 latent frames, fewer than T; module docstring): frames 0..n − 1 of the result, bit for bit.
     skeleton_latent: (B, C_s, T, H, W) normalised skeleton latent of the chunk;
         latent frame k conditions latent frame k of the video.
     text: (B or 1, L, D) prompt embedding.
@@ -411,16 +416,17 @@ def sample_chunk(
         uncond_skeleton = uncond_skeleton.to(device)
 
     noise = _initial_noise((b, c, t, h, w), generator, generators, device)
+    n = first_latent.shape[2]  # latent frames of the context: kept clean at every step
     clean = torch.zeros_like(noise)
-    clean[:, :, :1] = first_latent.to(device, torch.float32)
+    clean[:, :, :n] = first_latent.to(device, torch.float32)
     seed_frame, cond_t = clean, config.cond_timestep  # what the model is fed at frame 0, and its timestep
     if config.cond_noise:  # the noised conditioning frame (SamplerConfig.cond_noise); frame 0 of `noise` is unused else
         seed_frame = (1.0 - config.cond_noise) * clean + config.cond_noise * noise
         cond_t = max(config.cond_noise, config.cond_timestep)
     indicator = torch.zeros(b, 1, t, 1, 1, device=device)
-    indicator[:, :, 0] = 1.0
+    indicator[:, :, :n] = 1.0
     mask = indicator.expand(b, 1, t, h, w)
-    true_velocity = (noise - clean) * mask  # ε − z_0 on the conditioning frame, 0 elsewhere
+    true_velocity = (noise - clean) * mask  # ε − z_0 on the conditioning frames, 0 elsewhere
     padding = torch.zeros(1, 1, h, w, device=device)  # no padded pixels (latent size; resize is a no-op)
 
     from dataclasses import replace
@@ -447,5 +453,5 @@ def sample_chunk(
         return true_velocity + v * (1.0 - mask)
 
     x = integrate(velocity, noise, config, progress)
-    x[:, :, :1] = clean[:, :, :1]
+    x[:, :, :n] = clean[:, :, :n]
     return x

@@ -29,7 +29,7 @@ from typing import Any
 
 from .._util.inputs import read_text_file
 from ..errors import OscarError
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, is_video_condition
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, is_video_condition, takes_actions
 
 __all__ = [
     "TrainConfigError",
@@ -97,6 +97,10 @@ class ModelSection:
     # PE_s (ours: the skeleton's gripper indicator covers 1-2 latent cells at 64 px and a model trained on it moved
     # the ball whether or not the gripper closed; oscar_core/model/gripper_signal.py). The export's card records it.
     gripper_signal: bool = False
+    # pixel frames each chunk is conditioned on, 4k+1 (k + 1 latent frames kept clean, fewer than the window's): 1
+    # (the paper: the first frame) or 5 (ours, against drift: two latent frames, so the model sees the motion at a
+    # chunk's seam, as Cosmos-Predict2's Video2World takes 1 or 5 frames). The export's card records it
+    context_frames: int = 1
     # compute dtype of the forward: "float32" on CPU (issue), "bfloat16" autocast on GPU (Cosmos trains in bf16)
     dtype: str = "float32"
 
@@ -165,6 +169,10 @@ class FlowSection:
     # ours: extra loss weight w on the latent cells data.focus_mask touches (their elements weigh 1 + w, the rest
     # 1; oscar_core.train.focus); 0 = the plain loss
     focus_weight: float = 0.0
+    # with model.context_frames > 1: the fraction of items trained with the first latent frame alone as context, the
+    # context a rollout's first chunk has (ours; Cosmos-Predict2.5's Video2World trainers likewise draw 1 or 2
+    # conditioning latent frames per sample)
+    context_dropout: float = 0.25
 
 
 @dataclass
@@ -373,8 +381,39 @@ def _check_log_and_model_sections(config: TrainConfig, bad) -> None:
             "a condition video beside it (condition: skeleton, mesh or capsules)",
             f"condition {config.condition!r}",
         )
+    _check_context(config, bad)
     if config.model.dtype not in ("float32", "bfloat16"):
         bad("model.dtype", "'float32' or 'bfloat16'", config.model.dtype)
+
+
+def _check_context(config: TrainConfig, bad) -> None:
+    """``model.context_frames`` against the window, and ``flow.context_dropout``."""
+    from ..model.chunks import check_context_frames
+    from ..model.errors import ModelInputError
+
+    cf, window = config.model.context_frames, config.data.window
+    try:
+        check_context_frames(cf, window, what="model.context_frames")
+    except ModelInputError:
+        bad(
+            "model.context_frames",
+            f"pixel frames of the form 4k+1 (1, 5, ...) covering fewer latent frames than data.window {window}'s "
+            f"{(window - 1) // 4 + 1}",
+            cf,
+        )
+    cd = config.flow.context_dropout
+    if isinstance(cd, bool) or not isinstance(cd, (int, float)) or not 0.0 <= cd <= 1.0:
+        bad("flow.context_dropout", "a fraction in [0, 1]", cd)
+    if cf != 1 and not cd > 0:
+        bad(
+            "flow.context_dropout",
+            "a fraction > 0 with model.context_frames > 1 (a rollout's first chunk has the first frame alone)",
+            cd,
+        )
+    if cf != 1 and takes_actions(config.condition):
+        bad("model.context_frames", "1 for a latent-action model", cf)
+    if cf != 1 and config.distill.teacher is not None:
+        bad("model.context_frames", "1 when distilling (the distillation's chunks start from one frame)", cf)
 
 
 def _check_distill_section(config: TrainConfig, bad) -> None:

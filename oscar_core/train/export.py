@@ -80,6 +80,7 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
             condition_style=config.condition_style,
             sampler=sampler,
             gripper_signal=config.model.gripper_signal,
+            context_frames=config.model.context_frames,
         )
         model = OscarWorldModel(transformer, vae, card, scheduler_config=scheduler)
         if records and not any("prompt_embeds" in r.files for r in records):

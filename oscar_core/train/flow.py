@@ -11,6 +11,10 @@
   learns to continue from a first frame that is not exactly the truth — as its own generated last frame is when
   a rollout chains chunks (noise augmentation of the context, as GameNGen trains it). The sampler feeds it
   clean (σ_c = 0, inside the trained range).
+* Ours, against drift (``model.context_frames``): the first n latent frames of an item are its clean context
+  instead of frame 0 alone (n = 2 for 5 pixel frames: the model sees the motion at the seam), handled exactly as
+  frame 0 is (clean or noised by ``cond_noise_max``, the condition mask on, out of the loss); n is per item, so a
+  batch mixes items trained at the full context and at the first frame alone (``flow.context_dropout``).
 """
 
 from __future__ import annotations
@@ -52,10 +56,10 @@ def sigma_cdf(s, shift: float = 5.0, mean: float = 0.0, std: float = 1.0):
 class FlowInputs:
     """What the DiT sees for one batch, and what it must predict.
 
-    x: (B, C, T, H, W) model input (frame 0 clean, the rest noised);
+    x: (B, C, T, H, W) model input (frame 0 clean, the rest noised; the first n_b frames with a longer context);
     timestep: (B, 1, T, 1, 1) float32 (frame 0: cond_timestep, others σ_b);
-    condition_mask: (B, 1, T, H, W) 1 on frame 0; target: (B, C, T, H, W) ε − z_0;
-    loss_mask: (B, 1, T, 1, 1) 0 on frame 0, 1 elsewhere.
+    condition_mask: (B, 1, T, H, W) 1 on frame 0 (on the context frames); target: (B, C, T, H, W) ε − z_0;
+    loss_mask: (B, 1, T, 1, 1) 0 on frame 0 (on the context frames), 1 elsewhere.
     """
 
     x: torch.Tensor
@@ -71,6 +75,7 @@ def flow_inputs(
     sigma: torch.Tensor,
     cond_timestep: float = 1e-4,
     cond_sigma: torch.Tensor | None = None,
+    context=1,
 ) -> FlowInputs:
     """Noise clean latents ``z0`` (B, C, T, H, W) with ``noise`` (same shape) at per-sample ``sigma`` (B,).
 
@@ -78,6 +83,8 @@ def flow_inputs(
     frame 0 replaced by its clean latent under the condition mask.
     cond_sigma: (B,) noise levels of the conditioning frame (module docstring): frame 0 is then
     (1 − σ_c) z_0 + σ_c ε (ε: ``noise``'s frame 0) at timestep max(σ_c, cond_timestep); None = clean.
+    context: latent frames of clean context per item, an int for all or a sequence of B ints, each in [1, T − 1]
+    (1: frame 0 alone, as the paper); every context frame is handled as frame 0 (module docstring).
     """
     if z0.ndim != 5 or noise.shape != z0.shape:
         raise ValueError(
@@ -88,8 +95,12 @@ def flow_inputs(
         raise ValueError(f"sigma: expected shape ({b},), found {tuple(sigma.shape)}")
     s = sigma.to(z0.dtype).view(b, 1, 1, 1, 1)
     noisy = (1.0 - s) * z0 + s * noise
+    counts = [int(context)] * b if isinstance(context, int) else [int(n) for n in context]
+    if len(counts) != b or not all(1 <= n < t for n in counts):
+        raise ValueError(f"context: expected {b} latent frame counts in [1, {t - 1}], found {context!r}")
     indicator = torch.zeros(b, 1, t, 1, 1, dtype=z0.dtype, device=z0.device)
-    indicator[:, :, 0] = 1.0
+    for i, n in enumerate(counts):
+        indicator[i, :, :n] = 1.0
     first, first_t = z0, torch.full((b, 1, 1, 1, 1), cond_timestep, dtype=z0.dtype, device=z0.device)
     if cond_sigma is not None:
         if cond_sigma.shape != (b,):
@@ -111,9 +122,9 @@ def flow_inputs(
 def flow_loss(
     pred: torch.Tensor, inputs: FlowInputs, reduction: str = "mean", weight: torch.Tensor | None = None
 ) -> torch.Tensor:
-    """MSE between the predicted velocity (B, C, T, H, W) and ε − z_0 on latent frames ≥ 1.
+    """MSE between the predicted velocity (B, C, T, H, W) and ε − z_0 on latent frames ≥ 1 (≥ n_b with a context).
 
-    Per sample: the mean over the C·(T−1)·H·W loss elements; ``reduction``
+    Per sample: the mean over the C·(T−1)·H·W (C·(T−n_b)·H·W) loss elements; ``reduction``
     "mean" averages the samples, "none" returns (B,). The conditioning frame
     contributes exactly zero (its error is multiplied by 0, gradient included).
     weight: (B, 1, T, H, W) per-cell weights (the focus weights, :mod:`oscar_core.train.focus`) multiplying each
@@ -123,5 +134,9 @@ def flow_loss(
     if weight is not None:
         err = err * weight.to(err.dtype)
     b, c, t, h, w = err.shape
-    per_sample = err.sum(dim=(1, 2, 3, 4)) / (c * (t - 1) * h * w)
+    frames = [int(n) for n in inputs.loss_mask.flatten(1).sum(1).tolist()]  # latent frames in the loss, per item
+    if len(set(frames)) == 1:
+        per_sample = err.sum(dim=(1, 2, 3, 4)) / (c * frames[0] * h * w)
+    else:
+        per_sample = err.sum(dim=(1, 2, 3, 4)) / torch.tensor([c * n * h * w for n in frames], device=err.device)
     return per_sample.mean() if reduction == "mean" else per_sample

@@ -40,7 +40,7 @@ from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
-from .sampling import PlanItem, StepPlanner, item_cond_sigma, item_noise
+from .sampling import PlanItem, StepPlanner, item_cond_sigma, item_context, item_noise
 
 __all__ = [
     "CONFIG_FILE",
@@ -84,7 +84,8 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     cond_sigma = None
     if config.flow.cond_noise_max:
         cond_sigma = item_cond_sigma(items, config.flow.cond_noise_max).to(device)
-    inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep, cond_sigma)
+    context = item_context(items, context_latents(config), config.flow.context_dropout)
+    inputs = flow_inputs(z0, noise, sigma.to(device), config.flow.cond_timestep, cond_sigma, context)
     h, w = z0.shape[-2:]
     kwargs = dict(
         hidden_states=inputs.x,
@@ -104,6 +105,11 @@ def step_loss(model, batch: Batch, items: list[PlanItem], config: TrainConfig, d
     if batch.focus is not None and config.flow.focus_weight:
         weight = 1.0 + config.flow.focus_weight * batch.focus.to(device, torch.float32)
     return flow_loss(pred, inputs, weight=weight)
+
+
+def context_latents(config: TrainConfig) -> int:
+    """Latent frames of ``model.context_frames`` (4k + 1 pixel frames of the WAN VAE's 4x time: k + 1)."""
+    return (int(config.model.context_frames) - 1) // 4 + 1
 
 
 def build_optimizer(wrapped, config: TrainConfig) -> torch.optim.AdamW:

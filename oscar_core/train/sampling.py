@@ -37,6 +37,7 @@ __all__ = [
     "StepPlanner",
     "item_noise",
     "item_cond_sigma",
+    "item_context",
 ]
 
 
@@ -225,3 +226,13 @@ def item_cond_sigma(items: list[PlanItem], max_sigma: float) -> torch.Tensor:
     noise seed apart from its noise (the same on any process count)."""
     gens = [torch.Generator().manual_seed((it.noise_seed + 0x5EED) % 2**63) for it in items]
     return torch.tensor([float(torch.rand((), generator=g, dtype=torch.float64)) * max_sigma for g in gens])
+
+
+def item_context(items: list[PlanItem], latents: int, dropout: float) -> list[int]:
+    """Latent frames of clean context per item: ``latents`` (``model.context_frames``' latent frames), or 1 (the
+    first frame alone, what a rollout's first chunk has) with probability ``dropout``, item i's draw from a stream
+    of its own noise seed apart from its noise and its conditioning noise (the same on any process count)."""
+    if latents == 1:
+        return [1] * len(items)
+    gens = [torch.Generator().manual_seed((it.noise_seed + 0xC0DE) % 2**63) for it in items]
+    return [1 if float(torch.rand((), generator=g, dtype=torch.float64)) < dropout else latents for g in gens]

@@ -96,3 +96,159 @@ def test_read_card_refuses_a_bad_context_before_loading_weights(tmp_path):
     )
     with pytest.raises(CheckpointLayoutError, match="context_frames"):
         read_card(tmp_path)
+
+
+# --------------------------------------------------------------------------- training
+
+
+def _z(b=3, t=5, seed=0):
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(b, 4, t, 2, 3, generator=g), torch.randn(b, 4, t, 2, 3, generator=g)
+
+
+def test_the_training_condition_mask_covers_exactly_the_context_latent_frames():
+    import torch
+
+    from oscar_core.train.flow import flow_inputs
+
+    z0, noise = _z()
+    sigma = torch.tensor([0.3, 0.6, 0.9], dtype=torch.float64)
+    inp = flow_inputs(z0, noise, sigma, 1e-4, context=[1, 2, 4])
+    for i, n in enumerate([1, 2, 4]):
+        on = inp.condition_mask[i, 0, :, 0, 0]
+        assert on.tolist() == [1.0] * n + [0.0] * (5 - n)
+        assert (inp.condition_mask[i] == on.view(1, 5, 1, 1)).all()  # the whole frame, no more
+        assert inp.loss_mask[i].flatten().tolist() == [0.0] * n + [1.0] * (5 - n)
+        assert torch.equal(inp.x[i, :, :n], z0[i, :, :n])  # clean context
+        assert torch.allclose(inp.x[i, :, n:], ((1 - sigma[i]) * z0[i, :, n:] + sigma[i] * noise[i, :, n:]).float())
+        assert torch.allclose(inp.timestep[i, 0, :n].flatten(), torch.tensor(1e-4))
+        assert torch.allclose(inp.timestep[i, 0, n:].flatten(), torch.tensor(float(sigma[i])))
+
+
+def test_conditioning_noise_reaches_every_context_frame():
+    import torch
+
+    from oscar_core.train.flow import flow_inputs
+
+    z0, noise = _z()
+    sc = torch.tensor([0.2, 0.2, 0.2], dtype=torch.float64)
+    inp = flow_inputs(z0, noise, torch.full((3,), 0.5, dtype=torch.float64), 1e-4, sc, context=2)
+    assert torch.allclose(inp.x[:, :, :2], 0.8 * z0[:, :, :2] + 0.2 * noise[:, :, :2])
+    assert torch.allclose(inp.timestep[:, 0, :2].flatten(), torch.tensor(0.2))
+
+
+def test_the_loss_averages_over_the_generated_frames_only():
+    import torch
+
+    from oscar_core.train.flow import flow_inputs, flow_loss
+
+    z0, noise = _z()
+    sigma = torch.full((3,), 0.5, dtype=torch.float64)
+    inp = flow_inputs(z0, noise, sigma, context=[1, 2, 3])
+    pred = inp.target.clone()
+    pred[:, :, :3] += 100.0  # errors on context frames of some items only...
+    pred[2, :, 3:] += 1.0  # ...and an error of 1 on every generated element of item 2
+    per = flow_loss(pred, inp, reduction="none")
+    assert per[1].item() > 1000  # item 1 (context 2) pays for frame 2
+    assert per[2].item() == pytest.approx(1.0)  # mean over its 2 generated frames, not 4
+    one = flow_inputs(z0, noise, sigma)  # the default: frame 0 alone, as before the option
+    assert torch.equal(one.condition_mask, flow_inputs(z0, noise, sigma, context=[1, 1, 1]).condition_mask)
+    assert flow_loss(one.target + 1.0, one).item() == pytest.approx(1.0)
+
+
+def test_context_dropout_draws_per_item_and_one_latent_frame_needs_no_draw():
+    from oscar_core.train.sampling import PlanItem, item_context
+
+    items = [PlanItem(0, 0, False, 0.5, seed) for seed in range(400)]
+    drawn = item_context(items, 2, 0.25)
+    assert set(drawn) == {1, 2} and drawn == item_context(items, 2, 0.25)  # seeded per item
+    assert 0.18 < drawn.count(1) / len(drawn) < 0.32
+    assert item_context(items, 1, 0.25) == [1] * 400
+    assert item_context(items, 2, 0.0) == [2] * 400
+
+
+def test_training_feeds_the_model_the_context_mask(tmp_path):
+    """One step of the loop's loss with model.context_frames 5 on 9-frame windows: the DiT's condition mask covers
+    latent frames 0 and 1 of the items not dropped to one frame."""
+    import torch
+    from _models import tiny_train_config
+
+    from oscar_core.train.data import Batch
+    from oscar_core.train.loop import step_loss
+    from oscar_core.train.sampling import PlanItem, item_context
+
+    config = tiny_train_config(tmp_path, tmp_path / "run", **{"model.context_frames": 5, "flow.context_dropout": 0.5})
+    seen = {}
+
+    def model(**kw):
+        seen.update(kw)
+        return (torch.zeros_like(kw["hidden_states"]),)
+
+    items = [PlanItem(0, 0, False, 0.5, seed) for seed in range(8)]
+    batch = Batch(torch.randn(8, 16, 3, 4, 4), torch.randn(8, 16, 3, 4, 4), torch.zeros(8, 1, 48), None)
+    step_loss(model, batch, items, config, "cpu")
+    expect = item_context(items, 2, 0.5)
+    assert set(expect) == {1, 2}
+    assert seen["condition_mask"][:, 0, :, 0, 0].sum(1).tolist() == [float(n) for n in expect]
+
+
+def test_the_config_refuses_a_bad_context_naming_the_field(tmp_path):
+    from _models import tiny_train_config
+
+    from oscar_core.train.config import TrainConfigError
+
+    for value, what in ((3, "4k\\+1"), (9, "data.window 9's 3"), (13, "data.window 9's 3")):
+        with pytest.raises(TrainConfigError, match=rf"field 'model.context_frames': expected .*{what}.* found {value}"):
+            tiny_train_config(tmp_path, tmp_path / "run", **{"model.context_frames": value})
+    with pytest.raises(TrainConfigError, match="field 'flow.context_dropout'"):
+        tiny_train_config(tmp_path, tmp_path / "run", **{"model.context_frames": 5, "flow.context_dropout": 0.0})
+
+
+# --------------------------------------------------------------------------- the sampler
+
+
+def test_the_sampler_keeps_the_context_latents_bit_identical_at_every_step():
+    import torch
+    from _models import tiny_world_model
+
+    from oscar_core.model import SamplerConfig, sample_chunk
+
+    model = tiny_world_model(skeleton_scale=0.05, chunk_frames=9, empty_prompt=torch.zeros(1, 1, 48))
+    g = torch.Generator().manual_seed(1)
+    context = torch.randn(1, 16, 2, 4, 8, generator=g)
+    skel = torch.randn(1, 16, 3, 4, 8, generator=g)
+    inputs = []
+    forward = model.transformer.forward
+
+    def spy(*a, **kw):
+        inputs.append((kw["hidden_states"].clone(), kw["condition_mask"].clone(), kw["timestep"].clone()))
+        return forward(*a, **kw)
+
+    model.transformer.forward = spy
+    try:
+        for solver in ("euler", "unipc"):
+            inputs.clear()
+            config = SamplerConfig(steps=3, guidance=2.0, solver=solver)
+            out = sample_chunk(model.transformer, context, skel, model.prompt_embeds(), config, generator=g)
+            assert torch.equal(out[:, :, :2], context)
+            assert not torch.equal(out[:, :, 2], torch.zeros_like(out[:, :, 2]))
+            assert len(inputs) == 3  # batched guidance: one forward of batch 2 per step
+            for x, mask, t in inputs:
+                assert torch.equal(x[:, :, :2], context.expand(2, -1, -1, -1, -1))  # fed clean, bit for bit
+                assert mask[:, 0, :, 0, 0].tolist() == [[1.0, 1.0, 0.0]] * 2
+                assert torch.all(t[:, 0, :2] == 1e-4) and torch.all(t[:, 0, 2] > 1e-4)
+    finally:
+        model.transformer.forward = forward
+
+
+def test_the_sampler_refuses_a_context_as_long_as_the_chunk():
+    import torch
+    from _models import tiny_world_model
+
+    from oscar_core.model import sample_chunk
+
+    model = tiny_world_model(chunk_frames=9, empty_prompt=torch.zeros(1, 1, 48))
+    with pytest.raises(ModelInputError, match=r"first_latent: expected shape .*1 <= n < 3"):
+        sample_chunk(model.transformer, torch.zeros(1, 16, 3, 4, 8), torch.zeros(1, 16, 3, 4, 8), model.prompt_embeds())
