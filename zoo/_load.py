@@ -79,6 +79,7 @@ def load(
     native_file: str | None = None,
     report: list | None = None,
     tiny_decoder=None,
+    tiny_encoder=None,
 ) -> OscarWorldModel:
     """Load a world model by zoo name, Hub id or folder (arguments as :func:`pull`).
 
@@ -98,6 +99,8 @@ def load(
     tiny_decoder: a tiny decoder's safetensors file to decode with instead of the full VAE decoder; None: the
     card's choice (its ``tiny_decoder``, else the full decoder); False: the full decoder
     (``OscarWorldModel.from_pretrained``).
+    tiny_encoder: a tiny encoder's safetensors file to encode the condition videos with instead of the full VAE
+    encoder; None or False: the full encoder (``OscarWorldModel.from_pretrained``).
     """
     from oscar_core._util.devices import check_device
     from oscar_core.model.errors import ModelInputError
@@ -118,6 +121,8 @@ def load(
     options = dict(device=device, dtype=dtype, vae_dtype=vae_dtype, offload_vae=offload_vae, offload_text=offload_text)
     if tiny_decoder is not None:
         options["tiny_decoder"] = tiny_decoder
+    if tiny_encoder is not None:
+        options["tiny_encoder"] = tiny_encoder
     card = None if got.layout.kind == "oscar" else _card_from_spec(resolved.spec)
     model, layout = load_folder(got.folder, got.layout, card, verify=False, **options)  # fetch() verified it
     if report is not None:

@@ -50,6 +50,7 @@ def cmd_closed_loop(args) -> int:
     import torch
 
     from ..model.decoder_options import decoder_choice
+    from ..model.encoder_options import encoder_choice
     from .cli_options import resolve_sampler_flags
     from .closed_loop import run_closed_loop
     from .closed_loop_manifest import load_closed_loop_manifest
@@ -84,6 +85,7 @@ def cmd_closed_loop(args) -> int:
         args, None if simulator is not None else (lambda: card_sampler_of(args.model, args.revision))
     )
     decoder = decoder_choice(args)  # checked before any model is looked up
+    encoder = encoder_choice(args)
     sampler = choice.config
     if simulator is None:
         print(f"sampler: {choice.describe('flag')}", file=sys.stderr)
@@ -109,6 +111,7 @@ def cmd_closed_loop(args) -> int:
             device=args.device or default_device(),
             dtype=None if args.dtype == "auto" else getattr(torch, args.dtype),
             tiny_decoder=decoder,
+            tiny_encoder=encoder,
             plugin_paths=getattr(args, "plugin", None) or (),
             progress=not args.no_progress and progress_bars_enabled(),
         )
@@ -184,6 +187,9 @@ def add_closed_loop_parser(sub) -> argparse.ArgumentParser:
     )
     add_sampler_options(r)
     add_decoder_options(r)
+    from ..model.encoder_options import add_encoder_option
+
+    add_encoder_option(r)
     r.add_argument(
         "--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's; 17 for --simulator)"
     )

@@ -221,6 +221,17 @@ def _decoder_identity(simulator, tiny_decoder) -> dict:
     return {"decoder": decoder_identity(tiny_decoder)}
 
 
+def _encoder_identity(simulator, tiny_encoder) -> dict:
+    """``{"condition_encoder": "tiny-sha256:<hex>"}`` when a tiny condition encoder was chosen for a world model
+    (:func:`~oscar_core.model.encoder_options.encoder_identity`), else empty: a run with the full encoder keeps the
+    keys its cells had before the choice existed."""
+    if simulator is not None or tiny_encoder is None or tiny_encoder is False:
+        return {}
+    from ..model.encoder_options import encoder_identity
+
+    return {"condition_encoder": encoder_identity(tiny_encoder)}
+
+
 def _plan_cells(out: Path, manifest, specs, world_id: dict, replan_every, retry_failed: bool, counts, bar, log):
     """``(records, pending, reused_failed)``: one record per (session, policy) cell in order — the recorded one
     where its key (a fingerprint of world, session, replan interval and policy) matches and its video is intact, or
@@ -328,9 +339,9 @@ def _run_cells(
             finish(job[0], write(cell, run_open_cell(cell, policy_timeout)))
 
 
-def _model_loader(model, model_spec, revision, device, dtype, log, tiny_decoder=None) -> Callable:
+def _model_loader(model, model_spec, revision, device, dtype, log, tiny_decoder=None, tiny_encoder=None) -> Callable:
     """A function returning the world model: ``model``, or ``model_spec`` loaded (``oscar_zoo.load``, with
-    ``tiny_decoder``) on its first call only, so a run whose every cell is reused loads nothing."""
+    ``tiny_decoder`` and ``tiny_encoder``) on its first call only, so a run whose every cell is reused loads nothing."""
     loaded = {"model": model}
 
     def get_model():
@@ -339,7 +350,7 @@ def _model_loader(model, model_spec, revision, device, dtype, log, tiny_decoder=
 
             log(f"loading world model {model_spec}")
             loaded["model"] = oscar_zoo.load(
-                model_spec, revision, device=device, dtype=dtype, tiny_decoder=tiny_decoder
+                model_spec, revision, device=device, dtype=dtype, tiny_decoder=tiny_decoder, tiny_encoder=tiny_encoder
             )
         return loaded["model"]
 
@@ -392,6 +403,7 @@ def run_closed_loop(
     device="cpu",
     dtype=None,
     tiny_decoder=None,
+    tiny_encoder=None,
     plugin_paths=(),
     progress: bool = False,
     plot_formats=("png",),
@@ -400,7 +412,8 @@ def run_closed_loop(
     """Run every cell of ``manifest`` (a path or a loaded manifest) closed loop and write ``out``.
 
     The world: the world model ``model`` (loaded) or ``model_spec`` (``oscar_zoo.load``; loaded only if some cell
-    must run; its decoder ``tiny_decoder``, :mod:`oscar_core.model.decoder_options`, None: its card's); or ``simulator``, a factory ``(session, emb, camera, first, size, fps, chunk_frames) -> world``
+    must run; its decoder ``tiny_decoder``, :mod:`oscar_core.model.decoder_options`, None: its card's; its condition encoder
+    ``tiny_encoder``, :mod:`oscar_core.model.encoder_options`, None: the full encoder); or ``simulator``, a factory ``(session, emb, camera, first, size, fps, chunk_frames) -> world``
     (then ``fps`` and ``chunk_frames`` are required). judge: a success judge (``judge_many``) run on every
     finished cell's video, or None; pairwise_judge: ``compare_many`` on every two finished cells of a session
     (preferences and their Bradley–Terry fit in the report), or None. replan_every: actions executed per call for every policy (default: each
@@ -422,9 +435,10 @@ def run_closed_loop(
     embs = _embodiments(manifest, plugin_paths)
     out = _prepared_out(out)
     sampler = sampler or SamplerConfig()
-    get_model = _model_loader(model, model_spec, revision, device, dtype, log, tiny_decoder)
+    get_model = _model_loader(model, model_spec, revision, device, dtype, log, tiny_decoder, tiny_encoder)
     world_id = _world_identity(simulator, model, model_spec, revision, sampler, fps, chunk_frames, manifest.size)
     world_id.update(_decoder_identity(simulator, tiny_decoder))  # in every cell's fingerprint when given
+    world_id.update(_encoder_identity(simulator, tiny_encoder))
     counts = {"cells": len(manifest.sessions) * len(specs), "done": 0, "reused": 0, "failed": 0, "retried": 0}
     bar = progress_bar(total=counts["cells"], desc="closed loop", unit="cell", enabled=progress)
     records, pending, reused_failed = _plan_cells(
@@ -448,6 +462,7 @@ def run_closed_loop(
         device=device,
         dtype=dtype,
         tiny_decoder=tiny_decoder,
+        tiny_encoder=tiny_encoder,
         workers=workers,
         plugin_paths=plugin_paths,
     )

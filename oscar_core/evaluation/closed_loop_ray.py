@@ -43,7 +43,9 @@ class _RecordedWorld:
 class _ClosedLoopWorker:
     """A Ray actor's state: one world model (loaded once) or the simulator's factory, and its policy objects."""
 
-    def __init__(self, model_spec, revision, device: str, dtype_name, plugin_paths: tuple, simulator, tiny_decoder):
+    def __init__(
+        self, model_spec, revision, device: str, dtype_name, plugin_paths: tuple, simulator, tiny_decoder, tiny_encoder
+    ):
         import torch
 
         from .closed_loop_cell import PolicyPool
@@ -53,7 +55,9 @@ class _ClosedLoopWorker:
             import oscar_zoo
 
             dtype = getattr(torch, dtype_name) if dtype_name else None
-            self.model = oscar_zoo.load(model_spec, revision, device=device, dtype=dtype, tiny_decoder=tiny_decoder)
+            self.model = oscar_zoo.load(
+                model_spec, revision, device=device, dtype=dtype, tiny_decoder=tiny_decoder, tiny_encoder=tiny_encoder
+            )
         self.simulator, self.plugin_paths, self.pool = simulator, plugin_paths, PolicyPool()
 
     def run(self, jobs: list, world_options: dict, batch_cells: int, timeout) -> list:
@@ -117,6 +121,7 @@ def run_on_ray(
     device,
     dtype,
     tiny_decoder,
+    tiny_encoder,
     workers: int,
     batch_cells: int,
     timeout,
@@ -138,7 +143,7 @@ def run_on_ray(
         dtype=dtype,
         plugin_paths=plugin_paths,
         log=log,
-        extra=lambda share: (simulator, tiny_decoder),
+        extra=lambda share: (simulator, tiny_decoder, tiny_encoder),
     )
     log(f"running {len(pending)} closed-loop cells on {n} Ray worker(s) ({'one GPU' if gpu else 'one CPU'} each)")
     queue = [pending[i : i + batch_cells] for i in range(0, len(pending), batch_cells)]

@@ -120,8 +120,10 @@ def _add_rollout_device_options(r) -> None:
     )
     r.add_argument("--offline", action="store_true", help="use only the local Hub cache (like HF_HUB_OFFLINE=1)")
     from .decoder_options import add_decoder_options
+    from .encoder_options import add_encoder_option
 
     add_decoder_options(r)
+    add_encoder_option(r)
 
 
 def _add_rollout_parser(subparsers, fmt) -> None:
@@ -200,6 +202,7 @@ def cmd_rollout(args) -> int:
     :func:`~oscar_core.model.rollout_files.run_rollout`, then the summary."""
     startup = _seconds_since_process_start()
     from .decoder_options import decoder_choice
+    from .encoder_options import encoder_choice
     from .rollout_files import run_rollout
 
     request = RolloutRequest(
@@ -241,6 +244,7 @@ def cmd_rollout(args) -> int:
         offload_text=args.offload_text,
         offline=args.offline,
         tiny_decoder=decoder_choice(args),
+        tiny_encoder=encoder_choice(args),
         progress=not args.no_progress,
         plugin_paths=tuple(getattr(args, "plugin", None) or ()),
     )

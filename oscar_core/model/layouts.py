@@ -147,8 +147,8 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
     """Load a local checkpoint folder of any layout as an ``OscarWorldModel``; returns (model, layout).
 
     card: ModelCard for layouts that carry none (diffusers, cosmos-native);
-    options: ``OscarWorldModel.from_modules`` options (device, dtype, ...), and ``tiny_decoder``
-    (``OscarWorldModel.from_pretrained``'s: a file, or False).
+    options: ``OscarWorldModel.from_modules`` options (device, dtype, ...), and ``tiny_decoder`` and
+    ``tiny_encoder`` (``OscarWorldModel.from_pretrained``'s: a file, or False).
     ``layout.report`` says what was found (skeleton embedder, scheduler).
     """
     from .world_model import ModelCard, OscarWorldModel
@@ -165,6 +165,11 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
         from .tiny_decoder import load_tiny_decoder
 
         tiny = load_tiny_decoder(tiny)  # checked before the weights are read, as from_pretrained does
+    encoder = options.pop("tiny_encoder", None)
+    if encoder is not None and encoder is not False:
+        from .tiny_encoder import load_tiny_encoder
+
+        encoder = load_tiny_encoder(encoder)
     if layout.kind == "diffusers":
         from .transformer import OscarTransformer3DModel
 
@@ -189,6 +194,8 @@ def load_folder(folder, layout: Layout | None = None, card=None, *, verify: bool
     model = OscarWorldModel.from_modules(transformer, _vae(folder), card or ModelCard(), None, **options)
     if tiny is not None and tiny is not False:
         model.vae.use_tiny_decoder(tiny)
+    if encoder is not None and encoder is not False:
+        model.vae.use_tiny_encoder(encoder)
     scheduler = folder / SCHEDULER_CONFIG
     if scheduler.is_file():
         try:

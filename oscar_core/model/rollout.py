@@ -203,7 +203,7 @@ class _UncondSkeletons:
         key = (frames, height, width)
         if key not in self.cache:
             black = np.zeros((frames, height, width, 3), np.uint8)
-            self.cache[key] = self.vae.encode(VideoVAE.to_pixels(black))
+            self.cache[key] = self.vae.encode_condition(VideoVAE.to_pixels(black))  # as the conditions are
             self.encodes += 1
         return self.cache[key]
 
@@ -339,7 +339,7 @@ def _chunks(
                 else:
                     window = np.stack([s[start : start + chunk_frames] for s in skels])  # (B, L, H, W, 3)
                     with clock("encode"):
-                        skeleton_latent = vae.encode(VideoVAE.to_pixels(window))
+                        skeleton_latent = vae.encode_condition(VideoVAE.to_pixels(window))
                         uncond_latent = uncond.get(chunk_frames, height, width)
                     if grippers is not None:
                         skeleton_latent, uncond_latent = _add_gripper_signal(

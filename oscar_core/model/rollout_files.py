@@ -94,6 +94,7 @@ class RolloutRequest:
     offload_text: bool = False
     offline: bool = False
     tiny_decoder: object = None  # None: the card's decoder; False: the full decoder; a path: that tiny decoder
+    tiny_encoder: object = None  # None: the full condition encoder; a path: that tiny encoder for the condition
     progress: bool = True
     plugin_paths: tuple[str, ...] = ()
 
@@ -177,6 +178,7 @@ def _load_model(r: RolloutRequest, device, dtype, say: Callable[[str], None], ti
         native_file=r.native_file,
         report=report,
         tiny_decoder=r.tiny_decoder,
+        tiny_encoder=r.tiny_encoder,
     )
     timings["load"] = time.perf_counter() - t0
     for line in report:
@@ -253,6 +255,7 @@ def _rollout_summary(
         "sampler_sources": dict(choice.sources),
         "condition": model.card.condition,
         "decoder": "full" if model.vae.tiny is None else "tiny",
+        "condition_encoder": "full" if model.vae.tiny_encoder is None else "tiny",
         "compile": model.compile_reason,
         "dtype": str(next(model.transformer.parameters()).dtype),
         "device": str(device),
@@ -292,6 +295,7 @@ def run_rollout(
     from ..render.conditions import takes_actions
     from .card_sampler import resolve_sampler
     from .decoder_options import check_decoder_choice
+    from .encoder_options import check_encoder_choice
     from .image import read_first_frame
     from .rollout import RolloutResult
 
@@ -304,6 +308,7 @@ def run_rollout(
     first = read_first_frame(r.first_frame, camera, r.camera)
     resolve_sampler(None, **_sampler_options(r))  # the given options checked before any weights load
     check_decoder_choice(r.tiny_decoder)
+    check_encoder_choice(r.tiny_encoder)
     side_path = _check_outputs(r, len(traj))
     device = r.device or default_device()
     dtype = getattr(torch, r.dtype or ("bfloat16" if str(device).startswith("cuda") else "float32"))

@@ -10,7 +10,10 @@ deterministic. The VAE is causal in time: latent frame 0 depends only on
 pixel frame 0, hence frame counts of the form 4k + 1.
 
 A tiny decoder (:mod:`.tiny_decoder`, the TAEHV design, ``taew2_1`` weights for the 2B model's latents) can take
-over :meth:`VideoVAE.decode` (:meth:`VideoVAE.use_tiny_decoder`); off by default: the full decoder decodes.
+over :meth:`VideoVAE.decode` (:meth:`VideoVAE.use_tiny_decoder`); off by default: the full decoder decodes. A tiny
+encoder (:mod:`.tiny_encoder`, the same design's encoder) can take over :meth:`VideoVAE.encode_condition`, the encode
+of a rollout's condition video (:meth:`VideoVAE.use_tiny_encoder`); off by default, and never the seed frame's encode
+(:meth:`VideoVAE.encode`).
 
 The network is :class:`~.wan_vae.WanVAE`, oscar's own implementation of the Wan VAE (diffusers'
 ``AutoencoderKLWan``'s keys, config and numbers; no diffusers import on this path).
@@ -71,6 +74,9 @@ class VideoVAE:
                 f"found {self.mean.shape[1]} / {self.std.shape[1]}"
             )
         self.tiny = None  # a TinyVideoDecoder that decodes instead of the full decoder (use_tiny_decoder)
+        self.tiny_encoder = (
+            None  # a TinyVideoEncoder that encodes conditions instead of the full one (use_tiny_encoder)
+        )
         cast_model(vae, "cpu" if offload else self.device, dtype)
         vae.eval()
         use_onednn_conv3d(vae)  # one clip on the CPU as fast per clip as a batch (cpu_conv.py)
@@ -104,6 +110,27 @@ class VideoVAE:
                 f"found x{net.time_factor} and x{net.space_factor}"
             )
         self.tiny = TinyVideoDecoder(net, self.mean, self.std, self.device, self.dtype)
+
+    def use_tiny_encoder(self, weights) -> None:
+        """Encode condition videos with a tiny encoder from now on (:mod:`.tiny_encoder`, :meth:`encode_condition`):
+        ``weights`` a safetensors file of ``encoder.*`` tensors (``taew2_1``'s key names and shapes) or a loaded
+        ``TinyEncoderNet``; None goes back to the full encoder. :meth:`encode` (the seed frame) is unchanged."""
+        from .tiny_encoder import TinyEncoderNet, TinyVideoEncoder, load_tiny_encoder
+
+        if weights is None:
+            self.tiny_encoder = None
+            return
+        net = weights if isinstance(weights, TinyEncoderNet) else load_tiny_encoder(weights)
+        if net.latent_channels != self.z_dim:
+            raise ModelInputError(
+                f"tiny encoder: expected {self.z_dim} latent channels (the VAE's z_dim), found {net.latent_channels}"
+            )
+        if net.time_factor != self.temporal or net.space_factor != self.spatial:
+            raise ModelInputError(
+                f"tiny encoder: expected /{self.temporal} in time and /{self.spatial} in space (the VAE's), "
+                f"found /{net.time_factor} and /{net.space_factor}"
+            )
+        self.tiny_encoder = TinyVideoEncoder(net, self.mean, self.std, self.device, self.dtype)
 
     # ------------------------------------------------------------------ shapes
     def latent_shape(self, frames: int, height: int, width: int) -> tuple[int, int, int, int]:
@@ -160,6 +187,17 @@ class VideoVAE:
         finally:
             self._off_device()
         return (z - self.mean.to(z.device)) / self.std.to(z.device)
+
+    @torch.no_grad()
+    def encode_condition(self, pixels: torch.Tensor) -> torch.Tensor:
+        """A condition video's normalised latents, as :meth:`encode`: by the tiny encoder after
+        :meth:`use_tiny_encoder`, else by the full encoder (the same call)."""
+        if self.tiny_encoder is None:
+            return self.encode(pixels)
+        if pixels.ndim != 5 or pixels.shape[1] != 3:
+            raise ModelInputError(f"pixels: expected (B, 3, T, H, W), found shape {tuple(pixels.shape)}")
+        self.latent_shape(*pixels.shape[2:])
+        return self.tiny_encoder.encode(pixels)
 
     @torch.no_grad()
     def decode(self, latents: torch.Tensor) -> torch.Tensor:

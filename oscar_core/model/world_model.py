@@ -125,6 +125,7 @@ class OscarWorldModel:
         offload_text: bool = False,
         verify: bool = True,
         tiny_decoder=None,
+        tiny_encoder=None,
     ) -> OscarWorldModel:
         """Load a folder written by :meth:`save_pretrained` (safetensors only, keys matched strictly).
 
@@ -136,6 +137,11 @@ class OscarWorldModel:
         in the folder) if it names one, else the full decoder; False: the
         full decoder whatever the card says. Checked before the model's
         weights are read.
+        tiny_encoder: a safetensors file of tiny-encoder weights (``taew2_1``'s
+        ``encoder.*`` key names, :mod:`.tiny_encoder`) that then encodes the
+        condition videos instead of the full VAE encoder (the seed frame stays
+        with the full encoder); None or False (the default): the full encoder.
+        Checked before the model's weights are read.
         """
         from .._util.devices import check_device
 
@@ -149,6 +155,11 @@ class OscarWorldModel:
             from .tiny_decoder import load_tiny_decoder
 
             tiny = load_tiny_decoder(tiny_decoder)
+        condition_encoder = None
+        if tiny_encoder is not None and tiny_encoder is not False:
+            from .tiny_encoder import load_tiny_encoder
+
+            condition_encoder = load_tiny_encoder(tiny_encoder)
         if verify:
             manifest = read_manifest(folder)
             if manifest is not None:
@@ -182,6 +193,8 @@ class OscarWorldModel:
         )
         if tiny is not None:
             model.vae.use_tiny_decoder(tiny)
+        if condition_encoder is not None:
+            model.vae.use_tiny_encoder(condition_encoder)
         if (folder / SCHEDULER_FILE).is_file():
             try:
                 model.scheduler_config = json.loads((folder / SCHEDULER_FILE).read_text())

@@ -191,7 +191,7 @@ def test_rollout_decodes_with_the_flag_s_tiny_decoder_and_full_decoder_overrides
     _write_net(tmp_path / "tiny.safetensors", _small_net())
     code, out, err = run(capsys, *_rollout(model_dir, first_frame, tmp_path / "full.mkv"))
     assert code == 0, err
-    assert json.loads(out)["decoder"] == "full"
+    assert json.loads(out)["decoder"] == "full" and json.loads(out)["condition_encoder"] == "full"
     code, out, err = run(
         capsys,
         *_rollout(model_dir, first_frame, tmp_path / "tiny.mkv", "--tiny-decoder", tmp_path / "tiny.safetensors"),
