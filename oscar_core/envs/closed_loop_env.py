@@ -29,7 +29,7 @@ import numpy as np
 
 from .._util.optional import require
 from ..errors import OscarError
-from ..evaluation.closed_loop_cell import open_world
+from ..evaluation.closed_loop_cell import check_one_frame_context, open_world
 from ..evaluation.closed_loop_manifest import ClosedLoopManifest, load_closed_loop_manifest
 from ..evaluation.closed_loop_step import CellState
 from ..policy.protocol import PolicySpec, check_answer
@@ -134,6 +134,8 @@ class ClosedLoopEnv(gym.Env):
             raise OscarError(f"ClosedLoopEnv: simulator: expected fps and chunk_frames, found {fps}/{chunk_frames}")
         if render_mode not in (None, "rgb_array"):
             raise OscarError(f"render_mode: expected 'rgb_array' or None, found {render_mode!r}")
+        if simulator is None and model is not None:
+            check_one_frame_context(getattr(model, "card", None))
         self.sessions = chosen
         self.emb = get_embodiment(bodies[0], plugin_paths)
         self.policy_spec = _policy_spec(self.manifest, policy)
@@ -166,7 +168,9 @@ class ClosedLoopEnv(gym.Env):
         if self._model is None:
             import oscar_zoo
 
-            self._model = oscar_zoo.load(self._model_spec, self._revision, device=self._device, dtype=self._dtype)
+            model = oscar_zoo.load(self._model_spec, self._revision, device=self._device, dtype=self._dtype)
+            check_one_frame_context(model.card)
+            self._model = model
         return self._model
 
     def _sampler_config(self):

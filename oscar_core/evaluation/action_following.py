@@ -137,6 +137,20 @@ def check_sets(manifest: ActionFollowingManifest, judge, card, chunk_frames: int
 
     L = int(chunk_frames or getattr(card, "chunk_frames", 0) or 0)
     size = (getattr(card, "width", None), getattr(card, "height", None))
+    context = getattr(card, "context_frames", 1)
+    if context != 1 and L >= 2:
+        from ..model.chunks import check_context_frames
+        from ..model.errors import ModelInputError
+
+        try:
+            check_context_frames(context, L)
+        except ModelInputError:
+            raise MetricInputError(
+                "model card",
+                "context_frames",
+                f"4k+1 frames covering fewer latent frames than the {L}-frame chunk's {(L - 1) // 4 + 1}",
+                repr(context),
+            ) from None
     for s in manifest.sets:
         where = f"sets[{s.row}]"
         T = s.frames
@@ -534,7 +548,9 @@ def _run_set(model, s: CounterfactualSet, judge, locate_fn, sampler, settings, c
     if settings.ceiling:
         from .action_following_ceiling import reconstruct_variants, vae_of
 
-        videos = reconstruct_variants(vae_of(model), truths, chunk)
+        videos = reconstruct_variants(
+            vae_of(model), truths, chunk, getattr(getattr(model, "card", None), "context_frames", 1)
+        )
     else:
         videos = _roll_out_set(model, s, sampler, settings)
     rows = []

@@ -86,9 +86,10 @@ def vae_of(model):
     )
 
 
-def reconstruct_variants(vae, truths: list, chunk_frames: int) -> list[np.ndarray]:
+def reconstruct_variants(vae, truths: list, chunk_frames: int, context_frames: int = 1) -> list[np.ndarray]:
     """(T, H, W, 3) uint8 per variant: the VAE's chunk-by-chunk reconstruction of its true frames ``truths[i]``
-    ((T, H, W, 3) uint8), chunks of ``chunk_frames`` laid out as the world model's rollout lays them out."""
+    ((T, H, W, 3) uint8), chunks of ``chunk_frames`` laid out as the world model's rollout lays them out (chunks
+    after the first overlapping by the card's ``context_frames``)."""
     from ..model.rollout import reconstruct_rollout
 
-    return [reconstruct_rollout(vae, t, chunk_frames=chunk_frames) for t in truths]
+    return [reconstruct_rollout(vae, t, chunk_frames=chunk_frames, context_frames=context_frames) for t in truths]

@@ -171,6 +171,24 @@ def _check_world_given(simulator, model, model_spec, fps, chunk_frames) -> None:
         )
 
 
+def _check_world_context(simulator, model, model_spec) -> None:
+    """Refuse a world model whose card's ``context_frames`` is above 1 (:func:`check_one_frame_context`) before any
+    cell: a loaded model's card, or the card of a model folder read without its weights. A zoo name or Hub id is
+    checked once loaded, when the first cell opens its world and before it runs."""
+    from .closed_loop_cell import check_one_frame_context
+
+    if simulator is not None:
+        return
+    if model is not None:
+        check_one_frame_context(getattr(model, "card", None))
+        return
+    from ..model.world_model import MODEL_FILE, read_card
+
+    folder = Path(str(model_spec))
+    if (folder / MODEL_FILE).is_file():
+        check_one_frame_context(read_card(folder), f"{folder / MODEL_FILE}: card")
+
+
 def _embodiments(manifest, plugin_paths) -> dict:
     """Every session's embodiment by name; :class:`MetricInputError` naming the session row for one not installed."""
     from ..plugin.registry import get_embodiment
@@ -432,6 +450,7 @@ def run_closed_loop(
     _check_run_options(replan_every, chunk_frames, batch_cells, engine, model, policy_timeout)
     specs = _policy_specs(manifest, policy_sources, replan_every, log)
     _check_world_given(simulator, model, model_spec, fps, chunk_frames)
+    _check_world_context(simulator, model, model_spec)
     embs = _embodiments(manifest, plugin_paths)
     out = _prepared_out(out)
     sampler = sampler or SamplerConfig()

@@ -25,6 +25,7 @@ __all__ = [
     "OpenCell",
     "PolicyPool",
     "cell_steps",
+    "check_one_frame_context",
     "chunk_seed",
     "drive",
     "generate_chunks",
@@ -43,6 +44,22 @@ LOAD_FAULT = "cannot load "
 def never_loaded(record: dict) -> bool:
     """The cell failed because its policy could not be loaded (it never acted)."""
     return record.get("status") == "failed" and str(record.get("reason") or "").startswith(LOAD_FAULT)
+
+
+def check_one_frame_context(card, where: str = "model card") -> None:
+    """Raise :class:`~oscar_core.metrics.common.MetricInputError` naming the card's ``context_frames`` unless it is 1:
+    the closed loop steps a world model a fixed chunk of new frames at a time from its last frame, and a model with a
+    longer context (:mod:`oscar_core.model.chunks`) makes fewer new frames per chunk after its first."""
+    n = getattr(card, "context_frames", 1)
+    if n != 1:
+        from ..metrics.common import MetricInputError
+
+        raise MetricInputError(
+            where,
+            "context_frames",
+            "1 (the closed loop and its environments step a world model from its last frame alone)",
+            repr(n),
+        )
 
 
 def chunk_seed(seed: int, chunk: int) -> int:
@@ -77,6 +94,7 @@ class ModelWorld:
         sampler,
         seed: int,
     ):
+        check_one_frame_context(getattr(model, "card", None))
         self.model, self.first, self.camera, self.camera_source, self.emb = model, first, camera, camera_source, emb
         self.fps, self.chunk_frames, self.chunk = float(fps), int(chunk_frames), int(chunk_frames) - 1
         self.size, self.prompt, self.sampler, self.seed = tuple(size), prompt, sampler, seed

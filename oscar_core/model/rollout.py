@@ -8,7 +8,16 @@ four pixel frames, so it cannot be reused as a first-frame latent). The
 output keeps chunk 0 whole and drops frame 0 of every later chunk (it is the
 seed again), so no frame is duplicated, then cuts the video to T frames
 (:func:`_new_frames`). The skeleton video of the last chunk is padded with its
-last frame when the chunks overrun T. Latent frame k of a chunk is conditioned on latent frame k
+last frame when the chunks overrun T.
+
+A model whose card has ``context_frames`` N > 1 (4k + 1 pixel frames,
+:mod:`.chunks`) seeds chunk c > 0 with the last N decoded frames of chunk
+c − 1, re-encoded by the VAE into k + 1 latent frames that the sampler keeps
+clean; chunks then overlap by N frames and a later chunk adds its L − N frames
+after the context. Chunk 0 has the user's first frame alone (an episode has
+no earlier frame; repeating it N times would show the model a still scene, a
+motion it was not given, so chunk 0 is conditioned as a one-frame model's is
+and training serves that case with ``flow.context_dropout``). Latent frame k of a chunk is conditioned on latent frame k
 of the VAE latent of that chunk's own skeleton frames.
 
 Memory at real sizes: each chunk is decoded, clamped to [-1, 1] and turned
@@ -69,7 +78,8 @@ class RolloutResult:
 
     frames: (T, H, W, 3) uint8 RGB, T = the skeleton video's length.
     chunks: per chunk, its decoded video (1, 3, L, H, W) float32 in [-1, 1].
-    seeds: per chunk, the seed frame it was conditioned on (1, 3, 1, H, W).
+    seeds: per chunk, the seed frame(s) it was conditioned on (1, 3, N, H, W): N = 1 for chunk 0, the card's
+        ``context_frames`` after.
     starts: per chunk, the index of its first frame in the trajectory.
     timings: wall seconds spent in ``encode`` (VAE encodes of seeds and condition videos), ``sample`` (the
         denoising loops) and ``decode`` (VAE decodes and the uint8 conversion), summed over chunks; on CUDA each
@@ -119,12 +129,14 @@ def _check_first(first_frame, spatial: int) -> np.ndarray:
     return first
 
 
-def _check_actions(actions, num_frames: int | None, chunk_frames: int, temporal: int):
+def _check_actions(actions, num_frames: int | None, chunk_frames: int, temporal: int, context_frames: int = 1):
     """(actions float32 tensor (N, F), T, chunk starts) of an action rollout, N covering the padded plan."""
     acts = torch.as_tensor(np.asarray(actions), dtype=torch.float32)
     if acts.ndim != 2 or len(acts) < 1:
         raise ModelInputError(f"actions: expected (T - 1, F) per-transition features, found {tuple(acts.shape)}")
     total = int(num_frames) if num_frames is not None else len(acts) + 1
+    if context_frames != 1:
+        raise ModelInputError(f"context_frames: expected 1 for a latent-action rollout, found {context_frames}")
     starts = chunk_plan(total, chunk_frames, temporal)
     need = starts[-1] + chunk_frames - 1
     if len(acts) < need:
@@ -180,11 +192,11 @@ def _hold_last(a: np.ndarray, length: int) -> np.ndarray:
     return a if length <= len(a) else np.concatenate([a, np.repeat(a[-1:], length - len(a), axis=0)])
 
 
-def _new_frames(video: torch.Tensor, index: int, total: int, emitted: int) -> np.ndarray:
+def _new_frames(video: torch.Tensor, index: int, total: int, emitted: int, context_frames: int = 1) -> np.ndarray:
     """(B, N, H, W, 3) uint8: the frames chunk ``index`` adds to a rollout of ``total`` frames of which ``emitted``
-    are out, from its decoded video (B, 3, L, H, W) in [-1, 1] — all L for chunk 0, the L − 1 after its seed frame
-    for a later chunk (the seed is the previous chunk's last frame), cut at ``total``."""
-    new = video if index == 0 else video[:, :, 1:]
+    are out, from its decoded video (B, 3, L, H, W) in [-1, 1] — all L for chunk 0, the L − ``context_frames`` after
+    its context for a later chunk (the context is the previous chunk's last frames), cut at ``total``."""
+    new = video if index == 0 else video[:, :, context_frames:]
     return VideoVAE.to_uint8(new)[:, : total - emitted]
 
 
@@ -226,6 +238,7 @@ def iter_rollout(
     actions=None,
     num_frames: int | None = None,
     gripper=None,
+    context_frames: int = 1,
 ):
     """Like :func:`rollout`, but yields each chunk's new frames as soon as they are decoded.
 
@@ -242,12 +255,12 @@ def iter_rollout(
         if skeleton is not None or gripper is not None:
             raise ModelInputError("rollout: expected a skeleton video or actions, found both")
         first = _check_first(first_frame, vae.spatial * patch)
-        acts, total, starts = _check_actions(actions, num_frames, chunk_frames, vae.temporal)
+        acts, total, starts = _check_actions(actions, num_frames, chunk_frames, vae.temporal, context_frames)
         skel = None
     else:
         first, skel = _check_inputs(first_frame, skeleton, vae.spatial * patch)
         total = len(skel)
-        starts = chunk_plan(total, chunk_frames, vae.temporal)
+        starts = chunk_plan(total, chunk_frames, vae.temporal, context_frames)
         padded_len = starts[-1] + chunk_frames
         grips = _check_grippers(None if gripper is None else [gripper], total, padded_len)
         skel = _hold_last(skel, padded_len)
@@ -274,6 +287,7 @@ def iter_rollout(
         keep_chunks,
         timings=result.timings if result is not None else None,
         grippers=grips,
+        context_frames=context_frames,
     ):
         yield frames[0]
 
@@ -296,6 +310,7 @@ def _chunks(
     keep_chunks: bool,
     timings: dict | None = None,
     grippers: list | None = None,
+    context_frames: int = 1,
 ):
     """The chunk loop of B rollouts sharing one chunk plan: yields, per chunk, B arrays (N_c, H, W, 3) uint8.
 
@@ -303,11 +318,12 @@ def _chunks(
     ``acts`` (N, F) for one latent-action rollout; generators: one CPU generator per rollout (its noise);
     results: None or B RolloutResult receiving chunks and seeds with ``keep_chunks``; timings: None or a dict
     receiving the encode / sample / decode seconds (:class:`RolloutResult`); grippers: None or B padded
-    (≥ starts[-1] + L, G) openness arrays, appended to the condition latent (:mod:`.gripper_signal`).
+    (≥ starts[-1] + L, G) openness arrays, appended to the condition latent (:mod:`.gripper_signal`);
+    context_frames: decoded frames of chunk c − 1 that seed chunk c > 0 (chunk 0: the first frame alone).
     """
     b = len(firsts)
     clock = _Clock(timings, next(transformer.parameters()).device if timings is not None else "cpu")
-    seed_pixels = torch.cat([VideoVAE.to_pixels(f[None]) for f in firsts])  # (B, 3, 1, H, W)
+    seed_pixels = torch.cat([VideoVAE.to_pixels(f[None]) for f in firsts])  # (B, 3, N, H, W): N = 1 at chunk 0
     height, width = firsts[0].shape[:2]
     emitted = 0
     progress = progress and progress_bars_enabled()  # a bar only on a terminal, never with -q / --no-progress
@@ -363,9 +379,9 @@ def _chunks(
                     res.chunks.append(video[i : i + 1])
                     res.seeds.append(seed_pixels[i : i + 1])
             with clock("decode"):
-                frames = _new_frames(video, index, total, emitted)
+                frames = _new_frames(video, index, total, emitted, context_frames)
             emitted += frames.shape[1]
-            seed_pixels = video[:, :, -1:].clone()  # clamped: the re-encoded seed is a valid image
+            seed_pixels = video[:, :, -context_frames:].clone()  # clamped: the re-encoded seed is a valid image
             del video, latent
             outer.update(1)
             yield [frames[i] for i in range(b)]
@@ -399,6 +415,7 @@ def rollout_batch(
     progress: bool = False,
     uncond_skeleton: str = "zero_latent",
     grippers=None,
+    context_frames: int = 1,
 ) -> list[np.ndarray]:
     """B rollouts in one batch: each equals :func:`rollout` of its own inputs and seed, up to float rounding.
 
@@ -406,7 +423,7 @@ def rollout_batch(
     length and size (one chunk plan); prompt_embeds: (1 or B, L, D); seeds: B integers (default 0 each).
     Every model call and VAE pass runs on the batch; each rollout's noise comes from its own generator, so a
     rollout does not depend on its batch mates. grippers: None, or B (T, G) openness arrays (a model with a
-    gripper signal). Returns B (T, H, W, 3) uint8 videos.
+    gripper signal); context_frames: the card's (module docstring). Returns B (T, H, W, 3) uint8 videos.
     """
     b = len(first_frames)
     if b == 0 or len(skeletons) != b:
@@ -422,7 +439,7 @@ def rollout_batch(
     if len(shapes) != 1:
         raise ModelInputError(f"rollout_batch: expected skeleton videos of one length and size, found {sorted(shapes)}")
     total = len(pairs[0][1])
-    starts = chunk_plan(total, chunk_frames, vae.temporal)
+    starts = chunk_plan(total, chunk_frames, vae.temporal, context_frames)
     padded_len = starts[-1] + chunk_frames
     skels = [_hold_last(s, padded_len) for _, s in pairs]
     if grippers is not None and len(grippers) != b:
@@ -449,6 +466,7 @@ def rollout_batch(
         None,
         False,
         grippers=grips,
+        context_frames=context_frames,
     ):
         for i, f in enumerate(frames):
             pieces[i].append(f)
@@ -472,6 +490,7 @@ def rollout(
     actions=None,
     num_frames: int | None = None,
     gripper=None,
+    context_frames: int = 1,
 ) -> RolloutResult:
     """Roll the world model out along a skeleton video.
 
@@ -488,6 +507,8 @@ def rollout(
         len(actions) + 1; module docstring).
     gripper: (T, G) openness in [0, 1] per condition frame for a model with a gripper signal
         (:mod:`oscar_core.model.gripper_signal`), else None.
+    context_frames: N = 4k+1 decoded frames of a chunk that seed the next (the card's ``context_frames``; module
+        docstring); 1: its last frame.
     returns: RolloutResult with T frames.
     """
     result = RolloutResult(frames=np.empty(0, np.uint8))
@@ -508,6 +529,7 @@ def rollout(
             actions=actions,
             num_frames=num_frames,
             gripper=gripper,
+            context_frames=context_frames,
         )
     )
     result.frames = np.concatenate(pieces, axis=0)
@@ -515,7 +537,7 @@ def rollout(
 
 
 @torch.no_grad()
-def reconstruct_rollout(vae: VideoVAE, frames, *, chunk_frames: int = 81) -> np.ndarray:
+def reconstruct_rollout(vae: VideoVAE, frames, *, chunk_frames: int = 81, context_frames: int = 1) -> np.ndarray:
     """The autoencoder's ceiling of a rollout: (T, H, W, 3) uint8 true frames → (T, H, W, 3) uint8, what the VAE
     makes of them chunk by chunk exactly as a rollout of T frames decodes its chunks.
 
@@ -524,19 +546,20 @@ def reconstruct_rollout(vae: VideoVAE, frames, *, chunk_frames: int = 81) -> np.
     [-1, 1]) and the pieces are put together by the rollout's own rule (:func:`_new_frames`: chunk 0 whole, then
     each later chunk without its first frame, cut at T). A world model whose DiT predicted every chunk's latent
     exactly (the VAE's encoding of the true frames) would roll out this video; so no DiT with this VAE does better
-    on a score of the frames. chunk_frames: L = 4k + 1. Deterministic: the VAE encodes to its posterior's mode.
+    on a score of the frames. chunk_frames: L = 4k + 1; context_frames: the model card's (chunks overlap by that
+    many frames, module docstring). Deterministic: the VAE encodes to its posterior's mode.
     """
     video = np.asarray(frames)
     if video.dtype != np.uint8 or video.ndim != 4 or video.shape[-1] != 3:
         raise ModelInputError(f"frames: expected (T, H, W, 3) uint8 RGB, found {video.dtype} {video.shape}")
     total = len(video)
-    starts = chunk_plan(total, chunk_frames, vae.temporal)
+    starts = chunk_plan(total, chunk_frames, vae.temporal, context_frames)
     padded = _hold_last(video, starts[-1] + chunk_frames)
     pieces, emitted = [], 0
     for index, start in enumerate(starts):
         window = VideoVAE.to_pixels(padded[start : start + chunk_frames])  # (1, 3, L, H, W)
         decoded = vae.decode(vae.encode(window)).cpu().clamp_(-1.0, 1.0)
-        piece = _new_frames(decoded, index, total, emitted)[0]
+        piece = _new_frames(decoded, index, total, emitted, context_frames)[0]
         emitted += len(piece)
         pieces.append(piece)
     return np.concatenate(pieces, axis=0)

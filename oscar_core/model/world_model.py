@@ -349,7 +349,7 @@ class OscarWorldModel:
         if self.vae is None:  # no VAE, no rollout to weigh (the rollout itself reports it)
             return
         try:
-            chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal))
+            chunks = len(chunk_plan(int(frames), chunk, self.vae.temporal, self.card.context_frames))
         except (ModelInputError, TypeError, ValueError):
             return  # the rollout itself reports the bad input
         ok, why = compile_decision(
@@ -420,6 +420,7 @@ class OscarWorldModel:
             actions=actions,
             num_frames=num_frames,
             gripper=gripper,
+            context_frames=self.card.context_frames,
         )
 
     def rollout_batch(
@@ -471,6 +472,7 @@ class OscarWorldModel:
             progress=progress,
             uncond_skeleton=self.card.unconditional_skeleton,
             grippers=grippers,
+            context_frames=self.card.context_frames,
         )
 
     def iter_rollout(
@@ -510,6 +512,7 @@ class OscarWorldModel:
             actions=actions,
             num_frames=num_frames,
             gripper=gripper,
+            context_frames=self.card.context_frames,
         )
 
     def _rollout_actions(self, skeleton, actions, chunk: int):

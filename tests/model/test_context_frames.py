@@ -252,3 +252,210 @@ def test_the_sampler_refuses_a_context_as_long_as_the_chunk():
     model = tiny_world_model(chunk_frames=9, empty_prompt=torch.zeros(1, 1, 48))
     with pytest.raises(ModelInputError, match=r"first_latent: expected shape .*1 <= n < 3"):
         sample_chunk(model.transformer, torch.zeros(1, 16, 3, 4, 8), torch.zeros(1, 16, 3, 4, 8), model.prompt_embeds())
+
+
+# --------------------------------------------------------------------------- the rollout
+
+H, W = 32, 64
+
+
+def _clip(frames, seed=0):
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, 256, (H, W, 3), dtype=np.uint8), rng.integers(0, 256, (frames, H, W, 3), dtype=np.uint8)
+
+
+def _tiny(**card):
+    import torch
+    from _models import tiny_world_model
+
+    return tiny_world_model(skeleton_scale=0.05, chunk_frames=9, empty_prompt=torch.zeros(1, 1, 48), **card)
+
+
+def test_the_rollout_seeds_each_later_chunk_with_the_previous_chunks_last_5_decoded_frames():
+    import numpy as np
+    import torch
+
+    from oscar_core.model import SamplerConfig
+    from oscar_core.model.vae import VideoVAE
+
+    model = _tiny(context_frames=5)
+    first, skel = _clip(22)
+    encoded = []
+    encode = model.vae.encode
+
+    def spy(pixels, *a, **kw):
+        encoded.append(pixels.clone())
+        return encode(pixels, *a, **kw)
+
+    model.vae.encode = spy
+    res = model.rollout(first, skel, sampler=SamplerConfig(steps=2, guidance=None), progress=False)
+    assert res.starts == [0, 4, 8, 12, 16] and len(res.frames) == 22
+    seeds = [e for e in encoded if e.shape[2] != 9]  # the chunks' condition videos are 9 frames long
+    assert [tuple(e.shape[2:]) for e in seeds] == [(1, H, W)] + [(5, H, W)] * 4
+    assert torch.equal(seeds[0], VideoVAE.to_pixels(first[None]))  # chunk 0: the first frame alone
+    for c in range(1, 5):
+        assert torch.equal(seeds[c], res.chunks[c - 1][:, :, -5:])  # the last 5 decoded (clamped) frames
+        assert torch.equal(res.seeds[c], seeds[c])
+    # what is emitted: chunk 0 whole, then each chunk's frames after its 5-frame context, cut at 22
+    pieces = [VideoVAE.to_uint8(res.chunks[0])[0]] + [VideoVAE.to_uint8(ch[:, :, 5:])[0] for ch in res.chunks[1:]]
+    assert np.array_equal(res.frames, np.concatenate(pieces)[:22])
+
+
+@pytest.mark.parametrize("frames", [9, 10, 13, 14, 21])
+def test_a_context_rollout_emits_the_frames_asked_for(frames):
+    from oscar_core.model import SamplerConfig
+
+    model = _tiny(context_frames=5)
+    first, skel = _clip(frames)
+    out = model.rollout(first, skel, sampler=SamplerConfig(steps=1, guidance=None), progress=False, keep_chunks=False)
+    assert out.frames.shape == (frames, H, W, 3)
+    assert out.starts == chunk_plan(frames, 9, context_frames=5)
+    batch = model.rollout_batch([first, first], [skel, skel], sampler=SamplerConfig(steps=1, guidance=None))
+    assert [b.shape for b in batch] == [(frames, H, W, 3)] * 2
+
+
+def _one_frame_rollout_by_hand(model, first, skel, sampler, seed=0):
+    """The rollout before the context option, written out plainly: chunks every 8 frames, each seeded by the last
+    decoded frame of the one before, the first kept whole and the others without their seed frame."""
+    import numpy as np
+    import torch
+
+    from oscar_core.model import sample_chunk
+    from oscar_core.model.vae import VideoVAE
+
+    L, total = 9, len(skel)
+    starts = list(range(0, total - 1, L - 1))
+    padded = np.concatenate([skel, np.repeat(skel[-1:], starts[-1] + L - total, axis=0)])
+    g = torch.Generator().manual_seed(seed)
+    seed_px, pieces = VideoVAE.to_pixels(first[None]), []
+    for i, s in enumerate(starts):
+        latent = sample_chunk(
+            model.transformer,
+            model.vae.encode(seed_px),
+            model.vae.encode(VideoVAE.to_pixels(padded[s : s + L])),
+            model.prompt_embeds(),
+            sampler,
+            generator=g,
+        )
+        video = model.vae.decode(latent).clamp(-1, 1)
+        pieces.append(VideoVAE.to_uint8(video if i == 0 else video[:, :, 1:])[0])
+        seed_px = video[:, :, -1:]
+    return np.concatenate(pieces)[:total]
+
+
+def test_a_card_without_the_field_rolls_out_bit_identical_to_the_one_frame_rollout_by_hand():
+    import numpy as np
+
+    from oscar_core.model import SamplerConfig
+
+    model = _tiny()
+    assert model.card.context_frames == 1
+    sampler = SamplerConfig(steps=2, guidance=None, solver="euler")
+    for frames in (9, 20):
+        first, skel = _clip(frames, seed=frames)
+        out = model.rollout(first, skel, sampler=sampler, progress=False).frames
+        assert np.array_equal(out, _one_frame_rollout_by_hand(model, first, skel, sampler))
+
+
+# --------------------------------------------------------------------------- the benchmarks and the closed loop
+
+CARD64 = dict(name="tiny-ctx5", chunk_frames=17, width=64, height=64, context_frames=5)
+
+
+@pytest.mark.filterwarnings("ignore:no prompt embedding")
+def test_the_action_following_benchmark_rolls_out_and_reconstructs_with_the_cards_context(tmp_path, monkeypatch):
+    """A context-5 model goes through the benchmark: its variants are rolled out with the context (33 frames asked,
+    33 scored) and the ceiling is asked for the context's chunk plan."""
+    from _models import tiny_world_model
+
+    import oscar_core.evaluation.action_following_ceiling as ceiling_module
+    from oscar_core.evaluation.action_following import ActionFollowingSettings, run_action_following
+    from oscar_core.metrics.programmatic import ProgrammaticJudge
+    from oscar_core.model import SamplerConfig
+    from oscar_core.toyworld.counterfactual import write_counterfactual_sets
+    from oscar_core.toyworld.judge import ball_moved
+
+    sets = write_counterfactual_sets(tmp_path / "sets", ["toyarm"], 1, seed=0, frames=33)
+    model = tiny_world_model(**CARD64)
+    judge = ProgrammaticJudge(ball_moved)
+    calls = []
+    rollout_batch = model.rollout_batch
+
+    def spy(*a, **kw):
+        out = rollout_batch(*a, **kw)
+        calls.append([v.shape for v in out])
+        return out
+
+    model.rollout_batch = spy
+    fast = SamplerConfig(steps=1, guidance=None)
+    settings = ActionFollowingSettings(sampler=fast, resamples=50, progress=False)
+    rep = run_action_following(sets, tmp_path / "af", judge=judge, model=model, settings=settings).report
+    assert calls and all(shape == (33, 64, 64, 3) for shape in calls[0])
+    assert [len(v["chunks"]) for v in rep["records"][0]["variants"]] == [2] * len(rep["records"][0]["variants"])
+    asked = []
+
+    def reconstruct(vae, truths, chunk_frames, context_frames=1):
+        asked.append((chunk_frames, context_frames))
+        return truths
+
+    monkeypatch.setattr(ceiling_module, "reconstruct_variants", reconstruct)
+    ceiling = ActionFollowingSettings(ceiling=True, resamples=50, progress=False)
+    run_action_following(sets, tmp_path / "ceiling", judge=judge, model=model, settings=ceiling)
+    assert asked == [(17, 5)]
+
+
+def test_the_ceiling_reconstructs_in_the_contexts_chunk_plan():
+    import numpy as np
+
+    from oscar_core.model.rollout import reconstruct_rollout
+    from oscar_core.model.vae import VideoVAE
+
+    model = _tiny(context_frames=5)
+    _, video = _clip(13)
+    got = reconstruct_rollout(model.vae, video, chunk_frames=9, context_frames=5)
+    by_hand = []  # chunks at 0 and 4: the first whole, the second after its 5 context frames
+    for i, s in enumerate((0, 4)):
+        rec = VideoVAE.to_uint8(model.vae.decode(model.vae.encode(VideoVAE.to_pixels(video[s : s + 9]))).clamp(-1, 1))[
+            0
+        ]
+        by_hand.append(rec if i == 0 else rec[5:])
+    assert np.array_equal(got, np.concatenate(by_hand)[:13])
+    assert not np.array_equal(got, reconstruct_rollout(model.vae, video, chunk_frames=9))
+
+
+def test_the_closed_loop_refuses_a_context_model_before_any_cell(tmp_path, capsys):
+    from _models import export_tiny_world_model
+
+    from oscar_core.cli import main
+    from oscar_core.toyworld.closed_loop import write_closed_loop_sessions
+
+    manifest = write_closed_loop_sessions(tmp_path / "sessions", ["toyarm"], 1, seed=3, horizon=17, policies=["exact"])
+    folder = export_tiny_world_model(tmp_path / "model", **CARD64)
+    out = tmp_path / "out"
+    code = main(
+        ["eval", "closed-loop", str(manifest), "--model", str(folder), "--out", str(out), "--no-progress", "-v"]
+    )
+    err = capsys.readouterr().err
+    assert code == 2, err
+    errors = [x for x in err.splitlines() if x.startswith("error:")]
+    assert len(errors) == 1 and "context_frames" in errors[0] and "expected 1" in errors[0] and "found 5" in errors[0]
+    assert "loading world model" not in err and not (out / "cells").exists()  # refused from the card alone
+
+
+def test_the_gymnasium_env_and_the_model_world_refuse_a_context_model(tmp_path):
+    from _models import tiny_world_model
+
+    from oscar_core.envs.closed_loop_env import ClosedLoopEnv
+    from oscar_core.evaluation.closed_loop_cell import ModelWorld
+    from oscar_core.metrics.common import MetricInputError
+    from oscar_core.toyworld.closed_loop import write_closed_loop_sessions
+
+    manifest = write_closed_loop_sessions(tmp_path / "sessions", ["toyarm"], 1, seed=3, horizon=17, policies=["exact"])
+    model = tiny_world_model(**CARD64)
+    with pytest.raises(MetricInputError, match="model card: field 'context_frames': expected 1 .* found 5"):
+        ClosedLoopEnv(manifest, model=model)
+    with pytest.raises(MetricInputError, match="context_frames"):
+        ModelWorld(model, first=None, camera=None, camera_source="", emb=None, q0=[0.0], g0=[0.0], fps=10.0,
+                   chunk_frames=17, size=(64, 64), prompt=None, sampler=None, seed=0)  # fmt: skip
