@@ -1,4 +1,4 @@
-"""The ``oscar toyworld`` sub-commands: ``example``, ``generate``, ``train-vae``, ``train-tiny-decoder``, ``reconstruct``, ``baseline`` and ``eval``.
+"""The ``oscar toyworld`` sub-commands: ``example``, ``generate``, ``train-vae``, ``train-tiny-decoder``, ``train-tiny-encoder``, ``reconstruct``, ``baseline`` and ``eval``.
 
 Wire into the main parser with ``add_toyworld_parser(subparsers)``; each leaf
 parser sets ``func`` (returns an exit code). Heavy imports happen inside the
@@ -27,6 +27,7 @@ from .cli_policies import (
     cmd_policy_eval,
 )
 from .cli_tiny_decoder import add_tiny_decoder_parser
+from .cli_tiny_encoder import add_tiny_encoder_parser
 
 __all__ = [
     "add_toyworld_parser",
@@ -380,6 +381,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     _add_toyworld_example_parser(sub, fmt)
     _add_toyworld_train_vae_parser(sub, fmt)
     add_tiny_decoder_parser(sub)
+    add_tiny_encoder_parser(sub)
     _add_toyworld_reconstruct_parser(sub, fmt)
     _add_toyworld_baseline_parser(sub, fmt)
     _add_toyworld_rollout_parser(sub, fmt)
