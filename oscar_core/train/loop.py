@@ -504,6 +504,9 @@ def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progr
                     "skeleton_dropped": sum(i.drop for i in whole),
                     "sources_drawn": dict(drawn),
                 }
+                if context_latents(config) > 1:  # items of the step trained on the first frame alone
+                    drawn_context = item_context(whole, context_latents(config), config.flow.context_dropout)
+                    record["context_one_frame"] = drawn_context.count(1)
                 if run.teacher is not None and config.distill.self_forcing > 0:
                     record["self_forced"] = forced  # this rank's, since the previous record
                     forced = 0

@@ -459,3 +459,26 @@ def test_the_gymnasium_env_and_the_model_world_refuse_a_context_model(tmp_path):
     with pytest.raises(MetricInputError, match="context_frames"):
         ModelWorld(model, first=None, camera=None, camera_source="", emb=None, q0=[0.0], g0=[0.0], fps=10.0,
                    chunk_frames=17, size=(64, 64), prompt=None, sampler=None, seed=0)  # fmt: skip
+
+
+@pytest.mark.filterwarnings("ignore:no prompt embedding")
+def test_a_tiny_context_training_exports_its_card_and_the_export_rolls_out_in_two_chunks(tmp_path):
+    import json as _json
+
+    import numpy as np
+    from _models import tiny_clipset, tiny_train_config
+
+    import oscar_zoo
+    from oscar_core.model import SamplerConfig
+    from oscar_core.train.loop import train
+
+    clips = tiny_clipset(tmp_path / "clips", clips=2)
+    config = tiny_train_config(clips, tmp_path / "run", **{"model.context_frames": 5, "steps": 2, "export": True})
+    result = train(config, progress=False)
+    lines = [_json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert all("context_one_frame" in x for x in lines if "loss" in x)
+    model = oscar_zoo.load(result.export)
+    assert model.card.context_frames == 5
+    first, skel = np.zeros((32, 32, 3), np.uint8), np.zeros((13, 32, 32, 3), np.uint8)
+    out = model.rollout(first, skel, sampler=SamplerConfig(steps=1, guidance=None), progress=False)
+    assert out.starts == [0, 4] and out.frames.shape == (13, 32, 32, 3)
