@@ -48,13 +48,16 @@ The 2B closed-loop step (``closed_loop_2b``, computed): what ``oscar eval closed
 4-step sampler without guidance (4 DiT evaluations): the VAE encode of the seed frame (1 frame: the session's first
 frame in a cell's first chunk, the last generated frame after that, so nothing to cache past chunk 0), the full VAE
 encode of the chunk's 81-frame condition video (every chunk; nothing of it is cached), and the decode, by the full
-WAN 2.1 decoder or by the tiny decoder (``oscar_core.model.tiny_decoder.TinyDecoderNet`` at ``taew2_1``'s widths).
+WAN 2.1 decoder or by the tiny decoder (``oscar_core.model.tiny_decoder.TinyDecoderNet`` at ``taew2_1``'s widths), and
+the condition encode by the full encoder or by the tiny encoder (``oscar_core.model.tiny_encoder.TinyEncoderNet`` at
+``taew2_1``'s width, the condition padded at its end to 84 frames; the seed frame stays with the full encoder, as
+``--tiny-encoder`` does).
 Every part's FLOPs are counted at the 2B's shapes on the meta device. No record splits the H200's measured 2.1 s of
 VAE into encode and decode, so each VAE part gets the share of a card's VAE seconds that its FLOPs have of the VAE's
-(the decode: 0.624 by FLOPs, against 0.620 measured on one H100, eager); the tiny decoder is ASSUMED to run at the
-FLOP rate the full VAE ran at on that card (H200: 162.5 TFLOP in 2.1 s, 77 TFLOP/s), not measured. Rows: the full
-VAE, the tiny decoder, and the tiny decoder with no condition encode at all (the most any caching of the condition
-could save); per card the seconds, frames/s, the VAE's share and whether the targets (>= 60 frames/s, VAE <= 40 %)
+(the decode: 0.624 by FLOPs, against 0.620 measured on one H100, eager); the tiny decoder and the tiny encoder are
+ASSUMED to run at the FLOP rate the full VAE ran at on that card (H200: 162.5 TFLOP in 2.1 s, 77 TFLOP/s), not
+measured. Rows: the full VAE, the tiny decoder, the tiny decoder with the tiny condition encoder, and the tiny decoder
+with no condition encode at all (the most any caching of the condition could save); per card the seconds, frames/s, the VAE's share and whether the targets (>= 60 frames/s, VAE <= 40 %)
 are met, and the largest condition encode (seconds, share of today's) with which the tiny-decoder step would meet
 both. ``--closed-loop-2b-only`` counts and computes these rows alone (seconds, no model run) and adds them to the
 ``--json`` file, whose measured fields stay as they were; the section keeps its own provenance.
@@ -105,6 +108,7 @@ GOAL_FPS = 25.0
 #: the 2B closed-loop step's targets: frames/s computed on one H200 and the VAE's largest share of the step
 CLOSED_LOOP_TARGETS = {"frames_per_s": 60.0, "vae_share": 0.40}
 CLOSED_LOOP_EVALUATIONS = 4  # a 4-step sampler without guidance: one DiT evaluation per step
+TINY_BOTH_ROW = "tiny decoder + tiny condition encoder"  # the closed-loop row with both tiny parts
 #: decodes of a chunk's end alone: (name, latent frames from the end)
 END_DECODES = (("last latent frame", 1), ("last 2 latent frames", 2), ("last 3 latent frames", 3))
 
@@ -353,14 +357,16 @@ def computed_2b(evaluations: int, ref: dict, decode_ratio: float = 1.0) -> dict:
 def closed_loop_flops_2b(frames: int = 81, width: int = 512, height: int = 288) -> dict:
     """FLOPs of the VAE's work in one closed-loop step of the 2B, counted on the meta device: ``encode_seed`` (one
     frame), ``encode_condition`` (the chunk's ``frames``-frame condition video), ``decode`` (the WAN 2.1 decoder, the
-    chunk's (frames - 1) / 4 + 1 latent frames) and ``tiny_decode`` (the tiny decoder at ``taew2_1``'s widths, the same
-    latents)."""
+    chunk's (frames - 1) / 4 + 1 latent frames), ``tiny_decode`` (the tiny decoder at ``taew2_1``'s widths, the same
+    latents) and ``tiny_encode_condition`` (the tiny encoder at ``taew2_1``'s width, the same condition video)."""
     from oscar_core.model.tiny_decoder import TinyDecoderNet
+    from oscar_core.model.tiny_encoder import TinyEncoderNet
     from oscar_core.model.wan_vae import WanVAE
 
     with torch.device("meta"):
         vae = WanVAE()  # its defaults (diffusers' AutoencoderKLWan's) are the WAN 2.1 VAE's configuration
         tiny = TinyDecoderNet()  # taew2_1's widths, the module oscar loads taew2_1 into
+        tiny_encoder = TinyEncoderNet()  # taew2_1's width, the module oscar loads taew2_1's encoder into
     t = (frames - 1) // 4 + 1
     z = torch.zeros(1, 16, t, height // 8, width // 8, device="meta")
     return {
@@ -368,6 +374,10 @@ def closed_loop_flops_2b(frames: int = 81, width: int = 512, height: int = 288) 
         "encode_condition": flops_of(lambda: vae.encode(torch.zeros(1, 3, frames, height, width, device="meta"))),
         "decode": flops_of(lambda: vae.decode(z)),
         "tiny_decode": flops_of(lambda: tiny(z.permute(0, 2, 1, 3, 4))),  # TinyDecoderNet takes (N, T', z, h, w)
+        # TinyEncoderNet takes (N, T, 3, H, W) and pads T at its end to a multiple of 4
+        "tiny_encode_condition": flops_of(
+            lambda: tiny_encoder(torch.zeros(1, frames, 3, height, width, device="meta"))
+        ),
     }
 
 
@@ -389,21 +399,25 @@ def closed_loop_2b(ref: dict, flops: dict, evaluations: int = CLOSED_LOOP_EVALUA
     """The 2B closed-loop step computed on each card of ``ref`` (:func:`gpu_reference`) from ``flops``
     (:func:`closed_loop_flops_2b`): each VAE part's seconds are its FLOP share of the card's VAE seconds (the card's
     VAE FLOP rate), the DiT's are ``evaluations`` x the FLOPs of one over the card's throughput. Returns
-    ``vae_split`` (the FLOPs and the split), ``rows`` (full VAE; tiny decoder; tiny decoder without a condition encode)
+    ``vae_split`` (the FLOPs and the split), ``rows`` (full VAE; tiny decoder; tiny decoder and tiny condition encoder;
+    tiny decoder without a condition encode)
     and ``condition_encode_budget`` (per card, the largest condition encode with which the tiny-decoder step meets
-    :data:`CLOSED_LOOP_TARGETS`)."""
+    :data:`CLOSED_LOOP_TARGETS`, and the slowest FLOP rate at which the tiny encoder stays within it)."""
     tf = {k: v / 1e12 for k, v in flops.items()}
     vae_tflop = tf["encode_seed"] + tf["encode_condition"] + tf["decode"]
+    tiny_dec, full_enc, tiny_enc = "tiny decoder (taew2_1 widths)", "WAN 2.1 encoder", "tiny encoder (taew2_1 width)"
     variants = (
-        ("full VAE", "WAN 2.1 decoder", tf["encode_condition"], tf["decode"]),
-        ("tiny decoder", "tiny decoder (taew2_1 widths)", tf["encode_condition"], tf["tiny_decode"]),
-        ("tiny decoder, no condition encode (bound)", "tiny decoder (taew2_1 widths)", 0.0, tf["tiny_decode"]),
+        ("full VAE", "WAN 2.1 decoder", full_enc, tf["encode_condition"], tf["decode"]),
+        ("tiny decoder", tiny_dec, full_enc, tf["encode_condition"], tf["tiny_decode"]),
+        (TINY_BOTH_ROW, tiny_dec, tiny_enc, tf["tiny_encode_condition"], tf["tiny_decode"]),
+        ("tiny decoder, no condition encode (bound)", tiny_dec, "none", 0.0, tf["tiny_decode"]),
     )
     rows = []
-    for name, decoder, encode_condition, decode in variants:
+    for name, decoder, condition_encoder, encode_condition, decode in variants:
         row = {
             "step": name,
             "decoder": decoder,
+            "condition_encoder": condition_encoder,
             "dit_evaluations": evaluations,
             "tflop_dit": evaluations * ref["tflop_per_evaluation"],
             "tflop_encode_seed": tf["encode_seed"],
@@ -430,6 +444,10 @@ def closed_loop_2b(ref: dict, flops: dict, evaluations: int = CLOSED_LOOP_EVALUA
             "condition_encode_s_max": encode_max,
             "condition_encode_now_s": tf["encode_condition"] / rate,
             "fraction_of_now": encode_max / (tf["encode_condition"] / rate),
+            "tiny_encode_condition_s": tf["tiny_encode_condition"] / rate,
+            # the slowest the tiny encoder may run (TFLOP/s) with the tiny decoder at the VAE's rate
+            "tiny_encoder_min_tflops": tf["tiny_encode_condition"] / encode_max,
+            "vae_tflops": rate,
         }
     return {
         "targets": dict(CLOSED_LOOP_TARGETS),
@@ -441,14 +459,16 @@ def closed_loop_2b(ref: dict, flops: dict, evaluations: int = CLOSED_LOOP_EVALUA
             "tflop_vae_reference": ref["tflop_vae_per_chunk"],
             "tflop_tiny_decode": tf["tiny_decode"],
             "tiny_decode_vs_decode": tf["tiny_decode"] / tf["decode"],
+            "tflop_tiny_encode_condition": tf["tiny_encode_condition"],
+            "tiny_encode_vs_encode_condition": tf["tiny_encode_condition"] / tf["encode_condition"],
             "decode_share_by_flops": tf["decode"] / vae_tflop,
             "decode_share_measured_h100_eager": ref["throughputs"]["h100_eager"]["decode_share_of_vae"]
             if "h100_eager" in ref["throughputs"]
             else None,
             "seed_encode_share_of_vae": tf["encode_seed"] / vae_tflop,
             "note": "no record splits the H200's 2.1 s of VAE into encode and decode: each VAE part is given its FLOP "
-            "share of a card's VAE seconds; the tiny decoder is assumed to run at the FLOP rate the full VAE ran at on "
-            "that card (not measured)",
+            "share of a card's VAE seconds; the tiny decoder and the tiny encoder are assumed to run at the FLOP rate "
+            "the full VAE ran at on that card (not measured)",
         },
         "rows": rows,
         "condition_encode_budget": budget,
@@ -464,7 +484,9 @@ def print_closed_loop(cl: dict) -> None:
         f"share of the card's VAE seconds (decode {split['decode_share_by_flops']:.3f} by FLOPs"
         + (f", {measured:.3f} measured on one H100" if measured is not None else "")
         + f"); tiny decoder {split['tflop_tiny_decode']:.2f} TFLOP = {100 * split['tiny_decode_vs_decode']:.1f} % of "
-        "the decode's, assumed at the VAE's FLOP rate"
+        f"the decode's; tiny condition encoder {split['tflop_tiny_encode_condition']:.2f} TFLOP = "
+        f"{100 * split['tiny_encode_vs_encode_condition']:.1f} % of the condition encode's; both assumed at the VAE's "
+        "FLOP rate"
     )
     print(f"  {'step':42s} {'TFLOP enc':>9s} {'dec':>7s}" + "".join(f" {c + ' s, fps, VAE%':>24s}" for c in cards))
     for r in cl["rows"]:
@@ -480,7 +502,9 @@ def print_closed_loop(cl: dict) -> None:
         print(
             f"  {card}: >= {t['frames_per_s']:g} frames/s with the VAE <= {100 * t['vae_share']:g} % needs the tiny "
             f"decoder and a condition encode of at most {b['condition_encode_s_max']:.3f} s, "
-            f"{100 * b['fraction_of_now']:.0f} % of today's {b['condition_encode_now_s']:.3f} s"
+            f"{100 * b['fraction_of_now']:.0f} % of today's {b['condition_encode_now_s']:.3f} s; the tiny encoder's "
+            f"{b['tiny_encode_condition_s']:.3f} s fits while it runs at >= {b['tiny_encoder_min_tflops']:.1f} TFLOP/s "
+            f"({100 * b['tiny_encoder_min_tflops'] / b['vae_tflops']:.0f} % of the VAE's {b['vae_tflops']:.0f})"
         )
 
 

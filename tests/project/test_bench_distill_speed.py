@@ -76,13 +76,29 @@ def _fake_reference() -> dict:
     }
 
 
-FAKE_FLOPS = {"encode_seed": 0.1e12, "encode_condition": 0.3e12, "decode": 0.6e12, "tiny_decode": 0.05e12}
+FAKE_FLOPS = {
+    "encode_seed": 0.1e12,
+    "encode_condition": 0.3e12,
+    "decode": 0.6e12,
+    "tiny_decode": 0.05e12,
+    "tiny_encode_condition": 0.02e12,
+}
 
 
 def test_closed_loop_2b_by_hand():
     cl = bench().closed_loop_2b(_fake_reference(), FAKE_FLOPS)
-    full, tiny, bound = cl["rows"]
-    assert [r["step"] for r in cl["rows"]] == ["full VAE", "tiny decoder", "tiny decoder, no condition encode (bound)"]
+    full, tiny, both, bound = cl["rows"]
+    assert [r["step"] for r in cl["rows"]] == [
+        "full VAE",
+        "tiny decoder",
+        "tiny decoder + tiny condition encoder",
+        "tiny decoder, no condition encode (bound)",
+    ]
+    assert [r["condition_encoder"] for r in cl["rows"]][1:] == [
+        "WAN 2.1 encoder",
+        "tiny encoder (taew2_1 width)",
+        "none",
+    ]
     # card a: DiT 4 x 0.225 = 0.9 s; the VAE at 1 TFLOP/s
     assert full["a_seconds_per_chunk"] == pytest.approx(1.9)
     assert full["a_vae_share"] == pytest.approx(1.0 / 1.9)
@@ -90,6 +106,9 @@ def test_closed_loop_2b_by_hand():
     assert tiny["a_frames_per_s"] == pytest.approx(80 / 1.35)  # 59.3: short of 60
     assert tiny["a_meets_targets"] is False
     assert bound["a_vae_seconds"] == pytest.approx(0.15) and bound["a_meets_targets"] is True
+    # both tiny: the seed's full encode 0.1 + the tiny condition encode 0.02 + the tiny decode 0.05 at 1 TFLOP/s
+    assert both["a_vae_seconds"] == pytest.approx(0.17) and both["a_frames_per_s"] == pytest.approx(80 / 1.07)
+    assert both["a_vae_share"] == pytest.approx(0.17 / 1.07) and both["a_meets_targets"] is True
     # card b: DiT 0.6 s; the VAE at 2 TFLOP/s
     assert full["b_vae_share"] == pytest.approx(0.5 / 1.1) and full["b_meets_targets"] is False  # 45 % of the step
     assert tiny["b_seconds_per_chunk"] == pytest.approx(0.825) and tiny["b_meets_targets"] is True
@@ -97,8 +116,11 @@ def test_closed_loop_2b_by_hand():
     a, b = cl["condition_encode_budget"]["a"], cl["condition_encode_budget"]["b"]
     assert a["condition_encode_s_max"] == pytest.approx(80 / 60 - 0.9 - 0.15)
     assert a["fraction_of_now"] == pytest.approx((80 / 60 - 1.05) / 0.3)
+    assert a["tiny_encode_condition_s"] == pytest.approx(0.02)  # 0.02 TFLOP at card a's 1 TFLOP/s of VAE
+    assert a["tiny_encoder_min_tflops"] == pytest.approx(0.02 / (80 / 60 - 1.05))
     assert b["condition_encode_s_max"] == pytest.approx(0.6 * 0.4 / 0.6 - 0.075)
     split = cl["vae_split"]
+    assert split["tiny_encode_vs_encode_condition"] == pytest.approx(0.02 / 0.3)
     assert split["decode_share_by_flops"] == pytest.approx(0.6) and split["tiny_decode_vs_decode"] == pytest.approx(
         1 / 12
     )
@@ -134,6 +156,36 @@ def test_tiny_decoder_flops_on_the_meta_device_equal_the_random_weights_module_a
     assert out.shape == (1, 9, 3, 32, 64)
     assert counted["tiny_decode"] == fc.get_total_flops() == _tiny_decoder_flops_by_hand(3, 4, 8)
     assert 0 < counted["encode_seed"] < counted["encode_condition"] and counted["decode"] > counted["tiny_decode"]
+
+
+def _tiny_encoder_flops_by_hand(t: int, h: int, w: int) -> int:
+    """The taew2_1-width tiny encoder's convolution FLOPs (2 per multiply-add) for t frames of h x w, from its
+    published layout: the frames padded at the end to a multiple of 4; a 3x3 conv 3 -> 64; per stage a 1x1 time pool
+    (stride 2, 2, 1: 64 x stride -> 64 on 1 / stride of the frames), a 3x3 conv 64 -> 64 at stride 2 in space, three
+    memory blocks (3x3 convs 128 -> 64, 64 -> 64, 64 -> 64); a 3x3 conv 64 -> 16 last."""
+    frames, pixels = -(-t // 4) * 4, h * w
+    total = 2 * 9 * 3 * 64 * frames * pixels
+    for stride in (2, 2, 1):
+        frames //= stride
+        total += 2 * 64 * stride * 64 * frames * pixels
+        pixels //= 4
+        total += 2 * 9 * 64 * 64 * frames * pixels
+        total += 3 * 2 * 9 * (128 * 64 + 64 * 64 + 64 * 64) * frames * pixels
+    return total + 2 * 9 * 64 * 16 * frames * pixels
+
+
+def test_tiny_encoder_flops_on_the_meta_device_equal_the_random_weights_module_and_the_layer_arithmetic():
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from oscar_core.model.tiny_encoder import TinyEncoderNet
+
+    counted = bench().closed_loop_flops_2b(frames=9, width=64, height=32)  # 9 frames padded to 12
+    net = TinyEncoderNet().eval()  # random weights on the CPU
+    with FlopCounterMode(display=False) as fc, torch.no_grad():
+        out = net(torch.rand(1, 9, 3, 32, 64))
+    assert out.shape == (1, 3, 16, 4, 8)
+    assert counted["tiny_encode_condition"] == fc.get_total_flops() == _tiny_encoder_flops_by_hand(9, 32, 64)
+    assert counted["tiny_encode_condition"] < counted["encode_condition"]
 
 
 def test_closed_loop_2b_only_adds_its_section_and_keeps_every_other_field(tmp_path, monkeypatch, capsys):
