@@ -92,6 +92,10 @@ bench-gpu:
 				--json benchmarks/measured/closed_loop_2b_$${sampler%%:*}_$${decoder%%:*}_gpu.json || exit 1; \
 		done; \
 	done
+	# the 4-step sampler with the tiny decoder and the tiny condition encoder (taew2_1's widths, random weights)
+	$(BASE_PYTHON) benchmarks/closed_loop.py --size 2b --device cuda --sessions 2 --horizon 161 --batch 4 \
+		--no-vae-probe --steps 4 --no-guidance --tiny-decoder random --tiny-encoder random \
+		--json benchmarks/measured/closed_loop_2b_4step_tinyboth_gpu.json
 
 clean:
 	rm -rf .make $(OUT) golden-results benchmarks/results

@@ -1,7 +1,8 @@
 """Closed-loop policy evaluation on the toy model: where a step's CPU time goes, and cells per CPU-minute at batch 1 vs N.
 
     python benchmarks/closed_loop.py [--model oscar-toy | --size tiny|2b] [--device cpu|cuda]
-                                     [--tiny-decoder FILE|random | --full-decoder] [--sessions 4] [--horizon 33]
+                                     [--tiny-decoder FILE|random | --full-decoder] [--tiny-encoder FILE|random]
+                                     [--sessions 4] [--horizon 33]
                                      [--steps N] [--guidance W | --no-guidance] [--preset fast]
                                      [--batch 4 [8 ...]] [--repeats 1]
                                      [--compare-norms] [--no-vae-probe] [--probe-repeats 3]
@@ -11,7 +12,8 @@
 recommended sampler runs unless ``--steps`` / ``--guidance`` replace its figures (the 2026-11-29 table in
 docs/closed-loop.md ran ``oscar-toy`` with ``--steps 10``); ``--preset`` a sampler preset, ``--no-guidance`` the
 conditional branch alone (a few-step student's way). The decoder is the card's choice, a ``--tiny-decoder`` file
-(``random``: ``taew2_1``'s widths with random weights, for speed only), or ``--full-decoder``.
+(``random``: ``taew2_1``'s widths with random weights, for speed only), or ``--full-decoder``. The condition encoder
+is the full one unless ``--tiny-encoder`` names a file (``random``: ``taew2_1``'s width, random weights).
 
 ``--size`` replaces ``--model`` by a random-weights model built in the process: ``tiny`` (oscar_core.model.tiny, 17
 frames at 64x64, float32) or ``2b`` (the Cosmos-Predict2.5-2B DiT configuration and the WAN 2.1 VAE, bfloat16, 81-frame
@@ -356,6 +358,17 @@ def use_random_tiny_decoder(model) -> None:
     )
 
 
+def use_random_tiny_encoder(model) -> None:
+    """Encode the conditions with a tiny encoder at ``taew2_1``'s width and random weights (its speed only)."""
+    from oscar_core.model.tiny_encoder import TinyEncoderNet
+
+    vae = model.vae
+    torch.manual_seed(0)
+    vae.use_tiny_encoder(
+        TinyEncoderNet(latent_channels=vae.z_dim, space_downscale=tuple(f <= vae.spatial for f in (2, 4, 8)))
+    )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sessions", type=int, default=4)
@@ -376,6 +389,12 @@ def main() -> int:
     )
     decoder.add_argument(
         "--full-decoder", action="store_true", help="the full VAE decoder even if the card names a tiny one"
+    )
+    ap.add_argument(
+        "--tiny-encoder",
+        default=None,
+        help="encode the conditions with this tiny encoder file (model/tiny_encoder.py); 'random': taew2_1's width, "
+        "random weights",
     )
     ap.add_argument("--batch", type=int, nargs="+", default=[4], help="lock-step batch sizes beside batch 1")
     ap.add_argument("--repeats", type=int, default=1, help="interleaved rounds of every batch size")
@@ -398,9 +417,18 @@ def main() -> int:
     if args.size is not None:
         model = random_world_model(args.size, args.device)
     else:
-        model = oscar_zoo.load(args.model, device=args.device, tiny_decoder=None if tiny == "random" else tiny)
+        model = oscar_zoo.load(
+            args.model,
+            device=args.device,
+            tiny_decoder=None if tiny == "random" else tiny,
+            tiny_encoder=None if args.tiny_encoder == "random" else args.tiny_encoder,
+        )
     if tiny == "random":
         use_random_tiny_decoder(model)
+    if args.tiny_encoder == "random":
+        use_random_tiny_encoder(model)
+    elif args.tiny_encoder is not None and args.size is not None:
+        model.vae.use_tiny_encoder(args.tiny_encoder)
     sampler = _sampler(model, args.steps, args.guidance, args.preset, args.no_guidance)
     with tempfile.TemporaryDirectory() as tmp:
         manifest = write_closed_loop_sessions(
@@ -500,6 +528,9 @@ def main() -> int:
             "dtype": str(next(model.transformer.parameters()).dtype).removeprefix("torch."),
             "decoder": ("tiny, random weights" if tiny == "random" else "tiny")
             if model.vae.tiny is not None
+            else "full",
+            "condition_encoder": ("tiny, random weights" if args.tiny_encoder == "random" else "tiny")
+            if model.vae.tiny_encoder is not None
             else "full",
             "threads": 1,
             "sessions": args.sessions,

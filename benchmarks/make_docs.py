@@ -163,6 +163,7 @@ RUNS: dict[str, tuple[str, str]] = {
         for sampler in ("teacher", "fast", "4step")
         for decoder, words in (("full", "full VAE"), ("tiny", "tiny decoder"))
     },
+    "closed_loop_2b_4step_tinyboth_gpu": ("closed_loop", "GPU, 2B 4step, tiny decoder + tiny condition encoder"),
 }
 
 

@@ -136,18 +136,20 @@ def test_samplers_the_gpu_table_names(bench):
 
 @pytest.mark.slow
 def test_a_random_weights_model_runs_closed_loop_with_a_random_tiny_decoder(bench, tmp_path, monkeypatch):
-    """The path `make bench-gpu` takes for the 2B (--size, --device, --tiny-decoder random, --no-guidance), on the
-    CPU with the tiny configuration: one chunk per cell, batch 1 and 2."""
+    """The path `make bench-gpu` takes for the 2B (--size, --device, --tiny-decoder random, --tiny-encoder random,
+    --no-guidance), on the CPU with the tiny configuration: one chunk per cell, batch 1 and 2."""
     import json
 
     out = tmp_path / "closed_loop.json"
     argv = ["closed_loop.py", "--size", "tiny", "--device", "cpu", "--sessions", "1", "--horizon", "17"]
     argv += ["--batch", "2", "--steps", "2", "--no-guidance", "--tiny-decoder", "random", "--no-vae-probe"]
+    argv += ["--tiny-encoder", "random"]
     monkeypatch.setattr(sys, "argv", [*argv, "--json", str(out)])
     assert bench.main() == 0
     result = json.loads(out.read_text())
     assert (result["model"], result["device"], result["dtype"]) == ("random tiny", "cpu", "float32")
     assert result["decoder"] == "tiny, random weights" and result["steps"] == 2
+    assert result["condition_encoder"] == "tiny, random weights"
     assert result["guidance"].startswith("None")
     rows = {r["batch_cells"]: r for r in result["rows"]}
     assert set(rows) == {1, 2} and all(r["cells"] == 2 and r["failed"] == 0 for r in rows.values())
