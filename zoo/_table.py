@@ -177,6 +177,10 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
                         "f62aafbbad3c6bf7d6107c21ae461b847432638f8feca67fca67294659ded303",
                     ),
                     FileSpec(
+                        "tiny_encoder.safetensors",
+                        "0aabca56e9663628c2b4109ab31f451dfaa68a0d881349f18431ae40ee432da8",
+                    ),
+                    FileSpec(
                         "transformer/config.json", "0e4008e3afadd739e070540ed4d672feef50dd74ee050d9e86db1fd7d1ca1bad"
                     ),
                     FileSpec(

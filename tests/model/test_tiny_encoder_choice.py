@@ -181,3 +181,21 @@ def test_a_closed_loop_run_s_fingerprint_records_a_tiny_condition_encoder_only(t
     assert _encoder_identity(None, None) == {}  # the full encoder: the fingerprint of every earlier run
     assert _encoder_identity(None, path) == {"condition_encoder": f"tiny-sha256:{digest}"}
     assert _encoder_identity(object(), path) == {}  # a simulator has no encoder
+
+
+def test_the_bundled_toy_tiny_encoder_fits_oscar_toy_and_is_off_by_default():
+    from oscar_core.model.tiny_encoder import load_tiny_encoder
+    from oscar_core.model.vae import load_vae_folder
+
+    folder = oscar_zoo.pull("oscar-toy")  # bundled: every file's sha256 pinned in the table, the tiny encoder's too
+    assert OscarWorldModel.from_pretrained(folder).vae.tiny_encoder is None  # nothing chooses it by default
+    net = load_tiny_encoder(folder / "tiny_encoder.safetensors")  # its shape from the file's metadata
+    assert net.width == 16 and (net.space_factor, net.time_factor) == (4, 4)
+    vae = VideoVAE(load_vae_folder(folder / "vae"))
+    skeleton = np.zeros((1, 3, 17, 64, 64), np.float32) - 1.0  # a black condition video
+    skeleton[..., 20:44, 30:34] = 1.0  # one white limb
+    full = vae.encode_condition(torch.from_numpy(skeleton))
+    vae.use_tiny_encoder(net)
+    tiny = vae.encode_condition(torch.from_numpy(skeleton))
+    assert tiny.shape == full.shape == (1, 16, 5, 16, 16)
+    assert float((tiny - full).pow(2).sum().sqrt() / full.pow(2).sum().sqrt()) < 0.2  # trained: near the full one
