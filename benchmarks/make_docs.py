@@ -118,6 +118,17 @@ ABOUT: dict[str, tuple[str, str, str]] = {
         "toy clips; and the toy judge's verdict (`ball_moved`) on both decoders' videos of the same latents of "
         "counterfactual sets rolled out by `oscar-toy` (docs/world-model.md).",
     ),
+    "tiny_encoder": (
+        "The toy tiny condition encoder against the full VAE encoder",
+        "benchmarks/tiny_encoder.py",
+        "`oscar-toy`'s bundled tiny condition encoder (`tiny_encoder.safetensors`, `oscar toyworld "
+        "train-tiny-encoder`) and its full VAE encoder, one torch thread, in one run: CPU and wall milliseconds of a "
+        "17-frame 64x64 condition encode and a 1-frame seed encode (best of N, interleaved); the relative RMS error "
+        "of the tiny encoder's normalised latents against the full encoder's on held-out conditions (and on RGB first "
+        "frames); PSNR of rollouts by `oscar-toy-fast` and `oscar-toy` with the tiny-encoded conditions against the "
+        "full-encoded ones on the same seeds, beside two seeds' spread and both against the true frames; and each "
+        "encoder's FLOP rate on this CPU at the WAN 2.1 shapes (docs/world-model.md).",
+    ),
     "render": (
         "Skeleton rendering",
         "benchmarks/render.py",

@@ -165,7 +165,7 @@ CHECKPOINTS: tuple[CheckpointSpec, ...] = tuple(
                 height=64,
                 fps=10.0,
                 files=(
-                    FileSpec("README.md", "387c6787bd0a9b86387b2f704810227394c5b47051c9fb823a51b3bc3699d42a"),
+                    FileSpec("README.md", "8d56c297843879440b875237ebe59f34b025d5e10937e5b3222e11bf8c13f0cf"),
                     FileSpec("oscar_manifest.json", "dd458a47bb259834d8d43d7d5f1a766ecd0f0ea0a5199a1a5f4a5333611b4452"),
                     FileSpec("oscar_model.json", "506281c49863b31a8483dfc7492317bc7ddb2f27064744c844102a0762c8cf23"),
                     FileSpec(
