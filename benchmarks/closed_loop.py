@@ -31,7 +31,7 @@ the machine's load falls on all of them alike. Cells per CPU-minute is cells / (
 wall time; each batch size's figures sum its rounds. Per closed-loop step (one chunk of one cell) the CPU time
 of the thread doing the work (``time.thread_time``, so the policy threads of a batch count too) is split into
 the policy's calls, the action adapter (IK), the condition render, the VAE encodes (seed frame and condition
-video), the DiT's denoising loop, the VAE decode, writing the cell's files, the report, and the rest (``other``:
+video), the tiny condition encoder's encodes (``--tiny-encoder``), the DiT's denoising loop, the VAE decode, writing the cell's files, the report, and the rest (``other``:
 the loop itself, thread hand-offs, the interpreter); the wall milliseconds per step from each cell's record
 (``timing_s``: policy, adapter, render, model — a batched call's time shared among its cells) stay beside it.
 It checks that every batch's videos agree with batch 1's within one uint8 level. ``--compare-norms`` runs each batch
@@ -90,6 +90,8 @@ CPU_PARTS = {
     "adapter": ("oscar_core.policy.spaces", "ActionAdapter.apply"),
     "render": ("oscar_core.evaluation.closed_loop_cell", "ModelWorld._condition"),
     "vae_encode": ("oscar_core.model.vae", "VideoVAE.encode"),
+    # the tiny condition encoder's calls (--tiny-encoder): they do not go through VideoVAE.encode
+    "tiny_encode": ("oscar_core.model.tiny_encoder", "TinyVideoEncoder.encode"),
     "dit": ("oscar_core.model.rollout", "sample_chunk"),
     "vae_decode": ("oscar_core.model.vae", "VideoVAE.decode"),
     "write": ("oscar_core.evaluation.closed_loop", "_write_cell"),

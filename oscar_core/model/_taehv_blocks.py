@@ -14,7 +14,7 @@ from torch import nn
 
 from .errors import CheckpointLayoutError
 
-__all__ = ["conv3", "MemoryBlock", "run_with_memory", "read_prefixed_tensors"]
+__all__ = ["conv3", "MemoryBlock", "previous_frames", "run_with_memory", "read_prefixed_tensors"]
 
 
 def conv3(n_in: int, n_out: int, bias: bool = True, stride: int = 1) -> nn.Conv2d:
