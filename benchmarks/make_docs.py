@@ -169,6 +169,8 @@ RUNS: dict[str, tuple[str, str]] = {
     "closed_loop": ("closed_loop", "CPU, teacher"),
     "closed_loop_student": ("closed_loop", "CPU, student"),
     "closed_loop_student_tiny": ("closed_loop", "CPU, student + tiny decoder"),
+    "closed_loop_student_tiny_beside_enc": ("closed_loop", "CPU, student + tiny decoder (beside the next run)"),
+    "closed_loop_student_tiny_enc": ("closed_loop", "CPU, student + tiny decoder + tiny condition encoder"),
     **{
         f"closed_loop_2b_{sampler}_{decoder}_gpu": ("closed_loop", f"GPU, 2B {sampler}, {words}")
         for sampler in ("teacher", "fast", "4step")
@@ -317,6 +319,18 @@ HEADLINES: tuple[Headline, ...] = (
     Headline(
         "… the latency a policy sees per chunk",
         "closed_loop_student_tiny.json",
+        "rows[batch_cells=1].policy_visible.cpu_ms_per_chunk",
+        "CPU ms",
+    ),
+    Headline(
+        "Closed-loop step, 4-step student + tiny decoder + tiny condition encoder, one cell at a time (one thread)",
+        "closed_loop_student_tiny_enc.json",
+        "rows[batch_cells=1].cpu_ms_per_step.total",
+        "CPU ms",
+    ),
+    Headline(
+        "… the latency a policy sees per chunk",
+        "closed_loop_student_tiny_enc.json",
         "rows[batch_cells=1].policy_visible.cpu_ms_per_chunk",
         "CPU ms",
     ),
