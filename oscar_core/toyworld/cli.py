@@ -166,7 +166,7 @@ def _add_toyworld_train_vae_parser(sub, fmt) -> None:
     )
     v.add_argument("clips", help="clip set written by `oscar toyworld generate`")
     output_option(v.add_argument("--out", required=True, help="output folder (vae/ + vae_card.json)"), "folder")
-    from .vae_train import VAETrainConfig
+    from .vae_train import BALL_REGIONS, VAETrainConfig
 
     d = VAETrainConfig()
     for name in ("steps", "stop_at", "batch", "window", "seed", "base_dim", "eval_every", "eval_clips"):
@@ -178,6 +178,13 @@ def _add_toyworld_train_vae_parser(sub, fmt) -> None:
         v.add_argument(
             "--" + name.replace("_", "-"), type=float, default=getattr(d, name), help=f"default {getattr(d, name)}"
         )
+    v.add_argument(
+        "--ball-region",
+        choices=BALL_REGIONS,
+        default=d.ball_region,
+        help="where --ball weights the error: the truth's ball pixels (truth, default) or those and the "
+        "reconstruction's own ball-coloured pixels (union: a smear of the ball's colour elsewhere costs as much)",
+    )
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
     v.add_argument(
         "--residual",
@@ -479,6 +486,7 @@ def cmd_train_vae(args) -> int:
         chroma=args.chroma,
         foreground=args.foreground,
         ball=args.ball,
+        ball_region=args.ball_region,
         seed=args.seed,
         threads=args.threads,
         base_dim=args.base_dim,

@@ -593,6 +593,60 @@ def test_ball_kept_counts_frames_whose_ball_is_found_near_the_truth():
     assert ball_kept(truth[3:], truth[3:]) is None
 
 
+def test_false_ball_pixels_counts_the_balls_colour_outside_the_truths_ball():
+    from oscar_core.toyworld.vae_train import false_ball_pixels
+
+    truth = _yellow_disc_frames([(8, 8), (8, 8), None])
+    assert false_ball_pixels(truth, truth) == 0.0
+    # frame 0 exact; frame 1's ball moved 1 px (inside the truth's 1-px rim: not false); frame 2 paints a disc
+    # of 13 pixels (r = 2) where the truth shows no ball
+    pred = _yellow_disc_frames([(8, 8), (9, 8), (4, 4)])
+    disc = int(((np.mgrid[0:16, 0:16] - np.array([4, 4])[:, None, None]) ** 2).sum(0).__le__(4).sum())
+    assert disc == 13
+    assert false_ball_pixels(pred, truth) == pytest.approx(disc / 3)
+    # a disc two pixels off reaches past the rim by its tip alone: (12, 8) is 2 px beyond the truth's edge at
+    # (10, 8), whose rim covers x = 11 for rows 7-9
+    assert false_ball_pixels(_yellow_disc_frames([(10, 8)]), truth[:1]) == pytest.approx(1.0)
+
+
+def test_ball_region_union_weights_the_reconstructions_own_ball_coloured_pixels(monkeypatch):
+    import torch
+
+    from oscar_core.toyworld import vae_train as vt
+
+    truth = _yellow_disc_frames([(5, 5), (5, 5)])
+    smear = _yellow_disc_frames([(5, 5), (11, 11)])  # frame 1 keeps nothing of the ball and paints one elsewhere
+
+    def to_x(f):
+        return torch.from_numpy(f).permute(3, 0, 1, 2).unsqueeze(0).float().div(127.5).sub(1.0)
+
+    x, y = to_x(truth), to_x(smear)
+
+    class _Fake:  # encode -> posterior (mean 0, var 1: KL 0); decode -> the fixed reconstruction y
+        def encode(self, x):
+            z = torch.zeros(1, 1, 1, 1, 1)
+            post = type("P", (), {"mean": z, "var": z + 1, "logvar": z, "mode": lambda s: z, "sample": lambda s: z})
+            return type("E", (), {"latent_dist": post()})()
+
+        def decode(self, z):
+            return type("D", (), {"sample": y})()
+
+    err = (y - x) ** 2
+    plain = torch.mean(err)
+
+    def loss(region):
+        cfg = vt.VAETrainConfig(ball=10.0, ball_region=region, kl=0.0)
+        return vt._vae_loss(_Fake(), x, cfg)[0]
+
+    truth_only = plain + 10.0 * torch.mean(vt.ball_pixels(x) * err)
+    union = plain + 10.0 * torch.mean(torch.maximum(vt.ball_pixels(x), vt.ball_pixels(y)) * err)
+    assert torch.allclose(loss("truth"), truth_only)
+    assert torch.allclose(loss("union"), union)
+    assert loss("union") > loss("truth")  # the smear at (11, 11) costs the ball weight only in the union
+    with pytest.raises(ValueError, match="--ball-region: expected one of truth, union, found 'both'"):
+        vt.train_vae("unused", "unused", vt.VAETrainConfig(ball_region="both"), log=lambda m: None)
+
+
 def test_chroma_ratio_on_known_colours():
     from oscar_core.toyworld.vae_train import chroma_ratio
 
