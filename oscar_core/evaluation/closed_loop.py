@@ -162,13 +162,14 @@ def _policy_specs(manifest, policy_sources, replan_every, log) -> list[PolicySpe
 
 def _check_world_given(simulator, model, model_spec, fps, chunk_frames) -> None:
     """:class:`MetricInputError` without a world (model, model spec or simulator), or for a simulator without both
-    ``fps`` and ``chunk_frames``."""
+    ``fps`` and ``chunk_frames``; then :func:`_check_world_context`."""
     if simulator is None and model is None and model_spec is None:
         raise MetricInputError("model", "model", "a world model, a model spec or a simulator", "none")
     if simulator is not None and (fps is None or chunk_frames is None):
         raise MetricInputError(
             "simulator", "fps/chunk_frames", "both given for a simulator world", f"{fps}/{chunk_frames}"
         )
+    _check_world_context(simulator, model, model_spec)
 
 
 def _check_world_context(simulator, model, model_spec) -> None:
@@ -207,9 +208,12 @@ def _embodiments(manifest, plugin_paths) -> dict:
     return embs
 
 
-def _world_identity(simulator, model, model_spec, revision, sampler, fps, chunk_frames, size) -> dict:
+def _world_identity(
+    simulator, model, model_spec, revision, sampler, fps, chunk_frames, size, tiny_decoder=None, tiny_encoder=None
+) -> dict:
     """What every cell's output depends on about the world: the simulator (its identity, fps, chunk frames) or
-    the world model (its pinned identity, sampler settings, chunk frames), and the rollout size."""
+    the world model (its pinned identity, sampler settings, chunk frames, and a chosen decoder or condition encoder:
+    :func:`_decoder_identity`, :func:`_encoder_identity`), and the rollout size."""
     if simulator is not None:
         world_id = {
             "kind": "simulator",
@@ -226,7 +230,7 @@ def _world_identity(simulator, model, model_spec, revision, sampler, fps, chunk_
             "chunk_frames": chunk_frames,
             "size": size,
         }
-    return world_id
+    return world_id | _decoder_identity(simulator, tiny_decoder) | _encoder_identity(simulator, tiny_encoder)
 
 
 def _decoder_identity(simulator, tiny_decoder) -> dict:
@@ -450,14 +454,13 @@ def run_closed_loop(
     _check_run_options(replan_every, chunk_frames, batch_cells, engine, model, policy_timeout)
     specs = _policy_specs(manifest, policy_sources, replan_every, log)
     _check_world_given(simulator, model, model_spec, fps, chunk_frames)
-    _check_world_context(simulator, model, model_spec)
     embs = _embodiments(manifest, plugin_paths)
     out = _prepared_out(out)
     sampler = sampler or SamplerConfig()
     get_model = _model_loader(model, model_spec, revision, device, dtype, log, tiny_decoder, tiny_encoder)
-    world_id = _world_identity(simulator, model, model_spec, revision, sampler, fps, chunk_frames, manifest.size)
-    world_id.update(_decoder_identity(simulator, tiny_decoder))  # in every cell's fingerprint when given
-    world_id.update(_encoder_identity(simulator, tiny_encoder))
+    world_id = _world_identity(  # in every cell's fingerprint
+        simulator, model, model_spec, revision, sampler, fps, chunk_frames, manifest.size, tiny_decoder, tiny_encoder
+    )
     counts = {"cells": len(manifest.sessions) * len(specs), "done": 0, "reused": 0, "failed": 0, "retried": 0}
     bar = progress_bar(total=counts["cells"], desc="closed loop", unit="cell", enabled=progress)
     records, pending, reused_failed = _plan_cells(
@@ -474,17 +477,8 @@ def run_closed_loop(
         fps=fps,
     )
 
-    ray_options = dict(
-        model_spec=model_spec,
-        revision=revision,
-        simulator=simulator,
-        device=device,
-        dtype=dtype,
-        tiny_decoder=tiny_decoder,
-        tiny_encoder=tiny_encoder,
-        workers=workers,
-        plugin_paths=plugin_paths,
-    )
+    ray_options = dict(model_spec=model_spec, revision=revision, simulator=simulator, device=device, dtype=dtype)
+    ray_options.update(tiny_decoder=tiny_decoder, tiny_encoder=tiny_encoder, workers=workers, plugin_paths=plugin_paths)
     run = dict(engine=engine, batch_cells=batch_cells, policy_timeout=policy_timeout, log=log)
     _run_cells(pending, records, counts, bar, out, embs, pool, world_options, ray_options, **run)
     bar.close()

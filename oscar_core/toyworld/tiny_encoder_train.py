@@ -165,13 +165,7 @@ def train_tiny_encoder(
         idx = rng.integers(0, len(train_x), cfg.batch)
         x = torch.from_numpy(train_x[idx]).permute(0, 1, 4, 2, 3).float().div(255.0)  # (B, T, 3, H, W) in [0, 1]
         target = torch.from_numpy(train_z[idx]).permute(0, 2, 1, 3, 4)  # (B, T', z, h, w) normalised
-        pred = (net(x) - mean) / std
-        loss = ((pred - target) ** 2).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
-        sched.step()
+        loss = _train_step(net, opt, sched, x, target, mean, std)
         bar.update(1)
         if step % 25 == 0 or step == 1:
             wall = time.perf_counter() - t0
@@ -208,6 +202,22 @@ def train_tiny_encoder(
     log(f"done: held-out relative RMS {final['relative_rms']:.4f} against the full encoder, {card['wall_s']:.0f} s")
     _save(net, Path(out), card)
     return card
+
+
+def _train_step(net, opt, sched, x, target, mean, std):
+    """One AdamW step (gradients clipped at 1, then the schedule's step) on the mean squared error between the net's
+    latents for x (B, T, 3, H, W) in [0, 1], normalised by mean and std (1, 1, z, 1, 1), and target (B, T', z, h, w),
+    the full encoder's normalised latents. Returns the loss, a 0-d tensor."""
+    import torch
+
+    pred = (net(x) - mean) / std
+    loss = ((pred - target) ** 2).mean()
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+    opt.step()
+    sched.step()
+    return loss
 
 
 def _save(net, out: Path, card: dict) -> None:

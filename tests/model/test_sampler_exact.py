@@ -212,6 +212,10 @@ class _IndexVAE:
         self.encoded.append(t)
         return frames[:, None, :, None, None].expand(b, 4, frames.shape[1], h // 8, w // 8).clone()
 
+    def encode_condition(self, pixels):
+        """The condition's path: a VideoVAE without a tiny encoder encodes conditions with ``encode``."""
+        return self.encode(pixels)
+
     def decode(self, latents):
         b, _, t, h, w = latents.shape
         v = latents[:, :1]
