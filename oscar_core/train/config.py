@@ -1,5 +1,8 @@
 """The training configuration: a tree of dataclasses read from YAML.
 
+One job, the schema (over 600 lines because every section's fields carry the comment saying where their default
+comes from; loading and checking the YAML follow the dataclasses they fill).
+
 Every field has a default and a comment saying where its value comes from.
 Defaults are the paper's recipe (Appendix "Training implementation
 details") where it gives a number, else Cosmos-Predict2.5's public trainer
