@@ -39,12 +39,24 @@ def check_decoder_choice(choice, what: str = "--tiny-decoder"):
     (a path as a :class:`~pathlib.Path`)."""
     if choice is None or choice is False:
         return choice
+    return check_tiny_weights_file(choice, what, "tiny-decoder")
+
+
+def check_tiny_weights_file(choice, what: str, kind: str) -> Path:
+    """``choice`` as a :class:`~pathlib.Path` to an existing ``.safetensors`` file of ``kind`` (``"tiny-decoder"``,
+    ``"tiny-encoder"``) weights; ModelInputError naming ``what``, the expected and the found otherwise."""
     path = Path(choice)
     if path.suffix != ".safetensors":
-        raise ModelInputError(f"{what}: expected a .safetensors file of tiny-decoder weights, found {str(path)!r}")
+        raise ModelInputError(f"{what}: expected a .safetensors file of {kind} weights, found {str(path)!r}")
     if not path.is_file():
-        raise ModelInputError(f"{what}: expected a tiny-decoder file, found no file {str(path)!r}")
+        raise ModelInputError(f"{what}: expected a {kind} file, found no file {str(path)!r}")
     return path
+
+
+def tiny_file_identity(path) -> str:
+    """``"tiny-sha256:<hex>"`` of the bytes of the tiny decoder's or encoder's file at ``path``."""
+    with open(path, "rb") as f:
+        return f"tiny-sha256:{hashlib.file_digest(f, 'sha256').hexdigest()}"
 
 
 def decoder_choice(args):
@@ -62,5 +74,4 @@ def decoder_identity(choice) -> str | None:
         return None
     if choice is False:
         return "full"
-    with open(choice, "rb") as f:
-        return f"tiny-sha256:{hashlib.file_digest(f, 'sha256').hexdigest()}"
+    return tiny_file_identity(choice)

@@ -8,10 +8,7 @@ encoder (no model card names a tiny encoder).
 
 from __future__ import annotations
 
-import hashlib
-from pathlib import Path
-
-from .errors import ModelInputError
+from .decoder_options import check_tiny_weights_file, tiny_file_identity
 
 __all__ = ["add_encoder_option", "encoder_choice", "check_encoder_choice", "encoder_identity"]
 
@@ -32,12 +29,7 @@ def check_encoder_choice(choice, what: str = "--tiny-encoder"):
     exists; ModelInputError naming ``what``, the expected and the found otherwise. Returns None or the path."""
     if choice is None or choice is False:
         return None
-    path = Path(choice)
-    if path.suffix != ".safetensors":
-        raise ModelInputError(f"{what}: expected a .safetensors file of tiny-encoder weights, found {str(path)!r}")
-    if not path.is_file():
-        raise ModelInputError(f"{what}: expected a tiny-encoder file, found no file {str(path)!r}")
-    return path
+    return check_tiny_weights_file(choice, what, "tiny-encoder")
 
 
 def encoder_choice(args):
@@ -51,5 +43,4 @@ def encoder_identity(choice) -> str:
     bytes."""
     if choice is None or choice is False:
         return "full"
-    with open(choice, "rb") as f:
-        return f"tiny-sha256:{hashlib.file_digest(f, 'sha256').hexdigest()}"
+    return tiny_file_identity(choice)
