@@ -17,7 +17,8 @@ from oscar_core.evaluation import load_manifest
 from oscar_core.media.video import read_video
 from oscar_core.plugin.registry import Registry
 from oscar_core.toyworld.carry import carry_rows, carry_summary
-from oscar_core.toyworld.judge import agreement_with_real, ball_moved, ball_reading
+from oscar_core.toyworld.judge import BALL, agreement_with_real, ball_moved, ball_reading
+from oscar_core.toyworld.locate import color_mask
 from oscar_core.toyworld.policy_eval import (
     PLACE_MIN_RADII,
     SUCCESS_RADII,
@@ -170,6 +171,22 @@ def test_ball_moved_is_not_fooled_by_generation_artefacts():
     assert ball_moved(big, clip)["binary"] == 0
 
 
+def test_expected_ball_area_comes_from_the_scene_radius_not_a_half_hidden_first_frame():
+    # the arm hides the ball's lower rows in frame 0 (a real quick-set case: 8 of 16 px), then carries it whole 4 radii
+    video = _disc_video([(10, 10)] * 5 + [(18, 10)] * 4)
+    video[0, 10:, :16] = 90
+    n_first = int(color_mask(video[:1], BALL)[0].sum())
+    assert n_first == 8  # of the 21-px disc: the whole ball is more than MAX_AREA_RATIO (2.5) x that
+    v = ball_moved(video, _judge_clip())  # version 5: expected area pi * 2.5^2 = 19.6 px
+    assert v["binary"] == 1 and v["partial"] == 100, v
+    r = ball_reading(video, _judge_clip().info)
+    assert all(b["expected_n"] == pytest.approx(np.pi * 2.5**2, abs=0.05) for b in r["blob"])
+    # without the scene's radius the judge can only use frame 0's blob, and the whole ball then reads too large
+    info = {k: v for k, v in _judge_clip().info.items() if k != "ball_radius_px"}
+    v = ball_moved(video, SimpleNamespace(info=info))
+    assert v["binary"] == 0 and f"where a ball has {n_first}," in v["reason"], v
+
+
 def test_ball_reading_internals():
     r = ball_reading(_disc_video([(10, 10)] * 5 + [(18, 10)] * 4), _judge_clip().info)
     assert (
@@ -183,7 +200,7 @@ def test_function_judge_version_keys_stored_verdicts():
     from oscar_core.evaluation.cli import load_judge
     from oscar_core.toyworld import judge
 
-    assert load_judge("oscar_core.toyworld.judge:ball_moved").describe()["version"] == judge.VERSION == "4"
+    assert load_judge("oscar_core.toyworld.judge:ball_moved").describe()["version"] == judge.VERSION == "5"
 
 
 def test_manifest_real_outcomes_and_judge_agreement(tmp_path):
