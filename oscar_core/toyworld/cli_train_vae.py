@@ -37,6 +37,12 @@ def add_train_vae_parser(sub, fmt, epilog: str) -> None:
         help="where --ball weights the error: the truth's ball pixels (truth, default) or those and the "
         "reconstruction's own ball-coloured pixels (union: a smear of the ball's colour elsewhere costs as much)",
     )
+    v.add_argument(
+        "--resume",
+        action="store_true",
+        help="carry on from --out's last checkpoint (its vae/ and resume/), exactly where it stood; give the same "
+        "options as the first run (--steps, --stop-at, --max-minutes, --threads, --eval-every, --eval-clips may differ)",
+    )
     v.add_argument("--init", default="", help="start from this train-vae output folder (fine-tune; --base-dim ignored)")
     v.add_argument(
         "--residual",
@@ -74,6 +80,7 @@ def cmd_train_vae(args) -> int:
         eval_every=args.eval_every,
         eval_clips=args.eval_clips,
         init=args.init,
+        resume=args.resume,
         config={"is_residual": True} if args.residual else {},
         sample_posterior=args.sample_posterior,
     )

@@ -41,6 +41,7 @@ import numpy as np
 
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
+from .vae_resume import finish_state, load_resume_state, restore, resume_state_files, weights_sha256, write_files
 
 __all__ = [
     "VAETrainConfig",
@@ -108,6 +109,9 @@ class VAETrainConfig:
     # the ball costs only the plain MSE, and a VAE trained from scratch with --ball 20 painted the ball's colour
     # over 66-1464 pixels where the ball has 20-60; "union" weights those false pixels as much as missed ones.
     ball_region: str = "truth"
+    # carry on from OUT's last checkpoint (OUT/vae + OUT/resume, :mod:`oscar_core.toyworld.vae_resume`) with the
+    # same settings; only those in vae_resume.FREE_SETTINGS (steps, stop_at, ...) may differ
+    resume: bool = False
 
 
 def load_clip_frames(clipset, split: str, limit: int | None = None, embodiments=None) -> tuple[np.ndarray, list[str]]:
@@ -313,6 +317,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     out = Path(out)
+    state = load_resume_state(out, cfg, clipset) if cfg.resume else None  # checked before any work
     t_load = time.perf_counter()
     train, _ = load_clip_frames(clipset, "train")
     held, held_ids = load_clip_frames(clipset, "heldout", limit=cfg.eval_clips)
@@ -323,7 +328,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     N, T = train.shape[:2]
     if T < cfg.window:
         raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
-    vae, config = _new_or_initial_vae(cfg)
+    vae, config = _new_or_initial_vae(cfg) if state is None else _resumed_vae(out)
     n_params = sum(p.numel() for p in vae.parameters())
     opt = torch.optim.AdamW(vae.parameters(), lr=cfg.lr, weight_decay=0.0)
     sched = torch.optim.lr_scheduler.LambdaLR(
@@ -333,6 +338,11 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     curve, evals = [], []
     t0 = time.perf_counter()
     step = 0
+    if state is not None:
+        restore(state, opt, sched, rng)
+        curve, evals, step = list(state["curve"]), list(state["evals"]), int(state["step"])
+        t0 -= float(state["elapsed_s"])  # wall times continue the first run's
+        log(f"resumed from step {step} of {out} (its resume/ matches vae/ by sha256)")
 
     def held_out_eval(step: int, wall_s: float | None = None) -> dict:
         """PSNR and chroma ratio of the held-out clips, appended to ``evals`` (wall_s: measured when None)."""
@@ -349,13 +359,14 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
         )
         return evals[-1]
 
-    e0 = held_out_eval(0, wall_s=0.0)
-    psnr0 = e0["psnr_db"]
-    log(
-        f"model: AutoencoderKLWan {config}, {n_params / 1e6:.2f} M parameters; held-out PSNR at step 0: {psnr0:.2f} dB, ball kept {_fraction(e0['ball_kept'])}"
-    )
+    if state is None:
+        e0 = held_out_eval(0, wall_s=0.0)
+        log(
+            f"model: AutoencoderKLWan {config}, {n_params / 1e6:.2f} M parameters; held-out PSNR at step 0: "
+            f"{e0['psnr_db']:.2f} dB, ball kept {_fraction(e0['ball_kept'])}"
+        )
     stopped = "steps"
-    bar = progress_bar(total=cfg.steps, desc="toyworld train-vae", unit="step")
+    bar = progress_bar(total=cfg.steps, initial=step, desc="toyworld train-vae", unit="step")
     while step < cfg.steps:
         loss, rec, kl = _vae_loss(vae, _training_batch(train, rng, cfg), cfg)
         opt.zero_grad(set_to_none=True)
@@ -379,7 +390,8 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
                 f"step {step}: held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}, "
                 f"ball kept {_fraction(e['ball_kept'])}, false ball pixels {e['false_ball_px']:.1f} per frame"
             )
-            _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, "checkpoint")
+            resume = resume_state_files(opt, sched, rng, step, cfg, clipset, curve, evals, time.perf_counter() - t0)
+            _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, "checkpoint", resume)
         if cfg.stop_at and step >= cfg.stop_at:
             stopped = f"stop_at ({cfg.stop_at})"
             break
@@ -387,16 +399,27 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
             stopped = f"max_minutes ({cfg.max_minutes:g})"
             break
     bar.close()
-    e = held_out_eval(step)
+    e = evals[-1] if evals and evals[-1]["step"] == step else held_out_eval(step)  # stop_at on a checkpoint: done
     log(
         f"done: {step} steps, held-out PSNR {e['psnr_db']:.2f} dB, chroma ratio {e['chroma_ratio']:.3f}, "
         f"ball kept {_fraction(e['ball_kept'])}, false ball pixels {e['false_ball_px']:.1f} per frame, "
         f"{time.perf_counter() - t0:.0f} s (stopped by {stopped})"
     )
-    return _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped)
+    resume = resume_state_files(opt, sched, rng, step, cfg, clipset, curve, evals, time.perf_counter() - t0)
+    return _save(vae, out, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped, resume)
 
 
-def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped) -> dict:
+def _resumed_vae(out: Path):
+    """``(vae, config)`` of a resumed run: the checkpoint's weights (OUT/vae) and its config fields."""
+    vae = load_toy_vae(out)
+    return vae, {k: vae.config[k] for k in TOY_VAE_CONFIG}
+
+
+def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped, resume) -> dict:
+    """Write OUT/vae (the weights, with the latents' statistics), OUT/resume (the state to carry on from,
+    :mod:`~oscar_core.toyworld.vae_resume`) and OUT/vae_card.json; returns the card. Each folder is written aside and
+    renamed in, the old one renamed aside first and removed after, so a crash never leaves OUT without weights; a
+    crash between the two swaps leaves a resume/ that names other weights, which ``--resume`` refuses."""
     import copy
     import os
     import shutil
@@ -408,13 +431,21 @@ def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, 
     # settings the network does not compute with (VideoVAE normalises latents by them): a new config, same weights
     final.config = ModelConfig({**final.config, "latents_mean": mean, "latents_std": std})
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / ".vae.tmp"
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    tmp, tmp_state = out / ".vae.tmp", out / ".resume.tmp"
+    for t in (tmp, tmp_state):
+        if t.exists():  # a dead run's
+            shutil.rmtree(t)
     final.save_pretrained(tmp, safe_serialization=True)
-    if (out / "vae").exists():
-        shutil.rmtree(out / "vae")
-    os.replace(tmp, out / "vae")
+    write_files(tmp_state, finish_state(resume, weights_sha256(tmp)))
+    for new, name in ((tmp, "vae"), (tmp_state, "resume")):
+        old = out / f".{name}.old"
+        if old.exists():
+            shutil.rmtree(old)
+        if (out / name).exists():
+            os.replace(out / name, old)
+        os.replace(new, out / name)
+        if old.exists():
+            shutil.rmtree(old)
     card = {
         "format": "oscar-toy-vae",
         "class": "AutoencoderKLWan",
