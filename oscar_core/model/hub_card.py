@@ -76,6 +76,20 @@ def with_hub_metadata(markdown: str, card: dict, *, tags=()) -> str:
     return f"---\n{block}---\n\n{body}"
 
 
+def _conditioning_lines(card: dict) -> list[str]:
+    """Bullets for the card's conditioning options that change how it must be rolled out (none for the defaults)."""
+    lines = []
+    if card.get("gripper_signal"):
+        lines.append("- gripper signal: the DiT also takes the gripper's openness per latent frame (`gripper_signal`)")
+    ctx = int(card.get("context_frames") or 1)
+    if ctx > 1:
+        lines.append(
+            f"- context: each chunk after the first continues from the previous chunk's last {ctx} decoded frames "
+            "(`context_frames`); open-loop rollouts only (the closed loop and the Gymnasium envs refuse it)"
+        )
+    return lines
+
+
 def default_model_card(card: dict) -> str:
     """The ``README.md`` an exported model folder gets when it has none (``OscarWorldModel.save_pretrained``):
     the metadata block, what the folder is and how to load it. Replace it with a real card before sharing."""
@@ -90,6 +104,7 @@ def default_model_card(card: dict) -> str:
         f"- embodiments: {emb}",
         f"- chunk: {card.get('chunk_frames')} frames at {size}, {card.get('fps')} fps",
         f"- condition: {card.get('condition', 'skeleton')}; base: {card.get('base') or 'none recorded'}",
+        *_conditioning_lines(card),
         f"- licence: {card.get('license') or 'not recorded'}",
         "",
         "```python",

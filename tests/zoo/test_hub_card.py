@@ -71,3 +71,13 @@ def test_an_exported_model_folder_has_a_card_with_the_block(tmp_path):
     assert "embodiment:franka" in meta["tags"] and body.lstrip().startswith("# tiny-ft")
     assert "README.md" not in read_manifest(folder)  # documentation: a download fetches the weights' files only
     oscar_zoo.load(str(folder))  # and the folder still loads
+
+
+def test_the_default_card_names_conditioning_that_changes_the_rollout():
+    from oscar_core.model.hub_card import default_model_card
+
+    plain = default_model_card({"name": "m", "chunk_frames": 17})
+    assert "context" not in plain and "gripper signal" not in plain
+    both = default_model_card({"name": "m", "chunk_frames": 17, "context_frames": 5, "gripper_signal": True})
+    assert "last 5 decoded frames (`context_frames`); open-loop rollouts only" in both
+    assert "gripper's openness per latent frame (`gripper_signal`)" in both
