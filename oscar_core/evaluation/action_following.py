@@ -58,6 +58,7 @@ __all__ = [
     "load_locator",
     "roll_out_variants",
     "run_action_following",
+    "check_encoder_mode",
     "REPORT_VERSION",
 ]
 
@@ -74,7 +75,9 @@ class ActionFollowingSettings:
     model loaded from ``model_spec`` (None: its card's; False: the full decoder; a tiny decoder's file), recorded
     in the run's fingerprint when given; ceiling: score the model's VAE reconstruction of each variant's true frames
     instead of its rollout (:mod:`.action_following_ceiling`; no sampler, no noise seed, only the VAE loaded, its
-    decoder chosen as ``tiny_decoder`` says)."""
+    decoder chosen as ``tiny_decoder`` says); tiny_encoder: a tiny encoder's file that encodes every chunk's condition
+    video instead of the full encoder (None: the full one), recorded in the fingerprint when given; refused with
+    ``ceiling``, which encodes no condition."""
 
     model_spec: str | None = None
     revision: str | None = None
@@ -89,6 +92,22 @@ class ActionFollowingSettings:
     progress: bool = False
     tiny_decoder: object = None
     ceiling: bool = False
+    tiny_encoder: object = None
+
+    def __post_init__(self):
+        check_encoder_mode(self.tiny_encoder, self.ceiling)
+
+
+def check_encoder_mode(tiny_encoder, ceiling: bool, what: str = "tiny_encoder") -> None:
+    """Refuse a tiny condition encoder for a ceiling run, which reconstructs the true frames and encodes no
+    condition video (ModelInputError naming ``what``)."""
+    if ceiling and tiny_encoder not in (None, False):
+        from ..model.errors import ModelInputError
+
+        raise ModelInputError(
+            f"{what}: expected none with the ceiling (it reconstructs the true frames and encodes no condition "
+            f"video), found {tiny_encoder}"
+        )
 
 
 @dataclass
@@ -303,6 +322,7 @@ def _fingerprint_parts(manifest, settings, model_identity, sampler, chunk, judge
         "judge": describe,
         "locator": locator_spec,
         **_decoder_part(settings.tiny_decoder),
+        **_encoder_part(settings.tiny_encoder),
     }
     if settings.ceiling:  # only here: the folders of rollout runs keep their fingerprints
         parts.update(mode=CEILING, sampler=None, seed=None)
@@ -316,6 +336,16 @@ def _decoder_part(tiny_decoder) -> dict:
     from ..model.decoder_options import decoder_identity
 
     return {"decoder": decoder_identity(tiny_decoder)}
+
+
+def _encoder_part(tiny_encoder) -> dict:
+    """``{"encoder": ...}`` when a tiny condition encoder was chosen, else empty (fingerprints made before the
+    option are unchanged)."""
+    if tiny_encoder is None or tiny_encoder is False:
+        return {}
+    from ..model.encoder_options import encoder_identity
+
+    return {"encoder": encoder_identity(tiny_encoder)}
 
 
 def _record_path(out: Path, sid: str) -> Path:
@@ -394,6 +424,7 @@ def _load_model(settings: ActionFollowingSettings):
         device=settings.device,
         dtype=settings.dtype,
         tiny_decoder=settings.tiny_decoder,
+        tiny_encoder=settings.tiny_encoder,
     )
 
 

@@ -38,7 +38,8 @@ def cmd_action_following(args) -> int:
     import torch
 
     from ..model.decoder_options import decoder_choice
-    from .action_following import ActionFollowingSettings, run_action_following
+    from ..model.encoder_options import encoder_choice
+    from .action_following import ActionFollowingSettings, check_encoder_mode, run_action_following
     from .action_following_manifest import load_action_following
     from .cli import load_judge
     from .cli_options import resolve_sampler_flags
@@ -49,6 +50,8 @@ def cmd_action_following(args) -> int:
     if args.paired is not None and not (Path(args.paired) / "report.json").is_file():
         raise MetricInputError(args.paired, "--paired", "another action-following run's folder (report.json)", "none")
     decoder = decoder_choice(args)  # checked before any model is looked up
+    encoder = encoder_choice(args)
+    check_encoder_mode(encoder, args.ceiling, "--tiny-encoder")
     if args.ceiling:
         from .action_following_ceiling import CEILING, check_true_videos
 
@@ -71,6 +74,7 @@ def cmd_action_following(args) -> int:
         progress=not args.no_progress and progress_bars_enabled(),
         tiny_decoder=decoder,
         ceiling=args.ceiling,
+        tiny_encoder=encoder,
     )
     with run_log(args.out, "eval-action-following"):
         result = run_action_following(
@@ -118,6 +122,9 @@ def add_action_following_parser(sub) -> argparse.ArgumentParser:
     r.add_argument("--seed", type=count(0), default=0, help="noise seed of every variant (default 0)")
     add_sampler_options(r)
     add_decoder_options(r)
+    from ..model.encoder_options import add_encoder_option
+
+    add_encoder_option(r)
     r.add_argument("--chunk-frames", type=count(5), help="frames per chunk, 4k+1 (default: the model's)")
     r.add_argument("--device", type=device_name, help="torch device (default: cuda when available, else cpu)")
     r.add_argument("--dtype", choices=("auto", "float32", "bfloat16", "float16"), default="auto")

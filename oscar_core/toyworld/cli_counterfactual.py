@@ -94,6 +94,9 @@ def add_counterfactual_parser(sub, epilog: str = "") -> argparse.ArgumentParser:
     from ..model.decoder_options import add_decoder_options
 
     add_decoder_options(a)
+    from ..model.encoder_options import add_encoder_option
+
+    add_encoder_option(a)
     threads_option(a, "torch CPU threads of the world model")
     a.add_argument("--no-progress", action="store_true", help="no progress bars")
     a.add_argument("--json", action="store_true", help="print the report JSON (without the per-set records)")
@@ -104,11 +107,12 @@ def add_counterfactual_parser(sub, epilog: str = "") -> argparse.ArgumentParser:
 def cmd_action_following(args) -> int:
     """Make the sets for the model's card, then run the benchmark (module docstring)."""
     from ..errors import OscarError
-    from ..evaluation.action_following import ActionFollowingSettings, run_action_following
+    from ..evaluation.action_following import ActionFollowingSettings, check_encoder_mode, run_action_following
     from ..evaluation.loop import card_sampler_of
     from ..metrics.programmatic import ProgrammaticJudge
     from ..model.card_sampler import resolve_sampler
     from ..model.decoder_options import decoder_choice
+    from ..model.encoder_options import encoder_choice
     from ..plugin.registry import Registry
     from .counterfactual import QUICK, write_counterfactual_sets
     from .judge import VERSION, ball_moved
@@ -133,6 +137,8 @@ def cmd_action_following(args) -> int:
     )
     resolve_sampler(None, **options)  # the flags checked before the model is looked up
     decoder = decoder_choice(args)
+    encoder = encoder_choice(args)
+    check_encoder_mode(encoder, args.ceiling, "--tiny-encoder")
     card = _card(args.model)
     choice = resolve_sampler(card_sampler_of(args.model), **options)
     L = int(card.chunk_frames) if card is not None and card.chunk_frames else 17
@@ -174,6 +180,7 @@ def cmd_action_following(args) -> int:
             progress=progress,
             tiny_decoder=decoder,
             ceiling=args.ceiling,
+            tiny_encoder=encoder,
         )
         result = run_action_following(manifest, args.out, judge=judge, settings=settings, paired=args.paired)
         log_result(f"wrote {result.paths['report']}")

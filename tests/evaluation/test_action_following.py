@@ -269,3 +269,42 @@ def test_the_manifest_is_copied_with_its_sets_and_still_loads(sets, tmp_path):
     m = load_action_following(tmp_path / "copy" / "manifest.json")
     assert [v.name for v in m.sets[0].variants][:2] == ["close_at_ball", "stay_open"]
     assert [v.outcome for v in m.sets[0].variants] == TRUTHS
+
+
+def test_tiny_encoder_reaches_the_loader_and_the_fingerprint_and_is_refused_with_the_ceiling(
+    sets, tmp_path, monkeypatch, capsys
+):
+    import oscar_zoo
+    from oscar_core.cli import main
+    from oscar_core.evaluation import action_following as af
+    from oscar_core.model.errors import ModelInputError
+
+    weights = tmp_path / "enc.safetensors"
+    weights.write_bytes(b"not read here")
+    seen = {}
+
+    def fake_load(spec, revision=None, **kw):
+        seen.update(kw)
+        return StandIn(sets, "copy")
+
+    monkeypatch.setattr(oscar_zoo, "load", fake_load)
+    settings = ActionFollowingSettings(model_spec="oscar-toy", sampler=None, resamples=200, tiny_encoder=str(weights))
+    run = run_action_following(sets, tmp_path / "run", judge=_judge(), settings=settings)
+    assert seen["tiny_encoder"] == str(weights)
+    digest = hashlib.sha256(b"not read here").hexdigest()
+    parts = json.loads((tmp_path / "run" / "fingerprint.json").read_text())["parts"]
+    assert parts["encoder"] == f"tiny-sha256:{digest}" and run.report["scores"]
+    plain = af._fingerprint_parts(load_action_following(sets), ActionFollowingSettings(), "m", None, 17, _judge(), "l")
+    assert "encoder" not in plain  # runs without the option keep their fingerprints
+    with pytest.raises(ModelInputError, match="tiny_encoder: expected none with the ceiling"):
+        ActionFollowingSettings(ceiling=True, tiny_encoder=str(weights))
+    monkeypatch.setattr(oscar_zoo, "load", lambda *a, **k: pytest.fail("the model was loaded"))
+    base = ["--model", "oscar-toy", "--ceiling", "--tiny-encoder", str(weights), "--out", str(tmp_path / "c")]
+    assert main(["eval", "action-following", str(sets), "--judge", JUDGE, *base]) == 2
+    assert "--tiny-encoder: expected none with the ceiling" in capsys.readouterr().err
+    assert main(["toyworld", "action-following", "--quick", *base]) == 2
+    assert "--tiny-encoder: expected none with the ceiling" in capsys.readouterr().err
+    assert not (tmp_path / "c" / "sets").exists()  # refused before any set was made
+    missing = ["--model", "oscar-toy", "--tiny-encoder", str(tmp_path / "no.safetensors"), "--out", str(tmp_path / "d")]
+    assert main(["eval", "action-following", str(sets), "--judge", JUDGE, *missing]) == 2
+    assert "--tiny-encoder" in capsys.readouterr().err
