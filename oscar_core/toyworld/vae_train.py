@@ -299,6 +299,22 @@ def _fraction(x: float | None) -> str:
     return "(no held-out frame shows the ball)" if x is None else f"{x:.3f}"
 
 
+def _training_data(clipset, cfg: VAETrainConfig, log) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``(train, held, held_ids)``: the (N, T, H, W, 3) uint8 train clips, the first ``cfg.eval_clips`` held-out
+    clips and their ids; ValueError when the clips are shorter than ``cfg.window``."""
+    t_load = time.perf_counter()
+    train, _ = load_clip_frames(clipset, "train")
+    held, held_ids = load_clip_frames(clipset, "heldout", limit=cfg.eval_clips)
+    log(
+        f"data: {len(train)} train clips {train.shape[1:]}, {len(held)} held-out clips "
+        f"({time.perf_counter() - t_load:.1f} s to load)"
+    )
+    T = train.shape[1]
+    if T < cfg.window:
+        raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
+    return train, held, held_ids
+
+
 def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | None = None) -> dict:
     """Train, evaluate and save; returns the card (also written to ``OUT/vae_card.json``).
 
@@ -318,16 +334,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     rng = np.random.default_rng(cfg.seed)
     out = Path(out)
     state = load_resume_state(out, cfg, clipset) if cfg.resume else None  # checked before any work
-    t_load = time.perf_counter()
-    train, _ = load_clip_frames(clipset, "train")
-    held, held_ids = load_clip_frames(clipset, "heldout", limit=cfg.eval_clips)
-    log(
-        f"data: {len(train)} train clips {train.shape[1:]}, {len(held)} held-out clips "
-        f"({time.perf_counter() - t_load:.1f} s to load)"
-    )
-    N, T = train.shape[:2]
-    if T < cfg.window:
-        raise ValueError(f"--window: expected at most the clips' {T} frames, found {cfg.window}")
+    train, held, held_ids = _training_data(clipset, cfg, log)
     vae, config = _new_or_initial_vae(cfg) if state is None else _resumed_vae(out)
     n_params = sum(p.numel() for p in vae.parameters())
     opt = torch.optim.AdamW(vae.parameters(), lr=cfg.lr, weight_decay=0.0)
