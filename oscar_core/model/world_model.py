@@ -1,7 +1,7 @@
-"""The OSCAR world model as one object: DiT + VAE + text fallback + model card.
+"""The OSCAR world model as one object (over 600 lines: one class whose loaders, saver and rollouts share state).
 
-One class, one job (over 600 lines because its loaders, saver and the four rollout entry points share the loaded
-modules and the card; the chunk loop itself lives in :mod:`.rollout`, the card in :mod:`.card`).
+DiT + VAE + text fallback + model card. One class, one job: its loaders, saver and the four rollout entry points
+share the loaded modules and the card; the chunk loop itself lives in :mod:`.rollout`, the card in :mod:`.card`.
 
 The model card (:class:`ModelCard`, :func:`read_card`, ``FORMAT``) lives in :mod:`oscar_core.model.card` and is
 re-exported here.

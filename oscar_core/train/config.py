@@ -1,7 +1,6 @@
-"""The training configuration: a tree of dataclasses read from YAML.
+"""The training configuration, one schema (over 600 lines: every field's comment says where its default comes from).
 
-One job, the schema (over 600 lines because every section's fields carry the comment saying where their default
-comes from; loading and checking the YAML follow the dataclasses they fill).
+A tree of dataclasses read from YAML. Loading and checking the YAML follow the dataclasses they fill.
 
 Every field has a default and a comment saying where its value comes from.
 Defaults are the paper's recipe (Appendix "Training implementation
