@@ -28,10 +28,13 @@ from .motion import ToyWorldError
 __all__ = [
     "clipset_digest",
     "FREE_SETTINGS",
+    "finish_state",
     "RESUME_FORMAT",
     "load_resume_state",
+    "restore",
     "resume_state_files",
     "weights_sha256",
+    "write_files",
 ]
 
 RESUME_FORMAT = "oscar-toy-vae-resume"

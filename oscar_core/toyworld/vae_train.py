@@ -333,6 +333,7 @@ def train_vae(clipset, out, cfg: VAETrainConfig, log: Callable[[str], None] | No
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     out = Path(out)
+    _sweep_dead_save(out)  # a killed run's temporaries, before its state is read
     state = load_resume_state(out, cfg, clipset) if cfg.resume else None  # checked before any work
     train, held, held_ids = _training_data(clipset, cfg, log)
     vae, config = _new_or_initial_vae(cfg) if state is None else _resumed_vae(out)
@@ -422,11 +423,29 @@ def _resumed_vae(out: Path):
     return vae, {k: vae.config[k] for k in TOY_VAE_CONFIG}
 
 
+def _sweep_dead_save(out: Path) -> None:
+    """Undo what a save killed mid-way (:func:`_save`) left in ``out``: its temporaries (``.vae.tmp``,
+    ``.resume.tmp``) are removed, and a folder it had renamed aside (``.vae.old``, ``.resume.old``) goes back to its
+    name when nothing took its place (else it is removed). A vae/ and resume/ of different steps that this leaves
+    are refused by ``--resume`` (the sha256 of the weights)."""
+    import os
+    import shutil
+
+    for name in ("vae", "resume") if out.is_dir() else ():
+        tmp, old = out / f".{name}.tmp", out / f".{name}.old"
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        if old.exists() and not (out / name).exists():
+            os.replace(old, out / name)
+        elif old.exists():
+            shutil.rmtree(old)
+
+
 def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, t0, step, stopped, resume) -> dict:
     """Write OUT/vae (the weights, with the latents' statistics), OUT/resume (the state to carry on from,
     :mod:`~oscar_core.toyworld.vae_resume`) and OUT/vae_card.json; returns the card. Each folder is written aside and
-    renamed in, the old one renamed aside first and removed after, so a crash never leaves OUT without weights; a
-    crash between the two swaps leaves a resume/ that names other weights, which ``--resume`` refuses."""
+    renamed in, the old one renamed aside (``.NAME.old``) first and removed after; a killed save leaves its
+    temporaries and, at worst, the previous folder aside, which :func:`_sweep_dead_save` clears and puts back."""
     import copy
     import os
     import shutil
@@ -438,10 +457,8 @@ def _save(vae, out: Path, train, cfg, config, curve, evals, held_ids, n_params, 
     # settings the network does not compute with (VideoVAE normalises latents by them): a new config, same weights
     final.config = ModelConfig({**final.config, "latents_mean": mean, "latents_std": std})
     out.mkdir(parents=True, exist_ok=True)
+    _sweep_dead_save(out)
     tmp, tmp_state = out / ".vae.tmp", out / ".resume.tmp"
-    for t in (tmp, tmp_state):
-        if t.exists():  # a dead run's
-            shutil.rmtree(t)
     final.save_pretrained(tmp, safe_serialization=True)
     write_files(tmp_state, finish_state(resume, weights_sha256(tmp)))
     for new, name in ((tmp, "vae"), (tmp_state, "resume")):

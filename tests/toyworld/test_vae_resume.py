@@ -118,3 +118,17 @@ def test_cli_resume_flag_and_exit_code(clips, tmp_path, capsys):
     capsys.readouterr()
     assert main(base + ["--resume", "--window", "9"]) == 2
     assert "settings.window: expected the resumed run's 5, found 9 given now" in capsys.readouterr().err
+
+
+def test_a_save_killed_between_its_renames_resumes_and_leaves_no_temporaries(clips, tmp_path):
+    straight = _train(clips, tmp_path / "straight")
+    run = tmp_path / "run"
+    _train(clips, run, stop_at=2)
+    # kill -9 inside the next save: its new weights half-written aside, the old vae/ already renamed away
+    (run / "vae").rename(run / ".vae.old")
+    (run / ".vae.tmp").mkdir()
+    (run / ".vae.tmp" / "diffusion_pytorch_model.safetensors").write_bytes(b"half")
+    (run / ".resume.tmp").mkdir()
+    assert _train(clips, run, resume=True)["steps_done"] == 4
+    assert _same(_weights(tmp_path / "straight"), _weights(run)) and straight["steps_done"] == 4
+    assert sorted(p.name for p in run.iterdir() if p.name.startswith(".")) == []
