@@ -175,6 +175,15 @@ class FlowSection:
     # context a rollout's first chunk has (ours; Cosmos-Predict2.5's Video2World trainers likewise draw 1 or 2
     # conditioning latent frames per sample)
     context_dropout: float = 0.25
+    # ours, against drift (self forcing, oscar_core.train.self_forcing): the fraction of items whose first frame is
+    # the model's own, as chunk 2 of a rollout sees it: the model being trained samples the window that ends at the
+    # item's first frame (data.window - 1 frames earlier, from its clean first frame; no gradient), the VAE decodes
+    # it and re-encodes its last frame. Only items with such a window in their clip qualify. 0: off
+    self_forcing: float = 0.0
+    # how that window is sampled, as the model's rollouts will sample it (ours: the toy benchmark's 10 steps,
+    # guidance 3 in the diffusers form; null guidance: the conditional branch alone, half the cost)
+    self_forcing_steps: int = 10
+    self_forcing_guidance: float | None = 3.0
 
 
 @dataclass
@@ -314,6 +323,7 @@ class TrainConfig:
         cn = self.flow.cond_noise_max
         if isinstance(cn, bool) or not isinstance(cn, (int, float)) or not 0.0 <= cn <= 1.0:
             bad("flow.cond_noise_max", "a noise level in [0, 1]", cn)
+        _check_flow_self_forcing(self, bad)
         o = self.optim
         if not o.lr > 0:
             bad("optim.lr", "a positive number", o.lr)
@@ -416,6 +426,29 @@ def _check_context(config: TrainConfig, bad) -> None:
         bad("model.context_frames", "1 for a latent-action model", cf)
     if cf != 1 and config.distill.teacher is not None:
         bad("model.context_frames", "1 when distilling (the distillation's chunks start from one frame)", cf)
+
+
+def _check_flow_self_forcing(config: TrainConfig, bad) -> None:
+    """``flow.self_forcing`` and its sampler; ``bad(name, expected, found)`` raises for the first bad field."""
+    f = config.flow
+    sf = f.self_forcing
+    if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not 0.0 <= sf <= 1.0:
+        bad("flow.self_forcing", "a fraction in [0, 1]", sf)
+    steps = f.self_forcing_steps
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        bad("flow.self_forcing_steps", "a positive integer", steps)
+    g = f.self_forcing_guidance
+    if g is not None and (isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0):
+        bad("flow.self_forcing_guidance", "a number >= 0 (or null: no guidance)", g)
+    if sf > 0:
+        if config.distill.teacher is not None:
+            bad("flow.self_forcing", "0 when distilling (distill.self_forcing says how a student self-forces)", sf)
+        if config.condition not in ("skeleton", "mesh", "capsules"):
+            bad("condition", "a condition video (skeleton, mesh, capsules) with flow.self_forcing", config.condition)
+        if config.model.context_frames != 1:
+            bad(
+                "model.context_frames", "1 with flow.self_forcing (one frame carried over)", config.model.context_frames
+            )
 
 
 def _check_distill_section(config: TrainConfig, bad) -> None:

@@ -40,11 +40,13 @@ from dataclasses import dataclass, replace
 import torch
 
 from ..model.card_sampler import sampler_of_card
-from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity, sample_chunk
+from ..model.sampler import SamplerConfig, flow_sigmas, guided_velocity
 from .config import TrainConfigError
 from .data import Batch
 from .flow import flow_inputs, flow_loss
+from .parallel import any_rank_samples
 from .sampling import PlanItem, item_noise
+from .self_forcing import CHOICE_SALT, CONTEXT_SALT, check_previous_windows, own_first_frames, self_forced
 
 __all__ = [
     "Teacher",
@@ -164,98 +166,34 @@ def distill_loss(
     return flow_loss(pred, replace(inputs, target=target))
 
 
-_CHOICE_SALT = 0x5F0C  # seeds derived from an item's noise seed: whether it is self-forced, its context's noise
-_CONTEXT_SALT = 0xC0DE
-
-
-def self_forced(item: PlanItem, fraction: float) -> bool:
-    """Whether ``item`` is trained from the student's own first frame: a uniform draw from its noise seed below
-    ``fraction`` (so every process count and a resumed run choose the same items)."""
-    if fraction <= 0.0:
-        return False
-    if fraction >= 1.0:
-        return True
-    g = torch.Generator().manual_seed(item.noise_seed ^ _CHOICE_SALT)
-    return float(torch.rand((), generator=g)) < fraction
+_CHOICE_SALT, _CONTEXT_SALT = CHOICE_SALT, CONTEXT_SALT  # the names this module's callers import
 
 
 def self_force(student, data, batch: Batch, items: list[PlanItem], config, device, autocast=None) -> tuple[Batch, int]:
-    """(``batch`` with the first latent frame of its self-forced items replaced, how many were replaced).
-
-    For item k chosen by :func:`self_forced` whose clip has a window at ``start − (window − 1)`` (``data``, a
-    :class:`~.data.TrainData`, says), the student samples that window from its clean first frame and its condition
-    (``distill.steps`` Euler steps, no guidance, noise from the item's seed), the VAE decodes the (B, C, T', h, w)
-    latent to (B, 3, window, H, W) pixels clamped to [−1, 1], and the encoded last frame (B, C, 1, h, w) becomes
-    item k's first latent frame. No gradient flows through it.
-    """
-    d = config.distill
-    back = config.data.window - 1
-    chosen = [
-        k for k, it in enumerate(items) if self_forced(it, d.self_forcing) and data.has_window(it.clip, it.start - back)
-    ]
-    context = [replace(items[k], start=items[k].start - back, drop=False) for k in chosen]
-    if _any_rank_samples(bool(chosen), config) and not chosen:
-        # FSDP2 gathers the student's weights in every forward, so each process must sample when any does: a rank
-        # with nothing to self-force samples its first item's own window and throws the result away
-        context = [replace(items[0], drop=False)]
-    if not context:
-        return batch, 0
-    prev = data.batch(context, config.condition)
-    # the student's own sampler, read from the description its export writes (student_sampler) as a rollout of the
-    # exported student reads it: Euler, distill.steps, no guidance; called whole, so FSDP2 gathers its shards
+    """(``batch`` with the first latent frame of its self-forced items replaced, how many were replaced):
+    :func:`~.self_forcing.own_first_frames` with the student's own sampler, read from the description its export
+    writes (:func:`student_sampler`: ``distill.steps`` Euler steps, no guidance), as a rollout of the exported
+    student reads it, for the ``distill.self_forcing`` share of items."""
     sampler = sampler_of_card(*student_sampler(config), cond_timestep=config.flow.cond_timestep)
-    generators = [torch.Generator().manual_seed(it.noise_seed ^ _CONTEXT_SALT) for it in context]
-    with torch.no_grad(), autocast or contextlib.nullcontext():
-        latent = sample_chunk(
-            student,
-            prev.z0[:, :, :1].to(device, torch.float32),
-            prev.skeleton.to(device, torch.float32),
-            prev.text.to(device),
-            sampler,
-            generators=generators,
-            project_once=False,
-        )
-    if not chosen:
-        return batch, 0
-    with torch.no_grad():
-        video = data.vae.decode(latent.float()).clamp(-1.0, 1.0)
-        first = data.vae.encode(video[:, :, -1:]).to(batch.z0.dtype).cpu()
-    z0 = batch.z0.clone()
-    z0[chosen, :, :1] = first
-    return replace(batch, z0=z0), len(chosen)
-
-
-def _any_rank_samples(mine: bool, config) -> bool:
-    """Whether any process of a sharded (FSDP2) run has an item to self-force this micro-batch (``mine`` for one
-    process, or a run without sharded weights, where each process samples on its own)."""
-    import torch.distributed as dist
-
-    if config.parallel != "fsdp" or not (dist.is_available() and dist.is_initialized()):
-        return mine
-    flag = torch.tensor([int(mine)])
-    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
-    return bool(flag.item())
+    return own_first_frames(
+        student,
+        data,
+        batch,
+        items,
+        config.distill.self_forcing,
+        sampler,
+        device,
+        condition=config.condition,
+        window=config.data.window,
+        autocast=autocast,
+        any_rank=lambda mine: any_rank_samples(mine, config),
+    )
 
 
 def check_self_forcing(config, data, source: str = "<config>") -> int:
     """How many of ``data``'s clips hold a window with the window ``data.window − 1`` frames before it (what a
     self-forced item needs); a :class:`TrainConfigError` when ``distill.self_forcing`` is on and none does."""
-    if config.distill.self_forcing <= 0:
-        return 0
-    back = config.data.window - 1
-    n = 0
-    for k, u in enumerate(data.clips):
-        starts = u.starts if data.cached and u.starts is not None else [back]
-        n += any(data.has_window(k, int(s)) and data.has_window(k, int(s) - back) for s in starts)
-    if n == 0:
-        raise TrainConfigError(
-            source,
-            "distill.self_forcing",
-            f"clips with two windows {back} frames apart (at least {2 * back + 1} frames"
-            + (", cached at both starts)" if data.cached else ")"),
-            f"none among {len(data.clips)} clips",
-        )
-    return n
+    return check_previous_windows(config.distill.self_forcing, "distill.self_forcing", data, config.data.window, source)
 
 
 def check_teacher(config, source: str = "<config>"):

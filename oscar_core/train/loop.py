@@ -24,6 +24,7 @@ import torch
 
 from .._util.atomic import atomic_write_bytes
 from .._util.log import get_logger, progress_bar
+from ..model.sampler import SamplerConfig
 from ..render.conditions import is_video_condition, takes_actions
 from .checkpoint import (
     checkpoint_step,
@@ -39,8 +40,17 @@ from .distill import distill_loss, self_force
 from .flow import flow_inputs, flow_loss
 from .loader import iter_batches, micro_batches
 from .models import build_transformer, build_vae, prepare_for_training
-from .parallel import DistInfo, all_reduce_mean, close_distributed, init_distributed, no_sync, wrap_model
+from .parallel import (
+    DistInfo,
+    all_reduce_mean,
+    any_rank_samples,
+    close_distributed,
+    init_distributed,
+    no_sync,
+    wrap_model,
+)
 from .sampling import PlanItem, StepPlanner, item_cond_sigma, item_context, item_noise
+from .self_forcing import check_previous_windows, own_first_frames
 
 __all__ = [
     "CONFIG_FILE",
@@ -357,6 +367,7 @@ def _build_run(config: TrainConfig, ckpt, registry, source: str, info: DistInfo,
         from .distill import load_teacher
 
         teacher = load_teacher(config, data, info.device, source)
+    check_previous_windows(config.flow.self_forcing, "flow.self_forcing", data, config.data.window, source)
     if config.parent_run and ckpt is None:
         load_weights(latest_checkpoint(config.parent_run), model, key="model")
     shards = info.world if config.parallel == "fsdp" else 1
@@ -419,6 +430,9 @@ def _accumulate_gradients(config: TrainConfig, run: _Run, info: DistInfo, step: 
         assert (got_step, got_k) == (step, k), "the loader hands out micro-batches in plan order"
         with no_sync(run.wrapped, k == run.accum - 1):
             if run.teacher is None:
+                if config.flow.self_forcing > 0:
+                    batch, n_forced = _flow_self_force(run, batch, micro, config, info.device)
+                    forced += n_forced
                 loss = step_loss(run.wrapped, batch, micro, config, info.device, run.autocast)
             else:
                 if config.distill.self_forcing > 0:
@@ -430,6 +444,35 @@ def _accumulate_gradients(config: TrainConfig, run: _Run, info: DistInfo, step: 
             (loss / run.accum).backward()
         loss_sum += float(loss.detach()) / run.accum
     return loss_sum, forced
+
+
+def _flow_self_force(run: _Run, batch: Batch, micro: list[PlanItem], config: TrainConfig, device) -> tuple[Batch, int]:
+    """``flow.self_forcing``: the micro-batch with its chosen items' first latent frames made by the model being
+    trained (:func:`~.self_forcing.own_first_frames`), sampled in ``flow.self_forcing_steps`` Euler steps with
+    guidance ``flow.self_forcing_guidance`` (diffusers form) on the training schedule's shift."""
+    f = config.flow
+    sampler = SamplerConfig(
+        steps=f.self_forcing_steps,
+        shift=f.shift,
+        guidance=f.self_forcing_guidance,
+        guidance_form="diffusers",
+        cond_timestep=f.cond_timestep,
+        solver="euler",
+    )
+    model = run.wrapped if config.parallel == "fsdp" else run.model  # DDP's wrapper would sync buffers
+    return own_first_frames(
+        model,
+        run.data,
+        batch,
+        micro,
+        f.self_forcing,
+        sampler,
+        device,
+        condition=config.condition,
+        window=config.data.window,
+        autocast=run.autocast,
+        any_rank=lambda mine: any_rank_samples(mine, config),
+    )
 
 
 def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progress: bool) -> float | None:
@@ -507,7 +550,7 @@ def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progr
                 if context_latents(config) > 1:  # items of the step trained on the first frame alone
                     drawn_context = item_context(whole, context_latents(config), config.flow.context_dropout)
                     record["context_one_frame"] = drawn_context.count(1)
-                if run.teacher is not None and config.distill.self_forcing > 0:
+                if config.distill.self_forcing > 0 or config.flow.self_forcing > 0:
                     record["self_forced"] = forced  # this rank's, since the previous record
                     forced = 0
                 log.write(json.dumps(record) + "\n")

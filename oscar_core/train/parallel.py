@@ -19,7 +19,16 @@ from dataclasses import dataclass
 import torch
 import torch.distributed as dist
 
-__all__ = ["DistInfo", "init_distributed", "close_distributed", "wrap_model", "no_sync", "barrier", "all_reduce_mean"]
+__all__ = [
+    "DistInfo",
+    "init_distributed",
+    "close_distributed",
+    "wrap_model",
+    "no_sync",
+    "barrier",
+    "all_reduce_mean",
+    "any_rank_samples",
+]
 
 
 @dataclass(frozen=True)
@@ -120,3 +129,14 @@ def all_reduce_mean(value: float, info: DistInfo) -> float:
     t = torch.tensor([float(value)], dtype=torch.float64)
     dist.all_reduce(t)
     return float(t.item()) / info.world
+
+
+def any_rank_samples(mine: bool, config) -> bool:
+    """Whether any process of a sharded (FSDP2) run has something to sample this micro-batch (``mine`` for one
+    process, or a run without sharded weights, where each process samples on its own): FSDP2 gathers the weights
+    in every forward, so each process must run one when any does."""
+    if config.parallel != "fsdp" or not (dist.is_available() and dist.is_initialized()):
+        return mine
+    flag = torch.tensor([int(mine)])
+    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+    return bool(flag.item())
