@@ -6,6 +6,8 @@ test that builds its own model agree.
 
 from pathlib import Path
 
+import torch
+
 from oscar_core.model import ModelCard, OscarWorldModel
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
 from oscar_core.train.config import TrainConfig, config_from_dict, load_config
@@ -73,3 +75,72 @@ def trained_weights(run_dir, key="model") -> dict:
     """The state dict of the latest checkpoint of ``run_dir`` (``key``: "model" or "ema")."""
     model = build_transformer(load_config(Path(run_dir) / "config.yaml"))
     return load_weights(latest_checkpoint(run_dir), model, key=key).state_dict()
+
+
+def long_clipset(folder: Path) -> Path:
+    """Two 21-frame clips at 32x32 with seeded latents of every 9-frame window (starts 0..12): windows 8 frames
+    apart, what a self-forced item needs (:mod:`oscar_core.train.self_forcing`); returns its folder."""
+    return write_toy_clipset(folder, clips=2, frames=21, width=32, height=32, latents_vae="random", latents_window=9)
+
+
+class ClosedFormDiT(torch.nn.Module):
+    """A DiT with a velocity known in closed form, v = λ x + β S + γ x[:, :, :1] + δ t (S the condition latent, t the
+    timestep): a sampler's result can be written by hand. Its text projection is the identity."""
+
+    dtype = torch.float32
+
+    def __init__(self, lam=0.3, beta=0.7, gamma=0.4, delta=0.2):
+        super().__init__()
+        self.anchor = torch.nn.Parameter(torch.zeros(()))  # where the sampler looks for the device
+        self.lam, self.beta, self.gamma, self.delta = lam, beta, gamma, delta
+
+    def project_text(self, text):
+        return text
+
+    def forward(self, hidden_states, timestep, encoder_hidden_states, condition_mask, padding_mask, **kw):
+        x, s = hidden_states, kw["skeleton_latents"]
+        return (self.lam * x + self.beta * s + self.gamma * x[:, :, :1] + self.delta * timestep,)
+
+    def euler_by_hand(self, first, skel, noise, steps, *, uncond=None, w=0.0, shift=5.0):
+        """The chunk (B, C, T, h, w) the Euler sampler makes from ``first`` (B, C, 1, h, w) with this field, written
+        out: the grid flow_sigmas(steps, shift), frame 0 clean at timestep 1e-4, the velocity guided in the diffusers
+        form v_c + w (v_c − v_u), v_u the field on ``uncond`` (w = 0: the conditional branch alone)."""
+        from oscar_core.model.sampler import flow_sigmas
+
+        x = noise.double().clone()
+        x[:, :, :1] = first.double()
+        sig = flow_sigmas(steps, shift).tolist()
+        for s_now, s_next in zip(sig[:-1], sig[1:]):
+            t = torch.full_like(x[:, :1], s_now)
+            t[:, :, :1] = 1e-4
+            base = self.lam * x + self.gamma * x[:, :, :1] + self.delta * t
+            v = base + self.beta * skel.double()
+            if w:
+                v = v + w * (v - (base + self.beta * uncond.double()))
+            x[:, :, 1:] += (s_next - s_now) * v[:, :, 1:]
+        return x.float()
+
+
+def metrics_rows(run_dir) -> list[dict]:
+    """The records of a run's ``metrics.jsonl``."""
+    import json
+
+    return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+
+
+def assert_resumes_bitwise(make_config, tmp_path: Path) -> Path:
+    """Trains ``make_config(run_dir)`` (a :class:`TrainConfig` of at least 3 steps) whole in ``tmp_path/straight`` and
+    again in ``tmp_path/split``, stopped after step 2 and resumed; asserts that their model and EMA weights are equal
+    bit for bit. Returns the straight run's folder."""
+    from oscar_core.train.config import config_to_dict
+    from oscar_core.train.loop import train
+
+    straight = make_config(tmp_path / "straight")
+    train(straight, progress=False)
+    split = config_from_dict(config_to_dict(make_config(tmp_path / "split")))
+    assert train(split, progress=False, stop_after=2).step == 2
+    train(resume=split.run_dir, progress=False)
+    for key in ("model", "ema"):
+        a, b = trained_weights(straight.run_dir, key), trained_weights(split.run_dir, key)
+        assert all(torch.equal(a[k], b[k]) for k in a), key
+    return Path(straight.run_dir)

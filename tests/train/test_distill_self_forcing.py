@@ -5,19 +5,18 @@ closed form), the VAE decodes it and re-encodes its last frame; items without su
 choice is a function of the item's seed; a self-forced tiny run resumes bitwise, trains differently and gives
 the same weights on 1 and 2 processes."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import yaml
-from _models import tiny_train_config
+from _models import ClosedFormDiT, assert_resumes_bitwise, long_clipset, metrics_rows, tiny_train_config
 from _torchrun import train_under_torchrun
 
-from oscar_core.model.sampler import SamplerConfig, flow_sigmas, sample_chunk
+from oscar_core.model.sampler import SamplerConfig, sample_chunk
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
-from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict, load_config
+from oscar_core.train.config import TrainConfigError, config_to_dict, load_config
 from oscar_core.train.data import TrainData
 from oscar_core.train.distill import _CONTEXT_SALT, self_force, self_forced
 from oscar_core.train.loop import train
@@ -28,47 +27,13 @@ from oscar_core.train.synthetic import write_toy_clipset
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
-class _FieldStudent(torch.nn.Module):
-    """A student with a velocity known in closed form, v = λ x + β S + γ x[:, :, :1] + δ t (S the condition
-    latent, t the timestep); its text projection is the identity."""
-
-    dtype = torch.float32
-
-    def __init__(self, lam=0.3, beta=0.7, gamma=0.4, delta=0.2):
-        super().__init__()
-        self.anchor = torch.nn.Parameter(torch.zeros(()))  # where the sampler looks for the device
-        self.lam, self.beta, self.gamma, self.delta = lam, beta, gamma, delta
-
-    def project_text(self, text):
-        return text
-
-    def forward(self, hidden_states, timestep, encoder_hidden_states, condition_mask, padding_mask, **kw):
-        x, s = hidden_states, kw["skeleton_latents"]
-        return (self.lam * x + self.beta * s + self.gamma * x[:, :, :1] + self.delta * timestep,)
-
-
 @pytest.fixture(scope="module")
 def long_clips(tmp_path_factory):
-    """Two 21-frame clips at 32x32 with seeded latents of every 9-frame window (starts 0..12)."""
-    root = tmp_path_factory.mktemp("sf") / "clips"
-    return write_toy_clipset(root, clips=2, frames=21, width=32, height=32, latents_vae="random", latents_window=9)
+    return long_clipset(tmp_path_factory.mktemp("sf") / "clips")
 
 
 def _config(clips, run_dir, **over):
     return tiny_train_config(clips, run_dir, **{"distill.steps": 3, "distill.self_forcing": 1.0, **over})
-
-
-def _euler_by_hand(f: _FieldStudent, first, skel, noise, steps, shift=5.0):
-    """The student's chunk from ``first`` (B, C, 1, h, w): Euler on flow_sigmas(steps, shift), frame 0 clean."""
-    x = noise.double().clone()
-    x[:, :, :1] = first.double()
-    sig = flow_sigmas(steps, shift).tolist()
-    for s_now, s_next in zip(sig[:-1], sig[1:]):
-        t = torch.full_like(x[:, :1], s_now)
-        t[:, :, :1] = 1e-4
-        v = f.lam * x + f.beta * skel.double() + f.gamma * x[:, :, :1] + f.delta * t
-        x[:, :, 1:] += (s_next - s_now) * v[:, :, 1:]
-    return x.float()
 
 
 def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previous_chunk(tmp_path, long_clips):
@@ -78,7 +43,7 @@ def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previ
     assert data.cached and data.has_window(0, 12) and data.has_window(0, 0) and not data.has_window(0, 13)
     items = [PlanItem(0, 8, False, 0.7, 101), PlanItem(1, 3, False, 0.4, 102), PlanItem(1, 8, False, 0.2, 103)]
     batch = data.batch(items, "skeleton")
-    student = _FieldStudent()
+    student = ClosedFormDiT()
     forced, n = self_force(student, data, batch, items, config, "cpu")
     assert n == 2  # the item at frame 3 has no window 8 frames before it
 
@@ -90,7 +55,7 @@ def test_a_self_forced_item_starts_from_the_last_frame_of_the_students_own_previ
             for seed in (101, 103)
         ]
     )
-    chunk = _euler_by_hand(student, prev.z0[:, :, :1], prev.skeleton, noise, steps=3)
+    chunk = student.euler_by_hand(prev.z0[:, :, :1], prev.skeleton, noise, steps=3)
     pixels = vae.decode(chunk).clamp(-1, 1)  # (2, 3, 9, 32, 32)
     expected = vae.encode(pixels[:, :, -1:])
     torch.testing.assert_close(forced.z0[0, :, :1], expected[0], rtol=1e-4, atol=1e-4)
@@ -164,20 +129,13 @@ def _weights(run_dir, key="model"):
 def test_a_self_forced_distillation_resumes_bitwise_and_trains_otherwise_than_without(tmp_path, long_clips):
     teacher = train(tiny_train_config(long_clips, tmp_path / "teacher", steps=2, export=True), progress=False).export
     common = {"model.init": str(teacher), "distill.teacher": str(teacher), "batch_size": 4, "micro_batch": 2}
-    straight = _config(long_clips, tmp_path / "straight", **common)
-    train(straight, progress=False)
-    split = config_from_dict(config_to_dict(_config(long_clips, tmp_path / "split", **common)))
-    assert train(split, progress=False, stop_after=2).step == 2
-    train(resume=split.run_dir, progress=False)
-    for key in ("model", "ema"):
-        a, b = _weights(straight.run_dir, key), _weights(split.run_dir, key)
-        assert all(torch.equal(a[k], b[k]) for k in a), key
-    rows = [json.loads(line) for line in (Path(straight.run_dir) / "metrics.jsonl").read_text().splitlines()]
+    straight = assert_resumes_bitwise(lambda run_dir: _config(long_clips, run_dir, **common), tmp_path)
+    rows = metrics_rows(straight)
     forced = [r["self_forced"] for r in rows if "self_forced" in r]
     assert len(forced) == 4 and sum(forced) > 0  # log_every 1: items trained from their own frame, per step
     plain = _config(long_clips, tmp_path / "plain", **common, **{"distill.self_forcing": 0.0})
     train(plain, progress=False)
-    a, b = _weights(straight.run_dir), _weights(plain.run_dir)
+    a, b = _weights(straight), _weights(plain.run_dir)
     assert not all(torch.equal(a[k], b[k]) for k in a)  # the student's own first frames change what it learns
 
 

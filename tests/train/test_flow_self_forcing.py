@@ -4,15 +4,19 @@ the item's dropped condition (checked against a guided Euler loop written here o
 closed form), decoded and re-encoded; the run logs how many items it forced, trains otherwise than without, resumes
 bitwise; bad settings are refused by field before anything is written."""
 
-import json
-from pathlib import Path
-
 import pytest
 import torch
-from _models import tiny_train_config, trained_weights
+from _models import (
+    ClosedFormDiT,
+    assert_resumes_bitwise,
+    long_clipset,
+    metrics_rows,
+    tiny_train_config,
+    trained_weights,
+)
 
-from oscar_core.model.sampler import SamplerConfig, flow_sigmas
-from oscar_core.train.config import TrainConfigError, config_from_dict, config_to_dict
+from oscar_core.model.sampler import SamplerConfig
+from oscar_core.train.config import TrainConfigError
 from oscar_core.train.data import TrainData
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_vae
@@ -23,46 +27,9 @@ from oscar_core.train.synthetic import write_toy_clipset
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
-class _Field(torch.nn.Module):
-    """A DiT with a velocity known in closed form, v = λ x + β S + γ x[:, :, :1] + δ t (S the condition latent, t the
-    timestep); its text projection is the identity."""
-
-    dtype = torch.float32
-
-    def __init__(self, lam=0.3, beta=0.7, gamma=0.4, delta=0.2):
-        super().__init__()
-        self.anchor = torch.nn.Parameter(torch.zeros(()))  # where the sampler looks for the device
-        self.lam, self.beta, self.gamma, self.delta = lam, beta, gamma, delta
-
-    def project_text(self, text):
-        return text
-
-    def forward(self, hidden_states, timestep, encoder_hidden_states, condition_mask, padding_mask, **kw):
-        x, s = hidden_states, kw["skeleton_latents"]
-        return (self.lam * x + self.beta * s + self.gamma * x[:, :, :1] + self.delta * timestep,)
-
-
 @pytest.fixture(scope="module")
 def long_clips(tmp_path_factory):
-    """Two 21-frame clips at 32x32 with seeded latents of every 9-frame window (starts 0..12)."""
-    root = tmp_path_factory.mktemp("flow_sf") / "clips"
-    return write_toy_clipset(root, clips=2, frames=21, width=32, height=32, latents_vae="random", latents_window=9)
-
-
-def _guided_euler_by_hand(f: _Field, first, skel, uncond, noise, steps, w, shift=5.0):
-    """The chunk from ``first`` (B, C, 1, h, w): Euler on flow_sigmas(steps, shift), frame 0 clean, the velocity
-    guided in the diffusers form v_c + w (v_c − v_u), v_u the same field on the unconditional latent."""
-    x = noise.double().clone()
-    x[:, :, :1] = first.double()
-    sig = flow_sigmas(steps, shift).tolist()
-    for s_now, s_next in zip(sig[:-1], sig[1:]):
-        t = torch.full_like(x[:, :1], s_now)
-        t[:, :, :1] = 1e-4
-        base = f.lam * x + f.gamma * x[:, :, :1] + f.delta * t
-        v_c, v_u = base + f.beta * skel.double(), base + f.beta * uncond.double()
-        v = v_c + w * (v_c - v_u)
-        x[:, :, 1:] += (s_next - s_now) * v[:, :, 1:]
-    return x.float()
+    return long_clipset(tmp_path_factory.mktemp("flow_sf") / "clips")
 
 
 @pytest.mark.parametrize("uncond_kind", ["zero_latent", "black_video"])
@@ -74,7 +41,7 @@ def test_the_models_own_first_frame_is_sampled_guided_against_the_dropped_condit
     data = TrainData(config, vae, text_dim=48)
     items = [PlanItem(0, 8, False, 0.7, 11), PlanItem(1, 3, True, 0.4, 12), PlanItem(1, 12, True, 0.2, 13)]
     batch = data.batch(items, "skeleton")
-    field = _Field()
+    field = ClosedFormDiT()
     sampler = SamplerConfig(steps=3, shift=5.0, guidance=2.5, guidance_form="diffusers", solver="euler")
     forced, n = own_first_frames(
         field, data, batch, items, 1.0, sampler, "cpu", condition="skeleton", window=9, autocast=None
@@ -95,17 +62,17 @@ def test_the_models_own_first_frame_is_sampled_guided_against_the_dropped_condit
             for seed in (11, 13)
         ]
     )
-    chunk = _guided_euler_by_hand(field, prev.z0[:, :, :1], prev.skeleton, uncond, noise, steps=3, w=2.5)
+    chunk = field.euler_by_hand(prev.z0[:, :, :1], prev.skeleton, noise, steps=3, uncond=uncond, w=2.5)
     expected = vae.encode(vae.decode(chunk).clamp(-1, 1)[:, :, -1:])
     torch.testing.assert_close(forced.z0[0, :, :1], expected[0], rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(forced.z0[2, :, :1], expected[1], rtol=1e-4, atol=1e-4)
     assert torch.equal(forced.z0[:, :, 1:], batch.z0[:, :, 1:]) and torch.equal(forced.z0[1], batch.z0[1])
     assert torch.equal(forced.skeleton, batch.skeleton)
     # the test can fail: the same loop unguided, or guided against zeros where the black video was dropped to
-    unguided = _guided_euler_by_hand(field, prev.z0[:, :, :1], prev.skeleton, uncond, noise, steps=3, w=0.0)
+    unguided = field.euler_by_hand(prev.z0[:, :, :1], prev.skeleton, noise, steps=3, uncond=uncond, w=0.0)
     assert not torch.allclose(vae.encode(vae.decode(unguided).clamp(-1, 1)[:, :, -1:]), expected, atol=1e-3)
     if uncond_kind == "black_video":
-        zeros = _guided_euler_by_hand(field, prev.z0[:, :, :1], prev.skeleton, 0 * uncond, noise, steps=3, w=2.5)
+        zeros = field.euler_by_hand(prev.z0[:, :, :1], prev.skeleton, noise, steps=3, uncond=0 * uncond, w=2.5)
         assert not torch.allclose(vae.encode(vae.decode(zeros).clamp(-1, 1)[:, :, -1:]), expected, atol=1e-3)
 
 
@@ -116,37 +83,28 @@ def test_without_guidance_the_conditional_branch_alone_samples(tmp_path, long_cl
     items = [PlanItem(0, 12, False, 0.5, 21)]
     batch = data.batch(items, "skeleton")
     sampler = SamplerConfig(steps=2, shift=5.0, guidance=None, solver="euler")
-    forced, n = own_first_frames(_Field(), data, batch, items, 1.0, sampler, "cpu", condition="skeleton", window=9)
+    forced, n = own_first_frames(
+        ClosedFormDiT(), data, batch, items, 1.0, sampler, "cpu", condition="skeleton", window=9
+    )
     prev = data.batch([PlanItem(0, 4, False, 0.5, 21)], "skeleton")
     noise = torch.randn((1, *prev.z0.shape[1:]), generator=torch.Generator().manual_seed(21 ^ CONTEXT_SALT))
-    chunk = _guided_euler_by_hand(_Field(), prev.z0[:, :, :1], prev.skeleton, prev.skeleton, noise, steps=2, w=0.0)
+    chunk = ClosedFormDiT().euler_by_hand(prev.z0[:, :, :1], prev.skeleton, noise, steps=2, uncond=prev.skeleton, w=0.0)
     assert n == 1
     torch.testing.assert_close(
         forced.z0[0, :, :1], vae.encode(vae.decode(chunk).clamp(-1, 1)[:, :, -1:])[0], atol=1e-4, rtol=1e-4
     )
 
 
-def _rows(run_dir):
-    return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
-
-
 @pytest.mark.slow
 def test_a_self_forced_run_logs_its_items_resumes_bitwise_and_trains_otherwise_than_without(tmp_path, long_clips):
     common = {"flow.self_forcing": 1.0, "flow.self_forcing_steps": 2, "batch_size": 4, "micro_batch": 2}
-    straight = tiny_train_config(long_clips, tmp_path / "straight", **common)
-    train(straight, progress=False)
-    split = config_from_dict(config_to_dict(tiny_train_config(long_clips, tmp_path / "split", **common)))
-    assert train(split, progress=False, stop_after=2).step == 2
-    train(resume=split.run_dir, progress=False)
-    for key in ("model", "ema"):
-        a, b = trained_weights(straight.run_dir, key), trained_weights(split.run_dir, key)
-        assert all(torch.equal(a[k], b[k]) for k in a), key
-    forced = [r["self_forced"] for r in _rows(straight.run_dir) if "self_forced" in r]
+    straight = assert_resumes_bitwise(lambda run_dir: tiny_train_config(long_clips, run_dir, **common), tmp_path)
+    forced = [r["self_forced"] for r in metrics_rows(straight) if "self_forced" in r]
     assert len(forced) == 4 and sum(forced) > 0  # log_every 1: items trained from their own frame, per step
     plain = tiny_train_config(long_clips, tmp_path / "plain", **{**common, "flow.self_forcing": 0.0})
     train(plain, progress=False)
-    assert not any("self_forced" in r for r in _rows(plain.run_dir))
-    a, b = trained_weights(straight.run_dir), trained_weights(plain.run_dir)
+    assert not any("self_forced" in r for r in metrics_rows(plain.run_dir))
+    a, b = trained_weights(straight), trained_weights(plain.run_dir)
     assert not all(torch.equal(a[k], b[k]) for k in a)  # the model's own first frames change what it learns
 
 
@@ -194,5 +152,5 @@ def test_items_with_no_previous_window_are_left_alone(tmp_path, long_clips):
     items = [PlanItem(0, 0, False, 0.5, 1), PlanItem(1, 7, False, 0.5, 2)]
     batch = data.batch(items, "skeleton")
     sampler = SamplerConfig(steps=2, guidance=None, solver="euler")
-    same, n = own_first_frames(_Field(), data, batch, items, 1.0, sampler, "cpu", condition="skeleton", window=9)
+    same, n = own_first_frames(ClosedFormDiT(), data, batch, items, 1.0, sampler, "cpu", condition="skeleton", window=9)
     assert n == 0 and same is batch
