@@ -72,6 +72,13 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         "--weights", choices=("ema", "model"), default="ema", help="with --export: EMA (default) or raw weights"
     )
     p.add_argument(
+        "--sampler",
+        metavar="JSON",
+        help="with --export: the sampler the model card recommends, a JSON mapping of steps, guidance, "
+        'guidance_form, preset, e.g. \'{"steps": 10, "guidance": 0}\' (default: none, so rollouts use the '
+        "library's unless given flags; a distilled student's card always names its own)",
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],
@@ -103,6 +110,18 @@ def build_train_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _sampler_option(text: str) -> dict:
+    """``--sampler``'s JSON, checked as a card's ``sampler`` is (one-line errors naming the flag and the key)."""
+    from ..model.card_sampler import check_card_sampler
+    from ..model.errors import ModelInputError
+
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ModelInputError(f"--sampler: expected a JSON mapping, found {text!r} ({e.msg})") from None
+    return check_card_sampler(value, "--sampler") or {}
+
+
 def cmd_train(args) -> int:
     from .config import TrainConfigError, check_resume_overrides, load_config, parse_overrides
 
@@ -119,7 +138,8 @@ def cmd_train(args) -> int:
     if args.export:
         from .export import export_run
 
-        out = export_run(args.export, args.out, step=args.step, weights=args.weights)
+        sampler = _sampler_option(args.sampler) if args.sampler is not None else None
+        out = export_run(args.export, args.out, step=args.step, weights=args.weights, sampler=sampler)
         print(json.dumps({"export": str(out)}) if args.json else f"exported {args.export} to {out}")
         return 0
     from .._util.log import log_result, run_log

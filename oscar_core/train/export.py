@@ -29,18 +29,38 @@ from .models import build_transformer, build_vae
 __all__ = ["export_run"]
 
 
-def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "ema", name: str | None = None) -> Path:
+def export_run(
+    run_dir,
+    out=None,
+    *,
+    step: int | None = None,
+    weights: str = "ema",
+    name: str | None = None,
+    sampler: dict | None = None,
+) -> Path:
     """Write ``run_dir``'s checkpoint (latest, or ``step``) to ``out`` (default RUN_DIR/export); returns ``out``.
+
+    ``sampler``: the settings the card recommends (a card's ``sampler`` mapping: steps, guidance, guidance_form,
+    preset), checked before anything is written; None: none for a plain run (rollouts use the library's), the
+    student's own for a distillation run, which refuses any other.
 
     The folder is assembled beside ``out`` and renamed into place, replacing an older export.
     When no training clip had a prompt embedding (every step saw the zero text
     embedding), the export stores that zero embedding as the model's empty
     prompt.
     """
+    from ..model.card_sampler import check_card_sampler
+    from ..model.errors import ModelInputError
     from ..model.world_model import ModelCard, OscarWorldModel
 
     run_dir = Path(run_dir)
     config = load_config(run_dir / "config.yaml")
+    recommended = check_card_sampler(sampler, "export sampler")
+    if recommended is not None and config.distill.teacher is not None:
+        raise ModelInputError(
+            f"{run_dir}: export sampler: expected none for a distilled student (its card names the steps it was "
+            f"trained for), found {recommended!r}"
+        )
     ckpt = latest_checkpoint(run_dir) if step is None else checkpoint_dir(run_dir, step)
     out = Path(out) if out is not None else run_dir / "export"
     base = config.model.init or (config.model.transformer if isinstance(config.model.transformer, str) else None)
@@ -59,7 +79,7 @@ def export_run(run_dir, out=None, *, step: int | None = None, weights: str = "em
             if config.data.sources is None or r.source in config.data.sources
         ]
         fps = Counter(r.fps for r in records).most_common(1)[0][0] if records else None
-        sampler = scheduler = None
+        sampler, scheduler = recommended, None
         if config.distill.teacher is not None:
             from ..model.world_model import read_card
             from .distill import student_sampler
