@@ -1,6 +1,7 @@
-"""The training configuration, one schema (over 600 lines: every field's comment says where its default comes from).
+"""The training configuration, one schema: every field's comment says where its default comes from.
 
-A tree of dataclasses read from YAML. Loading and checking the YAML follow the dataclasses they fill.
+A tree of dataclasses read from YAML. Loading the YAML (each value typed as its field says) follows the
+dataclasses it fills; what each field may hold, alone and beside the others, is checked in :mod:`.config_checks`.
 
 Every field has a default and a comment saying where its value comes from.
 Defaults are the paper's recipe (Appendix "Training implementation
@@ -31,7 +32,8 @@ from typing import Any
 
 from .._util.inputs import read_text_file
 from ..errors import OscarError
-from ..render.conditions import MODEL_CONDITIONS as CONDITIONS, is_video_condition, takes_actions
+from ..render.conditions import MODEL_CONDITIONS as CONDITIONS
+from .config_checks import PARALLEL_MODES, check_config
 
 __all__ = [
     "TrainConfigError",
@@ -52,11 +54,6 @@ __all__ = [
     "parse_overrides",
     "check_resume_overrides",
 ]
-
-PARALLEL_MODES = ("auto", "none", "ddp", "fsdp")
-CHECKPOINTING = ("none", "full", "auto")
-LATENT_MODES = ("auto", "cached", "on_the_fly")
-UNCONDITIONAL = ("zero_latent", "black_video")
 
 
 class TrainConfigError(OscarError, ValueError):
@@ -286,191 +283,13 @@ class TrainConfig:
     distill: DistillSection = field(default_factory=DistillSection)
 
     def validate(self, source: str = "<config>") -> TrainConfig:
-        """Raise :class:`TrainConfigError` naming the first bad field."""
+        """Raise :class:`TrainConfigError` naming the first bad field (:func:`.config_checks.check_config`)."""
 
-        def bad(name, expected, found):
-            raise TrainConfigError(source, name, expected, repr(found))
+        def fail(name, expected, found):
+            raise TrainConfigError(source, name, expected, found) from None
 
-        if self.condition not in CONDITIONS:
-            bad("condition", f"one of {CONDITIONS}", self.condition)
-        if self.condition_style is not None:
-            from ..render.conditions import condition_style
-
-            try:
-                condition_style(self.condition_style)
-            except OscarError as e:
-                raise TrainConfigError(source, "condition_style", "a mapping of SkeletonStyle fields", str(e)) from None
-        if self.parallel not in PARALLEL_MODES:
-            bad("parallel", f"one of {PARALLEL_MODES}", self.parallel)
-        if self.activation_checkpointing not in CHECKPOINTING:
-            bad("activation_checkpointing", f"one of {CHECKPOINTING}", self.activation_checkpointing)
-        for name in ("steps", "batch_size", "micro_batch", "log_every", "save_every", "keep_last"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                bad(name, "a positive integer", v)
-        if self.batch_size % self.micro_batch:
-            bad("micro_batch", f"a divisor of batch_size {self.batch_size}", self.micro_batch)
-        _check_data_section(self.data, bad)
-        f = self.flow
-        if not f.shift > 0:
-            bad("flow.shift", "a positive number", f.shift)
-        if not f.logit_std > 0:
-            bad("flow.logit_std", "a positive number", f.logit_std)
-        if isinstance(f.focus_weight, bool) or not isinstance(f.focus_weight, (int, float)) or not f.focus_weight >= 0:
-            bad("flow.focus_weight", "a number >= 0", f.focus_weight)
-        if f.focus_weight > 0 and self.data.focus_mask is None:
-            bad("data.focus_mask", "a mask function (module:attr) when flow.focus_weight > 0", None)
-        cn = self.flow.cond_noise_max
-        if isinstance(cn, bool) or not isinstance(cn, (int, float)) or not 0.0 <= cn <= 1.0:
-            bad("flow.cond_noise_max", "a noise level in [0, 1]", cn)
-        _check_flow_self_forcing(self, bad)
-        o = self.optim
-        if not o.lr > 0:
-            bad("optim.lr", "a positive number", o.lr)
-        if not 0.0 <= o.ema_decay < 1.0:
-            bad("optim.ema_decay", "a number in [0, 1)", o.ema_decay)
-        if not o.grad_clip > 0:
-            bad("optim.grad_clip", "a positive number (the max gradient norm)", o.grad_clip)
-        if o.warmup_steps < 0:
-            bad("optim.warmup_steps", "an integer >= 0", o.warmup_steps)
-        _check_log_and_model_sections(self, bad)
-        _check_distill_section(self, bad)
+        check_config(self, fail)
         return self
-
-
-def _check_data_section(d: DataSection, bad) -> None:
-    """The ``data`` section's checks; ``bad(name, expected, found)`` raises for the first bad field."""
-    if not isinstance(d.window, int) or d.window < 5 or (d.window - 1) % 4:
-        bad("data.window", "a frame count 4k+1 >= 5 (e.g. 9, 17, 81)", d.window)
-    for name in ("width", "height"):
-        v = getattr(d, name)
-        if not isinstance(v, int) or v < 16 or v % 16:
-            bad(f"data.{name}", "a positive multiple of 16 pixels (VAE x8, patch x2)", v)
-    if d.latents not in LATENT_MODES:
-        bad("data.latents", f"one of {LATENT_MODES}", d.latents)
-    if not 0.0 <= d.skeleton_dropout <= 1.0:
-        bad("data.skeleton_dropout", "a probability in [0, 1]", d.skeleton_dropout)
-    if d.unconditional_skeleton not in UNCONDITIONAL:
-        bad("data.unconditional_skeleton", f"one of {UNCONDITIONAL}", d.unconditional_skeleton)
-    if not d.mixing_temperature > 0:
-        bad("data.mixing_temperature", "a positive number", d.mixing_temperature)
-    for k, v in (d.source_weights or {}).items():
-        if not v > 0:
-            bad(f"data.source_weights.{k}", "a positive weight", v)
-    if d.source_weights is not None and not d.source_weights:
-        bad("data.source_weights", "a mapping {source: weight} with at least one source, or null", {})
-    if not 0.0 < d.prior_ramp <= 0.5:
-        bad("data.prior_ramp", "a fraction in (0, 0.5]", d.prior_ramp)
-    if not 0.0 <= d.prior_uniform <= 1.0:
-        bad("data.prior_uniform", "a fraction in [0, 1]", d.prior_uniform)
-    if not isinstance(d.workers, int) or isinstance(d.workers, bool) or d.workers < 0:
-        bad("data.workers", "an integer >= 0 (0: load in the training loop)", d.workers)
-    if not isinstance(d.prefetch, int) or isinstance(d.prefetch, bool) or d.prefetch < 1:
-        bad("data.prefetch", "a positive integer (micro-batches loaded ahead per worker)", d.prefetch)
-    if not isinstance(d.clips, list) or not d.clips:
-        bad("data.clips", "a non-empty list of clip-set folders", d.clips)
-    if d.focus_mask is not None and (not isinstance(d.focus_mask, str) or ":" not in d.focus_mask):
-        bad("data.focus_mask", "module:attr or path/to/file.py:attr of a mask function, or null", d.focus_mask)
-
-
-def _check_log_and_model_sections(config: TrainConfig, bad) -> None:
-    """The ``log`` and ``model`` sections' checks; ``bad(name, expected, found)`` raises for the first bad field."""
-    if not isinstance(config.log.tensorboard, bool):
-        bad("log.tensorboard", "true or false", config.log.tensorboard)
-    if not isinstance(config.log.wandb, bool):
-        bad("log.wandb", "true or false", config.log.wandb)
-    if config.log.wandb_mode not in ("offline", "online", "disabled"):
-        bad("log.wandb_mode", "offline, online or disabled", config.log.wandb_mode)
-    if not isinstance(config.log.wandb_project, str) or not config.log.wandb_project:
-        bad("log.wandb_project", "a project name", config.log.wandb_project)
-    if config.model.condition_init not in ("zero", "default"):
-        bad("model.condition_init", "'zero' or 'default'", config.model.condition_init)
-    if not isinstance(config.model.gripper_signal, bool):
-        bad("model.gripper_signal", "true or false", config.model.gripper_signal)
-    if config.model.gripper_signal and not is_video_condition(config.condition):
-        bad(
-            "model.gripper_signal",
-            "a condition video beside it (condition: skeleton, mesh or capsules)",
-            f"condition {config.condition!r}",
-        )
-    _check_context(config, bad)
-    if config.model.dtype not in ("float32", "bfloat16"):
-        bad("model.dtype", "'float32' or 'bfloat16'", config.model.dtype)
-
-
-def _check_context(config: TrainConfig, bad) -> None:
-    """``model.context_frames`` against the window, and ``flow.context_dropout``."""
-    from ..model.chunks import check_context_frames
-    from ..model.errors import ModelInputError
-
-    cf, window = config.model.context_frames, config.data.window
-    try:
-        check_context_frames(cf, window, what="model.context_frames")
-    except ModelInputError:
-        bad(
-            "model.context_frames",
-            f"pixel frames of the form 4k+1 (1, 5, ...) covering fewer latent frames than data.window {window}'s "
-            f"{(window - 1) // 4 + 1}",
-            cf,
-        )
-    cd = config.flow.context_dropout
-    if isinstance(cd, bool) or not isinstance(cd, (int, float)) or not 0.0 <= cd <= 1.0:
-        bad("flow.context_dropout", "a fraction in [0, 1]", cd)
-    if cf != 1 and not cd > 0:
-        bad(
-            "flow.context_dropout",
-            "a fraction > 0 with model.context_frames > 1 (a rollout's first chunk has the first frame alone)",
-            cd,
-        )
-    if cf != 1 and takes_actions(config.condition):
-        bad("model.context_frames", "1 for a latent-action model", cf)
-    if cf != 1 and config.distill.teacher is not None:
-        bad("model.context_frames", "1 when distilling (the distillation's chunks start from one frame)", cf)
-
-
-def _check_flow_self_forcing(config: TrainConfig, bad) -> None:
-    """``flow.self_forcing`` and its sampler; ``bad(name, expected, found)`` raises for the first bad field."""
-    f = config.flow
-    sf = f.self_forcing
-    if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not 0.0 <= sf <= 1.0:
-        bad("flow.self_forcing", "a fraction in [0, 1]", sf)
-    steps = f.self_forcing_steps
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        bad("flow.self_forcing_steps", "a positive integer", steps)
-    g = f.self_forcing_guidance
-    if g is not None and (isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0):
-        bad("flow.self_forcing_guidance", "a number >= 0 (or null: no guidance)", g)
-    if sf > 0:
-        if config.distill.teacher is not None:
-            bad("flow.self_forcing", "0 when distilling (distill.self_forcing says how a student self-forces)", sf)
-        if config.condition not in ("skeleton", "mesh", "capsules"):
-            bad("condition", "a condition video (skeleton, mesh, capsules) with flow.self_forcing", config.condition)
-        if config.model.context_frames != 1:
-            bad(
-                "model.context_frames", "1 with flow.self_forcing (one frame carried over)", config.model.context_frames
-            )
-
-
-def _check_distill_section(config: TrainConfig, bad) -> None:
-    """The ``distill`` section's checks (only with a teacher); ``bad(name, expected, found)`` raises for the first
-    bad field."""
-    ds, f = config.distill, config.flow
-    if ds.teacher is not None:
-        for name in ("steps", "substeps"):
-            v = getattr(ds, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                bad(f"distill.{name}", "a positive integer", v)
-        if ds.guidance is not None and ds.guidance < 0:
-            bad("distill.guidance", "a number >= 0 (or null: the teacher card's)", ds.guidance)
-        sf = ds.self_forcing
-        if isinstance(sf, bool) or not isinstance(sf, (int, float)) or not 0.0 <= sf <= 1.0:
-            bad("distill.self_forcing", "a fraction in [0, 1]", sf)
-        if config.condition not in ("skeleton", "mesh", "capsules"):
-            bad("condition", "a condition video (skeleton, mesh, capsules) when distilling", config.condition)
-        if not config.model.init:
-            bad("model.init", "the student's starting weights (the teacher's folder) when distilling", None)
-        if f.shift != 5.0:  # the sampler's Euler grid uses SamplerConfig.shift, 5 unless a rollout says otherwise
-            bad("flow.shift", "5.0 when distilling (the shift every sampler uses by default)", f.shift)
 
 
 _SECTIONS = {

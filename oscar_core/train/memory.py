@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from .config import CHECKPOINTING
+from .config_checks import CHECKPOINTING
 
 __all__ = [
     "ACT_BYTES_PER_TOKEN_PER_WIDTH",
