@@ -1,7 +1,8 @@
-"""The OSCAR world model as one object (over 600 lines: one class whose loaders, saver and rollouts share state).
+"""The OSCAR world model as one object.
 
 DiT + VAE + text fallback + model card. One class, one job: its loaders, saver and the four rollout entry points
-share the loaded modules and the card; the chunk loop itself lives in :mod:`.rollout`, the card in :mod:`.card`.
+share the loaded modules and the card; the chunk loop itself lives in :mod:`.rollout`, what a trajectory conditions it on in
+:mod:`.rollout_conditions`, the card in :mod:`.card`.
 
 The model card (:class:`ModelCard`, :func:`read_card`, ``FORMAT``) lives in :mod:`oscar_core.model.card` and is
 re-exported here.
@@ -44,8 +45,9 @@ from .card import (
 )
 from .card_sampler import resolve_sampler, sampler_with_scheduler
 from .errors import CheckpointLayoutError, ModelInputError
-from .gripper_signal import check_gripper_given, gripper_input
+from .gripper_signal import check_gripper_given
 from .manifest import read_manifest, verify_files, write_manifest
+from .rollout_conditions import action_plan, condition_inputs
 from .sampler import SamplerConfig
 from .text import check_prompt_embeds, empty_prompt_embeds
 from .transformer import OscarTransformer3DModel
@@ -520,33 +522,7 @@ class OscarWorldModel:
 
     def _rollout_actions(self, skeleton, actions, chunk: int):
         """(actions padded to the chunk plan or None, frame count or None); checks the input fits the card."""
-        if not takes_actions(self.card.condition):
-            if actions is not None:
-                raise ModelInputError(
-                    f"rollout: model {self.card.name or ''} is conditioned on "
-                    f"{self.card.condition!r}: expected a skeleton video, found actions"
-                )
-            return None, None
-        if actions is None or skeleton is not None:
-            raise ModelInputError(
-                f"rollout: model {self.card.name or ''} is a latent-action model: expected "
-                "actions (T - 1, 14) and skeleton=None (rollout_trajectory builds them), found "
-                f"{'a skeleton video' if skeleton is not None else 'no actions'}"
-            )
-        from .latent_action import hold_actions
-        from .rollout import chunk_plan
-
-        trained = int(getattr(self.transformer.config, "action_frames", chunk - 1)) + 1
-        if chunk != trained:
-            raise ModelInputError(
-                f"chunk_frames: a latent-action model takes the window it was trained on "
-                f"({trained} frames: its actions are (chunk_frames - 1, 14) = "
-                f"({trained - 1}, 14)), found {chunk}"
-            )
-        actions = np.asarray(actions)
-        total = len(actions) + 1
-        starts = chunk_plan(total, chunk, self.vae.temporal)
-        return hold_actions(actions, max(starts[-1] + chunk - 1, len(actions))), total
+        return action_plan(self.card, self.transformer, self.vae, skeleton, actions, chunk)
 
     def rollout_inputs(
         self,
@@ -558,37 +534,12 @@ class OscarWorldModel:
         resize_mode: str = "crop",
         camera_source: str = "<camera>",
     ) -> dict:
-        """What this model's rollout is conditioned on, from a trajectory: ``{"skeleton": ...}`` or ``{"actions": ...}``
-        — every key is a keyword of :meth:`rollout` but ``skeleton``, its second argument.
-
-        skeleton: (T, H, W, 3) uint8 video rendered at ``size`` (width, height)
-        pixels (None: the card's size, else the camera's); actions: (T − 1, 14)
-        float64 ``latent_actions(embodiment, trajectory)`` (latent-action models); gripper: (T, G) float64
-        openness in [0, 1] (1 = open) of the trajectory's grippers, only for a card with ``gripper_signal``.
-        """
-        if takes_actions(self.card.condition):
-            from .latent_action import latent_actions
-
-            return {"skeleton": None, "actions": latent_actions(embodiment, trajectory)}
-        from ..render.conditions import condition_video, video_condition_of
-
-        if size is None and self.card.width and self.card.height:
-            size = (self.card.width, self.card.height)
-        # the card's condition video (skeleton, mesh or capsules) goes in the skeleton stream
-        name = video_condition_of(self.card.condition)
-        inputs = {
-            "skeleton": condition_video(
-                name,
-                embodiment,
-                trajectory,
-                camera,
-                size,
-                resize_mode=resize_mode,
-                camera_source=camera_source,
-                style=self.card.condition_style,
-            )
-        }
-        return {**inputs, **gripper_input(self.card, embodiment, trajectory)}
+        """What this model's rollout is conditioned on, from a trajectory (:func:`.rollout_conditions.condition_inputs`
+        for this model's card): ``{"skeleton": ...}`` or ``{"actions": ...}``, plus ``gripper`` for a card with a
+        gripper signal — every key is a keyword of :meth:`rollout` but ``skeleton``, its second argument."""
+        return condition_inputs(
+            self.card, trajectory, camera, embodiment, size, resize_mode=resize_mode, camera_source=camera_source
+        )
 
     def rollout_trajectory(
         self,
