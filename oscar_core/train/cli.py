@@ -75,8 +75,9 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         "--sampler",
         metavar="JSON",
         help="with --export: the sampler the model card recommends, a JSON mapping of steps, guidance, "
-        'guidance_form, preset, e.g. \'{"steps": 10, "guidance": 0}\' (default: none, so rollouts use the '
-        "library's unless given flags; a distilled student's card always names its own)",
+        'guidance_form, preset, e.g. \'{"steps": 10, "guidance": 0}\' (default: the run config\'s '
+        "export_sampler; when that is null none, so rollouts use the library's unless given flags; a distilled "
+        "student's card always names its own)",
     )
     p.add_argument(
         "--set",
@@ -84,7 +85,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="override one config field, e.g. --set steps=100 --set data.window=17 (repeatable); with "
-        "--resume only steps, save_every, log_every and keep_last (train a run further)",
+        "--resume only steps, save_every, log_every, keep_last and export_sampler (train a run further)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar (metrics still go to metrics.jsonl)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")

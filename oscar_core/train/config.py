@@ -275,6 +275,11 @@ class TrainConfig:
     keep_last: int = 3
     # write a zoo-loadable folder (EMA weights) to RUN_DIR/export at the end
     export: bool = True
+    # the sampler the export's card recommends, as a card's sampler mapping (steps, guidance, guidance_form,
+    # preset), so rollouts of the export sample as the run was measured to; `oscar train --export --sampler` wins
+    # over it. null: none (rollouts take the library's 35 steps at guidance 6). A distillation run's export names
+    # the student's own
+    export_sampler: dict | None = None
     model: ModelSection = field(default_factory=ModelSection)
     data: DataSection = field(default_factory=DataSection)
     flow: FlowSection = field(default_factory=FlowSection)
@@ -440,7 +445,7 @@ def load_config(path, overrides: dict | None = None) -> TrainConfig:
 OVERRIDE_SOURCE = "--set"
 # the fields `oscar train --resume RUN --set ...` may change: they extend a run or change how often it logs and saves,
 # never what a step computes (lr_at, the data plan and the noise do not depend on them)
-RESUME_OVERRIDES = ("steps", "save_every", "log_every", "keep_last")
+RESUME_OVERRIDES = ("steps", "save_every", "log_every", "keep_last", "export_sampler")
 
 
 def parse_overrides(items) -> dict:

@@ -46,6 +46,19 @@ def check_config(config: TrainConfig, fail) -> None:
             condition_style(config.condition_style)
         except OscarError as e:
             fail("condition_style", "a mapping of SkeletonStyle fields", str(e))
+    if config.export_sampler is not None:
+        from ..model.card_sampler import check_card_sampler
+
+        try:
+            check_card_sampler(config.export_sampler, "export_sampler")
+        except OscarError as e:
+            fail("export_sampler", "a card's sampler mapping (steps, guidance, guidance_form, preset)", str(e))
+        if config.distill.teacher is not None:
+            bad(
+                "export_sampler",
+                "null for a distillation run (its card names the student's steps)",
+                config.export_sampler,
+            )
     if config.parallel not in PARALLEL_MODES:
         bad("parallel", f"one of {PARALLEL_MODES}", config.parallel)
     if config.activation_checkpointing not in CHECKPOINTING:

@@ -41,8 +41,8 @@ def export_run(
     """Write ``run_dir``'s checkpoint (latest, or ``step``) to ``out`` (default RUN_DIR/export); returns ``out``.
 
     ``sampler``: the settings the card recommends (a card's ``sampler`` mapping: steps, guidance, guidance_form,
-    preset), checked before anything is written; None: none for a plain run (rollouts use the library's), the
-    student's own for a distillation run, which refuses any other.
+    preset), checked before anything is written; None: the run config's ``export_sampler`` (none when that is
+    null: rollouts use the library's), the student's own for a distillation run, which refuses any other.
 
     The folder is assembled beside ``out`` and renamed into place, replacing an older export.
     When no training clip had a prompt embedding (every step saw the zero text
@@ -55,7 +55,7 @@ def export_run(
 
     run_dir = Path(run_dir)
     config = load_config(run_dir / "config.yaml")
-    recommended = check_card_sampler(sampler, "export sampler")
+    recommended = check_card_sampler(config.export_sampler if sampler is None else sampler, "export sampler")
     if recommended is not None and config.distill.teacher is not None:
         raise ModelInputError(
             f"{run_dir}: export sampler: expected none for a distilled student (its card names the steps it was "

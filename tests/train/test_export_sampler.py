@@ -66,3 +66,80 @@ def test_a_distilled_students_sampler_is_its_own(run, tmp_path):
     with pytest.raises(ModelInputError, match=r"student: export sampler: expected none for a distilled student"):
         export_run(student, tmp_path / "m", sampler={"steps": 8})
     assert not (tmp_path / "m").exists()
+
+
+def _config_file(tmp_path, clips, run_dir, **over) -> str:
+    """A YAML config of the tiny run (1 step) with ``over`` set, as a user writes one."""
+    from oscar_core.train.config import config_to_dict
+
+    d = config_to_dict(tiny_train_config(clips, run_dir, steps=1, save_every=1))
+    for key, value in over.items():
+        *parents, last = key.split(".")
+        node = d
+        for p in parents:
+            node = node[p]
+        node[last] = value
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return str(path)
+
+
+def test_the_runs_export_sampler_goes_into_the_end_of_run_export_and_a_flag_wins(tmp_path):
+    import oscar_zoo
+
+    clips = tiny_clipset(tmp_path / "clips", clips=2)
+    wanted = {"steps": 10, "guidance": 0.0, "guidance_form": "diffusers"}
+    config = _config_file(tmp_path, clips, tmp_path / "run", export=True, export_sampler=wanted)
+    assert main(["train", config, "--no-progress"]) == 0
+    auto = oscar_zoo.load(tmp_path / "run" / "export")  # the export the run wrote at its end
+    assert auto.card.sampler == wanted
+    assert (auto.recommended_sampler().steps, auto.recommended_sampler().guidance) == (10, 0.0)
+    again = oscar_zoo.load(export_run(tmp_path / "run", tmp_path / "again"))  # --export without --sampler
+    assert again.card.sampler == wanted
+    flagged = tmp_path / "flagged"
+    assert main(["train", "--export", str(tmp_path / "run"), "--out", str(flagged), "--sampler", '{"steps": 4}']) == 0
+    assert oscar_zoo.load(flagged).card.sampler == {"steps": 4}
+
+
+def test_export_sampler_can_be_set_when_a_run_is_trained_further(tmp_path):
+    import oscar_zoo
+
+    clips = tiny_clipset(tmp_path / "clips", clips=2)
+    config = _config_file(tmp_path, clips, tmp_path / "run")
+    assert main(["train", config, "--no-progress"]) == 0
+    args = ["train", "--resume", str(tmp_path / "run"), "--no-progress", "--set", "steps=2"]
+    assert main([*args, "--set", "export_sampler={steps: 12, guidance: 1.5}"]) == 0
+    assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["export_sampler"] == {
+        "steps": 12,
+        "guidance": 1.5,
+    }
+    assert oscar_zoo.load(export_run(tmp_path / "run", tmp_path / "m")).card.sampler == {"steps": 12, "guidance": 1.5}
+
+
+@pytest.mark.parametrize(
+    "value, expected",
+    [
+        ([10, 0], r"field 'export_sampler': expected a mapping, found list"),
+        ({"step": 10}, r"export_sampler: expected keys among steps, guidance, guidance_form, preset, found \['step'\]"),
+        ({"steps": 0}, r"export_sampler\.steps: expected an integer >= 1, found 0"),
+        ({"guidance": float("nan")}, r"export_sampler\.guidance: expected a finite number >= 0"),
+        ({"guidance_form": "cfg"}, r"export_sampler\.guidance_form: expected one of"),
+        ({"preset": "fastest"}, r"export_sampler\.preset: expected one of"),
+    ],
+)
+def test_a_bad_export_sampler_is_refused_by_file_and_field_before_the_run_starts(tmp_path, capsys, value, expected):
+    clips = tiny_clipset(tmp_path / "clips", clips=2)
+    config = _config_file(tmp_path, clips, tmp_path / "run", export=True, export_sampler=value)
+    assert main(["train", config, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert config in err and re.search(expected, err)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_distillation_run_refuses_an_export_sampler(tmp_path, capsys):
+    clips = tiny_clipset(tmp_path / "clips", clips=2)
+    over = {"distill.teacher": str(tmp_path), "model.init": str(tmp_path), "export_sampler": {"steps": 8}}
+    config = _config_file(tmp_path, clips, tmp_path / "run", **over)
+    assert main(["train", config, "--no-progress"]) == 2
+    assert re.search(r"field 'export_sampler': expected null for a distillation run", capsys.readouterr().err)
+    assert not (tmp_path / "run").exists()
