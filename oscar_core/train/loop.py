@@ -43,6 +43,7 @@ from .models import build_transformer, build_vae, prepare_for_training
 from .parallel import (
     DistInfo,
     all_reduce_mean,
+    all_reduce_sum,
     any_rank_samples,
     close_distributed,
     init_distributed,
@@ -500,7 +501,9 @@ def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progr
     drawn = planner.drawn(start, config.batch_size) if info.main else {}
     bar = progress_bar(total=config.steps, initial=start, enabled=progress and info.main, unit="step", desc="train")
     last_loss, t0, done_at_t0 = None, time.perf_counter(), start
-    forced = 0  # items of this rank trained from the student's own first frame (self forcing), since the last log
+    forced = 0  # items of this rank trained from the model's own first frame (self forcing), since the last log
+    self_forcing = config.distill.self_forcing > 0 or config.flow.self_forcing > 0
+    forced_all = 0  # the whole global batch's count, summed over ranks when a record is written
 
     def plan(step: int) -> list[PlanItem]:
         return StepPlanner.rank_slice(planner.plan(step, config.batch_size), info.rank, info.world)
@@ -535,7 +538,10 @@ def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progr
                 whole = planner.plan(step, config.batch_size) if info.world > 1 else mine
                 for src, n in planner.source_counts(whole).items():
                     drawn[src] += n
-            if log and (done % config.log_every == 0 or done == end):
+            logs_now = done % config.log_every == 0 or done == end
+            if logs_now and self_forcing:  # every rank: the count of the whole global batch, since the last record
+                forced_all, forced = int(all_reduce_sum(forced, info)), 0
+            if log and logs_now:
                 record = {
                     "step": done,
                     "loss": loss_mean,
@@ -550,9 +556,8 @@ def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progr
                 if context_latents(config) > 1:  # items of the step trained on the first frame alone
                     drawn_context = item_context(whole, context_latents(config), config.flow.context_dropout)
                     record["context_one_frame"] = drawn_context.count(1)
-                if config.distill.self_forcing > 0 or config.flow.self_forcing > 0:
-                    record["self_forced"] = forced  # this rank's, since the previous record
-                    forced = 0
+                if self_forcing:
+                    record["self_forced"] = forced_all
                 log.write(json.dumps(record) + "\n")
                 log.flush()
                 if tb is not None:

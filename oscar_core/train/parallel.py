@@ -27,6 +27,7 @@ __all__ = [
     "no_sync",
     "barrier",
     "all_reduce_mean",
+    "all_reduce_sum",
     "any_rank_samples",
 ]
 
@@ -122,13 +123,18 @@ def barrier(info: DistInfo) -> None:
         dist.barrier()
 
 
-def all_reduce_mean(value: float, info: DistInfo) -> float:
-    """Mean of a float over ranks."""
+def all_reduce_sum(value: float, info: DistInfo) -> float:
+    """Sum of a float over ranks (float64: exact for counts)."""
     if not info.distributed:
         return float(value)
     t = torch.tensor([float(value)], dtype=torch.float64)
     dist.all_reduce(t)
-    return float(t.item()) / info.world
+    return float(t.item())
+
+
+def all_reduce_mean(value: float, info: DistInfo) -> float:
+    """Mean of a float over ranks."""
+    return all_reduce_sum(value, info) / (info.world if info.distributed else 1)
 
 
 def any_rank_samples(mine: bool, config) -> bool:

@@ -2,10 +2,12 @@
 by the model being trained, sampled as its rollouts sample it — guided Euler steps whose unconditional branch sees
 the item's dropped condition (checked against a guided Euler loop written here on a DiT whose velocity is known in
 closed form), decoded and re-encoded; the run logs how many items it forced, trains otherwise than without, resumes
-bitwise; bad settings are refused by field before anything is written."""
+bitwise, and gives the same weights on 1 and 2 processes (DDP and FSDP2); bad settings are refused by field before
+anything is written."""
 
 import pytest
 import torch
+import yaml
 from _models import (
     ClosedFormDiT,
     assert_resumes_bitwise,
@@ -14,13 +16,14 @@ from _models import (
     tiny_train_config,
     trained_weights,
 )
+from _torchrun import train_under_torchrun
 
 from oscar_core.model.sampler import SamplerConfig
-from oscar_core.train.config import TrainConfigError
+from oscar_core.train.config import TrainConfigError, config_to_dict
 from oscar_core.train.data import TrainData
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_vae
-from oscar_core.train.sampling import PlanItem
+from oscar_core.train.sampling import PlanItem, StepPlanner
 from oscar_core.train.self_forcing import CONTEXT_SALT, own_first_frames
 from oscar_core.train.synthetic import write_toy_clipset
 
@@ -154,3 +157,40 @@ def test_items_with_no_previous_window_are_left_alone(tmp_path, long_clips):
     sampler = SamplerConfig(steps=2, guidance=None, solver="euler")
     same, n = own_first_frames(ClosedFormDiT(), data, batch, items, 1.0, sampler, "cpu", condition="skeleton", window=9)
     assert n == 0 and same is batch
+
+
+@pytest.fixture(scope="module")
+def flow_self_forced_two_ways(tmp_path_factory, long_clips):
+    """Run folders of the same 2-step self-forced training in this process ("one") and on 2 gloo processes under DDP
+    and FSDP2 ("ddp", "fsdp"), the two trained by one torchrun launch (tests/_torchrun.py)."""
+    tmp = tmp_path_factory.mktemp("flow_self_forced_two_ways")
+    common = {"flow.self_forcing": 1.0, "flow.self_forcing_steps": 2, "steps": 2, "batch_size": 4}
+    one = tiny_train_config(long_clips, tmp / "one", **common)
+    # the case that needs care under FSDP2: in one micro-step a process has items to self-force, the other none
+    data = TrainData(one, build_vae(one), text_dim=48)
+    has = [
+        [data.has_window(it.clip, it.start - 8) for it in StepPlanner.rank_slice(data.planner().plan(step, 4), rank, 2)]
+        for step in range(2)
+        for rank in range(2)
+    ]
+    assert any(any(a) != any(b) for a, b in zip(has[0::2], has[1::2])), has
+    train(one, progress=False)
+    paths = []
+    for mode in ("ddp", "fsdp"):
+        config = tiny_train_config(long_clips, tmp / mode, parallel=mode, **common)
+        paths.append(tmp / f"{mode}.yaml")
+        paths[-1].write_text(yaml.safe_dump(config_to_dict(config)))
+    out = train_under_torchrun(paths)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return tmp
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("parallel", ["ddp", "fsdp"])
+def test_two_processes_self_force_as_one(flow_self_forced_two_ways, parallel):
+    forced = [r["self_forced"] for r in metrics_rows(flow_self_forced_two_ways / parallel) if "self_forced" in r]
+    assert forced == [r["self_forced"] for r in metrics_rows(flow_self_forced_two_ways / "one") if "self_forced" in r]
+    for key in ("model", "ema"):
+        a = trained_weights(flow_self_forced_two_ways / "one", key)
+        b = trained_weights(flow_self_forced_two_ways / parallel, key)
+        assert all(torch.allclose(a[k], b[k], atol=2e-6, rtol=1e-5) for k in a), key
