@@ -144,3 +144,36 @@ def assert_resumes_bitwise(make_config, tmp_path: Path) -> Path:
         a, b = trained_weights(straight.run_dir, key), trained_weights(split.run_dir, key)
         assert all(torch.equal(a[k], b[k]) for k in a), key
     return Path(straight.run_dir)
+
+
+def trained_one_and_two_ways(make_config, tmp_path: Path) -> Path:
+    """Trains ``make_config(run_dir, parallel)`` (a self-forced :class:`TrainConfig`, batch 4) in this process in
+    ``tmp_path/one`` and on 2 gloo processes under DDP and FSDP2 in ``tmp_path/ddp`` and ``tmp_path/fsdp``, the two
+    in one torchrun launch (tests/_torchrun.py). First asserts that the plan holds the case that needs care under
+    FSDP2: a micro-step in which one process has items to self-force and the other none. Returns ``tmp_path``."""
+    import yaml
+    from _torchrun import train_under_torchrun
+
+    from oscar_core.train.config import config_to_dict
+    from oscar_core.train.data import TrainData
+    from oscar_core.train.loop import train
+    from oscar_core.train.models import build_vae
+    from oscar_core.train.sampling import StepPlanner
+
+    one = make_config(tmp_path / "one", "none")
+    data = TrainData(one, build_vae(one), text_dim=48)
+    back = one.data.window - 1
+    has = [
+        [data.has_window(it.clip, it.start - back) for it in StepPlanner.rank_slice(data.planner().plan(s, 4), r, 2)]
+        for s in range(one.steps)
+        for r in range(2)
+    ]
+    assert any(any(a) != any(b) for a, b in zip(has[0::2], has[1::2])), has
+    train(one, progress=False)
+    paths = []
+    for mode in ("ddp", "fsdp"):
+        paths.append(tmp_path / f"{mode}.yaml")
+        paths[-1].write_text(yaml.safe_dump(config_to_dict(make_config(tmp_path / mode, mode))))
+    out = train_under_torchrun(paths)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return tmp_path

@@ -10,18 +10,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import yaml
-from _models import ClosedFormDiT, assert_resumes_bitwise, long_clipset, metrics_rows, tiny_train_config
-from _torchrun import train_under_torchrun
+from _models import (
+    ClosedFormDiT,
+    assert_resumes_bitwise,
+    long_clipset,
+    metrics_rows,
+    tiny_train_config,
+    trained_one_and_two_ways,
+)
 
 from oscar_core.model.sampler import SamplerConfig, sample_chunk
 from oscar_core.train.checkpoint import latest_checkpoint, load_weights
-from oscar_core.train.config import TrainConfigError, config_to_dict, load_config
+from oscar_core.train.config import TrainConfigError, load_config
 from oscar_core.train.data import TrainData
 from oscar_core.train.distill import _CONTEXT_SALT, self_force, self_forced
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_transformer, build_vae
-from oscar_core.train.sampling import PlanItem, StepPlanner
+from oscar_core.train.sampling import PlanItem
 from oscar_core.train.synthetic import write_toy_clipset
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -146,23 +151,9 @@ def self_forced_two_ways(tmp_path_factory, long_clips):
     tmp = tmp_path_factory.mktemp("self_forced_two_ways")
     teacher = train(tiny_train_config(long_clips, tmp / "teacher", steps=2, export=True), progress=False).export
     common = {"model.init": str(teacher), "distill.teacher": str(teacher), "steps": 2, "batch_size": 4}
-    one = _config(long_clips, tmp / "one", **common)
-    # the case that needs care under FSDP2: in one micro-step a process has items to self-force, the other none
-    data = TrainData(one, build_vae(one), text_dim=48)
-    counts = [
-        [data.has_window(it.clip, it.start - 8) for it in StepPlanner.rank_slice(data.planner().plan(step, 4), rank, 2)]
-        for step in range(2)
-        for rank in range(2)
-    ]
-    assert any(any(a) != any(b) for a, b in zip(counts[0::2], counts[1::2])), counts
-    train(one, progress=False)
-    paths = []
-    for mode in ("ddp", "fsdp"):
-        paths.append(tmp / f"{mode}.yaml")
-        paths[-1].write_text(yaml.safe_dump(config_to_dict(_config(long_clips, tmp / mode, parallel=mode, **common))))
-    out = train_under_torchrun(paths)
-    assert out.returncode == 0, out.stderr[-3000:]
-    return tmp
+    return trained_one_and_two_ways(
+        lambda run_dir, parallel: _config(long_clips, run_dir, parallel=parallel, **common), tmp
+    )
 
 
 @pytest.mark.slow

@@ -7,23 +7,22 @@ anything is written."""
 
 import pytest
 import torch
-import yaml
 from _models import (
     ClosedFormDiT,
     assert_resumes_bitwise,
     long_clipset,
     metrics_rows,
     tiny_train_config,
+    trained_one_and_two_ways,
     trained_weights,
 )
-from _torchrun import train_under_torchrun
 
 from oscar_core.model.sampler import SamplerConfig
-from oscar_core.train.config import TrainConfigError, config_to_dict
+from oscar_core.train.config import TrainConfigError
 from oscar_core.train.data import TrainData
 from oscar_core.train.loop import train
 from oscar_core.train.models import build_vae
-from oscar_core.train.sampling import PlanItem, StepPlanner
+from oscar_core.train.sampling import PlanItem
 from oscar_core.train.self_forcing import CONTEXT_SALT, own_first_frames
 from oscar_core.train.synthetic import write_toy_clipset
 
@@ -163,26 +162,11 @@ def test_items_with_no_previous_window_are_left_alone(tmp_path, long_clips):
 def flow_self_forced_two_ways(tmp_path_factory, long_clips):
     """Run folders of the same 2-step self-forced training in this process ("one") and on 2 gloo processes under DDP
     and FSDP2 ("ddp", "fsdp"), the two trained by one torchrun launch (tests/_torchrun.py)."""
-    tmp = tmp_path_factory.mktemp("flow_self_forced_two_ways")
     common = {"flow.self_forcing": 1.0, "flow.self_forcing_steps": 2, "steps": 2, "batch_size": 4}
-    one = tiny_train_config(long_clips, tmp / "one", **common)
-    # the case that needs care under FSDP2: in one micro-step a process has items to self-force, the other none
-    data = TrainData(one, build_vae(one), text_dim=48)
-    has = [
-        [data.has_window(it.clip, it.start - 8) for it in StepPlanner.rank_slice(data.planner().plan(step, 4), rank, 2)]
-        for step in range(2)
-        for rank in range(2)
-    ]
-    assert any(any(a) != any(b) for a, b in zip(has[0::2], has[1::2])), has
-    train(one, progress=False)
-    paths = []
-    for mode in ("ddp", "fsdp"):
-        config = tiny_train_config(long_clips, tmp / mode, parallel=mode, **common)
-        paths.append(tmp / f"{mode}.yaml")
-        paths[-1].write_text(yaml.safe_dump(config_to_dict(config)))
-    out = train_under_torchrun(paths)
-    assert out.returncode == 0, out.stderr[-3000:]
-    return tmp
+    return trained_one_and_two_ways(
+        lambda run_dir, parallel: tiny_train_config(long_clips, run_dir, parallel=parallel, **common),
+        tmp_path_factory.mktemp("flow_self_forced_two_ways"),
+    )
 
 
 @pytest.mark.slow
