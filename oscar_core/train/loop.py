@@ -476,6 +476,16 @@ def _flow_self_force(run: _Run, batch: Batch, micro: list[PlanItem], config: Tra
     )
 
 
+def _batch_figures(config: TrainConfig, whole: list[PlanItem]) -> dict:
+    """A step's metrics figures of its whole global batch ``whole``: the mean sigma, the items whose skeleton was
+    dropped and, with a context of more than one frame, the items trained on the first frame alone."""
+    figures = {"sigma_mean": sum(i.sigma for i in whole) / len(whole), "skeleton_dropped": sum(i.drop for i in whole)}
+    if context_latents(config) > 1:
+        drawn_context = item_context(whole, context_latents(config), config.flow.context_dropout)
+        figures["context_one_frame"] = drawn_context.count(1)
+    return figures
+
+
 def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progress: bool) -> float | None:
     """Optimiser steps ``run.start`` .. ``end`` − 1: step, log (metrics.jsonl, TensorBoard, W&B, the progress
     bar), save a checkpoint every ``save_every`` steps and at ``end``. Returns the last step's loss (None when no
@@ -549,13 +559,9 @@ def _train_steps(config: TrainConfig, run: _Run, info: DistInfo, end: int, progr
                     "grad_norm": grad_norm,
                     "steps_per_s": rate,
                     "elapsed_s": time.perf_counter() - t0,
-                    "sigma_mean": sum(i.sigma for i in whole) / len(whole),
-                    "skeleton_dropped": sum(i.drop for i in whole),
+                    **_batch_figures(config, whole),
                     "sources_drawn": dict(drawn),
                 }
-                if context_latents(config) > 1:  # items of the step trained on the first frame alone
-                    drawn_context = item_context(whole, context_latents(config), config.flow.context_dropout)
-                    record["context_one_frame"] = drawn_context.count(1)
                 if self_forcing:
                     record["self_forced"] = forced_all
                 log.write(json.dumps(record) + "\n")
