@@ -20,6 +20,7 @@ from .._util.outputs import output_option
 from .._util.threads import threads_option
 from ..model.presets import SAMPLER_PRESETS
 from .cli_counterfactual import add_counterfactual_parser
+from .cli_decision_fit import add_decision_fit_parser
 from .cli_policies import (
     add_policy_parsers,
     cmd_carry,
@@ -355,6 +356,7 @@ def add_toyworld_parser(subparsers) -> argparse.ArgumentParser:
     _add_toyworld_package_parser(sub, fmt)
     add_policy_parsers(sub, EXAMPLES)
     add_counterfactual_parser(sub)
+    add_decision_fit_parser(sub)
     _add_toyworld_eval_parser(sub, fmt)
     return tw
 
