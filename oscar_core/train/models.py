@@ -83,7 +83,7 @@ def build_transformer(config: TrainConfig, source: str = "<config>"):
         base = _base_weights(init, source)
         torch.manual_seed(m.seed)
         model = cls(**args)
-        base = _widen_condition_embedder(base, model)
+        base = _widen_time_positions(_widen_condition_embedder(base, model), model)
         missing, unexpected = model.load_state_dict(base, strict=False)
         allowed = {"skeleton_embed.proj.weight"} | {k for k in model.state_dict() if k.startswith("action_embed")}
         bad_missing = [k for k in missing if k not in allowed]
@@ -134,6 +134,19 @@ def _widen_condition_embedder(base: dict, model) -> dict:
         return base
     pad = old.new_zeros(old.shape[0], new.shape[1] - old.shape[1])
     return {**base, key: torch.cat([old, pad], dim=1)}
+
+
+def _widen_time_positions(base: dict, model) -> dict:
+    """A base with fewer learnt time positions than the model's (``max_size[0]`` raised to fine-tune on longer
+    windows): the new rows of ``pos_emb_t`` repeat the base's last row, so a latent frame past the base's last
+    starts where that frame's position was. Other shapes are left to the strict check."""
+    key = "learnable_pos_embed.pos_emb_t"
+    old, new = base.get(key), model.state_dict().get(key)
+    if old is None or new is None or old.shape == new.shape:
+        return base
+    if old.ndim != 2 or old.shape[1] != new.shape[1] or old.shape[0] > new.shape[0]:
+        return base
+    return {**base, key: torch.cat([old, old[-1:].expand(new.shape[0] - old.shape[0], -1)], dim=0)}
 
 
 def _base_weights(init: str, source: str) -> dict:
