@@ -125,14 +125,13 @@ def format_table(report: dict) -> str:
         return "" if v is None else f" [{100 * v[0]:.0f}, {100 * v[1]:.0f}]"
 
     lines = [
-        "| split | class | windows | agree | model moved the ball | truth not as its class |",
+        "| split | class | windows scored | agree | model moved the ball | left out: truth not as its class / failed |",
         "|---|---|---|---|---|---|",
     ]
     for r in report["table"]:
-        extra = "" if r["truth_not_as_class"] is None else str(r["truth_not_as_class"])
         lines.append(
-            f"| {r['split']} | {r['class']} | {r['windows']} ({r['failed']} failed) | {r['agree']} = "
-            f"{pct(r['rate'])}{ci(r['interval'])} | {r['model_moved']} | {extra} |"
+            f"| {r['split']} | {r['class']} | {r['windows']} | {r['agree']} = {pct(r['rate'])}{ci(r['interval'])} "
+            f"| {r['model_moved']} | {r['truth_not_as_class']} / {r['failed']} |"
         )
     lines += ["", "| class | train − held-out agreement |", "|---|---|"]
     for g in report["gaps"]:

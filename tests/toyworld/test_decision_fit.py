@@ -16,6 +16,7 @@ from oscar_core.cli import main
 from oscar_core.model.errors import ModelInputError
 from oscar_core.plugin.openness import trajectory_openness
 from oscar_core.plugin.registry import default_registry
+from oscar_core.toyworld.cli_decision_fit import format_table
 from oscar_core.toyworld.decision_fit import (
     CLASSES,
     choose_windows,
@@ -141,6 +142,10 @@ def test_the_command_scores_a_zoo_model_and_refuses_bad_input_before_loading_it(
     assert all("error" not in r for r in report["rows"])
     printed = json.loads(capsys.readouterr().out)
     assert printed["table"] == report["table"]
+    table = format_table(report).splitlines()
+    assert "left out: truth not as its class / failed" in table[0] and len(table) == 2 + 8 + 3 + 4
+    row = report["table"][0]
+    assert f"| {row['split']} | {row['class']} | {row['windows']} | {row['agree']} = " in table[2]
 
     bad = tmp_path / "bad.json"
     short = tmp_path / "short"
