@@ -102,6 +102,7 @@ def cmd_decision_fit(args) -> int:
 
     report = decision_fit(windows, roll, frames, registry=registry, progress=progress)
     report = {"model": args.model, "clips": [str(c) for c in args.clips], "sampler": choice.config.__dict__, **report}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # missing folders between are the writer's to make
     atomic_write_bytes(Path(args.out), (json.dumps(report, indent=1, default=str) + "\n").encode())
     log_result(f"wrote {args.out}")
     if args.json:

@@ -133,7 +133,7 @@ def test_clip_sets_it_cannot_use_are_refused_by_file_and_field(tmp_path, clips):
 
 
 def test_the_command_scores_a_zoo_model_and_refuses_bad_input_before_loading_it(clips, tmp_path, capsys):
-    out = tmp_path / "fit.json"
+    out = tmp_path / "new" / "fit.json"  # a missing folder on the way is made
     args = ["toyworld", "decision-fit", "--model", "oscar-toy", "--clips", str(clips), "--out", str(out)]
     assert main([*args, "--per-class", "1", "--steps", "1", "--guidance", "0", "--threads", "1", "--json"]) == 0
     report = json.loads(out.read_text())
@@ -152,6 +152,8 @@ def test_the_command_scores_a_zoo_model_and_refuses_bad_input_before_loading_it(
     generate_clipset(GenerateConfig(("toyarm",), 2, frames=9, seed=0, pick_miss=0.5), short, REG)
     assert main(["toyworld", "decision-fit", "--model", "oscar-toy", "--clips", str(short), "--out", str(bad)]) == 2
     assert "n_frames: expected at least the model's 17-frame chunk, found 9" in capsys.readouterr().err
+    assert main([*args[:-2], "--out", "/proc/fit.json"]) == 2  # refused before any window is chosen
+    assert "/proc/fit.json" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stop:
         main([*args[:-2], "--out", str(bad), "--guidance", "-1"])
     assert stop.value.code == 2 and "--guidance: expected a number >= 0, found -1" in capsys.readouterr().err
